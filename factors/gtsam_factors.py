@@ -1,0 +1,164 @@
+"""Thin GTSAM adapters around :mod:`factors.models` (design/STYLE.md, habit 1).
+
+Each factor is a ``gtsam.CustomFactor`` whose error function calls the numpy
+model and returns the *unwhitened* error ``h(x) - z`` (spatial frequency
+wrapped); the noise model carries the sigmas. The measurement is bound with
+``functools.partial``, as in GTSAM's own Python examples.
+
+Variables:
+
+- target state: a ``Vector4`` ``(x_m, y_m, vx_mps, vy_mps)`` (``values.atVector``);
+- node pose (calibration graphs only): a ``gtsam.Pose2``.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .models import measurement_model, measurement_model_pose, wrap_angle
+
+__all__ = [
+    "COMPONENT_INDEX",
+    "measurement_noise",
+    "node_measurement_factor",
+    "scalar_measurement_factor",
+    "pose_measurement_factor",
+    "state_prior_factor",
+    "constant_velocity_factor",
+]
+
+#: Index of each measurement component in a measurement vector.
+COMPONENT_INDEX = {"range": 0, "omega": 1, "doppler": 2}
+
+
+def measurement_noise(
+    sigmas: ArrayLike, robust: str | None = None, robust_k: float | None = None
+) -> gtsam.noiseModel.Base:
+    """Diagonal noise model, optionally wrapped in a Huber or Cauchy kernel."""
+    base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
+    if robust is None:
+        return base
+    if robust == "huber":
+        kernel = gtsam.noiseModel.mEstimator.Huber.Create(1.345 if robust_k is None else robust_k)
+    elif robust == "cauchy":
+        kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(0.1 if robust_k is None else robust_k)
+    else:
+        raise ValueError(f"robust={robust!r} must be None, 'huber' or 'cauchy'")
+    return gtsam.noiseModel.Robust.Create(kernel, base)
+
+
+def _node_error(node_pose, z, rows, this, values, jacobians):
+    state = values.atVector(this.keys()[0])
+    h, jac = measurement_model(state, node_pose)
+    err = h - z
+    err[1] = wrap_angle(err[1])
+    if jacobians is not None:
+        jacobians[0] = jac[rows]
+    return err[rows]
+
+
+def node_measurement_factor(
+    state_key: int,
+    node_pose: ArrayLike,
+    measurement: ArrayLike,
+    noise: gtsam.noiseModel.Base,
+    components: Sequence[str] = ("range", "omega", "doppler"),
+) -> gtsam.CustomFactor:
+    """Range, spatial-frequency and Doppler factor of one node on a target state.
+
+    node_pose : (3,) known ``(x_m, y_m, phi_rad)``.
+    measurement : (3,) ``(range_m, omega_rad, doppler_mps)``.
+    noise : a noise model of dimension ``len(components)``.
+    components : which measurements to use (a subset keeps its order).
+    """
+    rows = np.array([COMPONENT_INDEX[c] for c in components])
+    fn = partial(
+        _node_error, np.asarray(node_pose, dtype=float), np.asarray(measurement, dtype=float), rows
+    )
+    return gtsam.CustomFactor(noise, [state_key], fn)
+
+
+def scalar_measurement_factor(
+    state_key: int, node_pose: ArrayLike, component: str, value: float, sigma: float
+) -> gtsam.CustomFactor:
+    """A single range, spatial-frequency or Doppler factor (component in
+    ``{"range", "omega", "doppler"}``)."""
+    z = np.zeros(3)
+    z[COMPONENT_INDEX[component]] = value
+    return node_measurement_factor(
+        state_key, node_pose, z, gtsam.noiseModel.Isotropic.Sigma(1, float(sigma)), (component,)
+    )
+
+
+def _pose_error(z, this, values, jacobians):
+    keys = this.keys()
+    pose = values.atPose2(keys[0])
+    state = values.atVector(keys[1])
+    h, j_pose, j_state = measurement_model_pose(np.array([pose.x(), pose.y(), pose.theta()]), state)
+    err = h - z
+    err[1] = wrap_angle(err[1])
+    if jacobians is not None:
+        jacobians[0] = j_pose
+        jacobians[1] = j_state
+    return err
+
+
+def pose_measurement_factor(
+    pose_key: int, state_key: int, measurement: ArrayLike, noise: gtsam.noiseModel.Base
+) -> gtsam.CustomFactor:
+    """Measurement factor between an unknown node ``Pose2`` and a target state
+    (form b, for calibration graphs). The pose Jacobian is in GTSAM's
+    body-frame tangent."""
+    fn = partial(_pose_error, np.asarray(measurement, dtype=float))
+    return gtsam.CustomFactor(noise, [pose_key, state_key], fn)
+
+
+def state_prior_factor(
+    state_key: int, mean: ArrayLike, sigmas: ArrayLike
+) -> gtsam.PriorFactorVector:
+    """Gaussian prior on a target state (paper eq. 16); a native GTSAM factor."""
+    return gtsam.PriorFactorVector(
+        state_key,
+        np.asarray(mean, dtype=float),
+        gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float)),
+    )
+
+
+def _cv_error(dt, this, values, jacobians):
+    keys = this.keys()
+    a = values.atVector(keys[0])
+    b = values.atVector(keys[1])
+    f = np.eye(4)
+    f[0, 2] = f[1, 3] = dt
+    if jacobians is not None:
+        jacobians[0] = -f
+        jacobians[1] = np.eye(4)
+    return b - f @ a
+
+
+def constant_velocity_factor(
+    key_a: int, key_b: int, dt_s: float, sigma_a_mps2: float
+) -> gtsam.CustomFactor:
+    """Constant-velocity motion factor between consecutive target states.
+
+    The error is ``x_b - F x_a`` with ``F = [[I, T I], [0, I]]``. The discrete
+    white-acceleration form of design/MATH.md,
+    ``sigma_a^2 [[T^4/4, T^3/2], [T^3/2, T^2]]`` per axis, is rank one and
+    cannot whiten a factor, so the factor uses the continuous white-noise
+    acceleration form ``q [[T^3/3, T^2/2], [T^2/2, T]]`` with
+    ``q = sigma_a^2 T``, which gives the same velocity-increment variance
+    ``sigma_a^2 T^2`` and is full rank.
+    """
+    t = float(dt_s)
+    q = sigma_a_mps2**2 * t
+    q1 = q * np.array([[t**3 / 3, t**2 / 2], [t**2 / 2, t]])
+    cov = np.zeros((4, 4))
+    cov[np.ix_([0, 2], [0, 2])] = q1
+    cov[np.ix_([1, 3], [1, 3])] = q1
+    noise = gtsam.noiseModel.Gaussian.Covariance(cov)
+    return gtsam.CustomFactor(noise, [key_a, key_b], partial(_cv_error, t))

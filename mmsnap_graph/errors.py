@@ -1,0 +1,43 @@
+"""The project's one exception hierarchy (design/STYLE.md, habit 5).
+
+Every error also subclasses the matching built-in, so ``except ValueError``
+keeps working for callers that do not know this package.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "MmsnapError",
+    "ValidationError",
+    "GeometryError",
+    "ConfigurationError",
+    "FileFormatError",
+    "CalibrationError",
+]
+
+
+class MmsnapError(Exception):
+    """Base class of every error raised by mmsnap_graph."""
+
+
+class ValidationError(MmsnapError, ValueError):
+    """An argument has the wrong shape, dtype, or a non-finite or out-of-range value."""
+
+
+class GeometryError(MmsnapError, ValueError):
+    """The geometry is degenerate in a way no estimator can handle (e.g. a
+    target at a node's position)."""
+
+
+class ConfigurationError(MmsnapError, ValueError):
+    """A radar or processing configuration is inconsistent (e.g. a cube whose
+    shape disagrees with its chirp configuration)."""
+
+
+class FileFormatError(MmsnapError, ValueError):
+    """A recording or capture file is missing a field, truncated or malformed."""
+
+
+class CalibrationError(MmsnapError, ValueError):
+    """Calibration input cannot determine a pose (too few common frames, no
+    common target, a standing target)."""

@@ -1,0 +1,209 @@
+"""Radar chirp and array configuration, as data (paper Table I by default).
+
+The radar cube of one frame is a complex array of shape
+``(n_samples, n_loops, n_tx * n_rx)``: fast-time ADC samples, slow-time chirp
+loops, and virtual channels ordered ``tx_index * n_rx + rx_index`` in the
+order the transmitters fire within a loop (TDM-MIMO). A recording stacks
+frames in front: ``(F, n_samples, n_loops, n_virtual)``.
+
+Antenna positions are given in units of half a wavelength. The default is the
+AWR2243 boost-board layout: Tx0 and Tx2 two wavelengths apart in azimuth, Tx1
+between them raised half a wavelength in elevation, four receivers half a
+wavelength apart, giving an 8-element azimuth virtual array (Tx0, Tx2) with
+spatial-frequency resolution ``2 pi / 8``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigurationError
+
+__all__ = ["SPEED_OF_LIGHT_MPS", "RadarConfig", "TABLE_I"]
+
+SPEED_OF_LIGHT_MPS = 299_792_458.0
+
+
+def _tuple(x) -> tuple:
+    return tuple(float(v) for v in x)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class RadarConfig:
+    """FMCW TDM-MIMO chirp and antenna configuration (SI units throughout).
+
+    carrier_hz : start frequency of the chirp.
+    sample_rate_hz : complex ADC sampling rate.
+    n_samples : ADC samples per chirp.
+    slope_hz_per_s : chirp slope.
+    chirp_period_s : time from one chirp's start to the next (ramp + idle).
+    n_loops : chirp loops per frame (each loop fires every transmitter once).
+    frame_period_s : time between frames.
+    tx_azimuth_half_wl, tx_elevation_half_wl : (n_tx,) transmitter positions.
+    rx_azimuth_half_wl : (n_rx,) receiver positions.
+    """
+
+    carrier_hz: float = 76e9
+    sample_rate_hz: float = 10e6
+    n_samples: int = 512
+    slope_hz_per_s: float = 83e12
+    chirp_period_s: float = 60e-6
+    n_loops: int = 60
+    frame_period_s: float = 0.150
+    tx_azimuth_half_wl: tuple = (0.0, 2.0, 4.0)
+    tx_elevation_half_wl: tuple = (0.0, 1.0, 0.0)
+    rx_azimuth_half_wl: tuple = (0.0, 1.0, 2.0, 3.0)
+    _azimuth_channels: tuple = field(init=False, repr=False, compare=False, default=())
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tx_azimuth_half_wl", _tuple(self.tx_azimuth_half_wl))
+        object.__setattr__(self, "tx_elevation_half_wl", _tuple(self.tx_elevation_half_wl))
+        object.__setattr__(self, "rx_azimuth_half_wl", _tuple(self.rx_azimuth_half_wl))
+        for name in ("carrier_hz", "sample_rate_hz", "slope_hz_per_s", "chirp_period_s",
+                     "frame_period_s"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigurationError(f"{name}={value!r} must be finite and > 0")
+        for name in ("n_samples", "n_loops"):
+            value = getattr(self, name)
+            if int(value) != value or value < 2:
+                raise ConfigurationError(f"{name}={value!r} must be an integer >= 2")
+        if len(self.tx_azimuth_half_wl) != len(self.tx_elevation_half_wl):
+            raise ConfigurationError(
+                f"tx_azimuth_half_wl has {len(self.tx_azimuth_half_wl)} entries but "
+                f"tx_elevation_half_wl has {len(self.tx_elevation_half_wl)}"
+            )
+        if not self.tx_azimuth_half_wl or not self.rx_azimuth_half_wl:
+            raise ConfigurationError("at least one transmitter and one receiver are needed")
+        if self.n_tx * self.chirp_period_s * self.n_loops > self.frame_period_s:
+            raise ConfigurationError(
+                f"the chirps of a frame last {self.n_tx * self.chirp_period_s * self.n_loops!r} s, "
+                f"longer than frame_period_s={self.frame_period_s!r}"
+            )
+        if self.n_samples / self.sample_rate_hz > self.chirp_period_s:
+            raise ConfigurationError(
+                f"sampling {self.n_samples} samples at {self.sample_rate_hz} Hz takes longer "
+                f"than chirp_period_s={self.chirp_period_s!r}"
+            )
+        # Azimuth array: the virtual channels at elevation 0 on the
+        # lambda/2 grid, sorted by position; it must be uniform.
+        pos = self.virtual_azimuth_half_wl
+        elev = np.repeat(np.asarray(self.tx_elevation_half_wl), self.n_rx)
+        chans = [int(i) for i in np.argsort(pos, kind="stable") if elev[i] == 0.0]
+        # Keep one channel per position (overlapping virtual elements).
+        seen: dict[float, int] = {}
+        for c in chans:
+            seen.setdefault(pos[c], c)
+        chans = [seen[p] for p in sorted(seen)]
+        steps = np.diff([pos[c] for c in chans])
+        if len(chans) < 2 or not np.allclose(steps, 1.0):
+            raise ConfigurationError(
+                "the azimuth virtual array must be a uniform lambda/2 array of >= 2 elements, "
+                f"got positions {[pos[c] for c in chans]}"
+            )
+        object.__setattr__(self, "_azimuth_channels", tuple(chans))
+
+    # ---- sizes -------------------------------------------------------------
+    @property
+    def n_tx(self) -> int:
+        return len(self.tx_azimuth_half_wl)
+
+    @property
+    def n_rx(self) -> int:
+        return len(self.rx_azimuth_half_wl)
+
+    @property
+    def n_virtual(self) -> int:
+        return self.n_tx * self.n_rx
+
+    @property
+    def cube_shape(self) -> tuple[int, int, int]:
+        """Shape of one frame's cube: ``(n_samples, n_loops, n_virtual)``."""
+        return (int(self.n_samples), int(self.n_loops), self.n_virtual)
+
+    @property
+    def virtual_azimuth_half_wl(self) -> np.ndarray:
+        """(n_virtual,) azimuth position of each virtual channel, ``tx * n_rx + rx``."""
+        return (np.asarray(self.tx_azimuth_half_wl)[:, None]
+                + np.asarray(self.rx_azimuth_half_wl)[None, :]).ravel()
+
+    @property
+    def azimuth_channels(self) -> tuple[int, ...]:
+        """Virtual channel indices of the uniform azimuth array, in position order."""
+        return self._azimuth_channels
+
+    @property
+    def n_azimuth(self) -> int:
+        return len(self._azimuth_channels)
+
+    # ---- derived physics ---------------------------------------------------
+    @property
+    def wavelength_m(self) -> float:
+        return SPEED_OF_LIGHT_MPS / self.carrier_hz
+
+    @property
+    def bandwidth_hz(self) -> float:
+        """Sampled bandwidth ``slope * n_samples / fs``."""
+        return self.slope_hz_per_s * self.n_samples / self.sample_rate_hz
+
+    @property
+    def range_resolution_m(self) -> float:
+        return SPEED_OF_LIGHT_MPS / (2.0 * self.bandwidth_hz)
+
+    @property
+    def max_range_m(self) -> float:
+        """Complex ADC: beat frequencies up to ``fs`` map to ``fs c / (2 slope)``."""
+        return self.sample_rate_hz * SPEED_OF_LIGHT_MPS / (2.0 * self.slope_hz_per_s)
+
+    @property
+    def loop_period_s(self) -> float:
+        """Time between two chirps of the same transmitter."""
+        return self.n_tx * self.chirp_period_s
+
+    @property
+    def doppler_resolution_mps(self) -> float:
+        return self.wavelength_m / (2.0 * self.n_loops * self.loop_period_s)
+
+    @property
+    def max_doppler_mps(self) -> float:
+        """Unambiguous radial velocity is ``[-max, max)``."""
+        return self.wavelength_m / (4.0 * self.loop_period_s)
+
+    @property
+    def omega_resolution_rad(self) -> float:
+        return 2.0 * np.pi / self.n_azimuth
+
+    # ---- (de)serialization -------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-Python dict of the constructor fields (for HDF5 attributes, JSON)."""
+        return {
+            "carrier_hz": float(self.carrier_hz),
+            "sample_rate_hz": float(self.sample_rate_hz),
+            "n_samples": int(self.n_samples),
+            "slope_hz_per_s": float(self.slope_hz_per_s),
+            "chirp_period_s": float(self.chirp_period_s),
+            "n_loops": int(self.n_loops),
+            "frame_period_s": float(self.frame_period_s),
+            "tx_azimuth_half_wl": list(self.tx_azimuth_half_wl),
+            "tx_elevation_half_wl": list(self.tx_elevation_half_wl),
+            "rx_azimuth_half_wl": list(self.rx_azimuth_half_wl),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "RadarConfig":
+        known = set(cls().to_dict())
+        unknown = set(d) - known
+        if unknown:
+            raise ConfigurationError(f"unknown radar configuration fields {sorted(unknown)}")
+        kw = dict(d)
+        for k in ("n_samples", "n_loops"):
+            if k in kw:
+                kw[k] = int(kw[k])
+        return cls(**kw)
+
+
+#: The paper's Table I configuration (AWR2243, 76 GHz).
+TABLE_I = RadarConfig()

@@ -1,0 +1,55 @@
+"""Input checks for the public boundary (design/STYLE.md, habit 5).
+
+Each helper takes the argument's *name* so the error names the field and the
+offending value.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import ValidationError
+
+__all__ = ["as_float_array", "check_finite", "check_positive", "check_shape"]
+
+
+def as_float_array(value: ArrayLike, name: str) -> NDArray:
+    """``np.asarray(value, float)`` with a clear error for non-numeric input."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValidationError(f"{name} must be numeric, got {value!r}") from exc
+
+
+def check_shape(arr: NDArray, shape: Sequence[int | None], name: str) -> NDArray:
+    """Check ``arr.shape`` against ``shape`` (``None`` matches any length)."""
+    if arr.ndim != len(shape) or any(
+        want is not None and got != want for got, want in zip(arr.shape, shape)
+    ):
+        want_txt = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise ValidationError(f"{name} must have shape {want_txt}, got {arr.shape}")
+    return arr
+
+
+def check_finite(arr: NDArray, name: str) -> NDArray:
+    """Reject NaN and infinity, naming the first offending entry."""
+    bad = ~np.isfinite(arr)
+    if np.any(bad):
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValidationError(f"{name} must be finite, got {arr[idx]!r} at index {idx}")
+    return arr
+
+
+def check_positive(value: ArrayLike, name: str, *, strict: bool = True) -> NDArray:
+    """Reject values that are not (strictly) positive, or not finite."""
+    arr = check_finite(as_float_array(value, name), name)
+    bad = arr <= 0 if strict else arr < 0
+    if np.any(bad):
+        idx = tuple(int(i) for i in np.argwhere(np.atleast_1d(bad))[0])
+        got = np.atleast_1d(arr)[idx]
+        rel = "> 0" if strict else ">= 0"
+        raise ValidationError(f"{name} must be {rel}, got {got!r}")
+    return arr
