@@ -18,15 +18,26 @@ from .models import (
     residual,
     wrap_angle,
 )
-from .gtsam_factors import (
-    COMPONENT_INDEX,
-    constant_velocity_factor,
-    measurement_noise,
-    node_measurement_factor,
-    pose_measurement_factor,
-    scalar_measurement_factor,
-    state_prior_factor,
+# The GTSAM adapters load on first use, so that numpy-only layers (the radar
+# signal chain, the simulator) can use the models without importing GTSAM.
+_GTSAM_NAMES = (
+    "COMPONENT_INDEX",
+    "constant_velocity_factor",
+    "measurement_noise",
+    "node_measurement_factor",
+    "pose_measurement_factor",
+    "scalar_measurement_factor",
+    "state_prior_factor",
 )
+
+
+def __getattr__(name):
+    if name in _GTSAM_NAMES:
+        from . import gtsam_factors
+
+        return getattr(gtsam_factors, name)
+    raise AttributeError(f"module 'factors' has no attribute {name!r}")
+
 
 __all__ = [
     "MEASUREMENT_NAMES",
