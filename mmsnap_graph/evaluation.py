@@ -1,0 +1,137 @@
+"""Metrics for fused estimates, tracks and calibrated poses.
+
+Pure functions on arrays: RMSE of states against a reference on common frames
+(paper Tables II and III), pose errors, and the normalized estimation error
+squared (NEES) that checks a covariance is honest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from factors.models import wrap_angle
+
+from .errors import ValidationError
+from .validation import as_float_array
+
+__all__ = [
+    "StateErrors",
+    "PoseError",
+    "align_frames",
+    "state_errors",
+    "pose_error",
+    "nees",
+    "chi2_mean_interval",
+]
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class StateErrors:
+    """RMSE of position and velocity estimates against a reference.
+
+    position_rmse_m : sqrt(mean |p_est - p_ref|^2) over the compared frames.
+    velocity_rmse_mps : the same for velocity.
+    n_frames : how many frames were compared (both finite).
+    """
+
+    position_rmse_m: float
+    velocity_rmse_mps: float
+    n_frames: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class PoseError:
+    """Error of an estimated node pose against the true one.
+
+    position_error_m : |p_est - p_true|; heading_error_rad : wrapped phi error.
+    """
+
+    position_error_m: float
+    heading_error_rad: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def align_frames(
+    frames_a: ArrayLike, frames_b: ArrayLike
+) -> tuple[NDArray, NDArray, NDArray]:
+    """Common frames of two frame lists: ``(frames, index_a, index_b)``.
+
+    Each frame must appear at most once in each list.
+    """
+    fa = np.asarray(frames_a, dtype=np.int64)
+    fb = np.asarray(frames_b, dtype=np.int64)
+    for name, f in (("frames_a", fa), ("frames_b", fb)):
+        if f.ndim != 1:
+            raise ValidationError(f"{name} must be 1-D, got shape {f.shape}")
+        if np.unique(f).size != f.size:
+            raise ValidationError(f"{name} has repeated frames; select one target first")
+    common, ia, ib = np.intersect1d(fa, fb, assume_unique=True, return_indices=True)
+    return common, ia, ib
+
+
+def state_errors(estimate: ArrayLike, reference: ArrayLike) -> StateErrors:
+    """RMSE of ``estimate (K, 4)`` against ``reference (K, 4)``, both
+    ``(x_m, y_m, vx_mps, vy_mps)`` on the same frames; rows with a non-finite
+    value in either are skipped (e.g. failed frames)."""
+    est = as_float_array(estimate, "estimate")
+    ref = as_float_array(reference, "reference")
+    if est.ndim != 2 or est.shape[1] != 4 or est.shape != ref.shape:
+        raise ValidationError(
+            f"estimate and reference must both have shape (K, 4), got {est.shape} and {ref.shape}"
+        )
+    ok = np.all(np.isfinite(est), axis=1) & np.all(np.isfinite(ref), axis=1)
+    n = int(ok.sum())
+    if n == 0:
+        return StateErrors(position_rmse_m=float("nan"), velocity_rmse_mps=float("nan"), n_frames=0)
+    d = est[ok] - ref[ok]
+    return StateErrors(
+        position_rmse_m=float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1)))),
+        velocity_rmse_mps=float(np.sqrt(np.mean(np.sum(d[:, 2:] ** 2, axis=1)))),
+        n_frames=n,
+    )
+
+
+def pose_error(estimate: ArrayLike, truth: ArrayLike) -> PoseError:
+    """Error of an estimated pose ``(x_m, y_m, phi_rad)`` against the truth."""
+    est = as_float_array(estimate, "estimate")
+    tru = as_float_array(truth, "truth")
+    if est.shape != (3,) or tru.shape != (3,):
+        raise ValidationError(f"poses must have shape (3,), got {est.shape} and {tru.shape}")
+    return PoseError(
+        position_error_m=float(np.hypot(*(est[:2] - tru[:2]))),
+        heading_error_rad=float(wrap_angle(est[2] - tru[2])),
+    )
+
+
+def nees(errors: ArrayLike, covariances: ArrayLike) -> NDArray:
+    """Normalized estimation error squared ``e^T P^-1 e`` per row.
+
+    errors : (K, D); covariances : (K, D, D), symmetric positive definite.
+    Solved by Cholesky (no explicit inverse). Returns (K,).
+    """
+    e = as_float_array(errors, "errors")
+    p = as_float_array(covariances, "covariances")
+    if e.ndim != 2 or p.shape != e.shape + (e.shape[1],):
+        raise ValidationError(
+            f"errors (K, D) and covariances (K, D, D) disagree: {e.shape} and {p.shape}"
+        )
+    chol = np.linalg.cholesky(p)
+    w = np.linalg.solve(chol, e[..., None])[..., 0]
+    return np.sum(w**2, axis=-1)
+
+
+def chi2_mean_interval(dof: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Two-sided interval of the mean of ``n`` independent chi-square(dof)
+    variables: ``n * mean ~ chi2(n * dof)``."""
+    from scipy.stats import chi2
+
+    a = (1.0 - confidence) / 2.0
+    return (float(chi2.ppf(a, n * dof) / n), float(chi2.ppf(1.0 - a, n * dof) / n))
