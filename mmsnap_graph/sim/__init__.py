@@ -1,0 +1,1 @@
+"""Simulation: raw-ADC cubes, bodies, trajectories and radar networks."""
