@@ -1,0 +1,46 @@
+"""Self-calibration of a radar network (design/MATH.md, "Pairwise self-calibration").
+
+- :func:`closed_form_calibration`: pairwise closed form (paper eqs. 11-14)
+  with a pose covariance;
+- :func:`match_tracks`: which tracks of two nodes are one target, and the
+  frame lag between the nodes;
+- :func:`pose_graph_calibration`: N nodes from pairwise estimates, anchored
+  at the reference node, with marginal covariances;
+- :func:`joint_calibration`: node poses and target states from the raw
+  measurements (range, spatial frequency, Doppler), refined by LM;
+- :mod:`.synthetic`: small synthetic scenes for tests and benchmarks.
+"""
+
+from .closed_form import (
+    DEFAULT_MIN_COMMON_FRAMES,
+    DEFAULT_MIN_SPREAD_M,
+    PairwiseCalibration,
+    alignment_jacobian,
+    closed_form_calibration,
+    closed_form_pose,
+)
+from .poses import pose_array, pose_error, to_pose2
+from .synthetic import (
+    COMMON_AREA_CENTERS,
+    PAPER_CONFIGURATIONS,
+    SyntheticScene,
+    synthetic_scene,
+    target_trajectory,
+)
+
+__all__ = [
+    "DEFAULT_MIN_COMMON_FRAMES",
+    "DEFAULT_MIN_SPREAD_M",
+    "PairwiseCalibration",
+    "alignment_jacobian",
+    "closed_form_calibration",
+    "closed_form_pose",
+    "pose_array",
+    "pose_error",
+    "to_pose2",
+    "COMMON_AREA_CENTERS",
+    "PAPER_CONFIGURATIONS",
+    "SyntheticScene",
+    "synthetic_scene",
+    "target_trajectory",
+]
