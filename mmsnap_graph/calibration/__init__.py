@@ -19,6 +19,7 @@ from .closed_form import (
     closed_form_calibration,
     closed_form_pose,
 )
+from .matching import LocalTracks, TrackCandidate, TrackMatching, local_tracks, match_tracks
 from .poses import pose_array, pose_error, to_pose2
 from .synthetic import (
     COMMON_AREA_CENTERS,
@@ -35,6 +36,11 @@ __all__ = [
     "alignment_jacobian",
     "closed_form_calibration",
     "closed_form_pose",
+    "LocalTracks",
+    "TrackCandidate",
+    "TrackMatching",
+    "local_tracks",
+    "match_tracks",
     "pose_array",
     "pose_error",
     "to_pose2",

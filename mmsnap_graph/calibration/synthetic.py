@@ -96,7 +96,7 @@ def synthetic_scene(
     poses: Mapping[str, NDArray], *, n_frames: int = 600, center_m: NDArray | None = None,
     sigmas: NDArray = (0.035, 0.2, 0.18), frame_period_s: float = 0.15,
     kind: Literal["random", "straight", "standing"] = "random", extent_m: float = 1.5,
-    ghost_fraction: float = 0.0, rng: np.random.Generator,
+    ghost_fraction: float = 0.0, min_range_m: float = 1.0, rng: np.random.Generator,
 ) -> SyntheticScene:
     """Noisy measurements of one target by each node (module doc).
 
@@ -104,6 +104,7 @@ def synthetic_scene(
     ghost_fraction : fraction of frames, drawn independently per node, whose
         detection is replaced by a ghost: uniform range 1-10 m, uniform
         ``omega`` in ``(-pi/2, pi/2)``, uniform Doppler in +-2 m/s.
+    min_range_m : a trajectory closer than this to a node raises ValueError.
     """
     poses = {k: np.asarray(v, dtype=float) for k, v in poses.items()}
     if center_m is None:
@@ -128,6 +129,8 @@ def synthetic_scene(
         # Every target must be in front of every node, or the scene is wrong.
         if np.any(global_to_local(truth[:, :2], pose)[:, 1] <= 0):
             raise ValueError(f"the trajectory leaves node {name}'s half plane")
+        if np.any(h[:, 0] < min_range_m):
+            raise ValueError(f"the trajectory comes within {h[:, 0].min():.2f} m of node {name}")
     return SyntheticScene(poses=poses, frame=np.arange(n_frames), truth=truth,
                           measurements=meas, local_points_m=local, ghost=ghost, sigmas=sig,
                           frame_period_s=frame_period_s)
