@@ -1,0 +1,26 @@
+"""Recording files: the HDF5 format (docs/FORMAT.md) and raw captures.
+
+- :func:`write_recording`, :func:`update_recording`, :func:`read_recording`,
+  :func:`iter_cubes`: the HDF5 recording format;
+- :func:`read_dca1000_bin`: TI DCA1000 / mmWave Studio raw ADC ``.bin`` captures.
+"""
+
+from .hdf5 import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    iter_cubes,
+    read_cube_frames,
+    read_recording,
+    update_recording,
+    write_recording,
+)
+
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "write_recording",
+    "update_recording",
+    "read_recording",
+    "iter_cubes",
+    "read_cube_frames",
+]
