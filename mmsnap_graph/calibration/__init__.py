@@ -20,6 +20,7 @@ from .closed_form import (
     closed_form_pose,
 )
 from .matching import LocalTracks, TrackCandidate, TrackMatching, local_tracks, match_tracks
+from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 from .poses import pose_array, pose_error, to_pose2
 from .synthetic import (
     COMMON_AREA_CENTERS,
@@ -41,6 +42,10 @@ __all__ = [
     "TrackMatching",
     "local_tracks",
     "match_tracks",
+    "PoseEdge",
+    "PoseGraphCalibration",
+    "pairwise_edges",
+    "pose_graph_calibration",
     "pose_array",
     "pose_error",
     "to_pose2",

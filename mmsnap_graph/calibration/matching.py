@@ -7,7 +7,8 @@ For every pair of tracks ``(a, b)`` and every lag ``L`` in
 with node a's frame ``k`` and the closed form (paper eq. 12) is fitted on the
 common frames; the track RMSE (eq. 14) scores the candidate. The node pair's
 lag is the lag of the lowest-RMSE candidate (a clock offset belongs to the
-node pair, and the best-matching target shows it most clearly). At that lag,
+node pair, and the best-matching target shows it most clearly), provided it
+lowers the RMSE by ``lag_min_improvement`` over lag 0. At that lag,
 candidates are accepted greedily by increasing RMSE, one-to-one, when their
 RMSE is below ``max_rmse_m`` and their pose agrees with the best candidate's
 (several targets seen by both nodes must give the same pose). The final
@@ -150,6 +151,7 @@ def match_tracks(
     max_rmse_m: float = 1.0,
     max_pose_disagreement: tuple[float, float] = (0.5, np.radians(10.0)),
     covariance: str = "residual",
+    lag_min_improvement: float = 0.05,
 ) -> TrackMatching:
     """Match two nodes' local tracks and calibrate b in a's frame (module doc).
 
@@ -165,6 +167,10 @@ def match_tracks(
     max_pose_disagreement : (m, rad)
         How far an accepted pair's pose may be from the best pair's.
     covariance : passed to :func:`closed_form_calibration`.
+    lag_min_improvement : float
+        A nonzero lag is reported only if its best track RMSE is at least this
+        fraction below the best at lag 0; a slow target in noisy tracks shows
+        no lag, and the RMSE differences between lags are then noise.
 
     Returns a :class:`TrackMatching`; ``success=False`` (no calibration) when
     no candidate has enough common frames, a moving target and a small RMSE.
@@ -204,6 +210,9 @@ def match_tracks(
             message=(f"no pair of tracks matches: the best track RMSE {best.rmse_m:.3g} m "
                      f"(tracks {best.track_a}/{best.track_b}, lag {best.lag_frames}) exceeds "
                      f"max_rmse_m={max_rmse_m}"))
+    zero = [i for i in order if cands[i].lag_frames == 0]
+    if best.lag_frames != 0 and zero and best.rmse_m > (1.0 - lag_min_improvement) * cands[zero[0]].rmse_m:
+        best = cands[zero[0]]  # the data do not show a lag: keep the nodes' own sync
     lag = best.lag_frames
     used_a, used_b, accepted = set(), set(), []
     for i in order:
