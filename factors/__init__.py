@@ -13,10 +13,12 @@ from .models import (
     local_to_global,
     measurement_model,
     measurement_model_pose,
+    measurement_model_scalar,
     omega_model,
     range_model,
     residual,
     wrap_angle,
+    wrap_angle_scalar,
 )
 # The GTSAM adapters load on first use, so that numpy-only layers (the radar
 # signal chain, the simulator) can use the models without importing GTSAM.
@@ -48,6 +50,8 @@ __all__ = [
     "doppler_model",
     "measurement_model",
     "measurement_model_pose",
+    "measurement_model_scalar",
+    "wrap_angle_scalar",
     "residual",
     "detection_to_local",
     "local_to_global",

@@ -1,8 +1,12 @@
 """Thin GTSAM adapters around :mod:`factors.models` (design/STYLE.md, habit 1).
 
-Each factor is a ``gtsam.CustomFactor`` whose error function calls the numpy
-model and returns the *unwhitened* error ``h(x) - z`` (spatial frequency
-wrapped); the noise model carries the sigmas. The measurement is bound with
+Each factor is a ``gtsam.CustomFactor`` whose error function calls the model
+and returns the *unwhitened* error ``h(x) - z`` (spatial frequency wrapped);
+the noise model carries the sigmas. The measurement factors call
+:func:`factors.models.measurement_model_scalar`, the plain-float twin of
+:func:`factors.models.measurement_model` (tested equal to rounding): GTSAM
+calls the error function once per linearization and per error evaluation, and
+numpy's per-call overhead on 3-vectors would cost ~10x the arithmetic. The measurement is bound with
 ``functools.partial``, as in GTSAM's own Python examples.
 
 Variables:
@@ -13,6 +17,7 @@ Variables:
 
 from __future__ import annotations
 
+import math
 from functools import partial
 from typing import Sequence
 
@@ -20,7 +25,8 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .models import measurement_model, measurement_model_pose, wrap_angle
+from .models import measurement_model_scalar as _model_scalar
+from .models import wrap_angle_scalar as _wrap_scalar
 
 __all__ = [
     "COMPONENT_INDEX",
@@ -34,6 +40,8 @@ __all__ = [
 
 #: Index of each measurement component in a measurement vector.
 COMPONENT_INDEX = {"range": 0, "omega": 1, "doppler": 2}
+
+_PI = math.pi
 
 
 def measurement_noise(
@@ -52,13 +60,16 @@ def measurement_noise(
     return gtsam.noiseModel.Robust.Create(kernel, base)
 
 
-def _node_error(node_pose, z, rows, this, values, jacobians):
-    state = values.atVector(this.keys()[0])
-    h, jac = measurement_model(state, node_pose)
-    err = h - z
-    err[1] = wrap_angle(err[1])
+def _node_error(node, z, rows, this, values, jacobians):
+    x, y, vx, vy = values.atVector(this.keys()[0]).tolist()
+    r, w, v, jac = _model_scalar(x, y, vx, vy, *node)
+    err = np.array((r - z[0], _wrap_scalar(w - z[1]), v - z[2]))
+    if rows is None:
+        if jacobians is not None:
+            jacobians[0] = np.array(jac)
+        return err
     if jacobians is not None:
-        jacobians[0] = jac[rows]
+        jacobians[0] = np.array(jac)[rows]
     return err[rows]
 
 
@@ -77,9 +88,13 @@ def node_measurement_factor(
     components : which measurements to use (a subset keeps its order).
     """
     rows = np.array([COMPONENT_INDEX[c] for c in components])
-    fn = partial(
-        _node_error, np.asarray(node_pose, dtype=float), np.asarray(measurement, dtype=float), rows
-    )
+    if rows.tolist() == [0, 1, 2]:
+        rows = None  # the common case skips the row selection
+    pose = np.asarray(node_pose, dtype=float).tolist()
+    # The node pose enters the callback as (x, y, cos phi, sin phi) floats.
+    node = (pose[0], pose[1], math.cos(pose[2]), math.sin(pose[2]))
+    z = tuple(np.asarray(measurement, dtype=float).tolist())
+    fn = partial(_node_error, node, z, rows)
     return gtsam.CustomFactor(noise, [state_key], fn)
 
 
@@ -98,13 +113,25 @@ def scalar_measurement_factor(
 def _pose_error(z, this, values, jacobians):
     keys = this.keys()
     pose = values.atPose2(keys[0])
-    state = values.atVector(keys[1])
-    h, j_pose, j_state = measurement_model_pose(np.array([pose.x(), pose.y(), pose.theta()]), state)
-    err = h - z
-    err[1] = wrap_angle(err[1])
+    px, py, phi = pose.x(), pose.y(), pose.theta()
+    c = math.cos(phi)
+    s = math.sin(phi)
+    x, y, vx, vy = values.atVector(keys[1]).tolist()
+    r, w, v, jac = _model_scalar(x, y, vx, vy, px, py, c, s)
+    err = np.array((r - z[0], _wrap_scalar(w - z[1]), v - z[2]))
     if jacobians is not None:
-        jacobians[0] = j_pose
-        jacobians[1] = j_state
+        # d h / d pose = [d h / d p_i @ R(phi), d h / d phi] with
+        # d h / d p_i = -d h / d p (design/MATH.md); only Omega depends on
+        # phi: pi <d, (-sin phi, cos phi)> / r.
+        ux, uy = jac[0][0], jac[0][1]
+        rows = []
+        for k in range(3):
+            a = -jac[k][0]
+            b = -jac[k][1]
+            rows.append((a * c + b * s, -a * s + b * c, 0.0))
+        rows[1] = (rows[1][0], rows[1][1], _PI * (uy * c - ux * s))
+        jacobians[0] = np.array(rows)
+        jacobians[1] = np.array(jac)
     return err
 
 
@@ -114,7 +141,7 @@ def pose_measurement_factor(
     """Measurement factor between an unknown node ``Pose2`` and a target state
     (form b, for calibration graphs). The pose Jacobian is in GTSAM's
     body-frame tangent."""
-    fn = partial(_pose_error, np.asarray(measurement, dtype=float))
+    fn = partial(_pose_error, tuple(np.asarray(measurement, dtype=float).tolist()))
     return gtsam.CustomFactor(noise, [pose_key, state_key], fn)
 
 

@@ -1,0 +1,140 @@
+"""Per-frame latency of one-shot fusion: GTSAM (``fuse_frame``) against scipy.
+
+Two nodes in configuration B, noisy measurements with the paper's sigmas
+(seeded). Each method solves the MAP problem of paper eq. (18) and returns a
+4x4 covariance:
+
+- ``fuse_frame``: validation, MATH.md initial values, GTSAM Levenberg-Marquardt
+  and ``gtsam.Marginals`` (the whole public call);
+- scipy: ``scipy.optimize.least_squares`` (method "lm", analytic Jacobian from
+  :func:`factors.models.measurement_model`, same initial values and tight
+  tolerances) plus the covariance ``(J^T J)^{-1}`` from its final Jacobian.
+
+Both run on the same frames in the same process; the script prints both
+medians, the ratio and the largest state disagreement.
+
+Usage::
+
+    python benchmarks/bench_oneshot.py [--frames 2000] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from factors.models import measurement_model, residual, wrap_angle
+from mmsnap_graph.oneshot import GaussianPrior, MeasurementNoise, fuse_frame, initial_state
+
+POSES_B = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])
+
+
+def simulate(n_frames: int, seed: int):
+    """Random states in B's common area and noisy measurements; (F, 4), (F, 2, 3)."""
+    rng = np.random.default_rng(seed)
+    noise = MeasurementNoise()
+    states = np.column_stack(
+        [
+            rng.uniform(-0.5, 1.5, n_frames),
+            rng.uniform(3.5, 5.5, n_frames),
+            rng.normal(0.0, 1.0, n_frames),
+            rng.normal(0.0, 1.0, n_frames),
+        ]
+    )
+    h, _ = measurement_model(states[:, None, :], POSES_B[None])
+    z = h + rng.normal(size=h.shape) * noise.sigmas
+    z[..., 1] = wrap_angle(z[..., 1])
+    return states, z
+
+
+def scipy_fuse(poses, z, noise, prior):
+    """MAP by scipy least_squares and covariance from its Jacobian."""
+    sig = noise.sigmas
+    inv_prior = 1.0 / prior.sigmas
+
+    def fun(x):
+        h, _ = measurement_model(x, poses)
+        r = residual(h, z) / sig
+        return np.concatenate([r.ravel(), (x - prior.mean) * inv_prior])
+
+    def jac(x):
+        _, j = measurement_model(x, poses)
+        return np.vstack([(j / sig[:, None]).reshape(-1, 4), np.diag(inv_prior)])
+
+    x0 = initial_state(poses, z, prior=prior, noise=noise)
+    sol = least_squares(fun, x0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    j = sol.jac
+    cov = np.linalg.inv(j.T @ j)
+    return sol.x, cov
+
+
+def time_per_frame(fn, frames) -> np.ndarray:
+    out = np.empty(len(frames))
+    for k, args in enumerate(frames):
+        t0 = time.perf_counter()
+        fn(*args)
+        out[k] = time.perf_counter() - t0
+    return out
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=2000)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    noise = MeasurementNoise()
+    prior = GaussianPrior()
+    _, z = simulate(args.frames, args.seed)
+
+    def gtsam_call(zk):
+        return fuse_frame(POSES_B, zk, noise=noise, prior=prior)
+
+    def scipy_call(zk):
+        return scipy_fuse(POSES_B, zk, noise, prior)
+
+    frames = [(zk,) for zk in z]
+    # Warm-up (imports, caches), then interleave the two methods in blocks so
+    # that machine load affects both alike.
+    for zk in z[:50]:
+        gtsam_call(zk)
+        scipy_call(zk)
+    t_gtsam, t_scipy = [], []
+    block = 100
+    for start in range(0, len(frames), block):
+        part = frames[start : start + block]
+        t_gtsam.append(time_per_frame(gtsam_call, part))
+        t_scipy.append(time_per_frame(scipy_call, part))
+    t_gtsam = np.concatenate(t_gtsam)
+    t_scipy = np.concatenate(t_scipy)
+
+    diff_state = 0.0
+    diff_cov = 0.0
+    n_fail = 0
+    iters = []
+    for zk in z[: min(300, len(z))]:
+        res = gtsam_call(zk)
+        x_s, c_s = scipy_call(zk)
+        n_fail += not res.success
+        iters.append(res.iterations)
+        diff_state = max(diff_state, float(np.max(np.abs(res.state - x_s))))
+        diff_cov = max(diff_cov, float(np.max(np.abs(res.covariance - c_s) / np.sqrt(np.outer(np.diag(c_s), np.diag(c_s))))))
+
+    med_g = np.median(t_gtsam) * 1e3
+    med_s = np.median(t_scipy) * 1e3
+    print(f"frames: {args.frames} (configuration B, two nodes, seed {args.seed})")
+    print(f"fuse_frame (GTSAM LM + Marginals): median {med_g:.4f} ms, p90 {np.percentile(t_gtsam, 90) * 1e3:.4f} ms")
+    print(f"scipy least_squares + J^T J cov  : median {med_s:.4f} ms, p90 {np.percentile(t_scipy, 90) * 1e3:.4f} ms")
+    print(f"speed-up (scipy / GTSAM medians) : {med_s / med_g:.2f}x")
+    print(f"target: median <= 0.15 ms and >= 4x -> {'met' if med_g <= 0.15 and med_s / med_g >= 4 else 'NOT met'}")
+    print(f"agreement on {len(iters)} frames: max |state diff| {diff_state:.2e}, "
+          f"max covariance diff / sigma_i sigma_j {diff_cov:.2e}, failures {n_fail}, "
+          f"LM iterations median {np.median(iters):.0f} max {max(iters)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
