@@ -1,1 +1,35 @@
-"""Simulation: raw-ADC cubes, bodies, trajectories and radar networks."""
+"""Simulation: raw-ADC cubes, bodies, trajectories and radar networks
+(docs/SIMULATOR.md).
+
+- :mod:`.networks`: configurations A, B, C (:data:`CONFIGURATIONS`), common
+  areas, field-of-view and range limits;
+- :mod:`.trajectories`: straight-line and random-walk torso trajectories;
+- :mod:`.body`: the walking human (torso, arms, legs) as point scatterers;
+- :mod:`.cube`: raw ADC cube synthesis (FMCW TDM-MIMO);
+- :mod:`.simulator`: :func:`simulate_recording`, the whole recording.
+"""
+
+from .body import HumanBody, body_scatterers
+from .networks import CONFIGURATIONS, COMMON_AREAS, Area, common_area, network_poses
+from .simulator import (LEVELS, CentroidNoise, CubeModel, PointCloudModel, simulate_recording,
+                        simulate_targets)
+from .trajectories import make_trajectory, random_walk, straight_line
+
+__all__ = [
+    "CONFIGURATIONS",
+    "COMMON_AREAS",
+    "Area",
+    "common_area",
+    "network_poses",
+    "make_trajectory",
+    "random_walk",
+    "straight_line",
+    "HumanBody",
+    "body_scatterers",
+    "LEVELS",
+    "CentroidNoise",
+    "PointCloudModel",
+    "CubeModel",
+    "simulate_recording",
+    "simulate_targets",
+]

@@ -106,8 +106,8 @@ class Area:
 #: Where targets walk in each configuration (the green regions of the
 #: paper's Fig. 3); every point is in both nodes' field of view.
 COMMON_AREAS: dict[str, Area] = {
-    "A": Area(x_min_m=1.0, x_max_m=3.0, y_min_m=3.5, y_max_m=6.0),
-    "B": Area(x_min_m=-0.5, x_max_m=1.5, y_min_m=3.5, y_max_m=5.5),
+    "A": Area(x_min_m=0.5, x_max_m=3.5, y_min_m=3.5, y_max_m=6.5),
+    "B": Area(x_min_m=-1.0, x_max_m=2.0, y_min_m=3.0, y_max_m=6.0),
     "C": Area(x_min_m=-1.5, x_max_m=1.5, y_min_m=2.0, y_max_m=5.0),
 }
 
