@@ -1,0 +1,583 @@
+"""Vectorized one-shot fusion of many frames at once (design/MATH.md, "One-shot fusion").
+
+The per-frame GTSAM solve (:func:`mmsnap_graph.oneshot.fuse_frame`) costs a
+factor graph, an optimizer and a ``Marginals`` object per frame. This module
+solves the same problem, the same negative log posterior (paper eq. 18)
+
+.. math::
+
+    L(\\theta) = \\tfrac12 \\sum_i \\| (h(\\theta; S_i) \\ominus z_i) / \\sigma \\|^2
+               + \\tfrac12 \\| (\\theta - m) / s \\|^2
+
+(the prior term only for MAP), for ``F`` frames at once with a damped
+Gauss-Newton (Levenberg-Marquardt) iteration written in numpy over the frame
+axis. It calls the same measurement model as the GTSAM factors
+(:func:`factors.models.measurement_model`), starts from the same initial values
+(:func:`mmsnap_graph.oneshot.initial_state`'s vectorized core) and returns the
+Laplace covariance, the inverse of the Gauss-Newton information matrix at the
+solution (what ``gtsam.Marginals`` computes for this one-variable graph),
+through a 4x4 Cholesky factorization vectorized over frames.
+
+Frames where a node does not see the target are fused with the nodes that do
+(``observed``); a frame whose information matrix is singular (ML with a single
+node, say) is flagged, not raised.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from factors.models import measurement_model, wrap_angle
+
+from .errors import ValidationError
+from .validation import as_float_array, check_finite
+
+__all__ = [
+    "STATUS_MESSAGES",
+    "BatchResult",
+    "fuse_batch",
+    "cholesky4",
+    "cholesky4_solve",
+    "cholesky4_inverse",
+]
+
+#: Meaning of :attr:`BatchResult.status` codes.
+STATUS_MESSAGES = {
+    0: "converged",
+    1: "maximum number of iterations reached",
+    2: "information matrix is not positive definite at the solution",
+    3: "non-finite cost or state",
+    4: "no measurement and no prior",
+}
+_CONVERGED, _MAX_ITER, _SINGULAR, _NONFINITE, _EMPTY = range(5)
+
+# Relative pivot below which a 4x4 matrix counts as singular: about the
+# precision of a Cholesky factorization in double precision (the same kind of
+# test as gtsam's "indeterminant system").
+_PIVOT_RTOL = 1e-12
+
+# Iterations of the chunked first stage (most frames converge within them).
+_STAGE1_ITERATIONS = 8
+
+
+# ----------------------------------------------------------------------------
+# Batched 4x4 linear algebra, written entry by entry over the leading axis so
+# that numpy loops over frames in C (np.linalg on stacks of 4x4 matrices pays a
+# per-matrix overhead that dominates at these sizes).
+# ----------------------------------------------------------------------------
+
+
+def _to_soa(a: NDArray) -> NDArray:
+    """(..., n, n) -> contiguous (n, n, ...): each entry a contiguous array."""
+    return np.ascontiguousarray(np.moveaxis(a, (-2, -1), (0, 1)))
+
+
+def _from_soa(a_t: NDArray) -> NDArray:
+    return np.ascontiguousarray(np.moveaxis(a_t, (0, 1), (-2, -1)))
+
+
+def _chol_soa(a_t: NDArray):
+    """Cholesky of (n, n, ...) symmetric matrices; returns the factor as a
+    list of lists of arrays (lower triangle) and ``ok``."""
+    n = a_t.shape[0]
+    diag = np.stack([a_t[i, i] for i in range(n)])
+    scale = np.max(np.abs(diag), axis=0)
+    tiny = _PIVOT_RTOL * np.where(scale > 0, scale, 1.0)
+    ok = np.all(np.isfinite(a_t), axis=(0, 1))
+    lo = [[None] * n for _ in range(n)]
+    for j in range(n):
+        d = a_t[j, j].copy()
+        for k in range(j):
+            d -= lo[j][k] ** 2
+        good = d > tiny
+        ok &= good
+        ljj = np.sqrt(np.where(good, d, 1.0))
+        lo[j][j] = ljj
+        inv = 1.0 / ljj
+        for i in range(j + 1, n):
+            v = a_t[i, j].copy()
+            for k in range(j):
+                v -= lo[i][k] * lo[j][k]
+            v *= inv
+            lo[i][j] = v
+    return lo, ok
+
+
+def _solve_soa(lo, b_t: NDArray) -> NDArray:
+    """Solve ``L L^T x = b`` with ``L`` from :func:`_chol_soa`; b_t (n, ...)."""
+    n = len(lo)
+    y = [None] * n
+    for i in range(n):
+        v = b_t[i].copy()
+        for k in range(i):
+            v -= lo[i][k] * y[k]
+        y[i] = v / lo[i][i]
+    x = [None] * n
+    for i in reversed(range(n)):
+        v = y[i]
+        for k in range(i + 1, n):
+            v = v - lo[k][i] * x[k]
+        x[i] = v / lo[i][i]
+    return np.stack(x)
+
+
+def _inverse_soa(lo) -> NDArray:
+    """``(L L^T)^-1`` as ``M^T M`` with ``M = L^-1``; (n, n, ...), exactly symmetric."""
+    n = len(lo)
+    m = [[None] * n for _ in range(n)]
+    for i in range(n):
+        m[i][i] = 1.0 / lo[i][i]
+        for j in range(i):
+            v = lo[i][j] * m[j][j]
+            for k in range(j + 1, i):
+                v = v + lo[i][k] * m[k][j]
+            m[i][j] = -v * m[i][i]
+    out = np.empty((n, n) + lo[0][0].shape)
+    for i in range(n):
+        for j in range(i + 1):
+            v = m[i][i] * m[i][j]
+            for k in range(i + 1, n):
+                v = v + m[k][i] * m[k][j]
+            out[i, j] = v
+            out[j, i] = v
+    return out
+
+
+def cholesky4(a: ArrayLike) -> tuple[NDArray, NDArray]:
+    """Lower Cholesky factors of a stack of symmetric matrices (4x4 in this
+    module, any small n works).
+
+    a : (..., n, n) float, symmetric (only the lower triangle is read).
+    Returns ``L (..., n, n)`` with ``a = L L^T`` and ``ok (...,)`` bool, False
+    where a pivot is not positive relative to the largest diagonal entry
+    (``1e-12``), i.e. the matrix is not numerically positive definite. Where
+    ``ok`` is False the factor holds finite placeholder values.
+    """
+    a_t = _to_soa(np.asarray(a, dtype=float))
+    lo, ok = _chol_soa(a_t)
+    n = a_t.shape[0]
+    out = np.zeros(a_t.shape)
+    for i in range(n):
+        for j in range(i + 1):
+            out[i, j] = lo[i][j]
+    return _from_soa(out), ok
+
+
+def _lower_lists(chol: ArrayLike):
+    c_t = _to_soa(np.asarray(chol, dtype=float))
+    n = c_t.shape[0]
+    return [[c_t[i, j] if j <= i else None for j in range(n)] for i in range(n)]
+
+
+def cholesky4_solve(chol: ArrayLike, b: ArrayLike) -> NDArray:
+    """Solve ``L L^T x = b`` for stacks: chol (..., n, n) lower, b (..., n)."""
+    b = np.asarray(b, dtype=float)
+    return np.moveaxis(_solve_soa(_lower_lists(chol), np.moveaxis(b, -1, 0)), 0, -1)
+
+
+def cholesky4_inverse(chol: ArrayLike) -> NDArray:
+    """``(L L^T)^-1`` for a stack of lower Cholesky factors (..., n, n),
+    as ``M^T M`` with ``M = L^-1``; exactly symmetric."""
+    return _from_soa(_inverse_soa(_lower_lists(chol)))
+
+
+# ----------------------------------------------------------------------------
+# The solver
+# ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class BatchResult:
+    """One-shot fusion of ``F`` frames.
+
+    state : (F, 4) ``(x_m, y_m, vx_mps, vy_mps)``, global frame.
+    covariance : (F, 4, 4) Laplace covariance (NaN where not positive definite).
+    success : (F,) bool; status : (F,) int, a key of :data:`STATUS_MESSAGES`.
+    iterations : (F,) int, accepted plus rejected LM steps.
+    final_cost : (F,) ``0.5 * sum of squared whitened residuals`` (GTSAM's
+        graph error), prior included for MAP.
+    initial_state : (F, 4) the starting point.
+    whitened_residuals : (F, N, 3) ``(h - z) / sigma`` at the solution, 0 for
+        unobserved nodes.
+    """
+
+    state: NDArray
+    covariance: NDArray
+    success: NDArray
+    status: NDArray
+    iterations: NDArray
+    final_cost: NDArray
+    initial_state: NDArray
+    whitened_residuals: NDArray
+
+    def __len__(self) -> int:
+        return int(self.state.shape[0])
+
+    def message(self, frame_index: int) -> str:
+        """The status message of one frame."""
+        return STATUS_MESSAGES[int(self.status[frame_index])]
+
+
+def _check_inputs(node_poses, measurements, observed):
+    z = check_finite(as_float_array(measurements, "measurements"), "measurements")
+    if z.ndim != 3 or z.shape[-1] != 3:
+        raise ValidationError(f"measurements must have shape (F, N, 3), got {z.shape}")
+    n_frames, n_nodes = z.shape[:2]
+    poses = check_finite(as_float_array(node_poses, "node_poses"), "node_poses")
+    if poses.shape not in ((n_nodes, 3), (n_frames, n_nodes, 3)):
+        raise ValidationError(
+            f"node_poses must have shape ({n_nodes}, 3) or ({n_frames}, {n_nodes}, 3), "
+            f"got {poses.shape}"
+        )
+    if observed is None:
+        obs = np.ones((n_frames, n_nodes), dtype=bool)
+    else:
+        obs = np.asarray(observed)
+        if obs.shape != (n_frames, n_nodes) or obs.dtype != bool:
+            raise ValidationError(
+                f"observed must be a bool array of shape ({n_frames}, {n_nodes}), "
+                f"got {obs.dtype} {obs.shape}"
+            )
+    return poses, z, obs
+
+
+def _evaluate(state, poses, z, weight, inv_sigma, prior_mean, prior_inv_sigma):
+    """Whitened Jacobian and residuals at ``state (F, 4)``, and the cost.
+
+    poses : (N, 3) or (F, N, 3). Returns ``aug (F, N, 3, 5)`` whose last axis
+    holds the whitened Jacobian ``d r / d state`` (first four entries) and the
+    whitened residual ``r = (h - z) / sigma`` (last entry), zero for
+    unobserved nodes, and ``cost (F,)`` (GTSAM's ``0.5 * sum r^2``, prior
+    included). The model is called once per node with a (F, 4) state, which
+    is faster than broadcasting a (F, N) grid through it.
+    """
+    f, n_nodes = z.shape[:2]
+    aug = np.empty((f, n_nodes, 3, 5))
+    for n in range(n_nodes):
+        h, jac = measurement_model(state, poses[..., n, :])
+        w = weight[:, n, None] * inv_sigma  # (F, 3); 0 where not observed
+        e = h - z[:, n]
+        e[:, 1] = wrap_angle(e[:, 1])
+        np.multiply(jac, w[:, :, None], out=aug[:, n, :, :4])
+        np.multiply(e, w, out=aug[:, n, :, 4])
+    rf = aug[..., 4].reshape(f, -1)
+    cost = 0.5 * np.einsum("fk,fk->f", rf, rf)
+    if prior_mean is not None:
+        dp = (state - prior_mean) * prior_inv_sigma
+        cost += 0.5 * np.einsum("fk,fk->f", dp, dp)
+    return aug, cost
+
+
+def _normal_equations(state, aug, prior_mean, prior_inv_sigma):
+    """Information ``H (4, 4, F)`` and gradient ``g (4, F)`` (entry-major).
+
+    One batched product ``[J r]^T [J r]`` gives both.
+    """
+    f = aug.shape[0]
+    af = aug.reshape(f, -1, 5)
+    prod = _to_soa(np.matmul(af.transpose(0, 2, 1), af))
+    info = prod[:4, :4]
+    grad = prod[:4, 4]
+    if prior_mean is not None:
+        p2 = prior_inv_sigma**2
+        for i in range(4):
+            info[i, i] += p2[i]
+        grad += ((state - prior_mean) * p2).T
+    return info, grad
+
+
+def _residual_curvature(state, poses, z, weight, inv_sigma, aug):
+    """The second-order term ``S = sum_m r_m d^2 r_m / dx^2``, (4, 4, F), that
+    Gauss-Newton drops, by forward differences of the model's Jacobian.
+
+    Near a minimum with sizeable residuals along a weakly observed direction
+    (a target near the line through two radars) Gauss-Newton converges only
+    linearly, sometimes with a rate close to one; adding ``S`` gives Newton's
+    quadratic convergence to the same minimum. The prior is quadratic and has
+    no such term.
+    """
+    f = state.shape[0]
+    af = aug.reshape(f, -1, 5)
+    rf = af[..., 4]
+    curv = np.empty((4, 4, f))
+    for k in range(4):
+        eps = 1e-7 * (1.0 + np.abs(state[:, k]))
+        shifted = state.copy()
+        shifted[:, k] += eps
+        aug_k, _ = _evaluate(shifted, poses, z, weight, inv_sigma, None, None)
+        diff = aug_k.reshape(f, -1, 5)[..., :4] - af[..., :4]
+        curv[k] = (np.einsum("fm,fmj->jf", rf, diff) / eps)
+    return 0.5 * (curv + curv.transpose(1, 0, 2))
+
+
+def fuse_batch(
+    node_poses: ArrayLike,
+    measurements: ArrayLike,
+    *,
+    observed: ArrayLike | None = None,
+    noise=None,
+    prior="default",
+    initial_state: ArrayLike | None = None,
+    max_iterations: int = 100,
+    step_tolerance: float = 1e-10,
+    newton_after: int = 6,
+    chunk_size: int = 8192,
+) -> BatchResult:
+    """Fuse ``F`` frames of ``N`` nodes' measurements at once (MAP or ML).
+
+    Parameters
+    ----------
+    node_poses : (N, 3) or (F, N, 3) float
+        Node poses ``(x_m, y_m, phi_rad)`` in the global frame.
+    measurements : (F, N, 3) float
+        ``(range_m, omega_rad, doppler_mps)`` of each node at each frame
+        (any finite value where not observed).
+    observed : (F, N) bool, optional
+        Which nodes see the target at each frame (default: all).
+    noise : mmsnap_graph.oneshot.MeasurementNoise, optional
+        Measurement sigmas (default: the paper's).
+    prior : mmsnap_graph.oneshot.GaussianPrior or None
+        ``"default"`` uses ``GaussianPrior()`` (MAP, the paper's prior);
+        ``None`` is maximum likelihood.
+    initial_state : (F, 4) float, optional
+        Starting points; default :func:`mmsnap_graph.oneshot.initial_states`
+        (the vectorized core of ``oneshot.initial_state``).
+    max_iterations : int
+        Levenberg-Marquardt steps (accepted or rejected) per frame.
+    step_tolerance : float
+        A frame has converged when an accepted step is smaller than
+        ``step_tolerance * (1 + |x|)`` in every component, or when no step
+        decreases the cost any more (then it sits at a minimum to rounding).
+    newton_after : int
+        After this many steps, a frame that has not converged adds the
+        second-order residual term to its information matrix (Newton steps,
+        where that matrix is positive definite), which turns Gauss-Newton's
+        slow linear convergence near weakly observed minima into quadratic
+        convergence. The minimum and the Laplace covariance (Gauss-Newton
+        information at the minimum) are unchanged.
+    chunk_size : int
+        Frames solved together in the first iterations (a size whose
+        temporaries stay in cache); the frames that need more iterations are
+        then solved together.
+
+    Returns
+    -------
+    BatchResult
+    """
+    poses, z, obs = _check_inputs(node_poses, measurements, observed)
+    if noise is None:
+        from .oneshot import MeasurementNoise
+
+        noise = MeasurementNoise()
+    if isinstance(prior, str):
+        if prior != "default":
+            raise ValidationError(f"prior must be a GaussianPrior, None or 'default', got {prior!r}")
+        from .oneshot import GaussianPrior
+
+        prior = GaussianPrior()
+    if int(max_iterations) < 1:
+        raise ValidationError(f"max_iterations must be >= 1, got {max_iterations!r}")
+    if int(chunk_size) < 1:
+        raise ValidationError(f"chunk_size must be >= 1, got {chunk_size!r}")
+    chunk_size = int(chunk_size)
+    if not (np.isfinite(step_tolerance) and step_tolerance > 0):
+        raise ValidationError(f"step_tolerance must be finite and > 0, got {step_tolerance!r}")
+    n_frames, n_nodes = z.shape[:2]
+    inv_sigma = 1.0 / np.asarray(noise.sigmas, dtype=float)
+    if prior is None:
+        prior_mean = prior_inv_sigma = None
+    else:
+        prior_mean = np.asarray(prior.mean, dtype=float)
+        prior_inv_sigma = 1.0 / np.asarray(prior.sigmas, dtype=float)
+
+    if initial_state is None:
+        from . import oneshot
+
+        x0 = oneshot.initial_states(poses, z, observed=obs, prior=prior)
+    else:
+        x0 = check_finite(as_float_array(initial_state, "initial_state"), "initial_state")
+        if x0.shape != (n_frames, 4):
+            raise ValidationError(f"initial_state must have shape ({n_frames}, 4), got {x0.shape}")
+    x0 = np.array(x0, dtype=float)
+
+    weight = obs.astype(float)
+    params = _Params(
+        inv_sigma=inv_sigma,
+        prior_mean=prior_mean,
+        prior_inv_sigma=prior_inv_sigma,
+        step_tolerance=float(step_tolerance),
+        newton_after=int(newton_after),
+    )
+    state = np.empty((n_frames, 4))
+    cost = np.full(n_frames, np.nan)
+    residuals = np.zeros((n_frames, n_nodes, 3))
+    info = np.full((4, 4, n_frames), np.nan)
+    iterations = np.zeros(n_frames, dtype=np.int64)
+    status = np.full(n_frames, _EMPTY, dtype=np.int8)
+    empty = ~obs.any(axis=1) if prior is None else np.zeros(n_frames, dtype=bool)
+    state[empty] = x0[empty]
+
+    def run(rows, x_start, it_start, budget):
+        p_rows = poses[rows] if poses.ndim == 3 else poses
+        out = _lm(x_start, p_rows, z[rows], weight[rows], params, it_start, budget)
+        state[rows], cost[rows], residuals[rows], info[:, :, rows], iterations[rows], status[rows] = out
+
+    # Stage 1, in chunks that keep the temporaries in cache: the few steps
+    # that most frames need. Stage 2: the frames still running, all together.
+    rows_all = np.flatnonzero(~empty)
+    first = min(_STAGE1_ITERATIONS, int(max_iterations))
+    for start in range(0, rows_all.size, chunk_size):
+        rows = rows_all[start:start + chunk_size]
+        run(rows, x0[rows], np.zeros(rows.size, dtype=np.int64), first)
+    left = rows_all[status[rows_all] == _MAX_ITER]
+    if left.size and int(max_iterations) > first:
+        run(left, state[left].copy(), iterations[left].copy(), int(max_iterations))
+
+    # Laplace covariance: inverse of the undamped information at the solution.
+    lo, pd = _chol_soa(info)
+    cov = _from_soa(_inverse_soa(lo))
+    finite = np.all(np.isfinite(state), axis=1) & np.isfinite(cost)
+    status[(status == _CONVERGED) & ~finite] = _NONFINITE
+    status[(status == _CONVERGED) & ~pd] = _SINGULAR
+    cov[~pd] = np.nan
+    return BatchResult(
+        state=state,
+        covariance=cov,
+        success=status == _CONVERGED,
+        status=status,
+        iterations=iterations,
+        final_cost=cost,
+        initial_state=x0,
+        whitened_residuals=residuals,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class _Params:
+    inv_sigma: NDArray
+    prior_mean: NDArray | None
+    prior_inv_sigma: NDArray | None
+    step_tolerance: float
+    newton_after: int
+
+
+def _lm(x0, poses, z, weight, params, it_start, max_iterations):
+    """Levenberg-Marquardt over the frames of ``x0 (F, 4)``.
+
+    Returns ``state (F, 4)``, ``cost (F,)``, ``residuals (F, N, 3)``,
+    ``info (4, 4, F)`` (undamped information at the returned state),
+    ``iterations (F,)`` (counting from ``it_start``) and ``status (F,)``;
+    frames still running after ``max_iterations`` have status ``_MAX_ITER``.
+    """
+    inv_sigma, prior_mean, prior_inv_sigma = params.inv_sigma, params.prior_mean, params.prior_inv_sigma
+    n_frames, n_nodes = z.shape[:2]
+    per_frame_poses = poses.ndim == 3
+    state = np.empty((n_frames, 4))
+    cost = np.empty(n_frames)
+    residuals = np.empty((n_frames, n_nodes, 3))
+    info_out = np.empty((4, 4, n_frames))
+    iterations = np.empty(n_frames, dtype=np.int64)
+    status = np.empty(n_frames, dtype=np.int8)
+
+    # Active frames; arrays with an ``_a`` suffix are indexed by ``idx``.
+    idx = np.arange(n_frames)
+    p_a, z_a, w_a, x_a = poses, z, weight, x0
+    aug_a, c_a = _evaluate(x_a, p_a, z_a, w_a, inv_sigma, prior_mean, prior_inv_sigma)
+    lam_a = np.full(n_frames, 1e-5)
+    nu_a = np.full(n_frames, 2.0)
+    it_a = np.array(it_start, dtype=np.int64)
+    small_a = np.zeros(n_frames, dtype=bool)
+    live = np.ones(n_frames, dtype=bool)
+    diag_rows = np.arange(4)
+
+    def finish(sel, code):
+        """Write the frames ``sel`` (a mask over the active set) out."""
+        out = idx[sel]
+        state[out] = x_a[sel]
+        cost[out] = c_a[sel]
+        residuals[out] = aug_a[sel][..., 4]
+        iterations[out] = it_a[sel]
+        status[out] = code
+        info_out[:, :, out] = info[:, :, sel]
+        live[sel] = False
+
+    while True:
+        info, grad = _normal_equations(x_a, aug_a, prior_mean, prior_inv_sigma)
+        bad = live & ~(np.isfinite(c_a) & np.all(np.isfinite(x_a), axis=1))
+        if np.any(bad):
+            finish(bad, _NONFINITE)
+        if np.any(small_a & live):
+            # The last accepted step was below tolerance.
+            finish(small_a & live, _CONVERGED)
+        if np.any(live & (it_a >= max_iterations)):
+            finish(live & (it_a >= max_iterations), _MAX_ITER)
+        n_live = int(np.count_nonzero(live))
+        if n_live == 0:
+            break
+        if n_live < 0.75 * live.size:
+            # Compact the active set when enough frames are done.
+            keep = live
+            idx = idx[keep]
+            if per_frame_poses:
+                p_a = p_a[keep]
+            z_a, w_a, x_a, c_a, aug_a = z_a[keep], w_a[keep], x_a[keep], c_a[keep], aug_a[keep]
+            lam_a, nu_a, it_a = lam_a[keep], nu_a[keep], it_a[keep]
+            info, grad = info[:, :, keep], grad[:, keep]
+            live = np.ones(idx.size, dtype=bool)
+
+        model = info
+        slow = np.flatnonzero(live & (it_a >= params.newton_after))
+        if slow.size:
+            pp = p_a[slow] if per_frame_poses else p_a
+            curv = _residual_curvature(x_a[slow], pp, z_a[slow], w_a[slow], inv_sigma, aug_a[slow])
+            newton = info[:, :, slow] + curv
+            # Newton only where its model is convex; elsewhere Gauss-Newton.
+            use = _chol_soa(newton)[1]
+            model = info.copy()
+            model[:, :, slow[use]] = newton[:, :, use]
+        diag = model[diag_rows, diag_rows]
+        # Marquardt damping on the diagonal, floored so that an unobservable
+        # direction (zero diagonal) is still damped.
+        floor = 1e-9 * np.maximum(np.abs(diag).max(axis=0), 1e-300)
+        damped = model.copy()
+        damped[diag_rows, diag_rows] += lam_a * np.maximum(diag, floor)
+        lo, ok = _chol_soa(damped)
+        step_t = _solve_soa(lo, grad)
+        step_t *= -1.0
+        # The reduction of the cost that the local quadratic model predicts.
+        decrement = -np.einsum("if,if->f", grad, step_t)
+        predicted = decrement - 0.5 * np.einsum("if,ijf,jf->f", step_t, model, step_t)
+        # At a minimum the best possible decrease (the Newton decrement, when
+        # the damping is light) is below the rounding of the cost itself.
+        flat = live & ok & (lam_a <= 1e-2) & (decrement <= 1e-16 * np.maximum(c_a, 1.0))
+        if np.any(flat):
+            finish(flat, _CONVERGED)
+            if not np.any(live):
+                break
+
+        step = step_t.T
+        x_new = x_a + step
+        aug_n, c_n = _evaluate(x_new, p_a, z_a, w_a, inv_sigma, prior_mean, prior_inv_sigma)
+        it_a += live
+        accept = live & ok & (c_n <= c_a)  # False for a NaN cost
+        small_a = accept & np.all(np.abs(step) <= params.step_tolerance * (1.0 + np.abs(x_a)), axis=1)
+        # Nielsen's damping update from the gain ratio actual / predicted.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gain = (c_a - c_n) / predicted
+        gain = np.where(np.isfinite(gain), gain, 0.0)
+        shrink = np.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+        lam_a = np.where(accept, np.maximum(lam_a * shrink, 1e-12), np.minimum(lam_a * nu_a, 1e12))
+        nu_a = np.where(accept, 2.0, nu_a * 2.0)
+        rejected = ~accept
+        if np.any(rejected):
+            x_new[rejected] = x_a[rejected]
+            c_n[rejected] = c_a[rejected]
+            aug_n[rejected] = aug_a[rejected]
+        x_a, c_a, aug_a = x_new, c_n, aug_n
+        # A frame whose damping has grown without bound cannot move: it sits
+        # at a minimum to rounding (typical when the cost is flat).
+        small_a |= live & (lam_a >= 1e12)
+    return state, cost, residuals, info_out, iterations, status
