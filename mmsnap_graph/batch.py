@@ -37,6 +37,7 @@ from .validation import as_float_array, check_finite
 
 __all__ = [
     "STATUS_MESSAGES",
+    "velocity_degeneracy",
     "BatchResult",
     "fuse_batch",
     "cholesky4",
@@ -200,8 +201,11 @@ class BatchResult:
     final_cost : (F,) ``0.5 * sum of squared whitened residuals`` (GTSAM's
         graph error), prior included for MAP.
     initial_state : (F, 4) the starting point.
-    whitened_residuals : (F, N, 3) ``(h - z) / sigma`` at the solution, 0 for
-        unobserved nodes.
+    whitened_residuals : (F, N, 3) ``(h - z) / sigma`` at the solution
+        (spatial frequency wrapped), NaN rows for unobserved nodes.
+    degeneracy : (F,) condition number of the lines of sight's velocity
+        information (``FusionResult.degeneracy``; inf for parallel lines of
+        sight or a single node).
     """
 
     state: NDArray
@@ -212,6 +216,7 @@ class BatchResult:
     final_cost: NDArray
     initial_state: NDArray
     whitened_residuals: NDArray
+    degeneracy: NDArray
 
     def __len__(self) -> int:
         return int(self.state.shape[0])
@@ -256,6 +261,7 @@ def _evaluate(state, poses, z, weight, inv_sigma, prior_mean, prior_inv_sigma):
     """
     f, n_nodes = z.shape[:2]
     aug = np.empty((f, n_nodes, 3, 5))
+    partial = np.any(weight <= 0, axis=0)
     for n in range(n_nodes):
         h, jac = measurement_model(state, poses[..., n, :])
         w = weight[:, n, None] * inv_sigma  # (F, 3); 0 where not observed
@@ -263,6 +269,12 @@ def _evaluate(state, poses, z, weight, inv_sigma, prior_mean, prior_inv_sigma):
         e[:, 1] = wrap_angle(e[:, 1])
         np.multiply(jac, w[:, :, None], out=aug[:, n, :, :4])
         np.multiply(e, w, out=aug[:, n, :, 4])
+        if not partial[n]:
+            continue
+        # An unobserved node contributes exactly nothing, even where its
+        # model is undefined (a state on that node gives 0 * NaN).
+        seen = weight[:, n] > 0
+        aug[~seen, n] = 0.0
     rf = aug[..., 4].reshape(f, -1)
     cost = 0.5 * np.einsum("fk,fk->f", rf, rf)
     if prior_mean is not None:
@@ -396,7 +408,7 @@ def fuse_batch(
     if initial_state is None:
         from . import oneshot
 
-        x0 = oneshot.initial_states(poses, z, observed=obs, prior=prior)
+        x0 = oneshot.initial_states(poses, z, observed=obs, prior=prior, noise=noise)
     else:
         x0 = check_finite(as_float_array(initial_state, "initial_state"), "initial_state")
         if x0.shape != (n_frames, 4):
@@ -421,10 +433,15 @@ def fuse_batch(
     state[empty] = x0[empty]
 
     def run(rows, x_start, it_start, budget):
+        if rows.size == 0:
+            return
         p_rows = poses[rows] if poses.ndim == 3 else poses
         out = _lm(x_start, p_rows, z[rows], weight[rows], params, it_start, budget)
         state[rows], cost[rows], residuals[rows], info[:, :, rows], iterations[rows], status[rows] = out
 
+    # Model evaluations at a state on a node give NaN that the solver flags.
+    errstate = np.errstate(invalid="ignore", divide="ignore", over="ignore")
+    errstate.__enter__()
     # Stage 1, in chunks that keep the temporaries in cache: the few steps
     # that most frames need. Stage 2: the frames still running, all together.
     rows_all = np.flatnonzero(~empty)
@@ -439,6 +456,9 @@ def fuse_batch(
     # Laplace covariance: inverse of the undamped information at the solution.
     lo, pd = _chol_soa(info)
     cov = _from_soa(_inverse_soa(lo))
+    degeneracy = velocity_degeneracy(state, poses, obs)
+    errstate.__exit__(None, None, None)
+    residuals[~obs] = np.nan
     finite = np.all(np.isfinite(state), axis=1) & np.isfinite(cost)
     status[(status == _CONVERGED) & ~finite] = _NONFINITE
     status[(status == _CONVERGED) & ~pd] = _SINGULAR
@@ -452,7 +472,36 @@ def fuse_batch(
         final_cost=cost,
         initial_state=x0,
         whitened_residuals=residuals,
+        degeneracy=degeneracy,
     )
+
+
+def velocity_degeneracy(state: ArrayLike, node_poses: ArrayLike, observed: ArrayLike) -> NDArray:
+    """Condition number of ``sum_i u_i u_i^T`` over the observed nodes' lines
+    of sight, per frame (the vectorized :func:`mmsnap_graph.oneshot.velocity_degeneracy`;
+    see ``FusionResult.degeneracy``). ``inf`` when singular (parallel lines of
+    sight, a single node). No validation.
+
+    state : (F, 4); node_poses : (N, 3) or (F, N, 3); observed : (F, N) bool.
+    Returns (F,).
+    """
+    state = np.asarray(state, dtype=float)
+    poses = np.asarray(node_poses, dtype=float)
+    d = state[:, None, :2] - poses[..., :2]
+    r2 = np.sum(d * d, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = np.where(np.asarray(observed, dtype=bool), 1.0 / r2, 0.0)
+    a11 = np.sum(w * d[..., 0] ** 2, axis=1)
+    a12 = np.sum(w * d[..., 0] * d[..., 1], axis=1)
+    a22 = np.sum(w * d[..., 1] ** 2, axis=1)
+    half_tr = 0.5 * (a11 + a22)
+    disc = np.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
+    hi = half_tr + disc
+    lo = half_tr - disc
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cond = hi / lo
+    singular = ~(hi > 0) | (lo <= hi * 1e-15) | ~np.isfinite(cond)
+    return np.where(singular, np.inf, cond)
 
 
 @dataclass(frozen=True, slots=True)
