@@ -10,9 +10,10 @@ minimizes the negative log posterior (paper eq. 18)
                + \\tfrac12 \\| (\\theta - m) / s \\|^2
 
 (``prior=None`` drops the second term: maximum likelihood). The graph is one
-``Vector4`` state with one 3-dimensional factor per observed node
-(:func:`factors.gtsam_factors.node_measurement_factor`) and a
-``PriorFactorVector``; GTSAM's Levenberg-Marquardt solves it from the
+``Vector4`` state with one measurement factor holding every observed node's
+three measurements (:func:`factors.gtsam_factors.frame_measurement_factor`,
+equivalent to one ``node_measurement_factor`` per node but half the Python
+calls) and a ``PriorFactorVector``; GTSAM's Levenberg-Marquardt solves it from the
 initial values of design/MATH.md and ``gtsam.Marginals`` gives the Laplace
 covariance. The paper's grid posterior covariance is an option
 (:mod:`mmsnap_graph.covariance`).
@@ -33,7 +34,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.gtsam_factors import node_measurement_factor
+from factors.gtsam_factors import frame_measurement_factor
 from factors.models import (
     MEASUREMENT_NAMES,
     detection_to_global,
@@ -480,9 +481,9 @@ def initial_state(
 # Graph and solve
 
 
-@lru_cache(maxsize=32)
-def _noise_model(sigmas: tuple[float, float, float]) -> gtsam.noiseModel.Base:
-    return gtsam.noiseModel.Diagonal.Sigmas(np.array(sigmas))
+@lru_cache(maxsize=64)
+def _noise_model(sigmas: tuple[float, float, float], n_nodes: int) -> gtsam.noiseModel.Base:
+    return gtsam.noiseModel.Diagonal.Sigmas(np.tile(np.array(sigmas), n_nodes))
 
 
 def _lm_params(max_iterations: int) -> gtsam.LevenbergMarquardtParams:
@@ -510,9 +511,11 @@ def build_frame_graph(
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The one-frame factor graph and its initial values, for users to extend.
 
-    One :func:`~factors.gtsam_factors.node_measurement_factor` (range, spatial
-    frequency, Doppler) per observed node and, unless ``prior`` is None, a
-    ``PriorFactorVector``, all on the ``Vector4`` state at ``key``. ``initial``
+    One :func:`~factors.gtsam_factors.frame_measurement_factor` with the
+    range, spatial frequency and Doppler of every observed node (error of
+    dimension ``3 n_observed``, node after node) and, unless ``prior`` is
+    None, a ``PriorFactorVector``, all on the ``Vector4`` state at ``key``.
+    Add factors (another target's, a motion model) before optimizing. ``initial``
     (4,) defaults to :func:`initial_state`. Inputs are validated as in
     :func:`fuse_frame`.
     """
@@ -528,10 +531,12 @@ def build_frame_graph(
 
 def _build(poses, z, obs, noise, prior, x0, key):
     graph = gtsam.NonlinearFactorGraph()
-    model = _noise_model((noise.range_m, noise.omega_rad, noise.doppler_mps))
-    for i in range(poses.shape[0]):
-        if obs is None or obs[i]:
-            graph.add(node_measurement_factor(key, poses[i], z[i], model))
+    if obs is not None:
+        poses, z = poses[obs], z[obs]
+    n_obs = poses.shape[0]
+    if n_obs:
+        model = _noise_model((noise.range_m, noise.omega_rad, noise.doppler_mps), n_obs)
+        graph.add(frame_measurement_factor(key, poses, z, model))
     if prior is not None:
         graph.add(
             gtsam.PriorFactorVector(
@@ -675,12 +680,11 @@ def fuse_frame(
     n_nodes = poses.shape[0]
     n_observed = n_nodes if obs is None else int(obs.sum())
 
-    nan4 = np.full(4, np.nan)
-    nan44 = np.full((4, 4), np.nan)
-
-    def fail(message, state=nan4, x0=nan4, iterations=0, cost=np.nan):
+    def fail(message, state=None, x0=None, iterations=0, cost=math.nan):
+        nan4 = np.full(4, np.nan)
+        nan44 = np.full((4, 4), np.nan)
         return FusionResult(
-            state=state,
+            state=nan4 if state is None else state,
             covariance=nan44,
             success=False,
             message=message,
@@ -689,7 +693,7 @@ def fuse_frame(
             whitened_residuals=np.full((n_nodes, 3), np.nan),
             degeneracy=math.inf,
             grid_covariance=None if covariance == "laplace" else nan44,
-            initial_state=x0,
+            initial_state=nan4 if x0 is None else x0,
             n_observed=n_observed,
             used_prior=prior is not None,
         )
@@ -713,7 +717,7 @@ def fuse_frame(
     iterations = int(optimizer.iterations())
     state = solution.atVector(STATE_KEY)
     cost = float(optimizer.error())
-    if not (np.isfinite(state).all() and math.isfinite(cost)):
+    if not (math.isfinite(cost) and np.isfinite(state).all()):
         return fail("Levenberg-Marquardt diverged to a non-finite state", state, x0, iterations, cost)
     if iterations >= max_iterations:
         return fail(
@@ -737,7 +741,7 @@ def fuse_frame(
     cov = 0.5 * (cov + cov.T)
     messages = ["converged"]
     success = True
-    if not (np.isfinite(cov).all() and np.all(np.diag(cov) > 0.0)):
+    if not (np.isfinite(cov).all() and (cov.diagonal() > 0.0).all()):
         success = False
         messages = ["the Laplace covariance is not positive definite"]
     whitened, degeneracy = _residuals_and_degeneracy(state, poses, z, obs, noise)
@@ -769,7 +773,7 @@ def fuse_frame(
             if grid.message:
                 messages.append(grid.message)
         else:
-            grid_cov = nan44
+            grid_cov = np.full((4, 4), np.nan)
     return FusionResult(
         state=state,
         covariance=cov,
