@@ -5,6 +5,13 @@
 - :func:`read_dca1000_bin`: TI DCA1000 / mmWave Studio raw ADC ``.bin`` captures.
 """
 
+from .dca1000 import (
+    frame_bytes,
+    iter_dca1000_frames,
+    read_dca1000_bin,
+    recording_from_dca1000,
+    write_dca1000_bin,
+)
 from .hdf5 import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -23,4 +30,9 @@ __all__ = [
     "read_recording",
     "iter_cubes",
     "read_cube_frames",
+    "frame_bytes",
+    "read_dca1000_bin",
+    "iter_dca1000_frames",
+    "write_dca1000_bin",
+    "recording_from_dca1000",
 ]
