@@ -1,0 +1,214 @@
+"""The whole per-node chain on in-memory nodes and recordings, and on files:
+cube -> point cloud -> torso centroids (:mod:`.chain`) -> local EKF tracks
+(:mod:`mmsnap_graph.tracking.ekf`).
+
+- :func:`process_node` / :func:`process_recording`: from each node's cube;
+- :func:`track_node` / :func:`track_recording`: tracks from the centroids
+  only (recordings without cubes);
+- :func:`process_file`: an HDF5 recording, cubes streamed frame by frame,
+  levels written back atomically (the ``mmsnap process`` command).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+from pathlib import Path
+import numpy as np
+
+from ..errors import FileFormatError, ValidationError
+from ..recording import NodeData, Recording
+from ..tracking.ekf import EkfConfig, track_centroids
+from .chain import ChainConfig, ChainResult, process_cubes
+
+__all__ = ["NodeReport", "process_node", "process_recording", "track_node", "track_recording",
+           "process_file"]
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class NodeReport:
+    """What happened to one node: ``level`` is ``"cube"`` (full chain),
+    ``"centroids"`` (tracking only) or ``"none"`` (nothing to process);
+    ``chain`` is the chain's result for cube-level processing."""
+
+    name: str
+    level: str
+    n_frames: int
+    n_points: int
+    n_centroids: int
+    n_tracks: int
+    success: bool
+    message: str
+    chain: ChainResult | None = None
+
+
+def _ekf_for(ekf: EkfConfig | None, frame_period_s: float) -> EkfConfig:
+    ekf = EkfConfig() if ekf is None else ekf
+    return dataclasses.replace(ekf, frame_period_s=float(frame_period_s))
+
+
+def _frames_span(frames: np.ndarray) -> np.ndarray | None:
+    if frames.size == 0:
+        return None
+    return np.arange(int(frames.min()), int(frames.max()) + 1)
+
+
+def process_node(
+    node: NodeData,
+    frame_period_s: float,
+    *,
+    chain: ChainConfig | None = None,
+    ekf: EkfConfig | None = None,
+    progress: bool = False,
+) -> tuple[NodeData, NodeReport]:
+    """Fill a node's point cloud, centroids and tracks from its cube.
+
+    frame_period_s : the recording's frame period (the EKF's T).
+    Returns the new node and a :class:`NodeReport`. A node without a cube
+    raises :class:`ValidationError` (use :func:`track_node`).
+    """
+    if node.cube is None:
+        raise ValidationError(f"nodes[{node.name}] has no cube; use track_node for centroids")
+    result = process_cubes(node.cube, node.radar, chain, frames=node.cube_frame,
+                           progress=progress, desc=f"{node.name} chain")
+    tracks = track_centroids(result.centroids, _ekf_for(ekf, frame_period_s),
+                             frames=_frames_span(node.cube_frame))
+    new = dataclasses.replace(node, point_cloud=result.point_cloud, centroids=result.centroids,
+                              tracks=tracks)
+    return new, NodeReport(name=node.name, level="cube", n_frames=int(node.cube.shape[0]),
+                           n_points=len(result.point_cloud), n_centroids=len(result.centroids),
+                           n_tracks=int(tracks.track_ids.size), success=result.success,
+                           message=result.message, chain=result)
+
+
+def track_node(node: NodeData, frame_period_s: float, *, ekf: EkfConfig | None = None
+               ) -> tuple[NodeData, NodeReport]:
+    """Fill a node's tracks from its centroids (no cube needed)."""
+    if node.centroids is None:
+        raise ValidationError(f"nodes[{node.name}] has no centroids to track")
+    tracks = track_centroids(node.centroids, _ekf_for(ekf, frame_period_s))
+    new = dataclasses.replace(node, tracks=tracks)
+    n = len(node.centroids)
+    return new, NodeReport(name=node.name, level="centroids",
+                           n_frames=int(np.unique(node.centroids.frame).size), n_points=0,
+                           n_centroids=n, n_tracks=int(tracks.track_ids.size), success=True,
+                           message=f"{n} centroids tracked")
+
+
+def _each_node(recording: Recording, fn) -> tuple[Recording, dict[str, NodeReport]]:
+    reports: dict[str, NodeReport] = {}
+    rec = recording
+    for name, node in recording.nodes.items():
+        out = fn(node)
+        if out is None:
+            reports[name] = NodeReport(name=name, level="none", n_frames=0, n_points=0,
+                                       n_centroids=0, n_tracks=0, success=False,
+                                       message="no cube and no centroids")
+            continue
+        new, rep = out
+        rec = rec.with_node(new)
+        reports[name] = rep
+    return rec, reports
+
+
+def process_recording(
+    recording: Recording,
+    *,
+    chain: ChainConfig | None = None,
+    ekf: EkfConfig | None = None,
+    progress: bool = False,
+) -> tuple[Recording, dict[str, NodeReport]]:
+    """Run the chain on every node: from the cube where there is one, else
+    tracks from the centroids; nodes with neither are reported, unchanged."""
+    fp = recording.frame_period_s
+
+    def one(node: NodeData):
+        if node.cube is not None:
+            return process_node(node, fp, chain=chain, ekf=ekf, progress=progress)
+        if node.centroids is not None:
+            return track_node(node, fp, ekf=ekf)
+        return None
+
+    return _each_node(recording, one)
+
+
+def track_recording(recording: Recording, *, ekf: EkfConfig | None = None
+                    ) -> tuple[Recording, dict[str, NodeReport]]:
+    """Tracks of every node from its centroids only."""
+    fp = recording.frame_period_s
+    return _each_node(recording, lambda n: track_node(n, fp, ekf=ekf)
+                      if n.centroids is not None else None)
+
+
+def process_file(
+    path: str | os.PathLike,
+    *,
+    output: str | os.PathLike | None = None,
+    chain: ChainConfig | None = None,
+    ekf: EkfConfig | None = None,
+    centroids_only: bool = False,
+    progress: bool = False,
+) -> tuple[Path, dict[str, NodeReport]]:
+    """Process an HDF5 recording (cubes streamed, not loaded whole) and write
+    the point-cloud, centroid and track levels back.
+
+    output : write to this path (a copy of ``path`` updated atomically);
+        default: update ``path`` in place, atomically.
+    centroids_only : only re-track from the stored centroids.
+    """
+    import shutil
+    import tempfile
+
+    from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
+
+    src = Path(path)
+    rec = read_recording(src, load_cubes=False)
+    fp = rec.frame_period_s
+    reports: dict[str, NodeReport] = {}
+    for name, node in rec.nodes.items():
+        cube_meta = None
+        if not centroids_only and node.radar is not None:
+            try:
+                cube_meta = read_cube_frames(src, name)
+            except FileFormatError:
+                cube_meta = None  # this node has no cube
+        if cube_meta is not None:
+            radar, frames, n = cube_meta
+
+            def frames_iter(name=name):
+                for _, block in iter_cubes(src, name):
+                    yield from block
+
+            result = process_cubes(frames_iter(), radar, chain, frames=frames,
+                                   progress=progress, desc=f"{name} chain")
+            tracks = track_centroids(result.centroids, _ekf_for(ekf, fp),
+                                     frames=_frames_span(np.asarray(frames)))
+            rec = rec.with_node(dataclasses.replace(
+                node, point_cloud=result.point_cloud, centroids=result.centroids, tracks=tracks))
+            reports[name] = NodeReport(
+                name=name, level="cube", n_frames=n, n_points=len(result.point_cloud),
+                n_centroids=len(result.centroids), n_tracks=int(tracks.track_ids.size),
+                success=result.success, message=result.message, chain=result)
+        elif node.centroids is not None:
+            new, rep = track_node(node, fp, ekf=ekf)
+            rec = rec.with_node(new)
+            reports[name] = rep
+        else:
+            reports[name] = NodeReport(name=name, level="none", n_frames=0, n_points=0,
+                                       n_centroids=0, n_tracks=0, success=False,
+                                       message="no cube and no centroids")
+    dst = src if output is None else Path(output)
+    if dst.resolve() != src.resolve():
+        # Copy, then update the copy; the copy lands atomically.
+        fd, tmp = tempfile.mkstemp(dir=dst.parent, prefix=f".{dst.name}.", suffix=".tmp")
+        os.close(fd)
+        try:
+            shutil.copyfile(src, tmp)
+            os.replace(tmp, dst)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+    update_recording(dst, rec, keep_cubes=True)
+    return dst, reports

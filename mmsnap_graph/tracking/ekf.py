@@ -1,0 +1,333 @@
+"""Per-node multi-target EKF in the node's local frame (paper section II-A).
+
+State ``(x_m, y_m, vx_mps, vy_mps)`` in the node's local frame (x along the
+array axis, y broadside). Motion: constant velocity with white-acceleration
+noise (design/MATH.md, last section), per axis
+
+.. math::
+
+    F = \\begin{bmatrix} 1 & T \\\\ 0 & 1 \\end{bmatrix},\\quad
+    Q = \\sigma_a^2 \\begin{bmatrix} T^4/4 & T^3/2 \\\\ T^3/2 & T^2 \\end{bmatrix}.
+
+Measurement: ``(range_m, omega_rad, doppler_mps)`` through
+:func:`factors.models.measurement_model` with the node pose ``(0, 0, 0)``
+(the same model as the factor graph), spatial-frequency innovation wrapped.
+
+Data association per frame: Mahalanobis gating (``d^2 < chi2_3(gate_probability)``),
+then a global nearest-neighbour assignment (``scipy.optimize.linear_sum_assignment``
+on ``d^2 + ln det S``) among gated pairs. Track management: an unassigned
+measurement starts a tentative track; a tentative track is confirmed after
+``confirm_hits`` hits within its first ``confirm_window`` frames and deleted
+if it cannot be; a confirmed track is deleted after ``max_misses`` consecutive
+misses. Linear algebra: Cholesky factor of the innovation covariance and
+triangular solves (no explicit inverse), Joseph-form updates, symmetrized
+covariances.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import linalg, stats
+from scipy.optimize import linear_sum_assignment
+
+from factors.models import measurement_model, wrap_angle
+
+from ..errors import ConfigurationError, ValidationError
+from ..recording import Detections, Tracks
+from ..validation import as_float_array, check_finite
+
+__all__ = [
+    "EkfConfig",
+    "cv_transition",
+    "cv_process_noise",
+    "initial_state",
+    "ekf_predict",
+    "ekf_update",
+    "LocalTracker",
+    "track_centroids",
+]
+
+_ZERO_POSE = np.zeros(3)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class EkfConfig:
+    """Per-node EKF and track management parameters.
+
+    frame_period_s : T, time between frames.
+    sigma_a_mps2 : white-acceleration standard deviation per axis (paper: 0.2).
+    measurement_std : (3,) std of ``(range_m, omega_rad, doppler_mps)``
+        (default: the paper's resolutions, design/MATH.md).
+    init_tangential_speed_std_mps : std of the velocity across the line of
+        sight at track start (the Doppler gives only the radial part).
+    gate_probability : chi-square gate probability (3 degrees of freedom).
+    confirm_hits, confirm_window : M-of-N confirmation.
+    max_misses : consecutive misses that delete a confirmed track.
+    """
+
+    frame_period_s: float = 0.150
+    sigma_a_mps2: float = 0.2
+    measurement_std: tuple = (0.035, np.pi / 4, 0.1807)
+    init_tangential_speed_std_mps: float = 1.0
+    gate_probability: float = 0.997
+    confirm_hits: int = 3
+    confirm_window: int = 5
+    max_misses: int = 5
+
+    def __post_init__(self) -> None:
+        std = tuple(float(s) for s in self.measurement_std)
+        if len(std) != 3 or not all(np.isfinite(s) and s > 0 for s in std):
+            raise ConfigurationError(f"measurement_std={self.measurement_std!r} must be three "
+                                     f"finite values > 0 (range_m, omega_rad, doppler_mps)")
+        object.__setattr__(self, "measurement_std", std)
+        for name in ("frame_period_s", "init_tangential_speed_std_mps"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigurationError(f"{name}={v!r} must be finite and > 0")
+        if not (np.isfinite(self.sigma_a_mps2) and self.sigma_a_mps2 >= 0):
+            raise ConfigurationError(f"sigma_a_mps2={self.sigma_a_mps2!r} must be finite and >= 0")
+        if not 0 < self.gate_probability < 1:
+            raise ConfigurationError(f"gate_probability={self.gate_probability!r} must be in (0, 1)")
+        for name in ("confirm_hits", "confirm_window", "max_misses"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ConfigurationError(f"{name}={v!r} must be an integer >= 1")
+        if self.confirm_hits > self.confirm_window:
+            raise ConfigurationError(f"confirm_hits={self.confirm_hits} exceeds "
+                                     f"confirm_window={self.confirm_window}")
+
+    @property
+    def measurement_covariance(self) -> NDArray:
+        return np.diag(np.square(self.measurement_std))
+
+    @property
+    def gate_d2(self) -> float:
+        return float(stats.chi2.ppf(self.gate_probability, 3))
+
+
+def cv_transition(period_s: float) -> NDArray:
+    """(4, 4) constant-velocity transition for state ``(x, y, vx, vy)``."""
+    f = np.eye(4)
+    f[0, 2] = f[1, 3] = period_s
+    return f
+
+
+def cv_process_noise(period_s: float, sigma_a_mps2: float) -> NDArray:
+    """(4, 4) white-acceleration process noise ``sigma_a^2 [[T^4/4, T^3/2], [T^3/2, T^2]]``
+    per axis (design/MATH.md), ordered ``(x, y, vx, vy)``."""
+    t = float(period_s)
+    q = np.zeros((4, 4))
+    for i in (0, 1):
+        q[i, i] = t**4 / 4
+        q[i, i + 2] = q[i + 2, i] = t**3 / 2
+        q[i + 2, i + 2] = t**2
+    return sigma_a_mps2**2 * q
+
+
+def _sym(p: NDArray) -> NDArray:
+    return 0.5 * (p + np.swapaxes(p, -1, -2))
+
+
+def initial_state(measurement: ArrayLike, cfg: EkfConfig) -> tuple[NDArray, NDArray]:
+    """State and covariance of a new track from one ``(range_m, omega_rad, doppler_mps)``.
+
+    Position: ``(R Omega / pi, R sqrt(1 - (Omega / pi)^2))`` with the covariance
+    mapped through its Jacobian; velocity: the Doppler along the line of
+    sight (std of the Doppler) plus a zero-mean tangential part
+    (``init_tangential_speed_std_mps``).
+    """
+    r, om, v = (float(c) for c in measurement)
+    s = float(np.clip(om / np.pi, -0.999, 0.999))
+    c = np.sqrt(1.0 - s * s)
+    sr, so, sv = cfg.measurement_std
+    pos = np.array([r * s, r * c])
+    j = np.array([[s, r / np.pi], [c, -r * s / (np.pi * c)]])
+    p_pos = j @ np.diag([sr**2, so**2]) @ j.T
+    u = np.array([s, c])            # line of sight
+    t = np.array([-c, s])           # across it
+    vel = v * u
+    p_vel = sv**2 * np.outer(u, u) + cfg.init_tangential_speed_std_mps**2 * np.outer(t, t)
+    x = np.concatenate([pos, vel])
+    p = np.zeros((4, 4))
+    p[:2, :2] = p_pos
+    p[2:, 2:] = p_vel
+    return x, _sym(p)
+
+
+def ekf_predict(x: NDArray, p: NDArray, period_s: float, sigma_a_mps2: float):
+    """One constant-velocity prediction ``(F x, F P F^T + Q)``."""
+    f = cv_transition(period_s)
+    return f @ x, _sym(f @ p @ f.T + cv_process_noise(period_s, sigma_a_mps2))
+
+
+def _innovation(x: NDArray, p: NDArray, z: NDArray, r: NDArray):
+    h, jac = measurement_model(x, _ZERO_POSE)
+    nu = z - h
+    nu[..., 1] = wrap_angle(nu[..., 1])
+    s = _sym(jac @ p @ jac.T + r)
+    return nu, jac, s
+
+
+def ekf_update(x: NDArray, p: NDArray, z: ArrayLike, r: NDArray):
+    """EKF update with one measurement ``z (3,)`` and noise ``r (3, 3)``.
+
+    Returns ``x (4,), P (4, 4), d2`` (the Mahalanobis distance of the innovation).
+    """
+    nu, jac, s = _innovation(x, p, np.asarray(z, dtype=float).copy(), r)
+    chol = linalg.cho_factor(s, lower=True)
+    # K = P H^T S^-1, computed as (S^-1 H P)^T with a Cholesky solve.
+    gain = linalg.cho_solve(chol, jac @ p).T
+    d2 = float(nu @ linalg.cho_solve(chol, nu))
+    ikh = np.eye(4) - gain @ jac
+    p_new = ikh @ p @ ikh.T + gain @ r @ gain.T
+    return x + gain @ nu, _sym(p_new), d2
+
+
+class _Track:
+    __slots__ = ("track_id", "x", "p", "hits", "age", "misses", "confirmed")
+
+    def __init__(self, track_id: int, x: NDArray, p: NDArray) -> None:
+        self.track_id = track_id
+        self.x, self.p = x, p
+        self.hits, self.age, self.misses = 1, 1, 0
+        self.confirmed = False
+
+
+class LocalTracker:
+    """Multi-target EKF tracker of one node (module docstring).
+
+    ``step(measurements)`` advances one frame and returns the confirmed
+    tracks as ``(track_id, state (4,), covariance (4, 4))`` tuples.
+    """
+
+    def __init__(self, cfg: EkfConfig | None = None) -> None:
+        self.cfg = EkfConfig() if cfg is None else cfg
+        self._tracks: list[_Track] = []
+        self._next_id = 0
+        self._r = self.cfg.measurement_covariance
+        self._gate = self.cfg.gate_d2
+        self._started = False
+
+    @property
+    def tracks(self) -> list[_Track]:
+        """All live tracks, tentative ones included (read-only use)."""
+        return list(self._tracks)
+
+    def step(self, measurements: ArrayLike, *, period_s: float | None = None):
+        z = check_finite(as_float_array(measurements, "measurements"), "measurements")
+        if z.ndim != 2 or z.shape[1] != 3:
+            raise ValidationError(f"measurements must have shape (K, 3), got {z.shape}")
+        cfg = self.cfg
+        t = cfg.frame_period_s if period_s is None else float(period_s)
+        if self._started:
+            for tr in self._tracks:
+                tr.x, tr.p = ekf_predict(tr.x, tr.p, t, cfg.sigma_a_mps2)
+        self._started = True
+        n_t, n_z = len(self._tracks), z.shape[0]
+        assigned_z = np.zeros(n_z, bool)
+        assigned_t = np.zeros(n_t, bool)
+        if n_t and n_z:
+            big = 1e12
+            cost = np.full((n_t, n_z), big)
+            for i, tr in enumerate(self._tracks):
+                if tr.x[0] ** 2 + tr.x[1] ** 2 < 1e-12:
+                    continue
+                h, jac = measurement_model(tr.x, _ZERO_POSE)
+                s = _sym(jac @ tr.p @ jac.T + self._r)
+                try:
+                    chol = linalg.cholesky(s, lower=True)
+                except linalg.LinAlgError:
+                    continue
+                nu = z - h
+                nu[:, 1] = wrap_angle(nu[:, 1])
+                w = linalg.solve_triangular(chol, nu.T, lower=True)
+                d2 = np.sum(w * w, axis=0)
+                logdet = 2.0 * np.sum(np.log(np.diag(chol)))
+                ok = d2 < self._gate
+                cost[i, ok] = d2[ok] + logdet
+            rows, cols = linear_sum_assignment(cost)
+            for i, j in zip(rows, cols):
+                if cost[i, j] >= big:
+                    continue
+                tr = self._tracks[i]
+                tr.x, tr.p, _ = ekf_update(tr.x, tr.p, z[j], self._r)
+                tr.hits += 1
+                tr.misses = 0
+                assigned_t[i] = assigned_z[j] = True
+        keep = []
+        for i, tr in enumerate(self._tracks):
+            tr.age += 1
+            if not assigned_t[i]:
+                tr.misses += 1
+            if not tr.confirmed and tr.hits >= cfg.confirm_hits:
+                tr.confirmed = True
+            if tr.confirmed:
+                alive = tr.misses < cfg.max_misses
+            else:
+                # Can it still reach confirm_hits within confirm_window?
+                alive = tr.hits + (cfg.confirm_window - tr.age) >= cfg.confirm_hits
+            if alive:
+                keep.append(tr)
+        self._tracks = keep
+        for j in np.flatnonzero(~assigned_z):
+            if z[j, 0] <= 0:
+                continue
+            x0, p0 = initial_state(z[j], cfg)
+            self._tracks.append(_Track(self._next_id, x0, p0))
+            self._next_id += 1
+        out = []
+        for tr in self._tracks:
+            if tr.confirmed:
+                out.append((tr.track_id, tr.x.copy(), tr.p.copy()))
+        return out
+
+
+def track_centroids(
+    centroids: Detections,
+    cfg: EkfConfig | None = None,
+    *,
+    frames: Sequence[int] | NDArray | None = None,
+) -> Tracks:
+    """Local-frame tracks from a node's centroids (all frames).
+
+    centroids : :class:`Detections`, one row per centroid per frame.
+    frames : the frames to step through (default: every integer frame from
+        the first to the last centroid); frames without centroids are
+        prediction-only steps.
+    Returns the confirmed tracks at every frame they are alive (frames where
+    a track coasts without a measurement included).
+    """
+    cfg = EkfConfig() if cfg is None else cfg
+    if frames is None:
+        if len(centroids) == 0:
+            return Tracks.empty()
+        frames = np.arange(centroids.frame.min(), centroids.frame.max() + 1)
+    frames = np.asarray(frames)
+    if frames.ndim != 1 or (frames.size and not np.issubdtype(frames.dtype, np.integer)):
+        raise ValidationError(f"frames must be a 1-D integer array, got {frames.dtype} "
+                              f"{frames.shape}")
+    if frames.size > 1 and np.any(np.diff(frames) <= 0):
+        raise ValidationError("frames must be strictly increasing")
+    tracker = LocalTracker(cfg)
+    meas = centroids.measurements
+    order = np.argsort(centroids.frame, kind="stable")
+    sorted_frames = centroids.frame[order]
+    out_f, out_id, out_x, out_p = [], [], [], []
+    prev = None
+    for f in frames:
+        lo, hi = np.searchsorted(sorted_frames, [f, f + 1])
+        period = cfg.frame_period_s * (1 if prev is None else int(f - prev))
+        for tid, x, p in tracker.step(meas[order[lo:hi]], period_s=period):
+            out_f.append(int(f))
+            out_id.append(tid)
+            out_x.append(x)
+            out_p.append(p)
+        prev = f
+    if not out_f:
+        return Tracks.empty()
+    return Tracks(frame=np.asarray(out_f), track_id=np.asarray(out_id),
+                  state=np.asarray(out_x), covariance=np.asarray(out_p))
