@@ -17,8 +17,11 @@ range-Doppler coupling), the chirp start time within the frame
 at its own time, so the Doppler phase differs between transmitters; the
 signal chain corrects it), and antenna positions ``tx_m``, ``rx_q`` in units
 of half a wavelength (:class:`~mmsnap_graph.radar.config.RadarConfig`). The
-carrier phase ``4 pi R_k / lambda`` of each scatterer is folded into its
-complex amplitude. Elevation is zero for every target, so the raised
+carrier phase of each scatterer is folded into its complex amplitude; the
+sign convention consistent with the Doppler term (phase ``4 pi R(t) /
+lambda`` growing with range) is ``a_k = |a_k| exp(+j 4 pi R_k / lambda)``,
+which keeps the phase continuous from frame to frame. Nothing in the chain
+depends on it (each frame is processed on its own). Elevation is zero for every target, so the raised
 transmitter's channels see only their azimuth phase.
 
 The range advances with the radial velocity through the Doppler phase
