@@ -300,3 +300,30 @@ def test_reader_rejects_truncated_and_foreign_files(tmp_path):
         f["x"] = 1
     with pytest.raises(FileFormatError, match="missing attribute 'format'"):
         read_recording(tmp_path / "other.h5")
+
+
+def test_int16_cube_storage_round_trips_counts(tmp_path):
+    rng = np.random.default_rng(4)
+    counts = (rng.integers(-300, 300, (2, *SMALL_RADAR.cube_shape))
+              + 1j * rng.integers(-300, 300, (2, *SMALL_RADAR.cube_shape))).astype(np.complex64)
+    rec = Recording(frame_period_s=0.15, nodes={
+        "S1": NodeData(name="S1", radar=SMALL_RADAR, cube=counts)})
+    path = write_recording(tmp_path / "i.h5", rec, cube_storage="int16")
+    with h5py.File(path, "r") as f:
+        assert f["nodes/S1/cube/adc"].dtype == np.int16
+        assert f["nodes/S1/cube/adc"].shape == (2, *SMALL_RADAR.cube_shape, 2)
+    assert_array_equal(read_recording(path).nodes["S1"].cube, counts)
+    chunks = list(iter_cubes(path, "S1", chunk_frames=1))
+    assert_array_equal(np.concatenate([c for _, c in chunks]), counts)
+    frac = Recording(frame_period_s=0.15, nodes={
+        "S1": NodeData(name="S1", radar=SMALL_RADAR, cube=counts + 0.5)})
+    with pytest.raises(FileFormatError, match="not whole int16 ADC counts"):
+        write_recording(tmp_path / "f.h5", frac, cube_storage="int16")
+    with pytest.raises(FileFormatError, match="cube_storage='int8'"):
+        write_recording(tmp_path / "g.h5", rec, cube_storage="int8")
+    # A 5-D adc that is not int16 I/Q pairs.
+    with h5py.File(path, "a") as f:
+        del f["nodes/S1/cube/adc"]
+        f["nodes/S1/cube/adc"] = np.zeros((2, *SMALL_RADAR.cube_shape, 2), dtype=np.int32)
+    with pytest.raises(FileFormatError, match="stored as ADC counts must be int16"):
+        read_recording(path)

@@ -99,20 +99,40 @@ def _radar_attrs(obj: h5py.HLObject, radar: RadarConfig) -> None:
 
 
 def _write_cube(group: h5py.Group, node: NodeData, compression: str | None,
-                compression_opts: int | None) -> None:
+                compression_opts: int | None, cube_storage: str) -> None:
     _radar_attrs(group, node.radar)
     cube = node.cube
-    kw: dict[str, Any] = {"chunks": (1,) + tuple(cube.shape[1:])} if cube.shape[0] else {}
-    if compression and cube.shape[0]:
-        kw.update(compression=compression)
+    n_f = cube.shape[0]
+    if cube_storage == "int16":
+        # ADC counts as a capture holds them: (F, S, L, V, 2) int16 I/Q.
+        shape = (*cube.shape, 2)
+        dtype = np.int16
+        chunks = (1, *shape[1:])
+    else:
+        shape, dtype, chunks = cube.shape, np.complex64, (1, *cube.shape[1:])
+    kw: dict[str, Any] = {"chunks": chunks} if n_f else {}
+    if compression and n_f:
+        kw.update(compression=compression, shuffle=True)
         if compression_opts is not None:
             kw.update(compression_opts=compression_opts)
-    group.create_dataset("adc", data=np.asarray(cube, dtype=np.complex64), **kw)
+    ds = group.create_dataset("adc", shape=shape, dtype=dtype, **kw)
+    lim = np.iinfo(np.int16)
+    for f in range(n_f):  # frame by frame: cubes may be memory maps larger than RAM
+        block = np.asarray(cube[f], dtype=np.complex64)
+        if cube_storage == "int16":
+            iq = block.view(np.float32).reshape(*block.shape, 2)
+            if (not np.all(iq == np.round(iq)) or iq.min() < lim.min or iq.max() > lim.max):
+                raise FileFormatError(
+                    f"nodes[{node.name}].cube frame {f} is not whole int16 ADC counts; "
+                    "use cube_storage='complex64'")
+            ds[f] = iq.astype(np.int16)
+        else:
+            ds[f] = block
     group.create_dataset("frame", data=np.asarray(node.cube_frame, dtype=np.int64))
 
 
 def _write_into(f: h5py.File, rec: Recording, compression: str | None,
-                compression_opts: int | None) -> None:
+                compression_opts: int | None, cube_storage: str = "complex64") -> None:
     f.attrs["format"] = FORMAT_NAME
     f.attrs["format_version"] = FORMAT_VERSION
     f.attrs["frame_period_s"] = float(rec.frame_period_s)
@@ -146,7 +166,8 @@ def _write_into(f: h5py.File, rec: Recording, compression: str | None,
         if node.tracks is not None:
             _write_tracks(g.create_group("tracks"), node.tracks)
         if node.cube is not None:
-            _write_cube(g.create_group("cube"), node, compression, compression_opts)
+            _write_cube(g.create_group("cube"), node, compression, compression_opts,
+                        cube_storage)
     if rec.truth is not None:
         t = f.create_group("truth")
         _column(t, "frame", rec.truth.frame, np.int64)
@@ -177,8 +198,14 @@ def _atomic_write(path: Path, fill) -> None:
         raise
 
 
+def _check_storage(cube_storage: str) -> None:
+    if cube_storage not in ("complex64", "int16"):
+        raise FileFormatError(f"cube_storage={cube_storage!r} must be 'complex64' or 'int16'")
+
+
 def write_recording(path: str | os.PathLike, recording: Recording, *, overwrite: bool = False,
-                    compression: str | None = "gzip", compression_opts: int | None = 1) -> Path:
+                    compression: str | None = "gzip", compression_opts: int | None = 1,
+                    cube_storage: str = "complex64") -> Path:
     """Write ``recording`` to a new HDF5 file, atomically.
 
     ``overwrite=False`` refuses an existing ``path`` (:class:`FileFormatError`);
@@ -186,20 +213,24 @@ def write_recording(path: str | os.PathLike, recording: Recording, *, overwrite:
     groups are lost: use :func:`update_recording` to keep them).
     ``compression``/``compression_opts`` apply to raw ADC cubes (chunked one
     frame per chunk); other datasets of 1024 elements or more are always
-    chunked and gzip-compressed. Returns the path.
+    chunked and gzip-compressed. ``cube_storage="int16"`` stores cubes as
+    int16 I/Q ADC counts (half the size, compresses well; the cube must hold
+    whole counts in the int16 range), else complex64. Returns the path.
     """
+    _check_storage(cube_storage)
     path = Path(path)
     if not isinstance(recording, Recording):
         raise FileFormatError(f"recording must be a Recording, got {type(recording).__name__}")
     if path.exists() and not overwrite:
         raise FileFormatError(f"{path} exists; pass overwrite=True to replace it")
-    _atomic_write(path, lambda f: _write_into(f, recording, compression, compression_opts))
+    _atomic_write(path, lambda f: _write_into(f, recording, compression, compression_opts,
+                                              cube_storage))
     return path
 
 
 def update_recording(path: str | os.PathLike, recording: Recording, *,
                      keep_cubes: bool = True, compression: str | None = "gzip",
-                     compression_opts: int | None = 1) -> Path:
+                     compression_opts: int | None = 1, cube_storage: str = "complex64") -> Path:
     """Rewrite the file at ``path`` with ``recording``, atomically, keeping
     what the in-memory recording does not hold.
 
@@ -210,13 +241,14 @@ def update_recording(path: str | os.PathLike, recording: Recording, *,
     recording was read with ``load_cubes=False`` (its ``cube`` is None).
     The old file is validated first (:class:`FileFormatError`).
     """
+    _check_storage(cube_storage)
     path = Path(path)
     if not path.exists():
         raise FileFormatError(f"{path} does not exist; use write_recording for a new file")
     _open_checked(path).close()
 
     def fill(f: h5py.File) -> None:
-        _write_into(f, recording, compression, compression_opts)
+        _write_into(f, recording, compression, compression_opts, cube_storage)
         with h5py.File(path, "r") as old:
             for key in old.keys():
                 if key not in _ROOT_KNOWN:
@@ -414,15 +446,38 @@ def _radar(obj: h5py.HLObject) -> RadarConfig:
 
 def _cube_meta(group: h5py.Group) -> tuple[RadarConfig, h5py.Dataset, NDArray]:
     radar = _radar(group)
-    adc = _dataset(group, "adc", ndim=4, kind="complex")
-    if adc.shape[1:] != radar.cube_shape:
-        raise FileFormatError(f"dataset {adc.name} has shape {adc.shape}, but its radar "
-                              f"configuration needs (F, {', '.join(map(str, radar.cube_shape))})")
+    if "adc" in group and isinstance(group["adc"], h5py.Dataset) and group["adc"].ndim == 5:
+        adc = _dataset(group, "adc", ndim=5, kind="int")
+        if adc.dtype != np.int16 or adc.shape[1:] != (*radar.cube_shape, 2):
+            raise FileFormatError(
+                f"dataset {adc.name} stored as ADC counts must be int16 of shape "
+                f"(F, {', '.join(map(str, radar.cube_shape))}, 2), got {adc.dtype} {adc.shape}")
+    else:
+        adc = _dataset(group, "adc", ndim=4, kind="complex")
+        if adc.shape[1:] != radar.cube_shape:
+            raise FileFormatError(
+                f"dataset {adc.name} has shape {adc.shape}, but its radar configuration "
+                f"needs (F, {', '.join(map(str, radar.cube_shape))})")
     frame_ds = _dataset(group, "frame", kind="int")
     if frame_ds.shape != (adc.shape[0],):
         raise FileFormatError(f"dataset {frame_ds.name} has {frame_ds.shape[0]} rows but "
                               f"{adc.name} has {adc.shape[0]} frames")
     return radar, adc, _load(frame_ds).astype(np.int64)
+
+
+def _cube_block(adc: h5py.Dataset, sl: slice) -> NDArray:
+    """Frames ``sl`` of a cube dataset as complex64 (either storage)."""
+    try:
+        block = adc[sl]
+    except OSError as exc:
+        raise FileFormatError(f"dataset {adc.name} frames {sl.start}:{sl.stop} cannot be read "
+                              f"(truncated file?): {exc}") from exc
+    if adc.ndim == 5:
+        out = np.empty(block.shape[:-1], dtype=np.complex64)
+        out.real = block[..., 0]
+        out.imag = block[..., 1]
+        return out
+    return block.astype(np.complex64, copy=False)
 
 
 def _node(group: h5py.Group, name: str, load_cubes: bool) -> NodeData:
@@ -443,7 +498,7 @@ def _node(group: h5py.Group, name: str, load_cubes: bool) -> NodeData:
                                   "radar configuration")
         kw["radar"] = radar
         if load_cubes:
-            kw["cube"] = _load(adc)
+            kw["cube"] = _cube_block(adc, slice(0, adc.shape[0]))
             kw["cube_frame"] = frames
     try:
         return NodeData(**kw)
@@ -525,12 +580,7 @@ def iter_cubes(path: str | os.PathLike, node_name: str, *, chunk_frames: int = 1
         _, adc, frames = _cube_meta(_group(group, "cube"))
         for start in range(0, adc.shape[0], chunk_frames):
             stop = min(start + chunk_frames, adc.shape[0])
-            try:
-                block = adc[start:stop]
-            except OSError as exc:
-                raise FileFormatError(f"dataset {adc.name} frames {start}:{stop} cannot be read "
-                                      f"(truncated file?): {exc}") from exc
-            yield frames[start:stop], block
+            yield frames[start:stop], _cube_block(adc, slice(start, stop))
 
 
 def read_cube_frames(path: str | os.PathLike, node_name: str) -> tuple[RadarConfig, NDArray, int]:

@@ -155,9 +155,13 @@ class CubeModel:
     uniformly in the node's field of view between ``clutter_min_range_m``
     and ``clutter_max_range_m`` with RCS log-uniform in ``clutter_rcs_m2``;
     fixed for the whole recording.
+    quantize : round I and Q to whole ADC counts and clip them to int16, as
+    a capture holds them (then ``noise_std`` is in counts; use 8 or more).
+    Integer-valued cubes also compress several times better.
     """
 
     noise_std: float = 1.0
+    quantize: bool = False
     n_clutter: int = 8
     clutter_rcs_m2: tuple[float, float] = (1.0, 20.0)
     clutter_min_range_m: float = 2.0
@@ -350,8 +354,13 @@ def _cubes(bodies, pose, radar, model, frames, limits, rng, clutter_rng, progres
     for start in range(0, frames.size, chunk):
         sl = slice(start, min(start + chunk, frames.size))
         pos, vel, amp = _cube_inputs(bodies, pose, radar, model, frames[sl], limits)
+        block = out[sl]
         synthesize_cubes(radar, pos, vel, amp, rng=rng, noise_std=model.noise_std,
-                         clutter=clutter, out=out[sl])
+                         clutter=clutter, out=block)
+        if model.quantize:
+            view = block.view(np.float32)
+            np.round(view, out=view)
+            np.clip(view, -32768, 32767, out=view)
         if progress_bar is not None:
             progress_bar.update(sl.stop - sl.start)
     return out
