@@ -61,16 +61,16 @@ def measurement_noise(
     return gtsam.noiseModel.Robust.Create(kernel, base)
 
 
-def _node_error(node, z, rows, this, values, jacobians):
-    x, y, vx, vy = values.atVector(this.keys()[0]).tolist()
+def _node_error(key, node, z, rows, this, values, jacobians):
+    x, y, vx, vy = values.atVector(key).tolist()
     r, w, v, jac = _model_scalar(x, y, vx, vy, *node)
     err = np.array((r - z[0], _wrap_scalar(w - z[1]), v - z[2]))
     if rows is None:
         if jacobians is not None:
-            jacobians[0] = np.array(jac)
+            jacobians[0] = np.array(jac).reshape(3, 4)
         return err
     if jacobians is not None:
-        jacobians[0] = np.array(jac)[rows]
+        jacobians[0] = np.array(jac).reshape(3, 4)[rows]
     return err[rows]
 
 
@@ -95,12 +95,12 @@ def node_measurement_factor(
     # The node pose enters the callback as (x, y, cos phi, sin phi) floats.
     node = (pose[0], pose[1], math.cos(pose[2]), math.sin(pose[2]))
     z = tuple(np.asarray(measurement, dtype=float).tolist())
-    fn = partial(_node_error, node, z, rows)
+    fn = partial(_node_error, state_key, node, z, rows)
     return gtsam.CustomFactor(noise, [state_key], fn)
 
 
-def _frame_error(nodes, zs, this, values, jacobians):
-    x, y, vx, vy = values.atVector(this.keys()[0]).tolist()
+def _frame_error(key, nodes, zs, this, values, jacobians):
+    x, y, vx, vy = values.atVector(key).tolist()
     err = []
     jac = []
     for (px, py, c, s), (zr, zw, zv) in zip(nodes, zs):
@@ -108,7 +108,7 @@ def _frame_error(nodes, zs, this, values, jacobians):
         err += (r - zr, _wrap_scalar(w - zw), v - zv)
         jac += j
     if jacobians is not None:
-        jacobians[0] = np.array(jac)
+        jacobians[0] = np.array(jac).reshape(-1, 4)
     return np.array(err)
 
 
@@ -137,7 +137,7 @@ def frame_measurement_factor(
         raise ValueError(
             f"measurements has {len(zs)} rows but node_poses has {len(nodes)}: one per node"
         )
-    return gtsam.CustomFactor(noise, [state_key], partial(_frame_error, nodes, zs))
+    return gtsam.CustomFactor(noise, [state_key], partial(_frame_error, state_key, nodes, zs))
 
 
 def scalar_measurement_factor(
@@ -152,28 +152,27 @@ def scalar_measurement_factor(
     )
 
 
-def _pose_error(z, this, values, jacobians):
-    keys = this.keys()
-    pose = values.atPose2(keys[0])
+def _pose_error(pose_key, state_key, z, this, values, jacobians):
+    pose = values.atPose2(pose_key)
     px, py, phi = pose.x(), pose.y(), pose.theta()
     c = math.cos(phi)
     s = math.sin(phi)
-    x, y, vx, vy = values.atVector(keys[1]).tolist()
+    x, y, vx, vy = values.atVector(state_key).tolist()
     r, w, v, jac = _model_scalar(x, y, vx, vy, px, py, c, s)
     err = np.array((r - z[0], _wrap_scalar(w - z[1]), v - z[2]))
     if jacobians is not None:
         # d h / d pose = [d h / d p_i @ R(phi), d h / d phi] with
         # d h / d p_i = -d h / d p (design/MATH.md); only Omega depends on
         # phi: pi <d, (-sin phi, cos phi)> / r.
-        ux, uy = jac[0][0], jac[0][1]
-        rows = []
+        ux, uy = jac[0], jac[1]
+        j_pose = []
         for k in range(3):
-            a = -jac[k][0]
-            b = -jac[k][1]
-            rows.append((a * c + b * s, -a * s + b * c, 0.0))
-        rows[1] = (rows[1][0], rows[1][1], _PI * (uy * c - ux * s))
-        jacobians[0] = np.array(rows)
-        jacobians[1] = np.array(jac)
+            a = -jac[4 * k]
+            b = -jac[4 * k + 1]
+            j_pose += (a * c + b * s, -a * s + b * c, 0.0)
+        j_pose[5] = _PI * (uy * c - ux * s)
+        jacobians[0] = np.array(j_pose).reshape(3, 3)
+        jacobians[1] = np.array(jac).reshape(3, 4)
     return err
 
 
@@ -183,7 +182,7 @@ def pose_measurement_factor(
     """Measurement factor between an unknown node ``Pose2`` and a target state
     (form b, for calibration graphs). The pose Jacobian is in GTSAM's
     body-frame tangent."""
-    fn = partial(_pose_error, tuple(np.asarray(measurement, dtype=float).tolist()))
+    fn = partial(_pose_error, pose_key, state_key, tuple(np.asarray(measurement, dtype=float).tolist()))
     return gtsam.CustomFactor(noise, [pose_key, state_key], fn)
 
 

@@ -180,8 +180,9 @@ def measurement_model_scalar(x, y, vx, vy, px, py, cos_phi, sin_phi):
     Arguments are the state ``(x, y, vx, vy)`` and the node's position and
     array-axis direction ``(px, py, cos phi, sin phi)``. Returns
     ``(range_m, omega_rad, doppler_mps, jac)`` with ``jac`` the 3x4 Jacobian
-    ``d h / d state`` as a tuple of row tuples. Raises ``ZeroDivisionError``
-    for a target at the node's position.
+    ``d h / d state`` flattened row-major into a 12-tuple (``jac[4 * k + j]``
+    is ``d h_k / d state_j``). Raises ``ZeroDivisionError`` for a target at
+    the node's position.
     """
     dx = x - px
     dy = y - py
@@ -196,11 +197,11 @@ def measurement_model_scalar(x, y, vx, vy, px, py, cos_phi, sin_phi):
         _PI * sn,
         v,
         (
-            (ux, uy, 0.0, 0.0),
-            (k * (cos_phi - sn * ux), k * (sin_phi - sn * uy), 0.0, 0.0),
-            ((vx - v * ux) / r, (vy - v * uy) / r, ux, uy),
+            ux, uy, 0.0, 0.0,
+            k * (cos_phi - sn * ux), k * (sin_phi - sn * uy), 0.0, 0.0,
+            (vx - v * ux) / r, (vy - v * uy) / r, ux, uy,
         ),
-    )
+    )  # fmt: skip
 
 
 def residual(predicted: ArrayLike, measured: ArrayLike) -> NDArray:

@@ -622,7 +622,7 @@ def _residuals_and_degeneracy(state, poses, z, obs, noise) -> tuple[NDArray, flo
             continue
         zi = zl[i]
         out.append(((r - zi[0]) / sr, wrap_angle_scalar(w - zi[1]) / sw, (v - zi[2]) / sv))
-        ux, uy = jac[2][2], jac[2][3]
+        ux, uy = jac[10], jac[11]
         a11 += ux * ux
         a12 += ux * uy
         a22 += uy * uy
