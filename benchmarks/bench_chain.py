@@ -1,0 +1,124 @@
+"""Speed of the per-node signal chain on Table I cubes (512 x 60 x 12).
+
+Prints frames per second per stage and for the whole chain (cube ->
+centroids, then centroids -> tracks), against a baseline measured in the
+same run: numpy's plain 2D FFT (``np.fft.fft2`` over range and Doppler) of
+the same cube, without windows, clutter removal or anything else.
+
+Single-threaded by construction (scipy.fft ``workers=1``; set
+``OMP_NUM_THREADS=1`` for BLAS). The cubes are a walking person plus static
+clutter and thermal noise, synthesized once before timing.
+
+Usage: ``python benchmarks/bench_chain.py [--frames 100] [--repeat 3]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from mmsnap_graph.radar.cfar import os_cfar_2d  # noqa: E402
+from mmsnap_graph.radar.chain import (  # noqa: E402
+    ChainConfig,
+    _frame_status,
+    _range_slice,
+    point_cloud_of_cube,
+    process_cubes,
+)
+from mmsnap_graph.radar.cluster import torso_centroids  # noqa: E402
+from mmsnap_graph.radar.config import TABLE_I  # noqa: E402
+from mmsnap_graph.radar.spectrum import range_doppler  # noqa: E402
+from mmsnap_graph.sim.body import body_scatterers  # noqa: E402
+from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes  # noqa: E402
+from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids  # noqa: E402
+
+
+def make_cubes(n: int, seed: int = 0) -> np.ndarray:
+    config = TABLE_I
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * config.frame_period_s
+    # Walking back and forth between 2 and 9 m, slightly off broadside.
+    y = 5.5 + 3.5 * np.sin(2 * np.pi * t / 12.0)
+    vy = 3.5 * 2 * np.pi / 12.0 * np.cos(2 * np.pi * t / 12.0)
+    states = np.stack([0.8 + 0 * t, y, 0 * t, vy], axis=1)
+    body = body_scatterers(states, config.frame_period_s, rng=rng)
+    r = np.hypot(body.positions_m[..., 0], body.positions_m[..., 1])
+    amp = scatterer_amplitude(config, body.rcs_m2[None, :], r) * np.exp(
+        2j * np.pi * rng.random(r.shape))
+    n_cl = 10
+    cr = rng.uniform(1, 15, n_cl)
+    ct = rng.uniform(-1, 1, n_cl)
+    clutter = (np.stack([cr * np.sin(ct), cr * np.cos(ct)], 1),
+               scatterer_amplitude(config, rng.uniform(0.5, 5, n_cl), cr))
+    return synthesize_cubes(config, body.positions_m, body.velocities_mps, amp, rng=rng,
+                            noise_std=1.0, clutter=clutter)
+
+
+def best_of(fn, repeat: int) -> float:
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    config, chain = TABLE_I, ChainConfig()
+    n = args.frames
+    cubes = make_cubes(n)
+    print(f"{n} Table I cubes {config.cube_shape} complex64; best of {args.repeat}; "
+          f"1 thread; machine shared with other jobs (figures measured under load)")
+
+    def per_frame(fn):
+        return lambda: [fn(cubes[i]) for i in range(n)]
+
+    rs = _range_slice(config, chain)
+    stages = {}
+    stages["baseline np.fft.fft2 (no window)"] = best_of(
+        per_frame(lambda c: np.fft.fft2(c, axes=(0, 1))), args.repeat)
+    stages["frame check (finite, energy)"] = best_of(
+        per_frame(lambda c: _frame_status(c, chain)), args.repeat)
+    stages["range+Doppler FFT, clutter removal, power"] = best_of(
+        per_frame(lambda c: range_doppler(c, config, range_bins=rs)), args.repeat)
+    stages["point cloud (all of the above + CFAR cells + angle)"] = best_of(
+        per_frame(lambda c: point_cloud_of_cube(c, config, chain)), args.repeat)
+    powers = [range_doppler(cubes[i], config, range_bins=rs)[1] for i in range(n)]
+    stages["reference: whole-map ndimage OS-CFAR only"] = best_of(
+        lambda: [os_cfar_2d(p, chain.cfar, config.n_virtual) for p in powers], args.repeat)
+    res = process_cubes(cubes, config, chain)
+    stages["torso DBSCAN (all frames)"] = best_of(
+        lambda: torso_centroids(res.point_cloud, chain.cluster,
+                                doppler_resolution_mps=config.doppler_resolution_mps),
+        args.repeat)
+    stages["cube -> centroids (process_cubes)"] = best_of(
+        lambda: process_cubes(cubes, config, chain), args.repeat)
+    ekf = EkfConfig(frame_period_s=config.frame_period_s)
+    stages["centroids -> EKF tracks"] = best_of(lambda: track_centroids(res.centroids, ekf),
+                                                args.repeat)
+    base = stages["baseline np.fft.fft2 (no window)"]
+    print(f"{'stage':55s} {'ms/frame':>9s} {'frames/s':>9s} {'x baseline':>10s}")
+    for name, t in stages.items():
+        print(f"{name:55s} {1e3 * t / n:9.3f} {n / t:9.1f} {t / base:10.2f}")
+    stage_rd = stages["range+Doppler FFT, clutter removal, power"]
+    stage_pc = stages["point cloud (all of the above + CFAR cells + angle)"]
+    stage_ch = stages["frame check (finite, energy)"]
+    print(f"{'  (derived) CFAR cells + peaks + angle':55s} "
+          f"{1e3 * (stage_pc - stage_rd - stage_ch) / n:9.3f}")
+    print(f"points/frame {len(res.point_cloud) / n:.1f}, centroids/frame "
+          f"{len(res.centroids) / n:.2f}, flagged frames {int(np.sum(res.status != 0))}")
+
+
+if __name__ == "__main__":
+    main()
