@@ -295,9 +295,9 @@ def validate_frame(
         )
     obs = _check_observed(observed, n_nodes)
     zo = z if obs is None else z[obs]
-    # Fast path: one vectorized test; the detailed message only on failure.
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(zo).all() and (zo[:, 0] > 0.0).all() and (np.abs(zo[:, 1]) <= np.pi).all()
+    # Fast path: one vectorized test (comparisons with NaN are False without
+    # warnings); the detailed message only on failure.
+    ok = np.isfinite(zo).all() and (zo[:, 0] > 0.0).all() and (np.abs(zo[:, 1]) <= np.pi).all()
     if not ok:
         rows = np.arange(n_nodes) if obs is None else np.flatnonzero(obs)
         _check_measurement_rows(z, rows)
@@ -452,8 +452,9 @@ def _initial_state_scalar(poses, z, obs, prior, noise) -> list[float]:
 
 
 def _initial_state_checked(poses, z, obs, prior, noise=None) -> NDArray:
-    x0 = np.array(_initial_state_scalar(poses, z, obs, prior, noise))
-    if not np.isfinite(x0).all():
+    x0_list = _initial_state_scalar(poses, z, obs, prior, noise)
+    x0 = np.array(x0_list)
+    if not all(map(math.isfinite, x0_list)):
         raise GeometryError(
             f"initial position {x0[:2].tolist()} (the average of the nodes' detections) "
             "coincides with a node's position, where the lines of sight are undefined"
@@ -494,6 +495,11 @@ def initial_state(
 @lru_cache(maxsize=64)
 def _noise_model(sigmas: tuple[float, float, float], n_nodes: int) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Diagonal.Sigmas(np.tile(np.array(sigmas), n_nodes))
+
+
+@lru_cache(maxsize=64)
+def _prior_noise_model(sigmas: tuple[float, ...]) -> gtsam.noiseModel.Base:
+    return gtsam.noiseModel.Diagonal.Sigmas(np.array(sigmas))
 
 
 def _lm_params(max_iterations: int) -> gtsam.LevenbergMarquardtParams:
@@ -556,12 +562,10 @@ def _build(poses, z, obs, noise, prior, x0, key):
         graph.add(frame_measurement_factor(key, poses, z, model))
     if prior is not None:
         graph.add(
-            gtsam.PriorFactorVector(
-                key, prior.mean, gtsam.noiseModel.Diagonal.Sigmas(prior.sigmas)
-            )
+            gtsam.PriorFactorVector(key, prior.mean, _prior_noise_model(tuple(prior.sigmas.tolist())))
         )
     values = gtsam.Values()
-    values.insert(key, np.array(x0, dtype=float))
+    values.insert(key, np.asarray(x0, dtype=float))
     return graph, values
 
 
