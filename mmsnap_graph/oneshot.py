@@ -451,6 +451,17 @@ def _initial_state_scalar(poses, z, obs, prior, noise) -> list[float]:
     return [x, y, k * e1, k * e2]
 
 
+def _check_initial(initial, poses, obs) -> NDArray:
+    x0 = _frozen_vector(initial, "initial", 4)
+    for i, (px, py, _) in enumerate(poses.tolist()):
+        if (obs is None or obs[i]) and math.hypot(x0[0] - px, x0[1] - py) < _AT_NODE_M:
+            raise GeometryError(
+                f"initial position {x0[:2].tolist()} is at node {i}'s position, where the "
+                "measurement model is undefined"
+            )
+    return x0
+
+
 def _initial_state_checked(poses, z, obs, prior, noise=None) -> NDArray:
     x0_list = _initial_state_scalar(poses, z, obs, prior, noise)
     x0 = np.array(x0_list)
@@ -548,7 +559,7 @@ def build_frame_graph(
             raise ValidationError("observed has no True entry and there is no prior")
         x0 = _initial_state_checked(poses, z, obs, prior, noise)
     else:
-        x0 = _frozen_vector(initial, "initial", 4)
+        x0 = _check_initial(initial, poses, obs)
     return _build(poses, z, obs, noise, prior, x0, key)
 
 
@@ -683,8 +694,8 @@ def fuse_frame(
     Raises
     ------
     ValidationError, GeometryError
-        Invalid input (see :func:`validate_frame`), or an initial position on
-        a node.
+        Invalid input (see :func:`validate_frame`), or an initial position
+        (given, or from the detections) on an observed node.
     """
     if covariance not in ("laplace", "grid", "both"):
         raise ValidationError(
@@ -724,7 +735,7 @@ def fuse_frame(
     if initial is None:
         x0 = _initial_state_checked(poses, z, obs, prior, noise)
     else:
-        x0 = _frozen_vector(initial, "initial", 4)
+        x0 = _check_initial(initial, poses, obs)
 
     graph, values = _build(poses, z, obs, noise, prior, x0, STATE_KEY)
     params = _PARAMS_CACHE.get(max_iterations)

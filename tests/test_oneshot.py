@@ -225,11 +225,28 @@ def test_gtsam_exception_is_flagged(monkeypatch):
     assert np.isnan(res.whitened_residuals).all()
 
 
-def test_target_reaching_a_node_is_flagged():
-    """An initial value on a node makes the model undefined inside GTSAM's
-    callback (a target at the node): flagged, not raised."""
+def test_initial_value_on_a_node_is_a_geometry_error():
     z = exact(POSES_B, TRUTH_B)
-    res = fuse_frame(POSES_B, z, initial=np.array([5.0, 5.0, 0.0, 0.0]))
+    with pytest.raises(GeometryError, match=r"initial position \[5.0, 5.0\] is at node 1's position"):
+        fuse_frame(POSES_B, z, initial=np.array([5.0, 5.0, 0.0, 0.0]))
+    with pytest.raises(GeometryError, match="is at node 1's position"):
+        build_frame_graph(POSES_B, z, initial=np.array([5.0, 5.0, 0.0, 0.0]))
+    # an unobserved node's position is a legitimate starting point
+    res = fuse_frame(POSES_B, z, observed=np.array([True, False]), initial=np.array([5.0, 5.0, 0.0, 0.0]))
+    assert isinstance(res, FusionResult)
+
+
+def test_callback_failure_inside_gtsam_is_flagged(monkeypatch):
+    """An exception raised inside the factor's Python callback (here the
+    model at a node's position, forced by the test) reaches fuse_frame
+    through GTSAM and is flagged."""
+    import factors.gtsam_factors as gf
+
+    def at_node(*args):
+        raise ZeroDivisionError("float division by zero")
+
+    monkeypatch.setattr(gf, "_model_scalar", at_node)
+    res = fuse_frame(POSES_B, exact(POSES_B, TRUTH_B))
     assert_failed(res, "Levenberg-Marquardt failed")
     assert "ZeroDivisionError" in res.message
 
