@@ -238,6 +238,8 @@ def _broken(tmp_path, edit) -> Path:
     (lambda f: f.attrs.__setitem__("format_version", "2.0"), "reads version 1.x"),
     (lambda f: f.attrs.__setitem__("node_order", ["S1", "Z9"]), "does not list the groups"),
     (lambda f: f.__delitem__("nodes"), "/nodes is missing"),
+    (lambda f: (f.__delitem__("nodes/Z9"), f["nodes"].create_dataset("Z9", data=1)),
+     "/nodes/Z9 must be a group"),
     (lambda f: f.__delitem__("nodes/S1/centroids/range_m"),
      "dataset /nodes/S1/centroids/range_m is missing"),
     (lambda f: f.__delitem__("nodes/S1/tracks/covariance"),

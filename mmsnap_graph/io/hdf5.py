@@ -548,7 +548,8 @@ def read_recording(path: str | os.PathLike, *, load_cubes: bool = True) -> Recor
     with _open_checked(path) as f:
         frame_period_s = _attr_float(f, "frame_period_s")
         order = _node_order(f)
-        nodes = {name: _node(f["nodes"][name], name, load_cubes) for name in order}
+        nodes_group = _group(f, "nodes")
+        nodes = {name: _node(_group(nodes_group, name), name, load_cubes) for name in order}
         truth = _truth(_group(f, "truth")) if "truth" in f else None
         metadata: dict[str, Any] = {}
         if "metadata" in f:
