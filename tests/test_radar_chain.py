@@ -16,6 +16,7 @@ from mmsnap_graph.radar.cfar import (
 from mmsnap_graph.radar.chain import (
     ChainConfig,
     FrameStatus,
+    detect_frame,
     point_cloud_of_cube,
     process_cubes,
 )
@@ -198,6 +199,11 @@ def test_cells_and_full_cfar_give_the_same_point_cloud():
     assert len(a[0]) >= 3
     for x, y in zip(a, b):
         np.testing.assert_allclose(np.sort(x), np.sort(y))
+    det, status = detect_frame(cube, config, frame=12)
+    assert status == FrameStatus.OK and len(det) == len(a[0])
+    assert np.all(det.frame == 12)
+    np.testing.assert_array_equal(det.range_m, a[0])
+    np.testing.assert_array_equal(det.snr_db, a[3])
 
 
 def test_static_clutter_is_removed():

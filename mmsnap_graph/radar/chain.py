@@ -61,6 +61,7 @@ __all__ = [
     "FrameStatus",
     "ChainResult",
     "point_cloud_of_cube",
+    "detect_frame",
     "process_cubes",
 ]
 
@@ -258,6 +259,16 @@ def point_cloud_of_cube(
         snr_db = 10.0 * np.log10(power[rows, cols] / np.maximum(noise, np.finfo(np.float32).tiny))
     return (range_m.astype(float), omega.astype(float), doppler.astype(float),
             snr_db.astype(float)), status
+
+
+def detect_frame(
+    cube: NDArray, config: RadarConfig, chain: ChainConfig | None = None, *, frame: int = 0
+) -> tuple[Detections, int]:
+    """One frame's point cloud as :class:`Detections` (all rows ``frame``)
+    and its :class:`FrameStatus` (see :func:`point_cloud_of_cube`)."""
+    (r, w, v, s), status = point_cloud_of_cube(cube, config, chain)
+    return Detections(frame=np.full(r.size, int(frame), dtype=np.int64), range_m=r,
+                      omega_rad=w, doppler_mps=v, snr_db=s), status
 
 
 def process_cubes(
