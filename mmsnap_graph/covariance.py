@@ -178,12 +178,12 @@ def grid_posterior(
         prior_mean=None if prior is None else prior.mean,
         prior_sigmas=None if prior is None else prior.sigmas,
     )
-    result = None
-    for _ in range(int(max_widenings) + 1):
-        axis = np.linspace(-k, k, n)
-        result = _moments(center, chol, axis, kw, int(chunk_size))
-        if result is None or result[2] <= EDGE_DENSITY_TOLERANCE:
+    widenings = int(max_widenings)
+    while True:
+        result = _moments(center, chol, np.linspace(-k, k, n), kw, int(chunk_size))
+        if result is None or result[2] <= EDGE_DENSITY_TOLERANCE or widenings <= 0:
             break
+        widenings -= 1
         k *= 2.0
     if result is None:
         nan = np.full(4, np.nan)

@@ -597,3 +597,31 @@ def test_grid_posterior_of_a_linear_gaussian_is_exact():
     assert_allclose(grid.mean, prior.mean, atol=1e-9)
     assert_allclose(grid.covariance, np.diag(prior.sigmas**2), rtol=1e-4, atol=1e-12)
     assert grid.edge_density < 1e-4 and grid.message == ""
+
+
+def test_grid_posterior_widens_and_reports_truncation():
+    """A grid laid out far too narrow is widened (doubling its half-width),
+    and when it still cuts the posterior off, the result says so."""
+    from mmsnap_graph.covariance import grid_posterior
+
+    prior = GaussianPrior(mean=[0.0, 0.0, 0.0, 0.0], sigmas=[1.0, 1.0, 1.0, 1.0])
+    kw = dict(observed=np.zeros(2, bool), prior=prior, points_per_axis=9)
+    z = np.full((2, 3), np.nan)
+    # Laplace-like scale 4x too small: +-5 "sigmas" is +-1.25 true sigmas;
+    # two doublings reach +-5 true sigmas.
+    widened = grid_posterior(prior.mean, POSES_B, z, scale_covariance=np.eye(4) / 16, **kw)
+    assert widened.half_width_sigmas == 20.0 and widened.message == ""
+    assert_allclose(widened.covariance, np.eye(4), rtol=0.02, atol=1e-3)
+    # No widening allowed: truncated, and flagged.
+    cut = grid_posterior(prior.mean, POSES_B, z, scale_covariance=np.eye(4) / 16, max_widenings=0, **kw)
+    assert "grid posterior truncated" in cut.message
+    assert cut.edge_density > 0.1
+    assert cut.half_width_sigmas == 5.0
+    assert np.all(np.diag(cut.covariance) < 0.6)  # the truncated grid underestimates
+
+
+def test_grid_covariance_of_a_failed_frame_is_nan():
+    z = exact(POSES_B, TRUTH_B)
+    res = fuse_frame(POSES_B[:1], z[:1], prior=None, covariance="both")
+    assert not res.success
+    assert res.grid_covariance.shape == (4, 4) and np.isnan(res.grid_covariance).all()
