@@ -13,7 +13,7 @@ from mmsnap_graph.radar.pipeline import (
     track_node,
     track_recording,
 )
-from mmsnap_graph.recording import Detections, NodeData, Recording
+from mmsnap_graph.recording import NodeData, Recording
 from mmsnap_graph.sim.body import body_scatterers
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes
 

@@ -3,7 +3,6 @@ clustering, degenerate frames and configuration errors."""
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 from mmsnap_graph.radar.cfar import (
