@@ -1,0 +1,244 @@
+"""Central tracker fed by one-shot estimates (paper Sec. II, "inputs to a
+centralized tracker").
+
+Each frame's fused targets (:class:`mmsnap_graph.sequence.FusedSequence`)
+are measurements of the full state ``(x_m, y_m, vx_mps, vy_mps)`` with their
+covariance, in the global frame: a linear Kalman filter with the
+constant-velocity model of design/MATH.md (``F = [[I, T I], [0, I]]``,
+white-acceleration ``Q = sigma_a^2 [[T^4/4, T^3/2], [T^3/2, T^2]]`` per axis).
+
+**The prior must not be counted twice.** A MAP estimate contains the one-shot
+prior (paper eq. 16) once per frame; fed as a measurement frame after frame,
+the prior would be multiplied in again and again and the filter would grow
+confident of the prior mean, most visibly in the cross-line velocity of a
+degenerate geometry, which only the prior bounds. The tracker therefore
+(``remove_prior=True``) turns each MAP estimate back into the information of
+the measurements alone, exact for the linearized problem: with ``P`` the
+Laplace covariance and ``Lambda_p``, ``m`` the prior's information and mean,
+
+.. math::
+
+    \\Lambda_z = P^{-1} - \\Lambda_p, \\qquad
+    \\eta_z = P^{-1} \\hat x - \\Lambda_p m
+
+(the gradient of the prior at the MAP equals minus the likelihood's), and
+updates in information form, ``P^+ = (P^{-1}_- + \\Lambda_z)^{-1}``,
+``x^+ = P^+ (P^{-1}_- x_- + \\eta_z)``. A frame seen by one node gives a
+rank-3 ``Lambda_z``, which the information form takes as it is. ML estimates
+(``prior=None``) are used with ``Lambda_z = P^{-1}``.
+
+Data association between tracks and the frame's estimates: gated
+(chi-square, 2 dof on position) global nearest neighbour with
+:func:`scipy.optimize.linear_sum_assignment`; an unassigned successful
+estimate starts a track (from that estimate, its velocity covariance floored
+at ``init_velocity_sigma_mps``); a track is deleted after ``max_misses``
+consecutive frames without an estimate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import linalg
+from scipy.optimize import linear_sum_assignment
+from scipy.stats import chi2
+
+from ..errors import ConfigurationError, ValidationError
+from ..recording import Tracks
+from ..validation import as_float_array, check_finite
+from .ekf import cv_process_noise, cv_transition
+
+__all__ = ["CentralConfig", "CentralTracker", "measurement_information", "track_fused"]
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class CentralConfig:
+    """Central Kalman filter parameters.
+
+    frame_period_s : T between frames.
+    sigma_a_mps2 : white-acceleration std per axis (the paper's EKF: 0.2).
+    gate_probability : chi-square gate (2 dof, position) for association.
+    max_misses : consecutive frames without an estimate that end a track.
+    init_velocity_sigma_mps : floor of a new track's velocity std.
+    remove_prior : turn MAP estimates into measurement-only information
+        (see the module docstring); ignored for ML estimates.
+    """
+
+    frame_period_s: float = 0.150
+    sigma_a_mps2: float = 0.2
+    gate_probability: float = 0.9999
+    max_misses: int = 5
+    init_velocity_sigma_mps: float = 1.0
+    remove_prior: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("frame_period_s", "init_velocity_sigma_mps"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigurationError(f"{name}={v!r} must be finite and > 0")
+        if not (np.isfinite(self.sigma_a_mps2) and self.sigma_a_mps2 >= 0):
+            raise ConfigurationError(f"sigma_a_mps2={self.sigma_a_mps2!r} must be finite and >= 0")
+        if not 0 < self.gate_probability < 1:
+            raise ConfigurationError(f"gate_probability={self.gate_probability!r} must be in (0, 1)")
+        if int(self.max_misses) != self.max_misses or self.max_misses < 1:
+            raise ConfigurationError(f"max_misses={self.max_misses!r} must be an integer >= 1")
+
+
+def _sym(p: NDArray) -> NDArray:
+    return 0.5 * (p + p.T)
+
+
+def _spd_inverse(p: NDArray) -> NDArray:
+    c = linalg.cho_factor(p, lower=True)
+    return _sym(linalg.cho_solve(c, np.eye(p.shape[0])))
+
+
+def measurement_information(
+    state: ArrayLike,
+    covariance: ArrayLike,
+    prior_mean: ArrayLike | None = None,
+    prior_sigmas: ArrayLike | None = None,
+) -> tuple[NDArray, NDArray]:
+    """Information ``(Lambda_z (4, 4), eta_z (4,))`` of the measurements alone
+    in a one-shot estimate (module docstring); without a prior, of the
+    estimate itself. Negative eigenvalues from rounding (directions the prior
+    alone determined) are clipped to zero."""
+    x = np.asarray(state, dtype=float)
+    info = _spd_inverse(_sym(np.asarray(covariance, dtype=float)))
+    eta = info @ x
+    if prior_mean is not None:
+        lam_p = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
+        info = info - np.diag(lam_p)
+        eta = eta - lam_p * np.asarray(prior_mean, dtype=float)
+        w, v = np.linalg.eigh(_sym(info))
+        info = _sym((v * np.maximum(w, 0.0)) @ v.T)
+    return info, eta
+
+
+@dataclass(slots=True)
+class _Track:
+    track_id: int
+    x: NDArray
+    p: NDArray
+    misses: int = 0
+
+
+class CentralTracker:
+    """Constant-velocity Kalman filter over one-shot estimates, several targets.
+
+    ``step(states, covariances, period_s)`` advances one frame and returns the
+    live tracks ``[(track_id, x (4,), P (4, 4)), ...]`` after the update.
+    """
+
+    def __init__(self, config: CentralConfig | None = None, *, prior_mean: ArrayLike | None = None,
+                 prior_sigmas: ArrayLike | None = None) -> None:
+        self.config = CentralConfig() if config is None else config
+        if (prior_mean is None) != (prior_sigmas is None):
+            raise ValidationError("prior_mean and prior_sigmas go together (both or neither)")
+        self.prior_mean = None if prior_mean is None else np.asarray(prior_mean, dtype=float)
+        self.prior_sigmas = None if prior_sigmas is None else np.asarray(prior_sigmas, dtype=float)
+        self._tracks: list[_Track] = []
+        self._next_id = 0
+        self._gate = float(chi2.ppf(self.config.gate_probability, 2))
+
+    @property
+    def tracks(self) -> list[tuple[int, NDArray, NDArray]]:
+        return [(t.track_id, t.x.copy(), t.p.copy()) for t in self._tracks]
+
+    def _information(self, x, p):
+        if self.config.remove_prior and self.prior_mean is not None:
+            return measurement_information(x, p, self.prior_mean, self.prior_sigmas)
+        return measurement_information(x, p)
+
+    def step(self, states: ArrayLike, covariances: ArrayLike, period_s: float | None = None):
+        """One frame: predict every track, associate, update, start and end tracks.
+
+        states : (M, 4) one-shot estimates of this frame (successful ones only);
+        covariances : (M, 4, 4); period_s : time since the last step
+        (default the configured frame period).
+        """
+        cfg = self.config
+        z = check_finite(as_float_array(states, "states"), "states").reshape(-1, 4)
+        r = check_finite(as_float_array(covariances, "covariances"), "covariances")
+        if r.shape != (z.shape[0], 4, 4):
+            raise ValidationError(f"covariances must have shape ({z.shape[0]}, 4, 4), got {r.shape}")
+        t = cfg.frame_period_s if period_s is None else float(period_s)
+        f = cv_transition(t)
+        q = cv_process_noise(t, cfg.sigma_a_mps2)
+        for tr in self._tracks:
+            tr.x = f @ tr.x
+            tr.p = _sym(f @ tr.p @ f.T + q)
+        assigned = np.full(z.shape[0], -1)
+        if self._tracks and z.shape[0]:
+            cost = np.full((len(self._tracks), z.shape[0]), np.inf)
+            for i, tr in enumerate(self._tracks):
+                for j in range(z.shape[0]):
+                    d = z[j, :2] - tr.x[:2]
+                    s = tr.p[:2, :2] + r[j, :2, :2]
+                    m2 = float(d @ np.linalg.solve(s, d))
+                    if m2 <= self._gate:
+                        cost[i, j] = m2
+            finite = np.where(np.isfinite(cost), cost, 1e12)
+            rows, cols = linear_sum_assignment(finite)
+            for i, j in zip(rows, cols):
+                if np.isfinite(cost[i, j]):
+                    assigned[j] = i
+        hit = np.zeros(len(self._tracks), dtype=bool)
+        for j in np.flatnonzero(assigned >= 0):
+            tr = self._tracks[assigned[j]]
+            lam_z, eta_z = self._information(z[j], r[j])
+            info_pred = _spd_inverse(tr.p)
+            info_post = _sym(info_pred + lam_z)
+            c = linalg.cho_factor(info_post, lower=True)
+            tr.x = linalg.cho_solve(c, info_pred @ tr.x + eta_z)
+            tr.p = _sym(linalg.cho_solve(c, np.eye(4)))
+            hit[assigned[j]] = True
+        for i, tr in enumerate(self._tracks):
+            tr.misses = 0 if hit[i] else tr.misses + 1
+        self._tracks = [tr for tr in self._tracks if tr.misses < cfg.max_misses]
+        for j in np.flatnonzero(assigned < 0):
+            p0 = _sym(r[j].copy())
+            v_floor = cfg.init_velocity_sigma_mps**2
+            for k in (2, 3):
+                p0[k, k] = max(p0[k, k], v_floor)
+            self._tracks.append(_Track(track_id=self._next_id, x=z[j].copy(), p=p0))
+            self._next_id += 1
+        return self.tracks
+
+
+def track_fused(fused, config: CentralConfig | None = None, *, progress: bool = False) -> Tracks:
+    """Run a :class:`CentralTracker` over a :class:`~mmsnap_graph.sequence.FusedSequence`.
+
+    Successful estimates only; MAP estimates have their prior removed
+    (``config.remove_prior``). Every frame from the first to the last fused
+    frame is a step (frames without estimates are prediction-only). Returns
+    global-frame :class:`~mmsnap_graph.recording.Tracks` at every frame a
+    track is alive.
+    """
+    cfg = CentralConfig() if config is None else config
+    tracker = CentralTracker(cfg, prior_mean=fused.prior_mean, prior_sigmas=fused.prior_sigmas)
+    ok = np.asarray(fused.success, dtype=bool)
+    frames_ok = np.asarray(fused.frame)[ok]
+    if frames_ok.size == 0:
+        return Tracks.empty()
+    states = np.asarray(fused.state)[ok]
+    covs = np.asarray(fused.covariance)[ok]
+    order = np.argsort(frames_ok, kind="stable")
+    frames_ok, states, covs = frames_ok[order], states[order], covs[order]
+    out_f, out_id, out_x, out_p = [], [], [], []
+    from tqdm import tqdm
+
+    frames = np.arange(frames_ok[0], frames_ok[-1] + 1)
+    for f in tqdm(frames, desc="central tracker", unit="frame", disable=not progress):
+        lo, hi = np.searchsorted(frames_ok, [f, f + 1])
+        for tid, x, p in tracker.step(states[lo:hi], covs[lo:hi]):
+            out_f.append(int(f))
+            out_id.append(tid)
+            out_x.append(x)
+            out_p.append(p)
+    if not out_f:
+        return Tracks.empty()
+    return Tracks(frame=np.array(out_f), track_id=np.array(out_id), state=np.array(out_x),
+                  covariance=np.array(out_p))
