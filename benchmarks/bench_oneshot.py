@@ -21,6 +21,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -125,7 +126,9 @@ def main(argv=None) -> int:
 
     med_g = np.median(t_gtsam) * 1e3
     med_s = np.median(t_scipy) * 1e3
-    print(f"frames: {args.frames} (configuration B, two nodes, seed {args.seed})")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"frames: {args.frames} (configuration B, two nodes, seed {args.seed}); "
+          f"1-min load average {load:.2f} on {os.cpu_count()} CPUs")
     print(f"fuse_frame (GTSAM LM + Marginals): median {med_g:.4f} ms, p90 {np.percentile(t_gtsam, 90) * 1e3:.4f} ms")
     print(f"scipy least_squares + J^T J cov  : median {med_s:.4f} ms, p90 {np.percentile(t_scipy, 90) * 1e3:.4f} ms")
     print(f"speed-up (scipy / GTSAM medians) : {med_s / med_g:.2f}x")
