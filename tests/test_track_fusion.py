@@ -1,0 +1,132 @@
+"""Track-level fusion by covariance intersection (mmsnap_graph.tracking.track_fusion)."""
+
+import gtsam
+import numpy as np
+import pytest
+from scipy.optimize import minimize_scalar
+
+from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.recording import Tracks
+from mmsnap_graph.sim import CentroidNoise, simulate_recording
+from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
+from mmsnap_graph.tracking.track_fusion import covariance_intersection, fuse_tracks, transform_tracks
+
+
+def _spd(rng, k, n=4, scale=1.0):
+    a = rng.normal(size=(k, n, n + 2)) * scale
+    return a @ a.transpose(0, 2, 1) + 1e-3 * np.eye(n)
+
+
+def test_transform_matches_pose2_and_rotates_every_block():
+    rng = np.random.default_rng(0)
+    pose = np.array([0.3, 6.9, np.pi - 0.1])
+    x = rng.normal(size=(5, 4))
+    p = _spd(rng, 5)
+    xg, pg = transform_tracks(x, p, pose)
+    pose2 = gtsam.Pose2(*pose)
+    for k in range(5):
+        np.testing.assert_allclose(xg[k, :2], pose2.transformFrom(x[k, :2]), atol=1e-12)
+        np.testing.assert_allclose(xg[k, 2:], pose2.rotation().rotate(x[k, 2:]), atol=1e-12)
+    # The covariance of the transformed samples (Monte Carlo) is T P T^T.
+    samples = rng.multivariate_normal(x[0], p[0], size=200_000)
+    sg, _ = transform_tracks(samples, np.broadcast_to(p[0], (200_000, 4, 4)), pose)
+    np.testing.assert_allclose(np.cov(sg.T), pg[0], atol=0.02 * np.abs(pg[0]).max())
+    assert np.allclose(pg, pg.transpose(0, 2, 1))
+    # S1 at the origin: unchanged.
+    x0, p0 = transform_tracks(x, p, np.zeros(3))
+    np.testing.assert_allclose(x0, x, atol=1e-15)
+    np.testing.assert_allclose(p0, p, atol=1e-15)
+
+
+def test_ci_weight_minimizes_the_trace():
+    rng = np.random.default_rng(1)
+    p1, p2 = _spd(rng, 20), _spd(rng, 20)
+    x1, x2 = rng.normal(size=(20, 4)), rng.normal(size=(20, 4))
+    x, p, w = covariance_intersection(x1, p1, x2, p2)
+    for k in range(20):
+        a, b = np.linalg.inv(p1[k]), np.linalg.inv(p2[k])
+
+        def tr(om):
+            return np.trace(np.linalg.inv(om * a + (1 - om) * b))
+
+        ref = minimize_scalar(tr, bounds=(0, 1), method="bounded", options={"xatol": 1e-12})
+        assert tr(w[k]) <= ref.fun + 1e-9 * ref.fun
+        info = w[k] * a + (1 - w[k]) * b
+        np.testing.assert_allclose(p[k], np.linalg.inv(info), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(x[k], np.linalg.solve(info, w[k] * a @ x1[k] + (1 - w[k]) * b @ x2[k]),
+                                   rtol=1e-8, atol=1e-10)
+
+
+def test_ci_picks_the_tighter_of_nested_estimates_and_is_symmetric():
+    rng = np.random.default_rng(2)
+    p1 = _spd(rng, 3)
+    p2 = 4.0 * p1 + _spd(rng, 3)  # p2 contains p1
+    x1, x2 = rng.normal(size=(3, 4)), rng.normal(size=(3, 4))
+    x, p, w = covariance_intersection(x1, p1, x2, p2)
+    np.testing.assert_array_equal(w, 1.0)
+    np.testing.assert_allclose(x, x1, atol=1e-12)
+    np.testing.assert_allclose(p, p1, rtol=1e-10, atol=1e-12)
+    xs, ps, ws = covariance_intersection(x2, p2, x1, p1)
+    np.testing.assert_allclose(ws, 1.0 - w)
+    np.testing.assert_allclose(xs, x, atol=1e-10)
+
+
+def test_ci_is_consistent_whatever_the_unknown_correlation():
+    """CI never under-estimates: for fully correlated errors P - cov(err) >= 0."""
+    rng = np.random.default_rng(3)
+    p1 = np.diag([0.01, 0.5, 0.04, 0.5])[None]
+    p2 = np.diag([0.5, 0.01, 0.5, 0.04])[None]
+    _, p, w = covariance_intersection(np.zeros((1, 4)), p1, np.zeros((1, 4)), p2)
+    # Errors e2 = L2 L1^-1 e1 (perfectly correlated), fused error = K1 e1 + K2 e2.
+    info = w[0] * np.linalg.inv(p1[0]) + (1 - w[0]) * np.linalg.inv(p2[0])
+    k1 = np.linalg.solve(info, w[0] * np.linalg.inv(p1[0]))
+    k2 = np.linalg.solve(info, (1 - w[0]) * np.linalg.inv(p2[0]))
+    m = k1 + k2 @ np.sqrt(p2[0]) @ np.linalg.inv(np.sqrt(p1[0]))
+    true_cov = m @ p1[0] @ m.T
+    assert np.linalg.eigvalsh(p[0] - true_cov).min() > -1e-12
+
+
+def test_fused_ekf_tracks_follow_the_target():
+    rec = simulate_recording("C", "random", levels=("centroids",), n_frames=200, seed=4, known_poses=True,
+                             centroid_noise=CentroidNoise(p_miss=0.05))
+    cfg = EkfConfig(frame_period_s=rec.frame_period_s)
+    t1 = track_centroids(rec.nodes["S1"].centroids, cfg)
+    t2 = track_centroids(rec.nodes["S2"].centroids, cfg)
+    fused = fuse_tracks(t1, rec.nodes["S1"].pose, t2, rec.nodes["S2"].pose)
+    assert len(fused) > 150
+    assert np.all((fused.omega >= 0) & (fused.omega <= 1))
+    _, truth = rec.truth.target(0)
+    err = fused.state - truth[fused.frame]
+    assert np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1))) < 0.35
+    tr = fused.as_tracks()
+    assert len(tr) == len(fused)
+    # Fusing with a wrong pose for S2 (3 m off) moves S2's tracks off S1's:
+    # the gate rejects the pairs.
+    wrong = rec.nodes["S2"].pose + [3.0, 0.0, 0.0]
+    assert len(fuse_tracks(t1, rec.nodes["S1"].pose, t2, wrong)) < 0.2 * len(fused)
+
+
+def test_no_common_frames_gives_an_empty_result():
+    one = Tracks(frame=[0], track_id=[0], state=[[0, 3, 0, 0]], covariance=[np.eye(4)])
+    other = Tracks(frame=[1], track_id=[0], state=[[0, 3, 0, 0]], covariance=[np.eye(4)])
+    out = fuse_tracks(one, np.zeros(3), other, np.zeros(3))
+    assert len(out) == 0 and out.state.shape == (0, 4)
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda: transform_tracks(np.zeros((2, 4)), np.zeros((3, 4, 4)), np.zeros(3)), "disagree"),
+        (lambda: transform_tracks(np.zeros((1, 4)), np.eye(4)[None], np.zeros(2)), r"node_pose must have shape \(3,\)"),
+        (lambda: covariance_intersection(np.zeros((1, 4)), np.zeros((1, 4, 4)), np.zeros((1, 4)), np.eye(4)[None]),
+         "p1 must be positive definite"),
+        (lambda: covariance_intersection(np.zeros((1, 4)), np.eye(4)[None], np.zeros((2, 4)), np.eye(4)[None]),
+         "disagree"),
+        (lambda: fuse_tracks(Tracks.empty(), np.zeros(3), None, np.zeros(3)), "must be Tracks"),
+        (lambda: fuse_tracks(Tracks.empty(), np.zeros(3), Tracks.empty(), np.zeros(3), gate_probability=2),
+         "gate_probability"),
+    ],
+)
+def test_invalid_input_raises(call, match):
+    with pytest.raises(ValidationError, match=match):
+        call()
