@@ -182,3 +182,31 @@ def test_simulator_argument_errors():
         simulate_recording("C", levels=("centroids",), n_frames=5, radar={"n_loops": 3})
     with pytest.raises(ValidationError, match="n_targets=0"):
         simulate_recording("C", levels=("centroids",), n_frames=5, n_targets=0)
+
+
+def test_point_cloud_noise_matches_its_stated_model():
+    """A point-like body (torso points at the centre, no limbs): one detection
+    per frame whose error has variance bin^2/12 + resolution^2/(2 SNR)."""
+    from mmsnap_graph.sim import HumanBody
+
+    point = HumanBody(torso_half_width_m=1e-6, torso_half_depth_m=1e-6, arm_amplitude=0.0,
+                      leg_amplitude=0.0, torso_rcs_m2=0.02)
+    model = PointCloudModel(false_alarms_per_frame=0.0)
+    rec = simulate_recording("C", "random", levels=("point_cloud",), seed=8, body=point,
+                             point_cloud_model=model)
+    radar = TABLE_I
+    bins = np.array([radar.range_resolution_m, 2 * np.pi / model.angle_fft_size,
+                     radar.doppler_resolution_mps])
+    res = np.array([radar.range_resolution_m, radar.omega_resolution_rad,
+                    radar.doppler_resolution_mps])
+    for name in rec.node_names:
+        pc = rec.nodes[name].point_cloud
+        assert np.all(np.bincount(pc.frame) <= 1) and len(pc) > 500
+        h = _truth_h(rec, name, pc.frame, pc.target_id)
+        e = pc.measurements - h
+        e[:, 1] = wrap_angle(e[:, 1])
+        # The true SNR from the measured one (1 dB noise) is close enough here.
+        snr_lin = 10 ** (pc.snr_db / 10)
+        sigma = np.sqrt(bins ** 2 / 12 + res ** 2 / (2 * snr_lin[:, None]))
+        z2 = ((e / sigma) ** 2).mean(axis=0)
+        assert_allclose(z2, 1.0, atol=0.2)

@@ -247,7 +247,8 @@ def _point_cloud(bodies: Sequence[BodyScatterers], pose: NDArray, radar: RadarCo
         m = b.positions_m.shape[1]
         st = np.concatenate([b.positions_m, b.velocities_mps], axis=-1)     # (F, M, 4)
         h, _ = measurement_model(st, pose)                                   # (F, M, 3)
-        vis = _in_view(b.positions_m, pose, limits)
+        # Scatterers without RCS (e.g. a body with limbs switched off) reflect nothing.
+        vis = _in_view(b.positions_m, pose, limits) & (b.rcs_m2 > 0)[None, :]
         snr = _detection_snr_db(radar, np.broadcast_to(b.rcs_m2, (n_f, m)), h[..., 0],
                                 model.noise_std)
         f_idx, m_idx = np.nonzero(vis)
@@ -324,7 +325,7 @@ def _cube_inputs(bodies: Sequence[BodyScatterers], pose: NDArray, radar: RadarCo
         p = np.concatenate([b.positions_m[f] for b in bodies])
         v = np.concatenate([b.velocities_mps[f] for b in bodies])
         rcs = np.concatenate([b.rcs_m2 for b in bodies])
-        vis = _in_view(p, pose, limits)
+        vis = _in_view(p, pose, limits) & (rcs > 0)
         pl = global_to_local(p[vis], pose)
         vl = v[vis] @ rot.T
         r = np.hypot(pl[:, 0], pl[:, 1])
