@@ -34,6 +34,7 @@ __all__ = [
     "measurement_model",
     "measurement_model_pose",
     "measurement_model_scalar",
+    "predict_measurements",
     "wrap_angle_scalar",
     "residual",
     "detection_to_local",
@@ -125,6 +126,26 @@ def measurement_model(state: ArrayLike, node_pose: ArrayLike) -> tuple[NDArray, 
     h = np.stack([r, np.pi * s, v], axis=-1)
     jac = np.stack([j_range, j_omega, j_doppler], axis=-2)
     return h, jac
+
+
+def predict_measurements(state: ArrayLike, node_pose: ArrayLike) -> NDArray:
+    """The prediction ``h (..., 3)`` of :func:`measurement_model` without the
+    Jacobian: ~20x cheaper over large grids of states (the grid posterior
+    evaluates ~10^5 states per frame). Same formulas; tested equal.
+
+    state : (..., 4) float; node_pose : (..., 3) float. Returns
+    ``(range_m, omega_rad, doppler_mps)`` as ``(..., 3)``.
+    """
+    state = np.asarray(state, dtype=float)
+    node_pose = np.asarray(node_pose, dtype=float)
+    dx = state[..., 0] - node_pose[..., 0]
+    dy = state[..., 1] - node_pose[..., 1]
+    r = np.sqrt(dx * dx + dy * dy)
+    c = np.cos(node_pose[..., 2])
+    s = np.sin(node_pose[..., 2])
+    omega = np.pi * (dx * c + dy * s) / r
+    doppler = (state[..., 2] * dx + state[..., 3] * dy) / r
+    return np.stack(np.broadcast_arrays(r, omega, doppler), axis=-1)
 
 
 def measurement_model_pose(

@@ -10,8 +10,9 @@ spacing of half a sigma integrates it to far better than a percent. The map is
 linear, so its Jacobian is a constant and cancels in the normalization.
 
 The unnormalized log posterior is evaluated with
-:func:`factors.models.measurement_model` over all grid points at once (in
-chunks, to bound memory); the covariance is the weighted second moment about
+:func:`factors.models.predict_measurements` (the prediction of
+:func:`factors.models.measurement_model` without its Jacobian) over all grid
+points at once (in chunks, to bound memory); the covariance is the weighted second moment about
 the grid posterior mean. When the density on the grid's faces is not
 negligible (a posterior much wider than its Laplace approximation, as in a
 degenerate geometry), the grid is widened and evaluated again.
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.models import measurement_model, residual
+from factors.models import predict_measurements, residual
 
 from .errors import ValidationError
 
@@ -80,8 +81,7 @@ def neg_log_posterior(
     sig = np.asarray(sigmas, dtype=float)
     cost = np.zeros(states.shape[:-1])
     for pose, meas in zip(poses, z):
-        h, _ = measurement_model(states, pose)
-        e = residual(h, meas) / sig
+        e = residual(predict_measurements(states, pose), meas) / sig
         cost += 0.5 * np.sum(e * e, axis=-1)
     if prior_mean is not None:
         e = (states - np.asarray(prior_mean, dtype=float)) / np.asarray(prior_sigmas, dtype=float)
@@ -90,27 +90,40 @@ def neg_log_posterior(
 
 
 def _moments(center, chol, axis, kw, chunk_size):
+    """Grid moments in whitened coordinates: ``(mean_xi (4,), cov_xi (4, 4),
+    edge density, n points)``, or None if the posterior is nowhere finite."""
     n = axis.size
-    grids = np.meshgrid(axis, axis, axis, axis, indexing="ij")
-    xi = np.stack([g.ravel() for g in grids], axis=-1)  # (n^4, 4)
-    cost = np.empty(xi.shape[0])
-    for start in range(0, xi.shape[0], chunk_size):
-        block = xi[start : start + chunk_size]
-        cost[start : start + chunk_size] = neg_log_posterior(center + block @ chol.T, **kw)
+    # theta = center + L xi over the grid, built by broadcasting: the last
+    # three axes' contribution once, the first axis chunk by chunk.
+    rest = (
+        axis[:, None, None, None] * chol[:, 1]
+        + axis[None, :, None, None] * chol[:, 2]
+        + axis[None, None, :, None] * chol[:, 3]
+    )  # (n, n, n, 4)
+    cost = np.empty((n, n, n, n))
+    rows = max(1, int(chunk_size) // n**3)
+    for start in range(0, n, rows):
+        a = axis[start : start + rows]
+        states = center + a[:, None, None, None, None] * chol[:, 0] + rest[None]
+        cost[start : start + rows] = neg_log_posterior(states, **kw)
     finite = np.isfinite(cost)
     if not finite.any():
         return None
-    cost = np.where(finite, cost, np.inf)
-    w = np.exp(-(cost - cost.min()))
+    w = np.exp(-(np.where(finite, cost, np.inf) - cost[finite].min()))
     total = w.sum()
-    mean_xi = w @ xi / total
-    dev = xi - mean_xi
-    cov_xi = (dev * w[:, None]).T @ dev / total
-    w4 = w.reshape(n, n, n, n)
-    faces = [
-        np.take(w4, idx, axis=ax).max() for ax in range(4) for idx in (0, n - 1)
-    ]
-    return mean_xi, cov_xi, float(max(faces)), xi.shape[0]
+    # Moments of a separable grid from marginal sums of the weights.
+    axes = range(4)
+    w1 = [w.sum(axis=tuple(j for j in axes if j != k)) for k in axes]
+    mean_xi = np.array([axis @ w1[k] for k in axes]) / total
+    second = np.empty((4, 4))
+    for k in axes:
+        second[k, k] = (axis * axis) @ w1[k] / total
+        for m in range(k + 1, 4):
+            w2 = w.sum(axis=tuple(j for j in axes if j not in (k, m)))  # (n, n)
+            second[k, m] = second[m, k] = axis @ w2 @ axis / total
+    cov_xi = second - np.outer(mean_xi, mean_xi)
+    faces = [np.take(w, idx, axis=ax).max() for ax in axes for idx in (0, n - 1)]
+    return mean_xi, cov_xi, float(max(faces) / w.max()), n**4
 
 
 def grid_posterior(
@@ -125,7 +138,7 @@ def grid_posterior(
     points_per_axis: int = 21,
     half_width_sigmas: float = 5.0,
     max_widenings: int = 2,
-    chunk_size: int = 40_000,
+    chunk_size: int = 100_000,
 ) -> GridPosterior:
     """Posterior mean and covariance on a 4D grid around ``state``.
 

@@ -105,6 +105,18 @@ def test_models_broadcast_over_leading_axes():
         assert_allclose(jac.reshape(-1, 3, 4)[k], jk, rtol=0, atol=1e-12)
 
 
+def test_predict_measurements_equals_measurement_model():
+    rng = np.random.default_rng(23)
+    cfg = [random_config(rng) for _ in range(30)]
+    poses = np.array([c[0] for c in cfg])
+    states = np.array([c[1] for c in cfg])
+    assert_allclose(models.predict_measurements(states, poses), models.measurement_model(states, poses)[0], rtol=1e-14, atol=1e-14)
+    # broadcasting: many states against one node, as over a grid
+    h = models.predict_measurements(states[:, None, :], poses[None, :3])
+    assert h.shape == (30, 3, 3)
+    assert_allclose(h, models.measurement_model(states[:, None, :], poses[None, :3])[0], rtol=1e-14, atol=1e-14)
+
+
 def test_scalar_kernel_equals_vectorized_model():
     for pose, state in configs(5, 100):
         r, w, v, jac = models.measurement_model_scalar(
