@@ -230,9 +230,16 @@ def _check_poses(node_poses: ArrayLike) -> NDArray:
         raise ValidationError(f"node_poses must have shape (N, 3), got {poses.shape}")
     if poses.shape[0] == 0:
         raise ValidationError("node_poses must hold at least one node, got shape (0, 3)")
-    if not np.isfinite(poses).all():
+    if not _all_finite(poses):
         check_finite(poses, "node_poses")
     return poses
+
+
+def _all_finite(arr: NDArray) -> bool:
+    # Plain floats beat numpy's temporaries for the few numbers of one frame.
+    if arr.size <= 64:
+        return all(map(math.isfinite, arr.ravel().tolist()))
+    return bool(np.isfinite(arr).all())
 
 
 def _check_observed(observed: ArrayLike | None, n_nodes: int) -> NDArray | None:
@@ -294,10 +301,20 @@ def validate_frame(
             f"doppler_mps) row per node), got {z.shape}"
         )
     obs = _check_observed(observed, n_nodes)
-    zo = z if obs is None else z[obs]
-    # Fast path: one vectorized test (comparisons with NaN are False without
-    # warnings); the detailed message only on failure.
-    ok = np.isfinite(zo).all() and (zo[:, 0] > 0.0).all() and (np.abs(zo[:, 1]) <= np.pi).all()
+    # Fast path: one pass of float comparisons (False for NaN); the detailed
+    # message only on failure.
+    if n_nodes <= 16:
+        flags = [True] * n_nodes if obs is None else obs.tolist()
+        ok = all(
+            0.0 < r < math.inf and -math.pi <= w <= math.pi and -math.inf < v < math.inf
+            for (r, w, v), f in zip(z.tolist(), flags)
+            if f
+        )
+    else:
+        zo = z if obs is None else z[obs]
+        ok = bool(
+            np.isfinite(zo).all() and (zo[:, 0] > 0.0).all() and (np.abs(zo[:, 1]) <= np.pi).all()
+        )
     if not ok:
         rows = np.arange(n_nodes) if obs is None else np.flatnonzero(obs)
         _check_measurement_rows(z, rows)

@@ -625,3 +625,25 @@ def test_grid_covariance_of_a_failed_frame_is_nan():
     res = fuse_frame(POSES_B[:1], z[:1], prior=None, covariance="both")
     assert not res.success
     assert res.grid_covariance.shape == (4, 4) and np.isnan(res.grid_covariance).all()
+
+
+def test_many_nodes_use_the_vectorized_checks():
+    """More than 16 nodes take numpy's validation path: same errors, and
+    the fusion still works (and is more accurate than two nodes)."""
+    rng = np.random.default_rng(41)
+    angles = rng.uniform(0, 2 * np.pi, 20)
+    # nodes on a 6 m circle around the target, each facing it
+    poses = np.column_stack([TRUTH_B[0] + 6 * np.cos(angles), TRUTH_B[1] + 6 * np.sin(angles), angles - np.pi / 2 + np.pi])
+    z = simulate(poses, TRUTH_B, 1, seed=42)[0]
+    res = fuse_frame(poses, z)
+    assert res.success and res.n_observed == 20
+    assert np.all(res.position_sigma_m < 0.02)
+    assert np.linalg.norm(res.state[:2] - TRUTH_B[:2]) < 0.06
+    z[17, 1] = 3.5
+    with pytest.raises(ValidationError, match=r"measurements\[17, 1\] \(omega_rad of node 17\) must be in \[-pi, pi\]"):
+        fuse_frame(poses, z)
+    z[17, 1] = 0.0
+    z[18, 0] = np.inf
+    with pytest.raises(ValidationError, match=r"measurements\[18, 0\] \(range_m of node 18\) must be finite, got inf"):
+        fuse_frame(poses, z)
+    assert fuse_frame(poses, z, observed=np.arange(20) != 18).success
