@@ -199,10 +199,19 @@ class FusionResult:
     def __post_init__(self) -> None:
         for name in ("state", "covariance", "whitened_residuals", "grid_covariance", "initial_state"):
             value = getattr(self, name)
-            if value is not None:
-                arr = np.array(value, dtype=float)
-                arr.setflags(write=False)
-                object.__setattr__(self, name, arr)
+            if value is None:
+                continue
+            # Read-only float arrays owning their data (what fuse_frame hands
+            # over) are kept; anything else is copied and frozen.
+            if not (
+                type(value) is np.ndarray
+                and value.dtype == np.float64
+                and value.flags.owndata
+                and not value.flags.writeable
+            ):
+                value = np.array(value, dtype=float)
+                value.setflags(write=False)
+                object.__setattr__(self, name, value)
 
     @property
     def degenerate(self) -> bool:
@@ -823,6 +832,8 @@ def fuse_frame(
                 messages.append(grid.message)
         else:
             grid_cov = np.full((4, 4), np.nan)
+    for arr in (state, cov, whitened, x0):
+        arr.setflags(write=False)  # handed over without a copy
     return FusionResult(
         state=state,
         covariance=cov,
