@@ -85,28 +85,31 @@ def main() -> None:
         return lambda: [fn(cubes[i]) for i in range(n)]
 
     rs = _range_slice(config, chain)
-    stages = {}
-    stages["baseline np.fft.fft2 (no window)"] = best_of(
-        per_frame(lambda c: np.fft.fft2(c, axes=(0, 1))), args.repeat)
-    stages["frame check (finite, energy)"] = best_of(
-        per_frame(lambda c: _frame_status(c, chain)), args.repeat)
-    stages["range+Doppler FFT, clutter removal, power"] = best_of(
-        per_frame(lambda c: range_doppler(c, config, range_bins=rs)), args.repeat)
-    stages["point cloud (all of the above + CFAR cells + angle)"] = best_of(
-        per_frame(lambda c: point_cloud_of_cube(c, config, chain)), args.repeat)
     powers = [range_doppler(cubes[i], config, range_bins=rs)[1] for i in range(n)]
-    stages["reference: whole-map ndimage OS-CFAR only"] = best_of(
-        lambda: [os_cfar_2d(p, chain.cfar, config.n_virtual) for p in powers], args.repeat)
     res = process_cubes(cubes, config, chain)
-    stages["torso DBSCAN (all frames)"] = best_of(
-        lambda: torso_centroids(res.point_cloud, chain.cluster,
-                                doppler_resolution_mps=config.doppler_resolution_mps),
-        args.repeat)
-    stages["cube -> centroids (process_cubes)"] = best_of(
-        lambda: process_cubes(cubes, config, chain), args.repeat)
     ekf = EkfConfig(frame_period_s=config.frame_period_s)
-    stages["centroids -> EKF tracks"] = best_of(lambda: track_centroids(res.centroids, ekf),
-                                                args.repeat)
+    work = {
+        "baseline np.fft.fft2 (no window)":
+            per_frame(lambda c: np.fft.fft2(c, axes=(0, 1))),
+        "frame check (finite, energy)": per_frame(lambda c: _frame_status(c, chain)),
+        "range+Doppler FFT, clutter removal, power":
+            per_frame(lambda c: range_doppler(c, config, range_bins=rs)),
+        "point cloud (all of the above + CFAR cells + angle)":
+            per_frame(lambda c: point_cloud_of_cube(c, config, chain)),
+        "reference: whole-map ndimage OS-CFAR only":
+            lambda: [os_cfar_2d(p, chain.cfar, config.n_virtual) for p in powers],
+        "torso DBSCAN (all frames)":
+            lambda: torso_centroids(res.point_cloud, chain.cluster,
+                                    doppler_resolution_mps=config.doppler_resolution_mps),
+        "cube -> centroids (process_cubes)": lambda: process_cubes(cubes, config, chain),
+        "centroids -> EKF tracks": lambda: track_centroids(res.centroids, ekf),
+    }
+    # Interleaved repeats (every stage once per round, best round kept), so
+    # that a burst of load from other jobs hits all stages alike.
+    stages = {name: np.inf for name in work}
+    for _ in range(args.repeat):
+        for name, fn in work.items():
+            stages[name] = min(stages[name], best_of(fn, 1))
     base = stages["baseline np.fft.fft2 (no window)"]
     print(f"{'stage':55s} {'ms/frame':>9s} {'frames/s':>9s} {'x baseline':>10s}")
     for name, t in stages.items():
