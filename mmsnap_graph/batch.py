@@ -252,31 +252,32 @@ def _check_inputs(node_poses, measurements, observed):
 def _evaluate(state, poses, z, weight, inv_sigma, prior_mean, prior_inv_sigma):
     """Whitened Jacobian and residuals at ``state (F, 4)``, and the cost.
 
-    poses : (N, 3) or (F, N, 3). Returns ``aug (F, N, 3, 5)`` whose last axis
-    holds the whitened Jacobian ``d r / d state`` (first four entries) and the
-    whitened residual ``r = (h - z) / sigma`` (last entry), zero for
-    unobserved nodes, and ``cost (F,)`` (GTSAM's ``0.5 * sum r^2``, prior
-    included). The model is called once per node with a (F, 4) state, which
-    is faster than broadcasting a (F, N) grid through it.
+    poses : (N, 3) or (F, N, 3). Returns ``aug (3 N, 5, F)``, frames last
+    (each entry a contiguous array over frames): for measurement row ``m``
+    (node ``m // 3``, component ``m % 3``), ``aug[m, :4]`` is the whitened
+    Jacobian ``d r_m / d state`` and ``aug[m, 4]`` the whitened residual
+    ``r_m = (h - z) / sigma``, all zero for unobserved nodes; and
+    ``cost (F,)``, GTSAM's ``0.5 * sum r^2`` with the prior included. The
+    model is called once per node with a (F, 4) state.
     """
     f, n_nodes = z.shape[:2]
-    aug = np.empty((f, n_nodes, 3, 5))
-    partial = np.any(weight <= 0, axis=0)
+    aug = np.empty((3 * n_nodes, 5, f))
     for n in range(n_nodes):
         h, jac = measurement_model(state, poses[..., n, :])
-        w = weight[:, n, None] * inv_sigma  # (F, 3); 0 where not observed
         e = h - z[:, n]
         e[:, 1] = wrap_angle(e[:, 1])
-        np.multiply(jac, w[:, :, None], out=aug[:, n, :, :4])
-        np.multiply(e, w, out=aug[:, n, :, 4])
-        if not partial[n]:
-            continue
-        # An unobserved node contributes exactly nothing, even where its
-        # model is undefined (a state on that node gives 0 * NaN).
         seen = weight[:, n] > 0
-        aug[~seen, n] = 0.0
-    rf = aug[..., 4].reshape(f, -1)
-    cost = 0.5 * np.einsum("fk,fk->f", rf, rf)
+        partial = not seen.all()
+        rows = slice(3 * n, 3 * n + 3)
+        w = inv_sigma[:, None] * weight[:, n] if partial else inv_sigma[:, None]  # (3, F) or (3, 1)
+        np.multiply(jac.transpose(1, 2, 0), w[:, None, :], out=aug[rows, :4])
+        np.multiply(e.T, w, out=aug[rows, 4])
+        if partial:
+            # An unobserved node contributes exactly nothing, even where its
+            # model is undefined (a state on that node gives 0 * NaN).
+            aug[3 * n:3 * n + 3, :, ~seen] = 0.0
+    r = aug[:, 4]
+    cost = 0.5 * np.einsum("mf,mf->f", r, r)
     if prior_mean is not None:
         dp = (state - prior_mean) * prior_inv_sigma
         cost += 0.5 * np.einsum("fk,fk->f", dp, dp)
@@ -284,15 +285,19 @@ def _evaluate(state, poses, z, weight, inv_sigma, prior_mean, prior_inv_sigma):
 
 
 def _normal_equations(state, aug, prior_mean, prior_inv_sigma):
-    """Information ``H (4, 4, F)`` and gradient ``g (4, F)`` (entry-major).
-
-    One batched product ``[J r]^T [J r]`` gives both.
-    """
-    f = aug.shape[0]
-    af = aug.reshape(f, -1, 5)
-    prod = _to_soa(np.matmul(af.transpose(0, 2, 1), af))
-    info = prod[:4, :4]
-    grad = prod[:4, 4]
+    """Information ``H (4, 4, F)`` and gradient ``g (4, F)`` (frames last),
+    entry by entry as sums over the measurement rows of ``aug``."""
+    f = aug.shape[-1]
+    info = np.empty((4, 4, f))
+    grad = np.empty((4, f))
+    for i in range(4):
+        col_i = aug[:, i]
+        for j in range(i + 1):
+            v = np.einsum("mf,mf->f", col_i, aug[:, j])
+            info[i, j] = v
+            if i != j:
+                info[j, i] = v
+        grad[i] = np.einsum("mf,mf->f", col_i, aug[:, 4])
     if prior_mean is not None:
         p2 = prior_inv_sigma**2
         for i in range(4):
@@ -312,16 +317,15 @@ def _residual_curvature(state, poses, z, weight, inv_sigma, aug):
     no such term.
     """
     f = state.shape[0]
-    af = aug.reshape(f, -1, 5)
-    rf = af[..., 4]
+    r = aug[:, 4]
     curv = np.empty((4, 4, f))
     for k in range(4):
         eps = 1e-7 * (1.0 + np.abs(state[:, k]))
         shifted = state.copy()
         shifted[:, k] += eps
         aug_k, _ = _evaluate(shifted, poses, z, weight, inv_sigma, None, None)
-        diff = aug_k.reshape(f, -1, 5)[..., :4] - af[..., :4]
-        curv[k] = (np.einsum("fm,fmj->jf", rf, diff) / eps)
+        diff = aug_k[:, :4] - aug[:, :4]
+        curv[k] = np.einsum("mf,mjf->jf", r, diff) / eps
     return 0.5 * (curv + curv.transpose(1, 0, 2))
 
 
@@ -547,7 +551,7 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
         out = idx[sel]
         state[out] = x_a[sel]
         cost[out] = c_a[sel]
-        residuals[out] = aug_a[sel][..., 4]
+        residuals[out] = aug_a[:, 4, sel].T.reshape(-1, n_nodes, 3)
         iterations[out] = it_a[sel]
         status[out] = code
         info_out[:, :, out] = info[:, :, sel]
@@ -555,7 +559,9 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
 
     while True:
         info, grad = _normal_equations(x_a, aug_a, prior_mean, prior_inv_sigma)
-        bad = live & ~(np.isfinite(c_a) & np.all(np.isfinite(x_a), axis=1))
+        # A non-finite state gives a non-finite cost (every frame here has a
+        # measurement or a prior).
+        bad = live & ~np.isfinite(c_a)
         if np.any(bad):
             finish(bad, _NONFINITE)
         if np.any(small_a & live):
@@ -572,7 +578,7 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
             idx = idx[keep]
             if per_frame_poses:
                 p_a = p_a[keep]
-            z_a, w_a, x_a, c_a, aug_a = z_a[keep], w_a[keep], x_a[keep], c_a[keep], aug_a[keep]
+            z_a, w_a, x_a, c_a, aug_a = z_a[keep], w_a[keep], x_a[keep], c_a[keep], aug_a[..., keep]
             lam_a, nu_a, it_a = lam_a[keep], nu_a[keep], it_a[keep]
             info, grad = info[:, :, keep], grad[:, keep]
             live = np.ones(idx.size, dtype=bool)
@@ -581,7 +587,7 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
         slow = np.flatnonzero(live & (it_a >= params.newton_after))
         if slow.size:
             pp = p_a[slow] if per_frame_poses else p_a
-            curv = _residual_curvature(x_a[slow], pp, z_a[slow], w_a[slow], inv_sigma, aug_a[slow])
+            curv = _residual_curvature(x_a[slow], pp, z_a[slow], w_a[slow], inv_sigma, aug_a[..., slow])
             newton = info[:, :, slow] + curv
             # Newton only where its model is convex; elsewhere Gauss-Newton.
             use = _chol_soa(newton)[1]
@@ -612,7 +618,7 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
         aug_n, c_n = _evaluate(x_new, p_a, z_a, w_a, inv_sigma, prior_mean, prior_inv_sigma)
         it_a += live
         accept = live & ok & (c_n <= c_a)  # False for a NaN cost
-        small_a = accept & np.all(np.abs(step) <= params.step_tolerance * (1.0 + np.abs(x_a)), axis=1)
+        small_a = accept & np.all(np.abs(step_t) <= params.step_tolerance * (1.0 + np.abs(x_a.T)), axis=0)
         # Nielsen's damping update from the gain ratio actual / predicted.
         with np.errstate(divide="ignore", invalid="ignore"):
             gain = (c_a - c_n) / predicted
@@ -624,7 +630,7 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
         if np.any(rejected):
             x_new[rejected] = x_a[rejected]
             c_n[rejected] = c_a[rejected]
-            aug_n[rejected] = aug_a[rejected]
+            aug_n[..., rejected] = aug_a[..., rejected]
         x_a, c_a, aug_a = x_new, c_n, aug_n
         # A frame whose damping has grown without bound cannot move: it sits
         # at a minimum to rounding (typical when the cost is flat).
