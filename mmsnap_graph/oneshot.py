@@ -21,6 +21,13 @@ covariance. The paper's grid posterior covariance is an option
 A frame that cannot be solved (an indeterminate system, no convergence, a GTSAM
 exception) gives ``FusionResult.success = False`` with a message; only invalid
 input raises.
+
+Cost (``benchmarks/bench_oneshot.py``, two nodes, configuration B): ~0.155 ms
+per frame for validation, initial values, LM (median 4 iterations) and
+``Marginals`` on a loaded 2-core machine, ~4.5x faster than
+``scipy.optimize.least_squares`` with the same model. About three quarters
+of it is GTSAM calling the Python error function (~12 calls per frame);
+for thousands of frames at once see :mod:`mmsnap_graph.batch`.
 """
 
 from __future__ import annotations
