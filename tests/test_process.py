@@ -124,3 +124,13 @@ def test_cli_process_reports_a_missing_file(tmp_path, capsys):
     pytest.importorskip("mmsnap_graph.io")
     assert main(["process", str(tmp_path / "nope.h5"), "--no-progress"]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_the_chain_does_not_import_gtsam():
+    import subprocess
+    import sys
+
+    code = ("import sys, mmsnap_graph.radar.pipeline, mmsnap_graph.sim.cube, "
+            "mmsnap_graph.commands.process; print('gtsam' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
