@@ -55,6 +55,7 @@ from .validation import as_float_array, check_finite
 __all__ = [
     "STATE_KEY",
     "DEGENERACY_THRESHOLD",
+    "NEWTON_DECREMENT_TOLERANCE",
     "MeasurementNoise",
     "GaussianPrior",
     "FusionResult",
@@ -69,6 +70,9 @@ __all__ = [
 #: An initial position closer than this to a node is "at the node": its line
 #: of sight (and the model's Jacobian) is undefined to rounding.
 _AT_NODE_M = 1e-9
+#: Largest squared Newton decrement ``g^T S g`` (cost units) accepted at a
+#: solution; converged frames show ~1e-15 (1e-12 in configuration C).
+NEWTON_DECREMENT_TOLERANCE = 1e-8
 #: Key of the target state in the graphs built here.
 STATE_KEY = 0
 #: ``FusionResult.degeneracy`` above this flags a degenerate geometry: for two
@@ -650,14 +654,16 @@ def velocity_degeneracy(
     return _condition_2x2(a11, a12, a22)
 
 
-def _residuals_and_degeneracy(state, poses, z, obs, noise) -> tuple[NDArray, float]:
-    """Whitened residuals (N, 3) and the degeneracy at ``state`` in one pass
-    of :func:`factors.models.measurement_model_scalar`."""
+def _residuals_and_degeneracy(state, poses, z, obs, noise, prior):
+    """Whitened residuals (N, 3), the degeneracy and the gradient (4,) of the
+    cost ``0.5 * sum of squared whitened residuals`` (prior included) at
+    ``state``, in one pass of :func:`factors.models.measurement_model_scalar`."""
     x, y, vx, vy = state.tolist()
-    sr, sw, sv = noise.range_m, noise.omega_rad, noise.doppler_mps
+    sigmas = (noise.range_m, noise.omega_rad, noise.doppler_mps)
     out = []
     zl = z.tolist()
     a11 = a12 = a22 = 0.0
+    grad = [0.0, 0.0, 0.0, 0.0]
     for i, (px, py, phi) in enumerate(poses.tolist()):
         if obs is not None and not obs[i]:
             out.append((math.nan, math.nan, math.nan))
@@ -667,15 +673,30 @@ def _residuals_and_degeneracy(state, poses, z, obs, noise) -> tuple[NDArray, flo
         except ZeroDivisionError:
             out.append((math.nan, math.nan, math.nan))
             a11 = a22 = math.nan
+            grad = [math.nan] * 4
             continue
         zi = zl[i]
-        out.append(((r - zi[0]) / sr, wrap_angle_scalar(w - zi[1]) / sw, (v - zi[2]) / sv))
+        e = (
+            (r - zi[0]) / sigmas[0],
+            wrap_angle_scalar(w - zi[1]) / sigmas[1],
+            (v - zi[2]) / sigmas[2],
+        )
+        out.append(e)
+        for k in range(3):
+            ek = e[k] / sigmas[k]
+            for j in range(4):
+                grad[j] += jac[4 * k + j] * ek
         ux, uy = jac[10], jac[11]
         a11 += ux * ux
         a12 += ux * uy
         a22 += uy * uy
+    if prior is not None:
+        m = prior.mean.tolist()
+        ps = prior.sigmas.tolist()
+        for j, xj in enumerate((x, y, vx, vy)):
+            grad[j] += (xj - m[j]) / ps[j] ** 2
     degeneracy = _condition_2x2(a11, a12, a22) if math.isfinite(a11) else math.inf
-    return np.array(out), degeneracy
+    return np.array(out), degeneracy, np.array(grad)
 
 
 def fuse_frame(
@@ -809,7 +830,18 @@ def fuse_frame(
     if not (np.isfinite(cov).all() and (cov.diagonal() > 0.0).all()):
         success = False
         messages = ["the Laplace covariance is not positive definite"]
-    whitened, degeneracy = _residuals_and_degeneracy(state, poses, z, obs, noise)
+    whitened, degeneracy, grad = _residuals_and_degeneracy(state, poses, z, obs, noise, prior)
+    # A stationarity check independent of LM's stopping rule: the squared
+    # Newton decrement g^T S g is the cost decrease one more Gauss-Newton
+    # step would bring (~1e-15 at convergence; LM can also stop because it
+    # "cannot decrease the error" away from a minimum).
+    decrement = float(grad @ cov @ grad) if success else 0.0
+    if not decrement <= NEWTON_DECREMENT_TOLERANCE:
+        success = False
+        messages = [
+            f"Levenberg-Marquardt stopped away from a minimum (squared Newton decrement "
+            f"{decrement:.3g} > {NEWTON_DECREMENT_TOLERANCE:g})"
+        ]
     if degeneracy > DEGENERACY_THRESHOLD:
         messages.append(
             f"degenerate geometry: velocity condition number {degeneracy:.3g} "

@@ -647,3 +647,29 @@ def test_many_nodes_use_the_vectorized_checks():
     with pytest.raises(ValidationError, match=r"measurements\[18, 0\] \(range_m of node 18\) must be finite, got inf"):
         fuse_frame(poses, z)
     assert fuse_frame(poses, z, observed=np.arange(20) != 18).success
+
+
+def test_stop_away_from_a_minimum_is_flagged(monkeypatch):
+    """An optimizer that stops at its starting point (forced by the test: LM
+    giving up there) fails the Newton-decrement check."""
+
+    class StopsAtStart:
+        def __init__(self, graph, values, params):
+            self._graph, self._values = graph, values
+
+        def optimize(self):
+            return self._values
+
+        def iterations(self):
+            return 1
+
+        def error(self):
+            return self._graph.error(self._values)
+
+    z = simulate(POSES_B, TRUTH_B, 1, seed=4)[0]
+    assert fuse_frame(POSES_B, z).success
+    monkeypatch.setattr(oneshot.gtsam, "LevenbergMarquardtOptimizer", StopsAtStart)
+    res = fuse_frame(POSES_B, z)
+    assert not res.success
+    assert "stopped away from a minimum (squared Newton decrement" in res.message
+    assert_allclose(res.state, res.initial_state)
