@@ -25,9 +25,22 @@ input raises.
 Cost (``benchmarks/bench_oneshot.py``, two nodes, configuration B): ~0.155 ms
 per frame for validation, initial values, LM (median 4 iterations) and
 ``Marginals`` on a loaded 2-core machine, ~4.5x faster than
-``scipy.optimize.least_squares`` with the same model. About three quarters
-of it is GTSAM calling the Python error function (~12 calls per frame);
-for thousands of frames at once see :mod:`mmsnap_graph.batch`.
+``scipy.optimize.least_squares`` with the same model. Most of it is GTSAM
+calling the Python error function (~12 calls per frame); for thousands of
+frames at once see :mod:`mmsnap_graph.batch`.
+
+Two properties of the problem a user meets (tests/test_oneshot.py):
+
+- Mirror ambiguity: ranges are symmetric about the line through two nodes, so
+  only the spatial frequencies (sigma pi/4) tell the target from its
+  reflection across that line. With two nodes and the paper's noise about
+  one frame in a few hundred has its MAP (the global optimum) at the mirror
+  point; more nodes off that line remove it.
+- Degenerate geometry: with the target near the line through two radars the
+  cross-line velocity is unobservable from Doppler; the cost is a curved
+  valley (Doppler measures roughly cross-line offset times cross-line
+  velocity), LM needs ~20 iterations instead of ~4, ML velocity errors
+  explode and ``FusionResult.degeneracy`` flags it.
 """
 
 from __future__ import annotations
