@@ -114,11 +114,6 @@ def main() -> None:
     print(f"{'stage':55s} {'ms/frame':>9s} {'frames/s':>9s} {'x baseline':>10s}")
     for name, t in stages.items():
         print(f"{name:55s} {1e3 * t / n:9.3f} {n / t:9.1f} {t / base:10.2f}")
-    stage_rd = stages["range+Doppler FFT, clutter removal, power"]
-    stage_pc = stages["point cloud (all of the above + CFAR cells + angle)"]
-    stage_ch = stages["frame check (finite, energy)"]
-    print(f"{'  (derived) CFAR cells + peaks + angle':55s} "
-          f"{1e3 * (stage_pc - stage_rd - stage_ch) / n:9.3f}")
     print(f"points/frame {len(res.point_cloud) / n:.1f}, centroids/frame "
           f"{len(res.centroids) / n:.2f}, flagged frames {int(np.sum(res.status != 0))}")
 
