@@ -19,6 +19,7 @@ from .closed_form import (
     closed_form_calibration,
     closed_form_pose,
 )
+from .joint import PAPER_SIGMAS, JointCalibration, joint_calibration, trimmed_closed_form
 from .matching import LocalTracks, TrackCandidate, TrackMatching, local_tracks, match_tracks
 from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 from .poses import pose_array, pose_error, to_pose2
@@ -37,6 +38,10 @@ __all__ = [
     "alignment_jacobian",
     "closed_form_calibration",
     "closed_form_pose",
+    "PAPER_SIGMAS",
+    "JointCalibration",
+    "joint_calibration",
+    "trimmed_closed_form",
     "LocalTracks",
     "TrackCandidate",
     "TrackMatching",
