@@ -9,7 +9,8 @@ Per frame (:func:`point_cloud_of_cube`):
    "peak grouping": one detection per peak, not one per cell of its main
    lobe) above a pre-screen level ``prescreen_db`` below the CFAR threshold
    that the map's median noise would give; cells in the clutter notch
-   (Doppler bin 0) and closer than ``min_range_m`` are skipped;
+   (Doppler bin 0, when clutter removal is on) and closer than
+   ``min_range_m`` are skipped;
 3. 2D OS-CFAR at those cells (:func:`mmsnap_graph.radar.cfar.os_cfar_cells`,
    identical to the whole-map ``scipy.ndimage.rank_filter`` evaluation,
    ``cfar_method="full"``, which is about 5x slower). The pre-screen only
@@ -223,7 +224,8 @@ def point_cloud_of_cube(
     if chain.cfar_method == "full":
         detected, z_map = os_cfar_2d(power, cfar, n_ch)
         peaks = power >= ndimage.maximum_filter(power, size=3, mode="wrap")
-        peaks[:, 0] = False
+        if chain.clutter_removal:
+            peaks[:, 0] = False  # the clutter notch
         rows, cols = np.nonzero(detected & peaks & (power > floor))
         z = z_map[rows, cols]
     else:
@@ -234,7 +236,8 @@ def point_cloud_of_cube(
             int(cfar.rank_fraction * (sub.size - 1))]
         level = max(alpha * float(q) * 10.0 ** (-chain.prescreen_db / 10.0), floor)
         cand = power > level
-        cand[:, 0] = False  # clutter notch
+        if chain.clutter_removal:
+            cand[:, 0] = False  # the clutter notch
         rows, cols = np.nonzero(cand)
         if rows.size == 0:
             return _empty_cloud_arrays(), status
