@@ -339,7 +339,7 @@ def fuse_batch(
     initial_state: ArrayLike | None = None,
     max_iterations: int = 100,
     step_tolerance: float = 1e-10,
-    newton_after: int = 6,
+    newton_after: int = 10,
     chunk_size: int = 8192,
 ) -> BatchResult:
     """Fuse ``F`` frames of ``N`` nodes' measurements at once (MAP or ML).
