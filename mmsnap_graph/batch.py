@@ -444,24 +444,22 @@ def fuse_batch(
         state[rows], cost[rows], residuals[rows], info[:, :, rows], iterations[rows], status[rows] = out
 
     # Model evaluations at a state on a node give NaN that the solver flags.
-    errstate = np.errstate(invalid="ignore", divide="ignore", over="ignore")
-    errstate.__enter__()
-    # Stage 1, in chunks that keep the temporaries in cache: the few steps
-    # that most frames need. Stage 2: the frames still running, all together.
-    rows_all = np.flatnonzero(~empty)
-    first = min(_STAGE1_ITERATIONS, int(max_iterations))
-    for start in range(0, rows_all.size, chunk_size):
-        rows = rows_all[start:start + chunk_size]
-        run(rows, x0[rows], np.zeros(rows.size, dtype=np.int64), first)
-    left = rows_all[status[rows_all] == _MAX_ITER]
-    if left.size and int(max_iterations) > first:
-        run(left, state[left].copy(), iterations[left].copy(), int(max_iterations))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        # Stage 1, in chunks that keep the temporaries in cache: the few steps
+        # that most frames need. Stage 2: the frames still running, together.
+        rows_all = np.flatnonzero(~empty)
+        first = min(_STAGE1_ITERATIONS, int(max_iterations))
+        for start in range(0, rows_all.size, chunk_size):
+            rows = rows_all[start:start + chunk_size]
+            run(rows, x0[rows], np.zeros(rows.size, dtype=np.int64), first)
+        left = rows_all[status[rows_all] == _MAX_ITER]
+        if left.size and int(max_iterations) > first:
+            run(left, state[left].copy(), iterations[left].copy(), int(max_iterations))
 
-    # Laplace covariance: inverse of the undamped information at the solution.
-    lo, pd = _chol_soa(info)
-    cov = _from_soa(_inverse_soa(lo))
-    degeneracy = velocity_degeneracy(state, poses, obs)
-    errstate.__exit__(None, None, None)
+        # Laplace covariance: inverse of the undamped information at the solution.
+        lo, pd = _chol_soa(info)
+        cov = _from_soa(_inverse_soa(lo))
+        degeneracy = velocity_degeneracy(state, poses, obs)
     residuals[~obs] = np.nan
     finite = np.all(np.isfinite(state), axis=1) & np.isfinite(cost)
     status[(status == _CONVERGED) & ~finite] = _NONFINITE

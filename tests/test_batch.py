@@ -221,3 +221,18 @@ def test_invalid_input_raises(kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValidationError, match=match):
         batch.fuse_batch(args.pop("node_poses"), args.pop("measurements"), **args)
+
+
+def test_no_frames_gives_empty_results_of_the_right_shapes():
+    res = batch.fuse_batch(POSES_B, np.zeros((0, 2, 3)))
+    assert res.state.shape == (0, 4) and res.covariance.shape == (0, 4, 4)
+    assert res.whitened_residuals.shape == (0, 2, 3) and len(res) == 0
+
+
+def test_velocity_degeneracy_matches_oneshot():
+    rng = np.random.default_rng(11)
+    states = np.column_stack([rng.uniform(-2, 2, 30), rng.uniform(1, 6, 30), np.zeros(30), np.zeros(30)])
+    obs = rng.random((30, 2)) > 0.2
+    got = batch.velocity_degeneracy(states, POSES_C, obs)
+    for f in range(30):
+        np.testing.assert_allclose(got[f], oneshot.velocity_degeneracy(states[f], POSES_C, obs[f]), rtol=1e-9)
