@@ -596,13 +596,15 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
         # direction (zero diagonal) is still damped.
         floor = 1e-9 * np.maximum(np.abs(diag).max(axis=0), 1e-300)
         damped = model.copy()
-        damped[diag_rows, diag_rows] += lam_a * np.maximum(diag, floor)
+        damping = lam_a * np.maximum(diag, floor)
+        damped[diag_rows, diag_rows] += damping
         lo, ok = _chol_soa(damped)
         step_t = _solve_soa(lo, grad)
         step_t *= -1.0
         # The reduction of the cost that the local quadratic model predicts.
         decrement = -np.einsum("if,if->f", grad, step_t)
-        predicted = decrement - 0.5 * np.einsum("if,ijf,jf->f", step_t, model, step_t)
+        # s^T M s = decrement - lambda s^T D s, since (M + lambda D) s = -g.
+        predicted = 0.5 * (decrement + np.einsum("if,if->f", damping, step_t * step_t))
         # At a minimum the best possible decrease (the Newton decrement, when
         # the damping is light) is below the rounding of the cost itself.
         flat = live & ok & (lam_a <= 1e-2) & (decrement <= 1e-16 * np.maximum(c_a, 1.0))
@@ -626,9 +628,9 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
         nu_a = np.where(accept, 2.0, nu_a * 2.0)
         rejected = ~accept
         if np.any(rejected):
-            x_new[rejected] = x_a[rejected]
-            c_n[rejected] = c_a[rejected]
-            aug_n[..., rejected] = aug_a[..., rejected]
+            np.copyto(x_new, x_a, where=rejected[:, None])
+            np.copyto(c_n, c_a, where=rejected)
+            np.copyto(aug_n, aug_a, where=rejected)
         x_a, c_a, aug_a = x_new, c_n, aug_n
         # A frame whose damping has grown without bound cannot move: it sits
         # at a minimum to rounding (typical when the cost is flat).
