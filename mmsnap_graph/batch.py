@@ -84,16 +84,17 @@ def _chol_soa(a_t: NDArray):
     """Cholesky of (n, n, ...) symmetric matrices; returns the factor as a
     list of lists of arrays (lower triangle) and ``ok``."""
     n = a_t.shape[0]
-    diag = np.stack([a_t[i, i] for i in range(n)])
-    scale = np.max(np.abs(diag), axis=0)
-    tiny = _PIVOT_RTOL * np.where(scale > 0, scale, 1.0)
     ok = np.all(np.isfinite(a_t), axis=(0, 1))
     lo = [[None] * n for _ in range(n)]
     for j in range(n):
         d = a_t[j, j].copy()
         for k in range(j):
             d -= lo[j][k] ** 2
-        good = d > tiny
+        # The pivot against the column's own diagonal: a column that the
+        # previous ones explain to rounding is singular. (An ill-conditioned
+        # but regular matrix passes, as in gtsam's Cholesky.)
+        good = d > _PIVOT_RTOL * np.abs(a_t[j, j])
+        good &= a_t[j, j] > 0
         ok &= good
         ljj = np.sqrt(np.where(good, d, 1.0))
         lo[j][j] = ljj
@@ -153,8 +154,8 @@ def cholesky4(a: ArrayLike) -> tuple[NDArray, NDArray]:
 
     a : (..., n, n) float, symmetric (only the lower triangle is read).
     Returns ``L (..., n, n)`` with ``a = L L^T`` and ``ok (...,)`` bool, False
-    where a pivot is not positive relative to the largest diagonal entry
-    (``1e-12``), i.e. the matrix is not numerically positive definite. Where
+    where a pivot is not above ``1e-12`` times its column's diagonal entry,
+    i.e. the matrix is not numerically positive definite. Where
     ``ok`` is False the factor holds finite placeholder values.
     """
     a_t = _to_soa(np.asarray(a, dtype=float))
@@ -594,7 +595,7 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
         diag = model[diag_rows, diag_rows]
         # Marquardt damping on the diagonal, floored so that an unobservable
         # direction (zero diagonal) is still damped.
-        floor = 1e-9 * np.maximum(np.abs(diag).max(axis=0), 1e-300)
+        floor = 1e-15 * np.maximum(np.abs(diag).max(axis=0), 1e-300)
         damped = model.copy()
         damping = lam_a * np.maximum(diag, floor)
         damped[diag_rows, diag_rows] += damping
