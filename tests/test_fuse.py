@@ -211,3 +211,38 @@ def test_cli_fuse_writes_the_fused_group(tmp_path, recordings, capsys):
     assert read_fused(out).mode == "map" and read_fused(path).mode == "ml"
     assert main(["fuse", str(path), "--calibration", str(tmp_path / "none.json")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
+    """The fast path of group_detections (one detection per node, one gate)
+    gives what associate_frame gives frame by frame."""
+    from mmsnap_graph.association import associate_frame
+    from mmsnap_graph.sequence import group_detections
+
+    rec = simulate_recording("A", "random", levels=("centroids",), n_frames=80, seed=2,
+                             known_poses=True, centroid_noise=CentroidNoise(p_miss=0.2))
+    import dataclasses
+
+    from mmsnap_graph.recording import Detections
+
+    # A false alarm far from the target in frame 5 (S2): that frame takes the
+    # per-frame path, the others the vectorized one.
+    c2 = rec.nodes["S2"].centroids
+    extra = Detections(frame=np.append(c2.frame, 5), range_m=np.append(c2.range_m, 9.0),
+                       omega_rad=np.append(c2.omega_rad, 2.5), doppler_mps=np.append(c2.doppler_mps, 0.0))
+    rec = rec.with_node(dataclasses.replace(rec.nodes["S2"], centroids=extra))
+    poses = recording_poses(rec)
+    sig = oneshot.MeasurementNoise().sigmas
+    groups = group_detections(rec, poses, sig)
+    assert np.count_nonzero(groups.frame == 5) == 2
+    cents = [rec.nodes[n].centroids for n in rec.node_names]
+    rows = []
+    for f in np.unique(np.concatenate([c.frame for c in cents])):
+        idx = [np.flatnonzero(c.frame == f) for c in cents]
+        a = associate_frame([c.measurements[i] for c, i in zip(cents, idx)], poses, sig)
+        for g, members in enumerate(a.members):
+            rows.append((f, g, *[idx[n][m] if m >= 0 else -1 for n, m in enumerate(members)]))
+    expected = np.array(rows)
+    np.testing.assert_array_equal(groups.frame, expected[:, 0])
+    np.testing.assert_array_equal(groups.target, expected[:, 1])
+    np.testing.assert_array_equal(groups.detection_index, expected[:, 2:])
