@@ -613,7 +613,7 @@ def joint_calibration(
     except RuntimeError as exc:
         notes.append(f"marginals failed ({str(exc).splitlines()[0]})")
         covs.update(_schur_covariances(final_graph, result, active, ref, pose_key, state_key,
-                                       unobservable))
+                                       unobservable, max_pose_condition))
     if unobservable:
         success = False
         for n, dirs in unobservable.items():
@@ -635,11 +635,13 @@ def joint_calibration(
         unobservable=unobservable, unreachable=tuple(unreachable))
 
 
-def _schur_covariances(graph, values, active, ref, pose_key, state_key, unobservable):
+def _schur_covariances(graph, values, active, ref, pose_key, state_key, unobservable,
+                       condition):
     """Pose information by a dense Schur complement of the linearized graph,
-    for a singular system: the null space is the unobservable directions; the
-    covariance is the pseudo-inverse, with ``inf`` on the diagonal of every
-    component a null direction touches (NaN off the diagonal there)."""
+    for a singular system: the eigen-directions whose information is below
+    ``1 / condition`` of the largest are unobservable; the covariance is the
+    inverse on the rest, with ``inf`` on the diagonal of every component a
+    null direction touches (NaN off the diagonal there)."""
     others = [n for n in active if n != ref]
     order = gtsam.Ordering()
     for n in others:
@@ -652,8 +654,9 @@ def _schur_covariances(graph, values, active, ref, pose_key, state_key, unobserv
     schur = a - b @ np.linalg.lstsq(c, b.T, rcond=None)[0]
     schur = 0.5 * (schur + schur.T)
     w, v = np.linalg.eigh(schur)
-    null = w <= 1e-9 * max(w.max(), 1e-300)
-    cov_all = np.linalg.pinv(schur, rcond=1e-9, hermitian=True)
+    null = w <= max(w.max(), 1e-300) / condition
+    keep = ~null
+    cov_all = (v[:, keep] / w[keep]) @ v[:, keep].T  # inverse on the observable part
     covs = {}
     for i, n in enumerate(others):
         rows = slice(3 * i, 3 * i + 3)
