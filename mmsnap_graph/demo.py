@@ -40,7 +40,8 @@ from numpy.typing import NDArray
 from factors.models import local_to_global, measurement_model
 
 from .errors import CalibrationError, ValidationError
-from .evaluation import PoseError, StateErrors, align_frames, pose_error, state_errors
+from .evaluation import (PoseError, StateErrors, align_frames, pose_error, pose_mapping_error,
+                         state_errors)
 from .radar.cluster import ClusterConfig, torso_centroids
 from .radar.config import TABLE_I
 from .recording import Detections, NodeData, Recording, Tracks
@@ -254,8 +255,11 @@ class CalibrationOutcome:
     covariances (3, 3) (Pose2 body tangent). closed_form_rmse_m : paper eq. 14
     (the closed form's own track RMSE); refined_rmse_m : the same track RMSE
     with the refined pose. true_pose : (3,). closed_form_error,
-    refined_error : :class:`PoseError` against it. n_frames : matched frames;
-    lag_frames : the matched frame lag.
+    refined_error : :class:`PoseError` against it. closed_form_mapping_error_m,
+    refined_mapping_error_m : RMS displacement of the true walking path when
+    S2 sees it with the estimated instead of the true pose
+    (:func:`mmsnap_graph.evaluation.pose_mapping_error`). n_frames : matched
+    frames; lag_frames : the matched frame lag.
     """
 
     configuration: str
@@ -273,6 +277,8 @@ class CalibrationOutcome:
     lag_frames: int
     success: bool
     message: str
+    closed_form_mapping_error_m: float = float("nan")
+    refined_mapping_error_m: float = float("nan")
     track_s1: SingleTrack | None = None
     track_s2: SingleTrack | None = None
     truth_frame: NDArray | None = None
@@ -291,6 +297,8 @@ class CalibrationOutcome:
             "true_pose": self.true_pose.tolist(),
             "closed_form_error": self.closed_form_error.to_dict(),
             "refined_error": self.refined_error.to_dict(),
+            "closed_form_mapping_error_m": self.closed_form_mapping_error_m,
+            "refined_mapping_error_m": self.refined_mapping_error_m,
             "n_frames": self.n_frames,
             "lag_frames": self.lag_frames,
             "success": self.success,
@@ -369,6 +377,13 @@ def calibrate_run(recording: Recording, *, configuration: str = "?", trajectory:
     nan_err = PoseError(position_error_m=float("nan"), heading_error_rad=float("nan"))
     has_truth = bool(np.all(np.isfinite(true_pose)))
     refined_rmse, _ = track_alignment_rmse(refined_pose, tracks[0], tracks[1], lag)
+    t_frame = t_state = None
+    map_cf = map_ref = float("nan")
+    if truth is not None:
+        t_frame, t_state = truth.target(int(truth.target_id.min()))
+        if has_truth:
+            map_cf = pose_mapping_error(cf.pose, true_pose, t_state[:, :2])
+            map_ref = pose_mapping_error(refined_pose, true_pose, t_state[:, :2])
     return CalibrationOutcome(
         configuration=configuration, trajectory=trajectory,
         closed_form_pose=np.asarray(cf.pose, dtype=float),
@@ -378,9 +393,9 @@ def calibrate_run(recording: Recording, *, configuration: str = "?", trajectory:
         closed_form_error=pose_error(cf.pose, true_pose) if has_truth else nan_err,
         refined_error=pose_error(refined_pose, true_pose) if has_truth else nan_err,
         n_frames=int(cf.n_frames), lag_frames=lag, success=success,
-        message="; ".join(messages), track_s1=tracks[0], track_s2=tracks[1],
-        truth_frame=None if truth is None else truth.target(int(truth.target_id.min()))[0],
-        truth_state=None if truth is None else truth.target(int(truth.target_id.min()))[1])
+        message="; ".join(messages), closed_form_mapping_error_m=map_cf,
+        refined_mapping_error_m=map_ref, track_s1=tracks[0], track_s2=tracks[1],
+        truth_frame=t_frame, truth_state=t_state)
 
 
 # ----------------------------------------------------------------------------
@@ -859,9 +874,14 @@ def run_demo(config: DemoConfig | None = None, *, data_dir=None, progress: bool 
         cals, fus, srcs, fails = {}, {}, {}, []
         t0 = time.perf_counter()
 
+        started = [False]
+
         def stage(msg):
+            # Called when a stage starts: the previous one is done.
+            if started[0]:
+                bar.update(1)
+            started[0] = True
             bar.set_postfix_str(msg)
-            bar.update(1)
 
         for conf in config.configurations:
             c, f, s, fl = run_configuration(conf, config, data_dir=data_dir, on_stage=stage)
@@ -869,6 +889,8 @@ def run_demo(config: DemoConfig | None = None, *, data_dir=None, progress: bool 
             fus.update({(conf, t): v for t, v in f.items()})
             srcs.update({(conf, t): v for t, v in s.items()})
             fails.extend(fl)
+        if started[0]:
+            bar.update(1)
         seconds["configurations"] = time.perf_counter() - t0
     finally:
         bar.close()

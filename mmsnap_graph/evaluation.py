@@ -23,6 +23,8 @@ __all__ = [
     "align_frames",
     "state_errors",
     "pose_error",
+    "pose_mapping_error",
+    "truth_reference",
     "nees",
     "chi2_mean_interval",
 ]
@@ -109,6 +111,62 @@ def pose_error(estimate: ArrayLike, truth: ArrayLike) -> PoseError:
         position_error_m=float(np.hypot(*(est[:2] - tru[:2]))),
         heading_error_rad=float(wrap_angle(est[2] - tru[2])),
     )
+
+
+def pose_mapping_error(estimate: ArrayLike, truth: ArrayLike, points_m: ArrayLike) -> float:
+    """RMS displacement of global points ``(K, 2)`` seen by a node of pose
+    ``truth`` and placed with the pose ``estimate`` (both ``(x_m, y_m,
+    phi_rad)``): ``p -> T_est T_true^-1 p``.
+
+    One number for a pose error where it matters, e.g. over the walking
+    area: the heading error weighs with the distance of the points from the
+    node, the position error adds everywhere.
+    """
+    from factors.models import global_to_local, local_to_global
+
+    est = as_float_array(estimate, "estimate")
+    tru = as_float_array(truth, "truth")
+    pts = as_float_array(points_m, "points_m")
+    if est.shape != (3,) or tru.shape != (3,):
+        raise ValidationError(f"poses must have shape (3,), got {est.shape} and {tru.shape}")
+    if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] == 0:
+        raise ValidationError(f"points_m must have shape (K, 2) with K >= 1, got {pts.shape}")
+    moved = local_to_global(global_to_local(pts, tru), est)
+    return float(np.sqrt(np.mean(np.sum((moved - pts) ** 2, axis=1))))
+
+
+def truth_reference(frames: ArrayLike, positions_m: ArrayLike, truth_frame: ArrayLike,
+                    truth_target: ArrayLike, truth_state: ArrayLike) -> tuple[NDArray, NDArray]:
+    """The true state each estimate refers to: for every row (frame, global
+    position ``(K, 2)``), the truth row of the same frame whose target is the
+    nearest. Returns ``states (K, 4)`` (NaN where the frame has no truth) and
+    ``target_id (K,)`` (-1 there).
+
+    truth_frame, truth_target : (T,) int; truth_state : (T, 4).
+    """
+    fr = np.asarray(frames, dtype=np.int64)
+    pos = as_float_array(positions_m, "positions_m")
+    tf = np.asarray(truth_frame, dtype=np.int64)
+    tt = np.asarray(truth_target, dtype=np.int64)
+    ts = as_float_array(truth_state, "truth_state")
+    if fr.ndim != 1 or pos.shape != (fr.size, 2):
+        raise ValidationError(f"frames (K,) and positions_m (K, 2) disagree: {fr.shape}, {pos.shape}")
+    if tf.ndim != 1 or tt.shape != tf.shape or ts.shape != (tf.size, 4):
+        raise ValidationError(f"truth_frame (T,), truth_target (T,) and truth_state (T, 4) "
+                              f"disagree: {tf.shape}, {tt.shape}, {ts.shape}")
+    out = np.full((fr.size, 4), np.nan)
+    tid = np.full(fr.size, -1, dtype=np.int64)
+    order = np.argsort(tf, kind="stable")
+    tf_s = tf[order]
+    lo = np.searchsorted(tf_s, fr, side="left")
+    hi = np.searchsorted(tf_s, fr, side="right")
+    for i in np.flatnonzero(hi > lo):
+        rows = order[lo[i]:hi[i]]
+        d = np.sum((ts[rows, :2] - pos[i]) ** 2, axis=1)
+        j = rows[int(np.argmin(np.where(np.isfinite(d), d, np.inf)))]
+        out[i] = ts[j]
+        tid[i] = tt[j]
+    return out, tid
 
 
 def nees(errors: ArrayLike, covariances: ArrayLike) -> NDArray:

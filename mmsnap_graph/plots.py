@@ -1,0 +1,330 @@
+"""Figures of the demo and the notebooks, like the paper's (matplotlib).
+
+Every function builds a :class:`matplotlib.figure.Figure` with the
+object-oriented API (no pyplot state, no backend switch: it renders with Agg
+when saved and displays inline in a notebook) and returns it; ``save`` writes
+it atomically. Degrees appear only here (axis labels), the library speaks
+radians.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.patches import Ellipse, Rectangle
+from numpy.typing import ArrayLike, NDArray
+
+from factors.models import local_to_global
+
+__all__ = [
+    "save",
+    "draw_nodes",
+    "plot_calibration_tracks",
+    "plot_timeseries",
+    "velocity_posterior",
+    "plot_velocity_posteriors",
+    "degeneracy_grid",
+    "plot_degeneracy_map",
+]
+
+_COLORS = {"truth": "0.35", "bayes": "tab:blue", "ml": "tab:red", "tlf": "tab:green",
+           "central": "tab:purple", "s1": "tab:cyan", "s2": "tab:orange"}
+
+
+def save(fig: Figure, path: str | os.PathLike, *, dpi: int = 110) -> Path:
+    """Write ``fig`` as PNG, atomically (temp file in the folder, then rename)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=dpi, format="png")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def draw_nodes(ax, poses: Mapping[str, ArrayLike], *, color: str = "k", label: bool = True,
+               arrow_m: float = 0.8, marker: str = "s") -> None:
+    """Nodes as squares with an arrow along their broadside ``(-sin phi, cos phi)``."""
+    for name, pose in poses.items():
+        x, y, phi = np.asarray(pose, dtype=float)
+        ax.plot([x], [y], marker=marker, color=color, ms=7, ls="none")
+        ax.annotate("", xy=(x - arrow_m * np.sin(phi), y + arrow_m * np.cos(phi)), xytext=(x, y),
+                    arrowprops=dict(arrowstyle="->", color=color, lw=1.2))
+        if label:
+            ax.annotate(name, (x, y), textcoords="offset points", xytext=(6, -10), fontsize=8,
+                        color=color)
+
+
+def _cov_ellipse(ax, mean: NDArray, cov: NDArray, n_sigma: float = 2.0, **kw) -> None:
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    w = np.maximum(w, 0.0)
+    angle = np.degrees(np.arctan2(v[1, 1], v[0, 1]))
+    ax.add_patch(Ellipse(xy=mean, width=2 * n_sigma * np.sqrt(w[1]),
+                         height=2 * n_sigma * np.sqrt(w[0]), angle=angle, fill=False, **kw))
+
+
+# ----------------------------------------------------------------------------
+# Tracks overlaid after calibration
+# ----------------------------------------------------------------------------
+
+
+def plot_calibration_tracks(calibrations: Mapping[tuple[str, str], object],
+                            configurations: Sequence[str], trajectories: Sequence[str]) -> Figure:
+    """Each calibration run: S1's track, S2's track mapped into S1's frame with
+    the closed-form pose and with the refined pose, and the truth (paper's
+    "tracks overlaid after calibration"). ``calibrations`` maps
+    ``(configuration, trajectory)`` to :class:`mmsnap_graph.demo.CalibrationOutcome`.
+    """
+    nr, nc = len(trajectories), len(configurations)
+    fig = Figure(figsize=(4.2 * nc, 4.0 * nr), layout="constrained")
+    axes = fig.subplots(nr, nc, squeeze=False)
+    for i, traj in enumerate(trajectories):
+        for j, conf in enumerate(configurations):
+            ax = axes[i, j]
+            cal = calibrations.get((conf, traj))
+            ax.set_title(f"{conf}, {traj}" + ("" if cal else " (failed)"), fontsize=10)
+            ax.set_aspect("equal")
+            if cal is None:
+                continue
+            if cal.truth_state is not None:
+                ax.plot(cal.truth_state[:, 0], cal.truth_state[:, 1], color=_COLORS["truth"],
+                        lw=3, alpha=0.35, label="truth")
+            t1, t2 = cal.track_s1, cal.track_s2
+            ax.plot(t1.state[:, 0], t1.state[:, 1], color=_COLORS["s1"], lw=0.9, label="S1 track")
+            cf = local_to_global(t2.state[:, :2], cal.closed_form_pose)
+            rf = local_to_global(t2.state[:, :2], cal.refined_pose)
+            ax.plot(cf[:, 0], cf[:, 1], color=_COLORS["s2"], lw=0.8, ls="--",
+                    label=f"S2, closed form ({cal.closed_form_rmse_m:.3f} m)")
+            ax.plot(rf[:, 0], rf[:, 1], color="tab:red", lw=0.8,
+                    label=f"S2, refined ({cal.refined_rmse_m:.3f} m)")
+            draw_nodes(ax, {"S1": np.zeros(3), "S2": cal.true_pose}, color="k")
+            draw_nodes(ax, {"S2'": cal.refined_pose}, color="tab:red", label=False)
+            ax.legend(fontsize=7, loc="best")
+            ax.set_xlabel("x [m]")
+            ax.set_ylabel("y [m]")
+            ax.grid(alpha=0.3)
+    fig.suptitle("Tracks overlaid after self-calibration (S1 frame); track RMSE in brackets")
+    return fig
+
+
+# ----------------------------------------------------------------------------
+# X / Y / Vx / Vy over time
+# ----------------------------------------------------------------------------
+
+
+def plot_timeseries(fusion, frame_period_s: float = 0.15, *, max_frames: int | None = None
+                    ) -> Figure:
+    """x, y, vx, vy over time of one fused run
+    (:class:`mmsnap_graph.demo.FusionOutcome`): one-shot Bayesian and ML, the
+    two nodes' EKF tracks (global frame), the track-level fusion and the truth.
+    Velocity axes are limited to the truth's range +-2 m/s: ML excursions in a
+    degenerate geometry leave the plot (their RMSE is in the tables)."""
+    k = fusion.frame.size if max_frames is None else min(int(max_frames), fusion.frame.size)
+    t = fusion.frame[:k] * frame_period_s
+    fig = Figure(figsize=(10, 8.5), layout="constrained")
+    if k == 0:
+        return fig
+    axes = fig.subplots(4, 1, sharex=True)
+    names = ["x [m]", "y [m]", "vx [m/s]", "vy [m/s]"]
+    for i, ax in enumerate(axes):
+        ax.plot(t, fusion.truth[:k, i], color="k", lw=2.0, alpha=0.5, label="truth")
+        ax.plot(t, fusion.ekf_s1[:k, i], color=_COLORS["s1"], lw=0.8, label="EKF S1")
+        ax.plot(t, fusion.ekf_s2[:k, i], color=_COLORS["s2"], lw=0.8, label="EKF S2")
+        ax.plot(t, fusion.track_fusion[:k, i], color=_COLORS["tlf"], lw=1.0, ls="--",
+                label="track-level fusion")
+        ax.plot(t, fusion.ml[:k, i], color=_COLORS["ml"], lw=0.6, marker=".", ms=2.5,
+                label="one-shot ML")
+        ax.plot(t, fusion.bayes[:k, i], color=_COLORS["bayes"], lw=0.8, marker=".", ms=2.5,
+                label="one-shot Bayesian")
+        ax.set_ylabel(names[i])
+        ax.grid(alpha=0.3)
+        if i >= 2:
+            lo, hi = np.nanmin(fusion.truth[:k, i]), np.nanmax(fusion.truth[:k, i])
+            ax.set_ylim(lo - 2.0, hi + 2.0)
+    axes[0].legend(ncol=6, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, 1.45))
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(f"Configuration {fusion.configuration}, {fusion.trajectory} trajectory "
+                 f"(calibrated on {fusion.calibrated_on})")
+    return fig
+
+
+# ----------------------------------------------------------------------------
+# Velocity posteriors
+# ----------------------------------------------------------------------------
+
+
+def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
+                       truth: ArrayLike | None = None, grid_points_per_axis: int = 15,
+                       n_plot: int = 161, noise=None, prior=None) -> dict:
+    """One frame's velocity posterior, for :func:`plot_velocity_posteriors`.
+
+    MAP with the grid covariance (:func:`mmsnap_graph.oneshot.fuse_frame`,
+    ``covariance="both"``), ML with its Laplace covariance, and the
+    negative log posterior and log likelihood on an ``n_plot`` x ``n_plot``
+    grid of ``(vx, vy)`` at the MAP position (a conditional slice).
+    Returns a dict of arrays (keys: ``map``, ``ml``, ``vx``, ``vy``,
+    ``neg_log_posterior``, ``neg_log_likelihood``, ``truth``, ``degeneracy``).
+    """
+    from .covariance import neg_log_posterior
+    from .oneshot import GaussianPrior, MeasurementNoise, fuse_frame
+
+    noise = MeasurementNoise() if noise is None else noise
+    prior = GaussianPrior() if prior is None else prior
+    poses = np.asarray(node_poses, dtype=float)
+    z = np.asarray(measurements, dtype=float)
+    res_map = fuse_frame(poses, z, noise=noise, prior=prior, covariance="both",
+                         grid_points_per_axis=int(grid_points_per_axis))
+    res_ml = fuse_frame(poses, z, noise=noise, prior=None)
+    c = res_map.state
+    cov = res_map.grid_covariance if res_map.grid_covariance is not None and \
+        np.all(np.isfinite(res_map.grid_covariance)) else res_map.covariance
+    half = np.maximum(4.0 * np.sqrt(np.diag(cov)[2:]), 1.0)
+    vx = np.linspace(c[2] - half[0], c[2] + half[0], int(n_plot))
+    vy = np.linspace(c[3] - half[1], c[3] + half[1], int(n_plot))
+    gx, gy = np.meshgrid(vx, vy)
+    states = np.empty(gx.shape + (4,))
+    states[..., 0], states[..., 1] = c[0], c[1]
+    states[..., 2], states[..., 3] = gx, gy
+    kw = dict(node_poses=poses, measurements=z, observed=None, sigmas=noise.sigmas)
+    nlp = neg_log_posterior(states, prior_mean=prior.mean, prior_sigmas=prior.sigmas, **kw)
+    nll = neg_log_posterior(states, prior_mean=None, prior_sigmas=None, **kw)
+    return {"map": res_map, "ml": res_ml, "vx": vx, "vy": vy, "neg_log_posterior": nlp,
+            "neg_log_likelihood": nll, "truth": None if truth is None else np.asarray(truth),
+            "degeneracy": float(res_map.degeneracy), "node_poses": poses}
+
+
+def plot_velocity_posteriors(panels: Sequence[tuple[str, dict]]) -> Figure:
+    """Velocity posteriors side by side: ``panels`` are ``(title, data)``
+    with data from :func:`velocity_posterior`. Filled: the posterior density
+    (conditional on the MAP position); black lines: the likelihood's 1, 2, 3
+    sigma contours; ellipses (2 sigma): the grid posterior covariance and the
+    Laplace covariance of the MAP, and ML's Laplace covariance."""
+    fig = Figure(figsize=(5.2 * len(panels), 4.8), layout="constrained")
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    for ax, (title, d) in zip(axes, panels):
+        vx, vy = d["vx"], d["vy"]
+        post = np.exp(-(d["neg_log_posterior"] - d["neg_log_posterior"].min()))
+        ax.contourf(vx, vy, post, levels=np.linspace(0.02, 1.0, 12), cmap="Blues")
+        dl = d["neg_log_likelihood"] - d["neg_log_likelihood"].min()
+        # 2-D Gaussian: 0.5 * chi2_2 quantiles of 1, 2, 3 sigma (39%, 86%, 99%).
+        ax.contour(vx, vy, dl, levels=[0.5, 2.0, 4.5], colors="k", linewidths=0.8,
+                   linestyles=["-", "--", ":"])
+        m, ml = d["map"], d["ml"]
+        if m.grid_covariance is not None and np.all(np.isfinite(m.grid_covariance)):
+            _cov_ellipse(ax, m.state[2:], m.grid_covariance[2:, 2:], color="tab:blue", lw=1.8,
+                         label="grid posterior (2 sigma)")
+        _cov_ellipse(ax, m.state[2:], m.covariance[2:, 2:], color="tab:cyan", lw=1.0, ls="--",
+                     label="Laplace (2 sigma)")
+        ax.plot(*m.state[2:], "o", color="tab:blue", label="Bayesian (MAP)")
+        if ml.success and np.all(np.isfinite(ml.state)):
+            ax.plot(*ml.state[2:], "x", color="tab:red", ms=9, mew=2,
+                    label=f"ML ({ml.state[2]:.1f}, {ml.state[3]:.1f})")
+        if d["truth"] is not None:
+            ax.plot(*d["truth"][2:], "*", color="k", ms=11, label="truth")
+        ax.set_xlim(vx[0], vx[-1])
+        ax.set_ylim(vy[0], vy[-1])
+        ax.set_xlabel("vx [m/s]")
+        ax.set_ylabel("vy [m/s]")
+        ax.set_title(f"{title}\ndegeneracy (cond.) {d['degeneracy']:.3g}", fontsize=10)
+        ax.legend(fontsize=7, loc="lower left")
+        ax.grid(alpha=0.3)
+    fig.suptitle("Velocity posterior (filled) and likelihood (contours) of one frame")
+    return fig
+
+
+# ----------------------------------------------------------------------------
+# Degeneracy map
+# ----------------------------------------------------------------------------
+
+
+def degeneracy_grid(node_poses: Mapping[str, ArrayLike], *, step_m: float = 0.1,
+                    extent_m: tuple[float, float, float, float] | None = None,
+                    **fov_limits) -> tuple[NDArray, NDArray, NDArray]:
+    """The velocity-degeneracy indicator (condition number of the lines of
+    sight's velocity information, :func:`mmsnap_graph.batch.velocity_degeneracy`)
+    on a grid over the nodes' common field of view.
+
+    Returns ``x (nx,)``, ``y (ny,)`` and ``cond (ny, nx)`` (NaN outside the
+    common field of view, :func:`mmsnap_graph.sim.networks.in_common_field_of_view`).
+    """
+    from .batch import velocity_degeneracy
+    from .sim.networks import in_common_field_of_view
+
+    poses = {k: np.asarray(v, dtype=float) for k, v in node_poses.items()}
+    xy = np.stack([p[:2] for p in poses.values()])
+    if extent_m is None:
+        lo, hi = xy.min(0) - 4.0, xy.max(0) + 4.0
+        extent_m = (lo[0], hi[0], lo[1], hi[1] + 3.0)
+    x = np.arange(extent_m[0], extent_m[1] + 1e-9, step_m)
+    y = np.arange(extent_m[2], extent_m[3] + 1e-9, step_m)
+    gx, gy = np.meshgrid(x, y)
+    pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    states = np.concatenate([pts, np.zeros_like(pts)], axis=1)
+    arr = np.stack(list(poses.values()))
+    obs = np.ones((pts.shape[0], arr.shape[0]), dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cond = velocity_degeneracy(states, arr, obs).reshape(gx.shape)
+    inside = in_common_field_of_view(np.stack([gx, gy], axis=-1), poses, **fov_limits)
+    return x, y, np.where(inside, cond, np.nan)
+
+
+def plot_degeneracy_map(networks: Mapping[str, Mapping[str, ArrayLike]], *,
+                        areas: Mapping[str, object] | None = None,
+                        trajectories: Mapping[str, NDArray] | None = None,
+                        threshold: float | None = None) -> Figure:
+    """log10 of the degeneracy indicator over each network's common field of
+    view, with the nodes, the walking area and optionally a trajectory
+    ``(K, >=2)`` per network; the contour marks ``threshold`` (default
+    :data:`mmsnap_graph.oneshot.DEGENERACY_THRESHOLD`)."""
+    from .oneshot import DEGENERACY_THRESHOLD
+
+    thr = DEGENERACY_THRESHOLD if threshold is None else float(threshold)
+    fig = Figure(figsize=(4.6 * len(networks), 4.6), layout="constrained")
+    axes = fig.subplots(1, len(networks), squeeze=False)[0]
+    mesh = None
+    for ax, (name, poses) in zip(axes, networks.items()):
+        xy = np.stack([np.asarray(p, dtype=float)[:2] for p in poses.values()])
+        lo, hi = xy.min(0) - 2.0, xy.max(0) + 2.0
+        if areas is not None and name in areas:
+            a = areas[name]
+            lo = np.minimum(lo, [a.x_min_m - 3.0, a.y_min_m - 3.0])
+            hi = np.maximum(hi, [a.x_max_m + 3.0, a.y_max_m + 3.0])
+        x, y, cond = degeneracy_grid(poses, extent_m=(lo[0], hi[0], lo[1], hi[1]))
+        val = np.log10(np.clip(cond, 1.0, 1e4))
+        mesh = ax.pcolormesh(x, y, val, cmap="magma_r", vmin=0.0, vmax=3.0, shading="auto")
+        if np.any(np.isfinite(cond)):
+            ax.contour(x, y, np.nan_to_num(cond, nan=0.0), levels=[thr], colors="tab:cyan",
+                       linewidths=1.2)
+        if areas is not None and name in areas:
+            a = areas[name]
+            ax.add_patch(Rectangle((a.x_min_m, a.y_min_m), a.x_max_m - a.x_min_m,
+                                   a.y_max_m - a.y_min_m, fill=False, ec="tab:green", lw=1.5))
+        if trajectories is not None and name in trajectories:
+            tr = np.asarray(trajectories[name])
+            ax.plot(tr[:, 0], tr[:, 1], color="tab:blue", lw=0.6, alpha=0.8)
+        draw_nodes(ax, poses, color="k")
+        ax.set_aspect("equal")
+        ax.set_xlim(x[0], x[-1])
+        ax.set_ylim(y[0], y[-1])
+        ax.set_title(f"configuration {name}", fontsize=10)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+    if mesh is not None:
+        cb = fig.colorbar(mesh, ax=list(axes), shrink=0.85)
+        cb.set_label("log10 condition number of the velocity information")
+    fig.suptitle(f"Velocity degeneracy over the common field of view (cyan: {thr:g}; "
+                 "green: walking area; blue: trajectory)")
+    return fig
