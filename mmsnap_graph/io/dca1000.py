@@ -39,6 +39,7 @@ from typing import Iterator, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..atomic import atomic_path
 from ..errors import ConfigurationError, FileFormatError, ValidationError
 from ..radar.config import RadarConfig
 from ..recording import NodeData, Recording
@@ -207,9 +208,8 @@ def write_dca1000_bin(path: str | os.PathLike, cube: ArrayLike, config: RadarCon
     i_part, q_part = (order(im), order(re)) if iq_swap else (order(re), order(im))
     quad = np.stack([i_part, q_part], axis=1).astype(_INT16)     # (pairs, I/Q, k/k+1)
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    quad.tofile(tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        quad.tofile(tmp)
     return path
 
 

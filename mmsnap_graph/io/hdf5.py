@@ -24,7 +24,6 @@ HDF5 path of the missing or malformed dataset or attribute.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -32,6 +31,7 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
+from ..atomic import atomic_path
 from ..errors import ConfigurationError, FileFormatError, MmsnapError
 from ..radar.config import RadarConfig
 from ..recording import Detections, NodeData, Recording, Tracks, Truth
@@ -180,22 +180,9 @@ def _write_into(f: h5py.File, rec: Recording, compression: str | None,
 
 
 def _atomic_write(path: Path, fill) -> None:
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise FileFormatError(f"cannot write {path}: folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
             fill(f)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
 
 
 def _check_storage(cube_storage: str) -> None:

@@ -158,7 +158,7 @@ def process_file(
     centroids_only : only re-track from the stored centroids.
     """
     import shutil
-    import tempfile
+    from ..atomic import atomic_path
 
     from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
 
@@ -201,14 +201,7 @@ def process_file(
     dst = src if output is None else Path(output)
     if dst.resolve() != src.resolve():
         # Copy, then update the copy; the copy lands atomically.
-        fd, tmp = tempfile.mkstemp(dir=dst.parent, prefix=f".{dst.name}.", suffix=".tmp")
-        os.close(fd)
-        try:
+        with atomic_path(dst) as tmp:
             shutil.copyfile(src, tmp)
-            os.replace(tmp, dst)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
     update_recording(dst, rec, keep_cubes=True)
     return dst, reports
