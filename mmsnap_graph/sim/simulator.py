@@ -329,10 +329,11 @@ def _cube_inputs(bodies: Sequence[BodyScatterers], pose: NDArray, radar: RadarCo
         pl = global_to_local(p[vis], pose)
         vl = v[vis] @ rot.T
         r = np.hypot(pl[:, 0], pl[:, 1])
-        # The carrier phase 4 pi R / lambda of each scatterer (sim.cube folds it
-        # into the complex amplitude).
+        # The carrier phase 4 pi R / lambda of each scatterer, folded into the
+        # complex amplitude with the sign sim.cube's Doppler term implies
+        # (exp(+j 4 pi R / lambda)), so the phase stays coherent across frames.
         amp = (scatterer_amplitude(radar, rcs[vis], r, noise_std=noise_ref)
-               * np.exp(-4j * np.pi * r / radar.wavelength_m))
+               * np.exp(4j * np.pi * r / radar.wavelength_m))
         pos_l.append(pl)
         vel_l.append(vl)
         amp_l.append(amp)
