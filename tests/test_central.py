@@ -12,6 +12,7 @@ from mmsnap_graph.sim import CentroidNoise, simulate_recording
 from mmsnap_graph.tracking.central import (
     CentralConfig,
     CentralTracker,
+    FixedLagTracker,
     measurement_information,
     track_fused,
 )
@@ -190,3 +191,44 @@ def test_invalid_step_input_raises():
         tracker.step([[np.nan, 3.0, 0.0, 0.0]], [np.eye(4)])
     with pytest.raises(ValidationError, match="prior_mean and prior_sigmas go together"):
         CentralTracker(prior_mean=np.zeros(4))
+
+
+def test_fixed_lag_smoother_is_consistent_and_follows_the_kalman_filter():
+    """The GTSAM fixed-lag smoother's newest state is the Kalman filter's
+    estimate up to the process-noise form (continuous white noise in the
+    factor, discrete in the filter)."""
+    rng = np.random.default_rng(23)
+    noise = oneshot.MeasurementNoise(omega_rad=0.1)
+    prior = oneshot.GaussianPrior()
+    cfg = CentralConfig(gate_probability=0.999999)
+    n_runs, n_frames = 12, 40
+    nees_fl = np.zeros((n_runs, n_frames))
+    for run in range(n_runs):
+        x = _cv_trajectory(rng, n_frames, [0.5, 4.0, 0.0, 0.0], 0.8)
+        h, _ = measurement_model(x[:, None, :], POSES["B"])
+        z = h + rng.standard_normal(h.shape) * noise.sigmas
+        res = batch.fuse_batch(POSES["B"], z, noise=noise, prior=prior)
+        kf = CentralTracker(cfg, prior_mean=prior.mean, prior_sigmas=prior.sigmas)
+        fl = FixedLagTracker(cfg, lag_s=1.0, prior_mean=prior.mean, prior_sigmas=prior.sigmas)
+        for k in range(n_frames):
+            # Every fourth frame without an estimate: prediction only.
+            sl = slice(k, k + 1) if k % 4 != 3 or k == 0 else slice(0, 0)
+            (_, xk, pk), = kf.step(res.state[sl], res.covariance[sl])
+            (_, xf, pf), = fl.step(res.state[sl], res.covariance[sl])
+            np.testing.assert_allclose(xf, xk, atol=5e-3)
+            np.testing.assert_allclose(np.sqrt(np.diag(pf)), np.sqrt(np.diag(pk)), rtol=0.1)
+            nees_fl[run, k] = nees((xf - x[k])[None], pf[None])[0]
+    assert 3.0 < nees_fl[:, 5:].mean() < 5.0
+
+
+def test_fixed_lag_smoother_waits_for_a_first_estimate_and_checks_input():
+    fl = FixedLagTracker()
+    assert fl.step(np.zeros((0, 4)), np.zeros((0, 4, 4))) == []
+    out = fl.step([[0.0, 3.0, 0.5, 0.0]], [np.diag([0.01, 0.01, 0.04, 0.04])])
+    assert len(out) == 1 and out[0][2][2, 2] == pytest.approx(1.0)  # the velocity floor
+    with pytest.raises(ValidationError, match=r"covariances must have shape \(1, 4, 4\)"):
+        fl.step([[0.0, 3.0, 0.0, 0.0]], np.eye(4))
+    with pytest.raises(ConfigurationError, match="lag_s"):
+        FixedLagTracker(lag_s=0.0)
+    with pytest.raises(ValidationError, match="prior_mean and prior_sigmas go together"):
+        FixedLagTracker(prior_sigmas=np.ones(4))

@@ -50,7 +50,13 @@ from ..recording import Tracks
 from ..validation import as_float_array, check_finite
 from .ekf import cv_process_noise, cv_transition
 
-__all__ = ["CentralConfig", "CentralTracker", "measurement_information", "track_fused"]
+__all__ = [
+    "CentralConfig",
+    "CentralTracker",
+    "FixedLagTracker",
+    "measurement_information",
+    "track_fused",
+]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -206,6 +212,125 @@ class CentralTracker:
             self._tracks.append(_Track(track_id=self._next_id, x=z[j].copy(), p=p0))
             self._next_id += 1
         return self.tracks
+
+
+def _information_error(a, b, this, values, jacobians):
+    x = values.atVector(this.keys()[0])
+    if jacobians is not None:
+        jacobians[0] = a
+    return a @ x - b
+
+
+class FixedLagTracker:
+    """One target, GTSAM fixed-lag smoother (``gtsam.BatchFixedLagSmoother``)
+    over one-shot estimates: the central tracker as a factor graph.
+
+    Variables: one ``Vector4`` state per frame. Factors: the constant-velocity
+    factor of :func:`factors.gtsam_factors.constant_velocity_factor` between
+    consecutive states (its full-rank continuous white-noise form, see its
+    docstring), and per estimate a factor ``1/2 |A x - b|^2`` carrying the
+    estimate's measurement information (``A^T A = Lambda_z``,
+    ``A^T b = eta_z``, :func:`measurement_information`; the prior removed as
+    in :class:`CentralTracker`, rank 3 for a single node). The first estimate
+    starts the track as a prior factor (velocity sigma floored at
+    ``config.init_velocity_sigma_mps``). States older than ``lag_s`` are
+    marginalized. The returned covariance is ``gtsam.Marginals`` on the
+    smoother's current graph.
+
+    Only one target: with several estimates in a frame the one nearest the
+    prediction inside the gate is used. ``step`` returns ``[(0, x, P)]`` for
+    the newest state once the track has started, else ``[]``.
+    """
+
+    def __init__(self, config: CentralConfig | None = None, *, lag_s: float = 1.5,
+                 prior_mean: ArrayLike | None = None, prior_sigmas: ArrayLike | None = None) -> None:
+        import gtsam
+
+        self.config = CentralConfig() if config is None else config
+        if not (np.isfinite(lag_s) and lag_s > 0):
+            raise ConfigurationError(f"lag_s={lag_s!r} must be finite and > 0")
+        if (prior_mean is None) != (prior_sigmas is None):
+            raise ValidationError("prior_mean and prior_sigmas go together (both or neither)")
+        self.prior_mean = None if prior_mean is None else np.asarray(prior_mean, dtype=float)
+        self.prior_sigmas = None if prior_sigmas is None else np.asarray(prior_sigmas, dtype=float)
+        self._gtsam = gtsam
+        self._smoother = gtsam.BatchFixedLagSmoother(float(lag_s))
+        self._key = -1
+        self._time_s = 0.0
+        self._x: NDArray | None = None
+        self._p: NDArray | None = None
+        self._gate = float(chi2.ppf(self.config.gate_probability, 2))
+
+    def _measurement_factor(self, key, x, p):
+        gtsam = self._gtsam
+        if self.config.remove_prior and self.prior_mean is not None:
+            info, eta = measurement_information(x, p, self.prior_mean, self.prior_sigmas)
+        else:
+            info, eta = measurement_information(x, p)
+        w, v = np.linalg.eigh(info)
+        keep = w > 1e-12 * max(w.max(), 1e-300)
+        if not np.any(keep):
+            return None
+        a = np.sqrt(w[keep])[:, None] * v[:, keep].T
+        b = (v[:, keep].T @ eta) / np.sqrt(w[keep])
+        from functools import partial
+
+        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(int(keep.sum())), [key],
+                                  partial(_information_error, a, b))
+
+    def step(self, states: ArrayLike, covariances: ArrayLike, period_s: float | None = None):
+        """One frame; see :meth:`CentralTracker.step` for the arguments."""
+        from factors.gtsam_factors import constant_velocity_factor
+
+        gtsam = self._gtsam
+        cfg = self.config
+        z = check_finite(as_float_array(states, "states"), "states").reshape(-1, 4)
+        r = check_finite(as_float_array(covariances, "covariances"), "covariances")
+        if r.shape != (z.shape[0], 4, 4):
+            raise ValidationError(f"covariances must have shape ({z.shape[0]}, 4, 4), got {r.shape}")
+        t = cfg.frame_period_s if period_s is None else float(period_s)
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        if self._x is None:
+            if z.shape[0] == 0:
+                return []
+            p0 = _sym(r[0].copy())
+            for k in (2, 3):
+                p0[k, k] = max(p0[k, k], cfg.init_velocity_sigma_mps**2)
+            self._key = 0
+            graph.add(gtsam.PriorFactorVector(0, z[0], gtsam.noiseModel.Gaussian.Covariance(p0)))
+            values.insert(0, z[0])
+        else:
+            self._time_s += t
+            prev, key = self._key, self._key + 1
+            self._key = key
+            pred = cv_transition(t) @ self._x
+            p_pred = cv_transition(t) @ self._p @ cv_transition(t).T + cv_process_noise(t, cfg.sigma_a_mps2)
+            graph.add(constant_velocity_factor(prev, key, t, cfg.sigma_a_mps2))
+            values.insert(key, pred)
+            best, best_m2 = None, self._gate
+            for j in range(z.shape[0]):
+                d = z[j, :2] - pred[:2]
+                m2 = float(d @ np.linalg.solve(p_pred[:2, :2] + r[j, :2, :2], d))
+                if m2 <= best_m2:
+                    best, best_m2 = j, m2
+            if best is not None:
+                factor = self._measurement_factor(key, z[best], r[best])
+                if factor is not None:
+                    graph.add(factor)
+        stamps.insert((self._key, self._time_s))
+        self._smoother.update(graph, values, stamps)
+        estimate = self._smoother.calculateEstimate()
+        factors = self._smoother.getFactors()
+        current = gtsam.NonlinearFactorGraph()
+        for i in range(factors.size()):
+            f = factors.at(i)
+            if f is not None:
+                current.add(f)
+        self._x = estimate.atVector(self._key)
+        self._p = _sym(gtsam.Marginals(current, estimate).marginalCovariance(self._key))
+        return [(0, self._x.copy(), self._p.copy())]
 
 
 def track_fused(fused, config: CentralConfig | None = None, *, progress: bool = False) -> Tracks:
