@@ -25,6 +25,7 @@ __all__ = [
     "pose_error",
     "pose_mapping_error",
     "truth_reference",
+    "evaluate_recording",
     "nees",
     "chi2_mean_interval",
 ]
@@ -193,3 +194,123 @@ def chi2_mean_interval(dof: int, n: int, confidence: float = 0.95) -> tuple[floa
 
     a = (1.0 - confidence) / 2.0
     return (float(chi2.ppf(a, n * dof) / n), float(chi2.ppf(1.0 - a, n * dof) / n))
+
+
+# ----------------------------------------------------------------------------
+# A whole recording (``mmsnap evaluate``)
+# ----------------------------------------------------------------------------
+
+
+def _nees_summary(err: NDArray, cov: NDArray) -> dict:
+    ok = np.all(np.isfinite(err), axis=1) & np.all(np.isfinite(cov), axis=(1, 2))
+    rows = np.flatnonzero(ok)
+    good = []
+    for i in rows:
+        try:
+            np.linalg.cholesky(cov[i])
+            good.append(i)
+        except np.linalg.LinAlgError:
+            continue
+    if not good:
+        return {"mean": float("nan"), "n": 0, "interval_95": [float("nan"), float("nan")]}
+    good = np.asarray(good)
+    values = nees(err[good], cov[good])
+    lo, hi = chi2_mean_interval(err.shape[1], good.size)
+    return {"mean": float(np.mean(values)), "n": int(good.size), "interval_95": [lo, hi]}
+
+
+def _degeneracy_threshold() -> float:
+    from .oneshot import DEGENERACY_THRESHOLD
+
+    return float(DEGENERACY_THRESHOLD)
+
+
+def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
+    """Metrics of a recording with truth, as a JSON-ready dict.
+
+    recording : :class:`mmsnap_graph.recording.Recording` with ``truth``.
+    fused : :class:`mmsnap_graph.sequence.FusedSequence` (the ``/fused``
+        group) or None. Each successful fused row is compared with the true
+        state of the nearest target in its frame (:func:`truth_reference`):
+        position and velocity RMSE, and the NEES of its covariance.
+    node_poses : name -> (3,) calibrated poses (e.g. a calibration JSON);
+        default the poses stored on the nodes. Compared with the true poses
+        (:func:`pose_error`, :func:`pose_mapping_error` over the true paths)
+        and used to move each node's tracks into the global frame, which are
+        then compared with the truth like the fused rows.
+    Returns ``{"fused": ..., "tracks": {node: ...}, "poses": {node: ...},
+    "notes": [...]}``; a part that cannot be evaluated is None with a note.
+    """
+    truth = recording.truth
+    if truth is None:
+        raise ValidationError("the recording has no truth: nothing to evaluate against")
+    notes: list[str] = []
+    out: dict = {"n_truth_rows": int(truth.frame.size),
+                 "n_targets": int(np.unique(truth.target_id).size)}
+    tf, tt, ts = truth.frame, truth.target_id, truth.state
+    path = ts[:, :2]
+
+    # Poses.
+    given = {} if node_poses is None else {str(k): np.asarray(v, dtype=float)
+                                           for k, v in node_poses.items()}
+    poses = {}
+    pose_rows = {}
+    for name, node in recording.nodes.items():
+        pose = given.get(name, node.pose)
+        poses[name] = pose
+        true = truth.node_poses.get(name)
+        if pose is None:
+            notes.append(f"node {name}: no calibrated pose")
+            pose_rows[name] = None
+            continue
+        if true is None:
+            notes.append(f"node {name}: no true pose in the truth")
+            pose_rows[name] = None
+            continue
+        pe = pose_error(pose, true)
+        pose_rows[name] = {"pose": np.asarray(pose, float).tolist(),
+                           "true_pose": np.asarray(true, float).tolist(),
+                           "position_error_m": pe.position_error_m,
+                           "heading_error_rad": pe.heading_error_rad,
+                           "path_error_m": pose_mapping_error(pose, true, path)}
+    out["poses"] = pose_rows
+
+    # Fused states.
+    if fused is None:
+        out["fused"] = None
+        notes.append("no /fused group: run `mmsnap fuse` to evaluate one-shot estimates")
+    else:
+        ok = np.asarray(fused.success, dtype=bool)
+        ref, _ = truth_reference(fused.frame[ok], fused.state[ok, :2], tf, tt, ts)
+        err = fused.state[ok] - ref
+        se = state_errors(fused.state[ok], ref)
+        deg = np.asarray(fused.degeneracy)[ok]
+        out["fused"] = {"mode": str(fused.mode), "covariance_method": str(fused.covariance_method),
+                        "n_rows": int(len(fused)), "n_success": int(ok.sum()),
+                        **se.to_dict(),
+                        "nees": _nees_summary(err, np.asarray(fused.covariance)[ok]),
+                        "degenerate_fraction": float(np.mean(deg > _degeneracy_threshold()))
+                        if deg.size else float("nan")}
+
+    # Tracks.
+    tracks_out = {}
+    for name, node in recording.nodes.items():
+        if node.tracks is None or len(node.tracks) == 0:
+            tracks_out[name] = None
+            continue
+        pose = poses[name]
+        if pose is None:
+            tracks_out[name] = None
+            notes.append(f"node {name}: tracks not evaluated (no pose to place them)")
+            continue
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        rot = np.array([[c, -s], [s, c]])
+        st = node.tracks.state
+        glob = np.concatenate([st[:, :2] @ rot.T + pose[:2], st[:, 2:] @ rot.T], axis=1)
+        ref, _ = truth_reference(node.tracks.frame, glob[:, :2], tf, tt, ts)
+        tracks_out[name] = {"n_rows": int(len(node.tracks)),
+                            "n_tracks": int(node.tracks.track_ids.size),
+                            **state_errors(glob, ref).to_dict()}
+    out["tracks"] = tracks_out
+    out["notes"] = notes
+    return out
