@@ -349,7 +349,7 @@ def fuse_batch(
     noise=None,
     prior="default",
     initial_state: ArrayLike | None = None,
-    max_iterations: int = 100,
+    max_iterations: int = 200,
     step_tolerance: float = 1e-10,
     newton_after: int = 10,
     chunk_size: int = 8192,
@@ -374,7 +374,9 @@ def fuse_batch(
         Starting points; default :func:`mmsnap_graph.oneshot.initial_states`
         (the vectorized core of ``oneshot.initial_state``).
     max_iterations : int
-        Levenberg-Marquardt steps (accepted or rejected) per frame.
+        Levenberg-Marquardt steps per frame, rejected ones included (GTSAM's
+        limit, 100 in ``fuse_frame``, counts outer iterations only, each of
+        which may try several damping values: 200 here is comparable).
     step_tolerance : float
         A frame has converged when an accepted step is smaller than
         ``step_tolerance * (1 + |x|)`` in every component, or when no step

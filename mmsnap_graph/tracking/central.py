@@ -27,6 +27,9 @@ updates in information form, ``P^+ = (P^{-1}_- + \\Lambda_z)^{-1}``,
 rank-3 ``Lambda_z``, which the information form takes as it is. ML estimates
 (``prior=None``) are used with ``Lambda_z = P^{-1}``.
 
+:class:`FixedLagTracker` is the same model as a GTSAM fixed-lag smoother
+(one target), for smoothing and as a cross-check of the filter.
+
 Data association between tracks and the frame's estimates: gated
 (chi-square, 2 dof on position) global nearest neighbour with
 :func:`scipy.optimize.linear_sum_assignment`; an unassigned successful
