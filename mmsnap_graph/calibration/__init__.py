@@ -8,6 +8,8 @@
   at the reference node, with marginal covariances;
 - :func:`joint_calibration`: node poses and target states from the raw
   measurements (range, spatial frequency, Doppler), refined by LM;
+- :func:`calibrate_recording`, :func:`write_calibration`: all of the above
+  on a :class:`~mmsnap_graph.recording.Recording`, stored back atomically;
 - :mod:`.synthetic`: small synthetic scenes for tests and benchmarks.
 """
 
@@ -21,6 +23,14 @@ from .closed_form import (
 )
 from .joint import PAPER_SIGMAS, JointCalibration, joint_calibration, trimmed_closed_form
 from .matching import LocalTracks, TrackCandidate, TrackMatching, local_tracks, match_tracks
+from .network import (
+    CALIBRATION_GROUP,
+    CALIBRATION_LAYOUT,
+    RecordingCalibration,
+    calibrate_recording,
+    write_calibration,
+    write_calibration_json,
+)
 from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 from .poses import pose_array, pose_error, to_pose2
 from .synthetic import (
@@ -47,6 +57,12 @@ __all__ = [
     "TrackMatching",
     "local_tracks",
     "match_tracks",
+    "CALIBRATION_GROUP",
+    "CALIBRATION_LAYOUT",
+    "RecordingCalibration",
+    "calibrate_recording",
+    "write_calibration",
+    "write_calibration_json",
     "PoseEdge",
     "PoseGraphCalibration",
     "pairwise_edges",
