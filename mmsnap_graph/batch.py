@@ -71,6 +71,10 @@ _CONVERGED, _MAX_ITER, _SINGULAR, _NONFINITE, _EMPTY = range(5)
 # test as gtsam's "indeterminant system").
 _PIVOT_RTOL = 1e-12
 
+# A chunk of the first stage stops when fewer than 1/16 of its frames are
+# still running (the rest continue in the second stage, all chunks together).
+_STAGE1_MIN_LIVE_FRACTION = 16
+
 # Iterations of the chunked first stage (most frames converge within them).
 _STAGE1_ITERATIONS = 8
 
@@ -450,11 +454,11 @@ def fuse_batch(
     empty = ~obs.any(axis=1) if prior is None else np.zeros(n_frames, dtype=bool)
     state[empty] = x0[empty]
 
-    def run(rows, x_start, it_start, budget):
+    def run(rows, x_start, it_start, budget, min_live=0):
         if rows.size == 0:
             return
         p_rows = poses[rows] if poses.ndim == 3 else poses
-        out = _lm(x_start, p_rows, z[rows], weight[rows], params, it_start, budget)
+        out = _lm(x_start, p_rows, z[rows], weight[rows], params, it_start, budget, min_live)
         state[rows], cost[rows], residuals[rows], info[:, :, rows], iterations[rows], status[rows] = out
 
     # Model evaluations at a state on a node give NaN that the solver flags.
@@ -465,7 +469,8 @@ def fuse_batch(
         first = min(_STAGE1_ITERATIONS, int(max_iterations))
         for start in range(0, rows_all.size, chunk_size):
             rows = rows_all[start:start + chunk_size]
-            run(rows, x0[rows], np.zeros(rows.size, dtype=np.int64), first)
+            run(rows, x0[rows], np.zeros(rows.size, dtype=np.int64), first,
+                max(1, rows.size // _STAGE1_MIN_LIVE_FRACTION))
         left = rows_all[status[rows_all] == _MAX_ITER]
         if left.size and int(max_iterations) > first:
             run(left, state[left].copy(), iterations[left].copy(), int(max_iterations))
@@ -530,7 +535,7 @@ class _Params:
     newton_after: int
 
 
-def _lm(x0, poses, z, weight, params, it_start, max_iterations):
+def _lm(x0, poses, z, weight, params, it_start, max_iterations, min_live=0):
     """Levenberg-Marquardt over the frames of ``x0 (F, 4)``.
 
     Returns ``state (F, 4)``, ``cost (F,)``, ``residuals (F, N, 3)``,
@@ -584,6 +589,10 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations):
             finish(live & (it_a >= max_iterations), _MAX_ITER)
         n_live = int(np.count_nonzero(live))
         if n_live == 0:
+            break
+        if n_live < min_live:
+            # Too few frames left for numpy to pay: hand them on (stage 2).
+            finish(live.copy(), _MAX_ITER)
             break
         if n_live < 0.75 * live.size:
             # Compact the active set when enough frames are done.
