@@ -430,7 +430,12 @@ def fuse_batch(
     if initial_state is None:
         from . import oneshot
 
-        x0 = oneshot.initial_states(poses, z, observed=obs, prior=prior, noise=noise)
+        # In chunks: the initializer's temporaries then stay in cache.
+        x0 = np.empty((n_frames, 4))
+        for start in range(0, n_frames, chunk_size):
+            sl = slice(start, start + chunk_size)
+            x0[sl] = oneshot.initial_states(poses[sl] if poses.ndim == 3 else poses, z[sl],
+                                            observed=obs[sl], prior=prior, noise=noise)
     else:
         x0 = check_finite(as_float_array(initial_state, "initial_state"), "initial_state")
         if x0.shape != (n_frames, 4):
