@@ -28,6 +28,7 @@ from .network import (
     CALIBRATION_LAYOUT,
     RecordingCalibration,
     calibrate_recording,
+    residual_sigmas,
     write_calibration,
     write_calibration_json,
 )
@@ -61,6 +62,7 @@ __all__ = [
     "CALIBRATION_LAYOUT",
     "RecordingCalibration",
     "calibrate_recording",
+    "residual_sigmas",
     "write_calibration",
     "write_calibration_json",
     "PoseEdge",

@@ -125,29 +125,53 @@ def _metadata_sigmas(metadata) -> tuple[float, float, float] | None:
     return vals if all(np.isfinite(v) and v > 0 for v in vals) else None
 
 
-def residual_sigmas(result: JointCalibration, detections: Mapping[str, Detections],
-                    *, floor=(1e-3, 1e-3, 1e-3)) -> NDArray:
-    """RMS residual of each measurement component (range_m, omega_rad,
-    doppler_mps) over the inlier detections of a joint solution: a noise
-    estimate for a second solve. (3,)."""
+def residual_sigmas(result: JointCalibration, detections: Mapping[str, Detections], *,
+                    sigmas, prior_sigmas=(1e3, 1e3, 3.5, 3.5), n_rounds: int = 3,
+                    min_redundancy: float = 0.1) -> NDArray:
+    """Noise of each measurement component (range_m, omega_rad, doppler_mps)
+    from the inlier residuals of a joint solution, corrected for what each
+    frame's state absorbs (leverage):
+
+    .. math:: \\hat\\sigma_c^2 = \\sum e_c^2 / \\sum (1 - h_c),
+
+    ``h`` the diagonal of the per-frame hat matrix ``J (J^T W J + P)^{-1}
+    J^T W`` (the states at fixed poses), iterated ``n_rounds`` times since
+    ``W`` depends on the sigmas. A component whose residuals carry less than
+    ``min_redundancy`` of a degree of freedom per measurement is not
+    identifiable (e.g. the Doppler of two nodes without motion factors fits
+    each frame's velocity exactly) and keeps its value in ``sigmas``. (3,).
+    """
     from factors.models import measurement_model, residual
 
-    sq, count = np.zeros(3), 0
+    sig = np.asarray(sigmas, dtype=float).copy()
+    prior_w = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
+    rows = []  # (frame index, residual (3,), Jacobian (3, 4)) per inlier detection
     for n, det in detections.items():
         if n not in result.poses:
             continue
-        idx = np.searchsorted(result.frames, det.frame)
-        idx = np.clip(idx, 0, result.frames.size - 1)
+        idx = np.clip(np.searchsorted(result.frames, det.frame), 0, result.frames.size - 1)
         hit = result.frames[idx] == det.frame
         keep = hit.copy()
         keep[hit] = ~result.outliers[n][idx[hit]]
-        h, _ = measurement_model(result.states[idx[keep]], result.poses[n])
-        e = residual(h, det.measurements[keep])
-        sq += np.sum(e**2, axis=0)
-        count += int(keep.sum())
-    if count == 0:
+        h, jac = measurement_model(result.states[idx[keep]], result.poses[n])
+        rows.append((idx[keep], residual(h, det.measurements[keep]), jac))
+    if not rows or sum(r[0].size for r in rows) == 0:
         raise CalibrationError("no inlier detection to estimate the noise from")
-    return np.maximum(np.sqrt(sq / count), np.asarray(floor, dtype=float))
+    f = result.frames.size
+    for _ in range(n_rounds):
+        info = np.tile(np.diag(prior_w), (f, 1, 1))
+        for k, _, jac in rows:
+            np.add.at(info, k, np.einsum("kri,r,krj->kij", jac, 1.0 / sig**2, jac))
+        cov = np.linalg.inv(info)
+        num, den = np.zeros(3), np.zeros(3)
+        for k, e, jac in rows:
+            lev = np.einsum("kri,kij,krj->kr", jac, cov[k], jac) / sig**2
+            num += np.sum(e**2, axis=0)
+            den += np.sum(1.0 - lev, axis=0)
+        count = sum(r[0].size for r in rows)
+        ok = den > min_redundancy * count
+        sig = np.where(ok, np.sqrt(num / np.maximum(den, 1e-300)), sig)
+    return sig
 
 
 def _joint_detections(rec: Recording, names, lags) -> dict[str, Detections] | None:
@@ -244,7 +268,8 @@ def calibrate_recording(
                                            PAPER_SIGMAS[1]))
                     first = joint_calibration(dets, sigmas=(PAPER_SIGMAS[0], omega0,
                                                             PAPER_SIGMAS[2]), **kw)
-                    sigmas = residual_sigmas(first, dets)
+                    sigmas = residual_sigmas(first, dets, sigmas=(PAPER_SIGMAS[0], omega0,
+                                                                  PAPER_SIGMAS[2]))
                     notes.append("sigmas estimated from residuals: "
                                  + ", ".join(f"{v:.3g}" for v in sigmas))
             joint = joint_calibration(dets, sigmas=sigmas, **kw)
