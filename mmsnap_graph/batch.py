@@ -71,6 +71,9 @@ _CONVERGED, _MAX_ITER, _SINGULAR, _NONFINITE, _EMPTY = range(5)
 # test as gtsam's "indeterminant system").
 _PIVOT_RTOL = 1e-12
 
+# Steps a frame reuses the finite-difference curvature of its Newton steps.
+_CURVATURE_REFRESH = 3
+
 # A chunk of the first stage stops when fewer than 1/16 of its frames are
 # still running (the rest continue in the second stage, all chunks together).
 _STAGE1_MIN_LIVE_FRACTION = 16
@@ -568,6 +571,11 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations, min_live=0):
     small_a = np.zeros(n_frames, dtype=bool)
     live = np.ones(n_frames, dtype=bool)
     diag_rows = np.arange(4)
+    # The curvature term of the Newton steps and its age in steps: finite
+    # differences cost four model evaluations, so a frame reuses its term for
+    # a few steps (near the minimum it hardly changes).
+    curv_a = np.zeros((4, 4, n_frames))
+    curv_age = np.full(n_frames, _CURVATURE_REFRESH)
 
     def finish(sel, code):
         """Write the frames ``sel`` (a mask over the active set) out."""
@@ -607,15 +615,21 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations, min_live=0):
                 p_a = p_a[keep]
             z_a, w_a, x_a, c_a, aug_a = z_a[keep], w_a[keep], x_a[keep], c_a[keep], aug_a[..., keep]
             lam_a, nu_a, it_a = lam_a[keep], nu_a[keep], it_a[keep]
+            curv_a, curv_age = curv_a[:, :, keep], curv_age[keep]
             info, grad = info[:, :, keep], grad[:, keep]
             live = np.ones(idx.size, dtype=bool)
 
         model = info
         slow = np.flatnonzero(live & (it_a >= params.newton_after))
         if slow.size:
-            pp = p_a[slow] if per_frame_poses else p_a
-            curv = _residual_curvature(x_a[slow], pp, z_a[slow], w_a[slow], inv_sigma, aug_a[..., slow])
-            newton = info[:, :, slow] + curv
+            need = slow[curv_age[slow] >= _CURVATURE_REFRESH]
+            if need.size:
+                pp = p_a[need] if per_frame_poses else p_a
+                curv_a[:, :, need] = _residual_curvature(x_a[need], pp, z_a[need], w_a[need],
+                                                         inv_sigma, aug_a[..., need])
+                curv_age[need] = 0
+            curv_age[slow] += 1
+            newton = info[:, :, slow] + curv_a[:, :, slow]
             # Newton only where its model is convex; elsewhere Gauss-Newton.
             use = _chol_soa(newton)[1]
             model = info.copy()
