@@ -10,7 +10,6 @@ radians.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -37,21 +36,17 @@ _COLORS = {"truth": "0.35", "bayes": "tab:blue", "ml": "tab:red", "tlf": "tab:gr
 
 
 def save(fig: Figure, path: str | os.PathLike, *, dpi: int = 110) -> Path:
-    """Write ``fig`` as PNG, atomically (temp file in the folder, then rename)."""
+    """Write ``fig`` as PNG, atomically (:func:`mmsnap_graph.atomic.atomic_path`);
+    the folder is created when missing."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from .atomic import atomic_path
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
     return path
 
 
