@@ -424,13 +424,37 @@ def initial_states(
 
 
 def _solve_2x2_min_norm(a: NDArray, b: NDArray) -> NDArray:
-    """Minimum-norm solutions of symmetric PSD 2x2 systems, (F, 2, 2) and (F, 2)."""
-    eigval, eigvec = np.linalg.eigh(np.nan_to_num(a))
-    tol = 1e-10 * np.maximum(eigval[:, -1:], 1e-300)
-    proj = np.einsum("fji,fj->fi", eigvec, np.nan_to_num(b))
+    """Minimum-norm solutions of symmetric PSD 2x2 systems, (F, 2, 2) and (F, 2).
+
+    Closed-form eigenvalues, the same formula as :func:`_initial_state_scalar`
+    (``np.linalg.eigh`` on 2x2 blocks cost the batch solver ~0.85 us/frame).
+    """
+    a11, a12, a22 = a[:, 0, 0], a[:, 0, 1], a[:, 1, 1]
+    b1, b2 = b[:, 0], b[:, 1]
+    half_tr = 0.5 * (a11 + a22)
+    disc = np.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
+    hi = half_tr + disc
+    lo = half_tr - disc
+    tol = 1e-10 * np.maximum(hi, 1e-300)
+    det = a11 * a22 - a12 * a12
+    out = np.zeros_like(b)
     with np.errstate(divide="ignore", invalid="ignore"):
-        coef = np.where(eigval > tol, proj / eigval, 0.0)
-    out = np.einsum("fij,fj->fi", eigvec, coef)
+        full = lo > tol
+        out[:, 0] = np.where(full, (a22 * b1 - a12 * b2) / det, 0.0)
+        out[:, 1] = np.where(full, (a11 * b2 - a12 * b1) / det, 0.0)
+        # Rank one: project onto the eigenvector of the large eigenvalue.
+        rank1 = ~full & (hi > tol)
+        if np.any(rank1):
+            first = np.abs(hi - a11) >= np.abs(hi - a22)
+            e1 = np.where(first, a12, hi - a22)
+            e2 = np.where(first, hi - a11, a12)
+            norm = np.hypot(e1, e2)
+            axis_x = a11 >= a22
+            e1 = np.where(norm == 0.0, axis_x.astype(float), e1 / norm)
+            e2 = np.where(norm == 0.0, (~axis_x).astype(float), e2 / norm)
+            k = (e1 * b1 + e2 * b2) / hi
+            out[:, 0] = np.where(rank1, k * e1, out[:, 0])
+            out[:, 1] = np.where(rank1, k * e2, out[:, 1])
     bad = ~np.all(np.isfinite(a), axis=(1, 2)) | ~np.all(np.isfinite(b), axis=1)
     out[bad] = np.nan
     return out
