@@ -232,7 +232,9 @@ def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
     fused : :class:`mmsnap_graph.sequence.FusedSequence` (the ``/fused``
         group) or None. Each successful fused row is compared with the true
         state of the nearest target in its frame (:func:`truth_reference`):
-        position and velocity RMSE, and the NEES of its covariance.
+        position and velocity RMSE (all rows, and the rows every node
+        observed: false-alarm groups seen by one node drop out), and the NEES
+        of its covariance.
     node_poses : name -> (3,) calibrated poses (e.g. a calibration JSON);
         default the poses stored on the nodes. Compared with the true poses
         (:func:`pose_error`, :func:`pose_mapping_error` over the true paths)
@@ -285,9 +287,12 @@ def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
         err = fused.state[ok] - ref
         se = state_errors(fused.state[ok], ref)
         deg = np.asarray(fused.degeneracy)[ok]
+        every = np.asarray(fused.observed, dtype=bool)[ok].all(axis=1)
         out["fused"] = {"mode": str(fused.mode), "covariance_method": str(fused.covariance_method),
                         "n_rows": int(len(fused)), "n_success": int(ok.sum()),
                         **se.to_dict(),
+                        "observed_by_all_nodes": state_errors(fused.state[ok][every],
+                                                              ref[every]).to_dict(),
                         "nees": _nees_summary(err, np.asarray(fused.covariance)[ok]),
                         "degenerate_fraction": float(np.mean(deg > _degeneracy_threshold()))
                         if deg.size else float("nan")}

@@ -97,6 +97,11 @@ def test_evaluate_recording_matches_direct_metrics(processed):
     assert m["fused"]["position_rmse_m"] == pytest.approx(direct.position_rmse_m, rel=1e-12)
     assert m["fused"]["velocity_rmse_mps"] == pytest.approx(direct.velocity_rmse_mps, rel=1e-12)
     assert m["fused"]["n_frames"] == int(ok.sum())
+    every = ok & fused.observed.all(axis=1)
+    both = state_errors(fused.state[every], truth[fused.frame[every]])
+    assert m["fused"]["observed_by_all_nodes"]["n_frames"] == int(every.sum())
+    assert m["fused"]["observed_by_all_nodes"]["position_rmse_m"] == pytest.approx(
+        both.position_rmse_m, rel=1e-12)
     # Known poses: zero pose errors; tracks evaluated with them.
     for name in ("S1", "S2"):
         assert m["poses"][name]["position_error_m"] == pytest.approx(0.0, abs=1e-12)

@@ -56,6 +56,9 @@ def format_metrics(m: dict, path: str) -> str:
                      f"{_f(fu['position_rmse_m']):>14} {_f(fu['velocity_rmse_mps']):>16} "
                      f"{_f(nz['mean'], 2):>10} ({_f(nz['interval_95'][0], 2)}, "
                      f"{_f(nz['interval_95'][1], 2)})")
+        ob = fu["observed_by_all_nodes"]
+        lines.append(f"{'  seen by all nodes':18} {ob['n_frames']:>6} {_f(ob['position_rmse_m']):>14} "
+                     f"{_f(ob['velocity_rmse_mps']):>16}")
     for name, row in m["tracks"].items():
         if row is not None:
             lines.append(f"{'tracks ' + name:18} {row['n_frames']:>6} {_f(row['position_rmse_m']):>14} "
