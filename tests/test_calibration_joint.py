@@ -228,3 +228,51 @@ def test_singular_marginals_fall_back_to_the_schur_complement(monkeypatch):
     assert abs(d[0]) > 0.9
     cov = res.covariances["S2"]
     assert np.isinf(cov[0, 0]) and np.isinf(cov[2, 2])
+
+
+@pytest.mark.parametrize("robust", [None, "huber", "cauchy"])
+def test_presolve_linear_system_matches_gtsam_linearization(robust):
+    """The numpy presolve's Hessian and gradient equal GTSAM's linearization
+    of the same graph (measurement, prior and constant-velocity factors), at
+    a point away from the optimum. With a kernel, GTSAM reweights each
+    factor (IRLS), as the presolve does."""
+    from factors.gtsam_factors import (
+        measurement_noise,
+        node_measurement_factor,
+        pose_measurement_factor,
+        state_prior_factor,
+    )
+    from mmsnap_graph.calibration.joint import _presolve
+
+    sig = np.array(MODERATE_SIGMAS)
+    rng = np.random.default_rng(12)
+    scene = _scene("C", rng, n_frames=6, sigmas=MODERATE_SIGMAS)
+    meas = {n: scene.measurements[n] for n in ("S1", "S2")}
+    poses = {"S1": np.zeros(3), "S2": scene.poses["S2"] + [0.1, -0.05, 0.03]}
+    states = scene.truth + rng.normal(size=scene.truth.shape) * 0.2
+    prior = np.array([1e3, 1e3, 3.5, 3.5])
+    k = {None: 1.0, "huber": 1.345, "cauchy": 2.5}[robust]
+    motion = (np.arange(5), np.full(5, 0.15), 0.7)
+    hmat, g = _presolve(meas, poses, states, ["S1", "S2"], "S1", sig, prior, robust, k,
+                        motion=motion, _system_only=True)
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    x = gtsam.symbol("x", 1)
+    values.insert(x, gtsam.Pose2(*poses["S2"]))
+    noise = measurement_noise(sig, robust, None if robust is None else k)
+    for i in range(6):
+        v = gtsam.symbol("v", i)
+        values.insert(v, states[i])
+        graph.add(node_measurement_factor(v, np.zeros(3), meas["S1"][i], noise))
+        graph.add(pose_measurement_factor(x, v, meas["S2"][i], noise))
+        graph.add(state_prior_factor(v, np.zeros(4), prior))
+        if i < 5:
+            graph.add(constant_velocity_factor(v, gtsam.symbol("v", i + 1), 0.15, 0.7))
+    order = gtsam.Ordering()
+    for i in range(6):
+        order.push_back(gtsam.symbol("v", i))
+    order.push_back(x)
+    h_ref, eta = graph.linearize(values).hessian(order)
+    scale = np.abs(h_ref).max()
+    assert_allclose(hmat.toarray(), h_ref, atol=1e-9 * scale)
+    assert_allclose(g, -eta.ravel(), atol=1e-9 * np.abs(eta).max())

@@ -201,23 +201,29 @@ def closed_form_calibration(
             f"the target hardly moves (track spread {spread_a:.3g} m in a, {spread_b:.3g} m "
             f"in b, below min_spread_m={min_spread_m}): the relative rotation is unobservable")
     pose, j_min = closed_form_pose(a, b)
-    jac = alignment_jacobian(pose, b)  # (K, 2, 3)
-    h = np.einsum("kia,kib->ab", jac, jac)
+    # H = sum_k A_k^T A_k with A_k = R [I, J z_b]; R^T R = I, so H depends on
+    # the b-track only: [[K I, J sum z_b], [(J sum z_b)^T, sum |z_b|^2]].
+    sb = b.sum(axis=0)
+    jsb = np.array([-sb[1], sb[0]])
+    h = np.empty((3, 3))
+    h[:2, :2] = np.eye(2) * k
+    h[:2, 2] = h[2, :2] = jsb
+    h[2, 2] = float(np.sum(b * b))
     h_inv = np.linalg.inv(h)  # 3x3, well conditioned once the spread check passed
     if point_covariances is not None:
         s_k = check_finite(check_shape(as_float_array(point_covariances, "point_covariances"),
                                        (k, 2, 2), "point_covariances"), "point_covariances")
+        jac = alignment_jacobian(pose, b)  # (K, 2, 3)
         meat = np.einsum("kia,kij,kjb->ab", jac, s_k, jac)
         cov = h_inv @ meat @ h_inv
     elif covariance == "residual":
         dof = max(2 * k - 3, 1)
         cov = (j_min / dof) * h_inv
-    elif covariance == "sandwich":
+    else:  # sandwich
+        jac = alignment_jacobian(pose, b)
         e = a - _transform(pose, b)
         g = np.einsum("kia,ki->ka", jac, e)
         cov = h_inv @ (g.T @ g) @ h_inv
-    else:
-        raise AssertionError("unreachable")  # pragma: no cover
     fr = None if frames is None else np.asarray(frames, dtype=np.int64)
     return PairwiseCalibration(
         pose=pose, covariance=_symmetrize(cov), cost_m2=j_min, rmse_m=float(np.sqrt(j_min / k)),

@@ -221,7 +221,7 @@ def _robust_cost(norm, robust, k):
 
 
 def _presolve(meas_f, poses, states, names, ref, sigmas, prior_sig, robust, k, *,
-              use=None, motion=None, max_steps=20, tol=1e-7):
+              use=None, motion=None, max_steps=50, tol=1e-7, _system_only=False):
     """Levenberg-damped Gauss-Newton (IRLS under a kernel) on the same
     calibration graph, in numpy with a sparse direct solve.
 
@@ -324,33 +324,37 @@ def _presolve(meas_f, poses, states, names, ref, sigmas, prior_sig, robust, k, *
             new[n] = pose_array(to_pose2(poses[n]).retract(delta[p0 + 3 * i:p0 + 3 * i + 3]))
         return new, states + delta[:s0].reshape(f, 4)
 
-    lam = 1e-6
+    if _system_only:  # for the tests: the linear system against GTSAM's
+        return system(poses, states)
+    lam, nu = 1e-4, 2.0
     cost = cost_of(poses, states)
     for _ in range(max_steps):
         hmat, g = system(poses, states)
-        diag = np.maximum(hmat.diagonal(), 1e-12)
+        diag = sp.diags(np.maximum(hmat.diagonal(), 1e-12), format="csc")
         improved = False
-        for _ in range(10):
+        for _ in range(12):
             try:
-                delta = -spla.spsolve(hmat + sp.diags(lam * diag, format="csc"), g,
-                                      permc_spec="MMD_AT_PLUS_A")
+                delta = -spla.spsolve(hmat + lam * diag, g, permc_spec="MMD_AT_PLUS_A")
             except RuntimeError:
-                lam *= 10.0
-                continue
+                delta = np.full(dim, np.nan)
             if not np.all(np.isfinite(delta)):
-                lam *= 10.0
+                lam, nu = lam * nu, nu * 2.0
                 continue
             new_poses, new_states = apply(poses, states, delta)
             new_cost = cost_of(new_poses, new_states)
-            if new_cost <= cost:
+            predicted = -(g @ delta + 0.5 * delta @ (hmat @ delta))
+            rho = (cost - new_cost) / max(predicted, 1e-300)
+            if new_cost <= cost and rho > 0:
+                # Nielsen's damping update (as in Madsen, Nielsen & Tingleff)
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
                 improved = True
                 break
-            lam *= 10.0
+            lam, nu = lam * nu, nu * 2.0
         if not improved:
             break
         done = (cost - new_cost) <= tol * max(cost, 1.0)
         poses, states, cost = new_poses, new_states, new_cost
-        lam = max(lam / 10.0, 1e-9)
         if done:
             break
     return poses, states
