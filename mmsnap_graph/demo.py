@@ -841,6 +841,8 @@ def run_demo(config: DemoConfig | None = None, *, data_dir=None, progress: bool 
     (``config_<C>_<trajectory>.h5``) used instead of simulating when present;
     ``cube_recording_paths``: HDF5 recordings with raw cubes to run the full
     chain on, in addition to the simulated cube stretch."""
+    from pathlib import Path
+
     from tqdm.auto import tqdm
 
     config = DemoConfig() if config is None else config
@@ -857,7 +859,8 @@ def run_demo(config: DemoConfig | None = None, *, data_dir=None, progress: bool 
             bar.set_postfix_str(f"raw-cube chain: {path}")
             rec = read_recording(path)
             conf = str(rec.metadata.get("network", "?"))
-            cubes.append(run_cube_stretch(rec, source=str(path), configuration=conf))
+            cubes.append(run_cube_stretch(rec, source=f"sample {Path(path).name}",
+                                          configuration=conf))
             bar.update(1)
         if config.cube_frames:
             from .sim import simulate_recording

@@ -374,7 +374,11 @@ def write_report(result, out_dir: str | os.PathLike, figures: dict[str, Path], *
     if figures:
         parts += ["## Figures", ""]
         for name, p in figures.items():
-            title = titles.get(name, name.replace("_", " ").replace("timeseries", "X / Y / Vx / Vy over time,"))
+            if name.startswith("timeseries_"):
+                title = (f"X / Y / Vx / Vy over time: configuration {name.split('_')[1]}, "
+                         f"{Path(p).stem.split('_')[-1]} trajectory")
+            else:
+                title = titles.get(name, name.replace("_", " "))
             parts += [f"### {title}", "", f"![{title}]({Path(p).name})", ""]
     secs = ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())
     parts += ["## Timing", "", f"Stages: {secs}.", ""]
