@@ -287,3 +287,19 @@ def test_demo_command_rejects_bad_arguments(capsys, tmp_path):
         main(["demo", "-c", "A,D"])
     assert main(["demo", "--data", str(tmp_path / "missing"), "--out", str(tmp_path)]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_a_failed_calibration_is_reported_and_the_other_run_not_fused(monkeypatch):
+    real = demo.calibrate_run
+
+    def failing(rec, *, configuration, trajectory, **kw):
+        if trajectory == "straight":  # force the failure of one calibration
+            raise CalibrationError("forced")
+        return real(rec, configuration=configuration, trajectory=trajectory, **kw)
+
+    monkeypatch.setattr(demo, "calibrate_run", failing)
+    res = demo.run_demo(demo.DemoConfig(configurations=("B",), n_frames=40, cube_frames=0))
+    assert set(res.calibrations) == {("B", "random")}
+    assert set(res.fusions) == {("B", "straight")}
+    assert any("B/straight: calibration failed: forced" in f for f in res.failures)
+    assert any("B/random: not fused (no calibration from straight)" in f for f in res.failures)
