@@ -458,7 +458,9 @@ class FusionOutcome:
     track_fusion, central, ekf_s1, ekf_s2 : (K, 4) global states;
     bayes_covariance : (K, 4, 4) Laplace; degeneracy : (K,);
     measurements : (K, N, 3) the fused centroids.
-    vs_track_fusion, vs_truth : name -> :class:`StateErrors`.
+    vs_track_fusion, vs_truth : name -> :class:`StateErrors`; vs_truth also
+    has ``"bayes_closed_form"``: the Bayesian fusion with the closed-form
+    instead of the refined pose.
     calibrated_on : the trajectory whose calibration was used.
     ml_flagged : frames (of the both-nodes frames) where ML failed.
     """
@@ -539,6 +541,10 @@ def fuse_run(recording: Recording, calibration: CalibrationOutcome, *, configura
     pose_arr = np.stack([poses[n] for n in names])
     fused = {mode: fuse_recording(recording, node_poses=poses, mode=mode, progress=False)
              for mode in ("map", "ml")}
+    # The same Bayesian fusion with the closed-form poses: what the refinement buys downstream.
+    cf_poses = {names[0]: np.zeros(3),
+                names[1]: np.asarray(calibration.closed_form_pose, dtype=float)}
+    fused["map_cf"] = fuse_recording(recording, node_poses=cf_poses, mode="map", progress=False)
     rows = {mode: _one_row_per_frame(f, len(names)) for mode, f in fused.items()}
     frames_both = fused["map"].frame[rows["map"]]
     central = single_target_track(track_fused(
@@ -563,6 +569,13 @@ def fuse_run(recording: Recording, calibration: CalibrationOutcome, *, configura
         idx = np.searchsorted(frames_src, common)
         return values[idx]
 
+    def at_or_nan(frames_src, values):
+        idx = np.clip(np.searchsorted(frames_src, common), 0, max(frames_src.size - 1, 0))
+        ok = frames_src[idx] == common if frames_src.size else np.zeros(common.size, bool)
+        out = np.full((common.size,) + values.shape[1:], np.nan)
+        out[ok] = values[idx[ok]]
+        return out
+
     fm, fl = fused["map"], fused["ml"]
     map_rows = at(fm.frame[rows["map"]], rows["map"])
     ml_rows = at(fl.frame[rows["ml"]], rows["ml"])
@@ -577,6 +590,8 @@ def fuse_run(recording: Recording, calibration: CalibrationOutcome, *, configura
         "central": at(central.frame, central.state),
         "ekf_s1": at(tracks[0].frame, ekf_global[0][0]),
         "ekf_s2": at(tracks[1].frame, ekf_global[1][0]),
+        "bayes_closed_form": at_or_nan(fused["map_cf"].frame[rows["map_cf"]],
+                                       fused["map_cf"].state[rows["map_cf"]]),
     }
     ref_truth = at(t_frames, t_states)
     vs_tlf = {k: state_errors(est[k], est["track_fusion"]) for k in ("bayes", "ml")}

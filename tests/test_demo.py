@@ -20,7 +20,8 @@ from mmsnap_graph.calibration import closed_form_calibration
 from mmsnap_graph.cli import main
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.recording import Detections, Tracks
-from mmsnap_graph.report import Table, qualitative_checks, table_ii, table_iii_track_fusion
+from mmsnap_graph.report import (Table, qualitative_checks, table_ii, table_iii_track_fusion,
+                                 table_iii_truth)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -243,6 +244,11 @@ def test_table_renders_text_and_markdown():
 
 def test_tables_have_one_row_per_run(sample_result):
     assert len(table_ii(sample_result).rows) == 6
+    pos = table_iii_truth(sample_result, "position")
+    assert len(pos.rows) == 6 and pos.headers[3:5] == ("Bayes", "ML")
+    assert "Bayes CF" in table_iii_truth(sample_result, "velocity").headers
+    with pytest.raises(ValidationError, match="quantity='speed'"):
+        table_iii_truth(sample_result, "speed")
     rows = table_iii_track_fusion(sample_result).rows
     assert [r[:3] for r in rows][:2] == [("A", "straight", "random"), ("A", "random", "straight")]
 

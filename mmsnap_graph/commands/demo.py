@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     print(levels_text(result))
     print()
     for table in (table_ii(result), table_poses(result), table_iii_track_fusion(result),
-                  table_iii_truth(result)):
+                  table_iii_truth(result, "position"), table_iii_truth(result, "velocity")):
         print(table.text())
         print()
     if result.cube_stretches:
