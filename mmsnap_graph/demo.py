@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -44,7 +44,7 @@ from .evaluation import (PoseError, StateErrors, align_frames, pose_error, pose_
                          state_errors)
 from .radar.cluster import ClusterConfig, torso_centroids
 from .radar.config import TABLE_I
-from .recording import Detections, NodeData, Recording, Tracks
+from .recording import Detections, Recording, Tracks
 
 __all__ = [
     "CONFIGURATION_NAMES",
