@@ -9,7 +9,12 @@ import h5py
 import numpy as np
 import pytest
 
-from mmsnap_graph.calibration import calibrate_recording, pose_error, residual_sigmas
+from mmsnap_graph.calibration import (
+    calibrate_recording,
+    joint_calibration,
+    pose_error,
+    residual_sigmas,
+)
 from mmsnap_graph.cli import main
 from mmsnap_graph.errors import CalibrationError
 from mmsnap_graph.io import read_recording, write_recording
@@ -145,8 +150,11 @@ def test_noise_is_estimated_without_metadata(rec_c):
     meta = rec_c.metadata
     truth = np.array([meta["centroid_range_std_m"], meta["centroid_omega_std_rad"],
                       meta["centroid_doppler_std_mps"]])
-    est = residual_sigmas(cal.joint, {n: rec.nodes[n].centroids for n in rec.node_names},
-                          sigmas=(0.035, 0.1, 0.18))
+    dets = {n: rec.nodes[n].centroids for n in rec.node_names}
+    est = (0.035, 0.1, 0.18)
+    for _ in range(2):  # as calibrate_recording does
+        first = joint_calibration(dets, sigmas=est)  # no motion factors
+        est = residual_sigmas(first, dets, sigmas=est)
     # range and omega: leverage-corrected, within 15% of the truth (300
     # frames x 2 nodes, ~300 residual dof per component); the Doppler of two
     # nodes without motion factors is not identifiable and keeps its value

@@ -117,16 +117,19 @@ def test_pose_covariance_is_consistent():
     assert 2.2 < np.mean(nees) < 4.3, np.mean(nees)
 
 
-def test_ghost_frames_cost_at_most_twice_the_clean_error():
+@pytest.mark.parametrize("config", ["A", "B", "C"])
+def test_ghost_frames_cost_at_most_twice_the_clean_error(config):
     """20% of each node's frames replaced by ghosts (uniform range 1-10 m,
     omega, Doppler): with the Cauchy kernel and the trimmed closed-form start,
     the registration error stays within 2x of the clean run's on the same
-    trajectories (5 trials, configuration B, K = 300, omega sigma 0.2)."""
+    trajectories (4 trials, K = 300, omega sigma 0.2; a 6-trial run gave
+    1.2x, 1.2x, 1.4x for A, B, C). Not met at the paper's omega sigma pi/4
+    in configuration A (see docs/CALIBRATION.md)."""
     clean, ghost, flagged = [], [], []
-    for t in range(5):
+    for t in range(4):
         for frac, out in ((0.0, clean), (0.2, ghost)):
             rng = np.random.default_rng(700 + t)
-            scene = _scene("B", rng, n_frames=300, sigmas=MODERATE_SIGMAS, ghost_fraction=frac)
+            scene = _scene(config, rng, n_frames=300, sigmas=MODERATE_SIGMAS, ghost_fraction=frac)
             jt = joint_calibration(_detections(scene), sigmas=MODERATE_SIGMAS, motion=True,
                                    frame_period_s=scene.frame_period_s, sigma_a_mps2=0.5)
             out.append(_registration_error(jt.poses["S2"], scene.poses["S2"],
@@ -276,3 +279,18 @@ def test_presolve_linear_system_matches_gtsam_linearization(robust):
     scale = np.abs(h_ref).max()
     assert_allclose(hmat.toarray(), h_ref, atol=1e-9 * scale)
     assert_allclose(g, -eta.ravel(), atol=1e-9 * np.abs(eta).max())
+
+
+def test_huber_kernel_also_flags_ghosts():
+    """With motion factors a ghost stands out from the smooth track (without
+    them a free per-frame state absorbs part of it: ~55% flagged)."""
+    rng = np.random.default_rng(13)
+    scene = _scene("B", rng, n_frames=200, sigmas=MODERATE_SIGMAS, ghost_fraction=0.2)
+    jt = joint_calibration(_detections(scene), sigmas=MODERATE_SIGMAS, robust="huber",
+                           motion=True, frame_period_s=0.15, sigma_a_mps2=0.5)
+    assert jt.success, jt.message
+    is_ghost = np.concatenate([scene.ghost["S1"], scene.ghost["S2"]])
+    got = np.concatenate([jt.outliers["S1"], jt.outliers["S2"]])
+    assert np.mean(got[is_ghost]) > 0.9 and np.mean(got[~is_ghost]) < 0.02
+    err = pose_error(jt.poses["S2"], scene.poses["S2"])
+    assert err @ np.linalg.solve(jt.covariances["S2"], err) < 16.3  # chi2(3) 0.999

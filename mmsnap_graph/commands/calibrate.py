@@ -41,9 +41,11 @@ def register(subparsers) -> None:
                                       "from the residuals)")
     p.add_argument("--robust", choices=["cauchy", "huber", "none"], default="cauchy",
                    help="robust kernel of the joint graph (default %(default)s)")
-    p.add_argument("--motion", type=float, default=None, metavar="SIGMA_A_MPS2",
-                   help="add constant-velocity factors with this white-acceleration sigma "
-                        "(default: none)")
+    p.add_argument("--sigma-a", type=float, default=3.0, metavar="SIGMA_A_MPS2",
+                   help="white-acceleration sigma of the joint graph's constant-velocity "
+                        "factors (default %(default)s m/s^2)")
+    p.add_argument("--no-motion", action="store_true",
+                   help="no constant-velocity factors in the joint graph")
     p.add_argument("--json", default=None,
                    help="calibration JSON path (default: <recording>.calibration.json)")
     p.add_argument("-o", "--output", default=None,
@@ -92,8 +94,8 @@ def run(args: argparse.Namespace) -> int:
     cal = calibrate_recording(
         rec, source=args.source, method=args.method, max_lag_frames=args.max_lag,
         max_rmse_m=args.max_rmse, sigmas=args.sigmas,
-        robust=None if args.robust == "none" else args.robust, motion=args.motion is not None,
-        sigma_a_mps2=0.5 if args.motion is None else args.motion)
+        robust=None if args.robust == "none" else args.robust, motion=not args.no_motion,
+        sigma_a_mps2=args.sigma_a)
     print(format_table(cal))
     json_path = (Path(args.json) if args.json else
                  Path(args.recording).with_suffix("").with_name(
