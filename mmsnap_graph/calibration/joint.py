@@ -29,7 +29,7 @@ unobservable direction (e.g. a standing target: a node may turn about it).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Mapping, Sequence
+from typing import Literal, Mapping
 
 import gtsam
 import numpy as np
