@@ -123,8 +123,7 @@ def test_ghost_frames_cost_at_most_twice_the_clean_error(config):
     omega, Doppler): with the Cauchy kernel and the trimmed closed-form start,
     the registration error stays within 2x of the clean run's on the same
     trajectories (4 trials, K = 300, omega sigma 0.2; a 6-trial run gave
-    1.2x, 1.2x, 1.4x for A, B, C). Not met at the paper's omega sigma pi/4
-    in configuration A (see docs/CALIBRATION.md)."""
+    1.2x, 1.2x, 1.4x for A, B, C)."""
     clean, ghost, flagged = [], [], []
     for t in range(4):
         for frac, out in ((0.0, clean), (0.2, ghost)):
@@ -141,6 +140,22 @@ def test_ghost_frames_cost_at_most_twice_the_clean_error(config):
     assert np.sqrt(np.mean(np.square(ghost))) <= 2.0 * np.sqrt(np.mean(np.square(clean)))
     hit, false_alarm = np.mean(flagged, axis=0)
     assert hit > 0.9 and false_alarm < 0.02
+
+
+def test_ghost_frames_under_paper_noise():
+    """The same claim at the paper's sigmas (omega pi/4) in configuration A,
+    the hardest case: the least-median-of-squares closed form keeps the
+    start out of the wrong basin (6 trials, K = 300; measured 1.7x)."""
+    clean, ghost = [], []
+    for t in range(6):
+        for frac, out in ((0.0, clean), (0.2, ghost)):
+            rng = np.random.default_rng(400 + t)
+            scene = _scene("A", rng, n_frames=300, sigmas=PAPER_SIGMAS, ghost_fraction=frac)
+            jt = joint_calibration(_detections(scene), sigmas=PAPER_SIGMAS, motion=True,
+                                   frame_period_s=scene.frame_period_s, sigma_a_mps2=0.5)
+            out.append(_registration_error(jt.poses["S2"], scene.poses["S2"],
+                                           scene.truth[:, :2]))
+    assert np.sqrt(np.mean(np.square(ghost))) <= 2.0 * np.sqrt(np.mean(np.square(clean)))
 
 
 def test_three_nodes():

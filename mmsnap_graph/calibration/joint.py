@@ -56,7 +56,12 @@ from factors.models import (
 from ..errors import CalibrationError, ValidationError
 from ..recording import Detections
 from ..validation import as_float_array, check_finite, check_positive, check_shape
-from .closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M, closed_form_calibration
+from .closed_form import (
+    DEFAULT_MIN_COMMON_FRAMES,
+    DEFAULT_MIN_SPREAD_M,
+    closed_form_calibration,
+    closed_form_pose,
+)
 from .pose_graph import PoseEdge, pose_graph_calibration
 from .poses import pose_array, to_pose2
 
@@ -101,23 +106,45 @@ class JointCalibration:
     unreachable: tuple[str, ...] = ()
 
 
+def _residuals(pose, points_a_m, points_b_m):
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    bx, by = points_b_m[:, 0], points_b_m[:, 1]
+    return np.hypot(points_a_m[:, 0] - (pose[0] + c * bx - s * by),
+                    points_a_m[:, 1] - (pose[1] + s * bx + c * by))
+
+
 def trimmed_closed_form(points_a_m: NDArray, points_b_m: NDArray, *, n_rounds: int = 3,
-                        trim_factor: float = 3.0, **kwargs):
-    """Closed form refitted on the frames whose alignment residual is below
-    ``trim_factor`` times the median residual (``n_rounds`` times): a ghost
-    detection far from the track cannot drag the starting pose.
-    Returns ``(PairwiseCalibration, inlier mask (K,))``."""
-    keep = np.ones(points_a_m.shape[0], dtype=bool)
-    cal = closed_form_calibration(points_a_m, points_b_m, **kwargs)
+                        trim_factor: float = 2.5, n_subsets: int = 200, subset_size: int = 6,
+                        seed: int = 0, **kwargs):
+    """A robust closed form for starting poses: least median of squares over
+    ``n_subsets`` random ``subset_size``-frame subsets (the bare closed form
+    on each; robust to up to half the frames being ghosts), then the closed
+    form refitted ``n_rounds`` times on the frames whose alignment residual
+    is below ``trim_factor`` times the median residual. Deterministic
+    (``seed``). Returns ``(PairwiseCalibration, inlier mask (K,))``."""
+    k = points_a_m.shape[0]
+    full = closed_form_calibration(points_a_m, points_b_m, **kwargs)  # validates
+    best_pose, best_med = full.pose, np.median(_residuals(full.pose, points_a_m, points_b_m))
+    rng = np.random.default_rng(seed)
+    m = min(subset_size, k)
+    for _ in range(n_subsets):
+        idx = rng.choice(k, size=m, replace=False)
+        pose, _ = closed_form_pose(points_a_m[idx], points_b_m[idx])
+        med = np.median(_residuals(pose, points_a_m, points_b_m))
+        if med < best_med:
+            best_pose, best_med = pose, med
+    keep = np.ones(k, dtype=bool)
+    cal, pose = full, best_pose
     for _ in range(n_rounds):
-        t = to_pose2(cal.pose)
-        pred = np.asarray(t.transformFrom(points_b_m.T)).T
-        r = np.linalg.norm(points_a_m - pred, axis=1)
+        r = _residuals(pose, points_a_m, points_b_m)
         new_keep = r <= trim_factor * np.median(r)
-        if np.array_equal(new_keep, keep) or new_keep.sum() < 3:
+        if new_keep.sum() < max(3, int(kwargs.get("min_common_frames", 3))):
+            break
+        if np.array_equal(new_keep, keep) and cal is not full:
             break
         keep = new_keep
         cal = closed_form_calibration(points_a_m[keep], points_b_m[keep], **kwargs)
+        pose = cal.pose
     return cal, keep
 
 
