@@ -5,14 +5,17 @@ time-synchronized at the level of a radar frame").
 For every pair of tracks ``(a, b)`` and every lag ``L`` in
 ``[-max_lag_frames, max_lag_frames]``, node b's frame ``k + L`` is paired
 with node a's frame ``k`` and the closed form (paper eq. 12) is fitted on the
-common frames; the track RMSE (eq. 14) scores the candidate. The node pair's
-lag is the lag of the lowest-RMSE candidate (a clock offset belongs to the
-node pair, and the best-matching target shows it most clearly), provided it
-lowers the RMSE by ``lag_min_improvement`` over lag 0. At that lag,
-candidates are accepted greedily by increasing RMSE, one-to-one, when their
-RMSE is below ``max_rmse_m`` and their pose agrees with the best candidate's
-(several targets seen by both nodes must give the same pose). The final
-estimate is the closed form on all accepted pairs' frames stacked.
+common frames: each fit is a pose hypothesis. A hypothesis is scored by its
+*support*: how many frame pairs of all the two nodes' tracks (every track, at
+that lag) it aligns within ``inlier_gate_m``. Ranking by track RMSE instead
+would favour short fragments, which fit anything (an EKF that loses a walker
+at each turn leaves dozens of them). The best-supported hypothesis of each
+lag is refitted on its inliers (twice); lag 0 is kept unless another lag
+explains as many frames with an RMSE at least ``lag_min_improvement`` lower
+(a slow target in noisy tracks shows no lag, and the RMSE differences between
+lags are then noise). The final estimate is the closed form on the inliers;
+the accepted pairs are the track pairs that contribute inliers (several
+targets seen by both nodes all agree with the one pose).
 """
 
 from __future__ import annotations
@@ -115,6 +118,7 @@ class TrackCandidate:
     n_frames: int
     rmse_m: float
     pose: NDArray
+    support: int = 0
     accepted: bool = False
 
 
@@ -141,6 +145,27 @@ def _common(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
     return ia, ib
 
 
+def _join(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
+    """All row pairs ``(i, j)`` with ``fa[i] == fb[j] - lag`` (many to many)."""
+    order = np.argsort(fb, kind="stable")
+    fb_sorted = fb[order] - lag
+    lo = np.searchsorted(fb_sorted, fa, side="left")
+    hi = np.searchsorted(fb_sorted, fa, side="right")
+    counts = hi - lo
+    ia = np.repeat(np.arange(fa.size), counts)
+    offsets = np.arange(ia.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    ib = order[np.repeat(lo, counts) + offsets]
+    return ia, ib
+
+
+def _aligned(pose: NDArray, za: NDArray, zb: NDArray) -> NDArray:
+    """|z_a - (p + R(phi) z_b)| per row."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    x = pose[0] + c * zb[:, 0] - s * zb[:, 1]
+    y = pose[1] + s * zb[:, 0] + c * zb[:, 1]
+    return np.hypot(za[:, 0] - x, za[:, 1] - y)
+
+
 def match_tracks(
     tracks_a: LocalTracks,
     tracks_b: LocalTracks,
@@ -149,7 +174,7 @@ def match_tracks(
     min_common_frames: int = DEFAULT_MIN_COMMON_FRAMES,
     min_spread_m: float = DEFAULT_MIN_SPREAD_M,
     max_rmse_m: float = 1.0,
-    max_pose_disagreement: tuple[float, float] = (0.5, np.radians(10.0)),
+    inlier_gate_m: float = 0.5,
     covariance: str = "residual",
     lag_min_improvement: float = 0.05,
 ) -> TrackMatching:
@@ -161,29 +186,47 @@ def match_tracks(
     max_lag_frames : int
         Lags ``-max_lag_frames..max_lag_frames`` are searched.
     min_common_frames, min_spread_m : as :func:`closed_form_calibration`;
-        candidates that fail them are skipped.
+        hypotheses from pairs that fail them are skipped.
     max_rmse_m : float
-        Candidates with a larger track RMSE are not one target.
-    max_pose_disagreement : (m, rad)
-        How far an accepted pair's pose may be from the best pair's.
+        A final track RMSE above this means the tracks are not one target.
+    inlier_gate_m : float
+        A frame pair supports a pose when b's point lands within this distance
+        of a's point.
     covariance : passed to :func:`closed_form_calibration`.
     lag_min_improvement : float
-        A nonzero lag is reported only if its best track RMSE is at least this
-        fraction below the best at lag 0; a slow target in noisy tracks shows
-        no lag, and the RMSE differences between lags are then noise.
+        A nonzero lag is reported only if its inlier RMSE is at least this
+        fraction below lag 0's with at least 95% of its support.
 
     Returns a :class:`TrackMatching`; ``success=False`` (no calibration) when
-    no candidate has enough common frames, a moving target and a small RMSE.
+    no pair has enough common frames of a moving target, or the best pose
+    leaves a track RMSE above ``max_rmse_m``.
     """
     if int(max_lag_frames) < 0:
         raise ValidationError(f"max_lag_frames must be >= 0, got {max_lag_frames!r}")
     if not max_rmse_m > 0:
         raise ValidationError(f"max_rmse_m must be > 0, got {max_rmse_m!r}")
+    if not inlier_gate_m > 0:
+        raise ValidationError(f"inlier_gate_m must be > 0, got {inlier_gate_m!r}")
     ta, tb = tracks_a.split(), tracks_b.split()
+    lags = range(-int(max_lag_frames), int(max_lag_frames) + 1)
+    # Every row of every track, and their pairings at each lag.
+    fa_all = np.concatenate([f for f, _ in ta.values()])
+    za_all = np.concatenate([p for _, p in ta.values()])
+    ida_all = np.concatenate([np.full(f.size, t) for t, (f, _) in ta.items()])
+    fb_all = np.concatenate([f for f, _ in tb.values()])
+    zb_all = np.concatenate([p for _, p in tb.values()])
+    idb_all = np.concatenate([np.full(f.size, t) for t, (f, _) in tb.items()])
+    joins = {lag: _join(fa_all, fb_all, lag) for lag in lags}
+
+    def support(pose, lag):
+        ia, ib = joins[lag]
+        return ia[_aligned(pose, za_all[ia], zb_all[ib]) < inlier_gate_m], \
+            ib[_aligned(pose, za_all[ia], zb_all[ib]) < inlier_gate_m]
+
     cands: list[TrackCandidate] = []
     for ida, (fa, pa) in ta.items():
         for idb, (fb, pb) in tb.items():
-            for lag in range(-int(max_lag_frames), int(max_lag_frames) + 1):
+            for lag in lags:
                 ia, ib = _common(fa, fb, lag)
                 if ia.size < max(min_common_frames, 3):
                     continue
@@ -195,57 +238,83 @@ def match_tracks(
                 pose, j = closed_form_pose(za, zb)
                 cands.append(TrackCandidate(track_a=ida, track_b=idb, lag_frames=lag,
                                             n_frames=int(ia.size),
-                                            rmse_m=float(np.sqrt(j / ia.size)), pose=pose))
+                                            rmse_m=float(np.sqrt(j / ia.size)), pose=pose,
+                                            support=int(support(pose, lag)[0].size)))
     if not cands:
         return TrackMatching(
             calibration=None, pairs=(), lag_frames=0, candidates=(), success=False,
             message=(f"no pair of tracks shares >= {max(min_common_frames, 3)} frames of a "
                      f"moving target (spread >= {min_spread_m} m) within +-{max_lag_frames} "
                      f"frames of lag"))
-    order = sorted(range(len(cands)), key=lambda i: cands[i].rmse_m)
-    best = cands[order[0]]
-    if best.rmse_m > max_rmse_m:
+    # The best-supported hypothesis of each lag, refitted on its inliers.
+    fits: dict[int, tuple[NDArray, NDArray, NDArray, float]] = {}
+    for lag in lags:
+        at_lag = [c for c in cands if c.lag_frames == lag]
+        if not at_lag:
+            continue
+        best = max(at_lag, key=lambda c: (c.support, -c.rmse_m))
+        pose = best.pose
+        ia, ib = support(pose, lag)
+        for _ in range(2):
+            if ia.size < 3:
+                break
+            pose, _ = closed_form_pose(za_all[ia], zb_all[ib])
+            ia, ib = support(pose, lag)
+        if ia.size < 3:
+            continue
+        pose, j = closed_form_pose(za_all[ia], zb_all[ib])
+        fits[lag] = (pose, ia, ib, float(np.sqrt(j / ia.size)))
+    if not fits:
+        best = min(cands, key=lambda c: c.rmse_m)
         return TrackMatching(
             calibration=None, pairs=(), lag_frames=0, candidates=tuple(cands), success=False,
-            message=(f"no pair of tracks matches: the best track RMSE {best.rmse_m:.3g} m "
-                     f"(tracks {best.track_a}/{best.track_b}, lag {best.lag_frames}) exceeds "
-                     f"max_rmse_m={max_rmse_m}"))
-    zero = [i for i in order if cands[i].lag_frames == 0]
-    if best.lag_frames != 0 and zero and best.rmse_m > (1.0 - lag_min_improvement) * cands[zero[0]].rmse_m:
-        best = cands[zero[0]]  # the data do not show a lag: keep the nodes' own sync
-    lag = best.lag_frames
-    used_a, used_b, accepted = set(), set(), []
-    for i in order:
-        c = cands[i]
-        if c.lag_frames != lag or c.rmse_m > max_rmse_m:
-            continue
-        if c.track_a in used_a or c.track_b in used_b:
-            continue
-        dpos = np.hypot(*(c.pose[:2] - best.pose[:2]))
-        dphi = abs(wrap_angle(c.pose[2] - best.pose[2]))
-        if dpos > max_pose_disagreement[0] or dphi > max_pose_disagreement[1]:
-            continue
-        used_a.add(c.track_a)
-        used_b.add(c.track_b)
-        accepted.append(i)
-    za_all, zb_all, fr_all = [], [], []
-    for i in accepted:
-        c = cands[i]
-        fa, pa = ta[c.track_a]
-        fb, pb = tb[c.track_b]
-        ia, ib = _common(fa, fb, lag)
-        za_all.append(pa[ia])
-        zb_all.append(pb[ib])
-        fr_all.append(fa[ia])
-        cands[i] = replace(c, accepted=True)
-    cal = closed_form_calibration(np.concatenate(za_all), np.concatenate(zb_all),
-                                  covariance=covariance, min_common_frames=min_common_frames,
-                                  min_spread_m=min_spread_m, frames=np.concatenate(fr_all))
-    pairs = tuple((cands[i].track_a, cands[i].track_b) for i in accepted)
+            message=(f"no pose aligns 3 frames within inlier_gate_m={inlier_gate_m} m; the best "
+                     f"track RMSE is {best.rmse_m:.3g} m"))
+    # Among the lags that explain (nearly) as many frames as the best, the one
+    # with the lowest inlier RMSE.
+    most = max(f[1].size for f in fits.values())
+    lag = min((L for L in fits if fits[L][1].size >= 0.95 * most), key=lambda L: fits[L][3])
+    if lag != 0 and 0 in fits:
+        n0, r0 = fits[0][1].size, fits[0][3]
+        nl, rl = fits[lag][1].size, fits[lag][3]
+        if not (nl >= 0.95 * n0 and rl <= (1.0 - lag_min_improvement) * r0) and n0 >= 0.5 * nl:
+            lag = 0  # the data do not show a lag: keep the nodes' own sync
+    pose, ia, ib, rmse = fits[lag]
+    if rmse > max_rmse_m:
+        return TrackMatching(
+            calibration=None, pairs=(), lag_frames=0, candidates=tuple(cands), success=False,
+            message=(f"no pair of tracks matches: the best track RMSE {rmse:.3g} m "
+                     f"(lag {lag}) exceeds max_rmse_m={max_rmse_m}"))
+    # A track pair belongs to one target when most of its common frames are
+    # inliers; two targets that cross contribute a few inliers only.
+    ja, jb = joins[lag]
+    common_pairs, common_counts = np.unique(np.stack([ida_all[ja], idb_all[jb]], axis=1),
+                                            axis=0, return_counts=True)
+    common = {(int(a), int(b)): int(n) for (a, b), n in zip(common_pairs, common_counts)}
+    in_pairs = np.stack([ida_all[ia], idb_all[ib]], axis=1)
+    keep = np.array([2 * np.sum(np.all(in_pairs == row, axis=1)) >= common[(int(row[0]), int(row[1]))]
+                     for row in in_pairs], dtype=bool) if ia.size else np.zeros(0, bool)
+    ia, ib = ia[keep], ib[keep]
+    if ia.size < 3:
+        return TrackMatching(
+            calibration=None, pairs=(), lag_frames=0, candidates=tuple(cands), success=False,
+            message="no track pair has a majority of its common frames aligned by one pose")
+    order = np.argsort(fa_all[ia], kind="stable")
+    ia, ib = ia[order], ib[order]
+    cal = closed_form_calibration(za_all[ia], zb_all[ib], covariance=covariance,
+                                  min_common_frames=min_common_frames,
+                                  min_spread_m=min_spread_m, frames=fa_all[ia])
+    pair_rows = np.stack([ida_all[ia], idb_all[ib]], axis=1)
+    uniq, counts = np.unique(pair_rows, axis=0, return_counts=True)
+    pairs = tuple((int(a), int(b)) for a, b in uniq[np.argsort(-counts, kind="stable")])
+    accepted = set(pairs)
+    cands = [replace(c, accepted=(c.lag_frames == lag and (c.track_a, c.track_b) in accepted))
+             for c in cands]
     single = len(pairs) == 1
     cal = replace(
         cal, lag_frames=lag, track_a=pairs[0][0] if single else -1,
         track_b=pairs[0][1] if single else -1,
-        message=f"{len(pairs)} matched track pair(s) at lag {lag} frames; {cal.message}")
+        message=(f"{len(pairs)} matched track pair(s) at lag {lag} frames, "
+                 f"{ia.size} inlier frame pairs; {cal.message}"))
     return TrackMatching(calibration=cal, pairs=pairs, lag_frames=lag, candidates=tuple(cands),
                          success=True, message=cal.message)
