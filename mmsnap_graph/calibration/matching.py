@@ -209,6 +209,10 @@ def match_tracks(
         raise ValidationError(f"inlier_gate_m must be > 0, got {inlier_gate_m!r}")
     ta, tb = tracks_a.split(), tracks_b.split()
     lags = range(-int(max_lag_frames), int(max_lag_frames) + 1)
+    if not ta or not tb:
+        return TrackMatching(
+            calibration=None, pairs=(), lag_frames=0, candidates=(), success=False,
+            message=f"no pair of tracks: node a has {len(ta)} track(s), node b {len(tb)}")
     # Every row of every track, and their pairings at each lag.
     fa_all = np.concatenate([f for f, _ in ta.values()])
     za_all = np.concatenate([p for _, p in ta.values()])
