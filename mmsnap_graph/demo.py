@@ -42,8 +42,7 @@ from factors.models import local_to_global, measurement_model
 from .errors import CalibrationError, ValidationError
 from .evaluation import (PoseError, StateErrors, align_frames, pose_error, pose_mapping_error,
                          state_errors)
-from .radar.cluster import ClusterConfig, torso_centroids
-from .radar.config import TABLE_I
+from .radar.cluster import ClusterConfig
 from .recording import Detections, Recording, Tracks
 
 __all__ = [
@@ -196,31 +195,31 @@ def single_target_track(tracks: Tracks) -> SingleTrack:
 
 def node_chain(recording: Recording, *, cluster: ClusterConfig | None = None, ekf=None
                ) -> Recording:
-    """Point cloud -> torso centroids (DBSCAN) -> local EKF tracks, per node.
+    """Point cloud -> torso centroids (DBSCAN) -> local EKF tracks, per node
+    (:func:`mmsnap_graph.radar.pipeline.cluster_node`).
 
     ekf : default the demo's EKF (:data:`DEMO_EKF_MEASUREMENT_STD`,
     :data:`DEMO_EKF_SIGMA_A_MPS2`).
 
     Nodes without a point cloud keep their centroids (tracked if present).
     """
-    from .tracking.ekf import EkfConfig, track_centroids
+    from .radar.chain import ChainConfig
+    from .radar.pipeline import cluster_node, track_node
+    from .tracking.ekf import EkfConfig
 
-    cluster = ClusterConfig() if cluster is None else cluster
+    chain = ChainConfig() if cluster is None else ChainConfig(cluster=cluster)
     if ekf is None:
         ekf = EkfConfig(measurement_std=DEMO_EKF_MEASUREMENT_STD,
                         sigma_a_mps2=DEMO_EKF_SIGMA_A_MPS2)
-    ekf = dataclasses.replace(ekf, frame_period_s=recording.frame_period_s)
     rec = recording
     for name, node in recording.nodes.items():
-        cents = node.centroids
         if node.point_cloud is not None:
-            radar = node.radar if node.radar is not None else TABLE_I
-            cents = torso_centroids(node.point_cloud, cluster,
-                                    doppler_resolution_mps=radar.doppler_resolution_mps)
-        if cents is None:
+            new, _ = cluster_node(node, recording.frame_period_s, chain=chain, ekf=ekf)
+        elif node.centroids is not None:
+            new, _ = track_node(node, recording.frame_period_s, ekf=ekf)
+        else:
             raise ValidationError(f"node {name} has neither a point cloud nor centroids")
-        tracks = track_centroids(cents, ekf)
-        rec = rec.with_node(dataclasses.replace(node, centroids=cents, tracks=tracks))
+        rec = rec.with_node(new)
     return rec
 
 

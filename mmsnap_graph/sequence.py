@@ -403,7 +403,6 @@ def fuse_recording(
     groups = group_detections(recording, poses, noise.sigmas, gate_probability=gate_probability,
                               source=source)
     k = groups.frame.size
-    n_nodes = poses.shape[0]
     obs = groups.detection_index >= 0
     z = groups.measurements
 

@@ -8,6 +8,7 @@ from mmsnap_graph.cli import main
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.radar.config import TABLE_I
 from mmsnap_graph.radar.pipeline import (
+    cluster_node,
     process_node,
     process_recording,
     track_node,
@@ -93,6 +94,23 @@ def test_centroids_only_tracking_and_missing_levels():
         track_node(NodeData(name="S3"), 0.15)
     with pytest.raises(ValidationError, match="has no cube"):
         process_node(NodeData(name="S3"), 0.15)
+
+
+def test_point_cloud_level_is_clustered_and_tracked():
+    """A node stored at the point-cloud level (no cube) gets the same torso
+    centroids and tracks the full chain derives from that point cloud."""
+    rec, _ = _recording(with_cubes=("S1",))
+    full, _ = process_recording(rec)
+    s1 = full.nodes["S1"]
+    pc_only = full.with_node(NodeData(name="S1", radar=s1.radar, point_cloud=s1.point_cloud))
+    out, reports = process_recording(pc_only)
+    assert reports["S1"].level == "point_cloud" and reports["S1"].success
+    np.testing.assert_allclose(out.nodes["S1"].centroids.measurements, s1.centroids.measurements)
+    np.testing.assert_allclose(out.nodes["S1"].tracks.state, s1.tracks.state)
+    node, rep = cluster_node(pc_only.nodes["S1"], rec.frame_period_s)
+    assert rep.n_points == len(s1.point_cloud) and rep.n_tracks == 1
+    with pytest.raises(ValidationError, match="has no point cloud"):
+        cluster_node(NodeData(name="S3"), 0.15)
 
 
 def test_cli_process_updates_a_file(tmp_path, capsys):

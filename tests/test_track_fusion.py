@@ -73,7 +73,6 @@ def test_ci_picks_the_tighter_of_nested_estimates_and_is_symmetric():
 
 def test_ci_is_consistent_whatever_the_unknown_correlation():
     """CI never under-estimates: for fully correlated errors P - cov(err) >= 0."""
-    rng = np.random.default_rng(3)
     p1 = np.diag([0.01, 0.5, 0.04, 0.5])[None]
     p2 = np.diag([0.5, 0.01, 0.5, 0.04])[None]
     _, p, w = covariance_intersection(np.zeros((1, 4)), p1, np.zeros((1, 4)), p2)

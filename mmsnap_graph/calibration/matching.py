@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.models import detection_to_local, wrap_angle
+from factors.models import detection_to_local
 
 from ..errors import CalibrationError, ValidationError
 from ..recording import NodeData

@@ -18,12 +18,12 @@ def register(subparsers) -> None:
         help="run the per-node signal chain (cube -> point cloud -> centroids -> EKF tracks)",
         description="Run each node's signal chain on a recording: range/Doppler/angle FFTs, "
                     "static clutter removal, 2D OS-CFAR, torso DBSCAN centroids and a local "
-                    "EKF. Nodes without a cube are re-tracked from their centroids. The file "
+                    "EKF. Nodes without a cube start from their point cloud (torso DBSCAN, EKF), else are re-tracked from their centroids. The file "
                     "is updated atomically (or written to --output).")
     p.add_argument("recording", help="HDF5 recording (docs/FORMAT.md)")
     p.add_argument("-o", "--output", help="write the result here instead of updating in place")
     p.add_argument("--centroids-only", action="store_true",
-                   help="ignore cubes: only build tracks from the stored centroids")
+                   help="ignore cubes and point clouds: only build tracks from the stored centroids")
     p.add_argument("--pfa", type=float, default=CfarConfig().pfa,
                    help="OS-CFAR false-alarm probability per cell (default %(default)g)")
     p.add_argument("--sigma-a", type=float, default=EkfConfig().sigma_a_mps2,

@@ -2,9 +2,12 @@
 cube -> point cloud -> torso centroids (:mod:`.chain`) -> local EKF tracks
 (:mod:`mmsnap_graph.tracking.ekf`).
 
-- :func:`process_node` / :func:`process_recording`: from each node's cube;
+- :func:`process_node` / :func:`process_recording`: from each node's cube
+  (else its point cloud, else its centroids);
+- :func:`cluster_node`: from a point cloud (torso DBSCAN, then the EKF), for
+  recordings stored at the point-cloud level;
 - :func:`track_node` / :func:`track_recording`: tracks from the centroids
-  only (recordings without cubes);
+  only;
 - :func:`process_file`: an HDF5 recording, cubes streamed frame by frame,
   levels written back atomically (the ``mmsnap process`` command).
 """
@@ -22,14 +25,15 @@ from ..recording import NodeData, Recording
 from ..tracking.ekf import EkfConfig, track_centroids
 from .chain import ChainConfig, ChainResult, process_cubes
 
-__all__ = ["NodeReport", "process_node", "process_recording", "track_node", "track_recording",
-           "process_file"]
+__all__ = ["NodeReport", "process_node", "process_recording", "cluster_node", "track_node",
+           "track_recording", "process_file"]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class NodeReport:
     """What happened to one node: ``level`` is ``"cube"`` (full chain),
-    ``"centroids"`` (tracking only) or ``"none"`` (nothing to process);
+    ``"point_cloud"`` (clustering and tracking), ``"centroids"`` (tracking
+    only) or ``"none"`` (nothing to process);
     ``chain`` is the chain's result for cube-level processing."""
 
     name: str
@@ -82,6 +86,42 @@ def process_node(
                            message=result.message, chain=result)
 
 
+def cluster_node(
+    node: NodeData,
+    frame_period_s: float,
+    *,
+    chain: ChainConfig | None = None,
+    ekf: EkfConfig | None = None,
+) -> tuple[NodeData, NodeReport]:
+    """Fill a node's centroids (torso DBSCAN) and tracks from its point cloud."""
+    from .cluster import torso_centroids
+    from .config import TABLE_I
+
+    if node.point_cloud is None:
+        raise ValidationError(f"nodes[{node.name}] has no point cloud to cluster")
+    chain = ChainConfig() if chain is None else chain
+    radar = TABLE_I if node.radar is None else node.radar
+    cents = torso_centroids(node.point_cloud, chain.cluster,
+                            doppler_resolution_mps=radar.doppler_resolution_mps)
+    frames = node.point_cloud.frame
+    tracks = track_centroids(cents, _ekf_for(ekf, frame_period_s), frames=_frames_span(frames))
+    new = dataclasses.replace(node, centroids=cents, tracks=tracks)
+    return new, NodeReport(name=node.name, level="point_cloud",
+                           n_frames=int(np.unique(frames).size),
+                           n_points=len(node.point_cloud), n_centroids=len(cents),
+                           n_tracks=int(tracks.track_ids.size), success=True,
+                           message=f"{len(node.point_cloud)} points clustered")
+
+
+def _from_stored_levels(node: NodeData, frame_period_s: float, chain, ekf, centroids_only):
+    """The highest stored level below the cube: point cloud, else centroids."""
+    if node.point_cloud is not None and not centroids_only:
+        return cluster_node(node, frame_period_s, chain=chain, ekf=ekf)
+    if node.centroids is not None:
+        return track_node(node, frame_period_s, ekf=ekf)
+    return None
+
+
 def track_node(node: NodeData, frame_period_s: float, *, ekf: EkfConfig | None = None
                ) -> tuple[NodeData, NodeReport]:
     """Fill a node's tracks from its centroids (no cube needed)."""
@@ -104,7 +144,7 @@ def _each_node(recording: Recording, fn) -> tuple[Recording, dict[str, NodeRepor
         if out is None:
             reports[name] = NodeReport(name=name, level="none", n_frames=0, n_points=0,
                                        n_centroids=0, n_tracks=0, success=False,
-                                       message="no cube and no centroids")
+                                       message="no cube, point cloud or centroids")
             continue
         new, rep = out
         rec = rec.with_node(new)
@@ -119,16 +159,15 @@ def process_recording(
     ekf: EkfConfig | None = None,
     progress: bool = False,
 ) -> tuple[Recording, dict[str, NodeReport]]:
-    """Run the chain on every node: from the cube where there is one, else
-    tracks from the centroids; nodes with neither are reported, unchanged."""
+    """Run the chain on every node from the highest level it holds: the cube,
+    else the point cloud, else the centroids; nodes with none are reported,
+    unchanged."""
     fp = recording.frame_period_s
 
     def one(node: NodeData):
         if node.cube is not None:
             return process_node(node, fp, chain=chain, ekf=ekf, progress=progress)
-        if node.centroids is not None:
-            return track_node(node, fp, ekf=ekf)
-        return None
+        return _from_stored_levels(node, fp, chain, ekf, centroids_only=False)
 
     return _each_node(recording, one)
 
@@ -155,7 +194,9 @@ def process_file(
 
     output : write to this path (a copy of ``path`` updated atomically);
         default: update ``path`` in place, atomically.
-    centroids_only : only re-track from the stored centroids.
+    centroids_only : ignore cubes and point clouds: only re-track from the
+        stored centroids. Otherwise each node starts from its cube, else its
+        point cloud, else its centroids.
     """
     import shutil
     from ..atomic import atomic_path
@@ -190,14 +231,15 @@ def process_file(
                 name=name, level="cube", n_frames=n, n_points=len(result.point_cloud),
                 n_centroids=len(result.centroids), n_tracks=int(tracks.track_ids.size),
                 success=result.success, message=result.message, chain=result)
-        elif node.centroids is not None:
-            new, rep = track_node(node, fp, ekf=ekf)
-            rec = rec.with_node(new)
-            reports[name] = rep
         else:
-            reports[name] = NodeReport(name=name, level="none", n_frames=0, n_points=0,
-                                       n_centroids=0, n_tracks=0, success=False,
-                                       message="no cube and no centroids")
+            out = _from_stored_levels(node, fp, chain, ekf, centroids_only)
+            if out is None:
+                reports[name] = NodeReport(name=name, level="none", n_frames=0, n_points=0,
+                                           n_centroids=0, n_tracks=0, success=False,
+                                           message="no cube, point cloud or centroids")
+            else:
+                rec = rec.with_node(out[0])
+                reports[name] = out[1]
     dst = src if output is None else Path(output)
     if dst.resolve() != src.resolve():
         # Copy, then update the copy; the copy lands atomically.
