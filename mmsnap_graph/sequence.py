@@ -22,7 +22,6 @@ import json
 import os
 import shutil
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, Mapping
@@ -34,6 +33,7 @@ from factors.models import detection_to_global
 
 from .association import associate_frame, detection_position_covariance, gate_threshold
 from .batch import STATUS_MESSAGES, fuse_batch
+from .atomic import atomic_path
 from .errors import CalibrationError, FileFormatError, MmsnapError, ValidationError
 from .recording import Recording
 from .validation import as_float_array, check_finite
@@ -549,7 +549,7 @@ def write_fused(path: str | os.PathLike, fused: FusedSequence, *,
 
     Atomic: the file is copied to a temporary file in the target's folder,
     the group written there, and the copy moved over the target
-    (``os.replace``). Returns the path written.
+    (:func:`mmsnap_graph.atomic.atomic_path`). Returns the path written.
     """
     import h5py
 
@@ -557,12 +557,7 @@ def write_fused(path: str | os.PathLike, fused: FusedSequence, *,
     if not src.exists():
         raise FileFormatError(f"{src} does not exist")
     dst = src if output is None else Path(output)
-    folder = dst.parent if str(dst.parent) else Path(".")
-    if not folder.is_dir():
-        raise FileFormatError(f"cannot write {dst}: folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", suffix=".tmp", dir=folder)
-    os.close(fd)
-    try:
+    with atomic_path(dst) as tmp:
         shutil.copyfile(src, tmp)
         try:
             f = h5py.File(tmp, "r+")
@@ -572,13 +567,6 @@ def write_fused(path: str | os.PathLike, fused: FusedSequence, *,
             if FUSED_GROUP in f:
                 del f[FUSED_GROUP]
             _fill_group(f.create_group(FUSED_GROUP), fused)
-        os.replace(tmp, dst)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
     return dst
 
 

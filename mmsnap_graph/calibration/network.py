@@ -22,7 +22,6 @@ import dataclasses
 import json
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Mapping
@@ -30,6 +29,7 @@ from typing import Any, Literal, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
+from ..atomic import atomic_path
 from ..errors import CalibrationError, FileFormatError, ValidationError
 from ..recording import Detections, Recording
 from .joint import PAPER_SIGMAS, JointCalibration, joint_calibration
@@ -295,21 +295,10 @@ def calibrate_recording(
 
 
 def _atomic_copy_edit(src: Path, dst: Path, edit) -> Path:
-    folder = dst.parent if str(dst.parent) else Path(".")
-    if not folder.is_dir():
-        raise FileFormatError(f"cannot write {dst}: folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", suffix=".tmp", dir=folder)
-    os.close(fd)
-    try:
+    """Copy ``src`` beside ``dst``, let ``edit`` change the copy, move it over ``dst``."""
+    with atomic_path(dst) as tmp:
         shutil.copyfile(src, tmp)
-        edit(Path(tmp))
-        os.replace(tmp, dst)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+        edit(tmp)
     return dst
 
 
@@ -381,17 +370,6 @@ def write_calibration(path: str | os.PathLike, recording: Recording, cal: Record
 def write_calibration_json(path: str | os.PathLike, cal: RecordingCalibration) -> Path:
     """Write :meth:`RecordingCalibration.to_json` to ``path``, atomically."""
     dst = Path(path)
-    folder = dst.parent if str(dst.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(cal.to_json(), fh, indent=2)
-            fh.write("\n")
-        os.replace(tmp, dst)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    with atomic_path(dst) as tmp:
+        tmp.write_text(json.dumps(cal.to_json(), indent=2) + "\n")
     return dst
