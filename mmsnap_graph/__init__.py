@@ -24,6 +24,42 @@ from .recording import Detections, NodeData, Recording, Tracks, Truth
 
 __version__ = "0.1.0"
 
+# Estimation names load on first use (they import GTSAM); the numpy-only
+# layers (radar signal chain, simulator) stay importable without it.
+_LAZY = {
+    "MeasurementNoise": "oneshot",
+    "GaussianPrior": "oneshot",
+    "FusionResult": "oneshot",
+    "fuse_frame": "oneshot",
+    "build_frame_graph": "oneshot",
+    "initial_state": "oneshot",
+    "cramer_rao_bound": "bounds",
+    "bayesian_bound": "bounds",
+    "grid_posterior": "covariance",
+    "BatchResult": "batch",
+    "fuse_batch": "batch",
+    "FusedSequence": "sequence",
+    "fuse_recording": "sequence",
+    "read_recording": "io",
+    "write_recording": "io",
+    "update_recording": "io",
+    "simulate_recording": "sim",
+    "calibrate_recording": "calibration",
+    "closed_form_calibration": "calibration",
+    "joint_calibration": "calibration",
+    "match_tracks": "calibration",
+    "pose_graph_calibration": "calibration",
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
     "MmsnapError",
     "ValidationError",
@@ -38,4 +74,5 @@ __all__ = [
     "NodeData",
     "Truth",
     "Recording",
+    *_LAZY,
 ]

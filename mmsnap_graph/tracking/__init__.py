@@ -1,5 +1,10 @@
-"""Target tracking: the per-node EKF (local frame) and, in later modules,
-central and track-level fusion."""
+"""Target tracking: the per-node EKF (local frame, :mod:`.ekf`), the central
+tracker over one-shot estimates (:mod:`.central`) and the paper's track-level
+fusion benchmark (:mod:`.track_fusion`).
+
+The central tracker and track fusion load on first use, so the per-node
+signal chain (which uses the EKF) does not import GTSAM.
+"""
 
 from .ekf import (
     EkfConfig,
@@ -12,7 +17,28 @@ from .ekf import (
     track_centroids,
 )
 
+_LAZY = {
+    "CentralConfig": "central",
+    "CentralTracker": "central",
+    "FixedLagTracker": "central",
+    "track_fused": "central",
+    "transform_tracks": "track_fusion",
+    "covariance_intersection": "track_fusion",
+    "TrackFusion": "track_fusion",
+    "fuse_tracks": "track_fusion",
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
+    *_LAZY,
     "EkfConfig",
     "LocalTracker",
     "cv_process_noise",

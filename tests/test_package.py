@@ -1,0 +1,25 @@
+"""The package's public API and its import layering."""
+
+import subprocess
+import sys
+
+import pytest
+
+import mmsnap_graph
+import mmsnap_graph.tracking
+
+
+@pytest.mark.parametrize("module", [mmsnap_graph, mmsnap_graph.tracking])
+def test_every_public_name_resolves(module):
+    for name in module.__all__:
+        assert getattr(module, name) is not None, name
+    with pytest.raises(AttributeError, match="no attribute"):
+        module.not_a_name  # noqa: B018
+
+
+def test_signal_chain_and_simulator_do_not_import_gtsam():
+    code = ("import sys, mmsnap_graph, mmsnap_graph.radar.pipeline, mmsnap_graph.sim, "
+            "mmsnap_graph.tracking.ekf, mmsnap_graph.io; "
+            "print('gtsam' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
