@@ -36,14 +36,11 @@ from scipy.optimize import least_squares
 
 from factors.models import measurement_model, residual
 from mmsnap_graph.batch import fuse_batch
+from mmsnap_graph.calibration import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
 from mmsnap_graph.oneshot import GaussianPrior, MeasurementNoise, fuse_frame, initial_state
 
-POSES = {
-    "A": np.array([[0.0, 0.0, 0.0], [4.0, 0.0, np.pi / 6]]),
-    "B": np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]]),
-    "C": np.array([[0.0, 0.0, 0.0], [0.0, 7.0, np.pi]]),
-}
-CENTRES = {"A": (2.0, 5.0), "B": (0.5, 4.5), "C": (0.0, 3.5)}
+POSES = {name: np.stack([p["S1"], p["S2"]]) for name, p in PAPER_CONFIGURATIONS.items()}
+CENTRES = {name: tuple(c) for name, c in COMMON_AREA_CENTERS.items()}
 
 
 def simulate(poses, centre, n_frames, seed):

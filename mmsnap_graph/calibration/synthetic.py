@@ -19,18 +19,20 @@ from numpy.typing import NDArray
 
 from factors.models import detection_to_local, global_to_local, measurement_model, wrap_angle
 
+from ..sim.networks import COMMON_AREAS, CONFIGURATIONS
+
 __all__ = ["PAPER_CONFIGURATIONS", "COMMON_AREA_CENTERS", "SyntheticScene",
            "target_trajectory", "synthetic_scene"]
 
-#: The fixed configurations of the project brief (S1 at the origin).
+#: The paper's configurations (S1 at the origin), from :mod:`mmsnap_graph.sim.networks`.
 PAPER_CONFIGURATIONS: dict[str, dict[str, NDArray]] = {
-    "A": {"S1": np.zeros(3), "S2": np.array([4.0, 0.0, np.pi / 6])},
-    "B": {"S1": np.zeros(3), "S2": np.array([5.0, 5.0, np.pi / 2])},
-    "C": {"S1": np.zeros(3), "S2": np.array([0.0, 7.0, np.pi])},
+    name: {node: np.array(pose) for node, pose in poses.items()}
+    for name, poses in CONFIGURATIONS.items()
 }
-#: Centre of each configuration's common field of view (global, m).
+#: Centre of each configuration's common walking area (global, m).
 COMMON_AREA_CENTERS: dict[str, NDArray] = {
-    "A": np.array([2.0, 5.0]), "B": np.array([0.5, 4.5]), "C": np.array([0.0, 3.5]),
+    name: np.array([(a.x_min_m + a.x_max_m) / 2.0, (a.y_min_m + a.y_max_m) / 2.0])
+    for name, a in COMMON_AREAS.items()
 }
 
 
