@@ -32,48 +32,10 @@ import sys
 import time
 
 import numpy as np
-from scipy.optimize import least_squares
 
-from factors.models import measurement_model, residual
+from frames import POSES, scipy_fuse, simulate
 from mmsnap_graph.batch import fuse_batch
-from mmsnap_graph.calibration import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
-from mmsnap_graph.oneshot import GaussianPrior, MeasurementNoise, fuse_frame, initial_state
-
-POSES = {name: np.stack([p["S1"], p["S2"]]) for name, p in PAPER_CONFIGURATIONS.items()}
-CENTRES = {name: tuple(c) for name, c in COMMON_AREA_CENTERS.items()}
-
-
-def simulate(poses, centre, n_frames, seed):
-    rng = np.random.default_rng(seed)
-    noise = MeasurementNoise()
-    states = np.column_stack([
-        centre[0] + rng.uniform(-1.5, 1.5, n_frames),
-        centre[1] + rng.uniform(-1.5, 1.5, n_frames),
-        rng.normal(0.0, 1.0, n_frames),
-        rng.normal(0.0, 1.0, n_frames),
-    ])
-    h, _ = measurement_model(states[:, None, :], poses)
-    z = h + rng.normal(size=h.shape) * noise.sigmas
-    z[..., 1] = np.clip(z[..., 1], -np.pi, np.pi)
-    return states, z
-
-
-def scipy_fuse(poses, z, noise, prior):
-    sig = noise.sigmas
-    inv_prior = 1.0 / prior.sigmas
-
-    def fun(x):
-        h, _ = measurement_model(x, poses)
-        return np.concatenate([(residual(h, z) / sig).ravel(), (x - prior.mean) * inv_prior])
-
-    def jac(x):
-        _, j = measurement_model(x, poses)
-        return np.vstack([(j / sig[:, None]).reshape(-1, 4), np.diag(inv_prior)])
-
-    x0 = initial_state(poses, z, prior=prior, noise=noise)
-    sol = least_squares(fun, x0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    return sol.x, np.linalg.inv(sol.jac.T @ sol.jac)
-
+from mmsnap_graph.oneshot import GaussianPrior, MeasurementNoise, fuse_frame
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -85,7 +47,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     poses = POSES[args.configuration]
     noise, prior = MeasurementNoise(), GaussianPrior()
-    _, z = simulate(poses, CENTRES[args.configuration], args.frames, args.seed)
+    _, z = simulate(args.configuration, args.frames, args.seed)
 
     fuse_batch(poses, z[:1000], noise=noise, prior=prior)  # warm-up
     best_wall = best_cpu = np.inf

@@ -26,51 +26,11 @@ import sys
 import time
 
 import numpy as np
-from scipy.optimize import least_squares
 
-from factors.models import measurement_model, residual, wrap_angle
-from mmsnap_graph.oneshot import GaussianPrior, MeasurementNoise, fuse_frame, initial_state
+from frames import POSES, scipy_fuse, simulate
+from mmsnap_graph.oneshot import GaussianPrior, MeasurementNoise, fuse_frame
 
-POSES_B = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])
-
-
-def simulate(n_frames: int, seed: int):
-    """Random states in B's common area and noisy measurements; (F, 4), (F, 2, 3)."""
-    rng = np.random.default_rng(seed)
-    noise = MeasurementNoise()
-    states = np.column_stack(
-        [
-            rng.uniform(-0.5, 1.5, n_frames),
-            rng.uniform(3.5, 5.5, n_frames),
-            rng.normal(0.0, 1.0, n_frames),
-            rng.normal(0.0, 1.0, n_frames),
-        ]
-    )
-    h, _ = measurement_model(states[:, None, :], POSES_B[None])
-    z = h + rng.normal(size=h.shape) * noise.sigmas
-    z[..., 1] = wrap_angle(z[..., 1])
-    return states, z
-
-
-def scipy_fuse(poses, z, noise, prior):
-    """MAP by scipy least_squares and covariance from its Jacobian."""
-    sig = noise.sigmas
-    inv_prior = 1.0 / prior.sigmas
-
-    def fun(x):
-        h, _ = measurement_model(x, poses)
-        r = residual(h, z) / sig
-        return np.concatenate([r.ravel(), (x - prior.mean) * inv_prior])
-
-    def jac(x):
-        _, j = measurement_model(x, poses)
-        return np.vstack([(j / sig[:, None]).reshape(-1, 4), np.diag(inv_prior)])
-
-    x0 = initial_state(poses, z, prior=prior, noise=noise)
-    sol = least_squares(fun, x0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    j = sol.jac
-    cov = np.linalg.inv(j.T @ j)
-    return sol.x, cov
+POSES_B = POSES["B"]
 
 
 def time_per_frame(fn, frames) -> tuple[np.ndarray, np.ndarray]:
@@ -93,7 +53,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     noise = MeasurementNoise()
     prior = GaussianPrior()
-    _, z = simulate(args.frames, args.seed)
+    _, z = simulate("B", args.frames, args.seed, half_width_m=1.0)
 
     def gtsam_call(zk):
         return fuse_frame(POSES_B, zk, noise=noise, prior=prior)
