@@ -213,6 +213,20 @@ def test_cli_fuse_writes_the_fused_group(tmp_path, recordings, capsys):
     assert "does not exist" in capsys.readouterr().err
 
 
+def test_cli_fuse_takes_measurement_sigmas(tmp_path, recordings, capsys):
+    rec = recordings["B"]
+    path = write_recording(tmp_path / "rec.h5", rec)
+    assert main(["fuse", str(path), "--sigmas", "0.05", "0.08", "0.1", "--no-progress"]) == 0
+    fused = read_fused(path)
+    np.testing.assert_allclose(fused.noise_sigmas, [0.05, 0.08, 0.1])
+    ref = fuse_recording(rec, noise=oneshot.MeasurementNoise(range_m=0.05, omega_rad=0.08,
+                                                             doppler_mps=0.1))
+    np.testing.assert_allclose(fused.covariance[fused.success], ref.covariance[ref.success],
+                               atol=1e-12)
+    assert main(["fuse", str(path), "--sigmas", "0.05", "-1", "0.1", "--no-progress"]) == 2
+    assert "omega_rad must be finite and > 0" in capsys.readouterr().err
+
+
 def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
     """The fast path of group_detections (one detection per node, one gate)
     gives what associate_frame gives frame by frame."""

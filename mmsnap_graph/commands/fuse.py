@@ -29,6 +29,10 @@ def register(subparsers) -> None:
     p.add_argument("--covariance", choices=["laplace", "grid"], default="laplace",
                    help="Laplace (inverse information) or the paper's grid posterior "
                         "covariance (slow) (default %(default)s)")
+    p.add_argument("--sigmas", nargs=3, type=float, default=None,
+                   metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
+                   help="measurement noise sigmas (default the paper's resolutions: "
+                        "0.035 m, pi/4 rad, 0.1807 m/s)")
     p.add_argument("--solver", choices=["batch", "gtsam"], default="batch",
                    help="vectorized batch solver or one GTSAM graph per frame (default %(default)s)")
     p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
@@ -45,11 +49,17 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..io import read_recording
+    from ..oneshot import MeasurementNoise
     from ..sequence import fuse_recording, load_calibration_poses, write_fused
 
     rec = read_recording(args.recording, load_cubes=False)
     poses = load_calibration_poses(args.calibration) if args.calibration else None
+    noise = None
+    if args.sigmas is not None:
+        r, w, v = args.sigmas
+        noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
     fused = fuse_recording(rec, node_poses=poses, mode=args.mode, covariance=args.covariance,
+                           noise=noise,
                            solver=args.solver, source=args.source, gate_probability=args.gate,
                            grid_points_per_axis=args.grid_points,
                            progress=False if args.no_progress else None)
