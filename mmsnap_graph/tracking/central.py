@@ -51,7 +51,7 @@ from scipy.stats import chi2
 from ..errors import ConfigurationError, ValidationError
 from ..recording import Tracks
 from ..validation import as_float_array, check_finite
-from .ekf import cv_process_noise, cv_transition
+from .ekf import _sym, cv_process_noise, cv_transition
 
 __all__ = [
     "CentralConfig",
@@ -62,12 +62,23 @@ __all__ = [
 ]
 
 
+def _check_estimates(states: ArrayLike, covariances: ArrayLike) -> tuple[NDArray, NDArray]:
+    """One frame's one-shot estimates, validated: ``(M, 4)`` and ``(M, 4, 4)``."""
+    z = check_finite(as_float_array(states, "states"), "states").reshape(-1, 4)
+    r = check_finite(as_float_array(covariances, "covariances"), "covariances")
+    if r.shape != (z.shape[0], 4, 4):
+        raise ValidationError(f"covariances must have shape ({z.shape[0]}, 4, 4), got {r.shape}")
+    return z, r
+
+
 @dataclass(frozen=True, kw_only=True, slots=True)
 class CentralConfig:
     """Central Kalman filter parameters.
 
     frame_period_s : T between frames.
-    sigma_a_mps2 : white-acceleration std per axis (the paper's EKF: 0.2).
+    sigma_a_mps2 : white-acceleration std per axis. Default 1.0 m/s^2, as the
+        per-node EKF (:class:`~mmsnap_graph.tracking.ekf.EkfConfig` says why
+        the paper's 0.2 is too stiff for a person turning in a small area).
     gate_probability : chi-square gate (2 dof, position) for association.
     max_misses : consecutive frames without an estimate that end a track.
     init_velocity_sigma_mps : floor of a new track's velocity std.
@@ -76,7 +87,7 @@ class CentralConfig:
     """
 
     frame_period_s: float = 0.150
-    sigma_a_mps2: float = 0.2
+    sigma_a_mps2: float = 1.0
     gate_probability: float = 0.9999
     max_misses: int = 5
     init_velocity_sigma_mps: float = 1.0
@@ -93,10 +104,6 @@ class CentralConfig:
             raise ConfigurationError(f"gate_probability={self.gate_probability!r} must be in (0, 1)")
         if int(self.max_misses) != self.max_misses or self.max_misses < 1:
             raise ConfigurationError(f"max_misses={self.max_misses!r} must be an integer >= 1")
-
-
-def _sym(p: NDArray) -> NDArray:
-    return 0.5 * (p + p.T)
 
 
 def _spd_inverse(p: NDArray) -> NDArray:
@@ -169,10 +176,7 @@ class CentralTracker:
         (default the configured frame period).
         """
         cfg = self.config
-        z = check_finite(as_float_array(states, "states"), "states").reshape(-1, 4)
-        r = check_finite(as_float_array(covariances, "covariances"), "covariances")
-        if r.shape != (z.shape[0], 4, 4):
-            raise ValidationError(f"covariances must have shape ({z.shape[0]}, 4, 4), got {r.shape}")
+        z, r = _check_estimates(states, covariances)
         t = cfg.frame_period_s if period_s is None else float(period_s)
         f = cv_transition(t)
         q = cv_process_noise(t, cfg.sigma_a_mps2)
@@ -287,10 +291,7 @@ class FixedLagTracker:
 
         gtsam = self._gtsam
         cfg = self.config
-        z = check_finite(as_float_array(states, "states"), "states").reshape(-1, 4)
-        r = check_finite(as_float_array(covariances, "covariances"), "covariances")
-        if r.shape != (z.shape[0], 4, 4):
-            raise ValidationError(f"covariances must have shape ({z.shape[0]}, 4, 4), got {r.shape}")
+        z, r = _check_estimates(states, covariances)
         t = cfg.frame_period_s if period_s is None else float(period_s)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
