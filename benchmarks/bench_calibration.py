@@ -27,8 +27,6 @@ import numpy as np
 
 from factors.models import global_to_local, local_to_global
 from mmsnap_graph.calibration import (
-    COMMON_AREA_CENTERS,
-    PAPER_CONFIGURATIONS,
     PAPER_SIGMAS,
     PoseEdge,
     closed_form_calibration,
@@ -36,9 +34,9 @@ from mmsnap_graph.calibration import (
     joint_calibration,
     pose_error,
     pose_graph_calibration,
-    synthetic_scene,
 )
-from mmsnap_graph.recording import Detections
+from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
+from mmsnap_graph.data.recording import Detections
 
 SIGMAS = (0.035, 0.2, 0.18)
 

@@ -24,20 +24,20 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from mmsnap_graph.radar.cfar import os_cfar_2d  # noqa: E402
-from mmsnap_graph.radar.chain import (  # noqa: E402
+from mmsnap_graph.radar.cfar import os_cfar_2d
+from mmsnap_graph.radar.chain import (
     ChainConfig,
     _frame_status,
     _range_slice,
     point_cloud_of_cube,
     process_cubes,
 )
-from mmsnap_graph.radar.cluster import torso_centroids  # noqa: E402
-from mmsnap_graph.radar.config import TABLE_I  # noqa: E402
-from mmsnap_graph.radar.spectrum import range_doppler  # noqa: E402
-from mmsnap_graph.sim.body import body_scatterers  # noqa: E402
-from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes  # noqa: E402
-from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids  # noqa: E402
+from mmsnap_graph.radar.cluster import torso_centroids
+from mmsnap_graph.data.radar_config import TABLE_I
+from mmsnap_graph.radar.spectrum import range_doppler
+from mmsnap_graph.sim.body import body_scatterers
+from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes
+from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
 
 
 def make_cubes(n: int, seed: int = 0) -> np.ndarray:

@@ -22,8 +22,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from mmsnap_graph.radar.config import TABLE_I  # noqa: E402
-from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes  # noqa: E402
+from mmsnap_graph.data.radar_config import TABLE_I
+from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes
 
 
 def main() -> None:

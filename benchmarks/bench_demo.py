@@ -21,8 +21,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from mmsnap_graph import demo
-from mmsnap_graph.radar.pipeline import process_recording
+from mmsnap_graph.app import demo
+from mmsnap_graph.app.pipeline import process_recording
 from mmsnap_graph.sim import simulate_recording
 
 

@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from frames import POSES, scipy_fuse, simulate
-from mmsnap_graph.oneshot import GaussianPrior, MeasurementNoise, fuse_frame
+from mmsnap_graph.fusion.oneshot import GaussianPrior, MeasurementNoise, fuse_frame
 
 POSES_B = POSES["B"]
 

@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from factors.models import global_to_local
-from mmsnap_graph.radar.config import SPEED_OF_LIGHT_MPS, TABLE_I
+from mmsnap_graph.data.radar_config import SPEED_OF_LIGHT_MPS, TABLE_I
 from mmsnap_graph.sim import network_poses, simulate_recording, simulate_targets
 from mmsnap_graph.sim.body import body_scatterers
 from mmsnap_graph.sim.cube import scatterer_amplitude

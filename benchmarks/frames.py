@@ -8,8 +8,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from factors.models import measurement_model, residual, wrap_angle
-from mmsnap_graph.calibration import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
-from mmsnap_graph.oneshot import MeasurementNoise, initial_state
+from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
+from mmsnap_graph.fusion.oneshot import MeasurementNoise, initial_state
 
 #: (N, 3) node poses of each paper configuration.
 POSES = {name: np.stack([p["S1"], p["S2"]]) for name, p in PAPER_CONFIGURATIONS.items()}

@@ -8,7 +8,7 @@ Layers (imports flow downward only; design/ARCHITECTURE.md):
 - :mod:`mmsnap_graph.radar` -- per-node signal processing (no GTSAM);
 - :mod:`mmsnap_graph.sim` -- the simulator;
 - :mod:`mmsnap_graph.io` -- the HDF5 recording format;
-- :mod:`mmsnap_graph.cli` -- the ``mmsnap`` command line.
+- :mod:`mmsnap_graph.app.cli` -- the ``mmsnap`` command line.
 """
 
 from .errors import (
@@ -19,27 +19,27 @@ from .errors import (
     MmsnapError,
     ValidationError,
 )
-from .radar.config import TABLE_I, RadarConfig
-from .recording import Detections, NodeData, Recording, Tracks, Truth
+from .data.radar_config import TABLE_I, RadarConfig
+from .data.recording import Detections, NodeData, Recording, Tracks, Truth
 
 __version__ = "0.1.0"
 
 # Estimation names load on first use (they import GTSAM); the numpy-only
 # layers (radar signal chain, simulator) stay importable without it.
 _LAZY = {
-    "MeasurementNoise": "oneshot",
-    "GaussianPrior": "oneshot",
-    "FusionResult": "oneshot",
-    "fuse_frame": "oneshot",
-    "build_frame_graph": "oneshot",
-    "initial_state": "oneshot",
-    "cramer_rao_bound": "bounds",
-    "bayesian_bound": "bounds",
-    "grid_posterior": "covariance",
-    "BatchResult": "batch",
-    "fuse_batch": "batch",
-    "FusedSequence": "sequence",
-    "fuse_recording": "sequence",
+    "MeasurementNoise": "fusion.oneshot",
+    "GaussianPrior": "fusion.oneshot",
+    "FusionResult": "fusion.oneshot",
+    "fuse_frame": "fusion.oneshot",
+    "build_frame_graph": "fusion.oneshot",
+    "initial_state": "fusion.oneshot",
+    "cramer_rao_bound": "fusion.bounds",
+    "bayesian_bound": "fusion.bounds",
+    "grid_posterior": "fusion.grid",
+    "BatchResult": "fusion.batch",
+    "fuse_batch": "fusion.batch",
+    "FusedSequence": "fusion.sequence",
+    "fuse_recording": "fusion.sequence",
     "read_recording": "io",
     "write_recording": "io",
     "update_recording": "io",

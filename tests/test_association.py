@@ -1,14 +1,10 @@
-"""Association of centroids across nodes (mmsnap_graph.association)."""
+"""Association of centroids across nodes (mmsnap_graph.fusion.association)."""
 
 import numpy as np
 import pytest
 
 from factors.models import detection_to_global, measurement_model
-from mmsnap_graph.association import (
-    associate_frame,
-    detection_position_covariance,
-    gate_threshold,
-)
+from mmsnap_graph.fusion.association import associate_frame, detection_position_covariance, gate_threshold
 from mmsnap_graph.errors import ValidationError
 
 SIGMAS = np.array([0.035, np.pi / 4, 0.1807])

@@ -6,7 +6,7 @@ import stat
 import pytest
 
 from mmsnap_graph import FileFormatError
-from mmsnap_graph.atomic import atomic_path
+from mmsnap_graph._atomic import atomic_path
 
 
 def test_success_replaces_file_with_umask_permissions(tmp_path):

@@ -10,14 +10,11 @@ from numpy.testing import assert_allclose
 
 from factors.models import global_to_local, wrap_angle
 from mmsnap_graph.calibration import (
-    PAPER_CONFIGURATIONS,
-    COMMON_AREA_CENTERS,
     alignment_jacobian,
     closed_form_calibration,
     pose_error,
-    synthetic_scene,
-    target_trajectory,
 )
+from mmsnap_graph.sim.scenes import PAPER_CONFIGURATIONS, COMMON_AREA_CENTERS, synthetic_scene, target_trajectory
 from mmsnap_graph.errors import CalibrationError, ValidationError
 
 

@@ -9,16 +9,11 @@ import h5py
 import numpy as np
 import pytest
 
-from mmsnap_graph.calibration import (
-    calibrate_recording,
-    joint_calibration,
-    pose_error,
-    residual_sigmas,
-)
-from mmsnap_graph.cli import main
+from mmsnap_graph.calibration import calibrate_recording, joint_calibration, pose_error, residual_sigmas
+from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError
 from mmsnap_graph.io import read_recording, write_recording
-from mmsnap_graph.recording import NodeData, Recording, Tracks
+from mmsnap_graph.data.recording import NodeData, Recording, Tracks
 from mmsnap_graph.sim import simulate_recording
 
 

@@ -1,7 +1,7 @@
 """Joint calibration graph: node poses + target states from raw measurements.
 
 What the Monte Carlo compares (the fairness note of the issue): for each
-trial, one synthetic scene (``mmsnap_graph.calibration.synthetic``); the
+trial, one synthetic scene (``mmsnap_graph.sim.scenes``); the
 closed form gets both nodes' detections of every frame mapped to local xy
 with ``factors.detection_to_local``; the joint graph gets the same
 detections of the same frames as raw ``(range, omega, doppler)``
@@ -22,17 +22,15 @@ from numpy.testing import assert_allclose
 from factors.gtsam_factors import constant_velocity_factor
 from factors.models import global_to_local, local_to_global
 from mmsnap_graph.calibration import (
-    COMMON_AREA_CENTERS,
-    PAPER_CONFIGURATIONS,
     PAPER_SIGMAS,
     closed_form_calibration,
     joint_calibration,
     pose_error,
-    synthetic_scene,
 )
+from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
 from mmsnap_graph.calibration.joint import _cv_information
 from mmsnap_graph.errors import CalibrationError, ValidationError
-from mmsnap_graph.recording import Detections
+from mmsnap_graph.data.recording import Detections
 
 MODERATE_SIGMAS = (0.035, 0.2, 0.18)
 

@@ -6,16 +6,14 @@ import numpy as np
 import pytest
 
 from mmsnap_graph.calibration import (
-    COMMON_AREA_CENTERS,
-    PAPER_CONFIGURATIONS,
     LocalTracks,
     local_tracks,
     match_tracks,
     pose_error,
-    synthetic_scene,
 )
+from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
 from mmsnap_graph.errors import CalibrationError, ValidationError
-from mmsnap_graph.recording import Detections, NodeData, Tracks
+from mmsnap_graph.data.recording import Detections, NodeData, Tracks
 
 # Track-like noise: an EKF smooths the spatial frequency well below its raw
 # sigma; 0.05 rad gives ~10 cm across range at 5 m, while a 1-frame lag

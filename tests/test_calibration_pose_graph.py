@@ -13,9 +13,9 @@ from mmsnap_graph.calibration import (
     pose_array,
     pose_error,
     pose_graph_calibration,
-    synthetic_scene,
     to_pose2,
 )
+from mmsnap_graph.sim.scenes import synthetic_scene
 from mmsnap_graph.errors import ValidationError
 
 TRUE_POSES = {

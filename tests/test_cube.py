@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mmsnap_graph.errors import ConfigurationError, ValidationError
-from mmsnap_graph.radar.config import TABLE_I, RadarConfig
+from mmsnap_graph.data.radar_config import TABLE_I, RadarConfig
 from mmsnap_graph.sim.cube import (
     post_fft_snr_db,
     scatterer_amplitude,

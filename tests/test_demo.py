@@ -1,4 +1,4 @@
-"""The demo pipeline (mmsnap_graph.demo), its tables and report, and ``mmsnap demo``.
+"""The demo pipeline (mmsnap_graph.app.demo), its tables and report, and ``mmsnap demo``.
 
 The full demo (600 frames x 6 runs) is not run here; reduced runs are: the
 sample recordings cut to 300 frames for the paper's qualitative claims, and
@@ -15,13 +15,18 @@ import numpy as np
 import pytest
 
 from factors.models import local_to_global
-from mmsnap_graph import demo
+from mmsnap_graph.app import demo
 from mmsnap_graph.calibration import closed_form_calibration
-from mmsnap_graph.cli import main
+from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError, ValidationError
-from mmsnap_graph.recording import Detections, Tracks
-from mmsnap_graph.report import (Table, qualitative_checks, table_ii, table_iii_track_fusion,
-                                 table_iii_truth)
+from mmsnap_graph.data.recording import Detections, Tracks
+from mmsnap_graph.app.report import (
+    Table,
+    qualitative_checks,
+    table_ii,
+    table_iii_track_fusion,
+    table_iii_truth,
+)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

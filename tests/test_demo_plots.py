@@ -1,4 +1,4 @@
-"""Figures of the demo (mmsnap_graph.plots): the numbers behind them."""
+"""Figures of the demo (mmsnap_graph.app.plots): the numbers behind them."""
 
 from __future__ import annotations
 
@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model
-from mmsnap_graph.plots import (degeneracy_grid, plot_degeneracy_map, plot_velocity_posteriors,
-                                save, velocity_posterior)
+from mmsnap_graph.app.plots import (
+    degeneracy_grid,
+    plot_degeneracy_map,
+    plot_velocity_posteriors,
+    save,
+    velocity_posterior,
+)
 from mmsnap_graph.sim.networks import COMMON_AREAS, CONFIGURATIONS
 
 

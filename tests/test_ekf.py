@@ -6,8 +6,8 @@ import pytest
 
 from factors.models import detection_to_local, measurement_model
 from mmsnap_graph.errors import ConfigurationError, ValidationError
-from mmsnap_graph.evaluation import chi2_mean_interval, nees
-from mmsnap_graph.recording import Detections
+from mmsnap_graph.app.evaluation import chi2_mean_interval, nees
+from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.tracking.ekf import (
     EkfConfig,
     LocalTracker,

@@ -1,4 +1,4 @@
-"""``mmsnap evaluate`` and the recording-level metrics of mmsnap_graph.evaluation."""
+"""``mmsnap evaluate`` and the recording-level metrics of mmsnap_graph.app.evaluation."""
 
 from __future__ import annotations
 
@@ -8,13 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from mmsnap_graph.cli import main
+from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.evaluation import (evaluate_recording, pose_mapping_error, state_errors,
-                                     truth_reference)
+from mmsnap_graph.app.evaluation import evaluate_recording, pose_mapping_error, state_errors, truth_reference
 from mmsnap_graph.io import write_recording
-from mmsnap_graph.recording import Tracks
-from mmsnap_graph.sequence import fuse_recording, write_fused
+from mmsnap_graph.data.recording import Tracks
+from mmsnap_graph.fusion.sequence import fuse_recording, write_fused
 from mmsnap_graph.sim import simulate_recording
 
 
@@ -76,7 +75,7 @@ def test_truth_reference_rejects_disagreeing_shapes():
 @pytest.fixture(scope="module")
 def processed(tmp_path_factory):
     """A configuration B recording with known poses, EKF tracks and /fused."""
-    from mmsnap_graph.radar.pipeline import track_recording
+    from mmsnap_graph.app.pipeline import track_recording
 
     rec = simulate_recording("B", "random", levels=("centroids",), n_frames=80, seed=4,
                              known_poses=True)

@@ -1,17 +1,11 @@
-"""Tests of the evaluation metrics (mmsnap_graph.evaluation)."""
+"""Tests of the evaluation metrics (mmsnap_graph.app.evaluation)."""
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
 from mmsnap_graph import ValidationError
-from mmsnap_graph.evaluation import (
-    align_frames,
-    chi2_mean_interval,
-    nees,
-    pose_error,
-    state_errors,
-)
+from mmsnap_graph.app.evaluation import align_frames, chi2_mean_interval, nees, pose_error, state_errors
 
 
 def test_state_errors_known_values_and_skips_nonfinite_rows():

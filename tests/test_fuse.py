@@ -1,4 +1,4 @@
-"""Fusing a whole recording (mmsnap_graph.sequence) and ``mmsnap fuse``."""
+"""Fusing a whole recording (mmsnap_graph.fusion.sequence) and ``mmsnap fuse``."""
 
 import json
 
@@ -6,12 +6,12 @@ import h5py
 import numpy as np
 import pytest
 
-from mmsnap_graph import oneshot
-from mmsnap_graph.cli import main
+from mmsnap_graph.fusion import oneshot
+from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError, FileFormatError, ValidationError
-from mmsnap_graph.evaluation import state_errors
+from mmsnap_graph.app.evaluation import state_errors
 from mmsnap_graph.io import read_recording, write_recording
-from mmsnap_graph.sequence import (
+from mmsnap_graph.fusion.sequence import (
     fuse_recording,
     load_calibration_poses,
     read_fused,
@@ -230,14 +230,14 @@ def test_cli_fuse_takes_measurement_sigmas(tmp_path, recordings, capsys):
 def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
     """The fast path of group_detections (one detection per node, one gate)
     gives what associate_frame gives frame by frame."""
-    from mmsnap_graph.association import associate_frame
-    from mmsnap_graph.sequence import group_detections
+    from mmsnap_graph.fusion.association import associate_frame
+    from mmsnap_graph.fusion.sequence import group_detections
 
     rec = simulate_recording("A", "random", levels=("centroids",), n_frames=80, seed=2,
                              known_poses=True, centroid_noise=CentroidNoise(p_miss=0.2))
     import dataclasses
 
-    from mmsnap_graph.recording import Detections
+    from mmsnap_graph.data.recording import Detections
 
     # A false alarm far from the target in frame 5 (S2): that frame takes the
     # per-frame path, the others the vectorized one.

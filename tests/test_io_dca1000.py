@@ -9,9 +9,15 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from mmsnap_graph import ConfigurationError, FileFormatError, RadarConfig, ValidationError
-from mmsnap_graph.io import (frame_bytes, iter_dca1000_frames, read_dca1000_bin,
-                             read_recording, recording_from_dca1000, write_dca1000_bin,
-                             write_recording)
+from mmsnap_graph.io import (
+    frame_bytes,
+    iter_dca1000_frames,
+    read_dca1000_bin,
+    read_recording,
+    recording_from_dca1000,
+    write_dca1000_bin,
+    write_recording,
+)
 
 CFG = RadarConfig(n_samples=6, n_loops=3, chirp_period_s=20e-6)  # 3 Tx x 4 Rx
 

@@ -10,10 +10,23 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from mmsnap_graph import (Detections, FileFormatError, NodeData, RadarConfig, Recording,
-                          Tracks, Truth)
-from mmsnap_graph.io import (FORMAT_NAME, iter_cubes, read_cube_frames, read_recording,
-                             update_recording, write_recording)
+from mmsnap_graph import (
+    Detections,
+    FileFormatError,
+    NodeData,
+    RadarConfig,
+    Recording,
+    Tracks,
+    Truth,
+)
+from mmsnap_graph.io import (
+    FORMAT_NAME,
+    iter_cubes,
+    read_cube_frames,
+    read_recording,
+    update_recording,
+    write_recording,
+)
 
 SMALL_RADAR = RadarConfig(n_samples=16, n_loops=4, chirp_period_s=20e-6)
 

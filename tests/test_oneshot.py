@@ -1,4 +1,4 @@
-"""One-shot fusion (mmsnap_graph.oneshot): input checks, failures flagged
+"""One-shot fusion (mmsnap_graph.fusion.oneshot): input checks, failures flagged
 without raising, initial values, agreement with scipy, and seeded Monte Carlo
 checks of accuracy (RMSE against the bounds), consistency (NEES) and the
 degenerate geometry of configuration C."""
@@ -15,11 +15,11 @@ from numpy.testing import assert_allclose
 from scipy import stats
 from scipy.optimize import least_squares
 
-import mmsnap_graph.oneshot as oneshot
+import mmsnap_graph.fusion.oneshot as oneshot
 from factors.models import measurement_model, residual, wrap_angle
-from mmsnap_graph.bounds import bayesian_bound, cramer_rao_bound, fisher_information
+from mmsnap_graph.fusion.bounds import bayesian_bound, cramer_rao_bound, fisher_information
 from mmsnap_graph.errors import GeometryError, ValidationError
-from mmsnap_graph.oneshot import (
+from mmsnap_graph.fusion.oneshot import (
     DEGENERACY_THRESHOLD,
     FusionResult,
     GaussianPrior,
@@ -573,7 +573,7 @@ def test_grid_covariance_in_degenerate_geometry_reports_both():
 
 
 def test_grid_posterior_validates_its_layout():
-    from mmsnap_graph.covariance import grid_posterior
+    from mmsnap_graph.fusion.grid import grid_posterior
 
     z = exact(POSES_B, TRUTH_B)
     with pytest.raises(ValidationError, match="points_per_axis must be odd and >= 5, got 4"):
@@ -587,7 +587,7 @@ def test_grid_posterior_validates_its_layout():
 def test_grid_posterior_of_a_linear_gaussian_is_exact():
     """A grid laid along the exact covariance of a Gaussian posterior
     returns it: a prior-only posterior (no node observed)."""
-    from mmsnap_graph.covariance import grid_posterior
+    from mmsnap_graph.fusion.grid import grid_posterior
 
     prior = GaussianPrior(mean=[1.0, 2.0, 0.3, -0.1], sigmas=[0.5, 1.5, 2.0, 0.7])
     grid = grid_posterior(
@@ -602,7 +602,7 @@ def test_grid_posterior_of_a_linear_gaussian_is_exact():
 def test_grid_posterior_widens_and_reports_truncation():
     """A grid laid out far too narrow is widened (doubling its half-width),
     and when it still cuts the posterior off, the result says so."""
-    from mmsnap_graph.covariance import grid_posterior
+    from mmsnap_graph.fusion.grid import grid_posterior
 
     prior = GaussianPrior(mean=[0.0, 0.0, 0.0, 0.0], sigmas=[1.0, 1.0, 1.0, 1.0])
     kw = dict(observed=np.zeros(2, bool), prior=prior, points_per_axis=9)

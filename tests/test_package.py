@@ -18,7 +18,7 @@ def test_every_public_name_resolves(module):
 
 
 def test_signal_chain_and_simulator_do_not_import_gtsam():
-    code = ("import sys, mmsnap_graph, mmsnap_graph.radar.pipeline, mmsnap_graph.sim, "
+    code = ("import sys, mmsnap_graph, mmsnap_graph.app.pipeline, mmsnap_graph.sim, "
             "mmsnap_graph.tracking.ekf, mmsnap_graph.io; "
             "print('gtsam' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

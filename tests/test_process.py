@@ -4,17 +4,17 @@ import numpy as np
 import pytest
 
 from factors.models import global_to_local
-from mmsnap_graph.cli import main
+from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.radar.config import TABLE_I
-from mmsnap_graph.radar.pipeline import (
+from mmsnap_graph.data.radar_config import TABLE_I
+from mmsnap_graph.app.pipeline import (
     cluster_node,
     process_node,
     process_recording,
     track_node,
     track_recording,
 )
-from mmsnap_graph.recording import NodeData, Recording
+from mmsnap_graph.data.recording import NodeData, Recording
 from mmsnap_graph.sim.body import body_scatterers
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes
 
@@ -148,7 +148,7 @@ def test_the_chain_does_not_import_gtsam():
     import subprocess
     import sys
 
-    code = ("import sys, mmsnap_graph.radar.pipeline, mmsnap_graph.sim.cube, "
-            "mmsnap_graph.commands.process; print('gtsam' in sys.modules)")
+    code = ("import sys, mmsnap_graph.app.pipeline, mmsnap_graph.sim.cube, "
+            "mmsnap_graph.app.commands.process; print('gtsam' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

@@ -20,7 +20,7 @@ from mmsnap_graph.radar.chain import (
     process_cubes,
 )
 from mmsnap_graph.radar.cluster import ClusterConfig, cluster_labels, torso_centroids
-from mmsnap_graph.radar.config import TABLE_I, RadarConfig
+from mmsnap_graph.data.radar_config import TABLE_I, RadarConfig
 from mmsnap_graph.radar.spectrum import (
     check_cube,
     doppler_of_bin,
@@ -29,7 +29,7 @@ from mmsnap_graph.radar.spectrum import (
     range_doppler,
     window,
 )
-from mmsnap_graph.recording import Detections
+from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cube, synthesize_cubes
 
 #: Another chirp configuration: 256 samples, 128 loops, 2 Tx (8-element azimuth array).

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from mmsnap_graph.cli import main
+from mmsnap_graph.app.cli import main
 from mmsnap_graph.io import read_recording
 from mmsnap_graph.sim import simulate_recording
 

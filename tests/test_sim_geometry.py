@@ -8,9 +8,16 @@ from numpy.testing import assert_allclose
 
 from mmsnap_graph import GeometryError, ValidationError
 from mmsnap_graph.sim.body import ARM, LEG, TORSO, HumanBody, body_scatterers
-from mmsnap_graph.sim.networks import (COMMON_AREAS, CONFIGURATIONS, DEFAULT_FOV_RAD, Area,
-                                       common_area, in_common_field_of_view, in_field_of_view,
-                                       network_poses)
+from mmsnap_graph.sim.networks import (
+    COMMON_AREAS,
+    CONFIGURATIONS,
+    DEFAULT_FOV_RAD,
+    Area,
+    common_area,
+    in_common_field_of_view,
+    in_field_of_view,
+    network_poses,
+)
 from mmsnap_graph.sim.trajectories import make_trajectory, random_walk, straight_line
 
 

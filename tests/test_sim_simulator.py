@@ -9,9 +9,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 from factors.models import measurement_model, wrap_angle
 from mmsnap_graph import ConfigurationError, ValidationError
 from mmsnap_graph.io import read_recording, write_recording
-from mmsnap_graph.radar.config import TABLE_I
-from mmsnap_graph.sim import (CentroidNoise, PointCloudModel, network_poses,
-                              simulate_recording)
+from mmsnap_graph.data.radar_config import TABLE_I
+from mmsnap_graph.sim import CentroidNoise, PointCloudModel, network_poses, simulate_recording
 from mmsnap_graph.sim.networks import in_field_of_view
 
 

@@ -6,7 +6,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.recording import Tracks
+from mmsnap_graph.data.recording import Tracks
 from mmsnap_graph.sim import CentroidNoise, simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
 from mmsnap_graph.tracking.track_fusion import covariance_intersection, fuse_tracks, transform_tracks

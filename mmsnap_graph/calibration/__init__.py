@@ -9,8 +9,7 @@
 - :func:`joint_calibration`: node poses and target states from the raw
   measurements (range, spatial frequency, Doppler), refined by LM;
 - :func:`calibrate_recording`, :func:`write_calibration`: all of the above
-  on a :class:`~mmsnap_graph.recording.Recording`, stored back atomically;
-- :mod:`.synthetic`: small synthetic scenes for tests and benchmarks.
+  on a :class:`~mmsnap_graph.data.recording.Recording`, stored back atomically;
 """
 
 from .closed_form import (
@@ -34,13 +33,6 @@ from .network import (
 )
 from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 from .poses import pose_array, pose_error, to_pose2
-from .synthetic import (
-    COMMON_AREA_CENTERS,
-    PAPER_CONFIGURATIONS,
-    SyntheticScene,
-    synthetic_scene,
-    target_trajectory,
-)
 
 __all__ = [
     "DEFAULT_MIN_COMMON_FRAMES",
@@ -72,9 +64,4 @@ __all__ = [
     "pose_array",
     "pose_error",
     "to_pose2",
-    "COMMON_AREA_CENTERS",
-    "PAPER_CONFIGURATIONS",
-    "SyntheticScene",
-    "synthetic_scene",
-    "target_trajectory",
 ]

@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import CalibrationError, ValidationError
-from ..validation import as_float_array, check_finite, check_shape
+from .._validation import as_float_array, check_finite, check_shape
 
 __all__ = ["PairwiseCalibration", "closed_form_pose", "closed_form_calibration",
            "alignment_jacobian", "DEFAULT_MIN_COMMON_FRAMES", "DEFAULT_MIN_SPREAD_M"]

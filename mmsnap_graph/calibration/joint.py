@@ -54,8 +54,8 @@ from factors.models import (
 )
 
 from ..errors import CalibrationError, ValidationError
-from ..recording import Detections
-from ..validation import as_float_array, check_finite, check_positive, check_shape
+from ..data.recording import Detections
+from .._validation import as_float_array, check_finite, check_positive, check_shape
 from .closed_form import (
     DEFAULT_MIN_COMMON_FRAMES,
     DEFAULT_MIN_SPREAD_M,

@@ -28,8 +28,8 @@ from numpy.typing import NDArray
 from factors.models import detection_to_local
 
 from ..errors import CalibrationError, ValidationError
-from ..recording import NodeData
-from ..validation import as_float_array, check_finite, check_shape
+from ..data.recording import NodeData
+from .._validation import as_float_array, check_finite, check_shape
 from .closed_form import (
     DEFAULT_MIN_COMMON_FRAMES,
     DEFAULT_MIN_SPREAD_M,

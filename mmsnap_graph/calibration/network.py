@@ -29,9 +29,9 @@ from typing import Any, Literal, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from ..atomic import atomic_path
+from .._atomic import atomic_path
 from ..errors import CalibrationError, FileFormatError, ValidationError
-from ..recording import Detections, Recording
+from ..data.recording import Detections, Recording
 from .joint import PAPER_SIGMAS, JointCalibration, joint_calibration
 from .matching import LocalTracks, local_tracks
 from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration

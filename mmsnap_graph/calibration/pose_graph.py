@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ValidationError
-from ..validation import as_float_array, check_finite, check_shape
+from .._validation import as_float_array, check_finite, check_shape
 from .closed_form import PairwiseCalibration
 from .matching import LocalTracks, match_tracks
 from .poses import pose_array, to_pose2

@@ -25,7 +25,7 @@ xWR14xx With DCA1000 Data Format" and its MATLAB reader):
 
 The imported cube has the project's layout ``(F, n_samples, n_loops,
 n_tx * n_rx)`` complex64 with virtual channel ``tx * n_rx + rx``
-(:mod:`mmsnap_graph.radar.config`). Raw ``adc_data_Raw_N.bin`` files (with
+(:mod:`mmsnap_graph.data.radar_config`). Raw ``adc_data_Raw_N.bin`` files (with
 the DCA1000's UDP packet headers) must first be converted by mmWave Studio's
 post-processing.
 """
@@ -39,10 +39,10 @@ from typing import Iterator, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..atomic import atomic_path
+from .._atomic import atomic_path
 from ..errors import ConfigurationError, FileFormatError, ValidationError
-from ..radar.config import RadarConfig
-from ..recording import NodeData, Recording
+from ..data.radar_config import RadarConfig
+from ..data.recording import NodeData, Recording
 
 __all__ = ["MAX_LVDS_RECEIVERS", "frame_bytes", "read_dca1000_bin", "iter_dca1000_frames",
            "write_dca1000_bin", "recording_from_dca1000"]

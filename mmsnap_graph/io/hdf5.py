@@ -31,10 +31,10 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from ..atomic import atomic_path
+from .._atomic import atomic_path
 from ..errors import ConfigurationError, FileFormatError, MmsnapError
-from ..radar.config import RadarConfig
-from ..recording import Detections, NodeData, Recording, Tracks, Truth
+from ..data.radar_config import RadarConfig
+from ..data.recording import Detections, NodeData, Recording, Tracks, Truth
 
 __all__ = [
     "FORMAT_NAME",

@@ -1,19 +1,21 @@
 """Per-node radar signal processing (no GTSAM here): configuration, FFTs,
 clutter removal, OS-CFAR, clustering, and the whole per-node chain.
 
-- :mod:`.config`: :class:`RadarConfig` (Table I by default);
 - :mod:`.spectrum`: range/Doppler FFTs, static clutter removal, TDM-MIMO
   correction, angle estimation;
 - :mod:`.cfar`: 2D OS-CFAR;
 - :mod:`.cluster`: torso DBSCAN centroids;
-- :mod:`.chain`: cube -> point cloud -> centroids (:func:`process_cubes`);
-- :mod:`.pipeline`: the chain plus the local EKF on nodes, recordings and files.
+- :mod:`.chain`: cube -> point cloud -> centroids (:func:`process_cubes`).
+
+The radar configuration (:class:`RadarConfig`) lives in
+:mod:`mmsnap_graph.data` and is re-exported here; running the chain and the
+local EKF over recordings and files is :mod:`mmsnap_graph.app.pipeline`.
 
 The chain's names load on first use, so that importing the configuration
 (every layer does) does not import scikit-learn.
 """
 
-from .config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarConfig
+from ..data.radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarConfig
 
 _LAZY = {
     "ChainConfig": "chain",
@@ -26,12 +28,6 @@ _LAZY = {
     "ClusterConfig": "cluster",
     "torso_centroids": "cluster",
     "range_doppler": "spectrum",
-    "NodeReport": "pipeline",
-    "process_node": "pipeline",
-    "process_recording": "pipeline",
-    "track_node": "pipeline",
-    "track_recording": "pipeline",
-    "process_file": "pipeline",
 }
 
 

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from ..errors import ConfigurationError, ValidationError
-from ..recording import Detections
+from ..data.recording import Detections
 from .cfar import (
     CfarConfig,
     os_cfar_2d,
@@ -54,7 +54,7 @@ from .cfar import (
     pad_map,
 )
 from .cluster import ClusterConfig, torso_centroids
-from .config import RadarConfig
+from ..data.radar_config import RadarConfig
 from .spectrum import (
     check_cube,
     doppler_of_bin,

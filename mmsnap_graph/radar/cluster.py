@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 from sklearn.cluster import DBSCAN
 
 from ..errors import ConfigurationError
-from ..recording import Detections
+from ..data.recording import Detections
 
 __all__ = ["ClusterConfig", "torso_centroids", "cluster_labels"]
 

@@ -1,7 +1,7 @@
 """Range-Doppler processing of a raw ADC cube and angle estimation per cell.
 
 The cube of one frame is ``(n_samples, n_loops, n_virtual)`` complex
-(:mod:`mmsnap_graph.radar.config`). The chain (paper section II-A):
+(:mod:`mmsnap_graph.data.radar_config`). The chain (paper section II-A):
 
 1. **Range FFT** over fast time with a window from
    ``scipy.signal.get_window``; bin ``k`` is range ``k * range_resolution_m``
@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from scipy.signal import get_window
 
 from ..errors import ConfigurationError
-from .config import RadarConfig
+from ..data.radar_config import RadarConfig
 
 __all__ = [
     "window",

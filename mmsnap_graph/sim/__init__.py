@@ -6,13 +6,28 @@
 - :mod:`.trajectories`: straight-line and random-walk torso trajectories;
 - :mod:`.body`: the walking human (torso, arms, legs) as point scatterers;
 - :mod:`.cube`: raw ADC cube synthesis (FMCW TDM-MIMO);
-- :mod:`.simulator`: :func:`simulate_recording`, the whole recording.
+- :mod:`.simulator`: :func:`simulate_recording`, the whole recording;
+- :mod:`.scenes`: small calibration scenes (tracks of one target seen by
+  several nodes) for tests and benchmarks.
 """
 
 from .body import HumanBody, body_scatterers
 from .networks import CONFIGURATIONS, COMMON_AREAS, Area, common_area, network_poses
-from .simulator import (LEVELS, CentroidNoise, CubeModel, PointCloudModel, simulate_recording,
-                        simulate_targets)
+from .simulator import (
+    LEVELS,
+    CentroidNoise,
+    CubeModel,
+    PointCloudModel,
+    simulate_recording,
+    simulate_targets,
+)
+from .scenes import (
+    COMMON_AREA_CENTERS,
+    PAPER_CONFIGURATIONS,
+    SyntheticScene,
+    synthetic_scene,
+    target_trajectory,
+)
 from .trajectories import make_trajectory, random_walk, straight_line
 
 __all__ = [
@@ -32,4 +47,9 @@ __all__ = [
     "CubeModel",
     "simulate_recording",
     "simulate_targets",
+    "COMMON_AREA_CENTERS",
+    "PAPER_CONFIGURATIONS",
+    "SyntheticScene",
+    "synthetic_scene",
+    "target_trajectory",
 ]

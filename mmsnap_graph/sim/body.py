@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ValidationError
-from ..validation import as_float_array, check_finite
+from .._validation import as_float_array, check_finite
 
 __all__ = ["PART_NAMES", "TORSO", "ARM", "LEG", "HumanBody", "BodyScatterers",
            "body_scatterers"]

@@ -16,7 +16,7 @@ range-Doppler coupling), the chirp start time within the frame
 ``t_{l,m} = (l n_tx + m) chirp_period_s`` (TDM-MIMO: every transmitter fires
 at its own time, so the Doppler phase differs between transmitters; the
 signal chain corrects it), and antenna positions ``tx_m``, ``rx_q`` in units
-of half a wavelength (:class:`~mmsnap_graph.radar.config.RadarConfig`). The
+of half a wavelength (:class:`~mmsnap_graph.data.radar_config.RadarConfig`). The
 carrier phase of each scatterer is folded into its complex amplitude; the
 sign convention consistent with the Doppler term (phase ``4 pi R(t) /
 lambda`` growing with range) is ``a_k = |a_k| exp(+j 4 pi R_k / lambda)``,
@@ -60,8 +60,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConfigurationError, ValidationError
-from ..radar.config import SPEED_OF_LIGHT_MPS, RadarConfig
-from ..validation import as_float_array, check_finite
+from ..data.radar_config import SPEED_OF_LIGHT_MPS, RadarConfig
+from .._validation import as_float_array, check_finite
 
 __all__ = [
     "REFERENCE_SNR_DB",

@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from factors.models import global_to_local
 
 from ..errors import GeometryError, ValidationError
-from ..validation import as_float_array, check_finite
+from .._validation import as_float_array, check_finite
 
 __all__ = [
     "DEFAULT_FOV_RAD",

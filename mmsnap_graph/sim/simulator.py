@@ -1,8 +1,8 @@
 """Simulated recordings of walking humans seen by a radar network
 (docs/SIMULATOR.md).
 
-:func:`simulate_recording` builds a :class:`~mmsnap_graph.recording.Recording`
-with its :class:`~mmsnap_graph.recording.Truth` (torso states of every target
+:func:`simulate_recording` builds a :class:`~mmsnap_graph.data.recording.Recording`
+with its :class:`~mmsnap_graph.data.recording.Truth` (torso states of every target
 and the true node poses) and any of three levels per node:
 
 - ``"centroids"``: one row per target per frame in view: the torso's
@@ -33,12 +33,18 @@ from numpy.typing import ArrayLike, NDArray
 from factors.models import global_to_local, measurement_model, wrap_angle
 
 from ..errors import ConfigurationError, ValidationError
-from ..radar.config import TABLE_I, RadarConfig
-from ..recording import Detections, NodeData, Recording, Truth
-from ..validation import as_float_array, check_finite
+from ..data.radar_config import TABLE_I, RadarConfig
+from ..data.recording import Detections, NodeData, Recording, Truth
+from .._validation import as_float_array, check_finite
 from .body import BodyScatterers, HumanBody, body_scatterers
-from .networks import (DEFAULT_FOV_RAD, DEFAULT_MAX_RANGE_M, DEFAULT_MIN_RANGE_M,
-                       common_area, in_field_of_view, network_poses)
+from .networks import (
+    DEFAULT_FOV_RAD,
+    DEFAULT_MAX_RANGE_M,
+    DEFAULT_MIN_RANGE_M,
+    common_area,
+    in_field_of_view,
+    network_poses,
+)
 from .trajectories import DEFAULT_N_FRAMES, TRAJECTORY_KINDS, make_trajectory
 
 __all__ = ["LEVELS", "CentroidNoise", "PointCloudModel", "CubeModel", "simulate_recording",

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ValidationError
-from ..validation import as_float_array, check_finite
+from .._validation import as_float_array, check_finite
 from .networks import Area
 
 __all__ = ["DEFAULT_N_FRAMES", "DEFAULT_FRAME_PERIOD_S", "straight_line", "random_walk",

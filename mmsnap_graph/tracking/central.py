@@ -1,7 +1,7 @@
 """Central tracker fed by one-shot estimates (paper Sec. II, "inputs to a
 centralized tracker").
 
-Each frame's fused targets (:class:`mmsnap_graph.sequence.FusedSequence`)
+Each frame's fused targets (:class:`mmsnap_graph.fusion.sequence.FusedSequence`)
 are measurements of the full state ``(x_m, y_m, vx_mps, vy_mps)`` with their
 covariance, in the global frame: a linear Kalman filter with the
 constant-velocity model of design/MATH.md (``F = [[I, T I], [0, I]]``,
@@ -49,8 +49,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
 from ..errors import ConfigurationError, ValidationError
-from ..recording import Tracks
-from ..validation import as_float_array, check_finite
+from ..data.recording import Tracks
+from .._validation import as_float_array, check_finite
 from .ekf import _sym, cv_process_noise, cv_transition
 
 __all__ = [
@@ -338,12 +338,12 @@ class FixedLagTracker:
 
 
 def track_fused(fused, config: CentralConfig | None = None, *, progress: bool = False) -> Tracks:
-    """Run a :class:`CentralTracker` over a :class:`~mmsnap_graph.sequence.FusedSequence`.
+    """Run a :class:`CentralTracker` over a :class:`~mmsnap_graph.fusion.sequence.FusedSequence`.
 
     Successful estimates only; MAP estimates have their prior removed
     (``config.remove_prior``). Every frame from the first to the last fused
     frame is a step (frames without estimates are prediction-only). Returns
-    global-frame :class:`~mmsnap_graph.recording.Tracks` at every frame a
+    global-frame :class:`~mmsnap_graph.data.recording.Tracks` at every frame a
     track is alive.
     """
     cfg = CentralConfig() if config is None else config

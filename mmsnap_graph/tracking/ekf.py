@@ -37,8 +37,8 @@ from scipy.optimize import linear_sum_assignment
 from factors.models import measurement_model, wrap_angle
 
 from ..errors import ConfigurationError, ValidationError
-from ..recording import Detections, Tracks
-from ..validation import as_float_array, check_finite
+from ..data.recording import Detections, Tracks
+from .._validation import as_float_array, check_finite
 
 __all__ = [
     "EkfConfig",

@@ -1,6 +1,6 @@
 """Track-level fusion, the paper's benchmark (design/MATH.md, last section).
 
-Each node's EKF tracks (:class:`~mmsnap_graph.recording.Tracks`, the node's
+Each node's EKF tracks (:class:`~mmsnap_graph.data.recording.Tracks`, the node's
 local frame) are moved into the global frame with the node's calibrated pose:
 ``p = p_i + R(phi_i) p_local``, ``v = R(phi_i) v_local`` and
 ``P = T P_local T^T`` with ``T = blkdiag(R, R)`` (every covariance block
@@ -30,10 +30,10 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
-from ..batch import _chol_soa, _from_soa, _inverse_soa, _solve_soa, _to_soa
+from ..fusion.batch import _chol_soa, _from_soa, _inverse_soa, _solve_soa, _to_soa
 from ..errors import ValidationError
-from ..recording import Tracks
-from ..validation import as_float_array, check_finite
+from ..data.recording import Tracks
+from .._validation import as_float_array, check_finite
 
 __all__ = [
     "transform_tracks",

@@ -26,8 +26,8 @@ from scipy.stats import chi2
 
 from factors.models import detection_to_global
 
-from .errors import ValidationError
-from .validation import as_float_array, check_finite
+from ..errors import ValidationError
+from .._validation import as_float_array, check_finite
 
 __all__ = [
     "FrameAssociation",

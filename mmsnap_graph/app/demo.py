@@ -39,11 +39,17 @@ from numpy.typing import NDArray
 
 from factors.models import local_to_global, measurement_model
 
-from .errors import CalibrationError, ValidationError
-from .evaluation import (PoseError, StateErrors, align_frames, pose_error, pose_mapping_error,
-                         state_errors)
-from .radar.cluster import ClusterConfig
-from .recording import Detections, Recording, Tracks
+from ..errors import CalibrationError, ValidationError
+from .evaluation import (
+    PoseError,
+    StateErrors,
+    align_frames,
+    pose_error,
+    pose_mapping_error,
+    state_errors,
+)
+from ..radar.cluster import ClusterConfig
+from ..data.recording import Detections, Recording, Tracks
 
 __all__ = [
     "CONFIGURATION_NAMES",
@@ -196,16 +202,16 @@ def single_target_track(tracks: Tracks) -> SingleTrack:
 def node_chain(recording: Recording, *, cluster: ClusterConfig | None = None, ekf=None
                ) -> Recording:
     """Point cloud -> torso centroids (DBSCAN) -> local EKF tracks, per node
-    (:func:`mmsnap_graph.radar.pipeline.cluster_node`).
+    (:func:`mmsnap_graph.app.pipeline.cluster_node`).
 
     ekf : default the demo's EKF (:data:`DEMO_EKF_MEASUREMENT_STD`,
     :data:`DEMO_EKF_SIGMA_A_MPS2`).
 
     Nodes without a point cloud keep their centroids (tracked if present).
     """
-    from .radar.chain import ChainConfig
-    from .radar.pipeline import cluster_node, track_node
-    from .tracking.ekf import EkfConfig
+    from ..radar.chain import ChainConfig
+    from .pipeline import cluster_node, track_node
+    from ..tracking.ekf import EkfConfig
 
     chain = ChainConfig() if cluster is None else ChainConfig(cluster=cluster)
     if ekf is None:
@@ -257,7 +263,7 @@ class CalibrationOutcome:
     refined_error : :class:`PoseError` against it. closed_form_mapping_error_m,
     refined_mapping_error_m : RMS displacement of the true walking path when
     S2 sees it with the estimated instead of the true pose
-    (:func:`mmsnap_graph.evaluation.pose_mapping_error`). n_frames : matched
+    (:func:`mmsnap_graph.app.evaluation.pose_mapping_error`). n_frames : matched
     frames; lag_frames : the matched frame lag.
     """
 
@@ -336,7 +342,7 @@ def calibrate_run(recording: Recording, *, configuration: str = "?", trajectory:
     (one per node and frame, the one on the node's track), started from the
     closed form, with the demo's centroid sigmas (:data:`DEMO_EKF_MEASUREMENT_STD`). Raises :class:`CalibrationError` when the closed form fails.
     """
-    from .calibration import LocalTracks, joint_calibration, match_tracks
+    from ..calibration import LocalTracks, joint_calibration, match_tracks
 
     names = recording.node_names
     if len(names) != 2:
@@ -405,7 +411,7 @@ def calibrate_run(recording: Recording, *, configuration: str = "?", trajectory:
 def _global_track(track: SingleTrack, pose: NDArray) -> tuple[NDArray, NDArray]:
     """A local single-target track in the global frame: states (K, 4) and
     covariances (K, 4, 4) (:func:`mmsnap_graph.tracking.track_fusion.transform_tracks`)."""
-    from .tracking.track_fusion import transform_tracks
+    from ..tracking.track_fusion import transform_tracks
 
     if len(track) == 0:
         return np.zeros((0, 4)), np.zeros((0, 4, 4))
@@ -423,7 +429,7 @@ def track_level_fusion(frames: Sequence[NDArray], states: Sequence[NDArray],
     covariances : per node (K_i, 4, 4). Returns ``(frames (K,), states (K, 4))``
     on the frames both nodes have a track.
     """
-    from .tracking.track_fusion import covariance_intersection
+    from ..tracking.track_fusion import covariance_intersection
 
     if len(frames) != 2:
         raise ValidationError(f"track-level fusion here takes two nodes, got {len(frames)}")
@@ -514,7 +520,7 @@ def _fused_measurements(recording: Recording, fused, rows: NDArray) -> NDArray:
 
 
 def _degeneracy_threshold() -> float:
-    from .oneshot import DEGENERACY_THRESHOLD
+    from ..fusion.oneshot import DEGENERACY_THRESHOLD
 
     return float(DEGENERACY_THRESHOLD)
 
@@ -524,7 +530,7 @@ def fuse_run(recording: Recording, calibration: CalibrationOutcome, *, configura
     """One-shot (Bayesian and ML), track-level and central estimates of a
     processed run (:func:`node_chain`) with ``calibration``'s refined pose.
 
-    One-shot: :func:`mmsnap_graph.sequence.fuse_recording` of the torso
+    One-shot: :func:`mmsnap_graph.fusion.sequence.fuse_recording` of the torso
     centroids (MAP with the paper's prior; ML). Track-level fusion: the two
     nodes' stitched EKF tracks in S1's frame, fused by covariance intersection
     (:func:`track_level_fusion`). Central tracker:
@@ -532,8 +538,8 @@ def fuse_run(recording: Recording, calibration: CalibrationOutcome, *, configura
     estimates. All are compared on the frames where both nodes detected the
     target and every estimate exists.
     """
-    from .sequence import fuse_recording
-    from .tracking.central import CentralConfig, track_fused
+    from ..fusion.sequence import fuse_recording
+    from ..tracking.central import CentralConfig, track_fused
 
     names = recording.node_names
     poses = {names[0]: np.zeros(3), names[1]: np.asarray(calibration.refined_pose, dtype=float)}
@@ -645,7 +651,7 @@ def sample_path(data_dir, configuration: str, trajectory: str):
 
 def simulate_run(configuration: str, trajectory: str, *, n_frames: int, seed: int) -> Recording:
     """A simulated run at the point-cloud level (one walking person)."""
-    from .sim import simulate_recording
+    from ..sim import simulate_recording
 
     return simulate_recording(configuration, trajectory, levels=("point_cloud",),
                               n_frames=n_frames, seed=_run_seed(seed, configuration, trajectory))
@@ -658,7 +664,7 @@ def load_run(configuration: str, trajectory: str, *, n_frames: int, seed: int, d
     if data_dir is not None:
         path = sample_path(data_dir, configuration, trajectory)
         if path.is_file():
-            from .io import read_recording
+            from ..io import read_recording
 
             rec = read_recording(path, load_cubes=False)
             if rec.truth is None:
@@ -708,12 +714,12 @@ class CubeStretch:
 def run_cube_stretch(recording: Recording, *, source: str, configuration: str = "?",
                      progress: bool = False) -> CubeStretch:
     """Raw cubes -> FFTs, OS-CFAR -> torso DBSCAN -> EKF on every node
-    (:func:`mmsnap_graph.radar.pipeline.process_recording`), then one-shot
+    (:func:`mmsnap_graph.app.pipeline.process_recording`), then one-shot
     fusion with the true poses; errors against the truth."""
     from factors.models import wrap_angle
 
-    from .radar.pipeline import process_recording
-    from .sequence import fuse_recording
+    from .pipeline import process_recording
+    from ..fusion.sequence import fuse_recording
 
     t0 = time.perf_counter()
     if any(n.cube is None for n in recording.nodes.values()):
@@ -868,7 +874,7 @@ def run_demo(config: DemoConfig | None = None, *, data_dir=None, progress: bool 
     try:
         t0 = time.perf_counter()
         for path in cube_recording_paths:
-            from .io import read_recording
+            from ..io import read_recording
 
             bar.set_postfix_str(f"raw-cube chain: {path}")
             rec = read_recording(path)
@@ -877,7 +883,7 @@ def run_demo(config: DemoConfig | None = None, *, data_dir=None, progress: bool 
                                           configuration=conf))
             bar.update(1)
         if config.cube_frames:
-            from .sim import simulate_recording
+            from ..sim import simulate_recording
 
             bar.set_postfix_str(f"raw cubes: {config.cube_configuration}, {config.cube_frames} frames")
             seed = _run_seed(config.seed, config.cube_configuration, "straight") + 500

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FileFormatError, ValidationError
-from ..recording import NodeData, Recording
+from ..data.recording import NodeData, Recording
 from ..tracking.ekf import EkfConfig, track_centroids
-from .chain import ChainConfig, ChainResult, process_cubes
+from ..radar.chain import ChainConfig, ChainResult, process_cubes
 
 __all__ = ["NodeReport", "process_node", "process_recording", "cluster_node", "track_node",
            "track_recording", "process_file"]
@@ -94,8 +94,8 @@ def cluster_node(
     ekf: EkfConfig | None = None,
 ) -> tuple[NodeData, NodeReport]:
     """Fill a node's centroids (torso DBSCAN) and tracks from its point cloud."""
-    from .cluster import torso_centroids
-    from .config import TABLE_I
+    from ..radar.cluster import torso_centroids
+    from ..data.radar_config import TABLE_I
 
     if node.point_cloud is None:
         raise ValidationError(f"nodes[{node.name}] has no point cloud to cluster")
@@ -199,7 +199,7 @@ def process_file(
         point cloud, else its centroids.
     """
     import shutil
-    from ..atomic import atomic_path
+    from .._atomic import atomic_path
 
     from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
 

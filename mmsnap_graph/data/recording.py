@@ -20,9 +20,9 @@ from typing import Any, Mapping
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import ValidationError
-from .radar.config import RadarConfig
-from .validation import as_float_array, check_finite
+from ..errors import ValidationError
+from .radar_config import RadarConfig
+from .._validation import as_float_array, check_finite
 
 __all__ = ["Detections", "Tracks", "NodeData", "Truth", "Recording"]
 

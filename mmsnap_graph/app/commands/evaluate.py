@@ -3,7 +3,7 @@
 The fused states of its ``/fused`` group (``mmsnap fuse``) and each node's
 tracks against the true states (RMSE of position and velocity, NEES of the
 fused covariances), and the calibrated node poses against the true ones
-(:func:`mmsnap_graph.evaluation.evaluate_recording`). Prints a table, or JSON
+(:func:`mmsnap_graph.app.evaluation.evaluate_recording`). Prints a table, or JSON
 with ``--json`` for scripts.
 """
 
@@ -72,8 +72,8 @@ def run(args: argparse.Namespace) -> int:
     import h5py
 
     from ..evaluation import evaluate_recording
-    from ..io import read_recording
-    from ..sequence import FUSED_GROUP, load_calibration_poses, read_fused
+    from mmsnap_graph.io import read_recording
+    from mmsnap_graph.fusion.sequence import FUSED_GROUP, load_calibration_poses, read_fused
 
     rec = read_recording(args.recording, load_cubes=False)
     with h5py.File(args.recording, "r") as f:

@@ -1,5 +1,5 @@
 """Tables (like the paper's Tables II and III), qualitative checks, figures
-and the Markdown report of the demo (:func:`mmsnap_graph.demo.run_demo`).
+and the Markdown report of the demo (:func:`mmsnap_graph.app.demo.run_demo`).
 
 Tables are built once as headers + rows and rendered as aligned text (the
 terminal) or Markdown (``report.md``). Degrees appear only here.
@@ -137,7 +137,7 @@ def table_iii_truth(result, quantity: str = "position") -> Table:
     ``"velocity"``), with the Bayesian fusion on the closed-form calibration,
     the benchmark itself, the central tracker and the per-node EKFs."""
     if quantity not in ("position", "velocity"):
-        from .errors import ValidationError
+        from ..errors import ValidationError
 
         raise ValidationError(f"quantity={quantity!r} must be 'position' or 'velocity'")
     attr, unit = (("position_rmse_m", "m") if quantity == "position"
@@ -202,7 +202,7 @@ def qualitative_checks(result) -> list[Check]:
     1. configuration B best and C worst for the Bayesian position RMSE;
     2. ML velocity fails in C (RMSE > 3x Bayesian) while ML and Bayesian
        agree elsewhere (ML < 1.5x Bayesian in A and B);
-    3. the refined calibration's path error (:func:`mmsnap_graph.evaluation.pose_mapping_error`
+    3. the refined calibration's path error (:func:`mmsnap_graph.app.evaluation.pose_mapping_error`
        over the true walking path) is at most the closed form's, every run.
     Claims whose configurations were not run are left out.
     """
@@ -272,7 +272,7 @@ def levels_text(result) -> str:
 
 
 def _atomic_text(path: Path, text: str) -> Path:
-    from .atomic import atomic_path
+    from .._atomic import atomic_path
 
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
@@ -298,9 +298,15 @@ def _pick_frame(fusions, prefer: str, worst: bool):
 def write_figures(result, out_dir: str | os.PathLike, *, grid_points_per_axis: int = 15
                   ) -> dict[str, Path]:
     """Write the demo's figures into ``out_dir``; returns name -> path."""
-    from .plots import (plot_calibration_tracks, plot_degeneracy_map, plot_timeseries,
-                        plot_velocity_posteriors, save, velocity_posterior)
-    from .sim.networks import COMMON_AREAS, CONFIGURATIONS
+    from .plots import (
+        plot_calibration_tracks,
+        plot_degeneracy_map,
+        plot_timeseries,
+        plot_velocity_posteriors,
+        save,
+        velocity_posterior,
+    )
+    from ..sim.networks import COMMON_AREAS, CONFIGURATIONS
 
     out = Path(out_dir)
     paths: dict[str, Path] = {}

@@ -36,11 +36,11 @@ _COLORS = {"truth": "0.35", "bayes": "tab:blue", "ml": "tab:red", "tlf": "tab:gr
 
 
 def save(fig: Figure, path: str | os.PathLike, *, dpi: int = 110) -> Path:
-    """Write ``fig`` as PNG, atomically (:func:`mmsnap_graph.atomic.atomic_path`);
+    """Write ``fig`` as PNG, atomically (:func:`mmsnap_graph._atomic.atomic_path`);
     the folder is created when missing."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from .atomic import atomic_path
+    from .._atomic import atomic_path
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -81,7 +81,7 @@ def plot_calibration_tracks(calibrations: Mapping[tuple[str, str], object],
     """Each calibration run: S1's track, S2's track mapped into S1's frame with
     the closed-form pose and with the refined pose, and the truth (paper's
     "tracks overlaid after calibration"). ``calibrations`` maps
-    ``(configuration, trajectory)`` to :class:`mmsnap_graph.demo.CalibrationOutcome`.
+    ``(configuration, trajectory)`` to :class:`mmsnap_graph.app.demo.CalibrationOutcome`.
     """
     nr, nc = len(trajectories), len(configurations)
     fig = Figure(figsize=(4.2 * nc, 4.0 * nr), layout="constrained")
@@ -123,7 +123,7 @@ def plot_calibration_tracks(calibrations: Mapping[tuple[str, str], object],
 def plot_timeseries(fusion, frame_period_s: float = 0.15, *, max_frames: int | None = None
                     ) -> Figure:
     """x, y, vx, vy over time of one fused run
-    (:class:`mmsnap_graph.demo.FusionOutcome`): one-shot Bayesian and ML, the
+    (:class:`mmsnap_graph.app.demo.FusionOutcome`): one-shot Bayesian and ML, the
     two nodes' EKF tracks (global frame), the track-level fusion and the truth.
     Velocity axes are limited to the truth's range +-2 m/s: ML excursions in a
     degenerate geometry leave the plot (their RMSE is in the tables)."""
@@ -166,15 +166,15 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
                        n_plot: int = 161, noise=None, prior=None) -> dict:
     """One frame's velocity posterior, for :func:`plot_velocity_posteriors`.
 
-    MAP with the grid covariance (:func:`mmsnap_graph.oneshot.fuse_frame`,
+    MAP with the grid covariance (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`,
     ``covariance="both"``), ML with its Laplace covariance, and the
     negative log posterior and log likelihood on an ``n_plot`` x ``n_plot``
     grid of ``(vx, vy)`` at the MAP position (a conditional slice).
     Returns a dict of arrays (keys: ``map``, ``ml``, ``vx``, ``vy``,
     ``neg_log_posterior``, ``neg_log_likelihood``, ``truth``, ``degeneracy``).
     """
-    from .covariance import neg_log_posterior
-    from .oneshot import GaussianPrior, MeasurementNoise, fuse_frame
+    from ..fusion.grid import neg_log_posterior
+    from ..fusion.oneshot import GaussianPrior, MeasurementNoise, fuse_frame
 
     noise = MeasurementNoise() if noise is None else noise
     prior = GaussianPrior() if prior is None else prior
@@ -249,14 +249,14 @@ def degeneracy_grid(node_poses: Mapping[str, ArrayLike], *, step_m: float = 0.1,
                     extent_m: tuple[float, float, float, float] | None = None,
                     **fov_limits) -> tuple[NDArray, NDArray, NDArray]:
     """The velocity-degeneracy indicator (condition number of the lines of
-    sight's velocity information, :func:`mmsnap_graph.batch.velocity_degeneracy`)
+    sight's velocity information, :func:`mmsnap_graph.fusion.batch.velocity_degeneracy`)
     on a grid over the nodes' common field of view.
 
     Returns ``x (nx,)``, ``y (ny,)`` and ``cond (ny, nx)`` (NaN outside the
     common field of view, :func:`mmsnap_graph.sim.networks.in_common_field_of_view`).
     """
-    from .batch import velocity_degeneracy
-    from .sim.networks import in_common_field_of_view
+    from ..fusion.batch import velocity_degeneracy
+    from ..sim.networks import in_common_field_of_view
 
     poses = {k: np.asarray(v, dtype=float) for k, v in node_poses.items()}
     xy = np.stack([p[:2] for p in poses.values()])
@@ -283,8 +283,8 @@ def plot_degeneracy_map(networks: Mapping[str, Mapping[str, ArrayLike]], *,
     """log10 of the degeneracy indicator over each network's common field of
     view, with the nodes, the walking area and optionally a trajectory
     ``(K, >=2)`` per network; the contour marks ``threshold`` (default
-    :data:`mmsnap_graph.oneshot.DEGENERACY_THRESHOLD`)."""
-    from .oneshot import DEGENERACY_THRESHOLD
+    :data:`mmsnap_graph.fusion.oneshot.DEGENERACY_THRESHOLD`)."""
+    from ..fusion.oneshot import DEGENERACY_THRESHOLD
 
     thr = DEGENERACY_THRESHOLD if threshold is None else float(threshold)
     fig = Figure(figsize=(4.6 * len(networks), 4.6), layout="constrained")

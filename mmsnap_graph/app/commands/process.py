@@ -7,9 +7,9 @@ import argparse
 import dataclasses
 import sys
 
-from ..radar.cfar import CfarConfig
-from ..radar.chain import ChainConfig
-from ..tracking.ekf import EkfConfig
+from mmsnap_graph.radar.cfar import CfarConfig
+from mmsnap_graph.radar.chain import ChainConfig
+from mmsnap_graph.tracking.ekf import EkfConfig
 
 
 def register(subparsers) -> None:
@@ -33,7 +33,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..radar.pipeline import process_file
+    from ..pipeline import process_file
 
     chain = ChainConfig(cfar=dataclasses.replace(CfarConfig(), pfa=args.pfa))
     ekf = EkfConfig(sigma_a_mps2=args.sigma_a)

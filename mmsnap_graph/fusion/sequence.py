@@ -1,15 +1,15 @@
 """One-shot fusion of a whole recording (paper Sec. III-B, frame after frame).
 
 :func:`fuse_recording` takes every frame of a recording, groups the nodes'
-centroids into targets (:mod:`mmsnap_graph.association`), and fuses each group
+centroids into targets (:mod:`mmsnap_graph.fusion.association`), and fuses each group
 with the calibrated node poses: MAP (the paper's Bayesian estimate) or ML,
 with the Laplace covariance or the paper's grid covariance. A frame where only
 some nodes see a target is fused with the nodes that do; a frame that cannot
 be fused is flagged (``success`` False, a status and a message), never raised.
 
 Two solvers give the same answers (``tests/test_fuse_agreement.py``):
-``"batch"`` (:func:`mmsnap_graph.batch.fuse_batch`, vectorized over frames)
-and ``"gtsam"`` (:func:`mmsnap_graph.oneshot.fuse_frame`, one factor graph per
+``"batch"`` (:func:`mmsnap_graph.fusion.batch.fuse_batch`, vectorized over frames)
+and ``"gtsam"`` (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`, one factor graph per
 frame).
 
 The result can be stored in the recording's HDF5 file as a ``/fused`` group
@@ -33,10 +33,10 @@ from factors.models import detection_to_global
 
 from .association import associate_frame, detection_position_covariance, gate_threshold
 from .batch import STATUS_MESSAGES, fuse_batch
-from .atomic import atomic_path
-from .errors import CalibrationError, FileFormatError, MmsnapError, ValidationError
-from .recording import Recording
-from .validation import as_float_array, check_finite
+from .._atomic import atomic_path
+from ..errors import CalibrationError, FileFormatError, MmsnapError, ValidationError
+from ..data.recording import Recording
+from .._validation import as_float_array, check_finite
 
 __all__ = [
     "FUSED_GROUP",
@@ -231,13 +231,13 @@ def group_detections(
     source: Literal["centroids", "point_cloud"] = "centroids",
 ) -> _Groups:
     """Group every frame's detections into targets (see
-    :mod:`mmsnap_graph.association`). Returns arrays of K groups sorted by
+    :mod:`mmsnap_graph.fusion.association`). Returns arrays of K groups sorted by
     frame then target: ``frame, target, label, detection_index (K, N),
     measurements (K, N, 3)``.
 
     Frames where every node has at most one detection and all of them fall in
     one gate are grouped in a vectorized pass; the others go through
-    :func:`~mmsnap_graph.association.associate_frame` one by one (identical
+    :func:`~mmsnap_graph.fusion.association.associate_frame` one by one (identical
     results).
     """
     poses = np.asarray(node_poses, dtype=float)
@@ -369,13 +369,13 @@ def fuse_recording(
         stored in the recording.
     mode : ``"map"`` (Bayesian, with ``prior``) or ``"ml"``.
     covariance : ``"laplace"`` or ``"grid"`` (the paper's numerical posterior
-        covariance, :func:`mmsnap_graph.covariance.grid_posterior`, laid out
+        covariance, :func:`mmsnap_graph.fusion.grid.grid_posterior`, laid out
         along the Laplace covariance; slow: ``grid_points_per_axis^4`` points
         per frame).
     solver : ``"batch"`` (vectorized) or ``"gtsam"`` (per-frame factor graphs).
     noise : MeasurementNoise, default the paper's. prior : GaussianPrior for
         MAP, default the paper's.
-    gate_probability : association gate (see :mod:`mmsnap_graph.association`).
+    gate_probability : association gate (see :mod:`mmsnap_graph.fusion.association`).
     source : which detections to fuse.
     block_rows : rows per batch call (the progress bar advances per block).
     progress : show a tqdm bar (default: when stderr is a terminal).
@@ -439,7 +439,7 @@ def fuse_recording(
                 bar.update(1)
     chosen = lap.copy()
     if covariance == "grid":
-        from .covariance import grid_posterior
+        from .grid import grid_posterior
 
         rows = np.flatnonzero(status == 0)
         with _progress(rows.size, "grid covariance", progress) as bar:
@@ -549,7 +549,7 @@ def write_fused(path: str | os.PathLike, fused: FusedSequence, *,
 
     Atomic: the file is copied to a temporary file in the target's folder,
     the group written there, and the copy moved over the target
-    (:func:`mmsnap_graph.atomic.atomic_path`). Returns the path written.
+    (:func:`mmsnap_graph._atomic.atomic_path`). Returns the path written.
     """
     import h5py
 

@@ -6,7 +6,7 @@ Configurations A, B, C x straight / random trajectories, the paper's protocol
 fusion and the central tracker; a short stretch of raw ADC cubes through the
 whole chain. Prints tables shaped like the paper's Tables II and III and
 writes figures, ``report.md`` and ``results.json`` into ``--out``
-(:mod:`mmsnap_graph.demo`, :mod:`mmsnap_graph.report`).
+(:mod:`mmsnap_graph.app.demo`, :mod:`mmsnap_graph.app.report`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from ..errors import ValidationError
+from mmsnap_graph.errors import ValidationError
 
 
 def _list(choices):
@@ -64,8 +64,17 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..demo import DemoConfig, find_sample_data, run_demo
-    from ..report import (qualitative_checks, table_cube, table_ii, table_iii_track_fusion,
-                          table_iii_truth, table_poses, write_figures, write_json, write_report)
+    from ..report import (
+        qualitative_checks,
+        table_cube,
+        table_ii,
+        table_iii_track_fusion,
+        table_iii_truth,
+        table_poses,
+        write_figures,
+        write_json,
+        write_report,
+    )
 
     t0 = time.perf_counter()
     if args.frames < 20:

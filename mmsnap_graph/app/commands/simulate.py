@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ValidationError
+from mmsnap_graph.errors import ValidationError
 
 
 def _node(text: str) -> tuple[str, list[float]]:
@@ -56,8 +56,8 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io import write_recording
-    from ..sim import simulate_recording
+    from mmsnap_graph.io import write_recording
+    from mmsnap_graph.sim import simulate_recording
 
     levels = tuple(v.strip() for v in args.levels.split(",") if v.strip())
     network = dict(args.node) if args.node else args.configuration

@@ -14,8 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.models import wrap_angle
 
-from .errors import ValidationError
-from .validation import as_float_array
+from ..errors import ValidationError
+from .._validation import as_float_array
 
 __all__ = [
     "StateErrors",
@@ -220,7 +220,7 @@ def _nees_summary(err: NDArray, cov: NDArray) -> dict:
 
 
 def _degeneracy_threshold() -> float:
-    from .oneshot import DEGENERACY_THRESHOLD
+    from ..fusion.oneshot import DEGENERACY_THRESHOLD
 
     return float(DEGENERACY_THRESHOLD)
 
@@ -228,8 +228,8 @@ def _degeneracy_threshold() -> float:
 def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
     """Metrics of a recording with truth, as a JSON-ready dict.
 
-    recording : :class:`mmsnap_graph.recording.Recording` with ``truth``.
-    fused : :class:`mmsnap_graph.sequence.FusedSequence` (the ``/fused``
+    recording : :class:`mmsnap_graph.data.recording.Recording` with ``truth``.
+    fused : :class:`mmsnap_graph.fusion.sequence.FusedSequence` (the ``/fused``
         group) or None. Each successful fused row is compared with the true
         state of the nearest target in its frame (:func:`truth_reference`):
         position and velocity RMSE (all rows, and the rows every node

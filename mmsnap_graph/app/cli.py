@@ -1,5 +1,5 @@
 """The ``mmsnap`` command line: one sub-command per module in
-:mod:`mmsnap_graph.commands`.
+:mod:`mmsnap_graph.app.commands`.
 
 Each command module defines ``register(subparsers)`` that adds its parser and
 sets ``func`` to a function ``run(args) -> int``. Degrees appear only here and
@@ -12,9 +12,9 @@ import argparse
 import importlib
 import sys
 
-from .errors import MmsnapError
+from ..errors import MmsnapError
 
-#: Sub-command modules under mmsnap_graph.commands, in help order.
+#: Sub-command modules under mmsnap_graph.app.commands, in help order.
 COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate"]
 
 
@@ -26,7 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMANDS:
-        importlib.import_module(f"mmsnap_graph.commands.{name}").register(sub)
+        importlib.import_module(f"mmsnap_graph.app.commands.{name}").register(sub)
     return parser
 
 

@@ -16,7 +16,7 @@ equivalent to one ``node_measurement_factor`` per node but half the Python
 calls) and a ``PriorFactorVector``; GTSAM's Levenberg-Marquardt solves it from the
 initial values of design/MATH.md and ``gtsam.Marginals`` gives the Laplace
 covariance. The paper's grid posterior covariance is an option
-(:mod:`mmsnap_graph.covariance`).
+(:mod:`mmsnap_graph.fusion.grid`).
 
 A frame that cannot be solved (an indeterminate system, no convergence, a GTSAM
 exception) gives ``FusionResult.success = False`` with a message; only invalid
@@ -27,7 +27,7 @@ per frame for validation, initial values, LM (median 4 iterations) and
 ``Marginals`` on a loaded 2-core machine, ~4.5x faster than
 ``scipy.optimize.least_squares`` with the same model. Most of it is GTSAM
 calling the Python error function (~12 calls per frame); for thousands of
-frames at once see :mod:`mmsnap_graph.batch`.
+frames at once see :mod:`mmsnap_graph.fusion.batch`.
 
 Two properties of the problem a user meets (tests/test_oneshot.py):
 
@@ -62,8 +62,8 @@ from factors.models import (
     wrap_angle_scalar,
 )
 
-from .errors import GeometryError, ValidationError
-from .validation import as_float_array, check_finite
+from ..errors import GeometryError, ValidationError
+from .._validation import as_float_array, check_finite
 
 __all__ = [
     "STATE_KEY",
@@ -197,7 +197,7 @@ class FusionResult:
         See :data:`DEGENERACY_THRESHOLD`.
     grid_covariance : (4, 4) float or None
         The paper's numerical posterior covariance over a 4D grid around
-        ``state`` (:func:`mmsnap_graph.covariance.grid_posterior`), when
+        ``state`` (:func:`mmsnap_graph.fusion.grid.grid_posterior`), when
         ``covariance`` was ``"grid"`` or ``"both"``; None otherwise.
     initial_state : (4,) float
         Where the optimizer started.
@@ -774,7 +774,7 @@ def fuse_frame(
     max_iterations : int
         Levenberg-Marquardt iteration limit; reaching it is a failure.
     grid_points_per_axis, grid_half_width_sigmas :
-        Grid layout, see :func:`mmsnap_graph.covariance.grid_posterior`.
+        Grid layout, see :func:`mmsnap_graph.fusion.grid.grid_posterior`.
 
     Returns
     -------
@@ -890,7 +890,7 @@ def fuse_frame(
     grid_cov = None
     if covariance != "laplace":
         if success:
-            from .covariance import grid_posterior
+            from .grid import grid_posterior
 
             grid = grid_posterior(
                 state,

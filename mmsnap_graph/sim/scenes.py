@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from factors.models import detection_to_local, global_to_local, measurement_model, wrap_angle
 
-from ..sim.networks import COMMON_AREAS, CONFIGURATIONS
+from .networks import COMMON_AREAS, CONFIGURATIONS
 
 __all__ = ["PAPER_CONFIGURATIONS", "COMMON_AREA_CENTERS", "SyntheticScene",
            "target_trajectory", "synthetic_scene"]

@@ -25,8 +25,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.models import measurement_model
 
-from .errors import GeometryError, ValidationError
-from .oneshot import GaussianPrior, MeasurementNoise, _check_observed, _check_poses, _frozen_vector
+from ..errors import GeometryError, ValidationError
+from .oneshot import (
+    GaussianPrior,
+    MeasurementNoise,
+    _check_observed,
+    _check_poses,
+    _frozen_vector,
+)
 
 __all__ = ["fisher_information", "cramer_rao_bound", "bayesian_bound"]
 

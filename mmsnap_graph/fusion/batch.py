@@ -1,6 +1,6 @@
 """Vectorized one-shot fusion of many frames at once (design/MATH.md, "One-shot fusion").
 
-The per-frame GTSAM solve (:func:`mmsnap_graph.oneshot.fuse_frame`) costs a
+The per-frame GTSAM solve (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`) costs a
 factor graph, an optimizer and a ``Marginals`` object per frame. This module
 solves the same problem, the same negative log posterior (paper eq. 18)
 
@@ -13,7 +13,7 @@ solves the same problem, the same negative log posterior (paper eq. 18)
 Gauss-Newton (Levenberg-Marquardt) iteration written in numpy over the frame
 axis. It calls the same measurement model as the GTSAM factors
 (:func:`factors.models.measurement_model`), starts from the same initial values
-(:func:`mmsnap_graph.oneshot.initial_state`'s vectorized core) and returns the
+(:func:`mmsnap_graph.fusion.oneshot.initial_state`'s vectorized core) and returns the
 Laplace covariance, the inverse of the Gauss-Newton information matrix at the
 solution (what ``gtsam.Marginals`` computes for this one-variable graph),
 through a 4x4 Cholesky factorization vectorized over frames.
@@ -43,8 +43,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.models import measurement_model, wrap_angle
 
-from .errors import ValidationError
-from .validation import as_float_array, check_finite
+from ..errors import ValidationError
+from .._validation import as_float_array, check_finite
 
 __all__ = [
     "STATUS_MESSAGES",
@@ -372,13 +372,13 @@ def fuse_batch(
         (any finite value where not observed).
     observed : (F, N) bool, optional
         Which nodes see the target at each frame (default: all).
-    noise : mmsnap_graph.oneshot.MeasurementNoise, optional
+    noise : mmsnap_graph.fusion.oneshot.MeasurementNoise, optional
         Measurement sigmas (default: the paper's).
-    prior : mmsnap_graph.oneshot.GaussianPrior or None
+    prior : mmsnap_graph.fusion.oneshot.GaussianPrior or None
         ``"default"`` uses ``GaussianPrior()`` (MAP, the paper's prior);
         ``None`` is maximum likelihood.
     initial_state : (F, 4) float, optional
-        Starting points; default :func:`mmsnap_graph.oneshot.initial_states`
+        Starting points; default :func:`mmsnap_graph.fusion.oneshot.initial_states`
         (the vectorized core of ``oneshot.initial_state``).
     max_iterations : int
         Levenberg-Marquardt steps per frame, rejected ones included (GTSAM's
@@ -508,7 +508,7 @@ def fuse_batch(
 
 def velocity_degeneracy(state: ArrayLike, node_poses: ArrayLike, observed: ArrayLike) -> NDArray:
     """Condition number of ``sum_i u_i u_i^T`` over the observed nodes' lines
-    of sight, per frame (the vectorized :func:`mmsnap_graph.oneshot.velocity_degeneracy`;
+    of sight, per frame (the vectorized :func:`mmsnap_graph.fusion.oneshot.velocity_degeneracy`;
     see ``FusionResult.degeneracy``). ``inf`` when singular (parallel lines of
     sight, a single node). No validation.
 

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.models import predict_measurements, residual
 
-from .errors import ValidationError
+from ..errors import ValidationError
 
 __all__ = ["GridPosterior", "grid_posterior", "neg_log_posterior"]
 
@@ -147,10 +147,10 @@ def grid_posterior(
     state : (4,) float
         Grid centre (the MAP or ML estimate).
     node_poses, measurements : (N, 3) float
-        As in :func:`mmsnap_graph.oneshot.fuse_frame` (already validated).
+        As in :func:`mmsnap_graph.fusion.oneshot.fuse_frame` (already validated).
     observed : (N,) bool or None
-    noise : :class:`~mmsnap_graph.oneshot.MeasurementNoise` or None (the paper's)
-    prior : :class:`~mmsnap_graph.oneshot.GaussianPrior` or None (ML)
+    noise : :class:`~mmsnap_graph.fusion.oneshot.MeasurementNoise` or None (the paper's)
+    prior : :class:`~mmsnap_graph.fusion.oneshot.GaussianPrior` or None (ML)
     scale_covariance : (4, 4) float, positive definite
         The grid's shape, normally the Laplace covariance.
     points_per_axis : int, odd >= 5

@@ -80,13 +80,9 @@ def format_table(cal) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..calibration import (
-        calibrate_recording,
-        write_calibration,
-        write_calibration_json,
-    )
-    from ..errors import ValidationError
-    from ..io import read_recording
+    from mmsnap_graph.calibration import calibrate_recording, write_calibration, write_calibration_json
+    from mmsnap_graph.errors import ValidationError
+    from mmsnap_graph.io import read_recording
 
     if args.max_lag < 0:
         raise ValidationError(f"--max-lag must be >= 0, got {args.max_lag}")

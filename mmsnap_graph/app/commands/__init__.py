@@ -1,0 +1,1 @@
+"""Sub-commands of the ``mmsnap`` command line (see :mod:`mmsnap_graph.app.cli`)."""

@@ -1,1 +1,0 @@
-"""Sub-commands of the ``mmsnap`` command line (see :mod:`mmsnap_graph.cli`)."""

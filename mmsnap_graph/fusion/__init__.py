@@ -1,0 +1,11 @@
+"""One-shot fusion: each frame's range, spatial-frequency and Doppler
+measurements of a target from several nodes -> its state and covariance.
+
+- :mod:`.oneshot`: the per-frame GTSAM graph, solved by Levenberg-Marquardt,
+  with the covariance from GTSAM's Marginals;
+- :mod:`.batch`: the same problem vectorized over many frames;
+- :mod:`.grid`: the paper's grid posterior (the check for degenerate geometry);
+- :mod:`.bounds`: Cramer-Rao and Bayesian bounds;
+- :mod:`.association`: which centroids of different nodes are one target;
+- :mod:`.sequence`: a whole recording, frame after frame.
+"""
