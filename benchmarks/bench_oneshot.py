@@ -4,7 +4,7 @@ Two nodes in configuration B, noisy measurements with the paper's sigmas
 (seeded). Each method solves the MAP problem of paper eq. (18) and returns a
 4x4 covariance:
 
-- ``fuse_frame``: validation, MATH.md initial values, GTSAM Levenberg-Marquardt
+- ``fuse_frame``: validation, the initial values of docs/CONVENTIONS.md, GTSAM Levenberg-Marquardt
   and ``gtsam.Marginals`` (the whole public call);
 - scipy: ``scipy.optimize.least_squares`` (method "lm", analytic Jacobian from
   :func:`factors.models.measurement_model`, same initial values and tight

@@ -1,4 +1,4 @@
-"""Thin GTSAM adapters around :mod:`factors.models` (design/STYLE.md, habit 1).
+"""Thin GTSAM adapters around :mod:`factors.models`.
 
 Each factor is a ``gtsam.CustomFactor`` whose error function calls the model
 and returns the *unwhitened* error ``h(x) - z`` (spatial frequency wrapped);
@@ -162,7 +162,7 @@ def _pose_error(pose_key, state_key, z, this, values, jacobians):
     err = np.array((r - z[0], _wrap_scalar(w - z[1]), v - z[2]))
     if jacobians is not None:
         # d h / d pose = [d h / d p_i @ R(phi), d h / d phi] with
-        # d h / d p_i = -d h / d p (design/MATH.md); only Omega depends on
+        # d h / d p_i = -d h / d p (docs/CONVENTIONS.md); only Omega depends on
         # phi: pi <d, (-sin phi, cos phi)> / r.
         ux, uy = jac[0], jac[1]
         j_pose = []
@@ -215,7 +215,7 @@ def constant_velocity_factor(
     """Constant-velocity motion factor between consecutive target states.
 
     The error is ``x_b - F x_a`` with ``F = [[I, T I], [0, I]]``. The discrete
-    white-acceleration form of design/MATH.md,
+    white-acceleration form of docs/CONVENTIONS.md,
     ``sigma_a^2 [[T^4/4, T^3/2], [T^3/2, T^2]]`` per axis, is rank one and
     cannot whiten a factor, so the factor uses the continuous white-noise
     acceleration form ``q [[T^3/3, T^2/2], [T^2/2, T]]`` with

@@ -1,9 +1,9 @@
-"""Radar measurement models as pure, vectorized numpy functions (design/MATH.md).
+"""Radar measurement models as pure, vectorized numpy functions (docs/CONVENTIONS.md).
 
 Every estimator in the project (GTSAM factors, the batch solver, the bounds,
 the EKF) and the simulator call these functions: one model, one place.
 
-Conventions (design/MATH.md, "Frames and poses"):
+Conventions (docs/CONVENTIONS.md, "Frames and poses"):
 
 - a node pose is ``(x_m, y_m, phi_rad)``; ``phi`` is the direction of the array
   axis ``mu = (cos phi, sin phi)``; the node's local frame has its x-axis along
@@ -177,7 +177,7 @@ def measurement_model_pose(
     ``d h / d state (..., 3, 4)``.
 
     The pose Jacobian is ``[d h / d p_i @ R(phi_i), d h / d phi_i]``
-    (design/MATH.md): GTSAM perturbs a Pose2 in its own frame.
+    (docs/CONVENTIONS.md): GTSAM perturbs a Pose2 in its own frame.
     """
     node_pose = np.asarray(node_pose, dtype=float)
     state = np.asarray(state, dtype=float)
@@ -252,7 +252,7 @@ def residual(predicted: ArrayLike, measured: ArrayLike) -> NDArray:
 
 
 def detection_to_local(range_m: ArrayLike, omega_rad: ArrayLike) -> NDArray:
-    """A detection in the node's local frame (design/MATH.md, initial values).
+    """A detection in the node's local frame (docs/CONVENTIONS.md, initial values).
 
     ``(u, v) = (R Omega / pi, R sqrt(1 - (Omega / pi)^2))``; ``|Omega| > pi``
     is clipped to the array's end-fire direction. Returns ``(..., 2)`` metres.
@@ -287,5 +287,5 @@ def global_to_local(p_global: ArrayLike, node_pose: ArrayLike) -> NDArray:
 def detection_to_global(
     range_m: ArrayLike, omega_rad: ArrayLike, node_pose: ArrayLike
 ) -> NDArray:
-    """A detection mapped to the global frame (MATH.md's corrected eq. 19)."""
+    """A detection mapped to the global frame (docs/CONVENTIONS.md, the corrected eq. 19)."""
     return local_to_global(detection_to_local(range_m, omega_rad), node_pose)

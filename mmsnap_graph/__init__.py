@@ -1,7 +1,7 @@
 """mmsnap_graph: self-calibration and Bayesian one-shot fusion for networks of
 mmWave radars, on GTSAM factor graphs.
 
-Layers (imports flow downward only; design/ARCHITECTURE.md):
+Layers (imports flow downward only; docs/CONVENTIONS.md, "Layers"):
 
 - :mod:`factors` -- measurement models and GTSAM factors;
 - :mod:`mmsnap_graph` -- estimation (one-shot fusion, calibration, tracking);

@@ -1,4 +1,4 @@
-"""Input checks for the public boundary (design/STYLE.md, habit 5).
+"""Input checks for the public boundary.
 
 Each helper takes the argument's *name* so the error names the field and the
 offending value.
@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import ValidationError
 
-__all__ = ["as_float_array", "check_finite", "check_positive", "check_shape"]
+__all__ = ["as_float_array", "check_finite", "check_positive", "check_shape", "frozen_vector"]
 
 
 def as_float_array(value: ArrayLike, name: str) -> NDArray:
@@ -52,4 +52,14 @@ def check_positive(value: ArrayLike, name: str, *, strict: bool = True) -> NDArr
         got = np.atleast_1d(arr)[idx]
         rel = "> 0" if strict else ">= 0"
         raise ValidationError(f"{name} must be {rel}, got {got!r}")
+    return arr
+
+
+def frozen_vector(value: ArrayLike, name: str, length: int) -> NDArray:
+    """A read-only copy of a finite float vector of shape ``(length,)``."""
+    arr = check_finite(as_float_array(value, name), name)
+    if arr.shape != (length,):
+        raise ValidationError(f"{name} must have shape ({length},), got {arr.shape}")
+    arr = np.array(arr, dtype=float)
+    arr.setflags(write=False)
     return arr

@@ -1,4 +1,4 @@
-"""The project's one exception hierarchy (design/STYLE.md, habit 5).
+"""The project's one exception hierarchy.
 
 Every error also subclasses the matching built-in, so ``except ValueError``
 keeps working for callers that do not know this package.

@@ -79,7 +79,7 @@ def test_cv_information_matches_the_gtsam_factor():
 @pytest.mark.parametrize("config", ["A", "B", "C"])
 def test_joint_beats_the_closed_form_under_paper_noise(config):
     """Paper noise sigmas (range 3.5 cm, omega pi/4, Doppler 0.18 m/s; the
-    radar's resolutions, design/MATH.md) -- cross range is ~35x worse than
+    radar's resolutions, docs/CONVENTIONS.md) -- cross range is ~35x worse than
     range at 5 m. K = 300 frames, 6 seeded trials per configuration, motion
     factors on. Claim: registration error at least 30% below the closed
     form's (``benchmarks/bench_calibration.py --quick --accuracy``, the same

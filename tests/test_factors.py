@@ -1,7 +1,7 @@
 """Measurement models and GTSAM factors: every Jacobian against
 ``gtsam.utils.numerical_derivative`` (through ``retract`` for Pose2), every
 factor's ``linearize()`` against a numerically linearized factor, the omega
-wrap near +-pi and the frame round trips (design/MATH.md)."""
+wrap near +-pi and the frame round trips (docs/CONVENTIONS.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Self-calibration of a radar network (design/MATH.md, "Pairwise self-calibration").
+"""Self-calibration of a radar network (docs/CONVENTIONS.md, "Pairwise self-calibration").
 
 - :func:`closed_form_calibration`: pairwise closed form (paper eqs. 11-14)
   with a pose covariance;

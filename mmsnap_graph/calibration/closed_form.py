@@ -1,4 +1,4 @@
-"""Pairwise self-calibration in closed form (paper eqs. 11-14; design/MATH.md,
+"""Pairwise self-calibration in closed form (paper eqs. 11-14; docs/CONVENTIONS.md,
 "Pairwise self-calibration").
 
 Two nodes see one target at the same frames ``k``; ``z_1[k]`` and ``z_2[k]``

@@ -1,5 +1,5 @@
 """Joint calibration graph: node poses and the target's states from the raw
-measurements (design/MATH.md, "Pairwise self-calibration", last paragraph).
+measurements (docs/CONVENTIONS.md, "Pairwise self-calibration", last paragraph).
 
 Variables: every node's ``Pose2`` but the reference's (S1, fixed at the
 origin), and the target's state ``(x, y, vx, vy)`` at every frame that at
@@ -67,7 +67,7 @@ from .poses import pose_array, to_pose2
 
 __all__ = ["PAPER_SIGMAS", "JointCalibration", "joint_calibration", "trimmed_closed_form"]
 
-#: Paper measurement noise (its resolutions; design/MATH.md): range_m,
+#: Paper measurement noise (its resolutions; docs/CONVENTIONS.md): range_m,
 #: omega_rad, doppler_mps.
 PAPER_SIGMAS = (0.035, np.pi / 4, 0.1807)
 
@@ -173,7 +173,7 @@ def _detections_table(dets: Mapping[str, Detections]):
 
 
 def _initial_states(meas_f, poses, names, sigmas, prior_v_sigma, gn_steps=3):
-    """Average of each node's detection mapped to global (MATH.md, initial
+    """Average of each node's detection mapped to global (docs/CONVENTIONS.md, initial
     values) and the velocity from the Dopplers by regularized least squares."""
     sigma_range, sigma_omega, sigma_doppler = sigmas
     f = next(iter(meas_f.values())).shape[0]

@@ -7,7 +7,7 @@ layer produces or consumes these values. They are frozen; use
 
 Frames are integers counted from 0 at the recording's start; time is
 ``frame * frame_period_s``. Node-level quantities are in the node's local
-frame (design/MATH.md); truth is in the global frame (node S1's frame unless
+frame (docs/CONVENTIONS.md); truth is in the global frame (node S1's frame unless
 the recording says otherwise).
 """
 

@@ -3,7 +3,7 @@
 With several targets in view each node reports several centroids per frame.
 Before one-shot fusion the centroids are grouped across nodes: every
 detection is mapped to the global frame with the calibrated node pose
-(:func:`factors.models.detection_to_global`, MATH.md's corrected eq. 19), its
+(:func:`factors.models.detection_to_global`, docs/CONVENTIONS.md, the corrected eq. 19), its
 2x2 position covariance is propagated from the measurement noise (range and
 spatial frequency), and the nodes are taken in order: the first node's
 detections seed the groups, each further node's detections are assigned to

@@ -1,4 +1,4 @@
-"""Vectorized one-shot fusion of many frames at once (design/MATH.md, "One-shot fusion").
+"""Vectorized one-shot fusion of many frames at once (docs/CONVENTIONS.md, "One-shot fusion").
 
 The per-frame GTSAM solve (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`) costs a
 factor graph, an optimizer and a ``Marginals`` object per frame. This module
@@ -44,6 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 from factors.models import measurement_model, wrap_angle
 
 from ..errors import ValidationError
+from .._linalg import chol_soa, cholesky4, cholesky4_inverse, cholesky4_solve, from_soa, inverse_soa, solve_soa
 from .._validation import as_float_array, check_finite
 
 __all__ = [
@@ -66,10 +67,6 @@ STATUS_MESSAGES = {
 }
 _CONVERGED, _MAX_ITER, _SINGULAR, _NONFINITE, _EMPTY = range(5)
 
-# Relative pivot below which a 4x4 matrix counts as singular: about the
-# precision of a Cholesky factorization in double precision (the same kind of
-# test as gtsam's "indeterminant system").
-_PIVOT_RTOL = 1e-12
 
 # Steps a frame reuses the finite-difference curvature of its Newton steps.
 _CURVATURE_REFRESH = 3
@@ -80,133 +77,6 @@ _STAGE1_MIN_LIVE_FRACTION = 16
 
 # Iterations of the chunked first stage (most frames converge within them).
 _STAGE1_ITERATIONS = 8
-
-
-# ----------------------------------------------------------------------------
-# Batched 4x4 linear algebra, written entry by entry over the leading axis so
-# that numpy loops over frames in C (np.linalg on stacks of 4x4 matrices pays a
-# per-matrix overhead that dominates at these sizes).
-# ----------------------------------------------------------------------------
-
-
-def _to_soa(a: NDArray) -> NDArray:
-    """(..., n, n) -> contiguous (n, n, ...): each entry a contiguous array."""
-    return np.ascontiguousarray(np.moveaxis(a, (-2, -1), (0, 1)))
-
-
-def _from_soa(a_t: NDArray) -> NDArray:
-    return np.ascontiguousarray(np.moveaxis(a_t, (0, 1), (-2, -1)))
-
-
-def _chol_soa(a_t: NDArray):
-    """Cholesky of (n, n, ...) symmetric matrices; returns the factor as a
-    list of lists of arrays (lower triangle) and ``ok``."""
-    n = a_t.shape[0]
-    ok = np.all(np.isfinite(a_t), axis=(0, 1))
-    lo = [[None] * n for _ in range(n)]
-    for j in range(n):
-        d = a_t[j, j].copy()
-        for k in range(j):
-            d -= lo[j][k] ** 2
-        # The pivot against the column's own diagonal: a column that the
-        # previous ones explain to rounding is singular. (An ill-conditioned
-        # but regular matrix passes, as in gtsam's Cholesky.)
-        good = d > _PIVOT_RTOL * np.abs(a_t[j, j])
-        good &= a_t[j, j] > 0
-        ok &= good
-        ljj = np.sqrt(np.where(good, d, 1.0))
-        lo[j][j] = ljj
-        inv = 1.0 / ljj
-        for i in range(j + 1, n):
-            v = a_t[i, j].copy()
-            for k in range(j):
-                v -= lo[i][k] * lo[j][k]
-            v *= inv
-            lo[i][j] = v
-    return lo, ok
-
-
-def _solve_soa(lo, b_t: NDArray) -> NDArray:
-    """Solve ``L L^T x = b`` with ``L`` from :func:`_chol_soa`; b_t (n, ...)."""
-    n = len(lo)
-    y = [None] * n
-    for i in range(n):
-        v = b_t[i].copy()
-        for k in range(i):
-            v -= lo[i][k] * y[k]
-        y[i] = v / lo[i][i]
-    x = [None] * n
-    for i in reversed(range(n)):
-        v = y[i]
-        for k in range(i + 1, n):
-            v = v - lo[k][i] * x[k]
-        x[i] = v / lo[i][i]
-    return np.stack(x)
-
-
-def _inverse_soa(lo) -> NDArray:
-    """``(L L^T)^-1`` as ``M^T M`` with ``M = L^-1``; (n, n, ...), exactly symmetric."""
-    n = len(lo)
-    m = [[None] * n for _ in range(n)]
-    for i in range(n):
-        m[i][i] = 1.0 / lo[i][i]
-        for j in range(i):
-            v = lo[i][j] * m[j][j]
-            for k in range(j + 1, i):
-                v = v + lo[i][k] * m[k][j]
-            m[i][j] = -v * m[i][i]
-    out = np.empty((n, n) + lo[0][0].shape)
-    for i in range(n):
-        for j in range(i + 1):
-            v = m[i][i] * m[i][j]
-            for k in range(i + 1, n):
-                v = v + m[k][i] * m[k][j]
-            out[i, j] = v
-            out[j, i] = v
-    return out
-
-
-def cholesky4(a: ArrayLike) -> tuple[NDArray, NDArray]:
-    """Lower Cholesky factors of a stack of symmetric matrices (4x4 in this
-    module, any small n works).
-
-    a : (..., n, n) float, symmetric (only the lower triangle is read).
-    Returns ``L (..., n, n)`` with ``a = L L^T`` and ``ok (...,)`` bool, False
-    where a pivot is not above ``1e-12`` times its column's diagonal entry,
-    i.e. the matrix is not numerically positive definite. Where
-    ``ok`` is False the factor holds finite placeholder values.
-    """
-    a_t = _to_soa(np.asarray(a, dtype=float))
-    lo, ok = _chol_soa(a_t)
-    n = a_t.shape[0]
-    out = np.zeros(a_t.shape)
-    for i in range(n):
-        for j in range(i + 1):
-            out[i, j] = lo[i][j]
-    return _from_soa(out), ok
-
-
-def _lower_lists(chol: ArrayLike):
-    c_t = _to_soa(np.asarray(chol, dtype=float))
-    n = c_t.shape[0]
-    return [[c_t[i, j] if j <= i else None for j in range(n)] for i in range(n)]
-
-
-def cholesky4_solve(chol: ArrayLike, b: ArrayLike) -> NDArray:
-    """Solve ``L L^T x = b`` for stacks: chol (..., n, n) lower, b (..., n)."""
-    b = np.asarray(b, dtype=float)
-    return np.moveaxis(_solve_soa(_lower_lists(chol), np.moveaxis(b, -1, 0)), 0, -1)
-
-
-def cholesky4_inverse(chol: ArrayLike) -> NDArray:
-    """``(L L^T)^-1`` for a stack of lower Cholesky factors (..., n, n),
-    as ``M^T M`` with ``M = L^-1``; exactly symmetric."""
-    return _from_soa(_inverse_soa(_lower_lists(chol)))
-
-
-# ----------------------------------------------------------------------------
-# The solver
-# ----------------------------------------------------------------------------
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -484,8 +354,8 @@ def fuse_batch(
             run(left, state[left].copy(), iterations[left].copy(), int(max_iterations))
 
         # Laplace covariance: inverse of the undamped information at the solution.
-        lo, pd = _chol_soa(info)
-        cov = _from_soa(_inverse_soa(lo))
+        lo, pd = chol_soa(info)
+        cov = from_soa(inverse_soa(lo))
         degeneracy = velocity_degeneracy(state, poses, obs)
     residuals[~obs] = np.nan
     finite = np.all(np.isfinite(state), axis=1) & np.isfinite(cost)
@@ -631,7 +501,7 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations, min_live=0):
             curv_age[slow] += 1
             newton = info[:, :, slow] + curv_a[:, :, slow]
             # Newton only where its model is convex; elsewhere Gauss-Newton.
-            use = _chol_soa(newton)[1]
+            use = chol_soa(newton)[1]
             model = info.copy()
             model[:, :, slow[use]] = newton[:, :, use]
         diag = model[diag_rows, diag_rows]
@@ -641,8 +511,8 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations, min_live=0):
         damped = model.copy()
         damping = lam_a * np.maximum(diag, floor)
         damped[diag_rows, diag_rows] += damping
-        lo, ok = _chol_soa(damped)
-        step_t = _solve_soa(lo, grad)
+        lo, ok = chol_soa(damped)
+        step_t = solve_soa(lo, grad)
         step_t *= -1.0
         # The reduction of the cost that the local quadratic model predicts.
         decrement = -np.einsum("if,if->f", grad, step_t)

@@ -26,19 +26,18 @@ from numpy.typing import ArrayLike, NDArray
 from factors.models import measurement_model
 
 from ..errors import GeometryError, ValidationError
+from .._validation import frozen_vector
+from ..data.noise import GaussianPrior, MeasurementNoise
 from .oneshot import (
-    GaussianPrior,
-    MeasurementNoise,
     _check_observed,
     _check_poses,
-    _frozen_vector,
 )
 
 __all__ = ["fisher_information", "cramer_rao_bound", "bayesian_bound"]
 
 
 def _inputs(state, node_poses, noise, observed):
-    x = _frozen_vector(state, "state", 4)
+    x = frozen_vector(state, "state", 4)
     poses = _check_poses(node_poses)
     if not isinstance(noise, MeasurementNoise):
         raise ValidationError(f"noise must be a MeasurementNoise, got {type(noise).__name__}")

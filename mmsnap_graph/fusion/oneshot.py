@@ -1,4 +1,4 @@
-"""Bayesian one-shot fusion of one frame (paper Sec. III-B, design/MATH.md, "One-shot fusion").
+"""Bayesian one-shot fusion of one frame (paper Sec. III-B, docs/CONVENTIONS.md, "One-shot fusion").
 
 Every node that sees the target contributes a range, spatial-frequency and
 Doppler measurement; with the Gaussian prior of paper eq. (16) the MAP state
@@ -14,7 +14,7 @@ minimizes the negative log posterior (paper eq. 18)
 three measurements (:func:`factors.gtsam_factors.frame_measurement_factor`,
 equivalent to one ``node_measurement_factor`` per node but half the Python
 calls) and a ``PriorFactorVector``; GTSAM's Levenberg-Marquardt solves it from the
-initial values of design/MATH.md and ``gtsam.Marginals`` gives the Laplace
+initial values of docs/CONVENTIONS.md and ``gtsam.Marginals`` gives the Laplace
 covariance. The paper's grid posterior covariance is an option
 (:mod:`mmsnap_graph.fusion.grid`).
 
@@ -63,7 +63,8 @@ from factors.models import (
 )
 
 from ..errors import GeometryError, ValidationError
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_finite, frozen_vector
+from ..data.noise import GaussianPrior, MeasurementNoise
 
 __all__ = [
     "STATE_KEY",
@@ -96,70 +97,6 @@ STATE_KEY = 0
 #: target on the line through the radars ~175 (median; the estimate's own
 #: cross-line error makes it finite).
 DEGENERACY_THRESHOLD = 100.0
-
-
-def _frozen_vector(value: ArrayLike, name: str, length: int) -> NDArray:
-    arr = check_finite(as_float_array(value, name), name)
-    if arr.shape != (length,):
-        raise ValidationError(f"{name} must have shape ({length},), got {arr.shape}")
-    arr = np.array(arr, dtype=float)
-    arr.setflags(write=False)
-    return arr
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class MeasurementNoise:
-    """Standard deviations of one node's measurements (paper eq. 14; its
-    resolutions by default).
-
-    range_m : float, metres (0.035: Table I's range resolution).
-    omega_rad : float, spatial frequency in radians (pi / 4).
-    doppler_mps : float, radial velocity in m/s (0.1807).
-    """
-
-    range_m: float = 0.035
-    omega_rad: float = np.pi / 4
-    doppler_mps: float = 0.1807
-
-    def __post_init__(self) -> None:
-        for name in ("range_m", "omega_rad", "doppler_mps"):
-            value = getattr(self, name)
-            try:
-                value = float(value)
-            except (TypeError, ValueError) as exc:
-                raise ValidationError(f"noise {name} must be a number, got {value!r}") from exc
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValidationError(f"noise {name} must be finite and > 0, got {value!r}")
-            object.__setattr__(self, name, value)
-
-    @property
-    def sigmas(self) -> NDArray:
-        """(3,) float: ``(range_m, omega_rad, doppler_mps)``, measurement order."""
-        return np.array([self.range_m, self.omega_rad, self.doppler_mps])
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class GaussianPrior:
-    """Independent Gaussian prior on ``(x_m, y_m, vx_mps, vy_mps)`` (paper eq. 16).
-
-    mean : (4,) float, global frame (default zeros, the paper's).
-    sigmas : (4,) float, > 0 (default the paper's ``(3 m, 3 m, 3.5 m/s, 3.5 m/s)``).
-    """
-
-    mean: NDArray = field(default_factory=lambda: np.zeros(4))
-    sigmas: NDArray = field(default_factory=lambda: np.array([3.0, 3.0, 3.5, 3.5]))
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mean", _frozen_vector(self.mean, "prior mean", 4))
-        sigmas = _frozen_vector(self.sigmas, "prior sigmas", 4)
-        if np.any(sigmas <= 0.0):
-            raise ValidationError(f"prior sigmas must be > 0, got {sigmas.tolist()}")
-        object.__setattr__(self, "sigmas", sigmas)
-
-    @property
-    def information(self) -> NDArray:
-        """(4, 4) float: the prior's information matrix ``diag(1 / sigmas^2)``."""
-        return np.diag(1.0 / self.sigmas**2)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -366,7 +303,7 @@ def initial_states(
     *,
     noise: MeasurementNoise | None = None,
 ) -> NDArray:
-    """Initial values of design/MATH.md for ``F`` frames at once (no validation).
+    """Initial values of docs/CONVENTIONS.md for ``F`` frames at once (no validation).
 
     node_poses : (N, 3) or (F, N, 3) float.
     measurements : (F, N, 3) float; rows of unobserved nodes may hold anything.
@@ -377,7 +314,7 @@ def initial_states(
     Returns (F, 4) float.
 
     Position: the average of the observed nodes' own detections mapped to the
-    global frame (MATH.md's corrected eq. 19). Velocity: the least-squares
+    global frame (docs/CONVENTIONS.md, the corrected eq. 19). Velocity: the least-squares
     solution of ``V_i = u_i^T v`` with ``u_i`` the line of sight from node i to
     that position, regularized by the prior's velocity part; without a prior
     and with parallel lines of sight (or one node) the minimum-norm solution,
@@ -526,7 +463,7 @@ def _initial_state_scalar(poses, z, obs, prior, noise) -> list[float]:
 
 
 def _check_initial(initial, poses, obs) -> NDArray:
-    x0 = _frozen_vector(initial, "initial", 4)
+    x0 = frozen_vector(initial, "initial", 4)
     for i, (px, py, _) in enumerate(poses.tolist()):
         if (obs is None or obs[i]) and math.hypot(x0[0] - px, x0[1] - py) < _AT_NODE_M:
             raise GeometryError(
@@ -555,7 +492,7 @@ def initial_state(
     *,
     noise: MeasurementNoise | None = None,
 ) -> NDArray:
-    """Initial state of one frame (design/MATH.md, "Initial values"); (4,) float.
+    """Initial state of one frame (docs/CONVENTIONS.md, "Initial values"); (4,) float.
 
     node_poses : (N, 3) float, ``(x_m, y_m, phi_rad)``.
     measurements : (N, 3) float, ``(range_m, omega_rad, doppler_mps)``.

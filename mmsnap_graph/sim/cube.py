@@ -10,7 +10,7 @@ chirp that transmitter ``m`` fires in loop ``l``, received on receiver ``q``::
 
 with ``R_k = |p_k|``, ``V_k = <v_k, p_k> / R_k`` (positive = receding),
 ``sin(theta_k) = x_k / R_k`` (so the spatial frequency is
-``omega = pi sin(theta)``, design/MATH.md), the beat frequency
+``omega = pi sin(theta)``, docs/CONVENTIONS.md), the beat frequency
 ``f_b = 2 (slope R_k + carrier V_k) / c`` (range plus the small
 range-Doppler coupling), the chirp start time within the frame
 ``t_{l,m} = (l n_tx + m) chirp_period_s`` (TDM-MIMO: every transmitter fires

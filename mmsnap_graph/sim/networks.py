@@ -1,7 +1,7 @@
 """Radar network geometries: the paper's configurations and any network given
 by node poses (docs/SIMULATOR.md).
 
-A node pose is ``(x_m, y_m, phi_rad)`` (design/MATH.md): ``phi`` is the
+A node pose is ``(x_m, y_m, phi_rad)`` (docs/CONVENTIONS.md): ``phi`` is the
 direction of the array axis and the broadside is ``(-sin phi, cos phi)``.
 Node S1 is always at the origin with ``phi = 0`` (broadside +y).
 

@@ -4,7 +4,7 @@ centralized tracker").
 Each frame's fused targets (:class:`mmsnap_graph.fusion.sequence.FusedSequence`)
 are measurements of the full state ``(x_m, y_m, vx_mps, vy_mps)`` with their
 covariance, in the global frame: a linear Kalman filter with the
-constant-velocity model of design/MATH.md (``F = [[I, T I], [0, I]]``,
+constant-velocity model of docs/CONVENTIONS.md (``F = [[I, T I], [0, I]]``,
 white-acceleration ``Q = sigma_a^2 [[T^4/4, T^3/2], [T^3/2, T^2]]`` per axis).
 
 **The prior must not be counted twice.** A MAP estimate contains the one-shot

@@ -2,7 +2,7 @@
 
 State ``(x_m, y_m, vx_mps, vy_mps)`` in the node's local frame (x along the
 array axis, y broadside). Motion: constant velocity with white-acceleration
-noise (design/MATH.md, last section), per axis
+noise (docs/CONVENTIONS.md, last section), per axis
 
 .. math::
 
@@ -60,7 +60,7 @@ class EkfConfig:
 
     frame_period_s : T, time between frames.
     sigma_a_mps2 : white-acceleration standard deviation per axis. Default
-        1.0 m/s^2. The paper's scripts use 0.2 (design/MATH.md, last
+        1.0 m/s^2. The paper's scripts use 0.2 (docs/CONVENTIONS.md, last
         section); that prior is too stiff for a person turning inside a
         few-metre area (simulated random walks: median acceleration
         0.8-1.0 m/s^2, 90th percentile 2.6-3.3): the innovations leave the
@@ -70,7 +70,7 @@ class EkfConfig:
         doppler_mps)``. Default ``(0.05, 0.1, 0.2)``: the chain's centroid
         accuracy on simulated walkers (median position error about 4 cm,
         90th percentile 8 cm at 2-5 m), with margin. The paper's resolutions
-        ``(0.035, pi / 4, 0.1807)`` (design/MATH.md), used as the one-shot
+        ``(0.035, pi / 4, 0.1807)`` (docs/CONVENTIONS.md), used as the one-shot
         fusion's sigmas, make the angle nearly uninformative to a single-node
         filter: on a simulated configuration-C walk its tracks drifted 1-4 m
         across range, against 0.2 m with the default.
@@ -130,7 +130,7 @@ def cv_transition(period_s: float) -> NDArray:
 
 def cv_process_noise(period_s: float, sigma_a_mps2: float) -> NDArray:
     """(4, 4) white-acceleration process noise ``sigma_a^2 [[T^4/4, T^3/2], [T^3/2, T^2]]``
-    per axis (design/MATH.md), ordered ``(x, y, vx, vy)``."""
+    per axis (docs/CONVENTIONS.md), ordered ``(x, y, vx, vy)``."""
     t = float(period_s)
     q = np.zeros((4, 4))
     for i in (0, 1):

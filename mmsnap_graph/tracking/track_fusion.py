@@ -1,4 +1,4 @@
-"""Track-level fusion, the paper's benchmark (design/MATH.md, last section).
+"""Track-level fusion, the paper's benchmark (docs/CONVENTIONS.md, last section).
 
 Each node's EKF tracks (:class:`~mmsnap_graph.data.recording.Tracks`, the node's
 local frame) are moved into the global frame with the node's calibrated pose:
@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
-from ..fusion.batch import _chol_soa, _from_soa, _inverse_soa, _solve_soa, _to_soa
+from .._linalg import chol_soa, from_soa, inverse_soa, solve_soa, to_soa
 from ..errors import ValidationError
 from ..data.recording import Tracks
 from .._validation import as_float_array, check_finite
@@ -95,15 +95,15 @@ def covariance_intersection(x1: ArrayLike, p1: ArrayLike, x2: ArrayLike, p2: Arr
     info1 = []
     info2 = []
     for p, store, name in ((p1, info1, "p1"), (p2, info2, "p2")):
-        lo, ok = _chol_soa(_to_soa(p))
+        lo, ok = chol_soa(to_soa(p))
         if not np.all(ok):
             raise ValidationError(f"{name} must be positive definite (row {int(np.argmin(ok))} is not)")
-        store.append(_inverse_soa(lo))
+        store.append(inverse_soa(lo))
     a_t, b_t = info1[0], info2[0]  # (n, n, K) information matrices
 
     def trace_of_inverse(w):
-        lo, ok = _chol_soa(w * a_t + (1.0 - w) * b_t)
-        inv = _inverse_soa(lo)
+        lo, ok = chol_soa(w * a_t + (1.0 - w) * b_t)
+        inv = inverse_soa(lo)
         return np.einsum("iik->k", inv)
 
     k = x1.shape[0]
@@ -132,9 +132,9 @@ def covariance_intersection(x1: ArrayLike, p1: ArrayLike, x2: ArrayLike, p2: Arr
     w = np.where((f1 < f_w) & (f1 <= f0), 1.0, w)
     info = w * a_t + (1.0 - w) * b_t
     eta = (w * np.einsum("ijk,kj->ik", a_t, x1) + (1.0 - w) * np.einsum("ijk,kj->ik", b_t, x2))
-    lo, _ = _chol_soa(info)
-    x = _solve_soa(lo, eta).T
-    p = _from_soa(_inverse_soa(lo))
+    lo, _ = chol_soa(info)
+    x = solve_soa(lo, eta).T
+    p = from_soa(inverse_soa(lo))
     return x, p, w
 
 
