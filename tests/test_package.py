@@ -1,4 +1,8 @@
-"""The package's public API and its import layering."""
+"""The package's public API, and what its layering means at run time.
+
+The static import graph (layer order, cycles, private names) is checked by
+tests/test_structure.py with tools/check_structure.py; this file checks what
+the interpreter actually loads."""
 
 import subprocess
 import sys

@@ -1,0 +1,256 @@
+"""The redesign's structure rules (tools/check_structure.py), on the repository
+and on small synthetic trees that show each rule is detected."""
+
+import importlib.util
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("check_structure", ROOT / "tools" / "check_structure.py")
+cs = importlib.util.module_from_spec(_spec)
+sys.modules["check_structure"] = cs  # dataclasses look their module up by name
+_spec.loader.exec_module(cs)
+
+# Rules still broken on main at the time of writing while other branches fix
+# them; the lead removes an entry once the fix is merged.
+STILL_BROKEN_ON_MAIN = {
+    "function-length": "long functions are being split on the fusion/calibration/sim branches",
+    "module-length": "oneshot.py, joint.py and demo.py are being split on other branches",
+    "layer-order": "calibration.network imports io (write_calibration moves to io)",
+    "private-import": "bounds takes oneshot._check_*, central takes ekf._sym (being fixed)",
+    "model-count": "factors/models.py still has seven model variants (physics branch)",
+}
+
+
+@pytest.fixture(scope="module")
+def repo_report():
+    return cs.check(ROOT)
+
+
+@pytest.mark.parametrize("rule", [
+    pytest.param(rule, marks=pytest.mark.xfail(strict=False, reason=STILL_BROKEN_ON_MAIN[rule]))
+    if rule in STILL_BROKEN_ON_MAIN else rule
+    for rule in cs.HARD_RULES
+])
+def test_repository_keeps_the_rule(repo_report, rule):
+    found = repo_report.of_rule(rule)
+    assert not found, "\n".join(map(str, found))
+
+
+def test_repository_scan_sees_both_packages(repo_report):
+    # A scan that found nothing would pass every rule.
+    assert repo_report.n_modules >= 40
+    assert any(d.startswith("factors/models.py") for d in repo_report.model_definitions)
+
+
+def test_script_exit_code_follows_the_hard_rules(tmp_path):
+    _tree(tmp_path, {"factors/models.py": "def measurement_model(x, p):\n    return x\n"})
+    script = ROOT / "tools" / "check_structure.py"
+    ok = subprocess.run([sys.executable, str(script), "--root", str(tmp_path)],
+                        capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    assert "OK" in ok.stdout
+    _tree(tmp_path, {"mmsnap_graph/data/x.py": "from ..fusion import y\n",
+                     "mmsnap_graph/fusion/y.py": ""})
+    bad = subprocess.run([sys.executable, str(script), "--root", str(tmp_path)],
+                         capture_output=True, text=True)
+    assert bad.returncode == 1
+    assert "layer-order" in bad.stdout and "FAILED" in bad.stdout
+
+
+# ------------------------------------------------------- synthetic trees
+
+
+def _tree(root: Path, files: dict[str, str]) -> Path:
+    """Write a package tree; every folder gets an __init__.py."""
+    for rel, text in files.items():
+        path = root / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(textwrap.dedent(text))
+    for top in ("factors", "mmsnap_graph"):
+        for folder in [root / top, *(p for p in (root / top).rglob("*") if p.is_dir())]:
+            if folder.exists() and not (folder / "__init__.py").exists():
+                (folder / "__init__.py").write_text("")
+    return root
+
+
+def _rules(root: Path) -> set[str]:
+    return cs.check(root).broken_rules()
+
+
+def test_a_clean_layered_tree_passes(tmp_path):
+    _tree(tmp_path, {
+        "factors/models.py": "import math\n\ndef measurement_model(s, p):\n    return s\n",
+        "mmsnap_graph/errors.py": "class MmsnapError(Exception):\n    pass\n",
+        "mmsnap_graph/_validation.py": "from .errors import MmsnapError\n\ndef check(x):\n    return x\n",
+        "mmsnap_graph/data/recording.py": "from factors.models import measurement_model\n"
+                                          "from .._validation import check\n",
+        "mmsnap_graph/fusion/oneshot.py": "from ..data.recording import measurement_model\n",
+        "mmsnap_graph/tracking/ekf.py": "from ..fusion import oneshot\n",
+        "mmsnap_graph/radar/chain.py": "import numpy\nfrom ..data import recording\n",
+        "mmsnap_graph/io/hdf5.py": "from ..fusion.oneshot import measurement_model\n",
+        "mmsnap_graph/app/cli.py": "from ..io import hdf5\n\ndef main():\n"
+                                   "    from ..tracking import ekf  # lazy\n    return ekf\n",
+    })
+    report = cs.check(tmp_path)
+    assert report.ok, cs.format_report(report)
+    assert [(e.source, e.target) for e in report.function_imports] == [
+        ("mmsnap_graph.app.cli", "mmsnap_graph.tracking.ekf")]
+
+
+def test_long_function_is_detected(tmp_path):
+    body = "".join(f"    x{i} = {i}\n" for i in range(99))  # def line + 99 = 100 lines
+    _tree(tmp_path, {"mmsnap_graph/fusion/a.py": f"def fine():\n{body}"})
+    assert "function-length" not in _rules(tmp_path)
+    _tree(tmp_path, {"mmsnap_graph/fusion/a.py": f"def fine():\n{body}    x = 1\n"})
+    report = cs.check(tmp_path)
+    assert [v.message for v in report.of_rule("function-length")] == ["fine has 101 lines > 100"]
+
+
+def test_long_method_is_detected(tmp_path):
+    body = "".join(f"        x{i} = {i}\n" for i in range(120))
+    _tree(tmp_path, {"mmsnap_graph/fusion/a.py": f"class A:\n    def step(self):\n{body}"})
+    assert "function-length" in _rules(tmp_path)
+
+
+def test_long_module_is_detected(tmp_path):
+    _tree(tmp_path, {"mmsnap_graph/sim/a.py": "x = 1\n" * 650})
+    assert "module-length" not in _rules(tmp_path)
+    _tree(tmp_path, {"mmsnap_graph/sim/a.py": "x = 1\n" * 651})
+    assert "module-length" in _rules(tmp_path)
+
+
+@pytest.mark.parametrize("importer, statement", [
+    ("factors/models.py", "import mmsnap_graph.data.recording\n"),
+    ("factors/models.py", "from mmsnap_graph import errors\n"),
+    ("mmsnap_graph/data/recording.py", "from ..fusion import oneshot\n"),
+    ("mmsnap_graph/_validation.py", "from .fusion.oneshot import solve\n"),
+    ("mmsnap_graph/errors.py", "from .io import hdf5\n"),
+    ("mmsnap_graph/fusion/oneshot.py", "from mmsnap_graph.io.hdf5 import write\n"),
+    ("mmsnap_graph/calibration/network.py", "def f():\n    from ..io import hdf5\n"),
+    ("mmsnap_graph/io/hdf5.py", "from ..app import cli\n"),
+    ("mmsnap_graph/sim/cube.py", "from .. import fuse_frame\n"),
+    ("mmsnap_graph/radar/chain.py", "import gtsam\n"),
+    ("mmsnap_graph/radar/chain.py", "def f():\n    from gtsam import Pose2\n"),
+    ("mmsnap_graph/radar/chain.py", "from factors.gtsam_factors import measurement_noise\n"),
+    ("mmsnap_graph/radar/chain.py", "from ..tracking.ekf import LocalTracker\n"),
+])
+def test_import_against_the_layers_is_detected(tmp_path, importer, statement):
+    files = {
+        "factors/models.py": "", "factors/gtsam_factors.py": "import gtsam\n",
+        "mmsnap_graph/errors.py": "", "mmsnap_graph/_validation.py": "",
+        "mmsnap_graph/data/recording.py": "", "mmsnap_graph/fusion/oneshot.py": "",
+        "mmsnap_graph/calibration/network.py": "", "mmsnap_graph/tracking/ekf.py": "",
+        "mmsnap_graph/radar/chain.py": "", "mmsnap_graph/sim/cube.py": "",
+        "mmsnap_graph/io/hdf5.py": "", "mmsnap_graph/app/cli.py": "",
+    }
+    _tree(tmp_path, files)
+    assert cs.check(tmp_path).ok
+    _tree(tmp_path, {importer: statement})
+    report = cs.check(tmp_path)
+    assert report.broken_rules() == {"layer-order"}, cs.format_report(report)
+
+
+def test_module_outside_every_layer_is_detected(tmp_path):
+    _tree(tmp_path, {"mmsnap_graph/misc/helpers.py": "x = 1\n"})
+    assert "layer-order" in _rules(tmp_path)
+
+
+def test_peers_may_import_each_other_one_way(tmp_path):
+    _tree(tmp_path, {
+        "mmsnap_graph/tracking/ekf.py": "from ..fusion.oneshot import fuse\n",
+        "mmsnap_graph/fusion/oneshot.py": "def fuse():\n    pass\n",
+    })
+    assert cs.check(tmp_path).ok
+
+
+def test_package_cycle_is_detected_even_through_a_function_level_import(tmp_path):
+    _tree(tmp_path, {
+        "mmsnap_graph/tracking/ekf.py": "from ..fusion.oneshot import fuse\n",
+        "mmsnap_graph/fusion/oneshot.py": "def fuse():\n    from ..tracking import ekf\n",
+    })
+    report = cs.check(tmp_path)
+    assert report.broken_rules() == {"package-cycle"}
+    assert report.of_rule("package-cycle")[0].where == \
+        "mmsnap_graph.fusion <-> mmsnap_graph.tracking"
+
+
+def test_round_about_package_cycle_is_detected(tmp_path):
+    _tree(tmp_path, {
+        "mmsnap_graph/sim/a.py": "from ..calibration import b\n",
+        "mmsnap_graph/calibration/b.py": "from ..fusion import c\n",
+        "mmsnap_graph/fusion/c.py": "from ..sim import a\n",
+    })
+    cycles = cs.check(tmp_path).of_rule("package-cycle")
+    assert len(cycles) == 1
+    assert cycles[0].where.count("<->") == 2
+
+
+def test_module_cycle_inside_a_package_is_reported_not_enforced(tmp_path):
+    _tree(tmp_path, {
+        "mmsnap_graph/fusion/grid.py": "from .oneshot import fuse\n",
+        "mmsnap_graph/fusion/oneshot.py": "def fuse():\n    from .grid import g\n",
+    })
+    report = cs.check(tmp_path)
+    assert report.ok
+    assert report.module_cycles == [["mmsnap_graph.fusion.grid", "mmsnap_graph.fusion.oneshot"]]
+
+
+@pytest.mark.parametrize("statement", [
+    "from .oneshot import _check_poses\n",
+    "from mmsnap_graph.fusion.oneshot import fuse, _check_poses\n",
+    "from ..tracking.ekf import _sym as sym\n",
+    "def f():\n    from .oneshot import _check_poses\n",
+])
+def test_private_name_across_modules_is_detected(tmp_path, statement):
+    _tree(tmp_path, {
+        "mmsnap_graph/fusion/oneshot.py": "def fuse():\n    pass\n\ndef _check_poses():\n    pass\n",
+        "mmsnap_graph/tracking/ekf.py": "def _sym(p):\n    return p\n",
+        "mmsnap_graph/fusion/bounds.py": statement,
+    })
+    report = cs.check(tmp_path)
+    assert report.broken_rules() == {"private-import"}, cs.format_report(report)
+
+
+def test_private_helper_modules_and_private_aliases_are_fine(tmp_path):
+    _tree(tmp_path, {
+        "mmsnap_graph/_linalg.py": "def chol_soa(a):\n    return a\n",
+        "mmsnap_graph/fusion/batch.py": "from .._linalg import chol_soa\n"
+                                        "from .. import _linalg\n"
+                                        "from factors.models import measurement_model as _model\n",
+        "factors/models.py": "def measurement_model(s, p):\n    return s\n",
+    })
+    assert cs.check(tmp_path).ok
+
+
+def test_too_many_measurement_models_are_detected(tmp_path):
+    three = ("def measurement_model(s, p):\n    pass\n\n"
+             "def measurement_model_pose(p, s):\n    pass\n\n"
+             "def _measurement_kernel(x, y):\n    pass\n\n"
+             "def wrap_angle(a):\n    pass\n")
+    _tree(tmp_path, {"factors/models.py": three})
+    report = cs.check(tmp_path)
+    assert report.ok and len(report.model_definitions) == 3
+    _tree(tmp_path, {"factors/gtsam_factors.py": "def range_model(s, p):\n    pass\n"})
+    report = cs.check(tmp_path)
+    assert report.broken_rules() == {"model-count"}
+    assert "range_model" in report.of_rule("model-count")[0].message
+
+
+@pytest.mark.parametrize("name", [
+    "range_model", "omega_model", "doppler_model", "measurement_model", "measurement_model_pose",
+    "measurement_model_scalar", "_measurement_model_scalar", "predict_measurements",
+    "_measurement_kernel", "model_scalar",
+])
+def test_model_name_pattern_catches_the_known_variants(name):
+    assert cs.MODEL_NAME_PATTERN.match(name.lstrip("_"))
+
+
+@pytest.mark.parametrize("name", ["wrap_angle", "detection_to_local", "residual",
+                                  "node_measurement_factor", "local_to_global"])
+def test_model_name_pattern_leaves_other_functions(name):
+    assert not cs.MODEL_NAME_PATTERN.match(name)
