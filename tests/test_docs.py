@@ -3,6 +3,7 @@ docs/CONVENTIONS.md names sections and functions that exist; no doc carries a
 machine path or points outside the repository."""
 
 import importlib
+import importlib.util
 import re
 from pathlib import Path
 
@@ -119,3 +120,32 @@ def test_outside_reference_pattern_catches_what_it_should():
         assert _OUTSIDE.search(bad), bad
     for fine in ("docs/CONVENTIONS.md", "mmsnap_demo_out/report.md", "a/b/tmp/c", "x.tmp/y"):
         assert not _OUTSIDE.search(fine), fine
+
+
+# ------------------------------------------------------------ CHANGELOG.md
+
+
+def _moved_rows():
+    rows = []
+    for line in (ROOT / "CHANGELOG.md").read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[1].startswith(("`mmsnap_graph", "`factors")):
+            new_module = re.match(r"`([\w.*]+)`", cells[1]).group(1)
+            # the names come before any parenthesis, which only comments
+            rows.append((new_module, re.findall(r"`(\w+)`", cells[2].split("(")[0])))
+    return rows
+
+
+def test_changelog_moves_point_at_names_that_exist():
+    rows = _moved_rows()
+    assert len(rows) >= 15
+    missing = []
+    for module, names in rows:
+        if module.endswith(".*"):  # a package of modules: each name is a module
+            package = module[:-2]
+            missing += [f"{package}.{n}" for n in names
+                        if importlib.util.find_spec(f"{package}.{n}") is None]
+            continue
+        mod = importlib.import_module(module)
+        missing += [f"{module}.{n}" for n in names if not hasattr(mod, n)]
+    assert not missing, missing
