@@ -149,3 +149,35 @@ def test_changelog_moves_point_at_names_that_exist():
         mod = importlib.import_module(module)
         missing += [f"{module}.{n}" for n in names if not hasattr(mod, n)]
     assert not missing, missing
+
+
+def _python_blocks(text: str) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", text, flags=re.S)
+
+
+def test_conventions_body_to_global_covariance_is_right():
+    """The page's recipe for a Pose2 covariance in the global frame agrees
+    with GTSAM: map body-tangent samples through ``retract`` to (x, y, phi)."""
+    gtsam = pytest.importorskip("gtsam")
+    import numpy as np
+
+    namespace = {}
+    block = next(b for b in _python_blocks(CONVENTIONS_MD.read_text())
+                 if "def body_to_global_covariance" in b)
+    exec(block, namespace)  # noqa: S102 - the page's own snippet
+    pose = np.array([1.2, -0.7, 2.3])
+    cov_body = np.array([[0.04, 0.01, 0.002], [0.01, 0.09, -0.003], [0.002, -0.003, 0.01]])
+    # numerical Jacobian of (x, y, phi) w.r.t. the body tangent xi at 0
+    p2 = gtsam.Pose2(*pose)
+    eps = 1e-6
+    jac = np.zeros((3, 3))
+    for k in range(3):
+        xi = np.zeros(3)
+        xi[k] = eps
+        plus, minus = p2.retract(xi), p2.retract(-xi)
+        jac[:, k] = (np.array([plus.x(), plus.y(), plus.theta()])
+                     - np.array([minus.x(), minus.y(), minus.theta()])) / (2 * eps)
+    expected = jac @ cov_body @ jac.T
+    got = namespace["body_to_global_covariance"](pose, cov_body)
+    np.testing.assert_allclose(got, expected, atol=1e-9)
+    assert not np.allclose(got, cov_body)  # the rotation matters at this angle
