@@ -244,13 +244,19 @@ def test_too_many_measurement_models_are_detected(tmp_path):
 @pytest.mark.parametrize("name", [
     "range_model", "omega_model", "doppler_model", "measurement_model", "measurement_model_pose",
     "measurement_model_scalar", "_measurement_model_scalar", "predict_measurements",
-    "_measurement_kernel", "model_scalar",
+    "_measurement_kernel", "model_scalar", "_measurement_scalar", "_scalar_kernel",
+    "predict_measurement", "measurements_from_state",
 ])
 def test_model_name_pattern_catches_the_known_variants(name):
     assert cs.MODEL_NAME_PATTERN.match(name.lstrip("_"))
 
 
-@pytest.mark.parametrize("name", ["wrap_angle", "detection_to_local", "residual",
-                                  "node_measurement_factor", "local_to_global"])
+@pytest.mark.parametrize("name", [
+    "wrap_angle", "wrap_angle_scalar", "detection_to_local", "detection_to_global", "residual",
+    "local_to_global", "global_to_local", "node_measurement_factor", "frame_measurement_factor",
+    "pose_measurement_factor", "scalar_measurement_factor", "measurement_noise", "_node_error",
+    "_pose_error", "constant_velocity_factor", "cv_transition", "cv_process_noise",
+    "constant_velocity_model", "state_prior_factor", "MEASUREMENT_NAMES",
+])
 def test_model_name_pattern_leaves_other_functions(name):
     assert not cs.MODEL_NAME_PATTERN.match(name)

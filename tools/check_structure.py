@@ -65,13 +65,14 @@ MAX_MODEL_DEFINITIONS = 3
 
 #: Names of the functions that compute ``(range, omega, doppler)`` from a
 #: state and a pose (leading underscores ignored): the vector form, the pose
-#: form, the scalar kernel and any other variant that would creep back in.
+#: form, the scalar kernel and any other variant that would creep back in --
+#: a name with ``measurement``, ``predict`` or ``kernel`` in it, or
+#: ``range_model``/``omega_model``/``doppler_model`` -- but not the GTSAM
+#: adapters around the model (``*factor*``, ``*noise*``, ``*error*``) nor
+#: constants (``*names*``).
 MODEL_NAME_PATTERN = re.compile(
-    r"^(?:(?:range|omega|doppler)_model\w*"
-    r"|\w*measurement_model\w*"
-    r"|predict_measurements?\w*"
-    r"|\w*measurement_kernel\w*"
-    r"|\w*model_scalar\w*)$"
+    r"^(?!.*(?:factor|noise|error|names))"
+    r".*(?:(?:range|omega|doppler)_model|measurement|predict|kernel|model_scalar).*$"
 )
 
 #: The project's top-level packages, which the checker scans.
