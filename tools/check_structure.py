@@ -24,8 +24,10 @@ Hard rules (a violation makes the exit code 1):
   defined in another project module (private helper *modules* such as
   ``mmsnap_graph._validation`` are fine: their names are public);
 - ``model-count``: at most ``MAX_MODEL_DEFINITIONS`` definitions of the
-  measurement model in ``factors/`` (functions whose name matches
-  ``MODEL_NAME_PATTERN``).
+  measurement model in ``factors/``: functions whose name matches
+  ``MODEL_NAME_PATTERN`` and that compute the model themselves (a function
+  that calls another of them is a wrapper derived from it and is listed, not
+  counted).
 
 Every import counts, at module level or inside a function, ``if
 TYPE_CHECKING:`` blocks included. Reported but not enforced: the
@@ -142,6 +144,7 @@ class Report:
     function_imports: list[Import] = field(default_factory=list)
     module_cycles: list[list[str]] = field(default_factory=list)
     model_definitions: list[str] = field(default_factory=list)
+    model_wrappers: list[str] = field(default_factory=list)
     n_modules: int = 0
 
     @property
@@ -420,14 +423,41 @@ def _check_cycles(all_edges: list[Import], report: Report) -> None:
     report.module_cycles = _strongly_connected(mod_graph)
 
 
+def _called_names(node: ast.AST) -> set[str]:
+    out = set()
+    for call in ast.walk(node):
+        if isinstance(call, ast.Call):
+            f = call.func
+            if isinstance(f, ast.Name):
+                out.add(f.id)
+            elif isinstance(f, ast.Attribute):
+                out.add(f.attr)
+    return out
+
+
 def _check_models(modules: dict[str, _Module], report: Report) -> None:
+    """A function named like the model counts as a definition, unless it
+    calls another such function of ``factors/`` (then it is a wrapper derived
+    from that one, e.g. a form that adds the pose Jacobian to the vector
+    form); aliases of imported names are followed."""
+    found = []  # (where, name, node, aliases of the module)
     for m in modules.values():
         if _package_of(m.name) != "factors":
             continue
+        aliases = {a.asname: a.name for n in ast.walk(m.tree) if isinstance(n, ast.ImportFrom)
+                   for a in n.names if a.asname}
         for node in ast.walk(m.tree):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and \
                     MODEL_NAME_PATTERN.match(node.name.lstrip("_")):
-                report.model_definitions.append(f"{m.rel}:{node.lineno} {node.name}")
+                found.append((f"{m.rel}:{node.lineno}", node.name, node, aliases))
+    model_names = {name for _, name, _, _ in found}
+    for where, name, node, aliases in found:
+        calls = {aliases.get(c, c) for c in _called_names(node)} - {name}
+        if calls & model_names:
+            report.model_wrappers.append(
+                f"{where} {name} (calls {', '.join(sorted(calls & model_names))})")
+        else:
+            report.model_definitions.append(f"{where} {name}")
     n = len(report.model_definitions)
     if n > MAX_MODEL_DEFINITIONS:
         report.violations.append(Violation(
@@ -467,6 +497,7 @@ def format_report(report: Report, verbose: bool = True) -> str:
                  f"(at most {MAX_MODEL_DEFINITIONS})")
     if verbose:
         lines += [f"  {d}" for d in report.model_definitions]
+        lines += [f"  (wrapper) {d}" for d in report.model_wrappers]
     lines.append(f"function-level imports of project modules: {len(report.function_imports)} "
                  "(allowed only to keep gtsam/sklearn/matplotlib/h5py off a light path)")
     if verbose:
