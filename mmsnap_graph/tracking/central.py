@@ -255,6 +255,7 @@ class FixedLagTracker:
 
     def __init__(self, config: CentralConfig | None = None, *, lag_s: float = 1.5,
                  prior_mean: ArrayLike | None = None, prior_sigmas: ArrayLike | None = None) -> None:
+        # Function-level: keeps GTSAM off the import path of the tracking package.
         import gtsam
 
         self.config = CentralConfig() if config is None else config
