@@ -131,8 +131,8 @@ def track_initial_state(measurement: ArrayLike, config: EkfConfig) -> tuple[NDAr
     """
     r, om, v = (float(c) for c in measurement)
     sr, so, sv = config.measurement_std
-    pos = detection_to_local(r, om)
-    u = pos / r                     # line of sight (r > 0: the tracker skips r <= 0)
+    u = detection_to_local(1.0, om)  # line of sight (unit vector)
+    pos = r * u
     t = np.array([-u[1], u[0]])     # across it
     p = np.zeros((4, 4))
     p[:2, :2] = detection_covariance_local(r, om, sr, so)
