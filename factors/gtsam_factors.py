@@ -158,11 +158,12 @@ def _pose_error(pose_key, state_key, z, this, values, jacobians):
     pose = values.atPose2(pose_key)
     x, y, vx, vy = values.atVector(state_key).tolist()
     phi = pose.theta()
-    node = (pose.x(), pose.y(), math.cos(phi), math.sin(phi))
+    c = math.cos(phi)
+    s = math.sin(phi)
     if jacobians is None:
-        r, w, v, _ = _model_scalar(x, y, vx, vy, *node)
+        r, w, v, _ = _model_scalar(x, y, vx, vy, pose.x(), pose.y(), c, s)
     else:
-        r, w, v, jac, j_pose = _model_scalar(x, y, vx, vy, *node, pose_jacobian=True)
+        r, w, v, jac, j_pose = _model_scalar(x, y, vx, vy, pose.x(), pose.y(), c, s, True)
         jacobians[0] = np.array(j_pose).reshape(3, 3)
         jacobians[1] = np.array(jac).reshape(3, 4)
     return np.array((r - z[0], _wrap_scalar(w - z[1]), v - z[2]))
