@@ -1,26 +1,36 @@
-"""Radar measurement models (pure numpy) and their GTSAM factor adapters.
+"""The physics layer: radar measurement models, the detection inverse, the
+constant-velocity motion model (pure numpy) and their GTSAM factor adapters.
 
-``factors.models`` knows numpy only; ``factors.gtsam_factors`` wraps those
-models as GTSAM factors. Nothing here knows about files, DSP or pipelines.
+``factors.models`` (the measurement model in its three forms, the detection
+<-> local-position inverse with its Jacobian and covariance, frame
+transforms), ``factors.motion`` (constant-velocity transition and process
+noise) and ``factors.robust`` (robust-kernel defaults) know numpy only;
+``factors.gtsam_factors`` wraps them as GTSAM factors. Nothing here knows
+about files, DSP or pipelines, nor imports :mod:`mmsnap_graph`.
 """
 
 from .models import (
+    DETECTION_MIN_COS,
     MEASUREMENT_NAMES,
+    detection_covariance_global,
+    detection_covariance_local,
+    detection_jacobian,
     detection_to_global,
     detection_to_local,
-    doppler_model,
+    detection_to_local_scalar,
     global_to_local,
     local_to_global,
     measurement_model,
     measurement_model_pose,
     measurement_model_scalar,
-    omega_model,
     predict_measurements,
-    range_model,
     residual,
     wrap_angle,
     wrap_angle_scalar,
 )
+from .motion import cv_process_noise, cv_process_noise_continuous, cv_transition
+from .robust import ROBUST_K_DEFAULT, ROBUST_KERNELS, robust_k
+
 # The GTSAM adapters load on first use, so that numpy-only layers (the radar
 # signal chain, the simulator) can use the models without importing GTSAM.
 _GTSAM_NAMES = (
@@ -47,19 +57,27 @@ __all__ = [
     "MEASUREMENT_NAMES",
     "COMPONENT_INDEX",
     "wrap_angle",
-    "range_model",
-    "omega_model",
-    "doppler_model",
+    "wrap_angle_scalar",
     "measurement_model",
     "measurement_model_pose",
     "measurement_model_scalar",
     "predict_measurements",
-    "wrap_angle_scalar",
     "residual",
+    "DETECTION_MIN_COS",
     "detection_to_local",
+    "detection_to_local_scalar",
+    "detection_jacobian",
+    "detection_covariance_local",
+    "detection_covariance_global",
+    "detection_to_global",
     "local_to_global",
     "global_to_local",
-    "detection_to_global",
+    "cv_transition",
+    "cv_process_noise",
+    "cv_process_noise_continuous",
+    "ROBUST_KERNELS",
+    "ROBUST_K_DEFAULT",
+    "robust_k",
     "measurement_noise",
     "frame_measurement_factor",
     "node_measurement_factor",

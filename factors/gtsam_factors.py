@@ -27,6 +27,8 @@ from numpy.typing import ArrayLike
 
 from .models import measurement_model_scalar as _model_scalar
 from .models import wrap_angle_scalar as _wrap_scalar
+from .motion import cv_process_noise_continuous, cv_transition
+from .robust import robust_k as _robust_k
 
 __all__ = [
     "COMPONENT_INDEX",
@@ -42,22 +44,22 @@ __all__ = [
 #: Index of each measurement component in a measurement vector.
 COMPONENT_INDEX = {"range": 0, "omega": 1, "doppler": 2}
 
-_PI = math.pi
 
 
 def measurement_noise(
     sigmas: ArrayLike, robust: str | None = None, robust_k: float | None = None
 ) -> gtsam.noiseModel.Base:
-    """Diagonal noise model, optionally wrapped in a Huber or Cauchy kernel."""
+    """Diagonal noise model, optionally wrapped in a Huber or Cauchy kernel
+    (``robust_k`` default: :data:`factors.robust.ROBUST_K_DEFAULT`, Huber
+    1.345, Cauchy 2.5 on the whitened residual)."""
     base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
     if robust is None:
         return base
+    k = _robust_k(robust, robust_k)
     if robust == "huber":
-        kernel = gtsam.noiseModel.mEstimator.Huber.Create(1.345 if robust_k is None else robust_k)
-    elif robust == "cauchy":
-        kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(0.1 if robust_k is None else robust_k)
+        kernel = gtsam.noiseModel.mEstimator.Huber.Create(k)
     else:
-        raise ValueError(f"robust={robust!r} must be None, 'huber' or 'cauchy'")
+        kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(k)
     return gtsam.noiseModel.Robust.Create(kernel, base)
 
 
@@ -154,26 +156,17 @@ def scalar_measurement_factor(
 
 def _pose_error(pose_key, state_key, z, this, values, jacobians):
     pose = values.atPose2(pose_key)
-    px, py, phi = pose.x(), pose.y(), pose.theta()
+    x, y, vx, vy = values.atVector(state_key).tolist()
+    phi = pose.theta()
     c = math.cos(phi)
     s = math.sin(phi)
-    x, y, vx, vy = values.atVector(state_key).tolist()
-    r, w, v, jac = _model_scalar(x, y, vx, vy, px, py, c, s)
-    err = np.array((r - z[0], _wrap_scalar(w - z[1]), v - z[2]))
-    if jacobians is not None:
-        # d h / d pose = [d h / d p_i @ R(phi), d h / d phi] with
-        # d h / d p_i = -d h / d p (docs/CONVENTIONS.md); only Omega depends on
-        # phi: pi <d, (-sin phi, cos phi)> / r.
-        ux, uy = jac[0], jac[1]
-        j_pose = []
-        for k in range(3):
-            a = -jac[4 * k]
-            b = -jac[4 * k + 1]
-            j_pose += (a * c + b * s, -a * s + b * c, 0.0)
-        j_pose[5] = _PI * (uy * c - ux * s)
+    if jacobians is None:
+        r, w, v, _ = _model_scalar(x, y, vx, vy, pose.x(), pose.y(), c, s)
+    else:
+        r, w, v, jac, j_pose = _model_scalar(x, y, vx, vy, pose.x(), pose.y(), c, s, True)
         jacobians[0] = np.array(j_pose).reshape(3, 3)
         jacobians[1] = np.array(jac).reshape(3, 4)
-    return err
+    return np.array((r - z[0], _wrap_scalar(w - z[1]), v - z[2]))
 
 
 def pose_measurement_factor(
@@ -197,12 +190,10 @@ def state_prior_factor(
     )
 
 
-def _cv_error(dt, this, values, jacobians):
+def _cv_error(f, this, values, jacobians):
     keys = this.keys()
     a = values.atVector(keys[0])
     b = values.atVector(keys[1])
-    f = np.eye(4)
-    f[0, 2] = f[1, 3] = dt
     if jacobians is not None:
         jacobians[0] = -f
         jacobians[1] = np.eye(4)
@@ -210,23 +201,19 @@ def _cv_error(dt, this, values, jacobians):
 
 
 def constant_velocity_factor(
-    key_a: int, key_b: int, dt_s: float, sigma_a_mps2: float
+    key_a: int, key_b: int, frame_period_s: float, sigma_a_mps2: float
 ) -> gtsam.CustomFactor:
-    """Constant-velocity motion factor between consecutive target states.
+    """Constant-velocity motion factor between consecutive target states
+    ``frame_period_s`` apart.
 
-    The error is ``x_b - F x_a`` with ``F = [[I, T I], [0, I]]``. The discrete
-    white-acceleration form of docs/CONVENTIONS.md,
+    The error is ``x_b - F x_a`` with ``F`` = :func:`factors.motion.cv_transition`.
+    The discrete white-acceleration form of docs/CONVENTIONS.md,
     ``sigma_a^2 [[T^4/4, T^3/2], [T^3/2, T^2]]`` per axis, is rank one and
     cannot whiten a factor, so the factor uses the continuous white-noise
-    acceleration form ``q [[T^3/3, T^2/2], [T^2/2, T]]`` with
-    ``q = sigma_a^2 T``, which gives the same velocity-increment variance
-    ``sigma_a^2 T^2`` and is full rank.
+    acceleration form :func:`factors.motion.cv_process_noise_continuous`,
+    ``q [[T^3/3, T^2/2], [T^2/2, T]]`` with ``q = sigma_a^2 T``, which gives
+    the same velocity-increment variance ``sigma_a^2 T^2`` and is full rank.
     """
-    t = float(dt_s)
-    q = sigma_a_mps2**2 * t
-    q1 = q * np.array([[t**3 / 3, t**2 / 2], [t**2 / 2, t]])
-    cov = np.zeros((4, 4))
-    cov[np.ix_([0, 2], [0, 2])] = q1
-    cov[np.ix_([1, 3], [1, 3])] = q1
-    noise = gtsam.noiseModel.Gaussian.Covariance(cov)
-    return gtsam.CustomFactor(noise, [key_a, key_b], partial(_cv_error, t))
+    t = float(frame_period_s)
+    noise = gtsam.noiseModel.Gaussian.Covariance(cv_process_noise_continuous(t, sigma_a_mps2))
+    return gtsam.CustomFactor(noise, [key_a, key_b], partial(_cv_error, cv_transition(t)))

@@ -22,6 +22,7 @@ __all__ = [
     "cholesky4",
     "cholesky4_solve",
     "cholesky4_inverse",
+    "symmetrize",
 ]
 
 # Relative pivot below which a matrix counts as singular: about the
@@ -149,3 +150,9 @@ def cholesky4_inverse(chol: ArrayLike) -> NDArray:
 # ----------------------------------------------------------------------------
 
 
+
+
+def symmetrize(p: NDArray) -> NDArray:
+    """``(P + P^T) / 2`` over the last two axes: removes the rounding asymmetry
+    of a covariance update."""
+    return 0.5 * (p + np.swapaxes(p, -1, -2))

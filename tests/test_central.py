@@ -8,7 +8,7 @@ from mmsnap_graph.fusion import batch, oneshot
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 from mmsnap_graph.app.evaluation import chi2_mean_interval, nees
 from mmsnap_graph.fusion.sequence import fuse_recording
-from mmsnap_graph.sim import CentroidNoise, simulate_recording
+from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import (
     CentralConfig,
     CentralTracker,
@@ -125,7 +125,7 @@ def test_tracks_two_targets_of_a_simulated_recording():
     (and the simulated centroids are noisier in range than the fusion's
     0.035 m), so this run uses sigma_a = 2 m/s^2 and a wide gate."""
     rec = simulate_recording("B", "random", levels=("centroids",), n_frames=120, seed=5,
-                             n_targets=2, known_poses=True, centroid_noise=CentroidNoise(p_miss=0.1))
+                             n_targets=2, known_poses=True, centroid_p_miss=0.1)
     fused = fuse_recording(rec)
     cfg = CentralConfig(frame_period_s=rec.frame_period_s, sigma_a_mps2=2.0, gate_probability=0.999999)
     tracks = track_fused(fused, cfg)

@@ -5,34 +5,31 @@ import numpy as np
 import pytest
 
 from factors.models import detection_to_local, measurement_model
+from factors.motion import cv_process_noise, cv_transition
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 from mmsnap_graph.app.evaluation import chi2_mean_interval, nees
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.tracking.ekf import (
     EkfConfig,
     LocalTracker,
-    cv_process_noise,
-    cv_transition,
     ekf_predict,
     ekf_update,
-    initial_state,
     track_centroids,
+    track_initial_state,
 )
 
 
-def test_cv_model_matrices():
-    t, sa = 0.15, 0.2
+def test_ekf_predict_is_the_cv_model():
+    """The prediction uses factors.motion's F and Q (tested there)."""
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=4)
+    a = rng.normal(size=(4, 4))
+    p = a @ a.T + np.eye(4)
+    t, sa = 0.3, 0.7
+    xp, pp = ekf_predict(x, p, t, sa)
     f = cv_transition(t)
-    np.testing.assert_array_equal(f @ np.array([1.0, 2.0, 3.0, 4.0]), [1 + 3 * t, 2 + 4 * t, 3, 4])
-    q = cv_process_noise(t, sa)
-    block = sa**2 * np.array([[t**4 / 4, t**3 / 2], [t**3 / 2, t**2]])
-    np.testing.assert_allclose(q[np.ix_([0, 2], [0, 2])], block, rtol=1e-15)
-    np.testing.assert_allclose(q[np.ix_([1, 3], [1, 3])], block, rtol=1e-15)
-    assert q[0, 1] == q[0, 3] == q[1, 2] == 0.0
-    # It is the covariance of a constant acceleration drawn per step:
-    # G a with G = [T^2/2, T] per axis.
-    g = np.array([[t**2 / 2, 0], [0, t**2 / 2], [t, 0], [0, t]])
-    np.testing.assert_allclose(q, sa**2 * g @ g.T, rtol=1e-14)
+    np.testing.assert_allclose(xp, [x[0] + t * x[2], x[1] + t * x[3], x[2], x[3]], rtol=1e-14)
+    np.testing.assert_allclose(pp, f @ p @ f.T + cv_process_noise(t, sa), rtol=1e-13)
 
 
 def test_update_matches_the_textbook_kalman_equations():
@@ -64,10 +61,10 @@ def test_omega_innovation_is_wrapped():
     assert d2 < 0.1
 
 
-def test_initial_state_covariance_is_the_detection_jacobian():
+def test_track_initial_state_covariance_is_the_detection_jacobian():
     cfg = EkfConfig(measurement_std=(0.05, 0.1, 0.2))
     z = np.array([5.0, 0.7, -0.9])
-    x, p = initial_state(z, cfg)
+    x, p = track_initial_state(z, cfg)
     np.testing.assert_allclose(x[:2], detection_to_local(z[0], z[1]))
     # Numerical Jacobian of detection_to_local at (R, Omega).
     eps = 1e-6
@@ -81,6 +78,15 @@ def test_initial_state_covariance_is_the_detection_jacobian():
     assert u @ p[2:, 2:] @ u == pytest.approx(0.2**2)
     t = np.array([-u[1], u[0]])
     assert t @ p[2:, 2:] @ t == pytest.approx(cfg.init_tangential_speed_std_mps**2)
+
+
+def test_track_initial_state_at_end_fire_is_finite():
+    """|Omega| > pi (noise beyond end-fire) starts a track on the array axis
+    with a finite covariance (the detection inverse's one clipping rule)."""
+    x, p = track_initial_state(np.array([3.0, 3.3, 0.5]), EkfConfig())
+    np.testing.assert_allclose(x[:2], [3.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(x[2:], [0.5, 0.0], atol=1e-12)
+    assert np.all(np.isfinite(p)) and np.all(np.linalg.eigvalsh(p) > 0)
 
 
 def _simulate(rng, n_frames, cfg, x0):
@@ -112,7 +118,7 @@ def test_nees_is_chi_square_consistent():
             np.array([-u[1], u[0]])
         xs, z = _simulate(rng, n_frames, cfg, np.concatenate([pos, vel]))
         # Start exactly as the tracker does, then run predict/update.
-        x, p = initial_state(z[0], cfg)
+        x, p = track_initial_state(z[0], cfg)
         errs, covs = [x - xs[0]], [p]
         for i in range(1, n_frames):
             x, p = ekf_predict(x, p, cfg.frame_period_s, cfg.sigma_a_mps2)

@@ -17,7 +17,7 @@ from gtsam.utils.numerical_derivative import (
 )
 from numpy.testing import assert_allclose
 
-from factors import models
+from factors import ROBUST_K_DEFAULT, models
 from factors.gtsam_factors import (
     constant_velocity_factor,
     frame_measurement_factor,
@@ -52,20 +52,20 @@ def configs(seed, n=N_CONFIGS):
 # Pure models
 
 
-@pytest.mark.parametrize(
-    "model, row",
-    [(models.range_model, 0), (models.omega_model, 1), (models.doppler_model, 2)],
-)
-def test_scalar_model_jacobians_match_numerical(model, row):
+def test_measurement_model_matches_independent_geometry():
+    """Reference values from geometry alone (no shared formula): range as a
+    distance, omega = pi sin(theta) with theta the bearing from broadside in
+    the node frame (``Pose2.transformTo``), Doppler as the rate of change of
+    the range along the velocity (central difference)."""
     for pose, state in configs(1):
-        value, jac = model(state, pose)
-        num = numericalDerivative11(lambda s: np.atleast_1d(model(s, pose)[0]), state)
-        assert jac.shape == (4,)
-        assert_allclose(jac[None, :], num, rtol=1e-6, atol=1e-8)
-        # the stacked model agrees component by component
-        h, j = models.measurement_model(state, pose)
-        assert value == pytest.approx(h[row], rel=1e-14, abs=1e-14)
-        assert_allclose(jac, j[row], rtol=1e-14, atol=1e-14)
+        p, vel = state[:2], state[2:]
+        u, v = gtsam.Pose2(*pose).transformTo(p)
+        theta = math.atan2(u, v)  # from broadside (local y) towards the array axis (local x)
+        eps = 1e-6
+        rate = (np.linalg.norm(p + eps * vel - pose[:2]) - np.linalg.norm(p - eps * vel - pose[:2])) / (2 * eps)
+        expected = [math.dist(p, pose[:2]), math.pi * math.sin(theta), rate]
+        assert_allclose(models.measurement_model(state, pose)[0], expected, rtol=1e-7, atol=1e-8)
+        assert_allclose(models.predict_measurements(state, pose), expected, rtol=1e-7, atol=1e-8)
 
 
 def test_measurement_model_jacobian_matches_numerical():
@@ -119,12 +119,36 @@ def test_predict_measurements_equals_measurement_model():
 
 def test_scalar_kernel_equals_vectorized_model():
     for pose, state in configs(5, 100):
-        r, w, v, jac = models.measurement_model_scalar(
-            *state.tolist(), pose[0], pose[1], math.cos(pose[2]), math.sin(pose[2])
-        )
+        node = (pose[0], pose[1], math.cos(pose[2]), math.sin(pose[2]))
+        r, w, v, jac = models.measurement_model_scalar(*state.tolist(), *node)
         h, j = models.measurement_model(state, pose)
         assert_allclose([r, w, v], h, rtol=1e-14, atol=1e-14)
         assert_allclose(np.array(jac).reshape(3, 4), j, rtol=1e-13, atol=1e-14)
+        r2, w2, v2, jac2, j_pose = models.measurement_model_scalar(
+            *state.tolist(), *node, pose_jacobian=True)
+        assert (r2, w2, v2, jac2) == (r, w, v, jac)
+        _, jp_vec, _ = models.measurement_model_pose(pose, state)
+        assert_allclose(np.array(j_pose).reshape(3, 3), jp_vec, rtol=1e-12, atol=1e-13)
+
+
+def test_scalar_kernel_jacobians_through_retract():
+    """The scalar kernel's own state and pose Jacobians against numerical
+    derivatives (the pose one through ``Pose2.retract``)."""
+
+    def h_of(pose2: gtsam.Pose2, state):
+        out = models.measurement_model_scalar(
+            *state.tolist(), pose2.x(), pose2.y(), math.cos(pose2.theta()), math.sin(pose2.theta()))
+        return np.array(out[:3])
+
+    for pose, state in configs(24, 30):
+        pose2 = gtsam.Pose2(*pose)
+        *_, jac, j_pose = models.measurement_model_scalar(
+            *state.tolist(), pose[0], pose[1], math.cos(pose[2]), math.sin(pose[2]),
+            pose_jacobian=True)
+        assert_allclose(np.array(j_pose).reshape(3, 3), numericalDerivative21(h_of, pose2, state),
+                        rtol=1e-6, atol=1e-8)
+        assert_allclose(np.array(jac).reshape(3, 4), numericalDerivative22(h_of, pose2, state),
+                        rtol=1e-6, atol=1e-8)
 
 
 def test_scalar_kernel_raises_at_the_node_position():
@@ -202,6 +226,62 @@ def test_detection_round_trip_through_the_model():
 def test_detection_to_local_clips_omega_beyond_pi():
     assert_allclose(models.detection_to_local(2.0, 4.0), [2.0, 0.0], atol=1e-12)
     assert_allclose(models.detection_to_local(2.0, -4.0), [-2.0, 0.0], atol=1e-12)
+
+
+def test_detection_to_local_scalar_equals_vectorized():
+    rng = np.random.default_rng(25)
+    for rng_m, omega in zip(rng.uniform(0.1, 12, 50), rng.uniform(-4.5, 4.5, 50)):
+        assert_allclose(models.detection_to_local_scalar(float(rng_m), float(omega)),
+                        models.detection_to_local(rng_m, omega), rtol=1e-15, atol=1e-15)
+
+
+def test_detection_jacobian_matches_numerical():
+    rng = np.random.default_rng(26)
+    for rng_m, omega in zip(rng.uniform(0.3, 12, 40), rng.uniform(-2.9, 2.9, 40)):
+        z = np.array([rng_m, omega])
+        num = numericalDerivative11(lambda q: models.detection_to_local(q[0], q[1]), z)
+        assert_allclose(models.detection_jacobian(rng_m, omega), num, rtol=1e-6, atol=1e-8)
+    # vectorized: one Jacobian per detection
+    jac = models.detection_jacobian(np.array([2.0, 3.0]), np.array([0.1, -0.5]))
+    assert jac.shape == (2, 2, 2)
+    assert_allclose(jac[1], models.detection_jacobian(3.0, -0.5), rtol=1e-15)
+
+
+def test_detection_jacobian_floors_cos_at_end_fire():
+    jac = models.detection_jacobian(2.0, np.pi)  # sin(theta) = 1, cos(theta) = 0
+    c = models.DETECTION_MIN_COS
+    assert_allclose(jac, [[1.0, 2.0 / np.pi], [c, -2.0 / (np.pi * c)]], rtol=1e-15)
+    assert np.all(np.isfinite(models.detection_jacobian(2.0, 5.0)))
+
+
+def test_detection_covariance_matches_monte_carlo():
+    """First-order local and global covariances against the scatter of
+    detections mapped through the exact inverse (small sigmas: linear regime)."""
+    rng = np.random.default_rng(27)
+    sr, so, n = 0.01, 0.01, 40_000
+    for rng_m, omega, pose in [(4.0, 0.3, [1.0, -2.0, 0.7]), (2.5, -1.9, [0.0, 7.0, np.pi])]:
+        rs = rng_m + sr * rng.standard_normal(n)
+        ws = omega + so * rng.standard_normal(n)
+        cov_local = models.detection_covariance_local(rng_m, omega, sr, so)
+        cov_global = models.detection_covariance_global(rng_m, omega, np.array(pose), sr, so)
+        for cov, pts in ((cov_local, models.detection_to_local(rs, ws)),
+                         (cov_global, models.detection_to_global(rs, ws, np.array(pose)))):
+            emp = np.cov(pts.T)
+            scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+            assert_allclose(emp / scale, cov / scale, atol=0.03)
+        # rotation only: same eigenvalues in both frames
+        assert_allclose(np.linalg.eigvalsh(cov_global), np.linalg.eigvalsh(cov_local), rtol=1e-12)
+
+
+def test_detection_covariance_broadcasts_over_detections_and_poses():
+    r = np.array([2.0, 3.0, 4.0])
+    w = np.array([0.1, -0.5, 1.0])
+    poses = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 0.5], [0.0, 7.0, np.pi]])
+    cov = models.detection_covariance_global(r, w, poses, 0.035, np.pi / 4)
+    assert cov.shape == (3, 2, 2)
+    for k in range(3):
+        assert_allclose(cov[k], models.detection_covariance_global(r[k], w[k], poses[k], 0.035, np.pi / 4),
+                        rtol=1e-14)
 
 
 def test_configuration_c_nodes_face_each_other():
@@ -371,6 +451,18 @@ def test_robust_noise_models_linearize(robust):
         assert_allclose(weights, 1.0, rtol=1e-12)
     else:
         assert np.all(weights <= 1.0 + 1e-12) and weights.min() < 0.999
+
+
+@pytest.mark.parametrize("robust", ["huber", "cauchy"])
+def test_measurement_noise_default_k_is_the_shared_constant(robust):
+    """Both kernels weigh a residual of 2 k by 1/2 (Huber: k / |x|; Cauchy:
+    1 / (1 + (x / k)^2) at x = k): the default k is ROBUST_K_DEFAULT."""
+    k = ROBUST_K_DEFAULT[robust]
+    assert k == {"huber": 1.345, "cauchy": 2.5}[robust]
+    x = 2 * k if robust == "huber" else k
+    assert measurement_noise(SIGMAS, robust).robust().weight(x) == pytest.approx(0.5, rel=1e-12)
+    assert measurement_noise(SIGMAS, robust, 1.0).robust().weight(2.0 if robust == "huber" else 1.0) \
+        == pytest.approx(0.5, rel=1e-12)
 
 
 def test_measurement_noise_rejects_unknown_kernel():

@@ -10,7 +10,7 @@ from factors.models import measurement_model, wrap_angle
 from mmsnap_graph import ConfigurationError, ValidationError
 from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.data.radar_config import TABLE_I
-from mmsnap_graph.sim import CentroidNoise, PointCloudModel, network_poses, simulate_recording
+from mmsnap_graph.sim import CENTROID_NOISE, PointCloudModel, network_poses, simulate_recording
 from mmsnap_graph.sim.networks import in_field_of_view
 
 
@@ -37,7 +37,7 @@ def test_truth_holds_torso_states_and_poses(rec_b):
 
 
 def test_centroids_agree_with_truth_within_stated_noise(rec_b):
-    noise = CentroidNoise()
+    noise = CENTROID_NOISE
     for name in rec_b.node_names:
         c = rec_b.nodes[name].centroids
         assert len(c) == 600  # the common area is in view of both nodes
@@ -75,7 +75,7 @@ def test_out_of_view_frames_have_no_centroid():
 
 def test_missed_detections_rate():
     rec = simulate_recording("C", "straight", levels=("centroids",), seed=2,
-                             centroid_noise=CentroidNoise(p_miss=0.2))
+                             centroid_p_miss=0.2)
     n = len(rec.nodes["S1"].centroids)
     # Binomial(600, 0.8): std 9.8.
     assert abs(n - 480) < 40
@@ -119,7 +119,7 @@ def test_multiple_targets_are_labelled():
         c = rec.nodes[name].centroids
         assert sorted(set(c.target_id.tolist())) == [0, 1, 2]
         h = _truth_h(rec, name, c.frame, c.target_id)
-        assert np.abs(c.range_m - h[:, 0]).max() < 5 * CentroidNoise().range_std_m
+        assert np.abs(c.range_m - h[:, 0]).max() < 5 * CENTROID_NOISE.range_m
         assert set(rec.nodes[name].point_cloud.target_id.tolist()) == {-1, 0, 1, 2}
 
 
@@ -181,6 +181,10 @@ def test_simulator_argument_errors():
         simulate_recording("C", levels=("centroids",), n_frames=5, radar={"n_loops": 3})
     with pytest.raises(ValidationError, match="n_targets=0"):
         simulate_recording("C", levels=("centroids",), n_frames=5, n_targets=0)
+    with pytest.raises(ValidationError, match="centroid_p_miss=1.0"):
+        simulate_recording("C", levels=("centroids",), n_frames=5, centroid_p_miss=1.0)
+    with pytest.raises(ConfigurationError, match="centroid_noise must be a MeasurementNoise"):
+        simulate_recording("C", levels=("centroids",), n_frames=5, centroid_noise=(0.1, 0.1, 0.1))
 
 
 def test_point_cloud_noise_matches_its_stated_model():

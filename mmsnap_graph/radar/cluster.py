@@ -42,6 +42,8 @@ import numpy as np
 from numpy.typing import NDArray
 from sklearn.cluster import DBSCAN
 
+from factors.models import detection_to_local
+
 from ..errors import ConfigurationError
 from ..data.recording import Detections
 
@@ -80,52 +82,47 @@ class ClusterConfig:
             raise ConfigurationError(f"method={self.method!r} must be 'torso' or 'mean'")
 
 
-def _positions(range_m: NDArray, omega_rad: NDArray) -> NDArray:
-    sin_t = np.clip(omega_rad / np.pi, -1.0, 1.0)
-    return np.stack([range_m * sin_t, range_m * np.sqrt(1.0 - sin_t**2)], axis=-1)
-
-
-def cluster_labels(range_m: NDArray, omega_rad: NDArray, cfg: ClusterConfig) -> NDArray:
+def cluster_labels(range_m: NDArray, omega_rad: NDArray, config: ClusterConfig) -> NDArray:
     """(K,) DBSCAN labels of one frame's detections (-1 = noise)."""
     k = range_m.shape[0]
-    if k < cfg.min_samples:
+    if k < config.min_samples:
         return np.full(k, -1, dtype=np.int64)
     # Rotate each point into (radial, cross-range) of the cloud's mean
     # direction, shrink cross-range, then cluster.
-    p = _positions(range_m, omega_rad)
+    p = detection_to_local(range_m, omega_rad)
     direction = p.mean(axis=0)
     norm = np.hypot(*direction)
     u = direction / norm if norm > 0 else np.array([0.0, 1.0])
     radial = p @ u
     cross = p @ np.array([-u[1], u[0]])
-    feats = np.stack([radial, cross / cfg.cross_range_scale], axis=-1)
+    feats = np.stack([radial, cross / config.cross_range_scale], axis=-1)
     if k <= _PRECOMPUTED_MAX:
         # A frame's cloud is small: a precomputed distance matrix skips the
         # neighbour-search set-up, which dominates DBSCAN's cost here (~20x).
         diff = feats[:, None, :] - feats[None, :, :]
         dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
-        db = DBSCAN(eps=cfg.eps_m, min_samples=int(cfg.min_samples), metric="precomputed")
+        db = DBSCAN(eps=config.eps_m, min_samples=int(config.min_samples), metric="precomputed")
         return db.fit_predict(dist).astype(np.int64)
-    db = DBSCAN(eps=cfg.eps_m, min_samples=int(cfg.min_samples))
+    db = DBSCAN(eps=config.eps_m, min_samples=int(config.min_samples))
     return db.fit_predict(feats).astype(np.int64)
 
 
-def _torso_of_cluster(p, dop, w, cfg: ClusterConfig, doppler_res: float):
-    if cfg.method == "mean" or dop.size == 1:
+def _torso_of_cluster(p, dop, w, config: ClusterConfig, doppler_res: float):
+    if config.method == "mean" or dop.size == 1:
         sel = np.ones(dop.size, bool)
     else:
         # Power-weighted Gaussian kernel density of Doppler, at the points.
         diff = (dop[:, None] - dop[None, :]) / doppler_res
         density = np.exp(-0.5 * diff**2) @ w
         mode = dop[np.argmax(density)]
-        sel = np.abs(dop - mode) <= cfg.torso_doppler_cells * doppler_res
+        sel = np.abs(dop - mode) <= config.torso_doppler_cells * doppler_res
     ws = w[sel] / w[sel].sum()
     pos = ws @ p[sel]
     return pos, float(ws @ dop[sel])
 
 
 def torso_centroids(
-    point_cloud: Detections, cfg: ClusterConfig, *, doppler_resolution_mps: float
+    point_cloud: Detections, config: ClusterConfig, *, doppler_resolution_mps: float
 ) -> Detections:
     """One centroid per cluster per frame from a point cloud (module docstring).
 
@@ -146,16 +143,16 @@ def torso_centroids(
         dop = point_cloud.doppler_mps[rows]
         snr = (point_cloud.snr_db[rows] if point_cloud.snr_db is not None
                else np.zeros(rows.size))
-        labels = cluster_labels(rng_m, om, cfg)
+        labels = cluster_labels(rng_m, om, config)
         if not np.any(labels >= 0):
             continue
-        p = _positions(rng_m, om)
+        p = detection_to_local(rng_m, om)
         # Log-compressed weights (SNR in dB above 0): one strong specular
         # point (a foot at close range) must not outvote the many torso points.
         w = np.maximum(snr, 0.0) + 1e-3
         for lab in np.unique(labels[labels >= 0]):
             m = labels == lab
-            pos, v = _torso_of_cluster(p[m], dop[m], w[m], cfg, doppler_resolution_mps)
+            pos, v = _torso_of_cluster(p[m], dop[m], w[m], config, doppler_resolution_mps)
             r = float(np.hypot(*pos))
             if r <= 0:
                 continue

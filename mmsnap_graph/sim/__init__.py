@@ -15,7 +15,7 @@ from .body import HumanBody, body_scatterers
 from .networks import CONFIGURATIONS, COMMON_AREAS, Area, common_area, network_poses
 from .simulator import (
     LEVELS,
-    CentroidNoise,
+    CENTROID_NOISE,
     CubeModel,
     PointCloudModel,
     simulate_recording,
@@ -42,7 +42,7 @@ __all__ = [
     "HumanBody",
     "body_scatterers",
     "LEVELS",
-    "CentroidNoise",
+    "CENTROID_NOISE",
     "PointCloudModel",
     "CubeModel",
     "simulate_recording",

@@ -18,6 +18,7 @@ from typing import Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.ndimage import distance_transform_cdt
 
 from factors.models import global_to_local
 
@@ -191,8 +192,6 @@ def common_area(network: str | Mapping[str, ArrayLike], *,
                             f"(fov_rad={fov_rad}, max_range_m={max_range_m})")
     # Chebyshev distance (in cells) to the nearest outside cell: a square of
     # half-side d around a cell is entirely inside.
-    from scipy.ndimage import distance_transform_cdt
-
     depth = (distance_transform_cdt(np.pad(inside, 1), metric="chessboard")[1:-1, 1:-1]
              - 1) * step
     # The biggest square up to max_size_m, then among the cells deep enough

@@ -7,7 +7,8 @@ and the true node poses) and any of three levels per node:
 
 - ``"centroids"``: one row per target per frame in view: the torso's
   measurement :func:`factors.models.measurement_model` plus Gaussian noise
-  (:class:`CentroidNoise`), optional missed detections;
+  (:data:`CENTROID_NOISE` by default), optional missed detections
+  (``centroid_p_miss``);
 - ``"point_cloud"``: one detection per resolvable body scatterer (torso,
   arms, legs: limb micro-Doppler), detected with a probability from its SNR,
   with SNR-dependent noise, plus false alarms (:class:`PointCloudModel`); a
@@ -29,14 +30,17 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from tqdm import tqdm
 
 from factors.models import global_to_local, measurement_model, wrap_angle
 
 from ..errors import ConfigurationError, ValidationError
+from ..data.noise import MeasurementNoise
 from ..data.radar_config import TABLE_I, RadarConfig
 from ..data.recording import Detections, NodeData, Recording, Truth
 from .._validation import as_float_array, check_finite
 from .body import BodyScatterers, HumanBody, body_scatterers
+from .cube import post_fft_snr_db, scatterer_amplitude, synthesize_cubes
 from .networks import (
     DEFAULT_FOV_RAD,
     DEFAULT_MAX_RANGE_M,
@@ -47,7 +51,7 @@ from .networks import (
 )
 from .trajectories import DEFAULT_N_FRAMES, TRAJECTORY_KINDS, make_trajectory
 
-__all__ = ["LEVELS", "CentroidNoise", "PointCloudModel", "CubeModel", "simulate_recording",
+__all__ = ["LEVELS", "CENTROID_NOISE", "PointCloudModel", "CubeModel", "simulate_recording",
            "simulate_targets"]
 
 LEVELS = ("centroids", "point_cloud", "cube")
@@ -60,41 +64,20 @@ def _stream(seed: int, purpose: int, index: int = 0) -> np.random.Generator:
     return np.random.default_rng([int(seed), purpose, index])
 
 
-@dataclass(frozen=True, kw_only=True, slots=True)
-class CentroidNoise:
-    """Noise of the centroid level: one row per target per frame.
-
-    These are the errors of a torso-cluster centroid, not the radar's
-    resolutions (the paper's 0.035 m, pi/4 rad, 0.1807 m/s are the
-    resolutions, used by the fusion as conservative sigmas):
-
-    - ``range_std_m`` 0.05 m: the centroid of points spread over the torso's
-      depth (about 0.2 m) with 3.5 cm range cells;
-    - ``omega_std_rad`` 0.08 rad: about 1.5 deg at broadside
-      (``d omega = pi cos(theta) d theta``), the scatter of an interpolated
-      8-element-array angle estimate of a 0.4 m wide torso at a few metres;
-    - ``doppler_std_mps`` 0.1 m/s: the torso's Doppler centroid, perturbed by
-      limb points that leak into the torso cluster (Doppler cell 0.18 m/s);
-    - ``p_miss``: probability that a target in view has no centroid.
-    """
-
-    range_std_m: float = 0.05
-    omega_std_rad: float = 0.08
-    doppler_std_mps: float = 0.10
-    p_miss: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("range_std_m", "omega_std_rad", "doppler_std_mps"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise ValidationError(f"{name}={v!r} must be finite and >= 0")
-        if not 0 <= self.p_miss < 1:
-            raise ValidationError(f"p_miss={self.p_miss!r} must be in [0, 1)")
-
-    @property
-    def sigmas(self) -> NDArray:
-        """(3,) ``(range_std_m, omega_std_rad, doppler_std_mps)``."""
-        return np.array([self.range_std_m, self.omega_std_rad, self.doppler_std_mps])
+#: Noise of the centroid level, one row per target per frame (a
+#: :class:`~mmsnap_graph.data.noise.MeasurementNoise`). These are the errors of
+#: a torso-cluster centroid, not the radar's resolutions (the paper's 0.035 m,
+#: pi/4 rad, 0.1807 m/s are the resolutions, used by the fusion as
+#: conservative sigmas):
+#:
+#: - range 0.05 m: the centroid of points spread over the torso's depth
+#:   (about 0.2 m) with 3.5 cm range cells;
+#: - spatial frequency 0.08 rad: about 1.5 deg at broadside
+#:   (``d omega = pi cos(theta) d theta``), the scatter of an interpolated
+#:   8-element-array angle estimate of a 0.4 m wide torso at a few metres;
+#: - Doppler 0.1 m/s: the torso's Doppler centroid, perturbed by limb points
+#:   that leak into the torso cluster (Doppler cell 0.18 m/s).
+CENTROID_NOISE = MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.10)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -222,13 +205,13 @@ def _in_view(points, pose, limits) -> NDArray:
     return in_field_of_view(points, pose, **limits)
 
 
-def _centroids(states: NDArray, pose: NDArray, noise: CentroidNoise, limits,
+def _centroids(states: NDArray, pose: NDArray, noise: MeasurementNoise, p_miss: float, limits,
                rng: np.random.Generator, snr_db: NDArray) -> Detections:
     n_t, n_f, _ = states.shape
     h, _ = measurement_model(states, pose)                                   # (T, F, 3)
     visible = _in_view(states[..., :2], pose, limits)
     z = h + rng.standard_normal(h.shape) * noise.sigmas
-    keep = visible & (rng.random(visible.shape) >= noise.p_miss)
+    keep = visible & (rng.random(visible.shape) >= p_miss)
     tid, frame = np.nonzero(keep)
     order = np.lexsort((tid, frame))
     tid, frame = tid[order], frame[order]
@@ -239,8 +222,6 @@ def _centroids(states: NDArray, pose: NDArray, noise: CentroidNoise, limits,
 
 def _detection_snr_db(radar: RadarConfig, rcs_m2: NDArray, range_m: NDArray,
                       noise_std: float) -> NDArray:
-    from .cube import post_fft_snr_db, scatterer_amplitude
-
     amp = scatterer_amplitude(radar, rcs_m2, np.maximum(range_m, 1e-3), noise_std=noise_std)
     return post_fft_snr_db(radar, amp, noise_std) + 10 * np.log10(radar.n_virtual)
 
@@ -312,8 +293,6 @@ def _clutter(radar: RadarConfig, model: CubeModel, limits, rng: np.random.Genera
     theta = rng.uniform(-limits["fov_rad"], limits["fov_rad"], n)
     lo, hi = model.clutter_rcs_m2
     rcs = np.exp(rng.uniform(np.log(lo), np.log(hi), n))
-    from .cube import scatterer_amplitude
-
     amp = scatterer_amplitude(radar, rcs, r, noise_std=max(model.noise_std, 1e-12))
     phase = np.exp(2j * np.pi * rng.random(n))
     return np.stack([r * np.sin(theta), r * np.cos(theta)], axis=1), amp * phase
@@ -321,8 +300,6 @@ def _clutter(radar: RadarConfig, model: CubeModel, limits, rng: np.random.Genera
 
 def _cube_inputs(bodies: Sequence[BodyScatterers], pose: NDArray, radar: RadarConfig,
                  model: CubeModel, frames: NDArray, limits):
-    from .cube import scatterer_amplitude
-
     pos_l, vel_l, amp_l = [], [], []
     c, s = np.cos(pose[2]), np.sin(pose[2])
     rot = np.array([[c, s], [-s, c]])                     # global -> local rotation
@@ -348,8 +325,6 @@ def _cube_inputs(bodies: Sequence[BodyScatterers], pose: NDArray, radar: RadarCo
 
 def _cubes(bodies, pose, radar, model, frames, limits, rng, clutter_rng, progress_bar,
            memmap_dir, node_name) -> NDArray:
-    from .cube import synthesize_cubes
-
     clutter = _clutter(radar, model, limits, clutter_rng)
     shape = (frames.size, *radar.cube_shape)
     if memmap_dir is not None:
@@ -374,6 +349,97 @@ def _cubes(bodies, pose, radar, model, frames, limits, rng, clutter_rng, progres
     return out
 
 
+def _check_inputs(levels, radar, centroid_noise, centroid_p_miss) -> tuple[str, ...]:
+    levels = tuple(levels)
+    bad = [lv for lv in levels if lv not in LEVELS]
+    if bad or not levels:
+        raise ValidationError(f"levels={levels!r} must be a non-empty subset of {LEVELS}")
+    if not isinstance(radar, RadarConfig):
+        raise ConfigurationError(f"radar must be a RadarConfig, got {type(radar).__name__}")
+    if not isinstance(centroid_noise, MeasurementNoise):
+        raise ConfigurationError(f"centroid_noise must be a MeasurementNoise, "
+                                 f"got {type(centroid_noise).__name__}")
+    if not 0 <= centroid_p_miss < 1:
+        raise ValidationError(f"centroid_p_miss={centroid_p_miss!r} must be in [0, 1)")
+    return levels
+
+
+def _cube_frame_numbers(cube_frames, n_f: int) -> NDArray:
+    """The frames that get a raw cube (see :func:`simulate_recording`)."""
+    if cube_frames is None:
+        return np.arange(n_f)
+    if np.ndim(cube_frames) == 0:
+        if int(cube_frames) != cube_frames or not 0 <= cube_frames <= n_f:
+            raise ValidationError(f"cube_frames={cube_frames!r} must be an integer in [0, {n_f}]")
+        return np.arange(int(cube_frames))
+    frames_c = np.asarray(cube_frames)
+    if (frames_c.ndim != 1 or not np.issubdtype(frames_c.dtype, np.integer)
+            or np.any(frames_c < 0) or np.any(frames_c >= n_f)):
+        raise ValidationError(f"cube_frames must be frame numbers in [0, {n_f}), "
+                              f"got {cube_frames!r}")
+    return frames_c
+
+
+@dataclass(frozen=True, slots=True)
+class _Setup:
+    """Everything a node's simulation needs besides its pose and index."""
+
+    levels: tuple
+    radar: RadarConfig
+    states: NDArray
+    bodies: list
+    limits: dict
+    seed: int
+    centroid_noise: MeasurementNoise
+    centroid_p_miss: float
+    point_cloud_model: PointCloudModel
+    cube_model: CubeModel
+    torso_rcs_m2: float
+    frames_c: NDArray
+    known_poses: bool
+    cube_memmap_dir: object
+
+
+def _simulate_node(setup: _Setup, i: int, name: str, pose: NDArray, bar) -> NodeData:
+    """One node's levels, each from its own random stream."""
+    radar, states, seed = setup.radar, setup.states, setup.seed
+    n_t, n_f, _ = states.shape
+    kw = {"name": name, "radar": radar, "pose": pose if setup.known_poses else None}
+    if "centroids" in setup.levels:
+        torso_snr = np.stack([
+            _detection_snr_db(radar, np.full(n_f, setup.torso_rcs_m2),
+                              measurement_model(states[t], pose)[0][:, 0],
+                              setup.point_cloud_model.noise_std) for t in range(n_t)])
+        kw["centroids"] = _centroids(states, pose, setup.centroid_noise, setup.centroid_p_miss,
+                                     setup.limits, _stream(seed, _CENTROIDS, i), torso_snr)
+    if "point_cloud" in setup.levels:
+        kw["point_cloud"] = _point_cloud(setup.bodies, pose, radar, setup.point_cloud_model,
+                                         setup.limits, _stream(seed, _POINT_CLOUD, i))
+    if "cube" in setup.levels:
+        kw["cube"] = _cubes(setup.bodies, pose, radar, setup.cube_model, setup.frames_c,
+                            setup.limits, _stream(seed, _CUBE, i), _stream(seed, _CLUTTER, i),
+                            bar, setup.cube_memmap_dir, name)
+        kw["cube_frame"] = setup.frames_c
+    return NodeData(**kw)
+
+
+def _metadata(network, trajectory, setup: _Setup) -> dict:
+    return {
+        "generator": "mmsnap_graph.sim.simulate_recording",
+        "network": network if isinstance(network, str) else "custom",
+        "trajectory": trajectory if isinstance(trajectory, str) else "given",
+        "seed": int(setup.seed),
+        "n_targets": int(setup.states.shape[0]),
+        "levels": ",".join(setup.levels),
+        "fov_rad": setup.limits["fov_rad"],
+        "max_range_m": setup.limits["max_range_m"],
+        "min_range_m": setup.limits["min_range_m"],
+        "centroid_range_std_m": setup.centroid_noise.range_m,
+        "centroid_omega_std_rad": setup.centroid_noise.omega_rad,
+        "centroid_doppler_std_mps": setup.centroid_noise.doppler_mps,
+    }
+
+
 def simulate_recording(
     network: str | Mapping[str, ArrayLike] = "C",
     trajectory: str | ArrayLike = "straight",
@@ -387,7 +453,8 @@ def simulate_recording(
     fov_rad: float = DEFAULT_FOV_RAD,
     max_range_m: float = DEFAULT_MAX_RANGE_M,
     min_range_m: float = DEFAULT_MIN_RANGE_M,
-    centroid_noise: CentroidNoise = CentroidNoise(),
+    centroid_noise: MeasurementNoise = CENTROID_NOISE,
+    centroid_p_miss: float = 0.0,
     point_cloud_model: PointCloudModel = PointCloudModel(),
     cube_model: CubeModel = CubeModel(),
     cube_frames: int | ArrayLike | None = None,
@@ -409,7 +476,9 @@ def simulate_recording(
     seed : all randomness derives from it (per purpose and node).
     radar : chirp configuration of every node (Table I by default).
     fov_rad, max_range_m, min_range_m : visibility limits of every level.
-    centroid_noise, point_cloud_model, cube_model, body : level models.
+    centroid_noise : sigmas of the centroid level (default :data:`CENTROID_NOISE`).
+    centroid_p_miss : probability that a target in view has no centroid.
+    point_cloud_model, cube_model, body : level models.
     cube_frames : frames that get a raw cube: None = all, an int N = the
         first N, or an array of frame numbers.
     known_poses : store each node's true pose as its ``pose`` (else None; the
@@ -419,80 +488,36 @@ def simulate_recording(
         folder (for long cube recordings); the caller deletes the files.
     Returns the :class:`Recording` with truth and metadata.
     """
-    levels = tuple(levels)
-    bad = [lv for lv in levels if lv not in LEVELS]
-    if bad or not levels:
-        raise ValidationError(f"levels={levels!r} must be a non-empty subset of {LEVELS}")
-    if not isinstance(radar, RadarConfig):
-        raise ConfigurationError(f"radar must be a RadarConfig, got {type(radar).__name__}")
+    levels = _check_inputs(levels, radar, centroid_noise, centroid_p_miss)
     if frame_period_s is None:
         frame_period_s = radar.frame_period_s
     elif frame_period_s != radar.frame_period_s:
         radar = dataclasses.replace(radar, frame_period_s=float(frame_period_s))
     poses = network_poses(network)
-    limits = dict(fov_rad=float(fov_rad), max_range_m=float(max_range_m),
-                  min_range_m=float(min_range_m))
     states = simulate_targets(network, trajectory, n_targets=n_targets, n_frames=n_frames,
                               frame_period_s=frame_period_s, seed=seed,
                               **dict(trajectory_options or {}))
     n_t, n_f, _ = states.shape
-    bodies = [body_scatterers(states[t], frame_period_s, body=body,
-                              rng=_stream(seed, _BODY, t)) for t in range(n_t)]
-    if cube_frames is None:
-        frames_c = np.arange(n_f)
-    elif np.ndim(cube_frames) == 0:
-        if int(cube_frames) != cube_frames or not 0 <= cube_frames <= n_f:
-            raise ValidationError(f"cube_frames={cube_frames!r} must be an integer in [0, {n_f}]")
-        frames_c = np.arange(int(cube_frames))
-    else:
-        frames_c = np.asarray(cube_frames)
-        if (frames_c.ndim != 1 or not np.issubdtype(frames_c.dtype, np.integer)
-                or np.any(frames_c < 0) or np.any(frames_c >= n_f)):
-            raise ValidationError(f"cube_frames must be frame numbers in [0, {n_f}), "
-                                  f"got {cube_frames!r}")
-
+    setup = _Setup(
+        levels=levels, radar=radar, states=states,
+        bodies=[body_scatterers(states[t], frame_period_s, body=body, rng=_stream(seed, _BODY, t))
+                for t in range(n_t)],
+        limits=dict(fov_rad=float(fov_rad), max_range_m=float(max_range_m),
+                    min_range_m=float(min_range_m)),
+        seed=seed, centroid_noise=centroid_noise, centroid_p_miss=float(centroid_p_miss),
+        point_cloud_model=point_cloud_model, cube_model=cube_model,
+        torso_rcs_m2=body.torso_rcs_m2, frames_c=_cube_frame_numbers(cube_frames, n_f),
+        known_poses=known_poses, cube_memmap_dir=cube_memmap_dir)
     bar = None
     if "cube" in levels and progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(poses) * frames_c.size, unit="frame", desc="raw ADC cubes")
-    nodes = {}
+        bar = tqdm(total=len(poses) * setup.frames_c.size, unit="frame", desc="raw ADC cubes")
     try:
-        for i, (name, pose) in enumerate(poses.items()):
-            kw = {"name": name, "radar": radar, "pose": pose if known_poses else None}
-            if "centroids" in levels:
-                torso_snr = np.stack([
-                    _detection_snr_db(radar, np.full(n_f, body.torso_rcs_m2),
-                                      measurement_model(states[t], pose)[0][:, 0],
-                                      point_cloud_model.noise_std) for t in range(n_t)])
-                kw["centroids"] = _centroids(states, pose, centroid_noise, limits,
-                                             _stream(seed, _CENTROIDS, i), torso_snr)
-            if "point_cloud" in levels:
-                kw["point_cloud"] = _point_cloud(bodies, pose, radar, point_cloud_model, limits,
-                                                 _stream(seed, _POINT_CLOUD, i))
-            if "cube" in levels:
-                kw["cube"] = _cubes(bodies, pose, radar, cube_model, frames_c, limits,
-                                    _stream(seed, _CUBE, i), _stream(seed, _CLUTTER, i), bar,
-                                    cube_memmap_dir, name)
-                kw["cube_frame"] = frames_c
-            nodes[name] = NodeData(**kw)
+        nodes = {name: _simulate_node(setup, i, name, pose, bar)
+                 for i, (name, pose) in enumerate(poses.items())}
     finally:
         if bar is not None:
             bar.close()
     truth = Truth(frame=np.tile(np.arange(n_f), n_t), target_id=np.repeat(np.arange(n_t), n_f),
                   state=states.reshape(n_t * n_f, 4), node_poses=poses)
-    metadata = {
-        "generator": "mmsnap_graph.sim.simulate_recording",
-        "network": network if isinstance(network, str) else "custom",
-        "trajectory": trajectory if isinstance(trajectory, str) else "given",
-        "seed": int(seed),
-        "n_targets": int(n_t),
-        "levels": ",".join(levels),
-        "fov_rad": limits["fov_rad"],
-        "max_range_m": limits["max_range_m"],
-        "min_range_m": limits["min_range_m"],
-        "centroid_range_std_m": centroid_noise.range_std_m,
-        "centroid_omega_std_rad": centroid_noise.omega_std_rad,
-        "centroid_doppler_std_mps": centroid_noise.doppler_std_mps,
-    }
-    return Recording(frame_period_s=frame_period_s, nodes=nodes, truth=truth, metadata=metadata)
+    return Recording(frame_period_s=frame_period_s, nodes=nodes, truth=truth,
+                     metadata=_metadata(network, trajectory, setup))

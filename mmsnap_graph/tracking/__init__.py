@@ -3,18 +3,17 @@ tracker over one-shot estimates (:mod:`.central`) and the paper's track-level
 fusion benchmark (:mod:`.track_fusion`).
 
 The central tracker and track fusion load on first use, so the per-node
-signal chain (which uses the EKF) does not import GTSAM.
+signal chain (which uses the EKF) does not import GTSAM. The motion model
+(transition, process noise) is :mod:`factors.motion`.
 """
 
 from .ekf import (
     EkfConfig,
     LocalTracker,
-    cv_process_noise,
-    cv_transition,
     ekf_predict,
     ekf_update,
-    initial_state,
     track_centroids,
+    track_initial_state,
 )
 
 _LAZY = {
@@ -28,7 +27,6 @@ _LAZY = {
     "fuse_tracks": "track_fusion",
 }
 
-
 from .._lazy import lazy_getattr
 
 __getattr__ = lazy_getattr(__name__, _LAZY)
@@ -38,10 +36,8 @@ __all__ = [
     *_LAZY,
     "EkfConfig",
     "LocalTracker",
-    "cv_process_noise",
-    "cv_transition",
     "ekf_predict",
     "ekf_update",
-    "initial_state",
+    "track_initial_state",
     "track_centroids",
 ]

@@ -4,7 +4,7 @@ centralized tracker").
 Each frame's fused targets (:class:`mmsnap_graph.fusion.sequence.FusedSequence`)
 are measurements of the full state ``(x_m, y_m, vx_mps, vy_mps)`` with their
 covariance, in the global frame: a linear Kalman filter with the
-constant-velocity model of docs/CONVENTIONS.md (``F = [[I, T I], [0, I]]``,
+constant-velocity model of :mod:`factors.motion` (``F = [[I, T I], [0, I]]``,
 white-acceleration ``Q = sigma_a^2 [[T^4/4, T^3/2], [T^3/2, T^2]]`` per axis).
 
 **The prior must not be counted twice.** A MAP estimate contains the one-shot
@@ -41,17 +41,21 @@ consecutive frames without an estimate.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import linalg
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
+from tqdm import tqdm
+
+from factors.motion import cv_process_noise, cv_transition
 
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Tracks
+from .._linalg import symmetrize
 from .._validation import as_float_array, check_finite
-from .ekf import _sym, cv_process_noise, cv_transition
 
 __all__ = [
     "CentralConfig",
@@ -108,7 +112,7 @@ class CentralConfig:
 
 def _spd_inverse(p: NDArray) -> NDArray:
     c = linalg.cho_factor(p, lower=True)
-    return _sym(linalg.cho_solve(c, np.eye(p.shape[0])))
+    return symmetrize(linalg.cho_solve(c, np.eye(p.shape[0])))
 
 
 def measurement_information(
@@ -122,14 +126,14 @@ def measurement_information(
     estimate itself. Negative eigenvalues from rounding (directions the prior
     alone determined) are clipped to zero."""
     x = np.asarray(state, dtype=float)
-    info = _spd_inverse(_sym(np.asarray(covariance, dtype=float)))
+    info = _spd_inverse(symmetrize(np.asarray(covariance, dtype=float)))
     eta = info @ x
     if prior_mean is not None:
         lam_p = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
         info = info - np.diag(lam_p)
         eta = eta - lam_p * np.asarray(prior_mean, dtype=float)
-        w, v = np.linalg.eigh(_sym(info))
-        info = _sym((v * np.maximum(w, 0.0)) @ v.T)
+        w, v = np.linalg.eigh(symmetrize(info))
+        info = symmetrize((v * np.maximum(w, 0.0)) @ v.T)
     return info, eta
 
 
@@ -144,7 +148,7 @@ class _Track:
 class CentralTracker:
     """Constant-velocity Kalman filter over one-shot estimates, several targets.
 
-    ``step(states, covariances, period_s)`` advances one frame and returns the
+    ``step(states, covariances, frame_period_s)`` advances one frame and returns the
     live tracks ``[(track_id, x (4,), P (4, 4)), ...]`` after the update.
     """
 
@@ -168,21 +172,21 @@ class CentralTracker:
             return measurement_information(x, p, self.prior_mean, self.prior_sigmas)
         return measurement_information(x, p)
 
-    def step(self, states: ArrayLike, covariances: ArrayLike, period_s: float | None = None):
+    def step(self, states: ArrayLike, covariances: ArrayLike, frame_period_s: float | None = None):
         """One frame: predict every track, associate, update, start and end tracks.
 
         states : (M, 4) one-shot estimates of this frame (successful ones only);
-        covariances : (M, 4, 4); period_s : time since the last step
-        (default the configured frame period).
+        covariances : (M, 4, 4); frame_period_s : time since the last step
+        (default ``config.frame_period_s``).
         """
         cfg = self.config
         z, r = _check_estimates(states, covariances)
-        t = cfg.frame_period_s if period_s is None else float(period_s)
+        t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
         f = cv_transition(t)
         q = cv_process_noise(t, cfg.sigma_a_mps2)
         for tr in self._tracks:
             tr.x = f @ tr.x
-            tr.p = _sym(f @ tr.p @ f.T + q)
+            tr.p = symmetrize(f @ tr.p @ f.T + q)
         assigned = np.full(z.shape[0], -1)
         if self._tracks and z.shape[0]:
             cost = np.full((len(self._tracks), z.shape[0]), np.inf)
@@ -203,16 +207,16 @@ class CentralTracker:
             tr = self._tracks[assigned[j]]
             lam_z, eta_z = self._information(z[j], r[j])
             info_pred = _spd_inverse(tr.p)
-            info_post = _sym(info_pred + lam_z)
+            info_post = symmetrize(info_pred + lam_z)
             c = linalg.cho_factor(info_post, lower=True)
             tr.x = linalg.cho_solve(c, info_pred @ tr.x + eta_z)
-            tr.p = _sym(linalg.cho_solve(c, np.eye(4)))
+            tr.p = symmetrize(linalg.cho_solve(c, np.eye(4)))
             hit[assigned[j]] = True
         for i, tr in enumerate(self._tracks):
             tr.misses = 0 if hit[i] else tr.misses + 1
         self._tracks = [tr for tr in self._tracks if tr.misses < cfg.max_misses]
         for j in np.flatnonzero(assigned < 0):
-            p0 = _sym(r[j].copy())
+            p0 = symmetrize(r[j].copy())
             v_floor = cfg.init_velocity_sigma_mps**2
             for k in (2, 3):
                 p0[k, k] = max(p0[k, k], v_floor)
@@ -251,6 +255,7 @@ class FixedLagTracker:
 
     def __init__(self, config: CentralConfig | None = None, *, lag_s: float = 1.5,
                  prior_mean: ArrayLike | None = None, prior_sigmas: ArrayLike | None = None) -> None:
+        # Function-level: keeps GTSAM off the import path of the tracking package.
         import gtsam
 
         self.config = CentralConfig() if config is None else config
@@ -280,26 +285,25 @@ class FixedLagTracker:
             return None
         a = np.sqrt(w[keep])[:, None] * v[:, keep].T
         b = (v[:, keep].T @ eta) / np.sqrt(w[keep])
-        from functools import partial
-
         return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(int(keep.sum())), [key],
                                   partial(_information_error, a, b))
 
-    def step(self, states: ArrayLike, covariances: ArrayLike, period_s: float | None = None):
+    def step(self, states: ArrayLike, covariances: ArrayLike, frame_period_s: float | None = None):
         """One frame; see :meth:`CentralTracker.step` for the arguments."""
+        # Function-level: keeps GTSAM off the import path of the tracking package.
         from factors.gtsam_factors import constant_velocity_factor
 
         gtsam = self._gtsam
         cfg = self.config
         z, r = _check_estimates(states, covariances)
-        t = cfg.frame_period_s if period_s is None else float(period_s)
+        t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
         if self._x is None:
             if z.shape[0] == 0:
                 return []
-            p0 = _sym(r[0].copy())
+            p0 = symmetrize(r[0].copy())
             for k in (2, 3):
                 p0[k, k] = max(p0[k, k], cfg.init_velocity_sigma_mps**2)
             self._key = 0
@@ -309,8 +313,9 @@ class FixedLagTracker:
             self._time_s += t
             prev, key = self._key, self._key + 1
             self._key = key
-            pred = cv_transition(t) @ self._x
-            p_pred = cv_transition(t) @ self._p @ cv_transition(t).T + cv_process_noise(t, cfg.sigma_a_mps2)
+            f = cv_transition(t)
+            pred = f @ self._x
+            p_pred = f @ self._p @ f.T + cv_process_noise(t, cfg.sigma_a_mps2)
             graph.add(constant_velocity_factor(prev, key, t, cfg.sigma_a_mps2))
             values.insert(key, pred)
             best, best_m2 = None, self._gate
@@ -333,7 +338,7 @@ class FixedLagTracker:
             if f is not None:
                 current.add(f)
         self._x = estimate.atVector(self._key)
-        self._p = _sym(gtsam.Marginals(current, estimate).marginalCovariance(self._key))
+        self._p = symmetrize(gtsam.Marginals(current, estimate).marginalCovariance(self._key))
         return [(0, self._x.copy(), self._p.copy())]
 
 
@@ -357,8 +362,6 @@ def track_fused(fused, config: CentralConfig | None = None, *, progress: bool = 
     order = np.argsort(frames_ok, kind="stable")
     frames_ok, states, covs = frames_ok[order], states[order], covs[order]
     out_f, out_id, out_x, out_p = [], [], [], []
-    from tqdm import tqdm
-
     frames = np.arange(frames_ok[0], frames_ok[-1] + 1)
     for f in tqdm(frames, desc="central tracker", unit="frame", disable=not progress):
         lo, hi = np.searchsorted(frames_ok, [f, f + 1])

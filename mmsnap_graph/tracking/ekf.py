@@ -9,7 +9,7 @@ noise (docs/CONVENTIONS.md, last section), per axis
     F = \\begin{bmatrix} 1 & T \\\\ 0 & 1 \\end{bmatrix},\\quad
     Q = \\sigma_a^2 \\begin{bmatrix} T^4/4 & T^3/2 \\\\ T^3/2 & T^2 \\end{bmatrix}.
 
-Measurement: ``(range_m, omega_rad, doppler_mps)`` through
+Motion: :mod:`factors.motion`. Measurement: ``(range_m, omega_rad, doppler_mps)`` through
 :func:`factors.models.measurement_model` with the node pose ``(0, 0, 0)``
 (the same model as the factor graph), spatial-frequency innovation wrapped.
 
@@ -34,17 +34,17 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import linalg, stats
 from scipy.optimize import linear_sum_assignment
 
-from factors.models import measurement_model, wrap_angle
+from factors.models import detection_covariance_local, detection_to_local, measurement_model, wrap_angle
+from factors.motion import cv_process_noise, cv_transition
 
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Detections, Tracks
+from .._linalg import symmetrize
 from .._validation import as_float_array, check_finite
 
 __all__ = [
     "EkfConfig",
-    "cv_transition",
-    "cv_process_noise",
-    "initial_state",
+    "track_initial_state",
     "ekf_predict",
     "ekf_update",
     "LocalTracker",
@@ -121,66 +121,36 @@ class EkfConfig:
         return float(stats.chi2.ppf(self.gate_probability, 3))
 
 
-def cv_transition(period_s: float) -> NDArray:
-    """(4, 4) constant-velocity transition for state ``(x, y, vx, vy)``."""
-    f = np.eye(4)
-    f[0, 2] = f[1, 3] = period_s
-    return f
-
-
-def cv_process_noise(period_s: float, sigma_a_mps2: float) -> NDArray:
-    """(4, 4) white-acceleration process noise ``sigma_a^2 [[T^4/4, T^3/2], [T^3/2, T^2]]``
-    per axis (docs/CONVENTIONS.md), ordered ``(x, y, vx, vy)``."""
-    t = float(period_s)
-    q = np.zeros((4, 4))
-    for i in (0, 1):
-        q[i, i] = t**4 / 4
-        q[i, i + 2] = q[i + 2, i] = t**3 / 2
-        q[i + 2, i + 2] = t**2
-    return sigma_a_mps2**2 * q
-
-
-def _sym(p: NDArray) -> NDArray:
-    return 0.5 * (p + np.swapaxes(p, -1, -2))
-
-
-def initial_state(measurement: ArrayLike, cfg: EkfConfig) -> tuple[NDArray, NDArray]:
+def track_initial_state(measurement: ArrayLike, config: EkfConfig) -> tuple[NDArray, NDArray]:
     """State and covariance of a new track from one ``(range_m, omega_rad, doppler_mps)``.
 
-    Position: ``(R Omega / pi, R sqrt(1 - (Omega / pi)^2))`` with the covariance
-    mapped through its Jacobian; velocity: the Doppler along the line of
-    sight (std of the Doppler) plus a zero-mean tangential part
-    (``init_tangential_speed_std_mps``).
+    Position: :func:`factors.models.detection_to_local` with its first-order
+    covariance (:func:`factors.models.detection_covariance_local`); velocity:
+    the Doppler along the line of sight (std of the Doppler) plus a zero-mean
+    tangential part (``init_tangential_speed_std_mps``).
     """
     r, om, v = (float(c) for c in measurement)
-    s = float(np.clip(om / np.pi, -0.999, 0.999))
-    c = np.sqrt(1.0 - s * s)
-    sr, so, sv = cfg.measurement_std
-    pos = np.array([r * s, r * c])
-    j = np.array([[s, r / np.pi], [c, -r * s / (np.pi * c)]])
-    p_pos = j @ np.diag([sr**2, so**2]) @ j.T
-    u = np.array([s, c])            # line of sight
-    t = np.array([-c, s])           # across it
-    vel = v * u
-    p_vel = sv**2 * np.outer(u, u) + cfg.init_tangential_speed_std_mps**2 * np.outer(t, t)
-    x = np.concatenate([pos, vel])
+    sr, so, sv = config.measurement_std
+    u = detection_to_local(1.0, om)  # line of sight (unit vector)
+    pos = r * u
+    t = np.array([-u[1], u[0]])     # across it
     p = np.zeros((4, 4))
-    p[:2, :2] = p_pos
-    p[2:, 2:] = p_vel
-    return x, _sym(p)
+    p[:2, :2] = detection_covariance_local(r, om, sr, so)
+    p[2:, 2:] = sv**2 * np.outer(u, u) + config.init_tangential_speed_std_mps**2 * np.outer(t, t)
+    return np.concatenate([pos, v * u]), symmetrize(p)
 
 
-def ekf_predict(x: NDArray, p: NDArray, period_s: float, sigma_a_mps2: float):
-    """One constant-velocity prediction ``(F x, F P F^T + Q)``."""
-    f = cv_transition(period_s)
-    return f @ x, _sym(f @ p @ f.T + cv_process_noise(period_s, sigma_a_mps2))
+def ekf_predict(x: NDArray, p: NDArray, frame_period_s: float, sigma_a_mps2: float):
+    """One constant-velocity prediction ``(F x, F P F^T + Q)`` (:mod:`factors.motion`)."""
+    f = cv_transition(frame_period_s)
+    return f @ x, symmetrize(f @ p @ f.T + cv_process_noise(frame_period_s, sigma_a_mps2))
 
 
 def _innovation(x: NDArray, p: NDArray, z: NDArray, r: NDArray):
     h, jac = measurement_model(x, _ZERO_POSE)
     nu = z - h
     nu[..., 1] = wrap_angle(nu[..., 1])
-    s = _sym(jac @ p @ jac.T + r)
+    s = symmetrize(jac @ p @ jac.T + r)
     return nu, jac, s
 
 
@@ -196,7 +166,7 @@ def ekf_update(x: NDArray, p: NDArray, z: ArrayLike, r: NDArray):
     d2 = float(nu @ linalg.cho_solve(chol, nu))
     ikh = np.eye(4) - gain @ jac
     p_new = ikh @ p @ ikh.T + gain @ r @ gain.T
-    return x + gain @ nu, _sym(p_new), d2
+    return x + gain @ nu, symmetrize(p_new), d2
 
 
 class _Track:
@@ -216,12 +186,12 @@ class LocalTracker:
     tracks as ``(track_id, state (4,), covariance (4, 4))`` tuples.
     """
 
-    def __init__(self, cfg: EkfConfig | None = None) -> None:
-        self.cfg = EkfConfig() if cfg is None else cfg
+    def __init__(self, config: EkfConfig | None = None) -> None:
+        self.config = EkfConfig() if config is None else config
         self._tracks: list[_Track] = []
         self._next_id = 0
-        self._r = self.cfg.measurement_covariance
-        self._gate = self.cfg.gate_d2
+        self._r = self.config.measurement_covariance
+        self._gate = self.config.gate_d2
         self._started = False
 
     @property
@@ -229,12 +199,14 @@ class LocalTracker:
         """All live tracks, tentative ones included (read-only use)."""
         return list(self._tracks)
 
-    def step(self, measurements: ArrayLike, *, period_s: float | None = None):
+    def step(self, measurements: ArrayLike, *, frame_period_s: float | None = None):
+        """Advance one frame with its measurements ``(K, 3)``; ``frame_period_s``
+        is the time since the last step (default ``config.frame_period_s``)."""
         z = check_finite(as_float_array(measurements, "measurements"), "measurements")
         if z.ndim != 2 or z.shape[1] != 3:
             raise ValidationError(f"measurements must have shape (K, 3), got {z.shape}")
-        cfg = self.cfg
-        t = cfg.frame_period_s if period_s is None else float(period_s)
+        cfg = self.config
+        t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
         if self._started:
             for tr in self._tracks:
                 tr.x, tr.p = ekf_predict(tr.x, tr.p, t, cfg.sigma_a_mps2)
@@ -249,7 +221,7 @@ class LocalTracker:
                 if tr.x[0] ** 2 + tr.x[1] ** 2 < 1e-12:
                     continue
                 h, jac = measurement_model(tr.x, _ZERO_POSE)
-                s = _sym(jac @ tr.p @ jac.T + self._r)
+                s = symmetrize(jac @ tr.p @ jac.T + self._r)
                 try:
                     chol = linalg.cholesky(s, lower=True)
                 except linalg.LinAlgError:
@@ -288,7 +260,7 @@ class LocalTracker:
         for j in np.flatnonzero(~assigned_z):
             if z[j, 0] <= 0:
                 continue
-            x0, p0 = initial_state(z[j], cfg)
+            x0, p0 = track_initial_state(z[j], cfg)
             self._tracks.append(_Track(self._next_id, x0, p0))
             self._next_id += 1
         out = []
@@ -300,7 +272,7 @@ class LocalTracker:
 
 def track_centroids(
     centroids: Detections,
-    cfg: EkfConfig | None = None,
+    config: EkfConfig | None = None,
     *,
     frames: Sequence[int] | NDArray | None = None,
 ) -> Tracks:
@@ -313,7 +285,7 @@ def track_centroids(
     Returns the confirmed tracks at every frame they are alive (frames where
     a track coasts without a measurement included).
     """
-    cfg = EkfConfig() if cfg is None else cfg
+    cfg = EkfConfig() if config is None else config
     if frames is None:
         if len(centroids) == 0:
             return Tracks.empty()
@@ -333,7 +305,7 @@ def track_centroids(
     for f in frames:
         lo, hi = np.searchsorted(sorted_frames, [f, f + 1])
         period = cfg.frame_period_s * (1 if prev is None else int(f - prev))
-        for tid, x, p in tracker.step(meas[order[lo:hi]], period_s=period):
+        for tid, x, p in tracker.step(meas[order[lo:hi]], frame_period_s=period):
             out_f.append(int(f))
             out_id.append(tid)
             out_x.append(x)
