@@ -243,14 +243,13 @@ def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
                        omega_rad=np.append(c2.omega_rad, 2.5), doppler_mps=np.append(c2.doppler_mps, 0.0))
     rec = rec.with_node(dataclasses.replace(rec.nodes["S2"], centroids=extra))
     poses = recording_poses(rec)
-    sig = MeasurementNoise().sigmas
     groups = group_detections(rec, poses, MeasurementNoise())
     assert np.count_nonzero(groups.frame == 5) == 2
     cents = [rec.nodes[n].centroids for n in rec.node_names]
     rows = []
     for f in np.unique(np.concatenate([c.frame for c in cents])):
         idx = [np.flatnonzero(c.frame == f) for c in cents]
-        a = associate_frame([c.measurements[i] for c, i in zip(cents, idx)], poses, sig)
+        a = associate_frame([c.measurements[i] for c, i in zip(cents, idx)], poses, MeasurementNoise())
         for g, members in enumerate(a.members):
             rows.append((f, g, *[idx[n][m] if m >= 0 else -1 for n, m in enumerate(members)]))
     expected = np.array(rows)

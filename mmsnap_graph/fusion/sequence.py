@@ -172,7 +172,7 @@ def _frame_index(frames_of: list) -> _FrameIndex:
     return _FrameIndex(frames=all_frames, order=order, starts=starts, counts=counts)
 
 
-def _single_gate(index: _FrameIndex, meas, poses, sigmas, gate):
+def _single_gate(index: _FrameIndex, meas, poses, noise, gate):
     """The vectorized pass: ``(first_row (F, N), ok (F,))``, ``ok`` for frames
     where every node has at most one detection and all fall in one gate."""
     n_f, n_nodes = index.counts.shape
@@ -191,7 +191,7 @@ def _single_gate(index: _FrameIndex, meas, poses, sigmas, gate):
             continue
         z = meas[n][rows[has]]
         p = detection_to_global(z[:, 0], z[:, 1], poses[n])
-        c = detection_position_covariance(z[:, 0], z[:, 1], poses[n], sigmas)
+        c = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise)
         ic = np.linalg.inv(c)
         started = np.abs(info[has]).sum(axis=(1, 2)) > 0
         if np.any(started):
@@ -207,11 +207,11 @@ def _single_gate(index: _FrameIndex, meas, poses, sigmas, gate):
     return first_row, joint_ok
 
 
-def _group_rows(index: _FrameIndex, meas, poses, sigmas, gate_probability):
+def _group_rows(index: _FrameIndex, meas, poses, noise, gate_probability):
     """``(frame, target, detection_index)`` of every group, sorted."""
     n_nodes = len(meas)
     gate = gate_threshold(gate_probability)
-    first_row, joint_ok = _single_gate(index, meas, poses, sigmas, gate)
+    first_row, joint_ok = _single_gate(index, meas, poses, noise, gate)
     fast = np.flatnonzero(joint_ok & np.any(first_row >= 0, axis=1))
     frame_l = [index.frames[fast]]
     target_l = [np.zeros(fast.size, dtype=np.int64)]
@@ -220,7 +220,7 @@ def _group_rows(index: _FrameIndex, meas, poses, sigmas, gate_probability):
     for fi in np.flatnonzero(~joint_ok):
         rows_n = [index.rows(fi, n) for n in range(n_nodes)]
         per_node = [meas[n][r] if r.size else np.zeros((0, 3)) for n, r in enumerate(rows_n)]
-        assoc = associate_frame(per_node, poses, sigmas, gate_probability=gate_probability)
+        assoc = associate_frame(per_node, poses, noise, gate_probability=gate_probability)
         g = len(assoc)
         idx = np.full((g, n_nodes), -1, dtype=np.int64)
         for n in range(n_nodes):
@@ -271,13 +271,13 @@ def group_detections(
     results).
     """
     poses = np.asarray(node_poses, dtype=float)
-    sigmas = check_noise(noise).sigmas
+    check_noise(noise)
     dets = [getattr(recording.nodes[name], source) for name in recording.node_names]
     if all(d is None or len(d) == 0 for d in dets):
         raise ValidationError(f"no node of the recording has {source}; nothing to fuse")
     meas = [None if d is None else d.measurements for d in dets]
     index = _frame_index([np.zeros(0, np.int64) if d is None else d.frame for d in dets])
-    frame, target, rows = _group_rows(index, meas, poses, sigmas, gate_probability)
+    frame, target, rows = _group_rows(index, meas, poses, noise, gate_probability)
     z, label = _measurements_and_labels(dets, meas, rows)
     return DetectionGroups(frame=frame, target=target, label=label, detection_index=rows,
                            measurements=z)
