@@ -37,6 +37,8 @@ def test_batch_and_gtsam_agree_on_every_frame(recordings, net, mode):
     fg = fuse_recording(rec, mode=mode, solver="gtsam")
     np.testing.assert_array_equal(fb.frame, fg.frame)
     np.testing.assert_array_equal(fb.success, fg.success)
+    # Both solvers report the same Status codes (carried by the results).
+    np.testing.assert_array_equal(fb.status, fg.status)
     ok = fb.success
     np.testing.assert_allclose(fb.state[ok], fg.state[ok], atol=1e-6)
     np.testing.assert_allclose(fb.covariance[ok], fg.covariance[ok], atol=1e-6)
@@ -103,6 +105,12 @@ def test_write_and_read_fused_round_trip(recordings, tmp_path):
     for name in ("state", "covariance", "laplace_covariance", "final_cost", "degeneracy", "node_poses"):
         np.testing.assert_array_equal(getattr(back, name), getattr(fused, name))
     assert back.mode == "ml" and back.prior_mean is None and list(back.message) == list(fused.message)
+    # ML frames seen by one node are singular: code 2 of the file contract.
+    assert set(np.unique(back.status)) <= {Status.OK, Status.SINGULAR}
+    assert (back.status == Status.SINGULAR).any()
+    with h5py.File(path, "r") as f:
+        codes = json.loads(f["fused"].attrs["status_messages"])
+    assert sorted(int(c) for c in codes) == [0, 1, 2, 3, 4, 5]
     # The recording itself is intact, and a second write replaces /fused.
     assert read_recording(path).node_names == rec.node_names
     write_fused(path, fuse_recording(rec))

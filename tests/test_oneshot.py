@@ -187,6 +187,24 @@ def assert_failed(res: FusionResult, match: str):
     assert np.isnan(res.covariance).all()
 
 
+def test_status_codes_are_the_fused_file_contract():
+    """Codes 0-5 are what /fused files store (docs/FORMAT.md); the radar
+    chain's codes follow them."""
+    assert [int(s) for s in (Status.OK, Status.MAX_ITERATIONS, Status.SINGULAR, Status.NON_FINITE,
+                             Status.NO_INFORMATION, Status.GRID_FAILED)] == [0, 1, 2, 3, 4, 5]
+    assert Status.CONVERGED is Status.OK and Status(2).message.startswith("information matrix")
+    assert len({int(s) for s in Status}) == len(Status.messages())
+
+
+def test_fusion_result_carries_its_status():
+    z = exact(POSES_B, TRUTH_B)
+    assert fuse_frame(POSES_B, z).status is Status.OK
+    assert fuse_frame(POSES_B[:1], z[:1], prior=None).status is Status.SINGULAR
+    assert fuse_frame(POSES_B, z, max_iterations=1).status is Status.MAX_ITERATIONS
+    none = fuse_frame(POSES_B, z, observed=np.array([False, False]), prior=None)
+    assert none.status is Status.NO_INFORMATION and not none.success
+
+
 def test_ml_with_one_node_is_indeterminate():
     """Three measurements, four unknowns: LM (damped) runs, but the
     information matrix is singular, so no covariance."""
