@@ -5,7 +5,7 @@ noisy measurements drawn around the common area (seeded). Every method returns
 the state and its 4x4 Laplace covariance:
 
 - batch: :func:`mmsnap_graph.fusion.batch.fuse_batch` on all frames at once
-  (oneshot's vectorized initial values, LM vectorized over frames, covariance
+  (the problem module's vectorized initial values, LM vectorized over frames, covariance
   by batched Cholesky); the whole public call, validation included;
 - GTSAM: :func:`mmsnap_graph.fusion.oneshot.fuse_frame`, one frame at a time;
 - scipy: ``scipy.optimize.least_squares`` (method "lm", analytic Jacobian from
@@ -35,7 +35,8 @@ import numpy as np
 
 from frames import POSES, scipy_fuse, simulate
 from mmsnap_graph.fusion.batch import fuse_batch
-from mmsnap_graph.fusion.oneshot import GaussianPrior, MeasurementNoise, fuse_frame
+from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
+from mmsnap_graph.fusion.oneshot import fuse_frame
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

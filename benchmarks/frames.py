@@ -9,7 +9,8 @@ from scipy.optimize import least_squares
 
 from factors.models import measurement_model, residual, wrap_angle
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
-from mmsnap_graph.fusion.oneshot import MeasurementNoise, initial_state
+from mmsnap_graph.data.noise import MeasurementNoise
+from mmsnap_graph.fusion.problem import initial_state
 
 #: (N, 3) node poses of each paper configuration.
 POSES = {name: np.stack([p["S1"], p["S2"]]) for name, p in PAPER_CONFIGURATIONS.items()}

@@ -5,9 +5,11 @@ import pytest
 
 from factors.models import detection_to_global, measurement_model
 from mmsnap_graph.fusion.association import associate_frame, detection_position_covariance, gate_threshold
+from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 
 SIGMAS = np.array([0.035, np.pi / 4, 0.1807])
+NOISE = MeasurementNoise()  # the same sigmas
 POSES = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])
 
 
@@ -29,12 +31,12 @@ def test_position_covariance_is_the_propagated_noise(pose):
         (detection_to_global(rng_m, omega + eps, pose) - detection_to_global(rng_m, omega - eps, pose)) / (2 * eps),
     ])
     expected = j @ np.diag(SIGMAS[:2] ** 2) @ j.T
-    np.testing.assert_allclose(detection_position_covariance(rng_m, omega, pose, SIGMAS), expected,
+    np.testing.assert_allclose(detection_position_covariance(rng_m, omega, pose, NOISE), expected,
                                rtol=1e-7)
 
 
 def test_position_covariance_stays_finite_at_end_fire():
-    cov = detection_position_covariance(3.0, np.pi, POSES[0], SIGMAS)
+    cov = detection_position_covariance(3.0, np.pi, POSES[0], NOISE)
     assert np.all(np.isfinite(cov)) and np.linalg.eigvalsh(cov).min() > 0
 
 
@@ -43,11 +45,12 @@ def test_two_targets_are_paired_across_nodes_in_any_order():
     targets = np.array([[-0.5, 4.0, 0.3, 0.1], [2.0, 3.0, -0.2, 0.4]])
     # The angle noise of the paper is large; 0.05 rad keeps this a clean test.
     sig = np.array([0.035, 0.05, 0.18])
+    noise = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
     n_ok = 0
     for trial in range(50):
         z1 = _measure(targets, POSES[0], rng, sig)
         z2 = _measure(targets[::-1], POSES[1], rng, sig)  # S2 lists them in reverse
-        a = associate_frame([z1, z2], POSES, sig)
+        a = associate_frame([z1, z2], POSES, noise)
         assert len(a) == 2
         n_ok += a.members.tolist() == [[0, 1], [1, 0]]
     assert n_ok == 50
@@ -57,9 +60,9 @@ def test_group_position_is_the_information_weighted_mean():
     rng = np.random.default_rng(1)
     target = np.array([[0.5, 4.0, 0.0, 0.0]])
     z = [_measure(target, POSES[n], rng) for n in range(2)]
-    a = associate_frame(z, POSES, SIGMAS)
+    a = associate_frame(z, POSES, NOISE)
     p = [detection_to_global(z[n][0, 0], z[n][0, 1], POSES[n]) for n in range(2)]
-    c = [detection_position_covariance(z[n][0, 0], z[n][0, 1], POSES[n], SIGMAS) for n in range(2)]
+    c = [detection_position_covariance(z[n][0, 0], z[n][0, 1], POSES[n], NOISE) for n in range(2)]
     info = np.linalg.inv(c[0]) + np.linalg.inv(c[1])
     mean = np.linalg.solve(info, np.linalg.solve(c[0], p[0]) + np.linalg.solve(c[1], p[1]))
     np.testing.assert_allclose(a.position_m[0], mean, atol=1e-12)
@@ -71,15 +74,16 @@ def test_group_position_is_the_information_weighted_mean():
 def test_detections_outside_the_gate_start_their_own_groups():
     rng = np.random.default_rng(2)
     sig = np.array([0.035, 0.05, 0.18])
+    noise = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
     z1 = _measure([[0.5, 4.0, 0, 0]], POSES[0], rng, sig)
     z2 = _measure([[3.5, 1.5, 0, 0]], POSES[1], rng, sig)  # 3.9 m away
-    a = associate_frame([z1, z2], POSES, sig)
+    a = associate_frame([z1, z2], POSES, noise)
     assert a.members.tolist() == [[0, -1], [-1, 0]]
     # With the paper's pi / 4 angle sigma (about 1 m across range at 4 m) the
     # same pair falls inside a 99.9 % gate: the gate follows the noise.
     z1 = _measure([[0.5, 4.0, 0, 0]], POSES[0], rng, SIGMAS * [1, 0, 1])
     z2 = _measure([[1.5, 3.5, 0, 0]], POSES[1], rng, SIGMAS * [1, 0, 1])
-    assert associate_frame([z1, z2], POSES, SIGMAS).members.tolist() == [[0, 0]]
+    assert associate_frame([z1, z2], POSES, NOISE).members.tolist() == [[0, 0]]
 
 
 def test_a_target_only_one_node_sees_and_empty_nodes():
@@ -87,11 +91,11 @@ def test_a_target_only_one_node_sees_and_empty_nodes():
     targets = np.array([[0.5, 4.0, 0, 0], [-1.5, 2.0, 0, 0]])
     z1 = _measure(targets, POSES[0], rng)
     z2 = _measure(targets[:1], POSES[1], rng)
-    a = associate_frame([z1, z2], POSES, SIGMAS)
+    a = associate_frame([z1, z2], POSES, NOISE)
     assert sorted(map(tuple, a.members.tolist())) == [(0, 0), (1, -1)]
-    a = associate_frame([np.zeros((0, 3)), z2], POSES, SIGMAS)
+    a = associate_frame([np.zeros((0, 3)), z2], POSES, NOISE)
     assert a.members.tolist() == [[-1, 0]]
-    a = associate_frame([np.zeros((0, 3)), np.zeros((0, 3))], POSES, SIGMAS)
+    a = associate_frame([np.zeros((0, 3)), np.zeros((0, 3))], POSES, NOISE)
     assert len(a) == 0 and a.members.shape == (0, 2)
 
 
@@ -100,8 +104,9 @@ def test_three_nodes_build_one_group_per_target():
     poses = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2], [0.0, 7.0, np.pi]])
     targets = np.array([[0.5, 3.5, 0, 0], [2.5, 2.0, 0, 0]])
     sig = np.array([0.035, 0.05, 0.18])
+    noise = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
     z = [_measure(targets, poses[n], rng, sig) for n in range(3)]
-    a = associate_frame(z, poses, sig)
+    a = associate_frame(z, poses, noise)
     assert a.members.tolist() == [[0, 0, 0], [1, 1, 1]]
 
 
@@ -112,12 +117,12 @@ def test_gate_threshold_is_chi_square_two_dof():
 @pytest.mark.parametrize(
     "args, kwargs, match",
     [
-        (([np.zeros((0, 3))], POSES, SIGMAS), {}, "measurements has 1 nodes but node_poses has 2"),
-        (([np.zeros((0, 3))] * 2, np.zeros((2, 2)), SIGMAS), {}, r"node_poses must have shape \(N, 3\)"),
-        (([np.zeros((0, 3))] * 2, POSES, [1.0, -1.0, 1.0]), {}, "sigmas must be 3 positive numbers"),
-        (([np.zeros((1, 2))] * 2, POSES, SIGMAS), {}, r"measurements\[0\] must have shape \(K, 3\)"),
-        (([np.full((1, 3), np.nan)] * 2, POSES, SIGMAS), {}, r"measurements\[0\] must be finite"),
-        (([np.zeros((0, 3))] * 2, POSES, SIGMAS), dict(gate_probability=1.0), "gate_probability must be in"),
+        (([np.zeros((0, 3))], POSES, NOISE), {}, "measurements has 1 nodes but node_poses has 2"),
+        (([np.zeros((0, 3))] * 2, np.zeros((2, 2)), NOISE), {}, r"node_poses must have shape \(N, 3\)"),
+        (([np.zeros((0, 3))] * 2, POSES, [1.0, 1.0, 1.0]), {}, "noise must be a MeasurementNoise, got list"),
+        (([np.zeros((1, 2))] * 2, POSES, NOISE), {}, r"measurements\[0\] must have shape \(K, 3\)"),
+        (([np.full((1, 3), np.nan)] * 2, POSES, NOISE), {}, r"measurements\[0\] must be finite"),
+        (([np.zeros((0, 3))] * 2, POSES, NOISE), dict(gate_probability=1.0), "gate_probability must be in"),
     ],
 )
 def test_invalid_input_raises(args, kwargs, match):

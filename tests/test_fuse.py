@@ -6,18 +6,15 @@ import h5py
 import numpy as np
 import pytest
 
-from mmsnap_graph.fusion import oneshot
+from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
+from mmsnap_graph.data.results import Status
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError, FileFormatError, ValidationError
 from mmsnap_graph.app.evaluation import state_errors
 from mmsnap_graph.io import read_recording, write_recording
-from mmsnap_graph.fusion.sequence import (
-    fuse_recording,
-    load_calibration_poses,
-    read_fused,
-    recording_poses,
-    write_fused,
-)
+from mmsnap_graph.fusion.oneshot import fuse_frame
+from mmsnap_graph.fusion.sequence import fuse_recording, load_calibration_poses, recording_poses
+from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.sim import CentroidNoise, simulate_recording
 
 
@@ -40,6 +37,8 @@ def test_batch_and_gtsam_agree_on_every_frame(recordings, net, mode):
     fg = fuse_recording(rec, mode=mode, solver="gtsam")
     np.testing.assert_array_equal(fb.frame, fg.frame)
     np.testing.assert_array_equal(fb.success, fg.success)
+    # Both solvers report the same Status codes (carried by the results).
+    np.testing.assert_array_equal(fb.status, fg.status)
     ok = fb.success
     np.testing.assert_allclose(fb.state[ok], fg.state[ok], atol=1e-6)
     np.testing.assert_allclose(fb.covariance[ok], fg.covariance[ok], atol=1e-6)
@@ -88,7 +87,7 @@ def test_grid_covariance_matches_fuse_frame(recordings):
         for n, name in enumerate(fused.node_names):
             if obs[i, n]:
                 z[n] = rec.nodes[name].centroids.measurements[fused.detection_index[i, n]]
-        ref = oneshot.fuse_frame(fused.node_poses, z, observed=obs[i], covariance="grid",
+        ref = fuse_frame(fused.node_poses, z, observed=obs[i], covariance="grid",
                                  grid_points_per_axis=7)
         np.testing.assert_allclose(fused.covariance[i], ref.grid_covariance, rtol=1e-4, atol=1e-7)
         np.testing.assert_allclose(fused.laplace_covariance[i], ref.covariance, atol=1e-6)
@@ -106,6 +105,12 @@ def test_write_and_read_fused_round_trip(recordings, tmp_path):
     for name in ("state", "covariance", "laplace_covariance", "final_cost", "degeneracy", "node_poses"):
         np.testing.assert_array_equal(getattr(back, name), getattr(fused, name))
     assert back.mode == "ml" and back.prior_mean is None and list(back.message) == list(fused.message)
+    # ML frames seen by one node are singular: code 2 of the file contract.
+    assert set(np.unique(back.status)) <= {Status.OK, Status.SINGULAR}
+    assert (back.status == Status.SINGULAR).any()
+    with h5py.File(path, "r") as f:
+        codes = json.loads(f["fused"].attrs["status_messages"])
+    assert sorted(int(c) for c in codes) == [0, 1, 2, 3, 4, 5]
     # The recording itself is intact, and a second write replaces /fused.
     assert read_recording(path).node_names == rec.node_names
     write_fused(path, fuse_recording(rec))
@@ -185,7 +190,7 @@ def test_missing_calibration_file_and_poses(tmp_path, recordings):
         (dict(covariance="exact"), "covariance must be 'laplace' or 'grid'"),
         (dict(solver="scipy"), "solver must be 'batch' or 'gtsam'"),
         (dict(source="cube"), "source must be 'centroids' or 'point_cloud'"),
-        (dict(mode="ml", prior=oneshot.GaussianPrior()), "mode='ml' takes no prior"),
+        (dict(mode="ml", prior=GaussianPrior(mean=[0, 0, 0, 0])), "mode='ml' takes no prior"),
         (dict(block_rows=0), "block_rows must be >= 1"),
         (dict(source="point_cloud"), "no node of the recording has point_cloud"),
     ],
@@ -219,7 +224,7 @@ def test_cli_fuse_takes_measurement_sigmas(tmp_path, recordings, capsys):
     assert main(["fuse", str(path), "--sigmas", "0.05", "0.08", "0.1", "--no-progress"]) == 0
     fused = read_fused(path)
     np.testing.assert_allclose(fused.noise_sigmas, [0.05, 0.08, 0.1])
-    ref = fuse_recording(rec, noise=oneshot.MeasurementNoise(range_m=0.05, omega_rad=0.08,
+    ref = fuse_recording(rec, noise=MeasurementNoise(range_m=0.05, omega_rad=0.08,
                                                              doppler_mps=0.1))
     np.testing.assert_allclose(fused.covariance[fused.success], ref.covariance[ref.success],
                                atol=1e-12)
@@ -246,14 +251,13 @@ def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
                        omega_rad=np.append(c2.omega_rad, 2.5), doppler_mps=np.append(c2.doppler_mps, 0.0))
     rec = rec.with_node(dataclasses.replace(rec.nodes["S2"], centroids=extra))
     poses = recording_poses(rec)
-    sig = oneshot.MeasurementNoise().sigmas
-    groups = group_detections(rec, poses, sig)
+    groups = group_detections(rec, poses, MeasurementNoise())
     assert np.count_nonzero(groups.frame == 5) == 2
     cents = [rec.nodes[n].centroids for n in rec.node_names]
     rows = []
     for f in np.unique(np.concatenate([c.frame for c in cents])):
         idx = [np.flatnonzero(c.frame == f) for c in cents]
-        a = associate_frame([c.measurements[i] for c, i in zip(cents, idx)], poses, sig)
+        a = associate_frame([c.measurements[i] for c, i in zip(cents, idx)], poses, MeasurementNoise())
         for g, members in enumerate(a.members):
             rows.append((f, g, *[idx[n][m] if m >= 0 else -1 for n, m in enumerate(members)]))
     expected = np.array(rows)

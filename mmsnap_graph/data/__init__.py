@@ -3,11 +3,15 @@ radar configuration, and the result types of the estimators.
 
 - :mod:`.recording`: :class:`Detections`, :class:`Tracks`, :class:`NodeData`,
   :class:`Truth`, :class:`Recording` (the in-memory model of a recording);
-- :mod:`.radar_config`: :class:`RadarConfig` (the paper's Table I by default).
+- :mod:`.radar_config`: :class:`RadarConfig` (the paper's Table I by default);
+- :mod:`.noise`: :class:`MeasurementNoise`, :class:`GaussianPrior`;
+- :mod:`.results`: :class:`Status` (the one status enum), :class:`FusionResult`,
+  :class:`BatchResult`, :class:`FusedSequence`.
 """
 
 from .radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarConfig
 from .recording import Detections, NodeData, Recording, Tracks, Truth
+from .results import DEGENERACY_THRESHOLD, BatchResult, FusedSequence, FusionResult, Status
 
 __all__ = [
     "SPEED_OF_LIGHT_MPS",
@@ -18,4 +22,9 @@ __all__ = [
     "Recording",
     "Tracks",
     "Truth",
+    "Status",
+    "DEGENERACY_THRESHOLD",
+    "FusionResult",
+    "BatchResult",
+    "FusedSequence",
 ]

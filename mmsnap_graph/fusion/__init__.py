@@ -1,8 +1,10 @@
 """One-shot fusion: each frame's range, spatial-frequency and Doppler
 measurements of a target from several nodes -> its state and covariance.
 
+- :mod:`.problem`: the one-frame problem without a solver (validation, initial
+  states, the velocity degeneracy indicator; no GTSAM);
 - :mod:`.oneshot`: the per-frame GTSAM graph, solved by Levenberg-Marquardt,
-  with the covariance from GTSAM's Marginals;
+  with the Laplace covariance (the inverse Gauss-Newton information);
 - :mod:`.batch`: the same problem vectorized over many frames;
 - :mod:`.grid`: the paper's grid posterior (the check for degenerate geometry);
 - :mod:`.bounds`: Cramer-Rao and Bayesian bounds;

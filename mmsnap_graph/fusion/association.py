@@ -28,6 +28,8 @@ from factors.models import detection_to_global
 
 from ..errors import ValidationError
 from .._validation import as_float_array, check_finite
+from ..data.noise import MeasurementNoise
+from .problem import check_noise
 
 __all__ = [
     "FrameAssociation",
@@ -52,7 +54,8 @@ def gate_threshold(gate_probability: float) -> float:
 
 
 def detection_position_covariance(
-    range_m: ArrayLike, omega_rad: ArrayLike, node_pose: ArrayLike, sigmas: ArrayLike
+    range_m: ArrayLike, omega_rad: ArrayLike, node_pose: ArrayLike,
+    noise: MeasurementNoise = MeasurementNoise(),
 ) -> NDArray:
     """Covariance of detections mapped to the global frame, (..., 2, 2) m^2.
 
@@ -62,12 +65,12 @@ def detection_position_covariance(
     with ``c = sqrt(1 - s^2)`` floored at 0.05 near end-fire.
 
     range_m, omega_rad : (...,); node_pose : (..., 3) or (3,);
-    sigmas : (3,) measurement sigmas ``(range_m, omega_rad, doppler_mps)``.
+    noise : the measurement sigmas (range and spatial frequency are used). No validation.
     """
     rng = np.asarray(range_m, dtype=float)
     s = np.clip(np.asarray(omega_rad, dtype=float) / np.pi, -1.0, 1.0)
     c = np.maximum(np.sqrt(1.0 - s**2), _MIN_COS)
-    sig = np.asarray(sigmas, dtype=float)
+    sig = (noise.range_m, noise.omega_rad)
     pose = np.asarray(node_pose, dtype=float)
     j_r = np.stack([s, c], axis=-1)
     j_w = (rng / np.pi)[..., None] * np.stack([np.ones_like(s), -s / c], axis=-1)
@@ -101,7 +104,7 @@ class FrameAssociation:
 def associate_frame(
     measurements: Sequence[ArrayLike],
     node_poses: ArrayLike,
-    sigmas: ArrayLike,
+    noise: MeasurementNoise = MeasurementNoise(),
     *,
     gate_probability: float = 0.999,
 ) -> FrameAssociation:
@@ -114,9 +117,9 @@ def associate_frame(
         (K_n may be 0).
     node_poses : (N, 3) float
         Calibrated poses in the global frame.
-    sigmas : (3,) float
-        Measurement sigmas (e.g. ``MeasurementNoise().sigmas``); they set the
-        position covariances and so the gate.
+    noise : MeasurementNoise
+        Measurement sigmas (default the paper's); they set the position
+        covariances and so the gate.
     gate_probability : float
         Probability mass inside the gate (chi-square, 2 dof) of two detections
         of the same target.
@@ -133,9 +136,7 @@ def associate_frame(
         raise ValidationError(
             f"measurements has {len(measurements)} nodes but node_poses has {poses.shape[0]}"
         )
-    sig = check_finite(as_float_array(sigmas, "sigmas"), "sigmas")
-    if sig.shape != (3,) or np.any(sig <= 0):
-        raise ValidationError(f"sigmas must be 3 positive numbers, got {sig.tolist()}")
+    check_noise(noise)
     gate = gate_threshold(gate_probability)
     n_nodes = poses.shape[0]
 
@@ -149,7 +150,7 @@ def associate_frame(
         if z.shape[0] == 0:
             continue
         pos = detection_to_global(z[:, 0], z[:, 1], poses[n])
-        cov = detection_position_covariance(z[:, 0], z[:, 1], poses[n], sig)
+        cov = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise)
         assigned = np.full(z.shape[0], -1)
         if members:
             info_g = np.stack(info_sum)

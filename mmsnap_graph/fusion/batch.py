@@ -1,7 +1,7 @@
 """Vectorized one-shot fusion of many frames at once (docs/CONVENTIONS.md, "One-shot fusion").
 
 The per-frame GTSAM solve (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`) costs a
-factor graph, an optimizer and a ``Marginals`` object per frame. This module
+factor graph and an optimizer per frame. This module
 solves the same problem, the same negative log posterior (paper eq. 18)
 
 .. math::
@@ -13,7 +13,7 @@ solves the same problem, the same negative log posterior (paper eq. 18)
 Gauss-Newton (Levenberg-Marquardt) iteration written in numpy over the frame
 axis. It calls the same measurement model as the GTSAM factors
 (:func:`factors.models.measurement_model`), starts from the same initial values
-(:func:`mmsnap_graph.fusion.oneshot.initial_state`'s vectorized core) and returns the
+(:func:`mmsnap_graph.fusion.problem.initial_states`) and returns the
 Laplace covariance, the inverse of the Gauss-Newton information matrix at the
 solution (what ``gtsam.Marginals`` computes for this one-variable graph),
 through a 4x4 Cholesky factorization vectorized over frames.
@@ -46,10 +46,11 @@ from factors.models import measurement_model, wrap_angle
 from ..errors import ValidationError
 from .._linalg import chol_soa, cholesky4, cholesky4_inverse, cholesky4_solve, from_soa, inverse_soa, solve_soa
 from .._validation import as_float_array, check_finite
+from ..data.noise import GaussianPrior, MeasurementNoise
+from ..data.results import BatchResult, Status
+from .problem import check_noise, check_prior, initial_states, velocity_degeneracy
 
 __all__ = [
-    "STATUS_MESSAGES",
-    "velocity_degeneracy",
     "BatchResult",
     "fuse_batch",
     "cholesky4",
@@ -57,16 +58,10 @@ __all__ = [
     "cholesky4_inverse",
 ]
 
-#: Meaning of :attr:`BatchResult.status` codes.
-STATUS_MESSAGES = {
-    0: "converged",
-    1: "maximum number of iterations reached",
-    2: "information matrix is not positive definite at the solution",
-    3: "non-finite cost or state",
-    4: "no measurement and no prior",
-}
-_CONVERGED, _MAX_ITER, _SINGULAR, _NONFINITE, _EMPTY = range(5)
-
+# Status codes (the status arrays are int8).
+_CONVERGED, _MAX_ITER, _SINGULAR, _NONFINITE, _EMPTY = (
+    int(Status.OK), int(Status.MAX_ITERATIONS), int(Status.SINGULAR), int(Status.NON_FINITE),
+    int(Status.NO_INFORMATION))
 
 # Steps a frame reuses the finite-difference curvature of its Newton steps.
 _CURVATURE_REFRESH = 3
@@ -79,43 +74,8 @@ _STAGE1_MIN_LIVE_FRACTION = 16
 _STAGE1_ITERATIONS = 8
 
 
-@dataclass(frozen=True, kw_only=True, slots=True)
-class BatchResult:
-    """One-shot fusion of ``F`` frames.
-
-    state : (F, 4) ``(x_m, y_m, vx_mps, vy_mps)``, global frame.
-    covariance : (F, 4, 4) Laplace covariance (NaN where ``success`` is False).
-    success : (F,) bool; status : (F,) int, a key of :data:`STATUS_MESSAGES`.
-    iterations : (F,) int, accepted plus rejected LM steps.
-    final_cost : (F,) ``0.5 * sum of squared whitened residuals`` (GTSAM's
-        graph error), prior included for MAP.
-    initial_state : (F, 4) the starting point.
-    whitened_residuals : (F, N, 3) ``(h - z) / sigma`` at the solution
-        (spatial frequency wrapped), NaN rows for unobserved nodes.
-    degeneracy : (F,) condition number of the lines of sight's velocity
-        information (``FusionResult.degeneracy``; inf for parallel lines of
-        sight or a single node).
-    """
-
-    state: NDArray
-    covariance: NDArray
-    success: NDArray
-    status: NDArray
-    iterations: NDArray
-    final_cost: NDArray
-    initial_state: NDArray
-    whitened_residuals: NDArray
-    degeneracy: NDArray
-
-    def __len__(self) -> int:
-        return int(self.state.shape[0])
-
-    def message(self, frame_index: int) -> str:
-        """The status message of one frame."""
-        return STATUS_MESSAGES[int(self.status[frame_index])]
-
-
 def _check_inputs(node_poses, measurements, observed):
+    """Validated ``(poses, z, observed (F, N) bool)``."""
     z = check_finite(as_float_array(measurements, "measurements"), "measurements")
     if z.ndim != 3 or z.shape[-1] != 3:
         raise ValidationError(f"measurements must have shape (F, N, 3), got {z.shape}")
@@ -223,8 +183,8 @@ def fuse_batch(
     measurements: ArrayLike,
     *,
     observed: ArrayLike | None = None,
-    noise=None,
-    prior="default",
+    noise: MeasurementNoise = MeasurementNoise(),
+    prior: GaussianPrior | None = GaussianPrior(),
     initial_state: ArrayLike | None = None,
     max_iterations: int = 200,
     step_tolerance: float = 1e-10,
@@ -242,18 +202,18 @@ def fuse_batch(
         (any finite value where not observed).
     observed : (F, N) bool, optional
         Which nodes see the target at each frame (default: all).
-    noise : mmsnap_graph.fusion.oneshot.MeasurementNoise, optional
+    noise : MeasurementNoise
         Measurement sigmas (default: the paper's).
-    prior : mmsnap_graph.fusion.oneshot.GaussianPrior or None
-        ``"default"`` uses ``GaussianPrior()`` (MAP, the paper's prior);
-        ``None`` is maximum likelihood.
+    prior : GaussianPrior or None
+        The Gaussian prior (MAP, default the paper's); None for maximum
+        likelihood.
     initial_state : (F, 4) float, optional
-        Starting points; default :func:`mmsnap_graph.fusion.oneshot.initial_states`
-        (the vectorized core of ``oneshot.initial_state``).
+        Starting points; default :func:`mmsnap_graph.fusion.problem.initial_states`.
     max_iterations : int
-        Levenberg-Marquardt steps per frame, rejected ones included (GTSAM's
-        limit, 100 in ``fuse_frame``, counts outer iterations only, each of
-        which may try several damping values: 200 here is comparable).
+        Levenberg-Marquardt steps per frame, rejected ones included. GTSAM's
+        limit in ``fuse_frame`` counts outer iterations only, each of which
+        may try several damping values, so the two limits are not the same
+        number.
     step_tolerance : float
         A frame has converged when an accepted step is smaller than
         ``step_tolerance * (1 + |x|)`` in every component, or when no step
@@ -273,63 +233,71 @@ def fuse_batch(
     Returns
     -------
     BatchResult
+        ``status`` holds :class:`~mmsnap_graph.data.results.Status` codes.
     """
     poses, z, obs = _check_inputs(node_poses, measurements, observed)
-    if noise is None:
-        from .oneshot import MeasurementNoise
+    params, max_iterations, chunk_size = _check_options(
+        noise, prior, max_iterations, step_tolerance, newton_after, chunk_size)
+    if initial_state is None:
+        x0 = _initial_states(poses, z, obs, prior, noise, chunk_size)
+    else:
+        x0 = check_finite(as_float_array(initial_state, "initial_state"), "initial_state")
+        if x0.shape != (z.shape[0], 4):
+            raise ValidationError(f"initial_state must have shape ({z.shape[0]}, 4), got {x0.shape}")
+        x0 = np.array(x0, dtype=float)
+    return _solve(poses, z, obs, x0, params, max_iterations, chunk_size)
 
-        noise = MeasurementNoise()
-    if isinstance(prior, str):
-        if prior != "default":
-            raise ValidationError(f"prior must be a GaussianPrior, None or 'default', got {prior!r}")
-        from .oneshot import GaussianPrior
 
-        prior = GaussianPrior()
+@dataclass(frozen=True, slots=True)
+class _Params:
+    inv_sigma: NDArray
+    prior_mean: NDArray | None
+    prior_inv_sigma: NDArray | None
+    step_tolerance: float
+    newton_after: int
+
+
+def _check_options(noise, prior, max_iterations, step_tolerance, newton_after, chunk_size):
+    """Validated solver settings: ``(_Params, max_iterations, chunk_size)``."""
+    check_noise(noise)
+    check_prior(prior)
     if int(max_iterations) < 1:
         raise ValidationError(f"max_iterations must be >= 1, got {max_iterations!r}")
     if int(chunk_size) < 1:
         raise ValidationError(f"chunk_size must be >= 1, got {chunk_size!r}")
-    chunk_size = int(chunk_size)
     if not (np.isfinite(step_tolerance) and step_tolerance > 0):
         raise ValidationError(f"step_tolerance must be finite and > 0, got {step_tolerance!r}")
-    n_frames, n_nodes = z.shape[:2]
-    inv_sigma = 1.0 / np.asarray(noise.sigmas, dtype=float)
-    if prior is None:
-        prior_mean = prior_inv_sigma = None
-    else:
-        prior_mean = np.asarray(prior.mean, dtype=float)
-        prior_inv_sigma = 1.0 / np.asarray(prior.sigmas, dtype=float)
-
-    if initial_state is None:
-        from . import oneshot
-
-        # In chunks: the initializer's temporaries then stay in cache.
-        x0 = np.empty((n_frames, 4))
-        for start in range(0, n_frames, chunk_size):
-            sl = slice(start, start + chunk_size)
-            x0[sl] = oneshot.initial_states(poses[sl] if poses.ndim == 3 else poses, z[sl],
-                                            observed=obs[sl], prior=prior, noise=noise)
-    else:
-        x0 = check_finite(as_float_array(initial_state, "initial_state"), "initial_state")
-        if x0.shape != (n_frames, 4):
-            raise ValidationError(f"initial_state must have shape ({n_frames}, 4), got {x0.shape}")
-    x0 = np.array(x0, dtype=float)
-
-    weight = obs.astype(float)
     params = _Params(
-        inv_sigma=inv_sigma,
-        prior_mean=prior_mean,
-        prior_inv_sigma=prior_inv_sigma,
+        inv_sigma=1.0 / np.asarray(noise.sigmas, dtype=float),
+        prior_mean=None if prior is None else np.asarray(prior.mean, dtype=float),
+        prior_inv_sigma=None if prior is None else 1.0 / np.asarray(prior.sigmas, dtype=float),
         step_tolerance=float(step_tolerance),
         newton_after=int(newton_after),
     )
+    return params, int(max_iterations), int(chunk_size)
+
+
+def _initial_states(poses, z, obs, prior, noise, chunk_size):
+    """:func:`~.problem.initial_states` in chunks (its temporaries then stay in cache)."""
+    x0 = np.empty((z.shape[0], 4))
+    for start in range(0, z.shape[0], chunk_size):
+        sl = slice(start, start + chunk_size)
+        x0[sl] = initial_states(poses[sl] if poses.ndim == 3 else poses, z[sl],
+                                observed=obs[sl], prior=prior, noise=noise)
+    return x0
+
+
+def _solve(poses, z, obs, x0, params, max_iterations, chunk_size) -> BatchResult:
+    """Both stages of Levenberg-Marquardt, then the covariances and the result."""
+    n_frames, n_nodes = z.shape[:2]
+    weight = obs.astype(float)
     state = np.empty((n_frames, 4))
     cost = np.full(n_frames, np.nan)
     residuals = np.zeros((n_frames, n_nodes, 3))
     info = np.full((4, 4, n_frames), np.nan)
     iterations = np.zeros(n_frames, dtype=np.int64)
     status = np.full(n_frames, _EMPTY, dtype=np.int8)
-    empty = ~obs.any(axis=1) if prior is None else np.zeros(n_frames, dtype=bool)
+    empty = ~obs.any(axis=1) if params.prior_mean is None else np.zeros(n_frames, dtype=bool)
     state[empty] = x0[empty]
 
     def run(rows, x_start, it_start, budget, min_live=0):
@@ -344,14 +312,14 @@ def fuse_batch(
         # Stage 1, in chunks that keep the temporaries in cache: the few steps
         # that most frames need. Stage 2: the frames still running, together.
         rows_all = np.flatnonzero(~empty)
-        first = min(_STAGE1_ITERATIONS, int(max_iterations))
+        first = min(_STAGE1_ITERATIONS, max_iterations)
         for start in range(0, rows_all.size, chunk_size):
             rows = rows_all[start:start + chunk_size]
             run(rows, x0[rows], np.zeros(rows.size, dtype=np.int64), first,
                 max(1, rows.size // _STAGE1_MIN_LIVE_FRACTION))
         left = rows_all[status[rows_all] == _MAX_ITER]
-        if left.size and int(max_iterations) > first:
-            run(left, state[left].copy(), iterations[left].copy(), int(max_iterations))
+        if left.size and max_iterations > first:
+            run(left, state[left].copy(), iterations[left].copy(), max_iterations)
 
         # Laplace covariance: inverse of the undamped information at the solution.
         lo, pd = chol_soa(info)
@@ -376,41 +344,62 @@ def fuse_batch(
     )
 
 
-def velocity_degeneracy(state: ArrayLike, node_poses: ArrayLike, observed: ArrayLike) -> NDArray:
-    """Condition number of ``sum_i u_i u_i^T`` over the observed nodes' lines
-    of sight, per frame (the vectorized :func:`mmsnap_graph.fusion.oneshot.velocity_degeneracy`;
-    see ``FusionResult.degeneracy``). ``inf`` when singular (parallel lines of
-    sight, a single node). No validation.
+class _Frames:
+    """The frames of one :func:`_lm` call: the output arrays (indexed by frame)
+    and the active set (arrays with an ``_a`` suffix, indexed by ``idx``)."""
 
-    state : (F, 4); node_poses : (N, 3) or (F, N, 3); observed : (F, N) bool.
-    Returns (F,).
-    """
-    state = np.asarray(state, dtype=float)
-    poses = np.asarray(node_poses, dtype=float)
-    d = state[:, None, :2] - poses[..., :2]
-    r2 = np.sum(d * d, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w = np.where(np.asarray(observed, dtype=bool), 1.0 / r2, 0.0)
-    a11 = np.sum(w * d[..., 0] ** 2, axis=1)
-    a12 = np.sum(w * d[..., 0] * d[..., 1], axis=1)
-    a22 = np.sum(w * d[..., 1] ** 2, axis=1)
-    half_tr = 0.5 * (a11 + a22)
-    disc = np.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
-    hi = half_tr + disc
-    lo = half_tr - disc
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cond = hi / lo
-    singular = ~(hi > 0) | (lo <= hi * 1e-15) | ~np.isfinite(cond)
-    return np.where(singular, np.inf, cond)
+    def __init__(self, x0, poses, z, weight, params, it_start):
+        n_frames, n_nodes = z.shape[:2]
+        self.n_nodes = n_nodes
+        self.per_frame_poses = poses.ndim == 3
+        self.state = np.empty((n_frames, 4))
+        self.cost = np.empty(n_frames)
+        self.residuals = np.empty((n_frames, n_nodes, 3))
+        self.info_out = np.empty((4, 4, n_frames))
+        self.iterations = np.empty(n_frames, dtype=np.int64)
+        self.status = np.empty(n_frames, dtype=np.int8)
+        self.idx = np.arange(n_frames)
+        self.p_a, self.z_a, self.w_a, self.x_a = poses, z, weight, x0
+        self.aug_a, self.c_a = _evaluate(x0, poses, z, weight, params.inv_sigma,
+                                         params.prior_mean, params.prior_inv_sigma)
+        self.lam_a = np.full(n_frames, 1e-5)
+        self.nu_a = np.full(n_frames, 2.0)
+        self.it_a = np.array(it_start, dtype=np.int64)
+        self.small_a = np.zeros(n_frames, dtype=bool)
+        self.live = np.ones(n_frames, dtype=bool)
+        # The curvature term of the Newton steps and its age in steps: finite
+        # differences cost four model evaluations, so a frame reuses its term
+        # for a few steps (near the minimum it hardly changes).
+        self.curv_a = np.zeros((4, 4, n_frames))
+        self.curv_age = np.full(n_frames, _CURVATURE_REFRESH)
+        self.info = self.grad = None
 
+    def finish(self, sel, code):
+        """Write the frames ``sel`` (a mask over the active set) out."""
+        out = self.idx[sel]
+        self.state[out] = self.x_a[sel]
+        self.cost[out] = self.c_a[sel]
+        self.residuals[out] = self.aug_a[:, 4, sel].T.reshape(-1, self.n_nodes, 3)
+        self.iterations[out] = self.it_a[sel]
+        self.status[out] = code
+        self.info_out[:, :, out] = self.info[:, :, sel]
+        self.live[sel] = False
 
-@dataclass(frozen=True, slots=True)
-class _Params:
-    inv_sigma: NDArray
-    prior_mean: NDArray | None
-    prior_inv_sigma: NDArray | None
-    step_tolerance: float
-    newton_after: int
+    def compact(self):
+        """Drop the finished frames from the active set."""
+        keep = self.live
+        self.idx = self.idx[keep]
+        if self.per_frame_poses:
+            self.p_a = self.p_a[keep]
+        self.z_a, self.w_a, self.x_a = self.z_a[keep], self.w_a[keep], self.x_a[keep]
+        self.c_a, self.aug_a = self.c_a[keep], self.aug_a[..., keep]
+        self.lam_a, self.nu_a, self.it_a = self.lam_a[keep], self.nu_a[keep], self.it_a[keep]
+        self.curv_a, self.curv_age = self.curv_a[:, :, keep], self.curv_age[keep]
+        self.info, self.grad = self.info[:, :, keep], self.grad[:, keep]
+        self.live = np.ones(self.idx.size, dtype=bool)
+
+    def outputs(self):
+        return self.state, self.cost, self.residuals, self.info_out, self.iterations, self.status
 
 
 def _lm(x0, poses, z, weight, params, it_start, max_iterations, min_live=0):
@@ -421,131 +410,110 @@ def _lm(x0, poses, z, weight, params, it_start, max_iterations, min_live=0):
     ``iterations (F,)`` (counting from ``it_start``) and ``status (F,)``;
     frames still running after ``max_iterations`` have status ``_MAX_ITER``.
     """
-    inv_sigma, prior_mean, prior_inv_sigma = params.inv_sigma, params.prior_mean, params.prior_inv_sigma
-    n_frames, n_nodes = z.shape[:2]
-    per_frame_poses = poses.ndim == 3
-    state = np.empty((n_frames, 4))
-    cost = np.empty(n_frames)
-    residuals = np.empty((n_frames, n_nodes, 3))
-    info_out = np.empty((4, 4, n_frames))
-    iterations = np.empty(n_frames, dtype=np.int64)
-    status = np.empty(n_frames, dtype=np.int8)
-
-    # Active frames; arrays with an ``_a`` suffix are indexed by ``idx``.
-    idx = np.arange(n_frames)
-    p_a, z_a, w_a, x_a = poses, z, weight, x0
-    aug_a, c_a = _evaluate(x_a, p_a, z_a, w_a, inv_sigma, prior_mean, prior_inv_sigma)
-    lam_a = np.full(n_frames, 1e-5)
-    nu_a = np.full(n_frames, 2.0)
-    it_a = np.array(it_start, dtype=np.int64)
-    small_a = np.zeros(n_frames, dtype=bool)
-    live = np.ones(n_frames, dtype=bool)
-    diag_rows = np.arange(4)
-    # The curvature term of the Newton steps and its age in steps: finite
-    # differences cost four model evaluations, so a frame reuses its term for
-    # a few steps (near the minimum it hardly changes).
-    curv_a = np.zeros((4, 4, n_frames))
-    curv_age = np.full(n_frames, _CURVATURE_REFRESH)
-
-    def finish(sel, code):
-        """Write the frames ``sel`` (a mask over the active set) out."""
-        out = idx[sel]
-        state[out] = x_a[sel]
-        cost[out] = c_a[sel]
-        residuals[out] = aug_a[:, 4, sel].T.reshape(-1, n_nodes, 3)
-        iterations[out] = it_a[sel]
-        status[out] = code
-        info_out[:, :, out] = info[:, :, sel]
-        live[sel] = False
-
+    fr = _Frames(x0, poses, z, weight, params, it_start)
     while True:
-        info, grad = _normal_equations(x_a, aug_a, prior_mean, prior_inv_sigma)
-        # A non-finite state gives a non-finite cost (every frame here has a
-        # measurement or a prior).
-        bad = live & ~np.isfinite(c_a)
-        if np.any(bad):
-            finish(bad, _NONFINITE)
-        if np.any(small_a & live):
-            # The last accepted step was below tolerance.
-            finish(small_a & live, _CONVERGED)
-        if np.any(live & (it_a >= max_iterations)):
-            finish(live & (it_a >= max_iterations), _MAX_ITER)
-        n_live = int(np.count_nonzero(live))
-        if n_live == 0:
+        fr.info, fr.grad = _normal_equations(fr.x_a, fr.aug_a, params.prior_mean, params.prior_inv_sigma)
+        if not _retire(fr, max_iterations, min_live):
             break
-        if n_live < min_live:
-            # Too few frames left for numpy to pay: hand them on (stage 2).
-            finish(live.copy(), _MAX_ITER)
-            break
-        if n_live < 0.75 * live.size:
-            # Compact the active set when enough frames are done.
-            keep = live
-            idx = idx[keep]
-            if per_frame_poses:
-                p_a = p_a[keep]
-            z_a, w_a, x_a, c_a, aug_a = z_a[keep], w_a[keep], x_a[keep], c_a[keep], aug_a[..., keep]
-            lam_a, nu_a, it_a = lam_a[keep], nu_a[keep], it_a[keep]
-            curv_a, curv_age = curv_a[:, :, keep], curv_age[keep]
-            info, grad = info[:, :, keep], grad[:, keep]
-            live = np.ones(idx.size, dtype=bool)
-
-        model = info
-        slow = np.flatnonzero(live & (it_a >= params.newton_after))
-        if slow.size:
-            need = slow[curv_age[slow] >= _CURVATURE_REFRESH]
-            if need.size:
-                pp = p_a[need] if per_frame_poses else p_a
-                curv_a[:, :, need] = _residual_curvature(x_a[need], pp, z_a[need], w_a[need],
-                                                         inv_sigma, aug_a[..., need])
-                curv_age[need] = 0
-            curv_age[slow] += 1
-            newton = info[:, :, slow] + curv_a[:, :, slow]
-            # Newton only where its model is convex; elsewhere Gauss-Newton.
-            use = chol_soa(newton)[1]
-            model = info.copy()
-            model[:, :, slow[use]] = newton[:, :, use]
-        diag = model[diag_rows, diag_rows]
-        # Marquardt damping on the diagonal, floored so that an unobservable
-        # direction (zero diagonal) is still damped.
-        floor = 1e-15 * np.maximum(np.abs(diag).max(axis=0), 1e-300)
-        damped = model.copy()
-        damping = lam_a * np.maximum(diag, floor)
-        damped[diag_rows, diag_rows] += damping
-        lo, ok = chol_soa(damped)
-        step_t = solve_soa(lo, grad)
-        step_t *= -1.0
-        # The reduction of the cost that the local quadratic model predicts.
-        decrement = -np.einsum("if,if->f", grad, step_t)
+        step_t, ok, decrement, damping = _damped_step(fr, params)
+        # The reduction of the cost that the local quadratic model predicts;
         # s^T M s = decrement - lambda s^T D s, since (M + lambda D) s = -g.
         predicted = 0.5 * (decrement + np.einsum("if,if->f", damping, step_t * step_t))
         # At a minimum the best possible decrease (the Newton decrement, when
         # the damping is light) is below the rounding of the cost itself.
-        flat = live & ok & (lam_a <= 1e-2) & (decrement <= 1e-16 * np.maximum(c_a, 1.0))
+        flat = fr.live & ok & (fr.lam_a <= 1e-2) & (decrement <= 1e-16 * np.maximum(fr.c_a, 1.0))
         if np.any(flat):
-            finish(flat, _CONVERGED)
-            if not np.any(live):
+            fr.finish(flat, _CONVERGED)
+            if not np.any(fr.live):
                 break
+        _try_step(fr, params, step_t, ok, predicted)
+    return fr.outputs()
 
-        step = step_t.T
-        x_new = x_a + step
-        aug_n, c_n = _evaluate(x_new, p_a, z_a, w_a, inv_sigma, prior_mean, prior_inv_sigma)
-        it_a += live
-        accept = live & ok & (c_n <= c_a)  # False for a NaN cost
-        small_a = accept & np.all(np.abs(step_t) <= params.step_tolerance * (1.0 + np.abs(x_a.T)), axis=0)
-        # Nielsen's damping update from the gain ratio actual / predicted.
-        with np.errstate(divide="ignore", invalid="ignore"):
-            gain = (c_a - c_n) / predicted
-        gain = np.where(np.isfinite(gain), gain, 0.0)
-        shrink = np.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-        lam_a = np.where(accept, np.maximum(lam_a * shrink, 1e-12), np.minimum(lam_a * nu_a, 1e12))
-        nu_a = np.where(accept, 2.0, nu_a * 2.0)
-        rejected = ~accept
-        if np.any(rejected):
-            np.copyto(x_new, x_a, where=rejected[:, None])
-            np.copyto(c_n, c_a, where=rejected)
-            np.copyto(aug_n, aug_a, where=rejected)
-        x_a, c_a, aug_a = x_new, c_n, aug_n
-        # A frame whose damping has grown without bound cannot move: it sits
-        # at a minimum to rounding (typical when the cost is flat).
-        small_a |= live & (lam_a >= 1e12)
-    return state, cost, residuals, info_out, iterations, status
+
+def _retire(fr: _Frames, max_iterations, min_live) -> bool:
+    """Finish the frames that are done; False when none is left to iterate."""
+    live = fr.live
+    # A non-finite state gives a non-finite cost (every frame here has a
+    # measurement or a prior).
+    bad = live & ~np.isfinite(fr.c_a)
+    if np.any(bad):
+        fr.finish(bad, _NONFINITE)
+    if np.any(fr.small_a & live):
+        # The last accepted step was below tolerance.
+        fr.finish(fr.small_a & live, _CONVERGED)
+    if np.any(live & (fr.it_a >= max_iterations)):
+        fr.finish(live & (fr.it_a >= max_iterations), _MAX_ITER)
+    n_live = int(np.count_nonzero(live))
+    if n_live == 0:
+        return False
+    if n_live < min_live:
+        # Too few frames left for numpy to pay: hand them on (stage 2).
+        fr.finish(live.copy(), _MAX_ITER)
+        return False
+    if n_live < 0.75 * live.size:
+        # Compact the active set when enough frames are done.
+        fr.compact()
+    return True
+
+
+_DIAG = np.arange(4)
+
+
+def _damped_step(fr: _Frames, params):
+    """The damped (Gauss-)Newton step of every active frame:
+    ``(step (4, F), factorized (F,), decrement (F,), damping (4, F))``."""
+    model = fr.info
+    slow = np.flatnonzero(fr.live & (fr.it_a >= params.newton_after))
+    if slow.size:
+        need = slow[fr.curv_age[slow] >= _CURVATURE_REFRESH]
+        if need.size:
+            pp = fr.p_a[need] if fr.per_frame_poses else fr.p_a
+            fr.curv_a[:, :, need] = _residual_curvature(fr.x_a[need], pp, fr.z_a[need], fr.w_a[need],
+                                                        params.inv_sigma, fr.aug_a[..., need])
+            fr.curv_age[need] = 0
+        fr.curv_age[slow] += 1
+        newton = fr.info[:, :, slow] + fr.curv_a[:, :, slow]
+        # Newton only where its model is convex; elsewhere Gauss-Newton.
+        use = chol_soa(newton)[1]
+        model = fr.info.copy()
+        model[:, :, slow[use]] = newton[:, :, use]
+    diag = model[_DIAG, _DIAG]
+    # Marquardt damping on the diagonal, floored so that an unobservable
+    # direction (zero diagonal) is still damped.
+    floor = 1e-15 * np.maximum(np.abs(diag).max(axis=0), 1e-300)
+    damped = model.copy()
+    damping = fr.lam_a * np.maximum(diag, floor)
+    damped[_DIAG, _DIAG] += damping
+    lo, ok = chol_soa(damped)
+    step_t = solve_soa(lo, fr.grad)
+    step_t *= -1.0
+    decrement = -np.einsum("if,if->f", fr.grad, step_t)
+    return step_t, ok, decrement, damping
+
+
+def _try_step(fr: _Frames, params, step_t, ok, predicted) -> None:
+    """Evaluate the step; accept or reject it per frame and update the damping."""
+    live = fr.live
+    x_a, c_a = fr.x_a, fr.c_a
+    x_new = x_a + step_t.T
+    aug_n, c_n = _evaluate(x_new, fr.p_a, fr.z_a, fr.w_a, params.inv_sigma,
+                           params.prior_mean, params.prior_inv_sigma)
+    fr.it_a += live
+    accept = live & ok & (c_n <= c_a)  # False for a NaN cost
+    fr.small_a = accept & np.all(np.abs(step_t) <= params.step_tolerance * (1.0 + np.abs(x_a.T)), axis=0)
+    # Nielsen's damping update from the gain ratio actual / predicted.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = (c_a - c_n) / predicted
+    gain = np.where(np.isfinite(gain), gain, 0.0)
+    shrink = np.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+    fr.lam_a = np.where(accept, np.maximum(fr.lam_a * shrink, 1e-12), np.minimum(fr.lam_a * fr.nu_a, 1e12))
+    fr.nu_a = np.where(accept, 2.0, fr.nu_a * 2.0)
+    rejected = ~accept
+    if np.any(rejected):
+        np.copyto(x_new, x_a, where=rejected[:, None])
+        np.copyto(c_n, c_a, where=rejected)
+        np.copyto(aug_n, fr.aug_a, where=rejected)
+    fr.x_a, fr.c_a, fr.aug_a = x_new, c_n, aug_n
+    # A frame whose damping has grown without bound cannot move: it sits
+    # at a minimum to rounding (typical when the cost is flat).
+    fr.small_a |= live & (fr.lam_a >= 1e12)

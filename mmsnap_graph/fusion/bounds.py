@@ -28,20 +28,16 @@ from factors.models import measurement_model
 from ..errors import GeometryError, ValidationError
 from .._validation import frozen_vector
 from ..data.noise import GaussianPrior, MeasurementNoise
-from .oneshot import (
-    _check_observed,
-    _check_poses,
-)
+from .problem import check_observed, check_noise, check_poses
 
 __all__ = ["fisher_information", "cramer_rao_bound", "bayesian_bound"]
 
 
 def _inputs(state, node_poses, noise, observed):
     x = frozen_vector(state, "state", 4)
-    poses = _check_poses(node_poses)
-    if not isinstance(noise, MeasurementNoise):
-        raise ValidationError(f"noise must be a MeasurementNoise, got {type(noise).__name__}")
-    obs = _check_observed(observed, poses.shape[0])
+    poses = check_poses(node_poses)
+    check_noise(noise)
+    obs = check_observed(observed, poses.shape[0])
     if obs is not None:
         poses = poses[obs]
     r = np.hypot(*(x[:2] - poses[:, :2]).T) if poses.size else np.zeros(0)

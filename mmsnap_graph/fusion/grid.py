@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.models import predict_measurements, residual
 
+from ..data.noise import GaussianPrior, MeasurementNoise
 from ..errors import ValidationError
 
 __all__ = ["GridPosterior", "grid_posterior", "neg_log_posterior"]
@@ -132,8 +133,8 @@ def grid_posterior(
     measurements: ArrayLike,
     *,
     observed: ArrayLike | None = None,
-    noise=None,
-    prior=None,
+    noise: MeasurementNoise = MeasurementNoise(),
+    prior: GaussianPrior | None = GaussianPrior(),
     scale_covariance: ArrayLike,
     points_per_axis: int = 21,
     half_width_sigmas: float = 5.0,
@@ -149,8 +150,8 @@ def grid_posterior(
     node_poses, measurements : (N, 3) float
         As in :func:`mmsnap_graph.fusion.oneshot.fuse_frame` (already validated).
     observed : (N,) bool or None
-    noise : :class:`~mmsnap_graph.fusion.oneshot.MeasurementNoise` or None (the paper's)
-    prior : :class:`~mmsnap_graph.fusion.oneshot.GaussianPrior` or None (ML)
+    noise : :class:`~mmsnap_graph.data.noise.MeasurementNoise` (default the paper's)
+    prior : :class:`~mmsnap_graph.data.noise.GaussianPrior` (default the paper's) or None (ML)
     scale_covariance : (4, 4) float, positive definite
         The grid's shape, normally the Laplace covariance.
     points_per_axis : int, odd >= 5
@@ -178,10 +179,6 @@ def grid_posterior(
         chol = np.linalg.cholesky(0.5 * (scale + scale.T))
     except np.linalg.LinAlgError as exc:
         raise ValidationError("scale_covariance must be positive definite") from exc
-    if noise is None:
-        from .oneshot import MeasurementNoise
-
-        noise = MeasurementNoise()
     center = np.asarray(state, dtype=float)
     kw = dict(
         node_poses=node_poses,

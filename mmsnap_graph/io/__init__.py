@@ -2,6 +2,7 @@
 
 - :func:`write_recording`, :func:`update_recording`, :func:`read_recording`,
   :func:`iter_cubes`: the HDF5 recording format;
+- :func:`write_fused`, :func:`read_fused`: the ``/fused`` group of one-shot estimates;
 - :func:`read_dca1000_bin`: TI DCA1000 / mmWave Studio raw ADC ``.bin`` captures.
 """
 
@@ -12,6 +13,7 @@ from .dca1000 import (
     recording_from_dca1000,
     write_dca1000_bin,
 )
+from .fused import FUSED_GROUP, FUSED_LAYOUT, read_fused, write_fused
 from .hdf5 import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -35,4 +37,8 @@ __all__ = [
     "iter_dca1000_frames",
     "write_dca1000_bin",
     "recording_from_dca1000",
+    "FUSED_GROUP",
+    "FUSED_LAYOUT",
+    "write_fused",
+    "read_fused",
 ]

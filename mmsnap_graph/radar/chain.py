@@ -45,6 +45,7 @@ from scipy import ndimage
 
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Detections
+from ..data.results import Status
 from .cfar import (
     CfarConfig,
     os_cfar_2d,
@@ -132,13 +133,14 @@ class ChainConfig:
 
 
 class FrameStatus:
-    """Why a frame gave no detections (values of :attr:`ChainResult.status`)."""
+    """The chain's codes under their old names (kept for callers of the old
+    layout): the values are :class:`~mmsnap_graph.data.results.Status` members,
+    the one status scheme of the package."""
 
-    OK = 0
-    NON_FINITE = 1
-    ALL_ZERO = 2
-    SATURATED = 3
-    NAMES = {0: "ok", 1: "non-finite samples", 2: "all-zero cube", 3: "saturated"}
+    OK = Status.OK
+    NON_FINITE = Status.NON_FINITE_SAMPLES
+    ALL_ZERO = Status.ALL_ZERO_CUBE
+    SATURATED = Status.SATURATED
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -146,7 +148,8 @@ class ChainResult:
     """The chain's output for a sequence of frames.
 
     point_cloud, centroids : :class:`Detections` (frame numbers as given).
-    frame : (F,) int processed frames; status : (F,) int :class:`FrameStatus`.
+    frame : (F,) int processed frames; status : (F,) int,
+    :class:`~mmsnap_graph.data.results.Status` codes (0, 6, 7 or 8).
     success : every frame was processed; message : a summary of the flags.
     """
 
@@ -174,7 +177,7 @@ def _range_slice(config: RadarConfig, chain: ChainConfig) -> slice:
     return slice(lo, hi)
 
 
-def _frame_status(cube: NDArray, chain: ChainConfig) -> tuple[int, float]:
+def _frame_status(cube: NDArray, chain: ChainConfig) -> tuple[Status, float]:
     """The frame's status and its total energy ``sum |x|^2`` (one pass)."""
     flat = cube.view(np.float32).ravel()
     energy = float(np.dot(flat, flat))
@@ -182,14 +185,14 @@ def _frame_status(cube: NDArray, chain: ChainConfig) -> tuple[int, float]:
         if np.all(np.isfinite(flat)):  # float32 overflow of finite samples
             energy = float(np.dot(flat.astype(float), flat.astype(float)))
         else:
-            return FrameStatus.NON_FINITE, 0.0
+            return Status.NON_FINITE_SAMPLES, 0.0
     if energy == 0.0:
-        return FrameStatus.ALL_ZERO, 0.0
+        return Status.ALL_ZERO_CUBE, 0.0
     if chain.adc_full_scale is not None:
         frac = np.count_nonzero(np.abs(flat) >= chain.adc_full_scale) / flat.size
         if frac > chain.max_saturated_fraction:
-            return FrameStatus.SATURATED, energy
-    return FrameStatus.OK, energy
+            return Status.SATURATED, energy
+    return Status.OK, energy
 
 
 def _empty_cloud_arrays():
@@ -204,12 +207,13 @@ def point_cloud_of_cube(
 
     cube : (n_samples, n_loops, n_virtual) complex.
     Returns ``(range_m, omega_rad, doppler_mps, snr_db)``, each (K,) float,
-    and the frame's :class:`FrameStatus`.
+    and the frame's :class:`~mmsnap_graph.data.results.Status` (``OK``,
+    ``NON_FINITE_SAMPLES``, ``ALL_ZERO_CUBE`` or ``SATURATED``).
     """
     chain = ChainConfig() if chain is None else chain
     x = check_cube(cube, config)
     status, energy = _frame_status(x, chain)
-    if status != FrameStatus.OK:
+    if status != Status.OK:
         return _empty_cloud_arrays(), status
     rs = _range_slice(config, chain)
     spec, power = range_doppler(x, config, range_window=chain.range_window,
@@ -275,7 +279,7 @@ def detect_frame(
     cube: NDArray, config: RadarConfig, chain: ChainConfig | None = None, *, frame: int = 0
 ) -> tuple[Detections, int]:
     """One frame's point cloud as :class:`Detections` (all rows ``frame``)
-    and its :class:`FrameStatus` (see :func:`point_cloud_of_cube`)."""
+    and its :class:`~mmsnap_graph.data.results.Status` (see :func:`point_cloud_of_cube`)."""
     (r, w, v, s), status = point_cloud_of_cube(cube, config, chain)
     return Detections(frame=np.full(r.size, int(frame), dtype=np.int64), range_m=r,
                       omega_rad=w, doppler_mps=v, snr_db=s), status
@@ -342,9 +346,9 @@ def process_cubes(
                            snr_db=cat[4])
     centroids = torso_centroids(cloud, chain.cluster,
                                 doppler_resolution_mps=config.doppler_resolution_mps)
-    bad = np.flatnonzero(status != FrameStatus.OK)
+    bad = np.flatnonzero(status != Status.OK)
     if bad.size:
-        kinds = sorted({FrameStatus.NAMES[int(status[i])] for i in bad})
+        kinds = sorted({Status(int(status[i])).message for i in bad})
         message = (f"{bad.size} of {n} frames gave no detections ({', '.join(kinds)}); "
                    f"first: frame {int(frames[bad[0]])}")
     else:

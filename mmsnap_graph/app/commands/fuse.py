@@ -1,7 +1,7 @@
 """``mmsnap fuse``: one-shot fusion of every frame of a recording.
 
 Writes the fused states, covariances and per-frame flags into the recording's
-``/fused`` group (layout: :data:`mmsnap_graph.fusion.sequence.FUSED_LAYOUT`), or into
+``/fused`` group (layout: :data:`mmsnap_graph.io.fused.FUSED_LAYOUT`), or into
 a copy of the recording given by ``--output``.
 """
 
@@ -48,13 +48,13 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph.io import read_recording
-    from mmsnap_graph.fusion.oneshot import MeasurementNoise
-    from mmsnap_graph.fusion.sequence import fuse_recording, load_calibration_poses, write_fused
+    from mmsnap_graph.data.noise import MeasurementNoise
+    from mmsnap_graph.fusion.sequence import fuse_recording, load_calibration_poses
+    from mmsnap_graph.io import read_recording, write_fused
 
     rec = read_recording(args.recording, load_cubes=False)
     poses = load_calibration_poses(args.calibration) if args.calibration else None
-    noise = None
+    noise = MeasurementNoise()
     if args.sigmas is not None:
         r, w, v = args.sigmas
         noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)

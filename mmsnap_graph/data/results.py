@@ -1,0 +1,262 @@
+"""Result types of the estimators and the one status enum they share.
+
+- :class:`Status`: why a frame (of the fusion solvers, of a recording's
+  ``/fused`` group, or of the radar signal chain) has no usable result;
+- :class:`FusionResult`: one frame fused by :func:`mmsnap_graph.fusion.oneshot.fuse_frame`;
+- :class:`BatchResult`: many frames fused by :func:`mmsnap_graph.fusion.batch.fuse_batch`;
+- :class:`FusedSequence`: every target of every frame of a recording
+  (:func:`mmsnap_graph.fusion.sequence.fuse_recording`; stored as ``/fused``
+  by :mod:`mmsnap_graph.io.fused`).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["Status", "DEGENERACY_THRESHOLD", "FusionResult", "BatchResult", "FusedSequence"]
+
+#: ``degeneracy`` above this flags a degenerate geometry: for two nodes, lines
+#: of sight within about 11.4 degrees of parallel (the condition number of two
+#: unit vectors at angle ``a`` is ``cot^2(a / 2)``), where the cross-line
+#: velocity from Doppler alone is ~7x worse than along the line. Indicative
+#: values at the estimate: configuration B ~1.6, A ~6, C with the target on the
+#: line through the radars ~175 (median; the estimate's own cross-line error
+#: makes it finite).
+DEGENERACY_THRESHOLD = 100.0
+
+
+class Status(enum.IntEnum):
+    """Status codes of fused frames and of radar frames (one scheme).
+
+    Codes 0-5 are the ``status`` dataset of a recording's ``/fused`` group (a
+    file contract, docs/FORMAT.md); codes 6-8 are the radar signal chain's
+    (:attr:`mmsnap_graph.radar.chain.ChainResult.status`, not stored in files).
+    ``Status.OK`` (alias ``Status.CONVERGED``) is success for both.
+    """
+
+    OK = 0
+    MAX_ITERATIONS = 1
+    SINGULAR = 2
+    NON_FINITE = 3
+    NO_INFORMATION = 4
+    GRID_FAILED = 5
+    NON_FINITE_SAMPLES = 6
+    ALL_ZERO_CUBE = 7
+    SATURATED = 8
+    CONVERGED = 0  # alias of OK, the estimators' word for it
+
+    @property
+    def message(self) -> str:
+        """A one-line description of the code."""
+        return _MESSAGES[self.value]
+
+    @classmethod
+    def messages(cls) -> dict[int, str]:
+        """``code -> message`` of every status (what ``/fused`` stores as JSON)."""
+        return dict(_MESSAGES)
+
+
+_MESSAGES = {
+    0: "converged",
+    1: "maximum number of iterations reached",
+    2: "information matrix is not positive definite at the solution",
+    3: "non-finite cost or state",
+    4: "no measurement and no prior",
+    5: "grid covariance failed",
+    6: "non-finite samples",
+    7: "all-zero cube",
+    8: "saturated",
+}
+
+
+def _freeze(obj, names) -> None:
+    """Keep read-only float arrays owning their data (what the solvers hand
+    over); copy and freeze anything else."""
+    for name in names:
+        value = getattr(obj, name)
+        if value is None:
+            continue
+        if not (
+            type(value) is np.ndarray
+            and value.dtype == np.float64
+            and value.flags.owndata
+            and not value.flags.writeable
+        ):
+            value = np.array(value, dtype=float)
+            value.setflags(write=False)
+            object.__setattr__(obj, name, value)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class FusionResult:
+    """The one-shot estimate of one frame.
+
+    Attributes
+    ----------
+    state : (4,) float
+        MAP (or ML) ``(x_m, y_m, vx_mps, vy_mps)`` in the global frame; the
+        last iterate when ``success`` is False.
+    covariance : (4, 4) float
+        Laplace covariance: the inverse Gauss-Newton information at ``state``
+        (what ``gtsam.Marginals`` returns for the frame's graph); NaN when it could not be computed.
+    success : bool
+        True when the optimizer converged and the covariance exists.
+    status : Status
+        ``Status.OK`` on success, else why it failed.
+    message : str
+        Why it failed, or notes (e.g. a degenerate geometry).
+    iterations : int
+        Levenberg-Marquardt iterations.
+    final_cost : float
+        GTSAM's graph error at ``state``: half the sum of squared whitened
+        residuals, prior included (half of the paper's ``L``).
+    whitened_residuals : (N, 3) float
+        ``(h(state) - z) / sigma`` per node (spatial frequency wrapped), in
+        measurement order; NaN rows for nodes that did not observe the target.
+    degeneracy : float
+        Condition number (>= 1) of the 2x2 velocity block of the measurement
+        information at ``state``, ``sum_i u_i u_i^T / sigma_V^2`` over observed
+        nodes (``u_i`` the line of sight; only Doppler informs velocity
+        directly). 1 for orthogonal lines of sight, ``inf`` when they are
+        parallel (a target on the line through two radars) or with a single
+        node: then only the prior bounds the cross-line velocity. It ignores
+        the prior on purpose, so it describes the geometry.
+        See :data:`DEGENERACY_THRESHOLD`.
+    grid_covariance : (4, 4) float or None
+        The paper's numerical posterior covariance over a 4D grid around
+        ``state`` (:func:`mmsnap_graph.fusion.grid.grid_posterior`), when
+        ``covariance`` was ``"grid"`` or ``"both"``; None otherwise.
+    initial_state : (4,) float
+        Where the optimizer started.
+    n_observed : int
+        Number of nodes that observed the target.
+    used_prior : bool
+        True for MAP (Bayesian), False for ML.
+    """
+
+    state: NDArray
+    covariance: NDArray
+    success: bool
+    status: Status
+    message: str
+    iterations: int
+    final_cost: float
+    whitened_residuals: NDArray
+    degeneracy: float
+    grid_covariance: NDArray | None = None
+    initial_state: NDArray
+    n_observed: int
+    used_prior: bool
+
+    def __post_init__(self) -> None:
+        _freeze(self, ("state", "covariance", "whitened_residuals", "grid_covariance", "initial_state"))
+        if type(self.status) is not Status:
+            object.__setattr__(self, "status", Status(self.status))
+
+    @property
+    def degenerate(self) -> bool:
+        """``degeneracy > DEGENERACY_THRESHOLD``."""
+        return bool(self.degeneracy > DEGENERACY_THRESHOLD)
+
+    @property
+    def position_sigma_m(self) -> NDArray:
+        """(2,) float: 1-sigma of ``(x, y)`` from the Laplace covariance."""
+        return np.sqrt(np.diag(self.covariance)[:2])
+
+    @property
+    def velocity_sigma_mps(self) -> NDArray:
+        """(2,) float: 1-sigma of ``(vx, vy)`` from the Laplace covariance."""
+        return np.sqrt(np.diag(self.covariance)[2:])
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class BatchResult:
+    """One-shot fusion of ``F`` frames.
+
+    state : (F, 4) ``(x_m, y_m, vx_mps, vy_mps)``, global frame.
+    covariance : (F, 4, 4) Laplace covariance (NaN where ``success`` is False).
+    success : (F,) bool; status : (F,) int8, :class:`Status` codes (0 to 4).
+    iterations : (F,) int, accepted plus rejected LM steps.
+    final_cost : (F,) ``0.5 * sum of squared whitened residuals`` (GTSAM's
+        graph error), prior included for MAP.
+    initial_state : (F, 4) the starting point.
+    whitened_residuals : (F, N, 3) ``(h - z) / sigma`` at the solution
+        (spatial frequency wrapped), NaN rows for unobserved nodes.
+    degeneracy : (F,) condition number of the lines of sight's velocity
+        information (``FusionResult.degeneracy``; inf for parallel lines of
+        sight or a single node).
+    """
+
+    state: NDArray
+    covariance: NDArray
+    success: NDArray
+    status: NDArray
+    iterations: NDArray
+    final_cost: NDArray
+    initial_state: NDArray
+    whitened_residuals: NDArray
+    degeneracy: NDArray
+
+    def __len__(self) -> int:
+        return int(self.state.shape[0])
+
+    def message(self, frame_index: int) -> str:
+        """The status message of one frame."""
+        return Status(int(self.status[frame_index])).message
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class FusedSequence:
+    """One-shot estimates of every target in every frame of a recording.
+
+    K rows, one per fused target per frame, sorted by frame then target.
+
+    node_names : (N,) names, in the recording's order; node_poses : (N, 3).
+    mode : ``"map"`` or ``"ml"``; covariance_method : ``"laplace"`` or ``"grid"``;
+    solver : ``"batch"`` or ``"gtsam"``.
+    frame, target, label : (K,) int (see :data:`mmsnap_graph.io.fused.FUSED_LAYOUT`).
+    detection_index : (K, N) int; observed : (K, N) bool.
+    state : (K, 4) ``(x_m, y_m, vx_mps, vy_mps)``; covariance : (K, 4, 4) the
+    chosen covariance; laplace_covariance : (K, 4, 4).
+    success : (K,) bool; status : (K,) int, :class:`Status` codes (0 to 5);
+    message : (K,) str (object array).
+    iterations : (K,) int; final_cost, degeneracy : (K,) float.
+    noise_sigmas : (3,); prior_mean, prior_sigmas : (4,) or None (ML);
+    gate_probability : float.
+    """
+
+    node_names: tuple
+    node_poses: NDArray
+    mode: str
+    covariance_method: str
+    solver: str
+    frame: NDArray
+    target: NDArray
+    label: NDArray
+    detection_index: NDArray
+    observed: NDArray
+    state: NDArray
+    covariance: NDArray
+    laplace_covariance: NDArray
+    success: NDArray
+    status: NDArray
+    message: NDArray
+    iterations: NDArray
+    final_cost: NDArray
+    degeneracy: NDArray
+    noise_sigmas: NDArray
+    prior_mean: NDArray | None
+    prior_sigmas: NDArray | None
+    gate_probability: float
+
+    def __len__(self) -> int:
+        return int(self.frame.shape[0])
+
+    def rows_of_label(self, label: int) -> NDArray:
+        """Row indices of one labelled target, in frame order."""
+        rows = np.flatnonzero(self.label == label)
+        return rows[np.argsort(self.frame[rows], kind="stable")]

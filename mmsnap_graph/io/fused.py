@@ -1,0 +1,188 @@
+"""The ``/fused`` group of a recording file: one-shot estimates of every target
+in every frame (:class:`~mmsnap_graph.data.results.FusedSequence`, made by
+:func:`mmsnap_graph.fusion.sequence.fuse_recording`).
+
+:func:`write_fused` and :func:`read_fused` are a symmetric pair; the layout is
+:data:`FUSED_LAYOUT` (quoted in docs/FORMAT.md). The ``status`` codes are those
+of :class:`~mmsnap_graph.data.results.Status` 0 to 5 (:data:`FUSED_STATUSES`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .._atomic import atomic_path
+from ..data.results import FusedSequence, Status
+from ..errors import FileFormatError
+
+__all__ = ["FUSED_GROUP", "FUSED_LAYOUT", "FUSED_STATUSES", "write_fused", "read_fused"]
+
+#: Name of the HDF5 group written by :func:`write_fused`.
+FUSED_GROUP = "fused"
+_FUSED_VERSION = "1.0"
+
+#: The ``/fused`` group, for docs/FORMAT.md (the tests check that it is quoted there). K rows = one per fused target per frame.
+FUSED_LAYOUT = """\
+/fused                 attrs: format_version = "1.0", mode = "map" | "ml",
+                              covariance_method = "laplace" | "grid",
+                              solver = "batch" | "gtsam",
+                              node_order (str array, N), node_poses (N, 3) [x_m, y_m, phi_rad],
+                              noise_sigmas (3,) [range_m, omega_rad, doppler_mps],
+                              prior_mean (4,), prior_sigmas (4,) (MAP only),
+                              gate_probability, status_messages (JSON: code -> text)
+    frame              (K,) int64     frame number
+    target             (K,) int64     index of the target within its frame (association order)
+    label              (K,) int64     the centroids' target_id when all members agree, else -1
+    detection_index    (K, N) int64   row of each node's centroids used, -1 = node did not see it
+    observed           (K, N) bool    detection_index >= 0
+    x_m, y_m, vx_mps, vy_mps (K,) float64   fused state, global frame (S1's)
+    covariance         (K, 4, 4) float64   the chosen covariance (Laplace or grid), NaN if failed
+    laplace_covariance (K, 4, 4) float64   always the Laplace covariance
+    success            (K,) bool
+    status             (K,) int8      0 converged, 1 max iterations, 2 singular information,
+                                      3 non-finite, 4 no measurement and no prior, 5 grid failed
+    message            (K,) str
+    iterations         (K,) int64;  final_cost (K,) float64 (0.5 sum of squared whitened
+                                    residuals, prior included);  degeneracy (K,) float64
+"""
+
+
+#: The status codes a ``/fused`` group holds (its ``status_messages`` attribute).
+FUSED_STATUSES = (Status.OK, Status.MAX_ITERATIONS, Status.SINGULAR, Status.NON_FINITE,
+                  Status.NO_INFORMATION, Status.GRID_FAILED)
+
+_STATE_NAMES = ("x_m", "y_m", "vx_mps", "vy_mps")
+
+
+def _fill_group(g, fused: FusedSequence) -> None:
+    g.attrs["format_version"] = _FUSED_VERSION
+    g.attrs["mode"] = fused.mode
+    g.attrs["covariance_method"] = fused.covariance_method
+    g.attrs["solver"] = fused.solver
+    g.attrs.create("node_order", np.array(fused.node_names, dtype=object),
+                   dtype=h5py.string_dtype(encoding="utf-8"))
+    g.attrs["node_poses"] = fused.node_poses
+    g.attrs["noise_sigmas"] = fused.noise_sigmas
+    if fused.prior_mean is not None:
+        g.attrs["prior_mean"] = fused.prior_mean
+        g.attrs["prior_sigmas"] = fused.prior_sigmas
+    g.attrs["gate_probability"] = fused.gate_probability
+    g.attrs["status_messages"] = json.dumps({str(int(s)): s.message for s in FUSED_STATUSES})
+    big = fused.frame.size >= 1024
+    kw = dict(compression="gzip", compression_opts=1) if big else {}
+
+    def put(name, data, dtype=None):
+        g.create_dataset(name, data=np.asarray(data, dtype=dtype), **kw)
+
+    put("frame", fused.frame, np.int64)
+    put("target", fused.target, np.int64)
+    put("label", fused.label, np.int64)
+    put("detection_index", fused.detection_index, np.int64)
+    put("observed", fused.observed, bool)
+    for i, name in enumerate(_STATE_NAMES):
+        put(name, fused.state[:, i], np.float64)
+    put("covariance", fused.covariance, np.float64)
+    put("laplace_covariance", fused.laplace_covariance, np.float64)
+    put("success", fused.success, bool)
+    put("status", fused.status, np.int8)
+    g.create_dataset("message", data=np.array([str(m) for m in fused.message], dtype=object),
+                     dtype=h5py.string_dtype(encoding="utf-8"))
+    put("iterations", fused.iterations, np.int64)
+    put("final_cost", fused.final_cost, np.float64)
+    put("degeneracy", fused.degeneracy, np.float64)
+
+
+def write_fused(path: str | os.PathLike, fused: FusedSequence, *,
+                output: str | os.PathLike | None = None) -> Path:
+    """Store ``fused`` as the ``/fused`` group of the recording at ``path``
+    (replacing an existing one), or of a copy of it at ``output``.
+
+    Atomic: the file is copied to a temporary file in the target's folder,
+    the group written there, and the copy moved over the target
+    (:func:`mmsnap_graph._atomic.atomic_path`). Returns the path written.
+    """
+    src = Path(path)
+    if not src.exists():
+        raise FileFormatError(f"{src} does not exist")
+    dst = src if output is None else Path(output)
+    with atomic_path(dst) as tmp:
+        shutil.copyfile(src, tmp)
+        try:
+            f = h5py.File(tmp, "r+")
+        except OSError as exc:
+            raise FileFormatError(f"{src} is not a writable HDF5 file: {exc}") from exc
+        with f:
+            if FUSED_GROUP in f:
+                del f[FUSED_GROUP]
+            _fill_group(f.create_group(FUSED_GROUP), fused)
+    return dst
+
+
+def read_fused(path: str | os.PathLike) -> FusedSequence:
+    """Read the ``/fused`` group written by :func:`write_fused`; a missing
+    group, dataset or attribute raises :class:`FileFormatError` naming it."""
+    p = Path(path)
+    if not p.exists():
+        raise FileFormatError(f"{p} does not exist")
+    with h5py.File(p, "r") as f:
+        if FUSED_GROUP not in f:
+            raise FileFormatError(f"{p} has no /{FUSED_GROUP} group; run `mmsnap fuse` first")
+        g = f[FUSED_GROUP]
+
+        def ds(name):
+            if name not in g:
+                raise FileFormatError(f"{p}: /{FUSED_GROUP}/{name} is missing")
+            return g[name][()]
+
+        def attr(name, required=True):
+            if name not in g.attrs:
+                if required:
+                    raise FileFormatError(f"{p}: attribute /{FUSED_GROUP}.{name} is missing")
+                return None
+            return g.attrs[name]
+
+        names = tuple(str(n.decode() if isinstance(n, bytes) else n) for n in attr("node_order"))
+        prior_mean = attr("prior_mean", required=False)
+        prior_sigmas = attr("prior_sigmas", required=False)
+        msgs = ds("message")
+        state = np.stack([ds(n) for n in _STATE_NAMES], axis=-1)
+
+        def text(v):
+            return v.decode() if isinstance(v, bytes) else str(v)
+
+        out = FusedSequence(
+            node_names=names,
+            node_poses=np.asarray(attr("node_poses"), dtype=float),
+            mode=text(attr("mode")),
+            covariance_method=text(attr("covariance_method")),
+            solver=text(attr("solver")),
+            frame=ds("frame"),
+            target=ds("target"),
+            label=ds("label"),
+            detection_index=ds("detection_index"),
+            observed=ds("observed").astype(bool),
+            state=state,
+            covariance=ds("covariance"),
+            laplace_covariance=ds("laplace_covariance"),
+            success=ds("success").astype(bool),
+            status=ds("status"),
+            message=np.array([text(m) for m in msgs], dtype=object),
+            iterations=ds("iterations"),
+            final_cost=ds("final_cost"),
+            degeneracy=ds("degeneracy"),
+            noise_sigmas=np.asarray(attr("noise_sigmas"), dtype=float),
+            prior_mean=None if prior_mean is None else np.asarray(prior_mean, dtype=float),
+            prior_sigmas=None if prior_sigmas is None else np.asarray(prior_sigmas, dtype=float),
+            gate_probability=float(attr("gate_probability")),
+        )
+    k = out.frame.shape[0]
+    n = len(out.node_names)
+    if out.state.shape != (k, 4) or out.covariance.shape != (k, 4, 4) or out.observed.shape != (k, n):
+        raise FileFormatError(f"{p}: /{FUSED_GROUP} datasets disagree in length (frame has {k} rows)")
+    return out
