@@ -13,11 +13,11 @@ from mmsnap_graph.app.evaluation import state_errors
 from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.fusion.sequence import (
     fuse_recording,
-    load_calibration_poses,
     read_fused,
     recording_poses,
     write_fused,
 )
+from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.sim import CentroidNoise, simulate_recording
 
 
