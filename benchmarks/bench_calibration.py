@@ -1,6 +1,6 @@
 """Speed (and, with --accuracy, accuracy) of self-calibration.
 
-    /work/venv/bin/python benchmarks/bench_calibration.py [--quick] [--accuracy]
+    python benchmarks/bench_calibration.py [--quick] [--accuracy]
 
 Prints, with wall-clock medians over repetitions:
 
@@ -27,18 +27,18 @@ import numpy as np
 
 from factors.models import global_to_local, local_to_global
 from mmsnap_graph.calibration import (
-    PAPER_SIGMAS,
     PoseEdge,
     closed_form_calibration,
     closed_form_pose,
     joint_calibration,
-    pose_error,
+    pose_tangent_error,
     pose_graph_calibration,
 )
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
+from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 
-SIGMAS = (0.035, 0.2, 0.18)
+NOISE = MeasurementNoise(range_m=0.035, omega_rad=0.2, doppler_mps=0.18)
 
 
 def _median_time(fn, repeat, number=1):
@@ -60,7 +60,7 @@ def bench_closed_form(quick):
     print("== pairwise closed form (paper eqs. 12-14) ==")
     rng = np.random.default_rng(0)
     scene = synthetic_scene(PAPER_CONFIGURATIONS["C"], center_m=COMMON_AREA_CENTERS["C"],
-                            n_frames=600, sigmas=SIGMAS, rng=rng)
+                            n_frames=600, noise=NOISE, rng=rng)
     a, b = scene.local_points_m["S1"], scene.local_points_m["S2"]
     at, bt = np.ascontiguousarray(a.T), np.ascontiguousarray(b.T)
     n = 200 if quick else 2000
@@ -87,9 +87,9 @@ def bench_joint(quick):
         for k in frames:
             rng = np.random.default_rng(1)
             scene = synthetic_scene(PAPER_CONFIGURATIONS["C"], center_m=COMMON_AREA_CENTERS["C"],
-                                    n_frames=k, sigmas=SIGMAS, rng=rng)
+                                    n_frames=k, noise=NOISE, rng=rng)
             d = _dets(scene)
-            kw = dict(sigmas=SIGMAS, motion=motion, frame_period_s=0.15, sigma_a_mps2=0.5)
+            kw = dict(noise=NOISE, motion=motion, frame_period_s=0.15, sigma_a_mps2=0.5)
             t = _median_time(lambda: joint_calibration(d, **kw), 3)
             t_gauss = _median_time(lambda: joint_calibration(d, robust=None, **kw), 3)
             line = (f"  2 nodes x {k:4d} frames, motion={'on ' if motion else 'off'}: "
@@ -104,9 +104,9 @@ def bench_joint(quick):
         poses = dict(list(poses.items())[:n_nodes])
         rng = np.random.default_rng(2)
         scene = synthetic_scene(poses, center_m=np.array([1.5, 3.5]), n_frames=300, extent_m=1.0,
-                                sigmas=SIGMAS, rng=rng)
+                                noise=NOISE, rng=rng)
         d = _dets(scene)
-        t = _median_time(lambda: joint_calibration(d, sigmas=SIGMAS), 3)
+        t = _median_time(lambda: joint_calibration(d, noise=NOISE), 3)
         print(f"  {n_nodes} nodes x 300 frames: {t:6.3f} s")
 
 
@@ -140,23 +140,23 @@ def bench_accuracy(quick):
         loc = global_to_local(pts, truth)
         return float(np.sqrt(np.mean(np.sum((local_to_global(loc, est) - pts) ** 2, axis=1))))
 
-    for label, sig, k in (("paper sigmas (0.035 m, pi/4, 0.18 m/s)", PAPER_SIGMAS, 300),
-                          ("omega 0.2 rad", SIGMAS, 300)):
+    for label, sig, k in (("paper sigmas (0.035 m, pi/4, 0.18 m/s)", MeasurementNoise(), 300),
+                          ("omega 0.2 rad", NOISE, 300)):
         print(f"  {label}, K={k}, {trials} trials, motion factors on (sigma_a 0.5):")
         for cfg in "ABC":
             r_cf, r_jt, e_cf, e_jt, nees = [], [], [], [], []
             for t in range(trials):
                 rng = np.random.default_rng(400 + t)
                 s = synthetic_scene(PAPER_CONFIGURATIONS[cfg], center_m=COMMON_AREA_CENTERS[cfg],
-                                    n_frames=k, sigmas=sig, rng=rng)
+                                    n_frames=k, noise=sig, rng=rng)
                 cf = closed_form_calibration(s.local_points_m["S1"], s.local_points_m["S2"])
-                jt = joint_calibration(_dets(s), sigmas=sig, motion=True, frame_period_s=0.15,
+                jt = joint_calibration(_dets(s), noise=sig, motion=True, frame_period_s=0.15,
                                        sigma_a_mps2=0.5)
                 truth = s.poses["S2"]
                 r_cf.append(reg(cf.pose, truth, s.truth[:, :2]))
                 r_jt.append(reg(jt.poses["S2"], truth, s.truth[:, :2]))
-                e_cf.append(pose_error(cf.pose, truth))
-                e = pose_error(jt.poses["S2"], truth)
+                e_cf.append(pose_tangent_error(cf.pose, truth))
+                e = pose_tangent_error(jt.poses["S2"], truth)
                 e_jt.append(e)
                 nees.append(e @ np.linalg.solve(jt.covariances["S2"], e))
 

@@ -12,7 +12,7 @@ from factors.models import global_to_local, wrap_angle
 from mmsnap_graph.calibration import (
     alignment_jacobian,
     closed_form_calibration,
-    pose_error,
+    pose_tangent_error,
 )
 from mmsnap_graph.sim.scenes import PAPER_CONFIGURATIONS, COMMON_AREA_CENTERS, synthetic_scene, target_trajectory
 from mmsnap_graph.errors import CalibrationError, ValidationError
@@ -48,7 +48,7 @@ def test_matches_gtsam_pose2_align_on_noisy_tracks(config):
     assert_allclose(res.pose[:2], [ref.x(), ref.y()], atol=1e-9)
     assert abs(wrap_angle(res.pose[2] - ref.theta())) < 1e-12
     # the noisy estimate is still near the truth (sigma ~ a few cm, < 1 deg)
-    err = pose_error(res.pose, PAPER_CONFIGURATIONS[config]["S2"])
+    err = pose_tangent_error(res.pose, PAPER_CONFIGURATIONS[config]["S2"])
     assert np.hypot(err[0], err[1]) < 0.3 and abs(err[2]) < np.radians(3)
 
 
@@ -93,7 +93,7 @@ def test_residual_covariance_is_consistent_for_isotropic_noise():
         za = pts + rng.normal(size=pts.shape) * 0.1
         zb = global_to_local(pts, pose_b) + rng.normal(size=pts.shape) * 0.1
         res = closed_form_calibration(za, zb)
-        nees.append(_nees(pose_error(res.pose, pose_b), res.covariance))
+        nees.append(_nees(pose_tangent_error(res.pose, pose_b), res.covariance))
     assert abs(np.mean(nees) - 3.0) < 0.45
 
 
@@ -122,7 +122,7 @@ def test_sandwich_covariance_is_consistent_for_anisotropic_track_noise(config):
         za = _polar_noise(truth, 0.035, 0.3, rng)
         zb = _polar_noise(global_to_local(truth, pose_b), 0.035, 0.3, rng)
         res = closed_form_calibration(za, zb, covariance="sandwich")
-        nees.append(_nees(pose_error(res.pose, pose_b), res.covariance))
+        nees.append(_nees(pose_tangent_error(res.pose, pose_b), res.covariance))
     assert 2.4 < np.mean(nees) < 3.8
 
 
@@ -137,7 +137,7 @@ def test_detections_mapped_to_local_xy_bias_the_closed_form():
         scene = synthetic_scene(PAPER_CONFIGURATIONS["C"], center_m=COMMON_AREA_CENTERS["C"],
                                 n_frames=600, rng=rng)
         res = closed_form_calibration(scene.local_points_m["S1"], scene.local_points_m["S2"])
-        errs.append(pose_error(res.pose, scene.poses["S2"]))
+        errs.append(pose_tangent_error(res.pose, scene.poses["S2"]))
     errs = np.array(errs)
     # dy_b (S2's body y = along -global y): mean 1.7 cm, sd of the mean ~1 mm
     assert 0.008 < errs[:, 1].mean() < 0.03
@@ -201,8 +201,8 @@ def test_robust_start_survives_forty_percent_gross_outliers():
     zb[bad] = rng.uniform(-10, 10, size=(int(bad.sum()), 2))
     plain = closed_form_calibration(za, zb)
     robust, keep = trimmed_closed_form(za, zb)
-    assert np.hypot(*pose_error(plain.pose, pose_b)[:2]) > 1.0
-    err = pose_error(robust.pose, pose_b)
+    assert np.hypot(*pose_tangent_error(plain.pose, pose_b)[:2]) > 1.0
+    err = pose_tangent_error(robust.pose, pose_b)
     assert np.hypot(err[0], err[1]) < 0.05 and abs(err[2]) < np.radians(1)
     assert np.mean(keep[bad]) < 0.05 and np.mean(keep[~bad]) > 0.9
     # deterministic

@@ -9,8 +9,14 @@ import h5py
 import numpy as np
 import pytest
 
-from mmsnap_graph.calibration import calibrate_recording, joint_calibration, pose_error, residual_sigmas
+from mmsnap_graph.calibration import (
+    calibrate_recording,
+    joint_calibration,
+    pose_tangent_error,
+    residual_noise,
+)
 from mmsnap_graph.app.cli import main
+from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import CalibrationError
 from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.data.recording import NodeData, Recording, Tracks
@@ -40,7 +46,7 @@ def test_calibrate_command_writes_json_poses_and_group(rec_c, tmp_path, capsys):
     assert data["nodes"]["S1"]["pose"] == [0.0, 0.0, 0.0]
     s2 = data["nodes"]["S2"]
     assert np.array(s2["covariance"]).shape == (3, 3)
-    err = pose_error(s2["pose"], truth)
+    err = pose_tangent_error(s2["pose"], truth)
     assert np.hypot(err[0], err[1]) < 0.1 and abs(err[2]) < np.radians(1.0)
     # printed in degrees: S2 faces S1, phi ~ +-180
     row = next(line for line in out.splitlines() if line.startswith("S2"))
@@ -82,7 +88,7 @@ def test_lag_is_found_and_used(rec_c):
     cal = calibrate_recording(_shift(rec_c, "S2", 1))
     assert cal.lag_frames == {"S1": 0, "S2": 1}
     assert cal.method == "joint"
-    err = pose_error(cal.poses["S2"], rec_c.truth.node_poses["S2"])
+    err = pose_tangent_error(cal.poses["S2"], rec_c.truth.node_poses["S2"])
     assert np.hypot(err[0], err[1]) < 0.1
 
 
@@ -132,7 +138,7 @@ def test_tracks_are_preferred_and_joint_needs_centroids(rec_c):
     cal = calibrate_recording(rec)
     assert cal.source == "tracks" and cal.method == "pose_graph"
     assert "joint refinement skipped" in cal.message
-    err = pose_error(cal.poses["S2"], rec_c.truth.node_poses["S2"])
+    err = pose_tangent_error(cal.poses["S2"], rec_c.truth.node_poses["S2"])
     assert np.hypot(err[0], err[1]) < 0.05
     with pytest.raises(CalibrationError, match="needs one centroid per node per frame"):
         calibrate_recording(rec, method="joint")
@@ -146,12 +152,12 @@ def test_noise_is_estimated_without_metadata(rec_c):
     truth = np.array([meta["centroid_range_std_m"], meta["centroid_omega_std_rad"],
                       meta["centroid_doppler_std_mps"]])
     dets = {n: rec.nodes[n].centroids for n in rec.node_names}
-    est = (0.035, 0.1, 0.18)
+    est = MeasurementNoise(range_m=0.035, omega_rad=0.1, doppler_mps=0.18)
     for _ in range(2):  # as calibrate_recording does
-        first = joint_calibration(dets, sigmas=est)  # no motion factors
-        est = residual_sigmas(first, dets, sigmas=est)
+        first = joint_calibration(dets, noise=est)  # no motion factors
+        est = residual_noise(first, dets, noise=est)
     # range and omega: leverage-corrected, within 15% of the truth (300
     # frames x 2 nodes, ~300 residual dof per component); the Doppler of two
     # nodes without motion factors is not identifiable and keeps its value
-    np.testing.assert_allclose(est[:2], truth[:2], rtol=0.15)
-    assert est[2] == 0.18
+    np.testing.assert_allclose(est.sigmas[:2], truth[:2], rtol=0.15)
+    assert est.doppler_mps == 0.18

@@ -11,11 +11,12 @@ from mmsnap_graph.calibration import (
     PoseEdge,
     pairwise_edges,
     pose_array,
-    pose_error,
+    pose_tangent_error,
     pose_graph_calibration,
     to_pose2,
 )
 from mmsnap_graph.sim.scenes import synthetic_scene
+from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 
 TRUE_POSES = {
@@ -72,7 +73,7 @@ def test_marginal_covariances_are_consistent_and_loops_help():
         res = pose_graph_calibration(names, edges)
         assert res.success
         for n in nees:
-            e = pose_error(res.poses[n], TRUE_POSES[n])
+            e = pose_tangent_error(res.poses[n], TRUE_POSES[n])
             nees[n].append(e @ np.linalg.solve(res.covariances[n], e))
     for n, v in nees.items():
         assert abs(np.mean(v) - 3.0) < 0.55, (n, np.mean(v))
@@ -116,7 +117,8 @@ def test_end_to_end_from_tracks_of_four_nodes():
     """One target in the common area of four nodes, track-like noise."""
     rng = np.random.default_rng(6)
     scene = synthetic_scene(TRUE_POSES, center_m=np.array([1.5, 3.5]), n_frames=300,
-                            sigmas=(0.035, 0.05, 0.18), extent_m=1.0, rng=rng)
+                            noise=MeasurementNoise(range_m=0.035, omega_rad=0.05,
+                                                   doppler_mps=0.18), extent_m=1.0, rng=rng)
     tracks = {n: LocalTracks(frame=scene.frame, points_m=scene.local_points_m[n],
                              track_id=np.zeros(300, int), source="synthetic") for n in TRUE_POSES}
     edges, failures = pairwise_edges(tracks, max_lag_frames=1)
@@ -124,7 +126,7 @@ def test_end_to_end_from_tracks_of_four_nodes():
     res = pose_graph_calibration(list(TRUE_POSES), edges, failures=failures)
     assert res.success, res.message
     for n in ("S2", "S3", "S4"):
-        err = pose_error(res.poses[n], TRUE_POSES[n])
+        err = pose_tangent_error(res.poses[n], TRUE_POSES[n])
         assert np.hypot(err[0], err[1]) < 0.1 and abs(err[2]) < np.radians(1.5)
         assert res.lag_frames[n] == 0
 

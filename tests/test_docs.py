@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from mmsnap_graph.calibration import CALIBRATION_LAYOUT
+from mmsnap_graph.io.calibration import CALIBRATION_LAYOUT
 from mmsnap_graph.io.fused import FUSED_LAYOUT
 
 FORMAT_MD = Path(__file__).resolve().parents[1] / "docs" / "FORMAT.md"

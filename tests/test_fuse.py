@@ -13,7 +13,8 @@ from mmsnap_graph.errors import CalibrationError, FileFormatError, ValidationErr
 from mmsnap_graph.app.evaluation import state_errors
 from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.fusion.oneshot import fuse_frame
-from mmsnap_graph.fusion.sequence import fuse_recording, load_calibration_poses, recording_poses
+from mmsnap_graph.fusion.sequence import fuse_recording, recording_poses
+from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.sim import CentroidNoise, simulate_recording
 

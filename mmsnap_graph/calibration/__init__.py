@@ -7,9 +7,12 @@
 - :func:`pose_graph_calibration`: N nodes from pairwise estimates, anchored
   at the reference node, with marginal covariances;
 - :func:`joint_calibration`: node poses and target states from the raw
-  measurements (range, spatial frequency, Doppler), refined by LM;
-- :func:`calibrate_recording`, :func:`write_calibration`: all of the above
-  on a :class:`~mmsnap_graph.data.recording.Recording`, stored back atomically;
+  measurements (range, spatial frequency, Doppler), refined by LM after a
+  numpy pre-solve (:mod:`.presolve`) from a robust start (:mod:`.robust_start`);
+- :func:`calibrate_recording`: all of the above on a
+  :class:`~mmsnap_graph.data.recording.Recording`, giving a
+  :class:`RecordingCalibration` (stored and read back by
+  :mod:`mmsnap_graph.io.calibration`).
 """
 
 from .closed_form import (
@@ -20,19 +23,12 @@ from .closed_form import (
     closed_form_calibration,
     closed_form_pose,
 )
-from .joint import PAPER_SIGMAS, JointCalibration, joint_calibration, trimmed_closed_form
+from .joint import DEFAULT_ROBUST_K, JointCalibration, joint_calibration
 from .matching import LocalTracks, TrackCandidate, TrackMatching, local_tracks, match_tracks
-from .network import (
-    CALIBRATION_GROUP,
-    CALIBRATION_LAYOUT,
-    RecordingCalibration,
-    calibrate_recording,
-    residual_sigmas,
-    write_calibration,
-    write_calibration_json,
-)
+from .network import RecordingCalibration, calibrate_recording, residual_noise
 from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
-from .poses import pose_array, pose_error, to_pose2
+from .poses import pose_array, pose_tangent_error, to_pose2
+from .robust_start import trimmed_closed_form
 
 __all__ = [
     "DEFAULT_MIN_COMMON_FRAMES",
@@ -41,7 +37,7 @@ __all__ = [
     "alignment_jacobian",
     "closed_form_calibration",
     "closed_form_pose",
-    "PAPER_SIGMAS",
+    "DEFAULT_ROBUST_K",
     "JointCalibration",
     "joint_calibration",
     "trimmed_closed_form",
@@ -50,18 +46,14 @@ __all__ = [
     "TrackMatching",
     "local_tracks",
     "match_tracks",
-    "CALIBRATION_GROUP",
-    "CALIBRATION_LAYOUT",
     "RecordingCalibration",
     "calibrate_recording",
-    "residual_sigmas",
-    "write_calibration",
-    "write_calibration_json",
+    "residual_noise",
     "PoseEdge",
     "PoseGraphCalibration",
     "pairwise_edges",
     "pose_graph_calibration",
     "pose_array",
-    "pose_error",
+    "pose_tangent_error",
     "to_pose2",
 ]

@@ -166,6 +166,135 @@ def _aligned(pose: NDArray, za: NDArray, zb: NDArray) -> NDArray:
     return np.hypot(za[:, 0] - x, za[:, 1] - y)
 
 
+class _Pool:
+    """Every row of every track of both nodes, and their pairings at each lag."""
+
+    def __init__(self, ta, tb, lags, inlier_gate_m):
+        self.fa = np.concatenate([f for f, _ in ta.values()])
+        self.za = np.concatenate([p for _, p in ta.values()])
+        self.ida = np.concatenate([np.full(f.size, t) for t, (f, _) in ta.items()])
+        self.fb = np.concatenate([f for f, _ in tb.values()])
+        self.zb = np.concatenate([p for _, p in tb.values()])
+        self.idb = np.concatenate([np.full(f.size, t) for t, (f, _) in tb.items()])
+        self.joins = {lag: _join(self.fa, self.fb, lag) for lag in lags}
+        self.gate = inlier_gate_m
+
+    def support(self, pose, lag):
+        """Row pairs at ``lag`` that ``pose`` aligns within the gate."""
+        ia, ib = self.joins[lag]
+        inl = _aligned(pose, self.za[ia], self.zb[ib]) < self.gate
+        return ia[inl], ib[inl]
+
+
+def _candidates(ta, tb, lags, pool, min_common_frames, min_spread_m) -> list[TrackCandidate]:
+    """The closed form of every (track a, track b, lag) with enough common
+    frames of a moving target, scored by its support."""
+    cands: list[TrackCandidate] = []
+    for ida, (fa, pa) in ta.items():
+        for idb, (fb, pb) in tb.items():
+            for lag in lags:
+                ia, ib = _common(fa, fb, lag)
+                if ia.size < max(min_common_frames, 3):
+                    continue
+                za, zb = pa[ia], pb[ib]
+                spread = min(np.sqrt(np.mean(np.sum((za - za.mean(0)) ** 2, 1))),
+                             np.sqrt(np.mean(np.sum((zb - zb.mean(0)) ** 2, 1))))
+                if spread < min_spread_m:
+                    continue
+                pose, j = closed_form_pose(za, zb)
+                cands.append(TrackCandidate(track_a=ida, track_b=idb, lag_frames=lag,
+                                            n_frames=int(ia.size),
+                                            rmse_m=float(np.sqrt(j / ia.size)), pose=pose,
+                                            support=int(pool.support(pose, lag)[0].size)))
+    return cands
+
+
+def _fit_lags(cands, lags, pool) -> dict[int, tuple[NDArray, NDArray, NDArray, float]]:
+    """The best-supported hypothesis of each lag, refitted on its inliers:
+    lag -> (pose, rows a, rows b, inlier RMSE)."""
+    fits: dict[int, tuple[NDArray, NDArray, NDArray, float]] = {}
+    for lag in lags:
+        at_lag = [c for c in cands if c.lag_frames == lag]
+        if not at_lag:
+            continue
+        best = max(at_lag, key=lambda c: (c.support, -c.rmse_m))
+        pose = best.pose
+        ia, ib = pool.support(pose, lag)
+        for _ in range(2):
+            if ia.size < 3:
+                break
+            pose, _ = closed_form_pose(pool.za[ia], pool.zb[ib])
+            ia, ib = pool.support(pose, lag)
+        if ia.size < 3:
+            continue
+        pose, j = closed_form_pose(pool.za[ia], pool.zb[ib])
+        fits[lag] = (pose, ia, ib, float(np.sqrt(j / ia.size)))
+    return fits
+
+
+def _choose_lag(fits, lag_min_improvement) -> int:
+    """Among the lags that explain (nearly) as many frames as the best, the
+    one with the lowest inlier RMSE; lag 0 unless the data show a lag."""
+    most = max(f[1].size for f in fits.values())
+    lag = min((L for L in fits if fits[L][1].size >= 0.95 * most), key=lambda L: fits[L][3])
+    if lag != 0 and 0 in fits:
+        n0, r0 = fits[0][1].size, fits[0][3]
+        nl, rl = fits[lag][1].size, fits[lag][3]
+        if not (nl >= 0.95 * n0 and rl <= (1.0 - lag_min_improvement) * r0) and n0 >= 0.5 * nl:
+            lag = 0  # the data do not show a lag: keep the nodes' own sync
+    return lag
+
+
+def _majority_rows(pool, lag, ia, ib):
+    """Keep the inlier rows of track pairs with most of their common frames
+    inliers (one target); two targets that cross contribute a few only."""
+    ja, jb = pool.joins[lag]
+    common_pairs, common_counts = np.unique(np.stack([pool.ida[ja], pool.idb[jb]], axis=1),
+                                            axis=0, return_counts=True)
+    common = {(int(a), int(b)): int(n) for (a, b), n in zip(common_pairs, common_counts)}
+    in_pairs = np.stack([pool.ida[ia], pool.idb[ib]], axis=1)
+    keep = np.array([2 * np.sum(np.all(in_pairs == row, axis=1)) >= common[(int(row[0]), int(row[1]))]
+                     for row in in_pairs], dtype=bool) if ia.size else np.zeros(0, bool)
+    return ia[keep], ib[keep]
+
+
+def _failed(message, cands=()) -> TrackMatching:
+    return TrackMatching(calibration=None, pairs=(), lag_frames=0, candidates=tuple(cands),
+                         success=False, message=message)
+
+
+def _validate(max_lag_frames, max_rmse_m, inlier_gate_m) -> None:
+    if int(max_lag_frames) < 0:
+        raise ValidationError(f"max_lag_frames must be >= 0, got {max_lag_frames!r}")
+    if not max_rmse_m > 0:
+        raise ValidationError(f"max_rmse_m must be > 0, got {max_rmse_m!r}")
+    if not inlier_gate_m > 0:
+        raise ValidationError(f"inlier_gate_m must be > 0, got {inlier_gate_m!r}")
+
+
+def _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m):
+    """The closed form on the accepted rows, and the accepted track pairs."""
+    order = np.argsort(pool.fa[ia], kind="stable")
+    ia, ib = ia[order], ib[order]
+    cal = closed_form_calibration(pool.za[ia], pool.zb[ib], covariance=covariance,
+                                  min_common_frames=min_common_frames,
+                                  min_spread_m=min_spread_m, frames=pool.fa[ia])
+    pair_rows = np.stack([pool.ida[ia], pool.idb[ib]], axis=1)
+    uniq, counts = np.unique(pair_rows, axis=0, return_counts=True)
+    pairs = tuple((int(a), int(b)) for a, b in uniq[np.argsort(-counts, kind="stable")])
+    accepted = set(pairs)
+    cands = [replace(c, accepted=(c.lag_frames == lag and (c.track_a, c.track_b) in accepted))
+             for c in cands]
+    single = len(pairs) == 1
+    cal = replace(
+        cal, lag_frames=lag, track_a=pairs[0][0] if single else -1,
+        track_b=pairs[0][1] if single else -1,
+        message=(f"{len(pairs)} matched track pair(s) at lag {lag} frames, "
+                 f"{ia.size} inlier frame pairs; {cal.message}"))
+    return TrackMatching(calibration=cal, pairs=pairs, lag_frames=lag, candidates=tuple(cands),
+                         success=True, message=cal.message)
+
+
 def match_tracks(
     tracks_a: LocalTracks,
     tracks_b: LocalTracks,
@@ -201,124 +330,29 @@ def match_tracks(
     no pair has enough common frames of a moving target, or the best pose
     leaves a track RMSE above ``max_rmse_m``.
     """
-    if int(max_lag_frames) < 0:
-        raise ValidationError(f"max_lag_frames must be >= 0, got {max_lag_frames!r}")
-    if not max_rmse_m > 0:
-        raise ValidationError(f"max_rmse_m must be > 0, got {max_rmse_m!r}")
-    if not inlier_gate_m > 0:
-        raise ValidationError(f"inlier_gate_m must be > 0, got {inlier_gate_m!r}")
+    _validate(max_lag_frames, max_rmse_m, inlier_gate_m)
     ta, tb = tracks_a.split(), tracks_b.split()
     lags = range(-int(max_lag_frames), int(max_lag_frames) + 1)
     if not ta or not tb:
-        return TrackMatching(
-            calibration=None, pairs=(), lag_frames=0, candidates=(), success=False,
-            message=f"no pair of tracks: node a has {len(ta)} track(s), node b {len(tb)}")
-    # Every row of every track, and their pairings at each lag.
-    fa_all = np.concatenate([f for f, _ in ta.values()])
-    za_all = np.concatenate([p for _, p in ta.values()])
-    ida_all = np.concatenate([np.full(f.size, t) for t, (f, _) in ta.items()])
-    fb_all = np.concatenate([f for f, _ in tb.values()])
-    zb_all = np.concatenate([p for _, p in tb.values()])
-    idb_all = np.concatenate([np.full(f.size, t) for t, (f, _) in tb.items()])
-    joins = {lag: _join(fa_all, fb_all, lag) for lag in lags}
-
-    def support(pose, lag):
-        ia, ib = joins[lag]
-        return ia[_aligned(pose, za_all[ia], zb_all[ib]) < inlier_gate_m], \
-            ib[_aligned(pose, za_all[ia], zb_all[ib]) < inlier_gate_m]
-
-    cands: list[TrackCandidate] = []
-    for ida, (fa, pa) in ta.items():
-        for idb, (fb, pb) in tb.items():
-            for lag in lags:
-                ia, ib = _common(fa, fb, lag)
-                if ia.size < max(min_common_frames, 3):
-                    continue
-                za, zb = pa[ia], pb[ib]
-                spread = min(np.sqrt(np.mean(np.sum((za - za.mean(0)) ** 2, 1))),
-                             np.sqrt(np.mean(np.sum((zb - zb.mean(0)) ** 2, 1))))
-                if spread < min_spread_m:
-                    continue
-                pose, j = closed_form_pose(za, zb)
-                cands.append(TrackCandidate(track_a=ida, track_b=idb, lag_frames=lag,
-                                            n_frames=int(ia.size),
-                                            rmse_m=float(np.sqrt(j / ia.size)), pose=pose,
-                                            support=int(support(pose, lag)[0].size)))
+        return _failed(f"no pair of tracks: node a has {len(ta)} track(s), node b {len(tb)}")
+    pool = _Pool(ta, tb, lags, inlier_gate_m)
+    cands = _candidates(ta, tb, lags, pool, min_common_frames, min_spread_m)
     if not cands:
-        return TrackMatching(
-            calibration=None, pairs=(), lag_frames=0, candidates=(), success=False,
-            message=(f"no pair of tracks shares >= {max(min_common_frames, 3)} frames of a "
-                     f"moving target (spread >= {min_spread_m} m) within +-{max_lag_frames} "
-                     f"frames of lag"))
-    # The best-supported hypothesis of each lag, refitted on its inliers.
-    fits: dict[int, tuple[NDArray, NDArray, NDArray, float]] = {}
-    for lag in lags:
-        at_lag = [c for c in cands if c.lag_frames == lag]
-        if not at_lag:
-            continue
-        best = max(at_lag, key=lambda c: (c.support, -c.rmse_m))
-        pose = best.pose
-        ia, ib = support(pose, lag)
-        for _ in range(2):
-            if ia.size < 3:
-                break
-            pose, _ = closed_form_pose(za_all[ia], zb_all[ib])
-            ia, ib = support(pose, lag)
-        if ia.size < 3:
-            continue
-        pose, j = closed_form_pose(za_all[ia], zb_all[ib])
-        fits[lag] = (pose, ia, ib, float(np.sqrt(j / ia.size)))
+        return _failed(f"no pair of tracks shares >= {max(min_common_frames, 3)} frames of a "
+                       f"moving target (spread >= {min_spread_m} m) within +-{max_lag_frames} "
+                       f"frames of lag")
+    fits = _fit_lags(cands, lags, pool)
     if not fits:
         best = min(cands, key=lambda c: c.rmse_m)
-        return TrackMatching(
-            calibration=None, pairs=(), lag_frames=0, candidates=tuple(cands), success=False,
-            message=(f"no pose aligns 3 frames within inlier_gate_m={inlier_gate_m} m; the best "
-                     f"track RMSE is {best.rmse_m:.3g} m"))
-    # Among the lags that explain (nearly) as many frames as the best, the one
-    # with the lowest inlier RMSE.
-    most = max(f[1].size for f in fits.values())
-    lag = min((L for L in fits if fits[L][1].size >= 0.95 * most), key=lambda L: fits[L][3])
-    if lag != 0 and 0 in fits:
-        n0, r0 = fits[0][1].size, fits[0][3]
-        nl, rl = fits[lag][1].size, fits[lag][3]
-        if not (nl >= 0.95 * n0 and rl <= (1.0 - lag_min_improvement) * r0) and n0 >= 0.5 * nl:
-            lag = 0  # the data do not show a lag: keep the nodes' own sync
-    pose, ia, ib, rmse = fits[lag]
+        return _failed(f"no pose aligns 3 frames within inlier_gate_m={inlier_gate_m} m; the "
+                       f"best track RMSE is {best.rmse_m:.3g} m", cands)
+    lag = _choose_lag(fits, lag_min_improvement)
+    _, ia, ib, rmse = fits[lag]
     if rmse > max_rmse_m:
-        return TrackMatching(
-            calibration=None, pairs=(), lag_frames=0, candidates=tuple(cands), success=False,
-            message=(f"no pair of tracks matches: the best track RMSE {rmse:.3g} m "
-                     f"(lag {lag}) exceeds max_rmse_m={max_rmse_m}"))
-    # A track pair belongs to one target when most of its common frames are
-    # inliers; two targets that cross contribute a few inliers only.
-    ja, jb = joins[lag]
-    common_pairs, common_counts = np.unique(np.stack([ida_all[ja], idb_all[jb]], axis=1),
-                                            axis=0, return_counts=True)
-    common = {(int(a), int(b)): int(n) for (a, b), n in zip(common_pairs, common_counts)}
-    in_pairs = np.stack([ida_all[ia], idb_all[ib]], axis=1)
-    keep = np.array([2 * np.sum(np.all(in_pairs == row, axis=1)) >= common[(int(row[0]), int(row[1]))]
-                     for row in in_pairs], dtype=bool) if ia.size else np.zeros(0, bool)
-    ia, ib = ia[keep], ib[keep]
+        return _failed(f"no pair of tracks matches: the best track RMSE {rmse:.3g} m "
+                       f"(lag {lag}) exceeds max_rmse_m={max_rmse_m}", cands)
+    ia, ib = _majority_rows(pool, lag, ia, ib)
     if ia.size < 3:
-        return TrackMatching(
-            calibration=None, pairs=(), lag_frames=0, candidates=tuple(cands), success=False,
-            message="no track pair has a majority of its common frames aligned by one pose")
-    order = np.argsort(fa_all[ia], kind="stable")
-    ia, ib = ia[order], ib[order]
-    cal = closed_form_calibration(za_all[ia], zb_all[ib], covariance=covariance,
-                                  min_common_frames=min_common_frames,
-                                  min_spread_m=min_spread_m, frames=fa_all[ia])
-    pair_rows = np.stack([ida_all[ia], idb_all[ib]], axis=1)
-    uniq, counts = np.unique(pair_rows, axis=0, return_counts=True)
-    pairs = tuple((int(a), int(b)) for a, b in uniq[np.argsort(-counts, kind="stable")])
-    accepted = set(pairs)
-    cands = [replace(c, accepted=(c.lag_frames == lag and (c.track_a, c.track_b) in accepted))
-             for c in cands]
-    single = len(pairs) == 1
-    cal = replace(
-        cal, lag_frames=lag, track_a=pairs[0][0] if single else -1,
-        track_b=pairs[0][1] if single else -1,
-        message=(f"{len(pairs)} matched track pair(s) at lag {lag} frames, "
-                 f"{ia.size} inlier frame pairs; {cal.message}"))
-    return TrackMatching(calibration=cal, pairs=pairs, lag_frames=lag, candidates=tuple(cands),
-                         success=True, message=cal.message)
+        return _failed("no track pair has a majority of its common frames aligned by one pose",
+                       cands)
+    return _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m)

@@ -6,7 +6,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["to_pose2", "pose_array", "pose_error"]
+__all__ = ["to_pose2", "pose_array", "pose_tangent_error"]
 
 
 def to_pose2(pose: ArrayLike) -> gtsam.Pose2:
@@ -20,9 +20,11 @@ def pose_array(pose: gtsam.Pose2) -> NDArray:
     return np.array([pose.x(), pose.y(), pose.theta()])
 
 
-def pose_error(estimate: ArrayLike, truth: ArrayLike) -> NDArray:
+def pose_tangent_error(estimate: ArrayLike, truth: ArrayLike) -> NDArray:
     """Error of an estimated pose in the truth's body-frame tangent,
-    ``truth.localCoordinates(estimate)`` (3,) ``(dx_b, dy_b, dphi)``: the
-    coordinates in which pose covariances are given, so ``e^T P^-1 e`` is the
-    NEES."""
+    ``truth.localCoordinates(estimate)`` = ``Log(truth^-1 estimate)``, (3,)
+    ``(dx_b, dy_b, dphi)``: the coordinates in which pose covariances are
+    given, so ``e^T P^-1 e`` is the NEES. (Not
+    :func:`mmsnap_graph.app.evaluation.pose_error`, which reports position
+    and heading errors in the global frame.)"""
     return np.asarray(to_pose2(truth).localCoordinates(to_pose2(estimate)), dtype=float)

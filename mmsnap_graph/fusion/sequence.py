@@ -44,7 +44,6 @@ from .._validation import as_float_array, check_finite
 __all__ = [
     "FusedSequence",
     "fuse_recording",
-    "load_calibration_poses",
     "recording_poses",
     "group_detections",
 ]
@@ -56,45 +55,6 @@ _PAPER_PRIOR = GaussianPrior()
 # ----------------------------------------------------------------------------
 # Poses
 # ----------------------------------------------------------------------------
-
-
-def load_calibration_poses(source: str | os.PathLike | Mapping) -> dict[str, NDArray]:
-    """Node poses from calibration JSON (the project's format):
-
-    ``{"reference": "S1", "nodes": {"S1": {"pose": [x_m, y_m, phi_rad],
-    "covariance": [[3x3]]}, ...}, ...}``; ``source`` is a path or the parsed
-    mapping. Returns ``name -> (3,) pose``.
-    """
-    if isinstance(source, Mapping):
-        data = source
-        where = "calibration"
-    else:
-        path = Path(source)
-        where = str(path)
-        try:
-            data = json.loads(path.read_text())
-        except FileNotFoundError as exc:
-            raise CalibrationError(f"calibration file {path} does not exist") from exc
-        except (OSError, json.JSONDecodeError) as exc:
-            raise CalibrationError(f"{path} is not readable calibration JSON: {exc}") from exc
-    nodes = data.get("nodes") if isinstance(data, Mapping) else None
-    if not isinstance(nodes, Mapping) or not nodes:
-        raise CalibrationError(f"{where}: missing or empty 'nodes' mapping")
-    poses = {}
-    for name, entry in nodes.items():
-        pose = entry.get("pose") if isinstance(entry, Mapping) else None
-        if pose is None:
-            raise CalibrationError(f"{where}: nodes[{name!r}] has no 'pose'")
-        try:
-            arr = np.asarray(pose, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise CalibrationError(f"{where}: nodes[{name!r}].pose={pose!r} is not numeric") from exc
-        if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-            raise CalibrationError(
-                f"{where}: nodes[{name!r}].pose must be 3 finite numbers [x_m, y_m, phi_rad], got {pose!r}"
-            )
-        poses[str(name)] = arr
-    return poses
 
 
 def recording_poses(

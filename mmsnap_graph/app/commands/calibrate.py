@@ -80,16 +80,22 @@ def format_table(cal) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph.calibration import calibrate_recording, write_calibration, write_calibration_json
+    from mmsnap_graph.calibration import calibrate_recording
+    from mmsnap_graph.data.noise import MeasurementNoise
     from mmsnap_graph.errors import ValidationError
     from mmsnap_graph.io import read_recording
+    from mmsnap_graph.io.calibration import write_calibration, write_calibration_json
 
     if args.max_lag < 0:
         raise ValidationError(f"--max-lag must be >= 0, got {args.max_lag}")
+    noise = None
+    if args.sigmas is not None:
+        r, w, v = args.sigmas
+        noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
     rec = read_recording(args.recording, load_cubes=False)
     cal = calibrate_recording(
         rec, source=args.source, method=args.method, max_lag_frames=args.max_lag,
-        max_rmse_m=args.max_rmse, sigmas=args.sigmas,
+        max_rmse_m=args.max_rmse, noise=noise,
         robust=None if args.robust == "none" else args.robust, motion=not args.no_motion,
         sigma_a_mps2=args.sigma_a)
     print(format_table(cal))

@@ -49,8 +49,9 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.data.noise import MeasurementNoise
-    from mmsnap_graph.fusion.sequence import fuse_recording, load_calibration_poses
+    from mmsnap_graph.fusion.sequence import fuse_recording
     from mmsnap_graph.io import read_recording, write_fused
+    from mmsnap_graph.io.calibration import load_calibration_poses
 
     rec = read_recording(args.recording, load_cubes=False)
     poses = load_calibration_poses(args.calibration) if args.calibration else None

@@ -1,0 +1,365 @@
+"""The calibration file formats (docs/FORMAT.md, "/calibration"), in symmetric pairs:
+
+- :func:`write_calibration` / :func:`read_calibration`: the ``/calibration``
+  group of a recording file (layout in :data:`CALIBRATION_LAYOUT`) plus each
+  calibrated node's ``pose`` attribute, written atomically;
+- :func:`write_calibration_json` / :func:`read_calibration_json`: the
+  project's calibration JSON, ``{"reference": "S1", "node_names": [...],
+  "nodes": {"S1": {"pose": [x_m, y_m, phi_rad], "covariance": [[3x3]],
+  "lag_frames": 0}, ...}, "unreachable": [...], "method": ..., "source": ...,
+  "success": ..., "message": ..., "edges": [...], "failures": {...}}``
+  (covariance in the Pose2 body tangent; non-finite numbers are ``null``).
+
+Both readers return the :class:`~mmsnap_graph.calibration.RecordingCalibration`
+the writers take, without the step results (``pose_graph``, ``joint``), which
+are not stored. :func:`load_calibration_poses` reads only ``name -> pose``
+from a JSON that may hold nothing but ``{"nodes": {name: {"pose": [...]}}}``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import h5py
+import numpy as np
+from numpy.typing import NDArray
+
+from .._atomic import atomic_path
+from ..calibration import PoseEdge, RecordingCalibration
+from ..data.recording import Recording
+from ..errors import CalibrationError, FileFormatError
+from .hdf5 import update_recording
+
+__all__ = [
+    "CALIBRATION_GROUP",
+    "CALIBRATION_LAYOUT",
+    "write_calibration",
+    "read_calibration",
+    "write_calibration_json",
+    "read_calibration_json",
+    "calibration_to_json",
+    "calibration_from_json",
+    "load_calibration_poses",
+]
+
+CALIBRATION_GROUP = "calibration"
+#: Layout of the ``/calibration`` group written by :func:`write_calibration`.
+CALIBRATION_LAYOUT = """\
+/calibration           attrs: reference (str), method (str), source (str),
+                              success (bool), message (str), json (str: the calibration JSON)
+    node_name          (N,) str, every node of the recording in order
+    calibrated         (N,) bool, False for nodes with no path to the reference
+    pose               (N, 3) float (x_m, y_m, phi_rad), NaN where not calibrated
+    covariance         (N, 3, 3) float, Pose2 body tangent, NaN where not calibrated
+    lag_frames         (N,) int, node frame k + lag = reference frame k (0 if unknown)
+    edges/             one row per pairwise estimate:
+        node_a, node_b (E,) str; pose (E, 3); covariance (E, 3, 3);
+        rmse_m (E,) float (paper eq. 14); n_frames (E,) int; lag_frames (E,) int
+"""
+
+
+# ---------------------------------------------------------------- JSON
+def _jsonable(x) -> Any:
+    """Floats and nested lists for JSON; NaN and infinity become None."""
+    a = np.asarray(x, dtype=float)
+    if a.ndim == 0:
+        return float(a) if np.isfinite(a) else None
+    return [_jsonable(v) for v in a]
+
+
+def _floats(x) -> NDArray:
+    """The inverse of :func:`_jsonable`: None becomes NaN."""
+    if x is None:
+        return np.array(np.nan)
+    if isinstance(x, (list, tuple)):
+        return np.array([_floats(v) for v in x], dtype=float)
+    return np.array(float(x))
+
+
+def calibration_to_json(cal: RecordingCalibration) -> dict[str, Any]:
+    """The project's calibration JSON of ``cal`` as a dict (``json.dumps``-able)."""
+    nodes = {}
+    for n in cal.node_names:
+        if n in cal.poses:
+            nodes[n] = {"pose": _jsonable(cal.poses[n]),
+                        "covariance": _jsonable(cal.covariances[n]),
+                        "lag_frames": int(cal.lag_frames.get(n, 0))}
+    return {
+        "reference": cal.reference,
+        "node_names": list(cal.node_names),
+        "nodes": nodes,
+        "unreachable": list(cal.unreachable),
+        "method": cal.method,
+        "source": cal.source,
+        "success": bool(cal.success),
+        "message": cal.message,
+        "edges": [{"node_a": e.node_a, "node_b": e.node_b, "pose": _jsonable(e.pose),
+                   "covariance": _jsonable(e.covariance), "rmse_m": _jsonable(e.rmse_m),
+                   "n_frames": int(e.n_frames), "lag_frames": int(e.lag_frames)}
+                  for e in cal.edges],
+        "failures": dict(cal.failures),
+    }
+
+
+def _node_pose(where: str, name: str, entry: Any) -> NDArray:
+    pose = entry.get("pose") if isinstance(entry, Mapping) else None
+    if pose is None:
+        raise CalibrationError(f"{where}: nodes[{name!r}] has no 'pose'")
+    try:
+        arr = np.asarray(pose, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{where}: nodes[{name!r}].pose={pose!r} is not numeric") from exc
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise CalibrationError(f"{where}: nodes[{name!r}].pose must be 3 finite numbers "
+                               f"[x_m, y_m, phi_rad], got {pose!r}")
+    return arr
+
+
+def _json_nodes(data: Any, where: str) -> Mapping:
+    nodes = data.get("nodes") if isinstance(data, Mapping) else None
+    if not isinstance(nodes, Mapping) or not nodes:
+        raise CalibrationError(f"{where}: missing or empty 'nodes' mapping")
+    return nodes
+
+
+def _json_covariance(where: str, name: str, entry: Mapping) -> NDArray:
+    cov = entry.get("covariance")
+    if cov is None:
+        return np.full((3, 3), np.nan)
+    try:
+        arr = _floats(cov)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{where}: nodes[{name!r}].covariance is not numeric") from exc
+    if arr.shape != (3, 3):
+        raise CalibrationError(f"{where}: nodes[{name!r}].covariance must be 3 x 3, "
+                               f"got shape {arr.shape}")
+    return arr
+
+
+def _json_edge(where: str, i: int, e: Any) -> PoseEdge:
+    try:
+        return PoseEdge(node_a=str(e["node_a"]), node_b=str(e["node_b"]), pose=_floats(e["pose"]),
+                        covariance=_floats(e["covariance"]),
+                        rmse_m=float(_floats(e.get("rmse_m"))),
+                        n_frames=int(e.get("n_frames", 0)), lag_frames=int(e.get("lag_frames", 0)))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CalibrationError(f"{where}: edges[{i}] is not a pose edge ({exc})") from exc
+
+
+def calibration_from_json(data: Mapping, *, where: str = "calibration") -> RecordingCalibration:
+    """A :class:`RecordingCalibration` from parsed calibration JSON.
+
+    Only ``nodes`` with each node's ``pose`` is required; a missing
+    ``covariance`` is NaN, ``lag_frames`` 0, ``reference`` the first node,
+    ``node_names`` the calibrated then the unreachable nodes, ``success``
+    True. Raises :class:`CalibrationError` naming the bad field.
+    """
+    nodes = _json_nodes(data, where)
+    poses = {str(n): _node_pose(where, n, e) for n, e in nodes.items()}
+    covs = {str(n): _json_covariance(where, n, e) for n, e in nodes.items()}
+    lags = {str(n): int(e.get("lag_frames", 0) or 0) for n, e in nodes.items()}
+    unreachable = tuple(str(n) for n in data.get("unreachable", ()))
+    names = tuple(str(n) for n in data.get("node_names", (*poses, *unreachable)))
+    missing = [n for n in poses if n not in names]
+    if missing:
+        raise CalibrationError(f"{where}: nodes {missing} are not in node_names {list(names)}")
+    edges = tuple(_json_edge(where, i, e) for i, e in enumerate(data.get("edges", ())))
+    return RecordingCalibration(
+        reference=str(data.get("reference", next(iter(poses)))), node_names=names, poses=poses,
+        covariances=covs, lag_frames=lags, unreachable=unreachable, edges=edges,
+        method=str(data.get("method", "")), source=str(data.get("source", "")),
+        success=bool(data.get("success", True)), message=str(data.get("message", "")),
+        failures={str(k): str(v) for k, v in dict(data.get("failures", {})).items()})
+
+
+def _parse_json(source: str | os.PathLike | Mapping) -> tuple[Any, str]:
+    if isinstance(source, Mapping):
+        return source, "calibration"
+    path = Path(source)
+    try:
+        return json.loads(path.read_text()), str(path)
+    except FileNotFoundError as exc:
+        raise CalibrationError(f"calibration file {path} does not exist") from exc
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CalibrationError(f"{path} is not readable calibration JSON: {exc}") from exc
+
+
+def write_calibration_json(path: str | os.PathLike, cal: RecordingCalibration) -> Path:
+    """Write the calibration JSON of ``cal`` (:func:`calibration_to_json`) to
+    ``path``, atomically."""
+    dst = Path(path)
+    with atomic_path(dst) as tmp:
+        tmp.write_text(json.dumps(calibration_to_json(cal), indent=2) + "\n")
+    return dst
+
+
+def read_calibration_json(source: str | os.PathLike | Mapping) -> RecordingCalibration:
+    """The :class:`RecordingCalibration` in calibration JSON (a path, or the
+    parsed mapping); :func:`calibration_from_json` says what may be missing."""
+    data, where = _parse_json(source)
+    return calibration_from_json(data, where=where)
+
+
+def load_calibration_poses(source: str | os.PathLike | Mapping) -> dict[str, NDArray]:
+    """Node poses ``name -> (3,) (x_m, y_m, phi_rad)`` from calibration JSON
+    (a path or the parsed mapping); only the nodes' ``pose`` entries are read."""
+    data, where = _parse_json(source)
+    return {str(n): _node_pose(where, n, e) for n, e in _json_nodes(data, where).items()}
+
+
+# ---------------------------------------------------------------- HDF5
+def _atomic_copy_edit(src: Path, dst: Path, edit: Callable[[Path], None]) -> Path:
+    """Copy ``src`` beside ``dst``, let ``edit`` change the copy, move it over ``dst``."""
+    with atomic_path(dst) as tmp:
+        shutil.copyfile(src, tmp)
+        edit(tmp)
+    return dst
+
+
+def _strings(group: h5py.Group, name: str, values) -> None:
+    group.create_dataset(name, data=np.array(list(values), dtype=object),
+                         dtype=h5py.string_dtype())
+
+
+def _write_nodes(g: h5py.Group, cal: RecordingCalibration) -> None:
+    names = list(cal.node_names)
+    n = len(names)
+    pose = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    lag = np.zeros(n, np.int64)
+    ok = np.zeros(n, bool)
+    for i, name in enumerate(names):
+        if name in cal.poses:
+            pose[i], cov[i], ok[i] = cal.poses[name], cal.covariances[name], True
+            lag[i] = cal.lag_frames.get(name, 0)
+    _strings(g, "node_name", names)
+    g.create_dataset("calibrated", data=ok)
+    g.create_dataset("pose", data=pose)
+    g.create_dataset("covariance", data=cov)
+    g.create_dataset("lag_frames", data=lag)
+
+
+def _write_edges(g: h5py.Group, edges) -> None:
+    e = g.create_group("edges")
+    _strings(e, "node_a", [x.node_a for x in edges])
+    _strings(e, "node_b", [x.node_b for x in edges])
+    e.create_dataset("pose", data=np.array([x.pose for x in edges]).reshape(-1, 3))
+    e.create_dataset("covariance", data=np.array([x.covariance for x in edges]).reshape(-1, 3, 3))
+    e.create_dataset("rmse_m", data=np.array([x.rmse_m for x in edges], dtype=float))
+    e.create_dataset("n_frames", data=np.array([x.n_frames for x in edges], np.int64))
+    e.create_dataset("lag_frames", data=np.array([x.lag_frames for x in edges], np.int64))
+
+
+def _write_group(f: h5py.File, cal: RecordingCalibration) -> None:
+    if CALIBRATION_GROUP in f:
+        del f[CALIBRATION_GROUP]
+    g = f.create_group(CALIBRATION_GROUP)
+    g.attrs["reference"] = cal.reference
+    g.attrs["method"] = cal.method
+    g.attrs["source"] = cal.source
+    g.attrs["success"] = bool(cal.success)
+    g.attrs["message"] = cal.message
+    g.attrs["json"] = json.dumps(calibration_to_json(cal))
+    _write_nodes(g, cal)
+    _write_edges(g, cal.edges)
+
+
+def write_calibration(path: str | os.PathLike, recording: Recording, cal: RecordingCalibration,
+                      *, output: str | os.PathLike | None = None) -> Path:
+    """Store ``cal`` in the recording file at ``path`` (or a copy at
+    ``output``): calibrated nodes' ``pose`` attributes and the
+    ``/calibration`` group (:data:`CALIBRATION_LAYOUT`), atomically.
+
+    ``recording`` is the file's content (e.g. ``read_recording(path,
+    load_cubes=False)``); cubes not loaded are kept. Read it back with
+    :func:`read_calibration`.
+    """
+    src = Path(path)
+    if not src.exists():
+        raise FileFormatError(f"{src} does not exist")
+    dst = src if output is None else Path(output)
+    rec = recording
+    for n, pose in cal.poses.items():
+        rec = rec.with_node(dataclasses.replace(rec.nodes[n], pose=np.asarray(pose, dtype=float)))
+
+    def edit(tmp: Path) -> None:
+        update_recording(tmp, rec, keep_cubes=True)
+        with h5py.File(tmp, "r+") as f:
+            _write_group(f, cal)
+
+    return _atomic_copy_edit(src, dst, edit)
+
+
+def _member(g: h5py.Group, key: str, where: str) -> NDArray:
+    if key not in g:
+        raise FileFormatError(f"{where}/{key} is missing")
+    data = g[key][()]
+    if data.dtype.kind in "OS":
+        return np.array([v.decode() if isinstance(v, bytes) else str(v) for v in data], dtype=object)
+    return np.asarray(data)
+
+
+def _read_edges(g: h5py.Group, where: str) -> tuple[PoseEdge, ...]:
+    if "edges" not in g:
+        raise FileFormatError(f"{where}/edges is missing")
+    e, w = g["edges"], f"{where}/edges"
+    cols = {k: _member(e, k, w) for k in ("node_a", "node_b", "pose", "covariance", "rmse_m",
+                                          "n_frames", "lag_frames")}
+    return tuple(PoseEdge(node_a=str(cols["node_a"][i]), node_b=str(cols["node_b"][i]),
+                          pose=cols["pose"][i], covariance=cols["covariance"][i],
+                          rmse_m=float(cols["rmse_m"][i]), n_frames=int(cols["n_frames"][i]),
+                          lag_frames=int(cols["lag_frames"][i]))
+                 for i in range(cols["node_a"].size))
+
+
+def _read_group(g: h5py.Group, where: str) -> RecordingCalibration:
+    cols = {k: _member(g, k, where) for k in ("node_name", "calibrated", "pose", "covariance",
+                                              "lag_frames")}
+    names = tuple(str(n) for n in cols["node_name"])
+    ok = cols["calibrated"].astype(bool)
+    if ok.shape != (len(names),):
+        raise FileFormatError(f"{where}/calibrated must have shape ({len(names)},), "
+                              f"got {ok.shape}")
+    attrs = {}
+    for key in ("reference", "method", "source", "success", "message"):
+        if key not in g.attrs:
+            raise FileFormatError(f"{where} attribute {key!r} is missing")
+        attrs[key] = g.attrs[key]
+    extra = json.loads(g.attrs["json"]) if "json" in g.attrs else {}
+    return RecordingCalibration(
+        reference=str(attrs["reference"]), node_names=names,
+        poses={n: cols["pose"][i].astype(float) for i, n in enumerate(names) if ok[i]},
+        covariances={n: cols["covariance"][i].astype(float) for i, n in enumerate(names) if ok[i]},
+        lag_frames={n: int(cols["lag_frames"][i]) for i, n in enumerate(names) if ok[i]},
+        unreachable=tuple(n for i, n in enumerate(names) if not ok[i]),
+        edges=_read_edges(g, where), method=str(attrs["method"]), source=str(attrs["source"]),
+        success=bool(attrs["success"]), message=str(attrs["message"]),
+        failures={str(k): str(v) for k, v in dict(extra.get("failures", {})).items()})
+
+
+def read_calibration(path: str | os.PathLike) -> RecordingCalibration:
+    """The :class:`RecordingCalibration` stored by :func:`write_calibration` in
+    the ``/calibration`` group of the file at ``path`` (without the step
+    results ``pose_graph`` and ``joint``). Raises :class:`FileFormatError`
+    naming the missing group, dataset or attribute."""
+    path = Path(path)
+    if not path.exists():
+        raise FileFormatError(f"{path} does not exist")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise FileFormatError(f"{path} is not a readable HDF5 file: {exc}") from exc
+    with f:
+        if CALIBRATION_GROUP not in f:
+            raise FileFormatError(f"{path}: /{CALIBRATION_GROUP} is missing (run mmsnap calibrate)")
+        try:
+            return _read_group(f[CALIBRATION_GROUP], f"{path}:/{CALIBRATION_GROUP}")
+        except (TypeError, ValueError, json.JSONDecodeError) as exc:
+            if isinstance(exc, FileFormatError):
+                raise
+            raise FileFormatError(f"{path}:/{CALIBRATION_GROUP} is malformed: {exc}") from exc
