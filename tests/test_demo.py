@@ -144,7 +144,7 @@ def test_centroids_near_track_picks_one_centroid_per_frame_on_the_track():
                      doppler_mps=[0.1, -1.0, 0.0])
     track = demo.SingleTrack(frame=np.array([0]), state=np.array([[0.0, 3.05, 0, 0]]),
                              covariance=np.zeros((1, 4, 4)), track_id=np.array([0]))
-    out = demo._centroids_near_track(det, track)
+    out = demo.centroids_near_track(det, track)
     np.testing.assert_array_equal(out.frame, [0])
     assert out.range_m[0] == 3.0
 
@@ -153,7 +153,7 @@ def test_global_track_moves_position_and_rotates_velocity():
     pose = np.array([0.0, 7.0, np.pi])
     st = demo.SingleTrack(frame=np.array([0]), state=np.array([[1.0, 2.0, 0.5, -0.2]]),
                           covariance=np.diag([0.1, 0.2, 0.3, 0.4])[None], track_id=np.array([0]))
-    x, p = demo._global_track(st, pose)
+    x, p = demo.global_track(st, pose)
     np.testing.assert_allclose(x[0, :2], local_to_global(np.array([1.0, 2.0]), pose))
     np.testing.assert_allclose(x[0, 2:], [-0.5, 0.2], atol=1e-12)
     np.testing.assert_allclose(np.diag(p[0]), [0.1, 0.2, 0.3, 0.4], atol=1e-12)
