@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.models import wrap_angle
+from factors.models import global_to_local, local_to_global, wrap_angle
 
 from ..errors import ValidationError
 from .._validation import as_float_array
@@ -123,8 +123,6 @@ def pose_mapping_error(estimate: ArrayLike, truth: ArrayLike, points_m: ArrayLik
     area: the heading error weighs with the distance of the points from the
     node, the position error adds everywhere.
     """
-    from factors.models import global_to_local, local_to_global
-
     est = as_float_array(estimate, "estimate")
     tru = as_float_array(truth, "truth")
     pts = as_float_array(points_m, "points_m")
@@ -220,6 +218,9 @@ def _nees_summary(err: NDArray, cov: NDArray) -> dict:
 
 
 def _degeneracy_threshold() -> float:
+    # Imported here: GTSAM (fusion.oneshot) stays off this module's path,
+    # pure functions on arrays. The threshold moves to a GTSAM-free module
+    # with the fusion redesign; then this import goes to the module level.
     from ..fusion.oneshot import DEGENERACY_THRESHOLD
 
     return float(DEGENERACY_THRESHOLD)
