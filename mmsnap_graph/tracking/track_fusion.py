@@ -17,8 +17,10 @@ with ``omega`` in ``[0, 1]`` minimizing ``trace(P)`` (a convex function of
 
 Which track of S2 goes with which of S1 in a frame: a gated assignment on the
 global positions (:func:`scipy.optimize.linear_sum_assignment` on the squared
-Mahalanobis distance with ``P_1 + P_2``); with one track per node the gate
-alone decides.
+Mahalanobis distance with ``P_1 + P_2``); with one track per node and frame
+(single-target tracks) the gate alone decides, for all frames at once.
+``gate_probability=None`` fuses without a gate (the demo's benchmark: each
+node's one track of the one target).
 """
 
 from __future__ import annotations
