@@ -20,6 +20,7 @@ from mmsnap_graph.calibration import closed_form_calibration
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.data.recording import Detections, Tracks
+from mmsnap_graph.tracking.track_fusion import covariance_intersection
 from mmsnap_graph.app.report import (
     Table,
     qualitative_checks,
@@ -94,6 +95,68 @@ def test_one_shot_is_compared_on_common_frames(sample_result):
     assert f.vs_truth["track_fusion"].position_rmse_m < 0.1
 
 
+#: Table III against track-level fusion on the sample recordings cut to 300
+#: frames, as the demo computed it with its own covariance-intersection code
+#: before it used mmsnap_graph.tracking.fuse_tracks (commit 13608ac):
+#: (configuration, fused trajectory) -> common frames, Bayesian and ML
+#: (position RMSE m, velocity RMSE m/s). Upstream numerical changes (fusion,
+#: calibration) may move the last digits; the track-level fusion itself
+#: matches the old code exactly (test_track_level_fusion_is_ci_on_common_frames).
+TABLE_III_TRACK_FUSION_300 = {
+    ("A", "straight"): (298, (0.03730751398045166, 0.1283577057161325),
+                        (0.03721791805417301, 0.1295403103335115)),
+    ("A", "random"): (296, (0.06999913712658175, 0.38647967733030375),
+                      (0.07011620239897212, 0.38875812949010663)),
+    ("B", "straight"): (298, (0.020944368485863195, 0.07472013732614953),
+                        (0.020765966548743423, 0.07500956247005627)),
+    ("B", "random"): (298, (0.04777681179834883, 0.2239217911615449),
+                      (0.04770887848252859, 0.22465542323482648)),
+    ("C", "straight"): (298, (0.06379860347282705, 0.27507643057010495),
+                        (0.06497034675883476, 15.17437942785736)),
+    ("C", "random"): (298, (0.13367639171214435, 0.7080273612193101),
+                      (0.13776867536015552, 3.2555993614756757)),
+}
+
+
+def test_table_iii_track_fusion_numbers_are_unchanged(sample_result):
+    assert set(sample_result.fusions) == set(TABLE_III_TRACK_FUSION_300)
+    for key, (n, bayes, ml) in TABLE_III_TRACK_FUSION_300.items():
+        f = sample_result.fusions[key]
+        assert f.frame.size == n, key
+        for name, ref in (("bayes", bayes), ("ml", ml)):
+            e = f.vs_track_fusion[name]
+            assert e.n_frames == n, (key, name)
+            assert (e.position_rmse_m, e.velocity_rmse_mps) == pytest.approx(ref, rel=1e-6), \
+                (key, name)
+
+
+def test_track_level_fusion_is_ci_on_common_frames():
+    """The demo's benchmark: per common frame, covariance intersection of the
+    two single-target tracks moved into the global frame (no gate)."""
+    rng = np.random.default_rng(11)
+
+    def track(frames):
+        k = len(frames)
+        a = rng.normal(size=(k, 4, 6)) * 0.2
+        return demo.SingleTrack(frame=np.asarray(frames), state=rng.normal(size=(k, 4)) + [0, 4, 0, 0],
+                                covariance=a @ a.transpose(0, 2, 1) + 1e-3 * np.eye(4),
+                                track_id=np.arange(k))
+
+    ta, tb = track([0, 1, 2, 4, 7]), track([1, 2, 3, 4, 8])
+    poses = (np.zeros(3), np.array([3.0, 9.0, np.pi + 0.3]))
+    frames, states = demo.track_level_fusion((ta, tb), poses)
+    np.testing.assert_array_equal(frames, [1, 2, 4])
+    xa, pa = demo.global_track(ta, poses[0])
+    xb, pb = demo.global_track(tb, poses[1])
+    ia, ib = [1, 2, 3], [0, 1, 3]
+    x, _, _ = covariance_intersection(xa[ia], pa[ia], xb[ib], pb[ib])
+    np.testing.assert_array_equal(states, x)
+    empty, _ = demo.track_level_fusion((ta, track([20])), poses)
+    assert empty.size == 0
+    with pytest.raises(ValidationError, match="two nodes"):
+        demo.track_level_fusion((ta,), poses[:1])
+
+
 # ----------------------------------------------------------------------------
 # Pieces of the pipeline
 # ----------------------------------------------------------------------------
@@ -144,7 +207,7 @@ def test_centroids_near_track_picks_one_centroid_per_frame_on_the_track():
                      doppler_mps=[0.1, -1.0, 0.0])
     track = demo.SingleTrack(frame=np.array([0]), state=np.array([[0.0, 3.05, 0, 0]]),
                              covariance=np.zeros((1, 4, 4)), track_id=np.array([0]))
-    out = demo._centroids_near_track(det, track)
+    out = demo.centroids_near_track(det, track)
     np.testing.assert_array_equal(out.frame, [0])
     assert out.range_m[0] == 3.0
 
@@ -153,7 +216,7 @@ def test_global_track_moves_position_and_rotates_velocity():
     pose = np.array([0.0, 7.0, np.pi])
     st = demo.SingleTrack(frame=np.array([0]), state=np.array([[1.0, 2.0, 0.5, -0.2]]),
                           covariance=np.diag([0.1, 0.2, 0.3, 0.4])[None], track_id=np.array([0]))
-    x, p = demo._global_track(st, pose)
+    x, p = demo.global_track(st, pose)
     np.testing.assert_allclose(x[0, :2], local_to_global(np.array([1.0, 2.0]), pose))
     np.testing.assert_allclose(x[0, 2:], [-0.5, 0.2], atol=1e-12)
     np.testing.assert_allclose(np.diag(p[0]), [0.1, 0.2, 0.3, 0.4], atol=1e-12)
@@ -210,10 +273,20 @@ def test_demo_config_protocol():
     assert demo.DemoConfig(configurations=("b",)).configurations == ("B",)
 
 
-def test_find_sample_data(tmp_path):
+def test_find_sample_data(tmp_path, monkeypatch):
     with pytest.raises(ValidationError, match="does not exist"):
         demo.find_sample_data(tmp_path / "nope")
     assert demo.find_sample_data(tmp_path) == tmp_path
+    if not demo.sample_path(DATA, "C", "straight").is_file():
+        pytest.skip("sample recordings missing (python data/make_samples.py)")
+    # From a folder without data/: the source checkout's data/ next to the package.
+    monkeypatch.chdir(tmp_path)
+    assert demo.find_sample_data() == DATA
+    # A working directory with data/ of its own comes first.
+    mine = tmp_path / "data"
+    mine.mkdir()
+    demo.sample_path(mine, "C", "straight").write_bytes(b"")
+    assert demo.find_sample_data() == mine
 
 
 def test_cube_stretch_runs_the_whole_chain():

@@ -41,3 +41,33 @@ def test_simulate_command_custom_nodes_and_errors(tmp_path, capsys):
     assert "levels=" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["simulate", "--node", "S1=0,0", "-o", str(tmp_path / "y.h5")])
+
+
+def test_python_dash_m_runs_the_command_line(tmp_path):
+    """``python -m mmsnap_graph`` is the ``mmsnap`` command."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(root)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    help_ = subprocess.run([sys.executable, "-m", "mmsnap_graph", "--help"], capture_output=True,
+                           text=True, env=env, cwd=tmp_path, timeout=120)
+    assert help_.returncode == 0, help_.stderr
+    for command in ("process", "simulate", "calibrate", "fuse", "demo", "evaluate"):
+        assert command in help_.stdout
+    out = tmp_path / "a.h5"
+    run = subprocess.run([sys.executable, "-m", "mmsnap_graph", "simulate", "-c", "A", "-n", "20",
+                          "-s", "5", "-l", "centroids", "-o", str(out), "--no-progress"],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert run.returncode == 0, run.stderr
+    rec = read_recording(out)
+    ref = simulate_recording("A", "straight", n_frames=20, seed=5, levels=("centroids",))
+    assert_array_equal(rec.truth.state, ref.truth.state)
+    # Errors come back as the command's exit status 2, not a traceback.
+    bad = subprocess.run([sys.executable, "-m", "mmsnap_graph", "demo", "--frames", "5",
+                          "-o", str(tmp_path / "x")], capture_output=True, text=True, env=env,
+                         cwd=tmp_path, timeout=120)
+    assert bad.returncode == 2 and "--frames must be >= 20" in bad.stderr

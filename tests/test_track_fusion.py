@@ -88,9 +88,9 @@ def test_ci_is_consistent_whatever_the_unknown_correlation():
 def test_fused_ekf_tracks_follow_the_target():
     rec = simulate_recording("C", "random", levels=("centroids",), n_frames=200, seed=4, known_poses=True,
                              centroid_noise=CentroidNoise(p_miss=0.05))
-    cfg = EkfConfig(frame_period_s=rec.frame_period_s)
-    t1 = track_centroids(rec.nodes["S1"].centroids, cfg)
-    t2 = track_centroids(rec.nodes["S2"].centroids, cfg)
+    config = EkfConfig(frame_period_s=rec.frame_period_s)
+    t1 = track_centroids(rec.nodes["S1"].centroids, config)
+    t2 = track_centroids(rec.nodes["S2"].centroids, config)
     fused = fuse_tracks(t1, rec.nodes["S1"].pose, t2, rec.nodes["S2"].pose)
     assert len(fused) > 150
     assert np.all((fused.omega >= 0) & (fused.omega <= 1))
@@ -103,6 +103,67 @@ def test_fused_ekf_tracks_follow_the_target():
     # the gate rejects the pairs.
     wrong = rec.nodes["S2"].pose + [3.0, 0.0, 0.0]
     assert len(fuse_tracks(t1, rec.nodes["S1"].pose, t2, wrong)) < 0.2 * len(fused)
+
+
+def _one_track_per_frame(rng, frames, offset):
+    k = len(frames)
+    state = np.c_[rng.normal(0.0, 0.1, (k, 2)) + [0.0, 4.0], rng.normal(0.0, 0.3, (k, 2))] + offset
+    return Tracks(frame=frames, track_id=np.full(k, 7), state=state,
+                  covariance=_spd(rng, k, scale=0.1))
+
+
+def test_one_track_per_frame_fuses_every_common_frame_by_ci():
+    """With one track per node and frame (single-target tracks) and no gate,
+    every common frame is fused: covariance intersection of the two tracks
+    moved into the global frame, in increasing frame order."""
+    rng = np.random.default_rng(7)
+    t1 = _one_track_per_frame(rng, np.array([5, 1, 2, 3, 9]), 0.0)
+    t2 = _one_track_per_frame(rng, np.array([0, 1, 2, 3, 5, 6]), 0.0)
+    # S2's tracks land 5 m from S1's: only the ungated fusion pairs them.
+    pose_1, pose_2 = np.zeros(3), np.array([5.0, 8.0, np.pi])
+    out = fuse_tracks(t1, pose_1, t2, pose_2, gate_probability=None)
+    np.testing.assert_array_equal(out.frame, [1, 2, 3, 5])
+    np.testing.assert_array_equal(out.track_id_1, 7)
+    x1, p1 = transform_tracks(t1.state, t1.covariance, pose_1)
+    x2, p2 = transform_tracks(t2.state, t2.covariance, pose_2)
+    i1 = [1, 2, 3, 0]
+    i2 = [1, 2, 3, 4]
+    x, p, w = covariance_intersection(x1[i1], p1[i1], x2[i2], p2[i2])
+    np.testing.assert_array_equal(out.state, x)
+    np.testing.assert_array_equal(out.covariance, p)
+    np.testing.assert_array_equal(out.omega, w)
+    # Far apart (S2's tracks are not where S1's are): the default gate drops them all.
+    assert len(fuse_tracks(t1, pose_1, t2, pose_2)) == 0
+
+
+def test_one_track_per_frame_agrees_with_the_assignment_per_frame():
+    """The vectorized pairing of single tracks gives what the per-frame gated
+    assignment gives (a second S1 track in a frame S2 lacks forces the
+    assignment path without changing any pair)."""
+    rec = simulate_recording("B", "straight", levels=("centroids",), n_frames=80, seed=2,
+                             known_poses=True)
+    config = EkfConfig(frame_period_s=rec.frame_period_s)
+    tracks = [track_centroids(rec.nodes[n].centroids, config) for n in ("S1", "S2")]
+    single = []
+    for t in tracks:  # one row per frame: the first track alive
+        _, first = np.unique(t.frame, return_index=True)
+        single.append(t.select(first))
+    poses = [rec.nodes[n].pose for n in ("S1", "S2")]
+    fast = fuse_tracks(single[0], poses[0], single[1], poses[1])
+    extra_frame = int(single[0].frame.max()) + 10
+    s1 = single[0]
+    doubled = Tracks(frame=np.r_[s1.frame, extra_frame, extra_frame],
+                     track_id=np.r_[s1.track_id, 90, 91],
+                     state=np.r_[s1.state, s1.state[:2]],
+                     covariance=np.r_[s1.covariance, s1.covariance[:2]])
+    slow = fuse_tracks(doubled, poses[0], single[1], poses[1])
+    assert len(fast) > 40
+    for field in ("frame", "track_id_1", "track_id_2", "state", "covariance", "omega"):
+        np.testing.assert_array_equal(getattr(fast, field), getattr(slow, field))
+    # A wrong pose for S2: both paths gate the same pairs out.
+    wrong = poses[1] + [0.5, 0.0, 0.0]
+    np.testing.assert_array_equal(fuse_tracks(single[0], poses[0], single[1], wrong).frame,
+                                  fuse_tracks(doubled, poses[0], single[1], wrong).frame)
 
 
 def test_no_common_frames_gives_an_empty_result():
@@ -124,6 +185,8 @@ def test_no_common_frames_gives_an_empty_result():
         (lambda: fuse_tracks(Tracks.empty(), np.zeros(3), None, np.zeros(3)), "must be Tracks"),
         (lambda: fuse_tracks(Tracks.empty(), np.zeros(3), Tracks.empty(), np.zeros(3), gate_probability=2),
          "gate_probability"),
+        (lambda: fuse_tracks(Tracks.empty(), np.zeros(3), Tracks.empty(), np.zeros(3), gate_probability=1.0),
+         r"gate_probability must be in \(0, 1\) or None"),
     ],
 )
 def test_invalid_input_raises(call, match):

@@ -12,10 +12,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.models import wrap_angle
+from factors.models import global_to_local, local_to_global, wrap_angle
 
-from ..errors import ValidationError
 from .._validation import as_float_array
+from ..errors import ValidationError
+from ..tracking.track_fusion import transform_tracks
 
 __all__ = [
     "StateErrors",
@@ -123,8 +124,6 @@ def pose_mapping_error(estimate: ArrayLike, truth: ArrayLike, points_m: ArrayLik
     area: the heading error weighs with the distance of the points from the
     node, the position error adds everywhere.
     """
-    from factors.models import global_to_local, local_to_global
-
     est = as_float_array(estimate, "estimate")
     tru = as_float_array(truth, "truth")
     pts = as_float_array(points_m, "points_m")
@@ -220,6 +219,9 @@ def _nees_summary(err: NDArray, cov: NDArray) -> dict:
 
 
 def _degeneracy_threshold() -> float:
+    # Imported here: GTSAM (fusion.oneshot) stays off this module's path,
+    # pure functions on arrays. The threshold moves to a GTSAM-free module
+    # with the fusion redesign; then this import goes to the module level.
     from ..fusion.oneshot import DEGENERACY_THRESHOLD
 
     return float(DEGENERACY_THRESHOLD)
@@ -249,17 +251,22 @@ def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
     notes: list[str] = []
     out: dict = {"n_truth_rows": int(truth.frame.size),
                  "n_targets": int(np.unique(truth.target_id).size)}
-    tf, tt, ts = truth.frame, truth.target_id, truth.state
-    path = ts[:, :2]
-
-    # Poses.
     given = {} if node_poses is None else {str(k): np.asarray(v, dtype=float)
                                            for k, v in node_poses.items()}
-    poses = {}
+    poses = {name: given.get(name, node.pose) for name, node in recording.nodes.items()}
+    out["poses"] = _evaluate_poses(poses, truth, notes)
+    out["fused"] = _evaluate_fused(fused, truth, notes)
+    out["tracks"] = _evaluate_tracks(recording, poses, truth, notes)
+    out["notes"] = notes
+    return out
+
+
+def _evaluate_poses(poses: dict, truth, notes: list[str]) -> dict:
+    """Each node's calibrated pose against its true pose (None with a note
+    when either is missing)."""
+    path = truth.state[:, :2]
     pose_rows = {}
-    for name, node in recording.nodes.items():
-        pose = given.get(name, node.pose)
-        poses[name] = pose
+    for name, pose in poses.items():
         true = truth.node_poses.get(name)
         if pose is None:
             notes.append(f"node {name}: no calibrated pose")
@@ -275,29 +282,34 @@ def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
                            "position_error_m": pe.position_error_m,
                            "heading_error_rad": pe.heading_error_rad,
                            "path_error_m": pose_mapping_error(pose, true, path)}
-    out["poses"] = pose_rows
+    return pose_rows
 
-    # Fused states.
+
+def _evaluate_fused(fused, truth, notes: list[str]) -> dict | None:
+    """The successful fused rows against the nearest true target."""
     if fused is None:
-        out["fused"] = None
         notes.append("no /fused group: run `mmsnap fuse` to evaluate one-shot estimates")
-    else:
-        ok = np.asarray(fused.success, dtype=bool)
-        ref, _ = truth_reference(fused.frame[ok], fused.state[ok, :2], tf, tt, ts)
-        err = fused.state[ok] - ref
-        se = state_errors(fused.state[ok], ref)
-        deg = np.asarray(fused.degeneracy)[ok]
-        every = np.asarray(fused.observed, dtype=bool)[ok].all(axis=1)
-        out["fused"] = {"mode": str(fused.mode), "covariance_method": str(fused.covariance_method),
-                        "n_rows": int(len(fused)), "n_success": int(ok.sum()),
-                        **se.to_dict(),
-                        "observed_by_all_nodes": state_errors(fused.state[ok][every],
-                                                              ref[every]).to_dict(),
-                        "nees": _nees_summary(err, np.asarray(fused.covariance)[ok]),
-                        "degenerate_fraction": float(np.mean(deg > _degeneracy_threshold()))
-                        if deg.size else float("nan")}
+        return None
+    ok = np.asarray(fused.success, dtype=bool)
+    ref, _ = truth_reference(fused.frame[ok], fused.state[ok, :2], truth.frame, truth.target_id,
+                             truth.state)
+    err = fused.state[ok] - ref
+    se = state_errors(fused.state[ok], ref)
+    deg = np.asarray(fused.degeneracy)[ok]
+    every = np.asarray(fused.observed, dtype=bool)[ok].all(axis=1)
+    return {"mode": str(fused.mode), "covariance_method": str(fused.covariance_method),
+            "n_rows": int(len(fused)), "n_success": int(ok.sum()),
+            **se.to_dict(),
+            "observed_by_all_nodes": state_errors(fused.state[ok][every], ref[every]).to_dict(),
+            "nees": _nees_summary(err, np.asarray(fused.covariance)[ok]),
+            "degenerate_fraction": float(np.mean(deg > _degeneracy_threshold()))
+            if deg.size else float("nan")}
 
-    # Tracks.
+
+def _evaluate_tracks(recording, poses: dict, truth, notes: list[str]) -> dict:
+    """Each node's tracks, moved into the global frame with its pose
+    (:func:`mmsnap_graph.tracking.track_fusion.transform_tracks`), against
+    the nearest true target."""
     tracks_out = {}
     for name, node in recording.nodes.items():
         if node.tracks is None or len(node.tracks) == 0:
@@ -308,14 +320,10 @@ def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
             tracks_out[name] = None
             notes.append(f"node {name}: tracks not evaluated (no pose to place them)")
             continue
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        rot = np.array([[c, -s], [s, c]])
-        st = node.tracks.state
-        glob = np.concatenate([st[:, :2] @ rot.T + pose[:2], st[:, 2:] @ rot.T], axis=1)
-        ref, _ = truth_reference(node.tracks.frame, glob[:, :2], tf, tt, ts)
+        glob, _ = transform_tracks(node.tracks.state, node.tracks.covariance, pose)
+        ref, _ = truth_reference(node.tracks.frame, glob[:, :2], truth.frame, truth.target_id,
+                                 truth.state)
         tracks_out[name] = {"n_rows": int(len(node.tracks)),
                             "n_tracks": int(node.tracks.track_ids.size),
                             **state_errors(glob, ref).to_dict()}
-    out["tracks"] = tracks_out
-    out["notes"] = notes
-    return out
+    return tracks_out

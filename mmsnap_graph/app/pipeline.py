@@ -16,14 +16,20 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
+
 import numpy as np
 
-from ..errors import FileFormatError, ValidationError
+from .._atomic import atomic_path
+from ..data.radar_config import TABLE_I
 from ..data.recording import NodeData, Recording
-from ..tracking.ekf import EkfConfig, track_centroids
+from ..errors import FileFormatError, ValidationError
+from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
 from ..radar.chain import ChainConfig, ChainResult, process_cubes
+from ..radar.cluster import torso_centroids
+from ..tracking.ekf import EkfConfig, track_centroids
 
 __all__ = ["NodeReport", "process_node", "process_recording", "cluster_node", "track_node",
            "track_recording", "process_file"]
@@ -62,19 +68,21 @@ def process_node(
     node: NodeData,
     frame_period_s: float,
     *,
-    chain: ChainConfig | None = None,
+    config: ChainConfig | None = None,
     ekf: EkfConfig | None = None,
     progress: bool = False,
 ) -> tuple[NodeData, NodeReport]:
     """Fill a node's point cloud, centroids and tracks from its cube.
 
     frame_period_s : the recording's frame period (the EKF's T).
+    config : the chain's configuration (default ``ChainConfig()``); ekf : the
+    EKF's (default ``EkfConfig()``, its frame period set to ``frame_period_s``).
     Returns the new node and a :class:`NodeReport`. A node without a cube
     raises :class:`ValidationError` (use :func:`track_node`).
     """
     if node.cube is None:
         raise ValidationError(f"nodes[{node.name}] has no cube; use track_node for centroids")
-    result = process_cubes(node.cube, node.radar, chain, frames=node.cube_frame,
+    result = process_cubes(node.cube, node.radar, config, frames=node.cube_frame,
                            progress=progress, desc=f"{node.name} chain")
     tracks = track_centroids(result.centroids, _ekf_for(ekf, frame_period_s),
                              frames=_frames_span(node.cube_frame))
@@ -90,18 +98,16 @@ def cluster_node(
     node: NodeData,
     frame_period_s: float,
     *,
-    chain: ChainConfig | None = None,
+    config: ChainConfig | None = None,
     ekf: EkfConfig | None = None,
 ) -> tuple[NodeData, NodeReport]:
-    """Fill a node's centroids (torso DBSCAN) and tracks from its point cloud."""
-    from ..radar.cluster import torso_centroids
-    from ..data.radar_config import TABLE_I
-
+    """Fill a node's centroids (torso DBSCAN with ``config.cluster``) and
+    tracks from its point cloud."""
     if node.point_cloud is None:
         raise ValidationError(f"nodes[{node.name}] has no point cloud to cluster")
-    chain = ChainConfig() if chain is None else chain
+    config = ChainConfig() if config is None else config
     radar = TABLE_I if node.radar is None else node.radar
-    cents = torso_centroids(node.point_cloud, chain.cluster,
+    cents = torso_centroids(node.point_cloud, config.cluster,
                             doppler_resolution_mps=radar.doppler_resolution_mps)
     frames = node.point_cloud.frame
     tracks = track_centroids(cents, _ekf_for(ekf, frame_period_s), frames=_frames_span(frames))
@@ -113,10 +119,10 @@ def cluster_node(
                            message=f"{len(node.point_cloud)} points clustered")
 
 
-def _from_stored_levels(node: NodeData, frame_period_s: float, chain, ekf, centroids_only):
+def _from_stored_levels(node: NodeData, frame_period_s: float, config, ekf, centroids_only):
     """The highest stored level below the cube: point cloud, else centroids."""
     if node.point_cloud is not None and not centroids_only:
-        return cluster_node(node, frame_period_s, chain=chain, ekf=ekf)
+        return cluster_node(node, frame_period_s, config=config, ekf=ekf)
     if node.centroids is not None:
         return track_node(node, frame_period_s, ekf=ekf)
     return None
@@ -155,7 +161,7 @@ def _each_node(recording: Recording, fn) -> tuple[Recording, dict[str, NodeRepor
 def process_recording(
     recording: Recording,
     *,
-    chain: ChainConfig | None = None,
+    config: ChainConfig | None = None,
     ekf: EkfConfig | None = None,
     progress: bool = False,
 ) -> tuple[Recording, dict[str, NodeReport]]:
@@ -166,8 +172,8 @@ def process_recording(
 
     def one(node: NodeData):
         if node.cube is not None:
-            return process_node(node, fp, chain=chain, ekf=ekf, progress=progress)
-        return _from_stored_levels(node, fp, chain, ekf, centroids_only=False)
+            return process_node(node, fp, config=config, ekf=ekf, progress=progress)
+        return _from_stored_levels(node, fp, config, ekf, centroids_only=False)
 
     return _each_node(recording, one)
 
@@ -184,7 +190,7 @@ def process_file(
     path: str | os.PathLike,
     *,
     output: str | os.PathLike | None = None,
-    chain: ChainConfig | None = None,
+    config: ChainConfig | None = None,
     ekf: EkfConfig | None = None,
     centroids_only: bool = False,
     progress: bool = False,
@@ -198,11 +204,6 @@ def process_file(
         stored centroids. Otherwise each node starts from its cube, else its
         point cloud, else its centroids.
     """
-    import shutil
-    from .._atomic import atomic_path
-
-    from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
-
     src = Path(path)
     rec = read_recording(src, load_cubes=False)
     fp = rec.frame_period_s
@@ -221,7 +222,7 @@ def process_file(
                 for _, block in iter_cubes(src, name):
                     yield from block
 
-            result = process_cubes(frames_iter(), radar, chain, frames=frames,
+            result = process_cubes(frames_iter(), radar, config, frames=frames,
                                    progress=progress, desc=f"{name} chain")
             tracks = track_centroids(result.centroids, _ekf_for(ekf, fp),
                                      frames=_frames_span(np.asarray(frames)))
@@ -232,7 +233,7 @@ def process_file(
                 n_centroids=len(result.centroids), n_tracks=int(tracks.track_ids.size),
                 success=result.success, message=result.message, chain=result)
         else:
-            out = _from_stored_levels(node, fp, chain, ekf, centroids_only)
+            out = _from_stored_levels(node, fp, config, ekf, centroids_only)
             if out is None:
                 reports[name] = NodeReport(name=name, level="none", n_frames=0, n_points=0,
                                            n_centroids=0, n_tracks=0, success=False,

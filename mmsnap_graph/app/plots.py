@@ -14,11 +14,20 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse, Rectangle
 from numpy.typing import ArrayLike, NDArray
 
 from factors.models import local_to_global
+
+from .._atomic import atomic_path
+from ..data.noise import GaussianPrior, MeasurementNoise
+# The degeneracy names move with the fusion redesign; imported here only.
+from ..fusion.batch import velocity_degeneracy
+from ..fusion.grid import neg_log_posterior
+from ..fusion.oneshot import DEGENERACY_THRESHOLD, fuse_frame
+from ..sim.networks import in_common_field_of_view
 
 __all__ = [
     "save",
@@ -38,10 +47,6 @@ _COLORS = {"truth": "0.35", "bayes": "tab:blue", "ml": "tab:red", "tlf": "tab:gr
 def save(fig: Figure, path: str | os.PathLike, *, dpi: int = 110) -> Path:
     """Write ``fig`` as PNG, atomically (:func:`mmsnap_graph._atomic.atomic_path`);
     the folder is created when missing."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    from .._atomic import atomic_path
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
@@ -173,9 +178,6 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
     Returns a dict of arrays (keys: ``map``, ``ml``, ``vx``, ``vy``,
     ``neg_log_posterior``, ``neg_log_likelihood``, ``truth``, ``degeneracy``).
     """
-    from ..fusion.grid import neg_log_posterior
-    from ..fusion.oneshot import GaussianPrior, MeasurementNoise, fuse_frame
-
     noise = MeasurementNoise() if noise is None else noise
     prior = GaussianPrior() if prior is None else prior
     poses = np.asarray(node_poses, dtype=float)
@@ -255,9 +257,6 @@ def degeneracy_grid(node_poses: Mapping[str, ArrayLike], *, step_m: float = 0.1,
     Returns ``x (nx,)``, ``y (ny,)`` and ``cond (ny, nx)`` (NaN outside the
     common field of view, :func:`mmsnap_graph.sim.networks.in_common_field_of_view`).
     """
-    from ..fusion.batch import velocity_degeneracy
-    from ..sim.networks import in_common_field_of_view
-
     poses = {k: np.asarray(v, dtype=float) for k, v in node_poses.items()}
     xy = np.stack([p[:2] for p in poses.values()])
     if extent_m is None:
@@ -284,8 +283,6 @@ def plot_degeneracy_map(networks: Mapping[str, Mapping[str, ArrayLike]], *,
     view, with the nodes, the walking area and optionally a trajectory
     ``(K, >=2)`` per network; the contour marks ``threshold`` (default
     :data:`mmsnap_graph.fusion.oneshot.DEGENERACY_THRESHOLD`)."""
-    from ..fusion.oneshot import DEGENERACY_THRESHOLD
-
     thr = DEGENERACY_THRESHOLD if threshold is None else float(threshold)
     fig = Figure(figsize=(4.6 * len(networks), 4.6), layout="constrained")
     axes = fig.subplots(1, len(networks), squeeze=False)[0]

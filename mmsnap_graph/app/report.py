@@ -14,6 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import atomic_path
+from ..errors import ValidationError
+from ..sim.networks import COMMON_AREAS, CONFIGURATIONS
+
 __all__ = [
     "Table",
     "table_ii",
@@ -68,9 +72,9 @@ def _deg(rad: float, digits: int = 2) -> str:
 
 
 def _keys(result, which: str):
-    cfg = result.config
+    config = result.config
     d = result.calibrations if which == "cal" else result.fusions
-    return [(c, t) for c in cfg.configurations for t in cfg.trajectories if (c, t) in d]
+    return [(c, t) for c in config.configurations for t in config.trajectories if (c, t) in d]
 
 
 def table_ii(result) -> Table:
@@ -137,8 +141,6 @@ def table_iii_truth(result, quantity: str = "position") -> Table:
     ``"velocity"``), with the Bayesian fusion on the closed-form calibration,
     the benchmark itself, the central tracker and the per-node EKFs."""
     if quantity not in ("position", "velocity"):
-        from ..errors import ValidationError
-
         raise ValidationError(f"quantity={quantity!r} must be 'position' or 'velocity'")
     attr, unit = (("position_rmse_m", "m") if quantity == "position"
                   else ("velocity_rmse_mps", "m/s"))
@@ -272,8 +274,6 @@ def levels_text(result) -> str:
 
 
 def _atomic_text(path: Path, text: str) -> Path:
-    from .._atomic import atomic_path
-
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         tmp.write_text(text)
@@ -298,6 +298,7 @@ def _pick_frame(fusions, prefer: str, worst: bool):
 def write_figures(result, out_dir: str | os.PathLike, *, grid_points_per_axis: int = 15
                   ) -> dict[str, Path]:
     """Write the demo's figures into ``out_dir``; returns name -> path."""
+    # Imported here: matplotlib stays off the tables' and report's path (--no-figures).
     from .plots import (
         plot_calibration_tracks,
         plot_degeneracy_map,
@@ -306,17 +307,17 @@ def write_figures(result, out_dir: str | os.PathLike, *, grid_points_per_axis: i
         save,
         velocity_posterior,
     )
-    from ..sim.networks import COMMON_AREAS, CONFIGURATIONS
 
     out = Path(out_dir)
     paths: dict[str, Path] = {}
-    cfg = result.config
+    config = result.config
     if result.calibrations:
         paths["calibration_tracks"] = save(
-            plot_calibration_tracks(result.calibrations, cfg.configurations, cfg.trajectories),
+            plot_calibration_tracks(result.calibrations, config.configurations,
+                                    config.trajectories),
             out / "calibration_tracks.png")
     for (c, t), f in result.fusions.items():
-        if t == cfg.trajectories[-1]:
+        if t == config.trajectories[-1]:
             paths[f"timeseries_{c}"] = save(plot_timeseries(f, max_frames=200),
                                             out / f"timeseries_{c}_{t}.png")
     panels = []
@@ -333,8 +334,8 @@ def write_figures(result, out_dir: str | os.PathLike, *, grid_points_per_axis: i
     if panels:
         paths["velocity_posteriors"] = save(plot_velocity_posteriors(panels),
                                             out / "velocity_posteriors.png")
-    nets = {c: dict(CONFIGURATIONS[c]) for c in cfg.configurations}
-    trajs = {c: f.truth for (c, t), f in result.fusions.items() if t == cfg.trajectories[-1]}
+    nets = {c: dict(CONFIGURATIONS[c]) for c in config.configurations}
+    trajs = {c: f.truth for (c, t), f in result.fusions.items() if t == config.trajectories[-1]}
     paths["degeneracy_map"] = save(plot_degeneracy_map(nets, areas=COMMON_AREAS,
                                                        trajectories=trajs),
                                    out / "degeneracy_map.png")

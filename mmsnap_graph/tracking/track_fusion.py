@@ -17,8 +17,10 @@ with ``omega`` in ``[0, 1]`` minimizing ``trace(P)`` (a convex function of
 
 Which track of S2 goes with which of S1 in a frame: a gated assignment on the
 global positions (:func:`scipy.optimize.linear_sum_assignment` on the squared
-Mahalanobis distance with ``P_1 + P_2``); with one track per node the gate
-alone decides.
+Mahalanobis distance with ``P_1 + P_2``); with one track per node and frame
+(single-target tracks) the gate alone decides, for all frames at once.
+``gate_probability=None`` fuses without a gate (the demo's benchmark: each
+node's one track of the one target).
 """
 
 from __future__ import annotations
@@ -164,39 +166,31 @@ class TrackFusion:
 
 
 def fuse_tracks(tracks_1: Tracks, pose_1: ArrayLike, tracks_2: Tracks, pose_2: ArrayLike, *,
-                gate_probability: float = 0.9999) -> TrackFusion:
+                gate_probability: float | None = 0.9999) -> TrackFusion:
     """Track-level fusion of two nodes' EKF tracks (the paper's benchmark).
 
     tracks_1, tracks_2 : each node's tracks in its local frame.
     pose_1, pose_2 : (3,) their calibrated poses (S1's is normally zero).
-    gate_probability : chi-square gate (2 dof) on the global positions.
-    Returns the fused pairs of every frame both nodes have tracks in.
+    gate_probability : chi-square gate (2 dof) on the global positions;
+        ``None``: no gate (every pair may be fused; with one track per node
+        and frame, every frame both nodes have is fused).
+    Returns the fused pairs of every frame both nodes have tracks in, in
+    increasing frame order.
     """
     if not isinstance(tracks_1, Tracks) or not isinstance(tracks_2, Tracks):
         raise ValidationError("tracks_1 and tracks_2 must be Tracks")
-    if not 0.0 < gate_probability < 1.0:
-        raise ValidationError(f"gate_probability must be in (0, 1), got {gate_probability!r}")
-    gate = float(chi2.ppf(gate_probability, 2))
+    if gate_probability is None:
+        gate = np.inf
+    elif not 0.0 < gate_probability < 1.0:
+        raise ValidationError(f"gate_probability must be in (0, 1) or None, got {gate_probability!r}")
+    else:
+        gate = float(chi2.ppf(gate_probability, 2))
     x1, p1 = transform_tracks(tracks_1.state, tracks_1.covariance, pose_1)
     x2, p2 = transform_tracks(tracks_2.state, tracks_2.covariance, pose_2)
-    common = np.intersect1d(tracks_1.frame, tracks_2.frame)
-    rows_1, rows_2 = [], []
-    o1 = np.argsort(tracks_1.frame, kind="stable")
-    o2 = np.argsort(tracks_2.frame, kind="stable")
-    f1s, f2s = tracks_1.frame[o1], tracks_2.frame[o2]
-    for f in common:
-        a = o1[np.searchsorted(f1s, f):np.searchsorted(f1s, f, side="right")]
-        b = o2[np.searchsorted(f2s, f):np.searchsorted(f2s, f, side="right")]
-        d = x1[a][:, None, :2] - x2[b][None, :, :2]
-        s = p1[a][:, None, :2, :2] + p2[b][None, :, :2, :2]
-        m2 = np.einsum("abi,abi->ab", d, np.linalg.solve(s, d[..., None])[..., 0])
-        cost = np.where(m2 <= gate, m2, 1e12)
-        r, c = linear_sum_assignment(cost)
-        ok = cost[r, c] < 1e12
-        rows_1.extend(a[r[ok]])
-        rows_2.extend(b[c[ok]])
-    rows_1 = np.asarray(rows_1, dtype=np.int64)
-    rows_2 = np.asarray(rows_2, dtype=np.int64)
+    if _one_row_per_frame(tracks_1.frame) and _one_row_per_frame(tracks_2.frame):
+        rows_1, rows_2 = _pair_single_rows(tracks_1.frame, x1, p1, tracks_2.frame, x2, p2, gate)
+    else:
+        rows_1, rows_2 = _pair_by_assignment(tracks_1.frame, x1, p1, tracks_2.frame, x2, p2, gate)
     if rows_1.size == 0:
         return TrackFusion(frame=np.zeros(0, np.int64), track_id_1=np.zeros(0, np.int64),
                            track_id_2=np.zeros(0, np.int64), state=np.zeros((0, 4)),
@@ -204,3 +198,46 @@ def fuse_tracks(tracks_1: Tracks, pose_1: ArrayLike, tracks_2: Tracks, pose_2: A
     x, p, w = covariance_intersection(x1[rows_1], p1[rows_1], x2[rows_2], p2[rows_2])
     return TrackFusion(frame=tracks_1.frame[rows_1], track_id_1=tracks_1.track_id[rows_1],
                        track_id_2=tracks_2.track_id[rows_2], state=x, covariance=p, omega=w)
+
+
+def _one_row_per_frame(frame: NDArray) -> bool:
+    return bool(np.unique(frame).size == frame.size)
+
+
+def _squared_mahalanobis(x1: NDArray, p1: NDArray, x2: NDArray, p2: NDArray) -> NDArray:
+    """Squared Mahalanobis distance of the positions, ``(..., 4)`` states and
+    ``(..., 4, 4)`` covariances broadcast against each other."""
+    d = x1[..., :2] - x2[..., :2]
+    s = p1[..., :2, :2] + p2[..., :2, :2]
+    return np.einsum("...i,...i->...", d, np.linalg.solve(s, d[..., None])[..., 0])
+
+
+def _pair_single_rows(f1: NDArray, x1: NDArray, p1: NDArray, f2: NDArray, x2: NDArray,
+                      p2: NDArray, gate: float) -> tuple[NDArray, NDArray]:
+    """At most one track per node and frame: the pair of each common frame,
+    kept when inside the gate (vectorized; what the assignment gives there)."""
+    common, rows_1, rows_2 = np.intersect1d(f1, f2, assume_unique=True, return_indices=True)
+    if common.size and np.isfinite(gate):
+        inside = _squared_mahalanobis(x1[rows_1], p1[rows_1], x2[rows_2], p2[rows_2]) <= gate
+        rows_1, rows_2 = rows_1[inside], rows_2[inside]
+    return rows_1.astype(np.int64), rows_2.astype(np.int64)
+
+
+def _pair_by_assignment(f1: NDArray, x1: NDArray, p1: NDArray, f2: NDArray, x2: NDArray,
+                        p2: NDArray, gate: float) -> tuple[NDArray, NDArray]:
+    """Several tracks per node and frame: a gated assignment per frame."""
+    common = np.intersect1d(f1, f2)
+    rows_1, rows_2 = [], []
+    o1 = np.argsort(f1, kind="stable")
+    o2 = np.argsort(f2, kind="stable")
+    f1s, f2s = f1[o1], f2[o2]
+    for f in common:
+        a = o1[np.searchsorted(f1s, f):np.searchsorted(f1s, f, side="right")]
+        b = o2[np.searchsorted(f2s, f):np.searchsorted(f2s, f, side="right")]
+        m2 = _squared_mahalanobis(x1[a][:, None], p1[a][:, None], x2[b][None], p2[b][None])
+        cost = np.where(m2 <= gate, m2, 1e12)
+        r, c = linear_sum_assignment(cost)
+        ok = cost[r, c] < 1e12
+        rows_1.extend(a[r[ok]])
+        rows_2.extend(b[c[ok]])
+    return np.asarray(rows_1, dtype=np.int64), np.asarray(rows_2, dtype=np.int64)

@@ -63,8 +63,11 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported here: the demo's modules pull in GTSAM and matplotlib, which
+    # `mmsnap --help` and the other commands do not need.
     from ..demo import DemoConfig, find_sample_data, run_demo
     from ..report import (
+        levels_text,
         qualitative_checks,
         table_cube,
         table_ii,
@@ -91,8 +94,6 @@ def run(args: argparse.Namespace) -> int:
                       cube_recording_paths=cube_files)
     out = Path(args.out)
     print("mmsnap demo: the paper's protocol on simulated data")
-    from ..report import levels_text
-
     print(levels_text(result))
     print()
     for table in (table_ii(result), table_poses(result), table_iii_track_fusion(result),

@@ -33,12 +33,12 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..pipeline import process_file
+    from ..pipeline import process_file  # here: `mmsnap --help` does not import h5py
 
-    chain = ChainConfig(cfar=dataclasses.replace(CfarConfig(), pfa=args.pfa))
+    config = ChainConfig(cfar=dataclasses.replace(CfarConfig(), pfa=args.pfa))
     ekf = EkfConfig(sigma_a_mps2=args.sigma_a)
     progress = not args.no_progress and sys.stderr.isatty()
-    path, reports = process_file(args.recording, output=args.output, chain=chain, ekf=ekf,
+    path, reports = process_file(args.recording, output=args.output, config=config, ekf=ekf,
                                  centroids_only=args.centroids_only, progress=progress)
     for rep in reports.values():
         print(f"{rep.name}: {rep.level}: {rep.n_points} points, {rep.n_centroids} centroids, "

@@ -56,6 +56,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported here: h5py and the simulator stay off `mmsnap --help`.
     from mmsnap_graph.io import write_recording
     from mmsnap_graph.sim import simulate_recording
 
