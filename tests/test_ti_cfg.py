@@ -158,3 +158,82 @@ def test_parser_raises_only_project_errors(lines):
         parse_ti_cfg("\n".join(lines), board="AWR1843BOOST")
     except MmsnapError:
         pass
+
+
+def _studio(advanced):
+    profile = {"profileId": 0, "startFreqConst_GHz": 77.0, "idleTimeConst_usec": 20.0,
+               "adcStartTimeConst_usec": 3.0, "rampEndTime_usec": 44.0,
+               "freqSlopeConst_MHz_usec": 56.25, "txStartTime_usec": 1.0,
+               "numAdcSamples": 512, "digOutSampleRate": 12500, "rxGain_dB": "0x1E"}
+    chirps = [{"rlChirpCfg_t": {"chirpStartIdx": k, "chirpEndIdx": k, "profileId": 0,
+                                "startFreqVar_MHz": 0.0, "freqSlopeVar_KHz_usec": 0.0,
+                                "idleTimeVar_usec": 0.0, "adcStartTimeVar_usec": 0.0,
+                                "txEnable": tx}} for k, tx in enumerate(["0x1", "0x4", "0x2"])]
+    rf = {"rlChanCfg_t": {"rxChannelEn": "0xF", "txChannelEn": "0x7"},
+          "rlAdcOutCfg_t": {"fmt": {"b2AdcBits": 2, "b2AdcOutFmt": 1}},
+          "rlProfiles": [{"rlProfileCfg_t": profile}], "rlChirps": chirps}
+    if advanced:
+        sub = {"forceProfileIdx": 0, "chirpStartIdx": 0, "numOfChirps": 3, "numLoops": 32,
+               "burstPeriodicity_msec": 10.0, "chirpStartIdxOffset": 0, "numOfBurst": 1,
+               "numOfBurstLoops": 1, "subFramePeriodicity_msec": 10.0}
+        rf["waveformType"] = "advancedFrameChirp"
+        rf["rlAdvFrameCfg_t"] = {"frameSeq": {"numOfSubFrames": 2, "numFrames": 0,
+                                              "subFrameCfg": [sub, dict(sub, numLoops=16)]}}
+    else:
+        rf["rlFrameCfg_t"] = {"chirpStartIdx": 0, "chirpEndIdx": 2, "numLoops": 32,
+                              "numFrames": 0, "framePeriodicity_msec": 100.0}
+    return {"mmWaveDevices": [{"mmWaveDeviceId": 0, "rfConfig": rf}]}
+
+
+def test_mmwave_studio_json_matches_the_cfg(tmp_path):
+    import json
+    path = tmp_path / "capture.mmwave.json"
+    path.write_text(json.dumps(_studio(False)))
+    (cfg,) = read_ti_cfg(path, board="AWR1843BOOST").configs
+    (ref,) = parse_ti_cfg(LEGACY, board="AWR1843BOOST").configs
+    assert cfg == ref
+    path.write_text(json.dumps(_studio(True)))
+    ti = read_ti_cfg(path, board="AWR1843BOOST")
+    assert ti.advanced and [c.n_loops for c in ti.configs] == [32, 16]
+    assert ti.configs[0].frame_period_s == pytest.approx(0.02)
+
+
+def test_mmwave_studio_json_errors_name_the_field(tmp_path):
+    import json
+    bad = _studio(False)
+    bad["mmWaveDevices"][0]["rfConfig"]["rlChirps"][1]["rlChirpCfg_t"]["txEnable"] = "0x3"
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(bad))
+    with pytest.raises(ConfigurationError, match=r"bad.json rfConfig.rlChirps\[1\]: .*exactly one"):
+        read_ti_cfg(path, board="AWR1843BOOST")
+    del bad["mmWaveDevices"][0]["rfConfig"]["rlFrameCfg_t"]
+    path.write_text(json.dumps(bad))
+    with pytest.raises(FileFormatError, match="missing or malformed field 'rlFrameCfg_t'"):
+        read_ti_cfg(path, board="AWR1843BOOST")
+    path.write_text("{not json")
+    with pytest.raises(FileFormatError, match="not a JSON file"):
+        read_ti_cfg(path, board="AWR1843BOOST")
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(adc_start_s=-1e-6), "adc_start_s"),
+    (dict(complex_adc="yes"), "complex_adc"),
+    (dict(rx_elevation_half_wl=(0, 1)), "rx_elevation_half_wl has 2"),
+    (dict(tx_channels=(0, 1)), "tx_channels"),
+    (dict(wavelength_reference="middle"), "wavelength_reference"),
+    (dict(adc_start_s=20e-6), r"after adc_start_s=2e-05 takes longer"),
+])
+def test_radar_config_ti_fields_are_validated(kw, match):
+    with pytest.raises(ConfigurationError, match=match):
+        RadarConfig(**kw)
+
+
+def test_band_centre_wavelength_and_round_trip():
+    cfg = RadarConfig(adc_start_s=5e-6, wavelength_reference="band_centre", tx_channels=(0, 1, 2))
+    centre = 76e9 + 83e12 * (5e-6 + 512 / 10e6 / 2)
+    assert cfg.band_centre_hz == pytest.approx(centre)
+    assert cfg.wavelength_m == pytest.approx(SPEED_OF_LIGHT_MPS / centre)
+    assert cfg.max_doppler_mps < TABLE_I.max_doppler_mps
+    assert RadarConfig.from_dict(cfg.to_dict()) == cfg
+    with pytest.raises(ConfigurationError, match="unknown radar configuration fields"):
+        RadarConfig.from_dict({"adc_start": 1.0})

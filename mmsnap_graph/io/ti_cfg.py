@@ -26,14 +26,22 @@ transmitter per chirp (TDM-MIMO); that order becomes the order of the
 configuration's transmitters. The antenna positions come from a board preset
 (:data:`BOARD_PRESETS`) or an explicit :class:`BoardLayout`: a ``.cfg`` does
 not say where the antennas are, and the paper's board is never assumed.
+
+mmWave Studio's JSON export (``*.mmwave.json``: ``mmWaveDevices[0].rfConfig``
+with ``rlChanCfg_t``, ``rlAdcOutCfg_t``, ``rlProfiles[].rlProfileCfg_t``,
+``rlChirps[].rlChirpCfg_t``, ``rlFrameCfg_t`` or ``rlAdvFrameCfg_t``) holds the
+same fields; :func:`read_studio_json` translates it into the equivalent
+commands and parses those (errors then name the JSON field).
 """
 
 from __future__ import annotations
 
+import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
@@ -41,7 +49,7 @@ from ..data.radar_config import RadarConfig
 from ..errors import ConfigurationError, FileFormatError
 
 __all__ = ["BoardLayout", "BOARD_PRESETS", "TiConfig", "parse_ti_cfg", "read_ti_cfg",
-           "board_layout"]
+           "board_layout", "studio_json_to_cfg", "read_studio_json"]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -432,8 +440,11 @@ def parse_ti_cfg(text: str, *, board: str | BoardLayout | None = None,
 def read_ti_cfg(path: str | os.PathLike, *, board: str | BoardLayout | None = None,
                 layout: BoardLayout | None = None,
                 extra_commands: Iterable[str] = ()) -> TiConfig:
-    """Read and parse an mmWave SDK ``.cfg`` file (:func:`parse_ti_cfg`)."""
+    """Read and parse an mmWave SDK ``.cfg`` file (:func:`parse_ti_cfg`); a
+    ``.json`` file is read as an mmWave Studio export (:func:`read_studio_json`)."""
     p = Path(path)
+    if p.suffix.lower() == ".json":
+        return read_studio_json(p, board=board, layout=layout)
     if not p.is_file():
         raise FileFormatError(f"configuration file {p} does not exist")
     try:
@@ -442,3 +453,95 @@ def read_ti_cfg(path: str | os.PathLike, *, board: str | BoardLayout | None = No
         raise FileFormatError(f"{p} is not a text file: {exc}") from None
     return parse_ti_cfg(text, board=board, layout=layout, source=str(p.name),
                         extra_commands=extra_commands)
+
+
+# ---- mmWave Studio JSON export ---------------------------------------------------------
+def _num(value: Any) -> float:
+    """JSON numbers, or TI's hex strings (``"0xF"``)."""
+    if isinstance(value, str):
+        return float(int(value, 0))
+    return float(value)
+
+
+def _fmt(values: Iterable[Any]) -> str:
+    return " ".join(f"{_num(v):g}" for v in values)
+
+
+def _studio_lines(rf: Mapping) -> list[tuple[str, str]]:
+    """(command line, JSON path) pairs equivalent to an ``rfConfig``."""
+    ch = rf["rlChanCfg_t"]
+    lines = [(f"channelCfg {_fmt([ch['rxChannelEn'], ch['txChannelEn']])} 0",
+              "rfConfig.rlChanCfg_t")]
+    fmt = rf.get("rlAdcOutCfg_t", {}).get("fmt")
+    if fmt is not None:
+        lines.append((f"adcCfg {_fmt([fmt['b2AdcBits'], fmt['b2AdcOutFmt']])}",
+                      "rfConfig.rlAdcOutCfg_t"))
+    for k, item in enumerate(rf["rlProfiles"]):
+        p = item["rlProfileCfg_t"]
+        keys = ("profileId", "startFreqConst_GHz", "idleTimeConst_usec",
+                "adcStartTimeConst_usec", "rampEndTime_usec")
+        rest = ("freqSlopeConst_MHz_usec", "txStartTime_usec", "numAdcSamples",
+                "digOutSampleRate")
+        lines.append((f"profileCfg {_fmt(p[key] for key in keys)} 0 0 "
+                      f"{_fmt(p.get(key, 0) for key in rest)} 0 0 30",
+                      f"rfConfig.rlProfiles[{k}]"))
+    for k, item in enumerate(rf["rlChirps"]):
+        c = item["rlChirpCfg_t"]
+        keys = ("chirpStartIdx", "chirpEndIdx", "profileId", "startFreqVar_MHz",
+                "freqSlopeVar_KHz_usec", "idleTimeVar_usec", "adcStartTimeVar_usec", "txEnable")
+        lines.append((f"chirpCfg {_fmt(c.get(key, 0) for key in keys)}",
+                      f"rfConfig.rlChirps[{k}]"))
+    lines += _studio_frame(rf)
+    return lines
+
+
+def _studio_frame(rf: Mapping) -> list[tuple[str, str]]:
+    kind = str(rf.get("waveformType", "")).lower()
+    adv = rf.get("rlAdvFrameCfg_t")
+    if "advanced" in kind or (adv is not None and "rlFrameCfg_t" not in rf):
+        seq = adv["frameSeq"]
+        subs = seq["subFrameCfg"][:int(_num(seq["numOfSubFrames"]))]
+        out = [("dfeDataOutputMode 3", "rfConfig.waveformType"),
+               (f"advFrameCfg {len(subs)} 0 {_fmt([seq.get('numFrames', 0)])} 1 0",
+                "rfConfig.rlAdvFrameCfg_t.frameSeq")]
+        keys = ("forceProfileIdx", "chirpStartIdx", "numOfChirps", "numLoops",
+                "burstPeriodicity_msec", "chirpStartIdxOffset", "numOfBurst", "numOfBurstLoops",
+                "subFramePeriodicity_msec")
+        for k, sub in enumerate(subs):
+            out.append((f"subFrameCfg {k} {_fmt(sub.get(key, 0) for key in keys)}",
+                        f"rfConfig.rlAdvFrameCfg_t.frameSeq.subFrameCfg[{k}]"))
+        return out
+    f = rf["rlFrameCfg_t"]
+    keys = ("chirpStartIdx", "chirpEndIdx", "numLoops", "numFrames", "framePeriodicity_msec")
+    return [(f"frameCfg {_fmt(f[key] for key in keys)} 1 0", "rfConfig.rlFrameCfg_t")]
+
+
+def studio_json_to_cfg(data: Mapping, *, device: int = 0) -> tuple[str, list[str]]:
+    """The ``.cfg`` text equivalent to an mmWave Studio JSON export, and the
+    JSON path of each of its lines. Raises :class:`FileFormatError` for a
+    missing or malformed field."""
+    try:
+        devices = data["mmWaveDevices"]
+        dev = devices[device] if isinstance(devices, list) else devices
+        pairs = _studio_lines(dev["rfConfig"])
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        raise FileFormatError(f"mmWave Studio JSON: missing or malformed field {exc}") from None
+    return "\n".join(line for line, _ in pairs) + "\n", [path for _, path in pairs]
+
+
+def read_studio_json(path: str | os.PathLike, *, board: str | BoardLayout | None = None,
+                     layout: BoardLayout | None = None, device: int = 0) -> TiConfig:
+    """Read an mmWave Studio JSON export (module docstring) like a ``.cfg``."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileFormatError(f"configuration file {p} does not exist")
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FileFormatError(f"{p} is not a JSON file: {exc}") from None
+    text, paths = studio_json_to_cfg(data, device=device)
+    try:
+        return parse_ti_cfg(text, board=board, layout=layout, source=p.name)
+    except ConfigurationError as exc:
+        message = re.sub(r"line (\d+)", lambda m: paths[int(m.group(1)) - 1], str(exc))
+        raise ConfigurationError(message) from None
