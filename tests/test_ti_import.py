@@ -137,3 +137,36 @@ def test_import_argument_errors(tmp_path, capsys):
     assert "not imported" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["import", "table", "--height-band", "1", "-o", out])
+
+
+@pytest.mark.slow
+def test_lifted_point_clouds_calibrate_like_the_2d_simulation(tmp_path):
+    """simulate (2D) -> lift to tilted, raised 3D sensors -> CSV -> import ->
+    process -> calibrate recovers S2's pose as well as the direct 2D path."""
+    import pandas as pd
+    from mmsnap_graph.io import write_recording
+    from mmsnap_graph.sim import simulate_recording
+    from ti_samples import lift
+    sim = simulate_recording("C", "straight", levels=["point_cloud"], n_frames=300, seed=2)
+    mounts = {"S1": (0.8, np.deg2rad(5.0)), "S2": (1.2, np.deg2rad(12.0))}
+    rows = []
+    for k, (name, node) in enumerate(sim.nodes.items()):
+        xyz, dop = lift(node.point_cloud, *mounts[name], seed=k)
+        rows.append(pd.DataFrame({"node": name, "frame": node.point_cloud.frame, "x": xyz[:, 0],
+                                  "y": xyz[:, 1], "z": xyz[:, 2], "doppler": dop}))
+    pd.concat(rows).to_csv(tmp_path / "lifted.csv", index=False, float_format="%.6f")
+    write_recording(tmp_path / "direct.h5", sim)
+    assert main(["import", "table", "--table", str(tmp_path / "lifted.csv"), "--frame-period",
+                 "0.15", "--mount", "S1=0.8,5", "--mount", "S2=1.2,12", "-o",
+                 str(tmp_path / "imported.h5")]) == 0
+    errors = {}
+    for name in ("direct", "imported"):
+        path = str(tmp_path / f"{name}.h5")
+        assert main(["process", path, "--no-progress"]) == 0
+        assert main(["calibrate", path]) == 0
+        pose = read_recording(path).nodes["S2"].pose
+        true = sim.truth.node_poses["S2"]
+        errors[name] = np.hypot(*(pose[:2] - true[:2]))
+    # Measured: 0.0095 m direct; the import adds only the CSV's 1e-6 rounding.
+    assert errors["direct"] < 0.05
+    assert errors["imported"] <= 1.2 * errors["direct"]
