@@ -170,3 +170,22 @@ def test_lifted_point_clouds_calibrate_like_the_2d_simulation(tmp_path):
     # Measured: 0.0095 m direct; the import adds only the CSV's 1e-6 rounding.
     assert errors["direct"] < 0.05
     assert errors["imported"] <= 1.2 * errors["direct"]
+
+
+def test_destack_and_accumulate_options(tmp_path, capsys):
+    import pandas as pd
+    pts = pd.DataFrame({"frame": [0, 1, 1, 2, 2], "x": [1, 2, 1, 3, 2], "y": 2.0, "z": 0.0,
+                        "doppler": 0.5})                       # stacks of the last 2 frames
+    src = tmp_path / "stacked.csv"
+    pts.to_csv(src, index=False)
+    out = tmp_path / "o.h5"
+    base = ["import", "table", "--node", f"S1={src}", "--frame-period", "0.1", "-o", str(out),
+            "--overwrite"]
+    assert main(base + ["--destack"]) == 0
+    assert read_recording(out).nodes["S1"].point_cloud.frame.tolist() == [0, 1, 2]
+    assert main(base + ["--destack", "--accumulate", "2"]) == 0
+    rec = read_recording(out)
+    assert rec.nodes["S1"].point_cloud.frame.tolist() == [0, 1, 1, 2, 2]
+    assert rec.metadata["accumulated_frames"] == 2
+    assert main(base + ["--accumulate", "0"]) == 2
+    assert "n_frames=0" in capsys.readouterr().err

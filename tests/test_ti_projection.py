@@ -135,3 +135,34 @@ def test_bad_inputs():
     cloud = PointCloud3D(frame=[0], x_m=[0], y_m=[1], z_m=[0], doppler_mps=[0])
     with pytest.raises(ValidationError, match="height_band_m"):
         cloud_to_detections(cloud, height_band_m=(2, 1))
+
+
+def _cloud(frames_points):
+    frame = np.concatenate([[f] * len(p) for f, p in frames_points.items()]).astype(int)
+    pts = np.concatenate([np.asarray(p, float).reshape(-1, 4) for p in frames_points.values()])
+    return PointCloud3D(frame=frame, x_m=pts[:, 0], y_m=pts[:, 1], z_m=pts[:, 2],
+                        doppler_mps=pts[:, 3], frames=sorted(frames_points))
+
+
+def test_destack_keeps_each_point_where_it_first_appears():
+    from mmsnap_graph.io.point_cloud import destack_frames
+    a, b, c, d = ([1, 2, 0, 0.1], [2, 3, 0, 0.2], [3, 4, 0, 0.3], [4, 5, 0, 0.4])
+    stacked = _cloud({0: [a], 1: [b, a], 2: [c, b], 3: [c], 4: [d]})   # stacks of 2
+    out = destack_frames(stacked)
+    assert out.frame.tolist() == [0, 1, 2, 4]
+    np.testing.assert_array_equal(out.x_m, [1, 2, 3, 4])
+    assert out.frames.tolist() == [0, 1, 2, 3, 4]
+    # A point repeated after an empty frame is new again (not a stack copy).
+    assert destack_frames(_cloud({0: [a], 2: [a]})).frame.tolist() == [0, 2]
+
+
+def test_accumulate_merges_the_last_k_frames():
+    from mmsnap_graph.io.point_cloud import accumulate_frames
+    a, b, c = ([1, 2, 0, 0.1], [2, 3, 0, 0.2], [3, 4, 0, 0.3])
+    out = accumulate_frames(_cloud({0: [a], 1: [b], 2: [c]}), 2)
+    assert out.frame.tolist() == [0, 1, 1, 2, 2]
+    np.testing.assert_array_equal(out.x_m, [1, 1, 2, 2, 3])
+    one = _cloud({0: [a], 1: [b]})
+    np.testing.assert_array_equal(accumulate_frames(one, 1).x_m, one.x_m)
+    with pytest.raises(ValidationError, match="n_frames=0"):
+        accumulate_frames(one, 0)

@@ -21,7 +21,8 @@ from .._validation import as_float_array
 from ..data.recording import Detections, NodeData, Recording
 from ..errors import ValidationError
 
-__all__ = ["PointCloud3D", "Mounting", "cloud_to_detections", "recording_from_point_clouds"]
+__all__ = ["PointCloud3D", "Mounting", "cloud_to_detections", "recording_from_point_clouds",
+           "destack_frames", "accumulate_frames"]
 
 _COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
 
@@ -122,6 +123,51 @@ class Mounting:
                 raise ValidationError(f"room_pose={self.room_pose!r} must be 3 finite numbers "
                                       "(x_m, y_m, phi_rad)")
             object.__setattr__(self, "room_pose", pose)
+
+
+def _row_keys(cloud: PointCloud3D, rows: NDArray) -> NDArray:
+    """One hashable byte string per point (position and Doppler)."""
+    block = np.ascontiguousarray(np.column_stack([cloud.x_m[rows], cloud.y_m[rows],
+                                                  cloud.z_m[rows], cloud.doppler_mps[rows]]))
+    return block.view(np.dtype((np.void, block.dtype.itemsize * 4))).ravel()
+
+
+def destack_frames(cloud: PointCloud3D) -> PointCloud3D:
+    """Undo the stacking of recording tools that store, in each frame, the
+    points of the last N frames: a point equal (x, y, z, Doppler) to a point
+    of the previous frame is dropped, so each point stays in the frame where
+    it first appears."""
+    keep = np.ones(len(cloud), dtype=bool)
+    previous = np.zeros(0, dtype=np.dtype((np.void, 32)))
+    last_frame = None
+    for f in cloud.frames:
+        rows = np.flatnonzero(cloud.frame == f)
+        keys = _row_keys(cloud, rows)
+        if last_frame is not None and last_frame == f - 1 and previous.size:
+            keep[rows] = ~np.isin(keys, previous)
+        previous, last_frame = keys, f
+    return cloud.select(keep)
+
+
+def accumulate_frames(cloud: PointCloud3D, n_frames: int) -> PointCloud3D:
+    """Frame accumulation for sparse clouds: frame ``f`` of the result holds
+    the points of frames ``f - n_frames + 1 .. f`` (each point then appears
+    in ``n_frames`` frames; time stamps stay those of the original frame)."""
+    if int(n_frames) != n_frames or n_frames < 1:
+        raise ValidationError(f"n_frames={n_frames!r} must be an integer >= 1")
+    # Oldest first, so that each frame lists its points in time order.
+    parts = [(cloud.frame + lag, np.arange(len(cloud))) for lag in range(int(n_frames) - 1, -1, -1)]
+    frame = np.concatenate([f for f, _ in parts])
+    rows = np.concatenate([r for _, r in parts])
+    inside = frame <= cloud.frames.max() if cloud.frames.size else frame < 0
+    frame, rows = frame[inside], rows[inside]
+    order = np.argsort(frame, kind="stable")
+    frame, rows = frame[order], rows[order]
+    pick = lambda a: None if a is None else a[rows]
+    return PointCloud3D(frame=frame, x_m=cloud.x_m[rows], y_m=cloud.y_m[rows],
+                        z_m=cloud.z_m[rows], doppler_mps=cloud.doppler_mps[rows],
+                        snr_db=pick(cloud.snr_db), noise_db=pick(cloud.noise_db),
+                        time_s=pick(cloud.time_s), frames=cloud.frames)
 
 
 def cloud_to_detections(cloud: PointCloud3D, mounting: Mounting = Mounting(), *,

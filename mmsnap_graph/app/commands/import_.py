@@ -72,6 +72,12 @@ def _points_options(p: argparse.ArgumentParser) -> None:
                    help="frame period in seconds (default: from --cfg)")
     p.add_argument("--cfg", default=None, help="the .cfg the radars ran (for the frame period "
                                                "and sensorPosition)")
+    p.add_argument("--destack", action="store_true",
+                   help="the log stores each frame as a stack of the last frames' points: "
+                        "drop points repeated from the previous frame")
+    p.add_argument("--accumulate", type=int, default=1, metavar="K",
+                   help="merge the points of the last K frames into each frame (sparse "
+                        "clouds; default 1 = off)")
 
 
 def register(subparsers) -> None:
@@ -195,7 +201,13 @@ def _mountings(args, names, ti) -> dict:
 
 
 def _points_recording(args, clouds, ti, period, metadata):
-    from mmsnap_graph.io.point_cloud import recording_from_point_clouds
+    from mmsnap_graph.io.point_cloud import (accumulate_frames, destack_frames,
+                                             recording_from_point_clouds)
+    if args.destack:
+        clouds = {name: destack_frames(c) for name, c in clouds.items()}
+    if args.accumulate != 1:
+        clouds = {name: accumulate_frames(c, args.accumulate) for name, c in clouds.items()}
+        metadata = dict(metadata, accumulated_frames=args.accumulate)
     band = args.height_band
     return recording_from_point_clouds(clouds, frame_period_s=period,
                                        mounting=_mountings(args, list(clouds), ti),
