@@ -31,7 +31,8 @@ import numpy as np
 
 from ..errors import ConfigurationError
 
-__all__ = ["SPEED_OF_LIGHT_MPS", "WAVELENGTH_REFERENCES", "RadarConfig", "TABLE_I"]
+__all__ = ["SPEED_OF_LIGHT_MPS", "WAVELENGTH_REFERENCES", "OPTIONAL_FIELD_DEFAULTS", "RadarConfig",
+           "TABLE_I"]
 
 #: Where ``RadarConfig.wavelength_m`` is taken: the chirp's start frequency
 #: (the paper's convention, the default) or the centre of the sampled band.
@@ -39,7 +40,7 @@ WAVELENGTH_REFERENCES = ("start", "band_centre")
 
 # Fields added for TI configurations, with the defaults that keep the original
 # behaviour; ``to_dict`` writes them only when they differ from these.
-_OPTIONAL_DEFAULTS: dict[str, Any] = {
+OPTIONAL_FIELD_DEFAULTS: dict[str, Any] = {
     "adc_start_s": 0.0,
     "complex_adc": True,
     "rx_elevation_half_wl": [],
@@ -305,11 +306,11 @@ class RadarConfig:
                   "rx_elevation_half_wl": list(self.rx_elevation_half_wl),
                   "tx_channels": list(self.tx_channels),
                   "wavelength_reference": str(self.wavelength_reference)}
-        return {k: v for k, v in values.items() if v != _OPTIONAL_DEFAULTS[k]}
+        return {k: v for k, v in values.items() if v != OPTIONAL_FIELD_DEFAULTS[k]}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "RadarConfig":
-        known = set(cls().to_dict()) | set(_OPTIONAL_DEFAULTS)
+        known = set(cls().to_dict()) | set(OPTIONAL_FIELD_DEFAULTS)
         unknown = set(d) - known
         if unknown:
             raise ConfigurationError(f"unknown radar configuration fields {sorted(unknown)}")
