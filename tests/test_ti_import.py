@@ -8,7 +8,7 @@ from mmsnap_graph.data.radar_config import RadarConfig
 from mmsnap_graph.io import read_recording, write_dca1000_bin
 from mmsnap_graph.io.dca1000 import frame_bytes
 from mmsnap_graph.io.ti_cfg import parse_ti_cfg
-from ti_samples import DATA, MOUNTS, main as make_samples, simulated
+from ti_samples import DATA, MOUNTS, dca_sample_cubes, main as make_samples, simulated
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +26,8 @@ def _same_points(got, want, *, atol, snr_atol):
 
 def test_samples_are_what_the_script_makes(tmp_path):
     make_samples(tmp_path)
-    for name in ("oob_uart_S1.bin", "points_sensor_frame.csv", "points_room_frame.csv"):
+    for name in ("oob_uart_S1.bin", "points_sensor_frame.csv", "points_room_frame.csv",
+                 "dca1000_small.cfg", "dca1000_small.bin"):
         assert (tmp_path / name).read_bytes() == (DATA / name).read_bytes(), name
 
 
@@ -189,3 +190,16 @@ def test_destack_and_accumulate_options(tmp_path, capsys):
     assert rec.metadata["accumulated_frames"] == 2
     assert main(base + ["--accumulate", "0"]) == 2
     assert "n_frames=0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("sub_frame", [0, 1])
+def test_import_dca1000_sample(tmp_path, sub_frame, capsys):
+    ti, cubes = dca_sample_cubes()
+    out = tmp_path / "dca.h5"
+    assert main(["import", "dca1000", "--cfg", str(DATA / "dca1000_small.cfg"), "--board",
+                 "AWR1843BOOST", "--sub-frame", str(sub_frame), "--node",
+                 f"S1={DATA / 'dca1000_small.bin'}", "-o", str(out)]) == 0
+    node = read_recording(out).nodes["S1"]
+    np.testing.assert_array_equal(node.cube, cubes[sub_frame])
+    assert node.radar.n_tx == (2, 3)[sub_frame]
+    assert "3 cubes" in capsys.readouterr().out

@@ -76,6 +76,62 @@ def table_rows(rec, *, room: bool, seed=0):
     return pd.concat(parts, ignore_index=True)
 
 
+#: The .cfg of the small DCA1000 sample: sub-frame 0 fires TX0, TX2 (32
+#: samples, 4 loops), sub-frame 1 fires TX0, TX2, TX1 (64 samples, 8 loops).
+DCA_CFG = """\
+% Small AWR1843BOOST advanced frame for the DCA1000 sample (data/ti/dca1000_small.bin)
+sensorStop
+flushCfg
+dfeDataOutputMode 3
+channelCfg 15 7 0
+adcCfg 2 1
+adcbufCfg -1 0 1 1 1
+profileCfg 0 77 10 3 25 0 0 50 1 32 2000 0 0 30
+profileCfg 1 77 10 3 40 0 0 50 1 64 2000 0 0 30
+chirpCfg 0 0 0 0 0 0 0 1
+chirpCfg 1 1 0 0 0 0 0 4
+chirpCfg 2 2 1 0 0 0 0 1
+chirpCfg 3 3 1 0 0 0 0 4
+chirpCfg 4 4 1 0 0 0 0 2
+advFrameCfg 2 0 3 1 0
+subFrameCfg 0 0 0 2 4 25 0 1 1 25
+subFrameCfg 1 0 2 3 8 25 0 1 1 25
+lvdsStreamCfg -1 0 1 0
+sensorStart
+"""
+#: int16 ADC counts per unit of the simulator's cube.
+DCA_SCALE = 100.0
+
+
+def dca_sample_cubes(n_frames=3, seed=4):
+    """Node S1's simulated cubes of each sub-frame (int16 counts as complex)."""
+    from mmsnap_graph.io.ti_cfg import parse_ti_cfg
+    ti = parse_ti_cfg(DCA_CFG, board="AWR1843BOOST")
+    cubes = []
+    for cfg in ti.configs:
+        rec = simulate_recording("C", "straight", levels=["cube"], n_frames=n_frames,
+                                 radar=cfg, seed=seed)
+        cube = rec.nodes["S1"].cube * DCA_SCALE
+        cubes.append(np.round(cube.real) + 1j * np.round(cube.imag))
+    return ti, cubes
+
+
+def write_dca_sample(out_dir: Path) -> None:
+    from mmsnap_graph.io import write_dca1000_bin
+    from mmsnap_graph.io.dca1000 import frame_bytes
+    (out_dir / "dca1000_small.cfg").write_text(DCA_CFG)
+    ti, cubes = dca_sample_cubes()
+    frames = []
+    for k, (cfg, cube) in enumerate(zip(ti.configs, cubes)):
+        part = out_dir / f"_sub{k}.bin"
+        write_dca1000_bin(part, cube, cfg)
+        raw, size = part.read_bytes(), frame_bytes(cfg)
+        part.unlink()
+        frames.append([raw[f * size:(f + 1) * size] for f in range(cube.shape[0])])
+    (out_dir / "dca1000_small.bin").write_bytes(b"".join(b"".join(parts)
+                                                         for parts in zip(*frames)))
+
+
 def main(out_dir: Path = DATA) -> None:
     out_dir = Path(out_dir)
     rec = simulated()
@@ -86,6 +142,7 @@ def main(out_dir: Path = DATA) -> None:
                                        float_format="%.6f")
     table_rows(rec, room=True).to_csv(out_dir / "points_room_frame.csv", index=False,
                                       float_format="%.6f")
+    write_dca_sample(out_dir)
 
 
 if __name__ == "__main__":
