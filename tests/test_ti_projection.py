@@ -166,3 +166,24 @@ def test_accumulate_merges_the_last_k_frames():
     np.testing.assert_array_equal(accumulate_frames(one, 1).x_m, one.x_m)
     with pytest.raises(ValidationError, match="n_frames=0"):
         accumulate_frames(one, 0)
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_finite = st.floats(-20, 20, allow_nan=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(_finite, _finite, _finite), min_size=1, max_size=5),
+       st.tuples(_finite, _finite, st.floats(-4, 4)), st.floats(0, 3), st.floats(-1.5, 1.5))
+def test_room_sensor_round_trip_property(points, pose, height, tilt):
+    p = np.asarray(points, float)
+    back = sensor_to_room(room_to_sensor(p, pose, height, tilt), pose, height, tilt)
+    np.testing.assert_allclose(back, p, atol=1e-9)
+    proj = project_to_plane(room_to_sensor(p, pose, height, tilt), np.ones(len(p)),
+                            height_m=height, tilt_rad=tilt)
+    # Horizontal range is the room-frame distance to the node, whatever the tilt.
+    np.testing.assert_allclose(proj.range_m, np.hypot(p[:, 0] - pose[0], p[:, 1] - pose[1]),
+                               atol=1e-9)
+    np.testing.assert_allclose(proj.height_m, p[:, 2], atol=1e-9)
+    assert np.all(np.abs(proj.omega_rad) <= np.pi)
