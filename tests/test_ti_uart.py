@@ -60,6 +60,7 @@ def test_corrupted_stream_keeps_good_frames_and_reports_bad_ones():
     data = b"garbage" + b"".join(packets) + packets[0][:50]          # truncated tail
     log = parse_ti_uart(data)
     assert log.frame_numbers.tolist() == [1, 2, 4, 6, 8]
+    assert log.n_packets == 8                      # 9 magic words minus the damaged one
     reasons = [(b.index, b.reason.split(" ")[0]) for b in log.bad]
     assert reasons[0] == (-1, "7")                                  # 7 garbage bytes
     assert any("cut short" in b.reason for b in log.bad)

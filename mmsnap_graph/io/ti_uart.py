@@ -80,7 +80,7 @@ class BadFrame:
 class UartLog:
     """The frames read from a log: ``points`` (their 3D points, frame numbers
     from the headers), ``sub_frame`` (K,) of each point, ``bad`` the frames
-    that were skipped, ``n_packets`` the packets found."""
+    that were skipped, ``n_packets`` the magic words found."""
 
     points: PointCloud3D
     sub_frame: NDArray
@@ -225,7 +225,7 @@ def parse_ti_uart(data: bytes, *, demo: Literal["oob", "tracking"] = "oob",
         raise FileFormatError(f"no readable {demo} frame in {len(data)} bytes ({reasons})")
     cloud, sub = _assemble(good, frame_period_s)
     return UartLog(points=cloud, sub_frame=sub, bad=tuple(bad),
-                   n_packets=len(good) + len({b.index for b in bad if b.index >= 0}))
+                   n_packets=data.count(MAGIC_WORD))
 
 
 def _assemble(frames: list[_Frame], frame_period_s: float | None) -> tuple[PointCloud3D, NDArray]:
