@@ -100,7 +100,8 @@ def test_truncated_and_mismatched_captures(tmp_path):
     trunc.write_bytes(data[:-8])
     with pytest.raises(FileFormatError, match=r"2 whole frames of 864 bytes \+ 856 bytes: truncated"):
         read_dca1000_bin(trunc, CFG)
-    cube = read_dca1000_bin(trunc, CFG, allow_partial_frame=True)
+    with pytest.warns(UserWarning, match=r"dropped the incomplete last frame \(856 of 864"):
+        cube = read_dca1000_bin(trunc, CFG, allow_partial_frame=True)
     assert_array_equal(cube, _expected(CFG, 2))
     odd = tmp_path / "o.bin"
     odd.write_bytes(data[:-1])
@@ -116,7 +117,7 @@ def test_truncated_and_mismatched_captures(tmp_path):
         read_dca1000_bin(good, other)
     small = tmp_path / "s.bin"
     small.write_bytes(data[:100])
-    with pytest.raises(FileFormatError, match="less than one frame"):
+    with pytest.raises(FileFormatError, match="less than one frame"), pytest.warns(UserWarning):
         read_dca1000_bin(small, CFG, allow_partial_frame=True)
     (tmp_path / "e.bin").write_bytes(b"")
     with pytest.raises(FileFormatError, match="is empty"):
@@ -148,3 +149,87 @@ def test_recording_from_captures_round_trips(tmp_path):
     back = read_recording(write_recording(tmp_path / "r.h5", rec))
     assert_array_equal(back.nodes["S2"].cube, _expected(CFG, 2))
     assert back.nodes["S1"].radar == CFG
+
+
+# ---- advanced frames: sub-frame selection (issue 14) ---------------------------------
+SUB_A = RadarConfig(n_samples=4, n_loops=2, chirp_period_s=20e-6, tx_azimuth_half_wl=(0, 4),
+                    tx_elevation_half_wl=(0, 0))                       # 2 Tx
+SUB_B = CFG                                                            # 3 Tx x 3 loops x 6
+
+
+def _advanced_capture(n_frames):
+    """Frames of [SUB_A, SUB_A, SUB_B] with distinct values per frame and sub-frame."""
+    parts = []
+    for f in range(n_frames):
+        for k, cfg in enumerate((SUB_A, SUB_A, SUB_B)):
+            parts.append(_capture_bytes(cfg, 1) if k == 2 else
+                         np.full(frame_bytes(cfg) // 2, 100 * f + k, "<i2").tobytes())
+    return parts
+
+
+def test_sub_frame_selection_by_offset_and_stride(tmp_path):
+    from mmsnap_graph.io.dca1000 import read_dca1000_sub_frame, sub_frame_layout
+    configs = [SUB_A, SUB_A, SUB_B]
+    offset, stride = sub_frame_layout(configs, 2)
+    assert (offset, stride) == (2 * frame_bytes(SUB_A), 2 * frame_bytes(SUB_A) + frame_bytes(CFG))
+    path = tmp_path / "adv.bin"
+    path.write_bytes(b"".join(_advanced_capture(3)))
+    cube = read_dca1000_sub_frame(path, configs, 2)
+    expected = _expected(CFG, 1)
+    assert cube.shape == (3, *CFG.cube_shape)
+    for f in range(3):
+        assert_array_equal(cube[f], expected[0])
+    second = read_dca1000_sub_frame(path, configs, 1)
+    assert_array_equal(second.real[:, 0, 0, 0], [1, 101, 201])
+    same = read_dca1000_bin(path, CFG, offset_bytes=offset, stride_bytes=stride)
+    assert_array_equal(same, cube)
+    chunks = list(iter_dca1000_frames(path, CFG, chunk_frames=2, offset_bytes=offset,
+                                      stride_bytes=stride))
+    assert [c[0].tolist() for c in chunks] == [[0, 1], [2]]
+    assert_array_equal(np.concatenate([c[1] for c in chunks]), cube)
+
+
+def test_sub_frame_errors_are_never_silent(tmp_path):
+    from mmsnap_graph.io.dca1000 import read_dca1000_sub_frame
+    configs = [SUB_A, SUB_A, SUB_B]
+    parts = _advanced_capture(3)
+    path = tmp_path / "adv.bin"
+    path.write_bytes(b"".join(parts)[:-16])
+    stride = 2 * frame_bytes(SUB_A) + frame_bytes(CFG)
+    with pytest.raises(FileFormatError, match=rf"2 whole frames of {stride} bytes \(stride; "
+                                              rf"the selected sub-frame is {frame_bytes(CFG)} "
+                                              rf"bytes at offset {2 * frame_bytes(SUB_A)}\)"):
+        read_dca1000_sub_frame(path, configs, 2)
+    with pytest.raises(ValidationError, match=r"sub_frame=3 must be in 0..2"):
+        read_dca1000_sub_frame(path, configs, 3)
+    with pytest.raises(ConfigurationError, match="does not fit in stride_bytes"):
+        read_dca1000_bin(path, CFG, offset_bytes=8, stride_bytes=frame_bytes(CFG))
+    with pytest.raises(ValidationError, match="multiples of 4"):
+        read_dca1000_bin(path, CFG, offset_bytes=2, stride_bytes=2 * frame_bytes(CFG))
+
+
+def test_long_file_lists_are_shortened(tmp_path):
+    data = _capture_bytes(CFG, 3)[:-8]
+    paths = []
+    for k in range(101):
+        p = tmp_path / f"adc_data_{k}.bin"
+        p.write_bytes(data if k == 0 else b"")
+        paths.append(p)
+    with pytest.raises(FileFormatError) as info:
+        read_dca1000_bin(paths, CFG)
+    message = str(info.value)
+    assert "101 files" in message and "adc_data_100.bin" in message
+    assert "adc_data_50.bin" not in message
+
+
+def test_real_adc_is_refused():
+    real = RadarConfig(n_samples=6, n_loops=3, chirp_period_s=20e-6, complex_adc=False)
+    with pytest.raises(ConfigurationError, match="real-ADC"):
+        frame_bytes(real)
+
+
+def test_recording_from_an_advanced_capture(tmp_path):
+    path = tmp_path / "adv.bin"
+    path.write_bytes(b"".join(_advanced_capture(2)))
+    rec = recording_from_dca1000({"S1": path}, [SUB_A, SUB_A, SUB_B], sub_frame=2)
+    assert rec.nodes["S1"].radar == SUB_B and rec.nodes["S1"].cube.shape[0] == 2

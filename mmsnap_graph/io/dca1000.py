@@ -33,6 +33,8 @@ post-processing.
 from __future__ import annotations
 
 import os
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Mapping, Sequence
 
@@ -45,7 +47,8 @@ from ..data.radar_config import RadarConfig
 from ..data.recording import NodeData, Recording
 
 __all__ = ["MAX_LVDS_RECEIVERS", "frame_bytes", "read_dca1000_bin", "iter_dca1000_frames",
-           "write_dca1000_bin", "recording_from_dca1000"]
+           "write_dca1000_bin", "recording_from_dca1000", "sub_frame_layout",
+           "read_dca1000_sub_frame", "describe_files"]
 
 #: The DCA1000's LVDS interface carries at most four receivers.
 MAX_LVDS_RECEIVERS = 4
@@ -55,6 +58,9 @@ _INT16 = np.dtype("<i2")
 def _check_config(config: RadarConfig) -> None:
     if not isinstance(config, RadarConfig):
         raise ConfigurationError(f"config must be a RadarConfig, got {type(config).__name__}")
+    if not config.complex_adc:
+        raise ConfigurationError("config has complex_adc=False: real-ADC DCA1000 captures are "
+                                 "not supported (configure complex 1x output)")
     if config.n_rx > MAX_LVDS_RECEIVERS:
         raise ConfigurationError(f"config has n_rx={config.n_rx} receivers; a DCA1000 capture "
                                  f"holds at most {MAX_LVDS_RECEIVERS}")
@@ -122,69 +128,156 @@ class _Stream:
         return bytes(out)
 
 
-def _frame_count(stream: _Stream, config: RadarConfig, *, allow_partial_frame: bool) -> int:
+def describe_files(paths: Sequence[Path], *, limit: int = 3) -> str:
+    """A short description of a capture's files: all of them up to ``limit``,
+    else the count, the first and the last."""
+    if len(paths) <= limit:
+        return ", ".join(str(p) for p in paths)
+    return f"{len(paths)} files {paths[0]} ... {paths[-1]}"
+
+
+@dataclass(frozen=True, slots=True)
+class _Layout:
+    """Where a frame's bytes sit: frame k at ``offset + k * stride``, ``size`` bytes."""
+
+    offset: int
+    stride: int
+    size: int
+
+
+def _layout(config: RadarConfig, offset_bytes: int, stride_bytes: int | None) -> _Layout:
     fb = frame_bytes(config)
-    where = ", ".join(str(p) for p in stream.paths)
+    stride = fb if stride_bytes is None else stride_bytes
+    for name, value in (("offset_bytes", offset_bytes), ("stride_bytes", stride)):
+        if int(value) != value or value < 0:
+            raise ValidationError(f"{name}={value!r} must be an integer >= 0")
+    if offset_bytes % 4 or stride % 4:
+        raise ValidationError(f"offset_bytes={offset_bytes} and stride_bytes={stride} must be "
+                              "multiples of 4 (one complex int16 sample)")
+    if offset_bytes + fb > stride:
+        raise ConfigurationError(
+            f"a frame of {fb} bytes at offset_bytes={offset_bytes} does not fit in "
+            f"stride_bytes={stride}")
+    return _Layout(int(offset_bytes), int(stride), fb)
+
+
+def _frame_count(stream: _Stream, config: RadarConfig, *, allow_partial_frame: bool,
+                 layout: _Layout | None = None) -> int:
+    lay = layout or _layout(config, 0, None)
+    where = describe_files(stream.paths)
     if stream.total == 0:
         raise FileFormatError(f"capture {where} is empty")
     if stream.total % 2:
         raise FileFormatError(f"capture {where} has {stream.total} bytes, not a whole number "
                               "of int16 values")
-    n, rest = divmod(stream.total, fb)
+    n, rest = divmod(stream.total, lay.stride)
+    unit = (f"frames of {lay.stride} bytes" if lay.stride == lay.size else
+            f"frames of {lay.stride} bytes (stride; the selected sub-frame is {lay.size} "
+            f"bytes at offset {lay.offset})")
     if rest and not allow_partial_frame:
         raise FileFormatError(
-            f"capture {where} has {stream.total} bytes = {n} whole frames of {fb} bytes + "
-            f"{rest} bytes: truncated, or the chirp configuration (n_samples="
-            f"{config.n_samples}, n_loops={config.n_loops}, n_tx={config.n_tx}, n_rx="
-            f"{config.n_rx}) differs from the capture's; pass allow_partial_frame=True to "
-            "drop the incomplete last frame")
+            f"capture {where} has {stream.total} bytes = {n} whole {unit} + {rest} bytes: "
+            f"truncated, or the chirp configuration (n_samples={config.n_samples}, n_loops="
+            f"{config.n_loops}, n_tx={config.n_tx}, n_rx={config.n_rx}) differs from the "
+            f"capture's (expected a multiple of {lay.stride} bytes). Check the configuration "
+            "first: with a wrong one every frame decodes wrong bytes; only for a capture cut "
+            "short, allow_partial_frame=True drops the incomplete last frame")
+    if rest:
+        warnings.warn(f"capture {where}: dropped the incomplete last frame ({rest} of "
+                      f"{lay.stride} bytes)", stacklevel=3)
     if n == 0:
         raise FileFormatError(f"capture {where} holds {stream.total} bytes, less than one frame "
-                              f"of {fb} bytes for this chirp configuration")
+                              f"of {lay.stride} bytes for this chirp configuration")
     return n
+
+
+def _read_frames(stream: _Stream, lay: _Layout, start: int, stop: int) -> NDArray:
+    if lay.stride == lay.size:
+        raw = stream.read(start * lay.size, (stop - start) * lay.size)
+    else:
+        block = stream.read(start * lay.stride, (stop - start) * lay.stride)
+        raw = b"".join(block[k * lay.stride + lay.offset:k * lay.stride + lay.offset + lay.size]
+                       for k in range(stop - start))
+    return np.frombuffer(raw, dtype=_INT16)
 
 
 def iter_dca1000_frames(path: str | os.PathLike | Sequence[str | os.PathLike],
                         config: RadarConfig, *, chunk_frames: int = 16, iq_swap: bool = False,
-                        allow_partial_frame: bool = False
+                        allow_partial_frame: bool = False, offset_bytes: int = 0,
+                        stride_bytes: int | None = None
                         ) -> Iterator[tuple[NDArray, NDArray]]:
     """Yield ``(frame (n,), cube (n, n_samples, n_loops, n_virtual) complex64)``
-    chunks of a capture without loading it whole (layout: module docstring)."""
+    chunks of a capture without loading it whole (layout: module docstring;
+    ``offset_bytes``/``stride_bytes`` as in :func:`read_dca1000_bin`)."""
     if int(chunk_frames) != chunk_frames or chunk_frames < 1:
         raise ValidationError(f"chunk_frames={chunk_frames!r} must be an integer >= 1")
+    _check_config(config)
+    lay = _layout(config, offset_bytes, stride_bytes)
     stream = _Stream(_paths(path))
-    n = _frame_count(stream, config, allow_partial_frame=allow_partial_frame)
-    fb = frame_bytes(config)
+    n = _frame_count(stream, config, allow_partial_frame=allow_partial_frame, layout=lay)
     for start in range(0, n, int(chunk_frames)):
         stop = min(start + int(chunk_frames), n)
-        raw = np.frombuffer(stream.read(start * fb, (stop - start) * fb), dtype=_INT16)
-        yield np.arange(start, stop), _decode(raw, config, iq_swap)
+        yield np.arange(start, stop), _decode(_read_frames(stream, lay, start, stop), config,
+                                              iq_swap)
 
 
 def read_dca1000_bin(path: str | os.PathLike | Sequence[str | os.PathLike],
                      config: RadarConfig, *, n_frames: int | None = None,
-                     iq_swap: bool = False, allow_partial_frame: bool = False) -> NDArray:
+                     iq_swap: bool = False, allow_partial_frame: bool = False,
+                     offset_bytes: int = 0, stride_bytes: int | None = None) -> NDArray:
     """Read a DCA1000 / mmWave Studio capture into ``(F, n_samples, n_loops,
     n_tx * n_rx)`` complex64 (layout: module docstring).
 
     path : one ``adc_data.bin`` or the ordered list of its split parts.
-    config : the chirp configuration the capture was made with.
+    config : the chirp configuration the capture was made with (of the
+        selected sub-frame for an advanced frame).
     n_frames : the number of frames expected; :class:`FileFormatError` if the
         capture holds a different number (None = whatever it holds).
     iq_swap : the device sent Q before I.
-    allow_partial_frame : drop an incomplete last frame instead of raising.
+    allow_partial_frame : drop an incomplete last frame (with a warning)
+        instead of raising; only right for a capture cut short.
+    offset_bytes, stride_bytes : frame k is read at ``offset_bytes + k *
+        stride_bytes`` (default: consecutive frames); for one sub-frame of an
+        advanced frame use :func:`sub_frame_layout` or
+        :func:`read_dca1000_sub_frame`. The capture must hold whole strides.
     Raises :class:`ConfigurationError` for a configuration a DCA1000 capture
     cannot have, :class:`FileFormatError` for missing, empty or truncated
     files and sizes that do not match the configuration.
     """
     _check_config(config)
+    lay = _layout(config, offset_bytes, stride_bytes)
     stream = _Stream(_paths(path))
-    n = _frame_count(stream, config, allow_partial_frame=allow_partial_frame)
+    n = _frame_count(stream, config, allow_partial_frame=allow_partial_frame, layout=lay)
     if n_frames is not None and n != n_frames:
-        raise FileFormatError(f"capture holds {n} frames of {frame_bytes(config)} bytes, "
+        raise FileFormatError(f"capture holds {n} frames of {lay.stride} bytes, "
                               f"expected n_frames={n_frames}")
-    raw = np.frombuffer(stream.read(0, n * frame_bytes(config)), dtype=_INT16)
-    return _decode(raw, config, iq_swap)
+    return _decode(_read_frames(stream, lay, 0, n), config, iq_swap)
+
+
+def sub_frame_layout(configs: Sequence[RadarConfig], sub_frame: int) -> tuple[int, int]:
+    """``(offset_bytes, stride_bytes)`` of one sub-frame in an advanced-frame
+    capture whose frames hold the sub-frames ``configs`` in order."""
+    configs = list(getattr(configs, "configs", configs))
+    if not configs:
+        raise ConfigurationError("configs must hold at least one sub-frame configuration")
+    if int(sub_frame) != sub_frame or not 0 <= sub_frame < len(configs):
+        raise ValidationError(f"sub_frame={sub_frame!r} must be in 0..{len(configs) - 1}")
+    sizes = [frame_bytes(c) for c in configs]
+    return int(sum(sizes[:int(sub_frame)])), int(sum(sizes))
+
+
+def read_dca1000_sub_frame(path: str | os.PathLike | Sequence[str | os.PathLike],
+                           configs: Sequence[RadarConfig], sub_frame: int, *,
+                           n_frames: int | None = None, iq_swap: bool = False,
+                           allow_partial_frame: bool = False) -> NDArray:
+    """Read one sub-frame of an advanced-frame capture (``configs``: one per
+    sub-frame, in order, e.g. ``TiConfig.configs``; offset and stride follow
+    from their sizes, :func:`sub_frame_layout`)."""
+    configs = list(getattr(configs, "configs", configs))
+    offset, stride = sub_frame_layout(configs, sub_frame)
+    return read_dca1000_bin(path, configs[int(sub_frame)], n_frames=n_frames, iq_swap=iq_swap,
+                            allow_partial_frame=allow_partial_frame, offset_bytes=offset,
+                            stride_bytes=stride)
 
 
 def write_dca1000_bin(path: str | os.PathLike, cube: ArrayLike, config: RadarConfig, *,
@@ -217,19 +310,29 @@ def recording_from_dca1000(captures: Mapping[str, str | os.PathLike | Sequence],
                            config: RadarConfig | Mapping[str, RadarConfig], *,
                            poses: Mapping[str, ArrayLike] | None = None,
                            iq_swap: bool = False, allow_partial_frame: bool = False,
-                           metadata: Mapping | None = None) -> Recording:
+                           metadata: Mapping | None = None,
+                           sub_frame: int | None = None) -> Recording:
     """A :class:`Recording` of raw cubes from one capture per node.
 
     captures : node name -> capture path (or its split parts), in node order
         (first = S1). config : one configuration for all or one per node.
     poses : known node poses, if any. Frames are numbered from 0 in each
-    capture (captures are assumed to start together).
+    capture (captures are assumed to start together). sub_frame : for
+    advanced-frame captures, the sub-frame to read; ``config`` is then the
+    sequence of sub-frame configurations (or a ``TiConfig``), for all nodes or
+    one per node.
     """
     nodes = {}
     for name, path in captures.items():
         cfg = config[name] if isinstance(config, Mapping) else config
-        cube = read_dca1000_bin(path, cfg, iq_swap=iq_swap,
-                                allow_partial_frame=allow_partial_frame)
+        if sub_frame is None:
+            cube = read_dca1000_bin(path, cfg, iq_swap=iq_swap,
+                                    allow_partial_frame=allow_partial_frame)
+        else:
+            cfg = list(getattr(cfg, "configs", cfg))
+            cube = read_dca1000_sub_frame(path, cfg, sub_frame, iq_swap=iq_swap,
+                                          allow_partial_frame=allow_partial_frame)
+            cfg = cfg[int(sub_frame)]
         pose = None if poses is None or name not in poses else poses[name]
         nodes[name] = NodeData(name=name, pose=pose, radar=cfg, cube=cube,
                                cube_frame=np.arange(cube.shape[0]))

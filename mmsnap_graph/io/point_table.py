@@ -1,0 +1,200 @@
+"""Tabular point-cloud logs (CSV, ``.npy``, pandas DataFrame) -> :class:`PointCloud3D`.
+
+One row per point. Column names are matched case-insensitively, with the
+aliases below (a ``columns=`` mapping renames others):
+
+- the frame: ``frame`` (aliases ``frame_number``, ``framenum``, ``numframe``)
+  and/or a time stamp ``time_s`` (``time``, ``timestamp``); one of them is
+  required; without ``frame``, frames are numbered from the time stamps;
+- Cartesian points: ``x_m, y_m, z_m, doppler_mps`` (``x, y, z, doppler``,
+  ``velocity``, ``v``), or spherical points: ``range_m, azimuth_rad,
+  elevation_rad, doppler_mps`` (``range``, ``azimuth``/``az``,
+  ``elevation``/``el``; TI's convention, see ``factors.projection``);
+- optional: ``snr_db`` (``snr``), ``noise_db`` (``noise``), and ``node``
+  (``sensor``, ``radar``) when one table holds several radars.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Literal, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from factors.projection import spherical_to_cartesian
+from ..errors import FileFormatError, ValidationError
+from .point_cloud import PointCloud3D
+
+__all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "read_point_table", "read_point_tables"]
+
+CARTESIAN_COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
+SPHERICAL_COLUMNS = ("range_m", "azimuth_rad", "elevation_rad", "doppler_mps")
+
+_ALIASES = {
+    "frame": ("frame", "frame_number", "framenum", "numframe", "frame_id"),
+    "time_s": ("time_s", "time", "timestamp", "t"),
+    "x_m": ("x_m", "x"), "y_m": ("y_m", "y"), "z_m": ("z_m", "z"),
+    "doppler_mps": ("doppler_mps", "doppler", "velocity", "v", "radial_velocity"),
+    "range_m": ("range_m", "range", "r"),
+    "azimuth_rad": ("azimuth_rad", "azimuth", "az"),
+    "elevation_rad": ("elevation_rad", "elevation", "el"),
+    "snr_db": ("snr_db", "snr"), "noise_db": ("noise_db", "noise"),
+    "node": ("node", "sensor", "radar"),
+}
+_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+
+
+def _as_columns(source: Any, name: str) -> dict[str, NDArray]:
+    """A DataFrame, a structured array, a .npy or .npz path or a CSV path ->
+    name -> column."""
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        if not path.is_file():
+            raise FileFormatError(f"point table {path} does not exist")
+        if path.suffix.lower() in (".npy", ".npz"):
+            try:
+                arr = np.load(path, allow_pickle=False)
+            except ValueError as exc:
+                raise FileFormatError(f"{path}: not a plain NumPy array file ({exc})") from None
+            if isinstance(arr, np.lib.npyio.NpzFile):
+                return {k: arr[k] for k in arr.files}
+            return _as_columns(arr, name)
+        # pandas only here, to keep it out of the import path of the library.
+        import pandas as pd
+        try:
+            frame = pd.read_csv(path, comment="#", skipinitialspace=True)
+        except (ValueError, pd.errors.ParserError, UnicodeDecodeError) as exc:
+            raise FileFormatError(f"{path}: not a readable CSV table ({exc})") from None
+        return {str(c): frame[c].to_numpy() for c in frame.columns}
+    if hasattr(source, "columns") and hasattr(source, "to_numpy"):
+        return {str(c): source[c].to_numpy() for c in source.columns}
+    if isinstance(source, np.ndarray) and source.dtype.names:
+        return {k: source[k] for k in source.dtype.names}
+    if isinstance(source, Mapping):
+        return {str(k): np.asarray(v) for k, v in source.items()}
+    raise FileFormatError(f"{name}: a point table must be a CSV or .npy/.npz file, a "
+                          "DataFrame, a structured array or a mapping of columns; got "
+                          f"{type(source).__name__}" + (" (a plain array has no column "
+                                                        "names)" if isinstance(source,
+                                                                               np.ndarray)
+                                                        else ""))
+
+
+def _canonical(raw: dict[str, NDArray], columns: Mapping[str, str] | None) -> dict[str, NDArray]:
+    renamed = {(columns or {}).get(k, k): v for k, v in raw.items()}
+    lower = {k.strip().lower(): v for k, v in renamed.items()}
+    out = {}
+    for canon, aliases in _ALIASES.items():
+        for alias in aliases:
+            if alias in lower:
+                out[canon] = lower[alias]
+                break
+    return out
+
+
+def _kind(cols: dict, coordinates: str, name: str, present: list[str]) -> str:
+    have = lambda req: [c for c in req if c not in cols]
+    if coordinates == "auto":
+        if not have(CARTESIAN_COLUMNS):
+            return "cartesian"
+        if not have(SPHERICAL_COLUMNS):
+            return "spherical"
+        cart, sph = have(CARTESIAN_COLUMNS), have(SPHERICAL_COLUMNS)
+        raise FileFormatError(f"{name}: missing columns: Cartesian points need {cart}, "
+                              f"spherical points need {sph} (columns present: {present})")
+    required = CARTESIAN_COLUMNS if coordinates == "cartesian" else SPHERICAL_COLUMNS
+    if have(required):
+        raise FileFormatError(f"{name}: missing {coordinates} columns {have(required)} "
+                              f"(columns present: {present})")
+    return coordinates
+
+
+def _float(cols: dict, key: str, name: str) -> NDArray:
+    try:
+        return np.asarray(cols[key], dtype=float)
+    except (TypeError, ValueError):
+        raise FileFormatError(f"{name}: column {key} must be numeric") from None
+
+
+def _frames_from_time(time_s: NDArray, frame_period_s: float | None) -> NDArray:
+    if frame_period_s is None:
+        _, inverse = np.unique(time_s, return_inverse=True)
+        return inverse.astype(np.int64)
+    return np.round((time_s - time_s.min()) / frame_period_s).astype(np.int64)
+
+
+def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, degrees: bool,
+           time_unit: str, frame_period_s: float | None) -> PointCloud3D:
+    get = lambda k: _float(cols, k, name)[rows]
+    time = get("time_s") * _TIME_UNITS[time_unit] if "time_s" in cols else None
+    if "frame" in cols:
+        frame = get("frame")
+        if not np.all(np.isfinite(frame)) or np.any(frame != np.round(frame)):
+            raise FileFormatError(f"{name}: column frame must hold integers")
+        frame = frame.astype(np.int64)
+    else:
+        frame = _frames_from_time(time, frame_period_s)
+    if kind == "cartesian":
+        x, y, z = get("x_m"), get("y_m"), get("z_m")
+    else:
+        scale = np.pi / 180.0 if degrees else 1.0
+        x, y, z = spherical_to_cartesian(get("range_m"), get("azimuth_rad") * scale,
+                                         get("elevation_rad") * scale).T
+    opt = {k: get(k) for k in ("snr_db", "noise_db") if k in cols}
+    try:
+        return PointCloud3D(frame=frame, x_m=x, y_m=y, z_m=z, doppler_mps=get("doppler_mps"),
+                            time_s=time, **opt)
+    except ValidationError as exc:
+        raise FileFormatError(f"{name}: {exc}") from None
+
+
+def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
+                                                           "spherical"] = "auto",
+                      columns: Mapping[str, str] | None = None, degrees: bool = False,
+                      time_unit: Literal["s", "ms", "us"] = "s",
+                      frame_period_s: float | None = None,
+                      default_node: str = "S1") -> dict[str, PointCloud3D]:
+    """Read a point table (module docstring) into node name -> cloud.
+
+    coordinates : which columns to use (``"auto"``: Cartesian if present,
+    else spherical). columns : renames, e.g. ``{"Doppler": "doppler_mps"}``.
+    degrees : angles are in degrees. time_unit : of the time-stamp column.
+    frame_period_s : numbers frames from time stamps as ``round((t - t0) /
+    frame_period_s)`` when there is no frame column (else the distinct time
+    stamps are numbered in order). default_node : the node of a table
+    without a node column.
+    Raises :class:`FileFormatError` naming the missing columns and the table.
+    """
+    if coordinates not in ("auto", "cartesian", "spherical"):
+        raise ValidationError(f"coordinates={coordinates!r} must be 'auto', 'cartesian' or "
+                              "'spherical'")
+    if time_unit not in _TIME_UNITS:
+        raise ValidationError(f"time_unit={time_unit!r} must be one of {sorted(_TIME_UNITS)}")
+    name = str(source) if isinstance(source, (str, os.PathLike)) else "point table"
+    raw = _as_columns(source, name)
+    cols = _canonical(raw, columns)
+    present = sorted(raw)
+    if "frame" not in cols and "time_s" not in cols:
+        raise FileFormatError(f"{name}: missing columns: a frame number (frame) or a time "
+                              f"stamp (time_s) is needed (columns present: {present})")
+    kind = _kind(cols, coordinates, name, present)
+    n = len(next(iter(cols.values())))
+    if "node" not in cols:
+        return {default_node: _cloud(cols, np.arange(n), kind, name=name, degrees=degrees,
+                                     time_unit=time_unit, frame_period_s=frame_period_s)}
+    nodes = np.asarray(cols["node"]).astype(str)
+    return {str(node): _cloud(cols, np.flatnonzero(nodes == node), kind, name=name,
+                              degrees=degrees, time_unit=time_unit,
+                              frame_period_s=frame_period_s)
+            for node in dict.fromkeys(nodes.tolist())}
+
+
+def read_point_table(source: Any, **options) -> PointCloud3D:
+    """Read a one-radar point table (:func:`read_point_tables`, same options)."""
+    clouds = read_point_tables(source, **options)
+    if len(clouds) != 1:
+        raise FileFormatError(f"the table holds {len(clouds)} nodes {sorted(clouds)}; use "
+                              "read_point_tables")
+    return next(iter(clouds.values()))

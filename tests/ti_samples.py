@@ -1,0 +1,149 @@
+"""Stand-ins for real TI data, made from the simulator (issue 14), and the
+script that writes the small samples in data/ti/:
+
+    python tests/ti_samples.py      # rewrites data/ti/*.bin and *.csv
+
+Each radar's simulated 2D point cloud is lifted into 3D: every point gets a
+height above the floor, then it is expressed in the frame of a sensor mounted
+at ``height_m`` and tilted down by ``tilt_rad``, with the 3D radial speed of a
+horizontally moving scatterer. Projecting back (factors.projection) must give
+the simulated 2D points again.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+from factors.models import detection_to_local  # noqa: E402
+from factors.projection import level_to_sensor, sensor_to_room  # noqa: E402
+from mmsnap_graph.sim import simulate_recording  # noqa: E402
+from ti_encode import encode_oob_frame  # noqa: E402
+
+DATA = ROOT / "data" / "ti"
+#: node -> (mounting height m, down tilt rad) of the samples.
+MOUNTS = {"S1": (0.8, np.deg2rad(5.0)), "S2": (1.2, np.deg2rad(15.0))}
+FRAME_PERIOD_S = 0.05
+
+
+def simulated(n_frames=20, seed=1):
+    """A simulated recording (point clouds) at 20 fps."""
+    return simulate_recording("C", "straight", levels=["point_cloud"], n_frames=n_frames,
+                              frame_period_s=FRAME_PERIOD_S, seed=seed)
+
+
+def lift(det, height_m, tilt_rad, seed):
+    """2D detections -> sensor-frame ``(xyz (K, 3), doppler_3d (K,))``."""
+    rng = np.random.default_rng(seed)
+    local = detection_to_local(det.range_m, det.omega_rad)
+    z_floor = rng.uniform(0.3, 1.7, len(det))
+    level = np.column_stack([local, z_floor - height_m])
+    xyz = level_to_sensor(level, tilt_rad)
+    r3 = np.linalg.norm(xyz, axis=1)
+    return xyz, det.doppler_mps * det.range_m / r3
+
+
+def write_uart_log(path, det, height_m, tilt_rad, seed, first_frame=1):
+    xyz, dop = lift(det, height_m, tilt_rad, seed)
+    frames = np.unique(det.frame)
+    packets = []
+    for f in range(int(frames.min()), int(frames.max()) + 1):
+        rows = det.frame == f
+        packets.append(encode_oob_frame(f + first_frame, xyz[rows], dop[rows], det.snr_db[rows],
+                                        np.full(rows.sum(), 45.0)))
+    Path(path).write_bytes(b"".join(packets))
+
+
+def table_rows(rec, *, room: bool, seed=0):
+    """Rows of a CSV with every node (node column); sensor or room frame."""
+    import pandas as pd
+    parts = []
+    for k, (name, node) in enumerate(rec.nodes.items()):
+        height, tilt = MOUNTS[name]
+        det = node.point_cloud
+        xyz, dop = lift(det, height, tilt, seed + k)
+        if room:
+            xyz = sensor_to_room(xyz, rec.truth.node_poses[name], height, tilt)
+        parts.append(pd.DataFrame({"node": name, "frame": det.frame,
+                                   "time_s": 1700000000.0 + det.frame * FRAME_PERIOD_S,
+                                   "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+                                   "doppler": dop, "snr": det.snr_db}))
+    return pd.concat(parts, ignore_index=True)
+
+
+#: The .cfg of the small DCA1000 sample: sub-frame 0 fires TX0, TX2 (32
+#: samples, 4 loops), sub-frame 1 fires TX0, TX2, TX1 (64 samples, 8 loops).
+DCA_CFG = """\
+% Small AWR1843BOOST advanced frame for the DCA1000 sample (data/ti/dca1000_small.bin)
+sensorStop
+flushCfg
+dfeDataOutputMode 3
+channelCfg 15 7 0
+adcCfg 2 1
+adcbufCfg -1 0 1 1 1
+profileCfg 0 77 10 3 25 0 0 50 1 32 2000 0 0 30
+profileCfg 1 77 10 3 40 0 0 50 1 64 2000 0 0 30
+chirpCfg 0 0 0 0 0 0 0 1
+chirpCfg 1 1 0 0 0 0 0 4
+chirpCfg 2 2 1 0 0 0 0 1
+chirpCfg 3 3 1 0 0 0 0 4
+chirpCfg 4 4 1 0 0 0 0 2
+advFrameCfg 2 0 3 1 0
+subFrameCfg 0 0 0 2 4 25 0 1 1 25
+subFrameCfg 1 0 2 3 8 25 0 1 1 25
+lvdsStreamCfg -1 0 1 0
+sensorStart
+"""
+#: int16 ADC counts per unit of the simulator's cube.
+DCA_SCALE = 100.0
+
+
+def dca_sample_cubes(n_frames=3, seed=4):
+    """Node S1's simulated cubes of each sub-frame (int16 counts as complex)."""
+    from mmsnap_graph.io.ti_cfg import parse_ti_cfg
+    ti = parse_ti_cfg(DCA_CFG, board="AWR1843BOOST")
+    cubes = []
+    for cfg in ti.configs:
+        rec = simulate_recording("C", "straight", levels=["cube"], n_frames=n_frames,
+                                 radar=cfg, seed=seed)
+        cube = rec.nodes["S1"].cube * DCA_SCALE
+        cubes.append(np.round(cube.real) + 1j * np.round(cube.imag))
+    return ti, cubes
+
+
+def write_dca_sample(out_dir: Path) -> None:
+    from mmsnap_graph.io import write_dca1000_bin
+    from mmsnap_graph.io.dca1000 import frame_bytes
+    (out_dir / "dca1000_small.cfg").write_text(DCA_CFG)
+    ti, cubes = dca_sample_cubes()
+    frames = []
+    for k, (cfg, cube) in enumerate(zip(ti.configs, cubes)):
+        part = out_dir / f"_sub{k}.bin"
+        write_dca1000_bin(part, cube, cfg)
+        raw, size = part.read_bytes(), frame_bytes(cfg)
+        part.unlink()
+        frames.append([raw[f * size:(f + 1) * size] for f in range(cube.shape[0])])
+    (out_dir / "dca1000_small.bin").write_bytes(b"".join(b"".join(parts)
+                                                         for parts in zip(*frames)))
+
+
+def main(out_dir: Path = DATA) -> None:
+    out_dir = Path(out_dir)
+    rec = simulated()
+    height, tilt = MOUNTS["S1"]
+    write_uart_log(out_dir / "oob_uart_S1.bin", rec.nodes["S1"].point_cloud, height, tilt,
+                   seed=0)
+    table_rows(rec, room=False).to_csv(out_dir / "points_sensor_frame.csv", index=False,
+                                       float_format="%.6f")
+    table_rows(rec, room=True).to_csv(out_dir / "points_room_frame.csv", index=False,
+                                      float_format="%.6f")
+    write_dca_sample(out_dir)
+
+
+if __name__ == "__main__":
+    main()
