@@ -1,5 +1,5 @@
 """Constant-velocity motion model of a target state ``(x, y, vx, vy)``
-(docs/CONVENTIONS.md, last section): the one transition and process noise
+(docs/CONVENTIONS.md, "Constant-velocity motion model"): the one transition and process noise
 used by the per-node EKF, the central tracker and the GTSAM motion factor.
 
 Per axis, with ``T`` the time between two states and white acceleration of

@@ -89,10 +89,7 @@ _OUTSIDE = re.compile(r"(?<![\w.])/(?:work|tmp|home|Users)/|[A-Z]:\\\\Users|shar
                       r"design/(?:MATH|STYLE|ARCHITECTURE)\.md")
 # Files still carrying a machine path on main, fixed on other branches; the
 # lead removes an entry once the fix is merged.
-_KNOWN = {
-    "docs/CALIBRATION.md": "benchmark command with a machine venv path",
-    "benchmarks/bench_calibration.py": "usage line with a machine venv path",
-}
+_KNOWN: dict[str, str] = {}
 
 
 def _doc_files():

@@ -16,7 +16,7 @@ from mmsnap_graph.fusion.oneshot import fuse_frame
 from mmsnap_graph.fusion.sequence import fuse_recording, recording_poses
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused, write_fused
-from mmsnap_graph.sim import CentroidNoise, simulate_recording
+from mmsnap_graph.sim import simulate_recording
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +25,7 @@ def recordings():
     return {
         net: simulate_recording(net, "random", levels=("centroids",), n_frames=200, seed=11,
                                 n_targets=2, known_poses=True,
-                                centroid_noise=CentroidNoise(p_miss=0.1))
+                                centroid_p_miss=0.1)
         for net in "ABC"
     }
 
@@ -240,7 +240,7 @@ def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
     from mmsnap_graph.fusion.sequence import group_detections
 
     rec = simulate_recording("A", "random", levels=("centroids",), n_frames=80, seed=2,
-                             known_poses=True, centroid_noise=CentroidNoise(p_miss=0.2))
+                             known_poses=True, centroid_p_miss=0.2)
     import dataclasses
 
     from mmsnap_graph.data.recording import Detections

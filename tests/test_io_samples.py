@@ -12,7 +12,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from factors.models import measurement_model, wrap_angle
 from mmsnap_graph.io import read_recording
-from mmsnap_graph.sim import CentroidNoise, network_poses
+from mmsnap_graph.sim import CENTROID_NOISE, network_poses
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 SAMPLES = sorted(DATA.glob("*.h5"))
@@ -45,7 +45,7 @@ def test_sample_centroids_match_truth(path):
         h = measurement_model(states[c.target_id, c.frame], pose)[0]
         e = c.measurements - h
         e[:, 1] = wrap_angle(e[:, 1])
-        assert np.all(np.abs(e) < 5 * CentroidNoise().sigmas)
+        assert np.all(np.abs(e) < 5 * CENTROID_NOISE.sigmas)
     if "cubes" in path.name:
         assert rec.nodes["S1"].cube.shape == (4, 512, 60, 12)
 

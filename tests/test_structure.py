@@ -17,13 +17,7 @@ _spec.loader.exec_module(cs)
 
 # Rules still broken on main at the time of writing while other branches fix
 # them; the lead removes an entry once the fix is merged.
-STILL_BROKEN_ON_MAIN = {
-    "function-length": "long functions are being split on the fusion/calibration/sim branches",
-    "module-length": "oneshot.py, joint.py and demo.py are being split on other branches",
-    "layer-order": "calibration.network imports io (write_calibration moves to io)",
-    "private-import": "bounds takes oneshot._check_*, central takes ekf._sym (being fixed)",
-    "model-count": "factors/models.py still defines the model six times (physics branch)",
-}
+STILL_BROKEN_ON_MAIN: dict[str, str] = {}
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from scipy.optimize import minimize_scalar
 
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.data.recording import Tracks
-from mmsnap_graph.sim import CentroidNoise, simulate_recording
+from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
 from mmsnap_graph.tracking.track_fusion import covariance_intersection, fuse_tracks, transform_tracks
 
@@ -87,7 +87,7 @@ def test_ci_is_consistent_whatever_the_unknown_correlation():
 
 def test_fused_ekf_tracks_follow_the_target():
     rec = simulate_recording("C", "random", levels=("centroids",), n_frames=200, seed=4, known_poses=True,
-                             centroid_noise=CentroidNoise(p_miss=0.05))
+                             centroid_p_miss=0.05)
     config = EkfConfig(frame_period_s=rec.frame_period_s)
     t1 = track_centroids(rec.nodes["S1"].centroids, config)
     t2 = track_centroids(rec.nodes["S2"].centroids, config)

@@ -197,8 +197,8 @@ def _package_of(module: str) -> str:
     parts = module.split(".")
     if parts[0] == "factors":
         return "factors"
-    if len(parts) == 1:
-        return "mmsnap_graph"
+    if len(parts) == 1 or parts[1] == "__main__":
+        return "mmsnap_graph"  # the package facade and its ``python -m`` entry point
     second = parts[1]
     if second.startswith("_"):
         return f"mmsnap_graph.{second}"  # a private helper module: layer 1

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from factors.models import local_to_global
 
 from ..calibration import LocalTracks, joint_calibration, match_tracks
+from ..data.noise import MeasurementNoise
 from ..data.recording import Detections, Recording, Tracks
 from ..errors import CalibrationError, ValidationError
 from .demo_chain import (
@@ -22,6 +23,10 @@ from .demo_chain import (
     single_target_track,
 )
 from .evaluation import PoseError, align_frames, pose_error, pose_mapping_error
+
+#: The joint graph weighs the centroids with the demo EKF's sigmas.
+_DEMO_NOISE = MeasurementNoise(range_m=DEMO_EKF_MEASUREMENT_STD[0], omega_rad=DEMO_EKF_MEASUREMENT_STD[1],
+                               doppler_mps=DEMO_EKF_MEASUREMENT_STD[2])
 
 __all__ = ["CalibrationOutcome", "track_alignment_rmse", "calibrate_run"]
 
@@ -131,7 +136,7 @@ def _refine(recording: Recording, names, tracks, initial_pose: NDArray, lag: int
         dets[name] = d
     try:
         joint = joint_calibration(dets, initial_poses={names[1]: initial_pose},
-                                  sigmas=DEMO_EKF_MEASUREMENT_STD)
+                                  noise=_DEMO_NOISE)
     except CalibrationError as exc:
         return initial_pose, None, False, f"refinement failed, closed form kept: {exc}"
     return (np.asarray(joint.poses[names[1]], dtype=float),

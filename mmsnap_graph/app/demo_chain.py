@@ -28,7 +28,7 @@ __all__ = [
 ]
 
 #: The per-node EKF and the joint calibration graph of the demo use, as
-#: measurement sigmas the simulator's torso-centroid errors (CentroidNoise:
+#: measurement sigmas the simulator's torso-centroid errors (sim.CENTROID_NOISE:
 #: 5 cm, 0.08 rad, 0.1 m/s), not the radar's resolutions: with the paper's pi/4 rad for the spatial frequency
 #: the cross-range is hardly measured and, after each turn of the walker, a
 #: track slides along its range circle (track RMSE 1.7 m on

@@ -14,7 +14,8 @@ from numpy.typing import NDArray
 from ..data.recording import Recording
 from ..errors import ValidationError
 from ..fusion.oneshot import DEGENERACY_THRESHOLD
-from ..fusion.sequence import FusedSequence, fuse_recording
+from ..data.results import FusedSequence
+from ..fusion.sequence import fuse_recording
 from ..tracking.central import CentralConfig, track_fused
 from ..tracking.track_fusion import fuse_tracks, transform_tracks
 from .demo_calibration import CalibrationOutcome

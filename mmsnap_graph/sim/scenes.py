@@ -23,7 +23,7 @@ from factors.models import detection_to_local, global_to_local, measurement_mode
 from ..data.noise import MeasurementNoise
 from ..errors import GeometryError, ValidationError
 from .networks import COMMON_AREAS, CONFIGURATIONS
-from .simulator import CentroidNoise, simulate_recording
+from .simulator import simulate_recording
 
 __all__ = ["PAPER_CONFIGURATIONS", "COMMON_AREA_CENTERS", "SyntheticScene",
            "target_trajectory", "synthetic_scene"]
@@ -151,8 +151,7 @@ def synthetic_scene(
     rec = simulate_recording(
         poses, truth, levels=("centroids",), frame_period_s=frame_period_s,
         seed=int(rng.integers(2**63)), fov_rad=np.pi / 2, min_range_m=0.0, max_range_m=np.inf,
-        centroid_noise=CentroidNoise(range_std_m=noise.range_m, omega_std_rad=noise.omega_rad,
-                                     doppler_std_mps=noise.doppler_mps))
+        centroid_noise=noise)
     meas, local, ghost = {}, {}, {}
     for name in poses:
         z = rec.nodes[name].centroids.measurements.copy()

@@ -2,7 +2,7 @@
 
 State ``(x_m, y_m, vx_mps, vy_mps)`` in the node's local frame (x along the
 array axis, y broadside). Motion: constant velocity with white-acceleration
-noise (docs/CONVENTIONS.md, last section), per axis
+noise (docs/CONVENTIONS.md, "Constant-velocity motion model"), per axis
 
 .. math::
 

@@ -1,4 +1,4 @@
-"""Track-level fusion, the paper's benchmark (docs/CONVENTIONS.md, last section).
+"""Track-level fusion, the paper's benchmark (docs/CONVENTIONS.md, "Track-level fusion (the paper's benchmark)").
 
 Each node's EKF tracks (:class:`~mmsnap_graph.data.recording.Tracks`, the node's
 local frame) are moved into the global frame with the node's calibrated pose:

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..evaluation import evaluate_recording
     from mmsnap_graph.io import read_recording
-    from mmsnap_graph.fusion.sequence import FUSED_GROUP, read_fused
+    from mmsnap_graph.io.fused import FUSED_GROUP, read_fused
     from mmsnap_graph.io.calibration import load_calibration_poses
 
     rec = read_recording(args.recording, load_cubes=False)
