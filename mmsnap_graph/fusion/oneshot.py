@@ -97,8 +97,6 @@ NEWTON_DECREMENT_TOLERANCE = 1e-8
 STATE_KEY = 0
 
 _COVARIANCE_CHOICES = ("laplace", "grid", "both")
-#: A Cholesky pivot below this fraction of its column's diagonal is singular.
-_PIVOT_RTOL = 1e-12
 
 
 # ---------------------------------------------------------------------------
@@ -217,8 +215,8 @@ class _Failure(Exception):
 
 
 def _solve(graph, values, max_iterations):
-    """Levenberg-Marquardt: ``(state, iterations, cost)``; raises
-    :class:`_Failure` when it fails, diverges or does not converge."""
+    """Levenberg-Marquardt and Marginals: ``(state, covariance, iterations,
+    cost)``; raises :class:`_Failure` when the frame cannot be solved."""
     try:
         optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, _lm_params(max_iterations))
         solution = optimizer.optimize()
@@ -236,61 +234,16 @@ def _solve(graph, values, max_iterations):
             f"Levenberg-Marquardt did not converge within max_iterations={max_iterations}",
             state, iterations, cost,
         )
-    return state, iterations, cost
-
-
-def _covariance(info: list) -> NDArray | None:
-    """The inverse of the symmetric positive definite 4x4 ``info`` (nested
-    lists), or None when it is singular.
-
-    What ``gtsam.Marginals`` returns for this one-variable graph (the inverse
-    Gauss-Newton information at the solution), without its second
-    linearization through the Python factor: a Cholesky pivot below
-    ``_PIVOT_RTOL`` of its column's diagonal is singular (the batch solver's
-    rule, as gtsam's "indeterminant linear system"). Unrolled in plain floats:
-    numpy's linalg costs several times more on one 4x4 matrix.
-    """
-    (a00, a01, a02, a03), (_, a11, a12, a13), (_, _, a22, a23), (_, _, _, a33) = info
-    tol = _PIVOT_RTOL
-    if not (a00 > 0.0 and a11 > 0.0 and a22 > 0.0 and a33 > 0.0):  # False for NaN
-        return None
-    # L L^T = info, column by column.
-    l00 = math.sqrt(a00)
-    l10, l20, l30 = a01 / l00, a02 / l00, a03 / l00
-    d = a11 - l10 * l10
-    if not d > tol * a11:
-        return None
-    l11 = math.sqrt(d)
-    l21, l31 = (a12 - l20 * l10) / l11, (a13 - l30 * l10) / l11
-    d = a22 - l20 * l20 - l21 * l21
-    if not d > tol * a22:
-        return None
-    l22 = math.sqrt(d)
-    l32 = (a23 - l30 * l20 - l31 * l21) / l22
-    d = a33 - l30 * l30 - l31 * l31 - l32 * l32
-    if not d > tol * a33:
-        return None
-    l33 = math.sqrt(d)
-    # M = L^-1 (lower triangular), then the covariance M^T M.
-    m00, m11, m22, m33 = 1.0 / l00, 1.0 / l11, 1.0 / l22, 1.0 / l33
-    m10 = -l10 * m00 * m11
-    m21 = -l21 * m11 * m22
-    m20 = -(l20 * m00 + l21 * m10) * m22
-    m32 = -l32 * m22 * m33
-    m31 = -(l31 * m11 + l32 * m21) * m33
-    m30 = -(l30 * m00 + l31 * m10 + l32 * m20) * m33
-    c01 = m10 * m11 + m20 * m21 + m30 * m31
-    c02 = m20 * m22 + m30 * m32
-    c03 = m30 * m33
-    c12 = m21 * m22 + m31 * m32
-    c13 = m31 * m33
-    c23 = m32 * m33
-    return np.array([
-        [m00 * m00 + m10 * m10 + m20 * m20 + m30 * m30, c01, c02, c03],
-        [c01, m11 * m11 + m21 * m21 + m31 * m31, c12, c13],
-        [c02, c12, m22 * m22 + m32 * m32, c23],
-        [c03, c13, c23, m33 * m33],
-    ])
+    try:
+        cov = gtsam.Marginals(graph, solution).marginalCovariance(STATE_KEY)
+    except Exception as exc:
+        raise _Failure(
+            Status.SINGULAR,
+            "indeterminate linear system at the solution, no covariance "
+            f"({type(exc).__name__}: {exc})",
+            state, iterations, cost,
+        )
+    return state, 0.5 * (cov + cov.T), iterations, cost
 
 
 # ---------------------------------------------------------------------------
@@ -298,17 +251,15 @@ def _covariance(info: list) -> NDArray | None:
 
 
 def _residuals_and_degeneracy(state, poses, z, obs, noise, prior):
-    """At ``state``: whitened residuals (N, 3), the degeneracy, and the
-    gradient (4,) and Gauss-Newton information (4x4 nested lists) of the cost
-    ``0.5 * sum of squared whitened residuals``, prior included; one pass of
-    :func:`factors.models.measurement_model_scalar`. Gradient and information
-    are None where the model is undefined (the state on an observed node)."""
+    """Whitened residuals (N, 3), the degeneracy and the gradient (4,) of the
+    cost ``0.5 * sum of squared whitened residuals`` (prior included) at
+    ``state``, in one pass of :func:`factors.models.measurement_model_scalar`."""
     x, y, vx, vy = state.tolist()
     sigmas = (noise.range_m, noise.omega_rad, noise.doppler_mps)
     out = []
     zl = z.tolist()
     a11 = a12 = a22 = 0.0
-    rows = []  # whitened Jacobian rows, each with its whitened residual
+    grad = [0.0, 0.0, 0.0, 0.0]
     for i, (px, py, phi) in enumerate(poses.tolist()):
         if obs is not None and not obs[i]:
             out.append((math.nan, math.nan, math.nan))
@@ -316,7 +267,10 @@ def _residuals_and_degeneracy(state, poses, z, obs, noise, prior):
         try:
             r, w, v, jac = measurement_model_scalar(x, y, vx, vy, px, py, math.cos(phi), math.sin(phi))
         except ZeroDivisionError:
-            return np.full((len(zl), 3), np.nan), math.inf, None, None
+            out.append((math.nan, math.nan, math.nan))
+            a11 = a22 = math.nan
+            grad = [math.nan] * 4
+            continue
         zi = zl[i]
         e = (
             (r - zi[0]) / sigmas[0],
@@ -325,40 +279,28 @@ def _residuals_and_degeneracy(state, poses, z, obs, noise, prior):
         )
         out.append(e)
         for k in range(3):
-            sk = sigmas[k]
-            rows.append((jac[4 * k] / sk, jac[4 * k + 1] / sk, jac[4 * k + 2] / sk,
-                         jac[4 * k + 3] / sk, e[k]))
+            ek = e[k] / sigmas[k]
+            for j in range(4):
+                grad[j] += jac[4 * k + j] * ek
         ux, uy = jac[10], jac[11]
         a11 += ux * ux
         a12 += ux * uy
         a22 += uy * uy
     if prior is not None:
+        m = prior.mean.tolist()
         ps = prior.sigmas.tolist()
-        for j, (xj, mj) in enumerate(zip((x, y, vx, vy), prior.mean.tolist())):
-            row = [0.0, 0.0, 0.0, 0.0, (xj - mj) / ps[j]]
-            row[j] = 1.0 / ps[j]
-            rows.append(row)
-    aug = np.array(rows) if rows else np.zeros((0, 5))
-    gram = aug.T @ aug  # [[info, grad], [grad^T, 2 cost]]
-    degeneracy = condition_2x2(a11, a12, a22)
-    return np.array(out), degeneracy, gram[:4, 4], gram[:4, :4].tolist()
+        for j, xj in enumerate((x, y, vx, vy)):
+            grad[j] += (xj - m[j]) / ps[j] ** 2
+    degeneracy = condition_2x2(a11, a12, a22) if math.isfinite(a11) else math.inf
+    return np.array(out), degeneracy, np.array(grad)
 
 
-def _assess(state, poses, z, obs, noise, prior):
-    """Covariance and checks of a solution: ``(covariance, status, messages,
-    whitened residuals, degeneracy)``; raises :class:`_Failure` when the
-    information is singular."""
-    whitened, degeneracy, grad, info = _residuals_and_degeneracy(state, poses, z, obs, noise, prior)
-    if info is None:
-        raise _Failure(Status.NON_FINITE, "Levenberg-Marquardt stopped on an observed node's "
-                       "position, where the measurement model is undefined")
-    cov = _covariance(info)
-    if cov is None:
-        raise _Failure(Status.SINGULAR, "indeterminate linear system at the solution, no covariance "
-                       "(the information matrix is singular)")
+def _assess(state, cov, poses, z, obs, noise, prior):
+    """Check the solution: ``(status, messages, whitened residuals, degeneracy)``."""
     status, messages = Status.OK, ["converged"]
     if not (np.isfinite(cov).all() and (cov.diagonal() > 0.0).all()):
         status, messages = Status.SINGULAR, ["the Laplace covariance is not positive definite"]
+    whitened, degeneracy, grad = _residuals_and_degeneracy(state, poses, z, obs, noise, prior)
     # A stationarity check independent of LM's stopping rule: the squared
     # Newton decrement g^T S g is the cost decrease one more Gauss-Newton
     # step would bring (~1e-15 at convergence; LM can also stop because it
@@ -378,7 +320,7 @@ def _assess(state, poses, z, obs, noise, prior):
             + ("the cross-line velocity rests on the prior" if prior is not None
                else "the ML velocity is unreliable")
         )
-    return cov, status, messages, whitened, degeneracy
+    return status, messages, whitened, degeneracy
 
 
 def _grid(state, cov, poses, z, obs, noise, prior, points, half_width, messages):
@@ -460,14 +402,10 @@ def fuse_frame(
     x0 = _start(poses, z, obs, prior, noise, initial_state)
     graph, values = _build(poses, z, obs, noise, prior, x0, STATE_KEY)
     try:
-        state, iterations, cost = _solve(graph, values, max_iterations)
+        state, cov, iterations, cost = _solve(graph, values, max_iterations)
     except _Failure as failure:
         return _failed(failure, x0, **frame)
-    try:
-        cov, status, messages, whitened, degeneracy = _assess(state, poses, z, obs, noise, prior)
-    except _Failure as failure:
-        failure.state, failure.iterations, failure.cost = state, iterations, cost
-        return _failed(failure, x0, **frame)
+    status, messages, whitened, degeneracy = _assess(state, cov, poses, z, obs, noise, prior)
     grid_cov = None
     if covariance != "laplace":
         grid_cov = (_grid(state, cov, poses, z, obs, noise, prior, grid_points_per_axis,
