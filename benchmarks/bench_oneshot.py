@@ -5,7 +5,7 @@ Two nodes in configuration B, noisy measurements with the paper's sigmas
 4x4 covariance:
 
 - ``fuse_frame``: validation, the initial values of docs/CONVENTIONS.md, GTSAM Levenberg-Marquardt
-  and the Laplace covariance (the whole public call);
+  and ``gtsam.Marginals`` (the whole public call);
 - scipy: ``scipy.optimize.least_squares`` (method "lm", analytic Jacobian from
   :func:`factors.models.measurement_model`, same initial values and tight
   tolerances) plus the covariance ``(J^T J)^{-1}`` from its final Jacobian.
@@ -105,7 +105,7 @@ def main(argv=None) -> int:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"frames: {args.frames} (configuration B, two nodes, seed {args.seed}); "
           f"1-min load average {load:.2f} on {os.cpu_count()} CPUs")
-    print(f"fuse_frame (GTSAM LM + Laplace cov): median {med_g:.4f} ms, p90 {np.percentile(t_gtsam, 90) * 1e3:.4f} ms")
+    print(f"fuse_frame (GTSAM LM + Marginals): median {med_g:.4f} ms, p90 {np.percentile(t_gtsam, 90) * 1e3:.4f} ms")
     print(f"scipy least_squares + J^T J cov  : median {med_s:.4f} ms, p90 {np.percentile(t_scipy, 90) * 1e3:.4f} ms")
     print(f"speed-up (scipy / GTSAM medians) : {med_s / med_g:.2f}x")
     cpu_g, cpu_s = np.median(c_gtsam) * 1e3, np.median(c_scipy) * 1e3

@@ -101,8 +101,8 @@ class FusionResult:
         MAP (or ML) ``(x_m, y_m, vx_mps, vy_mps)`` in the global frame; the
         last iterate when ``success`` is False.
     covariance : (4, 4) float
-        Laplace covariance: the inverse Gauss-Newton information at ``state``
-        (what ``gtsam.Marginals`` returns for the frame's graph); NaN when it could not be computed.
+        Laplace covariance from ``gtsam.Marginals`` (the inverse Gauss-Newton
+        information at ``state``); NaN when it could not be computed.
     success : bool
         True when the optimizer converged and the covariance exists.
     status : Status

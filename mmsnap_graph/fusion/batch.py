@@ -1,7 +1,7 @@
 """Vectorized one-shot fusion of many frames at once (docs/CONVENTIONS.md, "One-shot fusion").
 
 The per-frame GTSAM solve (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`) costs a
-factor graph and an optimizer per frame. This module
+factor graph, an optimizer and a ``Marginals`` object per frame. This module
 solves the same problem, the same negative log posterior (paper eq. 18)
 
 .. math::

@@ -14,10 +14,9 @@ minimizes the negative log posterior (paper eq. 18)
 three measurements (:func:`factors.gtsam_factors.frame_measurement_factor`,
 equivalent to one ``node_measurement_factor`` per node but half the Python
 calls) and a ``PriorFactorVector``; GTSAM's Levenberg-Marquardt solves it from the
-initial values of docs/CONVENTIONS.md; the Laplace covariance is the inverse
-Gauss-Newton information at the solution (what ``gtsam.Marginals`` returns for
-this one-variable graph), from the Jacobians of the assessment pass. The
-paper's grid posterior covariance is an option (:mod:`mmsnap_graph.fusion.grid`).
+initial values of docs/CONVENTIONS.md and ``gtsam.Marginals`` gives the Laplace
+covariance. The paper's grid posterior covariance is an option
+(:mod:`mmsnap_graph.fusion.grid`).
 
 A frame that cannot be solved (an indeterminate system, no convergence, a GTSAM
 exception) gives ``FusionResult.success = False`` with a message; only invalid
@@ -366,7 +365,7 @@ def fuse_frame(
     prior : GaussianPrior or None
         The Gaussian prior (MAP, default the paper's); None for ML.
     covariance : {"laplace", "grid", "both"}
-        ``"laplace"``: the Laplace covariance only. ``"grid"`` / ``"both"``:
+        ``"laplace"``: ``gtsam.Marginals`` only. ``"grid"`` / ``"both"``:
         also the paper's numerical posterior covariance on a 4D grid
         (``result.grid_covariance``); the Laplace covariance is always
         computed, since the grid is laid out along it.
