@@ -431,7 +431,8 @@ def local_client(n_workers: int, *, memory_limit: str | float | None = "auto"):
         raise ValidationError(f"n_workers must be an int >= 1, got {n_workers!r}")
     cluster = LocalCluster(n_workers=int(n_workers), threads_per_worker=1, processes=True,
                            dashboard_address=None, memory_limit=memory_limit,
-                           env=dict(WORKER_ENVIRONMENT), silence_logs=40)
+                           env=dict(WORKER_ENVIRONMENT),
+                           silence_logs=50)  # worker errors reach the summaries; keep the CLI quiet
     try:
         with Client(cluster) as client:
             yield client
