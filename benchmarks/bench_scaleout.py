@@ -8,8 +8,10 @@ Simulates the recordings once (``mmsnap simulate -c B -t random -n FRAMES
 local cluster of single-threaded worker processes, imports the library on
 every worker (start-up, timed apart), and times ``run_many`` on fresh copies
 of the recordings. Prints per worker count the wall time, the sum of the
-per-recording times in the workers, the peak resident memory of each
-worker, and the speed-up of each count over the first. Target: 2 workers at
+per-recording times and CPU times in the workers, the peak resident memory
+of each worker, and the speed-up of each count over the first: measured on
+the wall clock, and from the CPU times (the first count's total CPU over the
+busiest worker's CPU: what idle cores would give, load aside). Target: 2 workers at
 least 1.5x faster than 1 on a 2-core machine.
 
 The machine may be shared: the load average is printed before each run, and
@@ -70,20 +72,26 @@ def run_once(paths: list[Path], workers: int, steps: str, scratch: Path) -> dict
     if failed:
         raise SystemExit(f"{len(failed)} recording(s) failed: {failed[0].error}")
     peak: dict[str, float] = defaultdict(float)
+    cpu: dict[str, float] = defaultdict(float)
     for s in summaries:
         peak[s.worker] = max(peak[s.worker], s.peak_rss_mb)
+        cpu[s.worker] += s.cpu_s
     return {"workers": workers, "load": load, "startup_s": startup, "wall_s": wall,
             "work_s": sum(s.total_s for s in summaries), "peak_mb": dict(peak),
+            "cpu_s": sum(cpu.values()), "busiest_cpu_s": max(cpu.values()),
             "per_recording_s": [s.total_s for s in summaries]}
 
 
 def report(r: dict, base: dict | None) -> None:
     load = ", ".join(f"{v:.2f}" for v in r["load"])
     peaks = " ".join(f"{v:.0f}" for v in sorted(r["peak_mb"].values()))
-    ratio = "" if base is None else f"  speed-up x{base['wall_s'] / r['wall_s']:.2f}"
-    print(f"{r['workers']} worker(s): wall {r['wall_s']:7.1f} s (start-up {r['startup_s']:.1f} s "
-          f"apart), work in workers {r['work_s']:7.1f} s, peak RSS per worker [MiB] {peaks}"
-          f"{ratio}   [load avg before: {load}]")
+    ratio = "" if base is None else (
+        f"\n    speed-up x{base['wall_s'] / r['wall_s']:.2f} (wall); "
+        f"x{base['busiest_cpu_s'] / r['busiest_cpu_s']:.2f} from CPU times (first count's "
+        f"CPU / this count's busiest worker's CPU: the speed-up on idle cores)")
+    print(f"{r['workers']} worker(s): wall {r['wall_s']:6.1f} s (start-up {r['startup_s']:.1f} s "
+          f"apart), in workers {r['work_s']:6.1f} s wall / {r['cpu_s']:6.1f} s CPU, "
+          f"peak RSS per worker [MiB] {peaks}   [load avg before: {load}]{ratio}")
 
 
 def main() -> None:

@@ -105,7 +105,8 @@ class RecordingSummary:
     error : one line, ``"<step>: <ExceptionType>: <message>"`` (None on
     success); detail : the traceback of an unexpected exception.
     durations_s : seconds per completed step; total_s : the whole run in the
-    worker. counts : what the steps produced (``n_nodes``, ``n_points``,
+    worker (wall clock); cpu_s : CPU seconds the worker spent on it.
+    counts : what the steps produced (``n_nodes``, ``n_points``,
     ``n_centroids``, ``n_tracks``; ``n_calibrated``; ``n_fused``,
     ``n_flagged``, ``n_frames``). outputs : every file written.
     worker : ``host:pid`` of the process that ran it; peak_rss_mb : that
@@ -122,6 +123,7 @@ class RecordingSummary:
     outputs: tuple[str, ...] = ()
     durations_s: Mapping[str, float] = field(default_factory=dict)
     total_s: float = 0.0
+    cpu_s: float = 0.0
     counts: Mapping[str, int] = field(default_factory=dict)
     worker: str = ""
     peak_rss_mb: float = float("nan")
@@ -219,7 +221,7 @@ def run_recording(
     """
     steps = _check_steps(steps)
     options = options or {}
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     src = Path(path)
     dst = None if output is None or Path(output) == src else Path(output)
     done: list[str] = []
@@ -251,7 +253,8 @@ def run_recording(
     return RecordingSummary(
         path=str(path), success=error is None, steps=tuple(steps), steps_done=tuple(done),
         error=error, detail=detail, output=wrote[-1] if wrote else None, outputs=tuple(outputs),
-        durations_s=durations, total_s=time.perf_counter() - start, counts=counts,
+        durations_s=durations, total_s=time.perf_counter() - start,
+        cpu_s=time.process_time() - start_cpu, counts=counts,
         worker=f"{socket.gethostname()}:{os.getpid()}", peak_rss_mb=_peak_rss_mb())
 
 
