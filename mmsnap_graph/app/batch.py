@@ -21,7 +21,6 @@ import contextlib
 import importlib
 import inspect
 import os
-import resource
 import socket
 import sys
 import time
@@ -147,6 +146,10 @@ def calibration_json_path(recording: str | os.PathLike) -> Path:
 
 
 def _peak_rss_mb() -> float:
+    try:
+        import resource  # Unix only: imported here so that the module loads elsewhere
+    except ImportError:
+        return float("nan")
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return peak / 2**20 if sys.platform == "darwin" else peak / 2**10  # bytes vs KiB
 

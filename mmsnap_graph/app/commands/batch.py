@@ -17,7 +17,7 @@ import os
 import sys
 from pathlib import Path
 
-from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.errors import MmsnapError, ValidationError
 
 #: Seconds to wait for a ``--scheduler`` before giving up.
 CONNECT_TIMEOUT_S = 10
@@ -91,6 +91,11 @@ def _client(args: argparse.Namespace, n_recordings: int):
     """A context manager yielding the Dask client: the --scheduler's, or a
     local cluster's."""
     from mmsnap_graph.app.batch import local_client
+
+    try:
+        import distributed  # noqa: F401 -- optional extra: mmsnap_graph[dask]
+    except ImportError:
+        raise MmsnapError('mmsnap batch needs Dask: pip install "mmsnap_graph[dask]"') from None
 
     if args.scheduler is None:
         workers = args.workers or min(os.cpu_count() or 1, n_recordings)
