@@ -373,9 +373,9 @@ def run_many(
     output_dir : write each result to ``output_dir/<name>`` (default: update
         the recordings in place, as the commands do).
     options : per step, keyword arguments of the step's library function:
-        ``process`` -> ``process_file`` (``chain``, ``ekf``,
-        ``centroids_only``), ``calibrate`` -> ``calibrate_recording``,
-        ``fuse`` -> ``fuse_recording`` (``mode``, ``solver``, ``noise``...).
+        ``process`` -> ``process_file`` (e.g. ``centroids_only``, ``ekf``),
+        ``calibrate`` -> ``calibrate_recording`` (e.g. ``max_lag_frames``),
+        ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``solver``, ``noise``).
         They are pickled to the workers: plain values and frozen configs.
     blas_threads : BLAS / OpenMP threads per worker (None: leave them).
     progress : a tqdm bar over recordings on stderr; on_result : called
