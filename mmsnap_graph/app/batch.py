@@ -309,7 +309,7 @@ def _check_paths(paths, output_dir) -> tuple[list[str], list[str | None]]:
         raise ValidationError("paths is empty: no recording to run")
     seen: set[str] = set()
     for p in paths:
-        key = os.path.abspath(p)
+        key = os.path.realpath(p)
         if key in seen:
             raise ValidationError(f"recording {p!r} is listed twice")
         seen.add(key)

@@ -65,7 +65,7 @@ def expand_patterns(patterns: list[str]) -> list[str]:
         if not hits:
             raise ValidationError(f"no recording matches {pattern!r}")
         for h in sorted(hits):
-            found.setdefault(os.path.abspath(h), h)
+            found.setdefault(os.path.realpath(h), h)
     return list(found.values())
 
 
