@@ -46,6 +46,7 @@ from factors.gtsam_factors import (
     state_prior_factor,
 )
 from factors.models import measurement_model, residual
+from factors.robust import ROBUST_K_DEFAULT
 
 from ..errors import CalibrationError, ValidationError
 from ..data.noise import MeasurementNoise
@@ -59,8 +60,9 @@ from .robust_start import starting_poses, starting_states
 __all__ = ["DEFAULT_ROBUST_K", "JointCalibration", "joint_calibration"]
 
 #: Default width of the robust kernels on the whitened 3-vector norm (GTSAM's
-#: mEstimator ``k``): Huber 1.345, Cauchy 2.5.
-DEFAULT_ROBUST_K = {"huber": 1.345, "cauchy": 2.5}
+#: mEstimator ``k``): Huber 1.345, Cauchy 2.5; the project's one table,
+#: :data:`factors.robust.ROBUST_K_DEFAULT`.
+DEFAULT_ROBUST_K = ROBUST_K_DEFAULT
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -30,6 +30,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from factors.models import measurement_model, measurement_model_pose, residual
+from factors.motion import cv_process_noise_continuous
 
 from .poses import pose_array, to_pose2
 
@@ -57,12 +58,7 @@ def robust_cost(norm: NDArray, robust: str | None, k: float) -> float:
 def cv_information(dt_s: float, sigma_a_mps2: float) -> NDArray:
     """(4, 4) information matrix of ``factors.constant_velocity_factor`` (its
     continuous white-noise acceleration covariance, inverted)."""
-    t = float(dt_s)
-    q1 = sigma_a_mps2**2 * t * np.array([[t**3 / 3, t**2 / 2], [t**2 / 2, t]])
-    cov = np.zeros((4, 4))
-    cov[np.ix_([0, 2], [0, 2])] = q1
-    cov[np.ix_([1, 3], [1, 3])] = q1
-    return np.linalg.inv(cov)
+    return np.linalg.inv(cv_process_noise_continuous(dt_s, sigma_a_mps2))
 
 
 class _Problem:

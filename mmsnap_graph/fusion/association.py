@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
-from factors.models import detection_to_global
+from factors.models import detection_covariance_global, detection_to_global
 
 from ..errors import ValidationError
 from .._validation import as_float_array, check_finite
@@ -38,9 +38,6 @@ __all__ = [
     "gate_threshold",
 ]
 
-# The cross-range Jacobian has 1 / cos(theta); near end-fire it blows up. The
-# floor keeps the covariance finite (cos(theta) >= 0.05, |theta| <= 87 deg).
-_MIN_COS = 0.05
 # Cost of a forbidden pair in the assignment (beyond any gated cost).
 _FORBIDDEN = 1e12
 
@@ -62,25 +59,14 @@ def detection_position_covariance(
     First-order propagation of the range and spatial-frequency noise through
     ``p = p_i + R(phi_i) (R s, R sqrt(1 - s^2))``, ``s = Omega / pi``:
     ``d p_local / d R = (s, c)``, ``d p_local / d Omega = (R / pi) (1, -s / c)``
-    with ``c = sqrt(1 - s^2)`` floored at 0.05 near end-fire.
+    with ``c = sqrt(1 - s^2)`` floored at ``factors.models.DETECTION_MIN_COS``
+    near end-fire (:func:`factors.models.detection_covariance_global`, with the
+    sigmas of ``noise``).
 
     range_m, omega_rad : (...,); node_pose : (..., 3) or (3,);
     noise : the measurement sigmas (range and spatial frequency are used). No validation.
     """
-    rng = np.asarray(range_m, dtype=float)
-    s = np.clip(np.asarray(omega_rad, dtype=float) / np.pi, -1.0, 1.0)
-    c = np.maximum(np.sqrt(1.0 - s**2), _MIN_COS)
-    sig = (noise.range_m, noise.omega_rad)
-    pose = np.asarray(node_pose, dtype=float)
-    j_r = np.stack([s, c], axis=-1)
-    j_w = (rng / np.pi)[..., None] * np.stack([np.ones_like(s), -s / c], axis=-1)
-    cov_local = (
-        sig[0] ** 2 * j_r[..., :, None] * j_r[..., None, :]
-        + sig[1] ** 2 * j_w[..., :, None] * j_w[..., None, :]
-    )
-    cp, sp = np.cos(pose[..., 2]), np.sin(pose[..., 2])
-    rot = np.stack([np.stack([cp, -sp], axis=-1), np.stack([sp, cp], axis=-1)], axis=-2)
-    return rot @ cov_local @ np.swapaxes(rot, -1, -2)
+    return detection_covariance_global(range_m, omega_rad, node_pose, noise.range_m, noise.omega_rad)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.models import MEASUREMENT_NAMES, detection_to_global
+from factors.models import MEASUREMENT_NAMES, detection_to_global, detection_to_local_scalar
 
 from ..errors import GeometryError, ValidationError
 from .._validation import as_float_array, check_finite, frozen_vector
@@ -292,9 +292,7 @@ def frame_initial_state(
     for i in nodes:
         px, py, phi = pl[i]
         rng_m, omega = zl[i][0], zl[i][1]
-        st = min(max(omega / math.pi, -1.0), 1.0)
-        u = rng_m * st
-        v = rng_m * math.sqrt(1.0 - st * st)
+        u, v = detection_to_local_scalar(rng_m, omega)
         c, s = math.cos(phi), math.sin(phi)
         sx += px + u * c - v * s
         sy += py + u * s + v * c
