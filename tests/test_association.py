@@ -8,19 +8,17 @@ from mmsnap_graph.fusion.association import associate_frame, detection_position_
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 
-SIGMAS = np.array([0.035, np.pi / 4, 0.1807])
-NOISE = MeasurementNoise()  # the same sigmas
-POSES = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])
+from _shared import PAPER_NOISE, PAPER_SIGMAS, POSES_A, POSES_B, POSES_BC
 
 
-def _measure(states, pose, rng, sigmas=SIGMAS):
+def _measure(states, pose, rng, sigmas=PAPER_SIGMAS):
     h, _ = measurement_model(np.asarray(states, float), pose)
     z = h + rng.standard_normal(h.shape) * sigmas
     z[:, 1] = np.clip(z[:, 1], -np.pi, np.pi)
     return z
 
 
-@pytest.mark.parametrize("pose", [[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2], [4.0, 0.0, np.pi / 6]])
+@pytest.mark.parametrize("pose", [POSES_B[0], POSES_B[1], POSES_A[1]])
 def test_position_covariance_is_the_propagated_noise(pose):
     """J diag(sigma^2) J^T with J the numerical Jacobian of detection_to_global."""
     pose = np.asarray(pose)
@@ -30,13 +28,13 @@ def test_position_covariance_is_the_propagated_noise(pose):
         (detection_to_global(rng_m + eps, omega, pose) - detection_to_global(rng_m - eps, omega, pose)) / (2 * eps),
         (detection_to_global(rng_m, omega + eps, pose) - detection_to_global(rng_m, omega - eps, pose)) / (2 * eps),
     ])
-    expected = j @ np.diag(SIGMAS[:2] ** 2) @ j.T
-    np.testing.assert_allclose(detection_position_covariance(rng_m, omega, pose, NOISE), expected,
+    expected = j @ np.diag(PAPER_SIGMAS[:2] ** 2) @ j.T
+    np.testing.assert_allclose(detection_position_covariance(rng_m, omega, pose, PAPER_NOISE), expected,
                                rtol=1e-7)
 
 
 def test_position_covariance_stays_finite_at_end_fire():
-    cov = detection_position_covariance(3.0, np.pi, POSES[0], NOISE)
+    cov = detection_position_covariance(3.0, np.pi, POSES_B[0], PAPER_NOISE)
     assert np.all(np.isfinite(cov)) and np.linalg.eigvalsh(cov).min() > 0
 
 
@@ -48,9 +46,9 @@ def test_two_targets_are_paired_across_nodes_in_any_order():
     noise = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
     n_ok = 0
     for trial in range(50):
-        z1 = _measure(targets, POSES[0], rng, sig)
-        z2 = _measure(targets[::-1], POSES[1], rng, sig)  # S2 lists them in reverse
-        a = associate_frame([z1, z2], POSES, noise)
+        z1 = _measure(targets, POSES_B[0], rng, sig)
+        z2 = _measure(targets[::-1], POSES_B[1], rng, sig)  # S2 lists them in reverse
+        a = associate_frame([z1, z2], POSES_B, noise)
         assert len(a) == 2
         n_ok += a.members.tolist() == [[0, 1], [1, 0]]
     assert n_ok == 50
@@ -59,10 +57,10 @@ def test_two_targets_are_paired_across_nodes_in_any_order():
 def test_group_position_is_the_information_weighted_mean():
     rng = np.random.default_rng(1)
     target = np.array([[0.5, 4.0, 0.0, 0.0]])
-    z = [_measure(target, POSES[n], rng) for n in range(2)]
-    a = associate_frame(z, POSES, NOISE)
-    p = [detection_to_global(z[n][0, 0], z[n][0, 1], POSES[n]) for n in range(2)]
-    c = [detection_position_covariance(z[n][0, 0], z[n][0, 1], POSES[n], NOISE) for n in range(2)]
+    z = [_measure(target, POSES_B[n], rng) for n in range(2)]
+    a = associate_frame(z, POSES_B, PAPER_NOISE)
+    p = [detection_to_global(z[n][0, 0], z[n][0, 1], POSES_B[n]) for n in range(2)]
+    c = [detection_position_covariance(z[n][0, 0], z[n][0, 1], POSES_B[n], PAPER_NOISE) for n in range(2)]
     info = np.linalg.inv(c[0]) + np.linalg.inv(c[1])
     mean = np.linalg.solve(info, np.linalg.solve(c[0], p[0]) + np.linalg.solve(c[1], p[1]))
     np.testing.assert_allclose(a.position_m[0], mean, atol=1e-12)
@@ -75,33 +73,33 @@ def test_detections_outside_the_gate_start_their_own_groups():
     rng = np.random.default_rng(2)
     sig = np.array([0.035, 0.05, 0.18])
     noise = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
-    z1 = _measure([[0.5, 4.0, 0, 0]], POSES[0], rng, sig)
-    z2 = _measure([[3.5, 1.5, 0, 0]], POSES[1], rng, sig)  # 3.9 m away
-    a = associate_frame([z1, z2], POSES, noise)
+    z1 = _measure([[0.5, 4.0, 0, 0]], POSES_B[0], rng, sig)
+    z2 = _measure([[3.5, 1.5, 0, 0]], POSES_B[1], rng, sig)  # 3.9 m away
+    a = associate_frame([z1, z2], POSES_B, noise)
     assert a.members.tolist() == [[0, -1], [-1, 0]]
     # With the paper's pi / 4 angle sigma (about 1 m across range at 4 m) the
     # same pair falls inside a 99.9 % gate: the gate follows the noise.
-    z1 = _measure([[0.5, 4.0, 0, 0]], POSES[0], rng, SIGMAS * [1, 0, 1])
-    z2 = _measure([[1.5, 3.5, 0, 0]], POSES[1], rng, SIGMAS * [1, 0, 1])
-    assert associate_frame([z1, z2], POSES, NOISE).members.tolist() == [[0, 0]]
+    z1 = _measure([[0.5, 4.0, 0, 0]], POSES_B[0], rng, PAPER_SIGMAS * [1, 0, 1])
+    z2 = _measure([[1.5, 3.5, 0, 0]], POSES_B[1], rng, PAPER_SIGMAS * [1, 0, 1])
+    assert associate_frame([z1, z2], POSES_B, PAPER_NOISE).members.tolist() == [[0, 0]]
 
 
 def test_a_target_only_one_node_sees_and_empty_nodes():
     rng = np.random.default_rng(3)
     targets = np.array([[0.5, 4.0, 0, 0], [-1.5, 2.0, 0, 0]])
-    z1 = _measure(targets, POSES[0], rng)
-    z2 = _measure(targets[:1], POSES[1], rng)
-    a = associate_frame([z1, z2], POSES, NOISE)
+    z1 = _measure(targets, POSES_B[0], rng)
+    z2 = _measure(targets[:1], POSES_B[1], rng)
+    a = associate_frame([z1, z2], POSES_B, PAPER_NOISE)
     assert sorted(map(tuple, a.members.tolist())) == [(0, 0), (1, -1)]
-    a = associate_frame([np.zeros((0, 3)), z2], POSES, NOISE)
+    a = associate_frame([np.zeros((0, 3)), z2], POSES_B, PAPER_NOISE)
     assert a.members.tolist() == [[-1, 0]]
-    a = associate_frame([np.zeros((0, 3)), np.zeros((0, 3))], POSES, NOISE)
+    a = associate_frame([np.zeros((0, 3)), np.zeros((0, 3))], POSES_B, PAPER_NOISE)
     assert len(a) == 0 and a.members.shape == (0, 2)
 
 
 def test_three_nodes_build_one_group_per_target():
     rng = np.random.default_rng(4)
-    poses = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2], [0.0, 7.0, np.pi]])
+    poses = POSES_BC
     targets = np.array([[0.5, 3.5, 0, 0], [2.5, 2.0, 0, 0]])
     sig = np.array([0.035, 0.05, 0.18])
     noise = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
@@ -117,12 +115,12 @@ def test_gate_threshold_is_chi_square_two_dof():
 @pytest.mark.parametrize(
     "args, kwargs, match",
     [
-        (([np.zeros((0, 3))], POSES, NOISE), {}, "measurements has 1 nodes but node_poses has 2"),
-        (([np.zeros((0, 3))] * 2, np.zeros((2, 2)), NOISE), {}, r"node_poses must have shape \(N, 3\)"),
-        (([np.zeros((0, 3))] * 2, POSES, [1.0, 1.0, 1.0]), {}, "noise must be a MeasurementNoise, got list"),
-        (([np.zeros((1, 2))] * 2, POSES, NOISE), {}, r"measurements\[0\] must have shape \(K, 3\)"),
-        (([np.full((1, 3), np.nan)] * 2, POSES, NOISE), {}, r"measurements\[0\] must be finite"),
-        (([np.zeros((0, 3))] * 2, POSES, NOISE), dict(gate_probability=1.0), "gate_probability must be in"),
+        (([np.zeros((0, 3))], POSES_B, PAPER_NOISE), {}, "measurements has 1 nodes but node_poses has 2"),
+        (([np.zeros((0, 3))] * 2, np.zeros((2, 2)), PAPER_NOISE), {}, r"node_poses must have shape \(N, 3\)"),
+        (([np.zeros((0, 3))] * 2, POSES_B, [1.0, 1.0, 1.0]), {}, "noise must be a MeasurementNoise, got list"),
+        (([np.zeros((1, 2))] * 2, POSES_B, PAPER_NOISE), {}, r"measurements\[0\] must have shape \(K, 3\)"),
+        (([np.full((1, 3), np.nan)] * 2, POSES_B, PAPER_NOISE), {}, r"measurements\[0\] must be finite"),
+        (([np.zeros((0, 3))] * 2, POSES_B, PAPER_NOISE), dict(gate_probability=1.0), "gate_probability must be in"),
     ],
 )
 def test_invalid_input_raises(args, kwargs, match):

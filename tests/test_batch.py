@@ -4,19 +4,17 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model, residual
-from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
+from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.fusion import batch, oneshot, problem
 from mmsnap_graph.errors import ValidationError
 
-NOISE = MeasurementNoise()
-PRIOR = GaussianPrior()
-# Configuration B of the brief: orthogonal lines of sight around (0.5, 4.5).
-POSES_B = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])
-POSES_C = np.array([[0.0, 0.0, 0.0], [0.0, 7.0, np.pi]])
+from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_B, POSES_C
+
+# Configuration B: orthogonal lines of sight around (0.5, 4.5).
 
 
-def _frames(rng, n, poses, centre=(0.5, 4.0), spread=1.0, p_miss=0.1, noise=NOISE):
+def _frames(rng, n, poses, centre=(0.5, 4.0), spread=1.0, p_miss=0.1, noise=PAPER_NOISE):
     truth = np.column_stack([
         centre[0] + rng.uniform(-spread, spread, n),
         centre[1] + rng.uniform(-spread, spread, n),
@@ -63,14 +61,14 @@ def test_cholesky4_flags_singular_and_indefinite():
 # agreement with oneshot.fuse_frame
 
 
-@pytest.mark.parametrize("prior", [PRIOR, None], ids=["map", "ml"])
+@pytest.mark.parametrize("prior", [PAPER_PRIOR, None], ids=["map", "ml"])
 def test_batch_agrees_with_gtsam_frame_by_frame(prior):
     rng = np.random.default_rng(2)
     _, z, obs = _frames(rng, 120, POSES_B, p_miss=0.15)
     obs[:3] = [[True, False], [False, True], [False, False]]
-    res = batch.fuse_batch(POSES_B, z, observed=obs, noise=NOISE, prior=prior)
+    res = batch.fuse_batch(POSES_B, z, observed=obs, noise=PAPER_NOISE, prior=prior)
     for f in range(len(z)):
-        ref = oneshot.fuse_frame(POSES_B, z[f], observed=obs[f], noise=NOISE, prior=prior)
+        ref = oneshot.fuse_frame(POSES_B, z[f], observed=obs[f], noise=PAPER_NOISE, prior=prior)
         assert res.success[f] == ref.success, (f, ref.message, res.message(f))
         if not ref.success:
             continue
@@ -85,8 +83,8 @@ def test_batch_agrees_with_gtsam_frame_by_frame(prior):
         assert res.status[2] == Status.NO_INFORMATION and np.isnan(res.final_cost[2])
     else:
         # MAP without any measurement: the prior itself.
-        np.testing.assert_allclose(res.state[2], PRIOR.mean, atol=1e-12)
-        np.testing.assert_allclose(res.covariance[2], np.diag(PRIOR.sigmas**2), atol=1e-12)
+        np.testing.assert_allclose(res.state[2], PAPER_PRIOR.mean, atol=1e-12)
+        np.testing.assert_allclose(res.covariance[2], np.diag(PAPER_PRIOR.sigmas**2), atol=1e-12)
 
 
 def test_near_degenerate_frames_reach_at_least_gtsams_minimum():
@@ -95,11 +93,11 @@ def test_near_degenerate_frames_reach_at_least_gtsams_minimum():
     Newton polish reaches the same minimum or a lower cost."""
     rng = np.random.default_rng(3)
     _, z, obs = _frames(rng, 40, POSES_C, centre=(0.0, 3.5), spread=0.3, p_miss=0.0)
-    res = batch.fuse_batch(POSES_C, z, observed=obs, noise=NOISE, prior=PRIOR)
+    res = batch.fuse_batch(POSES_C, z, observed=obs, noise=PAPER_NOISE, prior=PAPER_PRIOR)
     assert res.success.all()
     assert np.all(res.degeneracy > 20)
     for f in range(len(z)):
-        ref = oneshot.fuse_frame(POSES_C, z[f], noise=NOISE, prior=PRIOR, max_iterations=2000)
+        ref = oneshot.fuse_frame(POSES_C, z[f], noise=PAPER_NOISE, prior=PAPER_PRIOR, max_iterations=2000)
         assert ref.success
         assert res.final_cost[f] <= ref.final_cost + 1e-12 * max(1.0, ref.final_cost)
         np.testing.assert_allclose(res.state[f], ref.state, atol=1e-4)
@@ -110,7 +108,7 @@ def test_default_initial_state_is_oneshots():
     _, z, obs = _frames(rng, 20, POSES_B)
     res = batch.fuse_batch(POSES_B, z, observed=obs)
     np.testing.assert_array_equal(
-        res.initial_state, problem.initial_states(POSES_B, z, observed=obs, prior=PRIOR, noise=NOISE))
+        res.initial_state, problem.initial_states(POSES_B, z, observed=obs, prior=PAPER_PRIOR, noise=PAPER_NOISE))
 
 
 def test_chunking_and_per_frame_poses_do_not_change_results():
@@ -141,7 +139,7 @@ def test_residual_curvature_matches_finite_difference_hessian():
     _, z, _ = _frames(rng, 5, POSES_B, p_miss=0.0)
     x = problem.initial_states(POSES_B, z, prior=None)
     w = np.ones((5, 2))
-    inv = 1.0 / NOISE.sigmas
+    inv = 1.0 / PAPER_NOISE.sigmas
     aug, _ = batch._evaluate(x, POSES_B, z, w, inv, None, None)
     info, _ = batch._normal_equations(x, aug, None, None)
     full = info + batch._residual_curvature(x, POSES_B, z, w, inv, aug)
@@ -164,10 +162,10 @@ def test_whitened_residuals_and_cost_at_the_solution():
     _, z, obs = _frames(rng, 30, POSES_B)
     res = batch.fuse_batch(POSES_B, z, observed=obs)
     h, _ = measurement_model(res.state[:, None, :], POSES_B)
-    r = residual(h, z) / NOISE.sigmas
+    r = residual(h, z) / PAPER_NOISE.sigmas
     np.testing.assert_allclose(res.whitened_residuals[obs], r[obs], atol=1e-12)
     assert np.isnan(res.whitened_residuals[~obs]).all()
-    prior_term = 0.5 * np.sum(((res.state - PRIOR.mean) / PRIOR.sigmas) ** 2, axis=1)
+    prior_term = 0.5 * np.sum(((res.state - PAPER_PRIOR.mean) / PAPER_PRIOR.sigmas) ** 2, axis=1)
     expected = 0.5 * np.nansum(res.whitened_residuals**2, axis=(1, 2)) + prior_term
     np.testing.assert_allclose(res.final_cost, expected, rtol=1e-12)
 
@@ -197,7 +195,7 @@ def test_flags_max_iterations_and_non_finite():
     res = batch.fuse_batch(POSES_B, z, max_iterations=1)
     assert np.all(res.status == 1) and not res.success.any()
     assert res.message(0) == "maximum number of iterations reached"
-    x0 = problem.initial_states(POSES_B, z, prior=PRIOR)
+    x0 = problem.initial_states(POSES_B, z, prior=PAPER_PRIOR)
     x0[3, :2] = POSES_B[1, :2]  # on a node: the model is undefined
     res = batch.fuse_batch(POSES_B, z, initial_state=x0)
     assert res.status[3] == 3 and not res.success[3]

@@ -86,7 +86,7 @@ def test_residual_covariance_is_consistent_for_isotropic_noise():
     """Monte Carlo, 300 trials: mean NEES of a 3-dof pose ~ chi2(3)/300, whose
     standard deviation is sqrt(6/300) = 0.14; accept 3 +- 0.45 (3 sigma)."""
     rng = np.random.default_rng(5)
-    pose_b = np.array([0.0, 7.0, np.pi])
+    pose_b = PAPER_CONFIGURATIONS["C"]["S2"]
     nees = []
     for _ in range(300):
         pts = rng.uniform([-2, 2], [2, 5], size=(60, 2))
@@ -193,7 +193,7 @@ def test_robust_start_survives_forty_percent_gross_outliers():
     from mmsnap_graph.calibration import trimmed_closed_form
 
     rng = np.random.default_rng(14)
-    pose_b = np.array([4.0, 0.0, np.pi / 6])
+    pose_b = PAPER_CONFIGURATIONS["A"]["S2"]
     pts = rng.uniform([0, 3], [4, 7], size=(200, 2))
     za = pts + rng.normal(size=pts.shape) * 0.05
     zb = global_to_local(pts, pose_b) + rng.normal(size=pts.shape) * 0.05

@@ -20,12 +20,11 @@ from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import CalibrationError
 from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.data.recording import NodeData, Recording, Tracks
-from mmsnap_graph.sim import simulate_recording
 
 
-@pytest.fixture(scope="module")
-def rec_c():
-    return simulate_recording("C", "random", levels=["centroids"], n_frames=300, seed=3)
+@pytest.fixture
+def rec_c(recording_c_random):
+    return recording_c_random
 
 
 def _shift(rec, name, lag):

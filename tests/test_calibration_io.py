@@ -23,6 +23,8 @@ from mmsnap_graph.io.calibration import (
 )
 from mmsnap_graph.sim import simulate_recording
 
+from _shared import POSES_A, POSES_C
+
 
 def _calibration() -> RecordingCalibration:
     """Three nodes, S3 unreachable; a NaN RMSE and an inf in a covariance."""
@@ -63,7 +65,7 @@ def _assert_same(back: RecordingCalibration, cal: RecordingCalibration) -> None:
 
 @pytest.fixture(scope="module")
 def rec3():
-    return simulate_recording({"S1": [0, 0, 0], "S2": [0, 7, np.pi], "S3": [4, 0, np.pi / 6]},
+    return simulate_recording({"S1": POSES_C[0], "S2": POSES_C[1], "S3": POSES_A[1]},
                               "random", levels=["centroids"], n_frames=30, seed=1)
 
 

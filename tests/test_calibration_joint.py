@@ -163,8 +163,7 @@ def test_ghost_frames_under_paper_noise():
 
 
 def test_three_nodes():
-    poses = {"S1": np.zeros(3), "S2": np.array([5.0, 5.0, np.pi / 2]),
-             "S3": np.array([4.0, 0.0, np.pi / 6])}
+    poses = {**PAPER_CONFIGURATIONS["B"], "S3": PAPER_CONFIGURATIONS["A"]["S2"]}
     rng = np.random.default_rng(8)
     scene = synthetic_scene(poses, center_m=np.array([1.5, 3.5]), n_frames=200, extent_m=1.0,
                             noise=MODERATE_NOISE, rng=rng)

@@ -167,7 +167,7 @@ def test_a_lag_the_data_cannot_show_is_not_reported():
     """A slow target (~3 cm per frame) in ~11 cm track noise: some lag +-1
     happens to give a slightly lower RMSE than 0 (by noise); the 5% rule
     keeps lag 0."""
-    poses = {"S1": np.zeros(3), "S2": np.array([5.0, 5.0, np.pi / 2])}
+    poses = PAPER_CONFIGURATIONS["B"]
     rng = np.random.default_rng(4)  # a seed where some lag +-1 wins by noise (4 in 30 do)
     scene = synthetic_scene(poses, center_m=np.array([1.5, 3.5]), n_frames=300,
                             noise=TRACK_NOISE, extent_m=1.0, rng=rng)

@@ -19,12 +19,10 @@ from mmsnap_graph.sim.scenes import synthetic_scene
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 
-TRUE_POSES = {
-    "S1": np.zeros(3),
-    "S2": np.array([5.0, 5.0, np.pi / 2]),
-    "S3": np.array([0.0, 7.0, np.pi]),
-    "S4": np.array([4.0, 0.0, np.pi / 6]),
-}
+from _shared import NETWORK_BCA
+
+#: S1 and the S2 of configurations B, C and A.
+TRUE_POSES = NETWORK_BCA
 
 
 def _edge(a, b, cov, rng, poses=TRUE_POSES, lag=0):

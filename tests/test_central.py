@@ -17,10 +17,11 @@ from mmsnap_graph.tracking.central import (
     track_fused,
 )
 
+from _shared import POSES_B, POSES_C
+
 T = 0.15
 SIGMA_A = 0.2
-POSES = {"B": np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]]),
-         "C": np.array([[0.0, 0.0, 0.0], [0.0, 7.0, np.pi]])}
+POSES = {"B": POSES_B, "C": POSES_C}
 
 
 def _cv_trajectory(rng, n, start, box_m, sigma_a=SIGMA_A):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mmsnap_graph.errors import ConfigurationError, ValidationError
-from mmsnap_graph.data.radar_config import TABLE_I, RadarConfig
+from mmsnap_graph.data.radar_config import TABLE_I
 from mmsnap_graph.sim.cube import (
     post_fft_snr_db,
     scatterer_amplitude,
@@ -13,8 +13,7 @@ from mmsnap_graph.sim.cube import (
     synthesize_cubes,
 )
 
-SMALL = RadarConfig(n_samples=256, n_loops=128, tx_azimuth_half_wl=(0.0, 4.0),
-                    tx_elevation_half_wl=(0.0, 0.0), frame_period_s=0.1)
+from _shared import SMALL_RADAR
 
 
 def _single(config, p, v, amp=1.0):
@@ -22,7 +21,7 @@ def _single(config, p, v, amp=1.0):
                            rng=np.random.default_rng(0), noise_std=0.0)
 
 
-@pytest.mark.parametrize("config", [TABLE_I, SMALL], ids=["table1", "256x128x2tx"])
+@pytest.mark.parametrize("config", [TABLE_I, SMALL_RADAR], ids=["table1", "256x128x2tx"])
 def test_single_scatterer_phases(config):
     p = np.array([1.5, 4.0])
     v = np.array([0.3, -0.8])
@@ -95,7 +94,7 @@ def test_noise_variance_and_post_fft_snr():
 
 
 def test_clutter_is_static_and_identical_between_frames():
-    config = SMALL
+    config = SMALL_RADAR
     clutter = (np.array([[1.0, 3.0], [-2.0, 7.0]]), np.array([2.0, 1.0 + 1.0j]))
     cubes = synthesize_cubes(config, [np.zeros((0, 2))] * 2, [np.zeros((0, 2))] * 2,
                              [np.zeros(0)] * 2, rng=np.random.default_rng(0), noise_std=0.0,
@@ -109,7 +108,7 @@ def test_clutter_is_static_and_identical_between_frames():
 
 
 def test_batch_matches_single_and_accepts_arrays():
-    config = SMALL
+    config = SMALL_RADAR
     rng = np.random.default_rng(3)
     pos = rng.uniform([-3, 1], [3, 8], (4, 5, 2))
     vel = rng.normal(0, 1, (4, 5, 2))
@@ -162,10 +161,10 @@ def test_errors():
     with pytest.raises(ValidationError, match="must cover the same frames"):
         synthesize_cubes(c, [np.ones((1, 2))], [], [np.ones(1)], rng=rng)
     with pytest.raises(ValidationError, match="frame 1: positions_local_m"):
-        synthesize_cubes(SMALL, [np.ones((1, 2)), np.ones((1, 3))], [np.zeros((1, 2))] * 2,
+        synthesize_cubes(SMALL_RADAR, [np.ones((1, 2)), np.ones((1, 3))], [np.zeros((1, 2))] * 2,
                          [np.ones(1)] * 2, rng=rng)
     with pytest.raises(ValidationError, match="out must be complex64"):
-        synthesize_cubes(SMALL, [np.ones((1, 2))], [np.zeros((1, 2))], [np.ones(1)], rng=rng,
+        synthesize_cubes(SMALL_RADAR, [np.ones((1, 2))], [np.zeros((1, 2))], [np.ones(1)], rng=rng,
                          out=np.zeros((1, 2, 3), np.complex64))
     with pytest.raises(ValidationError, match="rcs_m2 must be >= 0"):
         scatterer_amplitude(c, -1.0, 5.0)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,7 +28,7 @@ from mmsnap_graph.app.report import (
     table_iii_truth,
 )
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+from _shared import DATA
 
 
 @pytest.fixture(scope="module")

@@ -123,8 +123,8 @@ def test_evaluate_recording_with_a_wrong_calibration(processed):
     assert m["tracks"]["S2"]["position_rmse_m"] > right["tracks"]["S2"]["position_rmse_m"]
 
 
-def test_evaluate_recording_notes_what_is_missing():
-    rec = simulate_recording("C", "straight", levels=("centroids",), n_frames=20, seed=0)
+def test_evaluate_recording_notes_what_is_missing(recording_c_straight):
+    rec = recording_c_straight
     node = dataclasses.replace(rec.nodes["S2"], tracks=Tracks(
         frame=[0], track_id=[0], state=[[0, 3, 0, 0]], covariance=np.eye(4)[None]))
     m = evaluate_recording(rec.with_node(node))
@@ -153,10 +153,10 @@ def test_evaluate_command_table_and_json(processed, capsys, tmp_path):
     assert data["poses"]["S2"]["position_error_m"] == pytest.approx(0.1)
 
 
-def test_evaluate_command_errors(tmp_path, capsys):
+def test_evaluate_command_errors(tmp_path, capsys, recording_c_straight):
     assert main(["evaluate", str(tmp_path / "missing.h5")]) == 2
     assert "missing.h5" in capsys.readouterr().err
-    rec = simulate_recording("C", "straight", levels=("centroids",), n_frames=10, seed=0)
+    rec = recording_c_straight
     path = tmp_path / "no_truth.h5"
     write_recording(path, dataclasses.replace(rec, truth=None))
     assert main(["evaluate", str(path)]) == 2

@@ -28,8 +28,9 @@ from factors.gtsam_factors import (
     state_prior_factor,
 )
 
+from _shared import PAPER_SIGMAS
+
 N_CONFIGS = 40
-SIGMAS = np.array([0.035, np.pi / 4, 0.1807])
 
 
 def random_config(rng):
@@ -177,7 +178,7 @@ def test_omega_residual_wraps_near_pi():
     assert np.pi - h[1] < 0.1
     z = np.array([h[0], models.wrap_angle(h[1] + 2 * eps), h[2]])
     assert z[1] < 0  # the measurement wrapped to the other end of (-pi, pi]
-    noise = measurement_noise(SIGMAS)
+    noise = measurement_noise(PAPER_SIGMAS)
     values = gtsam.Values()
     values.insert(0, state)
     for factor in (
@@ -331,14 +332,14 @@ def check_linearize(factor, values, keys, rtol=1e-6, atol=1e-6):
 
 def noisy_measurement(rng, pose, state):
     h, _ = models.measurement_model(state, pose)
-    z = h + rng.normal(size=3) * SIGMAS * 0.3
+    z = h + rng.normal(size=3) * PAPER_SIGMAS * 0.3
     z[1] = models.wrap_angle(z[1])
     return z
 
 
 def test_node_measurement_factor_linearize():
     rng = np.random.default_rng(8)
-    noise = measurement_noise(SIGMAS)
+    noise = measurement_noise(PAPER_SIGMAS)
     for pose, state in configs(9, 25):
         values = gtsam.Values()
         values.insert(3, state)
@@ -350,7 +351,7 @@ def test_node_measurement_factor_linearize():
 )
 def test_node_measurement_factor_subsets_linearize(components):
     rng = np.random.default_rng(10)
-    noise = measurement_noise(SIGMAS[[models.MEASUREMENT_NAMES.index(
+    noise = measurement_noise(PAPER_SIGMAS[[models.MEASUREMENT_NAMES.index(
         {"range": "range_m", "omega": "omega_rad", "doppler": "doppler_mps"}[c]) for c in components]])
     for pose, state in configs(11, 10):
         z = noisy_measurement(rng, pose, state)
@@ -358,7 +359,7 @@ def test_node_measurement_factor_subsets_linearize(components):
         values.insert(0, state)
         factor = node_measurement_factor(0, pose, z, noise, components)
         check_linearize(factor, values, [0])
-        full = node_measurement_factor(0, pose, z, measurement_noise(SIGMAS))
+        full = node_measurement_factor(0, pose, z, measurement_noise(PAPER_SIGMAS))
         rows = [("range", "omega", "doppler").index(c) for c in components]
         assert_allclose(factor.unwhitenedError(values), full.unwhitenedError(values)[rows], atol=1e-15)
 
@@ -371,7 +372,7 @@ def test_scalar_measurement_factor_linearize(component):
         z = noisy_measurement(rng, pose, state)
         values = gtsam.Values()
         values.insert(0, state)
-        factor = scalar_measurement_factor(0, pose, component, z[idx], SIGMAS[idx])
+        factor = scalar_measurement_factor(0, pose, component, z[idx], PAPER_SIGMAS[idx])
         check_linearize(factor, values, [0])
         h, _ = models.measurement_model(state, pose)
         assert_allclose(factor.unwhitenedError(values), [models.residual(h, z)[idx]], atol=1e-12)
@@ -381,8 +382,8 @@ def test_frame_measurement_factor_linearize_and_equivalence():
     """The one-factor-per-frame form equals one node factor per node."""
     rng = np.random.default_rng(14)
     for n_nodes in (1, 2, 3):
-        noise_frame = measurement_noise(np.tile(SIGMAS, n_nodes))
-        noise_node = measurement_noise(SIGMAS)
+        noise_frame = measurement_noise(np.tile(PAPER_SIGMAS, n_nodes))
+        noise_node = measurement_noise(PAPER_SIGMAS)
         for _ in range(8):
             state = np.array([rng.uniform(-1, 1), rng.uniform(3, 6), *rng.normal(0, 1, 2)])
             poses = np.array(
@@ -410,7 +411,7 @@ def test_frame_measurement_factor_rejects_mismatched_rows():
 
 def test_pose_measurement_factor_linearize():
     rng = np.random.default_rng(15)
-    noise = measurement_noise(SIGMAS)
+    noise = measurement_noise(PAPER_SIGMAS)
     for pose, state in configs(16, 25):
         values = gtsam.Values()
         values.insert(7, gtsam.Pose2(*pose))
@@ -421,7 +422,7 @@ def test_pose_measurement_factor_linearize():
 
 def test_pose_measurement_factor_equals_node_factor_at_known_pose():
     rng = np.random.default_rng(17)
-    noise = measurement_noise(SIGMAS)
+    noise = measurement_noise(PAPER_SIGMAS)
     for pose, state in configs(18, 10):
         z = noisy_measurement(rng, pose, state)
         values = gtsam.Values()
@@ -435,7 +436,7 @@ def test_pose_measurement_factor_equals_node_factor_at_known_pose():
 @pytest.mark.parametrize("robust", [None, "huber", "cauchy"])
 def test_robust_noise_models_linearize(robust):
     rng = np.random.default_rng(19)
-    noise = measurement_noise(SIGMAS, robust=robust)
+    noise = measurement_noise(PAPER_SIGMAS, robust=robust)
     pose, state = configs(20, 1)[0]
     z = noisy_measurement(rng, pose, state) + np.array([0.2, 0.0, 0.5])  # an outlier
     values = gtsam.Values()
@@ -444,7 +445,7 @@ def test_robust_noise_models_linearize(robust):
     lin = factor.linearize(values)
     a, _ = lin.jacobian()
     # A robust kernel only rescales rows: same direction as the plain factor.
-    a_plain, _ = node_measurement_factor(0, pose, z, measurement_noise(SIGMAS)).linearize(values).jacobian()
+    a_plain, _ = node_measurement_factor(0, pose, z, measurement_noise(PAPER_SIGMAS)).linearize(values).jacobian()
     weights = np.linalg.norm(a, axis=1) / np.linalg.norm(a_plain, axis=1)
     assert_allclose(a, a_plain * weights[:, None], rtol=1e-9, atol=1e-12)
     if robust is None:
@@ -460,14 +461,14 @@ def test_measurement_noise_default_k_is_the_shared_constant(robust):
     k = ROBUST_K_DEFAULT[robust]
     assert k == {"huber": 1.345, "cauchy": 2.5}[robust]
     x = 2 * k if robust == "huber" else k
-    assert measurement_noise(SIGMAS, robust).robust().weight(x) == pytest.approx(0.5, rel=1e-12)
-    assert measurement_noise(SIGMAS, robust, 1.0).robust().weight(2.0 if robust == "huber" else 1.0) \
+    assert measurement_noise(PAPER_SIGMAS, robust).robust().weight(x) == pytest.approx(0.5, rel=1e-12)
+    assert measurement_noise(PAPER_SIGMAS, robust, 1.0).robust().weight(2.0 if robust == "huber" else 1.0) \
         == pytest.approx(0.5, rel=1e-12)
 
 
 def test_measurement_noise_rejects_unknown_kernel():
     with pytest.raises(ValueError, match="robust='tukey' must be None"):
-        measurement_noise(SIGMAS, robust="tukey")
+        measurement_noise(PAPER_SIGMAS, robust="tukey")
 
 
 def test_state_prior_factor_linearize():

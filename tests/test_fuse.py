@@ -19,15 +19,10 @@ from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.sim import simulate_recording
 
 
-@pytest.fixture(scope="module")
-def recordings():
-    """Two walking targets, 10 % missed centroids, per configuration."""
-    return {
-        net: simulate_recording(net, "random", levels=("centroids",), n_frames=200, seed=11,
-                                n_targets=2, known_poses=True,
-                                centroid_p_miss=0.1)
-        for net in "ABC"
-    }
+@pytest.fixture
+def recordings(two_target_recordings):
+    """Two walking targets, 10 % missed centroids, per configuration (conftest)."""
+    return two_target_recordings
 
 
 @pytest.mark.parametrize("net", ["A", "B"])

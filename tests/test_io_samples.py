@@ -4,7 +4,6 @@ what data/make_samples.py regenerates."""
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +13,8 @@ from factors.models import measurement_model, wrap_angle
 from mmsnap_graph.io import read_recording
 from mmsnap_graph.sim import CENTROID_NOISE, network_poses
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+from _shared import DATA
+
 SAMPLES = sorted(DATA.glob("*.h5"))
 
 

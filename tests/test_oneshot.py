@@ -29,19 +29,16 @@ from mmsnap_graph.fusion.problem import (
     velocity_degeneracy,
 )
 
-POSES_A = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, np.pi / 6]])
-POSES_B = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])
-POSES_C = np.array([[0.0, 0.0, 0.0], [0.0, 7.0, np.pi]])
+from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_A, POSES_B, POSES_BC, POSES_C
+
 TRUTH_A = np.array([2.0, 5.0, 0.6, -0.4])
 TRUTH_B = np.array([0.5, 4.5, 0.6, -0.4])
 #: On the line through C's two radars: the cross-line velocity vx is
 #: unobservable from Doppler.
 TRUTH_C = np.array([0.0, 3.5, 0.8, 0.5])
-NOISE = MeasurementNoise()
-PRIOR = GaussianPrior()
 
 
-def simulate(poses, truth, n_frames, seed, noise=NOISE):
+def simulate(poses, truth, n_frames, seed, noise=PAPER_NOISE):
     """Noisy measurements (F, N, 3) from the model, omega wrapped like an angle FFT."""
     rng = np.random.default_rng(seed)
     h, _ = measurement_model(truth, poses)
@@ -59,9 +56,11 @@ def exact(poses, truth):
 
 
 def test_measurement_noise_defaults_and_sigmas():
-    assert_allclose(NOISE.sigmas, [0.035, np.pi / 4, 0.1807])
+    noise = MeasurementNoise()
+    assert_allclose(noise.sigmas, [0.035, np.pi / 4, 0.1807])
+    assert_allclose(PAPER_NOISE.sigmas, noise.sigmas)  # the tests' shared value is the default
     with pytest.raises(dataclasses.FrozenInstanceError):
-        NOISE.range_m = 1.0
+        noise.range_m = 1.0
 
 
 @pytest.mark.parametrize(
@@ -79,13 +78,15 @@ def test_measurement_noise_rejects_bad_sigmas(kwargs, match):
 
 
 def test_gaussian_prior_defaults_are_the_papers_and_read_only():
-    assert_allclose(PRIOR.mean, np.zeros(4))
-    assert_allclose(PRIOR.sigmas, [3.0, 3.0, 3.5, 3.5])
-    assert_allclose(PRIOR.information, np.diag(1 / np.array([9.0, 9.0, 12.25, 12.25])))
+    prior = GaussianPrior()
+    assert_allclose(prior.mean, np.zeros(4))
+    assert_allclose(prior.sigmas, [3.0, 3.0, 3.5, 3.5])
+    assert_allclose(prior.information, np.diag(1 / np.array([9.0, 9.0, 12.25, 12.25])))
+    assert_allclose(PAPER_PRIOR.sigmas, prior.sigmas)  # the tests' shared value is the default
     with pytest.raises(ValueError):
-        PRIOR.mean[0] = 1.0
+        prior.mean[0] = 1.0
     with pytest.raises(dataclasses.FrozenInstanceError):
-        PRIOR.mean = np.ones(4)
+        prior.mean = np.ones(4)
 
 
 @pytest.mark.parametrize(
@@ -291,7 +292,7 @@ def test_initial_state_is_exact_for_exact_measurements():
         z = exact(poses, truth)
         assert_allclose(initial_state(poses, z, prior=None), truth, atol=1e-9)
         # the prior only pulls the velocity slightly toward its mean
-        x0 = initial_state(poses, z, prior=PRIOR)
+        x0 = initial_state(poses, z, prior=PAPER_PRIOR)
         assert_allclose(x0[:2], truth[:2], atol=1e-9)
         assert_allclose(x0[2:], truth[2:], atol=0.01)
         assert np.all(np.abs(x0[2:]) < np.abs(truth[2:]))
@@ -315,8 +316,8 @@ def test_scalar_initializer_matches_vectorized():
     """The per-frame fast path equals initial_states, including missing
     nodes, single nodes and parallel lines of sight."""
     rng = np.random.default_rng(11)
-    poses3 = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2], [0.0, 7.0, np.pi]])
-    for prior in (None, PRIOR, GaussianPrior(mean=[1, 2, 0.3, -0.2], sigmas=[1, 2, 0.5, 2])):
+    poses3 = POSES_BC
+    for prior in (None, PAPER_PRIOR, GaussianPrior(mean=[1, 2, 0.3, -0.2], sigmas=[1, 2, 0.5, 2])):
         zs, obs_all = [], []
         for _ in range(60):
             truth = np.array([rng.uniform(-1, 2), rng.uniform(2, 5), *rng.normal(0, 1, 2)])
@@ -344,7 +345,7 @@ def test_scalar_initializer_matches_vectorized():
 # The solution
 
 
-def scipy_map(poses, z, prior, noise=NOISE, x0=None):
+def scipy_map(poses, z, prior, noise=PAPER_NOISE, x0=None):
     """MAP (or ML) of the same cost by scipy least_squares."""
     sig = noise.sigmas
 
@@ -367,7 +368,7 @@ def scipy_map(poses, z, prior, noise=NOISE, x0=None):
     return sol
 
 
-@pytest.mark.parametrize("prior", [PRIOR, None], ids=["map", "ml"])
+@pytest.mark.parametrize("prior", [PAPER_PRIOR, None], ids=["map", "ml"])
 @pytest.mark.parametrize("config", ["A", "B"])
 def test_map_agrees_with_scipy_least_squares(config, prior):
     poses, truth = {"A": (POSES_A, TRUTH_A), "B": (POSES_B, TRUTH_B)}[config]
@@ -394,9 +395,9 @@ def test_result_fields_are_consistent():
     assert_allclose(res.covariance, res.covariance.T, rtol=0, atol=0)
     assert np.all(np.linalg.eigvalsh(res.covariance) > 0)
     h, _ = measurement_model(res.state, POSES_B)
-    w = residual(h, z) / NOISE.sigmas
+    w = residual(h, z) / PAPER_NOISE.sigmas
     assert_allclose(res.whitened_residuals, w, rtol=1e-10, atol=1e-12)
-    prior_term = np.sum(((res.state - PRIOR.mean) / PRIOR.sigmas) ** 2)
+    prior_term = np.sum(((res.state - PAPER_PRIOR.mean) / PAPER_PRIOR.sigmas) ** 2)
     assert res.final_cost == pytest.approx(0.5 * (np.sum(w**2) + prior_term), rel=1e-10)
     assert_allclose(res.position_sigma_m, np.sqrt(np.diag(res.covariance)[:2]))
     assert_allclose(res.velocity_sigma_mps, np.sqrt(np.diag(res.covariance)[2:]))
@@ -413,13 +414,13 @@ def test_laplace_covariance_is_the_bayesian_bound_at_the_estimate():
     bound's formula, from the same Jacobians."""
     for z in simulate(POSES_A, TRUTH_A, 5, seed=8):
         res = fuse_frame(POSES_A, z)
-        assert_allclose(res.covariance, bayesian_bound(res.state, POSES_A, NOISE, PRIOR), rtol=1e-8, atol=1e-14)
+        assert_allclose(res.covariance, bayesian_bound(res.state, POSES_A, PAPER_NOISE, PAPER_PRIOR), rtol=1e-8, atol=1e-14)
         ml = fuse_frame(POSES_A, z, prior=None)
-        assert_allclose(ml.covariance, cramer_rao_bound(ml.state, POSES_A, NOISE), rtol=1e-8, atol=1e-14)
+        assert_allclose(ml.covariance, cramer_rao_bound(ml.state, POSES_A, PAPER_NOISE), rtol=1e-8, atol=1e-14)
 
 
 def test_observed_mask_equals_dropping_the_node():
-    poses3 = np.vstack([POSES_B, [[0.0, 7.0, np.pi]]])
+    poses3 = POSES_BC
     z = simulate(poses3, TRUTH_B, 1, seed=9)[0]
     masked = fuse_frame(poses3, z, observed=np.array([True, False, True]))
     dropped = fuse_frame(poses3[[0, 2]], z[[0, 2]])
@@ -433,7 +434,7 @@ def test_build_frame_graph_can_be_extended():
     z = simulate(POSES_B, TRUTH_B, 1, seed=10)[0]
     graph, values = build_frame_graph(POSES_B, z)
     assert graph.size() == 2  # one measurement factor for the frame + the prior
-    assert_allclose(values.atVector(oneshot.STATE_KEY), initial_state(POSES_B, z, prior=PRIOR))
+    assert_allclose(values.atVector(oneshot.STATE_KEY), initial_state(POSES_B, z, prior=PAPER_PRIOR))
     ml_graph, _ = build_frame_graph(POSES_B, z, prior=None, initial_state=TRUTH_B, key=7)
     assert ml_graph.size() == 1 and ml_graph.at(0).keys() == [7]
     # A user adds a tight velocity prior; the solution follows it.
@@ -447,31 +448,31 @@ def test_build_frame_graph_can_be_extended():
 
 
 def test_bounds_order_and_singularity():
-    crb = cramer_rao_bound(TRUTH_B, POSES_B, NOISE)
-    bb = bayesian_bound(TRUTH_B, POSES_B, NOISE, PRIOR)
+    crb = cramer_rao_bound(TRUTH_B, POSES_B, PAPER_NOISE)
+    bb = bayesian_bound(TRUTH_B, POSES_B, PAPER_NOISE, PAPER_PRIOR)
     # the prior only adds information: CRB - BB is positive semidefinite
     assert np.linalg.eigvalsh(crb - bb).min() > -1e-15
-    assert_allclose(np.linalg.inv(bb), fisher_information(TRUTH_B, POSES_B, NOISE) + PRIOR.information, rtol=1e-9)
+    assert_allclose(np.linalg.inv(bb), fisher_information(TRUTH_B, POSES_B, PAPER_NOISE) + PAPER_PRIOR.information, rtol=1e-9)
     # on the line through C's radars vx does not enter any measurement
-    info = fisher_information(TRUTH_C, POSES_C, NOISE)
+    info = fisher_information(TRUTH_C, POSES_C, PAPER_NOISE)
     assert_allclose(info[2], 0.0, atol=1e-12)
     with pytest.raises(GeometryError, match="Fisher information is singular"):
-        cramer_rao_bound(TRUTH_C, POSES_C, NOISE)
-    bb_c = bayesian_bound(TRUTH_C, POSES_C, NOISE, PRIOR)
+        cramer_rao_bound(TRUTH_C, POSES_C, PAPER_NOISE)
+    bb_c = bayesian_bound(TRUTH_C, POSES_C, PAPER_NOISE, PAPER_PRIOR)
     assert bb_c[2, 2] == pytest.approx(3.5**2, rel=1e-9)  # vx: the prior alone
     # a missing node removes its information
-    assert_allclose(fisher_information(TRUTH_B, POSES_B, NOISE, np.array([True, False])), fisher_information(TRUTH_B, POSES_B[:1], NOISE))
+    assert_allclose(fisher_information(TRUTH_B, POSES_B, PAPER_NOISE, np.array([True, False])), fisher_information(TRUTH_B, POSES_B[:1], PAPER_NOISE))
 
 
 def test_bounds_reject_bad_input():
     with pytest.raises(GeometryError, match=r"state position \[5.0, 5.0\] is at observed node 1's position"):
-        cramer_rao_bound([5.0, 5.0, 0, 0], POSES_B, NOISE)
+        cramer_rao_bound([5.0, 5.0, 0, 0], POSES_B, PAPER_NOISE)
     with pytest.raises(ValidationError, match=r"state must have shape \(4,\)"):
-        bayesian_bound([1.0, 2.0], POSES_B, NOISE, PRIOR)
+        bayesian_bound([1.0, 2.0], POSES_B, PAPER_NOISE, PAPER_PRIOR)
     with pytest.raises(ValidationError, match="prior must be a GaussianPrior"):
-        bayesian_bound(TRUTH_B, POSES_B, NOISE, None)
+        bayesian_bound(TRUTH_B, POSES_B, PAPER_NOISE, None)
     with pytest.raises(ValidationError, match=r"node_poses must have shape \(N, 3\)"):
-        fisher_information(TRUTH_B, [1.0, 2.0, 3.0], NOISE)
+        fisher_information(TRUTH_B, [1.0, 2.0, 3.0], PAPER_NOISE)
 
 
 # ---------------------------------------------------------------------------
@@ -485,7 +486,7 @@ def _mirror_across_node_line(p, a, b):
     return a + 2 * (q @ d) * d - q
 
 
-@pytest.mark.parametrize("prior", [PRIOR, None], ids=["map", "ml"])
+@pytest.mark.parametrize("prior", [PAPER_PRIOR, None], ids=["map", "ml"])
 def test_monte_carlo_configuration_b_rmse_and_nees(prior):
     """Over 800 seeded frames in configuration B: RMSE within 10% of the square
     root of the bound, mean NEES inside the 95% interval of a 4-dof chi-square
@@ -509,7 +510,7 @@ def test_monte_carlo_configuration_b_rmse_and_nees(prior):
     assert far.mean() < 0.015
     assert np.all(np.linalg.norm(states[far, :2] - mirror, axis=1) < 0.5)
     keep = ~far
-    bound = bayesian_bound(TRUTH_B, POSES_B, NOISE, prior) if prior else cramer_rao_bound(TRUTH_B, POSES_B, NOISE)
+    bound = bayesian_bound(TRUTH_B, POSES_B, PAPER_NOISE, prior) if prior else cramer_rao_bound(TRUTH_B, POSES_B, PAPER_NOISE)
     rmse_pos = np.sqrt(np.mean(np.sum(err[keep, :2] ** 2, axis=1)))
     rmse_vel = np.sqrt(np.mean(np.sum(err[keep, 2:] ** 2, axis=1)))
     assert rmse_pos == pytest.approx(np.sqrt(np.trace(bound[:2, :2])), rel=0.10)

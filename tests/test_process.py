@@ -15,10 +15,11 @@ from mmsnap_graph.app.pipeline import (
     track_recording,
 )
 from mmsnap_graph.data.recording import NodeData, Recording
+from mmsnap_graph.sim import network_poses
 from mmsnap_graph.sim.body import body_scatterers
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes
 
-POSES = {"S1": np.array([0.0, 0.0, 0.0]), "S2": np.array([0.0, 7.0, np.pi])}  # configuration C
+POSES = network_poses("C")
 N_FRAMES = 16
 
 

@@ -20,7 +20,7 @@ from mmsnap_graph.radar.chain import (
     process_cubes,
 )
 from mmsnap_graph.radar.cluster import ClusterConfig, cluster_labels, torso_centroids
-from mmsnap_graph.data.radar_config import TABLE_I, RadarConfig
+from mmsnap_graph.data.radar_config import TABLE_I
 from mmsnap_graph.radar.spectrum import (
     check_cube,
     doppler_of_bin,
@@ -32,15 +32,15 @@ from mmsnap_graph.radar.spectrum import (
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cube, synthesize_cubes
 
+from _shared import SMALL_RADAR
+
 #: Another chirp configuration: 256 samples, 128 loops, 2 Tx (8-element azimuth array).
-SMALL = RadarConfig(n_samples=256, n_loops=128, tx_azimuth_half_wl=(0.0, 4.0),
-                    tx_elevation_half_wl=(0.0, 0.0), frame_period_s=0.1)
-CONFIGS = pytest.mark.parametrize("config", [TABLE_I, SMALL], ids=["table1", "256x128x2tx"])
+CONFIGS = pytest.mark.parametrize("config", [TABLE_I, SMALL_RADAR], ids=["table1", "256x128x2tx"])
 
 
 # ---------------------------------------------------------------- spectrum
 def test_range_doppler_equals_textbook_order():
-    config = SMALL
+    config = SMALL_RADAR
     rng = np.random.default_rng(0)
     cube = (rng.standard_normal(config.cube_shape) + 1j * rng.standard_normal(config.cube_shape)
             + 3.0).astype(np.complex64)
@@ -288,9 +288,9 @@ def test_cube_shape_mismatch_is_a_configuration_error():
     with pytest.raises(ConfigurationError, match="config must be a RadarConfig"):
         process_cubes(cube[None], {"n_samples": 256})
     with pytest.raises(ValidationError, match="frames is required"):
-        process_cubes(iter([cube]), SMALL)
+        process_cubes(iter([cube]), SMALL_RADAR)
     with pytest.raises(ValidationError, match=r"frames must be \(1,\) int"):
-        process_cubes(np.zeros((1, *SMALL.cube_shape), np.complex64), SMALL,
+        process_cubes(np.zeros((1, *SMALL_RADAR.cube_shape), np.complex64), SMALL_RADAR,
                       frames=np.array([0.5]))
 
 

@@ -14,9 +14,9 @@ from mmsnap_graph.sim import CENTROID_NOISE, PointCloudModel, network_poses, sim
 from mmsnap_graph.sim.networks import in_field_of_view
 
 
-@pytest.fixture(scope="module")
-def rec_b():
-    return simulate_recording("B", "random", levels=("centroids", "point_cloud"), seed=11)
+@pytest.fixture
+def rec_b(recording_b_point_cloud):
+    return recording_b_point_cloud
 
 
 def _truth_h(rec, name, frames, target_ids):

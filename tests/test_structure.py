@@ -1,6 +1,7 @@
 """The redesign's structure rules (tools/check_structure.py), on the repository
 and on small synthetic trees that show each rule is detected."""
 
+import ast
 import importlib.util
 import subprocess
 import sys
@@ -277,3 +278,91 @@ def test_model_name_pattern_catches_the_known_variants(name):
 ])
 def test_model_name_pattern_leaves_other_functions(name):
     assert not cs.MODEL_NAME_PATTERN.match(name)
+
+
+# ------------------------------------------------------- the tests themselves
+
+#: The package's own top-level packages (a test's use of their private names is checked).
+PACKAGES = ("mmsnap_graph", "factors")
+
+#: Private names of the package that tests still use, (test file, name) -> why.
+#: No public function computes the same thing; remove an entry when one does.
+PRIVATE_USES_ALLOWED: dict[tuple[str, str], str] = {
+    ("test_batch.py", "_evaluate"):
+        "white-box check of the batch solver's Newton term: the whitened Jacobian and cost",
+    ("test_batch.py", "_normal_equations"):
+        "white-box check of the batch solver's Newton term: the Gauss-Newton information",
+    ("test_batch.py", "_residual_curvature"):
+        "white-box check of the batch solver's Newton term against a finite-difference Hessian",
+    ("test_oneshot.py", "_model_scalar"):
+        "fault injection: monkeypatching the factor callback's kernel makes it raise inside GTSAM",
+}
+
+
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def _private_uses(source: str) -> set[str]:
+    """Private names of the package a test module uses: imported by name, taken
+    as ``module._name`` from an imported package module, or handed to
+    ``monkeypatch.setattr``/``getattr`` as a string. Public names of the
+    private helper modules (``mmsnap_graph._linalg`` ...) are not private uses,
+    as in the package's own rule."""
+    tree = ast.parse(source)
+    modules: set[str] = set()  # local names bound to a package module
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] in PACKAGES:
+                    modules.add(alias.asname or alias.name.split(".")[0])
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in PACKAGES:
+            for alias in node.names:
+                if _is_private(alias.name) and not _is_helper_module(node.module, alias.name):
+                    found.add(alias.name)
+                modules.add(alias.asname or alias.name)  # may be a module; harmless if not
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and _is_private(node.attr):
+            base = node.value
+            while isinstance(base, ast.Attribute):
+                base = base.value
+            if isinstance(base, ast.Name) and base.id in modules:
+                found.add(node.attr)
+        elif isinstance(node, ast.Call) and isinstance(node.func, (ast.Attribute, ast.Name)) \
+                and getattr(node.func, "attr", getattr(node.func, "id", "")) in ("setattr", "getattr"):
+            names = [a.value for a in node.args[1:2]
+                     if isinstance(a, ast.Constant) and isinstance(a.value, str)]
+            found.update(n for n in names if _is_private(n))
+    return found
+
+
+def _is_helper_module(module: str, name: str) -> bool:
+    """``from mmsnap_graph import _linalg``: a private helper module, allowed."""
+    return (ROOT / Path(*module.split(".")) / f"{name}.py").is_file()
+
+
+def _test_modules() -> list[Path]:
+    return sorted((ROOT / "tests").glob("*.py"))
+
+
+def test_tests_use_no_private_name_of_the_package():
+    used = {(p.name, n) for p in _test_modules() for n in _private_uses(p.read_text())}
+    unexpected = sorted(used - set(PRIVATE_USES_ALLOWED))
+    assert not unexpected, f"tests use private names (use the public function): {unexpected}"
+    stale = sorted(set(PRIVATE_USES_ALLOWED) - used)
+    assert not stale, f"PRIVATE_USES_ALLOWED lists uses that are gone; remove them: {stale}"
+
+
+@pytest.mark.parametrize("source, expected", [
+    ("from mmsnap_graph.fusion.batch import _evaluate\n", {"_evaluate"}),
+    ("from mmsnap_graph.fusion import batch\nbatch._solve(1)\n", {"_solve"}),
+    ("import mmsnap_graph.fusion.oneshot as oneshot\noneshot._x.y\n", {"_x"}),
+    ("import factors.gtsam_factors as gf\ndef t(monkeypatch):\n"
+     "    monkeypatch.setattr(gf, '_model_scalar', None)\n", {"_model_scalar"}),
+    ("from mmsnap_graph._atomic import atomic_path\nfrom mmsnap_graph import _linalg\n", set()),
+    ("class A:\n    def f(self):\n        return self._x\n", set()),
+    ("from mmsnap_graph.fusion import batch\nbatch.__name__\n", set()),
+])
+def test_private_use_scan_sees_each_form(source, expected):
+    assert _private_uses(source) == expected

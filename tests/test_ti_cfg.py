@@ -1,6 +1,5 @@
 """TI mmWave SDK .cfg parsing into RadarConfig (mmsnap_graph.io.ti_cfg)."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,7 +9,7 @@ from mmsnap_graph.data.radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarCon
 from mmsnap_graph.errors import ConfigurationError, FileFormatError, MmsnapError
 from mmsnap_graph.io.ti_cfg import (BOARD_PRESETS, BoardLayout, parse_ti_cfg, read_ti_cfg)
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "ti"
+from _shared import TI_DATA as DATA
 
 LEGACY = """\
 % comment line

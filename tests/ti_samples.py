@@ -25,7 +25,7 @@ from factors.projection import level_to_sensor, sensor_to_room  # noqa: E402
 from mmsnap_graph.sim import simulate_recording  # noqa: E402
 from ti_encode import encode_oob_frame  # noqa: E402
 
-DATA = ROOT / "data" / "ti"
+from _shared import TI_DATA as DATA  # noqa: E402
 #: node -> (mounting height m, down tilt rad) of the samples.
 MOUNTS = {"S1": (0.8, np.deg2rad(5.0)), "S2": (1.2, np.deg2rad(15.0))}
 FRAME_PERIOD_S = 0.05
