@@ -5,10 +5,9 @@ import pytest
 
 from factors.models import detection_to_global, measurement_model
 from mmsnap_graph.fusion.association import associate_frame, detection_position_covariance, gate_threshold
-from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 
-from _shared import PAPER_NOISE, PAPER_SIGMAS, POSES_A, POSES_B, POSES_BC
+from _shared import PAPER_NOISE, PAPER_SIGMAS, POSES_A, POSES_B, POSES_BC, TRACK_NOISE
 
 
 def _measure(states, pose, rng, sigmas=PAPER_SIGMAS):
@@ -42,8 +41,7 @@ def test_two_targets_are_paired_across_nodes_in_any_order():
     rng = np.random.default_rng(0)
     targets = np.array([[-0.5, 4.0, 0.3, 0.1], [2.0, 3.0, -0.2, 0.4]])
     # The angle noise of the paper is large; 0.05 rad keeps this a clean test.
-    sig = np.array([0.035, 0.05, 0.18])
-    noise = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
+    sig, noise = TRACK_NOISE.sigmas, TRACK_NOISE
     n_ok = 0
     for trial in range(50):
         z1 = _measure(targets, POSES_B[0], rng, sig)
@@ -71,8 +69,7 @@ def test_group_position_is_the_information_weighted_mean():
 
 def test_detections_outside_the_gate_start_their_own_groups():
     rng = np.random.default_rng(2)
-    sig = np.array([0.035, 0.05, 0.18])
-    noise = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
+    sig, noise = TRACK_NOISE.sigmas, TRACK_NOISE
     z1 = _measure([[0.5, 4.0, 0, 0]], POSES_B[0], rng, sig)
     z2 = _measure([[3.5, 1.5, 0, 0]], POSES_B[1], rng, sig)  # 3.9 m away
     a = associate_frame([z1, z2], POSES_B, noise)
@@ -101,8 +98,7 @@ def test_three_nodes_build_one_group_per_target():
     rng = np.random.default_rng(4)
     poses = POSES_BC
     targets = np.array([[0.5, 3.5, 0, 0], [2.5, 2.0, 0, 0]])
-    sig = np.array([0.035, 0.05, 0.18])
-    noise = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
+    sig, noise = TRACK_NOISE.sigmas, TRACK_NOISE
     z = [_measure(targets, poses[n], rng, sig) for n in range(3)]
     a = associate_frame(z, poses, noise)
     assert a.members.tolist() == [[0, 0, 0], [1, 1, 1]]

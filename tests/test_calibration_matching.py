@@ -12,14 +12,13 @@ from mmsnap_graph.calibration import (
     pose_tangent_error,
 )
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
-from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.data.recording import Detections, NodeData, Tracks
 
-# Track-like noise: an EKF smooths the spatial frequency well below its raw
-# sigma; 0.05 rad gives ~10 cm across range at 5 m, while a 1-frame lag
-# moves a ~0.5 m/s target by ~8 cm, over 400 frames, so the lag is clearly visible in the RMSE.
-TRACK_NOISE = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
+from _shared import TRACK_NOISE
+
+# Track-like noise (TRACK_NOISE): a 1-frame lag moves a ~0.5 m/s target by
+# ~8 cm, over 400 frames, so the lag is clearly visible in the RMSE.
 
 
 def _two_target_tracks(config, lag, rng, n_frames=400):

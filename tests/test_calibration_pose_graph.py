@@ -16,10 +16,9 @@ from mmsnap_graph.calibration import (
     to_pose2,
 )
 from mmsnap_graph.sim.scenes import synthetic_scene
-from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 
-from _shared import NETWORK_BCA
+from _shared import NETWORK_BCA, TRACK_NOISE
 
 #: S1 and the S2 of configurations B, C and A.
 TRUE_POSES = NETWORK_BCA
@@ -115,8 +114,7 @@ def test_end_to_end_from_tracks_of_four_nodes():
     """One target in the common area of four nodes, track-like noise."""
     rng = np.random.default_rng(6)
     scene = synthetic_scene(TRUE_POSES, center_m=np.array([1.5, 3.5]), n_frames=300,
-                            noise=MeasurementNoise(range_m=0.035, omega_rad=0.05,
-                                                   doppler_mps=0.18), extent_m=1.0, rng=rng)
+                            noise=TRACK_NOISE, extent_m=1.0, rng=rng)
     tracks = {n: LocalTracks(frame=scene.frame, points_m=scene.local_points_m[n],
                              track_id=np.zeros(300, int), source="synthetic") for n in TRUE_POSES}
     edges, failures = pairwise_edges(tracks, max_lag_frames=1)
