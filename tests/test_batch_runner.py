@@ -106,6 +106,7 @@ def _check_batch(summaries, sources: Path, out_dir: Path, reference: Path) -> No
     assert sorted(p.name for p in sources.iterdir()) == sorted([*GOOD, BAD])
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_matches_commands_and_isolates_the_bad_file(
         sources, reference, tmp_path):
     paths = sorted(str(p) for p in sources.iterdir())
@@ -223,6 +224,7 @@ def test_cli_no_match_and_bad_int(tmp_path, capsys):
     assert "invalid int value: 'two'" in capsys.readouterr().err.strip().splitlines()[-1]
 
 
+@pytest.mark.slow
 def test_cli_batch_flags_the_corrupt_recording_and_exits_1(sources, tmp_path):
     """The real command line, local Dask cluster of 2 workers."""
     work = tmp_path / "in"

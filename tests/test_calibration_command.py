@@ -143,6 +143,7 @@ def test_tracks_are_preferred_and_joint_needs_centroids(rec_c):
         calibrate_recording(rec, method="joint")
 
 
+@pytest.mark.slow
 def test_noise_is_estimated_without_metadata(rec_c):
     rec = dataclasses.replace(rec_c, metadata={})
     cal = calibrate_recording(rec)

@@ -79,6 +79,7 @@ def test_cv_information_matches_the_gtsam_factor():
     assert_allclose(cv_information(0.3, 0.7), r.T @ r, rtol=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("config", ["A", "B", "C"])
 def test_joint_beats_the_closed_form_under_paper_noise(config):
     """Paper noise sigmas (range 3.5 cm, omega pi/4, Doppler 0.18 m/s; the
@@ -103,6 +104,7 @@ def test_joint_beats_the_closed_form_under_paper_noise(config):
     assert rms_jt <= 0.7 * rms_cf, (rms_jt, rms_cf)
 
 
+@pytest.mark.slow
 def test_pose_covariance_is_consistent():
     """NEES of S2's pose over 60 trials, configuration C, K = 100, omega
     sigma 0.2 rad, motion factors and the Cauchy kernel on. The mean of 60
@@ -120,6 +122,7 @@ def test_pose_covariance_is_consistent():
     assert 2.2 < np.mean(nees) < 4.3, np.mean(nees)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("config", ["A", "B", "C"])
 def test_ghost_frames_cost_at_most_twice_the_clean_error(config):
     """20% of each node's frames replaced by ghosts (uniform range 1-10 m,
@@ -145,6 +148,7 @@ def test_ghost_frames_cost_at_most_twice_the_clean_error(config):
     assert hit > 0.9 and false_alarm < 0.02
 
 
+@pytest.mark.slow
 def test_ghost_frames_under_paper_noise():
     """The same claim at the paper's sigmas (omega pi/4) in configuration A,
     the hardest case: the least-median-of-squares closed form keeps the

@@ -58,6 +58,7 @@ def _run(rng, poses, start, noise, prior, config, n_runs, n_frames, box_m=1.5):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("net, start", [("B", [0.5, 4.0, 0.0, 0.0]), ("C", [1.2, 3.5, 0.0, 0.0])])
 def test_central_tracker_nees_is_consistent(net, start):
     """Monte Carlo NEES (Bar-Shalom's ANEES) on simulated CV targets fused by
@@ -194,6 +195,7 @@ def test_invalid_step_input_raises():
         CentralTracker(prior_mean=np.zeros(4))
 
 
+@pytest.mark.slow
 def test_fixed_lag_smoother_is_consistent_and_follows_the_kalman_filter():
     """The GTSAM fixed-lag smoother's newest state is the Kalman filter's
     estimate up to the process-noise form (continuous white noise in the

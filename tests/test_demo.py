@@ -44,6 +44,7 @@ def sample_result():
 # ----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_paper_claims_hold_on_the_sample_recordings(sample_result):
     res = sample_result
     assert not res.failures
@@ -54,12 +55,14 @@ def test_paper_claims_hold_on_the_sample_recordings(sample_result):
         assert c.holds, f"{c.claim}: {c.detail}"
 
 
+@pytest.mark.slow
 def test_configuration_b_best_and_c_worst_for_position(sample_result):
     pos = {c: np.mean([sample_result.fusions[(c, t)].vs_truth["bayes"].position_rmse_m
                        for t in ("straight", "random")]) for c in "ABC"}
     assert pos["B"] < pos["A"] < pos["C"]
 
 
+@pytest.mark.slow
 def test_ml_velocity_fails_in_c_while_bayesian_holds(sample_result):
     for t in ("straight", "random"):
         f = sample_result.fusions[("C", t)]
@@ -72,6 +75,7 @@ def test_ml_velocity_fails_in_c_while_bayesian_holds(sample_result):
             assert v["ml"].velocity_rmse_mps == pytest.approx(v["bayes"].velocity_rmse_mps, rel=0.1)
 
 
+@pytest.mark.slow
 def test_refined_calibration_at_least_as_good_as_closed_form(sample_result):
     for cal in sample_result.calibrations.values():
         assert cal.success, cal.message
@@ -81,6 +85,7 @@ def test_refined_calibration_at_least_as_good_as_closed_form(sample_result):
         assert cal.refined_rmse_m >= cal.closed_form_rmse_m - 1e-12
 
 
+@pytest.mark.slow
 def test_one_shot_is_compared_on_common_frames(sample_result):
     f = sample_result.fusions[("B", "random")]
     assert f.calibrated_on == "straight"
@@ -117,6 +122,7 @@ TABLE_III_TRACK_FUSION_300 = {
 }
 
 
+@pytest.mark.slow
 def test_table_iii_track_fusion_numbers_are_unchanged(sample_result):
     assert set(sample_result.fusions) == set(TABLE_III_TRACK_FUSION_300)
     for key, (n, bayes, ml) in TABLE_III_TRACK_FUSION_300.items():
@@ -319,6 +325,7 @@ def test_table_renders_text_and_markdown():
     assert "| a | bb |" in md and "|---|---:|" in md and "| yyy | 22.5 |" in md
 
 
+@pytest.mark.slow
 def test_tables_have_one_row_per_run(sample_result):
     assert len(table_ii(sample_result).rows) == 6
     pos = table_iii_truth(sample_result, "position")
@@ -330,6 +337,7 @@ def test_tables_have_one_row_per_run(sample_result):
     assert [r[:3] for r in rows][:2] == [("A", "straight", "random"), ("A", "random", "straight")]
 
 
+@pytest.mark.slow
 def test_checks_report_a_claim_that_does_not_hold(sample_result):
     # Swap B's and C's fusions: then C is best and B worst.
     f = dict(sample_result.fusions)
@@ -341,6 +349,7 @@ def test_checks_report_a_claim_that_does_not_hold(sample_result):
     assert checks["ML velocity fails in C while Bayesian holds"] is False
 
 
+@pytest.mark.slow
 def test_demo_command_writes_tables_figures_and_report(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["demo", "--simulate", "-c", "B,C", "-n", "60", "--cube-frames", "3",

@@ -50,6 +50,7 @@ def test_sample_centroids_match_truth(path):
         assert rec.nodes["S1"].cube.shape == (4, 512, 60, 12)
 
 
+@pytest.mark.slow
 def test_make_samples_regenerates_the_committed_files(tmp_path):
     written = _load_make_samples().make_samples(tmp_path)
     assert sorted(p.name for p in written) == [p.name for p in SAMPLES]

@@ -18,6 +18,7 @@ NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 TEST_FRAMES = "150"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["calibration_walkthrough.ipynb", "oneshot_walkthrough.ipynb"])
 def test_notebook_executes(name, monkeypatch):
     path = NOTEBOOKS / name

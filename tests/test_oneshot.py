@@ -486,6 +486,7 @@ def _mirror_across_node_line(p, a, b):
     return a + 2 * (q @ d) * d - q
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("prior", [PAPER_PRIOR, None], ids=["map", "ml"])
 def test_monte_carlo_configuration_b_rmse_and_nees(prior):
     """Over 800 seeded frames in configuration B: RMSE within 10% of the square
@@ -528,6 +529,7 @@ def test_monte_carlo_configuration_b_rmse_and_nees(prior):
 # Monte Carlo: degenerate geometry (configuration C, target on the radars' line)
 
 
+@pytest.mark.slow
 def test_monte_carlo_configuration_c_degenerate():
     """ML's cross-line velocity error explodes, MAP stays bounded by the
     prior, and the degeneracy indicator flags the geometry (paper Table II:

@@ -21,6 +21,7 @@ def test_every_public_name_resolves(module):
         module.not_a_name  # noqa: B018
 
 
+@pytest.mark.slow
 def test_signal_chain_and_simulator_do_not_import_gtsam():
     code = ("import sys, mmsnap_graph, mmsnap_graph.app.pipeline, mmsnap_graph.sim, "
             "mmsnap_graph.tracking.ekf, mmsnap_graph.io; "

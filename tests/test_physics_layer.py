@@ -28,6 +28,7 @@ def test_factors_do_not_import_mmsnap_graph(path):
     assert not [m for m in imported if m.split(".")[0] == "mmsnap_graph"], path.name
 
 
+@pytest.mark.slow
 def test_numpy_part_of_factors_and_the_local_tracker_load_without_gtsam():
     code = ("import sys, factors, factors.models, factors.motion, factors.robust, "
             "mmsnap_graph.radar.cluster, mmsnap_graph.sim.simulator, mmsnap_graph.tracking.ekf; "

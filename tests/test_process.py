@@ -56,6 +56,7 @@ def _local_truth(states, pose):
     return np.concatenate([global_to_local(states[:, :2], pose), states[:, 2:] @ rot.T], axis=1)
 
 
+@pytest.mark.slow
 def test_process_recording_fills_every_level():
     rec, states = _recording()
     out, reports = process_recording(rec)
@@ -114,6 +115,7 @@ def test_point_cloud_level_is_clustered_and_tracked():
         cluster_node(NodeData(name="S3"), 0.15)
 
 
+@pytest.mark.slow
 def test_cli_process_updates_a_file(tmp_path, capsys):
     io = pytest.importorskip("mmsnap_graph.io")
     rec, states = _recording(seed=1)
@@ -145,6 +147,7 @@ def test_cli_process_reports_a_missing_file(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_chain_does_not_import_gtsam():
     import subprocess
     import sys

@@ -341,6 +341,7 @@ def _walker_cubes(config, states, seed, *, bodies=1):
     return synthesize_cubes(config, pos, vel, amp, rng=rng, noise_std=1.0)
 
 
+@pytest.mark.slow
 def test_torso_centroid_beats_the_cluster_mean_when_limbs_swing():
     # A person walking toward the radar: arms and legs swing along the line
     # of sight, so their micro-Doppler and range offsets are largest.

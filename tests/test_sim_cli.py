@@ -43,6 +43,7 @@ def test_simulate_command_custom_nodes_and_errors(tmp_path, capsys):
         main(["simulate", "--node", "S1=0,0", "-o", str(tmp_path / "y.h5")])
 
 
+@pytest.mark.slow
 def test_python_dash_m_runs_the_command_line(tmp_path):
     """``python -m mmsnap_graph`` is the ``mmsnap`` command."""
     import os

@@ -141,6 +141,7 @@ def test_import_argument_errors(tmp_path, capsys):
 
 
 @pytest.mark.slow
+@pytest.mark.slow
 def test_lifted_point_clouds_calibrate_like_the_2d_simulation(tmp_path):
     """simulate (2D) -> lift to tilted, raised 3D sensors -> CSV -> import ->
     process -> calibrate recovers S2's pose as well as the direct 2D path."""
