@@ -20,7 +20,7 @@ processes; the CPU time per frame is the fairer figure.
 
 Usage::
 
-    python benchmarks/bench_stream.py [--frames 600] [--targets 1 2] [--repeat 3] [--seed 0]
+    python benchmarks/bench_stream.py [--frames 400] [--targets 1 2] [--repeat 2] [--seed 0]
 """
 
 from __future__ import annotations
@@ -89,9 +89,9 @@ def _run(n_targets, args):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=600)
+    parser.add_argument("--frames", type=int, default=400)
     parser.add_argument("--targets", type=int, nargs="+", default=[1, 2])
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     print(f"4 nodes, {args.frames} frames, MAP (paper prior), centroids; target: median < 1 ms")

@@ -16,6 +16,8 @@ import time
 
 import numpy as np
 
+from mmsnap_graph.errors import ValidationError
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -48,8 +50,6 @@ def register(subparsers) -> None:
 
 def _check_args(args) -> float | None:
     """The playback speed (None: as fast as possible); usage errors exit 2."""
-    from mmsnap_graph.errors import ValidationError
-
     if args.speed is None:
         return 1.0 if args.realtime else None
     if not (np.isfinite(args.speed) and args.speed > 0):
@@ -84,6 +84,7 @@ def _summary(latencies, n_frames, n_bad, n_groups, n_ok, n_tracks_max) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Deferred as in the other commands: building the parser imports no numerics or h5py.
     from mmsnap_graph._atomic import atomic_path
     from mmsnap_graph.data.noise import GaussianPrior
     from mmsnap_graph.fusion.sequence import recording_poses
