@@ -253,6 +253,8 @@ def test_replay_summary_output_and_realtime(replay_cli, small_file, capsys, tmp_
 def test_replay_usage_errors(replay_cli, small_file, capsys):
     assert replay_cli(["replay", str(small_file), "--speed", "0"]) == 2
     assert "--speed" in capsys.readouterr().err
+    assert replay_cli(["replay", str(small_file), "-o", str(small_file.parent)]) == 2
+    assert "is a directory" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         replay_cli(["replay", str(small_file), "--solver", "scipy"])
     assert exc.value.code == 2

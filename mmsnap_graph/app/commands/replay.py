@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 
@@ -50,6 +51,8 @@ def register(subparsers) -> None:
 
 def _check_args(args) -> float | None:
     """The playback speed (None: as fast as possible); usage errors exit 2."""
+    if args.output is not None and os.path.isdir(args.output):
+        raise ValidationError(f"--output {args.output!r} is a directory; give a file name")
     if args.speed is None:
         return 1.0 if args.realtime else None
     if not (np.isfinite(args.speed) and args.speed > 0):
