@@ -21,9 +21,10 @@ A bad frame (a time stamp that is not finite or not after the previous one,
 an unknown node, a detection array of the wrong shape, non-finite values, a
 negative range or ``|omega| > pi``) is flagged (``ok`` False, a message) and
 skipped: no fusion and no tracker step; the stream goes on with the next
-frame. A frame whose association fails numerically is flagged too, and the
-tracker predicts over it (no estimates). A group that cannot be fused is
-flagged by its status, as in ``fuse_recording``.
+frame. A frame whose association or fusion fails numerically is flagged too,
+and the tracker predicts over it (no estimates); so is a frame whose tracker
+update fails. A group that cannot be fused is flagged by its status, as in
+``fuse_recording``.
 """
 
 from __future__ import annotations
@@ -48,9 +49,10 @@ from .._validation import as_float_array, check_finite
 
 __all__ = ["StreamUpdate", "FrameStream", "recording_frames"]
 
-# Numerical failures of one frame's association (see issue 13) that flag the frame.
+# Failures of one frame's association, fusion or tracker step (numerical ones,
+# e.g. a singular covariance of a degenerate detection) that flag the frame.
 _FRAME_FAILURES = (MmsnapError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError,
-                   OverflowError)
+                   OverflowError, ValueError)
 
 _EMPTY_I8 = np.zeros(0, dtype=np.int8)
 
@@ -61,7 +63,8 @@ class StreamUpdate:
 
     index : 0-based count of frames pushed (bad ones included).
     time_s : the frame's time stamp (as given; NaN if it was not a number).
-    ok : False for a bad frame (skipped) or a failed association; ``message`` says why.
+    ok : False for a bad frame (skipped) or a failed association, fusion or
+        tracker update; ``message`` says why.
     state, covariance : (G, 4), (G, 4, 4) fused targets of the frame (NaN where a
         group failed); G = 0 for a bad frame.
     status : (G,) int8 :class:`~mmsnap_graph.data.results.Status` codes; success is ``Status.OK``.
@@ -190,15 +193,23 @@ class FrameStream:
         try:
             assoc = associate_frame(per_node, self.node_poses, self.noise,
                                     gate_probability=self.gate_probability)
+            fused = (*self._fuse(per_node, assoc.members), assoc.members)
         except _FRAME_FAILURES as exc:
-            self._tracker.step(np.zeros((0, 4)), np.zeros((0, 4, 4)), dt)
-            return self._update(index, t, False, f"association failed: {type(exc).__name__}: {exc}",
+            self._step_tracker(np.zeros((0, 4)), np.zeros((0, 4, 4)), dt)
+            return self._update(index, t, False, f"fusion failed: {type(exc).__name__}: {exc}",
                                 None, start)
-        fused = self._fuse(per_node, assoc.members)
         ok = fused[2] == Status.OK
         self.failed_groups += int(np.count_nonzero(~ok))
-        self._tracker.step(fused[0][ok], fused[1][ok], dt)
-        return self._update(index, t, True, "", (*fused, assoc.members), start)
+        problem = self._step_tracker(fused[0][ok], fused[1][ok], dt)
+        return self._update(index, t, problem is None, problem or "", fused, start)
+
+    def _step_tracker(self, states, covariances, dt) -> str | None:
+        """One tracker step; a numerical failure is returned as a message."""
+        try:
+            self._tracker.step(states, covariances, dt)
+        except _FRAME_FAILURES as exc:
+            return f"tracker update failed: {type(exc).__name__}: {exc}"
+        return None
 
     # ------------------------------------------------------------------
     def _validate(self, time_s, detections):
