@@ -183,27 +183,35 @@ def test_ml_stream_flags_single_node_groups_like_the_batch_path():
 
 @pytest.mark.slow
 def test_state_stays_bounded_over_10000_frames():
-    """Targets come and go for 10,000 frames: tracks end, memory does not grow."""
-    rec = simulate_recording("C", "random", levels=("centroids",), n_frames=250, seed=5,
+    """10,000 frames: bursts of a target (a track starts), empty frames (it
+    ends), a bad frame in each burst; tracks end, memory does not grow."""
+    rec = simulate_recording("C", "random", levels=("centroids",), n_frames=300, seed=5,
                              known_poses=True)
     frames = [d for _, _, d in recording_frames(rec)]
     stream = FrameStream(rec.node_names, _poses(rec))
-    t = 0.0
-    n_tracks = []
+    n_tracks, ids = [], set()
     tracemalloc.start()
     try:
         for k in range(10_000):
-            t += rec.frame_period_s * (20 if k % 250 == 0 else 1)  # a gap: the old track ends
-            u = stream.push(t, frames[k % 250])
+            burst, phase = divmod(k, 20)
+            if phase < 3:
+                detections = frames[(3 * burst + phase) % len(frames)]
+            elif phase == 10:
+                detections = {"S1": [[np.nan, 0.0, 0.0]]}
+            else:
+                detections = {}
+            u = stream.push(k * rec.frame_period_s, detections)
+            assert u.ok == (phase != 10)
             n_tracks.append(u.track_id.size)
+            ids.update(u.track_id.tolist())
             if k == 1999:
                 start_mem = tracemalloc.get_traced_memory()[0]
         end_mem = tracemalloc.get_traced_memory()[0]
     finally:
         tracemalloc.stop()
-    assert stream.frames == 10_000 and stream.bad_frames == 0
-    assert max(n_tracks) <= 3 and stream.n_tracks <= 3
-    assert u.track_id.max() >= 39  # 40 passes: tracks were started and ended
+    assert stream.frames == 10_000 and stream.bad_frames == 500
+    assert max(n_tracks) <= 2 and stream.n_tracks == 0
+    assert len(ids) >= 450  # a track per burst, each ended
     assert end_mem - start_mem < 256 * 1024, (start_mem, end_mem)
 
 
