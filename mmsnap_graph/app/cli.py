@@ -15,7 +15,7 @@ import sys
 from ..errors import MmsnapError
 
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
-COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch"]
+COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch", "replay"]
 
 
 def build_parser() -> argparse.ArgumentParser:
