@@ -30,7 +30,13 @@ removed with ``V`` from the cell's (interpolated) Doppler, then the
 windowed, zero-padded and transformed; the spatial frequency
 ``omega = pi sin(theta)`` is the interpolated peak (a parabola through the
 log power of the peak bin and its neighbours).
-"""
+
+Doppler de-aliasing (:func:`estimate_omega_dealiased`): the measured
+Doppler is ambiguous modulo ``2 max_doppler_mps``; each velocity wrap ``k``
+changes the TDM phase of transmitter slot ``m`` by ``2 pi k m / n_tx``, so
+only the right wrap makes the transmitters' channels line up. The hypothesis
+whose angle spectrum peaks highest is kept (the standard TDM-MIMO test).
+
 
 from __future__ import annotations
 
