@@ -36,7 +36,7 @@ Doppler is ambiguous modulo ``2 max_doppler_mps``; each velocity wrap ``k``
 changes the TDM phase of transmitter slot ``m`` by ``2 pi k m / n_tx``, so
 only the right wrap makes the transmitters' channels line up. The hypothesis
 whose angle spectrum peaks highest is kept (the standard TDM-MIMO test).
-
+"""
 
 from __future__ import annotations
 
