@@ -24,6 +24,8 @@ _LAZY = {
     "detect_frame": "chain",
     "point_cloud_of_cube": "chain",
     "process_cubes": "chain",
+    "unambiguous_speed_mps": "chain",
+    "doppler_near_limit": "chain",
     "CfarConfig": "cfar",
     "ClusterConfig": "cluster",
     "torso_centroids": "cluster",

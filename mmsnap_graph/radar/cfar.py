@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from scipy import integrate, optimize, stats
 from scipy import ndimage
 
-from ..errors import ConfigurationError
+from ..errors import ConfigurationError, ValidationError
 
 __all__ = ["CfarConfig", "os_cfar_alpha", "os_cfar_noise_scale", "footprint", "pad_map",
            "os_cfar_2d", "os_cfar_cells"]
@@ -59,17 +59,21 @@ class CfarConfig:
 
     def __post_init__(self) -> None:
         for name in ("guard_cells", "train_cells"):
-            val = tuple(int(v) for v in getattr(self, name))
-            if len(val) != 2 or min(val) < 0 or tuple(getattr(self, name)) != val:
-                raise ConfigurationError(f"{name}={getattr(self, name)!r} must be two "
-                                         f"non-negative integers (range, Doppler)")
-            object.__setattr__(self, name, val)
+            raw = getattr(self, name)
+            if isinstance(raw, (str, bytes)) or not hasattr(raw, "__len__") or len(raw) != 2 \
+                    or not all(_is_int(v) and v >= 0 for v in raw):
+                raise ConfigurationError(f"{name}={raw!r} must be two non-negative integers "
+                                         f"(range, Doppler)")
+            object.__setattr__(self, name, tuple(int(v) for v in raw))
         if sum(self.train_cells) == 0:
             raise ConfigurationError("train_cells=(0, 0) leaves no training cells")
-        if not 0 < self.rank_fraction <= 1:
-            raise ConfigurationError(f"rank_fraction={self.rank_fraction!r} must be in (0, 1]")
-        if not 0 < self.pfa < 1:
-            raise ConfigurationError(f"pfa={self.pfa!r} must be in (0, 1)")
+        if not (_is_real(self.rank_fraction) and 0 < self.rank_fraction <= 1):
+            raise ConfigurationError(f"rank_fraction={self.rank_fraction!r} must be a number "
+                                     f"in (0, 1]")
+        if not (_is_real(self.pfa) and 0 < self.pfa < 1):
+            raise ConfigurationError(f"pfa={self.pfa!r} must be a number in (0, 1)")
+        object.__setattr__(self, "rank_fraction", float(self.rank_fraction))
+        object.__setattr__(self, "pfa", float(self.pfa))
 
     @property
     def n_train(self) -> int:
@@ -81,12 +85,54 @@ class CfarConfig:
         return int(min(max(round(self.rank_fraction * self.n_train), 1), self.n_train))
 
 
-def footprint(cfg: CfarConfig) -> NDArray:
-    """Boolean training footprint, shape ``(2 (g_r + t_r) + 1, 2 (g_d + t_d) + 1)``."""
-    (gr, gd), (tr, td) = cfg.guard_cells, cfg.train_cells
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _is_real(v) -> bool:
+    return (isinstance(v, (int, float, np.integer, np.floating))
+            and not isinstance(v, (bool, np.bool_)) and bool(np.isfinite(v)))
+
+
+@lru_cache(maxsize=32)
+def _footprint_cached(guard: tuple, train: tuple) -> NDArray:
+    (gr, gd), (tr, td) = guard, train
     fp = np.ones((2 * (gr + tr) + 1, 2 * (gd + td) + 1), bool)
     fp[tr:tr + 2 * gr + 1, td:td + 2 * gd + 1] = False
+    fp.setflags(write=False)
     return fp
+
+
+def _check_cfg(cfg) -> None:
+    if not isinstance(cfg, CfarConfig):
+        raise ConfigurationError(f"cfg must be a CfarConfig, got {type(cfg).__name__}")
+
+
+def _check_channels(n_channels) -> int:
+    if not (_is_int(n_channels) and n_channels >= 1):
+        raise ConfigurationError(f"n_channels={n_channels!r} must be an integer >= 1")
+    return int(n_channels)
+
+
+def _check_power(power) -> NDArray:
+    arr = np.asarray(power)
+    if arr.ndim != 2 or min(arr.shape) < 1:
+        raise ValidationError(f"power must be a non-empty (R, D) map, got shape {arr.shape}")
+    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)) \
+            or arr.dtype == bool:
+        raise ValidationError(f"power must be real (float), got dtype {arr.dtype}")
+    if not np.all(np.isfinite(arr)):
+        raise ValidationError("power must be finite")
+    if np.any(arr < 0):
+        raise ValidationError(f"power must be >= 0, got {arr.min()!r}")
+    return arr if np.issubdtype(arr.dtype, np.floating) else arr.astype(float)
+
+
+def footprint(cfg: CfarConfig) -> NDArray:
+    """Boolean training footprint, shape ``(2 (g_r + t_r) + 1, 2 (g_d + t_d) + 1)``
+    (cached, read-only)."""
+    _check_cfg(cfg)
+    return _footprint_cached(cfg.guard_cells, cfg.train_cells)
 
 
 def _order_stat_integral(fun, k: int, n: int) -> float:
@@ -101,9 +147,13 @@ def _order_stat_integral(fun, k: int, n: int) -> float:
 def os_cfar_alpha(n_train: int, rank: int, pfa: float, n_channels: int = 1) -> float:
     """Threshold factor ``alpha`` with false-alarm rate ``pfa`` for OS-CFAR
     on Gamma(``n_channels``) noise (module docstring)."""
-    if not 1 <= rank <= n_train:
+    if not (_is_int(n_train) and n_train >= 1):
+        raise ConfigurationError(f"n_train={n_train!r} must be an integer >= 1")
+    if not (_is_int(rank) and 1 <= rank <= n_train):
         raise ConfigurationError(f"rank={rank} must be in [1, n_train={n_train}]")
-    g = stats.gamma(n_channels)
+    if not (_is_real(pfa) and 0 < pfa < 1):
+        raise ConfigurationError(f"pfa={pfa!r} must be a number in (0, 1)")
+    g = stats.gamma(_check_channels(n_channels))
 
     def log_pfa(log_alpha):
         alpha = np.exp(log_alpha)
@@ -117,7 +167,11 @@ def os_cfar_alpha(n_train: int, rank: int, pfa: float, n_channels: int = 1) -> f
 def os_cfar_noise_scale(n_train: int, rank: int, n_channels: int = 1) -> float:
     """``E[Z_(k)] / E[cell]`` for noise-only Gamma(``n_channels``) cells: divide
     the order statistic by it to estimate the mean noise power of a cell."""
-    g = stats.gamma(n_channels)
+    if not (_is_int(n_train) and n_train >= 1):
+        raise ConfigurationError(f"n_train={n_train!r} must be an integer >= 1")
+    if not (_is_int(rank) and 1 <= rank <= n_train):
+        raise ConfigurationError(f"rank={rank!r} must be an integer in [1, n_train={n_train}]")
+    g = stats.gamma(_check_channels(n_channels))
     return _order_stat_integral(lambda u: g.ppf(u), rank, n_train) / n_channels
 
 
@@ -126,7 +180,11 @@ def os_cfar_2d(power: NDArray, cfg: CfarConfig, n_channels: int = 1) -> tuple[ND
 
     power : (R, D) float, range along axis 0, Doppler (periodic) along axis 1.
     Returns ``detected (R, D) bool`` and the noise order statistic ``Z_(k) (R, D)``.
+    Raises :class:`ValidationError` for a map that is not 2-D, real, finite
+    and >= 0, :class:`ConfigurationError` for a bad ``cfg`` or ``n_channels``.
     """
+    power = _check_power(power)
+    n_channels = _check_channels(n_channels)
     fp = footprint(cfg)
     hr, hd = fp.shape[0] // 2, fp.shape[1] // 2
     # Doppler wraps, range reflects: pad explicitly, filter, crop.
@@ -137,8 +195,9 @@ def os_cfar_2d(power: NDArray, cfg: CfarConfig, n_channels: int = 1) -> tuple[ND
     return power > alpha * z, z
 
 
-def _offsets(cfg: CfarConfig) -> tuple[NDArray, NDArray]:
-    fp = footprint(cfg)
+@lru_cache(maxsize=32)
+def _offsets_cached(guard: tuple, train: tuple) -> tuple[NDArray, NDArray]:
+    fp = _footprint_cached(guard, train)
     dr, dd = np.nonzero(fp)
     return dr - fp.shape[0] // 2, dd - fp.shape[1] // 2
 
@@ -146,6 +205,7 @@ def _offsets(cfg: CfarConfig) -> tuple[NDArray, NDArray]:
 def pad_map(power: NDArray, cfg: CfarConfig) -> NDArray:
     """The power map padded by the footprint's half-sizes: Doppler wrapped,
     range reflected (``numpy.pad`` 'symmetric')."""
+    power = _check_power(power)
     fp = footprint(cfg)
     hr, hd = fp.shape[0] // 2, fp.shape[1] // 2
     padded = np.pad(power, ((0, 0), (hd, hd)), mode="wrap")
@@ -165,24 +225,41 @@ def os_cfar_cells(
 
     power : (R, D) float map; rows, cols : (K,) int cell indices (range, Doppler).
     padded : :func:`pad_map` of ``power`` if already computed.
-    Returns ``detected (K,) bool`` and ``Z_(k) (K,)``.
+    Returns ``detected (K,) bool`` and ``Z_(k) (K,)``. Raises
+    :class:`ConfigurationError` for cells that are not integer, not of one
+    shape or outside the map (and the checks of :func:`os_cfar_2d`).
     """
-    rows = np.asarray(rows, dtype=np.intp)
-    cols = np.asarray(cols, dtype=np.intp)
+    _check_cfg(cfg)
+    n_channels = _check_channels(n_channels)
+    power = _check_power(power)
+    rows, cols = _check_cells(rows, cols, power.shape)
     if rows.size == 0:
         return np.zeros(0, bool), np.zeros(0, power.dtype)
-    if rows.size and (rows.min() < 0 or rows.max() >= power.shape[0] or cols.min() < 0
-                      or cols.max() >= power.shape[1]):
-        raise ConfigurationError(f"cells outside the {power.shape} map")
     fp = footprint(cfg)
     hr, hd = fp.shape[0] // 2, fp.shape[1] // 2
     if padded is None:
         padded = pad_map(power, cfg)
+    elif np.shape(padded) != (power.shape[0] + 2 * hr, power.shape[1] + 2 * hd):
+        raise ValidationError(f"padded has shape {np.shape(padded)}; pad_map of a "
+                              f"{power.shape} map has {(power.shape[0] + 2 * hr, power.shape[1] + 2 * hd)}")
     width = padded.shape[1]
-    dr, dd = _offsets(cfg)
+    dr, dd = _offsets_cached(cfg.guard_cells, cfg.train_cells)
     flat_off = dr * width + dd
     centre = (rows + hr) * width + (cols + hd)
     train = padded.ravel()[centre[:, None] + flat_off[None, :]]
     z = np.partition(train, cfg.rank - 1, axis=1)[:, cfg.rank - 1]
     alpha = os_cfar_alpha(cfg.n_train, cfg.rank, cfg.pfa, n_channels)
     return power[rows, cols] > alpha * z, z
+
+
+def _check_cells(rows, cols, shape) -> tuple[NDArray, NDArray]:
+    r, c = np.asarray(rows), np.asarray(cols)
+    for name, a in (("rows", r), ("cols", c)):
+        if a.ndim != 1 or (a.size and not np.issubdtype(a.dtype, np.integer)) or a.dtype == bool:
+            raise ConfigurationError(f"{name} must be a 1-D integer array, got {a.dtype} {a.shape}")
+    if r.shape != c.shape:
+        raise ConfigurationError(f"rows {r.shape} and cols {c.shape} must have one shape")
+    if r.size and (r.min() < 0 or r.max() >= shape[0] or c.min() < 0 or c.max() >= shape[1]):
+        raise ConfigurationError(f"cells outside the {shape} map: rows in [{r.min()}, {r.max()}], "
+                              f"cols in [{c.min()}, {c.max()}]")
+    return r.astype(np.intp, copy=False), c.astype(np.intp, copy=False)

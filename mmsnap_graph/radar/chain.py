@@ -17,8 +17,9 @@ Per frame (:func:`point_cloud_of_cube`):
    drops peaks whose local noise estimate would have to be ``prescreen_db``
    below the map's median to pass;
 4. range and Doppler refined by parabolic interpolation of the log power,
-   angle by the TDM-corrected, interpolated angle FFT per detected cell;
-   ``snr_db`` is the cell's power over the local noise estimate (OS statistic
+   angle by the TDM-corrected, interpolated angle FFT per detected cell,
+   the Doppler de-aliased by the TDM hypothesis test (``doppler_wraps``,
+   :func:`~mmsnap_graph.radar.spectrum.estimate_omega_dealiased`); ``snr_db`` is the cell's power over the local noise estimate (OS statistic
    scaled to the mean noise power of a cell of the channel-integrated map).
 
 False alarms: on noise-only Table I frames the chain's rate is close to the
@@ -37,6 +38,7 @@ of their samples at full scale.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Iterable
 
 import numpy as np
@@ -60,6 +62,7 @@ from .spectrum import (
     check_cube,
     doppler_of_bin,
     estimate_omega,
+    estimate_omega_dealiased,
     parabolic_offset,
     range_doppler,
     window,
@@ -72,7 +75,17 @@ __all__ = [
     "point_cloud_of_cube",
     "detect_frame",
     "process_cubes",
+    "unambiguous_speed_mps",
+    "doppler_near_limit",
+    "DEFAULT_MIN_RANGE_M",
 ]
+
+#: Default start of the processed range (m). Real boards leave a near-field
+#: residue of the transmitter-receiver leakage and the radome that survives
+#: static clutter removal (on an AWR1843 capture it made a false centroid at
+#: 0.72-0.78 m in 74 of 101 frames); nothing closer than this is processed
+#: (docs/TI.md, "Near-field leakage").
+DEFAULT_MIN_RANGE_M = 0.9
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -83,7 +96,24 @@ class ChainConfig:
     angle_fft_size : zero-padded angle FFT length.
     clutter_removal : subtract the loop mean (static clutter).
     min_range_m, max_range_m : processed range interval (max None = up to the
-        radar's unambiguous range).
+        radar's unambiguous range). The default minimum,
+        :data:`DEFAULT_MIN_RANGE_M` = 0.9 m, clears the near-field leakage
+        residue of real boards (0.72-0.78 m on an AWR1843); 0.3 m was the
+        default before (simulated cubes have no leakage).
+    doppler_wraps : TDM-MIMO Doppler de-aliasing: velocity wraps ``k`` in
+        ``-doppler_wraps..doppler_wraps`` are tested per detection
+        (:func:`~mmsnap_graph.radar.spectrum.estimate_omega_dealiased`),
+        extending the unambiguous speed to ``(2 doppler_wraps + 1)
+        max_doppler_mps``; 0 = off (the measured Doppler, aliased beyond
+        ``max_doppler_mps``). Default 1: with 3 transmitters, the wraps that
+        can be told apart.
+    dealias_min_snr_db : detections weaker than this keep the measured
+        (wrapped) Doppler: at 5-8 dB the hypothesis test picked a wrong wrap
+        for about 2-10% of simulated points, at 12 dB and above for none
+        (docs/TI.md, "Doppler de-aliasing"). Default 12 dB.
+    near_limit_fraction : detections whose speed is at least this fraction
+        of :func:`unambiguous_speed_mps` are flagged
+        (``ChainResult.doppler_near_limit``): they may be aliased.
     cfar : OS-CFAR parameters; cfar_method : ``"cells"`` (fast) or ``"full"``.
     prescreen_db : pre-screen margin below the threshold the map's own rank
         statistic gives (dB).
@@ -98,8 +128,11 @@ class ChainConfig:
     angle_window: str = "boxcar"
     angle_fft_size: int = 64
     clutter_removal: bool = True
-    min_range_m: float = 0.3
+    min_range_m: float = DEFAULT_MIN_RANGE_M
     max_range_m: float | None = None
+    doppler_wraps: int = 1
+    dealias_min_snr_db: float = 12.0
+    near_limit_fraction: float = 0.9
     cfar: CfarConfig = field(default_factory=CfarConfig)
     cfar_method: str = "cells"
     prescreen_db: float = 3.0
@@ -119,6 +152,22 @@ class ChainConfig:
         if self.max_range_m is not None and not self.max_range_m > self.min_range_m:
             raise ConfigurationError(f"max_range_m={self.max_range_m!r} must exceed "
                                      f"min_range_m={self.min_range_m!r}")
+        if (isinstance(self.doppler_wraps, bool) or not isinstance(self.doppler_wraps, (int, np.integer))
+                or not 0 <= self.doppler_wraps <= 8):
+            raise ConfigurationError(f"doppler_wraps={self.doppler_wraps!r} must be an integer "
+                                     f"in [0, 8]")
+        if isinstance(self.dealias_min_snr_db, bool) or not np.isfinite(self.dealias_min_snr_db):
+            raise ConfigurationError(f"dealias_min_snr_db={self.dealias_min_snr_db!r} must be a "
+                                     f"finite number (dB)")
+        if not (isinstance(self.near_limit_fraction, (int, float))
+                and 0 < self.near_limit_fraction <= 1):
+            raise ConfigurationError(f"near_limit_fraction={self.near_limit_fraction!r} must be "
+                                     f"in (0, 1]")
+        if not isinstance(self.cfar, CfarConfig):
+            raise ConfigurationError(f"cfar must be a CfarConfig, got {type(self.cfar).__name__}")
+        if not isinstance(self.cluster, ClusterConfig):
+            raise ConfigurationError(f"cluster must be a ClusterConfig, got "
+                                     f"{type(self.cluster).__name__}")
         if self.cfar_method not in ("cells", "full"):
             raise ConfigurationError(f"cfar_method={self.cfar_method!r} must be 'cells' or 'full'")
         if not (np.isfinite(self.dynamic_range_db) and self.dynamic_range_db > 0):
@@ -151,6 +200,8 @@ class ChainResult:
     frame : (F,) int processed frames; status : (F,) int,
     :class:`~mmsnap_graph.data.results.Status` codes (0, 6, 7 or 8).
     success : every frame was processed; message : a summary of the flags.
+    doppler_near_limit : (K,) bool, one per point-cloud row: the speed is near
+        the unambiguous speed (:func:`doppler_near_limit`), it may be aliased.
     """
 
     point_cloud: Detections
@@ -159,6 +210,24 @@ class ChainResult:
     status: NDArray
     success: bool
     message: str
+    doppler_near_limit: NDArray = field(default_factory=lambda: np.zeros(0, bool))
+
+
+def unambiguous_speed_mps(config: RadarConfig, chain: ChainConfig | None = None) -> float:
+    """The largest speed the chain reports without aliasing (m/s):
+    ``(2 chain.doppler_wraps + 1) * config.max_doppler_mps``. Pass it to
+    :class:`~mmsnap_graph.tracking.ekf.EkfConfig` as ``doppler_wrap_mps``."""
+    chain = ChainConfig() if chain is None else chain
+    return float((2 * int(chain.doppler_wraps) + 1) * config.max_doppler_mps)
+
+
+def doppler_near_limit(doppler_mps: NDArray, config: RadarConfig,
+                       chain: ChainConfig | None = None) -> NDArray:
+    """(K,) bool: ``|doppler_mps| >= near_limit_fraction *``
+    :func:`unambiguous_speed_mps` (the speed may be aliased)."""
+    chain = ChainConfig() if chain is None else chain
+    v = np.abs(np.asarray(doppler_mps, dtype=float))
+    return v >= chain.near_limit_fraction * unambiguous_speed_mps(config, chain)
 
 
 _NEIGHBOURS_R = np.array([-1, -1, -1, 0, 0, 1, 1, 1])
@@ -195,6 +264,11 @@ def _frame_status(cube: NDArray, chain: ChainConfig) -> tuple[Status, float]:
     return Status.OK, energy
 
 
+@lru_cache(maxsize=1)
+def _default_chain() -> ChainConfig:
+    return ChainConfig()
+
+
 def _empty_cloud_arrays():
     z = np.zeros(0)
     return z, z, z, z
@@ -210,7 +284,7 @@ def point_cloud_of_cube(
     and the frame's :class:`~mmsnap_graph.data.results.Status` (``OK``,
     ``NON_FINITE_SAMPLES``, ``ALL_ZERO_CUBE`` or ``SATURATED``).
     """
-    chain = ChainConfig() if chain is None else chain
+    chain = _default_chain() if chain is None else chain
     x = check_cube(cube, config)
     status, energy = _frame_status(x, chain)
     if status != Status.OK:
@@ -258,21 +332,39 @@ def point_cloud_of_cube(
         rows, cols, z = rows[detected], cols[detected], z[detected]
     if rows.size == 0:
         return _empty_cloud_arrays(), status
-    # Sub-bin refinement on log power.
-    lp = np.log(np.maximum(power, np.finfo(np.float32).tiny))
+    # Sub-bin refinement on log power (at the detections and their neighbours).
     nr, nd = power.shape
-    r_off = parabolic_offset(lp[np.maximum(rows - 1, 0), cols], lp[rows, cols],
-                             lp[np.minimum(rows + 1, nr - 1), cols])
-    d_off = parabolic_offset(lp[rows, (cols - 1) % nd], lp[rows, cols], lp[rows, (cols + 1) % nd])
+    tiny = np.finfo(np.float32).tiny
+
+    def lp(r, c):
+        return np.log(np.maximum(power[r, c], tiny).astype(float))
+
+    r_off = parabolic_offset(lp(np.maximum(rows - 1, 0), cols), lp(rows, cols),
+                             lp(np.minimum(rows + 1, nr - 1), cols))
+    d_off = parabolic_offset(lp(rows, (cols - 1) % nd), lp(rows, cols), lp(rows, (cols + 1) % nd))
     range_m = (rows + rs.start + r_off) * config.range_resolution_m
     doppler = doppler_of_bin(cols + d_off, config)
-    omega, _ = estimate_omega(spec[rows, cols, :], doppler, config,
-                              angle_window=chain.angle_window, n_fft=int(chain.angle_fft_size))
     noise = z / os_cfar_noise_scale(cfar.n_train, cfar.rank, n_ch)
     with np.errstate(divide="ignore"):
         snr_db = 10.0 * np.log10(power[rows, cols] / np.maximum(noise, np.finfo(np.float32).tiny))
+    omega, doppler = _angle_and_doppler(spec[rows, cols, :], doppler, snr_db, config, chain)
     return (range_m.astype(float), omega.astype(float), doppler.astype(float),
             snr_db.astype(float)), status
+
+
+def _angle_and_doppler(snapshots, doppler, snr_db, config: RadarConfig, chain: ChainConfig):
+    """Spatial frequency and (de-aliased) Doppler of the detected cells:
+    de-aliasing only where ``snr_db >= chain.dealias_min_snr_db``."""
+    omega, _ = estimate_omega(snapshots, doppler, config, angle_window=chain.angle_window,
+                              n_fft=int(chain.angle_fft_size))
+    strong = snr_db >= chain.dealias_min_snr_db
+    if chain.doppler_wraps and np.any(strong):
+        om, _, dop = estimate_omega_dealiased(
+            snapshots[strong], doppler[strong], config, max_wraps=int(chain.doppler_wraps),
+            angle_window=chain.angle_window, n_fft=int(chain.angle_fft_size))
+        omega, doppler = omega.copy(), doppler.copy()
+        omega[strong], doppler[strong] = om, dop
+    return omega, doppler
 
 
 def detect_frame(
@@ -354,4 +446,5 @@ def process_cubes(
     else:
         message = f"{n} frames processed"
     return ChainResult(point_cloud=cloud, centroids=centroids, frame=frames, status=status,
-                       success=bad.size == 0, message=message)
+                       success=bad.size == 0, message=message,
+                       doppler_near_limit=doppler_near_limit(cloud.doppler_mps, config, chain))

@@ -30,7 +30,10 @@ torso. The plain cluster mean mixes all of that. The paper's torso variant
    range and spatial frequency) and of their Doppler.
 
 Clusters with fewer than ``min_samples`` points are noise (DBSCAN label -1)
-and give no centroid. Several people give several centroids (one per
+and give no centroid, unless ``point_targets`` is on: then a noise point with
+an SNR of at least ``point_target_snr_db`` is a **point target**, a centroid
+of its own (a corner reflector, a pole: one CFAR peak, which DBSCAN's
+three-point minimum would drop). Several people give several centroids (one per
 cluster); two people closer than ``eps_m`` merge.
 """
 
@@ -47,7 +50,7 @@ from factors.models import detection_to_local
 from ..errors import ConfigurationError
 from ..data.recording import Detections
 
-__all__ = ["ClusterConfig", "torso_centroids", "cluster_labels"]
+__all__ = ["ClusterConfig", "torso_centroids", "cluster_labels", "point_target_labels"]
 
 _PRECOMPUTED_MAX = 1500
 
@@ -63,6 +66,11 @@ class ClusterConfig:
         resolution cells.
     method : ``"torso"`` (the variant above) or ``"mean"`` (plain SNR-weighted
         cluster mean, for comparison).
+    point_targets : an isolated point (DBSCAN noise) with ``snr_db >=
+        point_target_snr_db`` is a centroid of its own (default off: people
+        give clusters; turn it on for point-like reflectors).
+    point_target_snr_db : SNR (dB) a lone point needs to be a point target
+        (default 15 dB; points without SNR never qualify).
     """
 
     eps_m: float = 0.4
@@ -70,6 +78,8 @@ class ClusterConfig:
     cross_range_scale: float = 3.0
     torso_doppler_cells: float = 1.0
     method: str = "torso"
+    point_targets: bool = False
+    point_target_snr_db: float = 15.0
 
     def __post_init__(self) -> None:
         for name in ("eps_m", "cross_range_scale", "torso_doppler_cells"):
@@ -78,6 +88,11 @@ class ClusterConfig:
                 raise ConfigurationError(f"{name}={val!r} must be finite and > 0")
         if int(self.min_samples) != self.min_samples or self.min_samples < 1:
             raise ConfigurationError(f"min_samples={self.min_samples!r} must be an integer >= 1")
+        if not isinstance(self.point_targets, (bool, np.bool_)):
+            raise ConfigurationError(f"point_targets={self.point_targets!r} must be True or False")
+        if isinstance(self.point_target_snr_db, bool) or not np.isfinite(self.point_target_snr_db):
+            raise ConfigurationError(f"point_target_snr_db={self.point_target_snr_db!r} must be "
+                                     f"a finite number (dB)")
         if self.method not in ("torso", "mean"):
             raise ConfigurationError(f"method={self.method!r} must be 'torso' or 'mean'")
 
@@ -105,6 +120,20 @@ def cluster_labels(range_m: NDArray, omega_rad: NDArray, config: ClusterConfig) 
         return db.fit_predict(dist).astype(np.int64)
     db = DBSCAN(eps=config.eps_m, min_samples=int(config.min_samples))
     return db.fit_predict(feats).astype(np.int64)
+
+
+def point_target_labels(labels: NDArray, snr_db: NDArray | None,
+                        config: ClusterConfig) -> NDArray:
+    """DBSCAN labels with point targets: with ``config.point_targets``, each
+    noise point (label -1) whose ``snr_db >= config.point_target_snr_db``
+    gets a new label of its own. Returns a new (K,) int array."""
+    out = np.array(labels, dtype=np.int64, copy=True)
+    if not config.point_targets or snr_db is None:
+        return out
+    lone = np.flatnonzero((out < 0) & (np.asarray(snr_db) >= config.point_target_snr_db))
+    first = int(out.max()) + 1 if out.size else 0
+    out[lone] = first + np.arange(lone.size)
+    return out
 
 
 def _torso_of_cluster(p, dop, w, config: ClusterConfig, doppler_res: float):
@@ -143,7 +172,8 @@ def torso_centroids(
         dop = point_cloud.doppler_mps[rows]
         snr = (point_cloud.snr_db[rows] if point_cloud.snr_db is not None
                else np.zeros(rows.size))
-        labels = cluster_labels(rng_m, om, config)
+        labels = point_target_labels(cluster_labels(rng_m, om, config),
+                                     None if point_cloud.snr_db is None else snr, config)
         if not np.any(labels >= 0):
             continue
         p = detection_to_local(rng_m, om)

@@ -17,9 +17,12 @@ Data association per frame: Mahalanobis gating (``d^2 < chi2_3(gate_probability)
 then a global nearest-neighbour assignment (``scipy.optimize.linear_sum_assignment``
 on ``d^2 + ln det S``) among gated pairs. Track management: an unassigned
 measurement starts a tentative track; a tentative track is confirmed after
-``confirm_hits`` hits within its first ``confirm_window`` frames and deleted
-if it cannot be; a confirmed track is deleted after ``max_misses`` consecutive
-misses. Linear algebra: Cholesky factor of the innovation covariance and
+``confirm_hits`` hits within its first ``confirm_window_s`` seconds and
+deleted if it cannot be; a confirmed track is deleted after coasting
+``max_coast_s`` seconds without a hit (both converted to frames with the
+frame period, so the defaults hold from 5 to 30 fps). With
+``doppler_wrap_mps`` the Doppler innovation is wrapped modulo twice the
+unambiguous speed, as the spatial-frequency one is modulo ``2 pi``. Linear algebra: Cholesky factor of the innovation covariance and
 triangular solves (no explicit inverse), Joseph-form updates, symmetrized
 covariances.
 """
@@ -47,6 +50,7 @@ __all__ = [
     "track_initial_state",
     "ekf_predict",
     "ekf_update",
+    "wrap_innovation",
     "LocalTracker",
     "track_centroids",
 ]
@@ -77,8 +81,21 @@ class EkfConfig:
     init_tangential_speed_std_mps : std of the velocity across the line of
         sight at track start (the Doppler gives only the radial part).
     gate_probability : chi-square gate probability (3 degrees of freedom).
-    confirm_hits, confirm_window : M-of-N confirmation.
-    max_misses : consecutive misses that delete a confirmed track.
+    confirm_hits : hits that confirm a tentative track.
+    confirm_window_s : ... within this time from its first hit (default
+        0.75 s: 5 frames of 150 ms, 15 at 20 fps, 4 at 5 fps).
+    max_coast_s : a confirmed track coasting this long without a hit is
+        deleted (default 0.75 s).
+    confirm_window, max_misses : the same two thresholds in frames; when
+        given (not None) they take precedence over the times. The frame
+        counts in use are :attr:`confirm_window_frames` and
+        :attr:`max_misses_frames` (times divided by ``frame_period_s``,
+        rounded up), so that one configuration works from 5 to 30 fps.
+    doppler_wrap_mps : the unambiguous speed ``U`` of the Doppler
+        measurements (e.g. :func:`mmsnap_graph.radar.chain.unambiguous_speed_mps`):
+        the Doppler innovation is wrapped into ``[-U, U)`` (modulo ``2 U``),
+        so an aliased Doppler still updates a fast track the right way.
+        None (default): not wrapped.
     """
 
     frame_period_s: float = 0.150
@@ -87,8 +104,11 @@ class EkfConfig:
     init_tangential_speed_std_mps: float = 1.0
     gate_probability: float = 0.997
     confirm_hits: int = 3
-    confirm_window: int = 5
-    max_misses: int = 5
+    confirm_window_s: float = 0.75
+    max_coast_s: float = 0.75
+    confirm_window: int | None = None
+    max_misses: int | None = None
+    doppler_wrap_mps: float | None = None
 
     def __post_init__(self) -> None:
         std = tuple(float(s) for s in self.measurement_std)
@@ -106,11 +126,40 @@ class EkfConfig:
             raise ConfigurationError(f"gate_probability={self.gate_probability!r} must be in (0, 1)")
         for name in ("confirm_hits", "confirm_window", "max_misses"):
             v = getattr(self, name)
-            if int(v) != v or v < 1:
+            if v is None and name != "confirm_hits":
+                continue
+            if isinstance(v, bool) or int(v) != v or v < 1:
                 raise ConfigurationError(f"{name}={v!r} must be an integer >= 1")
-        if self.confirm_hits > self.confirm_window:
+        for name in ("confirm_window_s", "max_coast_s"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (np.isfinite(v) and v > 0):
+                raise ConfigurationError(f"{name}={v!r} must be finite and > 0 (seconds)")
+        if self.doppler_wrap_mps is not None and (
+                isinstance(self.doppler_wrap_mps, bool)
+                or not (np.isfinite(self.doppler_wrap_mps) and self.doppler_wrap_mps > 0)):
+            raise ConfigurationError(f"doppler_wrap_mps={self.doppler_wrap_mps!r} must be "
+                                     f"finite and > 0, or None")
+        if self.confirm_window is not None and self.confirm_hits > self.confirm_window:
             raise ConfigurationError(f"confirm_hits={self.confirm_hits} exceeds "
                                      f"confirm_window={self.confirm_window}")
+
+    @property
+    def confirm_window_frames(self) -> int:
+        """Frames within which a track must collect ``confirm_hits`` hits:
+        ``confirm_window`` if given, else ``ceil(confirm_window_s /
+        frame_period_s)``, at least ``confirm_hits``."""
+        if self.confirm_window is not None:
+            return int(self.confirm_window)
+        n = int(np.ceil(self.confirm_window_s / self.frame_period_s - 1e-9))
+        return max(n, int(self.confirm_hits))
+
+    @property
+    def max_misses_frames(self) -> int:
+        """Consecutive misses that delete a confirmed track: ``max_misses`` if
+        given, else ``ceil(max_coast_s / frame_period_s)`` (at least 1)."""
+        if self.max_misses is not None:
+            return int(self.max_misses)
+        return max(1, int(np.ceil(self.max_coast_s / self.frame_period_s - 1e-9)))
 
     @property
     def measurement_covariance(self) -> NDArray:
@@ -146,20 +195,33 @@ def ekf_predict(x: NDArray, p: NDArray, frame_period_s: float, sigma_a_mps2: flo
     return f @ x, symmetrize(f @ p @ f.T + cv_process_noise(frame_period_s, sigma_a_mps2))
 
 
-def _innovation(x: NDArray, p: NDArray, z: NDArray, r: NDArray):
-    h, jac = measurement_model(x, _ZERO_POSE)
-    nu = z - h
+def wrap_innovation(nu: NDArray, doppler_wrap_mps: float | None = None) -> NDArray:
+    """Wrap innovations ``(..., 3)`` in place and return them: the spatial
+    frequency into ``[-pi, pi)``, the Doppler into ``[-U, U)`` when
+    ``doppler_wrap_mps = U`` is given (modulo twice the unambiguous speed)."""
     nu[..., 1] = wrap_angle(nu[..., 1])
+    if doppler_wrap_mps is not None:
+        u = float(doppler_wrap_mps)
+        nu[..., 2] = (nu[..., 2] + u) % (2.0 * u) - u
+    return nu
+
+
+def _innovation(x: NDArray, p: NDArray, z: NDArray, r: NDArray, doppler_wrap_mps=None):
+    h, jac = measurement_model(x, _ZERO_POSE)
+    nu = wrap_innovation(z - h, doppler_wrap_mps)
     s = symmetrize(jac @ p @ jac.T + r)
     return nu, jac, s
 
 
-def ekf_update(x: NDArray, p: NDArray, z: ArrayLike, r: NDArray):
+def ekf_update(x: NDArray, p: NDArray, z: ArrayLike, r: NDArray, *,
+               doppler_wrap_mps: float | None = None):
     """EKF update with one measurement ``z (3,)`` and noise ``r (3, 3)``.
 
+    doppler_wrap_mps : wrap the Doppler innovation into ``[-U, U)``
+        (:func:`wrap_innovation`; ``EkfConfig.doppler_wrap_mps``).
     Returns ``x (4,), P (4, 4), d2`` (the Mahalanobis distance of the innovation).
     """
-    nu, jac, s = _innovation(x, p, np.asarray(z, dtype=float).copy(), r)
+    nu, jac, s = _innovation(x, p, np.asarray(z, dtype=float).copy(), r, doppler_wrap_mps)
     chol = linalg.cho_factor(s, lower=True)
     # K = P H^T S^-1, computed as (S^-1 H P)^T with a Cholesky solve.
     gain = linalg.cho_solve(chol, jac @ p).T
@@ -226,8 +288,7 @@ class LocalTracker:
                     chol = linalg.cholesky(s, lower=True)
                 except linalg.LinAlgError:
                     continue
-                nu = z - h
-                nu[:, 1] = wrap_angle(nu[:, 1])
+                nu = wrap_innovation(z - h, cfg.doppler_wrap_mps)
                 w = linalg.solve_triangular(chol, nu.T, lower=True)
                 d2 = np.sum(w * w, axis=0)
                 logdet = 2.0 * np.sum(np.log(np.diag(chol)))
@@ -238,7 +299,8 @@ class LocalTracker:
                 if cost[i, j] >= big:
                     continue
                 tr = self._tracks[i]
-                tr.x, tr.p, _ = ekf_update(tr.x, tr.p, z[j], self._r)
+                tr.x, tr.p, _ = ekf_update(tr.x, tr.p, z[j], self._r,
+                                           doppler_wrap_mps=cfg.doppler_wrap_mps)
                 tr.hits += 1
                 tr.misses = 0
                 assigned_t[i] = assigned_z[j] = True
@@ -250,10 +312,10 @@ class LocalTracker:
             if not tr.confirmed and tr.hits >= cfg.confirm_hits:
                 tr.confirmed = True
             if tr.confirmed:
-                alive = tr.misses < cfg.max_misses
+                alive = tr.misses < cfg.max_misses_frames
             else:
                 # Can it still reach confirm_hits within confirm_window?
-                alive = tr.hits + (cfg.confirm_window - tr.age) >= cfg.confirm_hits
+                alive = tr.hits + (cfg.confirm_window_frames - tr.age) >= cfg.confirm_hits
             if alive:
                 keep.append(tr)
         self._tracks = keep
