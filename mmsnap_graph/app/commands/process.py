@@ -34,6 +34,10 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..pipeline import process_file  # here: `mmsnap --help` does not import h5py
+    from mmsnap_graph._atomic import check_output_path
+
+    if args.output is not None:
+        check_output_path(args.output)
 
     config = ChainConfig(cfar=dataclasses.replace(CfarConfig(), pfa=args.pfa))
     ekf = EkfConfig(sigma_a_mps2=args.sigma_a)

@@ -64,7 +64,9 @@ def run(args: argparse.Namespace) -> int:
     network = dict(args.node) if args.node else args.configuration
     if args.node and len(network) != len(args.node):
         raise ValidationError("--node names must be distinct")
-    out = Path(args.output)
+    from mmsnap_graph._atomic import check_output_path
+
+    out = check_output_path(args.output)
     if out.exists() and not args.overwrite:
         raise ValidationError(f"{out} exists; pass --overwrite to replace it")
     progress = not args.no_progress and sys.stderr.isatty()
