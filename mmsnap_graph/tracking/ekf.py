@@ -248,6 +248,9 @@ class LocalTracker:
             raise ValidationError(f"measurements must have shape (K, 3), got {z.shape}")
         if frame_period_s is None:
             t = self.config.frame_period_s
+        elif isinstance(frame_period_s, (bool, np.bool_)) or not isinstance(
+                frame_period_s, (int, float, np.integer, np.floating)):
+            raise ValidationError(f"frame_period_s={frame_period_s!r} must be a number")
         else:
             t = float(check_positive(frame_period_s, "frame_period_s", strict=False))
         physical = (np.abs(z[:, 0]) <= MAX_RANGE_M) & (np.abs(z[:, 2]) <= MAX_SPEED_MPS)
