@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import logging
 import sys
 
-from .. import __version__
 from ..errors import MmsnapError
 
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
@@ -34,13 +34,21 @@ EXIT_FAILURE = 1
 EXIT_USAGE = 2
 
 
+def package_version() -> str:
+    """The installed distribution's version (``mmsnap_graph.__version__``)."""
+    try:
+        return importlib.metadata.version("mmsnap_graph")
+    except importlib.metadata.PackageNotFoundError:  # run from a source tree
+        return "unknown"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mmsnap",
         description="Self-calibration and Bayesian one-shot fusion for mmWave radar networks.",
         epilog="Exit codes: 0 ok, 1 data or estimation failure, 2 bad option or input file.",
     )
-    parser.add_argument("--version", action="version", version=f"mmsnap {__version__}")
+    parser.add_argument("--version", action="version", version=f"mmsnap {package_version()}")
     parser.add_argument("-v", "--verbose", action="count", default=0,
                         help="more log messages (-v info, -vv debug)")
     parser.add_argument("-q", "--quiet", action="count", default=0,

@@ -32,7 +32,8 @@ from .._atomic import atomic_path
 from ..calibration import PoseEdge, RecordingCalibration
 from ..data.recording import Recording
 from ..errors import CalibrationError, FileFormatError, MmsnapError
-from .hdf5 import H5_ERRORS, read_guard, update_recording
+from .guard import H5_ERRORS, read_guard
+from .hdf5 import update_recording
 
 __all__ = [
     "CALIBRATION_GROUP",

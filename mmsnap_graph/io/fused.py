@@ -20,7 +20,7 @@ import numpy as np
 from .._atomic import atomic_path, recording_lock
 from ..data.results import FusedSequence, Status
 from ..errors import FileFormatError, MmsnapError
-from .hdf5 import H5_ERRORS, read_guard
+from .guard import H5_ERRORS, read_guard
 
 __all__ = ["FUSED_GROUP", "FUSED_LAYOUT", "FUSED_STATUSES", "write_fused", "read_fused"]
 

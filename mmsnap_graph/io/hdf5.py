@@ -23,7 +23,6 @@ HDF5 path of the missing or malformed dataset or attribute.
 
 from __future__ import annotations
 
-import contextlib
 import os
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -33,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._atomic import atomic_path, recording_lock
+from .guard import H5_ERRORS, read_guard
 from ..errors import ConfigurationError, FileFormatError, MmsnapError
 from ..data.radar_config import RadarConfig
 from ..data.recording import Detections, NodeData, Recording, Tracks, Truth
@@ -65,11 +65,6 @@ _ROOT_ATTRS = {"format", "format_version", "frame_period_s", "node_order"}
 #: Datasets at least this many elements long are chunked and compressed.
 _COMPRESS_MIN = 1024
 _STR = h5py.string_dtype(encoding="utf-8")
-#: What h5py and numpy raise on a damaged file (issue 13: bit flips give
-#: RuntimeError, ValueError, KeyError, ... besides OSError); readers turn them
-#: into :class:`FileFormatError` naming the file and the field.
-H5_ERRORS = (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, OverflowError,
-             UnicodeDecodeError, AttributeError, SystemError)
 
 
 # --------------------------------------------------------------------------
@@ -597,24 +592,6 @@ def _metadata(f: h5py.File) -> dict[str, Any]:
             value = value.item()
         metadata[key] = value
     return metadata
-
-
-@contextlib.contextmanager
-def read_guard(path: str | os.PathLike) -> Iterator[None]:
-    """Any error of h5py or numpy while reading ``path`` (:data:`H5_ERRORS`)
-    becomes a :class:`FileFormatError` whose message names the file (and the
-    field, where the reader knew it)."""
-    name = str(path)
-    try:
-        yield
-    except FileFormatError as exc:
-        if str(exc).startswith(name):
-            raise
-        raise FileFormatError(f"{name}: {exc}") from exc
-    except MmsnapError:
-        raise
-    except H5_ERRORS as exc:
-        raise FileFormatError(f"{name} is damaged: {type(exc).__name__}: {exc}") from exc
 
 
 def read_recording(path: str | os.PathLike, *, load_cubes: bool = True) -> Recording:

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mmsnap_graph._atomic import check_output_path, recording_lock
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -80,7 +82,6 @@ def format_table(cal) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph._atomic import check_output_path, recording_lock
     from mmsnap_graph.calibration import calibrate_recording
     from mmsnap_graph.data.noise import MeasurementNoise
     from mmsnap_graph.errors import ValidationError

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..evaluation import evaluate_recording
     from mmsnap_graph.io import read_recording
-    from mmsnap_graph.io.hdf5 import read_guard
+    from mmsnap_graph.io.guard import read_guard
     from mmsnap_graph.io.fused import FUSED_GROUP, read_fused
     from mmsnap_graph.io.calibration import load_calibration_poses
 

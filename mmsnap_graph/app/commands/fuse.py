@@ -12,6 +12,9 @@ import sys
 
 import numpy as np
 
+from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.errors import ValidationError
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -48,9 +51,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph._atomic import check_output_path, recording_lock
     from mmsnap_graph.data.noise import MeasurementNoise
-    from mmsnap_graph.errors import ValidationError
     from mmsnap_graph.fusion.sequence import fuse_recording
     from mmsnap_graph.io import read_recording, write_fused
     from mmsnap_graph.io.calibration import load_calibration_poses
