@@ -19,6 +19,11 @@ from pathlib import Path
 from mmsnap_graph.errors import ValidationError
 
 
+#: Runs at least this long (the paper's 90 s) exit 1 when a paper check does
+#: not hold; shorter runs (smoke tests) only report it, unless --strict.
+CHECKED_FRAMES = 600
+
+
 def _list(choices):
     def parse(text: str) -> tuple[str, ...]:
         items = tuple(s.strip() for s in text.split(",") if s.strip())
@@ -58,6 +63,9 @@ def register(subparsers) -> None:
                    help="frames of simulated raw ADC cubes run through the full chain "
                         "(default %(default)s; 0 = none)")
     p.add_argument("--no-figures", action="store_true", help="tables only, no figures")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 1 when a paper check does not hold, even for runs shorter than "
+                        f"{CHECKED_FRAMES} frames (always for longer runs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -137,8 +145,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {report}, {out / 'results.json'}" + (f" and {len(figures)} figures" if figures else "")
           + f" in {wall:.1f} s")
     failed = [c.claim for c in checks if not c.holds]
-    if failed:
-        print(f"mmsnap demo: {len(failed)} paper check(s) do not hold: " + "; ".join(failed),
-              file=sys.stderr)
-        return 1
-    return 0
+    if not failed:
+        return 0
+    enforced = args.strict or args.frames >= CHECKED_FRAMES
+    print(f"mmsnap demo: {len(failed)} paper check(s) do not hold: " + "; ".join(failed)
+          + ("" if enforced else f" (not enforced for runs shorter than {CHECKED_FRAMES} "
+                                 "frames; --strict enforces them)"), file=sys.stderr)
+    return 1 if enforced else 0
