@@ -1,23 +1,60 @@
-"""Atomic file writes: the one place that knows how (design: nothing is lost).
+"""Atomic file writes and the recording lock: the one place that knows how
+(design: nothing is lost).
 
 A file is written to a temporary name in the destination folder and renamed
 over the destination only once complete, so a crash or an error never leaves
 a half-written file under the real name. The new file gets the permissions an
 ordinary ``open(path, "w")`` would give (``0o666`` less the umask), not the
 ``0o600`` of ``tempfile.mkstemp``.
+
+Temporary files are named ``.<name>.<pid>@<host>.<random>.tmp``. A writer
+killed with ``kill -9`` cannot remove its own; the next write of the same
+file removes the stale ones (:func:`remove_stale_temporaries`): those of a
+process of this host that no longer runs, and any older than
+:data:`STALE_TMP_AGE_S`.
+
+:func:`recording_lock` serialises the read-modify-write cycles of several
+processes on one file (``mmsnap process`` and ``mmsnap calibrate`` at once):
+an advisory ``fcntl.flock`` on a lock file ``.<name>.lock`` beside it,
+removed by its holder when done. It is
+re-entrant within a process (a command holding it may call writers that take
+it again). Where ``fcntl`` is missing (Windows) it does nothing.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
+import re
+import socket
 import tempfile
+import threading
+import time
 from pathlib import Path
 from typing import Iterator
 
 from .errors import FileFormatError
 
-__all__ = ["atomic_path"]
+try:  # POSIX only; without it the lock is a no-op (module docstring)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None
+
+__all__ = ["atomic_path", "check_output_path", "recording_lock", "remove_stale_temporaries",
+           "STALE_TMP_AGE_S", "LOCK_TIMEOUT_S"]
+
+#: A temporary file of a writer on another host (or of unknown origin) older
+#: than this (s) is taken as left by a killed writer and removed.
+STALE_TMP_AGE_S = 24 * 3600.0
+#: Seconds :func:`recording_lock` waits for another process's lock.
+LOCK_TIMEOUT_S = 600.0
+
+_log = logging.getLogger("mmsnap_graph")
+_HOST = re.sub(r"[^A-Za-z0-9_-]", "_", socket.gethostname())[:40] or "host"
+_TMP_OWNER = re.compile(r"\.(\d+)@([A-Za-z0-9_-]+)\.[^.]+\.tmp$")
+_held: dict[str, list] = {}  # real path of a lock file -> [open file, depth]
+_held_guard = threading.Lock()
 
 
 def _umask() -> int:
@@ -26,19 +63,72 @@ def _umask() -> int:
     return mask
 
 
+def check_output_path(path: str | os.PathLike) -> Path:
+    """``path`` as a :class:`Path` when a file can be written there: its folder
+    exists and it is not a folder itself; else :class:`FileFormatError`
+    naming it. Commands call it before long computations."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise FileFormatError(f"cannot write {path}: it is a directory")
+    if not folder.is_dir():
+        raise FileFormatError(f"cannot write {path}: folder {folder} does not exist")
+    return path
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def remove_stale_temporaries(path: str | os.PathLike, *,
+                             max_age_s: float = STALE_TMP_AGE_S) -> list[Path]:
+    """Remove the temporary files a killed writer of ``path`` left beside it
+    (module docstring); returns the paths removed. Files of a live writer
+    are kept."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    removed = []
+    now = time.time()
+    for tmp in folder.glob(f".{glob_escape(path.name)}.*.tmp"):
+        owner = _TMP_OWNER.search(tmp.name)
+        try:
+            age = now - tmp.stat().st_mtime
+        except FileNotFoundError:
+            continue
+        dead = owner is not None and owner.group(2) == _HOST and not _pid_alive(int(owner.group(1)))
+        if dead or age > max_age_s:
+            with contextlib.suppress(FileNotFoundError, IsADirectoryError, PermissionError):
+                tmp.unlink()
+                removed.append(tmp)
+                _log.info("removed %s, left by an interrupted write", tmp)
+    return removed
+
+
+def glob_escape(name: str) -> str:
+    """``name`` with the glob metacharacters ``*?[`` escaped."""
+    return re.sub(r"([*?[])", r"[\1]", name)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it to ``path``.
 
     The caller writes the whole file to the yielded path (by any means: h5py,
     ``ndarray.tofile``, ``shutil.copyfile``, ...). If the block raises, the
-    temporary file is removed and ``path`` is left as it was.
+    temporary file is removed and ``path`` is left as it was. A ``path``
+    that is a folder, or in a missing folder, raises :class:`FileFormatError`.
     """
-    path = Path(path)
+    path = check_output_path(path)
     folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise FileFormatError(f"cannot write {path}: folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    remove_stale_temporaries(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}@{_HOST}.", suffix=".tmp",
+                               dir=folder)
     os.close(fd)
     try:
         yield Path(tmp)
@@ -48,3 +138,78 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def _lock_file(path: Path) -> Path:
+    folder = path.parent if str(path.parent) else Path(".")
+    return folder / f".{path.name}.lock"
+
+
+def _acquire(lock: Path, path: Path, timeout_s: float):
+    """The open, flocked lock file. The holder removes the file when done, so
+    after locking check that the name still refers to the file locked (else
+    another process removed it meanwhile: start again)."""
+    deadline = time.monotonic() + timeout_s
+    waited = False
+    while True:
+        fh = open(lock, "a+")
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.close()
+            if not waited:
+                _log.warning("%s is being written by another process; waiting", path)
+                waited = True
+            if time.monotonic() > deadline:
+                raise FileFormatError(f"{path} is locked by another process writing it "
+                                      f"(lock file {lock}); gave up after {timeout_s:g} s"
+                                      ) from None
+            time.sleep(0.05)
+            continue
+        try:
+            same = os.stat(lock).st_ino == os.fstat(fh.fileno()).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fh
+        fh.close()
+
+
+@contextlib.contextmanager
+def recording_lock(path: str | os.PathLike, *, timeout_s: float = LOCK_TIMEOUT_S
+                   ) -> Iterator[None]:
+    """Hold the advisory lock of the file at ``path`` (module docstring):
+    wait for another process holding it (up to ``timeout_s``, then
+    :class:`FileFormatError` naming the file). Re-entrant in a process."""
+    path = Path(path)
+    if fcntl is None or not (path.parent if str(path.parent) else Path(".")).is_dir():
+        yield  # no locking here (or nowhere to put the lock: the write will say why)
+        return
+    lock = _lock_file(path)
+    key = os.path.realpath(lock)
+    with _held_guard:
+        entry = _held.get(key)
+        if entry is not None:
+            entry[1] += 1
+    if entry is None:
+        try:
+            fh = _acquire(lock, path, timeout_s)
+        except PermissionError as exc:  # read-only folder: nobody else can write either
+            _log.debug("no lock for %s: %s", path, exc)
+            yield
+            return
+        with _held_guard:
+            _held[key] = entry = [fh, 1]
+    try:
+        yield
+    finally:
+        with _held_guard:
+            entry[1] -= 1
+            last = entry[1] == 0
+            if last:
+                del _held[key]
+        if last:
+            with contextlib.suppress(OSError):
+                os.unlink(lock)  # while still locked (see _acquire)
+            fcntl.flock(entry[0].fileno(), fcntl.LOCK_UN)
+            entry[0].close()

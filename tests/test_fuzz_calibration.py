@@ -8,7 +8,6 @@ covariance. Derandomized examples; the known findings of issue 13 are
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -85,9 +84,6 @@ def test_positive_point_covariances_give_a_sound_result(tracks, variance_m2):
 # ----------------------------------------------------------------------------
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError,
-                   reason="issue 13: noise-free tracks: the closed form returns success=True "
-                          "with an all-zero covariance")
 @FUZZ
 @given(matched_tracks(noise_fraction=st.just(0.0)))
 def test_noise_free_tracks_give_a_sound_result(tracks):
@@ -96,9 +92,6 @@ def test_noise_free_tracks_give_a_sound_result(tracks):
         assert_sound(result)
 
 
-@pytest.mark.xfail(strict=True, raises=(np.linalg.LinAlgError, AssertionError),
-                   reason="issue 13: the closed form returns NaN or raises LinAlgError for "
-                          "coordinates above ~1e154")
 @FUZZ
 @given(matched_tracks(scale=finite(1e155, 1e300)))
 def test_huge_coordinates_raise_only_typed_errors(tracks):
@@ -107,9 +100,6 @@ def test_huge_coordinates_raise_only_typed_errors(tracks):
         assert_sound(result)
 
 
-@pytest.mark.xfail(strict=True, raises=(np.linalg.LinAlgError, AssertionError),
-                   reason="issue 13: the closed form raises LinAlgError near 1e-200 "
-                          "(and returns a singular covariance from ~1e-100)")
 @FUZZ
 @given(matched_tracks(scale=finite(1e-300, 1e-100)))
 def test_tiny_coordinates_raise_only_typed_errors(tracks):
@@ -118,9 +108,6 @@ def test_tiny_coordinates_raise_only_typed_errors(tracks):
         assert_sound(result)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError,
-                   reason="issue 13: negative point_covariances give a negative-definite pose "
-                          "covariance with success=True")
 @FUZZ
 @given(matched_tracks(), finite(1e-6, 1.0))
 def test_negative_point_covariances_are_rejected(tracks, variance_m2):

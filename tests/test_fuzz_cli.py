@@ -63,29 +63,18 @@ def test_a_damaged_recording_gives_a_one_line_error(files, capsys, verb, damage)
     assert len(err) == 1 and err[0].startswith(f"mmsnap {verb}: error: ")
 
 
-@pytest.mark.xfail(strict=True, raises=RuntimeError,
-                   reason="issue 13: corrupted files give tracebacks in every verb (h5py "
-                          "RuntimeError through io/hdf5.py)")
 @pytest.mark.parametrize("verb", sorted(VERBS))
 def test_a_bit_flipped_recording_gives_a_one_line_error(files, capsys, verb):
     code, err = run_verb(verb, files["bit_flipped"], capsys)
     assert code == 2 and len(err) == 1
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError,
-                   reason="issue 13 (CLI habits): one-line errors that name the file; a "
-                          "damaged attribute is reported as \"/ attribute 'format' cannot be "
-                          "read\" without the file")
 @pytest.mark.parametrize("verb", sorted(VERBS))
 def test_the_error_for_a_damaged_recording_names_the_file(files, capsys, verb):
     code, err = run_verb(verb, files["garbage_body"], capsys)
     assert code == 2 and "garbage_body.h5" in err[0]
 
 
-@pytest.mark.xfail(strict=True, raises=IsADirectoryError,
-                   reason="issue 13: an output path that is a directory gives an "
-                          "IsADirectoryError traceback (simulate, fuse, process, calibrate "
-                          "--json)")
 @pytest.mark.parametrize("argv", [
     ["process", "{good}", "-o", "{dir}", "--no-progress"],
     ["fuse", "{good}", "-o", "{dir}", "--no-progress"],

@@ -72,11 +72,6 @@ def test_a_file_whose_body_is_garbage_raises_only_typed_errors(recording_bytes, 
     read_damaged(data[:start] + garbage, folder)
 
 
-@pytest.mark.xfail(strict=True, raises=(RuntimeError, ValueError, OSError, KeyError, TypeError,
-                                        IndexError, OverflowError, UnicodeDecodeError),
-                   reason="issue 13: corrupted files give tracebacks in every verb: h5py "
-                          "raises RuntimeError/ValueError, the reader only catches OSError "
-                          "(io/hdf5.py _attr, _dataset, _node, read_recording)")
 @FUZZ
 @given(st.lists(st.tuples(st.integers(0, 2**31), st.integers(0, 7)), min_size=1, max_size=16))
 def test_a_bit_flipped_file_raises_only_typed_errors(recording_bytes, flips):

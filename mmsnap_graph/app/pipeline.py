@@ -16,20 +16,19 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_path
+from .._atomic import check_output_path, recording_lock
 from ..data.radar_config import TABLE_I
 from ..data.recording import NodeData, Recording
 from ..errors import FileFormatError, ValidationError
 from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
 from ..radar.chain import ChainConfig, ChainResult, process_cubes
 from ..radar.cluster import torso_centroids
-from ..tracking.ekf import EkfConfig, track_centroids
+from ..tracking.ekf import EkfConfig, frames_to_step, track_centroids
 
 __all__ = ["NodeReport", "process_node", "process_recording", "cluster_node", "track_node",
            "track_recording", "process_file"]
@@ -58,10 +57,13 @@ def _ekf_for(ekf: EkfConfig | None, frame_period_s: float) -> EkfConfig:
     return dataclasses.replace(ekf, frame_period_s=float(frame_period_s))
 
 
-def _frames_span(frames: np.ndarray) -> np.ndarray | None:
+def _frames_span(frames: np.ndarray, ekf: EkfConfig | None = None) -> np.ndarray | None:
+    """The frames the EKF steps through: those present, and the first frames
+    of each gap while a track could still coast (issue 13: a gap of 10^12
+    frames is not 10^12 steps; :func:`~mmsnap_graph.tracking.ekf.frames_to_step`)."""
     if frames.size == 0:
         return None
-    return np.arange(int(frames.min()), int(frames.max()) + 1)
+    return frames_to_step(frames, EkfConfig() if ekf is None else ekf)
 
 
 def process_node(
@@ -85,7 +87,7 @@ def process_node(
     result = process_cubes(node.cube, node.radar, config, frames=node.cube_frame,
                            progress=progress, desc=f"{node.name} chain")
     tracks = track_centroids(result.centroids, _ekf_for(ekf, frame_period_s),
-                             frames=_frames_span(node.cube_frame))
+                             frames=_frames_span(node.cube_frame, ekf))
     new = dataclasses.replace(node, point_cloud=result.point_cloud, centroids=result.centroids,
                               tracks=tracks)
     return new, NodeReport(name=node.name, level="cube", n_frames=int(node.cube.shape[0]),
@@ -110,7 +112,7 @@ def cluster_node(
     cents = torso_centroids(node.point_cloud, config.cluster,
                             doppler_resolution_mps=radar.doppler_resolution_mps)
     frames = node.point_cloud.frame
-    tracks = track_centroids(cents, _ekf_for(ekf, frame_period_s), frames=_frames_span(frames))
+    tracks = track_centroids(cents, _ekf_for(ekf, frame_period_s), frames=_frames_span(frames, ekf))
     new = dataclasses.replace(node, centroids=cents, tracks=tracks)
     return new, NodeReport(name=node.name, level="point_cloud",
                            n_frames=int(np.unique(frames).size),
@@ -186,6 +188,42 @@ def track_recording(recording: Recording, *, ekf: EkfConfig | None = None
                       if n.centroids is not None else None)
 
 
+def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, centroids_only,
+                         progress) -> tuple[NodeData | None, NodeReport]:
+    """One node of :func:`process_file`: its cube streamed from ``src``, else
+    its stored levels. Returns the new node (None: nothing to process) and
+    its report."""
+    cube_meta = None
+    if not centroids_only and node.radar is not None:
+        try:
+            cube_meta = read_cube_frames(src, node.name)
+        except FileFormatError:
+            cube_meta = None  # this node has no cube
+    if cube_meta is None:
+        out = _from_stored_levels(node, fp, config, ekf, centroids_only)
+        if out is None:
+            return None, NodeReport(name=node.name, level="none", n_frames=0, n_points=0,
+                                    n_centroids=0, n_tracks=0, success=False,
+                                    message="no cube, point cloud or centroids")
+        return out
+    radar, frames, n = cube_meta
+
+    def frames_iter():
+        for _, block in iter_cubes(src, node.name):
+            yield from block
+
+    result = process_cubes(frames_iter(), radar, config, frames=frames, progress=progress,
+                           desc=f"{node.name} chain")
+    tracks = track_centroids(result.centroids, _ekf_for(ekf, fp),
+                             frames=_frames_span(np.asarray(frames), ekf))
+    new = dataclasses.replace(node, point_cloud=result.point_cloud, centroids=result.centroids,
+                              tracks=tracks)
+    return new, NodeReport(
+        name=node.name, level="cube", n_frames=n, n_points=len(result.point_cloud),
+        n_centroids=len(result.centroids), n_tracks=int(tracks.track_ids.size),
+        success=result.success, message=result.message, chain=result)
+
+
 def process_file(
     path: str | os.PathLike,
     *,
@@ -199,52 +237,23 @@ def process_file(
     the point-cloud, centroid and track levels back.
 
     output : write to this path (a copy of ``path`` updated atomically);
-        default: update ``path`` in place, atomically.
+        default: update ``path`` in place, atomically. The file's lock is
+        held from reading to writing (another writer waits).
     centroids_only : ignore cubes and point clouds: only re-track from the
         stored centroids. Otherwise each node starts from its cube, else its
         point cloud, else its centroids.
     """
     src = Path(path)
-    rec = read_recording(src, load_cubes=False)
-    fp = rec.frame_period_s
-    reports: dict[str, NodeReport] = {}
-    for name, node in rec.nodes.items():
-        cube_meta = None
-        if not centroids_only and node.radar is not None:
-            try:
-                cube_meta = read_cube_frames(src, name)
-            except FileFormatError:
-                cube_meta = None  # this node has no cube
-        if cube_meta is not None:
-            radar, frames, n = cube_meta
-
-            def frames_iter(name=name):
-                for _, block in iter_cubes(src, name):
-                    yield from block
-
-            result = process_cubes(frames_iter(), radar, config, frames=frames,
-                                   progress=progress, desc=f"{name} chain")
-            tracks = track_centroids(result.centroids, _ekf_for(ekf, fp),
-                                     frames=_frames_span(np.asarray(frames)))
-            rec = rec.with_node(dataclasses.replace(
-                node, point_cloud=result.point_cloud, centroids=result.centroids, tracks=tracks))
-            reports[name] = NodeReport(
-                name=name, level="cube", n_frames=n, n_points=len(result.point_cloud),
-                n_centroids=len(result.centroids), n_tracks=int(tracks.track_ids.size),
-                success=result.success, message=result.message, chain=result)
-        else:
-            out = _from_stored_levels(node, fp, config, ekf, centroids_only)
-            if out is None:
-                reports[name] = NodeReport(name=name, level="none", n_frames=0, n_points=0,
-                                           n_centroids=0, n_tracks=0, success=False,
-                                           message="no cube, point cloud or centroids")
-            else:
-                rec = rec.with_node(out[0])
-                reports[name] = out[1]
-    dst = src if output is None else Path(output)
-    if dst.resolve() != src.resolve():
-        # Copy, then update the copy; the copy lands atomically.
-        with atomic_path(dst) as tmp:
-            shutil.copyfile(src, tmp)
-    update_recording(dst, rec, keep_cubes=True)
+    dst = src if output is None else check_output_path(output)
+    # The lock spans read -> write: another writer (mmsnap calibrate, fuse) of
+    # the same file waits instead of having its update overwritten.
+    with recording_lock(src):
+        rec = read_recording(src, load_cubes=False)
+        reports: dict[str, NodeReport] = {}
+        for name, node in rec.nodes.items():
+            new, reports[name] = _process_stored_node(src, node, rec.frame_period_s, config,
+                                                      ekf, centroids_only, progress)
+            if new is not None:
+                rec = rec.with_node(new)
+        update_recording(src, rec, keep_cubes=True, output=None if dst.resolve() == src.resolve() else dst)
     return dst, reports

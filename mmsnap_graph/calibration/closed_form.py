@@ -152,6 +152,68 @@ def _symmetrize(m: NDArray) -> NDArray:
     return 0.5 * (m + m.T)
 
 
+def _check_point_covariances(point_covariances: ArrayLike, k: int) -> NDArray:
+    """(K, 2, 2) finite, symmetric, positive semi-definite residual covariances."""
+    s_k = check_finite(check_shape(as_float_array(point_covariances, "point_covariances"),
+                                   (k, 2, 2), "point_covariances"), "point_covariances")
+    if not np.allclose(s_k, np.swapaxes(s_k, -1, -2), rtol=1e-9, atol=0.0):
+        raise ValidationError("point_covariances must be symmetric")
+    with np.errstate(all="ignore"):
+        eig = np.linalg.eigvalsh(s_k)
+    bad = np.flatnonzero(eig[:, 0] < -1e-12 * np.maximum(np.abs(eig[:, 1]), 1e-300))
+    if bad.size:
+        raise ValidationError(f"point_covariances must be positive semi-definite; "
+                              f"point_covariances[{bad[0]}] has eigenvalues {eig[bad[0]]}")
+    return s_k
+
+
+def _scale_of(a: NDArray, b: NDArray) -> float:
+    """A length (m) the tracks are divided by before the arithmetic, so that
+    coordinates of 1e-300 m or 1e300 m neither underflow nor overflow when
+    squared (issue 13). A power of two: the division is exact."""
+    biggest = float(max(np.max(np.abs(a)), np.max(np.abs(b))))
+    if biggest == 0.0:
+        return 1.0
+    return float(2.0 ** np.frexp(biggest)[1])
+
+
+def _unit_covariance(covariance: str, s_k: NDArray | None, pose: NDArray, a: NDArray,
+                     b: NDArray, j_min: float) -> NDArray:
+    """Pose covariance in the scaled units (module docstring), plus the
+    variance of rounding (relative 64 eps per coordinate), so that tracks
+    that fit exactly get a tiny positive-definite covariance, not zero."""
+    k = a.shape[0]
+    # H = sum_k A_k^T A_k with A_k = R [I, J z_b]; R^T R = I, so H depends on
+    # the b-track only: [[K I, J sum z_b], [(J sum z_b)^T, sum |z_b|^2]].
+    sb = b.sum(axis=0)
+    h = np.empty((3, 3))
+    h[:2, :2] = np.eye(2) * k
+    h[:2, 2] = h[2, :2] = np.array([-sb[1], sb[0]])
+    h[2, 2] = float(np.sum(b * b))
+    h_inv = np.linalg.inv(h)  # 3x3, well conditioned once the spread check passed
+    if s_k is not None:
+        jac = alignment_jacobian(pose, b)  # (K, 2, 3)
+        cov = h_inv @ np.einsum("kia,kij,kjb->ab", jac, s_k, jac) @ h_inv
+    elif covariance == "residual":
+        cov = (j_min / max(2 * k - 3, 1)) * h_inv
+    else:  # sandwich
+        jac = alignment_jacobian(pose, b)
+        g = np.einsum("kia,ki->ka", jac, a - _transform(pose, b))
+        cov = h_inv @ (g.T @ g) @ h_inv
+    rounding = (64.0 * np.finfo(float).eps) ** 2  # coordinates are at most 1 here
+    return _symmetrize(cov + rounding * h_inv)
+
+
+def _sound(pose: NDArray, cov: NDArray, j_min: float) -> str:
+    """Why the result cannot be a success ('' if it can): success=True means
+    finite numbers and a positive-definite covariance."""
+    if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(cov)) and np.isfinite(j_min)):
+        return "the pose, its covariance or the cost is not finite at this scale"
+    if np.linalg.eigvalsh(cov).min() <= 0.0:
+        return "the pose covariance is not positive definite at this scale"
+    return ""
+
+
 def closed_form_calibration(
     points_a_m: ArrayLike,
     points_b_m: ArrayLike,
@@ -173,19 +235,26 @@ def closed_form_calibration(
         How the pose covariance is derived (module docstring); ignored when
         ``point_covariances`` is given.
     point_covariances : (K, 2, 2) float, optional
-        Covariance of each frame's alignment residual ``z_a - T(z_b)``.
+        Covariance of each frame's alignment residual ``z_a - T(z_b)``
+        (symmetric positive semi-definite, else :class:`ValidationError`).
     min_common_frames : int
         Fewer frames raise :class:`CalibrationError`.
     min_spread_m : float
         A track whose RMS distance to its centroid is below this in either
-        node (a standing target) raises :class:`CalibrationError`: the
-        rotation is unobservable.
+        node (a standing target; or exactly zero) raises
+        :class:`CalibrationError`: the rotation is unobservable.
     frames : (K,) int, optional
         Frame numbers, stored in the result.
 
     Returns
     -------
     PairwiseCalibration
+        The arithmetic runs on tracks divided by a power of two, so any
+        finite coordinates work. Tracks that fit exactly get the covariance
+        of rounding (tiny, positive definite). ``success=False`` (with the
+        reason in ``message``) when the covariance cannot be represented
+        (coordinates near the float limits); ``success=True`` implies a
+        finite pose and a positive-definite covariance.
     """
     if covariance not in ("residual", "sandwich"):
         raise ValidationError(f"covariance={covariance!r} must be 'residual' or 'sandwich'")
@@ -194,38 +263,29 @@ def closed_form_calibration(
     if k < max(int(min_common_frames), 3):
         raise CalibrationError(f"too few common frames for a pairwise calibration: "
                                f"{k} < min_common_frames={max(int(min_common_frames), 3)}")
-    spread_a = float(np.sqrt(np.mean(np.sum((a - a.mean(0)) ** 2, axis=1))))
-    spread_b = float(np.sqrt(np.mean(np.sum((b - b.mean(0)) ** 2, axis=1))))
-    if min(spread_a, spread_b) < min_spread_m:
+    scale = _scale_of(a, b)
+    ua, ub = a / scale, b / scale
+    spread_a = float(np.sqrt(np.mean(np.sum((ua - ua.mean(0)) ** 2, axis=1))))
+    spread_b = float(np.sqrt(np.mean(np.sum((ub - ub.mean(0)) ** 2, axis=1))))
+    if min(spread_a, spread_b) * scale < min_spread_m or min(spread_a, spread_b) <= 1e-12:
         raise CalibrationError(
-            f"the target hardly moves (track spread {spread_a:.3g} m in a, {spread_b:.3g} m "
-            f"in b, below min_spread_m={min_spread_m}): the relative rotation is unobservable")
-    pose, j_min = closed_form_pose(a, b)
-    # H = sum_k A_k^T A_k with A_k = R [I, J z_b]; R^T R = I, so H depends on
-    # the b-track only: [[K I, J sum z_b], [(J sum z_b)^T, sum |z_b|^2]].
-    sb = b.sum(axis=0)
-    jsb = np.array([-sb[1], sb[0]])
-    h = np.empty((3, 3))
-    h[:2, :2] = np.eye(2) * k
-    h[:2, 2] = h[2, :2] = jsb
-    h[2, 2] = float(np.sum(b * b))
-    h_inv = np.linalg.inv(h)  # 3x3, well conditioned once the spread check passed
+            f"the target hardly moves (track spread {spread_a * scale:.3g} m in a, "
+            f"{spread_b * scale:.3g} m in b, below min_spread_m={min_spread_m} or zero): "
+            "the relative rotation is unobservable")
+    s_k = None
     if point_covariances is not None:
-        s_k = check_finite(check_shape(as_float_array(point_covariances, "point_covariances"),
-                                       (k, 2, 2), "point_covariances"), "point_covariances")
-        jac = alignment_jacobian(pose, b)  # (K, 2, 3)
-        meat = np.einsum("kia,kij,kjb->ab", jac, s_k, jac)
-        cov = h_inv @ meat @ h_inv
-    elif covariance == "residual":
-        dof = max(2 * k - 3, 1)
-        cov = (j_min / dof) * h_inv
-    else:  # sandwich
-        jac = alignment_jacobian(pose, b)
-        e = a - _transform(pose, b)
-        g = np.einsum("kia,ki->ka", jac, e)
-        cov = h_inv @ (g.T @ g) @ h_inv
+        s_k = _check_point_covariances(point_covariances, k) / scale / scale
+    unit_pose, unit_j = closed_form_pose(ua, ub)
+    unit_cov = _unit_covariance(covariance, s_k, unit_pose, ua, ub, unit_j)
+    d = np.array([scale, scale, 1.0])
+    with np.errstate(over="ignore", under="ignore"):
+        pose = unit_pose * d
+        cov = _symmetrize(unit_cov * np.outer(d, d))
+        j_min = unit_j * scale * scale
+        rmse = float(np.sqrt(unit_j / k) * scale)
+    why = _sound(pose, cov, j_min)
     fr = None if frames is None else np.asarray(frames, dtype=np.int64)
     return PairwiseCalibration(
-        pose=pose, covariance=_symmetrize(cov), cost_m2=j_min, rmse_m=float(np.sqrt(j_min / k)),
-        n_frames=k, frames=fr, success=True,
-        message=f"closed form on {k} frames, track RMSE {np.sqrt(j_min / k):.3g} m")
+        pose=pose, covariance=cov, cost_m2=j_min, rmse_m=rmse, n_frames=k, frames=fr,
+        success=not why,
+        message=why or f"closed form on {k} frames, track RMSE {rmse:.3g} m")

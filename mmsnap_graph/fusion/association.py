@@ -36,6 +36,9 @@ __all__ = [
     "detection_position_covariance",
     "associate_frame",
     "gate_threshold",
+    "detection_information",
+    "MIN_VARIANCE_M2",
+    "MAX_CONDITION",
 ]
 
 # Cost of a forbidden pair in the assignment (beyond any gated cost).
@@ -87,6 +90,95 @@ class FrameAssociation:
         return int(self.members.shape[0])
 
 
+#: A detection's 2x2 position covariance is usable for gating and weighting
+#: when its smallest eigenvalue is above this (m^2) and above
+#: ``MAX_CONDITION``-th of its largest. Range 0 (at any angle), a range of
+#: 1e-300 m or sigmas of 1e-300 give a singular one (issue 13: LinAlgError).
+MIN_VARIANCE_M2 = 1e-100
+MAX_CONDITION = 1e12
+
+
+def detection_information(covariance_m2: NDArray) -> tuple[NDArray, NDArray]:
+    """``(information (..., 2, 2), ok (...,))`` of detection covariances:
+    ``ok`` where the covariance is finite and regular (:data:`MIN_VARIANCE_M2`,
+    :data:`MAX_CONDITION`); the information is its inverse there and zero
+    elsewhere (a degenerate detection carries no usable position weight)."""
+    cov = np.asarray(covariance_m2, dtype=float)
+    finite = np.all(np.isfinite(cov), axis=(-1, -2))
+    safe = np.where(finite[..., None, None], cov, np.eye(2))
+    with np.errstate(all="ignore"):
+        eig = np.linalg.eigvalsh(0.5 * (safe + np.swapaxes(safe, -1, -2)))
+    ok = finite & (eig[..., 0] > MIN_VARIANCE_M2) & (eig[..., 0] * MAX_CONDITION > eig[..., 1])
+    info = np.linalg.inv(np.where(ok[..., None, None], safe, np.eye(2)))
+    return np.where(ok[..., None, None], info, 0.0), ok
+
+
+class _Groups:
+    """The groups of :func:`associate_frame` as they grow: members, summed
+    information and information vector; a degenerate detection's group keeps
+    its position and covariance as they are and takes no other member."""
+
+    def __init__(self, n_nodes: int) -> None:
+        self.n_nodes = n_nodes
+        self.members: list[list[int]] = []
+        self.info: list[NDArray] = []
+        self.eta: list[NDArray] = []
+        self.fixed: list[tuple[NDArray, NDArray] | None] = []
+
+    def gated(self) -> NDArray:
+        """Indices of the groups other detections may join."""
+        return np.array([g for g, f in enumerate(self.fixed) if f is None], dtype=np.int64)
+
+    def add(self, g: int, n: int, k: int, pos: NDArray, cov: NDArray, info: NDArray,
+            ok: bool) -> None:
+        if g < 0:
+            self.members.append([-1] * self.n_nodes)
+            self.info.append(np.zeros((2, 2)))
+            self.eta.append(np.zeros(2))
+            self.fixed.append(None if ok else (pos, cov))
+            g = len(self.members) - 1
+        self.members[g][n] = k
+        self.info[g] = self.info[g] + info
+        self.eta[g] = self.eta[g] + info @ pos
+
+    def result(self) -> FrameAssociation:
+        if not self.members:
+            return FrameAssociation(members=np.zeros((0, self.n_nodes), dtype=np.int64),
+                                    position_m=np.zeros((0, 2)),
+                                    covariance_m2=np.zeros((0, 2, 2)))
+        info = np.stack(self.info)
+        regular = np.array([f is None for f in self.fixed])
+        cov_g = np.zeros_like(info)
+        cov_g[regular] = np.linalg.inv(info[regular])
+        cov_g = 0.5 * (cov_g + np.swapaxes(cov_g, -1, -2))
+        pos = np.einsum("gij,gj->gi", cov_g, np.stack(self.eta))
+        for g in np.flatnonzero(~regular):
+            pos[g], cov_g[g] = self.fixed[g]
+        return FrameAssociation(members=np.asarray(self.members, dtype=np.int64),
+                                position_m=pos, covariance_m2=cov_g)
+
+
+def _assign(groups: _Groups, pos: NDArray, cov: NDArray, ok: NDArray, gate: float) -> NDArray:
+    """Group of each detection (-1: none) by gated minimum-cost assignment
+    against the groups that take members; degenerate detections take none."""
+    assigned = np.full(pos.shape[0], -1)
+    cand = groups.gated()
+    usable = np.flatnonzero(ok)
+    if cand.size == 0 or usable.size == 0:
+        return assigned
+    cov_g = np.linalg.inv(np.stack([groups.info[g] for g in cand]))
+    mean_g = np.einsum("gij,gj->gi", cov_g, np.stack([groups.eta[g] for g in cand]))
+    d = mean_g[:, None, :] - pos[None, usable, :]  # (G, K, 2)
+    s = cov_g[:, None] + cov[None, usable]  # (G, K, 2, 2)
+    m2 = np.einsum("gki,gki->gk", d, np.linalg.solve(s, d[..., None])[..., 0])
+    cost = np.where(np.isfinite(m2) & (m2 <= gate), m2, _FORBIDDEN)
+    rows, cols = linear_sum_assignment(cost)
+    good = cost[rows, cols] < _FORBIDDEN
+    # A group takes at most one detection per node.
+    assigned[usable[cols[good]]] = cand[rows[good]]
+    return assigned
+
+
 def associate_frame(
     measurements: Sequence[ArrayLike],
     node_poses: ArrayLike,
@@ -113,7 +205,11 @@ def associate_frame(
     Returns
     -------
     FrameAssociation
-        Groups in order of creation: the first node's detections first.
+        Groups in order of creation: the first node's detections first. A
+        detection whose position covariance is degenerate
+        (:func:`detection_information`: range 0, a tiny range or tiny
+        sigmas) gets a group of its own, with its position and (singular)
+        covariance as they are; the fusion then flags it.
     """
     poses = check_finite(as_float_array(node_poses, "node_poses"), "node_poses")
     if poses.ndim != 2 or poses.shape[1] != 3:
@@ -124,54 +220,18 @@ def associate_frame(
         )
     check_noise(noise)
     gate = gate_threshold(gate_probability)
-    n_nodes = poses.shape[0]
-
-    members: list[list[int]] = []
-    info_sum: list[NDArray] = []  # per group: (2, 2) information
-    eta_sum: list[NDArray] = []  # per group: (2,) information vector
-    for n in range(n_nodes):
+    groups = _Groups(poses.shape[0])
+    for n in range(poses.shape[0]):
         z = check_finite(as_float_array(measurements[n], f"measurements[{n}]"), f"measurements[{n}]")
         if z.ndim != 2 or z.shape[1] != 3:
             raise ValidationError(f"measurements[{n}] must have shape (K, 3), got {z.shape}")
         if z.shape[0] == 0:
             continue
-        pos = detection_to_global(z[:, 0], z[:, 1], poses[n])
-        cov = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise)
-        assigned = np.full(z.shape[0], -1)
-        if members:
-            info_g = np.stack(info_sum)
-            cov_g = np.linalg.inv(info_g)
-            mean_g = np.einsum("gij,gj->gi", cov_g, np.stack(eta_sum))
-            d = mean_g[:, None, :] - pos[None, :, :]  # (G, K, 2)
-            s = cov_g[:, None] + cov[None, :]  # (G, K, 2, 2)
-            m2 = np.einsum("gki,gki->gk", d, np.linalg.solve(s, d[..., None])[..., 0])
-            cost = np.where(m2 <= gate, m2, _FORBIDDEN)
-            rows, cols = linear_sum_assignment(cost)
-            ok = cost[rows, cols] < _FORBIDDEN
-            for g, k in zip(rows[ok], cols[ok]):
-                # A group takes at most one detection per node.
-                assigned[k] = g
-        info_k = np.linalg.inv(cov)
+        with np.errstate(all="ignore"):
+            pos = detection_to_global(z[:, 0], z[:, 1], poses[n])
+            cov = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise)
+        info, ok = detection_information(cov)
+        assigned = _assign(groups, pos, cov, ok, gate)
         for k in range(z.shape[0]):
-            g = assigned[k]
-            if g < 0:
-                members.append([-1] * n_nodes)
-                info_sum.append(np.zeros((2, 2)))
-                eta_sum.append(np.zeros(2))
-                g = len(members) - 1
-            members[g][n] = k
-            info_sum[g] = info_sum[g] + info_k[k]
-            eta_sum[g] = eta_sum[g] + info_k[k] @ pos[k]
-    if not members:
-        return FrameAssociation(
-            members=np.zeros((0, n_nodes), dtype=np.int64),
-            position_m=np.zeros((0, 2)),
-            covariance_m2=np.zeros((0, 2, 2)),
-        )
-    cov_g = np.linalg.inv(np.stack(info_sum))
-    cov_g = 0.5 * (cov_g + np.swapaxes(cov_g, -1, -2))
-    return FrameAssociation(
-        members=np.asarray(members, dtype=np.int64),
-        position_m=np.einsum("gij,gj->gi", cov_g, np.stack(eta_sum)),
-        covariance_m2=cov_g,
-    )
+            groups.add(int(assigned[k]), n, k, pos[k], cov[k], info[k], bool(ok[k]))
+    return groups.result()

@@ -31,7 +31,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.models import detection_to_global
 
-from .association import associate_frame, detection_position_covariance, gate_threshold
+from .association import (
+    associate_frame,
+    detection_information,
+    detection_position_covariance,
+    gate_threshold,
+)
 from .batch import fuse_batch
 from .grid import grid_posterior
 from .problem import check_noise, check_prior
@@ -150,9 +155,15 @@ def _single_gate(index: _FrameIndex, meas, poses, noise, gate):
         if not np.any(has):
             continue
         z = meas[n][rows[has]]
-        p = detection_to_global(z[:, 0], z[:, 1], poses[n])
-        c = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise)
-        ic = np.linalg.inv(c)
+        with np.errstate(all="ignore"):
+            p = detection_to_global(z[:, 0], z[:, 1], poses[n])
+            c = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise)
+        ic, regular = detection_information(c)
+        # A degenerate detection (range 0, tiny sigmas): its frame goes
+        # through associate_frame, which gives it a group of its own.
+        joint_ok[np.flatnonzero(has)[~regular]] = False
+        p = np.where(regular[:, None], p, 0.0)
+        c = np.where(regular[:, None, None], c, np.eye(2))
         started = np.abs(info[has]).sum(axis=(1, 2)) > 0
         if np.any(started):
             hs = np.flatnonzero(has)[started]

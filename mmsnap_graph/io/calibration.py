@@ -21,9 +21,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 import h5py
 import numpy as np
@@ -32,7 +31,8 @@ from numpy.typing import NDArray
 from .._atomic import atomic_path
 from ..calibration import PoseEdge, RecordingCalibration
 from ..data.recording import Recording
-from ..errors import CalibrationError, FileFormatError
+from ..errors import CalibrationError, FileFormatError, MmsnapError
+from .guard import H5_ERRORS, read_guard
 from .hdf5 import update_recording
 
 __all__ = [
@@ -213,14 +213,6 @@ def load_calibration_poses(source: str | os.PathLike | Mapping) -> dict[str, NDA
 
 
 # ---------------------------------------------------------------- HDF5
-def _atomic_copy_edit(src: Path, dst: Path, edit: Callable[[Path], None]) -> Path:
-    """Copy ``src`` beside ``dst``, let ``edit`` change the copy, move it over ``dst``."""
-    with atomic_path(dst) as tmp:
-        shutil.copyfile(src, tmp)
-        edit(tmp)
-    return dst
-
-
 def _strings(group: h5py.Group, name: str, values) -> None:
     group.create_dataset(name, data=np.array(list(values), dtype=object),
                          dtype=h5py.string_dtype())
@@ -287,12 +279,10 @@ def write_calibration(path: str | os.PathLike, recording: Recording, cal: Record
     for n, pose in cal.poses.items():
         rec = rec.with_node(dataclasses.replace(rec.nodes[n], pose=np.asarray(pose, dtype=float)))
 
-    def edit(tmp: Path) -> None:
-        update_recording(tmp, rec, keep_cubes=True)
-        with h5py.File(tmp, "r+") as f:
-            _write_group(f, cal)
-
-    return _atomic_copy_edit(src, dst, edit)
+    # One pass: the new file is written beside dst from rec and src's extension
+    # groups, then the group is added; one temporary copy on disk, not two.
+    return update_recording(src, rec, keep_cubes=True, output=dst,
+                            edit=lambda f: _write_group(f, cal))
 
 
 def _member(g: h5py.Group, key: str, where: str) -> NDArray:
@@ -350,16 +340,19 @@ def read_calibration(path: str | os.PathLike) -> RecordingCalibration:
     path = Path(path)
     if not path.exists():
         raise FileFormatError(f"{path} does not exist")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise FileFormatError(f"{path} is not a readable HDF5 file: {exc}") from exc
-    with f:
-        if CALIBRATION_GROUP not in f:
-            raise FileFormatError(f"{path}: /{CALIBRATION_GROUP} is missing (run mmsnap calibrate)")
+    with read_guard(path):
         try:
-            return _read_group(f[CALIBRATION_GROUP], f"{path}:/{CALIBRATION_GROUP}")
-        except (TypeError, ValueError, json.JSONDecodeError) as exc:
-            if isinstance(exc, FileFormatError):
-                raise
-            raise FileFormatError(f"{path}:/{CALIBRATION_GROUP} is malformed: {exc}") from exc
+            f = h5py.File(path, "r")
+        except H5_ERRORS as exc:
+            raise FileFormatError(f"{path} is not a readable HDF5 file: {exc}") from exc
+        with f:
+            if CALIBRATION_GROUP not in f:
+                raise FileFormatError(f"{path}: /{CALIBRATION_GROUP} is missing (run mmsnap "
+                                      "calibrate)")
+            try:
+                return _read_group(f[CALIBRATION_GROUP], f"{path}:/{CALIBRATION_GROUP}")
+            except (*H5_ERRORS, json.JSONDecodeError) as exc:
+                if isinstance(exc, MmsnapError):
+                    raise
+                raise FileFormatError(f"{path}:/{CALIBRATION_GROUP} is malformed: {exc}"
+                                      ) from exc

@@ -17,9 +17,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .._atomic import atomic_path
+from .._atomic import atomic_path, recording_lock
 from ..data.results import FusedSequence, Status
-from ..errors import FileFormatError
+from ..errors import FileFormatError, MmsnapError
+from .guard import H5_ERRORS, read_guard
 
 __all__ = ["FUSED_GROUP", "FUSED_LAYOUT", "FUSED_STATUSES", "write_fused", "read_fused"]
 
@@ -108,81 +109,118 @@ def write_fused(path: str | os.PathLike, fused: FusedSequence, *,
     (:func:`mmsnap_graph._atomic.atomic_path`). Returns the path written.
     """
     src = Path(path)
-    if not src.exists():
-        raise FileFormatError(f"{src} does not exist")
     dst = src if output is None else Path(output)
-    with atomic_path(dst) as tmp:
+    with recording_lock(src), recording_lock(dst), atomic_path(dst) as tmp:
+        if not src.exists():
+            raise FileFormatError(f"{src} does not exist")
         shutil.copyfile(src, tmp)
         try:
             f = h5py.File(tmp, "r+")
         except OSError as exc:
             raise FileFormatError(f"{src} is not a writable HDF5 file: {exc}") from exc
         with f:
-            if FUSED_GROUP in f:
-                del f[FUSED_GROUP]
+            try:
+                if FUSED_GROUP in f:
+                    del f[FUSED_GROUP]
+            except H5_ERRORS as exc:
+                raise FileFormatError(f"{src}: /{FUSED_GROUP} cannot be replaced (damaged "
+                                      f"file?): {exc}") from exc
             _fill_group(f.create_group(FUSED_GROUP), fused)
     return dst
 
 
 def read_fused(path: str | os.PathLike) -> FusedSequence:
-    """Read the ``/fused`` group written by :func:`write_fused`; a missing
-    group, dataset or attribute raises :class:`FileFormatError` naming it."""
+    """Read the ``/fused`` group written by :func:`write_fused`; a missing,
+    damaged or inconsistent group, dataset or attribute raises
+    :class:`FileFormatError` naming the file and the field."""
     p = Path(path)
     if not p.exists():
         raise FileFormatError(f"{p} does not exist")
-    with h5py.File(p, "r") as f:
-        if FUSED_GROUP not in f:
-            raise FileFormatError(f"{p} has no /{FUSED_GROUP} group; run `mmsnap fuse` first")
-        g = f[FUSED_GROUP]
+    with read_guard(p):
+        try:
+            f = h5py.File(p, "r")
+        except H5_ERRORS as exc:
+            raise FileFormatError(f"{p} is not a readable HDF5 file: {exc}") from exc
+        with f:
+            if FUSED_GROUP not in f:
+                raise FileFormatError(f"{p} has no /{FUSED_GROUP} group; run `mmsnap fuse` first")
+            fields = _read_fields(f[FUSED_GROUP], p)
+        _check_lengths(fields, p)
+        try:
+            return FusedSequence(**fields)
+        except MmsnapError as exc:
+            raise FileFormatError(f"{p}: /{FUSED_GROUP} is inconsistent: {exc}") from exc
 
-        def ds(name):
-            if name not in g:
-                raise FileFormatError(f"{p}: /{FUSED_GROUP}/{name} is missing")
+
+def _text(v) -> str:
+    return v.decode() if isinstance(v, bytes) else str(v)
+
+
+def _read_fields(g: h5py.Group, p: Path) -> dict:
+    """The keyword arguments of :class:`FusedSequence` from the group ``g``."""
+
+    def ds(name):
+        if name not in g:
+            raise FileFormatError(f"{p}: /{FUSED_GROUP}/{name} is missing")
+        try:
             return g[name][()]
+        except H5_ERRORS as exc:
+            raise FileFormatError(f"{p}: /{FUSED_GROUP}/{name} cannot be read: {exc}") from exc
 
-        def attr(name, required=True):
-            if name not in g.attrs:
-                if required:
-                    raise FileFormatError(f"{p}: attribute /{FUSED_GROUP}.{name} is missing")
-                return None
+    def attr(name, required=True):
+        if name not in g.attrs:
+            if required:
+                raise FileFormatError(f"{p}: attribute /{FUSED_GROUP}.{name} is missing")
+            return None
+        try:
             return g.attrs[name]
+        except H5_ERRORS as exc:
+            raise FileFormatError(f"{p}: attribute /{FUSED_GROUP}.{name} cannot be read: "
+                                  f"{exc}") from exc
 
-        names = tuple(str(n.decode() if isinstance(n, bytes) else n) for n in attr("node_order"))
-        prior_mean = attr("prior_mean", required=False)
-        prior_sigmas = attr("prior_sigmas", required=False)
-        msgs = ds("message")
-        state = np.stack([ds(n) for n in _STATE_NAMES], axis=-1)
+    prior_mean = attr("prior_mean", required=False)
+    prior_sigmas = attr("prior_sigmas", required=False)
+    columns = {name: ds(name) for name in _STATE_NAMES}
+    lengths = {name: c.shape[:1] for name, c in columns.items()}
+    if len(set(lengths.values())) != 1:
+        raise FileFormatError(f"{p}: /{FUSED_GROUP} datasets disagree in length {lengths}")
+    return dict(
+        node_names=tuple(_text(n) for n in np.atleast_1d(attr("node_order"))),
+        node_poses=np.asarray(attr("node_poses"), dtype=float),
+        mode=_text(attr("mode")),
+        covariance_method=_text(attr("covariance_method")),
+        solver=_text(attr("solver")),
+        frame=ds("frame"),
+        target=ds("target"),
+        label=ds("label"),
+        detection_index=ds("detection_index"),
+        observed=ds("observed").astype(bool),
+        state=np.stack([columns[n] for n in _STATE_NAMES], axis=-1),
+        covariance=ds("covariance"),
+        laplace_covariance=ds("laplace_covariance"),
+        success=ds("success").astype(bool),
+        status=ds("status"),
+        message=np.array([_text(m) for m in np.atleast_1d(ds("message"))], dtype=object),
+        iterations=ds("iterations"),
+        final_cost=ds("final_cost"),
+        degeneracy=ds("degeneracy"),
+        noise_sigmas=np.asarray(attr("noise_sigmas"), dtype=float),
+        prior_mean=None if prior_mean is None else np.asarray(prior_mean, dtype=float),
+        prior_sigmas=None if prior_sigmas is None else np.asarray(prior_sigmas, dtype=float),
+        gate_probability=float(attr("gate_probability")),
+    )
 
-        def text(v):
-            return v.decode() if isinstance(v, bytes) else str(v)
 
-        out = FusedSequence(
-            node_names=names,
-            node_poses=np.asarray(attr("node_poses"), dtype=float),
-            mode=text(attr("mode")),
-            covariance_method=text(attr("covariance_method")),
-            solver=text(attr("solver")),
-            frame=ds("frame"),
-            target=ds("target"),
-            label=ds("label"),
-            detection_index=ds("detection_index"),
-            observed=ds("observed").astype(bool),
-            state=state,
-            covariance=ds("covariance"),
-            laplace_covariance=ds("laplace_covariance"),
-            success=ds("success").astype(bool),
-            status=ds("status"),
-            message=np.array([text(m) for m in msgs], dtype=object),
-            iterations=ds("iterations"),
-            final_cost=ds("final_cost"),
-            degeneracy=ds("degeneracy"),
-            noise_sigmas=np.asarray(attr("noise_sigmas"), dtype=float),
-            prior_mean=None if prior_mean is None else np.asarray(prior_mean, dtype=float),
-            prior_sigmas=None if prior_sigmas is None else np.asarray(prior_sigmas, dtype=float),
-            gate_probability=float(attr("gate_probability")),
-        )
-    k = out.frame.shape[0]
-    n = len(out.node_names)
-    if out.state.shape != (k, 4) or out.covariance.shape != (k, 4, 4) or out.observed.shape != (k, n):
-        raise FileFormatError(f"{p}: /{FUSED_GROUP} datasets disagree in length (frame has {k} rows)")
-    return out
+def _check_lengths(fields: dict, p: Path) -> None:
+    """Every per-row dataset has as many rows as ``frame`` (and the right shape)."""
+    k = np.shape(fields["frame"])[0] if np.ndim(fields["frame"]) else -1
+    n = len(fields["node_names"])
+    want = {"frame": (k,), "target": (k,), "label": (k,), "detection_index": (k, n),
+            "observed": (k, n), "state": (k, 4), "covariance": (k, 4, 4),
+            "laplace_covariance": (k, 4, 4), "success": (k,), "status": (k,), "message": (k,),
+            "iterations": (k,), "final_cost": (k,), "degeneracy": (k,)}
+    for name, shape in want.items():
+        got = np.shape(fields[name])
+        if got != shape:
+            raise FileFormatError(f"{p}: /{FUSED_GROUP} datasets disagree in length: {name} "
+                                  f"has shape {got}, expected {shape} (frame has {k} rows)")

@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from .._atomic import atomic_path
+from .._atomic import atomic_path, recording_lock
+from .guard import H5_ERRORS, read_guard
 from ..errors import ConfigurationError, FileFormatError, MmsnapError
 from ..data.radar_config import RadarConfig
 from ..data.recording import Detections, NodeData, Recording, Tracks, Truth
@@ -44,6 +45,8 @@ __all__ = [
     "read_recording",
     "iter_cubes",
     "read_cube_frames",
+    "read_guard",
+    "H5_ERRORS",
 ]
 
 FORMAT_NAME = "mmsnap_graph.recording"
@@ -180,7 +183,7 @@ def _write_into(f: h5py.File, rec: Recording, compression: str | None,
 
 
 def _atomic_write(path: Path, fill) -> None:
-    with atomic_path(path) as tmp:
+    with recording_lock(path), atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
             fill(f)
 
@@ -215,9 +218,41 @@ def write_recording(path: str | os.PathLike, recording: Recording, *, overwrite:
     return path
 
 
+def _copy_extensions(old: h5py.File, f: h5py.File, recording: Recording,
+                     keep_cubes: bool) -> None:
+    """Copy into the new file ``f`` what ``recording`` does not hold (see
+    :func:`update_recording`)."""
+    for key in old.keys():
+        if key not in _ROOT_KNOWN:
+            old.copy(old[key], f, name=key)
+    for key, value in old.attrs.items():
+        if key not in _ROOT_ATTRS:
+            f.attrs[key] = value
+    if "nodes" not in old:
+        return
+    for name, node in recording.nodes.items():
+        if name not in old["nodes"]:
+            continue
+        og = old["nodes"][name]
+        ng = f["nodes"][name]
+        for key in og.keys():
+            if key in _NODE_KNOWN:
+                continue
+            old.copy(og[key], ng, name=key)
+        if keep_cubes and node.cube is None and "cube" in og and "cube" not in ng:
+            if "radar" in ng:
+                del ng["radar"]
+            old.copy(og["cube"], ng, name="cube")
+        for key, value in og.attrs.items():
+            if key != "pose":
+                ng.attrs[key] = value
+
+
 def update_recording(path: str | os.PathLike, recording: Recording, *,
                      keep_cubes: bool = True, compression: str | None = "gzip",
-                     compression_opts: int | None = 1, cube_storage: str = "complex64") -> Path:
+                     compression_opts: int | None = 1, cube_storage: str = "complex64",
+                     output: str | os.PathLike | None = None,
+                     edit: Callable[[h5py.File], None] | None = None) -> Path:
     """Rewrite the file at ``path`` with ``recording``, atomically, keeping
     what the in-memory recording does not hold.
 
@@ -227,43 +262,37 @@ def update_recording(path: str | os.PathLike, recording: Recording, *,
     group, and -- with ``keep_cubes`` -- a node's raw ADC cube when the
     recording was read with ``load_cubes=False`` (its ``cube`` is None).
     The old file is validated first (:class:`FileFormatError`).
+
+    ``output`` writes the result there instead (``path`` is left as it was);
+    ``edit(f)`` may change the new file (open for writing) before it lands.
+    One temporary file beside the destination is the only extra copy on
+    disk. The file's lock (:func:`mmsnap_graph._atomic.recording_lock`) is
+    held throughout. Returns the path written.
     """
     _check_storage(cube_storage)
     path = Path(path)
-    if not path.exists():
-        raise FileFormatError(f"{path} does not exist; use write_recording for a new file")
-    _open_checked(path).close()
+    dst = path if output is None else Path(output)
+    with recording_lock(path):
+        if not path.exists():
+            raise FileFormatError(f"{path} does not exist; use write_recording for a new file")
+        with read_guard(path):
+            _open_checked(path).close()
 
-    def fill(f: h5py.File) -> None:
-        _write_into(f, recording, compression, compression_opts, cube_storage)
-        with h5py.File(path, "r") as old:
-            for key in old.keys():
-                if key not in _ROOT_KNOWN:
-                    old.copy(old[key], f, name=key)
-            for key, value in old.attrs.items():
-                if key not in _ROOT_ATTRS:
-                    f.attrs[key] = value
-            if "nodes" not in old:
-                return
-            for name, node in recording.nodes.items():
-                if name not in old["nodes"]:
-                    continue
-                og = old["nodes"][name]
-                ng = f["nodes"][name]
-                for key in og.keys():
-                    if key in _NODE_KNOWN:
-                        continue
-                    old.copy(og[key], ng, name=key)
-                if keep_cubes and node.cube is None and "cube" in og and "cube" not in ng:
-                    if "radar" in ng:
-                        del ng["radar"]
-                    old.copy(og["cube"], ng, name="cube")
-                for key, value in og.attrs.items():
-                    if key != "pose":
-                        ng.attrs[key] = value
+        def fill(f: h5py.File) -> None:
+            _write_into(f, recording, compression, compression_opts, cube_storage)
+            try:
+                with h5py.File(path, "r") as old:
+                    _copy_extensions(old, f, recording, keep_cubes)
+            except H5_ERRORS as exc:
+                if isinstance(exc, MmsnapError):
+                    raise
+                raise FileFormatError(f"{path}: its extension groups cannot be copied "
+                                      f"(damaged file?): {exc}") from exc
+            if edit is not None:
+                edit(f)
 
-    _atomic_write(path, fill)
-    return path
+        _atomic_write(dst, fill)
+    return dst
 
 
 # --------------------------------------------------------------------------
@@ -275,7 +304,7 @@ def _open_checked(path: Path) -> h5py.File:
         raise FileFormatError(f"{path} does not exist")
     try:
         f = h5py.File(path, "r")
-    except OSError as exc:
+    except H5_ERRORS as exc:
         raise FileFormatError(f"{path} is not a readable HDF5 file (truncated or corrupt): {exc}"
                               ) from exc
     try:
@@ -298,11 +327,13 @@ def _open_checked(path: Path) -> h5py.File:
 
 
 def _attr(obj: h5py.HLObject, key: str) -> Any:
-    if key not in obj.attrs:
-        raise FileFormatError(f"{obj.name} is missing attribute {key!r}")
     try:
+        if key not in obj.attrs:
+            raise FileFormatError(f"{obj.name} is missing attribute {key!r}")
         return obj.attrs[key]
-    except OSError as exc:
+    except H5_ERRORS as exc:
+        if isinstance(exc, MmsnapError):
+            raise
         raise FileFormatError(f"{obj.name} attribute {key!r} cannot be read: {exc}") from exc
 
 
@@ -331,10 +362,21 @@ def _attr_vector(obj: h5py.HLObject, key: str, n: int) -> NDArray:
     return value.astype(float)
 
 
+def _member(parent: h5py.Group, key: str, what: str):
+    """``parent[key]``, or :class:`FileFormatError` naming it (missing or damaged)."""
+    where = f"{parent.name.rstrip('/')}/{key}"
+    try:
+        if key not in parent:
+            raise FileFormatError(f"{what}{where} is missing")
+        return parent.get(key)
+    except H5_ERRORS as exc:
+        if isinstance(exc, MmsnapError):
+            raise
+        raise FileFormatError(f"{what}{where} cannot be read (damaged file?): {exc}") from exc
+
+
 def _group(parent: h5py.Group, key: str) -> h5py.Group:
-    if key not in parent:
-        raise FileFormatError(f"{parent.name.rstrip('/')}/{key} is missing")
-    obj = parent.get(key)
+    obj = _member(parent, key, "")
     if not isinstance(obj, h5py.Group):
         raise FileFormatError(f"{obj.name} must be a group, got a {type(obj).__name__}")
     return obj
@@ -342,9 +384,7 @@ def _group(parent: h5py.Group, key: str) -> h5py.Group:
 
 def _dataset(group: h5py.Group, key: str, *, ndim: int = 1, kind: str = "float") -> h5py.Dataset:
     where = f"{group.name.rstrip('/')}/{key}"
-    if key not in group:
-        raise FileFormatError(f"dataset {where} is missing")
-    ds = group.get(key)
+    ds = _member(group, key, "dataset ")
     if not isinstance(ds, h5py.Dataset):
         raise FileFormatError(f"{where} must be a dataset, got a {type(ds).__name__}")
     if ds.ndim != ndim:
@@ -358,8 +398,18 @@ def _dataset(group: h5py.Group, key: str, *, ndim: int = 1, kind: str = "float")
 def _load(ds: h5py.Dataset) -> NDArray:
     try:
         return ds[()]
-    except OSError as exc:
-        raise FileFormatError(f"dataset {ds.name} cannot be read (truncated file?): {exc}") from exc
+    except H5_ERRORS as exc:
+        raise FileFormatError(f"dataset {ds.name} cannot be read (damaged file?): {exc}") from exc
+
+
+def _int64(arr: NDArray, where: str) -> NDArray:
+    """Integers as int64; unsigned values beyond int64 (which would wrap) are
+    a :class:`FileFormatError`."""
+    if arr.dtype.kind == "u" and arr.size and arr.max() > np.iinfo(np.int64).max:
+        bad = int(np.flatnonzero(arr > np.iinfo(np.int64).max)[0])
+        raise FileFormatError(f"dataset {where} holds {arr[bad]} at row {bad}, beyond the "
+                              f"int64 range of frame numbers and ids")
+    return arr.astype(np.int64, copy=False)
 
 
 def _columns(group: h5py.Group, required, optional=()) -> dict[str, NDArray]:
@@ -375,6 +425,8 @@ def _columns(group: h5py.Group, required, optional=()) -> dict[str, NDArray]:
             raise FileFormatError(
                 f"dataset {ds.name} has {ds.shape[0]} rows but {group.name}/{names[0]} has {n}")
         arr = _load(ds)
+        if kind == "int":
+            arr = _int64(arr, ds.name)
         if kind == "float" and not np.all(np.isfinite(arr)):
             bad = int(np.flatnonzero(~np.isfinite(arr))[0])
             raise FileFormatError(f"dataset {ds.name} must be finite, got {arr[bad]!r} at row {bad}")
@@ -523,6 +575,25 @@ def _node_order(f: h5py.File) -> list[str]:
     return order
 
 
+def _has(group: h5py.Group, key: str) -> bool:
+    try:
+        return key in group
+    except H5_ERRORS as exc:
+        raise FileFormatError(f"{group.name.rstrip('/')}/{key} cannot be read (damaged "
+                              f"file?): {exc}") from exc
+
+
+def _metadata(f: h5py.File) -> dict[str, Any]:
+    metadata: dict[str, Any] = {}
+    for key, value in _group(f, "metadata").attrs.items():
+        if isinstance(value, bytes):
+            value = value.decode("utf-8")
+        elif isinstance(value, np.generic):
+            value = value.item()
+        metadata[key] = value
+    return metadata
+
+
 def read_recording(path: str | os.PathLike, *, load_cubes: bool = True) -> Recording:
     """Read and validate a recording.
 
@@ -532,20 +603,13 @@ def read_recording(path: str | os.PathLike, *, load_cubes: bool = True) -> Recor
     attribute, or when the file is not a readable HDF5 file.
     """
     path = Path(path)
-    with _open_checked(path) as f:
+    with read_guard(path), _open_checked(path) as f:
         frame_period_s = _attr_float(f, "frame_period_s")
         order = _node_order(f)
         nodes_group = _group(f, "nodes")
         nodes = {name: _node(_group(nodes_group, name), name, load_cubes) for name in order}
-        truth = _truth(_group(f, "truth")) if "truth" in f else None
-        metadata: dict[str, Any] = {}
-        if "metadata" in f:
-            for key, value in _group(f, "metadata").attrs.items():
-                if isinstance(value, bytes):
-                    value = value.decode("utf-8")
-                elif isinstance(value, np.generic):
-                    value = value.item()
-                metadata[key] = value
+        truth = _truth(_group(f, "truth")) if _has(f, "truth") else None
+        metadata = _metadata(f) if _has(f, "metadata") else {}
     try:
         return Recording(frame_period_s=frame_period_s, nodes=nodes, truth=truth,
                          metadata=metadata)
@@ -560,7 +624,7 @@ def iter_cubes(path: str | os.PathLike, node_name: str, *, chunk_frames: int = 1
     the whole cube."""
     if int(chunk_frames) != chunk_frames or chunk_frames < 1:
         raise FileFormatError(f"chunk_frames={chunk_frames!r} must be an integer >= 1")
-    with _open_checked(Path(path)) as f:
+    with read_guard(path), _open_checked(Path(path)) as f:
         nodes = _group(f, "nodes")
         if node_name not in nodes:
             raise FileFormatError(f"/nodes/{node_name} is missing (nodes: {sorted(nodes.keys())})")
@@ -573,7 +637,7 @@ def iter_cubes(path: str | os.PathLike, node_name: str, *, chunk_frames: int = 1
 
 def read_cube_frames(path: str | os.PathLike, node_name: str) -> tuple[RadarConfig, NDArray, int]:
     """``(radar, frame (F,), F)`` of a node's cube without loading the ADC data."""
-    with _open_checked(Path(path)) as f:
+    with read_guard(path), _open_checked(Path(path)) as f:
         group = _group(_group(f, "nodes"), node_name)
         radar, adc, frames = _cube_meta(_group(group, "cube"))
         return radar, frames, int(adc.shape[0])

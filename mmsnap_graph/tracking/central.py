@@ -56,6 +56,7 @@ from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Tracks
 from .._linalg import symmetrize
 from .._validation import as_float_array, check_finite
+from .ekf import config_integer, config_number
 
 __all__ = [
     "CentralConfig",
@@ -98,6 +99,13 @@ class CentralConfig:
     remove_prior: bool = True
 
     def __post_init__(self) -> None:
+        for name in ("frame_period_s", "sigma_a_mps2", "gate_probability",
+                     "init_velocity_sigma_mps"):
+            object.__setattr__(self, name, config_number(self, name))
+        object.__setattr__(self, "max_misses", config_integer(self, "max_misses"))
+        if not isinstance(self.remove_prior, (bool, np.bool_)):
+            raise ConfigurationError(f"CentralConfig.remove_prior={self.remove_prior!r} must be "
+                                     "True or False")
         for name in ("frame_period_s", "init_velocity_sigma_mps"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):

@@ -43,19 +43,50 @@ from factors.motion import cv_process_noise, cv_transition
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Detections, Tracks
 from .._linalg import symmetrize
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_finite, check_positive
 
 __all__ = [
     "EkfConfig",
+    "config_number",
+    "config_integer",
     "track_initial_state",
     "ekf_predict",
     "ekf_update",
     "wrap_innovation",
     "LocalTracker",
     "track_centroids",
+    "frames_to_step",
+    "MAX_RANGE_M",
+    "MAX_SPEED_MPS",
 ]
 
+#: Measurements beyond these (m, m/s) are not physical for a radar: a tracker
+#: step ignores them (issue 13: a range of 1e300 overflowed the EKF).
+MAX_RANGE_M = 1e5
+MAX_SPEED_MPS = 1e4
+
 _ZERO_POSE = np.zeros(3)
+
+
+def config_number(config, name: str) -> float:
+    """``config.name`` as a float, when it is a real number (not a bool, a
+    string or an array); else :class:`ConfigurationError` naming it."""
+    value = getattr(config, name)
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
+                                                                    np.floating)):
+        raise ConfigurationError(f"{type(config).__name__}.{name}={value!r} must be a number, "
+                                 f"got {type(value).__name__}")
+    return float(value)
+
+
+def config_integer(config, name: str) -> int:
+    """``config.name`` as an int, when it is a whole number (an int or an
+    integral float); else :class:`ConfigurationError` naming it."""
+    value = config_number(config, name)
+    if not np.isfinite(value) or value != int(value):
+        raise ConfigurationError(f"{type(config).__name__}.{name}={getattr(config, name)!r} "
+                                 "must be an integer")
+    return int(value)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -111,8 +142,17 @@ class EkfConfig:
     doppler_wrap_mps: float | None = None
 
     def __post_init__(self) -> None:
-        std = tuple(float(s) for s in self.measurement_std)
-        if len(std) != 3 or not all(np.isfinite(s) and s > 0 for s in std):
+        for name in ("frame_period_s", "sigma_a_mps2", "init_tangential_speed_std_mps",
+                     "gate_probability"):
+            object.__setattr__(self, name, config_number(self, name))
+        for name in ("confirm_hits", "confirm_window", "max_misses"):
+            object.__setattr__(self, name, config_integer(self, name))
+        try:
+            std = tuple(float(s) for s in self.measurement_std)
+        except (TypeError, ValueError):
+            std = ()
+        if isinstance(self.measurement_std, (str, bytes)) or len(std) != 3 or \
+                not all(np.isfinite(s) and s > 0 for s in std):
             raise ConfigurationError(f"measurement_std={self.measurement_std!r} must be three "
                                      f"finite values > 0 (range_m, omega_rad, doppler_mps)")
         object.__setattr__(self, "measurement_std", std)
@@ -261,17 +301,43 @@ class LocalTracker:
         """All live tracks, tentative ones included (read-only use)."""
         return list(self._tracks)
 
-    def step(self, measurements: ArrayLike, *, frame_period_s: float | None = None):
-        """Advance one frame with its measurements ``(K, 3)``; ``frame_period_s``
-        is the time since the last step (default ``config.frame_period_s``)."""
+    def _checked_input(self, measurements: ArrayLike, frame_period_s) -> tuple[NDArray, float]:
+        """``(z, T)``: the physical rows of the measurements (range within
+        :data:`MAX_RANGE_M`, Doppler within :data:`MAX_SPEED_MPS`; others are
+        ignored, as a missed detection) and the time since the last step."""
         z = check_finite(as_float_array(measurements, "measurements"), "measurements")
         if z.ndim != 2 or z.shape[1] != 3:
             raise ValidationError(f"measurements must have shape (K, 3), got {z.shape}")
+        if frame_period_s is None:
+            t = self.config.frame_period_s
+        elif isinstance(frame_period_s, (bool, np.bool_)) or not isinstance(
+                frame_period_s, (int, float, np.integer, np.floating)):
+            raise ValidationError(f"frame_period_s={frame_period_s!r} must be a number")
+        else:
+            t = float(check_positive(frame_period_s, "frame_period_s", strict=False))
+        physical = (np.abs(z[:, 0]) <= MAX_RANGE_M) & (np.abs(z[:, 2]) <= MAX_SPEED_MPS)
+        return z[physical], t
+
+    def _predict_all(self, t: float) -> None:
+        """Predict every track over ``t`` s; a track whose prediction is no
+        longer finite (a gap of years) is dropped."""
         cfg = self.config
-        t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
-        if self._started:
+        keep = []
+        with np.errstate(over="ignore", invalid="ignore"):
             for tr in self._tracks:
                 tr.x, tr.p = ekf_predict(tr.x, tr.p, t, cfg.sigma_a_mps2)
+                if np.all(np.isfinite(tr.x)) and np.all(np.isfinite(tr.p)):
+                    keep.append(tr)
+        self._tracks = keep
+
+    def step(self, measurements: ArrayLike, *, frame_period_s: float | None = None):
+        """Advance one frame with its measurements ``(K, 3)``; ``frame_period_s``
+        is the time since the last step (default ``config.frame_period_s``).
+        Rows beyond :data:`MAX_RANGE_M` or :data:`MAX_SPEED_MPS` are ignored."""
+        z, t = self._checked_input(measurements, frame_period_s)
+        cfg = self.config
+        if self._started:
+            self._predict_all(t)
         self._started = True
         n_t, n_z = len(self._tracks), z.shape[0]
         assigned_z = np.zeros(n_z, bool)
@@ -286,7 +352,7 @@ class LocalTracker:
                 s = symmetrize(jac @ tr.p @ jac.T + self._r)
                 try:
                     chol = linalg.cholesky(s, lower=True)
-                except linalg.LinAlgError:
+                except (linalg.LinAlgError, ValueError):
                     continue
                 nu = wrap_innovation(z - h, cfg.doppler_wrap_mps)
                 w = linalg.solve_triangular(chol, nu.T, lower=True)
@@ -332,6 +398,26 @@ class LocalTracker:
         return out
 
 
+def frames_to_step(frames: ArrayLike, config: EkfConfig | None = None) -> NDArray:
+    """The frames a tracker steps through for detections at ``frames``: every
+    distinct frame, plus the first ``max(max_misses, confirm_window)``
+    frames of each gap (prediction-only steps: coasting tracks report and
+    then die there, exactly as when stepping every frame of the gap). After
+    that no track is alive, so the rest of the gap needs no step: a gap of
+    10^12 frames costs a handful of steps, not 10^12 (issue 13).
+    Returns a sorted int64 array."""
+    cfg = EkfConfig() if config is None else config
+    present = np.unique(np.asarray(frames, dtype=np.int64))
+    if present.size < 2:
+        return present
+    pad = max(cfg.max_misses, cfg.confirm_window)
+    gaps = np.diff(present) - 1
+    extra = np.minimum(gaps, pad)
+    fill = np.repeat(present[:-1], extra) + (np.arange(int(extra.sum())) -
+                                             np.repeat(np.cumsum(extra) - extra, extra) + 1)
+    return np.union1d(present, fill)
+
+
 def track_centroids(
     centroids: Detections,
     config: EkfConfig | None = None,
@@ -341,9 +427,11 @@ def track_centroids(
     """Local-frame tracks from a node's centroids (all frames).
 
     centroids : :class:`Detections`, one row per centroid per frame.
-    frames : the frames to step through (default: every integer frame from
-        the first to the last centroid); frames without centroids are
-        prediction-only steps.
+    frames : the frames to step through (default: :func:`frames_to_step` of
+        the centroids' frames: the frames present and, in each gap, the first
+        frames while a track can still coast); frames without centroids are
+        prediction-only steps, a longer gap one prediction over the time it
+        spans.
     Returns the confirmed tracks at every frame they are alive (frames where
     a track coasts without a measurement included).
     """
@@ -351,7 +439,7 @@ def track_centroids(
     if frames is None:
         if len(centroids) == 0:
             return Tracks.empty()
-        frames = np.arange(centroids.frame.min(), centroids.frame.max() + 1)
+        frames = frames_to_step(centroids.frame, cfg)
     frames = np.asarray(frames)
     if frames.ndim != 1 or (frames.size and not np.issubdtype(frames.dtype, np.integer)):
         raise ValidationError(f"frames must be a 1-D integer array, got {frames.dtype} "

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mmsnap_graph._atomic import check_output_path, recording_lock
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -92,19 +94,24 @@ def run(args: argparse.Namespace) -> int:
     if args.sigmas is not None:
         r, w, v = args.sigmas
         noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
-    rec = read_recording(args.recording, load_cubes=False)
-    cal = calibrate_recording(
-        rec, source=args.source, method=args.method, max_lag_frames=args.max_lag,
-        max_rmse_m=args.max_rmse, noise=noise,
-        robust=None if args.robust == "none" else args.robust, motion=not args.no_motion,
-        sigma_a_mps2=args.sigma_a)
-    print(format_table(cal))
-    json_path = (Path(args.json) if args.json else
-                 Path(args.recording).with_suffix("").with_name(
-                     Path(args.recording).stem + ".calibration.json"))
-    write_calibration_json(json_path, cal)
-    print(f"wrote {json_path}")
-    if not args.no_write:
-        path = write_calibration(args.recording, rec, cal, output=args.output)
-        print(f"wrote {path}: node poses and /calibration")
+    json_path = check_output_path(
+        args.json if args.json else Path(args.recording).with_suffix("").with_name(
+            Path(args.recording).stem + ".calibration.json"))
+    if args.output is not None and not args.no_write:
+        check_output_path(args.output)
+    # The lock spans read -> write: a concurrent `mmsnap process` or `fuse` of
+    # the same file waits instead of being overwritten (issue 13).
+    with recording_lock(args.recording):
+        rec = read_recording(args.recording, load_cubes=False)
+        cal = calibrate_recording(
+            rec, source=args.source, method=args.method, max_lag_frames=args.max_lag,
+            max_rmse_m=args.max_rmse, noise=noise,
+            robust=None if args.robust == "none" else args.robust, motion=not args.no_motion,
+            sigma_a_mps2=args.sigma_a)
+        print(format_table(cal))
+        write_calibration_json(json_path, cal)
+        print(f"wrote {json_path}")
+        if not args.no_write:
+            path = write_calibration(args.recording, rec, cal, output=args.output)
+            print(f"wrote {path}: node poses and /calibration")
     return 0 if cal.success else 1

@@ -73,11 +73,12 @@ def run(args: argparse.Namespace) -> int:
 
     from ..evaluation import evaluate_recording
     from mmsnap_graph.io import read_recording
+    from mmsnap_graph.io.guard import read_guard
     from mmsnap_graph.io.fused import FUSED_GROUP, read_fused
     from mmsnap_graph.io.calibration import load_calibration_poses
 
     rec = read_recording(args.recording, load_cubes=False)
-    with h5py.File(args.recording, "r") as f:
+    with read_guard(args.recording), h5py.File(args.recording, "r") as f:
         has_fused = FUSED_GROUP in f
     fused = read_fused(args.recording) if has_fused else None
     poses = load_calibration_poses(args.calibration) if args.calibration else None

@@ -12,6 +12,9 @@ import sys
 
 import numpy as np
 
+from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.errors import ValidationError
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -53,18 +56,25 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.io import read_recording, write_fused
     from mmsnap_graph.io.calibration import load_calibration_poses
 
-    rec = read_recording(args.recording, load_cubes=False)
+    if args.grid_points < 5 or args.grid_points % 2 == 0:
+        raise ValidationError(f"--grid-points must be odd and >= 5, got {args.grid_points}")
+    if args.output is not None:
+        check_output_path(args.output)
     poses = load_calibration_poses(args.calibration) if args.calibration else None
     noise = MeasurementNoise()
     if args.sigmas is not None:
         r, w, v = args.sigmas
         noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
-    fused = fuse_recording(rec, node_poses=poses, mode=args.mode, covariance=args.covariance,
-                           noise=noise,
-                           solver=args.solver, source=args.source, gate_probability=args.gate,
-                           grid_points_per_axis=args.grid_points,
-                           progress=False if args.no_progress else None)
-    path = write_fused(args.recording, fused, output=args.output)
+    # The lock spans read -> write: a concurrent `mmsnap process` or
+    # `calibrate` of the same file waits instead of being overwritten.
+    with recording_lock(args.recording):
+        rec = read_recording(args.recording, load_cubes=False)
+        fused = fuse_recording(rec, node_poses=poses, mode=args.mode,
+                               covariance=args.covariance, noise=noise, solver=args.solver,
+                               source=args.source, gate_probability=args.gate,
+                               grid_points_per_axis=args.grid_points,
+                               progress=False if args.no_progress else None)
+        path = write_fused(args.recording, fused, output=args.output)
     n_ok = int(np.count_nonzero(fused.success))
     frames = np.unique(fused.frame).size
     print(f"fused {len(fused)} targets in {frames} frames ({args.mode}, {args.covariance}, "

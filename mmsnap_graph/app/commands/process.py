@@ -7,6 +7,7 @@ import argparse
 import dataclasses
 import sys
 
+from mmsnap_graph._atomic import check_output_path
 from mmsnap_graph.radar.cfar import CfarConfig
 from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.tracking.ekf import EkfConfig
@@ -34,6 +35,8 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..pipeline import process_file  # here: `mmsnap --help` does not import h5py
+    if args.output is not None:
+        check_output_path(args.output)
 
     config = ChainConfig(cfar=dataclasses.replace(CfarConfig(), pfa=args.pfa))
     ekf = EkfConfig(sigma_a_mps2=args.sigma_a)

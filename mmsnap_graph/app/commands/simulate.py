@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mmsnap_graph._atomic import check_output_path
 from mmsnap_graph.errors import ValidationError
 
 
@@ -64,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     network = dict(args.node) if args.node else args.configuration
     if args.node and len(network) != len(args.node):
         raise ValidationError("--node names must be distinct")
-    out = Path(args.output)
+    out = check_output_path(args.output)
     if out.exists() and not args.overwrite:
         raise ValidationError(f"{out} exists; pass --overwrite to replace it")
     progress = not args.no_progress and sys.stderr.isatty()

@@ -1,0 +1,36 @@
+"""Turning what h5py and numpy raise on a damaged file into the project's
+:class:`~mmsnap_graph.errors.FileFormatError` naming the file (issue 13: bit
+flips give ``RuntimeError``, ``ValueError``, ``KeyError``, ... besides
+``OSError``). Used by every reader of :mod:`mmsnap_graph.io`."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from typing import Iterator
+
+from ..errors import FileFormatError, MmsnapError
+
+__all__ = ["H5_ERRORS", "read_guard"]
+
+#: What h5py and numpy raise on a damaged file.
+H5_ERRORS = (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, OverflowError,
+             UnicodeDecodeError, AttributeError, SystemError)
+
+
+@contextlib.contextmanager
+def read_guard(path: str | os.PathLike) -> Iterator[None]:
+    """Any error of h5py or numpy while reading ``path`` (:data:`H5_ERRORS`)
+    becomes a :class:`FileFormatError` whose message names the file (and the
+    field, where the reader knew it)."""
+    name = str(path)
+    try:
+        yield
+    except FileFormatError as exc:
+        if str(exc).startswith(name):
+            raise
+        raise FileFormatError(f"{name}: {exc}") from exc
+    except MmsnapError:
+        raise
+    except H5_ERRORS as exc:
+        raise FileFormatError(f"{name} is damaged: {type(exc).__name__}: {exc}") from exc
