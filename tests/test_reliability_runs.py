@@ -115,7 +115,7 @@ def test_a_huge_frame_gap_is_a_handful_of_steps():
                      doppler_mps=np.full(60, 0.3))
     cfg = EkfConfig()
     steps = frames_to_step(det.frame, cfg)
-    assert steps.size == 60 + max(cfg.max_misses, cfg.confirm_window)
+    assert steps.size == 60 + max(cfg.max_misses_frames, cfg.confirm_window_frames)
     t0 = time.perf_counter()
     tracks = track_centroids(det, cfg)
     assert time.perf_counter() - t0 < 5.0

@@ -145,8 +145,13 @@ class EkfConfig:
         for name in ("frame_period_s", "sigma_a_mps2", "init_tangential_speed_std_mps",
                      "gate_probability"):
             object.__setattr__(self, name, config_number(self, name))
+        for name in ("confirm_window_s", "max_coast_s"):
+            object.__setattr__(self, name, config_number(self, name))
         for name in ("confirm_hits", "confirm_window", "max_misses"):
-            object.__setattr__(self, name, config_integer(self, name))
+            if getattr(self, name) is not None or name == "confirm_hits":
+                object.__setattr__(self, name, config_integer(self, name))
+        if self.doppler_wrap_mps is not None:
+            object.__setattr__(self, "doppler_wrap_mps", config_number(self, "doppler_wrap_mps"))
         try:
             std = tuple(float(s) for s in self.measurement_std)
         except (TypeError, ValueError):
@@ -400,7 +405,7 @@ class LocalTracker:
 
 def frames_to_step(frames: ArrayLike, config: EkfConfig | None = None) -> NDArray:
     """The frames a tracker steps through for detections at ``frames``: every
-    distinct frame, plus the first ``max(max_misses, confirm_window)``
+    distinct frame, plus the first ``max(max_misses_frames, confirm_window_frames)``
     frames of each gap (prediction-only steps: coasting tracks report and
     then die there, exactly as when stepping every frame of the gap). After
     that no track is alive, so the rest of the gap needs no step: a gap of
@@ -410,7 +415,7 @@ def frames_to_step(frames: ArrayLike, config: EkfConfig | None = None) -> NDArra
     present = np.unique(np.asarray(frames, dtype=np.int64))
     if present.size < 2:
         return present
-    pad = max(cfg.max_misses, cfg.confirm_window)
+    pad = max(cfg.max_misses_frames, cfg.confirm_window_frames)
     gaps = np.diff(present) - 1
     extra = np.minimum(gaps, pad)
     fill = np.repeat(present[:-1], extra) + (np.arange(int(extra.sum())) -
