@@ -57,6 +57,7 @@ from .robust import (
     kernel_weight_and_loss,
     node_d2,
     residual_gate_threshold,
+    residual_test_fails,
 )
 
 __all__ = [
@@ -275,12 +276,19 @@ def fuse_batch(
         if x0.shape != (z.shape[0], 4):
             raise ValidationError(f"initial_state must have shape ({z.shape[0]}, 4), got {x0.shape}")
         x0 = np.array(x0, dtype=float)
-    result = _solve(poses, z, obs, x0, params, max_iterations, chunk_size)
+    result = _solve(poses, z, obs, x0, params if params.kernel is None else replace(params, kernel=None),
+                    max_iterations, chunk_size)
     if robust is None:
         return result
+    if params.kernel is not None:
+        # The kernel fit starts from the plain one (a non-convex kernel from
+        # the detections' average can stall in a wrong basin), as fuse_frame.
+        start = np.where(result.success[:, None], result.state, x0)
+        result = replace(_solve(poses, z, obs, start, params, max_iterations, chunk_size),
+                         initial_state=x0)
     if robust == "gate":
         return _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_size,
-                     threshold)
+                     residual_gate_probability)
     return _flag_outlying(result, obs, threshold)
 
 
@@ -586,17 +594,18 @@ def _try_step(fr: _Frames, params, step_t, ok, predicted) -> None:
 
 
 def _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_size,
-          threshold) -> BatchResult:
+          probability) -> BatchResult:
     """``robust="gate"``: refit each frame whose residuals fail the gate
     without each of its nodes in turn (those with at least two nodes left, so
     that the rest can still be tested); keep the passing refit of lowest cost,
     or flag the frame ``Status.RESIDUAL_TEST_FAILED``."""
-    failing = np.flatnonzero(result.success & (node_d2(result.whitened_residuals) > threshold).any(axis=1))
+    failing = np.flatnonzero(result.success & residual_test_fails(result.whitened_residuals, probability))
     out = {name: np.array(getattr(result, name)) for name in _GATED_FIELDS}
     rejected = np.zeros(obs.shape, dtype=bool)
     if failing.size:
         best = np.full(failing.size, -1)
         best_cost = np.full(failing.size, np.inf)
+        n_pass = np.zeros(failing.size, dtype=np.int64)
         refits = {}
         for n in range(obs.shape[1]):
             sel = obs[failing, n] & (obs[failing].sum(axis=1) >= 3)
@@ -608,18 +617,20 @@ def _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_siz
             p_rows = poses[rows] if poses.ndim == 3 else poses
             x0 = _initial_states(p_rows, z[rows], obs_n, prior, noise, chunk_size)
             sub = _solve(p_rows, z[rows], obs_n, x0, params, max_iterations, chunk_size)
-            ok = sub.success & ~(node_d2(sub.whitened_residuals) > threshold).any(axis=1)
+            ok = sub.success & ~residual_test_fails(sub.whitened_residuals, probability)
+            n_pass[sel] += ok
             better = ok & (sub.final_cost < best_cost[sel])
             best[np.flatnonzero(sel)[better]] = n
             best_cost[np.flatnonzero(sel)[better]] = sub.final_cost[better]
             refits[n] = (rows, sub)
+        best[n_pass != 1] = -1  # none, or ambiguous: which node is the outlier?
         for n, (rows, sub) in refits.items():
             take = best[np.searchsorted(failing, rows)] == n
             for name in _GATED_FIELDS:
                 out[name][rows[take]] = getattr(sub, name)[take]
             rejected[rows[take], n] = True
         fixed = failing[best >= 0]
-        full = _whitened(out["state"][fixed], poses[fixed] if poses.ndim == 3 else poses, z[fixed],
+        full = np.zeros((0, obs.shape[1], 3)) if fixed.size == 0 else _whitened(out["state"][fixed], poses[fixed] if poses.ndim == 3 else poses, z[fixed],
                          obs[fixed].astype(float), params)
         full[~obs[fixed]] = np.nan
         out["whitened_residuals"][fixed] = full

@@ -83,6 +83,7 @@ from .robust import (
     check_robust_k,
     node_d2,
     residual_gate_threshold,
+    residual_test_fails,
 )
 
 __all__ = [
@@ -479,11 +480,18 @@ def fuse_frame(
     except _Failure as failure:
         return _failed(failure, x0, **frame)
     rejected = None
-    if fit.status == Status.OK and threshold is not None:
-        if robust == "gate":
-            fit, rejected = _gate(fit, poses, z, obs, noise, prior, max_iterations, threshold)
-        else:
-            rejected = node_d2(fit.whitened) > threshold
+    if fit.status == Status.OK and robust == "gate":
+        fit, rejected = _gate(fit, poses, z, obs, noise, prior, max_iterations,
+                              residual_gate_probability)
+    elif fit.status == Status.OK and kernel is not None:
+        # The kernel fit starts from the plain one (a non-convex kernel from
+        # the detections' average can stall in a wrong basin).
+        try:
+            fit = _fit(poses, z, obs, noise, prior, fit.state.copy(), max_iterations, kernel)
+        except _Failure as failure:
+            return _failed(failure, x0, **frame)
+        fit.x0 = x0
+        rejected = node_d2(fit.whitened) > threshold
     grid_cov = None
     if covariance != "laplace":
         grid_cov = (_grid(fit.state, fit.cov, poses, z, obs if rejected is None else
@@ -546,15 +554,17 @@ def _kept(obs, rejected):
     return (np.ones(rejected.shape, dtype=bool) if obs is None else obs) & ~rejected
 
 
-def _gate(fit, poses, z, obs, noise, prior, max_iterations, threshold):
+def _gate(fit, poses, z, obs, noise, prior, max_iterations, probability):
     """``robust="gate"`` on a solved frame: ``(fit, rejected (N,) or None)``
-    (as :func:`mmsnap_graph.fusion.batch.fuse_batch`'s gate)."""
-    d2 = node_d2(fit.whitened)
-    if not (d2 > threshold).any():
+    (as :func:`mmsnap_graph.fusion.batch.fuse_batch`'s gate): the passing
+    leave-one-node-out refit when exactly one passes."""
+    if not residual_test_fails(fit.whitened, probability):
         return fit, None
+    d2 = node_d2(fit.whitened)
+    threshold = residual_gate_threshold(probability)
     n_nodes = poses.shape[0]
     seen = np.ones(n_nodes, dtype=bool) if obs is None else obs
-    best, best_node = None, -1
+    best, best_node, n_pass = None, -1, 0
     if seen.sum() >= 3:
         for n in np.flatnonzero(seen):
             kept = seen.copy()
@@ -564,15 +574,17 @@ def _gate(fit, poses, z, obs, noise, prior, max_iterations, threshold):
                            checked_initial_state(poses, z, kept, prior, noise), max_iterations)
             except (_Failure, MmsnapError):
                 continue
-            if sub.status != Status.OK or (node_d2(sub.whitened) > threshold).any():
+            if sub.status != Status.OK or residual_test_fails(sub.whitened, probability):
                 continue
+            n_pass += 1
             if best is None or sub.cost < best.cost:
                 best, best_node = sub, int(n)
-    if best is None:
+    if n_pass != 1:
         fit.status = Status.RESIDUAL_TEST_FAILED
         fit.cov = np.full((4, 4), np.nan)
-        fit.messages = [f"{Status.RESIDUAL_TEST_FAILED.message} (largest squared whitened "
-                        f"residual {d2.max():.3g} > {threshold:.3g})"]
+        fit.messages = [f"{Status.RESIDUAL_TEST_FAILED.message} ("
+                        + ("ambiguous: several nodes' removal passes" if n_pass else
+                           f"largest squared whitened residual {d2.max():.3g}") + ")"]
         return fit, None
     best.whitened = _residuals_and_degeneracy(best.state, poses, z, obs, noise, prior)[0]
     best.messages = best.messages + [f"node {best_node} rejected by the residual gate "

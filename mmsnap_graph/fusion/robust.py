@@ -103,3 +103,25 @@ def kernel_weight_and_loss(name: str, k: float, s2: NDArray) -> tuple[NDArray, N
     return weight, loss
 
 
+
+
+@lru_cache(maxsize=64)
+def _total_threshold(probability: float, dof: int) -> float:
+    from scipy.stats import chi2  # deferred: scipy.stats is slow to import
+
+    return float(chi2.ppf(probability, dof))
+
+
+def residual_test_fails(residuals: NDArray, probability: float) -> NDArray:
+    """The residual test of ``robust="gate"`` on whitened residuals
+    ``(..., N, 3)`` (NaN rows: nodes not used): True where a node's squared
+    norm exceeds ``chi2.ppf(p, 3)`` or where the sum over the ``n`` nodes
+    used exceeds ``chi2.ppf(p, max(3 n - 4, 1))`` (the frame's degrees of
+    freedom: ``3 n`` measurements, 4 states)."""
+    r = np.asarray(residuals, dtype=float)
+    d2 = node_d2(r)
+    n_used = np.sum(~np.isnan(r[..., 0]), axis=-1)
+    node = (d2 > residual_gate_threshold(probability)).any(axis=-1)
+    dof = np.maximum(3 * n_used - 4, 1)
+    total_thr = np.vectorize(lambda d: _total_threshold(float(probability), int(d)), otypes=[float])(dof)
+    return node | (d2.sum(axis=-1) > total_thr)
