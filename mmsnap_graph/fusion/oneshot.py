@@ -476,7 +476,7 @@ def fuse_frame(
                                 "is no prior: the state is indeterminate"), None, **frame)
     x0 = _start(poses, z, obs, prior, noise, initial_state)
     try:
-        fit = _fit(poses, z, obs, noise, prior, x0, max_iterations, kernel)
+        fit = _fit(poses, z, obs, noise, prior, x0, max_iterations)
     except _Failure as failure:
         return _failed(failure, x0, **frame)
     rejected = None
