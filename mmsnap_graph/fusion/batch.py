@@ -276,19 +276,25 @@ def fuse_batch(
         if x0.shape != (z.shape[0], 4):
             raise ValidationError(f"initial_state must have shape ({z.shape[0]}, 4), got {x0.shape}")
         x0 = np.array(x0, dtype=float)
-    result = _solve(poses, z, obs, x0, params if params.kernel is None else replace(params, kernel=None),
-                    max_iterations, chunk_size)
+    return _robust_solve(poses, z, obs, x0, prior, noise, params, max_iterations, chunk_size,
+                         robust, threshold, residual_gate_probability)
+
+
+def _robust_solve(poses, z, obs, x0, prior, noise, params, max_iterations, chunk_size,
+                  robust, threshold, probability) -> BatchResult:
+    """The plain fit, then the gate or the kernel fit started from it."""
+    plain = params if params.kernel is None else replace(params, kernel=None)
+    result = _solve(poses, z, obs, x0, plain, max_iterations, chunk_size)
     if robust is None:
         return result
-    if params.kernel is not None:
-        # The kernel fit starts from the plain one (a non-convex kernel from
-        # the detections' average can stall in a wrong basin), as fuse_frame.
-        start = np.where(result.success[:, None], result.state, x0)
-        result = replace(_solve(poses, z, obs, start, params, max_iterations, chunk_size),
-                         initial_state=x0)
     if robust == "gate":
         return _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_size,
-                     residual_gate_probability)
+                     probability)
+    # The kernel fit starts from the plain one (a non-convex kernel from the
+    # detections' average can stall in a wrong basin), as fuse_frame.
+    start = np.where(result.success[:, None], result.state, x0)
+    result = replace(_solve(poses, z, obs, start, params, max_iterations, chunk_size),
+                     initial_state=x0)
     return _flag_outlying(result, obs, threshold)
 
 
@@ -603,10 +609,8 @@ def _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_siz
     out = {name: np.array(getattr(result, name)) for name in _GATED_FIELDS}
     rejected = np.zeros(obs.shape, dtype=bool)
     if failing.size:
-        best = np.full(failing.size, -1)
-        best_cost = np.full(failing.size, np.inf)
-        n_pass = np.zeros(failing.size, dtype=np.int64)
-        refits = {}
+        best, best_cost = np.full(failing.size, -1), np.full(failing.size, np.inf)
+        n_pass, refits = np.zeros(failing.size, dtype=np.int64), {}
         for n in range(obs.shape[1]):
             sel = obs[failing, n] & (obs[failing].sum(axis=1) >= 3)
             rows = failing[sel]
@@ -638,7 +642,6 @@ def _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_siz
         out["status"][lost] = Status.RESIDUAL_TEST_FAILED
         out["covariance"][lost] = np.nan
     return replace(result, **out, success=out["status"] == _CONVERGED, rejected=rejected)
-
 
 #: The per-frame fields a gate refit replaces.
 _GATED_FIELDS = ("state", "covariance", "status", "iterations", "final_cost", "initial_state",

@@ -436,15 +436,13 @@ def fuse_frame(
     grid_points_per_axis, grid_half_width_sigmas :
         Grid layout, see :func:`mmsnap_graph.fusion.grid.grid_posterior`.
     robust : {"gate", "huber", "cauchy"} or None
-        Robust fusion (:mod:`mmsnap_graph.fusion.robust`; default None, plain
-        least squares). ``"gate"``: a chi-square test of each node's whitened
-        residual 3-vector after the fit; a failing frame is refitted without
-        each node in turn (at least two nodes left) and the passing refit of
-        lowest cost is kept (``rejected`` marks the node left out; the
-        covariance is that of the measurements kept); a frame no single
-        removal repairs is flagged ``Status.RESIDUAL_TEST_FAILED``.
-        ``"huber"`` / ``"cauchy"``: GTSAM's kernels on each node's factor
-        (``gtsam.Marginals`` then gives the kernel-weighted covariance).
+        Robust fusion (:mod:`mmsnap_graph.fusion.robust`; default None).
+        ``"gate"``: chi-square tests of the whitened residuals after the fit;
+        a failing frame is refitted without each node in turn and the one
+        passing refit kept (``rejected``; the covariance is that of the
+        measurements kept), else flagged ``Status.RESIDUAL_TEST_FAILED``.
+        ``"huber"`` / ``"cauchy"``: GTSAM's kernels on each node's factor,
+        started from the plain fit (kernel-weighted ``Marginals``).
     robust_k : float, optional
         The kernel constant (default :data:`factors.robust.ROBUST_K_DEFAULT`).
     residual_gate_probability : float
@@ -479,25 +477,22 @@ def fuse_frame(
         fit = _fit(poses, z, obs, noise, prior, x0, max_iterations)
     except _Failure as failure:
         return _failed(failure, x0, **frame)
-    rejected = None
-    if fit.status == Status.OK and robust == "gate":
-        fit, rejected = _gate(fit, poses, z, obs, noise, prior, max_iterations,
-                              residual_gate_probability)
-    elif fit.status == Status.OK and kernel is not None:
-        # The kernel fit starts from the plain one (a non-convex kernel from
-        # the detections' average can stall in a wrong basin).
-        try:
-            fit = _fit(poses, z, obs, noise, prior, fit.state.copy(), max_iterations, kernel)
-        except _Failure as failure:
-            return _failed(failure, x0, **frame)
-        fit.x0 = x0
-        rejected = node_d2(fit.whitened) > threshold
+    try:
+        fit, rejected = _robust_step(fit, poses, z, obs, noise, prior, max_iterations, robust,
+                                     kernel, threshold, residual_gate_probability)
+    except _Failure as failure:
+        return _failed(failure, x0, **frame)
     grid_cov = None
     if covariance != "laplace":
-        grid_cov = (_grid(fit.state, fit.cov, poses, z, obs if rejected is None else
-                          _kept(obs, rejected), noise, prior, grid_points_per_axis,
+        kept = obs if rejected is None or robust != "gate" else _kept(obs, rejected)
+        grid_cov = (_grid(fit.state, fit.cov, poses, z, kept, noise, prior, grid_points_per_axis,
                           grid_half_width_sigmas, fit.messages)
                     if fit.status == Status.OK else np.full((4, 4), np.nan))
+    return _result(fit, grid_cov, n_observed, prior, rejected)
+
+
+def _result(fit, grid_cov, n_observed, prior, rejected) -> FusionResult:
+    """The FusionResult of an assessed fit."""
     for arr in (fit.state, fit.cov, fit.whitened, fit.x0):
         arr.setflags(write=False)  # handed over without a copy
     return FusionResult(
@@ -516,6 +511,22 @@ def fuse_frame(
         used_prior=prior is not None,
         rejected=rejected,
     )
+
+
+def _robust_step(fit, poses, z, obs, noise, prior, max_iterations, robust, kernel, threshold,
+                 probability):
+    """The gate or the kernel fit after the plain fit: ``(fit, rejected or None)``;
+    raises :class:`_Failure` when the kernel fit fails."""
+    if fit.status != Status.OK or robust is None:
+        return fit, None
+    if robust == "gate":
+        return _gate(fit, poses, z, obs, noise, prior, max_iterations, probability)
+    # The kernel fit starts from the plain one (a non-convex kernel from the
+    # detections' average can stall in a wrong basin).
+    x0 = fit.x0
+    fit = _fit(poses, z, obs, noise, prior, fit.state.copy(), max_iterations, kernel)
+    fit.x0 = x0
+    return fit, node_d2(fit.whitened) > threshold
 
 
 def _robust_options(robust, robust_k, probability):
