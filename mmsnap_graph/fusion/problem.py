@@ -58,7 +58,9 @@ def check_noise(noise: object) -> MeasurementNoise:
     """``noise`` if it is a :class:`MeasurementNoise`; ValidationError otherwise."""
     if not isinstance(noise, MeasurementNoise):
         raise ValidationError(f"noise must be a MeasurementNoise, got {type(noise).__name__}")
-    _check_sigma_range(noise.sigmas, "noise")
+    values = (noise.range_m, noise.omega_rad, noise.doppler_mps)
+    if not all(SIGMA_MIN <= v <= SIGMA_MAX for v in values):
+        _check_sigma_range(values, "noise")
     return noise
 
 
@@ -69,9 +71,9 @@ def check_prior(prior: object) -> GaussianPrior | None:
             f"prior must be a GaussianPrior or None, got {type(prior).__name__}"
         )
     if prior is not None:
-        _check_sigma_range(prior.sigmas, "prior")
-        if not np.isfinite(prior.mean).all():
-            raise ValidationError(f"prior mean must be finite, got {prior.mean.tolist()}")
+        values = prior.sigmas.tolist()  # (the mean is finite: GaussianPrior checks it)
+        if not all(SIGMA_MIN <= v <= SIGMA_MAX for v in values):
+            _check_sigma_range(values, "prior")
     return prior
 
 
