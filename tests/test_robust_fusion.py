@@ -270,3 +270,31 @@ def test_sigmas_outside_the_sane_range_are_refused():
             fuse_frame(POSES, z, noise=noise)
         with pytest.raises(ValidationError, match="noise sigmas must be in"):
             fuse_batch(POSES, z[None], noise=noise)
+
+
+# ----------------------------------------------------------------------------
+# fuse_recording
+# ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("robust", ["gate", "huber"])
+def test_fuse_recording_takes_the_robust_option_with_both_solvers(robust):
+    from mmsnap_graph.fusion.sequence import fuse_recording
+    from mmsnap_graph.sim import simulate_recording
+
+    rec = simulate_recording("A", "random", levels=("centroids",), n_frames=80, seed=4,
+                             n_targets=1, known_poses=True, centroid_p_miss=0.1)
+    plain = fuse_recording(rec, solver="batch")
+    fb = fuse_recording(rec, solver="batch", robust=robust)
+    fg = fuse_recording(rec, solver="gtsam", robust=robust)
+    assert fb.robust == robust and fb.rejected.shape == fb.observed.shape
+    np.testing.assert_array_equal(fb.status, fg.status)
+    np.testing.assert_array_equal(fb.rejected, fg.rejected)
+    ok = fb.success
+    np.testing.assert_allclose(fb.state[ok], fg.state[ok], atol=1e-6)
+    # On clean simulated data the robust fit is the plain one almost everywhere.
+    same = ok & plain.success & ~fb.rejected.any(axis=1)
+    assert same.mean() >= 0.95
+    if robust == "gate":
+        np.testing.assert_array_equal(fb.state[same], plain.state[same])
+    assert not plain.rejected.any() and plain.robust is None
