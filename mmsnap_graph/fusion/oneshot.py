@@ -329,24 +329,16 @@ _MIN_EIGENVALUE_RATIO = 1e-13
 
 
 def _positive_definite(cov) -> bool:
-    """Finite and positive definite to rounding: a Cholesky factorization in
-    plain floats whose squared pivots all exceed ``_MIN_EIGENVALUE_RATIO``
-    times the largest diagonal entry (a 4x4 eigendecomposition costs more)."""
-    a = cov.tolist()
-    if not all(map(math.isfinite, cov.ravel().tolist())):
+    """Finite and positive definite to rounding: a Cholesky factorization whose
+    squared pivots all exceed ``_MIN_EIGENVALUE_RATIO`` times the largest
+    diagonal entry (cheaper than a 4x4 eigendecomposition)."""
+    try:
+        lo = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
         return False
-    scale = max(a[0][0], a[1][1], a[2][2], a[3][3])
-    if not scale > 0.0:
-        return False
-    lo = [[0.0] * 4 for _ in range(4)]
-    for j in range(4):
-        d = a[j][j] - sum(lo[j][k] ** 2 for k in range(j))
-        if not d > _MIN_EIGENVALUE_RATIO * scale:
-            return False
-        lo[j][j] = math.sqrt(d)
-        for i in range(j + 1, 4):
-            lo[i][j] = (a[i][j] - sum(lo[i][k] * lo[j][k] for k in range(j))) / lo[j][j]
-    return True
+    diag = cov.diagonal()
+    pivots = lo.diagonal()
+    return bool(np.isfinite(lo).all() and (pivots * pivots).min() > _MIN_EIGENVALUE_RATIO * diag.max())
 
 
 def _assess(state, cov, poses, z, obs, noise, prior, kernel=None):
