@@ -213,7 +213,7 @@ def test_flags_max_iterations_and_non_finite():
         (dict(step_tolerance=0.0), "step_tolerance must be finite and > 0"),
         (dict(chunk_size=0), "chunk_size must be >= 1"),
         (dict(initial_state=np.zeros((2, 4))), r"initial_state must have shape \(3, 4\)"),
-        (dict(measurements=np.full((3, 2, 3), np.nan)), "measurements must be finite"),
+        (dict(measurements=np.full((3, 2, 3), np.inf)), "measurements must be finite"),
     ],
 )
 def test_invalid_input_raises(kwargs, match):

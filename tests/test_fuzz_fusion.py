@@ -136,9 +136,6 @@ def test_fuse_frame_on_edge_values_raises_only_typed_errors(frame, prior):
 # ----------------------------------------------------------------------------
 
 
-@pytest.mark.xfail(strict=True, raises=(OverflowError, ZeroDivisionError),
-                   reason="issue 13: fuse_frame raises OverflowError/ZeroDivisionError for "
-                          "sigma ratios beyond ~1e154")
 @FUZZ
 @given(edge_frames(sigmas=st.one_of(finite(1e-300, 1e-150), finite(1e150, 1e300))), PRIORS)
 def test_fuse_frame_with_extreme_sigmas_raises_only_typed_errors(frame, prior):
@@ -150,9 +147,6 @@ def test_fuse_frame_with_extreme_sigmas_raises_only_typed_errors(frame, prior):
     assert_sound(r.success, r.state, r.covariance)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError,
-                   reason="issue 13: fuse_batch accepts range <= 0 and |omega| > pi and "
-                          "returns success=True")
 @FUZZ
 @given(node_poses(2, 3), st.sampled_from([(-1.0, 0.0), (0.0, 0.1), (5.0, 4.0), (5.0, -3.5)]))
 def test_fuse_batch_rejects_or_flags_out_of_range_measurements(poses, bad):
@@ -191,10 +185,6 @@ def test_fuse_frame_with_a_huge_doppler_is_sound(frame, doppler, prior):
     assert_sound(r.success, r.state, r.covariance)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError,
-                   reason="fuzz finding (issue 13 suite): fuse_batch returns success=True with "
-                          "a singular covariance (eigenvalues ~1e-32, 1e-200) for a finite "
-                          "huge Doppler (|v| >= ~1e16 m/s); it should reject or flag the frame")
 @FUZZ
 @given(consistent_frames(), HUGE_DOPPLER, PRIORS)
 def test_fuse_batch_with_a_huge_doppler_is_sound(frame, doppler, prior):
@@ -207,9 +197,6 @@ def test_fuse_batch_with_a_huge_doppler_is_sound(frame, doppler, prior):
     assert_sound(r.success, r.state, r.covariance)
 
 
-@pytest.mark.xfail(strict=True, raises=(TypeError, AssertionError),
-                   reason="issue 13: scalar options are not type-checked (max_iterations, "
-                          "chunk_size)")
 @pytest.mark.parametrize("kwargs", [{"max_iterations": 2.5}, {"chunk_size": "8"},
                                     {"max_iterations": True}])
 def test_fuse_batch_rejects_scalar_options_of_the_wrong_type(kwargs):

@@ -32,9 +32,12 @@ DEGENERACY_THRESHOLD = 100.0
 class Status(enum.IntEnum):
     """Status codes of fused frames and of radar frames (one scheme).
 
-    Codes 0-5 are the ``status`` dataset of a recording's ``/fused`` group (a
-    file contract, docs/FORMAT.md); codes 6-8 are the radar signal chain's
-    (:attr:`mmsnap_graph.radar.chain.ChainResult.status`, not stored in files).
+    Codes 0-5 and 9 are the ``status`` dataset of a recording's ``/fused``
+    group (a file contract, docs/FORMAT.md); codes 6-8 are the radar signal
+    chain's (:attr:`mmsnap_graph.radar.chain.ChainResult.status`, not stored
+    in files). Code 9 comes from the robust fusion (``robust="gate"``): the
+    residuals fail the chi-square test and leaving out one node does not
+    repair them.
     ``Status.OK`` (alias ``Status.CONVERGED``) is success for both.
     """
 
@@ -47,6 +50,7 @@ class Status(enum.IntEnum):
     NON_FINITE_SAMPLES = 6
     ALL_ZERO_CUBE = 7
     SATURATED = 8
+    RESIDUAL_TEST_FAILED = 9
     CONVERGED = 0  # alias of OK, the estimators' word for it
 
     @property
@@ -70,7 +74,15 @@ _MESSAGES = {
     6: "non-finite samples",
     7: "all-zero cube",
     8: "saturated",
+    9: "residuals fail the chi-square test and no single node's removal repairs them",
 }
+
+
+def _no_rejection(shape) -> NDArray:
+    """An all-False read-only ``rejected`` mask."""
+    out = np.zeros(shape, dtype=bool)
+    out.setflags(write=False)
+    return out
 
 
 def _freeze(obj, names) -> None:
@@ -136,6 +148,13 @@ class FusionResult:
         Number of nodes that observed the target.
     used_prior : bool
         True for MAP (Bayesian), False for ML.
+    rejected : (N,) bool
+        Nodes whose measurement the robust fusion left out (``robust="gate"``)
+        or down-weighted as outlying (``"huber"``, ``"cauchy"``: the residual
+        fails the chi-square gate); all False without ``robust``. With
+        ``"gate"``, ``state`` and ``covariance`` are those of the measurements
+        kept; ``whitened_residuals`` still hold the rejected node's residual
+        at ``state``.
     """
 
     state: NDArray
@@ -151,8 +170,11 @@ class FusionResult:
     initial_state: NDArray
     n_observed: int
     used_prior: bool
+    rejected: NDArray | None = None
 
     def __post_init__(self) -> None:
+        if self.rejected is None:
+            object.__setattr__(self, "rejected", _no_rejection(self.whitened_residuals.shape[:-1]))
         _freeze(self, ("state", "covariance", "whitened_residuals", "grid_covariance", "initial_state"))
         if type(self.status) is not Status:
             object.__setattr__(self, "status", Status(self.status))
@@ -189,6 +211,8 @@ class BatchResult:
     degeneracy : (F,) condition number of the lines of sight's velocity
         information (``FusionResult.degeneracy``; inf for parallel lines of
         sight or a single node).
+    rejected : (F, N) bool, the nodes the robust fusion left out or
+        down-weighted (``FusionResult.rejected``); all False without ``robust``.
     """
 
     state: NDArray
@@ -200,6 +224,11 @@ class BatchResult:
     initial_state: NDArray
     whitened_residuals: NDArray
     degeneracy: NDArray
+    rejected: NDArray | None = None
+
+    def __post_init__(self) -> None:
+        if self.rejected is None:
+            object.__setattr__(self, "rejected", _no_rejection(self.whitened_residuals.shape[:-1]))
 
     def __len__(self) -> int:
         return int(self.state.shape[0])
@@ -227,6 +256,9 @@ class FusedSequence:
     iterations : (K,) int; final_cost, degeneracy : (K,) float.
     noise_sigmas : (3,); prior_mean, prior_sigmas : (4,) or None (ML);
     gate_probability : float.
+    rejected : (K, N) bool, the nodes the robust fusion left out or
+    down-weighted (``FusionResult.rejected``); all False without ``robust``.
+    robust : the robust option used (None, ``"gate"``, ``"huber"``, ``"cauchy"``).
     """
 
     node_names: tuple
@@ -252,6 +284,12 @@ class FusedSequence:
     prior_mean: NDArray | None
     prior_sigmas: NDArray | None
     gate_probability: float
+    rejected: NDArray | None = None
+    robust: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.rejected is None:
+            object.__setattr__(self, "rejected", _no_rejection(np.shape(self.observed)))
 
     def __len__(self) -> int:
         return int(self.frame.shape[0])

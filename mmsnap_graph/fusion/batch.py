@@ -36,7 +36,8 @@ the same minimum.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -48,7 +49,16 @@ from .._linalg import chol_soa, cholesky4, cholesky4_inverse, cholesky4_solve, f
 from .._validation import as_float_array, check_finite
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.results import BatchResult, Status
-from .problem import check_noise, check_prior, initial_states, velocity_degeneracy
+from .problem import check_count, check_noise, check_prior, initial_states, validate_frames, velocity_degeneracy
+from .robust import (
+    RESIDUAL_GATE_PROBABILITY,
+    check_robust,
+    check_robust_k,
+    kernel_weight_and_loss,
+    node_d2,
+    residual_gate_threshold,
+    residual_test_fails,
+)
 
 __all__ = [
     "BatchResult",
@@ -74,31 +84,7 @@ _STAGE1_MIN_LIVE_FRACTION = 16
 _STAGE1_ITERATIONS = 8
 
 
-def _check_inputs(node_poses, measurements, observed):
-    """Validated ``(poses, z, observed (F, N) bool)``."""
-    z = check_finite(as_float_array(measurements, "measurements"), "measurements")
-    if z.ndim != 3 or z.shape[-1] != 3:
-        raise ValidationError(f"measurements must have shape (F, N, 3), got {z.shape}")
-    n_frames, n_nodes = z.shape[:2]
-    poses = check_finite(as_float_array(node_poses, "node_poses"), "node_poses")
-    if poses.shape not in ((n_nodes, 3), (n_frames, n_nodes, 3)):
-        raise ValidationError(
-            f"node_poses must have shape ({n_nodes}, 3) or ({n_frames}, {n_nodes}, 3), "
-            f"got {poses.shape}"
-        )
-    if observed is None:
-        obs = np.ones((n_frames, n_nodes), dtype=bool)
-    else:
-        obs = np.asarray(observed)
-        if obs.shape != (n_frames, n_nodes) or obs.dtype != bool:
-            raise ValidationError(
-                f"observed must be a bool array of shape ({n_frames}, {n_nodes}), "
-                f"got {obs.dtype} {obs.shape}"
-            )
-    return poses, z, obs
-
-
-def _evaluate(state, poses, z, weight, inv_sigma, prior_mean, prior_inv_sigma):
+def _evaluate(state, poses, z, weight, inv_sigma, prior_mean, prior_inv_sigma, kernel=None):
     """Whitened Jacobian and residuals at ``state (F, 4)``, and the cost.
 
     poses : (N, 3) or (F, N, 3). Returns ``aug (3 N, 5, F)``, frames last
@@ -108,6 +94,11 @@ def _evaluate(state, poses, z, weight, inv_sigma, prior_mean, prior_inv_sigma):
     ``r_m = (h - z) / sigma``, all zero for unobserved nodes; and
     ``cost (F,)``, GTSAM's ``0.5 * sum r^2`` with the prior included. The
     model is called once per node with a (F, 4) state.
+
+    ``kernel`` ``(name, k)`` (Huber or Cauchy on each node's whitened
+    3-vector, as GTSAM's ``noiseModel.Robust``): each node's rows are scaled
+    by the square root of its weight (iteratively reweighted least squares)
+    and ``cost`` is the kernel's loss, GTSAM's error of the robust graph.
     """
     f, n_nodes = z.shape[:2]
     aug = np.empty((3 * n_nodes, 5, f))
@@ -125,12 +116,26 @@ def _evaluate(state, poses, z, weight, inv_sigma, prior_mean, prior_inv_sigma):
             # An unobserved node contributes exactly nothing, even where its
             # model is undefined (a state on that node gives 0 * NaN).
             aug[3 * n:3 * n + 3, :, ~seen] = 0.0
-    r = aug[:, 4]
-    cost = 0.5 * np.einsum("mf,mf->f", r, r)
+    if kernel is None:
+        r = aug[:, 4]
+        cost = 0.5 * np.einsum("mf,mf->f", r, r)
+    else:
+        cost = _reweight(aug, kernel)
     if prior_mean is not None:
         dp = (state - prior_mean) * prior_inv_sigma
         cost += 0.5 * np.einsum("fk,fk->f", dp, dp)
     return aug, cost
+
+
+def _reweight(aug, kernel):
+    """Scale each node's rows of ``aug`` by the square root of its kernel
+    weight; return the summed kernel loss (F,)."""
+    name, k = kernel
+    r = aug[:, 4]
+    s2 = (r * r).reshape(-1, 3, r.shape[-1]).sum(axis=1)  # (N, F)
+    weight, loss = kernel_weight_and_loss(name, k, s2)
+    aug *= np.repeat(np.sqrt(weight), 3, axis=0)[:, None, :]
+    return loss.sum(axis=0)
 
 
 def _normal_equations(state, aug, prior_mean, prior_inv_sigma):
@@ -155,7 +160,7 @@ def _normal_equations(state, aug, prior_mean, prior_inv_sigma):
     return info, grad
 
 
-def _residual_curvature(state, poses, z, weight, inv_sigma, aug):
+def _residual_curvature(state, poses, z, weight, inv_sigma, aug, kernel=None):
     """The second-order term ``S = sum_m r_m d^2 r_m / dx^2``, (4, 4, F), that
     Gauss-Newton drops, by forward differences of the model's Jacobian.
 
@@ -172,7 +177,7 @@ def _residual_curvature(state, poses, z, weight, inv_sigma, aug):
         eps = 1e-7 * (1.0 + np.abs(state[:, k]))
         shifted = state.copy()
         shifted[:, k] += eps
-        aug_k, _ = _evaluate(shifted, poses, z, weight, inv_sigma, None, None)
+        aug_k, _ = _evaluate(shifted, poses, z, weight, inv_sigma, None, None, kernel)
         diff = aug_k[:, :4] - aug[:, :4]
         curv[k] = np.einsum("mf,mjf->jf", r, diff) / eps
     return 0.5 * (curv + curv.transpose(1, 0, 2))
@@ -190,6 +195,9 @@ def fuse_batch(
     step_tolerance: float = 1e-10,
     newton_after: int = 10,
     chunk_size: int = 8192,
+    robust: Literal["gate", "huber", "cauchy"] | None = None,
+    robust_k: float | None = None,
+    residual_gate_probability: float = RESIDUAL_GATE_PROBABILITY,
 ) -> BatchResult:
     """Fuse ``F`` frames of ``N`` nodes' measurements at once (MAP or ML).
 
@@ -198,10 +206,13 @@ def fuse_batch(
     node_poses : (N, 3) or (F, N, 3) float
         Node poses ``(x_m, y_m, phi_rad)`` in the global frame.
     measurements : (F, N, 3) float
-        ``(range_m, omega_rad, doppler_mps)`` of each node at each frame
-        (any finite value where not observed).
+        ``(range_m, omega_rad, doppler_mps)`` of each node at each frame. The
+        missing-data convention of :func:`~.problem.validate_frames`: without
+        ``observed`` an all-NaN row means "not observed"; observed rows need
+        ``0 < range < inf``, ``|omega| <= pi`` and a finite Doppler.
     observed : (F, N) bool, optional
-        Which nodes see the target at each frame (default: all).
+        Which nodes see the target at each frame (default: the rows that are
+        not all NaN); unobserved rows may hold anything.
     noise : MeasurementNoise
         Measurement sigmas (default: the paper's).
     prior : GaussianPrior or None
@@ -229,15 +240,35 @@ def fuse_batch(
         Frames solved together in the first iterations (a size whose
         temporaries stay in cache); the frames that need more iterations are
         then solved together.
+    robust : {"gate", "huber", "cauchy"} or None
+        Robust fusion, as :func:`mmsnap_graph.fusion.oneshot.fuse_frame`
+        (the same answers): ``"gate"`` tests each node's whitened residual
+        3-vector after the fit against ``chi2.ppf(residual_gate_probability,
+        3)`` and refits a failing frame without each node in turn;
+        ``"huber"`` / ``"cauchy"`` weigh each node by GTSAM's kernel
+        (iteratively reweighted least squares, the same minimum and weighted
+        covariance as GTSAM's ``noiseModel.Robust``).
+    robust_k : float, optional
+        The kernel's constant on the whitened norm (default
+        :data:`factors.robust.ROBUST_K_DEFAULT`).
+    residual_gate_probability : float
+        The gate's probability (default
+        :data:`~.problem.RESIDUAL_GATE_PROBABILITY`).
 
     Returns
     -------
     BatchResult
-        ``status`` holds :class:`~mmsnap_graph.data.results.Status` codes.
+        ``status`` holds :class:`~mmsnap_graph.data.results.Status` codes;
+        ``rejected`` the nodes left out (gate) or down-weighted (kernels).
+        ``success`` implies a finite state and a positive-definite covariance.
     """
-    poses, z, obs = _check_inputs(node_poses, measurements, observed)
+    poses, z, obs = validate_frames(node_poses, measurements, observed)
     params, max_iterations, chunk_size = _check_options(
         noise, prior, max_iterations, step_tolerance, newton_after, chunk_size)
+    robust = check_robust(robust)
+    threshold = residual_gate_threshold(residual_gate_probability)
+    if robust in ("huber", "cauchy"):
+        params = replace(params, kernel=(robust, check_robust_k(robust, robust_k)))
     if initial_state is None:
         x0 = _initial_states(poses, z, obs, prior, noise, chunk_size)
     else:
@@ -245,7 +276,26 @@ def fuse_batch(
         if x0.shape != (z.shape[0], 4):
             raise ValidationError(f"initial_state must have shape ({z.shape[0]}, 4), got {x0.shape}")
         x0 = np.array(x0, dtype=float)
-    return _solve(poses, z, obs, x0, params, max_iterations, chunk_size)
+    return _robust_solve(poses, z, obs, x0, prior, noise, params, max_iterations, chunk_size,
+                         robust, threshold, residual_gate_probability)
+
+
+def _robust_solve(poses, z, obs, x0, prior, noise, params, max_iterations, chunk_size,
+                  robust, threshold, probability) -> BatchResult:
+    """The plain fit, then the gate or the kernel fit started from it."""
+    plain = params if params.kernel is None else replace(params, kernel=None)
+    result = _solve(poses, z, obs, x0, plain, max_iterations, chunk_size)
+    if robust is None:
+        return result
+    if robust == "gate":
+        return _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_size,
+                     probability)
+    # The kernel fit starts from the plain one (a non-convex kernel from the
+    # detections' average can stall in a wrong basin), as fuse_frame.
+    start = np.where(result.success[:, None], result.state, x0)
+    result = replace(_solve(poses, z, obs, start, params, max_iterations, chunk_size),
+                     initial_state=x0)
+    return _flag_outlying(result, obs, threshold)
 
 
 @dataclass(frozen=True, slots=True)
@@ -255,16 +305,19 @@ class _Params:
     prior_inv_sigma: NDArray | None
     step_tolerance: float
     newton_after: int
+    kernel: tuple | None = None
 
 
 def _check_options(noise, prior, max_iterations, step_tolerance, newton_after, chunk_size):
     """Validated solver settings: ``(_Params, max_iterations, chunk_size)``."""
     check_noise(noise)
     check_prior(prior)
-    if int(max_iterations) < 1:
-        raise ValidationError(f"max_iterations must be >= 1, got {max_iterations!r}")
-    if int(chunk_size) < 1:
-        raise ValidationError(f"chunk_size must be >= 1, got {chunk_size!r}")
+    max_iterations = check_count(max_iterations, "max_iterations")
+    chunk_size = check_count(chunk_size, "chunk_size")
+    newton_after = check_count(newton_after, "newton_after", 0)
+    if isinstance(step_tolerance, (bool, np.bool_)) or not isinstance(
+            step_tolerance, (int, float, np.integer, np.floating)):
+        raise ValidationError(f"step_tolerance must be a number, got {step_tolerance!r}")
     if not (np.isfinite(step_tolerance) and step_tolerance > 0):
         raise ValidationError(f"step_tolerance must be finite and > 0, got {step_tolerance!r}")
     params = _Params(
@@ -272,9 +325,9 @@ def _check_options(noise, prior, max_iterations, step_tolerance, newton_after, c
         prior_mean=None if prior is None else np.asarray(prior.mean, dtype=float),
         prior_inv_sigma=None if prior is None else 1.0 / np.asarray(prior.sigmas, dtype=float),
         step_tolerance=float(step_tolerance),
-        newton_after=int(newton_after),
+        newton_after=newton_after,
     )
-    return params, int(max_iterations), int(chunk_size)
+    return params, max_iterations, chunk_size
 
 
 def _initial_states(poses, z, obs, prior, noise, chunk_size):
@@ -285,6 +338,12 @@ def _initial_states(poses, z, obs, prior, noise, chunk_size):
         x0[sl] = initial_states(poses[sl] if poses.ndim == 3 else poses, z[sl],
                                 observed=obs[sl], prior=prior, noise=noise)
     return x0
+
+
+#: A covariance whose information matrix has ``max diag / min Cholesky
+#: pivot^2`` (a lower bound of its condition number) above this is flagged
+#: singular: its smallest eigenvalues are lost to rounding.
+_MAX_CONDITION = 1e13
 
 
 def _solve(poses, z, obs, x0, params, max_iterations, chunk_size) -> BatchResult:
@@ -325,6 +384,13 @@ def _solve(poses, z, obs, x0, params, max_iterations, chunk_size) -> BatchResult
         lo, pd = chol_soa(info)
         cov = from_soa(inverse_soa(lo))
         degeneracy = velocity_degeneracy(state, poses, obs)
+        # success implies a positive-definite covariance to rounding: flag an
+        # information matrix too ill-conditioned for its inverse's smallest
+        # eigenvalues to survive (a finite but absurd Doppler, say).
+        pivot2 = np.min([lo[j][j] for j in range(4)], axis=0) ** 2
+        pd &= np.max(info[_DIAG, _DIAG], axis=0) <= _MAX_CONDITION * pivot2
+    if params.kernel is not None:
+        residuals = _whitened(state, poses, z, weight, params)
     residuals[~obs] = np.nan
     finite = np.all(np.isfinite(state), axis=1) & np.isfinite(cost)
     status[(status == _CONVERGED) & ~finite] = _NONFINITE
@@ -344,6 +410,19 @@ def _solve(poses, z, obs, x0, params, max_iterations, chunk_size) -> BatchResult
     )
 
 
+def _whitened(state, poses, z, weight, params) -> NDArray:
+    """Plain whitened residuals (F, N, 3) at ``state`` (zeros where unobserved)."""
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        aug, _ = _evaluate(state, poses, z, weight, params.inv_sigma, None, None)
+    return aug[:, 4].T.reshape(state.shape[0], -1, 3).copy()
+
+
+def _flag_outlying(result, obs, threshold) -> BatchResult:
+    """A kernel fit's ``rejected``: the nodes whose residual fails the gate."""
+    rejected = (node_d2(result.whitened_residuals) > threshold) & obs & result.success[:, None]
+    return replace(result, rejected=rejected)
+
+
 class _Frames:
     """The frames of one :func:`_lm` call: the output arrays (indexed by frame)
     and the active set (arrays with an ``_a`` suffix, indexed by ``idx``)."""
@@ -361,7 +440,7 @@ class _Frames:
         self.idx = np.arange(n_frames)
         self.p_a, self.z_a, self.w_a, self.x_a = poses, z, weight, x0
         self.aug_a, self.c_a = _evaluate(x0, poses, z, weight, params.inv_sigma,
-                                         params.prior_mean, params.prior_inv_sigma)
+                                         params.prior_mean, params.prior_inv_sigma, params.kernel)
         self.lam_a = np.full(n_frames, 1e-5)
         self.nu_a = np.full(n_frames, 2.0)
         self.it_a = np.array(it_start, dtype=np.int64)
@@ -469,7 +548,8 @@ def _damped_step(fr: _Frames, params):
         if need.size:
             pp = fr.p_a[need] if fr.per_frame_poses else fr.p_a
             fr.curv_a[:, :, need] = _residual_curvature(fr.x_a[need], pp, fr.z_a[need], fr.w_a[need],
-                                                        params.inv_sigma, fr.aug_a[..., need])
+                                                        params.inv_sigma, fr.aug_a[..., need],
+                                                        params.kernel)
             fr.curv_age[need] = 0
         fr.curv_age[slow] += 1
         newton = fr.info[:, :, slow] + fr.curv_a[:, :, slow]
@@ -497,7 +577,7 @@ def _try_step(fr: _Frames, params, step_t, ok, predicted) -> None:
     x_a, c_a = fr.x_a, fr.c_a
     x_new = x_a + step_t.T
     aug_n, c_n = _evaluate(x_new, fr.p_a, fr.z_a, fr.w_a, params.inv_sigma,
-                           params.prior_mean, params.prior_inv_sigma)
+                           params.prior_mean, params.prior_inv_sigma, params.kernel)
     fr.it_a += live
     accept = live & ok & (c_n <= c_a)  # False for a NaN cost
     fr.small_a = accept & np.all(np.abs(step_t) <= params.step_tolerance * (1.0 + np.abs(x_a.T)), axis=0)
@@ -517,3 +597,52 @@ def _try_step(fr: _Frames, params, step_t, ok, predicted) -> None:
     # A frame whose damping has grown without bound cannot move: it sits
     # at a minimum to rounding (typical when the cost is flat).
     fr.small_a |= live & (fr.lam_a >= 1e12)
+
+
+def _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_size,
+          probability) -> BatchResult:
+    """``robust="gate"``: refit each frame whose residuals fail the gate
+    without each of its nodes in turn (those with at least two nodes left, so
+    that the rest can still be tested); keep the passing refit of lowest cost,
+    or flag the frame ``Status.RESIDUAL_TEST_FAILED``."""
+    failing = np.flatnonzero(result.success & residual_test_fails(result.whitened_residuals, probability))
+    out = {name: np.array(getattr(result, name)) for name in _GATED_FIELDS}
+    rejected = np.zeros(obs.shape, dtype=bool)
+    if failing.size:
+        best, best_cost = np.full(failing.size, -1), np.full(failing.size, np.inf)
+        n_pass, refits = np.zeros(failing.size, dtype=np.int64), {}
+        for n in range(obs.shape[1]):
+            sel = obs[failing, n] & (obs[failing].sum(axis=1) >= 3)
+            rows = failing[sel]
+            if rows.size == 0:
+                continue
+            obs_n = obs[rows].copy()
+            obs_n[:, n] = False
+            p_rows = poses[rows] if poses.ndim == 3 else poses
+            x0 = _initial_states(p_rows, z[rows], obs_n, prior, noise, chunk_size)
+            sub = _solve(p_rows, z[rows], obs_n, x0, params, max_iterations, chunk_size)
+            ok = sub.success & ~residual_test_fails(sub.whitened_residuals, probability)
+            n_pass[sel] += ok
+            better = ok & (sub.final_cost < best_cost[sel])
+            best[np.flatnonzero(sel)[better]] = n
+            best_cost[np.flatnonzero(sel)[better]] = sub.final_cost[better]
+            refits[n] = (rows, sub)
+        best[n_pass != 1] = -1  # none, or ambiguous: which node is the outlier?
+        for n, (rows, sub) in refits.items():
+            take = best[np.searchsorted(failing, rows)] == n
+            for name in _GATED_FIELDS:
+                out[name][rows[take]] = getattr(sub, name)[take]
+            rejected[rows[take], n] = True
+        fixed = failing[best >= 0]
+        full = np.zeros((0, obs.shape[1], 3)) if fixed.size == 0 else _whitened(out["state"][fixed], poses[fixed] if poses.ndim == 3 else poses, z[fixed],
+                         obs[fixed].astype(float), params)
+        full[~obs[fixed]] = np.nan
+        out["whitened_residuals"][fixed] = full
+        lost = failing[best < 0]
+        out["status"][lost] = Status.RESIDUAL_TEST_FAILED
+        out["covariance"][lost] = np.nan
+    return replace(result, **out, success=out["status"] == _CONVERGED, rejected=rejected)
+
+#: The per-frame fields a gate refit replaces.
+_GATED_FIELDS = ("state", "covariance", "status", "iterations", "final_cost", "initial_state",
+                 "whitened_residuals", "degeneracy")

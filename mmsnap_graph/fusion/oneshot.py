@@ -58,14 +58,15 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.gtsam_factors import frame_measurement_factor
+from factors.gtsam_factors import frame_measurement_factor, measurement_noise, node_measurement_factor
 from factors.models import measurement_model_scalar, wrap_angle_scalar
 
-from ..errors import ValidationError
+from ..errors import MmsnapError, ValidationError
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.results import DEGENERACY_THRESHOLD, FusionResult, Status
 from .grid import grid_posterior
 from .problem import (
+    check_count,
     check_initial_state,
     check_noise,
     check_prior,
@@ -75,6 +76,14 @@ from .problem import (
     initial_states,
     validate_frame,
     velocity_degeneracy,
+)
+from .robust import (
+    RESIDUAL_GATE_PROBABILITY,
+    check_robust,
+    check_robust_k,
+    node_d2,
+    residual_gate_threshold,
+    residual_test_fails,
 )
 
 __all__ = [
@@ -160,15 +169,26 @@ def build_frame_graph(
     return _build(poses, z, obs, noise, prior, x0, key)
 
 
-def _build(poses, z, obs, noise, prior, x0, key):
-    """The graph and values of one validated frame starting at ``x0``."""
+@lru_cache(maxsize=16)
+def _robust_model(sigmas: tuple[float, float, float], kernel: tuple[str, float]) -> gtsam.noiseModel.Base:
+    return measurement_noise(np.array(sigmas), kernel[0], kernel[1])
+
+
+def _build(poses, z, obs, noise, prior, x0, key, kernel=None):
+    """The graph and values of one validated frame starting at ``x0``;
+    ``kernel`` ``(name, k)``: one robust factor per node (GTSAM's kernel acts
+    on a factor's whole whitened error, so each node gets its own)."""
     graph = gtsam.NonlinearFactorGraph()
     if obs is not None:
         poses, z = poses[obs], z[obs]
     n_obs = poses.shape[0]
-    if n_obs:
-        model = _noise_model((noise.range_m, noise.omega_rad, noise.doppler_mps), n_obs)
-        graph.add(frame_measurement_factor(key, poses, z, model))
+    sigmas = (noise.range_m, noise.omega_rad, noise.doppler_mps)
+    if n_obs and kernel is not None:
+        model = _robust_model(sigmas, kernel)
+        for pose, zi in zip(poses, z):
+            graph.add(node_measurement_factor(key, pose, zi, model))
+    elif n_obs:
+        graph.add(frame_measurement_factor(key, poses, z, _noise_model(sigmas, n_obs)))
     if prior is not None:
         graph.add(_prior_factor(tuple(prior.mean.tolist()), tuple(prior.sigmas.tolist()), key))
     values = gtsam.Values()
@@ -187,10 +207,7 @@ def _check_options(noise, prior, covariance, max_iterations) -> int:
         )
     check_noise(noise)
     check_prior(prior)
-    max_iterations = int(max_iterations)
-    if max_iterations < 1:
-        raise ValidationError(f"max_iterations must be >= 1, got {max_iterations}")
-    return max_iterations
+    return check_count(max_iterations, "max_iterations")
 
 
 def _start(poses, z, obs, prior, noise, initial_state) -> NDArray:
@@ -249,10 +266,11 @@ def _solve(graph, values, max_iterations):
 # Assess
 
 
-def _residuals_and_degeneracy(state, poses, z, obs, noise, prior):
+def _residuals_and_degeneracy(state, poses, z, obs, noise, prior, kernel=None):
     """Whitened residuals (N, 3), the degeneracy and the gradient (4,) of the
-    cost ``0.5 * sum of squared whitened residuals`` (prior included) at
-    ``state``, in one pass of :func:`factors.models.measurement_model_scalar`."""
+    cost ``0.5 * sum of squared whitened residuals`` (prior included; each
+    node weighted by ``kernel``'s IRLS weight) at ``state``, in one pass of
+    :func:`factors.models.measurement_model_scalar`."""
     x, y, vx, vy = state.tolist()
     sigmas = (noise.range_m, noise.omega_rad, noise.doppler_mps)
     out = []
@@ -277,8 +295,9 @@ def _residuals_and_degeneracy(state, poses, z, obs, noise, prior):
             (v - zi[2]) / sigmas[2],
         )
         out.append(e)
+        wt = 1.0 if kernel is None else _kernel_weight(kernel, e[0] ** 2 + e[1] ** 2 + e[2] ** 2)
         for k in range(3):
-            ek = e[k] / sigmas[k]
+            ek = wt * e[k] / sigmas[k]
             for j in range(4):
                 grad[j] += jac[4 * k + j] * ek
         ux, uy = jac[10], jac[11]
@@ -294,12 +313,40 @@ def _residuals_and_degeneracy(state, poses, z, obs, noise, prior):
     return np.array(out), degeneracy, np.array(grad)
 
 
-def _assess(state, cov, poses, z, obs, noise, prior):
+def _kernel_weight(kernel, s2: float) -> float:
+    """The IRLS weight of GTSAM's Huber or Cauchy kernel at squared norm ``s2``
+    (as :func:`~.robust.kernel_weight_and_loss`)."""
+    name, k = kernel
+    if name == "huber":
+        s = math.sqrt(s2)
+        return 1.0 if s <= k else k / s
+    return 1.0 / (1.0 + s2 / (k * k))
+
+
+#: Smallest ``min / max`` eigenvalue ratio of a covariance reported as success:
+#: below it the smallest eigenvalues are rounding noise.
+_MIN_EIGENVALUE_RATIO = 1e-13
+
+
+def _positive_definite(cov) -> bool:
+    """Finite and positive definite to rounding: a Cholesky factorization whose
+    squared pivots all exceed ``_MIN_EIGENVALUE_RATIO`` times the largest
+    diagonal entry (cheaper than a 4x4 eigendecomposition)."""
+    try:
+        lo = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return False
+    diag = cov.diagonal()
+    pivots = lo.diagonal()
+    return bool(np.isfinite(lo).all() and (pivots * pivots).min() > _MIN_EIGENVALUE_RATIO * diag.max())
+
+
+def _assess(state, cov, poses, z, obs, noise, prior, kernel=None):
     """Check the solution: ``(status, messages, whitened residuals, degeneracy)``."""
     status, messages = Status.OK, ["converged"]
-    if not (np.isfinite(cov).all() and (cov.diagonal() > 0.0).all()):
+    if not _positive_definite(cov):
         status, messages = Status.SINGULAR, ["the Laplace covariance is not positive definite"]
-    whitened, degeneracy, grad = _residuals_and_degeneracy(state, poses, z, obs, noise, prior)
+    whitened, degeneracy, grad = _residuals_and_degeneracy(state, poses, z, obs, noise, prior, kernel)
     # A stationarity check independent of LM's stopping rule: the squared
     # Newton decrement g^T S g is the cost decrease one more Gauss-Newton
     # step would bring (~1e-15 at convergence; LM can also stop because it
@@ -348,6 +395,9 @@ def fuse_frame(
     max_iterations: int = 500,
     grid_points_per_axis: int = 21,
     grid_half_width_sigmas: float = 5.0,
+    robust: Literal["gate", "huber", "cauchy"] | None = None,
+    robust_k: float | None = None,
+    residual_gate_probability: float = RESIDUAL_GATE_PROBABILITY,
 ) -> FusionResult:
     """Bayesian (or ML) one-shot fusion of one frame (paper eqs. 15-18).
 
@@ -356,10 +406,12 @@ def fuse_frame(
     node_poses : (N, 3) float
         Node poses ``(x_m, y_m, phi_rad)`` in the global frame (N >= 1).
     measurements : (N, 3) float
-        ``(range_m, omega_rad, doppler_mps)`` per node; rows of nodes with
-        ``observed[i] = False`` are ignored (they may be NaN).
+        ``(range_m, omega_rad, doppler_mps)`` per node. Missing data: without
+        ``observed``, an all-NaN row means the node did not observe the
+        target (:func:`~.problem.validate_frame`).
     observed : (N,) bool, optional
-        Which nodes saw the target (default: all).
+        Which nodes saw the target (default: the rows that are not all NaN);
+        unobserved rows may hold anything.
     noise : MeasurementNoise
         Measurement sigmas (default: the paper's).
     prior : GaussianPrior or None
@@ -375,13 +427,26 @@ def fuse_frame(
         Levenberg-Marquardt iteration limit; reaching it is a failure.
     grid_points_per_axis, grid_half_width_sigmas :
         Grid layout, see :func:`mmsnap_graph.fusion.grid.grid_posterior`.
+    robust : {"gate", "huber", "cauchy"} or None
+        Robust fusion (:mod:`mmsnap_graph.fusion.robust`; default None).
+        ``"gate"``: chi-square tests of the whitened residuals after the fit;
+        a failing frame is refitted without each node in turn and the one
+        passing refit kept (``rejected``; the covariance is that of the
+        measurements kept), else flagged ``Status.RESIDUAL_TEST_FAILED``.
+        ``"huber"`` / ``"cauchy"``: GTSAM's kernels on each node's factor,
+        started from the plain fit (kernel-weighted ``Marginals``).
+    robust_k : float, optional
+        The kernel constant (default :data:`factors.robust.ROBUST_K_DEFAULT`).
+    residual_gate_probability : float
+        Probability of the per-node gate, ``chi2.ppf(p, 3)``.
 
     Returns
     -------
     FusionResult
         ``success=False`` with a status and a message when the system is
         indeterminate, LM does not converge or GTSAM raises; never raises for
-        those.
+        those. ``success=True`` implies a finite state and a positive-definite
+        covariance.
 
     Raises
     ------
@@ -390,6 +455,7 @@ def fuse_frame(
         position (given, or from the detections) on an observed node.
     """
     max_iterations = _check_options(noise, prior, covariance, max_iterations)
+    kernel, threshold = _robust_options(robust, robust_k, residual_gate_probability)
     poses, z, obs = validate_frame(node_poses, measurements, observed)
     n_observed = poses.shape[0] if obs is None else int(obs.sum())
     # Everything a result needs besides the solution.
@@ -399,34 +465,137 @@ def fuse_frame(
         return _failed(_Failure(Status.NO_INFORMATION, "no node observed the target and there "
                                 "is no prior: the state is indeterminate"), None, **frame)
     x0 = _start(poses, z, obs, prior, noise, initial_state)
-    graph, values = _build(poses, z, obs, noise, prior, x0, STATE_KEY)
     try:
-        state, cov, iterations, cost = _solve(graph, values, max_iterations)
+        fit = _fit(poses, z, obs, noise, prior, x0, max_iterations)
     except _Failure as failure:
         return _failed(failure, x0, **frame)
-    status, messages, whitened, degeneracy = _assess(state, cov, poses, z, obs, noise, prior)
+    try:
+        fit, rejected = _robust_step(fit, poses, z, obs, noise, prior, max_iterations, robust,
+                                     kernel, threshold, residual_gate_probability)
+    except _Failure as failure:
+        return _failed(failure, x0, **frame)
     grid_cov = None
     if covariance != "laplace":
-        grid_cov = (_grid(state, cov, poses, z, obs, noise, prior, grid_points_per_axis,
-                          grid_half_width_sigmas, messages)
-                    if status == Status.OK else np.full((4, 4), np.nan))
-    for arr in (state, cov, whitened, x0):
+        kept = obs if rejected is None or robust != "gate" else _kept(obs, rejected)
+        grid_cov = (_grid(fit.state, fit.cov, poses, z, kept, noise, prior, grid_points_per_axis,
+                          grid_half_width_sigmas, fit.messages)
+                    if fit.status == Status.OK else np.full((4, 4), np.nan))
+    return _result(fit, grid_cov, n_observed, prior, rejected)
+
+
+def _result(fit, grid_cov, n_observed, prior, rejected) -> FusionResult:
+    """The FusionResult of an assessed fit."""
+    for arr in (fit.state, fit.cov, fit.whitened, fit.x0):
         arr.setflags(write=False)  # handed over without a copy
     return FusionResult(
-        state=state,
-        covariance=cov,
-        success=status == Status.OK,
-        status=status,
-        message="; ".join(messages),
-        iterations=iterations,
-        final_cost=cost,
-        whitened_residuals=whitened,
-        degeneracy=degeneracy,
+        state=fit.state,
+        covariance=fit.cov,
+        success=fit.status == Status.OK,
+        status=fit.status,
+        message="; ".join(fit.messages),
+        iterations=fit.iterations,
+        final_cost=fit.cost,
+        whitened_residuals=fit.whitened,
+        degeneracy=fit.degeneracy,
         grid_covariance=grid_cov,
-        initial_state=x0,
+        initial_state=fit.x0,
         n_observed=n_observed,
         used_prior=prior is not None,
+        rejected=rejected,
     )
+
+
+def _robust_step(fit, poses, z, obs, noise, prior, max_iterations, robust, kernel, threshold,
+                 probability):
+    """The gate or the kernel fit after the plain fit: ``(fit, rejected or None)``;
+    raises :class:`_Failure` when the kernel fit fails."""
+    if fit.status != Status.OK or robust is None:
+        return fit, None
+    if robust == "gate":
+        return _gate(fit, poses, z, obs, noise, prior, max_iterations, probability)
+    # The kernel fit starts from the plain one (a non-convex kernel from the
+    # detections' average can stall in a wrong basin).
+    x0 = fit.x0
+    fit = _fit(poses, z, obs, noise, prior, fit.state.copy(), max_iterations, kernel)
+    fit.x0 = x0
+    return fit, node_d2(fit.whitened) > threshold
+
+
+def _robust_options(robust, robust_k, probability):
+    """``(kernel (name, k) or None, gate threshold or None)``."""
+    robust = check_robust(robust)
+    if robust is None:
+        return None, None
+    threshold = residual_gate_threshold(probability)
+    if robust == "gate":
+        return None, threshold
+    return (robust, check_robust_k(robust, robust_k)), threshold
+
+
+class _Fit:
+    """One solved and assessed frame."""
+
+    __slots__ = ("state", "cov", "iterations", "cost", "status", "messages", "whitened",
+                 "degeneracy", "x0")
+
+    def __init__(self, **kwargs):
+        for name, value in kwargs.items():
+            setattr(self, name, value)
+
+
+def _fit(poses, z, obs, noise, prior, x0, max_iterations, kernel=None) -> _Fit:
+    """Build, solve and assess one frame from ``x0``; raises :class:`_Failure`."""
+    graph, values = _build(poses, z, obs, noise, prior, x0, STATE_KEY, kernel)
+    state, cov, iterations, cost = _solve(graph, values, max_iterations)
+    status, messages, whitened, degeneracy = _assess(state, cov, poses, z, obs, noise, prior, kernel)
+    return _Fit(state=state, cov=cov, iterations=iterations, cost=cost, status=status,
+                messages=messages, whitened=whitened, degeneracy=degeneracy, x0=x0)
+
+
+def _kept(obs, rejected):
+    """The observed flags without the rejected nodes."""
+    return (np.ones(rejected.shape, dtype=bool) if obs is None else obs) & ~rejected
+
+
+def _gate(fit, poses, z, obs, noise, prior, max_iterations, probability):
+    """``robust="gate"`` on a solved frame: ``(fit, rejected (N,) or None)``
+    (as :func:`mmsnap_graph.fusion.batch.fuse_batch`'s gate): the passing
+    leave-one-node-out refit when exactly one passes."""
+    if not residual_test_fails(fit.whitened, probability):
+        return fit, None
+    d2 = node_d2(fit.whitened)
+    threshold = residual_gate_threshold(probability)
+    n_nodes = poses.shape[0]
+    seen = np.ones(n_nodes, dtype=bool) if obs is None else obs
+    best, best_node, n_pass = None, -1, 0
+    if seen.sum() >= 3:
+        for n in np.flatnonzero(seen):
+            kept = seen.copy()
+            kept[n] = False
+            try:
+                sub = _fit(poses, z, kept, noise, prior,
+                           checked_initial_state(poses, z, kept, prior, noise), max_iterations)
+            except (_Failure, MmsnapError):
+                continue
+            if sub.status != Status.OK or residual_test_fails(sub.whitened, probability):
+                continue
+            n_pass += 1
+            if best is None or sub.cost < best.cost:
+                best, best_node = sub, int(n)
+    if n_pass != 1:
+        fit.status = Status.RESIDUAL_TEST_FAILED
+        fit.cov = np.full((4, 4), np.nan)
+        fit.messages = [f"{Status.RESIDUAL_TEST_FAILED.message} ("
+                        + ("ambiguous: several nodes' removal passes" if n_pass else
+                           f"largest squared whitened residual {d2.max():.3g}") + ")"]
+        return fit, None
+    best.whitened = _residuals_and_degeneracy(best.state, poses, z, obs, noise, prior)[0]
+    best.messages = best.messages + [f"node {best_node} rejected by the residual gate "
+                                     f"(squared whitened residual {d2[best_node]:.3g} "
+                                     f"> {threshold:.3g} before the refit)"]
+    rejected = np.zeros(n_nodes, dtype=bool)
+    rejected[best_node] = True
+    return best, rejected
 
 
 def _failed(failure: _Failure, x0, *, n_nodes, n_observed, prior, covariance) -> FusionResult:

@@ -34,6 +34,9 @@ __all__ = [
     "check_prior",
     "check_initial_state",
     "validate_frame",
+    "validate_frames",
+    "valid_rows",
+    "check_count",
     "initial_state",
     "initial_states",
     "frame_initial_state",
@@ -55,6 +58,9 @@ def check_noise(noise: object) -> MeasurementNoise:
     """``noise`` if it is a :class:`MeasurementNoise`; ValidationError otherwise."""
     if not isinstance(noise, MeasurementNoise):
         raise ValidationError(f"noise must be a MeasurementNoise, got {type(noise).__name__}")
+    values = (noise.range_m, noise.omega_rad, noise.doppler_mps)
+    if not all(SIGMA_MIN <= v <= SIGMA_MAX for v in values):
+        _check_sigma_range(values, "noise")
     return noise
 
 
@@ -64,6 +70,10 @@ def check_prior(prior: object) -> GaussianPrior | None:
         raise ValidationError(
             f"prior must be a GaussianPrior or None, got {type(prior).__name__}"
         )
+    if prior is not None:
+        values = prior.sigmas.tolist()  # (the mean is finite: GaussianPrior checks it)
+        if not all(SIGMA_MIN <= v <= SIGMA_MAX for v in values):
+            _check_sigma_range(values, "prior")
     return prior
 
 
@@ -126,11 +136,29 @@ def _check_measurement_rows(z: NDArray, rows: NDArray) -> None:
             )
 
 
+def _nan_rows_unobserved(z: NDArray) -> NDArray | None:
+    """The observed flags of the missing-data convention: a row that is all NaN
+    is "not observed"; None when every row holds a number."""
+    zl = z.tolist()
+    missing = [r != r and w != w and v != v for r, w, v in zl] if len(zl) <= 16 else (
+        np.isnan(z).all(axis=1).tolist())
+    if not any(missing):
+        return None
+    return ~np.array(missing, dtype=bool)
+
+
 def validate_frame(
     node_poses: ArrayLike, measurements: ArrayLike, observed: ArrayLike | None = None
 ) -> tuple[NDArray, NDArray, NDArray | None]:
     """Check one frame's inputs; return ``(poses (N, 3), measurements (N, 3),
     observed (N,) bool or None when every node observed)``.
+
+    The missing-data convention (docs/CONVENTIONS.md): without ``observed``, a
+    measurement row that is all NaN means "this node did not observe the
+    target"; with ``observed``, the mask decides and its unobserved rows may
+    hold anything (NaN included), its observed rows must be valid. Both give
+    the same result. Observed rows need ``0 < range < inf``,
+    ``|omega| <= pi`` and a finite Doppler.
 
     Raises :class:`~mmsnap_graph.errors.ValidationError` naming the field and
     value for wrong shapes, NaN or inf in an observed row, a negative range or
@@ -146,6 +174,8 @@ def validate_frame(
             f"doppler_mps) row per node), got {z.shape}"
         )
     obs = check_observed(observed, n_nodes)
+    if observed is None:
+        obs = _nan_rows_unobserved(z)
     # Fast path: one pass of float comparisons (False for NaN); the detailed
     # message only on failure.
     if n_nodes <= 16:
@@ -164,6 +194,84 @@ def validate_frame(
         rows = np.arange(n_nodes) if obs is None else np.flatnonzero(obs)
         _check_measurement_rows(z, rows)
     return poses, z, obs
+
+
+def validate_frames(
+    node_poses: ArrayLike, measurements: ArrayLike, observed: ArrayLike | None = None
+) -> tuple[NDArray, NDArray, NDArray]:
+    """:func:`validate_frame` for ``F`` frames: ``(poses (N, 3) or (F, N, 3),
+    measurements (F, N, 3), observed (F, N) bool)``.
+
+    The same convention and checks as :func:`validate_frame`: without
+    ``observed`` an all-NaN row is not observed; observed rows need
+    ``0 < range < inf``, ``|omega| <= pi`` and a finite Doppler; unobserved
+    rows may hold anything and come back as zeros (the returned measurements
+    are a copy then). Raises ValidationError naming the first offending entry
+    (GeometryError for a zero range, as :func:`validate_frame`).
+    """
+    z = as_float_array(measurements, "measurements")
+    if z.ndim != 3 or z.shape[-1] != 3:
+        raise ValidationError(f"measurements must have shape (F, N, 3), got {z.shape}")
+    n_frames, n_nodes = z.shape[:2]
+    poses = as_float_array(node_poses, "node_poses")
+    if poses.shape not in ((n_nodes, 3), (n_frames, n_nodes, 3)):
+        raise ValidationError(
+            f"node_poses must have shape ({n_nodes}, 3) or ({n_frames}, {n_nodes}, 3), "
+            f"got {poses.shape}"
+        )
+    check_finite(poses, "node_poses")
+    if observed is None:
+        obs = ~np.isnan(z).all(axis=2)
+    else:
+        obs = np.asarray(observed)
+        if obs.shape != (n_frames, n_nodes) or obs.dtype != bool:
+            raise ValidationError(
+                f"observed must be a bool array of shape ({n_frames}, {n_nodes}), "
+                f"got {obs.dtype} {obs.shape}"
+            )
+    bad = ~valid_rows(z) & obs
+    if bad.any():
+        f, n = np.argwhere(bad)[0]
+        try:
+            _check_measurement_rows(z[f], [int(n)])
+        except (ValidationError, GeometryError) as exc:
+            msg = str(exc).replace("measurements[", f"measurements[{f}, ", 1)
+            raise type(exc)(f"measurements must be finite and in range in observed rows "
+                            f"(frame {f}): {msg}") from None
+    if not obs.all():
+        z = np.where(obs[..., None], z, 0.0)
+    return poses, z, obs
+
+
+def valid_rows(z: NDArray) -> NDArray:
+    """(..., N) bool: which measurement rows ``(..., N, 3)`` are valid
+    observations (``0 < range < inf``, ``|omega| <= pi``, finite Doppler)."""
+    with np.errstate(invalid="ignore"):
+        return ((z[..., 0] > 0.0) & (z[..., 0] < np.inf) & (np.abs(z[..., 1]) <= np.pi)
+                & np.isfinite(z[..., 2]))
+
+
+def check_count(value: object, name: str, minimum: int = 1) -> int:
+    """``value`` as an int >= ``minimum``: an integer (numpy's too), not a bool,
+    not a float or a string; ValidationError otherwise."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValidationError(f"{name} must be an integer, got {type(value).__name__} {value!r}")
+    if value < minimum:
+        raise ValidationError(f"{name} must be >= {minimum}, got {value!r}")
+    return int(value)
+
+
+#: Sigmas (noise and prior) must lie in ``[SIGMA_MIN, SIGMA_MAX]``: squared
+#: ratios of such sigmas stay finite in double precision.
+SIGMA_MIN, SIGMA_MAX = 1e-60, 1e60
+
+
+def _check_sigma_range(sigmas, what: str) -> None:
+    values = [float(s) for s in np.ravel(sigmas)]
+    if not all(SIGMA_MIN <= s <= SIGMA_MAX for s in values):
+        raise ValidationError(
+            f"{what} sigmas must be in [{SIGMA_MIN:g}, {SIGMA_MAX:g}], got {values}"
+        )
 
 
 # ---------------------------------------------------------------------------

@@ -39,7 +39,8 @@ from .association import (
 )
 from .batch import fuse_batch
 from .grid import grid_posterior
-from .problem import check_noise, check_prior
+from .problem import check_count, check_noise, check_prior, valid_rows
+from .robust import check_robust
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.recording import Recording
 from ..data.results import FusedSequence, Status
@@ -277,6 +278,7 @@ class _Rows:
         self.iterations = np.zeros(k, dtype=np.int64)
         self.cost = np.full(k, np.nan)
         self.degeneracy = np.full(k, np.inf)
+        self.rejected = None  # (K, N) bool, set by the solvers
 
 
 def _check_options(recording, mode, covariance, solver, source, block_rows, noise, prior):
@@ -289,8 +291,7 @@ def _check_options(recording, mode, covariance, solver, source, block_rows, nois
             raise ValidationError(f"{name} must be {' or '.join(map(repr, choices))}, got {value!r}")
     if not isinstance(recording, Recording):
         raise ValidationError(f"recording must be a Recording, got {type(recording).__name__}")
-    if int(block_rows) < 1:
-        raise ValidationError(f"block_rows must be >= 1, got {block_rows!r}")
+    check_count(block_rows, "block_rows")
     check_noise(noise)
     check_prior(prior)
     if mode == "map" and prior is None:
@@ -302,30 +303,41 @@ def _check_options(recording, mode, covariance, solver, source, block_rows, nois
     return prior
 
 
-def _fuse_batch_rows(out: _Rows, poses, z, obs, noise, prior, block_rows, bar) -> None:
-    k = z.shape[0]
+def _fuse_batch_rows(out: _Rows, poses, z, obs, noise, prior, block_rows, bar, robust=None) -> None:
+    k, n_nodes = z.shape[:2]
+    out.rejected = np.zeros((k, n_nodes), dtype=bool)
+    # A row with an invalid observed measurement (range 0, say) is flagged,
+    # not fused: fuse_batch would refuse the whole block.
+    invalid = (obs & ~valid_rows(z)).any(axis=1)
     for start in range(0, k, block_rows):
-        sl = slice(start, min(k, start + block_rows))
-        res = fuse_batch(poses, z[sl], observed=obs[sl], noise=noise, prior=prior)
-        out.state[sl], out.laplace[sl], out.status[sl] = res.state, res.covariance, res.status
-        out.iterations[sl], out.cost[sl], out.degeneracy[sl] = res.iterations, res.final_cost, res.degeneracy
-        bar.update(sl.stop - sl.start)
+        sl = np.arange(start, min(k, start + block_rows))
+        sl = sl[~invalid[sl]]
+        if sl.size:
+            res = fuse_batch(poses, z[sl], observed=obs[sl], noise=noise, prior=prior, robust=robust)
+            out.state[sl], out.laplace[sl], out.status[sl] = res.state, res.covariance, res.status
+            out.iterations[sl], out.cost[sl] = res.iterations, res.final_cost
+            out.degeneracy[sl], out.rejected[sl] = res.degeneracy, res.rejected
+        bar.update(min(k, start + block_rows) - start)
+    out.status[invalid] = Status.NON_FINITE
     texts = np.array([Status(c).message for c in range(max(Status) + 1)], dtype=object)
     out.message[:] = texts[out.status]
+    out.message[invalid] = "a measurement is out of range (range <= 0, |omega| > pi or not finite)"
 
 
-def _fuse_gtsam_rows(out: _Rows, poses, z, obs, noise, prior, bar) -> None:
+def _fuse_gtsam_rows(out: _Rows, poses, z, obs, noise, prior, bar, robust=None) -> None:
     from .oneshot import fuse_frame  # deferred: keeps GTSAM out of the batch path
 
+    out.rejected = np.zeros(obs.shape, dtype=bool)
     for i in range(z.shape[0]):
         try:
-            r = fuse_frame(poses, z[i], observed=obs[i], noise=noise, prior=prior)
+            r = fuse_frame(poses, z[i], observed=obs[i], noise=noise, prior=prior, robust=robust)
         except MmsnapError as exc:  # e.g. an initial position on a node
             out.status[i], out.message[i] = Status.NON_FINITE, f"{type(exc).__name__}: {exc}"
         else:
             out.state[i], out.laplace[i], out.iterations[i] = r.state, r.covariance, r.iterations
             out.cost[i], out.degeneracy[i] = r.final_cost, r.degeneracy
             out.message[i], out.status[i] = r.message, r.status
+            out.rejected[i] = r.rejected
         bar.update(1)
 
 
@@ -364,6 +376,7 @@ def fuse_recording(
     grid_points_per_axis: int = 21,
     block_rows: int = 65536,
     progress: bool | None = None,
+    robust: Literal["gate", "huber", "cauchy"] | None = None,
 ) -> FusedSequence:
     """Fuse every target in every frame of ``recording``.
 
@@ -387,8 +400,15 @@ def fuse_recording(
     source : which detections to fuse.
     block_rows : rows per batch call (the progress bar advances per block).
     progress : show a tqdm bar (default: when stderr is a terminal).
+    robust : robust one-shot fusion (:mod:`mmsnap_graph.fusion.robust`;
+        default None): ``"gate"`` leaves out a node whose residual fails the
+        chi-square gate (``FusedSequence.rejected``), ``"huber"`` /
+        ``"cauchy"`` down-weight it.
     """
     prior = _check_options(recording, mode, covariance, solver, source, block_rows, noise, prior)
+    robust = check_robust(robust)
+    if progress is not None and not isinstance(progress, (bool, np.bool_)):
+        raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     poses = recording_poses(recording, node_poses)
     groups = group_detections(recording, poses, noise, gate_probability=gate_probability,
                               source=source)
@@ -397,12 +417,14 @@ def fuse_recording(
     out = _Rows(groups.frame.size)
     with _progress(z.shape[0], f"fuse ({solver}, {mode})", progress) as bar:
         if solver == "batch":
-            _fuse_batch_rows(out, poses, z, obs, noise, prior, int(block_rows), bar)
+            _fuse_batch_rows(out, poses, z, obs, noise, prior, int(block_rows), bar, robust)
         else:
-            _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar)
+            _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar, robust)
     chosen = out.laplace.copy()
     if covariance == "grid":
-        chosen = _grid_covariances(out, poses, z, obs, noise, prior, grid_points_per_axis, progress)
+        # The grid posterior of the measurements kept by the residual gate.
+        kept = obs & ~out.rejected if robust == "gate" else obs
+        chosen = _grid_covariances(out, poses, z, kept, noise, prior, grid_points_per_axis, progress)
     return FusedSequence(
         node_names=tuple(recording.node_names),
         node_poses=poses,
@@ -427,4 +449,6 @@ def fuse_recording(
         prior_mean=None if prior is None else np.asarray(prior.mean, dtype=float),
         prior_sigmas=None if prior is None else np.asarray(prior.sigmas, dtype=float),
         gate_probability=float(gate_probability),
+        rejected=out.rejected,
+        robust=robust,
     )
