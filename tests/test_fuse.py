@@ -106,7 +106,7 @@ def test_write_and_read_fused_round_trip(recordings, tmp_path):
     assert (back.status == Status.SINGULAR).any()
     with h5py.File(path, "r") as f:
         codes = json.loads(f["fused"].attrs["status_messages"])
-    assert sorted(int(c) for c in codes) == [0, 1, 2, 3, 4, 5]
+    assert sorted(int(c) for c in codes) == [0, 1, 2, 3, 4, 5, 9]
     # The recording itself is intact, and a second write replaces /fused.
     assert read_recording(path).node_names == rec.node_names
     write_fused(path, fuse_recording(rec))

@@ -12,6 +12,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.stats import chi2
@@ -21,6 +23,7 @@ from mmsnap_graph import GaussianPrior, MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import GeometryError, ValidationError
 from mmsnap_graph.fusion.robust import kernel_weight_and_loss, residual_gate_threshold
+from mmsnap_graph.fusion.sequence import fuse_recording
 
 POSES = np.array([[0.0, 0.0, np.pi / 4], [6.0, 0.0, 3 * np.pi / 4], [3.0, 7.0, -np.pi / 2]])
 NOISE = MeasurementNoise()
@@ -298,3 +301,25 @@ def test_fuse_recording_takes_the_robust_option_with_both_solvers(robust):
     if robust == "gate":
         np.testing.assert_array_equal(fb.state[same], plain.state[same])
     assert not plain.rejected.any() and plain.robust is None
+
+
+def test_fused_group_keeps_the_robust_option_and_the_rejections(tmp_path):
+    """``/fused`` stores what robust fusion left out, and reads it back."""
+    from mmsnap_graph.io import write_recording
+    from mmsnap_graph.io.fused import read_fused, write_fused
+    from mmsnap_graph.sim import simulate_recording
+
+    rec = simulate_recording("B", "random", levels=("centroids",), n_frames=60, seed=3,
+                             known_poses=True)
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec)
+    fused = fuse_recording(rec, robust="gate")
+    fused = dataclasses.replace(fused, rejected=np.eye(len(fused), fused.observed.shape[1],
+                                                       dtype=bool))
+    write_fused(path, fused)
+    back = read_fused(path)
+    assert back.robust == "gate"
+    np.testing.assert_array_equal(back.rejected, fused.rejected)
+    write_fused(path, fuse_recording(rec))
+    plain = read_fused(path)
+    assert plain.robust is None and not plain.rejected.any()

@@ -4,7 +4,7 @@ in every frame (:class:`~mmsnap_graph.data.results.FusedSequence`, made by
 
 :func:`write_fused` and :func:`read_fused` are a symmetric pair; the layout is
 :data:`FUSED_LAYOUT` (quoted in docs/FORMAT.md). The ``status`` codes are those
-of :class:`~mmsnap_graph.data.results.Status` 0 to 5 (:data:`FUSED_STATUSES`).
+of :class:`~mmsnap_graph.data.results.Status` 0 to 5 and 9 (:data:`FUSED_STATUSES`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,8 @@ FUSED_LAYOUT = """\
                               node_order (str array, N), node_poses (N, 3) [x_m, y_m, phi_rad],
                               noise_sigmas (3,) [range_m, omega_rad, doppler_mps],
                               prior_mean (4,), prior_sigmas (4,) (MAP only),
-                              gate_probability, status_messages (JSON: code -> text)
+                              gate_probability, status_messages (JSON: code -> text),
+                              robust = "gate" | "huber" | "cauchy" (only when robust fusion ran)
     frame              (K,) int64     frame number
     target             (K,) int64     index of the target within its frame (association order)
     label              (K,) int64     the centroids' target_id when all members agree, else -1
@@ -47,7 +48,10 @@ FUSED_LAYOUT = """\
     laplace_covariance (K, 4, 4) float64   always the Laplace covariance
     success            (K,) bool
     status             (K,) int8      0 converged, 1 max iterations, 2 singular information,
-                                      3 non-finite, 4 no measurement and no prior, 5 grid failed
+                                      3 non-finite, 4 no measurement and no prior, 5 grid failed,
+                                      9 residual test failed (robust fusion could not repair it)
+    rejected           (K, N) bool    node left out / down-weighted by robust fusion (optional;
+                                      absent = none)
     message            (K,) str
     iterations         (K,) int64;  final_cost (K,) float64 (0.5 sum of squared whitened
                                     residuals, prior included);  degeneracy (K,) float64
@@ -56,7 +60,7 @@ FUSED_LAYOUT = """\
 
 #: The status codes a ``/fused`` group holds (its ``status_messages`` attribute).
 FUSED_STATUSES = (Status.OK, Status.MAX_ITERATIONS, Status.SINGULAR, Status.NON_FINITE,
-                  Status.NO_INFORMATION, Status.GRID_FAILED)
+                  Status.NO_INFORMATION, Status.GRID_FAILED, Status.RESIDUAL_TEST_FAILED)
 
 _STATE_NAMES = ("x_m", "y_m", "vx_mps", "vy_mps")
 
@@ -75,6 +79,8 @@ def _fill_group(g, fused: FusedSequence) -> None:
         g.attrs["prior_sigmas"] = fused.prior_sigmas
     g.attrs["gate_probability"] = fused.gate_probability
     g.attrs["status_messages"] = json.dumps({str(int(s)): s.message for s in FUSED_STATUSES})
+    if fused.robust is not None:
+        g.attrs["robust"] = fused.robust
     big = fused.frame.size >= 1024
     kw = dict(compression="gzip", compression_opts=1) if big else {}
 
@@ -97,6 +103,8 @@ def _fill_group(g, fused: FusedSequence) -> None:
     put("iterations", fused.iterations, np.int64)
     put("final_cost", fused.final_cost, np.float64)
     put("degeneracy", fused.degeneracy, np.float64)
+    if np.any(fused.rejected):
+        put("rejected", fused.rejected, bool)
 
 
 def write_fused(path: str | os.PathLike, fused: FusedSequence, *,
@@ -208,6 +216,8 @@ def _read_fields(g: h5py.Group, p: Path) -> dict:
         prior_mean=None if prior_mean is None else np.asarray(prior_mean, dtype=float),
         prior_sigmas=None if prior_sigmas is None else np.asarray(prior_sigmas, dtype=float),
         gate_probability=float(attr("gate_probability")),
+        rejected=ds("rejected").astype(bool) if "rejected" in g else None,
+        robust=None if attr("robust", required=False) is None else _text(attr("robust")),
     )
 
 
