@@ -22,12 +22,13 @@ between states ``index`` and ``index + 1``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+import scipy.linalg as la
 
 from factors.models import measurement_model, measurement_model_pose, residual
 from factors.motion import cv_process_noise_continuous
@@ -59,6 +60,72 @@ def cv_information(dt_s: float, sigma_a_mps2: float) -> NDArray:
     """(4, 4) information matrix of ``factors.constant_velocity_factor`` (its
     continuous white-noise acceleration covariance, inverted)."""
     return np.linalg.inv(cv_process_noise_continuous(dt_s, sigma_a_mps2))
+
+
+@dataclass(frozen=True, slots=True)
+class _Blocks:
+    """The Gauss-Newton system by blocks: ``hss`` (F, 4, 4) the state
+    diagonal blocks, ``off`` (G, 4, 4) the blocks ``H[mi, mi + 1]`` of the
+    motion factors, ``bmat`` (F, 4, 3m) the state-pose coupling, ``hpp``
+    (3m, 3m) the pose block, ``g`` the gradient (states, then poses)."""
+
+    hss: NDArray
+    off: NDArray
+    mi: NDArray
+    bmat: NDArray
+    hpp: NDArray
+    g: NDArray
+
+
+def _state_band(hss: NDArray, off: NDArray, mi: NDArray, damping: NDArray) -> NDArray:
+    """The state block (block-tridiagonal: the CV factors link consecutive
+    frames only) in LAPACK's lower band storage, 7 sub-diagonals, with
+    ``damping`` (4F,) added to the diagonal."""
+    f = hss.shape[0]
+    ab = np.zeros((8, 4 * f))
+    cols = 4 * np.arange(f)
+    for r in range(4):
+        for c in range(r + 1):
+            ab[r - c, cols + c] = hss[:, r, c]
+    ab[0] += damping
+    for i in range(4):  # H[4(k+1) + j, 4k + i] = off[k, i, j]
+        for j in range(4):
+            ab[4 + j - i, 4 * mi + i] = off[:, i, j]
+    return ab
+
+
+def _solve_blocks(b: _Blocks, lam: float) -> NDArray:
+    """``-(H + lam diag(H))^-1 g`` by eliminating the states onto the poses:
+    a banded Cholesky of the state block (linear in frames), then the dense
+    Schur complement of the few pose unknowns. Raises LinAlgError when the
+    damped system is not positive definite."""
+    f = b.hss.shape[0]
+    s0 = 4 * f
+    d_s = np.maximum(np.einsum("kii->ki", b.hss).ravel(), 1e-12)
+    chol = la.cholesky_banded(_state_band(b.hss, b.off, b.mi, lam * d_s), lower=True,
+                              check_finite=True)
+    bm = b.bmat.reshape(s0, -1)
+    sol = la.cho_solve_banded((chol, True), np.column_stack([b.g[:s0], bm]),
+                              check_finite=False)
+    x_g, x_b = sol[:, 0], sol[:, 1:]
+    if bm.shape[1] == 0:
+        return -x_g
+    c = b.hpp + lam * np.diag(np.maximum(np.diag(b.hpp), 1e-12))
+    schur = c - bm.T @ x_b
+    dp = la.solve(0.5 * (schur + schur.T), b.g[s0:] - bm.T @ x_g, assume_a="pos")
+    return -np.concatenate([x_g - x_b @ dp, dp])
+
+
+def _matvec(b: _Blocks, x: NDArray) -> NDArray:
+    """``H x`` from the blocks."""
+    f = b.hss.shape[0]
+    s0 = 4 * f
+    xs = x[:s0].reshape(f, 4)
+    bm = b.bmat.reshape(s0, -1)
+    ys = np.einsum("kij,kj->ki", b.hss, xs)
+    ys[b.mi] += np.einsum("gij,gj->gi", b.off, xs[b.mi + 1])
+    ys[b.mi + 1] += np.einsum("gji,gj->gi", b.off, xs[b.mi])
+    return np.concatenate([ys.ravel() + bm @ x[s0:], bm.T @ x[:s0] + b.hpp @ x[s0:]])
 
 
 class _Problem:
@@ -103,8 +170,9 @@ class _Problem:
             c += 0.5 * np.einsum("gi,gij,gj->", e, self.lam_cv, e)
         return c
 
-    def _measurement_blocks(self, poses, states, add, hss, gs, g):
-        """Add the measurement factors' blocks; returns the dense pose block."""
+    def _measurement_blocks(self, poses, states, hss, gs, g, bmat):
+        """Add the measurement factors' blocks: the states' (``hss``, ``gs``),
+        the pose-state coupling ``bmat`` (F, 4, 3m); returns the pose block."""
         m = len(self.others)
         hpp = np.zeros((3 * m, 3 * m))
         sig = self.sigmas
@@ -123,48 +191,52 @@ class _Problem:
                 sl = slice(3 * i, 3 * i + 3)
                 hpp[sl, sl] += np.einsum("kri,k,krj->ij", jp, w, jp)
                 g[self.s0 + 3 * i:self.s0 + 3 * i + 3] += np.einsum("kri,kr->i", jp, ew)
-                hps = np.einsum("kri,k,krj->kij", jp, w, js)  # (K, 3, 4)
-                prow = (self.s0 + 3 * i + np.arange(3))[None, :, None]
-                scol = self.sidx[ok][:, None, :]
-                add(prow, scol, hps)
-                add(np.swapaxes(scol, 1, 2), np.swapaxes(prow, 1, 2), np.swapaxes(hps, 1, 2))
+                bmat[ok, :, sl] += np.einsum("krj,k,kri->kji", js, w, jp)  # (K, 4, 3)
         return hpp
 
-    def _motion_blocks(self, states, add, hss, gs):
-        mi, fm, lam_cv, sidx = self.mi, self.fm, self.lam_cv, self.sidx
+    def _motion_blocks(self, states, hss, gs):
+        """Add the CV factors' blocks; returns the (G, 4, 4) blocks H[k, k+1]."""
+        mi, fm, lam_cv = self.mi, self.fm, self.lam_cv
         e = states[mi + 1] - np.einsum("gij,gj->gi", fm, states[mi])
         le = np.einsum("gij,gj->gi", lam_cv, e)
         hss[mi] += np.einsum("gki,gkl,glj->gij", fm, lam_cv, fm)
         hss[mi + 1] += lam_cv
-        off = -np.einsum("gki,gkj->gij", fm, lam_cv)  # d(k) x d(k+1) block
         gs[mi] -= np.einsum("gki,gk->gi", fm, le)
         gs[mi + 1] += le
-        add(sidx[mi][:, :, None], sidx[mi + 1][:, None, :], off)
-        add(sidx[mi + 1][:, :, None], sidx[mi][:, None, :], np.swapaxes(off, 1, 2))
+        return -np.einsum("gki,gkj->gij", fm, lam_cv)  # d(k) x d(k+1) block
 
-    def system(self, poses, states) -> tuple[sp.csc_matrix, NDArray]:
-        """Gauss-Newton Hessian (sparse) and gradient at ``(poses, states)``."""
-        rows, cols, vals = [], [], []
-
-        def add(r, c, v):
-            rows.append(np.broadcast_to(r, v.shape).ravel())
-            cols.append(np.broadcast_to(c, v.shape).ravel())
-            vals.append(v.ravel())
-
+    def blocks(self, poses, states) -> _Blocks:
+        """The Gauss-Newton system at ``(poses, states)`` by blocks."""
         g = np.zeros(self.dim)
         hss = np.tile(np.diag(self.prior_w), (self.f, 1, 1))
         gs = states * self.prior_w
-        hpp = self._measurement_blocks(poses, states, add, hss, gs, g)
-        if self.mi is not None:
-            self._motion_blocks(states, add, hss, gs)
-        add(self.sidx[:, :, None], self.sidx[:, None, :], hss)
-        if self.others:
-            pr = self.s0 + np.arange(3 * len(self.others))
-            add(pr[:, None], pr[None, :], hpp)
+        bmat = np.zeros((self.f, 4, self.dim - self.s0))
+        hpp = self._measurement_blocks(poses, states, hss, gs, g, bmat)
+        off = (self._motion_blocks(states, hss, gs) if self.mi is not None
+               else np.zeros((0, 4, 4)))
         g[:self.s0] = gs.ravel()
-        hmat = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(self.dim, self.dim))
-        return hmat, g
+        mi = self.mi if self.mi is not None else np.zeros(0, dtype=int)
+        return _Blocks(hss=hss, off=off, mi=mi, bmat=bmat, hpp=hpp, g=g)
+
+    def system(self, poses, states) -> tuple[sp.csc_matrix, NDArray]:
+        """Gauss-Newton Hessian (sparse) and gradient at ``(poses, states)``."""
+        b = self.blocks(poses, states)
+        sidx = self.sidx
+        rows = [np.broadcast_to(sidx[:, :, None], b.hss.shape).ravel()]
+        cols = [np.broadcast_to(sidx[:, None, :], b.hss.shape).ravel()]
+        vals = [b.hss.ravel()]
+        for r, c, v in ((sidx[b.mi][:, :, None], sidx[b.mi + 1][:, None, :], b.off),
+                        (sidx[b.mi + 1][:, :, None], sidx[b.mi][:, None, :],
+                         np.swapaxes(b.off, 1, 2))):
+            rows.append(np.broadcast_to(r, v.shape).ravel())
+            cols.append(np.broadcast_to(c, v.shape).ravel())
+            vals.append(v.ravel())
+        hss = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                     np.concatenate(cols))),
+                            shape=(self.s0, self.s0))
+        bm = sp.csc_matrix(b.bmat.reshape(self.s0, -1))
+        hmat = sp.bmat([[hss, bm], [bm.T, sp.csc_matrix(b.hpp)]], format="csc")
+        return hmat, b.g
 
     def apply(self, poses, states, delta):
         new = dict(poses)
@@ -198,19 +270,19 @@ def normal_equations(measurements: Mapping[str, NDArray], poses: Mapping[str, ND
 
 def _damped_step(prob, poses, states, cost, lam, nu):
     """One accepted Levenberg step (up to 12 damping increases), or None."""
-    hmat, g = prob.system(poses, states)
-    diag = sp.diags(np.maximum(hmat.diagonal(), 1e-12), format="csc")
+    blk = prob.blocks(poses, states)
+    g = blk.g
     for _ in range(12):
         try:
-            delta = -spla.spsolve(hmat + lam * diag, g, permc_spec="MMD_AT_PLUS_A")
-        except RuntimeError:
+            delta = _solve_blocks(blk, lam)
+        except (la.LinAlgError, ValueError):
             delta = np.full(prob.dim, np.nan)
         if not np.all(np.isfinite(delta)):
             lam, nu = lam * nu, nu * 2.0
             continue
         new_poses, new_states = prob.apply(poses, states, delta)
         new_cost = prob.cost(new_poses, new_states)
-        predicted = -(g @ delta + 0.5 * delta @ (hmat @ delta))
+        predicted = -(g @ delta + 0.5 * delta @ _matvec(blk, delta))
         rho = (cost - new_cost) / max(predicted, 1e-300)
         if new_cost <= cost and rho > 0:
             # Nielsen's damping update (as in Madsen, Nielsen & Tingleff)
