@@ -274,63 +274,82 @@ def _flag_outliers(graph, poses, states, has, sig, outlier_probability):
 
 def _refine(fg, values, params, presolved, rel_tol=1e-5):
     """GTSAM's final refinement: from a pre-solved point, Gauss-Newton steps
-    by GTSAM's own elimination while they lower the error (a GTSAM LM
-    iteration costs about ten times the elimination here, measured:
-    docs/CALIBRATION.md, "Speed at scale"); LM when not pre-solved, or when
-    a step fails although the linearized graph promised a decrease. Returns
-    ``(values, iterations)``."""
+    by GTSAM's own elimination (a GTSAM LM iteration costs several times the
+    elimination here, measured: docs/CALIBRATION.md, "Speed at scale"); a
+    step whose linearized decrease is at most ``rel_tol`` of the error is
+    taken as converged (no further evaluation of the graph); a step that
+    does not lower the error hands over to GTSAM's LM, which also runs when
+    not pre-solved. Returns ``(values, iterations, error, linear)`` with
+    ``linear`` the graph linearized within that converged step (for the
+    marginals) or None."""
     if presolved:
-        error = fg.error(values)
+        error = None
         for it in range(params.getMaxIterations()):
             linear = fg.linearize(values)
             delta = linear.optimize()
-            promised = linear.error(gtsam.VectorValues.Zero(delta)) - linear.error(delta)
+            at_zero = linear.error(gtsam.VectorValues.Zero(delta))
+            after = linear.error(delta)
             new = values.retract(delta)
+            if at_zero - after <= rel_tol * at_zero:
+                return new, it + 1, float(after), linear
+            error = fg.error(values) if error is None else error
             new_error = fg.error(new)
-            if new_error <= error:
-                values, done = new, error - new_error <= rel_tol * error
-                error = new_error
-                if done:
-                    return values, it + 1
-            elif promised <= rel_tol * error:
-                return values, it
-            else:
+            if not new_error < error:
                 break
+            values, error = new, new_error
     opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
-    return opt.optimize(), int(opt.iterations())
+    result = opt.optimize()
+    return result, int(opt.iterations()), float(fg.error(result)), None
+
+
+def _robust_pass(graph, start, x0, sig, robust, k, presolve_first, params, common):
+    """The first pass (under the kernel, if any): the numpy pre-solve, then
+    GTSAM only when the pre-solve did not converge (the pre-solve minimizes
+    the same cost: its optimum is GTSAM's). Returns ``(poses, states,
+    GTSAM iterations, initial_error)``."""
+    has = {n: np.isfinite(graph.meas[n][:, 0]) for n in graph.active}
+    report: dict = {}
+    if presolve_first:
+        start, x0 = numpy_presolve(graph.meas, start, x0, robust=robust,
+                                   k=k if k is not None else 1.0, report=report, **common)
+        if report["converged"] and robust is not None:
+            return start, x0, 0, report["initial_cost"]
+    fg = graph.build(measurement_noise(sig, robust, k), has)
+    initial_error = report.get("initial_cost")
+    values = graph.values(start, x0)
+    if initial_error is None:
+        initial_error = float(fg.error(values))
+    result, iterations, _, _ = _refine(fg, values, params, presolve_first)
+    poses, states = graph.current(result)
+    return poses, states, iterations, initial_error
 
 
 def _solve(graph, start, x0, sig, prior_sig, robust, k, presolve_first, max_iterations,
            outlier_probability):
-    """Robust LM (after the numpy pre-solve), outliers, then a Gaussian LM
-    pass on the inliers. Returns the final graph and values and a summary."""
+    """Robust pass (numpy pre-solve; GTSAM when needed), outliers, then a
+    Gaussian pass on the inliers refined by GTSAM. Returns the final graph
+    and values and a summary."""
     has = {n: np.isfinite(graph.meas[n][:, 0]) for n in graph.active}
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(max_iterations))
-    fg = graph.build(measurement_noise(sig, robust, k), has)
-    initial_error = float(fg.error(graph.values(start, x0)))
     common = dict(names=graph.active, reference=graph.ref, sigmas=sig, prior_sigmas=prior_sig,
                   motion=graph.motion)
-    if presolve_first:
-        start, x0 = numpy_presolve(graph.meas, start, x0, robust=robust,
-                             k=k if k is not None else 1.0, **common)
-    result, iterations = _refine(fg, graph.values(start, x0), params, presolve_first)
-    poses, states = graph.current(result)
+    poses, states, iterations, initial_error = _robust_pass(graph, start, x0, sig, robust, k,
+                                                            presolve_first, params, common)
     outliers = _flag_outliers(graph, poses, states, has, sig, outlier_probability)
-    if robust is not None:
-        inl = {n: has[n] & ~outliers[n] for n in graph.active}
-        fg = graph.build(measurement_noise(sig), inl)
-        if presolve_first:
-            poses, states = numpy_presolve(graph.meas, poses, states, robust=None, k=1.0, use=inl,
-                                     **common)
-        result, more = _refine(fg, graph.values(poses, states), params, presolve_first)
-        iterations += more
-    return fg, result, dict(outliers=outliers, iterations=iterations,
-                            initial_error=initial_error, final_error=float(fg.error(result)))
+    inl = {n: has[n] & ~outliers[n] for n in graph.active} if robust is not None else has
+    if robust is not None and presolve_first:
+        poses, states = numpy_presolve(graph.meas, poses, states, robust=None, k=1.0, use=inl,
+                                       **common)
+    fg = graph.build(measurement_noise(sig), inl)
+    result, more, final_error, linear = _refine(fg, graph.values(poses, states), params,
+                                                presolve_first)
+    return fg, result, dict(outliers=outliers, iterations=iterations + more,
+                            initial_error=initial_error, final_error=final_error, linear=linear)
 
 
 def _assess(graph, final_graph, result, state_covariances, max_pose_variance,
-            max_pose_condition):
+            max_pose_condition, linear=None):
     """Marginal covariances and the unobservable pose directions; the dense
     Schur complement when ``gtsam.Marginals`` fails."""
     ref, active = graph.ref, graph.active
@@ -339,7 +358,7 @@ def _assess(graph, final_graph, result, state_covariances, max_pose_variance,
     unobservable: dict[str, NDArray] = {}
     notes = []
     try:
-        marg = gtsam.Marginals(final_graph, result)
+        marg = gtsam.Marginals(final_graph if linear is None else linear, result)
         for n in active:
             if n != ref:
                 c = marg.marginalCovariance(graph.pose_key[n])
@@ -460,7 +479,8 @@ def joint_calibration(
                                       robust, k, presolve, max_iterations, outlier_probability)
     poses, states = graph.current(result)
     covs, state_covs, unobservable, notes = _assess(graph, final_graph, result, state_covariances,
-                                                    max_pose_variance, max_pose_condition)
+                                                    max_pose_variance, max_pose_condition,
+                                                    run["linear"])
     msg = _message(active, frames.size, run["outliers"], run["iterations"], notes, unobservable,
                    unreachable, ref)
     return JointCalibration(

@@ -252,9 +252,12 @@ def _majority_rows(pool, lag, ia, ib):
     common_pairs, common_counts = np.unique(np.stack([pool.ida[ja], pool.idb[jb]], axis=1),
                                             axis=0, return_counts=True)
     common = {(int(a), int(b)): int(n) for (a, b), n in zip(common_pairs, common_counts)}
-    in_pairs = np.stack([pool.ida[ia], pool.idb[ib]], axis=1)
-    keep = np.array([2 * np.sum(np.all(in_pairs == row, axis=1)) >= common[(int(row[0]), int(row[1]))]
-                     for row in in_pairs], dtype=bool) if ia.size else np.zeros(0, bool)
+    if not ia.size:
+        return ia, ib
+    in_pairs, inverse, in_counts = np.unique(np.stack([pool.ida[ia], pool.idb[ib]], axis=1),
+                                             axis=0, return_inverse=True, return_counts=True)
+    need = np.array([common[(int(a), int(b))] for a, b in in_pairs])
+    keep = (2 * in_counts >= need)[inverse.ravel()]
     return ia[keep], ib[keep]
 
 

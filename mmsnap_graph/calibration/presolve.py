@@ -154,7 +154,8 @@ class _Problem:
         self.mi = None
         if motion is not None and len(motion[0]):
             self.mi = np.asarray(motion[0], dtype=int)
-            self.lam_cv = np.array([cv_information(dt, motion[2]) for dt in motion[1]])
+            dts, which = np.unique(np.asarray(motion[1], dtype=float), return_inverse=True)
+            self.lam_cv = np.array([cv_information(dt, motion[2]) for dt in dts])[which.ravel()]
             self.fm = np.tile(np.eye(4), (self.mi.size, 1, 1))
             self.fm[:, 0, 2] = self.fm[:, 1, 3] = np.asarray(motion[1], dtype=float)
 
@@ -295,23 +296,29 @@ def _damped_step(prob, poses, states, cost, lam, nu):
 def presolve(measurements: Mapping[str, NDArray], poses: Mapping[str, NDArray], states: NDArray,
              names: Sequence[str], reference: str, sigmas: NDArray, prior_sigmas: NDArray,
              robust: str | None, k: float, *, use: Mapping[str, NDArray] | None = None,
-             motion=None, max_steps: int = 50, tol: float = 1e-7
-             ) -> tuple[dict[str, NDArray], NDArray]:
+             motion=None, max_steps: int = 50, tol: float = 1e-7,
+             report: dict | None = None) -> tuple[dict[str, NDArray], NDArray]:
     """Levenberg-damped Gauss-Newton on the calibration graph (module doc),
     from ``(poses, states)``; stops after ``max_steps`` steps, when no damping
     gives a lower cost, or when a step lowers the cost by at most ``tol``
-    relative. Returns the updated ``(poses, states)``."""
+    relative (converged). Returns the updated ``(poses, states)``; a
+    ``report`` dict receives ``initial_cost``, ``cost`` (GTSAM's error of the
+    same graph), ``steps`` and ``converged``."""
     prob, poses, states = _problem(measurements, poses, states, names, reference, sigmas,
                                    prior_sigmas, robust, k, use, motion)
     lam, nu = 1e-4, 2.0
-    cost = prob.cost(poses, states)
-    for _ in range(max_steps):
+    cost = initial_cost = prob.cost(poses, states)
+    steps, done = 0, False
+    while steps < max_steps and not done:
         step, lam, nu = _damped_step(prob, poses, states, cost, lam, nu)
         if step is None:
+            done = True  # no damping lowers the cost: at the optimum to rounding
             break
         new_poses, new_states, new_cost = step
         done = (cost - new_cost) <= tol * max(cost, 1.0)
         poses, states, cost = new_poses, new_states, new_cost
-        if done:
-            break
+        steps += 1
+    if report is not None:
+        report.update(initial_cost=float(initial_cost), cost=float(cost), steps=steps,
+                      converged=bool(done))
     return poses, states
