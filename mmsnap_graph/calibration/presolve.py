@@ -122,9 +122,9 @@ def _matvec(b: _Blocks, x: NDArray) -> NDArray:
     s0 = 4 * f
     xs = x[:s0].reshape(f, 4)
     bm = b.bmat.reshape(s0, -1)
-    ys = np.einsum("kij,kj->ki", b.hss, xs)
-    ys[b.mi] += np.einsum("gij,gj->gi", b.off, xs[b.mi + 1])
-    ys[b.mi + 1] += np.einsum("gji,gj->gi", b.off, xs[b.mi])
+    ys = (b.hss @ xs[:, :, None])[:, :, 0]
+    ys[b.mi] += (b.off @ xs[b.mi + 1][:, :, None])[:, :, 0]
+    ys[b.mi + 1] += (np.swapaxes(b.off, 1, 2) @ xs[b.mi][:, :, None])[:, :, 0]
     return np.concatenate([ys.ravel() + bm @ x[s0:], bm.T @ x[:s0] + b.hpp @ x[s0:]])
 
 
@@ -167,8 +167,8 @@ class _Problem:
             c += robust_cost(np.linalg.norm(residual(h, self.meas[n][ok]) / self.sigmas, axis=1),
                              self.robust, self.k)
         if self.mi is not None:
-            e = states[self.mi + 1] - np.einsum("gij,gj->gi", self.fm, states[self.mi])
-            c += 0.5 * np.einsum("gi,gij,gj->", e, self.lam_cv, e)
+            e = states[self.mi + 1] - (self.fm @ states[self.mi][:, :, None])[:, :, 0]
+            c += 0.5 * np.sum(e * (self.lam_cv @ e[:, :, None])[:, :, 0])
         return c
 
     def _measurement_blocks(self, poses, states, hss, gs, g, bmat):
@@ -184,27 +184,31 @@ class _Problem:
             w = kernel_weight(np.linalg.norm(e, axis=1), self.robust, self.k)
             js = js / sig[:, None]
             ew = e * w[:, None]
-            hss[ok] += np.einsum("kri,k,krj->kij", js, w, js)
-            gs[ok] += np.einsum("kri,kr->ki", js, ew)
+            jsw = np.swapaxes(js, 1, 2) * w[:, None, None]  # (K, 4, 3), matmul: no einsum loops
+            hss[ok] += jsw @ js
+            gs[ok] += (np.swapaxes(js, 1, 2) @ ew[:, :, None])[:, :, 0]
             if n != self.ref:
                 i = self.others.index(n)
                 jp = jp / sig[:, None]
                 sl = slice(3 * i, 3 * i + 3)
-                hpp[sl, sl] += np.einsum("kri,k,krj->ij", jp, w, jp)
-                g[self.s0 + 3 * i:self.s0 + 3 * i + 3] += np.einsum("kri,kr->i", jp, ew)
-                bmat[ok, :, sl] += np.einsum("krj,k,kri->kji", js, w, jp)  # (K, 4, 3)
+                jpf = jp.reshape(-1, 3)
+                hpp[sl, sl] += jpf.T @ (jpf * np.repeat(w, 3)[:, None])
+                g[self.s0 + 3 * i:self.s0 + 3 * i + 3] += jpf.T @ ew.ravel()
+                bmat[ok, :, sl] += jsw @ jp  # (K, 4, 3)
         return hpp
 
     def _motion_blocks(self, states, hss, gs):
         """Add the CV factors' blocks; returns the (G, 4, 4) blocks H[k, k+1]."""
         mi, fm, lam_cv = self.mi, self.fm, self.lam_cv
-        e = states[mi + 1] - np.einsum("gij,gj->gi", fm, states[mi])
-        le = np.einsum("gij,gj->gi", lam_cv, e)
-        hss[mi] += np.einsum("gki,gkl,glj->gij", fm, lam_cv, fm)
+        fmt = np.swapaxes(fm, 1, 2)
+        e = states[mi + 1] - (fm @ states[mi][:, :, None])[:, :, 0]
+        le = (lam_cv @ e[:, :, None])[:, :, 0]
+        off = -(fmt @ lam_cv)  # d(k) x d(k+1) block
+        hss[mi] -= off @ fm
         hss[mi + 1] += lam_cv
-        gs[mi] -= np.einsum("gki,gk->gi", fm, le)
+        gs[mi] -= (fmt @ le[:, :, None])[:, :, 0]
         gs[mi + 1] += le
-        return -np.einsum("gki,gkj->gij", fm, lam_cv)  # d(k) x d(k+1) block
+        return off
 
     def blocks(self, poses, states) -> _Blocks:
         """The Gauss-Newton system at ``(poses, states)`` by blocks."""
