@@ -48,7 +48,7 @@ from factors.gtsam_factors import (
 from factors.models import measurement_model, residual
 from factors.robust import ROBUST_K_DEFAULT
 
-from ..errors import CalibrationError, ValidationError
+from ..errors import CalibrationError, MmsnapError, ValidationError
 from ..data.noise import MeasurementNoise
 from ..data.recording import Detections
 from .._validation import as_float_array, check_finite, check_positive, check_shape
@@ -150,6 +150,34 @@ def _validate(names, reference, noise, state_prior_sigmas, robust, motion, frame
     if not 0 < outlier_probability < 1:
         raise ValidationError(f"outlier_probability must lie in (0, 1), got {outlier_probability!r}")
     return ref, noise.sigmas, prior_sig
+
+
+def _check_count(value, name: str, minimum: int = 1) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValidationError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _validate_numbers(sig, robust_k, motion, frame_period_s, sigma_a_mps2, max_motion_gap_frames,
+                      max_iterations, max_pose_variance, max_pose_condition):
+    """Check the numeric options at the boundary (issue 13: zero or NaN
+    sigma_a / frame period, k <= 0, vanishing sigmas reached GTSAM and numpy
+    as their own errors)."""
+    if robust_k is not None:
+        check_positive(robust_k, "robust_k")
+    if frame_period_s is not None:
+        check_positive(frame_period_s, "frame_period_s")
+    if motion:
+        check_positive(sigma_a_mps2, "sigma_a_mps2")
+    _check_count(max_motion_gap_frames, "max_motion_gap_frames")
+    _check_count(max_iterations, "max_iterations")
+    check_positive(max_pose_variance, "max_pose_variance")
+    check_positive(max_pose_condition, "max_pose_condition")
+    with np.errstate(over="ignore", divide="ignore"):
+        info = 1.0 / np.asarray(sig, dtype=float) ** 2
+    if not np.all(np.isfinite(info)) or np.any(info > 1e250):
+        raise ValidationError(f"noise sigmas {tuple(float(v) for v in sig)} are too small: "
+                              f"their information 1/sigma^2 overflows")
 
 
 def _frame_table(dets, names, min_common_frames):
@@ -272,6 +300,16 @@ def _flag_outliers(graph, poses, states, has, sig, outlier_probability):
     return outliers
 
 
+class _Breakdown(Exception):
+    """The estimation broke down (joint_calibration returns success=False)."""
+
+
+#: Numerical errors of GTSAM and numpy that mean the estimation broke down
+#: (not a bad argument: those are checked first): success=False, not a raise.
+_NUMERICAL_ERRORS = (_Breakdown, RuntimeError, ValueError, IndexError, ArithmeticError,
+                     np.linalg.LinAlgError)
+
+
 def _refine(fg, values, params, presolved, rel_tol=1e-5):
     """GTSAM's final refinement: from a pre-solved point, Gauss-Newton steps
     by GTSAM's own elimination (a GTSAM LM iteration costs several times the
@@ -338,6 +376,10 @@ def _solve(graph, start, x0, sig, prior_sig, robust, k, presolve_first, max_iter
                                                             presolve_first, params, common)
     outliers = _flag_outliers(graph, poses, states, has, sig, outlier_probability)
     inl = {n: has[n] & ~outliers[n] for n in graph.active} if robust is not None else has
+    starved = [n for n in graph.active if n != graph.ref and not inl[n].any()]
+    if starved:
+        raise _Breakdown(f"every detection of {', '.join(starved)} is an outlier: no pose "
+                         f"left to estimate")
     if robust is not None and presolve_first:
         poses, states = numpy_presolve(graph.meas, poses, states, robust=None, k=1.0, use=inl,
                                        **common)
@@ -465,6 +507,8 @@ def joint_calibration(
     names = list(dets)
     ref, sig, prior_sig = _validate(names, reference, noise, state_prior_sigmas, robust, motion,
                                     frame_period_s, outlier_probability)
+    _validate_numbers(sig, robust_k, motion, frame_period_s, sigma_a_mps2, max_motion_gap_frames,
+                      max_iterations, max_pose_variance, max_pose_condition)
     frames, meas_f = _frame_table(dets, names, min_common_frames)
     init, unreachable = _start_poses(meas_f, names, ref, initial_poses, min_common_frames,
                                      min_spread_m)
@@ -475,12 +519,18 @@ def joint_calibration(
                    _motion_spec(frames, motion, frame_period_s, max_motion_gap_frames,
                                 sigma_a_mps2))
     k = None if robust is None else (robust_k if robust_k is not None else DEFAULT_ROBUST_K[robust])
-    final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig, prior_sig,
-                                      robust, k, presolve, max_iterations, outlier_probability)
-    poses, states = graph.current(result)
-    covs, state_covs, unobservable, notes = _assess(graph, final_graph, result, state_covariances,
-                                                    max_pose_variance, max_pose_condition,
-                                                    run["linear"])
+    try:
+        final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig,
+                                          prior_sig, robust, k, presolve, max_iterations,
+                                          outlier_probability)
+        poses, states = graph.current(result)
+        covs, state_covs, unobservable, notes = _assess(graph, final_graph, result,
+                                                        state_covariances, max_pose_variance,
+                                                        max_pose_condition, run["linear"])
+    except MmsnapError:
+        raise
+    except _NUMERICAL_ERRORS as exc:
+        return _broken_down(graph, frames, init, x0, unreachable, exc)
     msg = _message(active, frames.size, run["outliers"], run["iterations"], notes, unobservable,
                    unreachable, ref)
     return JointCalibration(
@@ -490,6 +540,26 @@ def joint_calibration(
         success=not (unobservable or unreachable), message=msg, iterations=run["iterations"],
         initial_error=run["initial_error"], final_error=run["final_error"],
         unobservable=unobservable, unreachable=tuple(unreachable))
+
+
+def _broken_down(graph, frames, init, x0, unreachable, exc) -> JointCalibration:
+    """The result when the estimation broke down: the starting poses and
+    states, NaN covariances, ``success=False`` and the reason."""
+    active, ref = graph.active, graph.ref
+    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    if not isinstance(exc, _Breakdown):
+        reason = f"{type(exc).__name__}: {reason}"
+    nan3 = np.full((3, 3), np.nan)
+    return JointCalibration(
+        reference=ref, poses={n: np.asarray(init[n], dtype=float) for n in active},
+        covariances={n: (np.zeros((3, 3)) if n == ref else nan3.copy()) for n in active},
+        initial_poses={n: np.asarray(init[n], dtype=float) for n in active}, frames=frames,
+        states=np.asarray(x0, dtype=float), state_covariances=np.full((graph.f, 4, 4), np.nan),
+        outliers={n: np.zeros(graph.f, dtype=bool) for n in active}, success=False,
+        message=(f"joint calibration of {len(active)} nodes on {frames.size} frames failed: "
+                 f"{reason}"),
+        iterations=0, initial_error=float("nan"), final_error=float("nan"), unobservable={},
+        unreachable=tuple(unreachable))
 
 
 def _schur_covariances(graph, values, active, ref, pose_key, state_key, unobservable,

@@ -48,12 +48,21 @@ def kernel_weight(norm: NDArray, robust: str | None, k: float) -> NDArray:
 
 
 def robust_cost(norm: NDArray, robust: str | None, k: float) -> float:
-    """GTSAM's cost of whitened residual norms under the kernel (0.5 e^2 without)."""
+    """GTSAM's cost of whitened residual norms under the kernel (0.5 e^2
+    without), in forms that neither overflow for a huge ``k`` (the Gaussian
+    limit) nor raise (numpy floats: inf, never OverflowError)."""
+    norm = np.asarray(norm, dtype=float)
+    half_sq = 0.5 * norm**2
     if robust is None:
-        return 0.5 * np.sum(norm**2)
-    if robust == "huber":
-        return np.sum(np.where(norm <= k, 0.5 * norm**2, k * norm - 0.5 * k**2))
-    return np.sum(0.5 * k**2 * np.log1p((norm / k) ** 2))
+        return float(np.sum(half_sq))
+    k = np.float64(k)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if robust == "huber":
+            return float(np.sum(np.where(norm <= k, half_sq, k * (norm - 0.5 * k))))
+        u2 = (norm / k) ** 2  # cauchy: 0.5 k^2 log(1 + u^2) = 0.5 e^2 log1p(u^2) / u^2
+        ratio = np.where(u2 > 0, np.log1p(u2) / np.where(u2 > 0, u2, 1.0), 1.0)
+        return float(np.sum(np.where(np.isinf(u2), 0.5 * k**2 * np.log1p(u2),
+                                     half_sq * ratio)))
 
 
 def cv_information(dt_s: float, sigma_a_mps2: float) -> NDArray:
