@@ -362,9 +362,9 @@ def match_tracks(
     lag_ambiguity : float
         Other lags with 95% of the chosen lag's support and an inlier RMSE
         within this fraction of its make the lag ambiguous (a walk along a
-        circle): lag 0 is kept when it is one of them, and the covariance is
-        widened by the spread of their poses (issue 13: a circular walk gave
-        a pose 0.8 m off with a 0.08 m sigma).
+        circle): the covariance is widened by the spread of their poses when
+        they differ from the chosen one by more than 3 sigma (issue 13: a
+        circular walk gave a pose 0.8 m off with a 0.08 m sigma).
 
     Returns a :class:`TrackMatching`; ``success=False`` (no calibration) when
     no pair has enough common frames of a moving target, or the best pose
@@ -392,10 +392,6 @@ def match_tracks(
         return _failed(f"no pair of tracks matches: the best track RMSE {rmse:.3g} m "
                        f"(lag {lag}) exceeds max_rmse_m={max_rmse_m}", cands)
     ambiguous = _ambiguous_lags(fits, lag, lag_ambiguity)
-    if lag != 0 and 0 in ambiguous:
-        lag = 0  # the data cannot tell the lags apart: keep the nodes' own sync
-        _, ia, ib, rmse = fits[0]
-        ambiguous = _ambiguous_lags(fits, 0, lag_ambiguity)
     ia, ib = _majority_rows(pool, lag, ia, ib)
     if ia.size < 3:
         return _failed("no track pair has a majority of its common frames aligned by one pose",
