@@ -520,17 +520,27 @@ def joint_calibration(
                                 sigma_a_mps2))
     k = None if robust is None else (robust_k if robust_k is not None else DEFAULT_ROBUST_K[robust])
     try:
-        final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig,
-                                          prior_sig, robust, k, presolve, max_iterations,
-                                          outlier_probability)
-        poses, states = graph.current(result)
-        covs, state_covs, unobservable, notes = _assess(graph, final_graph, result,
-                                                        state_covariances, max_pose_variance,
-                                                        max_pose_condition, run["linear"])
+        return _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, presolve,
+                         max_iterations, outlier_probability, state_covariances,
+                         max_pose_variance, max_pose_condition)
     except MmsnapError:
         raise
     except _NUMERICAL_ERRORS as exc:
         return _broken_down(graph, frames, init, x0, unreachable, exc)
+
+
+def _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, presolve,
+              max_iterations, outlier_probability, state_covariances, max_pose_variance,
+              max_pose_condition) -> JointCalibration:
+    """Solve, assess, and the result (the numerical part of
+    :func:`joint_calibration`)."""
+    active, ref = graph.active, graph.ref
+    final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig, prior_sig,
+                                      robust, k, presolve, max_iterations, outlier_probability)
+    poses, states = graph.current(result)
+    covs, state_covs, unobservable, notes = _assess(graph, final_graph, result, state_covariances,
+                                                    max_pose_variance, max_pose_condition,
+                                                    run["linear"])
     msg = _message(active, frames.size, run["outliers"], run["iterations"], notes, unobservable,
                    unreachable, ref)
     return JointCalibration(
