@@ -350,7 +350,7 @@ def _robust_pass(graph, start, x0, sig, robust, k, presolve_first, params, commo
     if presolve_first:
         start, x0 = numpy_presolve(graph.meas, start, x0, robust=robust,
                                    k=k if k is not None else 1.0, report=report, **common)
-        if report["converged"] and robust is not None:
+        if report["converged"]:
             return start, x0, 0, report["initial_cost"]
     fg = graph.build(measurement_noise(sig, robust, k), has)
     initial_error = report.get("initial_cost")
