@@ -48,7 +48,7 @@ from factors.gtsam_factors import (
 from factors.models import measurement_model, residual
 from factors.robust import ROBUST_K_DEFAULT
 
-from ..errors import CalibrationError, ValidationError
+from ..errors import CalibrationError, MmsnapError, ValidationError
 from ..data.noise import MeasurementNoise
 from ..data.recording import Detections
 from .._validation import as_float_array, check_finite, check_positive, check_shape
@@ -150,6 +150,34 @@ def _validate(names, reference, noise, state_prior_sigmas, robust, motion, frame
     if not 0 < outlier_probability < 1:
         raise ValidationError(f"outlier_probability must lie in (0, 1), got {outlier_probability!r}")
     return ref, noise.sigmas, prior_sig
+
+
+def _check_count(value, name: str, minimum: int = 1) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValidationError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _validate_numbers(sig, robust_k, motion, frame_period_s, sigma_a_mps2, max_motion_gap_frames,
+                      max_iterations, max_pose_variance, max_pose_condition):
+    """Check the numeric options at the boundary (issue 13: zero or NaN
+    sigma_a / frame period, k <= 0, vanishing sigmas reached GTSAM and numpy
+    as their own errors)."""
+    if robust_k is not None:
+        check_positive(robust_k, "robust_k")
+    if frame_period_s is not None:
+        check_positive(frame_period_s, "frame_period_s")
+    if motion:
+        check_positive(sigma_a_mps2, "sigma_a_mps2")
+    _check_count(max_motion_gap_frames, "max_motion_gap_frames")
+    _check_count(max_iterations, "max_iterations")
+    check_positive(max_pose_variance, "max_pose_variance")
+    check_positive(max_pose_condition, "max_pose_condition")
+    with np.errstate(over="ignore", divide="ignore"):
+        info = 1.0 / np.asarray(sig, dtype=float) ** 2
+    if not np.all(np.isfinite(info)) or np.any(info > 1e250):
+        raise ValidationError(f"noise sigmas {tuple(float(v) for v in sig)} are too small: "
+                              f"their information 1/sigma^2 overflows")
 
 
 def _frame_table(dets, names, min_common_frames):
@@ -272,40 +300,98 @@ def _flag_outliers(graph, poses, states, has, sig, outlier_probability):
     return outliers
 
 
+class _Breakdown(Exception):
+    """The estimation broke down (joint_calibration returns success=False)."""
+
+
+#: Numerical errors of GTSAM and numpy that mean the estimation broke down
+#: (not a bad argument: those are checked first): success=False, not a raise.
+_NUMERICAL_ERRORS = (_Breakdown, RuntimeError, ValueError, IndexError, ArithmeticError,
+                     np.linalg.LinAlgError)
+
+
+def _refine(fg, values, params, presolved, rel_tol=1e-5):
+    """GTSAM's final refinement: from a pre-solved point, Gauss-Newton steps
+    by GTSAM's own elimination (a GTSAM LM iteration costs several times the
+    elimination here, measured: docs/CALIBRATION.md, "Speed at scale"); a
+    step whose linearized decrease is at most ``rel_tol`` of the error is
+    taken as converged (no further evaluation of the graph); a step that
+    does not lower the error hands over to GTSAM's LM, which also runs when
+    not pre-solved. Returns ``(values, iterations, error, linear)`` with
+    ``linear`` the graph linearized within that converged step (for the
+    marginals) or None."""
+    if presolved:
+        error = None
+        for it in range(params.getMaxIterations()):
+            linear = fg.linearize(values)
+            delta = linear.optimize()
+            at_zero = linear.error(gtsam.VectorValues.Zero(delta))
+            after = linear.error(delta)
+            new = values.retract(delta)
+            if at_zero - after <= rel_tol * at_zero:
+                return new, it + 1, float(after), linear
+            error = fg.error(values) if error is None else error
+            new_error = fg.error(new)
+            if not new_error < error:
+                break
+            values, error = new, new_error
+    opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
+    result = opt.optimize()
+    return result, int(opt.iterations()), float(fg.error(result)), None
+
+
+def _robust_pass(graph, start, x0, sig, robust, k, presolve_first, params, common):
+    """The first pass (under the kernel, if any): the numpy pre-solve, then
+    GTSAM only when the pre-solve did not converge (the pre-solve minimizes
+    the same cost: its optimum is GTSAM's). Returns ``(poses, states,
+    GTSAM iterations, initial_error)``."""
+    has = {n: np.isfinite(graph.meas[n][:, 0]) for n in graph.active}
+    report: dict = {}
+    if presolve_first:
+        start, x0 = numpy_presolve(graph.meas, start, x0, robust=robust,
+                                   k=k if k is not None else 1.0, report=report, **common)
+        if report["converged"]:
+            return start, x0, 0, report["initial_cost"]
+    fg = graph.build(measurement_noise(sig, robust, k), has)
+    initial_error = report.get("initial_cost")
+    values = graph.values(start, x0)
+    if initial_error is None:
+        initial_error = float(fg.error(values))
+    result, iterations, _, _ = _refine(fg, values, params, presolve_first)
+    poses, states = graph.current(result)
+    return poses, states, iterations, initial_error
+
+
 def _solve(graph, start, x0, sig, prior_sig, robust, k, presolve_first, max_iterations,
            outlier_probability):
-    """Robust LM (after the numpy pre-solve), outliers, then a Gaussian LM
-    pass on the inliers. Returns the final graph and values and a summary."""
+    """Robust pass (numpy pre-solve; GTSAM when needed), outliers, then a
+    Gaussian pass on the inliers refined by GTSAM. Returns the final graph
+    and values and a summary."""
     has = {n: np.isfinite(graph.meas[n][:, 0]) for n in graph.active}
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(max_iterations))
-    fg = graph.build(measurement_noise(sig, robust, k), has)
-    initial_error = float(fg.error(graph.values(start, x0)))
     common = dict(names=graph.active, reference=graph.ref, sigmas=sig, prior_sigmas=prior_sig,
                   motion=graph.motion)
-    if presolve_first:
-        start, x0 = numpy_presolve(graph.meas, start, x0, robust=robust,
-                             k=k if k is not None else 1.0, **common)
-    opt = gtsam.LevenbergMarquardtOptimizer(fg, graph.values(start, x0), params)
-    result = opt.optimize()
-    iterations = int(opt.iterations())
-    poses, states = graph.current(result)
+    poses, states, iterations, initial_error = _robust_pass(graph, start, x0, sig, robust, k,
+                                                            presolve_first, params, common)
     outliers = _flag_outliers(graph, poses, states, has, sig, outlier_probability)
-    if robust is not None:
-        inl = {n: has[n] & ~outliers[n] for n in graph.active}
-        fg = graph.build(measurement_noise(sig), inl)
-        if presolve_first:
-            poses, states = numpy_presolve(graph.meas, poses, states, robust=None, k=1.0, use=inl,
-                                     **common)
-        opt2 = gtsam.LevenbergMarquardtOptimizer(fg, graph.values(poses, states), params)
-        result = opt2.optimize()
-        iterations += int(opt2.iterations())
-    return fg, result, dict(outliers=outliers, iterations=iterations,
-                            initial_error=initial_error, final_error=float(fg.error(result)))
+    inl = {n: has[n] & ~outliers[n] for n in graph.active} if robust is not None else has
+    starved = [n for n in graph.active if n != graph.ref and not inl[n].any()]
+    if starved:
+        raise _Breakdown(f"every detection of {', '.join(starved)} is an outlier: no pose "
+                         f"left to estimate")
+    if robust is not None and presolve_first:
+        poses, states = numpy_presolve(graph.meas, poses, states, robust=None, k=1.0, use=inl,
+                                       **common)
+    fg = graph.build(measurement_noise(sig), inl)
+    result, more, final_error, linear = _refine(fg, graph.values(poses, states), params,
+                                                presolve_first)
+    return fg, result, dict(outliers=outliers, iterations=iterations + more,
+                            initial_error=initial_error, final_error=final_error, linear=linear)
 
 
 def _assess(graph, final_graph, result, state_covariances, max_pose_variance,
-            max_pose_condition):
+            max_pose_condition, linear=None):
     """Marginal covariances and the unobservable pose directions; the dense
     Schur complement when ``gtsam.Marginals`` fails."""
     ref, active = graph.ref, graph.active
@@ -314,7 +400,7 @@ def _assess(graph, final_graph, result, state_covariances, max_pose_variance,
     unobservable: dict[str, NDArray] = {}
     notes = []
     try:
-        marg = gtsam.Marginals(final_graph, result)
+        marg = gtsam.Marginals(final_graph if linear is None else linear, result)
         for n in active:
             if n != ref:
                 c = marg.marginalCovariance(graph.pose_key[n])
@@ -421,6 +507,8 @@ def joint_calibration(
     names = list(dets)
     ref, sig, prior_sig = _validate(names, reference, noise, state_prior_sigmas, robust, motion,
                                     frame_period_s, outlier_probability)
+    _validate_numbers(sig, robust_k, motion, frame_period_s, sigma_a_mps2, max_motion_gap_frames,
+                      max_iterations, max_pose_variance, max_pose_condition)
     frames, meas_f = _frame_table(dets, names, min_common_frames)
     init, unreachable = _start_poses(meas_f, names, ref, initial_poses, min_common_frames,
                                      min_spread_m)
@@ -431,11 +519,28 @@ def joint_calibration(
                    _motion_spec(frames, motion, frame_period_s, max_motion_gap_frames,
                                 sigma_a_mps2))
     k = None if robust is None else (robust_k if robust_k is not None else DEFAULT_ROBUST_K[robust])
+    try:
+        return _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, presolve,
+                         max_iterations, outlier_probability, state_covariances,
+                         max_pose_variance, max_pose_condition)
+    except MmsnapError:
+        raise
+    except _NUMERICAL_ERRORS as exc:
+        return _broken_down(graph, frames, init, x0, unreachable, exc)
+
+
+def _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, presolve,
+              max_iterations, outlier_probability, state_covariances, max_pose_variance,
+              max_pose_condition) -> JointCalibration:
+    """Solve, assess, and the result (the numerical part of
+    :func:`joint_calibration`)."""
+    active, ref = graph.active, graph.ref
     final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig, prior_sig,
                                       robust, k, presolve, max_iterations, outlier_probability)
     poses, states = graph.current(result)
     covs, state_covs, unobservable, notes = _assess(graph, final_graph, result, state_covariances,
-                                                    max_pose_variance, max_pose_condition)
+                                                    max_pose_variance, max_pose_condition,
+                                                    run["linear"])
     msg = _message(active, frames.size, run["outliers"], run["iterations"], notes, unobservable,
                    unreachable, ref)
     return JointCalibration(
@@ -445,6 +550,26 @@ def joint_calibration(
         success=not (unobservable or unreachable), message=msg, iterations=run["iterations"],
         initial_error=run["initial_error"], final_error=run["final_error"],
         unobservable=unobservable, unreachable=tuple(unreachable))
+
+
+def _broken_down(graph, frames, init, x0, unreachable, exc) -> JointCalibration:
+    """The result when the estimation broke down: the starting poses and
+    states, NaN covariances, ``success=False`` and the reason."""
+    active, ref = graph.active, graph.ref
+    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    if not isinstance(exc, _Breakdown):
+        reason = f"{type(exc).__name__}: {reason}"
+    nan3 = np.full((3, 3), np.nan)
+    return JointCalibration(
+        reference=ref, poses={n: np.asarray(init[n], dtype=float) for n in active},
+        covariances={n: (np.zeros((3, 3)) if n == ref else nan3.copy()) for n in active},
+        initial_poses={n: np.asarray(init[n], dtype=float) for n in active}, frames=frames,
+        states=np.asarray(x0, dtype=float), state_covariances=np.full((graph.f, 4, 4), np.nan),
+        outliers={n: np.zeros(graph.f, dtype=bool) for n in active}, success=False,
+        message=(f"joint calibration of {len(active)} nodes on {frames.size} frames failed: "
+                 f"{reason}"),
+        iterations=0, initial_error=float("nan"), final_error=float("nan"), unobservable={},
+        unreachable=tuple(unreachable))
 
 
 def _schur_covariances(graph, values, active, ref, pose_key, state_key, unobservable,

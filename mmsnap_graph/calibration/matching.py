@@ -30,6 +30,7 @@ from factors.models import detection_to_local
 from ..errors import CalibrationError, ValidationError
 from ..data.recording import NodeData
 from .._validation import as_float_array, check_finite, check_shape
+from .poses import pose_tangent_error
 from .closed_form import (
     DEFAULT_MIN_COMMON_FRAMES,
     DEFAULT_MIN_SPREAD_M,
@@ -245,6 +246,33 @@ def _choose_lag(fits, lag_min_improvement) -> int:
     return lag
 
 
+def _ambiguous_lags(fits, lag, lag_ambiguity) -> list[int]:
+    """The other lags that explain about as many frames (95%) with an inlier
+    RMSE within ``lag_ambiguity`` of the chosen lag's: the data do not tell
+    them apart (a walk along a circle: a time shift is a turn about its
+    centre, which the pose absorbs)."""
+    n, r = fits[lag][1].size, fits[lag][3]
+    return [L for L in fits if L != lag and fits[L][1].size >= 0.95 * n
+            and fits[L][3] <= (1.0 + lag_ambiguity) * r]
+
+
+def _widened(cal, lag, fits, ambiguous):
+    """Lower the confidence of an ambiguous lag: add the spread of the poses
+    of the competing lags (``d d^T`` per lag, body tangent) to the
+    covariance when they differ from the chosen pose by more than 3 sigma."""
+    cov = np.asarray(cal.covariance, dtype=float)
+    extra = np.zeros((3, 3))
+    for L in ambiguous:
+        d = pose_tangent_error(fits[L][0], cal.pose)
+        if d @ np.linalg.solve(cov, d) > 9.0:
+            extra += np.outer(d, d)
+    if not extra.any():
+        return cal
+    return replace(cal, covariance=cov + extra,
+                   message=(f"{cal.message}; lag ambiguous (lags {sorted(ambiguous)} fit about as "
+                            f"well with other poses): covariance widened by their spread"))
+
+
 def _majority_rows(pool, lag, ia, ib):
     """Keep the inlier rows of track pairs with most of their common frames
     inliers (one target); two targets that cross contribute a few only."""
@@ -252,9 +280,12 @@ def _majority_rows(pool, lag, ia, ib):
     common_pairs, common_counts = np.unique(np.stack([pool.ida[ja], pool.idb[jb]], axis=1),
                                             axis=0, return_counts=True)
     common = {(int(a), int(b)): int(n) for (a, b), n in zip(common_pairs, common_counts)}
-    in_pairs = np.stack([pool.ida[ia], pool.idb[ib]], axis=1)
-    keep = np.array([2 * np.sum(np.all(in_pairs == row, axis=1)) >= common[(int(row[0]), int(row[1]))]
-                     for row in in_pairs], dtype=bool) if ia.size else np.zeros(0, bool)
+    if not ia.size:
+        return ia, ib
+    in_pairs, inverse, in_counts = np.unique(np.stack([pool.ida[ia], pool.idb[ib]], axis=1),
+                                             axis=0, return_inverse=True, return_counts=True)
+    need = np.array([common[(int(a), int(b))] for a, b in in_pairs])
+    keep = (2 * in_counts >= need)[inverse.ravel()]
     return ia[keep], ib[keep]
 
 
@@ -263,7 +294,9 @@ def _failed(message, cands=()) -> TrackMatching:
                          success=False, message=message)
 
 
-def _validate(max_lag_frames, max_rmse_m, inlier_gate_m) -> None:
+def _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity=0.0) -> None:
+    if not lag_ambiguity >= 0:
+        raise ValidationError(f"lag_ambiguity must be >= 0, got {lag_ambiguity!r}")
     if int(max_lag_frames) < 0:
         raise ValidationError(f"max_lag_frames must be >= 0, got {max_lag_frames!r}")
     if not max_rmse_m > 0:
@@ -306,6 +339,7 @@ def match_tracks(
     inlier_gate_m: float = 0.5,
     covariance: str = "residual",
     lag_min_improvement: float = 0.05,
+    lag_ambiguity: float = 0.15,
 ) -> TrackMatching:
     """Match two nodes' local tracks and calibrate b in a's frame (module doc).
 
@@ -325,12 +359,18 @@ def match_tracks(
     lag_min_improvement : float
         A nonzero lag is reported only if its inlier RMSE is at least this
         fraction below lag 0's with at least 95% of its support.
+    lag_ambiguity : float
+        Other lags with 95% of the chosen lag's support and an inlier RMSE
+        within this fraction of its make the lag ambiguous (a walk along a
+        circle): the covariance is widened by the spread of their poses when
+        they differ from the chosen one by more than 3 sigma (issue 13: a
+        circular walk gave a pose 0.8 m off with a 0.08 m sigma).
 
     Returns a :class:`TrackMatching`; ``success=False`` (no calibration) when
     no pair has enough common frames of a moving target, or the best pose
     leaves a track RMSE above ``max_rmse_m``.
     """
-    _validate(max_lag_frames, max_rmse_m, inlier_gate_m)
+    _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity)
     ta, tb = tracks_a.split(), tracks_b.split()
     lags = range(-int(max_lag_frames), int(max_lag_frames) + 1)
     if not ta or not tb:
@@ -351,8 +391,11 @@ def match_tracks(
     if rmse > max_rmse_m:
         return _failed(f"no pair of tracks matches: the best track RMSE {rmse:.3g} m "
                        f"(lag {lag}) exceeds max_rmse_m={max_rmse_m}", cands)
+    ambiguous = _ambiguous_lags(fits, lag, lag_ambiguity)
     ia, ib = _majority_rows(pool, lag, ia, ib)
     if ia.size < 3:
         return _failed("no track pair has a majority of its common frames aligned by one pose",
                        cands)
-    return _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m)
+    matched = _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m)
+    cal = _widened(matched.calibration, lag, fits, ambiguous)
+    return replace(matched, calibration=cal, message=cal.message)

@@ -151,6 +151,8 @@ def _estimate_noise(pg, dets, options) -> MeasurementNoise:
     noise = _first_noise(pg, dets)
     for _ in range(2):
         first = joint_calibration(dets, noise=noise, **{**options, "motion": False})
+        if not first.success:
+            break  # no residuals to learn from: keep the last guess
         noise = residual_noise(first, dets, noise=noise)
     return noise
 
