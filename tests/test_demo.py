@@ -106,6 +106,9 @@ def test_one_shot_is_compared_on_common_frames(sample_result):
 #: (position RMSE m, velocity RMSE m/s). Upstream numerical changes (fusion,
 #: calibration) may move the last digits; the track-level fusion itself
 #: matches the old code exactly (test_track_level_fusion_is_ci_on_common_frames).
+#: The tolerance is 1e-3 relative: the joint calibration's Gauss-Newton refinement
+#: (issue 12) stops within solver tolerance of the old LM answer, which moves the
+#: C-straight ML velocity RMSE (an ill-posed, degenerate case) by 3e-4 relative.
 TABLE_III_TRACK_FUSION_300 = {
     ("A", "straight"): (298, (0.03730751398045166, 0.1283577057161325),
                         (0.03721791805417301, 0.1295403103335115)),
@@ -131,7 +134,7 @@ def test_table_iii_track_fusion_numbers_are_unchanged(sample_result):
         for name, ref in (("bayes", bayes), ("ml", ml)):
             e = f.vs_track_fusion[name]
             assert e.n_frames == n, (key, name)
-            assert (e.position_rmse_m, e.velocity_rmse_mps) == pytest.approx(ref, rel=1e-6), \
+            assert (e.position_rmse_m, e.velocity_rmse_mps) == pytest.approx(ref, rel=1e-3), \
                 (key, name)
 
 
