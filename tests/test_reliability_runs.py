@@ -61,10 +61,15 @@ def test_a_degenerate_detection_gets_a_group_of_its_own(bad):
 
 
 def test_tiny_sigmas_do_not_stop_the_association():
-    noise = MeasurementNoise(range_m=1e-300, omega_rad=1e-300, doppler_mps=1e-300)
+    # The smallest sigmas fusion accepts (fusion.problem.SIGMA_MIN = 1e-60).
+    noise = MeasurementNoise(range_m=1e-55, omega_rad=1e-55, doppler_mps=1e-55)
     assoc = associate_frame([np.array([[4.0, 0.2, 0.1]]), np.array([[4.5, -0.4, 0.2]])],
                             POSES, noise)
     assert len(assoc) == 2  # each alone: no usable position weight to gate with
+    # Sigmas below that are refused up front with a typed error (no LinAlgError).
+    with pytest.raises(MmsnapError, match="sigmas"):
+        associate_frame([np.array([[4.0, 0.2, 0.1]]), np.array([[4.5, -0.4, 0.2]])], POSES,
+                        MeasurementNoise(range_m=1e-300, omega_rad=1e-300, doppler_mps=1e-300))
 
 
 def test_group_detections_and_fuse_go_on_past_degenerate_centroids(good, tmp_path, capsys):
@@ -83,7 +88,12 @@ def test_group_detections_and_fuse_go_on_past_degenerate_centroids(good, tmp_pat
     assert main(["fuse", str(path), "--no-progress"]) == 0
     assert "flagged" in capsys.readouterr().out
     assert main(["fuse", str(good), "--no-progress", "-o", str(tmp_path / "s.h5"),
-                 "--sigmas", "1e-300", "1e-300", "1e-300"]) == 0
+                 "--sigmas", "1e-55", "1e-55", "1e-55"]) == 0
+    capsys.readouterr()
+    assert main(["fuse", str(good), "--no-progress", "-o", str(tmp_path / "t.h5"),
+                 "--sigmas", "1e-300", "1e-300", "1e-300"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "sigmas" in err and len(err.splitlines()) == 1
 
 
 # ---------------------------------------------------------------- finding 5
