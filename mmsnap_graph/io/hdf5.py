@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from .._atomic import atomic_path, recording_lock
 from .guard import H5_ERRORS, read_guard
 from ..errors import ConfigurationError, FileFormatError, MmsnapError
-from ..data.radar_config import RadarConfig
+from ..data.radar_config import OPTIONAL_FIELD_DEFAULTS, RadarConfig
 from ..data.recording import Detections, NodeData, Recording, Tracks, Truth
 
 __all__ = [
@@ -477,6 +477,11 @@ def _radar(obj: h5py.HLObject) -> RadarConfig:
             kw[key] = int(value)
         else:
             kw[key] = _attr_float(obj, key)
+    for key, default in OPTIONAL_FIELD_DEFAULTS.items():  # TI fields, written when set
+        if key in obj.attrs:
+            value = _attr(obj, key)
+            kw[key] = (tuple(np.atleast_1d(value).tolist()) if isinstance(default, list)
+                       else value.decode() if isinstance(value, bytes) else type(default)(value))
     try:
         return RadarConfig(**kw)
     except ConfigurationError as exc:
