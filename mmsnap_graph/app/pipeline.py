@@ -26,7 +26,7 @@ from ..data.radar_config import TABLE_I
 from ..data.recording import NodeData, Recording
 from ..errors import FileFormatError, ValidationError
 from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
-from ..radar.chain import ChainConfig, ChainResult, process_cubes
+from ..radar.chain import ChainConfig, ChainResult, process_cubes, unambiguous_speed_mps
 from ..radar.cluster import torso_centroids
 from ..tracking.ekf import EkfConfig, frames_to_step, track_centroids
 
@@ -86,8 +86,13 @@ def process_node(
         raise ValidationError(f"nodes[{node.name}] has no cube; use track_node for centroids")
     result = process_cubes(node.cube, node.radar, config, frames=node.cube_frame,
                            progress=progress, desc=f"{node.name} chain")
-    tracks = track_centroids(result.centroids, _ekf_for(ekf, frame_period_s),
-                             frames=_frames_span(node.cube_frame, ekf))
+    tracker = _ekf_for(ekf, frame_period_s)
+    if tracker.doppler_wrap_mps is None:
+        # The chain's Doppler is unambiguous only within +-U: the EKF wraps its
+        # Doppler innovation modulo 2 U (issue 14).
+        tracker = dataclasses.replace(
+            tracker, doppler_wrap_mps=unambiguous_speed_mps(node.radar, config))
+    tracks = track_centroids(result.centroids, tracker, frames=_frames_span(node.cube_frame, ekf))
     new = dataclasses.replace(node, point_cloud=result.point_cloud, centroids=result.centroids,
                               tracks=tracks)
     return new, NodeReport(name=node.name, level="cube", n_frames=int(node.cube.shape[0]),
