@@ -19,11 +19,8 @@ The result can be stored in the recording's HDF5 file as a ``/fused`` group
 
 from __future__ import annotations
 
-import json
-import os
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Literal, Mapping
 
 import numpy as np

@@ -32,7 +32,7 @@ from .._atomic import atomic_path
 from ..calibration import PoseEdge, RecordingCalibration
 from ..data.recording import Recording
 from ..errors import CalibrationError, FileFormatError, MmsnapError
-from .guard import H5_ERRORS, read_guard
+from .guard import H5_ERRORS, open_group
 from .hdf5 import update_recording
 
 __all__ = [
@@ -338,21 +338,11 @@ def read_calibration(path: str | os.PathLike) -> RecordingCalibration:
     results ``pose_graph`` and ``joint``). Raises :class:`FileFormatError`
     naming the missing group, dataset or attribute."""
     path = Path(path)
-    if not path.exists():
-        raise FileFormatError(f"{path} does not exist")
-    with read_guard(path):
+    with open_group(path, CALIBRATION_GROUP,
+                    f": /{CALIBRATION_GROUP} is missing (run mmsnap calibrate)") as group:
         try:
-            f = h5py.File(path, "r")
-        except H5_ERRORS as exc:
-            raise FileFormatError(f"{path} is not a readable HDF5 file: {exc}") from exc
-        with f:
-            if CALIBRATION_GROUP not in f:
-                raise FileFormatError(f"{path}: /{CALIBRATION_GROUP} is missing (run mmsnap "
-                                      "calibrate)")
-            try:
-                return _read_group(f[CALIBRATION_GROUP], f"{path}:/{CALIBRATION_GROUP}")
-            except (*H5_ERRORS, json.JSONDecodeError) as exc:
-                if isinstance(exc, MmsnapError):
-                    raise
-                raise FileFormatError(f"{path}:/{CALIBRATION_GROUP} is malformed: {exc}"
-                                      ) from exc
+            return _read_group(group, f"{path}:/{CALIBRATION_GROUP}")
+        except (*H5_ERRORS, json.JSONDecodeError) as exc:
+            if isinstance(exc, MmsnapError):
+                raise
+            raise FileFormatError(f"{path}:/{CALIBRATION_GROUP} is malformed: {exc}") from exc

@@ -20,7 +20,7 @@ import numpy as np
 from .._atomic import atomic_path, recording_lock
 from ..data.results import FusedSequence, Status
 from ..errors import FileFormatError, MmsnapError
-from .guard import H5_ERRORS, read_guard
+from .guard import H5_ERRORS, open_group, read_guard
 
 __all__ = ["FUSED_GROUP", "FUSED_LAYOUT", "FUSED_STATUSES", "write_fused", "read_fused"]
 
@@ -142,17 +142,10 @@ def read_fused(path: str | os.PathLike) -> FusedSequence:
     damaged or inconsistent group, dataset or attribute raises
     :class:`FileFormatError` naming the file and the field."""
     p = Path(path)
-    if not p.exists():
-        raise FileFormatError(f"{p} does not exist")
     with read_guard(p):
-        try:
-            f = h5py.File(p, "r")
-        except H5_ERRORS as exc:
-            raise FileFormatError(f"{p} is not a readable HDF5 file: {exc}") from exc
-        with f:
-            if FUSED_GROUP not in f:
-                raise FileFormatError(f"{p} has no /{FUSED_GROUP} group; run `mmsnap fuse` first")
-            fields = _read_fields(f[FUSED_GROUP], p)
+        with open_group(p, FUSED_GROUP,
+                        f" has no /{FUSED_GROUP} group; run `mmsnap fuse` first") as group:
+            fields = _read_fields(group, p)
         _check_lengths(fields, p)
         try:
             return FusedSequence(**fields)

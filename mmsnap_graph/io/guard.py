@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import contextlib
 import os
+from pathlib import Path
 from typing import Iterator
+
+import h5py
 
 from ..errors import FileFormatError, MmsnapError
 
-__all__ = ["H5_ERRORS", "read_guard"]
+__all__ = ["H5_ERRORS", "read_guard", "open_group"]
 
 #: What h5py and numpy raise on a damaged file.
 H5_ERRORS = (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, OverflowError,
@@ -34,3 +37,23 @@ def read_guard(path: str | os.PathLike) -> Iterator[None]:
         raise
     except H5_ERRORS as exc:
         raise FileFormatError(f"{name} is damaged: {type(exc).__name__}: {exc}") from exc
+
+
+@contextlib.contextmanager
+def open_group(path: str | os.PathLike, name: str, missing: str) -> Iterator[h5py.Group]:
+    """The group ``/name`` of the HDF5 file at ``path``, open for reading,
+    inside :func:`read_guard`. A missing file or group, or a file h5py cannot
+    open, raises :class:`FileFormatError` naming the file (``missing`` is the
+    message's tail for a missing group, e.g. "has no /fused group; ...")."""
+    path = Path(path)
+    if not path.exists():
+        raise FileFormatError(f"{path} does not exist")
+    with read_guard(path):
+        try:
+            f = h5py.File(path, "r")
+        except H5_ERRORS as exc:
+            raise FileFormatError(f"{path} is not a readable HDF5 file: {exc}") from exc
+        with f:
+            if name not in f:
+                raise FileFormatError(f"{path}{missing}")
+            yield f[name]

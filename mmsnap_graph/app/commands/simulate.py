@@ -6,7 +6,6 @@ import argparse
 import shutil
 import sys
 import tempfile
-from pathlib import Path
 
 import numpy as np
 
