@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import ValidationError
 
-__all__ = ["as_float_array", "check_finite", "check_positive", "check_shape", "frozen_vector"]
+__all__ = ["as_float_array", "check_finite", "check_positive", "check_shape", "frozen_vector", "int_array"]
 
 
 def as_float_array(value: ArrayLike, name: str) -> NDArray:
@@ -63,3 +63,15 @@ def frozen_vector(value: ArrayLike, name: str, length: int) -> NDArray:
     arr = np.array(arr, dtype=float)
     arr.setflags(write=False)
     return arr
+
+
+def int_array(value: ArrayLike, name: str) -> NDArray:
+    """A 1-D int64 copy of ``value``; floats must hold whole numbers. Raises
+    :class:`ValidationError` naming ``name``."""
+    arr = np.asarray(value)
+    if arr.ndim != 1:
+        raise ValidationError(f"{name} must be 1-D, got shape {arr.shape}")
+    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+        if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
+            raise ValidationError(f"{name} must hold integers, got dtype {arr.dtype}")
+    return arr.astype(np.int64)

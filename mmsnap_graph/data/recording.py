@@ -22,19 +22,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ValidationError
 from .radar_config import RadarConfig
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_finite, int_array
 
 __all__ = ["Detections", "Tracks", "NodeData", "Truth", "Recording"]
 
-
-def _int_array(value: ArrayLike, name: str) -> NDArray:
-    arr = np.asarray(value)
-    if arr.ndim != 1:
-        raise ValidationError(f"{name} must be 1-D, got shape {arr.shape}")
-    if arr.size and not np.issubdtype(arr.dtype, np.integer):
-        if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
-            raise ValidationError(f"{name} must hold integers, got dtype {arr.dtype}")
-    return arr.astype(np.int64)
 
 
 def _column(value: ArrayLike, name: str, n: int, *, finite: bool = True) -> NDArray:
@@ -62,7 +53,7 @@ class Detections:
     target_id: NDArray | None = None
 
     def __post_init__(self) -> None:
-        frame = _int_array(self.frame, "frame")
+        frame = int_array(self.frame, "frame")
         n = frame.shape[0]
         object.__setattr__(self, "frame", frame)
         for name in ("range_m", "omega_rad", "doppler_mps"):
@@ -70,7 +61,7 @@ class Detections:
         if self.snr_db is not None:
             object.__setattr__(self, "snr_db", _column(self.snr_db, "snr_db", n))
         if self.target_id is not None:
-            tid = _int_array(self.target_id, "target_id")
+            tid = int_array(self.target_id, "target_id")
             if tid.shape != (n,):
                 raise ValidationError(f"target_id must have shape ({n},), got {tid.shape}")
             object.__setattr__(self, "target_id", tid)
@@ -120,9 +111,9 @@ class Tracks:
     covariance: NDArray
 
     def __post_init__(self) -> None:
-        frame = _int_array(self.frame, "frame")
+        frame = int_array(self.frame, "frame")
         n = frame.shape[0]
-        tid = _int_array(self.track_id, "track_id")
+        tid = int_array(self.track_id, "track_id")
         if tid.shape != (n,):
             raise ValidationError(f"track_id must have shape ({n},) like frame, got {tid.shape}")
         state = check_finite(as_float_array(self.state, "state"), "state")
@@ -201,7 +192,7 @@ class NodeData:
                     f"nodes[{self.name}].cube must have shape (F, {', '.join(map(str, self.radar.cube_shape))}) "
                     f"for its radar configuration, got {cube.shape}")
             frames = (np.arange(cube.shape[0]) if self.cube_frame is None
-                      else _int_array(self.cube_frame, f"nodes[{self.name}].cube_frame"))
+                      else int_array(self.cube_frame, f"nodes[{self.name}].cube_frame"))
             if frames.shape != (cube.shape[0],):
                 raise ValidationError(f"nodes[{self.name}].cube_frame must have shape "
                                       f"({cube.shape[0]},), got {frames.shape}")
@@ -223,9 +214,9 @@ class Truth:
     node_poses: Mapping[str, NDArray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        frame = _int_array(self.frame, "truth.frame")
+        frame = int_array(self.frame, "truth.frame")
         n = frame.shape[0]
-        tid = _int_array(self.target_id, "truth.target_id")
+        tid = int_array(self.target_id, "truth.target_id")
         if tid.shape != (n,):
             raise ValidationError(f"truth.target_id must have shape ({n},), got {tid.shape}")
         state = check_finite(as_float_array(self.state, "truth.state"), "truth.state")

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.projection import project_to_plane, room_to_sensor
-from .._validation import as_float_array
+from .._validation import as_float_array, int_array
 from ..data.recording import Detections, NodeData, Recording
 from ..errors import ValidationError
 
@@ -26,15 +26,6 @@ __all__ = ["PointCloud3D", "Mounting", "cloud_to_detections", "recording_from_po
 
 _COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
 
-
-def _ints(value: ArrayLike, name: str) -> NDArray:
-    arr = np.asarray(value)
-    if arr.ndim != 1:
-        raise ValidationError(f"{name} must be 1-D, got shape {arr.shape}")
-    if arr.size and not np.issubdtype(arr.dtype, np.integer):
-        if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
-            raise ValidationError(f"{name} must hold integers, got {arr.dtype}")
-    return arr.astype(np.int64)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -59,7 +50,7 @@ class PointCloud3D:
     frames: NDArray | None = None
 
     def __post_init__(self) -> None:
-        frame = _ints(self.frame, "frame")
+        frame = int_array(self.frame, "frame")
         n = frame.shape[0]
         object.__setattr__(self, "frame", frame)
         for name in _COLUMNS + ("snr_db", "noise_db", "time_s"):
@@ -74,7 +65,7 @@ class PointCloud3D:
                 raise ValidationError(f"{name} must be finite; point {bad} (frame "
                                       f"{frame[bad]}) holds {arr[bad]!r}")
             object.__setattr__(self, name, arr)
-        frames = np.unique(frame) if self.frames is None else _ints(self.frames, "frames")
+        frames = np.unique(frame) if self.frames is None else int_array(self.frames, "frames")
         missing = np.setdiff1d(frame, frames)
         if missing.size:
             raise ValidationError(f"frames lacks frame numbers {missing[:5].tolist()} of points")
