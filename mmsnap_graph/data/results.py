@@ -328,6 +328,24 @@ class FusedSequence:
         return rows[np.argsort(self.frame[rows], kind="stable")]
 
 
+def _spd_inverse(cov: NDArray) -> NDArray:
+    """Inverses of symmetric matrices ``(K, D, D)``; NaN for a matrix that is
+    not positive definite (or too ill-conditioned to invert)."""
+    try:
+        # The common case, every matrix positive definite: one batched
+        # Cholesky checks it (a failure anywhere fails the whole stack).
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        # Eigendecomposition: a row that is not positive definite becomes NaN.
+        w, v = np.linalg.eigh(cov)
+        pd = np.all(w > 0.0, axis=1) & (w[:, 0] > 1e-14 * np.abs(w[:, -1]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.einsum("kij,kj,klj->kil", v, 1.0 / w, v)
+        inv[~pd] = np.nan
+        return inv
+    return np.linalg.inv(cov)
+
+
 def measurement_information(state, covariance, prior_mean=None, prior_sigmas=None
                             ) -> tuple[NDArray, NDArray]:
     """The prior-free information form of fused estimates.
@@ -363,16 +381,10 @@ def measurement_information(state, covariance, prior_mean=None, prior_sigmas=Non
     vec = np.full((k, 4), np.nan)
     ok = np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.isfinite(x), axis=1)
     if np.any(ok):
-        # Symmetric eigendecomposition: batched, and a row that is not
-        # positive definite becomes NaN instead of failing the whole stack.
-        w, v = np.linalg.eigh(0.5 * (cov[ok] + np.swapaxes(cov[ok], -1, -2)))
-        pd = np.all(w > 0.0, axis=1) & (w[:, 0] > 1e-14 * np.abs(w[:, -1]))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = np.einsum("kij,kj,klj->kil", v, 1.0 / w, v)
-        inv[~pd] = np.nan
         rows = np.flatnonzero(ok)
+        inv = _spd_inverse(0.5 * (cov[rows] + np.swapaxes(cov[rows], -1, -2)))
         info[rows] = inv
-        vec[rows] = np.einsum("kij,kj->ki", inv, x[ok])
+        vec[rows] = np.einsum("kij,kj->ki", inv, x[rows])
     if prior_sigmas is not None:
         p0 = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
         m0 = np.zeros(4) if prior_mean is None else np.asarray(prior_mean, dtype=float)
