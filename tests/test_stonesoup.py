@@ -105,7 +105,8 @@ def test_detections_carry_time_stamps_and_the_reindexed_covariance(fused_file):
     np.testing.assert_allclose(d.measurement_model.covar(), c)
     # (x, vx, y, vy): the x-vx cross term is ours [0, 2].
     assert c[0, 1] == fused.covariance[i][0, 2] and c[1, 2] == fused.covariance[i][2, 1]
-    assert d.measurement_model.ndim_state == 4 and tuple(d.measurement_model.mapping) == (0, 1, 2, 3)
+    assert d.measurement_model.ndim_state == 4
+    assert tuple(d.measurement_model.mapping) == (0, 1, 2, 3)
     # An explicit start time and the recording's wall-clock origin.
     start = dt.datetime(2026, 1, 2, 3, 4, 5)
     assert fused_detections(fused, start_time=start)[0][0] == start + dt.timedelta(

@@ -31,7 +31,8 @@ _FUSED_VERSION = "1.1"
 
 #: The ``/fused`` group, for docs/FORMAT.md (the tests check that it is quoted there). K rows = one per fused target per frame.
 FUSED_LAYOUT = """\
-/fused                 attrs: format_version = "1.1" (1.0: no time_s, information), mode = "map" | "ml",
+/fused                 attrs: format_version = "1.1" (1.0: without time_s and information),
+                              mode = "map" | "ml",
                               covariance_method = "laplace" | "grid",
                               solver = "batch" | "gtsam",
                               node_order (str array, N), node_poses (N, 3) [x_m, y_m, phi_rad],

@@ -70,7 +70,8 @@ def format_metrics(m: dict, path: str) -> str:
                          f"{_f(row['velocity_rmse_mps']):>16} {'':>28}")
     if fu is not None and fu["nees"].get("passed") is True:
         lo, hi = fu["nees"]["interval_95"]
-        lines.append(f"NEES check passed: mean {fu['nees']['mean']:.2f} inside ({lo:.2f}, {hi:.2f})")
+        lines.append(f"NEES check passed: mean {fu['nees']['mean']:.2f} inside "
+                     f"({lo:.2f}, {hi:.2f})")
     for failure in m.get("failed_checks", []):
         lines.append(f"FAILED: {failure}")
     for n in m["notes"]:
