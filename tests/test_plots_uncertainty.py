@@ -33,7 +33,8 @@ def _render(fig):
 
 
 def _colorbar_labels(fig) -> list[str]:
-    return [ax.get_ylabel() for ax in fig.axes if getattr(ax, "_colorbar", None) is not None]
+    # matplotlib labels the axes it makes for a colour bar "<colorbar>".
+    return [ax.get_ylabel() for ax in fig.axes if ax.get_label() == "<colorbar>"]
 
 
 def _legend_texts(ax) -> list[str]:
