@@ -6,8 +6,8 @@ Everything :mod:`mmsnap_graph.fusion.oneshot` (GTSAM) and
 - validation at the public boundary: :func:`validate_frame` (with
   :func:`check_poses`, :func:`check_observed`), :func:`check_noise`,
   :func:`check_node_noise` (one noise or one per node, docs/CONVENTIONS.md,
-  "Per-node noise"), :func:`check_pose_covariances` ("Calibration-aware
-  fusion"), :func:`check_prior`, :func:`check_initial_state`;
+  "Per-node noise"), :func:`check_pose_covariances` (docs/CONVENTIONS.md,
+  "Calibration-aware fusion"), :func:`check_prior`, :func:`check_initial_state`;
 - initial states (docs/CONVENTIONS.md, "Initial values"): :func:`initial_state`
   (one frame, validated), :func:`initial_states` (``F`` frames, vectorized),
   :func:`frame_initial_state` (one validated frame in plain floats, the

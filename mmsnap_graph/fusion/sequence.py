@@ -11,7 +11,8 @@ and a message), never raised.
 Two solvers give the same answers (the tests compare them):
 ``"batch"`` (:func:`mmsnap_graph.fusion.batch.fuse_batch`, vectorized over frames)
 and ``"gtsam"`` (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`, one factor graph per
-frame).
+frame); with ``pose_covariances`` their covariances differ by a few percent
+(docs/CONVENTIONS.md, "Calibration-aware fusion").
 
 The result can be stored in the recording's HDF5 file as a ``/fused`` group
 (:func:`mmsnap_graph.io.fused.write_fused`, :func:`mmsnap_graph.io.fused.read_fused`).
@@ -436,10 +437,10 @@ def fuse_recording(
         chi-square gate (``FusedSequence.rejected``), ``"huber"`` /
         ``"cauchy"`` down-weight it.
     pose_covariances : mapping name -> (3, 3), optional
-        Calibration-aware fusion (docs/CONVENTIONS.md, "Calibration-aware
-        fusion"): each node pose's covariance in the Pose2 body tangent (the
-        calibration's marginals); a node left out (or all NaN / all zero) has
-        an exact pose. The estimates do not change; their covariances include
+        Calibration-aware fusion (docs/CONVENTIONS.md,
+        "Calibration-aware fusion"): each node pose's covariance in the Pose2
+        body tangent (the calibration's marginals); a node left out (or all
+        NaN / all zero) has an exact pose. The estimates do not change; their covariances include
         the poses' (:func:`~mmsnap_graph.fusion.batch.fuse_batch`,
         :func:`~mmsnap_graph.fusion.oneshot.fuse_frame`). Needs
         ``covariance="laplace"``.
