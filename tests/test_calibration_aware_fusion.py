@@ -69,7 +69,8 @@ def _frames(rng, n_frames, poses=POSES_BC, noises=(PAPER_NOISE,) * 3):
     "pose_cov, match",
     [
         (np.zeros((2, 3, 3)), r"pose_covariances must have shape \(3, 3, 3\)"),
-        (np.stack([np.eye(3)] * 2 + [-np.eye(3)]), r"pose_covariances\[2\] must be positive definite"),
+        (np.stack([np.eye(3)] * 2 + [-np.eye(3)]),
+         r"pose_covariances\[2\] must be positive definite"),
         (np.stack([np.eye(3), np.eye(3) + np.triu(np.ones((3, 3)), 1), np.eye(3)]),
          r"pose_covariances\[1\] must be symmetric"),
         (np.stack([np.eye(3), np.eye(3), np.where(np.eye(3) > 0, np.nan, 0.0)]),
@@ -276,7 +277,8 @@ def test_fuse_recording_passes_pose_covariances_by_name(recording_3):
     sig = np.sqrt(np.einsum("fii->fi", fb.covariance[ok]))
     gap = np.abs(fb.covariance[ok] - fg.covariance[ok]) / (sig[:, :, None] * sig[:, None, :])
     assert gap.max() < GTSAM_BATCH_TOLERANCE
-    with pytest.raises(ValidationError, match=r"pose_covariances\['S2'\] must be positive definite"):
+    with pytest.raises(ValidationError,
+                       match=r"pose_covariances\['S2'\] must be positive definite"):
         fuse_recording(recording_3, pose_covariances={"S2": -np.eye(3)})
     with pytest.raises(ValidationError, match="must be a mapping"):
         fuse_recording(recording_3, pose_covariances=POSE_COV)

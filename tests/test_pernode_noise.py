@@ -183,7 +183,8 @@ def test_per_node_noise_nees_in_band_and_a_shared_noise_out_of_band():
     def nees(noise):
         res = fuse_batch(POSES_BC, z, noise=noise)
         e = (res.state - states)[res.success]
-        return float(np.mean(np.einsum("fi,fij,fj->f", e, np.linalg.inv(res.covariance[res.success]), e)))
+        info = np.linalg.inv(res.covariance[res.success])
+        return float(np.mean(np.einsum("fi,fij,fj->f", e, info, e)))
 
     per_node = nees(NOISES)
     shared = nees(MeasurementNoise(range_m=SIGMAS[:, 0].mean(), omega_rad=SIGMAS[:, 1].mean(),

@@ -24,7 +24,11 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.gtsam_factors import measurement_noise, node_measurement_factor, pose_measurement_factor
+from factors.gtsam_factors import (
+    measurement_noise,
+    node_measurement_factor,
+    pose_measurement_factor,
+)
 
 from ..data.noise import GaussianPrior, MeasurementNoise
 

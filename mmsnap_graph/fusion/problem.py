@@ -405,7 +405,7 @@ def initial_states(
     observed: ArrayLike | None = None,
     prior: GaussianPrior | None = GaussianPrior(),
     *,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
 ) -> NDArray:
     """Initial values of docs/CONVENTIONS.md for ``F`` frames at once (no validation).
 
@@ -517,7 +517,7 @@ def _solve_2x2_min_norm(a: NDArray, b: NDArray) -> NDArray:
 
 def frame_initial_state(
     poses: NDArray, z: NDArray, obs: NDArray | None, prior: GaussianPrior | None,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
 ) -> list[float]:
     """:func:`initial_states` for one validated frame, in plain floats (the
     per-frame hot path; the tests check it against the vectorized form).
@@ -607,7 +607,7 @@ def check_initial_state(initial_state: ArrayLike, poses: NDArray, obs: NDArray |
 
 def checked_initial_state(
     poses: NDArray, z: NDArray, obs: NDArray | None, prior: GaussianPrior | None,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
 ) -> NDArray:
     """:func:`frame_initial_state` as a (4,) array; raises GeometryError when it
     is not finite (the average detection on a node)."""
@@ -627,7 +627,7 @@ def initial_state(
     observed: ArrayLike | None = None,
     prior: GaussianPrior | None = GaussianPrior(),
     *,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
 ) -> NDArray:
     """Initial state of one frame (docs/CONVENTIONS.md, "Initial values"); (4,) float.
 
@@ -635,7 +635,8 @@ def initial_state(
     measurements : (N, 3) float, ``(range_m, omega_rad, doppler_mps)``.
     observed : (N,) bool or None (all observed).
     prior : :class:`GaussianPrior` regularizing the velocity, or None.
-    noise : :class:`MeasurementNoise` (its Doppler sigma weighs the prior).
+    noise : :class:`MeasurementNoise` (its Doppler sigma weighs the prior), or
+        one per node (each Doppler equation weighted by its own sigma).
 
     Raises :class:`~mmsnap_graph.errors.GeometryError` when the average
     detection lands on a node's position (its line of sight is undefined).

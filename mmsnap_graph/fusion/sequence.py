@@ -440,8 +440,9 @@ def fuse_recording(
         Calibration-aware fusion (docs/CONVENTIONS.md,
         "Calibration-aware fusion"): each node pose's covariance in the Pose2
         body tangent (the calibration's marginals); a node left out (or all
-        NaN / all zero) has an exact pose. The estimates do not change; their covariances include
-        the poses' (:func:`~mmsnap_graph.fusion.batch.fuse_batch`,
+        NaN / all zero) has an exact pose. The estimates do not change;
+        ``covariance`` and ``laplace_covariance`` include the poses'
+        (:func:`~mmsnap_graph.fusion.batch.fuse_batch`,
         :func:`~mmsnap_graph.fusion.oneshot.fuse_frame`). Needs
         ``covariance="laplace"``.
     """
