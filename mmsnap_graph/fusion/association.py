@@ -29,7 +29,7 @@ from factors.models import detection_covariance_global, detection_to_global
 from ..errors import ValidationError
 from .._validation import as_float_array, check_finite
 from ..data.noise import MeasurementNoise
-from .problem import check_noise
+from .problem import check_node_noise
 
 __all__ = [
     "FrameAssociation",
@@ -182,7 +182,7 @@ def _assign(groups: _Groups, pos: NDArray, cov: NDArray, ok: NDArray, gate: floa
 def associate_frame(
     measurements: Sequence[ArrayLike],
     node_poses: ArrayLike,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
     *,
     gate_probability: float = 0.999,
 ) -> FrameAssociation:
@@ -195,9 +195,10 @@ def associate_frame(
         (K_n may be 0).
     node_poses : (N, 3) float
         Calibrated poses in the global frame.
-    noise : MeasurementNoise
-        Measurement sigmas (default the paper's); they set the position
-        covariances and so the gate.
+    noise : MeasurementNoise or sequence of N MeasurementNoise
+        Measurement sigmas (default the paper's), one for every node or one
+        per node (docs/CONVENTIONS.md, "Per-node noise"); each node's set its
+        detections' position covariances and so the gate.
     gate_probability : float
         Probability mass inside the gate (chi-square, 2 dof) of two detections
         of the same target.
@@ -218,7 +219,7 @@ def associate_frame(
         raise ValidationError(
             f"measurements has {len(measurements)} nodes but node_poses has {poses.shape[0]}"
         )
-    check_noise(noise)
+    noise = check_node_noise(noise, poses.shape[0])
     gate = gate_threshold(gate_probability)
     groups = _Groups(poses.shape[0])
     for n in range(poses.shape[0]):
@@ -229,7 +230,7 @@ def associate_frame(
             continue
         with np.errstate(all="ignore"):
             pos = detection_to_global(z[:, 0], z[:, 1], poses[n])
-            cov = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise)
+            cov = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise[n])
         info, ok = detection_information(cov)
         assigned = _assign(groups, pos, cov, ok, gate)
         for k in range(z.shape[0]):
