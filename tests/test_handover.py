@@ -130,7 +130,9 @@ def test_time_stamps_of_a_time_stamped_recording(recording, fused_map, tmp_path)
     rec = dataclasses.replace(recording, frame_period_s=0.05,
                               metadata={**recording.metadata, "time_origin_s": 1.7e9 + 0.25})
     write_recording(path, rec)
-    write_fused(path, fused_map)
+    # A sequence without a clock of its own takes the file's.
+    write_fused(path, dataclasses.replace(fused_map, time_s=None, frame_period_s=None,
+                                          time_origin_s=None))
     back = read_fused(path)
     assert back.time_origin_s == pytest.approx(1.7e9 + 0.25)
     np.testing.assert_allclose(back.time_s, fused_map.frame * 0.05)
@@ -207,3 +209,18 @@ def test_failed_checks_of_an_under_confident_covariance(recording, fused_map):
     assert m["fused"]["nees"]["passed"] is False
     assert m["failed_checks"] == failed_checks(m) and "under-confident" in m["failed_checks"][0]
     assert failed_checks({"fused": None}) == []
+
+
+def test_fuse_recording_carries_the_recording_clock():
+    """In memory too (not only through write_fused): time_s = frame x period,
+    and the wall-clock origin of a time-stamped recording."""
+    import dataclasses
+
+    from mmsnap_graph import fuse_recording, simulate_recording
+    rec = simulate_recording("B", levels=("centroids",), n_frames=12, known_poses=True,
+                             frame_period_s=0.05)
+    fused = fuse_recording(rec)
+    np.testing.assert_allclose(fused.time_s, fused.frame * 0.05)
+    assert fused.frame_period_s == 0.05 and fused.time_origin_s is None
+    stamped = dataclasses.replace(rec, metadata={**rec.metadata, "time_origin_s": 1.7e9})
+    assert fuse_recording(stamped).time_origin_s == 1.7e9

@@ -505,4 +505,15 @@ def _sequence(recording, poses, groups, out, chosen, *, mode, covariance, solver
         gate_probability=float(gate_probability),
         rejected=out.rejected,
         robust=robust,
+        frame_period_s=recording.frame_period_s,
+        time_origin_s=_time_origin(recording.metadata),
     )
+
+
+def _time_origin(metadata) -> float | None:
+    """The recording's wall-clock origin (Unix seconds of time 0), if valid."""
+    try:
+        value = float(metadata.get("time_origin_s"))
+    except (AttributeError, TypeError, ValueError):
+        return None
+    return value if np.isfinite(value) else None
