@@ -10,8 +10,11 @@ took its frame ``k`` at reference time ``k T + tau``.
 from __future__ import annotations
 
 import dataclasses
+import json
+from typing import Mapping
 
 import gtsam
+import h5py
 import numpy as np
 import pytest
 from gtsam.utils.numerical_derivative import (
@@ -29,11 +32,20 @@ from factors.gtsam_factors import (
     state_prior_factor,
     timed_pose_measurement_factor,
 )
-from mmsnap_graph.calibration import joint_calibration
+from mmsnap_graph.calibration import RecordingCalibration, joint_calibration
 from mmsnap_graph.calibration.presolve import normal_equations, shifted_states
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
-from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.errors import CalibrationError, ValidationError
+from mmsnap_graph.io import write_recording
+from mmsnap_graph.io.calibration import (
+    calibration_to_json,
+    load_time_offsets,
+    read_calibration,
+    read_calibration_json,
+    write_calibration,
+    write_calibration_json,
+)
 from mmsnap_graph.fusion.timing import align_detections, align_recording, split_offset
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.clocks import timed_scene, trajectory_function
@@ -267,3 +279,54 @@ def test_align_recording_moves_only_the_offset_nodes_centroids():
     with pytest.raises(ValidationError, match="method"):
         align_detections(rec.nodes["S2"].centroids, 0.1, T, method="spline")
     assert dataclasses.replace(rec) is not rec
+
+
+# ------------------------------------------------------------------ storage
+@dataclasses.dataclass(frozen=True, kw_only=True, slots=True)
+class _TimedCalibration(RecordingCalibration):
+    """RecordingCalibration with the clock-offset fields the lead adds."""
+
+    time_offset_s: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    time_offset_variances: Mapping[str, float] = dataclasses.field(default_factory=dict)
+
+
+def _timed_calibration(**timing):
+    return _TimedCalibration(
+        reference="S1", node_names=("S1", "S2"),
+        poses={"S1": np.zeros(3), "S2": np.array([0.1, 6.9, 3.1])},
+        covariances={"S1": np.zeros((3, 3)), "S2": np.eye(3) * 1e-4},
+        lag_frames={"S1": 0, "S2": 1}, unreachable=(), edges=(), method="joint",
+        source="centroids", success=True, message="", **timing)
+
+
+def test_time_offsets_round_trip_through_json_and_hdf5(tmp_path):
+    cal = _timed_calibration(time_offset_s={"S1": 0.0, "S2": -0.09},
+                             time_offset_variances={"S1": 0.0, "S2": 2.5e-5})
+    data = calibration_to_json(cal)
+    assert data["nodes"]["S2"]["time_offset_s"] == -0.09
+    assert data["nodes"]["S2"]["time_offset_variance_s2"] == 2.5e-5
+    assert load_time_offsets(data) == ({"S1": 0.0, "S2": -0.09}, {"S1": 0.0, "S2": 2.5e-5})
+    write_calibration_json(tmp_path / "cal.json", cal)
+    assert load_time_offsets(tmp_path / "cal.json")[0] == {"S1": 0.0, "S2": -0.09}
+    rec = simulate_recording("B", "straight", levels=("centroids",), n_frames=20, seed=2)
+    write_recording(tmp_path / "rec.h5", rec)
+    write_calibration(tmp_path / "rec.h5", rec, cal)
+    offsets, variances = load_time_offsets(tmp_path / "rec.h5")
+    assert offsets == {"S1": 0.0, "S2": -0.09} and variances == {"S1": 0.0, "S2": 2.5e-5}
+    with h5py.File(tmp_path / "rec.h5", "r") as f:
+        assert_allclose(f["calibration/time_offset_s"][()], [0.0, -0.09])
+    # Older files: no offsets -> 0, variance NaN; the readers still work.
+    old = json.loads(json.dumps(data))
+    for entry in old["nodes"].values():
+        del entry["time_offset_s"], entry["time_offset_variance_s2"]
+    offsets, variances = load_time_offsets(old)
+    assert offsets == {"S1": 0.0, "S2": 0.0} and np.isnan(variances["S2"])
+    assert read_calibration_json(old).poses.keys() == {"S1", "S2"}
+    with h5py.File(tmp_path / "rec.h5", "a") as f:
+        del f["calibration/time_offset_s"], f["calibration/time_offset_variance_s2"]
+    assert load_time_offsets(tmp_path / "rec.h5")[0] == {"S1": 0.0, "S2": 0.0}
+    assert read_calibration(tmp_path / "rec.h5").node_names == ("S1", "S2")
+    bad = json.loads(json.dumps(data))
+    bad["nodes"]["S2"]["time_offset_s"] = "late"
+    with pytest.raises(CalibrationError, match="time_offset_s"):
+        load_time_offsets(bad)

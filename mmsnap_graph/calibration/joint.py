@@ -422,10 +422,9 @@ def joint_calibration(
         with the poses (module doc, "Clock offsets"); the node's detection
         at frame ``k`` is of the state ``F(tau) x_k``.
     lag_frames : name -> the whole-frame lag already removed from the node's
-        frames (its frame ``k + lag`` is the reference's ``k``, as
-        :class:`~mmsnap_graph.calibration.PoseGraphCalibration`): it starts
-        the offset at ``-lag * frame_period_s`` and is part of the reported
-        ``time_offset_s``. Default: no lag.
+        frames (its frame ``k + lag`` is the reference's ``k``, as in
+        :class:`~mmsnap_graph.calibration.PoseGraphCalibration`): the offset
+        starts at ``-lag * frame_period_s``, part of ``time_offset_s``.
     state_prior_sigmas : (4,) sigmas of the zero-mean state prior.
     outlier_probability : a detection whose whitened squared residual exceeds
         the chi-square(3) ``1 - outlier_probability`` quantile is an outlier.
@@ -434,8 +433,7 @@ def joint_calibration(
         means that the pose is not determined: ``success=False``.
     max_pose_condition : so does an eigenvalue of a pose covariance more
         than this times its smallest (a standing target leaves S2 free to
-        turn about it, up to the faint hold of the velocity prior through the
-        Doppler: variances of 1e-6 against 0.2 in a test).
+        turn about it: variances of 1e-6 against 0.2 in a test).
     presolve : run the numpy pre-solve (:mod:`.presolve`, same models)
         before each GTSAM LM pass; LM then needs one or two iterations.
         False: LM from the closed form (slower, same optimum).
@@ -444,12 +442,9 @@ def joint_calibration(
     sigmas : deprecated: (3,) ``(range_m, omega_rad, doppler_mps)``, read as
         ``noise`` (DeprecationWarning); pass ``noise=MeasurementNoise(...)``.
 
-    Returns
-    -------
-    JointCalibration
+    Returns a :class:`JointCalibration`.
     """
-    if sigmas is not None:
-        noise = _noise_from_sigmas(sigmas)
+    noise = _noise_from_sigmas(sigmas) if sigmas is not None else noise
     dets = _detections_table(detections)
     names = list(dets)
     ref, sig, prior_sig = _validate(names, reference, noise, state_prior_sigmas, robust, motion,
@@ -458,18 +453,11 @@ def joint_calibration(
                       max_iterations, max_pose_variance, max_pose_condition)
     lags = _validate_timing(names, motion_robust, motion_robust_k, time_offsets, lag_frames,
                             frame_period_s)
-    frames, meas_f = _frame_table(dets, names, min_common_frames)
-    init, unreachable = _start_poses(meas_f, names, ref, initial_poses, min_common_frames,
-                                     min_spread_m)
-    active = [n for n in names if n not in unreachable]
-    frames, meas_f = _restrict(frames, meas_f, active, min_common_frames)
-    x0 = starting_states(meas_f, init, active, sig, prior_sig[2])
-    graph = JointGraph(meas_f, active, ref, prior_sig,
-                       motion_spec(frames, motion, frame_period_s, max_motion_gap_frames,
-                                   sigma_a_mps2, motion_robust if robust else None,
-                                   motion_robust_k),
-                       timed=active if time_offsets else ())
-    graph.lag_offsets = {n: -lags.get(n, 0) * float(frame_period_s or 0.0) for n in active}
+    frames, init, x0, unreachable, graph = _setup(
+        dets, names, ref, sig, prior_sig, initial_poses, min_common_frames, min_spread_m,
+        motion_spec_args=(motion, frame_period_s, max_motion_gap_frames, sigma_a_mps2,
+                          motion_robust if robust else None, motion_robust_k),
+        timed=time_offsets, lags=lags)
     k = None if robust is None else (robust_k if robust_k is not None else DEFAULT_ROBUST_K[robust])
     try:
         return _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, presolve,
@@ -479,6 +467,23 @@ def joint_calibration(
         raise
     except _NUMERICAL_ERRORS as exc:
         return _broken_down(graph, frames, init, x0, unreachable, exc)
+
+
+def _setup(dets, names, ref, sig, prior_sig, initial_poses, min_common_frames, min_spread_m,
+           motion_spec_args, timed, lags):
+    """Frames, starting poses and states, and the graph (the part of
+    :func:`joint_calibration` after validation)."""
+    frames, meas_f = _frame_table(dets, names, min_common_frames)
+    init, unreachable = _start_poses(meas_f, names, ref, initial_poses, min_common_frames,
+                                     min_spread_m)
+    active = [n for n in names if n not in unreachable]
+    frames, meas_f = _restrict(frames, meas_f, active, min_common_frames)
+    x0 = starting_states(meas_f, init, active, sig, prior_sig[2])
+    graph = JointGraph(meas_f, active, ref, prior_sig, motion_spec(frames, *motion_spec_args),
+                       timed=active if timed else ())
+    period = float(motion_spec_args[1] or 0.0)
+    graph.lag_offsets = {n: -lags.get(n, 0) * period for n in active}
+    return frames, init, x0, unreachable, graph
 
 
 def _validate_timing(names, motion_robust, motion_robust_k, time_offsets, lag_frames,

@@ -31,7 +31,7 @@ from .poses import pose_array, to_pose2
 from .presolve import motion_norms, shifted_states
 
 __all__ = ["MotionSpec", "motion_spec", "JointGraph", "flag_outliers", "flag_turns",
-           "exonerate_turns",
+           "exonerate_turns", "TURN_POSITION_SIGMA_M",
            "assess", "schur_covariances", "run_message"]
 
 
@@ -149,17 +149,27 @@ def flag_outliers(graph, poses, states, offsets, has, sig, outlier_probability):
     return outliers
 
 
-def _frame_velocity_fit(graph, poses, states, offsets, use, rows, sig, prior_sig, gn_steps):
-    """Each frame of ``rows`` fitted alone, its velocity only: Gauss-Newton
-    on its detections ``use`` at the given poses, offsets and positions (no
-    motion factors) from ``states``; the whitened squared residual and the
+#: Sigma (m) of the tie of a frame refitted alone (:func:`exonerate_turns`)
+#: to the robust pass's position: the motion factors cut an instant turn's
+#: corner by a few centimetres; a ghost's range is off by metres.
+TURN_POSITION_SIGMA_M = 0.05
+
+
+def _frame_refit(graph, poses, states, offsets, use, rows, sig, prior_sig, gn_steps):
+    """Each frame of ``rows`` fitted alone (no motion factors): Gauss-Newton
+    on its detections ``use`` at the given poses and offsets, from
+    ``states``, the velocity under the state prior and the position tied to
+    its value in ``states`` with sigma :data:`TURN_POSITION_SIGMA_M`.
+    Returns the whitened squared residual (the tie's included) and the
     number of detections per frame."""
     x = np.array(states[rows], dtype=float)
-    prior_w = 1.0 / np.asarray(prior_sig, dtype=float) ** 2
+    p0 = x[:, :2].copy()
+    w = 1.0 / np.asarray(prior_sig, dtype=float) ** 2
+    w[:2] = 1.0 / TURN_POSITION_SIGMA_M**2
     for step in range(gn_steps + 1):
-        a = np.tile(np.diag(prior_w), (rows.size, 1, 1))
-        b = -x * prior_w
-        chi = np.zeros(rows.size)
+        a = np.tile(np.diag(w), (rows.size, 1, 1))
+        b = -np.concatenate([x[:, :2] - p0, x[:, 2:]], axis=1) * w
+        chi = np.sum((x[:, :2] - p0) ** 2, axis=1) * w[0]
         count = np.zeros(rows.size, dtype=int)
         for n in graph.active:
             ok = use[n][rows]
@@ -173,7 +183,7 @@ def _frame_velocity_fit(graph, poses, states, offsets, use, rows, sig, prior_sig
             a[ok] += np.swapaxes(j, 1, 2) @ j
             b[ok] -= (np.swapaxes(j, 1, 2) @ e[:, :, None])[:, :, 0]
         if step < gn_steps:
-            x[:, 2:] += np.linalg.solve(a[:, 2:, 2:], b[:, 2:, None])[..., 0]
+            x = x + np.linalg.solve(a, b[..., None])[..., 0]
     return chi, count
 
 
@@ -181,25 +191,24 @@ def exonerate_turns(graph, poses, states, offsets, has, outliers, sig, prior_sig
                     outlier_probability, gn_steps=3):
     """Unflag the detections of the frames that a new velocity explains
     (issue 12, "sharp turns"). At an instant turn the motion factors smooth
-    the velocity across the turn, and every node's Doppler (and with it
-    its whole residual) misfits, although the detections agree with each
-    other and with the position; a ghost disagrees with the position (its
-    range is random). So a flagged frame is refitted alone, velocity only,
-    at the robust pass's position (:func:`_frame_velocity_fit`, no motion
-    factors): if its whitened squared residual is below the chi-square(3 m -
-    2) ``1 - outlier_probability`` quantile (m >= 2 detections), the motion
-    model misfit, not a detection, and none of its detections is an outlier.
-    Returns the new outliers and the indices of those frames (measured:
-    docs/CALIBRATION.md, "Sharp turns")."""
+    the velocity across the turn (and cut its corner by a few cm): every
+    node's residual misfits, mostly in Doppler, although the detections agree
+    with each other and with the track's position; a ghost disagrees with
+    the position (its range is random). So a flagged frame is refitted alone
+    (:func:`_frame_refit`: no motion factors, a free velocity, the position
+    tied to the robust pass's): if its whitened squared residual is below the
+    chi-square(3 m) ``1 - outlier_probability`` quantile (m >= 2 detections),
+    the motion model misfit, not a detection, and none of its detections is
+    an outlier. Returns the new outliers and the indices of those frames
+    (measured: docs/CALIBRATION.md, "Sharp turns")."""
     flagged = np.zeros(graph.f, dtype=bool)
     for n in graph.active:
         flagged |= outliers[n]
     rows = np.flatnonzero(flagged)
     if rows.size == 0:
         return outliers, rows
-    chi, count = _frame_velocity_fit(graph, poses, states, offsets, has, rows, sig, prior_sig,
-                                     gn_steps)
-    dof = 3 * count - 2
+    chi, count = _frame_refit(graph, poses, states, offsets, has, rows, sig, prior_sig, gn_steps)
+    dof = 3 * count
     ok = (count >= 2) & (chi <= chi2.ppf(1.0 - outlier_probability, dof))
     turn_frames = rows[ok]
     new = {}
