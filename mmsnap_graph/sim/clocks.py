@@ -22,13 +22,14 @@ from scipy.interpolate import CubicHermiteSpline
 from factors.models import detection_to_local, global_to_local, measurement_model, wrap_angle
 
 from ..data.noise import MeasurementNoise
+from ..data.recording import Detections, NodeData, Recording, Truth
 from ..errors import GeometryError, ValidationError
 from .scenes import SCENE_NOISE, SyntheticScene, target_trajectory
 from .networks import Area
 from .trajectories import random_walk
 from .turns import turning_walk
 
-__all__ = ["trajectory_function", "timed_scene"]
+__all__ = ["trajectory_function", "timed_scene", "scene_recording"]
 
 
 def trajectory_function(kind: Literal["random", "straight", "walk", "turns"], center_m: ArrayLike,
@@ -127,3 +128,24 @@ def timed_scene(poses: Mapping[str, ArrayLike], *, time_offsets_s: Mapping[str, 
     return SyntheticScene(poses=poses, frame=np.arange(t.size), truth=truth, measurements=meas,
                           local_points_m=local, ghost=ghost, noise=noise,
                           frame_period_s=frame_period_s)
+
+
+def scene_recording(scene: SyntheticScene) -> Recording:
+    """A :class:`Recording` of a scene's centroids (one per node per frame,
+    on each node's own frame clock), with the truth at the reference frame
+    times and the noise in the metadata (``centroid_*_std_*``, as the
+    simulator writes it), for :func:`~mmsnap_graph.calibration.calibrate_recording`
+    and :func:`~mmsnap_graph.fusion.sequence.fuse_recording`."""
+    nodes = {}
+    for name, z in scene.measurements.items():
+        det = Detections(frame=scene.frame, range_m=np.abs(z[:, 0]), omega_rad=z[:, 1],
+                         doppler_mps=z[:, 2], target_id=np.zeros(scene.frame.size, dtype=int))
+        nodes[name] = NodeData(name=name, centroids=det)
+    truth = Truth(frame=scene.frame, target_id=np.zeros(scene.frame.size, dtype=int),
+                  state=scene.truth, node_poses=dict(scene.poses))
+    metadata = {"generator": "mmsnap_graph.sim.clocks.timed_scene",
+                "centroid_range_std_m": scene.noise.range_m,
+                "centroid_omega_std_rad": scene.noise.omega_rad,
+                "centroid_doppler_std_mps": scene.noise.doppler_mps}
+    return Recording(frame_period_s=scene.frame_period_s, nodes=nodes, truth=truth,
+                     metadata=metadata)
