@@ -3,7 +3,8 @@ Gauss-Newton (IRLS under a kernel, Nielsen's damping update). Each linear
 solve eliminates the target states onto the poses: the state block is
 block-tridiagonal (the constant-velocity factors link consecutive frames
 only), so its banded Cholesky (7 sub-diagonals) is linear in frames, and the
-few pose unknowns come from their dense Schur complement (the earlier
+few pose unknowns come from their dense Schur complement (the clock
+offsets, when estimated, are one more unknown per node there; the earlier
 SuperLU solve of the whole sparse system grew faster than linearly and took
 86% of a 3-node x 600-frame calibration).
 
