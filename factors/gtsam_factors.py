@@ -12,7 +12,9 @@ numpy's per-call overhead on 3-vectors would cost ~10x the arithmetic. The measu
 Variables:
 
 - target state: a ``Vector4`` ``(x_m, y_m, vx_mps, vy_mps)`` (``values.atVector``);
-- node pose (calibration graphs only): a ``gtsam.Pose2``.
+- node pose (calibration graphs only): a ``gtsam.Pose2``;
+- node clock offset (calibration graphs only): a ``Vector1`` in seconds
+  (:func:`timed_pose_measurement_factor`).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ __all__ = [
     "frame_measurement_factor",
     "scalar_measurement_factor",
     "pose_measurement_factor",
+    "timed_pose_measurement_factor",
     "state_prior_factor",
     "constant_velocity_factor",
 ]
@@ -179,6 +182,51 @@ def pose_measurement_factor(
     return gtsam.CustomFactor(noise, [pose_key, state_key], fn)
 
 
+def _timed_pose_error(pose_key, state_key, offset_key, z, this, values, jacobians):
+    pose = values.atPose2(pose_key)
+    x, y, vx, vy = values.atVector(state_key).tolist()
+    tau = float(values.atVector(offset_key)[0])
+    phi = pose.theta()
+    c = math.cos(phi)
+    s = math.sin(phi)
+    # The state tau seconds later by the CV transition F(tau): the velocity
+    # is unchanged, the position moves by tau * v.
+    xs = x + tau * vx
+    ys = y + tau * vy
+    if jacobians is None:
+        r, w, v, _ = _model_scalar(xs, ys, vx, vy, pose.x(), pose.y(), c, s)
+    else:
+        r, w, v, jac, j_pose = _model_scalar(xs, ys, vx, vy, pose.x(), pose.y(), c, s, True)
+        j = np.array(jac).reshape(3, 4)  # d h / d (F(tau) x)
+        j_state = j.copy()  # times F(tau): d/dvx += tau d/dx, d/dvy += tau d/dy
+        j_state[:, 2] += tau * j[:, 0]
+        j_state[:, 3] += tau * j[:, 1]
+        jacobians[0] = np.array(j_pose).reshape(3, 3)
+        jacobians[1] = j_state
+        jacobians[2] = (j[:, 0] * vx + j[:, 1] * vy).reshape(3, 1)
+    return np.array((r - z[0], _wrap_scalar(w - z[1]), v - z[2]))
+
+
+def timed_pose_measurement_factor(
+    pose_key: int, state_key: int, offset_key: int, measurement: ArrayLike,
+    noise: gtsam.noiseModel.Base,
+) -> gtsam.CustomFactor:
+    """Measurement factor of a node with an unknown ``Pose2`` and an unknown
+    clock offset ``tau`` (a ``Vector1`` in seconds) on the target state at
+    the reference time of the measurement's frame (clock offsets in the
+    joint calibration graph).
+
+    The node measured at reference time ``t_k + tau`` (node time + offset =
+    reference time): the prediction is ``h(F(tau) x_k, pose)`` with ``F`` the
+    constant-velocity transition (:func:`factors.motion.cv_transition`).
+    Jacobians: pose in GTSAM's body-frame tangent, state ``J F(tau)``, offset
+    ``J[:, :2] v`` (``J`` the model's state Jacobian at ``F(tau) x_k``).
+    """
+    fn = partial(_timed_pose_error, pose_key, state_key, offset_key,
+                 tuple(np.asarray(measurement, dtype=float).tolist()))
+    return gtsam.CustomFactor(noise, [pose_key, state_key, offset_key], fn)
+
+
 def state_prior_factor(
     state_key: int, mean: ArrayLike, sigmas: ArrayLike
 ) -> gtsam.PriorFactorVector:
@@ -201,7 +249,8 @@ def _cv_error(f, this, values, jacobians):
 
 
 def constant_velocity_factor(
-    key_a: int, key_b: int, frame_period_s: float, sigma_a_mps2: float
+    key_a: int, key_b: int, frame_period_s: float, sigma_a_mps2: float,
+    robust: str | None = None, robust_k: float | None = None,
 ) -> gtsam.CustomFactor:
     """Constant-velocity motion factor between consecutive target states
     ``frame_period_s`` apart.
@@ -213,7 +262,15 @@ def constant_velocity_factor(
     acceleration form :func:`factors.motion.cv_process_noise_continuous`,
     ``q [[T^3/3, T^2/2], [T^2/2, T]]`` with ``q = sigma_a^2 T``, which gives
     the same velocity-increment variance ``sigma_a^2 T^2`` and is full rank.
+    ``robust`` (``"huber"`` or ``"cauchy"``, width ``robust_k`` on the
+    whitened 4-vector norm) puts a kernel on it: a sharp turn is not a
+    Gaussian acceleration. Default: Gaussian.
     """
     t = float(frame_period_s)
     noise = gtsam.noiseModel.Gaussian.Covariance(cv_process_noise_continuous(t, sigma_a_mps2))
+    if robust is not None:
+        k = _robust_k(robust, robust_k)
+        kernel = (gtsam.noiseModel.mEstimator.Huber.Create(k) if robust == "huber"
+                  else gtsam.noiseModel.mEstimator.Cauchy.Create(k))
+        noise = gtsam.noiseModel.Robust.Create(kernel, noise)
     return gtsam.CustomFactor(noise, [key_a, key_b], partial(_cv_error, cv_transition(t)))

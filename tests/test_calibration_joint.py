@@ -237,12 +237,12 @@ def test_singular_marginals_fall_back_to_the_schur_complement(monkeypatch):
     """Force the elimination for the marginals to fail (as on an exactly singular system): the
     dense Schur complement names the unobservable direction and puts inf in
     the covariance."""
-    import mmsnap_graph.calibration.joint as joint_mod
+    import mmsnap_graph.calibration.joint_graph as joint_graph_mod
 
     def broken(*args, **kwargs):
         raise RuntimeError("Indeterminant linear system detected")
 
-    monkeypatch.setattr(joint_mod, "_bayes_tree", broken)
+    monkeypatch.setattr(joint_graph_mod, "eliminate_in_order", broken)
     rng = np.random.default_rng(9)
     scene = _scene("C", rng, n_frames=60, noise=STANDING_NOISE, kind="standing")
     res = joint_calibration(_detections(scene), noise=STANDING_NOISE,

@@ -36,16 +36,8 @@ from typing import Literal, Mapping
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2
 
-from factors.gtsam_factors import (
-    constant_velocity_factor,
-    measurement_noise,
-    node_measurement_factor,
-    pose_measurement_factor,
-    state_prior_factor,
-)
-from factors.models import measurement_model, residual
+from factors.gtsam_factors import measurement_noise
 from factors.robust import ROBUST_K_DEFAULT
 
 from ..errors import CalibrationError, MmsnapError, ValidationError
@@ -53,16 +45,29 @@ from ..data.noise import MeasurementNoise
 from ..data.recording import Detections
 from .._validation import as_float_array, check_finite, check_positive, check_shape
 from .closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
-from .poses import pose_array, to_pose2
+from .joint_graph import (
+    JointGraph,
+    assess,
+    exonerate_turns,
+    flag_outliers,
+    flag_turns,
+    motion_spec,
+    run_message,
+)
+from .presolve import motion_norms
 from .presolve import presolve as numpy_presolve
 from .robust_start import starting_poses, starting_states
 
-__all__ = ["DEFAULT_ROBUST_K", "JointCalibration", "joint_calibration"]
+__all__ = ["DEFAULT_ROBUST_K", "DEFAULT_MOTION_ROBUST_K", "JointCalibration", "joint_calibration"]
 
 #: Default width of the robust kernels on the whitened 3-vector norm (GTSAM's
 #: mEstimator ``k``): Huber 1.345, Cauchy 2.5; the project's one table,
 #: :data:`factors.robust.ROBUST_K_DEFAULT`.
 DEFAULT_ROBUST_K = ROBUST_K_DEFAULT
+#: Default width of the Cauchy kernel on the motion factors' whitened
+#: 4-vector norm (a Gaussian acceleration's norm is about 2; a sharp turn's
+#: is 5-20): see docs/CALIBRATION.md, "Sharp turns".
+DEFAULT_MOTION_ROBUST_K = 3.0
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -80,6 +85,12 @@ class JointCalibration:
     unobservable : name -> (m, 3) unit directions (body tangent) along which
         the node's pose is not determined; empty when all is observable.
     unreachable : nodes left out (no common frames with the others).
+    time_offset_s : name -> clock offset in seconds (node time + offset =
+        reference time; 0 for the reference): ``-lag * frame_period_s`` plus
+        the estimated fraction when ``time_offsets=True``, else the lag's.
+    time_offset_variances : name -> its marginal variance (s^2; 0 for the
+        reference, NaN where not estimated).
+    turns : motion factors left out of the final pass as sharp turns.
     """
 
     reference: str
@@ -97,6 +108,9 @@ class JointCalibration:
     final_error: float = float("nan")
     unobservable: Mapping[str, NDArray] = field(default_factory=dict)
     unreachable: tuple[str, ...] = ()
+    time_offset_s: Mapping[str, float] = field(default_factory=dict)
+    time_offset_variances: Mapping[str, float] = field(default_factory=dict)
+    turns: int = 0
 
 
 def _detections_table(dets: Mapping[str, Detections]):
@@ -232,92 +246,6 @@ def _restrict(frames, meas_f, active, min_common_frames):
     return frames, meas_f
 
 
-def _motion_spec(frames, motion, frame_period_s, max_motion_gap_frames, sigma_a_mps2):
-    """``(index, dt_s, sigma_a)`` of the constant-velocity factors, or None."""
-    if not motion:
-        return None
-    gaps = np.diff(frames)
-    mi = np.flatnonzero(gaps <= max_motion_gap_frames)
-    return (mi, gaps[mi] * float(frame_period_s), float(sigma_a_mps2))
-
-
-class _Graph:
-    """The joint calibration graph in GTSAM: keys, factors and values."""
-
-    def __init__(self, meas_f, active, ref, prior_sig, motion_spec):
-        self.meas, self.active, self.ref = meas_f, active, ref
-        self.prior_sig, self.motion = prior_sig, motion_spec
-        self.f = next(iter(meas_f.values())).shape[0]
-        self.pose_key = {n: gtsam.symbol("x", i) for i, n in enumerate(active)}
-        self.state_key = [gtsam.symbol("v", k) for k in range(self.f)]
-
-    def build(self, noise, use) -> gtsam.NonlinearFactorGraph:
-        g = gtsam.NonlinearFactorGraph()
-        for n in self.active:
-            z = self.meas[n]
-            for k in np.flatnonzero(use[n]):
-                if n == self.ref:
-                    g.add(node_measurement_factor(self.state_key[k], np.zeros(3), z[k], noise))
-                else:
-                    g.add(pose_measurement_factor(self.pose_key[n], self.state_key[k], z[k], noise))
-        for k in range(self.f):
-            g.add(state_prior_factor(self.state_key[k], np.zeros(4), self.prior_sig))
-        if self.motion is not None:
-            for k, dt in zip(self.motion[0], self.motion[1]):
-                g.add(constant_velocity_factor(self.state_key[k], self.state_key[k + 1],
-                                               float(dt), self.motion[2]))
-        return g
-
-    def ordering(self) -> gtsam.Ordering:
-        """The elimination order: the states in time order, then the poses.
-
-        Every state touches every pose, and the motion factors chain the
-        states: eliminated in this order each state's clique holds its
-        neighbour and the poses, so elimination is linear in frames, with the
-        poses in the root clique (their marginals come free). GTSAM's COLAMD
-        order grew about as frames^2 here (10 nodes: 0.8 s at 3,000 frames,
-        51 s at 24,000 for the marginals alone).
-        """
-        order = gtsam.Ordering()
-        for k in self.state_key:
-            order.push_back(k)
-        for n in self.active:
-            if n != self.ref:
-                order.push_back(self.pose_key[n])
-        return order
-
-    def values(self, poses, states) -> gtsam.Values:
-        v = gtsam.Values()
-        for n in self.active:
-            if n != self.ref:
-                v.insert(self.pose_key[n], to_pose2(poses[n]))
-        for k in range(self.f):
-            v.insert(self.state_key[k], states[k])
-        return v
-
-    def current(self, res: gtsam.Values):
-        poses = {n: (np.zeros(3) if n == self.ref else pose_array(res.atPose2(self.pose_key[n])))
-                 for n in self.active}
-        states = np.array([res.atVector(self.state_key[k]) for k in range(self.f)])
-        return poses, states
-
-
-def _whitened_sq(state, pose, z, sigmas):
-    h, _ = measurement_model(state, pose)
-    e = residual(h, z) / sigmas
-    return np.sum(e**2, axis=-1)
-
-
-def _flag_outliers(graph, poses, states, has, sig, outlier_probability):
-    threshold = chi2.ppf(1.0 - outlier_probability, 3)
-    outliers = {}
-    for n in graph.active:
-        e2 = np.full(graph.f, 0.0)
-        e2[has[n]] = _whitened_sq(states[has[n]], poses[n], graph.meas[n][has[n]], sig)
-        outliers[n] = has[n] & (e2 > threshold)
-    return outliers
-
-
 class _Breakdown(Exception):
     """The estimation broke down (joint_calibration returns success=False)."""
 
@@ -337,7 +265,8 @@ def _refine(fg, values, params, presolved, order, rel_tol=1e-5):
     does not lower the error hands over to GTSAM's LM, which also runs when
     not pre-solved. Returns ``(values, iterations, error, linear)`` with
     ``linear`` the graph linearized within that converged step (for the
-    marginals) or None."""
+    marginals) or None. ``order``: the elimination order of every step
+    (:meth:`JointGraph.ordering`)."""
     if presolved:
         error = None
         for it in range(params.getMaxIterations()):
@@ -359,26 +288,53 @@ def _refine(fg, values, params, presolved, order, rel_tol=1e-5):
     return result, int(opt.iterations()), float(fg.error(result)), None
 
 
-def _robust_pass(graph, start, x0, sig, robust, k, presolve_first, params, common):
+def _presolve(graph, poses, states, offsets, sig, prior_sig, robust, k, motion, use=None,
+              report=None):
+    """The numpy pre-solve of the graph (with the clock offsets when the
+    graph has them); returns ``(poses, states, offsets)``."""
+    out = numpy_presolve(graph.meas, poses, states, names=graph.active, reference=graph.ref,
+                         sigmas=sig, prior_sigmas=prior_sig, robust=robust,
+                         k=k if k is not None else 1.0, use=use,
+                         motion=None if motion is None else motion.as_tuple(),
+                         offsets=offsets if graph.timed else None, report=report)
+    return out if graph.timed else (out[0], out[1], offsets)
+
+
+def _robust_pass(graph, start, x0, offsets, sig, prior_sig, robust, k, presolve_first, params):
     """The first pass (under the kernel, if any): the numpy pre-solve, then
     GTSAM only when the pre-solve did not converge (the pre-solve minimizes
     the same cost: its optimum is GTSAM's). Returns ``(poses, states,
-    GTSAM iterations, initial_error)``."""
+    offsets, GTSAM iterations, initial_error)``."""
     has = {n: np.isfinite(graph.meas[n][:, 0]) for n in graph.active}
     report: dict = {}
     if presolve_first:
-        start, x0 = numpy_presolve(graph.meas, start, x0, robust=robust,
-                                   k=k if k is not None else 1.0, report=report, **common)
+        start, x0, offsets = _presolve(graph, start, x0, offsets, sig, prior_sig, robust, k,
+                                       graph.motion, report=report)
         if report["converged"]:
-            return start, x0, 0, report["initial_cost"]
+            return start, x0, offsets, 0, report["initial_cost"]
     fg = graph.build(measurement_noise(sig, robust, k), has)
     initial_error = report.get("initial_cost")
-    values = graph.values(start, x0)
+    values = graph.values(start, x0, offsets)
     if initial_error is None:
         initial_error = float(fg.error(values))
     result, iterations, _, _ = _refine(fg, values, params, presolve_first, graph.ordering())
-    poses, states = graph.current(result)
-    return poses, states, iterations, initial_error
+    poses, states, offsets = graph.current(result)
+    return poses, states, offsets, iterations, initial_error
+
+
+def _final_motion(graph, states, robust, turn_frames, outlier_probability):
+    """The motion factors of the final Gaussian pass: without the turns,
+    which would otherwise pull the states off the detections -- the factors
+    into and out of the frames :func:`exonerate_turns` found, and under a
+    motion kernel the factors the robust pass found far beyond their white
+    acceleration (:func:`flag_turns`); and the number of factors left out."""
+    if graph.motion is None:
+        return None, 0
+    m = graph.motion
+    turns = np.isin(m.index, turn_frames) | np.isin(m.index + 1, turn_frames)
+    if robust is not None and m.robust is not None:
+        turns |= flag_turns(m, motion_norms(states, m.as_tuple()), outlier_probability)
+    return m.subset(~turns, None), int(turns.sum())
 
 
 def _solve(graph, start, x0, sig, prior_sig, robust, k, presolve_first, max_iterations,
@@ -389,81 +345,28 @@ def _solve(graph, start, x0, sig, prior_sig, robust, k, presolve_first, max_iter
     has = {n: np.isfinite(graph.meas[n][:, 0]) for n in graph.active}
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(max_iterations))
-    common = dict(names=graph.active, reference=graph.ref, sigmas=sig, prior_sigmas=prior_sig,
-                  motion=graph.motion)
-    poses, states, iterations, initial_error = _robust_pass(graph, start, x0, sig, robust, k,
-                                                            presolve_first, params, common)
-    outliers = _flag_outliers(graph, poses, states, has, sig, outlier_probability)
+    offsets = {n: 0.0 for n in graph.active}
+    poses, states, offsets, iterations, initial_error = _robust_pass(
+        graph, start, x0, offsets, sig, prior_sig, robust, k, presolve_first, params)
+    outliers = flag_outliers(graph, poses, states, offsets, has, sig, outlier_probability)
+    turn_frames = np.zeros(0, dtype=int)
+    if graph.motion is not None:
+        outliers, turn_frames = exonerate_turns(graph, poses, states, offsets, has, outliers,
+                                                sig, prior_sig, outlier_probability)
     inl = {n: has[n] & ~outliers[n] for n in graph.active} if robust is not None else has
     starved = [n for n in graph.active if n != graph.ref and not inl[n].any()]
     if starved:
         raise _Breakdown(f"every detection of {', '.join(starved)} is an outlier: no pose "
                          f"left to estimate")
-    if robust is not None and presolve_first:
-        poses, states = numpy_presolve(graph.meas, poses, states, robust=None, k=1.0, use=inl,
-                                       **common)
-    fg = graph.build(measurement_noise(sig), inl)
-    result, more, final_error, linear = _refine(fg, graph.values(poses, states), params,
-                                                presolve_first, graph.ordering())
-    return fg, result, dict(outliers=outliers, iterations=iterations + more,
+    motion, n_turns = _final_motion(graph, states, robust, turn_frames, outlier_probability)
+    if (robust is not None or n_turns) and presolve_first:
+        poses, states, offsets = _presolve(graph, poses, states, offsets, sig, prior_sig, None,
+                                           None, motion, use=inl)
+    fg = graph.build(measurement_noise(sig), inl, motion)
+    result, more, final_error, linear = _refine(fg, graph.values(poses, states, offsets),
+                                                params, presolve_first, graph.ordering())
+    return fg, result, dict(outliers=outliers, iterations=iterations + more, turns=n_turns,
                             initial_error=initial_error, final_error=final_error, linear=linear)
-
-
-def _bayes_tree(linear: gtsam.GaussianFactorGraph, order: gtsam.Ordering):
-    """The linearized graph eliminated in ``order`` (raises RuntimeError on an
-    indeterminant system)."""
-    return linear.eliminateMultifrontal(order)
-
-
-def _assess(graph, final_graph, result, state_covariances, max_pose_variance,
-            max_pose_condition, linear=None):
-    """Marginal covariances and the unobservable pose directions; the dense
-    Schur complement when ``gtsam.Marginals`` fails."""
-    ref, active = graph.ref, graph.active
-    covs: dict[str, NDArray] = {ref: np.zeros((3, 3))}
-    state_covs = np.full((graph.f, 4, 4), np.nan)
-    unobservable: dict[str, NDArray] = {}
-    notes = []
-    try:
-        # The marginals from a Bayes tree in the graph's own order (linear in
-        # frames; gtsam.Marginals would use COLAMD: _Graph.ordering).
-        lin = final_graph.linearize(result) if linear is None else linear
-        marg = _bayes_tree(lin, graph.ordering())
-        for n in active:
-            if n != ref:
-                c = marg.marginalCovariance(graph.pose_key[n])
-                covs[n] = 0.5 * (c + c.T)
-        if state_covariances:
-            for k in range(graph.f):
-                c = marg.marginalCovariance(graph.state_key[k])
-                state_covs[k] = 0.5 * (c + c.T)
-        for n in active:
-            if n == ref:
-                continue
-            w, v = np.linalg.eigh(covs[n])
-            bad = (w > max_pose_variance) | (w > max_pose_condition * max(w.min(), 1e-300))
-            if np.any(bad):
-                unobservable[n] = v[:, bad].T
-    except RuntimeError as exc:
-        notes.append(f"marginals failed ({str(exc).splitlines()[0]})")
-        covs.update(_schur_covariances(final_graph, result, active, ref, graph.pose_key,
-                                       graph.state_key, unobservable, max_pose_condition))
-    return covs, state_covs, unobservable, notes
-
-
-def _message(active, f, outliers, iterations, notes, unobservable, unreachable, ref):
-    notes = list(notes)
-    for n, dirs in unobservable.items():
-        txt = ", ".join("(" + ", ".join(f"{c:+.2f}" for c in d) + ")" for d in dirs)
-        notes.append(f"pose of {n} is not observable along {txt} (dx_b, dy_b, dphi)")
-    if unreachable:
-        notes.append(f"no common frames linking {', '.join(unreachable)} to {ref}")
-    n_out = sum(int(o.sum()) for o in outliers.values())
-    msg = (f"joint calibration of {len(active)} nodes on {f} frames, {n_out} outlier "
-           f"detection(s), {iterations} LM iterations")
-    if notes:
-        msg += "; " + "; ".join(notes)
-    return msg
 
 
 def joint_calibration(
@@ -478,6 +381,10 @@ def joint_calibration(
     frame_period_s: float | None = None,
     sigma_a_mps2: float = 1.0,
     max_motion_gap_frames: int = 3,
+    motion_robust: Literal["huber", "cauchy"] | None = None,
+    motion_robust_k: float = DEFAULT_MOTION_ROBUST_K,
+    time_offsets: bool = False,
+    lag_frames: Mapping[str, int] | None = None,
     state_prior_sigmas: ArrayLike = (1e3, 1e3, 3.5, 3.5),
     outlier_probability: float = 1e-3,
     min_common_frames: int = DEFAULT_MIN_COMMON_FRAMES,
@@ -495,8 +402,8 @@ def joint_calibration(
     ----------
     detections : name -> Detections (or ``(frame (K,), measurements (K, 3))``)
         One detection of the common target per node per frame, frames
-        already corrected for each node's lag. The first node is the
-        reference unless ``reference`` names another.
+        already corrected for each node's whole-frame lag (``lag_frames``).
+        The first node is the reference unless ``reference`` names another.
     initial_poses : name -> (3,), optional
         Starting poses (the reference's is ignored); by default the trimmed
         closed form (and a pose graph for N > 2).
@@ -507,6 +414,19 @@ def joint_calibration(
     motion : add constant-velocity factors between consecutive frames no
         more than ``max_motion_gap_frames`` apart; needs ``frame_period_s``.
     sigma_a_mps2 : white-acceleration sigma of the motion factors.
+    motion_robust, motion_robust_k : kernel on the motion factors' whitened
+        4-vector norm in the robust pass (with ``robust`` set), so that a
+        sharp turn bends the track instead of making its detections
+        outliers; the motion factors it finds beyond the chi-square(4)
+        ``1 - outlier_probability`` quantile (the turns) are left out of the
+        final Gaussian pass. None: Gaussian motion factors throughout.
+    time_offsets : estimate each non-reference node's clock offset jointly
+        with the poses (module doc, "Clock offsets"); the node's detection
+        at frame ``k`` is of the state ``F(tau) x_k``.
+    lag_frames : name -> the whole-frame lag already removed from the node's
+        frames (its frame ``k + lag`` is the reference's ``k``, as in
+        :class:`~mmsnap_graph.calibration.PoseGraphCalibration`): the offset
+        starts at ``-lag * frame_period_s``, part of ``time_offset_s``.
     state_prior_sigmas : (4,) sigmas of the zero-mean state prior.
     outlier_probability : a detection whose whitened squared residual exceeds
         the chi-square(3) ``1 - outlier_probability`` quantile is an outlier.
@@ -515,8 +435,7 @@ def joint_calibration(
         means that the pose is not determined: ``success=False``.
     max_pose_condition : so does an eigenvalue of a pose covariance more
         than this times its smallest (a standing target leaves S2 free to
-        turn about it, up to the faint hold of the velocity prior through the
-        Doppler: variances of 1e-6 against 0.2 in a test).
+        turn about it: variances of 1e-6 against 0.2 in a test).
     presolve : run the numpy pre-solve (:mod:`.presolve`, same models)
         before each GTSAM LM pass; LM then needs one or two iterations.
         False: LM from the closed form (slower, same optimum).
@@ -525,27 +444,22 @@ def joint_calibration(
     sigmas : deprecated: (3,) ``(range_m, omega_rad, doppler_mps)``, read as
         ``noise`` (DeprecationWarning); pass ``noise=MeasurementNoise(...)``.
 
-    Returns
-    -------
-    JointCalibration
+    Returns a :class:`JointCalibration`.
     """
-    if sigmas is not None:
-        noise = _noise_from_sigmas(sigmas)
+    noise = _noise_from_sigmas(sigmas) if sigmas is not None else noise
     dets = _detections_table(detections)
     names = list(dets)
     ref, sig, prior_sig = _validate(names, reference, noise, state_prior_sigmas, robust, motion,
                                     frame_period_s, outlier_probability)
     _validate_numbers(sig, robust_k, motion, frame_period_s, sigma_a_mps2, max_motion_gap_frames,
                       max_iterations, max_pose_variance, max_pose_condition)
-    frames, meas_f = _frame_table(dets, names, min_common_frames)
-    init, unreachable = _start_poses(meas_f, names, ref, initial_poses, min_common_frames,
-                                     min_spread_m)
-    active = [n for n in names if n not in unreachable]
-    frames, meas_f = _restrict(frames, meas_f, active, min_common_frames)
-    x0 = starting_states(meas_f, init, active, sig, prior_sig[2])
-    graph = _Graph(meas_f, active, ref, prior_sig,
-                   _motion_spec(frames, motion, frame_period_s, max_motion_gap_frames,
-                                sigma_a_mps2))
+    lags = _validate_timing(names, motion_robust, motion_robust_k, time_offsets, lag_frames,
+                            frame_period_s)
+    frames, init, x0, unreachable, graph = _setup(
+        dets, names, ref, sig, prior_sig, initial_poses, min_common_frames, min_spread_m,
+        motion_spec_args=(motion, frame_period_s, max_motion_gap_frames, sigma_a_mps2,
+                          motion_robust if robust else None, motion_robust_k),
+        timed=time_offsets, lags=lags)
     k = None if robust is None else (robust_k if robust_k is not None else DEFAULT_ROBUST_K[robust])
     try:
         return _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, presolve,
@@ -557,6 +471,42 @@ def joint_calibration(
         return _broken_down(graph, frames, init, x0, unreachable, exc)
 
 
+def _setup(dets, names, ref, sig, prior_sig, initial_poses, min_common_frames, min_spread_m,
+           motion_spec_args, timed, lags):
+    """Frames, starting poses and states, and the graph (the part of
+    :func:`joint_calibration` after validation)."""
+    frames, meas_f = _frame_table(dets, names, min_common_frames)
+    init, unreachable = _start_poses(meas_f, names, ref, initial_poses, min_common_frames,
+                                     min_spread_m)
+    active = [n for n in names if n not in unreachable]
+    frames, meas_f = _restrict(frames, meas_f, active, min_common_frames)
+    x0 = starting_states(meas_f, init, active, sig, prior_sig[2])
+    graph = JointGraph(meas_f, active, ref, prior_sig, motion_spec(frames, *motion_spec_args),
+                       timed=active if timed else ())
+    period = float(motion_spec_args[1] or 0.0)
+    graph.lag_offsets = {n: -lags.get(n, 0) * period for n in active}
+    return frames, init, x0, unreachable, graph
+
+
+def _validate_timing(names, motion_robust, motion_robust_k, time_offsets, lag_frames,
+                     frame_period_s) -> dict[str, int]:
+    """Check the motion-kernel and clock-offset options; name -> lag."""
+    if motion_robust not in (None, "huber", "cauchy"):
+        raise ValidationError(f"motion_robust={motion_robust!r} must be None, 'huber' or "
+                              f"'cauchy'")
+    check_positive(motion_robust_k, "motion_robust_k")
+    if not isinstance(time_offsets, (bool, np.bool_)):
+        raise ValidationError(f"time_offsets must be a bool, got {time_offsets!r}")
+    lags = {}
+    for n, lag in dict(lag_frames or {}).items():
+        if str(n) not in names:
+            raise ValidationError(f"lag_frames names an unknown node {n!r}")
+        lags[str(n)] = _check_count(lag, f"lag_frames[{n!r}]", minimum=-(2**31))
+    if any(lags.values()) and frame_period_s is None:
+        raise ValidationError("lag_frames needs frame_period_s")
+    return lags
+
+
 def _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, presolve,
               max_iterations, outlier_probability, state_covariances, max_pose_variance,
               max_pose_condition) -> JointCalibration:
@@ -565,19 +515,23 @@ def _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, p
     active, ref = graph.active, graph.ref
     final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig, prior_sig,
                                       robust, k, presolve, max_iterations, outlier_probability)
-    poses, states = graph.current(result)
-    covs, state_covs, unobservable, notes = _assess(graph, final_graph, result, state_covariances,
-                                                    max_pose_variance, max_pose_condition,
-                                                    run["linear"])
-    msg = _message(active, frames.size, run["outliers"], run["iterations"], notes, unobservable,
-                   unreachable, ref)
+    poses, states, offsets = graph.current(result)
+    covs, variances, state_covs, unobservable, notes = assess(
+        graph, final_graph, result, state_covariances, max_pose_variance, max_pose_condition,
+        run["linear"])
+    if run["turns"]:
+        notes = [f"{run['turns']} sharp turn(s) left out of the motion factors"] + notes
+    msg = run_message(active, frames.size, run["outliers"], run["iterations"], notes,
+                      unobservable, unreachable, ref)
     return JointCalibration(
         reference=ref, poses=poses, covariances=covs,
         initial_poses={n: np.asarray(init[n], dtype=float) for n in active}, frames=frames,
         states=states, state_covariances=state_covs, outliers=run["outliers"],
         success=not (unobservable or unreachable), message=msg, iterations=run["iterations"],
         initial_error=run["initial_error"], final_error=run["final_error"],
-        unobservable=unobservable, unreachable=tuple(unreachable))
+        unobservable=unobservable, unreachable=tuple(unreachable),
+        time_offset_s={n: graph.lag_offsets[n] + offsets[n] for n in active},
+        time_offset_variances=variances, turns=run["turns"])
 
 
 def _broken_down(graph, frames, init, x0, unreachable, exc) -> JointCalibration:
@@ -597,42 +551,5 @@ def _broken_down(graph, frames, init, x0, unreachable, exc) -> JointCalibration:
         message=(f"joint calibration of {len(active)} nodes on {frames.size} frames failed: "
                  f"{reason}"),
         iterations=0, initial_error=float("nan"), final_error=float("nan"), unobservable={},
-        unreachable=tuple(unreachable))
-
-
-def _schur_covariances(graph, values, active, ref, pose_key, state_key, unobservable,
-                       condition):
-    """Pose information by a dense Schur complement of the linearized graph,
-    for a singular system: the eigen-directions whose information is below
-    ``1 / condition`` of the largest are unobservable; the covariance is the
-    inverse on the rest, with ``inf`` on the diagonal of every component a
-    null direction touches (NaN off the diagonal there)."""
-    others = [n for n in active if n != ref]
-    order = gtsam.Ordering()
-    for n in others:
-        order.push_back(pose_key[n])
-    for k in state_key:
-        order.push_back(k)
-    lam, _ = graph.linearize(values).hessian(order)
-    p = 3 * len(others)
-    a, b, c = lam[:p, :p], lam[:p, p:], lam[p:, p:]
-    schur = a - b @ np.linalg.lstsq(c, b.T, rcond=None)[0]
-    schur = 0.5 * (schur + schur.T)
-    w, v = np.linalg.eigh(schur)
-    null = w <= max(w.max(), 1e-300) / condition
-    keep = ~null
-    cov_all = (v[:, keep] / w[keep]) @ v[:, keep].T  # inverse on the observable part
-    covs = {}
-    for i, n in enumerate(others):
-        rows = slice(3 * i, 3 * i + 3)
-        cov = cov_all[rows, rows].copy()
-        dirs = v[rows][:, null].T  # (m, 3) this node's part of each null vector
-        dirs = dirs[np.linalg.norm(dirs, axis=1) > 1e-3]
-        if dirs.size:
-            unobservable[n] = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-            touched = np.any(np.abs(unobservable[n]) > 1e-3, axis=0)
-            cov[touched, :] = np.nan
-            cov[:, touched] = np.nan
-            cov[touched, touched] = np.inf
-        covs[n] = cov
-    return covs
+        unreachable=tuple(unreachable), time_offset_s=dict(graph.lag_offsets),
+        time_offset_variances={n: (0.0 if n == ref else float("nan")) for n in active})

@@ -6,14 +6,21 @@
 - :func:`write_calibration_json` / :func:`read_calibration_json`: the
   project's calibration JSON, ``{"reference": "S1", "node_names": [...],
   "nodes": {"S1": {"pose": [x_m, y_m, phi_rad], "covariance": [[3x3]],
-  "lag_frames": 0}, ...}, "unreachable": [...], "method": ..., "source": ...,
-  "success": ..., "message": ..., "edges": [...], "failures": {...}}``
-  (covariance in the Pose2 body tangent; non-finite numbers are ``null``).
+  "lag_frames": 0, "time_offset_s": 0.0, "time_offset_variance_s2": 0.0}, ...},
+  "unreachable": [...], "method": ..., "source": ..., "success": ...,
+  "message": ..., "edges": [...], "failures": {...}}`` (covariance in the
+  Pose2 body tangent; non-finite numbers are ``null``; files without the
+  clock offsets read as offset 0, variance NaN).
 
 Both readers return the :class:`~mmsnap_graph.calibration.RecordingCalibration`
 the writers take, without the step results (``pose_graph``, ``joint``), which
 are not stored. :func:`load_calibration_poses` reads only ``name -> pose``
-from a JSON that may hold nothing but ``{"nodes": {name: {"pose": [...]}}}``.
+from a JSON that may hold nothing but ``{"nodes": {name: {"pose": [...]}}}``;
+:func:`load_time_offsets` reads only the clock offsets (node time + offset =
+reference time) from either format, for fusion
+(:func:`mmsnap_graph.fusion.timing.align_recording`). The clock offsets are
+written from, and read into, the calibration's ``time_offset_s`` and
+``time_offset_variances`` fields when it has them.
 """
 
 from __future__ import annotations
@@ -45,6 +52,7 @@ __all__ = [
     "calibration_to_json",
     "calibration_from_json",
     "load_calibration_poses",
+    "load_time_offsets",
 ]
 
 CALIBRATION_GROUP = "calibration"
@@ -57,6 +65,9 @@ CALIBRATION_LAYOUT = """\
     pose               (N, 3) float (x_m, y_m, phi_rad), NaN where not calibrated
     covariance         (N, 3, 3) float, Pose2 body tangent, NaN where not calibrated
     lag_frames         (N,) int, node frame k + lag = reference frame k (0 if unknown)
+    time_offset_s      (N,) float, clock offset: node time + offset = reference time
+                       (0 for the reference and where unknown; optional, 0 when absent)
+    time_offset_variance_s2 (N,) float, its variance (NaN where not estimated; optional)
     edges/             one row per pairwise estimate:
         node_a, node_b (E,) str; pose (E, 3); covariance (E, 3, 3);
         rmse_m (E,) float (paper eq. 14); n_frames (E,) int; lag_frames (E,) int
@@ -86,9 +97,12 @@ def calibration_to_json(cal: RecordingCalibration) -> dict[str, Any]:
     nodes = {}
     for n in cal.node_names:
         if n in cal.poses:
+            offsets, variances = _timing(cal)
             nodes[n] = {"pose": _jsonable(cal.poses[n]),
                         "covariance": _jsonable(cal.covariances[n]),
-                        "lag_frames": int(cal.lag_frames.get(n, 0))}
+                        "lag_frames": int(cal.lag_frames.get(n, 0)),
+                        "time_offset_s": _jsonable(offsets.get(n, 0.0)),
+                        "time_offset_variance_s2": _jsonable(variances.get(n, np.nan))}
     return {
         "reference": cal.reference,
         "node_names": list(cal.node_names),
@@ -104,6 +118,45 @@ def calibration_to_json(cal: RecordingCalibration) -> dict[str, Any]:
                   for e in cal.edges],
         "failures": dict(cal.failures),
     }
+
+
+def _timing(cal) -> tuple[dict[str, float], dict[str, float]]:
+    """The calibration's clock offsets and their variances (empty when the
+    calibration has none)."""
+    return ({str(n): float(v) for n, v in dict(getattr(cal, "time_offset_s", {}) or {}).items()},
+            {str(n): float(v) for n, v in
+             dict(getattr(cal, "time_offset_variances", {}) or {}).items()})
+
+
+def _with_timing(kwargs: dict, offsets: Mapping, variances: Mapping) -> dict:
+    """``kwargs`` of a :class:`RecordingCalibration` with the clock offsets
+    when the class has those fields."""
+    names = {f.name for f in dataclasses.fields(RecordingCalibration)}
+    if "time_offset_s" in names:
+        kwargs["time_offset_s"] = dict(offsets)
+    if "time_offset_variances" in names:
+        kwargs["time_offset_variances"] = dict(variances)
+    return kwargs
+
+
+def _json_float(where: str, name: str, entry: Mapping, key: str, default: float) -> float:
+    value = entry.get(key, default) if isinstance(entry, Mapping) else default
+    try:
+        out = float(_floats(value))
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{where}: nodes[{name!r}].{key}={value!r} is not a number") \
+            from exc
+    if key == "time_offset_s" and not np.isfinite(out):
+        raise CalibrationError(f"{where}: nodes[{name!r}].time_offset_s must be finite, "
+                               f"got {value!r}")
+    return out
+
+
+def _json_timing(data: Any, where: str) -> tuple[dict[str, float], dict[str, float]]:
+    nodes = _json_nodes(data, where)
+    return ({str(n): _json_float(where, n, e, "time_offset_s", 0.0) for n, e in nodes.items()},
+            {str(n): _json_float(where, n, e, "time_offset_variance_s2", None)
+             for n, e in nodes.items()})
 
 
 def _node_pose(where: str, name: str, entry: Any) -> NDArray:
@@ -155,7 +208,8 @@ def calibration_from_json(data: Mapping, *, where: str = "calibration") -> Recor
     """A :class:`RecordingCalibration` from parsed calibration JSON.
 
     Only ``nodes`` with each node's ``pose`` is required; a missing
-    ``covariance`` is NaN, ``lag_frames`` 0, ``reference`` the first node,
+    ``covariance`` is NaN, ``lag_frames`` and ``time_offset_s`` 0,
+    ``time_offset_variance_s2`` NaN, ``reference`` the first node,
     ``node_names`` the calibrated then the unreachable nodes, ``success``
     True. Raises :class:`CalibrationError` naming the bad field.
     """
@@ -169,12 +223,13 @@ def calibration_from_json(data: Mapping, *, where: str = "calibration") -> Recor
     if missing:
         raise CalibrationError(f"{where}: nodes {missing} are not in node_names {list(names)}")
     edges = tuple(_json_edge(where, i, e) for i, e in enumerate(data.get("edges", ())))
-    return RecordingCalibration(
+    return RecordingCalibration(**_with_timing(dict(
         reference=str(data.get("reference", next(iter(poses)))), node_names=names, poses=poses,
         covariances=covs, lag_frames=lags, unreachable=unreachable, edges=edges,
         method=str(data.get("method", "")), source=str(data.get("source", "")),
         success=bool(data.get("success", True)), message=str(data.get("message", "")),
-        failures={str(k): str(v) for k, v in dict(data.get("failures", {})).items()})
+        failures={str(k): str(v) for k, v in dict(data.get("failures", {})).items()}),
+        *_json_timing(data, where)))
 
 
 def _parse_json(source: str | os.PathLike | Mapping) -> tuple[Any, str]:
@@ -225,6 +280,9 @@ def _write_nodes(g: h5py.Group, cal: RecordingCalibration) -> None:
     cov = np.full((n, 3, 3), np.nan)
     lag = np.zeros(n, np.int64)
     ok = np.zeros(n, bool)
+    offsets, variances = _timing(cal)
+    tau = np.array([offsets.get(name, 0.0) for name in names], dtype=float)
+    tau_var = np.array([variances.get(name, np.nan) for name in names], dtype=float)
     for i, name in enumerate(names):
         if name in cal.poses:
             pose[i], cov[i], ok[i] = cal.poses[name], cal.covariances[name], True
@@ -234,6 +292,8 @@ def _write_nodes(g: h5py.Group, cal: RecordingCalibration) -> None:
     g.create_dataset("pose", data=pose)
     g.create_dataset("covariance", data=cov)
     g.create_dataset("lag_frames", data=lag)
+    g.create_dataset("time_offset_s", data=tau)
+    g.create_dataset("time_offset_variance_s2", data=tau_var)
 
 
 def _write_edges(g: h5py.Group, edges) -> None:
@@ -321,7 +381,8 @@ def _read_group(g: h5py.Group, where: str) -> RecordingCalibration:
             raise FileFormatError(f"{where} attribute {key!r} is missing")
         attrs[key] = g.attrs[key]
     extra = json.loads(g.attrs["json"]) if "json" in g.attrs else {}
-    return RecordingCalibration(
+    offsets, variances = _group_timing(g, names, where)
+    return RecordingCalibration(**_with_timing(dict(
         reference=str(attrs["reference"]), node_names=names,
         poses={n: cols["pose"][i].astype(float) for i, n in enumerate(names) if ok[i]},
         covariances={n: cols["covariance"][i].astype(float) for i, n in enumerate(names) if ok[i]},
@@ -329,7 +390,23 @@ def _read_group(g: h5py.Group, where: str) -> RecordingCalibration:
         unreachable=tuple(n for i, n in enumerate(names) if not ok[i]),
         edges=_read_edges(g, where), method=str(attrs["method"]), source=str(attrs["source"]),
         success=bool(attrs["success"]), message=str(attrs["message"]),
-        failures={str(k): str(v) for k, v in dict(extra.get("failures", {})).items()})
+        failures={str(k): str(v) for k, v in dict(extra.get("failures", {})).items()}),
+        offsets, variances))
+
+
+def _group_timing(g: h5py.Group, names, where: str):
+    """name -> clock offset and variance of the group (0 and NaN when the
+    file predates them)."""
+    n = len(names)
+    tau = (_member(g, "time_offset_s", where).astype(float) if "time_offset_s" in g
+           else np.zeros(n))
+    var = (_member(g, "time_offset_variance_s2", where).astype(float)
+           if "time_offset_variance_s2" in g else np.full(n, np.nan))
+    if tau.shape != (n,) or var.shape != (n,):
+        raise FileFormatError(f"{where}/time_offset_s and time_offset_variance_s2 must have "
+                              f"shape ({n},), got {tau.shape} and {var.shape}")
+    return ({str(m): float(tau[i]) for i, m in enumerate(names)},
+            {str(m): float(var[i]) for i, m in enumerate(names)})
 
 
 def read_calibration(path: str | os.PathLike) -> RecordingCalibration:
@@ -346,3 +423,26 @@ def read_calibration(path: str | os.PathLike) -> RecordingCalibration:
             if isinstance(exc, MmsnapError):
                 raise
             raise FileFormatError(f"{path}:/{CALIBRATION_GROUP} is malformed: {exc}") from exc
+
+
+def load_time_offsets(source: str | os.PathLike | Mapping
+                      ) -> tuple[dict[str, float], dict[str, float]]:
+    """Clock offsets ``name -> seconds`` (node time + offset = reference
+    time) and their variances (s^2) from calibration JSON (a path or the
+    parsed mapping) or from the ``/calibration`` group of an HDF5 recording
+    (a path ending in ``.h5``/``.hdf5``); 0 and NaN where a file predates
+    them."""
+    if not isinstance(source, Mapping) and Path(source).suffix.lower() in (".h5", ".hdf5"):
+        path = Path(source)
+        with open_group(path, CALIBRATION_GROUP,
+                        f": /{CALIBRATION_GROUP} is missing (run mmsnap calibrate)") as group:
+            where = f"{path}:/{CALIBRATION_GROUP}"
+            try:
+                names = tuple(str(n) for n in _member(group, "node_name", where))
+                return _group_timing(group, names, where)
+            except H5_ERRORS as exc:
+                if isinstance(exc, MmsnapError):
+                    raise
+                raise FileFormatError(f"{where} is malformed: {exc}") from exc
+    data, where = _parse_json(source)
+    return _json_timing(data, where)
