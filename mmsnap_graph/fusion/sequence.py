@@ -46,6 +46,7 @@ from .problem import (
     valid_rows,
 )
 from .robust import check_robust
+from .timing import align_recording
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.recording import Recording
 from ..data.results import FusedSequence, Status
@@ -407,6 +408,7 @@ def fuse_recording(
     progress: bool | None = None,
     robust: Literal["gate", "huber", "cauchy"] | None = None,
     pose_covariances: Mapping[str, ArrayLike] | None = None,
+    time_offset_s: Mapping[str, float] | None = None,
 ) -> FusedSequence:
     """Fuse every target in every frame of ``recording``.
 
@@ -445,7 +447,17 @@ def fuse_recording(
         (:func:`~mmsnap_graph.fusion.batch.fuse_batch`,
         :func:`~mmsnap_graph.fusion.oneshot.fuse_frame`). Needs
         ``covariance="laplace"``.
+    time_offset_s : mapping name -> seconds, optional
+        Each node's clock offset (node time + offset = reference time; the
+        calibration's ``time_offset_s``): the centroids are brought to the
+        reference clock first (:func:`mmsnap_graph.fusion.timing.align_recording`:
+        whole frames, then the range by Doppler times the rest). A node left
+        out keeps its clock.
     """
+    if time_offset_s:
+        if source != "centroids":
+            raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
+        recording = align_recording(recording, time_offset_s)
     prior = _check_options(recording, mode, covariance, solver, source, block_rows, prior)
     noise, pose_cov = _node_options(recording, noise, pose_covariances, covariance)
     robust = check_robust(robust)

@@ -8,7 +8,10 @@
 - :mod:`.cube`: raw ADC cube synthesis (FMCW TDM-MIMO);
 - :mod:`.simulator`: :func:`simulate_recording`, the whole recording;
 - :mod:`.scenes`: small calibration scenes (tracks of one target seen by
-  several nodes) for tests and benchmarks.
+  several nodes) for tests and benchmarks;
+- :mod:`.clocks`: scenes whose nodes sample at their own clock offsets
+  (:func:`timed_scene`, :func:`scene_recording`);
+- :mod:`.turns`: walks with instant turns (:func:`turning_walk`).
 """
 
 from .body import HumanBody, body_scatterers
@@ -29,6 +32,8 @@ from .scenes import (
     target_trajectory,
 )
 from .trajectories import make_trajectory, random_walk, straight_line
+from .clocks import scene_recording, timed_scene
+from .turns import turning_walk
 
 __all__ = [
     "CONFIGURATIONS",
@@ -52,4 +57,7 @@ __all__ = [
     "SyntheticScene",
     "synthetic_scene",
     "target_trajectory",
+    "timed_scene",
+    "scene_recording",
+    "turning_walk",
 ]
