@@ -181,14 +181,16 @@ def _check_covariances(names, node_covariances) -> dict[str, NDArray]:
         if name not in out:
             raise ValidationError(f"node_covariances[{name!r}]: no such node in node_poses")
         c = as_float_array(cov, f"node_covariances[{name}]")
-        if c.shape != (3, 3) or not np.all(np.isfinite(c)) or np.any(
-                np.linalg.eigvalsh(0.5 * (c + c.T)) <= 0):
-            # A reference node's zero covariance (it defines the frame) is
-            # replaced by the default: the monitor tests it like any node.
-            if c.shape == (3, 3) and np.all(np.isfinite(c)) and not np.any(c):
-                continue
-            raise ValidationError(f"node_covariances[{name}] must be a (3, 3) positive-"
-                                  f"definite matrix, got {c.tolist()}")
+        if c.shape != (3, 3):
+            raise ValidationError(f"node_covariances[{name}] must have shape (3, 3), got {c.shape}")
+        # The reference node's zero covariance (it defines the frame) and an
+        # unknown (NaN) one are replaced by the default: the node is tested
+        # like any other.
+        if not np.all(np.isfinite(c)) or not np.any(c):
+            continue
+        if np.any(np.linalg.eigvalsh(0.5 * (c + c.T)) <= 0):
+            raise ValidationError(f"node_covariances[{name}] must be positive definite, "
+                                  f"got {c.tolist()}")
         out[name] = 0.5 * (c + c.T)
     return out
 

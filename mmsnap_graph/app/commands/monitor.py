@@ -2,7 +2,8 @@
 
 Runs the decalibration monitor (:mod:`mmsnap_graph.calibration.monitor`,
 docs/CALIBRATION.md "Noticing a moved radar") over the recording's centroids
-with the recording's node poses (its calibration) and prints every change
+with the recording's node poses and, when ``mmsnap calibrate`` stored them,
+their covariances (else ``--poses`` from a calibration JSON), and prints every change
 point (node, time, frame, statistic) and the re-calibrated poses. Read-only:
 the recording is not changed. Exit status 0 whether or not a change was found,
 1 when a re-calibration failed, 2 on an error.
@@ -92,17 +93,25 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.calibration.monitor import DEFAULT_THRESHOLD, monitor_recording
     from mmsnap_graph.data.noise import MeasurementNoise
     from mmsnap_graph.io import read_recording
-    from mmsnap_graph.io.calibration import load_calibration_poses
+    from mmsnap_graph.errors import FileFormatError
+    from mmsnap_graph.io.calibration import load_calibration_poses, read_calibration
 
     json_path = check_output_path(args.json) if args.json else None
     rec = read_recording(args.recording, load_cubes=False)
     poses = load_calibration_poses(args.poses) if args.poses else None
+    covariances = None
+    if poses is None:
+        try:   # the calibration's covariances when `mmsnap calibrate` stored them
+            covariances = dict(read_calibration(args.recording).covariances)
+        except FileFormatError:
+            covariances = None
     noise = None
     if args.sigmas is not None:
         r, w, v = args.sigmas
         noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
     threshold = DEFAULT_THRESHOLD if args.threshold is None else args.threshold
-    result = monitor_recording(rec, node_poses=poses, noise=noise, threshold=threshold,
+    result = monitor_recording(rec, node_poses=poses, node_covariances=covariances,
+                               noise=noise, threshold=threshold,
                                recalibration_s=args.recalibration_s)
     print(format_result(result))
     if json_path is not None:
