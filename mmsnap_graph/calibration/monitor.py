@@ -137,17 +137,18 @@ class _NodeState:
         self.ref_a, self.ref_b = np.zeros((3, 3)), np.zeros(3)
         self.nis_sum, self.n_seen, self.change = 0.0, 0, None
 
-    def drop_from(self, frame: int) -> None:
-        keep = [k for k, f in enumerate(self.frames) if f < frame]
+    def _keep(self, keep: list[int]) -> None:
         for name in ("frames", "times", "rows", "a", "b"):
             values = getattr(self, name)
             setattr(self, name, [values[k] for k in keep])
 
+    def drop_from(self, frame: int) -> None:
+        """Forget the buffered frames from ``frame`` on."""
+        self._keep([k for k, f in enumerate(self.frames) if f < frame])
+
     def keep_from(self, frame: int) -> None:
-        keep = [k for k, f in enumerate(self.frames) if f >= frame]
-        for name in ("frames", "times", "rows", "a", "b"):
-            values = getattr(self, name)
-            setattr(self, name, [values[k] for k in keep])
+        """Forget the buffered frames before ``frame``."""
+        self._keep([k for k, f in enumerate(self.frames) if f >= frame])
 
     @property
     def scale(self) -> float:
