@@ -5,7 +5,7 @@ Per frame, each monitored node's range and spatial frequency are compared with
 the target state fused from the other nodes (leave-one-node-out,
 :func:`mmsnap_graph.fusion.batch.fuse_batch`); the innovations give per-frame
 information and score about the node's pose error (:mod:`.monitor_stats`).
-Windows of the last 1.5 to 20 s are tested against the reference (all earlier
+Windows of the last 3 to 20 s are tested against the reference (all earlier
 data since the last reset, with the calibration covariance as prior) by a
 chi-square(3) generalized likelihood ratio ``T``; ``T`` above ``threshold``
 is a change. The change frame is the start of the window that maximizes
@@ -49,9 +49,9 @@ __all__ = ["DEFAULT_THRESHOLD", "DEFAULT_WINDOWS_S", "DEFAULT_POSE_SIGMAS", "Cha
            "Recalibration", "MonitorUpdate", "DecalibrationMonitor", "MonitorResult",
            "recording_noise", "recording_measurements", "monitor_recording"]
 
-#: Per-test false-alarm probability 1e-7: with 24,000 frames per hour (150 ms),
-#: five window lengths and ten nodes, a Bonferroni bound of 0.12 false alarms
-#: per hour when the noise model holds.
+#: Per-test false-alarm probability 1e-7 (35.4): with 24,000 frames per hour
+#: (150 ms), four window lengths and ten nodes, a Bonferroni bound of 0.1 false
+#: alarms per hour when the noise model holds.
 DEFAULT_THRESHOLD = float(chi2.isf(1e-7, 3))
 #: Window lengths of the change test, seconds of frames with an observation.
 DEFAULT_WINDOWS_S = (3.0, 6.0, 12.0, 20.0)

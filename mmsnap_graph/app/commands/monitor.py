@@ -35,7 +35,7 @@ def register(subparsers) -> None:
                                       "metadata, else the paper's resolutions)")
     p.add_argument("--threshold", type=float, default=None,
                    help="change threshold on the statistic (default: chi-square(3) at 1e-7, "
-                        "about 36.6)")
+                        "about 35.4)")
     p.add_argument("--recalibration-s", type=float, default=15.0,
                    help="seconds of data after a change used to re-calibrate (default "
                         "%(default)s)")
