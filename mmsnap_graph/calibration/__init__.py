@@ -12,7 +12,9 @@
 - :func:`calibrate_recording`: all of the above on a
   :class:`~mmsnap_graph.data.recording.Recording`, giving a
   :class:`RecordingCalibration` (stored and read back by
-  :mod:`mmsnap_graph.io.calibration`).
+  :mod:`mmsnap_graph.io.calibration`);
+- :class:`DecalibrationMonitor` / :func:`monitor_recording`: notice that a
+  node moved and re-calibrate it (:mod:`.monitor`).
 """
 
 from .closed_form import (
@@ -24,6 +26,14 @@ from .closed_form import (
     closed_form_pose,
 )
 from .joint import DEFAULT_ROBUST_K, JointCalibration, joint_calibration
+from .monitor import (
+    ChangePoint,
+    DecalibrationMonitor,
+    MonitorResult,
+    MonitorUpdate,
+    Recalibration,
+    monitor_recording,
+)
 from .matching import LocalTracks, TrackCandidate, TrackMatching, local_tracks, match_tracks
 from .network import RecordingCalibration, calibrate_recording, residual_noise
 from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
@@ -56,4 +66,10 @@ __all__ = [
     "pose_array",
     "pose_tangent_error",
     "to_pose2",
+    "ChangePoint",
+    "DecalibrationMonitor",
+    "MonitorResult",
+    "MonitorUpdate",
+    "Recalibration",
+    "monitor_recording",
 ]

@@ -11,7 +11,9 @@
   several nodes) for tests and benchmarks;
 - :mod:`.clocks`: scenes whose nodes sample at their own clock offsets
   (:func:`timed_scene`, :func:`scene_recording`);
-- :mod:`.turns`: walks with instant turns (:func:`turning_walk`).
+- :mod:`.turns`: walks with instant turns (:func:`turning_walk`);
+- :mod:`.bump`: a recording in which a node is moved part-way
+  (:func:`simulate_bumped_recording`).
 """
 
 from .body import HumanBody, body_scatterers
@@ -34,6 +36,7 @@ from .scenes import (
 from .trajectories import make_trajectory, random_walk, straight_line
 from .clocks import scene_recording, timed_scene
 from .turns import turning_walk
+from .bump import simulate_bumped_recording
 
 __all__ = [
     "CONFIGURATIONS",
@@ -60,4 +63,5 @@ __all__ = [
     "timed_scene",
     "scene_recording",
     "turning_walk",
+    "simulate_bumped_recording",
 ]
