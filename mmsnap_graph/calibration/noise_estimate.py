@@ -238,7 +238,8 @@ def _frame_information(z, p, theta, keep, prior_w):
     info = 0.5 * np.einsum("fij,fij->ij", r, r)
     # standardized residuals: W e ~ N(0, R) at the true variances; rescaled
     # by their median so that the ghost gate holds while theta is still off
-    checked = (wf > 0) & (diag > 1e-9 * wf)
+    # (only where the measurement is checked: redundancy 1 - h = R_ii / w_i >= 5 %)
+    checked = (wf > 0) & (diag > 0.05 * wf)
     z_std = np.where(checked, wf * ef / np.sqrt(np.where(checked, diag, 1.0)), 0.0)
     for i in range(3 * n):
         col = np.abs(z_std[checked[:, i], i])
