@@ -238,3 +238,20 @@ def test_calibration_uses_the_data_not_the_metadata(rec2):
         assert all(e.identified)
         np.testing.assert_allclose(e.noise.sigmas, TRUE.sigmas, rtol=0.15)
     assert "NOT identified" not in cal.message
+
+
+def test_noise_for_fusion_per_node_pooled_or_the_papers(tmp_path, rec2):
+    from mmsnap_graph.io.noise import noise_for_fusion
+
+    path = tmp_path / "r.h5"
+    write_recording(path, rec2)
+    noise, text = noise_for_fusion(path, rec2.node_names)
+    assert noise == MeasurementNoise() and "paper's sigmas" in text
+    est = estimate_noise(rec2)
+    write_noise(path, est)
+    noise, text = noise_for_fusion(path, rec2.node_names)
+    assert noise == est.per_node and "S2 [" in text
+    pooled, text = noise_for_fusion(path, rec2.node_names, per_node=False)
+    assert pooled == est.pooled() and "one noise for every node" in text
+    with pytest.raises(FileFormatError, match=r"no sigmas for nodes \['S9'\]"):
+        noise_for_fusion(path, ["S1", "S9"])

@@ -24,7 +24,8 @@ from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..errors import FileFormatError, MmsnapError
 from .guard import H5_ERRORS, read_guard
 
-__all__ = ["NOISE_GROUP", "NOISE_LAYOUT", "write_noise", "read_noise", "fill_noise_group"]
+__all__ = ["NOISE_GROUP", "NOISE_LAYOUT", "write_noise", "read_noise", "fill_noise_group",
+           "noise_for_fusion"]
 
 #: Name of the HDF5 group written by :func:`write_noise`.
 NOISE_GROUP = "noise"
@@ -165,3 +166,27 @@ def read_noise(path: str | os.PathLike) -> NoiseEstimate | None:
             if not isinstance(g, h5py.Group):
                 raise FileFormatError(f"{p}:/{NOISE_GROUP} is not a group")
             return _read_group(g, f"{p}:/{NOISE_GROUP}")
+
+
+def noise_for_fusion(path: str | os.PathLike, node_names, *, per_node: bool = True
+                     ) -> tuple[MeasurementNoise | dict[str, MeasurementNoise], str]:
+    """The noise ``mmsnap fuse`` uses by default for the recording at
+    ``path``, and what it is in words: each node's sigmas of ``/noise``
+    (a mapping name -> :class:`MeasurementNoise`, or with ``per_node=False``
+    their pooled value, :meth:`NoiseEstimate.pooled`), else the paper's
+    :class:`MeasurementNoise`. A ``/noise`` group without some node of
+    ``node_names`` raises :class:`FileFormatError`."""
+    est = read_noise(path)
+    if est is None:
+        return (MeasurementNoise(), "no /noise group (run `mmsnap calibrate` or `mmsnap noise`): "
+                                    "the paper's sigmas 0.035 m, pi/4 rad, 0.1807 m/s")
+    missing = [n for n in node_names if n not in est.nodes]
+    if missing:
+        raise FileFormatError(f"{path}:/{NOISE_GROUP} has no sigmas for nodes {missing}; "
+                              f"rerun `mmsnap noise`")
+    text = "sigmas from /noise:\n  " + est.summary().replace("\n", "\n  ")
+    if per_node:
+        return {n: est.nodes[n].noise for n in node_names}, text
+    pooled = est.pooled()
+    return pooled, (text + "\n  (one noise for every node: "
+                    + ", ".join(f"{v:.4g}" for v in pooled.sigmas) + ")")

@@ -79,28 +79,15 @@ def accepts_per_node_noise(fuse) -> bool:
 def choose_noise(args, path, node_names, fuse):
     """(noise to pass to ``fuse``, what it is in words): ``--sigmas``, else
     the ``/noise`` group per node (pooled into one noise when ``fuse`` takes
-    only one), else the paper's."""
+    only one), else the paper's (:func:`mmsnap_graph.io.noise.noise_for_fusion`)."""
     from mmsnap_graph.data.noise import MeasurementNoise
-    from mmsnap_graph.io.noise import read_noise
+    from mmsnap_graph.io.noise import noise_for_fusion
 
     if args.sigmas is not None:
         r, w, v = args.sigmas
         return (MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v),
                 "sigmas from --sigmas")
-    est = read_noise(path)
-    if est is None:
-        return (MeasurementNoise(), "no /noise group (run `mmsnap calibrate` or `mmsnap noise`): "
-                                    "the paper's sigmas 0.035 m, pi/4 rad, 0.1807 m/s")
-    missing = [n for n in node_names if n not in est.nodes]
-    if missing:
-        raise ValidationError(f"{path}:/noise has no sigmas for nodes {missing}; rerun "
-                              f"`mmsnap noise`")
-    text = "sigmas from /noise:\n  " + est.summary().replace("\n", "\n  ")
-    if accepts_per_node_noise(fuse):
-        return {n: est.nodes[n].noise for n in node_names}, text
-    pooled = est.pooled()
-    return pooled, (text + "\n  (one noise for every node: " + ", ".join(
-        f"{v:.4g}" for v in pooled.sigmas) + ")")
+    return noise_for_fusion(path, node_names, per_node=accepts_per_node_noise(fuse))
 
 
 def run(args: argparse.Namespace) -> int:
