@@ -21,8 +21,10 @@ from mmsnap_graph._atomic import check_output_path, recording_lock
 from mmsnap_graph.errors import ValidationError
 
 #: Robust one-shot fusion used unless ``--robust none``: the per-node
-#: residual gate (measured on clean data: position RMSE and NEES as without
-#: it; see the module ``noise`` tests and the issue-11 note).
+#: residual gate. Measured on clean simulated data (networks A, C and a
+#: 3-node one, straight and random walks, 600 frames, 3 seeds each): the gate
+#: gave the same position RMSE and NEES as no robust fusion (to 3 digits);
+#: Huber raised the RMSE by 0.5-2 % and lowered the NEES by 0.05-0.15.
 DEFAULT_ROBUST = "gate"
 
 
@@ -116,6 +118,6 @@ def run(args: argparse.Namespace) -> int:
     n_ok = int(np.count_nonzero(fused.success))
     frames = np.unique(fused.frame).size
     print(f"fused {len(fused)} targets in {frames} frames ({args.mode}, {args.covariance}, "
-          f"{args.solver}, robust {args.robust}): {n_ok} succeeded, {len(fused) - n_ok} flagged; wrote {path}:/fused",
-          file=sys.stdout)
+          f"{args.solver}, robust {args.robust}): {n_ok} succeeded, {len(fused) - n_ok} "
+          f"flagged; wrote {path}:/fused", file=sys.stdout)
     return 0
