@@ -255,3 +255,13 @@ def test_noise_for_fusion_per_node_pooled_or_the_papers(tmp_path, rec2):
     assert pooled == est.pooled() and "one noise for every node" in text
     with pytest.raises(FileFormatError, match=r"no sigmas for nodes \['S9'\]"):
         noise_for_fusion(path, ["S1", "S9"])
+
+
+def test_a_node_without_centroids_is_reported_not_identified(rec2):
+    rec = rec2.with_node(dataclasses.replace(rec2.nodes["S2"], centroids=None))
+    est = estimate_noise(rec)
+    assert est.nodes["S2"].identified == (False, False, False)
+    assert est.nodes["S2"].reasons == ("no centroids",) * 3
+    assert est.nodes["S2"].noise == MeasurementNoise()
+    assert all(est.nodes["S1"].identified)                   # its own sequence
+    assert est.nodes["S1"].method == "temporal"
