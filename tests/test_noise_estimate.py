@@ -265,3 +265,27 @@ def test_a_node_without_centroids_is_reported_not_identified(rec2):
     assert est.nodes["S2"].noise == MeasurementNoise()
     assert all(est.nodes["S1"].identified)                   # its own sequence
     assert est.nodes["S1"].method == "temporal"
+
+
+@pytest.mark.parametrize("fraction", [0.1, 0.2])
+def test_ghost_centroids_do_not_inflate_the_estimate(rec3, fraction):
+    rng = np.random.default_rng(7)
+    rec, n_bad = rec3, 0
+    for n in rec.node_names:
+        d = rec.nodes[n].centroids
+        bad = rng.random(len(d)) < fraction
+        n_bad += int(bad.sum())
+        ghost = dataclasses.replace(
+            d, range_m=np.where(bad, rng.uniform(1, 8, len(d)), d.range_m),
+            omega_rad=np.where(bad, rng.uniform(-2.5, 2.5, len(d)), d.omega_rad),
+            doppler_mps=np.where(bad, rng.uniform(-2, 2, len(d)), d.doppler_mps))
+        rec = rec.with_node(dataclasses.replace(rec.nodes[n], centroids=ghost))
+    assert n_bad > 100
+    est = estimate_noise(rec)
+    for name, e in est.nodes.items():
+        assert all(e.identified), name
+        np.testing.assert_allclose(e.noise.sigmas, TRUE.sigmas, rtol=0.15, err_msg=name)
+    # without the ghost screening the differences see the ghosts: the test can fail
+    d = rec.nodes["S1"].centroids
+    raw, _ = temporal_noise(d, remove_ghosts=False)
+    assert raw[0] > 1.15 * TRUE.range_m

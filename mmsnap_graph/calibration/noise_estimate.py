@@ -34,10 +34,11 @@ observations of each variance with ``KAPPA_4 / n`` relative variance) are
 maximised together, so the temporal estimates resolve what the network
 cannot split, and each component's degrees of freedom ``dof = 2 sigma^4 /
 var(sigma^2)`` come from the combined information (relative standard error
-of a sigma about ``1 / sqrt(2 dof)``). Ghosts are left out: trimmed at
-:data:`TRIM_K` robust sigmas in the differences (the truncation corrected),
-gated at :data:`NETWORK_GATE_K` standard deviations in the cross-node
-residuals. A component with fewer than ``min_dof`` (:data:`MIN_DOF`) dof is
+of a sigma about ``1 / sqrt(2 dof)``). Ghosts are left out: centroids far from the running
+median of their own sequence first (:func:`ghost_rows`, for both
+estimators), then differences beyond :data:`TRIM_K` robust sigmas (the
+truncation corrected) and cross-node residuals beyond :data:`NETWORK_GATE_K`
+standard deviations. A component with fewer than ``min_dof`` (:data:`MIN_DOF`) dof is
 **not identified**: the fallback's value (the paper's by default) is used and
 the reason is recorded. Temporal noise correlation (which the differences
 do not see) is not modelled.
@@ -72,7 +73,8 @@ from ..data.recording import Detections, Recording
 from ..errors import ValidationError
 
 __all__ = ["estimate_noise", "network_noise", "temporal_noise", "TEMPORAL_ORDER", "KAPPA_4",
-           "MIN_DOF", "TRIM_K", "NETWORK_GATE_K", "POOL_LEVEL", "trimmed_scale"]
+           "MIN_DOF", "TRIM_K", "NETWORK_GATE_K", "POOL_LEVEL", "GHOST_K",
+           "trimmed_scale", "ghost_rows"]
 
 #: Order of the differences of :func:`temporal_noise`.
 TEMPORAL_ORDER = 4
@@ -90,6 +92,9 @@ _WEAK_DOF = 1e-3
 MIN_DOF = 25.0
 #: Residuals beyond this many robust sigmas are ghosts (trimmed).
 TRIM_K = 3.0
+#: Threshold (robust sigmas) and reach (frames on either side) of :func:`ghost_rows`.
+GHOST_K = 5.0
+GHOST_REACH = 3
 #: Significance level of the homogeneity test that pools the nodes' estimates.
 POOL_LEVEL = 0.05
 
@@ -154,14 +159,46 @@ def _sequences(det: Detections) -> list[NDArray]:
     return out
 
 
+def ghost_rows(detections: Detections, *, k: float = GHOST_K) -> NDArray:
+    """(K,) bool: centroids of ``detections`` that are ghosts in their own
+    single-target sequence: some component further than ``k`` robust sigmas
+    from the median of five predictions from its neighbours (the means of the
+    1st, 2nd and 3rd neighbours on either side, and the two one-sided linear
+    extrapolations), which a ghost among the neighbours cannot move much.
+    The first and last three rows of a sequence, and rows outside a
+    single-target sequence, are not flagged (the trimmed scale of
+    :func:`temporal_noise` takes care of what slips through)."""
+    flag = np.zeros(len(detections), bool)
+    for rows in _sequences(detections):
+        if rows.size < 2 * GHOST_REACH + 1:
+            continue
+        z = detections.measurements[rows]
+        z[:, 1] = np.unwrap(z[:, 1])
+        c = slice(GHOST_REACH, z.shape[0] - GHOST_REACH)
+
+        def at(offset):
+            return z[GHOST_REACH + offset: z.shape[0] - GHOST_REACH + offset]
+
+        pred = np.stack([(at(-1) + at(1)) / 2, (at(-2) + at(2)) / 2, (at(-3) + at(3)) / 2,
+                         2 * at(-1) - at(-2), 2 * at(1) - at(2)])
+        dev = z[c] - np.median(pred, axis=0)
+        scale = 1.4826 * np.median(np.abs(dev), axis=0)
+        flag[rows[c]] = np.any(np.abs(dev) > k * np.maximum(scale, 1e-12), axis=1)
+    return flag
+
+
 def temporal_noise(detections: Detections, *, order: int = TEMPORAL_ORDER,
-                   k: float = TRIM_K) -> tuple[NDArray, NDArray]:
+                   k: float = TRIM_K, remove_ghosts: bool = True) -> tuple[NDArray, NDArray]:
     """Each component's sigma from ``order``-th differences of one node's own
     centroids on runs of consecutive frames (module doc): returns
     ``(sigmas (3,), counts (3,))``, NaN and 0 where there is no run of
-    ``order + 1`` frames. The spatial frequency is unwrapped along each run."""
+    ``order + 1`` frames. The spatial frequency is unwrapped along each run.
+    ``remove_ghosts``: the :func:`ghost_rows` leave first (a gap each: one
+    ghost would otherwise spoil ``order + 1`` differences)."""
     if not isinstance(detections, Detections):
         raise ValidationError(f"detections must be Detections, got {type(detections).__name__}")
+    if remove_ghosts:
+        detections = detections.select(~ghost_rows(detections))
     w = _difference_weights(order)
     parts = []
     for rows in _sequences(detections):
@@ -313,11 +350,13 @@ def network_noise(detections: Mapping[str, Detections], poses: Mapping[str, NDAr
             score, info, z_std = _frame_information(z, p, theta, keep, prior_w)
             # Ghosts (a component beyond k standard deviations) leave the next round.
             row = np.all(np.abs(z_std) <= k, axis=-1, keepdims=True)
+        at = theta
         theta, cov = _scoring_step(theta, score, info, t_theta, t_dof)
-        if frames.size:
-            keep = np.broadcast_to(row, z.shape) & np.isfinite(z)
-    var = np.diag(cov).reshape(nn, 3)
-    dof = np.where(var > 0, 2.0 * theta**2 / np.maximum(var, 1e-300), 0.0)
+        if frames.size:  # once out, out (a left-out row has no residual to re-test)
+            keep = np.broadcast_to(row, z.shape) & keep
+    # relative variance at the theta the covariance was evaluated at
+    var = np.diag(cov).reshape(nn, 3) / at**2
+    dof = np.where(var > 0, 2.0 / np.maximum(var, 1e-300), 0.0)
     counts = np.sum(keep[..., 0], axis=0).astype(np.int64)
     return np.sqrt(theta), dof, counts
 
@@ -393,7 +432,9 @@ def estimate_noise(
     names = [n for n in all_names if recording.nodes[n].centroids is not None
              and len(recording.nodes[n].centroids) > 0]
     dets = _aligned(recording, names, lag_frames)
-    tmp = {n: temporal_noise(dets[n]) for n in names} if method != "network" else {}
+    dets = {n: d.select(~ghost_rows(d)) for n, d in dets.items()}
+    tmp = ({n: temporal_noise(dets[n], remove_ghosts=False) for n in names}
+           if method != "network" else {})
     parts = _temporal_parts(tmp)
     net_poses = _poses_for(recording, names, poses) if method != "temporal" else None
     parts.update(_network_parts(dets, net_poses, tmp, fallback, method))
