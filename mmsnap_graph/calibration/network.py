@@ -9,6 +9,14 @@ measurements, started from the pose graph. The result, a
 :class:`RecordingCalibration`, is stored and read back by
 :mod:`mmsnap_graph.io.calibration` (the ``/calibration`` group and the
 calibration JSON).
+
+The centroid noise comes from the data first
+(:mod:`mmsnap_graph.calibration.noise_estimate`): the joint graph is weighted
+by each node's temporal estimate (no poses needed), and once the poses are
+known every node's noise is estimated again from the cross-node residuals
+and the temporal differences together (:attr:`RecordingCalibration.noise`,
+stored as ``/noise`` by ``mmsnap calibrate``). A simulator's metadata sigmas
+are not used: a recording's data are what a user has.
 """
 
 from __future__ import annotations
@@ -23,13 +31,14 @@ from numpy.typing import NDArray
 from factors.models import measurement_model, residual
 
 from ..errors import CalibrationError, ValidationError
-from ..data.noise import MeasurementNoise
+from ..data.noise import MeasurementNoise, NoiseEstimate
 from ..data.recording import Detections, Recording
 from .joint import JointCalibration, joint_calibration
 from .matching import LocalTracks, local_tracks
+from .noise_estimate import estimate_noise
 from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 
-__all__ = ["RecordingCalibration", "calibrate_recording", "residual_noise"]
+__all__ = ["RecordingCalibration", "calibrate_recording", "residual_noise", "describe_noise"]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -42,6 +51,8 @@ class RecordingCalibration:
     method : ``"joint"`` when the joint graph refined the poses, else
     ``"pose_graph"``. source : ``"tracks"`` or ``"centroids"``.
     pose_graph, joint : the step results (None when read from a file).
+    noise : every node's noise estimated from the data at the calibrated
+        poses (None when read from a file: see :mod:`mmsnap_graph.io.noise`).
     """
 
     reference: str
@@ -58,18 +69,7 @@ class RecordingCalibration:
     failures: Mapping[str, str] = field(default_factory=dict)
     pose_graph: PoseGraphCalibration | None = None
     joint: JointCalibration | None = None
-
-
-def _metadata_noise(metadata) -> MeasurementNoise | None:
-    """The simulator's centroid noise metadata, when complete and valid."""
-    keys = ("centroid_range_std_m", "centroid_omega_std_rad", "centroid_doppler_std_mps")
-    try:
-        vals = tuple(float(metadata[k]) for k in keys)
-    except (KeyError, TypeError, ValueError):
-        return None
-    if not all(np.isfinite(v) and v > 0 for v in vals):
-        return None
-    return MeasurementNoise(range_m=vals[0], omega_rad=vals[1], doppler_mps=vals[2])
+    noise: NoiseEstimate | None = None
 
 
 def residual_noise(result: JointCalibration, detections: Mapping[str, Detections], *,
@@ -144,17 +144,27 @@ def _first_noise(pg: PoseGraphCalibration, dets: Mapping[str, Detections]) -> Me
     return dataclasses.replace(paper, omega_rad=omega0)
 
 
-def _estimate_noise(pg, dets, options) -> MeasurementNoise:
-    """The first guess, then the residuals of a joint solve, twice (the
-    weights move the solution, the solution the residuals); no motion
-    factors in these solves: the leverage correction treats frames apart."""
-    noise = _first_noise(pg, dets)
-    for _ in range(2):
-        first = joint_calibration(dets, noise=noise, **{**options, "motion": False})
-        if not first.success:
-            break  # no residuals to learn from: keep the last guess
-        noise = residual_noise(first, dets, noise=noise)
-    return noise
+def describe_noise(noise: MeasurementNoise, estimate: NoiseEstimate) -> str:
+    """``noise`` (pooled from ``estimate``) component by component, each
+    said to be estimated or not identified (then the fallback's value)."""
+    parts = []
+    for i, comp in enumerate(("range", "omega", "doppler")):
+        ident = any(e.identified[i] for e in estimate.nodes.values())
+        parts.append(f"{comp} {noise.sigmas[i]:.3g} "
+                     + ("estimated" if ident else "NOT identified (fallback)"))
+    return ", ".join(parts)
+
+
+def _joint_noise(recording, pg, dets) -> tuple[MeasurementNoise, str]:
+    """The joint graph's noise before the poses are refined: the nodes'
+    temporal estimates pooled (each node's own centroid sequence, no poses
+    needed); a component none identifies takes the closed form's track RMSE
+    (spatial frequency) or the paper's value."""
+    first = _first_noise(pg, dets)
+    est = estimate_noise(recording, lag_frames=pg.lag_frames, method="temporal", fallback=first)
+    noise = est.pooled()
+    return noise, "sigmas estimated from residuals for the joint graph: " + \
+        describe_noise(noise, est)
 
 
 def _refine(recording, pg, reachable, method, noise, options, notes):
@@ -167,11 +177,8 @@ def _refine(recording, pg, reachable, method, noise, options, notes):
         notes.append("joint refinement skipped: needs one centroid per node per frame")
         return None
     if noise is None:
-        noise = _metadata_noise(recording.metadata)
-        if noise is None:
-            noise = _estimate_noise(pg, dets, options)
-            notes.append("sigmas estimated from residuals: "
-                         + ", ".join(f"{v:.3g}" for v in noise.sigmas))
+        noise, note = _joint_noise(recording, pg, dets)
+        notes.append(note)
     joint = joint_calibration(dets, noise=noise, **options)
     notes.append(joint.message)
     return joint
@@ -216,13 +223,12 @@ def calibrate_recording(
         the centroids cannot feed it); ``"auto"`` refines when it can.
     max_lag_frames, max_rmse_m : track matching (:func:`match_tracks`).
     noise : measurement noise of the centroids for the joint graph;
-        None: the recording's ``centroid_range_std_m``,
-        ``centroid_omega_std_rad``, ``centroid_doppler_std_mps`` metadata
-        (the simulator writes them), else estimated from the residuals of a
-        first joint solve (:func:`residual_noise`) whose spatial-frequency
-        sigma comes from the closed form's track RMSE.
-        Wrong sigmas cost accuracy: the joint graph weighs range against
-        spatial frequency by them.
+        None (default): estimated from the data, each node's own centroid
+        sequence pooled over the nodes (module doc); the recording's
+        metadata sigmas are not used. Wrong sigmas cost accuracy: the
+        joint graph weighs range against spatial frequency by them.
+        Whatever the joint graph used, the result's ``noise`` is every
+        node's estimate from the data at the calibrated poses.
     robust, motion, sigma_a_mps2 : joint graph (:func:`joint_calibration`).
         The constant-velocity factors let a ghost stand out from the smooth
         track (without them a free per-frame state absorbs part of it); their
@@ -254,8 +260,11 @@ def calibrate_recording(
         elif joint is not None:
             notes.append("kept the pose-graph poses")
     success = pg.success and (joint is None or joint.success or result_method == "pose_graph")
+    noise_est = estimate_noise(recording, poses=poses, lag_frames=pg.lag_frames)
+    notes.append(noise_est.message)
     return RecordingCalibration(
         reference=names[0], node_names=tuple(names), poses=poses, covariances=covs,
         lag_frames=dict(pg.lag_frames), unreachable=pg.unreachable, edges=pg.edges,
         method=result_method, source=used_source, success=bool(success),
-        message="; ".join(notes), failures=failures, pose_graph=pg, joint=joint)
+        message="; ".join(notes), failures=failures, pose_graph=pg, joint=joint,
+        noise=noise_est)

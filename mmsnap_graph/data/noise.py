@@ -1,11 +1,16 @@
 """Noise and prior parameters shared by every estimator: the standard
-deviations of one node's measurements and the Gaussian prior on a target state.
+deviations of one node's measurements (:class:`MeasurementNoise`), what a
+recording's data say about them (:class:`NodeNoiseEstimate`,
+:class:`NoiseEstimate`, made by
+:func:`mmsnap_graph.calibration.noise_estimate.estimate_noise`) and the
+Gaussian prior on a target state.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -13,7 +18,11 @@ from numpy.typing import NDArray
 from ..errors import ValidationError
 from .._validation import frozen_vector
 
-__all__ = ["MeasurementNoise", "GaussianPrior"]
+__all__ = ["MeasurementNoise", "NodeNoiseEstimate", "NoiseEstimate", "GaussianPrior",
+           "NOISE_COMPONENTS"]
+
+#: Names of the three sigmas, in measurement order.
+NOISE_COMPONENTS = ("range_m", "omega_rad", "doppler_mps")
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -45,6 +54,111 @@ class MeasurementNoise:
     def sigmas(self) -> NDArray:
         """(3,) float: ``(range_m, omega_rad, doppler_mps)``, measurement order."""
         return np.array([self.range_m, self.omega_rad, self.doppler_mps])
+
+
+def _flags(value, name: str) -> tuple[bool, bool, bool]:
+    flags = tuple(bool(v) for v in value)
+    if len(flags) != 3:
+        raise ValidationError(f"{name} must hold 3 values (range, omega, doppler), got {value!r}")
+    return flags
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class NodeNoiseEstimate:
+    """What one node's data say about its measurement noise.
+
+    noise : the sigmas to use: the estimate of each identified component,
+        the fallback's value (:attr:`NoiseEstimate.fallback`) for the others.
+    identified : (3,) bool per component (range, omega, doppler): True when
+        ``noise`` holds the data's estimate, False when it holds the fallback.
+    n_residuals : (3,) int, residuals the estimate of each component used
+        (0 when not identified).
+    method : how the identified components were estimated (e.g.
+        ``"network+temporal"``; :mod:`mmsnap_graph.calibration.noise_estimate`).
+    reasons : (3,) str, why each unidentified component is not (``""`` when
+        identified).
+    """
+
+    noise: MeasurementNoise
+    identified: tuple[bool, bool, bool]
+    n_residuals: tuple[int, int, int]
+    method: str
+    reasons: tuple[str, str, str] = ("", "", "")
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.noise, MeasurementNoise):
+            raise ValidationError(f"noise must be a MeasurementNoise, got {self.noise!r}")
+        object.__setattr__(self, "identified", _flags(self.identified, "identified"))
+        counts = tuple(int(v) for v in self.n_residuals)
+        if len(counts) != 3 or min(counts) < 0:
+            raise ValidationError(f"n_residuals must be 3 integers >= 0, got {self.n_residuals!r}")
+        object.__setattr__(self, "n_residuals", counts)
+        reasons = tuple(str(v) for v in self.reasons)
+        if len(reasons) != 3:
+            raise ValidationError(f"reasons must hold 3 strings, got {self.reasons!r}")
+        object.__setattr__(self, "reasons", reasons)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class NoiseEstimate:
+    """Every node's measurement noise as estimated from a recording.
+
+    nodes : name -> :class:`NodeNoiseEstimate`, in the recording's node order.
+    fallback : the sigmas used for components the data do not identify
+        (default the paper's, :class:`MeasurementNoise`).
+    method : the estimator (:mod:`mmsnap_graph.calibration.noise_estimate`).
+    message : a one-line account (what was estimated, what was not and why).
+    """
+
+    nodes: Mapping[str, NodeNoiseEstimate]
+    fallback: MeasurementNoise = field(default_factory=MeasurementNoise)
+    method: str = ""
+    message: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.nodes:
+            raise ValidationError("a NoiseEstimate needs at least one node")
+        for name, est in self.nodes.items():
+            if not isinstance(est, NodeNoiseEstimate):
+                raise ValidationError(f"nodes[{name!r}] must be a NodeNoiseEstimate, got {est!r}")
+        object.__setattr__(self, "nodes", dict(self.nodes))
+
+    @property
+    def per_node(self) -> dict[str, MeasurementNoise]:
+        """name -> the :class:`MeasurementNoise` to use for that node."""
+        return {n: e.noise for n, e in self.nodes.items()}
+
+    @property
+    def any_identified(self) -> bool:
+        """True when some component of some node was estimated from the data."""
+        return any(any(e.identified) for e in self.nodes.values())
+
+    def pooled(self) -> MeasurementNoise:
+        """One network-wide :class:`MeasurementNoise`: per component, the
+        root mean square of the nodes' sigmas weighted by their residual
+        counts (equal weights where no node identified the component), for
+        estimators that take a single noise."""
+        sig = np.array([e.noise.sigmas for e in self.nodes.values()])
+        w = np.array([e.n_residuals for e in self.nodes.values()], dtype=float)
+        w = np.where(w.sum(axis=0) > 0, w, 1.0)
+        pooled = np.sqrt(np.sum(w * sig**2, axis=0) / np.sum(w, axis=0))
+        return MeasurementNoise(range_m=pooled[0], omega_rad=pooled[1], doppler_mps=pooled[2])
+
+    def summary(self) -> str:
+        """One line per node: each sigma, and whether it was estimated or is
+        the fallback (with the reason)."""
+        units = ("m", "rad", "m/s")
+        lines = []
+        for name, e in self.nodes.items():
+            parts = []
+            for i, comp in enumerate(("range", "omega", "doppler")):
+                value = f"{comp} {e.noise.sigmas[i]:.4g} {units[i]}"
+                if e.identified[i]:
+                    parts.append(f"{value} estimated ({e.n_residuals[i]} residuals)")
+                else:
+                    parts.append(f"{value} NOT identified, fallback used ({e.reasons[i]})")
+            lines.append(f"{name} [{e.method}]: " + "; ".join(parts))
+        return "\n".join(lines)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -4,7 +4,11 @@ Matches the nodes' tracks (or centroids) pairwise with a frame-lag search,
 solves the pose graph anchored at the first node (S1), refines with the joint
 calibration graph when every node has one centroid per frame, prints the
 poses (degrees here only), writes the calibration JSON and stores the poses
-and a ``/calibration`` group in the recording (atomically).
+and a ``/calibration`` group in the recording (atomically). Every node's
+measurement noise is estimated from the data at the calibrated poses, printed
+component by component (estimated, or not identified and what is used
+instead) and stored as the ``/noise`` group (:mod:`mmsnap_graph.io.noise`),
+which ``mmsnap fuse`` uses by default.
 """
 
 from __future__ import annotations
@@ -38,9 +42,9 @@ def register(subparsers) -> None:
     p.add_argument("--max-rmse", type=float, default=1.0,
                    help="largest track RMSE (m) of a matched pair (default %(default)s)")
     p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
-                   default=None, help="centroid noise for the joint graph (default: the "
-                                      "recording's centroid_*_std metadata, else estimated "
-                                      "from the residuals)")
+                   default=None, help="centroid noise for the joint graph (default: "
+                                      "estimated from the data; the /noise group is "
+                                      "estimated from the data either way)")
     p.add_argument("--robust", choices=["cauchy", "huber", "none"], default="cauchy",
                    help="robust kernel of the joint graph (default %(default)s)")
     p.add_argument("--sigma-a", type=float, default=3.0, metavar="SIGMA_A_MPS2",
@@ -77,6 +81,9 @@ def format_table(cal) -> str:
                          f"frames, lag {e.lag_frames}")
     for k, v in cal.failures.items():
         lines.append(f"  {k}: {v}")
+    if cal.noise is not None:
+        lines.append("measurement noise per node (from the data):")
+        lines.extend("  " + line for line in cal.noise.summary().splitlines())
     lines.append(("ok: " if cal.success else "INCOMPLETE: ") + cal.message)
     return "\n".join(lines)
 
@@ -87,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.errors import ValidationError
     from mmsnap_graph.io import read_recording
     from mmsnap_graph.io.calibration import write_calibration, write_calibration_json
+    from mmsnap_graph.io.noise import write_noise
 
     if args.max_lag < 0:
         raise ValidationError(f"--max-lag must be >= 0, got {args.max_lag}")
@@ -113,5 +121,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {json_path}")
         if not args.no_write:
             path = write_calibration(args.recording, rec, cal, output=args.output)
-            print(f"wrote {path}: node poses and /calibration")
+            if cal.noise is not None:
+                with recording_lock(path):
+                    write_noise(path, cal.noise)
+            print(f"wrote {path}: node poses, /calibration and /noise")
     return 0 if cal.success else 1

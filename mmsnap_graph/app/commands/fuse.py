@@ -3,6 +3,11 @@
 Writes the fused states, covariances and per-frame flags into the recording's
 ``/fused`` group (layout: :data:`mmsnap_graph.io.fused.FUSED_LAYOUT`), or into
 a copy of the recording given by ``--output``.
+
+The measurement noise: ``--sigmas`` when given; else each node's sigmas of
+the recording's ``/noise`` group (estimated from the data by ``mmsnap
+calibrate`` or ``mmsnap noise``); else the paper's, said so. Robust fusion
+(``--robust``, :data:`DEFAULT_ROBUST`) is on by default.
 """
 
 from __future__ import annotations
@@ -14,6 +19,13 @@ import numpy as np
 
 from mmsnap_graph._atomic import check_output_path, recording_lock
 from mmsnap_graph.errors import ValidationError
+
+#: Robust one-shot fusion used unless ``--robust none``: the per-node
+#: residual gate. Measured on clean simulated data (networks A, C and a
+#: 3-node one, straight and random walks, 600 frames, 3 seeds each): the gate
+#: gave the same position RMSE and NEES as no robust fusion (to 3 digits);
+#: Huber raised the RMSE by 0.5-2 % and lowered the NEES by 0.05-0.15.
+DEFAULT_ROBUST = "gate"
 
 
 def register(subparsers) -> None:
@@ -34,8 +46,15 @@ def register(subparsers) -> None:
                         "covariance (slow) (default %(default)s)")
     p.add_argument("--sigmas", nargs=3, type=float, default=None,
                    metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
-                   help="measurement noise sigmas (default the paper's resolutions: "
-                        "0.035 m, pi/4 rad, 0.1807 m/s)")
+                   help="measurement noise sigmas of every node (default: each node's "
+                        "sigmas in the recording's /noise group, estimated from the data by "
+                        "`mmsnap calibrate` or `mmsnap noise`; without it the paper's "
+                        "resolutions 0.035 m, pi/4 rad, 0.1807 m/s)")
+    p.add_argument("--robust", choices=["gate", "huber", "cauchy", "none"],
+                   default=DEFAULT_ROBUST,
+                   help="robust one-shot fusion: leave out a node whose residual fails the "
+                        "chi-square gate (gate), or down-weight it (huber, cauchy); none = "
+                        "plain least squares (default %(default)s)")
     p.add_argument("--solver", choices=["batch", "gtsam"], default="batch",
                    help="vectorized batch solver or one GTSAM graph per frame (default %(default)s)")
     p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
@@ -50,8 +69,30 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
+def accepts_per_node_noise(fuse) -> bool:
+    """True when ``fuse`` (``fuse_recording``) takes a mapping node name ->
+    MeasurementNoise as ``noise`` (issue 11; until then one noise for all)."""
+    import inspect
+
+    ann = inspect.signature(fuse).parameters["noise"].annotation
+    return "Mapping" in str(ann)
+
+
+def choose_noise(args, path, node_names, fuse):
+    """(noise to pass to ``fuse``, what it is in words): ``--sigmas``, else
+    the ``/noise`` group per node (pooled into one noise when ``fuse`` takes
+    only one), else the paper's (:func:`mmsnap_graph.io.noise.noise_for_fusion`)."""
     from mmsnap_graph.data.noise import MeasurementNoise
+    from mmsnap_graph.io.noise import noise_for_fusion
+
+    if args.sigmas is not None:
+        r, w, v = args.sigmas
+        return (MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v),
+                "sigmas from --sigmas")
+    return noise_for_fusion(path, node_names, per_node=accepts_per_node_noise(fuse))
+
+
+def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.fusion.sequence import fuse_recording
     from mmsnap_graph.io import read_recording, write_fused
     from mmsnap_graph.io.calibration import load_calibration_poses
@@ -61,23 +102,22 @@ def run(args: argparse.Namespace) -> int:
     if args.output is not None:
         check_output_path(args.output)
     poses = load_calibration_poses(args.calibration) if args.calibration else None
-    noise = MeasurementNoise()
-    if args.sigmas is not None:
-        r, w, v = args.sigmas
-        noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
     # The lock spans read -> write: a concurrent `mmsnap process` or
     # `calibrate` of the same file waits instead of being overwritten.
     with recording_lock(args.recording):
         rec = read_recording(args.recording, load_cubes=False)
+        noise, noise_text = choose_noise(args, args.recording, rec.node_names, fuse_recording)
+        print(noise_text, file=sys.stdout)
         fused = fuse_recording(rec, node_poses=poses, mode=args.mode,
                                covariance=args.covariance, noise=noise, solver=args.solver,
                                source=args.source, gate_probability=args.gate,
                                grid_points_per_axis=args.grid_points,
-                               progress=False if args.no_progress else None)
+                               progress=False if args.no_progress else None,
+                               robust=None if args.robust == "none" else args.robust)
         path = write_fused(args.recording, fused, output=args.output)
     n_ok = int(np.count_nonzero(fused.success))
     frames = np.unique(fused.frame).size
     print(f"fused {len(fused)} targets in {frames} frames ({args.mode}, {args.covariance}, "
-          f"{args.solver}): {n_ok} succeeded, {len(fused) - n_ok} flagged; wrote {path}:/fused",
-          file=sys.stdout)
+          f"{args.solver}, robust {args.robust}): {n_ok} succeeded, {len(fused) - n_ok} "
+          f"flagged; wrote {path}:/fused", file=sys.stdout)
     return 0

@@ -1,0 +1,71 @@
+"""``mmsnap noise``: estimate every node's measurement noise from a recording's
+data and store it as the ``/noise`` group (:mod:`mmsnap_graph.io.noise`),
+without calibrating.
+
+The estimator is :func:`mmsnap_graph.calibration.noise_estimate.estimate_noise`:
+cross-node residuals at the node poses (those stored in the recording, or a
+calibration JSON) combined with each node's own centroid sequence; with no
+poses, the centroid sequences alone. Each component is printed as estimated,
+or as not identified with the value used instead and why.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from mmsnap_graph._atomic import check_output_path, recording_lock
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "noise",
+        help="estimate each node's measurement sigmas from the data into /noise",
+        description="Estimate every node's range, spatial-frequency and Doppler sigmas from "
+                    "the recording's centroids (cross-node residuals at the node poses and "
+                    "each node's own centroid sequence) and store them as the /noise group, "
+                    "which `mmsnap fuse` uses by default. Components the data cannot identify "
+                    "are reported as such, with the fallback used (the paper's sigmas).")
+    p.add_argument("recording", help="HDF5 recording (docs/FORMAT.md)")
+    p.add_argument("--calibration", default=None,
+                   help="calibration JSON with the node poses (default: the poses stored in "
+                        "the recording; the /calibration group's frame lags when present)")
+    p.add_argument("--method", choices=["auto", "network", "temporal"], default="auto",
+                   help="cross-node residuals and centroid sequences combined (auto), or one "
+                        "of them (default %(default)s)")
+    p.add_argument("-o", "--output", default=None,
+                   help="write a copy of the recording with /noise here instead of updating it")
+    p.add_argument("--no-write", action="store_true", help="print only; do not write /noise")
+    p.set_defaults(func=run)
+
+
+def _lags(path) -> dict[str, int] | None:
+    """The frame lags of the recording's /calibration group, or None."""
+    import h5py
+
+    from mmsnap_graph.io.calibration import CALIBRATION_GROUP, read_calibration
+    from mmsnap_graph.io.guard import read_guard
+
+    with read_guard(path), h5py.File(path, "r") as f:
+        has = CALIBRATION_GROUP in f
+    return dict(read_calibration(path).lag_frames) if has else None
+
+
+def run(args: argparse.Namespace) -> int:
+    from mmsnap_graph.calibration.noise_estimate import estimate_noise
+    from mmsnap_graph.io import read_recording
+    from mmsnap_graph.io.calibration import load_calibration_poses
+    from mmsnap_graph.io.noise import write_noise
+
+    if args.output is not None and not args.no_write:
+        check_output_path(args.output)
+    poses = load_calibration_poses(args.calibration) if args.calibration else None
+    with recording_lock(args.recording):
+        rec = read_recording(args.recording, load_cubes=False)
+        est = estimate_noise(rec, poses=poses, lag_frames=_lags(args.recording),
+                             method=args.method)
+        print(est.summary())
+        print(est.message)
+        if not args.no_write:
+            path = write_noise(args.recording, est, output=args.output)
+            print(f"wrote {path}:/noise")
+    return 0 if est.any_identified else 1

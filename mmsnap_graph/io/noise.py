@@ -1,0 +1,192 @@
+"""The ``/noise`` group of a recording file: each node's measurement noise as
+estimated from the recording's data
+(:class:`~mmsnap_graph.data.noise.NoiseEstimate`, made by
+:func:`mmsnap_graph.calibration.noise_estimate.estimate_noise`; written by
+``mmsnap calibrate`` and ``mmsnap noise``, used by ``mmsnap fuse``).
+
+:func:`write_noise` and :func:`read_noise` are a symmetric pair; the layout is
+:data:`NOISE_LAYOUT` (quoted in docs/FORMAT.md). :func:`fill_noise_group`
+writes the group into a file already open for writing (to add it in the same
+pass as another group).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .._atomic import atomic_path, recording_lock
+from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
+from ..errors import FileFormatError, MmsnapError
+from .guard import H5_ERRORS, read_guard
+
+__all__ = ["NOISE_GROUP", "NOISE_LAYOUT", "write_noise", "read_noise", "fill_noise_group",
+           "noise_for_fusion"]
+
+#: Name of the HDF5 group written by :func:`write_noise`.
+NOISE_GROUP = "noise"
+_NOISE_VERSION = "1.0"
+
+#: The ``/noise`` group, for docs/FORMAT.md (the tests check that it is quoted there).
+NOISE_LAYOUT = """\
+/noise                 attrs: format_version = "1.0", method (str: the estimator),
+                              message (str), fallback_sigmas (3,) [range_m, omega_rad,
+                              doppler_mps] (used where a component is not identified)
+    node_name          (N,) str       every node of the recording, in order
+    sigmas             (N, 3) float64 [range_m, omega_rad, doppler_mps] to use: the
+                                      estimate where identified, else the fallback's
+    identified         (N, 3) bool    True = estimated from the data
+    n_residuals        (N, 3) int64   residuals behind each estimate (0 = not identified)
+    method             (N,) str       estimator(s) of each node, e.g. "network+temporal"
+    reason             (N, 3) str     why a component is not identified ("" if it is)
+"""
+
+_STR = h5py.string_dtype(encoding="utf-8")
+
+
+def fill_noise_group(f: h5py.File, estimate: NoiseEstimate) -> None:
+    """Write ``estimate`` as ``/noise`` (replacing one) into ``f``, open for writing."""
+    if not isinstance(estimate, NoiseEstimate):
+        raise FileFormatError(f"estimate must be a NoiseEstimate, got {type(estimate).__name__}")
+    if NOISE_GROUP in f:
+        del f[NOISE_GROUP]
+    g = f.create_group(NOISE_GROUP)
+    g.attrs["format_version"] = _NOISE_VERSION
+    g.attrs["method"] = estimate.method
+    g.attrs["message"] = estimate.message
+    g.attrs["fallback_sigmas"] = estimate.fallback.sigmas
+    nodes = list(estimate.nodes.values())
+    g.create_dataset("node_name", data=np.array(list(estimate.nodes), dtype=object), dtype=_STR)
+    g.create_dataset("sigmas", data=np.array([e.noise.sigmas for e in nodes], np.float64))
+    g.create_dataset("identified", data=np.array([e.identified for e in nodes], bool))
+    g.create_dataset("n_residuals", data=np.array([e.n_residuals for e in nodes], np.int64))
+    g.create_dataset("method", data=np.array([e.method for e in nodes], dtype=object), dtype=_STR)
+    g.create_dataset("reason", data=np.array([list(e.reasons) for e in nodes], dtype=object),
+                     dtype=_STR)
+
+
+def write_noise(path: str | os.PathLike, estimate: NoiseEstimate, *,
+                output: str | os.PathLike | None = None) -> Path:
+    """Store ``estimate`` as the ``/noise`` group of the recording at ``path``
+    (replacing an existing one), or of a copy of it at ``output``.
+
+    Atomic, under the recording lock: the file is copied to a temporary file
+    beside the target, the group written there, and the copy moved over the
+    target. Returns the path written.
+    """
+    src = Path(path)
+    dst = src if output is None else Path(output)
+    with recording_lock(src), recording_lock(dst), atomic_path(dst) as tmp:
+        if not src.exists():
+            raise FileFormatError(f"{src} does not exist")
+        shutil.copyfile(src, tmp)
+        try:
+            f = h5py.File(tmp, "r+")
+        except H5_ERRORS as exc:
+            raise FileFormatError(f"{src} is not a writable HDF5 file: {exc}") from exc
+        with f:
+            try:
+                fill_noise_group(f, estimate)
+            except H5_ERRORS as exc:
+                if isinstance(exc, MmsnapError):
+                    raise
+                raise FileFormatError(f"{src}: /{NOISE_GROUP} cannot be written (damaged "
+                                      f"file?): {exc}") from exc
+    return dst
+
+
+def _text(v) -> str:
+    return v.decode() if isinstance(v, bytes) else str(v)
+
+
+def _dataset(g: h5py.Group, name: str, where: str, shape: tuple, kind: str) -> np.ndarray:
+    if name not in g:
+        raise FileFormatError(f"{where}/{name} is missing")
+    data = g[name][()]
+    if np.shape(data) != shape:
+        raise FileFormatError(f"{where}/{name} must have shape {shape}, got {np.shape(data)}")
+    if kind == "str":
+        return np.array([_text(v) for v in np.ravel(data)], dtype=object).reshape(shape)
+    return np.asarray(data)
+
+
+def _read_group(g: h5py.Group, where: str) -> NoiseEstimate:
+    for key in ("method", "message", "fallback_sigmas"):
+        if key not in g.attrs:
+            raise FileFormatError(f"{where} attribute {key!r} is missing")
+    if "node_name" not in g:
+        raise FileFormatError(f"{where}/node_name is missing")
+    names = g["node_name"][()]
+    if np.ndim(names) != 1 or np.size(names) == 0:
+        raise FileFormatError(f"{where}/node_name must list at least one node")
+    names = np.array([_text(v) for v in names], dtype=object)
+    n = names.size
+    sig = _dataset(g, "sigmas", where, (n, 3), "num").astype(float)
+    ident = _dataset(g, "identified", where, (n, 3), "num").astype(bool)
+    counts = _dataset(g, "n_residuals", where, (n, 3), "num").astype(np.int64)
+    methods = _dataset(g, "method", where, (n,), "str")
+    reasons = _dataset(g, "reason", where, (n, 3), "str")
+    fb = np.asarray(g.attrs["fallback_sigmas"], dtype=float)
+    if fb.shape != (3,):
+        raise FileFormatError(f"{where} attribute fallback_sigmas must have 3 values, got {fb!r}")
+    try:
+        nodes = {str(names[i]): NodeNoiseEstimate(
+            noise=MeasurementNoise(range_m=sig[i, 0], omega_rad=sig[i, 1], doppler_mps=sig[i, 2]),
+            identified=tuple(ident[i]), n_residuals=tuple(counts[i]), method=str(methods[i]),
+            reasons=tuple(reasons[i])) for i in range(n)}
+        return NoiseEstimate(
+            nodes=nodes, fallback=MeasurementNoise(range_m=fb[0], omega_rad=fb[1],
+                                                   doppler_mps=fb[2]),
+            method=_text(g.attrs["method"]), message=_text(g.attrs["message"]))
+    except MmsnapError as exc:
+        raise FileFormatError(f"{where} is inconsistent: {exc}") from exc
+
+
+def read_noise(path: str | os.PathLike) -> NoiseEstimate | None:
+    """The :class:`NoiseEstimate` stored by :func:`write_noise`, or None when
+    the file has no ``/noise`` group. A missing file, or a damaged or
+    inconsistent group, raises :class:`FileFormatError` naming the file and
+    the field."""
+    p = Path(path)
+    if not p.exists():
+        raise FileFormatError(f"{p} does not exist")
+    with read_guard(p):
+        try:
+            f = h5py.File(p, "r")
+        except H5_ERRORS as exc:
+            raise FileFormatError(f"{p} is not a readable HDF5 file: {exc}") from exc
+        with f:
+            if NOISE_GROUP not in f:
+                return None
+            g = f[NOISE_GROUP]
+            if not isinstance(g, h5py.Group):
+                raise FileFormatError(f"{p}:/{NOISE_GROUP} is not a group")
+            return _read_group(g, f"{p}:/{NOISE_GROUP}")
+
+
+def noise_for_fusion(path: str | os.PathLike, node_names, *, per_node: bool = True
+                     ) -> tuple[MeasurementNoise | dict[str, MeasurementNoise], str]:
+    """The noise ``mmsnap fuse`` uses by default for the recording at
+    ``path``, and what it is in words: each node's sigmas of ``/noise``
+    (a mapping name -> :class:`MeasurementNoise`, or with ``per_node=False``
+    their pooled value, :meth:`NoiseEstimate.pooled`), else the paper's
+    :class:`MeasurementNoise`. A ``/noise`` group without some node of
+    ``node_names`` raises :class:`FileFormatError`."""
+    est = read_noise(path)
+    if est is None:
+        return (MeasurementNoise(), "no /noise group (run `mmsnap calibrate` or `mmsnap noise`): "
+                                    "the paper's sigmas 0.035 m, pi/4 rad, 0.1807 m/s")
+    missing = [n for n in node_names if n not in est.nodes]
+    if missing:
+        raise FileFormatError(f"{path}:/{NOISE_GROUP} has no sigmas for nodes {missing}; "
+                              f"rerun `mmsnap noise`")
+    text = "sigmas from /noise:\n  " + est.summary().replace("\n", "\n  ")
+    if per_node:
+        return {n: est.nodes[n].noise for n in node_names}, text
+    pooled = est.pooled()
+    return pooled, (text + "\n  (one noise for every node: "
+                    + ", ".join(f"{v:.4g}" for v in pooled.sigmas) + ")")
