@@ -36,6 +36,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits  # a scikit-learn dependency
 
 from ..errors import MmsnapError, ValidationError
+from .commands.fuse import DEFAULT_ROBUST, accepts_per_node_noise
 
 __all__ = ["STEPS", "WORKER_ENVIRONMENT", "RecordingSummary", "run_recording", "run_many",
            "local_client", "calibration_json_path"]
@@ -67,6 +68,8 @@ _LIBRARY: dict[str, tuple[str, ...]] = {
     "write_calibration_json": ("mmsnap_graph.io.calibration", "mmsnap_graph.calibration"),
     "fuse_recording": ("mmsnap_graph.fusion.sequence",),
     "write_fused": ("mmsnap_graph.io.fused", "mmsnap_graph.fusion.sequence"),
+    "write_noise": ("mmsnap_graph.io.noise",),
+    "noise_for_fusion": ("mmsnap_graph.io.noise",),
 }
 _resolved: dict[str, Callable] = {}
 
@@ -174,6 +177,8 @@ def _step_calibrate(src: Path, dst: Path | None, options: Mapping) -> StepOutcom
     cal = _library("calibrate_recording")(rec, **options)
     json_path = _library("write_calibration_json")(calibration_json_path(dst or src), cal)
     path = _library("write_calibration")(src, rec, cal, output=dst)
+    if cal.noise is not None:  # as `mmsnap calibrate`: the noise from the data, /noise
+        _library("write_noise")(path, cal.noise)
     counts = {"n_nodes": len(cal.node_names), "n_calibrated": len(cal.poses)}
     failed = None if cal.success else f"calibration incomplete: {cal.message}"
     return counts, [Path(path), Path(json_path)], failed
@@ -181,6 +186,11 @@ def _step_calibrate(src: Path, dst: Path | None, options: Mapping) -> StepOutcom
 
 def _step_fuse(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
     rec = _library("read_recording")(src, load_cubes=False)
+    options = dict(options)
+    if "noise" not in options:  # as `mmsnap fuse`: /noise per node, else the paper's
+        options["noise"], _ = _library("noise_for_fusion")(
+            src, rec.node_names, per_node=accepts_per_node_noise(_library("fuse_recording")))
+    options.setdefault("robust", DEFAULT_ROBUST)
     fused = _library("fuse_recording")(rec, progress=False, **options)
     path = _library("write_fused")(src, fused, output=dst)
     n_ok = int(np.count_nonzero(fused.success))

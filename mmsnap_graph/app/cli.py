@@ -27,7 +27,7 @@ import sys
 from ..errors import MmsnapError
 
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
-COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch", "replay", "monitor"]
+COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch", "replay", "monitor", "noise"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1

@@ -53,6 +53,12 @@ class RecordingCalibration:
     pose_graph, joint : the step results (None when read from a file).
     noise : every node's noise estimated from the data at the calibrated
         poses (None when read from a file: see :mod:`mmsnap_graph.io.noise`).
+    time_offset_s : name -> clock offset in seconds (node time + offset =
+        reference time; 0 for the reference): the joint graph's estimate
+        (whole-frame lag and fraction) when it ran with clock offsets, else
+        ``-lag_frames * frame period``.
+    time_offset_variances : name -> its variance (s^2; NaN where not
+        estimated, 0 for the reference).
     """
 
     reference: str
@@ -70,6 +76,8 @@ class RecordingCalibration:
     pose_graph: PoseGraphCalibration | None = None
     joint: JointCalibration | None = None
     noise: NoiseEstimate | None = None
+    time_offset_s: Mapping[str, float] = field(default_factory=dict)
+    time_offset_variances: Mapping[str, float] = field(default_factory=dict)
 
 
 def residual_noise(result: JointCalibration, detections: Mapping[str, Detections], *,
@@ -215,6 +223,7 @@ def calibrate_recording(
     robust: str | None = "cauchy",
     motion: bool = True,
     sigma_a_mps2: float = 3.0,
+    time_offsets: bool = True,
 ) -> RecordingCalibration:
     """Calibrate every node of ``recording`` (module doc).
 
@@ -235,6 +244,9 @@ def calibrate_recording(
         white-acceleration sigma must cover a walking person's accelerations:
         on the simulator's walks 0.5 m/s^2 biased the poses by up to 9 cm,
         2-5 m/s^2 did not (default 3).
+    time_offsets : estimate each node's clock offset (a fraction of a frame
+        beyond the whole-frame lag of the track matching) in the joint graph
+        (docs/CALIBRATION.md, "Clock offsets"); False: whole frames only.
     Raises :class:`CalibrationError` when no node pair can be matched.
     """
     if method not in ("auto", "joint", "pose_graph"):
@@ -251,7 +263,9 @@ def calibrate_recording(
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dict(initial_poses=poses, robust=robust, motion=motion,
-                       frame_period_s=recording.frame_period_s, sigma_a_mps2=sigma_a_mps2)
+                       frame_period_s=recording.frame_period_s, sigma_a_mps2=sigma_a_mps2,
+                       time_offsets=bool(time_offsets) and bool(motion),
+                       lag_frames={n: int(pg.lag_frames.get(n, 0)) for n in reachable})
         joint = _refine(recording, pg, reachable, method, noise, options, notes)
         if joint is not None and (joint.success or method == "joint"):
             poses = {n: joint.poses[n] for n in reachable}
@@ -262,9 +276,27 @@ def calibrate_recording(
     success = pg.success and (joint is None or joint.success or result_method == "pose_graph")
     noise_est = estimate_noise(recording, poses=poses, lag_frames=pg.lag_frames)
     notes.append(noise_est.message)
+    offsets, variances = _clock_offsets(recording, names, pg, joint if result_method == "joint"
+                                        else None)
     return RecordingCalibration(
         reference=names[0], node_names=tuple(names), poses=poses, covariances=covs,
         lag_frames=dict(pg.lag_frames), unreachable=pg.unreachable, edges=pg.edges,
         method=result_method, source=used_source, success=bool(success),
         message="; ".join(notes), failures=failures, pose_graph=pg, joint=joint,
-        noise=noise_est)
+        noise=noise_est, time_offset_s=offsets, time_offset_variances=variances)
+
+
+def _clock_offsets(recording, names, pg, joint):
+    """Each calibrated node's clock offset and its variance: the joint
+    graph's when it ran, else the whole-frame lag's (variance NaN)."""
+    period = recording.frame_period_s
+    offsets, variances = {}, {}
+    for n in names:
+        if n == names[0]:
+            offsets[n], variances[n] = 0.0, 0.0
+        elif joint is not None and n in joint.time_offset_s:
+            offsets[n] = float(joint.time_offset_s[n])
+            variances[n] = float(joint.time_offset_variances.get(n, np.nan))
+        elif n in pg.lag_frames:
+            offsets[n], variances[n] = -int(pg.lag_frames[n]) * period, float("nan")
+    return offsets, variances

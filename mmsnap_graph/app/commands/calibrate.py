@@ -51,7 +51,10 @@ def register(subparsers) -> None:
                    help="white-acceleration sigma of the joint graph's constant-velocity "
                         "factors (default %(default)s m/s^2)")
     p.add_argument("--no-motion", action="store_true",
-                   help="no constant-velocity factors in the joint graph")
+                   help="no constant-velocity factors in the joint graph (and no clock offsets)")
+    p.add_argument("--no-time-offsets", action="store_true",
+                   help="whole-frame lags only: do not estimate each node's clock offset "
+                        "(a fraction of a frame) in the joint graph")
     p.add_argument("--json", default=None,
                    help="calibration JSON path (default: <recording>.calibration.json)")
     p.add_argument("-o", "--output", default=None,
@@ -65,15 +68,18 @@ def format_table(cal) -> str:
     """The calibration as a text table, angles and their sigmas in degrees."""
     lines = [f"reference {cal.reference}; method {cal.method}; source {cal.source}",
              f"{'node':<8}{'x_m':>9}{'y_m':>9}{'phi_deg':>10}{'sx_m':>9}{'sy_m':>9}"
-             f"{'sphi_deg':>10}{'lag':>5}"]
+             f"{'sphi_deg':>10}{'lag':>5}{'offset_ms':>11}{'s_ms':>7}"]
     for n in cal.node_names:
         if n not in cal.poses:
             lines.append(f"{n:<8}{'not calibrated (no path to ' + cal.reference + ')':>60}")
             continue
         x, y, phi = cal.poses[n]
         sd = np.sqrt(np.clip(np.diag(cal.covariances[n]), 0, None))
+        tau = 1e3 * float(cal.time_offset_s.get(n, np.nan))
+        s_tau = 1e3 * np.sqrt(max(float(cal.time_offset_variances.get(n, np.nan)), 0.0))
         lines.append(f"{n:<8}{x:9.3f}{y:9.3f}{np.degrees(phi):10.2f}{sd[0]:9.3f}{sd[1]:9.3f}"
-                     f"{np.degrees(sd[2]):10.3f}{cal.lag_frames.get(n, 0):5d}")
+                     f"{np.degrees(sd[2]):10.3f}{cal.lag_frames.get(n, 0):5d}{tau:11.1f}"
+                     f"{s_tau:7.1f}")
     if cal.edges:
         lines.append("pairwise closed form (track RMSE, paper eq. 14):")
         for e in cal.edges:
@@ -115,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
             rec, source=args.source, method=args.method, max_lag_frames=args.max_lag,
             max_rmse_m=args.max_rmse, noise=noise,
             robust=None if args.robust == "none" else args.robust, motion=not args.no_motion,
-            sigma_a_mps2=args.sigma_a)
+            sigma_a_mps2=args.sigma_a, time_offsets=not args.no_time_offsets)
         print(format_table(cal))
         write_calibration_json(json_path, cal)
         print(f"wrote {json_path}")
