@@ -238,9 +238,9 @@ def _link(g_frame, g_centre, g_vel, usable, frame_period_s, link_gate_m, velocit
     last velocity and the group's (both from Dopplers) over the time between
     them; the groups within ``link_gate_m + velocity_error_mps * dt`` of
     it are candidates, assigned by least total distance; a link is kept only
-    when every other candidate of its track and of its group is at least
-    ``ambiguity_m`` farther, else the track ends (its group starts a new
-    track). Returns ``(track (G,), number of tracks, breaks)``."""
+    when every other candidate of its track and of its group (but a staler
+    track farther away) is at least ``ambiguity_m`` farther, else the track
+    ends (its group starts a new track). Returns ``(track (G,), number of tracks, breaks)``."""
     track = np.full(g_frame.size, -1, np.int64)
     last_frame: list[int] = []
     last_pos: list[NDArray] = []
@@ -266,7 +266,13 @@ def _link(g_frame, g_centre, g_vel, usable, frame_period_s, link_gate_m, velocit
             for r, c in zip(rows, cols):
                 if not np.isfinite(dist[r, c]):
                     continue
-                others = np.concatenate([np.delete(dist[r], c), np.delete(dist[:, c], r)])
+                # Rivals: other groups in this track's gate, other tracks
+                # wanting this group (a staler track farther away is not one:
+                # a walker's track restarted after a miss leaves the old one
+                # open until max_gap).
+                rival_rows = np.delete(np.arange(dist.shape[0]), r)
+                stale = (dt[rival_rows] > dt[r]) & (dist[rival_rows, c] > dist[r, c])
+                others = np.concatenate([np.delete(dist[r], c), dist[rival_rows[~stale], c]])
                 if others.size and others.min() < dist[r, c] + ambiguity_m:
                     ended.add(open_tracks[r])      # two people close: do not guess
                     continue
