@@ -9,10 +9,10 @@ import pytest
 
 from mmsnap_graph.app.pipeline import track_recording
 from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
+from mmsnap_graph.calibration.multi_refine import refine_multi
 from mmsnap_graph.calibration.multi_target import (
     associate_targets,
     joint_detections_multi,
-    refine_multi,
     target_states,
 )
 from mmsnap_graph.errors import CalibrationError, ValidationError

@@ -36,8 +36,10 @@ hands the joint graph one detection per node per (frame, target):
    unchanged; :class:`TargetMapping` maps its states back to
    ``(frame, target)``.
 
-:func:`joint_detections_multi` returns the relabelled detections;
-:func:`refine_multi` runs the joint graph on them from a pose-graph result.
+:func:`joint_detections_multi` returns the relabelled detections (this
+module imports neither :mod:`.network` nor GTSAM-heavy steps, so that
+:mod:`.network` can call it); :func:`~mmsnap_graph.calibration.multi_refine.refine_multi`
+runs the joint graph on them from a pose-graph result.
 """
 
 from __future__ import annotations
@@ -57,11 +59,10 @@ from ..data.noise import MeasurementNoise
 from ..data.recording import Detections, Recording
 from ..errors import CalibrationError, ValidationError
 from .._validation import check_positive
-from .joint import JointCalibration, joint_calibration
-from .network import residual_noise
+from .joint import JointCalibration
 
 __all__ = ["ASSOCIATION_NOISE", "TargetMapping", "TargetAssociation", "associate_targets",
-           "joint_detections_multi", "target_states", "MultiTargetRefinement", "refine_multi"]
+           "joint_detections_multi", "target_states"]
 
 #: Centroid noise assumed by the association gates when none is given: the
 #: per-node EKF's default measurement sigmas (range 5 cm, spatial frequency
@@ -433,89 +434,3 @@ def target_states(joint: JointCalibration, mapping: TargetMapping
     (global), from its virtual frames."""
     frame, target = mapping.lookup(joint.frames)
     return frame, target, np.asarray(joint.states)
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class MultiTargetRefinement:
-    """Result of :func:`refine_multi`: the joint graph's result (its frames
-    are virtual frames), the mapping back to ``(frame, target)``, the
-    association and the measurement noise used."""
-
-    joint: JointCalibration
-    mapping: TargetMapping
-    association: TargetAssociation
-    noise: MeasurementNoise
-
-
-def _recorded_noise(metadata) -> MeasurementNoise | None:
-    """The simulator's centroid-noise metadata, when complete and valid (as
-    :func:`calibrate_recording` reads it)."""
-    keys = ("centroid_range_std_m", "centroid_omega_std_rad", "centroid_doppler_std_mps")
-    try:
-        vals = [float(metadata[k]) for k in keys]
-    except (KeyError, TypeError, ValueError):
-        return None
-    if not all(np.isfinite(v) and v > 0 for v in vals):
-        return None
-    return MeasurementNoise(range_m=vals[0], omega_rad=vals[1], doppler_mps=vals[2])
-
-
-def _learned_noise(dets, options) -> MeasurementNoise:
-    """The association noise, then the residuals of two joint solves without
-    motion factors (:func:`residual_noise`)."""
-    noise = ASSOCIATION_NOISE
-    for _ in range(2):
-        first = joint_calibration(dets, noise=noise, **{**options, "motion": False})
-        if not first.success:
-            break
-        noise = residual_noise(first, dets, noise=noise)
-    return noise
-
-
-def refine_multi(
-    recording: Recording,
-    pose_graph,
-    *,
-    noise: MeasurementNoise | None = None,
-    robust: str | None = "cauchy",
-    motion: bool = True,
-    sigma_a_mps2: float = 3.0,
-    max_motion_gap_frames: int = 3,
-    association: Mapping | None = None,
-) -> MultiTargetRefinement:
-    """The joint calibration graph on several people, from the pose graph
-    (module doc).
-
-    pose_graph : a :class:`~mmsnap_graph.calibration.pose_graph.PoseGraphCalibration`
-        (e.g. ``calibrate_recording(rec, method="pose_graph").pose_graph``):
-        its poses, covariances and lags drive the association and start the
-        joint graph.
-    noise : centroid noise of the joint graph; None: the recording's
-        ``centroid_*_std`` metadata, else learned from the residuals as
-        :func:`calibrate_recording` does.
-    robust, motion, sigma_a_mps2, max_motion_gap_frames : the joint graph's.
-    association : options of :func:`associate_targets`.
-    Raises :class:`CalibrationError` when fewer than two nodes have an
-    associated centroid.
-    """
-    names = [n for n in pose_graph.poses]
-    dets, mapping, assoc = joint_detections_multi(
-        recording, names, pose_graph.poses, pose_graph.lag_frames,
-        covariances=pose_graph.covariances, max_motion_gap_frames=max_motion_gap_frames,
-        **dict(association or {}))
-    if dets is None:
-        raise CalibrationError("fewer than two nodes have centroids associated with a common "
-                               "target")
-    if pose_graph.reference not in dets:
-        raise CalibrationError(f"the reference node {pose_graph.reference} has no centroid "
-                               f"associated with a target seen by another node")
-    options = dict(reference=pose_graph.reference,
-                   initial_poses={n: pose_graph.poses[n] for n in dets}, robust=robust,
-                   motion=motion, frame_period_s=recording.frame_period_s,
-                   sigma_a_mps2=sigma_a_mps2, max_motion_gap_frames=max_motion_gap_frames)
-    if noise is None:
-        noise = _recorded_noise(recording.metadata)
-        if noise is None:
-            noise = _learned_noise(dets, options)
-    joint = joint_calibration(dets, noise=noise, **options)
-    return MultiTargetRefinement(joint=joint, mapping=mapping, association=assoc, noise=noise)
