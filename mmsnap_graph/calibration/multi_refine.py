@@ -24,6 +24,7 @@ from .multi_target import (
     joint_detections_multi,
 )
 from .network import residual_noise
+from .pose_graph import PoseGraphCalibration
 
 __all__ = ["MultiTargetRefinement", "refine_multi"]
 
@@ -67,7 +68,7 @@ def _learned_noise(dets, options) -> MeasurementNoise:
 
 def refine_multi(
     recording: Recording,
-    pose_graph,
+    pose_graph: PoseGraphCalibration,
     *,
     noise: MeasurementNoise | None = None,
     robust: str | None = "cauchy",
@@ -91,17 +92,15 @@ def refine_multi(
     Raises :class:`CalibrationError` when fewer than two nodes have an
     associated centroid.
     """
-    names = [n for n in pose_graph.poses]
+    names = [pose_graph.reference] + [n for n in pose_graph.poses if n != pose_graph.reference]
     dets, mapping, assoc = joint_detections_multi(
         recording, names, pose_graph.poses, pose_graph.lag_frames,
         covariances=pose_graph.covariances, max_motion_gap_frames=max_motion_gap_frames,
         **dict(association or {}))
     if dets is None:
-        raise CalibrationError("fewer than two nodes have centroids associated with a common "
-                               "target")
-    if pose_graph.reference not in dets:
-        raise CalibrationError(f"the reference node {pose_graph.reference} has no centroid "
-                               f"associated with a target seen by another node")
+        raise CalibrationError(f"fewer than two nodes, or not the reference "
+                               f"{pose_graph.reference}, have centroids associated with a "
+                               f"target seen by another node")
     options = dict(reference=pose_graph.reference,
                    initial_poses={n: pose_graph.poses[n] for n in dets}, robust=robust,
                    motion=motion, frame_period_s=recording.frame_period_s,

@@ -402,16 +402,20 @@ def joint_detections_multi(
     association : options of :func:`associate_targets`.
     max_motion_gap_frames : the joint graph's (target blocks are one frame
         further apart, so that no motion factor joins two targets).
-    Returns ``(detections, mapping, association)``; detections and mapping
-    are None when fewer than two nodes have an associated centroid.
-    ``target_id`` of the detections is the target track.
+    Returns ``(detections, mapping, association)``, detections in the order
+    of ``names`` (the first, the joint graph's reference, first); detections
+    and mapping are None when fewer than two nodes, or not the first node,
+    have an associated centroid. ``target_id`` of the detections is the
+    target track.
     """
     if isinstance(max_motion_gap_frames, bool) or int(max_motion_gap_frames) < 1:
         raise ValidationError(f"max_motion_gap_frames must be an integer >= 1, got "
                               f"{max_motion_gap_frames!r}")
     assoc = associate_targets(recording, names, poses, lag_frames, covariances=covariances,
                               **association)
-    if sum(bool(np.any(t >= 0)) for t in assoc.target.values()) < 2:
+    first = str(names[0])
+    if (sum(bool(np.any(t >= 0)) for t in assoc.target.values()) < 2
+            or not np.any(assoc.target[first] >= 0)):
         return None, None, assoc
     mapping = _virtual_frames(assoc, int(max_motion_gap_frames) + 1)
     base, width = int(mapping.frame.min()), int(np.ptp(mapping.frame)) + 1
