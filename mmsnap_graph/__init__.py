@@ -34,6 +34,8 @@ _LAZY = {
     "BatchResult": "data.results",
     "FusedSequence": "data.results",
     "measurement_information": "data.results",
+    "NoiseEstimate": "data.noise",
+    "estimate_noise": "calibration",
     "fuse_frame": "fusion.oneshot",
     "build_frame_graph": "fusion.oneshot",
     "initial_state": "fusion.problem",

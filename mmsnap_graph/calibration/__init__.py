@@ -13,6 +13,10 @@
   :class:`~mmsnap_graph.data.recording.Recording`, giving a
   :class:`RecordingCalibration` (stored and read back by
   :mod:`mmsnap_graph.io.calibration`);
+- :func:`estimate_noise`: each node's measurement noise from the data
+  (:mod:`.noise_estimate`);
+- :func:`joint_detections_multi` / :func:`refine_multi`: several people,
+  associated across nodes, in the joint graph (:mod:`.multi_target`);
 - :class:`DecalibrationMonitor` / :func:`monitor_recording`: notice that a
   node moved and re-calibrate it (:mod:`.monitor`).
 """
@@ -26,6 +30,15 @@ from .closed_form import (
     closed_form_pose,
 )
 from .joint import DEFAULT_ROBUST_K, JointCalibration, joint_calibration
+from .multi_refine import MultiTargetRefinement, refine_multi
+from .multi_target import (
+    TargetAssociation,
+    TargetMapping,
+    associate_targets,
+    joint_detections_multi,
+    target_states,
+)
+from .noise_estimate import estimate_noise, network_noise, temporal_noise
 from .monitor import (
     ChangePoint,
     DecalibrationMonitor,
@@ -72,4 +85,14 @@ __all__ = [
     "MonitorUpdate",
     "Recalibration",
     "monitor_recording",
+    "MultiTargetRefinement",
+    "refine_multi",
+    "TargetAssociation",
+    "TargetMapping",
+    "associate_targets",
+    "joint_detections_multi",
+    "target_states",
+    "estimate_noise",
+    "network_noise",
+    "temporal_noise",
 ]

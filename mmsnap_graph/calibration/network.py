@@ -35,6 +35,7 @@ from ..data.noise import MeasurementNoise, NoiseEstimate
 from ..data.recording import Detections, Recording
 from .joint import JointCalibration, joint_calibration
 from .matching import LocalTracks, local_tracks
+from .multi_target import joint_detections_multi
 from .noise_estimate import estimate_noise
 from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 
@@ -179,10 +180,24 @@ def _refine(recording, pg, reachable, method, noise, options, notes):
     """The joint step: its result (None when skipped) and the noise used."""
     dets = _joint_detections(recording, reachable, pg.lag_frames)
     if dets is None:
+        # Several centroids per frame (several people, clutter): associate
+        # them across nodes with the pose graph, one block of frames per
+        # target track (calibration.multi_target).
+        try:
+            dets, _, assoc = joint_detections_multi(recording, reachable, pg.poses,
+                                                    pg.lag_frames, covariances=pg.covariances)
+        except CalibrationError as exc:  # e.g. no centroids at all (tracks only)
+            dets, assoc = None, None
+            notes.append(f"no association across nodes: {exc}")
+        if dets is not None:
+            notes.append(f"several centroids per frame: {assoc.n_targets} target tracks, "
+                         f"{assoc.n_groups} (frame, target) states")
+    if dets is None:
         if method == "joint":
-            raise CalibrationError("the joint calibration needs one centroid per node per "
-                                   "frame; some node has none or several")
-        notes.append("joint refinement skipped: needs one centroid per node per frame")
+            raise CalibrationError("the joint calibration needs centroids of a common target "
+                                   "from at least two nodes; none could be associated")
+        notes.append("joint refinement skipped: no centroids of a common target could be "
+                     "associated across nodes")
         return None
     if noise is None:
         noise, note = _joint_noise(recording, pg, dets)

@@ -13,7 +13,8 @@
   (:func:`timed_scene`, :func:`scene_recording`);
 - :mod:`.turns`: walks with instant turns (:func:`turning_walk`);
 - :mod:`.bump`: a recording in which a node is moved part-way
-  (:func:`simulate_bumped_recording`).
+  (:func:`simulate_bumped_recording`);
+- :mod:`.sparse`: sparse point clouds of real demos (:func:`sparse_clouds`).
 """
 
 from .body import HumanBody, body_scatterers
@@ -37,6 +38,7 @@ from .trajectories import make_trajectory, random_walk, straight_line
 from .clocks import scene_recording, timed_scene
 from .turns import turning_walk
 from .bump import simulate_bumped_recording
+from .sparse import empty_frame_mask, sparse_clouds
 
 __all__ = [
     "CONFIGURATIONS",
@@ -64,4 +66,6 @@ __all__ = [
     "scene_recording",
     "turning_walk",
     "simulate_bumped_recording",
+    "sparse_clouds",
+    "empty_frame_mask",
 ]
