@@ -25,6 +25,7 @@ import socket
 import sys
 import time
 import traceback
+from types import SimpleNamespace
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor
 from concurrent.futures import as_completed as cf_as_completed
@@ -36,7 +37,12 @@ import numpy as np
 from threadpoolctl import threadpool_limits  # a scikit-learn dependency
 
 from ..errors import MmsnapError, ValidationError
-from .commands.fuse import DEFAULT_ROBUST, accepts_per_node_noise
+from .commands.fuse import (
+    DEFAULT_ROBUST,
+    accepts_per_node_noise,
+    calibration_options,
+    stored_calibration,
+)
 
 __all__ = ["STEPS", "WORKER_ENVIRONMENT", "RecordingSummary", "run_recording", "run_many",
            "local_client", "calibration_json_path"]
@@ -191,6 +197,12 @@ def _step_fuse(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
         options["noise"], _ = _library("noise_for_fusion")(
             src, rec.node_names, per_node=accepts_per_node_noise(_library("fuse_recording")))
     options.setdefault("robust", DEFAULT_ROBUST)
+    if "pose_covariances" not in options and "time_offset_s" not in options:
+        # as `mmsnap fuse`: the stored calibration's pose covariances and clocks
+        args = SimpleNamespace(calibration=None, no_pose_covariance=False,
+                               no_time_offsets=False,
+                               covariance=options.get("covariance", "laplace"))
+        options.update(calibration_options(args, stored_calibration(args, src))[0])
     fused = _library("fuse_recording")(rec, progress=False, **options)
     path = _library("write_fused")(src, fused, output=dst)
     n_ok = int(np.count_nonzero(fused.success))

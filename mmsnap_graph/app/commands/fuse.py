@@ -65,8 +65,58 @@ def register(subparsers) -> None:
                    help="grid points per axis for --covariance grid (default %(default)s)")
     p.add_argument("-o", "--output", default=None,
                    help="write a copy of the recording with /fused here instead of updating it")
+    p.add_argument("--no-pose-covariance", action="store_true",
+                   help="treat the calibrated poses as exact (default: the calibration's pose "
+                        "covariances are included in the fused covariance, docs/CONVENTIONS.md "
+                        "'Calibration-aware fusion'; Laplace covariance only)")
+    p.add_argument("--no-time-offsets", action="store_true",
+                   help="do not bring the nodes' detections to the reference clock with the "
+                        "calibration's clock offsets (default: they are)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
+
+
+def stored_calibration(args, path):
+    """The calibration fusion takes its poses' uncertainty and the clocks
+    from: ``--calibration`` JSON, else the recording's ``/calibration``
+    group, else None."""
+    import h5py
+
+    from mmsnap_graph.io.calibration import CALIBRATION_GROUP, read_calibration, read_calibration_json
+
+    if args.calibration:
+        return read_calibration_json(args.calibration)
+    with h5py.File(path, "r") as f:  # readable: the recording was just read
+        if CALIBRATION_GROUP not in f:
+            return None
+    return read_calibration(path)
+
+
+def calibration_options(args, cal) -> tuple[dict, list[str]]:
+    """``fuse_recording`` options from the calibration (pose covariances,
+    clock offsets) and what they are in words."""
+    if cal is None:
+        return {}, ["no calibration: poses exact, clocks as recorded"]
+    opts, text = {}, []
+    covs = {n: c for n, c in cal.covariances.items()
+            if np.all(np.isfinite(c)) and np.any(np.asarray(c) != 0)}
+    if args.no_pose_covariance or not covs:
+        text.append("poses exact" + ("" if args.no_pose_covariance else
+                                     " (the calibration has no pose covariance)"))
+    elif args.covariance != "laplace":
+        text.append("poses exact (pose covariances need --covariance laplace)")
+    else:
+        opts["pose_covariances"] = covs
+        text.append(f"pose covariances of {', '.join(sorted(covs))} included")
+    offsets = {n: float(t) for n, t in getattr(cal, "time_offset_s", {}).items()
+               if float(t) != 0.0}
+    if offsets and not args.no_time_offsets:
+        opts["time_offset_s"] = offsets
+        text.append("clock offsets applied: " + ", ".join(
+            f"{n} {1e3 * t:+.1f} ms" for n, t in sorted(offsets.items())))
+    else:
+        text.append("clocks as recorded")
+    return opts, text
 
 
 def accepts_per_node_noise(fuse) -> bool:
@@ -95,20 +145,22 @@ def choose_noise(args, path, node_names, fuse):
 def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.fusion.sequence import fuse_recording
     from mmsnap_graph.io import read_recording, write_fused
-    from mmsnap_graph.io.calibration import load_calibration_poses
 
     if args.grid_points < 5 or args.grid_points % 2 == 0:
         raise ValidationError(f"--grid-points must be odd and >= 5, got {args.grid_points}")
     if args.output is not None:
         check_output_path(args.output)
-    poses = load_calibration_poses(args.calibration) if args.calibration else None
     # The lock spans read -> write: a concurrent `mmsnap process` or
     # `calibrate` of the same file waits instead of being overwritten.
     with recording_lock(args.recording):
         rec = read_recording(args.recording, load_cubes=False)
         noise, noise_text = choose_noise(args, args.recording, rec.node_names, fuse_recording)
+        cal = stored_calibration(args, args.recording)
+        options, cal_text = calibration_options(args, cal)
         print(noise_text, file=sys.stdout)
-        fused = fuse_recording(rec, node_poses=poses, mode=args.mode,
+        print("; ".join(cal_text), file=sys.stdout)
+        poses = dict(cal.poses) if (cal is not None and args.calibration) else None
+        fused = fuse_recording(rec, node_poses=poses, mode=args.mode, **options,
                                covariance=args.covariance, noise=noise, solver=args.solver,
                                source=args.source, gate_probability=args.gate,
                                grid_points_per_axis=args.grid_points,
