@@ -111,3 +111,26 @@ def test_to_toml_writes_infinities_and_strings_that_read_back():
                         ekf=EkfConfig(sigma_a_mps2=0.5))
     assert process_config_from_mapping(__import__("tomllib").loads(
         process_config_to_toml(cfg))) == cfg
+
+
+def test_the_ekf_noise_comes_from_the_data_unless_the_file_sets_it(tmp_path):
+    """Default: each node's EKF takes the sigmas its own centroids identify
+    (the simulator's 0.05 m, 0.08 rad, 0.1 m/s, not EkfConfig's 0.05, 0.1,
+    0.2); a file with [ekf] measurement_std fixes them."""
+    from mmsnap_graph.app.pipeline import ekf_noise_from_centroids
+    from mmsnap_graph.sim import simulate_recording
+    rec = simulate_recording("C", levels=("centroids",), n_frames=400, seed=5)
+    ekf = ekf_noise_from_centroids(EkfConfig(), rec.nodes["S1"].centroids)
+    np.testing.assert_allclose(ekf.measurement_std, (0.05, 0.08, 0.1), rtol=0.2)
+    assert ProcessConfig().ekf_noise_from_data
+    cfg = process_config_from_mapping({"ekf": {"measurement_std": [0.1, 0.2, 0.3]}})
+    assert not cfg.ekf_noise_from_data and cfg.ekf.measurement_std == (0.1, 0.2, 0.3)
+    # A file shown by --show-config reads back with the noise still from the data.
+    assert read_process_config_text(process_config_to_toml(ProcessConfig()), tmp_path) \
+        .ekf_noise_from_data
+
+
+def read_process_config_text(text, tmp_path):
+    path = tmp_path / "shown.toml"
+    path.write_text(text)
+    return read_process_config(path)

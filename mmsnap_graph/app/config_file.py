@@ -15,7 +15,9 @@ Layout (every key optional; an absent key keeps its default; ``mmsnap process
 
 TOML has no null: a key whose default is "unset" (e.g. ``max_range_m``, the
 radar's unambiguous range) is set by giving a value and unset by leaving it
-out. ``[ekf] frame_period_s`` is always the recording's frame period (a value
+out. ``[ekf] measurement_std`` is unset by default: the EKF's measurement
+sigmas are estimated from each node's own centroids
+(:func:`mmsnap_graph.app.pipeline.ekf_noise_from_centroids`); giving it fixes them. ``[ekf] frame_period_s`` is always the recording's frame period (a value
 in the file is an error: the file describes processing, the recording its
 timing).
 """
@@ -52,6 +54,9 @@ class ProcessConfig:
 
     chain: ChainConfig = field(default_factory=ChainConfig)
     ekf: EkfConfig = field(default_factory=EkfConfig)
+    #: The EKF's measurement sigmas from each node's centroids (True, unless
+    #: the file sets ``[ekf] measurement_std``).
+    ekf_noise_from_data: bool = True
 
 
 def _coerce(where: str, default: Any, value: Any) -> Any:
@@ -115,8 +120,10 @@ def process_config_from_mapping(data: Mapping[str, Any], *, where: str = "config
         raise ConfigurationError(f"{where}: unknown table(s) {sorted(unknown)} "
                                  f"(known: chain, chain.cfar, chain.cluster, ekf)")
     chain = _build(ChainConfig, data.get("chain", {}), f"{where}: chain", nested=_CHAIN_TABLES)
-    ekf = _build(EkfConfig, data.get("ekf", {}), f"{where}: ekf", forbidden=_EKF_FROM_RECORDING)
-    return ProcessConfig(chain=chain, ekf=ekf)
+    ekf_table = data.get("ekf", {})
+    ekf = _build(EkfConfig, ekf_table, f"{where}: ekf", forbidden=_EKF_FROM_RECORDING)
+    from_data = not (isinstance(ekf_table, Mapping) and "measurement_std" in ekf_table)
+    return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=from_data)
 
 
 def read_process_config(path: str | os.PathLike) -> ProcessConfig:
@@ -151,13 +158,15 @@ def _toml_value(value: Any) -> str:
     return str(int(value)) if isinstance(value, int) else repr(value)
 
 
-def _table_lines(obj, header: str, skip=()) -> list[str]:
+def _table_lines(obj, header: str, skip=(), commented=()) -> list[str]:
     lines = [f"[{header}]"]
     for f in dataclasses.fields(obj):
         if f.name in skip or dataclasses.is_dataclass(getattr(obj, f.name)):
             continue
         value = getattr(obj, f.name)
-        if value is None:
+        if f.name in commented:
+            lines.append(f"# {f.name} = {_toml_value(value)}  (unset: {commented[f.name]})")
+        elif value is None:
             lines.append(f"# {f.name} = (unset)")
         else:
             lines.append(f"{f.name} = {_toml_value(value)}")
@@ -171,5 +180,9 @@ def process_config_to_toml(config: ProcessConfig) -> str:
     lines += _table_lines(config.chain, "chain")
     for name in _CHAIN_TABLES:
         lines += [""] + _table_lines(getattr(config.chain, name), f"chain.{name}")
-    lines += [""] + _table_lines(config.ekf, "ekf", skip=_EKF_FROM_RECORDING)
+    commented = ({"measurement_std": "estimated from each node's centroids; set it to fix "
+                                     "the EKF's range, omega, Doppler sigmas"}
+                 if config.ekf_noise_from_data else {})
+    lines += [""] + _table_lines(config.ekf, "ekf", skip=_EKF_FROM_RECORDING,
+                                 commented=commented)
     return "\n".join(lines) + "\n"

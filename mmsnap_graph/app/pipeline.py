@@ -23,7 +23,8 @@ import numpy as np
 
 from .._atomic import check_output_path, recording_lock
 from ..data.radar_config import TABLE_I
-from ..data.recording import NodeData, Recording
+from ..calibration.noise_estimate import MIN_DOF, temporal_noise
+from ..data.recording import Detections, NodeData, Recording
 from ..errors import FileFormatError, ValidationError
 from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
 from ..radar.chain import ChainConfig, ChainResult, process_cubes, unambiguous_speed_mps
@@ -52,9 +53,34 @@ class NodeReport:
     chain: ChainResult | None = None
 
 
-def _ekf_for(ekf: EkfConfig | None, frame_period_s: float) -> EkfConfig:
+#: Where the local EKF's measurement noise comes from: ``"data"`` (default):
+#: each node's own centroids (temporal differences,
+#: :func:`~mmsnap_graph.calibration.noise_estimate.temporal_noise`), every
+#: component they identify; ``"config"``: ``EkfConfig.measurement_std`` as given.
+EKF_NOISE_SOURCES = ("data", "config")
+
+
+def ekf_noise_from_centroids(ekf: EkfConfig, centroids: Detections | None) -> EkfConfig:
+    """``ekf`` with each measurement sigma (range, omega, Doppler) that the
+    node's own centroids identify (at least ``MIN_DOF`` differences); the
+    others keep ``ekf.measurement_std``."""
+    if centroids is None or len(centroids) == 0:
+        return ekf
+    sig, counts = temporal_noise(centroids)
+    std = np.asarray(ekf.measurement_std, dtype=float)
+    ok = np.isfinite(sig) & (sig > 0) & (counts >= MIN_DOF)
+    if not np.any(ok):
+        return ekf
+    return dataclasses.replace(ekf, measurement_std=tuple(float(v) for v in np.where(ok, sig, std)))
+
+
+def _ekf_for(ekf: EkfConfig | None, frame_period_s: float, centroids: Detections | None = None,
+             ekf_noise: str = "data") -> EkfConfig:
+    if ekf_noise not in EKF_NOISE_SOURCES:
+        raise ValidationError(f"ekf_noise must be one of {EKF_NOISE_SOURCES}, got {ekf_noise!r}")
     ekf = EkfConfig() if ekf is None else ekf
-    return dataclasses.replace(ekf, frame_period_s=float(frame_period_s))
+    ekf = dataclasses.replace(ekf, frame_period_s=float(frame_period_s))
+    return ekf_noise_from_centroids(ekf, centroids) if ekf_noise == "data" else ekf
 
 
 def _frames_span(frames: np.ndarray, ekf: EkfConfig | None = None) -> np.ndarray | None:
@@ -73,12 +99,16 @@ def process_node(
     config: ChainConfig | None = None,
     ekf: EkfConfig | None = None,
     progress: bool = False,
+    ekf_noise: str = "data",
 ) -> tuple[NodeData, NodeReport]:
     """Fill a node's point cloud, centroids and tracks from its cube.
 
     frame_period_s : the recording's frame period (the EKF's T).
     config : the chain's configuration (default ``ChainConfig()``); ekf : the
     EKF's (default ``EkfConfig()``, its frame period set to ``frame_period_s``).
+    ekf_noise : ``"data"`` (default): the EKF's measurement sigmas from the
+    node's own centroids where they identify them (:func:`ekf_noise_from_centroids`);
+    ``"config"``: ``ekf.measurement_std`` as given.
     Returns the new node and a :class:`NodeReport`. A node without a cube
     raises :class:`ValidationError` (use :func:`track_node`).
     """
@@ -86,7 +116,7 @@ def process_node(
         raise ValidationError(f"nodes[{node.name}] has no cube; use track_node for centroids")
     result = process_cubes(node.cube, node.radar, config, frames=node.cube_frame,
                            progress=progress, desc=f"{node.name} chain")
-    tracker = _ekf_for(ekf, frame_period_s)
+    tracker = _ekf_for(ekf, frame_period_s, result.centroids, ekf_noise)
     if tracker.doppler_wrap_mps is None:
         # The chain's Doppler is unambiguous only within +-U: the EKF wraps its
         # Doppler innovation modulo 2 U (issue 14).
@@ -107,9 +137,10 @@ def cluster_node(
     *,
     config: ChainConfig | None = None,
     ekf: EkfConfig | None = None,
+    ekf_noise: str = "data",
 ) -> tuple[NodeData, NodeReport]:
     """Fill a node's centroids (torso DBSCAN with ``config.cluster``) and
-    tracks from its point cloud."""
+    tracks from its point cloud (``ekf_noise``: :func:`process_node`)."""
     if node.point_cloud is None:
         raise ValidationError(f"nodes[{node.name}] has no point cloud to cluster")
     config = ChainConfig() if config is None else config
@@ -117,7 +148,8 @@ def cluster_node(
     cents = torso_centroids(node.point_cloud, config.cluster,
                             doppler_resolution_mps=radar.doppler_resolution_mps)
     frames = node.point_cloud.frame
-    tracks = track_centroids(cents, _ekf_for(ekf, frame_period_s), frames=_frames_span(frames, ekf))
+    tracks = track_centroids(cents, _ekf_for(ekf, frame_period_s, cents, ekf_noise),
+                             frames=_frames_span(frames, ekf))
     new = dataclasses.replace(node, centroids=cents, tracks=tracks)
     return new, NodeReport(name=node.name, level="point_cloud",
                            n_frames=int(np.unique(frames).size),
@@ -126,21 +158,24 @@ def cluster_node(
                            message=f"{len(node.point_cloud)} points clustered")
 
 
-def _from_stored_levels(node: NodeData, frame_period_s: float, config, ekf, centroids_only):
+def _from_stored_levels(node: NodeData, frame_period_s: float, config, ekf, centroids_only,
+                        ekf_noise="data"):
     """The highest stored level below the cube: point cloud, else centroids."""
     if node.point_cloud is not None and not centroids_only:
-        return cluster_node(node, frame_period_s, config=config, ekf=ekf)
+        return cluster_node(node, frame_period_s, config=config, ekf=ekf, ekf_noise=ekf_noise)
     if node.centroids is not None:
-        return track_node(node, frame_period_s, ekf=ekf)
+        return track_node(node, frame_period_s, ekf=ekf, ekf_noise=ekf_noise)
     return None
 
 
-def track_node(node: NodeData, frame_period_s: float, *, ekf: EkfConfig | None = None
-               ) -> tuple[NodeData, NodeReport]:
-    """Fill a node's tracks from its centroids (no cube needed)."""
+def track_node(node: NodeData, frame_period_s: float, *, ekf: EkfConfig | None = None,
+               ekf_noise: str = "data") -> tuple[NodeData, NodeReport]:
+    """Fill a node's tracks from its centroids (no cube needed;
+    ``ekf_noise``: :func:`process_node`)."""
     if node.centroids is None:
         raise ValidationError(f"nodes[{node.name}] has no centroids to track")
-    tracks = track_centroids(node.centroids, _ekf_for(ekf, frame_period_s))
+    tracks = track_centroids(node.centroids, _ekf_for(ekf, frame_period_s, node.centroids,
+                                                      ekf_noise))
     new = dataclasses.replace(node, tracks=tracks)
     n = len(node.centroids)
     return new, NodeReport(name=node.name, level="centroids",
@@ -171,6 +206,7 @@ def process_recording(
     config: ChainConfig | None = None,
     ekf: EkfConfig | None = None,
     progress: bool = False,
+    ekf_noise: str = "data",
 ) -> tuple[Recording, dict[str, NodeReport]]:
     """Run the chain on every node from the highest level it holds: the cube,
     else the point cloud, else the centroids; nodes with none are reported,
@@ -179,22 +215,24 @@ def process_recording(
 
     def one(node: NodeData):
         if node.cube is not None:
-            return process_node(node, fp, config=config, ekf=ekf, progress=progress)
-        return _from_stored_levels(node, fp, config, ekf, centroids_only=False)
+            return process_node(node, fp, config=config, ekf=ekf, progress=progress,
+                                ekf_noise=ekf_noise)
+        return _from_stored_levels(node, fp, config, ekf, centroids_only=False,
+                                   ekf_noise=ekf_noise)
 
     return _each_node(recording, one)
 
 
-def track_recording(recording: Recording, *, ekf: EkfConfig | None = None
-                    ) -> tuple[Recording, dict[str, NodeReport]]:
+def track_recording(recording: Recording, *, ekf: EkfConfig | None = None,
+                    ekf_noise: str = "data") -> tuple[Recording, dict[str, NodeReport]]:
     """Tracks of every node from its centroids only."""
     fp = recording.frame_period_s
-    return _each_node(recording, lambda n: track_node(n, fp, ekf=ekf)
+    return _each_node(recording, lambda n: track_node(n, fp, ekf=ekf, ekf_noise=ekf_noise)
                       if n.centroids is not None else None)
 
 
 def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, centroids_only,
-                         progress) -> tuple[NodeData | None, NodeReport]:
+                         progress, ekf_noise="data") -> tuple[NodeData | None, NodeReport]:
     """One node of :func:`process_file`: its cube streamed from ``src``, else
     its stored levels. Returns the new node (None: nothing to process) and
     its report."""
@@ -205,7 +243,7 @@ def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, cent
         except FileFormatError:
             cube_meta = None  # this node has no cube
     if cube_meta is None:
-        out = _from_stored_levels(node, fp, config, ekf, centroids_only)
+        out = _from_stored_levels(node, fp, config, ekf, centroids_only, ekf_noise)
         if out is None:
             return None, NodeReport(name=node.name, level="none", n_frames=0, n_points=0,
                                     n_centroids=0, n_tracks=0, success=False,
@@ -219,7 +257,7 @@ def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, cent
 
     result = process_cubes(frames_iter(), radar, config, frames=frames, progress=progress,
                            desc=f"{node.name} chain")
-    tracks = track_centroids(result.centroids, _ekf_for(ekf, fp),
+    tracks = track_centroids(result.centroids, _ekf_for(ekf, fp, result.centroids, ekf_noise),
                              frames=_frames_span(np.asarray(frames), ekf))
     new = dataclasses.replace(node, point_cloud=result.point_cloud, centroids=result.centroids,
                               tracks=tracks)
@@ -237,6 +275,7 @@ def process_file(
     ekf: EkfConfig | None = None,
     centroids_only: bool = False,
     progress: bool = False,
+    ekf_noise: str = "data",
 ) -> tuple[Path, dict[str, NodeReport]]:
     """Process an HDF5 recording (cubes streamed, not loaded whole) and write
     the point-cloud, centroid and track levels back.
@@ -247,6 +286,8 @@ def process_file(
     centroids_only : ignore cubes and point clouds: only re-track from the
         stored centroids. Otherwise each node starts from its cube, else its
         point cloud, else its centroids.
+    ekf_noise : the EKF's measurement noise, from each node's centroids
+        (``"data"``, default) or ``ekf.measurement_std`` (``"config"``).
     """
     src = Path(path)
     dst = src if output is None else check_output_path(output)
@@ -257,7 +298,7 @@ def process_file(
         reports: dict[str, NodeReport] = {}
         for name, node in rec.nodes.items():
             new, reports[name] = _process_stored_node(src, node, rec.frame_period_s, config,
-                                                      ekf, centroids_only, progress)
+                                                      ekf, centroids_only, progress, ekf_noise)
             if new is not None:
                 rec = rec.with_node(new)
         update_recording(src, rec, keep_cubes=True, output=None if dst.resolve() == src.resolve() else dst)

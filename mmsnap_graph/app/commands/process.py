@@ -54,7 +54,7 @@ def effective_config(args: argparse.Namespace) -> ProcessConfig:
             ekf = dataclasses.replace(ekf, sigma_a_mps2=args.sigma_a)
     except (TypeError, ValueError) as exc:
         raise ConfigurationError(f"mmsnap process option: {exc}") from None
-    return ProcessConfig(chain=chain, ekf=ekf)
+    return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=cfg.ekf_noise_from_data)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
     config, ekf = cfg.chain, cfg.ekf
     progress = not args.no_progress and sys.stderr.isatty()
     path, reports = process_file(args.recording, output=args.output, config=config, ekf=ekf,
-                                 centroids_only=args.centroids_only, progress=progress)
+                                 centroids_only=args.centroids_only, progress=progress,
+                                 ekf_noise="data" if cfg.ekf_noise_from_data else "config")
     for rep in reports.values():
         print(f"{rep.name}: {rep.level}: {rep.n_points} points, {rep.n_centroids} centroids, "
               f"{rep.n_tracks} tracks ({rep.message})")
