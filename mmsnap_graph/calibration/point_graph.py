@@ -1,0 +1,157 @@
+"""Every node's pose at once from the matched track points of all node pairs.
+
+Pairwise closed forms that reuse one node's detections (S1-S2 and S1-S3 both
+use S1's track) are correlated; a pose graph that takes them as independent
+edges counts S1's track twice and reports covariances that are too small
+(issue 11: pose NEES 6.8-8.5 on a clean 3-node network, 6 expected for two
+poses). Here the poses are solved jointly from the points themselves:
+
+.. math::
+
+    \\min_{T_2..T_N} \\sum_{(a, b)} \\sum_k |T_a(z_a[k]) - T_b(z_b[k])|^2,
+
+``T_1`` the identity (the reference), ``z_a[k]``, ``z_b[k]`` the matched
+points of the edge a-b at a's frame ``k`` (and b's ``k + lag``), residuals in
+the reference frame. Gauss-Newton in GTSAM's body tangent of each pose
+(``d T(z) / d xi = R [I, J z]``,
+:func:`~mmsnap_graph.calibration.closed_form.alignment_jacobian`), started
+from the composed pairwise poses. For two nodes this is the closed form.
+
+Covariance: the sandwich ``H^{-1} Omega H^{-1}``, ``H = sum J^T J``, with the
+scores ``J^T r`` of all residuals of one instant (one frame on the reference's
+clock: every edge that uses the same detection) summed before their outer
+product, so that shared detections are counted once (a cluster-robust
+sandwich), times ``n / (n - p)`` (``n`` instants, ``p`` unknowns); then
+multiplied by the integrated autocorrelation time of that score series
+(:func:`~mmsnap_graph.calibration.correlation.autocorrelation_factor`) for
+tracks whose errors are correlated from frame to frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .closed_form import alignment_jacobian
+from .correlation import autocorrelation_factor
+from .poses import pose_array, to_pose2
+
+__all__ = ["PointEdge", "PointGraphSolution", "solve_point_graph"]
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class PointEdge:
+    """Matched points of one node pair: ``points_a_m[k]`` in a's frame and
+    ``points_b_m[k]`` in b's are one target at the reference-clock time
+    ``times[k]``."""
+
+    node_a: str
+    node_b: str
+    points_a_m: NDArray
+    points_b_m: NDArray
+    times: NDArray
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class PointGraphSolution:
+    """poses : name -> (3,); covariance : (3M, 3M) joint covariance of the M
+    non-reference poses in ``order``; autocorrelation_factor : tau used;
+    iterations, cost_m2 (sum of squared residuals), converged."""
+
+    poses: Mapping[str, NDArray]
+    order: tuple[str, ...]
+    covariance: NDArray
+    autocorrelation_factor: float
+    iterations: int
+    cost_m2: float
+    converged: bool
+
+
+def _transform(pose: NDArray, pts: NDArray) -> NDArray:
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return np.stack([pose[0] + c * pts[:, 0] - s * pts[:, 1],
+                     pose[1] + s * pts[:, 0] + c * pts[:, 1]], axis=-1)
+
+
+def _linearize(poses, index, edges, p):
+    """Residuals (n, 2), Jacobians (n, 2, p) of every row, and its time."""
+    res, jacs, times = [], [], []
+    for e in edges:
+        ra = _transform(poses[e.node_a], e.points_a_m)
+        rb = _transform(poses[e.node_b], e.points_b_m)
+        jac = np.zeros((ra.shape[0], 2, p))
+        if e.node_a in index:
+            i = index[e.node_a]
+            jac[:, :, i:i + 3] = alignment_jacobian(poses[e.node_a], e.points_a_m)
+        if e.node_b in index:
+            i = index[e.node_b]
+            jac[:, :, i:i + 3] -= alignment_jacobian(poses[e.node_b], e.points_b_m)
+        res.append(ra - rb)
+        jacs.append(jac)
+        times.append(e.times)
+    return np.concatenate(res), np.concatenate(jacs), np.concatenate(times)
+
+
+def _gauss_newton(poses, index, edges, p, max_iterations):
+    """Gauss-Newton on the body tangents; returns the poses, iterations and
+    whether the last step was negligible."""
+    converged = False
+    it = 0
+    for it in range(1, max_iterations + 1):
+        r, jac, _ = _linearize(poses, index, edges, p)
+        h = np.einsum("kia,kib->ab", jac, jac)
+        grad = np.einsum("kia,ki->a", jac, r)
+        step = -np.linalg.solve(h, grad)
+        for n, i in index.items():
+            poses[n] = pose_array(to_pose2(poses[n]).retract(step[i:i + 3]))
+        if np.max(np.abs(step)) < 1e-10 * (1.0 + np.max(np.abs(np.concatenate(list(poses.values()))))):
+            converged = True
+            break
+    return poses, it, converged
+
+
+def _covariance(poses, index, edges, p, autocorrelation):
+    """Cluster-robust sandwich (module doc) and the autocorrelation factor."""
+    r, jac, times = _linearize(poses, index, edges, p)
+    h = np.einsum("kia,kib->ab", jac, jac)
+    scores = np.einsum("kia,ki->ka", jac, r)
+    uniq, inverse = np.unique(times, return_inverse=True)
+    clustered = np.zeros((uniq.size, p))
+    np.add.at(clustered, inverse.ravel(), scores)
+    n = uniq.size
+    meat = clustered.T @ clustered * (n / max(n - p, 1))
+    h_inv = np.linalg.inv(h)
+    tau = autocorrelation_factor(clustered, uniq) if autocorrelation else 1.0
+    cov = h_inv @ meat @ h_inv * tau
+    return 0.5 * (cov + cov.T), tau, float(np.sum(r * r))
+
+
+def solve_point_graph(
+    reference: str,
+    initial_poses: Mapping[str, NDArray],
+    edges: Sequence[PointEdge],
+    *,
+    autocorrelation: bool = True,
+    max_iterations: int = 20,
+) -> PointGraphSolution:
+    """Solve the poses of every node in ``initial_poses`` but ``reference``
+    from the edges' matched points (module doc).
+
+    initial_poses : name -> (3,) starting pose (the reference's is ignored:
+        identity); every edge's nodes must be in it.
+    Raises ``numpy.linalg.LinAlgError`` when the normal equations are
+    singular (a caller turns it into ``success=False``).
+    """
+    order = tuple(n for n in initial_poses if n != reference)
+    index = {n: 3 * i for i, n in enumerate(order)}
+    p = 3 * len(order)
+    poses = {n: np.asarray(v, dtype=float).copy() for n, v in initial_poses.items()}
+    poses[reference] = np.zeros(3)
+    poses, it, converged = _gauss_newton(poses, index, edges, p, max_iterations)
+    cov, tau, cost = _covariance(poses, index, edges, p, autocorrelation)
+    return PointGraphSolution(poses=poses, order=order, covariance=cov,
+                              autocorrelation_factor=tau, iterations=it, cost_m2=cost,
+                              converged=converged)
