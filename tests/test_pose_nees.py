@@ -1,0 +1,72 @@
+"""Issue 11 item 4: 3-node network pose NEES. Network S1 (0, 0, 0), S2 (5, 5,
+pi/2), S3 (0, 7, pi); one random walker, 300 frames at 150 ms; the two
+non-reference poses have 6 degrees of freedom, so the joint NEES (with the
+poses' cross-covariance) is chi-square(6): over N seeds its mean has the 95%
+band chi2.ppf([0.025, 0.975], 6 N) / N.
+
+Measured (seeds 0-19 unless said; ``python`` Monte Carlo in this file):
+- EKF tracks, old pose graph (independent between factors, no
+  autocorrelation correction): mean joint NEES 171 (10 seeds).
+- EKF tracks, points solve with the correction: 20.7; reported sigmas
+  match the spread of the errors (S2 x 0.067 vs 0.065 m) but the EKF tracks
+  carry a bias common to all seeds (S2 x +0.05 m, phi +0.012 rad) that no
+  covariance of the residuals can show.
+- Centroids: old graph 7.25 (10 seeds), points solve 7.5 (30 seeds; band
+  for 30 seeds (5.0, 7.2)), between factors with the corrected pairwise
+  covariances 6.05 but marginal sigmas 20x the actual errors.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from mmsnap_graph.calibration import (local_tracks, pairwise_edges, pose_graph_calibration,
+                                      pose_tangent_error)
+from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
+
+NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
+
+
+def _joint_nees(seed, source, **options):
+    rec = simulate_recording(NET, "random", levels=("centroids",), n_frames=300, seed=seed)
+    tracks = {}
+    for n, node in rec.nodes.items():
+        if source == "tracks":
+            node = dataclasses.replace(node, tracks=track_centroids(
+                node.centroids, EkfConfig(frame_period_s=rec.frame_period_s)))
+        tracks[n] = local_tracks(node, source)
+    edges, failures = pairwise_edges(tracks, frame_period_s=rec.frame_period_s)
+    assert not failures, failures
+    pg = pose_graph_calibration(list(NET), edges, **options)
+    assert pg.success, pg.message
+    e = np.concatenate([pose_tangent_error(pg.poses[n], rec.truth.node_poses[n])
+                        for n in pg.joint_order])
+    return float(e @ np.linalg.solve(pg.joint_covariance, e))
+
+
+@pytest.mark.slow
+def test_tracks_pose_nees_no_longer_off_by_two_orders():
+    """EKF tracks, 6 seeds: the old pose graph gave a mean joint NEES of 171;
+    the points solve with the autocorrelation correction must stay under 36
+    (6x the chi-square(6) mean: the tracks' bias, module doc); without the
+    correction it is above 36."""
+    seeds = range(6)
+    fixed = np.mean([_joint_nees(s, "tracks") for s in seeds])
+    uncorrected = np.mean([_joint_nees(s, "tracks", autocorrelation="none") for s in seeds])
+    assert fixed < 36.0, fixed
+    assert uncorrected > 36.0, uncorrected
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="centroids, 20 seeds: mean joint NEES 8.1 with the points "
+                   "solve, above the band (4.67, 7.57); not reached")
+def test_centroid_pose_nees_in_band():
+    seeds = range(20)
+    band = chi2.ppf([0.025, 0.975], 6 * len(seeds)) / len(seeds)
+    mean = np.mean([_joint_nees(s, "centroids") for s in seeds])
+    assert band[0] < mean < band[1], (mean, band)
