@@ -47,14 +47,23 @@ MAX_AR_COEFFICIENT = 0.97
 MAX_GAP_FRAMES = 64
 
 
-def _frame_sums(scores: NDArray, times: NDArray) -> NDArray:
-    """Scores summed per time, on a dense zero-filled time axis ``(T, p)``."""
-    uniq, inverse = np.unique(times, return_inverse=True)
-    steps = np.minimum(np.diff(uniq), MAX_GAP_FRAMES)
-    slot = np.concatenate([[0], np.cumsum(steps)]).astype(np.int64)
+def _frame_sums(scores: NDArray, times: NDArray) -> tuple[NDArray, int]:
+    """Scores summed per time, on a dense zero-filled time axis ``(T, p)``,
+    and the number of distinct times."""
+    steps = np.diff(times)
+    if np.any(steps < 0):
+        order = np.argsort(times, kind="stable")
+        times, scores = times[order], scores[order]
+        steps = np.diff(times)
+    starts = np.flatnonzero(np.concatenate([[True], steps > 0]))
+    sums = np.add.reduceat(scores, starts, axis=0)
+    gaps = np.minimum(np.diff(times[starts]), MAX_GAP_FRAMES)
+    if np.all(gaps == 1):
+        return sums, starts.size
+    slot = np.concatenate([[0], np.cumsum(gaps)])
     dense = np.zeros((int(slot[-1]) + 1, scores.shape[1]))
-    np.add.at(dense, slot[inverse.ravel()], scores)
-    return dense
+    dense[slot] = sums
+    return dense, starts.size
 
 
 def _whitener(g: NDArray) -> NDArray | None:
@@ -88,8 +97,8 @@ def autocorrelation_factor(scores: ArrayLike, times: ArrayLike) -> float:
     t = np.asarray(times, dtype=np.int64).ravel()
     if s.shape[0] != t.size or t.size == 0:
         return 1.0
-    g = _frame_sums(s, t)
-    if g.shape[0] < 8 or np.unique(t).size < 8:
+    g, n_times = _frame_sums(s, t)
+    if n_times < 8:
         return 1.0
     whiten = _whitener(g)
     if whiten is None:

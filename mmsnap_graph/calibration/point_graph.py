@@ -76,23 +76,30 @@ def _transform(pose: NDArray, pts: NDArray) -> NDArray:
                      pose[1] + s * pts[:, 0] + c * pts[:, 1]], axis=-1)
 
 
-def _linearize(poses, index, edges, p):
-    """Residuals (n, 2), Jacobians (n, 2, p) of every row, and its time."""
-    res, jacs, times = [], [], []
+def _edge_terms(poses, index, e):
+    """One edge's residuals (k, 2) and its Jacobian blocks ``[(column,
+    (k, 2, 3))]`` (a's ``+A_a``, b's ``-A_b``; the reference has none)."""
+    r = _transform(poses[e.node_a], e.points_a_m) - _transform(poses[e.node_b], e.points_b_m)
+    blocks = []
+    if e.node_a in index:
+        blocks.append((index[e.node_a], alignment_jacobian(poses[e.node_a], e.points_a_m)))
+    if e.node_b in index:
+        blocks.append((index[e.node_b], -alignment_jacobian(poses[e.node_b], e.points_b_m)))
+    return r, blocks
+
+
+def _normal_equations(poses, index, edges, p):
+    """``H = sum J^T J`` (p, p), ``J^T r`` (p,), per edge in 3x3 blocks (the
+    Jacobian of a row has two nonzero blocks: no dense (n, 2, p) array)."""
+    h = np.zeros((p, p))
+    grad = np.zeros(p)
     for e in edges:
-        ra = _transform(poses[e.node_a], e.points_a_m)
-        rb = _transform(poses[e.node_b], e.points_b_m)
-        jac = np.zeros((ra.shape[0], 2, p))
-        if e.node_a in index:
-            i = index[e.node_a]
-            jac[:, :, i:i + 3] = alignment_jacobian(poses[e.node_a], e.points_a_m)
-        if e.node_b in index:
-            i = index[e.node_b]
-            jac[:, :, i:i + 3] -= alignment_jacobian(poses[e.node_b], e.points_b_m)
-        res.append(ra - rb)
-        jacs.append(jac)
-        times.append(e.times)
-    return np.concatenate(res), np.concatenate(jacs), np.concatenate(times)
+        r, blocks = _edge_terms(poses, index, e)
+        for i, ji in blocks:
+            grad[i:i + 3] += np.einsum("kia,ki->a", ji, r)
+            for j, jj in blocks:
+                h[i:i + 3, j:j + 3] += np.einsum("kia,kib->ab", ji, jj)
+    return h, grad
 
 
 def _gauss_newton(poses, index, edges, p, max_iterations):
@@ -101,13 +108,12 @@ def _gauss_newton(poses, index, edges, p, max_iterations):
     converged = False
     it = 0
     for it in range(1, max_iterations + 1):
-        r, jac, _ = _linearize(poses, index, edges, p)
-        h = np.einsum("kia,kib->ab", jac, jac)
-        grad = np.einsum("kia,ki->a", jac, r)
+        h, grad = _normal_equations(poses, index, edges, p)
         step = -np.linalg.solve(h, grad)
         for n, i in index.items():
             poses[n] = pose_array(to_pose2(poses[n]).retract(step[i:i + 3]))
-        if np.max(np.abs(step)) < 1e-10 * (1.0 + np.max(np.abs(np.concatenate(list(poses.values()))))):
+        size = 1.0 + np.max(np.abs(np.concatenate(list(poses.values()))))
+        if np.max(np.abs(step)) < 1e-10 * size:
             converged = True
             break
     return poses, it, converged
@@ -115,18 +121,22 @@ def _gauss_newton(poses, index, edges, p, max_iterations):
 
 def _covariance(poses, index, edges, p, autocorrelation):
     """Cluster-robust sandwich (module doc) and the autocorrelation factor."""
-    r, jac, times = _linearize(poses, index, edges, p)
-    h = np.einsum("kia,kib->ab", jac, jac)
-    scores = np.einsum("kia,ki->ka", jac, r)
-    uniq, inverse = np.unique(times, return_inverse=True)
+    h, _ = _normal_equations(poses, index, edges, p)
+    uniq = np.unique(np.concatenate([e.times for e in edges]))
     clustered = np.zeros((uniq.size, p))
-    np.add.at(clustered, inverse.ravel(), scores)
+    cost = 0.0
+    for e in edges:
+        r, blocks = _edge_terms(poses, index, e)
+        cost += float(np.sum(r * r))
+        slot = np.searchsorted(uniq, e.times)
+        for i, ji in blocks:
+            np.add.at(clustered[:, i:i + 3], slot, np.einsum("kia,ki->ka", ji, r))
     n = uniq.size
     meat = clustered.T @ clustered * (n / max(n - p, 1))
     h_inv = np.linalg.inv(h)
     tau = autocorrelation_factor(clustered, uniq) if autocorrelation else 1.0
     cov = h_inv @ meat @ h_inv * tau
-    return 0.5 * (cov + cov.T), tau, float(np.sum(r * r))
+    return 0.5 * (cov + cov.T), tau, cost
 
 
 def solve_point_graph(

@@ -43,6 +43,10 @@ __all__ = ["PoseEdge", "PoseGraphCalibration", "pose_graph_calibration", "pairwi
 #: Sigma of the prior that anchors the reference node (m and rad): small
 #: enough to be a constraint, large enough to keep the Cholesky well scaled.
 ANCHOR_SIGMA = 1e-6
+#: The between-factor graph gives the joint covariance of all non-reference
+#: poses up to this many of them (beyond, the marginals only: the joint
+#: marginal of a large graph costs more than the solve).
+MAX_JOINT_NODES = 16
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -127,7 +131,8 @@ class PoseGraphCalibration:
     method : ``"points"`` (solved from the edges' matched points) or
     ``"edges"`` (between factors). joint_covariance : (3M, 3M) covariance of
     the M non-reference poses in ``joint_order`` (their cross-covariances
-    included; None when a solve failed). autocorrelation_factor : tau the
+    included; None when a solve failed, or for ``"edges"`` beyond
+    :data:`MAX_JOINT_NODES` poses). autocorrelation_factor : tau the
     points solve multiplied its covariance by (1.0 for ``"edges"``).
     """
 
@@ -189,8 +194,9 @@ def _validate_graph(node_names, edges, reference, method) -> tuple[list[str], st
 
 
 def _solve_edges(ref, reachable, init, used, max_iterations):
-    """The between-factor graph: poses, marginals, joint covariance, LM
-    iterations and error. Raises RuntimeError when GTSAM cannot solve."""
+    """The between-factor graph: poses, marginals, joint covariance (None
+    beyond :data:`MAX_JOINT_NODES`), LM iterations and error. Raises
+    RuntimeError when GTSAM cannot solve."""
     key = {n: i for i, n in enumerate(reachable)}
     graph = gtsam.NonlinearFactorGraph()
     graph.add(gtsam.PriorFactorPose2(key[ref], gtsam.Pose2(),
@@ -207,15 +213,17 @@ def _solve_edges(ref, reachable, init, used, max_iterations):
     result = opt.optimize()
     marg = gtsam.Marginals(graph, result)
     others = [n for n in reachable if n != ref]
-    joint = np.zeros((3 * len(others), 3 * len(others)))
-    if others:
+    covs = {n: marg.marginalCovariance(key[n]) for n in others}
+    joint = None
+    if 0 < len(others) <= MAX_JOINT_NODES:
         kv = gtsam.KeyVector()
         for n in others:
             kv.append(key[n])
         joint = marg.jointMarginalCovariance(kv).fullMatrix()
+        joint = 0.5 * (joint + joint.T)
     poses = {n: (np.zeros(3) if n == ref else pose_array(result.atPose2(key[n])))
              for n in reachable}
-    return poses, 0.5 * (joint + joint.T), int(opt.iterations()), float(graph.error(result))
+    return poses, covs, joint, int(opt.iterations()), float(graph.error(result))
 
 
 def _point_edges(used, lags) -> list[PointEdge]:
@@ -270,22 +278,22 @@ def pose_graph_calibration(
     others = tuple(n for n in reachable if n != ref)
     tau = 1.0
     try:
-        poses, joint, iterations, final_error = _solve_edges(ref, reachable, init, used,
-                                                             max_iterations)
+        poses, covs, joint, iterations, final_error = _solve_edges(ref, reachable, init, used,
+                                                                   max_iterations)
         if use_points and others:
             sol = solve_point_graph(ref, poses, _point_edges(used, lags),
                                     autocorrelation=autocorrelation == "auto")
             poses = {n: sol.poses[n] for n in reachable}
             joint, tau, iterations = sol.covariance, sol.autocorrelation_factor, sol.iterations
             final_error = 0.5 * sol.cost_m2
+            covs = {n: joint[3 * i:3 * i + 3, 3 * i:3 * i + 3].copy()
+                    for i, n in enumerate(others)}
     except (RuntimeError, np.linalg.LinAlgError) as exc:  # cannot happen with PD edges
         return PoseGraphCalibration(
             reference=ref, poses={}, covariances={}, lag_frames={}, unreachable=unreachable,
             edges=tuple(used), success=False, message=f"pose graph solve failed: {exc}",
             failures=dict(failures or {}), method="points" if use_points else "edges")
-    covs = {ref: np.zeros((3, 3))}
-    for i, n in enumerate(others):
-        covs[n] = joint[3 * i:3 * i + 3, 3 * i:3 * i + 3].copy()
+    covs = {ref: np.zeros((3, 3)), **{n: 0.5 * (c + c.T) for n, c in covs.items()}}
     msg = f"{len(reachable)} node(s) calibrated from {len(used)} edge(s)"
     if use_points:
         msg += " (joint least squares on the matched points)"
