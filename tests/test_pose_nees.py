@@ -7,7 +7,8 @@ band chi2.ppf([0.025, 0.975], 6 N) / N.
 Measured (seeds 0-19 unless said; ``python`` Monte Carlo in this file):
 - EKF tracks, old pose graph (independent between factors, no
   autocorrelation correction): mean joint NEES 171 (10 seeds).
-- EKF tracks, points solve with the correction: 20.7; reported sigmas
+- EKF tracks, points solve with the correction: 20.7 (matching with the
+  fixed 0.5 m gate; 32 on seeds 0-5 with the chi-square gate); reported sigmas
   match the spread of the errors (S2 x 0.067 vs 0.065 m) but the EKF tracks
   carry a bias common to all seeds (S2 x +0.05 m, phi +0.012 rad) that no
   covariance of the residuals can show.
@@ -51,15 +52,16 @@ def _joint_nees(seed, source, **options):
 
 @pytest.mark.slow
 def test_tracks_pose_nees_no_longer_off_by_two_orders():
-    """EKF tracks, 6 seeds: the old pose graph gave a mean joint NEES of 171;
-    the points solve with the autocorrelation correction must stay under 36
-    (6x the chi-square(6) mean: the tracks' bias, module doc); without the
-    correction it is above 36."""
+    """EKF tracks, seeds 0-5 (matching in seconds, chi-square gate): the
+    points solve with the autocorrelation correction gives a mean joint NEES
+    of 32 (per seed 19-76: the tracks' bias, module doc), without the
+    correction 183 (the old pose graph: 171). Bound: 60 (10x the
+    chi-square(6) mean); the uncorrected solve must exceed it."""
     seeds = range(6)
     fixed = np.mean([_joint_nees(s, "tracks") for s in seeds])
     uncorrected = np.mean([_joint_nees(s, "tracks", autocorrelation="none") for s in seeds])
-    assert fixed < 36.0, fixed
-    assert uncorrected > 36.0, uncorrected
+    assert fixed < 60.0, fixed
+    assert uncorrected > 60.0, uncorrected
 
 
 @pytest.mark.slow
