@@ -51,6 +51,8 @@ def _frame_sums(scores: NDArray, times: NDArray) -> tuple[NDArray, int]:
     """Scores summed per time, on a dense zero-filled time axis ``(T, p)``,
     and the number of distinct times."""
     steps = np.diff(times)
+    if np.all(steps == 1):  # the usual case: one row per consecutive frame
+        return scores, times.size
     if np.any(steps < 0):
         order = np.argsort(times, kind="stable")
         times, scores = times[order], scores[order]
