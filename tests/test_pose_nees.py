@@ -112,3 +112,22 @@ def test_centroid_pose_nees_in_band():
     band = chi2.ppf([0.025, 0.975], 6 * len(seeds)) / len(seeds)
     mean = np.mean([_joint_nees(s, "centroids") for s in seeds])
     assert band[0] < mean < band[1], (mean, band)
+
+
+def test_two_nodes_points_solve_is_the_closed_form():
+    """With two nodes the points solve minimises the closed form's cost: the
+    same pose (1e-9) and the sandwich covariance times n / (n - 3)."""
+    from mmsnap_graph.calibration import PoseEdge, closed_form_calibration
+
+    rng = np.random.default_rng(0)
+    xy = np.array([0.5, 4.5]) + rng.uniform(-1.5, 1.5, size=(300, 2))
+    pose_b = np.array([5.0, 5.0, np.pi / 2])
+    za = xy + 0.1 * rng.normal(size=(300, 2))
+    zb = global_to_local(xy, pose_b) + 0.1 * rng.normal(size=(300, 2))
+    cf = closed_form_calibration(za, zb, covariance="sandwich", autocorrelation="none",
+                                 frames=np.arange(300))
+    edge = PoseEdge.from_pairwise("S1", "S2", cf)
+    pg = pose_graph_calibration(["S1", "S2"], [edge], autocorrelation="none")
+    assert pg.method == "points" and pg.success
+    np.testing.assert_allclose(pg.poses["S2"], cf.pose, atol=1e-9)
+    np.testing.assert_allclose(pg.covariances["S2"], cf.covariance * 300 / 297, rtol=1e-6)

@@ -112,14 +112,79 @@ def _normal_equations(poses, index, edges, p):
     return h, grad, cost, rows
 
 
+def _rot(phi: float) -> NDArray:
+    c, s = np.cos(phi), np.sin(phi)
+    return np.array([[c, -s], [s, c]])
+
+
+_J = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+
+def _moments(e: PointEdge) -> tuple:
+    """Sums of one edge's points that the normal equations need: ``K``,
+    ``sum z_a``, ``sum z_b``, ``sum |z_a|^2``, ``sum |z_b|^2``,
+    ``M = sum z_a z_b^T``."""
+    a, b = e.points_a_m, e.points_b_m
+    return (a.shape[0], a.sum(axis=0), b.sum(axis=0), float(np.sum(a * a)),
+            float(np.sum(b * b)), a.T @ b)
+
+
+def _moment_blocks(pa, pb, mom):
+    """``H_aa``, ``H_bb``, ``H_ab`` (3x3) and ``g_a``, ``g_b`` (3,) of one edge
+    from its moments: the same sums as :func:`_normal_equations` (tested
+    equal), without touching the rows. ``R^T R = I`` and ``J^T X J = X`` for
+    a rotation ``X`` make every term a moment."""
+    k, sa, sb, qa, qb, m = mom
+    ra, rb = _rot(pa[2]), _rot(pb[2])
+    rab = ra.T @ rb
+    dp = pa[:2] - pb[:2]
+    jsa, jsb = _J @ sa, _J @ sb
+    h_aa = np.block([[k * np.eye(2), jsa[:, None]], [jsa[None, :], np.array([[qa]])]])
+    h_bb = np.block([[k * np.eye(2), jsb[:, None]], [jsb[None, :], np.array([[qb]])]])
+    h_ab = -np.block([[k * rab, (rab @ jsb)[:, None]],
+                      [(jsa @ rab)[None, :], np.array([[np.trace(rab @ m.T)]])]])
+    d_a = ra.T @ dp
+    ga_t = sa + k * d_a - rab @ sb
+    ga_r = jsa @ d_a - np.trace(_J.T @ rab @ m.T)
+    d_b = rb.T @ dp
+    gb_t = rab.T @ sa + k * d_b - sb
+    gb_r = np.trace(_J.T @ rab.T @ m) + jsb @ d_b
+    cost = (qa + qb + k * dp @ dp + 2.0 * dp @ (ra @ sa) - 2.0 * dp @ (rb @ sb)
+            - 2.0 * np.trace(rab @ m.T))
+    return h_aa, h_bb, h_ab, np.append(ga_t, ga_r), -np.append(gb_t, gb_r), cost
+
+
+def _moment_equations(poses, index, edges, moments, p):
+    """:func:`_normal_equations` from the edges' moments (unweighted)."""
+    h = np.zeros((p, p))
+    grad = np.zeros(p)
+    cost, rows = 0.0, 0
+    for e, mom in zip(edges, moments):
+        h_aa, h_bb, h_ab, g_a, g_b, c = _moment_blocks(poses[e.node_a], poses[e.node_b], mom)
+        cost += c
+        rows += mom[0]
+        i, j = index.get(e.node_a), index.get(e.node_b)
+        if i is not None:
+            h[i:i + 3, i:i + 3] += h_aa
+            grad[i:i + 3] += g_a
+        if j is not None:
+            h[j:j + 3, j:j + 3] += h_bb
+            grad[j:j + 3] += g_b
+        if i is not None and j is not None:
+            h[i:i + 3, j:j + 3] += h_ab
+            h[j:j + 3, i:i + 3] += h_ab.T
+    return h, grad, max(cost, 0.0), rows
+
+
 def _gauss_newton(poses, index, edges, p, max_iterations):
     """Gauss-Newton on the body tangents; returns the poses, iterations and
     whether the last step was below :data:`STEP_TOLERANCE` of every pose
     sigma (the residual-variance estimate ``s^2 H^{-1}``)."""
     converged = False
     it = 0
+    moments = [_moments(e) for e in edges]
     for it in range(1, max_iterations + 1):
-        h, grad, cost, rows = _normal_equations(poses, index, edges, p)
+        h, grad, cost, rows = _moment_equations(poses, index, edges, moments, p)
         h_inv = np.linalg.inv(h)
         step = -h_inv @ grad
         for n, i in index.items():
