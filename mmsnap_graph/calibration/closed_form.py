@@ -221,8 +221,13 @@ def _unit_covariance(covariance: str, s_k: NDArray | None, pose: NDArray, a: NDA
 
 
 def _scores(pose: NDArray, a: NDArray, b: NDArray) -> NDArray:
-    """(K, 3) per-frame scores ``A_k^T e_k`` (module docstring)."""
-    return np.einsum("kia,ki->ka", alignment_jacobian(pose, b), a - _transform(pose, b))
+    """(K, 3) per-frame scores ``A_k^T e_k`` (module docstring):
+    ``u = R^T e``, then ``(u, (J z_b) . u)``."""
+    e = a - _transform(pose, b)
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    ux = c * e[:, 0] + s * e[:, 1]
+    uy = -s * e[:, 0] + c * e[:, 1]
+    return np.column_stack([ux, uy, b[:, 0] * uy - b[:, 1] * ux])
 
 
 def _sound(pose: NDArray, cov: NDArray, j_min: float) -> str:
