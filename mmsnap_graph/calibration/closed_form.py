@@ -35,6 +35,15 @@ where ``S_k`` is the covariance of ``e_k``. Two choices of ``S_k``:
   along the track, as radar noise does.
 - explicit per-frame ``point_covariances`` ``S_k`` (e.g. ``C_1[k] + R C_2[k]
   R^T`` from two EKFs' position covariances) when you have them.
+
+All three treat frames as independent. EKF tracks are smooth: their errors
+are correlated from frame to frame, and the covariance is then too small by
+the integrated autocorrelation time ``tau`` of the scores ``A_k^T e_k``
+(``K / tau`` is the effective number of frames). ``autocorrelation="auto"``
+(default) estimates ``tau`` from the residuals
+(:func:`~mmsnap_graph.calibration.correlation.autocorrelation_factor`) and
+multiplies the covariance by it; ``"none"`` keeps the independent-frames
+figure.
 """
 
 from __future__ import annotations
@@ -47,6 +56,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import CalibrationError, ValidationError
 from .._validation import as_float_array, check_finite, check_shape
+from .correlation import autocorrelation_factor
 
 __all__ = ["PairwiseCalibration", "closed_form_pose", "closed_form_calibration",
            "alignment_jacobian", "DEFAULT_MIN_COMMON_FRAMES", "DEFAULT_MIN_SPREAD_M"]
@@ -72,6 +82,10 @@ class PairwiseCalibration:
     track_a, track_b : matched track ids (``-1`` when the input had one track).
     frames : (K,) int, ``a``'s frame numbers used.
     success, message : as scipy.optimize results.
+    points_a_m, points_b_m : (K, 2) the matched points the pose was fitted
+        on (a network solve reuses them: :func:`pose_graph_calibration`).
+    autocorrelation_factor : ``tau`` the covariance was multiplied by (1.0
+        when frames are treated as independent; module doc).
     """
 
     pose: NDArray
@@ -85,6 +99,9 @@ class PairwiseCalibration:
     frames: NDArray | None = None
     success: bool = True
     message: str = ""
+    points_a_m: NDArray | None = None
+    points_b_m: NDArray | None = None
+    autocorrelation_factor: float = 1.0
 
     def pose2(self):
         """The pose as a ``gtsam.Pose2`` (imports GTSAM)."""
@@ -197,11 +214,20 @@ def _unit_covariance(covariance: str, s_k: NDArray | None, pose: NDArray, a: NDA
     elif covariance == "residual":
         cov = (j_min / max(2 * k - 3, 1)) * h_inv
     else:  # sandwich
-        jac = alignment_jacobian(pose, b)
-        g = np.einsum("kia,ki->ka", jac, a - _transform(pose, b))
+        g = _scores(pose, a, b)
         cov = h_inv @ (g.T @ g) @ h_inv
     rounding = (64.0 * np.finfo(float).eps) ** 2  # coordinates are at most 1 here
     return _symmetrize(cov + rounding * h_inv)
+
+
+def _scores(pose: NDArray, a: NDArray, b: NDArray) -> NDArray:
+    """(K, 3) per-frame scores ``A_k^T e_k`` (module docstring):
+    ``u = R^T e``, then ``(u, (J z_b) . u)``."""
+    e = a - _transform(pose, b)
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    ux = c * e[:, 0] + s * e[:, 1]
+    uy = -s * e[:, 0] + c * e[:, 1]
+    return np.column_stack([ux, uy, b[:, 0] * uy - b[:, 1] * ux])
 
 
 def _sound(pose: NDArray, cov: NDArray, j_min: float) -> str:
@@ -223,6 +249,7 @@ def closed_form_calibration(
     min_common_frames: int = DEFAULT_MIN_COMMON_FRAMES,
     min_spread_m: float = DEFAULT_MIN_SPREAD_M,
     frames: ArrayLike | None = None,
+    autocorrelation: Literal["auto", "none"] = "auto",
 ) -> PairwiseCalibration:
     """Pose of node b in node a's frame from one target's matched local tracks.
 
@@ -244,7 +271,12 @@ def closed_form_calibration(
         node (a standing target; or exactly zero) raises
         :class:`CalibrationError`: the rotation is unobservable.
     frames : (K,) int, optional
-        Frame numbers, stored in the result.
+        Frame numbers, stored in the result; they order the residuals in
+        time for the autocorrelation (default: consecutive frames).
+    autocorrelation : "auto" or "none"
+        ``"auto"``: the covariance is multiplied by the integrated
+        autocorrelation time of the residual scores (module docstring);
+        ``"none"``: frames are independent (white track noise).
 
     Returns
     -------
@@ -258,6 +290,8 @@ def closed_form_calibration(
     """
     if covariance not in ("residual", "sandwich"):
         raise ValidationError(f"covariance={covariance!r} must be 'residual' or 'sandwich'")
+    if autocorrelation not in ("auto", "none"):
+        raise ValidationError(f"autocorrelation={autocorrelation!r} must be 'auto' or 'none'")
     a, b = _validate_tracks(points_a_m, points_b_m)
     k = a.shape[0]
     if k < max(int(min_common_frames), 3):
@@ -277,6 +311,14 @@ def closed_form_calibration(
         s_k = _check_point_covariances(point_covariances, k) / scale / scale
     unit_pose, unit_j = closed_form_pose(ua, ub)
     unit_cov = _unit_covariance(covariance, s_k, unit_pose, ua, ub, unit_j)
+    fr = None if frames is None else np.asarray(frames, dtype=np.int64)
+    if fr is not None and fr.shape != (k,):
+        raise ValidationError(f"frames must have shape ({k},) like the points, got {fr.shape}")
+    tau = 1.0
+    if autocorrelation == "auto":
+        tau = autocorrelation_factor(_scores(unit_pose, ua, ub),
+                                     np.arange(k) if fr is None else fr)
+        unit_cov = unit_cov * tau
     d = np.array([scale, scale, 1.0])
     with np.errstate(over="ignore", under="ignore"):
         pose = unit_pose * d
@@ -284,8 +326,8 @@ def closed_form_calibration(
         j_min = unit_j * scale * scale
         rmse = float(np.sqrt(unit_j / k) * scale)
     why = _sound(pose, cov, j_min)
-    fr = None if frames is None else np.asarray(frames, dtype=np.int64)
+    note = f", residuals correlated: covariance x {tau:.3g}" if tau > 1.05 else ""
     return PairwiseCalibration(
         pose=pose, covariance=cov, cost_m2=j_min, rmse_m=rmse, n_frames=k, frames=fr,
-        success=not why,
-        message=why or f"closed form on {k} frames, track RMSE {rmse:.3g} m")
+        success=not why, points_a_m=a, points_b_m=b, autocorrelation_factor=tau,
+        message=why or f"closed form on {k} frames, track RMSE {rmse:.3g} m{note}")

@@ -7,7 +7,19 @@ For every pair of tracks ``(a, b)`` and every lag ``L`` in
 with node a's frame ``k`` and the closed form (paper eq. 12) is fitted on the
 common frames: each fit is a pose hypothesis. A hypothesis is scored by its
 *support*: how many frame pairs of all the two nodes' tracks (every track, at
-that lag) it aligns within ``inlier_gate_m``. Ranking by track RMSE instead
+that lag) it aligns within the inlier gate. When both nodes' tracks carry
+position covariances (EKF tracks), the gate is a chi-square test on each
+frame pair, ``r^T (C_a + R C_b R^T)^{-1} r < chi2_2(gate_probability)``,
+``r = z_a - T(z_b)``: it widens with range and along the cross-range axis as
+the tracks' own uncertainty does (a fixed gate cuts the tails of far tracks'
+residuals and the covariance comes out too small: issue 11, pose NEES 8 at
+longer ranges). Without covariances the gate is ``inlier_gate_m``.
+
+Thresholds in time (issue 14): with ``frame_period_s`` given, the lag window
+``max_lag_s`` and the minimum overlap ``min_common_s`` are seconds, turned
+into frames at that period (at least 5 common frames), so that one setting
+works from 5 to 30 fps. The older frame keywords ``max_lag_frames`` and
+``min_common_frames`` still work and are deprecated. Ranking by track RMSE instead
 would favour short fragments, which fit anything (an EKF that loses a walker
 at each turn leaves dozens of them). The best-supported hypothesis of each
 lag is refitted on its inliers (twice); lag 0 is kept unless another lag
@@ -20,10 +32,12 @@ targets seen by both nodes all agree with the one pose).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from factors.models import detection_to_local
 
@@ -48,12 +62,15 @@ class LocalTracks:
 
     frame : (K,) int; points_m : (K, 2) float; track_id : (K,) int;
     source : where they came from (``"tracks"`` or ``"centroids"``).
+    covariances : (K, 2, 2) float position covariances (an EKF's), optional:
+        with them the matching gate is a chi-square test (module doc).
     """
 
     frame: NDArray
     points_m: NDArray
     track_id: NDArray
     source: str = "tracks"
+    covariances: NDArray | None = None
 
     def __post_init__(self) -> None:
         frame = np.asarray(self.frame)
@@ -68,16 +85,27 @@ class LocalTracks:
         object.__setattr__(self, "frame", frame.astype(np.int64))
         object.__setattr__(self, "points_m", pts)
         object.__setattr__(self, "track_id", tid.astype(np.int64))
+        if self.covariances is not None:
+            cov = check_finite(check_shape(as_float_array(self.covariances, "covariances"),
+                                           (k, 2, 2), "covariances"), "covariances")
+            object.__setattr__(self, "covariances", 0.5 * (cov + np.swapaxes(cov, -1, -2)))
 
     def split(self) -> dict[int, tuple[NDArray, NDArray]]:
         """track id -> (frames (n,), points (n, 2)), frame-sorted, one row per
         frame (a repeated frame keeps its first row)."""
+        return {t: (f, p) for t, (f, p, _) in self.split_rows().items()}
+
+    def split_rows(self) -> dict[int, tuple[NDArray, NDArray, NDArray]]:
+        """As :meth:`split`, plus the rows' (n, 2, 2) covariances (NaN when
+        the tracks carry none)."""
         out = {}
         for tid in np.unique(self.track_id):
             rows = np.flatnonzero(self.track_id == tid)
             rows = rows[np.argsort(self.frame[rows], kind="stable")]
             fr, first = np.unique(self.frame[rows], return_index=True)
-            out[int(tid)] = (fr, self.points_m[rows[first]])
+            cov = (np.full((fr.size, 2, 2), np.nan) if self.covariances is None
+                   else self.covariances[rows[first]])
+            out[int(tid)] = (fr, self.points_m[rows[first]], cov)
         return out
 
 
@@ -92,7 +120,7 @@ def local_tracks(node: NodeData, source: str = "auto") -> LocalTracks:
     if source in ("auto", "tracks") and node.tracks is not None and len(node.tracks):
         tr = node.tracks
         return LocalTracks(frame=tr.frame, points_m=tr.state[:, :2], track_id=tr.track_id,
-                           source="tracks")
+                           source="tracks", covariances=tr.covariance[:, :2, :2])
     if source == "tracks":
         raise CalibrationError(f"node {node.name} has no tracks")
     det = node.centroids
@@ -159,31 +187,51 @@ def _join(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
     return ia, ib
 
 
-def _aligned(pose: NDArray, za: NDArray, zb: NDArray) -> NDArray:
-    """|z_a - (p + R(phi) z_b)| per row."""
+def _misalignment(pose: NDArray, za: NDArray, zb: NDArray) -> NDArray:
+    """(n, 2) ``z_a - (p + R(phi) z_b)`` per row."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
     x = pose[0] + c * zb[:, 0] - s * zb[:, 1]
     y = pose[1] + s * zb[:, 0] + c * zb[:, 1]
-    return np.hypot(za[:, 0] - x, za[:, 1] - y)
+    return np.stack([za[:, 0] - x, za[:, 1] - y], axis=-1)
+
+
+def _gate_d2(pose: NDArray, r: NDArray, ca: NDArray, cb: NDArray) -> NDArray:
+    """``r^T (C_a + R C_b R^T)^{-1} r`` per row (2x2 entries written out)."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    rot = np.array([[c, -s], [s, c]])
+    cov = ca + np.einsum("ij,njk,lk->nil", rot, cb, rot)
+    a, b, d = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    det = a * d - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d2 = (d * r[:, 0] ** 2 - 2 * b * r[:, 0] * r[:, 1] + a * r[:, 1] ** 2) / det
+    return np.where(det > 0, d2, np.inf)
 
 
 class _Pool:
     """Every row of every track of both nodes, and their pairings at each lag."""
 
-    def __init__(self, ta, tb, lags, inlier_gate_m):
-        self.fa = np.concatenate([f for f, _ in ta.values()])
-        self.za = np.concatenate([p for _, p in ta.values()])
-        self.ida = np.concatenate([np.full(f.size, t) for t, (f, _) in ta.items()])
-        self.fb = np.concatenate([f for f, _ in tb.values()])
-        self.zb = np.concatenate([p for _, p in tb.values()])
-        self.idb = np.concatenate([np.full(f.size, t) for t, (f, _) in tb.items()])
+    def __init__(self, ta, tb, lags, inlier_gate_m, gate_probability):
+        self.fa = np.concatenate([f for f, _, _ in ta.values()])
+        self.za = np.concatenate([p for _, p, _ in ta.values()])
+        self.ca = np.concatenate([c for _, _, c in ta.values()])
+        self.ida = np.concatenate([np.full(f.size, t) for t, (f, _, _) in ta.items()])
+        self.fb = np.concatenate([f for f, _, _ in tb.values()])
+        self.zb = np.concatenate([p for _, p, _ in tb.values()])
+        self.cb = np.concatenate([c for _, _, c in tb.values()])
+        self.idb = np.concatenate([np.full(f.size, t) for t, (f, _, _) in tb.items()])
         self.joins = {lag: _join(self.fa, self.fb, lag) for lag in lags}
         self.gate = inlier_gate_m
+        self.chi2_gate = (float(chi2.ppf(gate_probability, 2)) if not (
+            np.isnan(self.ca).any() or np.isnan(self.cb).any()) else None)
 
     def support(self, pose, lag):
         """Row pairs at ``lag`` that ``pose`` aligns within the gate."""
         ia, ib = self.joins[lag]
-        inl = _aligned(pose, self.za[ia], self.zb[ib]) < self.gate
+        r = _misalignment(pose, self.za[ia], self.zb[ib])
+        if self.chi2_gate is None:
+            inl = np.hypot(r[:, 0], r[:, 1]) < self.gate
+        else:
+            inl = _gate_d2(pose, r, self.ca[ia], self.cb[ib]) < self.chi2_gate
         return ia[inl], ib[inl]
 
 
@@ -191,8 +239,8 @@ def _candidates(ta, tb, lags, pool, min_common_frames, min_spread_m) -> list[Tra
     """The closed form of every (track a, track b, lag) with enough common
     frames of a moving target, scored by its support."""
     cands: list[TrackCandidate] = []
-    for ida, (fa, pa) in ta.items():
-        for idb, (fb, pb) in tb.items():
+    for ida, (fa, pa, _) in ta.items():
+        for idb, (fb, pb, _) in tb.items():
             for lag in lags:
                 ia, ib = _common(fa, fb, lag)
                 if ia.size < max(min_common_frames, 3):
@@ -294,7 +342,13 @@ def _failed(message, cands=()) -> TrackMatching:
                          success=False, message=message)
 
 
-def _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity=0.0) -> None:
+#: Default lag window (s) and minimum overlap (s) of :func:`match_tracks`
+#: when ``frame_period_s`` is given: 2 and 5 frames at 150 ms.
+DEFAULT_MAX_LAG_S = 0.3
+DEFAULT_MIN_COMMON_S = 0.5
+
+
+def _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity, gate_probability) -> None:
     if not lag_ambiguity >= 0:
         raise ValidationError(f"lag_ambiguity must be >= 0, got {lag_ambiguity!r}")
     if int(max_lag_frames) < 0:
@@ -303,15 +357,51 @@ def _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity=0.0) -> N
         raise ValidationError(f"max_rmse_m must be > 0, got {max_rmse_m!r}")
     if not inlier_gate_m > 0:
         raise ValidationError(f"inlier_gate_m must be > 0, got {inlier_gate_m!r}")
+    if not 0 < gate_probability < 1:
+        raise ValidationError(f"gate_probability must be in (0, 1), got {gate_probability!r}")
 
 
-def _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m):
+def frame_thresholds(frame_period_s, max_lag_s, min_common_s, max_lag_frames,
+                     min_common_frames) -> tuple[int, int]:
+    """The lag window and minimum overlap in frames (module doc): the frame
+    keywords when given (deprecated), else the seconds at ``frame_period_s``,
+    else the frame defaults (2, :data:`DEFAULT_MIN_COMMON_FRAMES`)."""
+    for name, value in (("max_lag_frames", max_lag_frames),
+                        ("min_common_frames", min_common_frames)):
+        if value is not None:
+            warnings.warn(f"match_tracks({name}=...) is deprecated: give frame_period_s and "
+                          f"{'max_lag_s' if name == 'max_lag_frames' else 'min_common_s'} "
+                          "in seconds", DeprecationWarning, stacklevel=3)
+    if frame_period_s is None:
+        if max_lag_s is not None or min_common_s is not None:
+            raise ValidationError("max_lag_s and min_common_s need frame_period_s")
+        lag, common = 2, DEFAULT_MIN_COMMON_FRAMES
+    else:
+        if not (np.isfinite(frame_period_s) and frame_period_s > 0):
+            raise ValidationError(f"frame_period_s must be finite and > 0, got {frame_period_s!r}")
+        lag_s = DEFAULT_MAX_LAG_S if max_lag_s is None else max_lag_s
+        common_s = DEFAULT_MIN_COMMON_S if min_common_s is None else min_common_s
+        for name, v in (("max_lag_s", lag_s), ("min_common_s", common_s)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ValidationError(f"{name} must be finite and >= 0, got {v!r}")
+        lag = int(np.round(lag_s / frame_period_s))
+        common = max(int(np.ceil(common_s / frame_period_s - 1e-9)), DEFAULT_MIN_COMMON_FRAMES)
+    if max_lag_frames is not None:
+        lag = max_lag_frames
+    if min_common_frames is not None:
+        common = min_common_frames
+    return lag, common
+
+
+def _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m,
+             autocorrelation):
     """The closed form on the accepted rows, and the accepted track pairs."""
     order = np.argsort(pool.fa[ia], kind="stable")
     ia, ib = ia[order], ib[order]
     cal = closed_form_calibration(pool.za[ia], pool.zb[ib], covariance=covariance,
                                   min_common_frames=min_common_frames,
-                                  min_spread_m=min_spread_m, frames=pool.fa[ia])
+                                  min_spread_m=min_spread_m, frames=pool.fa[ia],
+                                  autocorrelation=autocorrelation)
     pair_rows = np.stack([pool.ida[ia], pool.idb[ib]], axis=1)
     uniq, counts = np.unique(pair_rows, axis=0, return_counts=True)
     pairs = tuple((int(a), int(b)) for a, b in uniq[np.argsort(-counts, kind="stable")])
@@ -332,30 +422,44 @@ def match_tracks(
     tracks_a: LocalTracks,
     tracks_b: LocalTracks,
     *,
-    max_lag_frames: int = 2,
-    min_common_frames: int = DEFAULT_MIN_COMMON_FRAMES,
+    frame_period_s: float | None = None,
+    max_lag_s: float | None = None,
+    min_common_s: float | None = None,
     min_spread_m: float = DEFAULT_MIN_SPREAD_M,
     max_rmse_m: float = 1.0,
     inlier_gate_m: float = 0.5,
+    gate_probability: float = 0.997,
     covariance: str = "residual",
     lag_min_improvement: float = 0.05,
     lag_ambiguity: float = 0.15,
+    autocorrelation: str = "auto",
+    max_lag_frames: int | None = None,
+    min_common_frames: int | None = None,
 ) -> TrackMatching:
     """Match two nodes' local tracks and calibrate b in a's frame (module doc).
 
     Parameters
     ----------
     tracks_a, tracks_b : LocalTracks
-    max_lag_frames : int
-        Lags ``-max_lag_frames..max_lag_frames`` are searched.
-    min_common_frames, min_spread_m : as :func:`closed_form_calibration`;
-        hypotheses from pairs that fail them are skipped.
+    frame_period_s : float, optional
+        The frame period; with it the thresholds below are in seconds.
+    max_lag_s : float
+        Lags up to this (default 0.3 s) either way are searched, in whole
+        frames.
+    min_common_s : float
+        Track pairs that share less than this (default 0.5 s, and at least
+        5 frames) are skipped.
+    min_spread_m : as :func:`closed_form_calibration`; hypotheses from pairs
+        that fail it are skipped.
     max_rmse_m : float
         A final track RMSE above this means the tracks are not one target.
     inlier_gate_m : float
-        A frame pair supports a pose when b's point lands within this distance
-        of a's point.
-    covariance : passed to :func:`closed_form_calibration`.
+        Without track covariances, a frame pair supports a pose when b's
+        point lands within this distance of a's point.
+    gate_probability : float
+        With covariances on both sides, the chi-square(2) gate probability
+        (module doc).
+    covariance, autocorrelation : passed to :func:`closed_form_calibration`.
     lag_min_improvement : float
         A nonzero lag is reported only if its inlier RMSE is at least this
         fraction below lag 0's with at least 95% of its support.
@@ -365,17 +469,22 @@ def match_tracks(
         circle): the covariance is widened by the spread of their poses when
         they differ from the chosen one by more than 3 sigma (issue 13: a
         circular walk gave a pose 0.8 m off with a 0.08 m sigma).
+    max_lag_frames, min_common_frames : int
+        Deprecated frame counts (``DeprecationWarning``); they override the
+        seconds. Without ``frame_period_s`` and these, 2 and 5 frames.
 
     Returns a :class:`TrackMatching`; ``success=False`` (no calibration) when
     no pair has enough common frames of a moving target, or the best pose
     leaves a track RMSE above ``max_rmse_m``.
     """
-    _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity)
-    ta, tb = tracks_a.split(), tracks_b.split()
+    max_lag_frames, min_common_frames = frame_thresholds(
+        frame_period_s, max_lag_s, min_common_s, max_lag_frames, min_common_frames)
+    _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity, gate_probability)
+    ta, tb = tracks_a.split_rows(), tracks_b.split_rows()
     lags = range(-int(max_lag_frames), int(max_lag_frames) + 1)
     if not ta or not tb:
         return _failed(f"no pair of tracks: node a has {len(ta)} track(s), node b {len(tb)}")
-    pool = _Pool(ta, tb, lags, inlier_gate_m)
+    pool = _Pool(ta, tb, lags, inlier_gate_m, gate_probability)
     cands = _candidates(ta, tb, lags, pool, min_common_frames, min_spread_m)
     if not cands:
         return _failed(f"no pair of tracks shares >= {max(min_common_frames, 3)} frames of a "
@@ -384,7 +493,9 @@ def match_tracks(
     fits = _fit_lags(cands, lags, pool)
     if not fits:
         best = min(cands, key=lambda c: c.rmse_m)
-        return _failed(f"no pose aligns 3 frames within inlier_gate_m={inlier_gate_m} m; the "
+        gate = (f"inlier_gate_m={inlier_gate_m} m" if pool.chi2_gate is None
+                else f"the chi-square gate (gate_probability={gate_probability})")
+        return _failed(f"no pose aligns 3 frames within {gate}; the "
                        f"best track RMSE is {best.rmse_m:.3g} m", cands)
     lag = _choose_lag(fits, lag_min_improvement)
     _, ia, ib, rmse = fits[lag]
@@ -396,6 +507,7 @@ def match_tracks(
     if ia.size < 3:
         return _failed("no track pair has a majority of its common frames aligned by one pose",
                        cands)
-    matched = _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m)
+    matched = _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m,
+                       autocorrelation)
     cal = _widened(matched.calibration, lag, fits, ambiguous)
     return replace(matched, calibration=cal, message=cal.message)
