@@ -184,7 +184,8 @@ def calibrate_run(recording: Recording, *, configuration: str = "?", trajectory:
     names, tracks = _run_nodes(recording)
     lt = [LocalTracks(frame=t.frame, points_m=t.state[:, :2], track_id=np.zeros(len(t), np.int64))
           for t in tracks]
-    m = match_tracks(lt[0], lt[1], max_lag_frames=max_lag_frames)
+    period = recording.frame_period_s
+    m = match_tracks(lt[0], lt[1], frame_period_s=period, max_lag_s=max_lag_frames * period)
     if not m.success:
         raise CalibrationError(f"configuration {configuration}, {trajectory}: closed form "
                                f"failed: {m.message}")

@@ -19,80 +19,60 @@
   associated across nodes, in the joint graph (:mod:`.multi_target`);
 - :class:`DecalibrationMonitor` / :func:`monitor_recording`: notice that a
   node moved and re-calibrate it (:mod:`.monitor`).
+
+The names below load their module on first use: importing one module of
+the package (e.g. :mod:`.noise_estimate`) does not import GTSAM.
 """
 
-from .closed_form import (
-    DEFAULT_MIN_COMMON_FRAMES,
-    DEFAULT_MIN_SPREAD_M,
-    PairwiseCalibration,
-    alignment_jacobian,
-    closed_form_calibration,
-    closed_form_pose,
-)
-from .joint import DEFAULT_ROBUST_K, JointCalibration, joint_calibration
-from .multi_refine import MultiTargetRefinement, refine_multi
-from .multi_target import (
-    TargetAssociation,
-    TargetMapping,
-    associate_targets,
-    joint_detections_multi,
-    target_states,
-)
-from .noise_estimate import estimate_noise, network_noise, temporal_noise
-from .monitor import (
-    ChangePoint,
-    DecalibrationMonitor,
-    MonitorResult,
-    MonitorUpdate,
-    Recalibration,
-    monitor_recording,
-)
-from .matching import LocalTracks, TrackCandidate, TrackMatching, local_tracks, match_tracks
-from .network import RecordingCalibration, calibrate_recording, residual_noise
-from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
-from .poses import pose_array, pose_tangent_error, to_pose2
-from .robust_start import trimmed_closed_form
+from .._lazy import lazy_getattr
 
-__all__ = [
-    "DEFAULT_MIN_COMMON_FRAMES",
-    "DEFAULT_MIN_SPREAD_M",
-    "PairwiseCalibration",
-    "alignment_jacobian",
-    "closed_form_calibration",
-    "closed_form_pose",
-    "DEFAULT_ROBUST_K",
-    "JointCalibration",
-    "joint_calibration",
-    "trimmed_closed_form",
-    "LocalTracks",
-    "TrackCandidate",
-    "TrackMatching",
-    "local_tracks",
-    "match_tracks",
-    "RecordingCalibration",
-    "calibrate_recording",
-    "residual_noise",
-    "PoseEdge",
-    "PoseGraphCalibration",
-    "pairwise_edges",
-    "pose_graph_calibration",
-    "pose_array",
-    "pose_tangent_error",
-    "to_pose2",
-    "ChangePoint",
-    "DecalibrationMonitor",
-    "MonitorResult",
-    "MonitorUpdate",
-    "Recalibration",
-    "monitor_recording",
-    "MultiTargetRefinement",
-    "refine_multi",
-    "TargetAssociation",
-    "TargetMapping",
-    "associate_targets",
-    "joint_detections_multi",
-    "target_states",
-    "estimate_noise",
-    "network_noise",
-    "temporal_noise",
-]
+_LAZY = {
+    "DEFAULT_MIN_COMMON_FRAMES": "closed_form",
+    "DEFAULT_MIN_SPREAD_M": "closed_form",
+    "PairwiseCalibration": "closed_form",
+    "alignment_jacobian": "closed_form",
+    "closed_form_calibration": "closed_form",
+    "closed_form_pose": "closed_form",
+    "DEFAULT_ROBUST_K": "joint",
+    "JointCalibration": "joint",
+    "joint_calibration": "joint",
+    "MultiTargetRefinement": "multi_refine",
+    "refine_multi": "multi_refine",
+    "TargetAssociation": "multi_target",
+    "TargetMapping": "multi_target",
+    "associate_targets": "multi_target",
+    "joint_detections_multi": "multi_target",
+    "target_states": "multi_target",
+    "estimate_noise": "noise_estimate",
+    "network_noise": "noise_estimate",
+    "temporal_noise": "noise_estimate",
+    "ChangePoint": "monitor",
+    "DecalibrationMonitor": "monitor",
+    "MonitorResult": "monitor",
+    "MonitorUpdate": "monitor",
+    "Recalibration": "monitor",
+    "monitor_recording": "monitor",
+    "LocalTracks": "matching",
+    "TrackCandidate": "matching",
+    "TrackMatching": "matching",
+    "local_tracks": "matching",
+    "match_tracks": "matching",
+    "RecordingCalibration": "network",
+    "calibrate_recording": "network",
+    "residual_noise": "network",
+    "PoseEdge": "pose_graph",
+    "PoseGraphCalibration": "pose_graph",
+    "pairwise_edges": "pose_graph",
+    "pose_graph_calibration": "pose_graph",
+    "pose_array": "poses",
+    "pose_tangent_error": "poses",
+    "to_pose2": "poses",
+    "trimmed_closed_form": "robust_start",
+    "autocorrelation_factor": "correlation",
+    "solve_point_graph": "point_graph",
+    "PointEdge": "point_graph",
+}
+
+__getattr__ = lazy_getattr(__name__, _LAZY)
+
+__all__ = list(_LAZY)

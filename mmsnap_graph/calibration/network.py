@@ -207,7 +207,7 @@ def _refine(recording, pg, reachable, method, noise, options, notes):
     return joint
 
 
-def _pose_graph_step(recording, names, source, max_lag_frames, max_rmse_m):
+def _pose_graph_step(recording, names, source, max_lag_frames, max_rmse_m, max_lag_s=None):
     """Local tracks of every node, pairwise matches, the pose graph."""
     ref = names[0]
     tracks: dict[str, LocalTracks] = {}
@@ -219,7 +219,11 @@ def _pose_graph_step(recording, names, source, max_lag_frames, max_rmse_m):
             failures[n] = str(exc)
     if ref not in tracks:
         raise CalibrationError(f"reference node {ref}: {failures[ref]}")
-    edges, pair_fail = pairwise_edges(tracks, max_lag_frames=max_lag_frames, max_rmse_m=max_rmse_m)
+    # Thresholds in seconds (issue 14): frame counts only when a caller gives them.
+    lag = ({"max_lag_frames": int(max_lag_frames)} if max_lag_frames is not None
+           else {"max_lag_s": max_lag_s})
+    edges, pair_fail = pairwise_edges(tracks, frame_period_s=recording.frame_period_s,
+                                      max_rmse_m=max_rmse_m, **lag)
     failures.update(pair_fail)
     if not edges:
         raise CalibrationError("no pair of nodes shares a matched track: "
@@ -232,20 +236,24 @@ def calibrate_recording(
     *,
     source: Literal["auto", "tracks", "centroids"] = "auto",
     method: Literal["auto", "joint", "pose_graph"] = "auto",
-    max_lag_frames: int = 2,
+    max_lag_frames: int | None = None,
     max_rmse_m: float = 1.0,
     noise: MeasurementNoise | None = None,
     robust: str | None = "cauchy",
     motion: bool = True,
     sigma_a_mps2: float = 3.0,
     time_offsets: bool = True,
+    max_lag_s: float | None = None,
 ) -> RecordingCalibration:
     """Calibrate every node of ``recording`` (module doc).
 
     method : ``"pose_graph"`` stops after the pose graph of pairwise closed
         forms; ``"joint"`` requires the joint refinement (CalibrationError if
         the centroids cannot feed it); ``"auto"`` refines when it can.
-    max_lag_frames, max_rmse_m : track matching (:func:`match_tracks`).
+    max_lag_s, max_rmse_m : track matching (:func:`match_tracks`): lags up to
+        ``max_lag_s`` (default 0.3 s) are searched, whole frames of the
+        recording's period. ``max_lag_frames`` (deprecated) gives the window
+        in frames instead.
     noise : measurement noise of the centroids for the joint graph;
         None (default): estimated from the data, each node's own centroid
         sequence pooled over the nodes (module doc); the recording's
@@ -272,7 +280,7 @@ def calibrate_recording(
     if len(names) < 2:
         raise CalibrationError(f"a calibration needs at least two nodes, got {names!r}")
     pg, used_source, failures = _pose_graph_step(recording, names, source, max_lag_frames,
-                                                 max_rmse_m)
+                                                 max_rmse_m, max_lag_s)
     poses, covs = dict(pg.poses), dict(pg.covariances)
     result_method, joint, notes = "pose_graph", None, [pg.message]
     reachable = [n for n in names if n in poses]

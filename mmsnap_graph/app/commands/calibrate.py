@@ -37,8 +37,11 @@ def register(subparsers) -> None:
     p.add_argument("--method", choices=["auto", "joint", "pose_graph"], default="auto",
                    help="refine with the joint graph when the centroids allow (auto), always "
                         "(joint), or stop at the pose graph (default %(default)s)")
-    p.add_argument("--max-lag", type=int, default=2,
-                   help="largest frame lag between nodes to search (default %(default)s)")
+    p.add_argument("--max-lag-s", type=float, default=None, metavar="SECONDS",
+                   help="largest clock lag between nodes to search, in seconds (whole "
+                        "frames; default 0.3 s)")
+    p.add_argument("--max-lag", type=int, default=None, metavar="FRAMES",
+                   help="the same in frames (deprecated: use --max-lag-s)")
     p.add_argument("--max-rmse", type=float, default=1.0,
                    help="largest track RMSE (m) of a matched pair (default %(default)s)")
     p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
@@ -102,8 +105,10 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.calibration import write_calibration, write_calibration_json
     from mmsnap_graph.io.noise import write_noise
 
-    if args.max_lag < 0:
+    if args.max_lag is not None and args.max_lag < 0:
         raise ValidationError(f"--max-lag must be >= 0, got {args.max_lag}")
+    if args.max_lag_s is not None and not args.max_lag_s >= 0:
+        raise ValidationError(f"--max-lag-s must be >= 0, got {args.max_lag_s}")
     noise = None
     if args.sigmas is not None:
         r, w, v = args.sigmas
@@ -119,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         rec = read_recording(args.recording, load_cubes=False)
         cal = calibrate_recording(
             rec, source=args.source, method=args.method, max_lag_frames=args.max_lag,
+            max_lag_s=args.max_lag_s,
             max_rmse_m=args.max_rmse, noise=noise,
             robust=None if args.robust == "none" else args.robust, motion=not args.no_motion,
             sigma_a_mps2=args.sigma_a, time_offsets=not args.no_time_offsets)
