@@ -10,8 +10,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
 from mmsnap_graph._atomic import check_output_path, recording_lock
 from mmsnap_graph.errors import ValidationError
 
@@ -51,9 +49,8 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmsnap_graph.app.chunked_fuse import fuse_file
     from mmsnap_graph.data.noise import MeasurementNoise
-    from mmsnap_graph.fusion.sequence import fuse_recording
-    from mmsnap_graph.io import read_recording, write_fused
     from mmsnap_graph.io.calibration import load_calibration_poses
 
     if args.grid_points < 5 or args.grid_points % 2 == 0:
@@ -68,16 +65,14 @@ def run(args: argparse.Namespace) -> int:
     # The lock spans read -> write: a concurrent `mmsnap process` or
     # `calibrate` of the same file waits instead of being overwritten.
     with recording_lock(args.recording):
-        rec = read_recording(args.recording, load_cubes=False)
-        fused = fuse_recording(rec, node_poses=poses, mode=args.mode,
+        # Read, fused and written window by window (long recordings, issue 13).
+        fused = fuse_file(args.recording, output=args.output, node_poses=poses, mode=args.mode,
                                covariance=args.covariance, noise=noise, solver=args.solver,
                                source=args.source, gate_probability=args.gate,
                                grid_points_per_axis=args.grid_points,
                                progress=False if args.no_progress else None)
-        path = write_fused(args.recording, fused, output=args.output)
-    n_ok = int(np.count_nonzero(fused.success))
-    frames = np.unique(fused.frame).size
-    print(f"fused {len(fused)} targets in {frames} frames ({args.mode}, {args.covariance}, "
-          f"{args.solver}): {n_ok} succeeded, {len(fused) - n_ok} flagged; wrote {path}:/fused",
+    n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
+    print(f"fused {fused.n_rows} targets in {frames} frames ({args.mode}, {args.covariance}, "
+          f"{args.solver}): {n_ok} succeeded, {fused.n_rows - n_ok} flagged; wrote {path}:/fused",
           file=sys.stdout)
     return 0
