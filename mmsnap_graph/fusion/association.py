@@ -221,6 +221,45 @@ def _assign(groups: _Groups, pos: NDArray, cov: NDArray, ok: NDArray, gate: floa
     return assigned
 
 
+def _associate_singles(counts, pos_all, cov_all, info_all, gate) -> FrameAssociation:
+    """:func:`associate_frame` when every node has at most one detection and
+    every detection a regular covariance (one target in view, the common
+    case): the same steps on Python floats, no array work per node."""
+    n_nodes = len(counts)
+    members: list[list[int]] = []
+    info: list[list[float]] = []   # (a, b, c, d) of [[a, b], [c, d]], summed information
+    eta: list[list[float]] = []
+    for row, (n, (px, py), ((sa, sb), (sc, sd)), ((ia, ib), (ic, id_))) in enumerate(zip(
+            np.flatnonzero(np.asarray(counts) > 0).tolist(), pos_all.tolist(), cov_all.tolist(),
+            info_all.tolist())):
+        best, best_m2 = -1, math.inf
+        for g, (a, b, c, d) in enumerate(info):
+            det = a * d - b * c
+            ga, gb, gc, gd = d / det, -b / det, -c / det, a / det   # the group's covariance
+            mx, my = ga * eta[g][0] + gb * eta[g][1], gc * eta[g][0] + gd * eta[g][1]
+            dx, dy = mx - px, my - py
+            qa, qb, qc, qd = ga + sa, gb + sb, gc + sc, gd + sd
+            det_q = qa * qd - qb * qc
+            m2 = (qd * dx * dx - (qb + qc) * dx * dy + qa * dy * dy) / det_q if det_q > 0 \
+                else math.inf
+            if m2 <= gate and m2 < best_m2:
+                best, best_m2 = g, m2
+        if best < 0:
+            members.append([-1] * n_nodes)
+            info.append([0.0, 0.0, 0.0, 0.0])
+            eta.append([0.0, 0.0])
+            best = len(members) - 1
+        members[best][n] = 0
+        a, b, c, d = info[best]
+        info[best] = [a + ia, b + ib, c + ic, d + id_]
+        eta[best] = [eta[best][0] + ia * px + ib * py, eta[best][1] + ic * px + id_ * py]
+    cov_g = _inv_2x2(np.array(info).reshape(-1, 2, 2))
+    cov_g = 0.5 * (cov_g + np.swapaxes(cov_g, -1, -2))
+    return FrameAssociation(members=np.asarray(members, dtype=np.int64),
+                            position_m=np.einsum("gij,gj->gi", cov_g, np.array(eta)),
+                            covariance_m2=cov_g)
+
+
 def associate_frame(
     measurements: Sequence[ArrayLike],
     node_poses: ArrayLike,
@@ -279,6 +318,8 @@ def associate_frame(
         pos_all = detection_to_global(z_all[:, 0], z_all[:, 1], pose_rows)
         cov_all = detection_position_covariance(z_all[:, 0], z_all[:, 1], pose_rows, noise)
     info_all, ok_all = detection_information(cov_all)
+    if max(counts) == 1 and bool(np.all(ok_all)):  # one regular detection per node at most
+        return _associate_singles(counts, pos_all, cov_all, info_all, gate)
     start = 0
     for n, k_n in enumerate(counts):
         if k_n == 0:

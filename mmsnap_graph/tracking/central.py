@@ -188,6 +188,7 @@ class CentralTracker:
         self._tracks: list[_Track] = []
         self._next_id = 0
         self._gate = _gate_2dof(self.config.gate_probability)
+        self._motion: tuple | None = None  # (period, F, Q) of the last step
 
     @property
     def tracks(self) -> list[tuple[int, NDArray, NDArray]]:
@@ -208,8 +209,9 @@ class CentralTracker:
         cfg = self.config
         z, r = _check_estimates(states, covariances)
         t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
-        f = cv_transition(t)
-        q = cv_process_noise(t, cfg.sigma_a_mps2)
+        if self._motion is None or self._motion[0] != t:  # frames mostly share one period
+            self._motion = (t, cv_transition(t), cv_process_noise(t, cfg.sigma_a_mps2))
+        _, f, q = self._motion
         for tr in self._tracks:
             tr.x = f @ tr.x
             tr.p = symmetrize(f @ tr.p @ f.T + q)
