@@ -23,6 +23,7 @@ The baseline of a process that only imports the packages is printed first.
 Usage::
 
     python benchmarks/bench_fuse_memory.py [--hours 0.25 0.5 1] [--window 2000] [--tracemalloc]
+                                            [--paths whole chunked]
 """
 
 from __future__ import annotations
