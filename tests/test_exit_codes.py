@@ -159,7 +159,7 @@ def test_demo_exits_1_when_a_paper_check_does_not_hold(tmp_path, capsys, monkeyp
 
 
 def test_batch_exits_1_when_a_recording_fails(files, tmp_path, capsys, monkeypatch):
-    from mmsnap_graph.app.commands import batch as batch_command
+    from mmsnap_graph.app import batch as batch_module
 
     work = tmp_path / "in"
     work.mkdir()
@@ -167,11 +167,11 @@ def test_batch_exits_1_when_a_recording_fails(files, tmp_path, capsys, monkeypat
     shutil.copy(files["truncated"], work / "b.h5")
 
     @contextlib.contextmanager
-    def threads(args, n):  # no Dask cluster: any Executor runs the batch
+    def threads(n_workers):  # no Dask cluster: any Executor runs the batch
         with concurrent.futures.ThreadPoolExecutor(1) as pool:
             yield pool
 
-    monkeypatch.setattr(batch_command, "_client", threads)
+    monkeypatch.setattr(batch_module, "local_client", threads)
     code = main(["batch", str(work / "*.h5"), "--steps", "fuse", "--no-progress"])
     out = capsys.readouterr().out
     assert code == EXIT_FAILURE
