@@ -33,6 +33,7 @@ _LAZY = {
     "FusionResult": "data.results",
     "BatchResult": "data.results",
     "FusedSequence": "data.results",
+    "measurement_information": "data.results",
     "fuse_frame": "fusion.oneshot",
     "build_frame_graph": "fusion.oneshot",
     "initial_state": "fusion.problem",

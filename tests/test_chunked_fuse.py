@@ -19,7 +19,8 @@ from mmsnap_graph.io import read_fused, read_recording, write_recording
 from mmsnap_graph.io.chunks import open_detection_windows
 
 EXACT = ("frame", "target", "label", "detection_index", "observed", "success", "status")
-CLOSE = ("state", "covariance", "laplace_covariance", "degeneracy")
+CLOSE = ("state", "covariance", "laplace_covariance", "degeneracy", "information",
+         "information_vector", "time_s")
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,8 @@ TEST_FRAMES = "150"
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["calibration_walkthrough.ipynb", "oneshot_walkthrough.ipynb"])
+@pytest.mark.parametrize("name", ["calibration_walkthrough.ipynb", "oneshot_walkthrough.ipynb",
+                                  "ti_point_cloud_walkthrough.ipynb"])
 def test_notebook_executes(name, monkeypatch):
     path = NOTEBOOKS / name
     nb = nbformat.read(path, as_version=4)

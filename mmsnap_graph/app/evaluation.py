@@ -27,6 +27,7 @@ __all__ = [
     "pose_mapping_error",
     "truth_reference",
     "evaluate_recording",
+    "failed_checks",
     "nees",
     "chi2_mean_interval",
 ]
@@ -211,11 +212,31 @@ def _nees_summary(err: NDArray, cov: NDArray) -> dict:
         except np.linalg.LinAlgError:
             continue
     if not good:
-        return {"mean": float("nan"), "n": 0, "interval_95": [float("nan"), float("nan")]}
+        return {"mean": float("nan"), "n": 0, "interval_95": [float("nan"), float("nan")],
+                "passed": None}
     good = np.asarray(good)
     values = nees(err[good], cov[good])
     lo, hi = chi2_mean_interval(err.shape[1], good.size)
-    return {"mean": float(np.mean(values)), "n": int(good.size), "interval_95": [lo, hi]}
+    mean = float(np.mean(values))
+    return {"mean": mean, "n": int(good.size), "interval_95": [lo, hi],
+            "passed": bool(lo <= mean <= hi)}
+
+
+def failed_checks(metrics: dict) -> list[str]:
+    """The consistency checks of :func:`evaluate_recording`'s ``metrics``
+    that failed, one sentence each (empty when all passed or none ran): the
+    fused rows' mean NEES outside its 95% chi-square interval (the
+    covariances are too small or too large for the errors)."""
+    out = []
+    fu = metrics.get("fused")
+    if fu is not None and fu["nees"].get("passed") is False:
+        nz = fu["nees"]
+        lo, hi = nz["interval_95"]
+        side = "over-confident: covariances too small" if nz["mean"] > hi else \
+            "under-confident: covariances too large"
+        out.append(f"NEES check failed for the fused states: mean NEES {nz['mean']:.2f} over "
+                   f"{nz['n']} rows is outside the 95% interval ({lo:.2f}, {hi:.2f}) ({side})")
+    return out
 
 
 def _degeneracy_threshold() -> float:
@@ -242,8 +263,13 @@ def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
         (:func:`pose_error`, :func:`pose_mapping_error` over the true paths)
         and used to move each node's tracks into the global frame, which are
         then compared with the truth like the fused rows.
+    A truth with surveyed node poses but no trajectory (no rows) scores the
+    poses alone: ``path_error_m`` is None, ``fused`` and every track None,
+    with a note.
     Returns ``{"fused": ..., "tracks": {node: ...}, "poses": {node: ...},
-    "notes": [...]}``; a part that cannot be evaluated is None with a note.
+    "notes": [...], "failed_checks": [...]}``; a part that cannot be
+    evaluated is None with a note; ``failed_checks`` is
+    :func:`failed_checks` (``fused["nees"]["passed"]`` holds the NEES check).
     """
     truth = recording.truth
     if truth is None:
@@ -255,9 +281,16 @@ def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
                                            for k, v in node_poses.items()}
     poses = {name: given.get(name, node.pose) for name, node in recording.nodes.items()}
     out["poses"] = _evaluate_poses(poses, truth, notes)
-    out["fused"] = _evaluate_fused(fused, truth, notes)
-    out["tracks"] = _evaluate_tracks(recording, poses, truth, notes)
+    if truth.frame.size == 0:
+        notes.append("the truth has no trajectory (surveyed poses only): fused states and "
+                     "tracks are not scored")
+        out["fused"] = None
+        out["tracks"] = {name: None for name in recording.nodes}
+    else:
+        out["fused"] = _evaluate_fused(fused, truth, notes)
+        out["tracks"] = _evaluate_tracks(recording, poses, truth, notes)
     out["notes"] = notes
+    out["failed_checks"] = failed_checks(out)
     return out
 
 
@@ -281,7 +314,9 @@ def _evaluate_poses(poses: dict, truth, notes: list[str]) -> dict:
                            "true_pose": np.asarray(true, float).tolist(),
                            "position_error_m": pe.position_error_m,
                            "heading_error_rad": pe.heading_error_rad,
-                           "path_error_m": pose_mapping_error(pose, true, path)}
+                           # Over the true walking path; none without a trajectory.
+                           "path_error_m": pose_mapping_error(pose, true, path)
+                           if path.shape[0] else None}
     return pose_rows
 
 

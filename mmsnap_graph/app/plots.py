@@ -5,6 +5,12 @@ object-oriented API (no pyplot state, no backend switch: it renders with Agg
 when saved and displays inline in a notebook) and returns it; ``save`` writes
 it atomically. Degrees appear only here (axis labels), the library speaks
 radians.
+
+The figures show their uncertainty: +-2 sigma bands and ellipses, colour bars
+on every colour scale, legends for contour lines; an estimate outside the
+axes is marked at the edge (a triangle pointing out), legends sit outside
+the axes (they never cover nodes or data), and a figure of part of a run says
+so in its title.
 """
 
 from __future__ import annotations
@@ -16,10 +22,11 @@ from typing import Mapping, Sequence
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Ellipse, Rectangle
 from numpy.typing import ArrayLike, NDArray
 
-from factors.models import local_to_global
+from factors.models import detection_to_local, local_to_global
 
 from .._atomic import atomic_path
 from ..data.noise import GaussianPrior, MeasurementNoise
@@ -34,6 +41,7 @@ __all__ = [
     "draw_nodes",
     "plot_calibration_tracks",
     "plot_timeseries",
+    "plot_point_clouds",
     "velocity_posterior",
     "plot_velocity_posteriors",
     "degeneracy_grid",
@@ -76,6 +84,33 @@ def _cov_ellipse(ax, mean: NDArray, cov: NDArray, n_sigma: float = 2.0, **kw) ->
                          height=2 * n_sigma * np.sqrt(w[0]), angle=angle, fill=False, **kw))
 
 
+def _legend_outside(ax, handles=None, *, ncol: int = 2, fontsize: int = 7):
+    """A legend below the axes (outside them: it covers no node, track or
+    estimate); constrained layout makes room for it."""
+    kw = {} if handles is None else {"handles": handles}
+    return ax.legend(fontsize=fontsize, loc="upper center", bbox_to_anchor=(0.5, -0.16),
+                     ncol=ncol, frameon=False, **kw)
+
+
+def _mark_outside(ax, x: ArrayLike, y: ArrayLike, *, color: str, label: str | None = None,
+                  axis: str = "y") -> int:
+    """Values of ``y`` beyond the axes' limits (along ``axis``), drawn at the
+    edge as triangles pointing out (not clipped). Returns how many."""
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    lo, hi = ax.get_ylim() if axis == "y" else ax.get_xlim()
+    n = 0
+    for side, mask, edge, marker in (("above", y > hi, hi, "^" if axis == "y" else ">"),
+                                     ("below", y < lo, lo, "v" if axis == "y" else "<")):
+        if not np.any(mask):
+            continue
+        pos = (x[mask], np.full(int(mask.sum()), edge))
+        ax.plot(*(pos if axis == "y" else pos[::-1]), ls="none", marker=marker, ms=5,
+                color=color, clip_on=False, label=label if n == 0 else None)
+        n += int(mask.sum())
+    return n
+
+
 # ----------------------------------------------------------------------------
 # Tracks overlaid after calibration
 # ----------------------------------------------------------------------------
@@ -112,7 +147,7 @@ def plot_calibration_tracks(calibrations: Mapping[tuple[str, str], object],
                     label=f"S2, refined ({cal.refined_rmse_m:.3f} m)")
             draw_nodes(ax, {"S1": np.zeros(3), "S2": cal.true_pose}, color="k")
             draw_nodes(ax, {"S2'": cal.refined_pose}, color="tab:red", label=False)
-            ax.legend(fontsize=7, loc="best")
+            _legend_outside(ax)
             ax.set_xlabel("x [m]")
             ax.set_ylabel("y [m]")
             ax.grid(alpha=0.3)
@@ -128,18 +163,26 @@ def plot_calibration_tracks(calibrations: Mapping[tuple[str, str], object],
 def plot_timeseries(fusion, frame_period_s: float = 0.15, *, max_frames: int | None = None
                     ) -> Figure:
     """x, y, vx, vy over time of one fused run
-    (:class:`mmsnap_graph.app.demo.FusionOutcome`): one-shot Bayesian and ML, the
-    two nodes' EKF tracks (global frame), the track-level fusion and the truth.
-    Velocity axes are limited to the truth's range +-2 m/s: ML excursions in a
-    degenerate geometry leave the plot (their RMSE is in the tables)."""
-    k = fusion.frame.size if max_frames is None else min(int(max_frames), fusion.frame.size)
+    (:class:`mmsnap_graph.app.demo.FusionOutcome`): one-shot Bayesian with its
+    +-2 sigma band (Laplace covariance) and ML, the two nodes' EKF tracks
+    (global frame), the track-level fusion and the truth.
+    Velocity axes are limited to the truth's range +-2 m/s: one-shot
+    estimates beyond them (ML in a degenerate geometry) are marked at the
+    edge (their RMSE is in the tables). With ``max_frames`` shorter than the
+    run, the title says which part is shown."""
+    n_all = fusion.frame.size
+    k = n_all if max_frames is None else min(int(max_frames), n_all)
     t = fusion.frame[:k] * frame_period_s
-    fig = Figure(figsize=(10, 8.5), layout="constrained")
+    fig = Figure(figsize=(10, 9.0), layout="constrained")
     if k == 0:
         return fig
     axes = fig.subplots(4, 1, sharex=True)
     names = ["x [m]", "y [m]", "vx [m/s]", "vy [m/s]"]
+    sd = np.sqrt(np.clip(np.diagonal(fusion.bayes_covariance[:k], axis1=1, axis2=2), 0.0, None))
+    handles: dict[str, object] = {}
     for i, ax in enumerate(axes):
+        ax.fill_between(t, fusion.bayes[:k, i] - 2 * sd[:, i], fusion.bayes[:k, i] + 2 * sd[:, i],
+                        color=_COLORS["bayes"], alpha=0.2, lw=0, label="Bayesian +-2 sigma")
         ax.plot(t, fusion.truth[:k, i], color="k", lw=2.0, alpha=0.5, label="truth")
         ax.plot(t, fusion.ekf_s1[:k, i], color=_COLORS["s1"], lw=0.8, label="EKF S1")
         ax.plot(t, fusion.ekf_s2[:k, i], color=_COLORS["s2"], lw=0.8, label="EKF S2")
@@ -154,10 +197,75 @@ def plot_timeseries(fusion, frame_period_s: float = 0.15, *, max_frames: int | N
         if i >= 2:
             lo, hi = np.nanmin(fusion.truth[:k, i]), np.nanmax(fusion.truth[:k, i])
             ax.set_ylim(lo - 2.0, hi + 2.0)
-    axes[0].legend(ncol=6, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, 1.45))
+            for key, label in (("ml", "ML"), ("bayes", "Bayesian")):
+                _mark_outside(ax, t, getattr(fusion, key)[:k, i], color=_COLORS[key],
+                              label=f"{label} outside the axes (at the edge)")
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(lab, h)
+    # One legend for all panels, above them (outside the axes).
+    axes[0].legend(handles=list(handles.values()), ncol=5, fontsize=7, loc="lower center",
+                   bbox_to_anchor=(0.5, 1.02), frameon=False)
     axes[-1].set_xlabel("time [s]")
+    part = "" if k == n_all else f"; first {k} of {n_all} frames shown"
     fig.suptitle(f"Configuration {fusion.configuration}, {fusion.trajectory} trajectory "
-                 f"(calibrated on {fusion.calibrated_on})")
+                 f"(calibrated on {fusion.calibrated_on}{part})")
+    return fig
+
+
+# ----------------------------------------------------------------------------
+# Point clouds
+# ----------------------------------------------------------------------------
+
+
+def plot_point_clouds(recording, *, frame: int | None = None, source: str = "point_cloud"
+                      ) -> Figure:
+    """One frame's detections of each node in the node's own frame (x along
+    the array, y broadside), coloured by Doppler (colour bar in m/s), over
+    the node's whole EKF track when it has one. ``frame`` defaults to the
+    middle frame of the first node's detections; the title says which frame
+    of how many is shown. ``source``: ``"point_cloud"`` or ``"centroids"``.
+    """
+    names = [n for n in recording.node_names if getattr(recording.nodes[n], source) is not None]
+    fig = Figure(figsize=(5.0 * max(1, len(names)), 4.8), layout="constrained")
+    if not names:
+        return fig
+    first = getattr(recording.nodes[names[0]], source)
+    all_frames = np.unique(np.concatenate([getattr(recording.nodes[n], source).frame
+                                           for n in names]))
+    if frame is None:
+        frame = int(first.frame[len(first) // 2]) if len(first) else 0
+    # A symmetric colour scale over the bulk of the Doppler values (a few
+    # false alarms would wash it out).
+    vmax = max([1.0] + [float(np.percentile(np.abs(getattr(recording.nodes[n], source)
+                                                   .doppler_mps), 99))
+                        for n in names if len(getattr(recording.nodes[n], source))])
+    axes = fig.subplots(1, len(names), squeeze=False)[0]
+    sc = None
+    for ax, name in zip(axes, names):
+        det = getattr(recording.nodes[name], source)
+        k = det.frame == frame
+        p = detection_to_local(det.range_m[k], det.omega_rad[k])
+        sc = ax.scatter(p[:, 0], p[:, 1], c=det.doppler_mps[k], s=14, cmap="coolwarm",
+                        vmin=-vmax, vmax=vmax, label=f"{source.replace('_', ' ')}, frame {frame}")
+        tracks = recording.nodes[name].tracks
+        if tracks is not None and len(tracks):
+            ax.plot(tracks.state[:, 0], tracks.state[:, 1], lw=0.8, color="k", label="EKF track")
+        draw_nodes(ax, {name: np.zeros(3)}, color="k")
+        reach = max(2.0, float(np.max(np.abs(p), initial=0.0))) + 0.5
+        ax.set_xlim(-reach, reach)
+        ax.set_ylim(-0.5, reach)
+        ax.set_aspect("equal")
+        ax.set_title(f"{name}: its own frame ({int(k.sum())} points)", fontsize=10)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.grid(alpha=0.3)
+        _legend_outside(ax)
+    cb = fig.colorbar(sc, ax=list(axes), shrink=0.85)
+    cb.set_label("Doppler [m/s] (positive = receding)")
+    where = (f"{int(np.searchsorted(all_frames, frame)) + 1} of {all_frames.size} frames with "
+             f"detections" if frame in all_frames else
+             f"no detections; {all_frames.size} frames have some")
+    fig.suptitle(f"One frame of the run: frame {frame} ({where})")
     return fig
 
 
@@ -203,40 +311,67 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
             "degeneracy": float(res_map.degeneracy), "node_poses": poses}
 
 
+#: The likelihood's contour levels: 0.5 * chi2_2 quantiles of 1, 2, 3 sigma
+#: (39%, 86%, 99% of a 2-D Gaussian), and their line styles.
+_LIKELIHOOD_LEVELS = ((0.5, "-", "1 sigma"), (2.0, "--", "2 sigma"), (4.5, ":", "3 sigma"))
+
+
+def _mark_point(ax, point: NDArray, label: str, **style) -> None:
+    """A 2-D estimate as a marker, or, when it lies outside the axes, a
+    triangle at the nearest edge pointing towards it (not clipped) whose
+    label gives its value."""
+    x0, x1 = ax.get_xlim()
+    y0, y1 = ax.get_ylim()
+    x, y = float(point[0]), float(point[1])
+    if x0 <= x <= x1 and y0 <= y <= y1:
+        ax.plot([x], [y], ls="none", label=label, **style)
+        return
+    cx, cy = min(max(x, x0), x1), min(max(y, y0), y1)
+    marker = (">" if x > x1 else "<") if not x0 <= x <= x1 else ("^" if y > y1 else "v")
+    style = {**style, "marker": marker, "ms": 9}
+    ax.plot([cx], [cy], ls="none", clip_on=False,
+            label=f"{label}: outside at ({x:.1f}, {y:.1f}), marked at the edge", **style)
+
+
 def plot_velocity_posteriors(panels: Sequence[tuple[str, dict]]) -> Figure:
     """Velocity posteriors side by side: ``panels`` are ``(title, data)``
     with data from :func:`velocity_posterior`. Filled: the posterior density
-    (conditional on the MAP position); black lines: the likelihood's 1, 2, 3
-    sigma contours; ellipses (2 sigma): the grid posterior covariance and the
-    Laplace covariance of the MAP, and ML's Laplace covariance."""
-    fig = Figure(figsize=(5.2 * len(panels), 4.8), layout="constrained")
+    (conditional on the MAP position, colour bar relative to its peak); black
+    lines: the likelihood's 1, 2, 3 sigma contours (in the legend); ellipses
+    (2 sigma): the grid posterior covariance and the Laplace covariance of
+    the MAP. An estimate outside the axes (ML in a degenerate geometry) is
+    marked at the edge with its value."""
+    fig = Figure(figsize=(5.6 * len(panels), 6.0), layout="constrained")
     axes = fig.subplots(1, len(panels), squeeze=False)[0]
     for ax, (title, d) in zip(axes, panels):
         vx, vy = d["vx"], d["vy"]
         post = np.exp(-(d["neg_log_posterior"] - d["neg_log_posterior"].min()))
-        ax.contourf(vx, vy, post, levels=np.linspace(0.02, 1.0, 12), cmap="Blues")
+        filled = ax.contourf(vx, vy, post, levels=np.linspace(0.02, 1.0, 12), cmap="Blues")
+        cb = fig.colorbar(filled, ax=ax, shrink=0.9, ticks=[0.02, 0.2, 0.4, 0.6, 0.8, 1.0])
+        cb.set_label("posterior density / its peak")
         dl = d["neg_log_likelihood"] - d["neg_log_likelihood"].min()
-        # 2-D Gaussian: 0.5 * chi2_2 quantiles of 1, 2, 3 sigma (39%, 86%, 99%).
-        ax.contour(vx, vy, dl, levels=[0.5, 2.0, 4.5], colors="k", linewidths=0.8,
-                   linestyles=["-", "--", ":"])
+        ax.contour(vx, vy, dl, levels=[lv for lv, _, _ in _LIKELIHOOD_LEVELS], colors="k",
+                   linewidths=0.8, linestyles=[ls for _, ls, _ in _LIKELIHOOD_LEVELS])
+        ax.set_xlim(vx[0], vx[-1])
+        ax.set_ylim(vy[0], vy[-1])
         m, ml = d["map"], d["ml"]
         if m.grid_covariance is not None and np.all(np.isfinite(m.grid_covariance)):
             _cov_ellipse(ax, m.state[2:], m.grid_covariance[2:, 2:], color="tab:blue", lw=1.8,
                          label="grid posterior (2 sigma)")
         _cov_ellipse(ax, m.state[2:], m.covariance[2:, 2:], color="tab:cyan", lw=1.0, ls="--",
                      label="Laplace (2 sigma)")
-        ax.plot(*m.state[2:], "o", color="tab:blue", label="Bayesian (MAP)")
+        _mark_point(ax, m.state[2:], "Bayesian (MAP)", marker="o", color="tab:blue")
         if ml.success and np.all(np.isfinite(ml.state)):
-            ax.plot(*ml.state[2:], "x", color="tab:red", ms=9, mew=2,
-                    label=f"ML ({ml.state[2]:.1f}, {ml.state[3]:.1f})")
+            _mark_point(ax, ml.state[2:], "ML", marker="x", color="tab:red", ms=9, mew=2)
         if d["truth"] is not None:
-            ax.plot(*d["truth"][2:], "*", color="k", ms=11, label="truth")
-        ax.set_xlim(vx[0], vx[-1])
-        ax.set_ylim(vy[0], vy[-1])
+            _mark_point(ax, d["truth"][2:], "truth", marker="*", color="k", ms=11)
         ax.set_xlabel("vx [m/s]")
         ax.set_ylabel("vy [m/s]")
         ax.set_title(f"{title}\ndegeneracy (cond.) {d['degeneracy']:.3g}", fontsize=10)
-        ax.legend(fontsize=7, loc="lower left")
+        handles, _ = ax.get_legend_handles_labels()
+        handles += [Line2D([], [], color="k", lw=0.8, ls=ls, label=f"likelihood {name}")
+                    for _, ls, name in _LIKELIHOOD_LEVELS]
+        _legend_outside(ax, handles)
         ax.grid(alpha=0.3)
     fig.suptitle("Velocity posterior (filled) and likelihood (contours) of one frame")
     return fig
@@ -314,6 +449,11 @@ def plot_degeneracy_map(networks: Mapping[str, Mapping[str, ArrayLike]], *,
         ax.set_title(f"configuration {name}", fontsize=10)
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
+        _legend_outside(ax, [
+            Line2D([], [], color="tab:cyan", lw=1.2, label=f"condition number {thr:g}"),
+            Rectangle((0, 0), 1, 1, fill=False, ec="tab:green", lw=1.5, label="walking area"),
+            Line2D([], [], color="tab:blue", lw=0.6, label="trajectory")][
+                :3 if trajectories is not None and name in trajectories else 2])
     if mesh is not None:
         cb = fig.colorbar(mesh, ax=list(axes), shrink=0.85)
         cb.set_label("log10 condition number of the velocity information")

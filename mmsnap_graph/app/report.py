@@ -378,7 +378,8 @@ def write_report(result, out_dir: str | os.PathLike, figures: dict[str, Path], *
         parts += [table_cube(result).markdown(), ""]
     titles = {
         "calibration_tracks": "Tracks overlaid after calibration",
-        "velocity_posteriors": "Velocity posteriors in a degenerate and a benign region",
+        "velocity_posteriors": "Velocity posteriors in a degenerate and a benign region "
+                               "(estimates outside the axes are marked at the edge)",
         "degeneracy_map": "Degeneracy indicator over the common field of view",
     }
     if figures:
@@ -386,7 +387,8 @@ def write_report(result, out_dir: str | os.PathLike, figures: dict[str, Path], *
         for name, p in figures.items():
             if name.startswith("timeseries_"):
                 title = (f"X / Y / Vx / Vy over time: configuration {name.split('_')[1]}, "
-                         f"{Path(p).stem.split('_')[-1]} trajectory")
+                         f"{Path(p).stem.split('_')[-1]} trajectory (shaded: the Bayesian "
+                         f"estimate +-2 sigma; the title says when part of the run is shown)")
             else:
                 title = titles.get(name, name.replace("_", " "))
             parts += [f"### {title}", "", f"![{title}]({Path(p).name})", ""]

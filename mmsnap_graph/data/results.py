@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Status", "DEGENERACY_THRESHOLD", "FusionResult", "BatchResult", "FusedSequence"]
+__all__ = ["Status", "DEGENERACY_THRESHOLD", "FusionResult", "BatchResult", "FusedSequence",
+           "measurement_information"]
 
 #: ``degeneracy`` above this flags a degenerate geometry: for two nodes, lines
 #: of sight within about 11.4 degrees of parallel (the condition number of two
@@ -259,6 +260,18 @@ class FusedSequence:
     rejected : (K, N) bool, the nodes the robust fusion left out or
     down-weighted (``FusionResult.rejected``); all False without ``robust``.
     robust : the robust option used (None, ``"gate"``, ``"huber"``, ``"cauchy"``).
+    time_s : (K,) float or None, seconds since the recording's start
+    (``frame * frame_period_s``); filled from ``frame_period_s`` when that is
+    given, else None (:func:`mmsnap_graph.io.fused.write_fused` fills it
+    from the recording file).
+    frame_period_s : float or None, the recording's frame period.
+    time_origin_s : float or None, the wall-clock time (Unix seconds) of
+    ``time_s = 0`` when the recording holds one (its ``time_origin_s``
+    metadata, from time-stamped imports).
+    information, information_vector : (K, 4, 4), (K, 4): the prior-free
+    information form of each row (:func:`measurement_information`): what the
+    measurements alone say about the state, for a tracker that brings its own
+    prior. Computed from ``laplace_covariance`` when not given.
     """
 
     node_names: tuple
@@ -286,10 +299,25 @@ class FusedSequence:
     gate_probability: float
     rejected: NDArray | None = None
     robust: str | None = None
+    time_s: NDArray | None = None
+    frame_period_s: float | None = None
+    time_origin_s: float | None = None
+    information: NDArray | None = None
+    information_vector: NDArray | None = None
 
     def __post_init__(self) -> None:
         if self.rejected is None:
             object.__setattr__(self, "rejected", _no_rejection(np.shape(self.observed)))
+        if self.frame_period_s is not None:
+            object.__setattr__(self, "frame_period_s", float(self.frame_period_s))
+        if self.time_s is None and self.frame_period_s is not None:
+            object.__setattr__(self, "time_s",
+                               np.asarray(self.frame, dtype=float) * self.frame_period_s)
+        if self.information is None or self.information_vector is None:
+            info, vec = measurement_information(self.state, self.laplace_covariance,
+                                                self.prior_mean, self.prior_sigmas)
+            object.__setattr__(self, "information", info)
+            object.__setattr__(self, "information_vector", vec)
 
     def __len__(self) -> int:
         return int(self.frame.shape[0])
@@ -298,3 +326,71 @@ class FusedSequence:
         """Row indices of one labelled target, in frame order."""
         rows = np.flatnonzero(self.label == label)
         return rows[np.argsort(self.frame[rows], kind="stable")]
+
+
+def _spd_inverse(cov: NDArray) -> NDArray:
+    """Inverses of symmetric matrices ``(K, D, D)``; NaN for a matrix that is
+    not positive definite (or too ill-conditioned to invert)."""
+    try:
+        # The common case, every matrix positive definite: one batched
+        # Cholesky checks it (a failure anywhere fails the whole stack).
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        # Eigendecomposition: a row that is not positive definite becomes NaN.
+        w, v = np.linalg.eigh(cov)
+        pd = np.all(w > 0.0, axis=1) & (w[:, 0] > 1e-14 * np.abs(w[:, -1]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.einsum("kij,kj,klj->kil", v, 1.0 / w, v)
+        inv[~pd] = np.nan
+        return inv
+    return np.linalg.inv(cov)
+
+
+def measurement_information(state, covariance, prior_mean=None, prior_sigmas=None
+                            ) -> tuple[NDArray, NDArray]:
+    """The prior-free information form of fused estimates.
+
+    state : (K, 4) MAP (or ML) ``(x_m, y_m, vx_mps, vy_mps)``; covariance :
+    (K, 4, 4) their Laplace covariances (the inverse Gauss-Newton information
+    at ``state``, prior included for MAP); prior_mean, prior_sigmas : (4,)
+    the Gaussian prior used, None for ML.
+
+    Returns ``information (K, 4, 4)``, the measurements' information at the
+    estimate, and ``information_vector (K, 4)``:
+
+    .. math::
+
+        Y = P^{-1} - P_0^{-1}, \\qquad y = P^{-1} \\hat x - P_0^{-1} m_0
+
+    (``P0 = diag(prior_sigmas^2)``, ``m0 = prior_mean``; for ML ``Y = P^-1``,
+    ``y = Y x``). ``Y`` is ``J^T W J`` summed over the nodes kept (J the
+    measurement Jacobian at the estimate, W the inverse measurement
+    variances, robust weights included) and ``(Y, y)`` is the linearised
+    measurement evidence with the prior taken out: an information filter
+    adds them to its own prediction, and where ``Y`` is invertible
+    ``Y^-1 y`` is the prior-free state (to first order, the ML estimate) with
+    covariance ``Y^-1``. A MAP covariance includes the prior; a tracker that
+    brings its own prior must use this form, or it counts the prior again at
+    every frame. ``Y`` may be singular (one node: no cross-line velocity).
+    Rows whose covariance is not finite or not positive definite are NaN.
+    """
+    x = np.asarray(state, dtype=float)
+    cov = np.asarray(covariance, dtype=float)
+    k = x.shape[0]
+    info = np.full((k, 4, 4), np.nan)
+    vec = np.full((k, 4), np.nan)
+    ok = np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.isfinite(x), axis=1)
+    if np.any(ok):
+        rows = np.flatnonzero(ok)
+        inv = _spd_inverse(0.5 * (cov[rows] + np.swapaxes(cov[rows], -1, -2)))
+        info[rows] = inv
+        vec[rows] = np.einsum("kij,kj->ki", inv, x[rows])
+    if prior_sigmas is not None:
+        p0 = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
+        m0 = np.zeros(4) if prior_mean is None else np.asarray(prior_mean, dtype=float)
+        info = info - np.diag(p0)
+        vec = vec - p0 * m0
+    info = 0.5 * (info + np.swapaxes(info, -1, -2))
+    info.setflags(write=False)
+    vec.setflags(write=False)
+    return info, vec

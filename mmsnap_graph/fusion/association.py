@@ -29,7 +29,7 @@ from factors.models import detection_covariance_global, detection_to_global
 from ..errors import ValidationError
 from .._validation import as_float_array, check_finite
 from ..data.noise import MeasurementNoise
-from .problem import check_noise
+from .problem import check_node_noise
 
 __all__ = [
     "FrameAssociation",
@@ -263,7 +263,7 @@ def _associate_singles(counts, pos_all, cov_all, info_all, gate) -> FrameAssocia
 def associate_frame(
     measurements: Sequence[ArrayLike],
     node_poses: ArrayLike,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
     *,
     gate_probability: float = 0.999,
 ) -> FrameAssociation:
@@ -276,9 +276,10 @@ def associate_frame(
         (K_n may be 0).
     node_poses : (N, 3) float
         Calibrated poses in the global frame.
-    noise : MeasurementNoise
-        Measurement sigmas (default the paper's); they set the position
-        covariances and so the gate.
+    noise : MeasurementNoise or sequence of N MeasurementNoise
+        Measurement sigmas (default the paper's), one for every node or one
+        per node (docs/CONVENTIONS.md, "Per-node noise"); each node's set its
+        detections' position covariances and so the gate.
     gate_probability : float
         Probability mass inside the gate (chi-square, 2 dof) of two detections
         of the same target.
@@ -299,7 +300,7 @@ def associate_frame(
         raise ValidationError(
             f"measurements has {len(measurements)} nodes but node_poses has {poses.shape[0]}"
         )
-    check_noise(noise)
+    noise = check_node_noise(noise, poses.shape[0])
     gate = gate_threshold(gate_probability)
     groups = _Groups(poses.shape[0])
     zs = []
@@ -316,7 +317,12 @@ def associate_frame(
     pose_rows = np.repeat(poses, counts, axis=0)
     with np.errstate(all="ignore"):
         pos_all = detection_to_global(z_all[:, 0], z_all[:, 1], pose_rows)
-        cov_all = detection_position_covariance(z_all[:, 0], z_all[:, 1], pose_rows, noise)
+        if all(nz == noise[0] for nz in noise):  # one noise for every node: one call
+            cov_all = detection_position_covariance(z_all[:, 0], z_all[:, 1], pose_rows, noise[0])
+        else:  # per-node noise (docs/CONVENTIONS.md, "Per-node noise")
+            cov_all = np.concatenate([detection_position_covariance(z[:, 0], z[:, 1], poses[n],
+                                                                    noise[n])
+                                      for n, z in enumerate(zs)])
     info_all, ok_all = detection_information(cov_all)
     if max(counts) == 1 and bool(np.all(ok_all)):  # one regular detection per node at most
         return _associate_singles(counts, pos_all, cov_all, info_all, gate)

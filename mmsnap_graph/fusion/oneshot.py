@@ -27,7 +27,7 @@ GTSAM-free and lives in :mod:`mmsnap_graph.fusion.problem`; this module builds
 the graph, solves it and assesses the solution. ``fuse_frame`` is the steps
 validate (:func:`_check_options`, :func:`~.problem.validate_frame`),
 initialise (:func:`_start`), build (:func:`_build`), solve (:func:`_solve`) and
-assess (:func:`_assess`).
+assess (:func:`~.oneshot_assess.assess_fit`).
 
 Cost: ``benchmarks/bench_oneshot.py`` prints the per-frame median (two nodes,
 configuration B) against ``scipy.optimize.least_squares`` with the same model.
@@ -52,26 +52,27 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
-from typing import Literal
+from typing import Literal, Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import frame_measurement_factor, measurement_noise, node_measurement_factor
-from factors.models import measurement_model_scalar, wrap_angle_scalar
 
 from ..errors import MmsnapError, ValidationError
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.results import DEGENERACY_THRESHOLD, FusionResult, Status
 from .grid import grid_posterior
+from .oneshot_assess import NEWTON_DECREMENT_TOLERANCE, assess_fit, residuals_and_degeneracy
+from .oneshot_poses import pose_aware_covariance
 from .problem import (
     check_count,
     check_initial_state,
-    check_noise,
+    check_node_noise,
+    check_pose_covariances,
     check_prior,
     checked_initial_state,
-    condition_2x2,
     initial_state,
     initial_states,
     validate_frame,
@@ -98,9 +99,6 @@ __all__ = [
 _COMPAT = (DEGENERACY_THRESHOLD, MeasurementNoise, GaussianPrior, FusionResult,
            initial_state, initial_states, validate_frame, velocity_degeneracy)
 
-#: Largest squared Newton decrement ``g^T S g`` (cost units) accepted at a
-#: solution; converged frames show ~1e-15 (1e-12 in configuration C).
-NEWTON_DECREMENT_TOLERANCE = 1e-8
 #: Key of the target state in the graphs built here.
 STATE_KEY = 0
 
@@ -114,6 +112,16 @@ _COVARIANCE_CHOICES = ("laplace", "grid", "both")
 @lru_cache(maxsize=64)
 def _noise_model(sigmas: tuple[float, float, float], n_nodes: int) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Diagonal.Sigmas(np.tile(np.array(sigmas), n_nodes))
+
+
+@lru_cache(maxsize=64)
+def _node_noise_model(sigmas: tuple[float, ...]) -> gtsam.noiseModel.Base:
+    # Per-node noise: the observed nodes' sigmas, node after node.
+    return gtsam.noiseModel.Diagonal.Sigmas(np.array(sigmas))
+
+
+def _sigmas(noise: MeasurementNoise) -> tuple[float, float, float]:
+    return (noise.range_m, noise.omega_rad, noise.doppler_mps)
 
 
 @lru_cache(maxsize=64)
@@ -145,7 +153,7 @@ def build_frame_graph(
     measurements: ArrayLike,
     *,
     observed: ArrayLike | None = None,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
     prior: GaussianPrior | None = GaussianPrior(),
     initial_state: ArrayLike | None = None,
     key: int = STATE_KEY,
@@ -158,11 +166,12 @@ def build_frame_graph(
     None, a ``PriorFactorVector``, all on the ``Vector4`` state at ``key``.
     Add factors (another target's, a motion model) before optimizing.
     ``initial_state`` (4,) defaults to :func:`~.problem.initial_state`.
-    Inputs are validated as in :func:`fuse_frame`.
+    Inputs are validated as in :func:`fuse_frame` (``noise``: one
+    :class:`MeasurementNoise` or one per node).
     """
-    check_noise(noise)
     check_prior(prior)
     poses, z, obs = validate_frame(node_poses, measurements, observed)
+    noise = check_node_noise(noise, poses.shape[0])
     if initial_state is None and obs is not None and not obs.any() and prior is None:
         raise ValidationError("observed has no True entry and there is no prior")
     x0 = _start(poses, z, obs, prior, noise, initial_state)
@@ -175,20 +184,24 @@ def _robust_model(sigmas: tuple[float, float, float], kernel: tuple[str, float])
 
 
 def _build(poses, z, obs, noise, prior, x0, key, kernel=None):
-    """The graph and values of one validated frame starting at ``x0``;
+    """The graph and values of one validated frame starting at ``x0``
+    (``noise``: a tuple of N :class:`MeasurementNoise`, one per node);
     ``kernel`` ``(name, k)``: one robust factor per node (GTSAM's kernel acts
     on a factor's whole whitened error, so each node gets its own)."""
     graph = gtsam.NonlinearFactorGraph()
     if obs is not None:
         poses, z = poses[obs], z[obs]
+        noise = [m for m, o in zip(noise, obs.tolist()) if o]
     n_obs = poses.shape[0]
-    sigmas = (noise.range_m, noise.omega_rad, noise.doppler_mps)
     if n_obs and kernel is not None:
-        model = _robust_model(sigmas, kernel)
-        for pose, zi in zip(poses, z):
-            graph.add(node_measurement_factor(key, pose, zi, model))
+        for pose, zi, m in zip(poses, z, noise):
+            graph.add(node_measurement_factor(key, pose, zi, _robust_model(_sigmas(m), kernel)))
     elif n_obs:
-        graph.add(frame_measurement_factor(key, poses, z, _noise_model(sigmas, n_obs)))
+        if noise.count(noise[0]) == n_obs:  # one noise for every node (the common case)
+            model = _noise_model(_sigmas(noise[0]), n_obs)
+        else:
+            model = _node_noise_model(tuple(v for m in noise for v in _sigmas(m)))
+        graph.add(frame_measurement_factor(key, poses, z, model))
     if prior is not None:
         graph.add(_prior_factor(tuple(prior.mean.tolist()), tuple(prior.sigmas.tolist()), key))
     values = gtsam.Values()
@@ -200,12 +213,11 @@ def _build(poses, z, obs, noise, prior, x0, key, kernel=None):
 # Validate and initialise
 
 
-def _check_options(noise, prior, covariance, max_iterations) -> int:
+def _check_options(prior, covariance, max_iterations) -> int:
     if covariance not in _COVARIANCE_CHOICES:
         raise ValidationError(
             f"covariance must be 'laplace', 'grid' or 'both', got {covariance!r}"
         )
-    check_noise(noise)
     check_prior(prior)
     return check_count(max_iterations, "max_iterations")
 
@@ -262,116 +274,9 @@ def _solve(graph, values, max_iterations):
     return state, 0.5 * (cov + cov.T), iterations, cost
 
 
-# ---------------------------------------------------------------------------
-# Assess
-
-
-def _residuals_and_degeneracy(state, poses, z, obs, noise, prior, kernel=None):
-    """Whitened residuals (N, 3), the degeneracy and the gradient (4,) of the
-    cost ``0.5 * sum of squared whitened residuals`` (prior included; each
-    node weighted by ``kernel``'s IRLS weight) at ``state``, in one pass of
-    :func:`factors.models.measurement_model_scalar`."""
-    x, y, vx, vy = state.tolist()
-    sigmas = (noise.range_m, noise.omega_rad, noise.doppler_mps)
-    out = []
-    zl = z.tolist()
-    a11 = a12 = a22 = 0.0
-    grad = [0.0, 0.0, 0.0, 0.0]
-    for i, (px, py, phi) in enumerate(poses.tolist()):
-        if obs is not None and not obs[i]:
-            out.append((math.nan, math.nan, math.nan))
-            continue
-        try:
-            r, w, v, jac = measurement_model_scalar(x, y, vx, vy, px, py, math.cos(phi), math.sin(phi))
-        except ZeroDivisionError:
-            out.append((math.nan, math.nan, math.nan))
-            a11 = a22 = math.nan
-            grad = [math.nan] * 4
-            continue
-        zi = zl[i]
-        e = (
-            (r - zi[0]) / sigmas[0],
-            wrap_angle_scalar(w - zi[1]) / sigmas[1],
-            (v - zi[2]) / sigmas[2],
-        )
-        out.append(e)
-        wt = 1.0 if kernel is None else _kernel_weight(kernel, e[0] ** 2 + e[1] ** 2 + e[2] ** 2)
-        for k in range(3):
-            ek = wt * e[k] / sigmas[k]
-            for j in range(4):
-                grad[j] += jac[4 * k + j] * ek
-        ux, uy = jac[10], jac[11]
-        a11 += ux * ux
-        a12 += ux * uy
-        a22 += uy * uy
-    if prior is not None:
-        m = prior.mean.tolist()
-        ps = prior.sigmas.tolist()
-        for j, xj in enumerate((x, y, vx, vy)):
-            grad[j] += (xj - m[j]) / ps[j] ** 2
-    degeneracy = condition_2x2(a11, a12, a22) if math.isfinite(a11) else math.inf
-    return np.array(out), degeneracy, np.array(grad)
-
-
-def _kernel_weight(kernel, s2: float) -> float:
-    """The IRLS weight of GTSAM's Huber or Cauchy kernel at squared norm ``s2``
-    (as :func:`~.robust.kernel_weight_and_loss`)."""
-    name, k = kernel
-    if name == "huber":
-        s = math.sqrt(s2)
-        return 1.0 if s <= k else k / s
-    return 1.0 / (1.0 + s2 / (k * k))
-
-
-#: Smallest ``min / max`` eigenvalue ratio of a covariance reported as success:
-#: below it the smallest eigenvalues are rounding noise.
-_MIN_EIGENVALUE_RATIO = 1e-13
-
-
-def _positive_definite(cov) -> bool:
-    """Finite and positive definite to rounding: a Cholesky factorization whose
-    squared pivots all exceed ``_MIN_EIGENVALUE_RATIO`` times the largest
-    diagonal entry (cheaper than a 4x4 eigendecomposition)."""
-    try:
-        lo = np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        return False
-    diag = cov.diagonal()
-    pivots = lo.diagonal()
-    return bool(np.isfinite(lo).all() and (pivots * pivots).min() > _MIN_EIGENVALUE_RATIO * diag.max())
-
-
-def _assess(state, cov, poses, z, obs, noise, prior, kernel=None):
-    """Check the solution: ``(status, messages, whitened residuals, degeneracy)``."""
-    status, messages = Status.OK, ["converged"]
-    if not _positive_definite(cov):
-        status, messages = Status.SINGULAR, ["the Laplace covariance is not positive definite"]
-    whitened, degeneracy, grad = _residuals_and_degeneracy(state, poses, z, obs, noise, prior, kernel)
-    # A stationarity check independent of LM's stopping rule: the squared
-    # Newton decrement g^T S g is the cost decrease one more Gauss-Newton
-    # step would bring (~1e-15 at convergence; LM can also stop because it
-    # "cannot decrease the error" away from a minimum).
-    decrement = float(grad @ cov @ grad) if status == Status.OK else 0.0
-    if not decrement <= NEWTON_DECREMENT_TOLERANCE:
-        # Code 3, as the /fused files have always stored it.
-        status = Status.NON_FINITE
-        messages = [
-            f"Levenberg-Marquardt stopped away from a minimum (squared Newton decrement "
-            f"{decrement:.3g} > {NEWTON_DECREMENT_TOLERANCE:g})"
-        ]
-    if degeneracy > DEGENERACY_THRESHOLD:
-        messages.append(
-            f"degenerate geometry: velocity condition number {degeneracy:.3g} "
-            f"> {DEGENERACY_THRESHOLD:g}, "
-            + ("the cross-line velocity rests on the prior" if prior is not None
-               else "the ML velocity is unreliable")
-        )
-    return status, messages, whitened, degeneracy
-
-
 def _grid(state, cov, poses, z, obs, noise, prior, points, half_width, messages):
     """The grid covariance of a solved frame (its message joins ``messages``)."""
-    grid = grid_posterior(state, poses, z, observed=obs, noise=noise, prior=prior,
+    grid = grid_posterior(state, poses, z, observed=obs, noise=noise[0], prior=prior,
                           scale_covariance=cov, points_per_axis=points,
                           half_width_sigmas=half_width)
     if grid.message:
@@ -388,7 +293,7 @@ def fuse_frame(
     measurements: ArrayLike,
     *,
     observed: ArrayLike | None = None,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
     prior: GaussianPrior | None = GaussianPrior(),
     covariance: Literal["laplace", "grid", "both"] = "laplace",
     initial_state: ArrayLike | None = None,
@@ -398,6 +303,7 @@ def fuse_frame(
     robust: Literal["gate", "huber", "cauchy"] | None = None,
     robust_k: float | None = None,
     residual_gate_probability: float = RESIDUAL_GATE_PROBABILITY,
+    pose_covariances: ArrayLike | None = None,
 ) -> FusionResult:
     """Bayesian (or ML) one-shot fusion of one frame (paper eqs. 15-18).
 
@@ -412,15 +318,15 @@ def fuse_frame(
     observed : (N,) bool, optional
         Which nodes saw the target (default: the rows that are not all NaN);
         unobserved rows may hold anything.
-    noise : MeasurementNoise
-        Measurement sigmas (default: the paper's).
+    noise : MeasurementNoise or sequence of N MeasurementNoise
+        Measurement sigmas (default: the paper's), or one per node in the
+        order of ``node_poses`` (docs/CONVENTIONS.md, "Per-node noise").
     prior : GaussianPrior or None
         The Gaussian prior (MAP, default the paper's); None for ML.
     covariance : {"laplace", "grid", "both"}
-        ``"laplace"``: ``gtsam.Marginals`` only. ``"grid"`` / ``"both"``:
-        also the paper's numerical posterior covariance on a 4D grid
-        (``result.grid_covariance``); the Laplace covariance is always
-        computed, since the grid is laid out along it.
+        ``"laplace"``: ``gtsam.Marginals`` only. ``"grid"`` / ``"both"``: also
+        the paper's numerical posterior covariance on a 4D grid laid out along
+        the Laplace one (``result.grid_covariance``).
     initial_state : (4,) float, optional
         Starting state (default: :func:`~.problem.initial_state`).
     max_iterations : int
@@ -429,24 +335,27 @@ def fuse_frame(
         Grid layout, see :func:`mmsnap_graph.fusion.grid.grid_posterior`.
     robust : {"gate", "huber", "cauchy"} or None
         Robust fusion (:mod:`mmsnap_graph.fusion.robust`; default None).
-        ``"gate"``: chi-square tests of the whitened residuals after the fit;
-        a failing frame is refitted without each node in turn and the one
-        passing refit kept (``rejected``; the covariance is that of the
-        measurements kept), else flagged ``Status.RESIDUAL_TEST_FAILED``.
-        ``"huber"`` / ``"cauchy"``: GTSAM's kernels on each node's factor,
-        started from the plain fit (kernel-weighted ``Marginals``).
-    robust_k : float, optional
-        The kernel constant (default :data:`factors.robust.ROBUST_K_DEFAULT`).
-    residual_gate_probability : float
-        Probability of the per-node gate, ``chi2.ppf(p, 3)``.
+        ``"gate"``: a frame whose whitened residuals fail the chi-square test
+        is refitted without each node in turn; the one passing refit is kept
+        (``rejected``; the covariance of the measurements kept), else
+        ``Status.RESIDUAL_TEST_FAILED``. ``"huber"`` / ``"cauchy"``: GTSAM's
+        kernels per node, started from the plain fit.
+    robust_k, residual_gate_probability : float
+        The kernel constant (default :data:`factors.robust.ROBUST_K_DEFAULT`)
+        and the probability of the per-node gate, ``chi2.ppf(p, 3)``.
+    pose_covariances : (N, 3, 3) float, optional
+        Calibration-aware fusion (docs/CONVENTIONS.md): each pose's covariance
+        in the Pose2 body tangent, all NaN (or zero) for an exact pose. The
+        estimate is unchanged; the covariance is ``gtsam.Marginals`` of the
+        graph with the uncertain poses as variables under their priors
+        (:mod:`~mmsnap_graph.fusion.oneshot_poses`). Needs ``"laplace"``.
 
     Returns
     -------
     FusionResult
         ``success=False`` with a status and a message when the system is
-        indeterminate, LM does not converge or GTSAM raises; never raises for
-        those. ``success=True`` implies a finite state and a positive-definite
-        covariance.
+        indeterminate, LM does not converge or GTSAM raises (never raised);
+        ``success=True``: a finite state and a positive-definite covariance.
 
     Raises
     ------
@@ -454,33 +363,67 @@ def fuse_frame(
         Invalid input (see :func:`~.problem.validate_frame`), or an initial
         position (given, or from the detections) on an observed node.
     """
-    max_iterations = _check_options(noise, prior, covariance, max_iterations)
+    max_iterations = _check_options(prior, covariance, max_iterations)
     kernel, threshold = _robust_options(robust, robust_k, residual_gate_probability)
-    poses, z, obs = validate_frame(node_poses, measurements, observed)
+    poses, z, obs, noise, pose_cov = _validate(node_poses, measurements, observed, noise,
+                                               pose_covariances, covariance)
     n_observed = poses.shape[0] if obs is None else int(obs.sum())
-    # Everything a result needs besides the solution.
-    frame = dict(n_nodes=poses.shape[0], n_observed=n_observed, prior=prior,
-                 covariance=covariance)
+    frame = dict(n_nodes=poses.shape[0], n_observed=n_observed, prior=prior, covariance=covariance)
     if n_observed == 0 and prior is None:
         return _failed(_Failure(Status.NO_INFORMATION, "no node observed the target and there "
                                 "is no prior: the state is indeterminate"), None, **frame)
     x0 = _start(poses, z, obs, prior, noise, initial_state)
     try:
         fit = _fit(poses, z, obs, noise, prior, x0, max_iterations)
-    except _Failure as failure:
-        return _failed(failure, x0, **frame)
-    try:
         fit, rejected = _robust_step(fit, poses, z, obs, noise, prior, max_iterations, robust,
                                      kernel, threshold, residual_gate_probability)
     except _Failure as failure:
         return _failed(failure, x0, **frame)
+    kept = obs if rejected is None or robust != "gate" else _kept(obs, rejected)
+    if pose_cov is not None and fit.status == Status.OK:
+        fit.cov = _pose_aware(fit, poses, z, kept, noise, prior, kernel, pose_cov)
     grid_cov = None
     if covariance != "laplace":
-        kept = obs if rejected is None or robust != "gate" else _kept(obs, rejected)
         grid_cov = (_grid(fit.state, fit.cov, poses, z, kept, noise, prior, grid_points_per_axis,
                           grid_half_width_sigmas, fit.messages)
                     if fit.status == Status.OK else np.full((4, 4), np.nan))
     return _result(fit, grid_cov, n_observed, prior, rejected)
+
+
+def _validate(node_poses, measurements, observed, noise, pose_covariances, covariance):
+    """``(poses, z, obs, noise per node, pose covariances or None)`` of one frame."""
+    poses, z, obs = validate_frame(node_poses, measurements, observed)
+    noise = check_node_noise(noise, poses.shape[0])
+    pose_cov = _check_pose_options(pose_covariances, poses.shape[0], noise, covariance)
+    return poses, z, obs, noise, pose_cov
+
+
+def _check_pose_options(pose_covariances, n_nodes, noise, covariance):
+    """The validated pose covariances (None: every pose exact); per-node noise
+    and pose covariances need the Laplace covariance only (the grid has one
+    noise and fixed poses)."""
+    pose_cov = check_pose_covariances(pose_covariances, n_nodes)
+    if covariance != "laplace":
+        if pose_cov is not None:
+            raise ValidationError(
+                f"pose_covariances needs covariance='laplace', got covariance={covariance!r} "
+                "(the grid posterior takes the poses as exact)")
+        if noise.count(noise[0]) != len(noise):
+            raise ValidationError(
+                f"per-node noise needs covariance='laplace', got covariance={covariance!r} "
+                "(the grid posterior takes one noise for every node)")
+    return pose_cov
+
+
+def _pose_aware(fit, poses, z, obs, noise, prior, kernel, pose_cov):
+    """The calibration-aware covariance of a solved frame; a failure keeps the
+    frame but flags it singular (no covariance)."""
+    try:
+        return pose_aware_covariance(fit.state, poses, z, obs, noise, prior, pose_cov, kernel)
+    except Exception as exc:  # GTSAM: an indeterminate joint system
+        fit.status = Status.SINGULAR
+        fit.messages = [f"calibration-aware covariance failed ({type(exc).__name__}: {exc})"]
+        return np.full((4, 4), np.nan)
 
 
 def _result(fit, grid_cov, n_observed, prior, rejected) -> FusionResult:
@@ -547,7 +490,7 @@ def _fit(poses, z, obs, noise, prior, x0, max_iterations, kernel=None) -> _Fit:
     """Build, solve and assess one frame from ``x0``; raises :class:`_Failure`."""
     graph, values = _build(poses, z, obs, noise, prior, x0, STATE_KEY, kernel)
     state, cov, iterations, cost = _solve(graph, values, max_iterations)
-    status, messages, whitened, degeneracy = _assess(state, cov, poses, z, obs, noise, prior, kernel)
+    status, messages, whitened, degeneracy = assess_fit(state, cov, poses, z, obs, noise, prior, kernel)
     return _Fit(state=state, cov=cov, iterations=iterations, cost=cost, status=status,
                 messages=messages, whitened=whitened, degeneracy=degeneracy, x0=x0)
 
@@ -589,7 +532,7 @@ def _gate(fit, poses, z, obs, noise, prior, max_iterations, probability):
                         + ("ambiguous: several nodes' removal passes" if n_pass else
                            f"largest squared whitened residual {d2.max():.3g}") + ")"]
         return fit, None
-    best.whitened = _residuals_and_degeneracy(best.state, poses, z, obs, noise, prior)[0]
+    best.whitened = residuals_and_degeneracy(best.state, poses, z, obs, noise, prior)[0]
     best.messages = best.messages + [f"node {best_node} rejected by the residual gate "
                                      f"(squared whitened residual {d2[best_node]:.3g} "
                                      f"> {threshold:.3g} before the refit)"]

@@ -5,18 +5,22 @@ Everything :mod:`mmsnap_graph.fusion.oneshot` (GTSAM) and
 
 - validation at the public boundary: :func:`validate_frame` (with
   :func:`check_poses`, :func:`check_observed`), :func:`check_noise`,
-  :func:`check_prior`, :func:`check_initial_state`;
+  :func:`check_node_noise` (one noise or one per node, docs/CONVENTIONS.md,
+  "Per-node noise"), :func:`check_pose_covariances` (docs/CONVENTIONS.md,
+  "Calibration-aware fusion"), :func:`check_prior`, :func:`check_initial_state`;
 - initial states (docs/CONVENTIONS.md, "Initial values"): :func:`initial_state`
   (one frame, validated), :func:`initial_states` (``F`` frames, vectorized),
   :func:`frame_initial_state` (one validated frame in plain floats, the
   per-frame hot path) and :func:`checked_initial_state`;
 - the velocity degeneracy indicator :func:`velocity_degeneracy` (the geometry's
-  condition number, ``FusionResult.degeneracy``) and :func:`condition_2x2`.
+  condition number, ``FusionResult.degeneracy``) and :func:`condition_2x2`
+  (their home is :mod:`mmsnap_graph.fusion.degeneracy`).
 """
 
 from __future__ import annotations
 
 import math
+from typing import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -26,11 +30,15 @@ from factors.models import MEASUREMENT_NAMES, detection_to_global, detection_to_
 from ..errors import GeometryError, ValidationError
 from .._validation import as_float_array, check_finite, frozen_vector
 from ..data.noise import GaussianPrior, MeasurementNoise
+from .degeneracy import condition_2x2, velocity_degeneracy
 
 __all__ = [
     "check_poses",
     "check_observed",
     "check_noise",
+    "check_node_noise",
+    "node_sigmas",
+    "check_pose_covariances",
     "check_prior",
     "check_initial_state",
     "validate_frame",
@@ -64,6 +72,106 @@ def check_noise(noise: object) -> MeasurementNoise:
     return noise
 
 
+def check_node_noise(
+    noise: object, n_nodes: int, node_names: Sequence[str] | None = None
+) -> tuple[MeasurementNoise, ...]:
+    """The measurement noise of each of ``n_nodes`` nodes, as a tuple of N
+    :class:`MeasurementNoise` (docs/CONVENTIONS.md, "Per-node noise").
+
+    ``noise`` is one :class:`MeasurementNoise` (every node), a sequence of N
+    of them (one per node, in the order of the node poses) or, when
+    ``node_names`` is given, a mapping ``{node name: MeasurementNoise}``
+    holding every node. Raises ValidationError naming the field (``noise``,
+    ``noise[i]`` or ``noise['name']``) and the value otherwise.
+    """
+    if isinstance(noise, MeasurementNoise):
+        return (check_noise(noise),) * n_nodes
+    if isinstance(noise, Mapping):
+        if node_names is None:
+            raise ValidationError(
+                "noise must be a MeasurementNoise or a sequence of one MeasurementNoise per "
+                "node, got a mapping (a mapping by node name is for fuse_recording)")
+        missing = [name for name in node_names if name not in noise]
+        if missing:
+            raise ValidationError(
+                f"noise has no MeasurementNoise for node {missing[0]!r} (it has {sorted(noise)}); "
+                "a per-node noise mapping needs every fused node")
+        items = [(f"noise[{name!r}]", noise[name]) for name in node_names]
+    elif isinstance(noise, (list, tuple)) and any(isinstance(m, MeasurementNoise) for m in noise):
+        if len(noise) != n_nodes:
+            raise ValidationError(
+                f"noise must hold one MeasurementNoise per node ({n_nodes}), got {len(noise)}")
+        items = [(f"noise[{i}]", item) for i, item in enumerate(noise)]
+    else:
+        raise ValidationError(
+            f"noise must be a MeasurementNoise, got {type(noise).__name__} {noise!r} (per-node "
+            f"noise: a sequence of one MeasurementNoise per node, {n_nodes} here)")
+    out = []
+    for field_name, item in items:
+        if not isinstance(item, MeasurementNoise):
+            raise ValidationError(
+                f"{field_name} must be a MeasurementNoise, got {type(item).__name__}")
+        values = (item.range_m, item.omega_rad, item.doppler_mps)
+        if not all(SIGMA_MIN <= v <= SIGMA_MAX for v in values):
+            _check_sigma_range(values, field_name)
+        out.append(item)
+    return tuple(out)
+
+
+def node_sigmas(noises: Sequence[MeasurementNoise]) -> NDArray:
+    """(N, 3) float: each node's ``(range_m, omega_rad, doppler_mps)`` sigmas."""
+    return np.array([(m.range_m, m.omega_rad, m.doppler_mps) for m in noises], dtype=float)
+
+
+def check_pose_covariances(
+    pose_covariances: object, n_nodes: int, node_names: Sequence[str] | None = None
+) -> NDArray | None:
+    """Node pose covariances in the Pose2 body tangent (docs/CONVENTIONS.md,
+    "Calibration-aware fusion"): ``(N, 3, 3)`` float or, when ``node_names``
+    is given, a mapping ``{node name: (3, 3)}`` (a node left out, or None: an
+    exact pose).
+
+    Returns None when ``pose_covariances`` is None or every pose is exact;
+    otherwise an (N, 3, 3) read-only array where an exact pose (a matrix
+    that is all NaN or all zero) holds NaN. Every other matrix must be
+    finite, symmetric and positive definite; ValidationError naming the entry
+    (``pose_covariances[i]`` or ``pose_covariances['name']``) otherwise.
+    """
+    if pose_covariances is None:
+        return None
+    if isinstance(pose_covariances, Mapping) and node_names is not None:
+        try:
+            return check_pose_covariances(_by_name(pose_covariances, node_names), n_nodes)
+        except ValidationError as exc:  # name the node, not its index
+            message = str(exc)
+            for i, name in enumerate(node_names):
+                message = message.replace(f"pose_covariances[{i}]", f"pose_covariances[{name!r}]")
+            raise ValidationError(message) from None
+    cov = np.array(as_float_array(pose_covariances, "pose_covariances"), dtype=float)
+    if cov.shape != (n_nodes, 3, 3):
+        raise ValidationError(
+            f"pose_covariances must have shape ({n_nodes}, 3, 3) (one Pose2 covariance per "
+            f"node), got {cov.shape}")
+    exact = np.isnan(cov).all(axis=(1, 2)) | (cov == 0.0).all(axis=(1, 2))
+    for i in np.flatnonzero(~exact):
+        c = cov[i]
+        if not np.isfinite(c).all():
+            raise ValidationError(
+                f"pose_covariances[{i}] must be finite (or all NaN for an exact pose), "
+                f"got {c.tolist()}")
+        if not np.allclose(c, c.T, rtol=1e-9, atol=1e-300):
+            raise ValidationError(f"pose_covariances[{i}] must be symmetric, got {c.tolist()}")
+        if np.linalg.eigvalsh(c)[0] <= 0.0:
+            raise ValidationError(
+                f"pose_covariances[{i}] must be positive definite (or all NaN / all zero for "
+                f"an exact pose), got {c.tolist()}")
+    if exact.all():
+        return None
+    cov[exact] = np.nan
+    cov.setflags(write=False)
+    return cov
+
+
 def check_prior(prior: object) -> GaussianPrior | None:
     """``prior`` if it is a :class:`GaussianPrior` or None (ML); ValidationError otherwise."""
     if prior is not None and not isinstance(prior, GaussianPrior):
@@ -87,6 +195,19 @@ def check_poses(node_poses: ArrayLike) -> NDArray:
     if not _all_finite(poses):
         check_finite(poses, "node_poses")
     return poses
+
+
+def _by_name(pose_covariances: Mapping, node_names: Sequence[str]) -> NDArray:
+    """(N, 3, 3) in node order from a mapping by name (NaN for a node left out)."""
+    out = np.full((len(node_names), 3, 3), np.nan)
+    for i, name in enumerate(node_names):
+        if pose_covariances.get(name) is not None:
+            c = as_float_array(pose_covariances[name], f"pose_covariances[{name!r}]")
+            if c.shape != (3, 3):
+                raise ValidationError(
+                    f"pose_covariances[{name!r}] must have shape (3, 3), got {c.shape}")
+            out[i] = c
+    return out
 
 
 def _all_finite(arr: NDArray) -> bool:
@@ -284,7 +405,7 @@ def initial_states(
     observed: ArrayLike | None = None,
     prior: GaussianPrior | None = GaussianPrior(),
     *,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
 ) -> NDArray:
     """Initial values of docs/CONVENTIONS.md for ``F`` frames at once (no validation).
 
@@ -293,7 +414,8 @@ def initial_states(
     observed : (F, N) bool or None (all observed).
     prior : the prior used as the velocity regularizer, or None.
     noise : sets the Doppler sigma that weighs the Doppler equations against
-        the prior (default :class:`MeasurementNoise`).
+        the prior (default :class:`MeasurementNoise`); a sequence of N
+        (per-node noise) weighs each node's Doppler equation by its own sigma.
     Returns (F, 4) float.
 
     Position: the average of the observed nodes' own detections mapped to the
@@ -328,10 +450,11 @@ def initial_states(
     u = np.where(w[..., None] > 0, u, 0.0)
     # Normal equations of the weighted linear problem (2x2 per frame).
     # Weighted by sigma_V^2 so only the ratio to the prior's sigmas matters.
-    a = np.einsum("fn,fni,fnj->fij", w, u, u)
-    b = np.einsum("fn,fni,fn->fi", w, u, dop)
+    doppler_sigma, dw = _doppler_weights(noise)
+    wd = w if dw is None else w * np.asarray(dw)
+    a = np.einsum("fn,fni,fnj->fij", wd, u, u)
+    b = np.einsum("fn,fni,fn->fi", wd, u, dop)
     if prior is not None:
-        doppler_sigma = noise.doppler_mps
         reg = (doppler_sigma / prior.sigmas[2:]) ** 2
         a = a + np.diag(reg)
         b = b + reg * prior.mean[2:]
@@ -341,6 +464,18 @@ def initial_states(
         empty = n_obs == 0
         state[empty] = prior.mean
     return state
+
+
+def _doppler_weights(noise) -> tuple[float, list[float] | None]:
+    """``(reference Doppler sigma, per-node weights or None)``: the Doppler
+    equations of the initial velocity weighted by ``(ref / sigma_i)^2``, the
+    reference the first node's sigma (all weights exactly 1 for equal sigmas,
+    so one noise and N equal ones give the same numbers)."""
+    if isinstance(noise, MeasurementNoise):
+        return noise.doppler_mps, None
+    sd = [m.doppler_mps for m in noise]
+    ref = sd[0]
+    return ref, [(ref / s) ** 2 for s in sd]
 
 
 def _solve_2x2_min_norm(a: NDArray, b: NDArray) -> NDArray:
@@ -382,7 +517,7 @@ def _solve_2x2_min_norm(a: NDArray, b: NDArray) -> NDArray:
 
 def frame_initial_state(
     poses: NDArray, z: NDArray, obs: NDArray | None, prior: GaussianPrior | None,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
 ) -> list[float]:
     """:func:`initial_states` for one validated frame, in plain floats (the
     per-frame hot path; the tests check it against the vectorized form).
@@ -407,6 +542,7 @@ def frame_initial_state(
     x = sx / len(nodes)
     y = sy / len(nodes)
     a11 = a12 = a22 = b1 = b2 = 0.0
+    sd, dw = _doppler_weights(noise)
     for i in nodes:
         dx = x - pl[i][0]
         dy = y - pl[i][1]
@@ -414,13 +550,18 @@ def frame_initial_state(
         if r < AT_NODE_M:
             return [x, y, math.nan, math.nan]
         ux, uy = dx / r, dy / r
+        if dw is not None:
+            wi = dw[i]
+            ux, uy = ux * math.sqrt(wi), uy * math.sqrt(wi)
+            zd = zl[i][2] * math.sqrt(wi)
+        else:
+            zd = zl[i][2]
         a11 += ux * ux
         a12 += ux * uy
         a22 += uy * uy
-        b1 += ux * zl[i][2]
-        b2 += uy * zl[i][2]
+        b1 += ux * zd
+        b2 += uy * zd
     if prior is not None:
-        sd = noise.doppler_mps
         m = prior.mean.tolist()
         ps = prior.sigmas.tolist()
         r1 = (sd / ps[2]) ** 2
@@ -466,7 +607,7 @@ def check_initial_state(initial_state: ArrayLike, poses: NDArray, obs: NDArray |
 
 def checked_initial_state(
     poses: NDArray, z: NDArray, obs: NDArray | None, prior: GaussianPrior | None,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
 ) -> NDArray:
     """:func:`frame_initial_state` as a (4,) array; raises GeometryError when it
     is not finite (the average detection on a node)."""
@@ -486,7 +627,7 @@ def initial_state(
     observed: ArrayLike | None = None,
     prior: GaussianPrior | None = GaussianPrior(),
     *,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
 ) -> NDArray:
     """Initial state of one frame (docs/CONVENTIONS.md, "Initial values"); (4,) float.
 
@@ -494,7 +635,8 @@ def initial_state(
     measurements : (N, 3) float, ``(range_m, omega_rad, doppler_mps)``.
     observed : (N,) bool or None (all observed).
     prior : :class:`GaussianPrior` regularizing the velocity, or None.
-    noise : :class:`MeasurementNoise` (its Doppler sigma weighs the prior).
+    noise : :class:`MeasurementNoise` (its Doppler sigma weighs the prior), or
+        one per node (each Doppler equation weighted by its own sigma).
 
     Raises :class:`~mmsnap_graph.errors.GeometryError` when the average
     detection lands on a node's position (its line of sight is undefined).
@@ -504,59 +646,3 @@ def initial_state(
     if (obs is not None and not obs.any()) and prior is None:
         raise ValidationError("observed has no True entry and there is no prior: nothing to start from")
     return checked_initial_state(poses, z, obs, prior, noise)
-
-
-
-
-# ---------------------------------------------------------------------------
-# Degeneracy
-
-
-def condition_2x2(a11: float, a12: float, a22: float) -> float:
-    """Condition number of the symmetric PSD matrix ``[[a11, a12], [a12, a22]]``
-    (>= 1; inf when singular), in plain floats."""
-    half_tr = 0.5 * (a11 + a22)
-    disc = math.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
-    hi = half_tr + disc
-    lo = half_tr - disc
-    if not hi > 0.0 or lo <= hi * 1e-15:
-        return math.inf
-    return hi / lo
-
-
-def velocity_degeneracy(
-    state: ArrayLike, node_poses: ArrayLike, observed: ArrayLike | None = None
-) -> NDArray | float:
-    """Condition number of ``sum_i u_i u_i^T`` over the observed nodes' lines
-    of sight at ``state`` (>= 1; ``inf`` when singular: parallel lines of sight,
-    a single node); see ``FusionResult.degeneracy``. No validation.
-
-    state : (F, 4) or (4,); node_poses : (N, 3) or (F, N, 3);
-    observed : (F, N) or (N,) bool, or None (all observed).
-    Returns (F,), or a float for a single (4,) state.
-    """
-    state = np.asarray(state, dtype=float)
-    single = state.ndim == 1
-    if single:
-        state = state[None]
-        if observed is not None:
-            observed = np.asarray(observed, dtype=bool)[None]
-    poses = np.asarray(node_poses, dtype=float)
-    d = state[:, None, :2] - poses[..., :2]
-    r2 = np.sum(d * d, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w = 1.0 / r2
-        if observed is not None:
-            w = np.where(np.asarray(observed, dtype=bool), w, 0.0)
-    a11 = np.sum(w * d[..., 0] ** 2, axis=1)
-    a12 = np.sum(w * d[..., 0] * d[..., 1], axis=1)
-    a22 = np.sum(w * d[..., 1] ** 2, axis=1)
-    half_tr = 0.5 * (a11 + a22)
-    disc = np.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
-    hi = half_tr + disc
-    lo = half_tr - disc
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cond = hi / lo
-    singular = ~(hi > 0) | (lo <= hi * 1e-15) | ~np.isfinite(cond)
-    out = np.where(singular, np.inf, cond)
-    return float(out[0]) if single else out

@@ -11,7 +11,8 @@ and a message), never raised.
 Two solvers give the same answers (the tests compare them):
 ``"batch"`` (:func:`mmsnap_graph.fusion.batch.fuse_batch`, vectorized over frames)
 and ``"gtsam"`` (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`, one factor graph per
-frame).
+frame); with ``pose_covariances`` their covariances differ by a few percent
+(docs/CONVENTIONS.md, "Calibration-aware fusion").
 
 The result can be stored in the recording's HDF5 file as a ``/fused`` group
 (:func:`mmsnap_graph.io.fused.write_fused`, :func:`mmsnap_graph.io.fused.read_fused`).
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Literal, Mapping
+from typing import Literal, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,7 +37,14 @@ from .association import (
 )
 from .batch import fuse_batch
 from .grid import grid_posterior
-from .problem import check_count, check_noise, check_prior, valid_rows
+from .problem import (
+    check_count,
+    check_node_noise,
+    check_pose_covariances,
+    check_prior,
+    node_sigmas,
+    valid_rows,
+)
 from .robust import check_robust
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.recording import Recording
@@ -155,7 +163,7 @@ def _single_gate(index: _FrameIndex, meas, poses, noise, gate):
         z = meas[n][rows[has]]
         with np.errstate(all="ignore"):
             p = detection_to_global(z[:, 0], z[:, 1], poses[n])
-            c = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise)
+            c = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise[n])
         ic, regular = detection_information(c)
         # A degenerate detection (range 0, tiny sigmas): its frame goes
         # through associate_frame, which gives it a group of its own.
@@ -225,13 +233,16 @@ def _measurements_and_labels(dets, meas, rows):
 def group_detections(
     recording: Recording,
     node_poses: ArrayLike,
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Sequence[MeasurementNoise] | Mapping[str, MeasurementNoise] = (
+        MeasurementNoise()),
     *,
     gate_probability: float = 0.999,
     source: Literal["centroids", "point_cloud"] = "centroids",
 ) -> DetectionGroups:
     """Group every frame's detections into targets (see
-    :mod:`mmsnap_graph.fusion.association`; ``noise`` sets the gates).
+    :mod:`mmsnap_graph.fusion.association`; ``noise`` sets the gates: one
+    :class:`MeasurementNoise`, one per node in the recording's node order, or a
+    mapping by node name holding every node).
     Returns K groups sorted by frame then target.
 
     Frames where every node has at most one detection and all of them fall in
@@ -240,7 +251,7 @@ def group_detections(
     results).
     """
     poses = np.asarray(node_poses, dtype=float)
-    check_noise(noise)
+    noise = check_node_noise(noise, len(recording.node_names), recording.node_names)
     dets = [getattr(recording.nodes[name], source) for name in recording.node_names]
     if all(d is None or len(d) == 0 for d in dets):
         raise ValidationError(f"no node of the recording has {source}; nothing to fuse")
@@ -278,7 +289,7 @@ class _Rows:
         self.rejected = None  # (K, N) bool, set by the solvers
 
 
-def _check_options(recording, mode, covariance, solver, source, block_rows, noise, prior):
+def _check_options(recording, mode, covariance, solver, source, block_rows, prior):
     """Validate :func:`fuse_recording`'s options; return the prior to use."""
     for name, value, choices in (("mode", mode, ("map", "ml")),
                                  ("covariance", covariance, ("laplace", "grid")),
@@ -289,7 +300,6 @@ def _check_options(recording, mode, covariance, solver, source, block_rows, nois
     if not isinstance(recording, Recording):
         raise ValidationError(f"recording must be a Recording, got {type(recording).__name__}")
     check_count(block_rows, "block_rows")
-    check_noise(noise)
     check_prior(prior)
     if mode == "map" and prior is None:
         raise ValidationError("mode='map' needs a prior; pass a GaussianPrior or mode='ml'")
@@ -300,7 +310,26 @@ def _check_options(recording, mode, covariance, solver, source, block_rows, nois
     return prior
 
 
-def _fuse_batch_rows(out: _Rows, poses, z, obs, noise, prior, block_rows, bar, robust=None) -> None:
+def _node_options(recording, noise, pose_covariances, covariance):
+    """``(noise per node (tuple), pose covariances (N, 3, 3) or None)`` in the
+    recording's node order; a node missing from ``pose_covariances`` has an
+    exact pose."""
+    names = tuple(recording.node_names)
+    noise = check_node_noise(noise, len(names), names)
+    if pose_covariances is not None and not isinstance(pose_covariances, Mapping):
+        raise ValidationError(
+            "pose_covariances must be a mapping {node name: (3, 3) covariance}, got "
+            f"{type(pose_covariances).__name__}")
+    pose_cov = check_pose_covariances(pose_covariances, len(names), names)
+    if covariance == "grid" and (pose_cov is not None or noise.count(noise[0]) != len(noise)):
+        raise ValidationError(
+            "covariance='grid' takes one noise for every node and exact poses; per-node noise "
+            "and pose_covariances need covariance='laplace'")
+    return noise, pose_cov
+
+
+def _fuse_batch_rows(out: _Rows, poses, z, obs, noise, prior, block_rows, bar, robust=None,
+                     pose_cov=None) -> None:
     k, n_nodes = z.shape[:2]
     out.rejected = np.zeros((k, n_nodes), dtype=bool)
     # A row with an invalid observed measurement (range 0, say) is flagged,
@@ -310,7 +339,8 @@ def _fuse_batch_rows(out: _Rows, poses, z, obs, noise, prior, block_rows, bar, r
         sl = np.arange(start, min(k, start + block_rows))
         sl = sl[~invalid[sl]]
         if sl.size:
-            res = fuse_batch(poses, z[sl], observed=obs[sl], noise=noise, prior=prior, robust=robust)
+            res = fuse_batch(poses, z[sl], observed=obs[sl], noise=noise, prior=prior, robust=robust,
+                             pose_covariances=pose_cov)
             out.state[sl], out.laplace[sl], out.status[sl] = res.state, res.covariance, res.status
             out.iterations[sl], out.cost[sl] = res.iterations, res.final_cost
             out.degeneracy[sl], out.rejected[sl] = res.degeneracy, res.rejected
@@ -321,13 +351,15 @@ def _fuse_batch_rows(out: _Rows, poses, z, obs, noise, prior, block_rows, bar, r
     out.message[invalid] = "a measurement is out of range (range <= 0, |omega| > pi or not finite)"
 
 
-def _fuse_gtsam_rows(out: _Rows, poses, z, obs, noise, prior, bar, robust=None) -> None:
+def _fuse_gtsam_rows(out: _Rows, poses, z, obs, noise, prior, bar, robust=None,
+                     pose_cov=None) -> None:
     from .oneshot import fuse_frame  # deferred: keeps GTSAM out of the batch path
 
     out.rejected = np.zeros(obs.shape, dtype=bool)
     for i in range(z.shape[0]):
         try:
-            r = fuse_frame(poses, z[i], observed=obs[i], noise=noise, prior=prior, robust=robust)
+            r = fuse_frame(poses, z[i], observed=obs[i], noise=noise, prior=prior, robust=robust,
+                           pose_covariances=pose_cov)
         except MmsnapError as exc:  # e.g. an initial position on a node
             out.status[i], out.message[i] = Status.NON_FINITE, f"{type(exc).__name__}: {exc}"
         else:
@@ -345,7 +377,7 @@ def _grid_covariances(out: _Rows, poses, z, obs, noise, prior, points, progress)
     with _progress(rows.size, "grid covariance", progress) as bar:
         for i in rows:
             try:
-                grid = grid_posterior(out.state[i], poses, z[i], observed=obs[i], noise=noise,
+                grid = grid_posterior(out.state[i], poses, z[i], observed=obs[i], noise=noise[0],
                                       prior=prior, scale_covariance=out.laplace[i],
                                       points_per_axis=points)
                 chosen[i] = grid.covariance
@@ -366,7 +398,7 @@ def fuse_recording(
     mode: Literal["map", "ml"] = "map",
     covariance: Literal["laplace", "grid"] = "laplace",
     solver: Literal["batch", "gtsam"] = "batch",
-    noise: MeasurementNoise = MeasurementNoise(),
+    noise: MeasurementNoise | Mapping[str, MeasurementNoise] = MeasurementNoise(),
     prior: GaussianPrior | None = _PAPER_PRIOR,
     gate_probability: float = 0.999,
     source: Literal["centroids", "point_cloud"] = "centroids",
@@ -374,6 +406,7 @@ def fuse_recording(
     block_rows: int = 65536,
     progress: bool | None = None,
     robust: Literal["gate", "huber", "cauchy"] | None = None,
+    pose_covariances: Mapping[str, ArrayLike] | None = None,
 ) -> FusedSequence:
     """Fuse every target in every frame of ``recording``.
 
@@ -391,7 +424,9 @@ def fuse_recording(
         along the Laplace covariance; slow: ``grid_points_per_axis^4`` points
         per frame).
     solver : ``"batch"`` (vectorized) or ``"gtsam"`` (per-frame factor graphs).
-    noise : MeasurementNoise, default the paper's.
+    noise : MeasurementNoise (every node; default the paper's) or a mapping
+        ``{node name: MeasurementNoise}`` holding every fused node (per-node
+        noise, docs/CONVENTIONS.md); used by the association and the fusion.
     prior : GaussianPrior for MAP, default the paper's.
     gate_probability : association gate (see :mod:`mmsnap_graph.fusion.association`).
     source : which detections to fuse.
@@ -401,8 +436,18 @@ def fuse_recording(
         default None): ``"gate"`` leaves out a node whose residual fails the
         chi-square gate (``FusedSequence.rejected``), ``"huber"`` /
         ``"cauchy"`` down-weight it.
+    pose_covariances : mapping name -> (3, 3), optional
+        Calibration-aware fusion (docs/CONVENTIONS.md,
+        "Calibration-aware fusion"): each node pose's covariance in the Pose2
+        body tangent (the calibration's marginals); a node left out (or all
+        NaN / all zero) has an exact pose. The estimates do not change;
+        ``covariance`` and ``laplace_covariance`` include the poses'
+        (:func:`~mmsnap_graph.fusion.batch.fuse_batch`,
+        :func:`~mmsnap_graph.fusion.oneshot.fuse_frame`). Needs
+        ``covariance="laplace"``.
     """
-    prior = _check_options(recording, mode, covariance, solver, source, block_rows, noise, prior)
+    prior = _check_options(recording, mode, covariance, solver, source, block_rows, prior)
+    noise, pose_cov = _node_options(recording, noise, pose_covariances, covariance)
     robust = check_robust(robust)
     if progress is not None and not isinstance(progress, (bool, np.bool_)):
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
@@ -414,14 +459,24 @@ def fuse_recording(
     out = _Rows(groups.frame.size)
     with _progress(z.shape[0], f"fuse ({solver}, {mode})", progress) as bar:
         if solver == "batch":
-            _fuse_batch_rows(out, poses, z, obs, noise, prior, int(block_rows), bar, robust)
+            _fuse_batch_rows(out, poses, z, obs, noise, prior, int(block_rows), bar, robust,
+                             pose_cov)
         else:
-            _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar, robust)
+            _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar, robust, pose_cov)
     chosen = out.laplace.copy()
     if covariance == "grid":
         # The grid posterior of the measurements kept by the residual gate.
         kept = obs & ~out.rejected if robust == "gate" else obs
         chosen = _grid_covariances(out, poses, z, kept, noise, prior, grid_points_per_axis, progress)
+    return _sequence(recording, poses, groups, out, chosen, mode=mode, covariance=covariance,
+                     solver=solver, noise=noise, prior=prior, gate_probability=gate_probability,
+                     robust=robust)
+
+
+def _sequence(recording, poses, groups, out, chosen, *, mode, covariance, solver, noise, prior,
+              gate_probability, robust) -> FusedSequence:
+    """The :class:`FusedSequence` of :func:`fuse_recording`."""
+    obs = groups.detection_index >= 0
     return FusedSequence(
         node_names=tuple(recording.node_names),
         node_poses=poses,
@@ -442,10 +497,23 @@ def fuse_recording(
         iterations=out.iterations,
         final_cost=out.cost,
         degeneracy=out.degeneracy,
-        noise_sigmas=np.asarray(noise.sigmas, dtype=float),
+        # (3,) for one noise, (N, 3) (node order) for per-node noise.
+        noise_sigmas=(np.asarray(noise[0].sigmas, dtype=float)
+                      if noise.count(noise[0]) == len(noise) else node_sigmas(noise)),
         prior_mean=None if prior is None else np.asarray(prior.mean, dtype=float),
         prior_sigmas=None if prior is None else np.asarray(prior.sigmas, dtype=float),
         gate_probability=float(gate_probability),
         rejected=out.rejected,
         robust=robust,
+        frame_period_s=recording.frame_period_s,
+        time_origin_s=_time_origin(recording.metadata),
     )
+
+
+def _time_origin(metadata) -> float | None:
+    """The recording's wall-clock origin (Unix seconds of time 0), if valid."""
+    try:
+        value = float(metadata.get("time_origin_s"))
+    except (AttributeError, TypeError, ValueError):
+        return None
+    return value if np.isfinite(value) else None

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .association import associate_frame
 from .batch import fuse_batch
-from .problem import check_noise, check_prior
+from .problem import check_node_noise, check_pose_covariances, check_prior
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.recording import Recording
 from ..data.results import Status
@@ -107,8 +107,10 @@ class FrameStream:
         The nodes, in the order of ``node_poses``.
     node_poses : (N, 3) float
         Calibrated poses ``(x_m, y_m, phi_rad)`` in the global frame.
-    noise : MeasurementNoise
-        Measurement sigmas (default the paper's).
+    noise : MeasurementNoise, sequence of N MeasurementNoise or mapping
+        Measurement sigmas (default the paper's): one for every node, one per
+        node in the order of ``node_names``, or ``{node name: MeasurementNoise}``
+        holding every node (docs/CONVENTIONS.md, "Per-node noise").
     prior : GaussianPrior or None
         The one-shot prior (MAP, default the paper's); None for ML.
     solver : ``"gtsam"`` (:func:`~mmsnap_graph.fusion.oneshot.fuse_frame` per
@@ -119,6 +121,10 @@ class FrameStream:
         The central tracker's settings (default ``CentralConfig()``); its
         ``frame_period_s`` is used only for the first frame, afterwards the
         time between frames comes from the time stamps.
+    pose_covariances : (N, 3, 3) or mapping name -> (3, 3), optional
+        Calibration-aware fusion (docs/CONVENTIONS.md): each pose's covariance
+        in the Pose2 body tangent (all NaN, all zero or a node left out of the
+        mapping: an exact pose); the fused covariances include them.
 
     Example
     -------
@@ -131,7 +137,8 @@ class FrameStream:
                  prior: GaussianPrior | None = GaussianPrior(),
                  solver: Literal["gtsam", "batch"] = "gtsam",
                  gate_probability: float = 0.999,
-                 tracker: CentralConfig | None = None) -> None:
+                 tracker: CentralConfig | None = None,
+                 pose_covariances: ArrayLike | Mapping[str, ArrayLike] | None = None) -> None:
         names = tuple(node_names)
         if not names or not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
             raise ValidationError(f"node_names must be distinct strings, got {node_names!r}")
@@ -148,7 +155,10 @@ class FrameStream:
         self.node_names = names
         self.node_poses = poses
         poses.setflags(write=False)
-        self.noise = check_noise(noise)
+        noises = check_node_noise(noise, len(names), names)
+        # The given noise, or the N per-node ones in node order (a tuple).
+        self.noise = noises[0] if isinstance(noise, MeasurementNoise) else noises
+        self.pose_covariances = check_pose_covariances(pose_covariances, len(names), names)
         self.prior = check_prior(prior)
         self.solver = solver
         self.gate_probability = p
@@ -257,7 +267,8 @@ class FrameStream:
         if g == 0:
             return np.zeros((0, 4)), np.zeros((0, 4, 4)), _EMPTY_I8, np.zeros(0)
         if self.solver == "batch":
-            res = fuse_batch(self.node_poses, z, observed=obs, noise=self.noise, prior=self.prior)
+            res = fuse_batch(self.node_poses, z, observed=obs, noise=self.noise, prior=self.prior,
+                             pose_covariances=self.pose_covariances)
             return res.state, res.covariance, np.asarray(res.status, dtype=np.int8), res.degeneracy
         return self._fuse_gtsam(z, obs)
 
@@ -270,7 +281,7 @@ class FrameStream:
         for i in range(g):
             try:
                 r = fuse_frame(self.node_poses, z[i], observed=obs[i], noise=self.noise,
-                               prior=self.prior)
+                               prior=self.prior, pose_covariances=self.pose_covariances)
             except MmsnapError:  # e.g. an initial position on a node; flagged as fuse_recording does
                 continue
             state[i], cov[i], status[i], degeneracy[i] = r.state, r.covariance, r.status, r.degeneracy

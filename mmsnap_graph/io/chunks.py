@@ -23,9 +23,9 @@ them (finite, ``range_m >= 0``, ``|omega| <= pi``); errors are
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import shutil
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -38,7 +38,7 @@ from .._atomic import atomic_path, recording_lock
 from ..data.recording import Detections, NodeData, Recording
 from ..data.results import FusedSequence
 from ..errors import FileFormatError, MmsnapError
-from .fused import FUSED_GROUP, FUSED_STATUSES
+from .fused import FUSED_GROUP, write_fused
 from .guard import H5_ERRORS, read_guard
 from .hdf5 import FORMAT_NAME, FORMAT_VERSION
 
@@ -259,86 +259,57 @@ def open_detection_windows(path: str | os.PathLike, *, source: str = "centroids"
 # ----------------------------------------------------------------------------
 # writing /fused window by window
 # ----------------------------------------------------------------------------
-_STATE_NAMES = ("x_m", "y_m", "vx_mps", "vy_mps")
-# name -> (dtype, trailing shape from the number of nodes N)
-_ROW_FIELDS = {
-    "frame": (np.int64, lambda n: ()), "target": (np.int64, lambda n: ()),
-    "label": (np.int64, lambda n: ()), "detection_index": (np.int64, lambda n: (n,)),
-    "observed": (bool, lambda n: (n,)),
-    **{k: (np.float64, lambda n: ()) for k in _STATE_NAMES},
-    "covariance": (np.float64, lambda n: (4, 4)),
-    "laplace_covariance": (np.float64, lambda n: (4, 4)),
-    "success": (bool, lambda n: ()), "status": (np.int8, lambda n: ()),
-    "iterations": (np.int64, lambda n: ()), "final_cost": (np.float64, lambda n: ()),
-    "degeneracy": (np.float64, lambda n: ()),
-}
-
-
-def _row_values(fused: FusedSequence, name: str):
-    if name in _STATE_NAMES:
-        return fused.state[:, _STATE_NAMES.index(name)]
-    if name == "final_cost":
-        return fused.final_cost
-    return getattr(fused, name)
-
-
 class FusedWriter:
     """Appends :class:`FusedSequence` windows to a ``/fused`` group being
-    written (use :func:`fused_writer`)."""
+    written (use :func:`fused_writer`).
 
-    def __init__(self, group: h5py.Group) -> None:
+    Each window is written by :func:`mmsnap_graph.io.fused.write_fused` into
+    a small scratch file holding only the recording's clock, so the layout
+    and attributes are exactly :data:`~mmsnap_graph.io.fused.FUSED_LAYOUT`'s;
+    its datasets (all with one row per fused target) are then appended to
+    the group's growing datasets. A dataset present in some windows only
+    (``rejected``) reads as its fill value (False) in the others.
+    """
+
+    def __init__(self, group: h5py.Group, scratch: Path, recording: Path) -> None:
         self._group = group
+        self._template = scratch / "clock.h5"
+        self._window = scratch / "window.h5"
         self.n_rows = 0
         self.n_success = 0
         self._started = False
-
-    def _start(self, fused: FusedSequence) -> None:
-        g = self._group
-        g.attrs["format_version"] = "1.0"
-        g.attrs["mode"] = fused.mode
-        g.attrs["covariance_method"] = fused.covariance_method
-        g.attrs["solver"] = fused.solver
-        g.attrs.create("node_order", np.array(fused.node_names, dtype=object),
-                       dtype=h5py.string_dtype(encoding="utf-8"))
-        g.attrs["node_poses"] = fused.node_poses
-        g.attrs["noise_sigmas"] = fused.noise_sigmas
-        if fused.prior_mean is not None:
-            g.attrs["prior_mean"] = fused.prior_mean
-            g.attrs["prior_sigmas"] = fused.prior_sigmas
-        g.attrs["gate_probability"] = fused.gate_probability
-        g.attrs["status_messages"] = json.dumps({str(int(s)): s.message for s in FUSED_STATUSES})
-        if fused.robust is not None:
-            g.attrs["robust"] = fused.robust
-        n = len(fused.node_names)
-        kw = dict(compression="gzip", compression_opts=1)
-        for name, (dtype, tail) in _ROW_FIELDS.items():
-            g.create_dataset(name, shape=(0, *tail(n)), maxshape=(None, *tail(n)), dtype=dtype,
-                             chunks=(WRITE_CHUNK_ROWS, *tail(n)), **kw)
-        g.create_dataset("message", shape=(0,), maxshape=(None,), chunks=(WRITE_CHUNK_ROWS,),
-                         dtype=h5py.string_dtype(encoding="utf-8"), **kw)
-        self._started = True
+        with read_guard(recording), h5py.File(recording, "r") as f, \
+                h5py.File(self._template, "w") as t:
+            # The recording's clock (write_fused takes time_s from it).
+            if "frame_period_s" in f.attrs:
+                t.attrs["frame_period_s"] = f.attrs["frame_period_s"]
+            meta = f.get("metadata")
+            if isinstance(meta, h5py.Group) and "time_origin_s" in meta.attrs:
+                t.create_group("metadata").attrs["time_origin_s"] = meta.attrs["time_origin_s"]
 
     def append(self, fused: FusedSequence) -> None:
         """Append the rows of ``fused`` (the first call also writes the attributes)."""
-        if not self._started:
-            self._start(fused)
-        k = len(fused)
-        if k == 0:
-            return
-        g, lo = self._group, self.n_rows
-        for name, (dtype, _) in _ROW_FIELDS.items():
-            ds = g[name]
-            ds.resize(lo + k, axis=0)
-            ds[lo:lo + k] = np.asarray(_row_values(fused, name), dtype=dtype)
-        g["message"].resize(lo + k, axis=0)
-        g["message"][lo:lo + k] = np.array([str(m) for m in fused.message], dtype=object)
-        if np.any(fused.rejected) and "rejected" not in g:
-            g.create_dataset("rejected", shape=(lo, len(fused.node_names)), dtype=bool,
-                             maxshape=(None, len(fused.node_names)), compression="gzip",
-                             chunks=(WRITE_CHUNK_ROWS, len(fused.node_names)))
-        if "rejected" in g:
-            g["rejected"].resize(lo + k, axis=0)
-            g["rejected"][lo:lo + k] = np.asarray(fused.rejected, dtype=bool)
+        write_fused(self._template, fused, output=self._window)
+        g, lo, k = self._group, self.n_rows, len(fused)
+        with h5py.File(self._window, "r") as w:
+            src = w[FUSED_GROUP]
+            if not self._started:
+                for key, value in src.attrs.items():
+                    g.attrs[key] = value
+                self._started = True
+            for name, ds in src.items():
+                if name not in g:
+                    tail = ds.shape[1:]
+                    g.create_dataset(name, shape=(lo, *tail), maxshape=(None, *tail),
+                                     dtype=ds.dtype, chunks=(WRITE_CHUNK_ROWS, *tail),
+                                     compression="gzip", compression_opts=1)
+                out = g[name]
+                out.resize(lo + k, axis=0)
+                if k:
+                    out[lo:lo + k] = ds[()]
+            for name, out in g.items():
+                if name not in src:
+                    out.resize(lo + k, axis=0)  # the fill value (False, 0, "")
         self.n_rows += k
         self.n_success += int(np.count_nonzero(fused.success))
 
@@ -357,10 +328,12 @@ def fused_writer(path: str | os.PathLike, *, output: str | os.PathLike | None = 
     """
     src = Path(path)
     dst = src if output is None else Path(output)
-    with recording_lock(src), recording_lock(dst), atomic_path(dst) as tmp:
+    with recording_lock(src), recording_lock(dst), atomic_path(dst) as tmp, \
+            tempfile.TemporaryDirectory(prefix="mmsnap_fused_") as scratch:
         if not src.exists():
             raise FileFormatError(f"{src} does not exist")
         shutil.copyfile(src, tmp)
+        writer_scratch = Path(scratch)
         try:
             f = h5py.File(tmp, "r+")
         except OSError as exc:
@@ -372,5 +345,4 @@ def fused_writer(path: str | os.PathLike, *, output: str | os.PathLike | None = 
             except H5_ERRORS as exc:
                 raise FileFormatError(f"{src}: /{FUSED_GROUP} cannot be replaced (damaged "
                                       f"file?): {exc}") from exc
-            writer = FusedWriter(f.create_group(FUSED_GROUP))
-            yield writer
+            yield FusedWriter(f.create_group(FUSED_GROUP), writer_scratch, src)

@@ -9,6 +9,7 @@ of :class:`~mmsnap_graph.data.results.Status` 0 to 5 and 9 (:data:`FUSED_STATUSE
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -26,19 +27,23 @@ __all__ = ["FUSED_GROUP", "FUSED_LAYOUT", "FUSED_STATUSES", "write_fused", "read
 
 #: Name of the HDF5 group written by :func:`write_fused`.
 FUSED_GROUP = "fused"
-_FUSED_VERSION = "1.0"
+_FUSED_VERSION = "1.1"
 
 #: The ``/fused`` group, for docs/FORMAT.md (the tests check that it is quoted there). K rows = one per fused target per frame.
 FUSED_LAYOUT = """\
-/fused                 attrs: format_version = "1.0", mode = "map" | "ml",
+/fused                 attrs: format_version = "1.1" (1.0: without time_s and information),
+                              mode = "map" | "ml",
                               covariance_method = "laplace" | "grid",
                               solver = "batch" | "gtsam",
                               node_order (str array, N), node_poses (N, 3) [x_m, y_m, phi_rad],
                               noise_sigmas (3,) [range_m, omega_rad, doppler_mps],
                               prior_mean (4,), prior_sigmas (4,) (MAP only),
                               gate_probability, status_messages (JSON: code -> text),
-                              robust = "gate" | "huber" | "cauchy" (only when robust fusion ran)
+                              robust = "gate" | "huber" | "cauchy" (only when robust fusion ran),
+                              frame_period_s, time_origin_s (Unix s of time_s = 0; only when
+                              the recording holds wall-clock time stamps)
     frame              (K,) int64     frame number
+    time_s             (K,) float64   seconds since the recording's start (frame * frame_period_s)
     target             (K,) int64     index of the target within its frame (association order)
     label              (K,) int64     the centroids' target_id when all members agree, else -1
     detection_index    (K, N) int64   row of each node's centroids used, -1 = node did not see it
@@ -46,6 +51,11 @@ FUSED_LAYOUT = """\
     x_m, y_m, vx_mps, vy_mps (K,) float64   fused state, global frame (S1's)
     covariance         (K, 4, 4) float64   the chosen covariance (Laplace or grid), NaN if failed
     laplace_covariance (K, 4, 4) float64   always the Laplace covariance
+    information        (K, 4, 4) float64   prior-free measurement information Y (MAP:
+                                           laplace_covariance^-1 - prior information;
+                                           ML: laplace_covariance^-1); may be singular
+    information_vector (K, 4) float64      y = laplace_covariance^-1 x - prior information m0
+                                           (ML: Y x); Y^-1 y = the prior-free state
     success            (K,) bool
     status             (K,) int8      0 converged, 1 max iterations, 2 singular information,
                                       3 non-finite, 4 no measurement and no prior, 5 grid failed,
@@ -81,6 +91,10 @@ def _fill_group(g, fused: FusedSequence) -> None:
     g.attrs["status_messages"] = json.dumps({str(int(s)): s.message for s in FUSED_STATUSES})
     if fused.robust is not None:
         g.attrs["robust"] = fused.robust
+    if fused.frame_period_s is not None:
+        g.attrs["frame_period_s"] = fused.frame_period_s
+    if fused.time_origin_s is not None:
+        g.attrs["time_origin_s"] = fused.time_origin_s
     big = fused.frame.size >= 1024
     kw = dict(compression="gzip", compression_opts=1) if big else {}
 
@@ -88,6 +102,8 @@ def _fill_group(g, fused: FusedSequence) -> None:
         g.create_dataset(name, data=np.asarray(data, dtype=dtype), **kw)
 
     put("frame", fused.frame, np.int64)
+    if fused.time_s is not None:
+        put("time_s", fused.time_s, np.float64)
     put("target", fused.target, np.int64)
     put("label", fused.label, np.int64)
     put("detection_index", fused.detection_index, np.int64)
@@ -96,6 +112,8 @@ def _fill_group(g, fused: FusedSequence) -> None:
         put(name, fused.state[:, i], np.float64)
     put("covariance", fused.covariance, np.float64)
     put("laplace_covariance", fused.laplace_covariance, np.float64)
+    put("information", fused.information, np.float64)
+    put("information_vector", fused.information_vector, np.float64)
     put("success", fused.success, bool)
     put("status", fused.status, np.int8)
     g.create_dataset("message", data=np.array([str(m) for m in fused.message], dtype=object),
@@ -133,8 +151,39 @@ def write_fused(path: str | os.PathLike, fused: FusedSequence, *,
             except H5_ERRORS as exc:
                 raise FileFormatError(f"{src}: /{FUSED_GROUP} cannot be replaced (damaged "
                                       f"file?): {exc}") from exc
-            _fill_group(f.create_group(FUSED_GROUP), fused)
+            _fill_group(f.create_group(FUSED_GROUP), _with_clock(fused, f))
     return dst
+
+
+def _recording_clock(f: h5py.File) -> tuple[float | None, float | None]:
+    """``(frame_period_s, time_origin_s)`` of an open recording file (None
+    where it has none): the root attribute and the ``time_origin_s``
+    metadata written by time-stamped imports."""
+    period = origin = None
+    try:
+        if "frame_period_s" in f.attrs:
+            period = float(f.attrs["frame_period_s"])
+        meta = f.get("metadata")
+        if isinstance(meta, h5py.Group) and "time_origin_s" in meta.attrs:
+            origin = float(meta.attrs["time_origin_s"])
+    except H5_ERRORS:
+        return None, None
+    ok = lambda v: v is not None and np.isfinite(v)  # noqa: E731
+    return (period if ok(period) and period > 0 else None), (origin if ok(origin) else None)
+
+
+def _with_clock(fused: FusedSequence, f: h5py.File) -> FusedSequence:
+    """``fused`` with ``time_s`` (and the frame period, the time origin)
+    taken from the recording file when it does not carry them."""
+    if fused.time_s is not None and fused.time_origin_s is not None:
+        return fused
+    period, origin = _recording_clock(f)
+    changes = {}
+    if fused.time_origin_s is None and origin is not None:
+        changes["time_origin_s"] = origin
+    if fused.time_s is None and period is not None:
+        changes["frame_period_s"] = period
+    return dataclasses.replace(fused, **changes) if changes else fused
 
 
 def read_fused(path: str | os.PathLike) -> FusedSequence:
@@ -146,6 +195,12 @@ def read_fused(path: str | os.PathLike) -> FusedSequence:
         with open_group(p, FUSED_GROUP,
                         f" has no /{FUSED_GROUP} group; run `mmsnap fuse` first") as group:
             fields = _read_fields(group, p)
+            period, origin = _recording_clock(group.file)
+        # Files of format 1.0 have no time stamps: from the recording's clock.
+        if fields["frame_period_s"] is None:
+            fields["frame_period_s"] = period
+        if fields["time_origin_s"] is None:
+            fields["time_origin_s"] = origin
         _check_lengths(fields, p)
         try:
             return FusedSequence(**fields)
@@ -211,7 +266,16 @@ def _read_fields(g: h5py.Group, p: Path) -> dict:
         gate_probability=float(attr("gate_probability")),
         rejected=ds("rejected").astype(bool) if "rejected" in g else None,
         robust=None if attr("robust", required=False) is None else _text(attr("robust")),
+        time_s=ds("time_s") if "time_s" in g else None,
+        frame_period_s=_optional_float(attr("frame_period_s", required=False)),
+        time_origin_s=_optional_float(attr("time_origin_s", required=False)),
+        information=ds("information") if "information" in g else None,
+        information_vector=ds("information_vector") if "information_vector" in g else None,
     )
+
+
+def _optional_float(v) -> float | None:
+    return None if v is None else float(v)
 
 
 def _check_lengths(fields: dict, p: Path) -> None:
@@ -221,8 +285,11 @@ def _check_lengths(fields: dict, p: Path) -> None:
     want = {"frame": (k,), "target": (k,), "label": (k,), "detection_index": (k, n),
             "observed": (k, n), "state": (k, 4), "covariance": (k, 4, 4),
             "laplace_covariance": (k, 4, 4), "success": (k,), "status": (k,), "message": (k,),
-            "iterations": (k,), "final_cost": (k,), "degeneracy": (k,)}
+            "iterations": (k,), "final_cost": (k,), "degeneracy": (k,), "time_s": (k,),
+            "information": (k, 4, 4), "information_vector": (k, 4)}
     for name, shape in want.items():
+        if fields[name] is None:  # optional (format 1.0)
+            continue
         got = np.shape(fields[name])
         if got != shape:
             raise FileFormatError(f"{p}: /{FUSED_GROUP} datasets disagree in length: {name} "

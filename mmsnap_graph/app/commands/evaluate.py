@@ -4,7 +4,9 @@ The fused states of its ``/fused`` group (``mmsnap fuse``) and each node's
 tracks against the true states (RMSE of position and velocity, NEES of the
 fused covariances), and the calibrated node poses against the true ones
 (:func:`mmsnap_graph.app.evaluation.evaluate_recording`). Prints a table, or JSON
-with ``--json`` for scripts.
+with ``--json`` for scripts. A failed consistency check (the fused NEES
+outside its 95% interval) is printed with its value and interval; with
+``--check`` it makes the exit status 1.
 """
 
 from __future__ import annotations
@@ -27,6 +29,9 @@ def register(subparsers) -> None:
                    help="calibration JSON whose poses are evaluated and used to place the "
                         "tracks (default: the poses stored on the nodes)")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.add_argument("--check", action="store_true",
+                   help="exit with status 1 when a consistency check fails (the fused states' "
+                        "mean NEES outside its 95%% chi-square interval)")
     p.set_defaults(func=run)
 
 
@@ -63,6 +68,12 @@ def format_metrics(m: dict, path: str) -> str:
         if row is not None:
             lines.append(f"{'tracks ' + name:18} {row['n_frames']:>6} {_f(row['position_rmse_m']):>14} "
                          f"{_f(row['velocity_rmse_mps']):>16} {'':>28}")
+    if fu is not None and fu["nees"].get("passed") is True:
+        lo, hi = fu["nees"]["interval_95"]
+        lines.append(f"NEES check passed: mean {fu['nees']['mean']:.2f} inside "
+                     f"({lo:.2f}, {hi:.2f})")
+    for failure in m.get("failed_checks", []):
+        lines.append(f"FAILED: {failure}")
     for n in m["notes"]:
         lines.append(f"note: {n}")
     return "\n".join(lines)
@@ -89,4 +100,10 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         print(format_metrics(metrics, str(args.recording)))
+    if metrics["failed_checks"]:
+        if args.json:  # the table already says it
+            for failure in metrics["failed_checks"]:
+                print(f"mmsnap evaluate: {failure}", file=sys.stderr)
+        if args.check:
+            return 1
     return 0

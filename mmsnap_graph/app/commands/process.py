@@ -8,8 +8,9 @@ import dataclasses
 import sys
 
 from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph.app.config_file import ProcessConfig, process_config_to_toml, read_process_config
+from mmsnap_graph.errors import ConfigurationError, ValidationError
 from mmsnap_graph.radar.cfar import CfarConfig
-from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.tracking.ekf import EkfConfig
 
 
@@ -21,25 +22,53 @@ def register(subparsers) -> None:
                     "static clutter removal, 2D OS-CFAR, torso DBSCAN centroids and a local "
                     "EKF. Nodes without a cube start from their point cloud (torso DBSCAN, EKF), else are re-tracked from their centroids. The file "
                     "is updated atomically (or written to --output).")
-    p.add_argument("recording", help="HDF5 recording (docs/FORMAT.md)")
+    p.add_argument("recording", nargs="?", default=None,
+                   help="HDF5 recording (docs/FORMAT.md); not needed with --show-config")
     p.add_argument("-o", "--output", help="write the result here instead of updating in place")
     p.add_argument("--centroids-only", action="store_true",
                    help="ignore cubes and point clouds: only build tracks from the stored centroids")
-    p.add_argument("--pfa", type=float, default=CfarConfig().pfa,
-                   help="OS-CFAR false-alarm probability per cell (default %(default)g)")
-    p.add_argument("--sigma-a", type=float, default=EkfConfig().sigma_a_mps2,
-                   help="EKF white-acceleration std, m/s^2 (default %(default)g)")
+    p.add_argument("--config", metavar="FILE", default=None,
+                   help="TOML file with every chain, clustering and EKF option (tables [chain], "
+                        "[chain.cfar], [chain.cluster], [ekf]; see --show-config and docs/TI.md)")
+    p.add_argument("--show-config", action="store_true",
+                   help="print the effective configuration (defaults, --config, options) as "
+                        "TOML and exit")
+    p.add_argument("--pfa", type=float, default=None,
+                   help=f"OS-CFAR false-alarm probability per cell; overrides the file "
+                        f"(default {CfarConfig().pfa:g})")
+    p.add_argument("--sigma-a", type=float, default=None,
+                   help=f"EKF white-acceleration std, m/s^2; overrides the file "
+                        f"(default {EkfConfig().sigma_a_mps2:g})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
+def effective_config(args: argparse.Namespace) -> ProcessConfig:
+    """Defaults, then the ``--config`` file, then the explicit options."""
+    cfg = ProcessConfig() if args.config is None else read_process_config(args.config)
+    chain, ekf = cfg.chain, cfg.ekf
+    try:
+        if args.pfa is not None:
+            chain = dataclasses.replace(chain, cfar=dataclasses.replace(chain.cfar, pfa=args.pfa))
+        if args.sigma_a is not None:
+            ekf = dataclasses.replace(ekf, sigma_a_mps2=args.sigma_a)
+    except (TypeError, ValueError) as exc:
+        raise ConfigurationError(f"mmsnap process option: {exc}") from None
+    return ProcessConfig(chain=chain, ekf=ekf)
+
+
 def run(args: argparse.Namespace) -> int:
+    cfg = effective_config(args)
+    if args.show_config:
+        sys.stdout.write(process_config_to_toml(cfg))
+        return 0
+    if args.recording is None:
+        raise ValidationError("mmsnap process: a recording is required (unless --show-config)")
     from ..pipeline import process_file  # here: `mmsnap --help` does not import h5py
     if args.output is not None:
         check_output_path(args.output)
 
-    config = ChainConfig(cfar=dataclasses.replace(CfarConfig(), pfa=args.pfa))
-    ekf = EkfConfig(sigma_a_mps2=args.sigma_a)
+    config, ekf = cfg.chain, cfg.ekf
     progress = not args.no_progress and sys.stderr.isatty()
     path, reports = process_file(args.recording, output=args.output, config=config, ekf=ekf,
                                  centroids_only=args.centroids_only, progress=progress)
