@@ -95,6 +95,11 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     if "progress" in options or "recording" in options:
         raise ValidationError("fuse_file takes the file, not a recording; progress is its own")
     windows = open_detection_windows(path, source=options.get("source", "centroids"))
+    if options.get("time_offset_s"):
+        # Clock offsets move each node's frames by its own shift before
+        # association: frame windows common to all nodes would split pairs
+        # at their edges. Until the windows are shifted per node: one window.
+        window_frames = max(1, windows.last_frame - windows.first_frame + 1)
     spans = list(windows.windows(int(window_frames)))
     if not spans:  # no detection at all: fuse_recording says so (ValidationError)
         fuse_recording(windows.read(0, 0)[0], node_poses=node_poses, progress=False, **options)
