@@ -154,7 +154,7 @@ def test_evaluate_command_table_and_json(processed, capsys, tmp_path):
 
 
 def test_evaluate_command_errors(tmp_path, capsys, recording_c_straight):
-    assert main(["evaluate", str(tmp_path / "missing.h5")]) == 2
+    assert main(["evaluate", str(tmp_path / "missing.h5")]) == 1
     assert "missing.h5" in capsys.readouterr().err
     rec = recording_c_straight
     path = tmp_path / "no_truth.h5"

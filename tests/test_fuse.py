@@ -210,7 +210,7 @@ def test_cli_fuse_writes_the_fused_group(tmp_path, recordings, capsys):
     out = tmp_path / "copy.h5"
     assert main(["fuse", str(path), "-o", str(out), "--no-progress"]) == 0
     assert read_fused(out).mode == "map" and read_fused(path).mode == "ml"
-    assert main(["fuse", str(path), "--calibration", str(tmp_path / "none.json")]) == 2
+    assert main(["fuse", str(path), "--calibration", str(tmp_path / "none.json")]) == 1
     assert "does not exist" in capsys.readouterr().err
 
 

@@ -143,7 +143,7 @@ def test_cli_process_updates_a_file(tmp_path, capsys):
 
 def test_cli_process_reports_a_missing_file(tmp_path, capsys):
     pytest.importorskip("mmsnap_graph.io")
-    assert main(["process", str(tmp_path / "nope.h5"), "--no-progress"]) == 2
+    assert main(["process", str(tmp_path / "nope.h5"), "--no-progress"]) == 1
     assert "does not exist" in capsys.readouterr().err
 
 

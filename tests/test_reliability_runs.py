@@ -177,7 +177,7 @@ def test_grid_points_below_five_are_a_usage_error(good, capsys):
 def test_demo_refuses_a_sample_that_is_a_directory(tmp_path, capsys):
     (tmp_path / "config_B_straight.h5").mkdir()
     assert main(["demo", "--data", str(tmp_path), "-c", "B", "-n", "20", "--no-figures",
-                 "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+                 "--out", str(tmp_path / "out"), "--no-progress"]) == 1
     assert "config_B_straight.h5" in capsys.readouterr().err
 
 
@@ -190,7 +190,7 @@ def test_evaluate_on_a_fused_group_of_unequal_lengths_names_the_file(good, tmp_p
         data = f["fused/x_m"][()]
         del f["fused/x_m"]
         f["fused/x_m"] = data[:-3]
-    assert main(["evaluate", str(path)]) == 2
+    assert main(["evaluate", str(path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(path) in err[0] and "x_m" in err[0]
 
@@ -201,11 +201,11 @@ def test_version_and_log_levels(capsys):
         main(["--version"])
     assert exc.value.code == 0 and capsys.readouterr().out.startswith("mmsnap ")
     log = logging.getLogger("mmsnap_graph")
-    assert main(["-q", "process", "/nonexistent/x.h5"]) == 2
+    assert main(["-q", "process", "/nonexistent/x.h5"]) == 1
     assert log.level == logging.ERROR
-    assert main(["-vv", "process", "/nonexistent/x.h5"]) == 2
+    assert main(["-vv", "process", "/nonexistent/x.h5"]) == 1
     assert log.level == logging.DEBUG
-    assert main(["process", "/nonexistent/x.h5"]) == 2  # back to the default level
+    assert main(["process", "/nonexistent/x.h5"]) == 1  # back to the default level
     assert log.level == logging.WARNING
 
 

@@ -6,14 +6,24 @@ sets ``func`` to a function ``run(args) -> int``. Degrees appear only here and
 in reports; the library speaks radians.
 
 Exit codes (:data:`EXIT_OK`, :data:`EXIT_FAILURE`, :data:`EXIT_USAGE`):
-0 the command did its work; 1 it ran, but the data or an estimation failed
-(nothing processed, a calibration incomplete, a recording of ``batch``
-failed, a paper check of ``demo`` does not hold, a file could not be
-written); 2 it could not run on what it was given: a bad option (argparse),
-or an input file that is missing, damaged or inconsistent (the project's
-errors, :class:`~mmsnap_graph.errors.MmsnapError`). Errors are one line on
-stderr, ``mmsnap VERB: error: ...``, naming the file. ``-v``/``-q`` set the
-level of the ``mmsnap_graph`` logger (warnings by default).
+
+- 0 the command did its work;
+- 1 the data or an estimation failed: an input file that is missing,
+  unreadable, damaged or inconsistent (:data:`DATA_ERRORS`: a
+  :class:`~mmsnap_graph.errors.FileFormatError`,
+  :class:`~mmsnap_graph.errors.CalibrationError` or
+  :class:`~mmsnap_graph.errors.GeometryError`, or an ``OSError``), nothing
+  processed, a calibration incomplete, a recording of ``batch`` failed, a
+  paper check of ``demo`` does not hold, a file could not be written;
+- 2 usage: a bad option (argparse) or option value
+  (:data:`USAGE_ERRORS`: a :class:`~mmsnap_graph.errors.ValidationError` or
+  :class:`~mmsnap_graph.errors.ConfigurationError` raised for an option),
+  including an output path that is a folder, lies in a missing folder, or
+  exists without ``--overwrite`` (checked before the command runs).
+
+Errors are one line on stderr, ``mmsnap VERB: error: ...``; an error of an
+input file names the file. ``-v``/``-q`` set the level of the
+``mmsnap_graph`` logger (warnings by default).
 """
 
 from __future__ import annotations
@@ -23,8 +33,17 @@ import importlib
 import importlib.metadata
 import logging
 import sys
+from pathlib import Path
 
-from ..errors import MmsnapError
+from .._atomic import check_output_path
+from ..errors import (
+    CalibrationError,
+    ConfigurationError,
+    FileFormatError,
+    GeometryError,
+    MmsnapError,
+    ValidationError,
+)
 
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
 COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch", "replay", "monitor", "noise"]
@@ -32,6 +51,16 @@ COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "eval
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+
+#: Errors of the data (an input file, an estimation): exit 1.
+DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError)
+#: Errors of an option value: exit 2.
+USAGE_ERRORS = (ValidationError, ConfigurationError)
+
+#: Per command, the options naming an output file (checked before it runs).
+OUTPUT_FILE_OPTIONS = {"process": ("output",), "fuse": ("output",),
+                       "calibrate": ("json", "output"), "simulate": ("output",),
+                       "replay": ("output",), "import": ("output",)}
 
 
 def package_version() -> str:
@@ -46,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mmsnap",
         description="Self-calibration and Bayesian one-shot fusion for mmWave radar networks.",
-        epilog="Exit codes: 0 ok, 1 data or estimation failure, 2 bad option or input file.",
+        epilog="Exit codes: 0 ok, 1 data or estimation failure (a bad input file included), "
+               "2 usage (a bad option or option value).",
     )
     parser.add_argument("--version", action="version", version=f"mmsnap {package_version()}")
     parser.add_argument("-v", "--verbose", action="count", default=0,
@@ -84,19 +114,58 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+def check_output_options(args: argparse.Namespace) -> None:
+    """Usage errors of the output-file options of ``args.command``
+    (:data:`OUTPUT_FILE_OPTIONS`): a folder, a path in a missing folder, or
+    an existing file without ``--overwrite`` (where the command has it).
+    Raises :class:`~mmsnap_graph.errors.ValidationError` naming the option."""
+    for name in OUTPUT_FILE_OPTIONS.get(args.command, ()):
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        option = "--" + name.replace("_", "-")
+        try:
+            check_output_path(value)
+        except FileFormatError as exc:
+            raise ValidationError(f"{option}: {exc}") from None
+        if getattr(args, "overwrite", True) is False and Path(value).exists():
+            raise ValidationError(f"{option}: {value} exists; pass --overwrite to replace it")
+
+
+def input_files(args: argparse.Namespace) -> list[str]:
+    """The input files named on the command line (for error messages)."""
+    names = [getattr(args, "recording", None), getattr(args, "calibration", None)]
+    return [str(n) for n in names if isinstance(n, str)]
+
+
+def _data_error_text(exc: BaseException, args: argparse.Namespace) -> str:
+    """The one-line message of a data error, prefixed with the input file
+    when there is exactly one and the message does not name it."""
+    text = _one_line(exc)
+    files = input_files(args)
+    if files and not any(f in text or Path(f).name in text for f in files):
+        text = f"{files[0]}: {text}"
+    return text
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run ``mmsnap`` with ``argv``; the exit code (module docstring)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     configure_logging(args.verbose, args.quiet)
+    prefix = f"mmsnap {args.command}: error:"
     try:
+        check_output_options(args)
         return int(args.func(args) or 0)
-    except MmsnapError as exc:
-        print(f"mmsnap {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+    except DATA_ERRORS as exc:
+        print(f"{prefix} {_data_error_text(exc, args)}", file=sys.stderr)
+        return EXIT_FAILURE
+    except MmsnapError as exc:  # USAGE_ERRORS and any other option check
+        print(f"{prefix} {_one_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
-    except OSError as exc:  # the environment: permissions, a full disk, ...
+    except OSError as exc:  # an input file, or the environment: permissions, a full disk, ...
         where = f"{exc.filename}: " if exc.filename else ""
-        print(f"mmsnap {args.command}: error: {where}{_one_line(exc.strerror or exc)}",
-              file=sys.stderr)
+        print(f"{prefix} {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:
         print(f"mmsnap {args.command}: interrupted", file=sys.stderr)

@@ -16,13 +16,13 @@ alarm). A group's position is the information-weighted mean of its members.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
 
 from factors.models import detection_covariance_global, detection_to_global
 
@@ -46,11 +46,43 @@ _FORBIDDEN = 1e12
 
 
 def gate_threshold(gate_probability: float) -> float:
-    """Squared-Mahalanobis gate of a 2D position: ``chi2.ppf(p, 2)``."""
+    """Squared-Mahalanobis gate of a 2D position: ``chi2.ppf(p, 2)``, in
+    closed form (2 degrees of freedom: ``-2 log(1 - p)``)."""
     p = float(gate_probability)
     if not 0.0 < p < 1.0:
         raise ValidationError(f"gate_probability must be in (0, 1), got {gate_probability!r}")
-    return float(chi2.ppf(p, 2))
+    return -2.0 * math.log1p(-p)
+
+
+def _scaled_2x2(a: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """``(scale (...,), a / scale, det(a / scale))`` of 2x2 matrices: the
+    closed forms below work on the scaled matrix (no overflow or underflow
+    of the determinant)."""
+    scale = np.max(np.abs(a), axis=(-1, -2))
+    scale = np.where((scale > 0) & np.isfinite(scale), scale, 1.0)
+    b = a / scale[..., None, None]
+    det = b[..., 0, 0] * b[..., 1, 1] - b[..., 0, 1] * b[..., 1, 0]
+    return scale, b, det
+
+
+def _inv_2x2(a: NDArray) -> NDArray:
+    """Inverse of (..., 2, 2) matrices in closed form (no LAPACK call: small
+    matrices, many calls)."""
+    scale, b, det = _scaled_2x2(a)
+    out = np.empty_like(b)
+    out[..., 0, 0], out[..., 1, 1] = b[..., 1, 1], b[..., 0, 0]
+    out[..., 0, 1], out[..., 1, 0] = -b[..., 0, 1], -b[..., 1, 0]
+    return out / (det * scale)[..., None, None]
+
+
+def _mahalanobis2_2x2(d: NDArray, s: NDArray) -> NDArray:
+    """``d^T s^-1 d`` of (..., 2) vectors and (..., 2, 2) matrices (inf or
+    NaN where ``s`` is singular)."""
+    with np.errstate(all="ignore"):
+        scale, b, det = _scaled_2x2(s)
+        q = (b[..., 1, 1] * d[..., 0] ** 2 - (b[..., 0, 1] + b[..., 1, 0]) * d[..., 0] * d[..., 1]
+             + b[..., 0, 0] * d[..., 1] ** 2)
+        return q / (det * scale)
 
 
 def detection_position_covariance(
@@ -106,10 +138,16 @@ def detection_information(covariance_m2: NDArray) -> tuple[NDArray, NDArray]:
     cov = np.asarray(covariance_m2, dtype=float)
     finite = np.all(np.isfinite(cov), axis=(-1, -2))
     safe = np.where(finite[..., None, None], cov, np.eye(2))
+    safe = 0.5 * (safe + np.swapaxes(safe, -1, -2))
     with np.errstate(all="ignore"):
-        eig = np.linalg.eigvalsh(0.5 * (safe + np.swapaxes(safe, -1, -2)))
-    ok = finite & (eig[..., 0] > MIN_VARIANCE_M2) & (eig[..., 0] * MAX_CONDITION > eig[..., 1])
-    info = np.linalg.inv(np.where(ok[..., None, None], safe, np.eye(2)))
+        # Eigenvalues of the symmetric 2x2 in closed form, on the scaled
+        # matrix: the larger from the trace, the smaller as det / larger.
+        scale, b, det = _scaled_2x2(safe)
+        big = 0.5 * (b[..., 0, 0] + b[..., 1, 1]) + np.hypot(0.5 * (b[..., 0, 0] - b[..., 1, 1]),
+                                                             b[..., 0, 1])
+        small = np.where(big > 0, det / np.where(big > 0, big, 1.0), -np.inf)
+    ok = finite & (small * scale > MIN_VARIANCE_M2) & (small * MAX_CONDITION > big)
+    info = _inv_2x2(np.where(ok[..., None, None], safe, np.eye(2)))
     return np.where(ok[..., None, None], info, 0.0), ok
 
 
@@ -149,7 +187,7 @@ class _Groups:
         info = np.stack(self.info)
         regular = np.array([f is None for f in self.fixed])
         cov_g = np.zeros_like(info)
-        cov_g[regular] = np.linalg.inv(info[regular])
+        cov_g[regular] = _inv_2x2(info[regular])
         cov_g = 0.5 * (cov_g + np.swapaxes(cov_g, -1, -2))
         pos = np.einsum("gij,gj->gi", cov_g, np.stack(self.eta))
         for g in np.flatnonzero(~regular):
@@ -166,17 +204,60 @@ def _assign(groups: _Groups, pos: NDArray, cov: NDArray, ok: NDArray, gate: floa
     usable = np.flatnonzero(ok)
     if cand.size == 0 or usable.size == 0:
         return assigned
-    cov_g = np.linalg.inv(np.stack([groups.info[g] for g in cand]))
+    cov_g = _inv_2x2(np.stack([groups.info[g] for g in cand]))
     mean_g = np.einsum("gij,gj->gi", cov_g, np.stack([groups.eta[g] for g in cand]))
     d = mean_g[:, None, :] - pos[None, usable, :]  # (G, K, 2)
     s = cov_g[:, None] + cov[None, usable]  # (G, K, 2, 2)
-    m2 = np.einsum("gki,gki->gk", d, np.linalg.solve(s, d[..., None])[..., 0])
+    m2 = _mahalanobis2_2x2(d, s)
     cost = np.where(np.isfinite(m2) & (m2 <= gate), m2, _FORBIDDEN)
-    rows, cols = linear_sum_assignment(cost)
+    if cost.shape[0] == 1 or cost.shape[1] == 1:  # one group or one detection: the cheapest
+        best = int(np.argmin(cost))
+        rows, cols = np.unravel_index([best], cost.shape)
+    else:
+        rows, cols = linear_sum_assignment(cost)
     good = cost[rows, cols] < _FORBIDDEN
     # A group takes at most one detection per node.
     assigned[usable[cols[good]]] = cand[rows[good]]
     return assigned
+
+
+def _associate_singles(counts, pos_all, cov_all, info_all, gate) -> FrameAssociation:
+    """:func:`associate_frame` when every node has at most one detection and
+    every detection a regular covariance (one target in view, the common
+    case): the same steps on Python floats, no array work per node."""
+    n_nodes = len(counts)
+    members: list[list[int]] = []
+    info: list[list[float]] = []   # (a, b, c, d) of [[a, b], [c, d]], summed information
+    eta: list[list[float]] = []
+    for row, (n, (px, py), ((sa, sb), (sc, sd)), ((ia, ib), (ic, id_))) in enumerate(zip(
+            np.flatnonzero(np.asarray(counts) > 0).tolist(), pos_all.tolist(), cov_all.tolist(),
+            info_all.tolist())):
+        best, best_m2 = -1, math.inf
+        for g, (a, b, c, d) in enumerate(info):
+            det = a * d - b * c
+            ga, gb, gc, gd = d / det, -b / det, -c / det, a / det   # the group's covariance
+            mx, my = ga * eta[g][0] + gb * eta[g][1], gc * eta[g][0] + gd * eta[g][1]
+            dx, dy = mx - px, my - py
+            qa, qb, qc, qd = ga + sa, gb + sb, gc + sc, gd + sd
+            det_q = qa * qd - qb * qc
+            m2 = (qd * dx * dx - (qb + qc) * dx * dy + qa * dy * dy) / det_q if det_q > 0 \
+                else math.inf
+            if m2 <= gate and m2 < best_m2:
+                best, best_m2 = g, m2
+        if best < 0:
+            members.append([-1] * n_nodes)
+            info.append([0.0, 0.0, 0.0, 0.0])
+            eta.append([0.0, 0.0])
+            best = len(members) - 1
+        members[best][n] = 0
+        a, b, c, d = info[best]
+        info[best] = [a + ia, b + ib, c + ic, d + id_]
+        eta[best] = [eta[best][0] + ia * px + ib * py, eta[best][1] + ic * px + id_ * py]
+    cov_g = _inv_2x2(np.array(info).reshape(-1, 2, 2))
+    cov_g = 0.5 * (cov_g + np.swapaxes(cov_g, -1, -2))
+    return FrameAssociation(members=np.asarray(members, dtype=np.int64),
+                            position_m=np.einsum("gij,gj->gi", cov_g, np.array(eta)),
+                            covariance_m2=cov_g)
 
 
 def associate_frame(
@@ -222,17 +303,37 @@ def associate_frame(
     noise = check_node_noise(noise, poses.shape[0])
     gate = gate_threshold(gate_probability)
     groups = _Groups(poses.shape[0])
+    zs = []
     for n in range(poses.shape[0]):
         z = check_finite(as_float_array(measurements[n], f"measurements[{n}]"), f"measurements[{n}]")
         if z.ndim != 2 or z.shape[1] != 3:
             raise ValidationError(f"measurements[{n}] must have shape (K, 3), got {z.shape}")
-        if z.shape[0] == 0:
+        zs.append(z)
+    counts = [z.shape[0] for z in zs]
+    if sum(counts) == 0:
+        return groups.result()
+    # Every node's detections mapped at once (one call each), then node by node.
+    z_all = np.concatenate(zs)
+    pose_rows = np.repeat(poses, counts, axis=0)
+    with np.errstate(all="ignore"):
+        pos_all = detection_to_global(z_all[:, 0], z_all[:, 1], pose_rows)
+        if all(nz == noise[0] for nz in noise):  # one noise for every node: one call
+            cov_all = detection_position_covariance(z_all[:, 0], z_all[:, 1], pose_rows, noise[0])
+        else:  # per-node noise (docs/CONVENTIONS.md, "Per-node noise")
+            cov_all = np.concatenate([detection_position_covariance(z[:, 0], z[:, 1], poses[n],
+                                                                    noise[n])
+                                      for n, z in enumerate(zs)])
+    info_all, ok_all = detection_information(cov_all)
+    if max(counts) == 1 and bool(np.all(ok_all)):  # one regular detection per node at most
+        return _associate_singles(counts, pos_all, cov_all, info_all, gate)
+    start = 0
+    for n, k_n in enumerate(counts):
+        if k_n == 0:
             continue
-        with np.errstate(all="ignore"):
-            pos = detection_to_global(z[:, 0], z[:, 1], poses[n])
-            cov = detection_position_covariance(z[:, 0], z[:, 1], poses[n], noise[n])
-        info, ok = detection_information(cov)
+        sl = slice(start, start + k_n)
+        start += k_n
+        pos, cov, info, ok = pos_all[sl], cov_all[sl], info_all[sl], ok_all[sl]
         assigned = _assign(groups, pos, cov, ok, gate)
-        for k in range(z.shape[0]):
+        for k in range(k_n):
             groups.add(int(assigned[k]), n, k, pos[k], cov[k], info[k], bool(ok[k]))
     return groups.result()

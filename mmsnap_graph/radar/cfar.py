@@ -28,6 +28,7 @@ Two evaluations give the same decisions:
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -39,7 +40,7 @@ from scipy import ndimage
 from ..errors import ConfigurationError, ValidationError
 
 __all__ = ["CfarConfig", "os_cfar_alpha", "os_cfar_noise_scale", "footprint", "pad_map",
-           "os_cfar_2d", "os_cfar_cells"]
+           "os_cfar_2d", "os_cfar_cells", "ALPHA_BRACKET"]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -143,35 +144,59 @@ def _order_stat_integral(fun, k: int, n: int) -> float:
     return float(val)
 
 
-@lru_cache(maxsize=64)
-def os_cfar_alpha(n_train: int, rank: int, pfa: float, n_channels: int = 1) -> float:
-    """Threshold factor ``alpha`` with false-alarm rate ``pfa`` for OS-CFAR
-    on Gamma(``n_channels``) noise (module docstring)."""
+#: The bracket (log space) of the threshold factor searched by :func:`os_cfar_alpha`.
+ALPHA_BRACKET = (1e-3, 1e7)
+
+
+def _check_order_statistic(n_train, rank) -> tuple[int, int]:
     if not (_is_int(n_train) and n_train >= 1):
         raise ConfigurationError(f"n_train={n_train!r} must be an integer >= 1")
     if not (_is_int(rank) and 1 <= rank <= n_train):
-        raise ConfigurationError(f"rank={rank} must be in [1, n_train={n_train}]")
+        raise ConfigurationError(f"rank={rank!r} must be in [1, n_train={n_train}] (an integer)")
+    return int(n_train), int(rank)
+
+
+def os_cfar_alpha(n_train: int, rank: int, pfa: float, n_channels: int = 1) -> float:
+    """Threshold factor ``alpha`` with false-alarm rate ``pfa`` for OS-CFAR
+    on Gamma(``n_channels``) noise (module docstring). Raises
+    :class:`ConfigurationError` for bad arguments or a ``pfa`` whose factor
+    lies outside :data:`ALPHA_BRACKET` (cached per distinct arguments)."""
+    n_train, rank = _check_order_statistic(n_train, rank)
     if not (_is_real(pfa) and 0 < pfa < 1):
         raise ConfigurationError(f"pfa={pfa!r} must be a number in (0, 1)")
-    g = stats.gamma(_check_channels(n_channels))
+    return _os_cfar_alpha(n_train, rank, float(pfa), _check_channels(n_channels))
+
+
+@lru_cache(maxsize=64)
+def _os_cfar_alpha(n_train: int, rank: int, pfa: float, n_channels: int) -> float:
+    g = stats.gamma(n_channels)
 
     def log_pfa(log_alpha):
         alpha = np.exp(log_alpha)
         p = _order_stat_integral(lambda u: g.sf(alpha * g.ppf(u)), rank, n_train)
         return np.log(max(p, 1e-300)) - np.log(pfa)
 
-    return float(np.exp(optimize.brentq(log_pfa, np.log(1e-3), np.log(1e7), xtol=1e-10)))
+    lo, hi = np.log(ALPHA_BRACKET[0]), np.log(ALPHA_BRACKET[1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", integrate.IntegrationWarning)
+        f_lo, f_hi = log_pfa(lo), log_pfa(hi)
+        if not (f_lo > 0 > f_hi):  # the false-alarm rate falls with alpha
+            raise ConfigurationError(
+                f"pfa={pfa!r} needs a threshold factor outside {ALPHA_BRACKET} for OS-CFAR with "
+                f"n_train={n_train}, rank={rank}, n_channels={n_channels}")
+        return float(np.exp(optimize.brentq(log_pfa, lo, hi, xtol=1e-10)))
 
 
-@lru_cache(maxsize=64)
 def os_cfar_noise_scale(n_train: int, rank: int, n_channels: int = 1) -> float:
     """``E[Z_(k)] / E[cell]`` for noise-only Gamma(``n_channels``) cells: divide
     the order statistic by it to estimate the mean noise power of a cell."""
-    if not (_is_int(n_train) and n_train >= 1):
-        raise ConfigurationError(f"n_train={n_train!r} must be an integer >= 1")
-    if not (_is_int(rank) and 1 <= rank <= n_train):
-        raise ConfigurationError(f"rank={rank!r} must be an integer in [1, n_train={n_train}]")
-    g = stats.gamma(_check_channels(n_channels))
+    n_train, rank = _check_order_statistic(n_train, rank)
+    return _os_cfar_noise_scale(n_train, rank, _check_channels(n_channels))
+
+
+@lru_cache(maxsize=64)
+def _os_cfar_noise_scale(n_train: int, rank: int, n_channels: int) -> float:
+    g = stats.gamma(n_channels)
     return _order_stat_integral(lambda u: g.ppf(u), rank, n_train) / n_channels
 
 

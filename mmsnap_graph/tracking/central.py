@@ -43,11 +43,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import partial
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import linalg
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
 from tqdm import tqdm
 
 from factors.motion import cv_process_noise, cv_transition
@@ -119,8 +119,26 @@ class CentralConfig:
 
 
 def _spd_inverse(p: NDArray) -> NDArray:
-    c = linalg.cho_factor(p, lower=True)
-    return symmetrize(linalg.cho_solve(c, np.eye(p.shape[0])))
+    """Inverse of a symmetric positive-definite matrix through its Cholesky
+    factor (``LinAlgError`` when it is not positive definite). Plain numpy:
+    scipy's wrappers cost more than the 4x4 work."""
+    li = np.linalg.inv(np.linalg.cholesky(p))
+    return symmetrize(li.T @ li)
+
+
+def _gate_2dof(probability: float) -> float:
+    """``chi2.ppf(p, 2)`` in closed form: ``-2 log(1 - p)``."""
+    return -2.0 * math.log1p(-float(probability))
+
+
+def _mahalanobis2(d: NDArray, s: NDArray) -> float:
+    """``d^T s^-1 d`` for a 2-vector and a 2x2 matrix, in closed form (inf
+    when ``s`` is singular or not positive definite)."""
+    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+    if not det > 0:
+        return math.inf
+    return float((s[1, 1] * d[0] ** 2 - (s[0, 1] + s[1, 0]) * d[0] * d[1] + s[0, 0] * d[1] ** 2)
+                 / det)
 
 
 def measurement_information(
@@ -169,7 +187,8 @@ class CentralTracker:
         self.prior_sigmas = None if prior_sigmas is None else np.asarray(prior_sigmas, dtype=float)
         self._tracks: list[_Track] = []
         self._next_id = 0
-        self._gate = float(chi2.ppf(self.config.gate_probability, 2))
+        self._gate = _gate_2dof(self.config.gate_probability)
+        self._motion: tuple | None = None  # (period, F, Q) of the last step
 
     @property
     def tracks(self) -> list[tuple[int, NDArray, NDArray]]:
@@ -190,8 +209,9 @@ class CentralTracker:
         cfg = self.config
         z, r = _check_estimates(states, covariances)
         t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
-        f = cv_transition(t)
-        q = cv_process_noise(t, cfg.sigma_a_mps2)
+        if self._motion is None or self._motion[0] != t:  # frames mostly share one period
+            self._motion = (t, cv_transition(t), cv_process_noise(t, cfg.sigma_a_mps2))
+        _, f, q = self._motion
         for tr in self._tracks:
             tr.x = f @ tr.x
             tr.p = symmetrize(f @ tr.p @ f.T + q)
@@ -200,13 +220,14 @@ class CentralTracker:
             cost = np.full((len(self._tracks), z.shape[0]), np.inf)
             for i, tr in enumerate(self._tracks):
                 for j in range(z.shape[0]):
-                    d = z[j, :2] - tr.x[:2]
-                    s = tr.p[:2, :2] + r[j, :2, :2]
-                    m2 = float(d @ np.linalg.solve(s, d))
+                    m2 = _mahalanobis2(z[j, :2] - tr.x[:2], tr.p[:2, :2] + r[j, :2, :2])
                     if m2 <= self._gate:
                         cost[i, j] = m2
             finite = np.where(np.isfinite(cost), cost, 1e12)
-            rows, cols = linear_sum_assignment(finite)
+            if finite.shape == (1, 1):  # one track, one estimate
+                rows, cols = np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64)
+            else:
+                rows, cols = linear_sum_assignment(finite)
             for i, j in zip(rows, cols):
                 if np.isfinite(cost[i, j]):
                     assigned[j] = i
@@ -216,9 +237,8 @@ class CentralTracker:
             lam_z, eta_z = self._information(z[j], r[j])
             info_pred = _spd_inverse(tr.p)
             info_post = symmetrize(info_pred + lam_z)
-            c = linalg.cho_factor(info_post, lower=True)
-            tr.x = linalg.cho_solve(c, info_pred @ tr.x + eta_z)
-            tr.p = symmetrize(linalg.cho_solve(c, np.eye(4)))
+            tr.p = _spd_inverse(info_post)
+            tr.x = tr.p @ (info_pred @ tr.x + eta_z)
             hit[assigned[j]] = True
         for i, tr in enumerate(self._tracks):
             tr.misses = 0 if hit[i] else tr.misses + 1
@@ -279,7 +299,7 @@ class FixedLagTracker:
         self._time_s = 0.0
         self._x: NDArray | None = None
         self._p: NDArray | None = None
-        self._gate = float(chi2.ppf(self.config.gate_probability, 2))
+        self._gate = _gate_2dof(self.config.gate_probability)
 
     def _measurement_factor(self, key, x, p):
         gtsam = self._gtsam

@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.errors import FileFormatError, ValidationError
 
 
 #: Runs at least this long (the paper's 90 s) exit 1 when a paper check does
@@ -79,7 +79,7 @@ def _check_samples(data_dir, config) -> None:
         for t in config.trajectories:
             path = sample_path(data_dir, c, t)
             if (path.exists() or path.is_symlink()) and not path.is_file():
-                raise ValidationError(f"sample recording {path} is not a file")
+                raise FileFormatError(f"sample recording {path} is not a file")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -143,8 +143,9 @@ def choose_noise(args, path, node_names, fuse):
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmsnap_graph.app.chunked_fuse import fuse_file
     from mmsnap_graph.fusion.sequence import fuse_recording
-    from mmsnap_graph.io import read_recording, write_fused
+    from mmsnap_graph.io.chunks import open_detection_windows
 
     if args.grid_points < 5 or args.grid_points % 2 == 0:
         raise ValidationError(f"--grid-points must be odd and >= 5, got {args.grid_points}")
@@ -153,23 +154,23 @@ def run(args: argparse.Namespace) -> int:
     # The lock spans read -> write: a concurrent `mmsnap process` or
     # `calibrate` of the same file waits instead of being overwritten.
     with recording_lock(args.recording):
-        rec = read_recording(args.recording, load_cubes=False)
-        noise, noise_text = choose_noise(args, args.recording, rec.node_names, fuse_recording)
+        # Node names only: the detections are read, fused and written window
+        # by window (long recordings in bounded memory, issue 13).
+        names = open_detection_windows(args.recording, source=args.source).node_names
+        noise, noise_text = choose_noise(args, args.recording, names, fuse_recording)
         cal = stored_calibration(args, args.recording)
         options, cal_text = calibration_options(args, cal)
         print(noise_text, file=sys.stdout)
         print("; ".join(cal_text), file=sys.stdout)
         poses = dict(cal.poses) if (cal is not None and args.calibration) else None
-        fused = fuse_recording(rec, node_poses=poses, mode=args.mode, **options,
-                               covariance=args.covariance, noise=noise, solver=args.solver,
-                               source=args.source, gate_probability=args.gate,
-                               grid_points_per_axis=args.grid_points,
-                               progress=False if args.no_progress else None,
-                               robust=None if args.robust == "none" else args.robust)
-        path = write_fused(args.recording, fused, output=args.output)
-    n_ok = int(np.count_nonzero(fused.success))
-    frames = np.unique(fused.frame).size
-    print(f"fused {len(fused)} targets in {frames} frames ({args.mode}, {args.covariance}, "
-          f"{args.solver}, robust {args.robust}): {n_ok} succeeded, {len(fused) - n_ok} "
+        fused = fuse_file(args.recording, output=args.output, node_poses=poses, mode=args.mode,
+                          **options, covariance=args.covariance, noise=noise,
+                          solver=args.solver, source=args.source, gate_probability=args.gate,
+                          grid_points_per_axis=args.grid_points,
+                          progress=False if args.no_progress else None,
+                          robust=None if args.robust == "none" else args.robust)
+    n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
+    print(f"fused {fused.n_rows} targets in {frames} frames ({args.mode}, {args.covariance}, "
+          f"{args.solver}, robust {args.robust}): {n_ok} succeeded, {fused.n_rows - n_ok} "
           f"flagged; wrote {path}:/fused", file=sys.stdout)
     return 0

@@ -166,8 +166,18 @@ def run_dca1000(args: argparse.Namespace) -> int:
     return _write(args, rec)
 
 
+def _check_point_options(args) -> None:
+    """Usage errors (exit 2) of the point-cloud imports' numeric options."""
+    if args.accumulate < 1:
+        raise ValidationError(f"--accumulate: n_frames={args.accumulate} must be an integer >= 1")
+    if args.frame_period is not None and not (np.isfinite(args.frame_period)
+                                              and args.frame_period > 0):
+        raise ValidationError(f"--frame-period must be finite and > 0, got {args.frame_period}")
+
+
 def _timing(args):
     """(frame period, TiConfig or None) from --frame-period / --cfg."""
+    _check_point_options(args)
     ti = None
     if args.cfg is not None:
         from mmsnap_graph.io.ti_cfg import BoardLayout, read_ti_cfg

@@ -113,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
     print(_summary(*stats), file=sys.stdout)
     if args.output:
         print(f"wrote {args.output}", file=sys.stdout)
-    return 0
+    # As `mmsnap process`: failing (exit 1) is for nothing fused at all.
+    return 0 if stats[3] > 0 else 1
 
 
 class _Null:

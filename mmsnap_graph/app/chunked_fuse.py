@@ -1,0 +1,126 @@
+"""Fusing a recording file window by window (``mmsnap fuse``; issue 13: 1 hour
+of 10 nodes under 500 MB).
+
+:func:`fuse_file` reads the detections of ``window_frames`` frames at a time
+(:func:`mmsnap_graph.io.chunks.open_detection_windows`), fuses each window
+with :func:`mmsnap_graph.fusion.sequence.fuse_recording` and appends its rows
+to the ``/fused`` group being written (:func:`mmsnap_graph.io.chunks.fused_writer`):
+memory holds one window, never the whole recording nor its whole
+``/fused``. Association and fusion are per frame, so the result equals
+``fuse_recording`` on the whole recording, row for row; the detection
+indices are those of the file's rows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..errors import ValidationError
+from ..fusion.sequence import fuse_recording
+from ..fusion.timing import split_offset
+from ..io.chunks import open_detection_windows, fused_writer
+
+__all__ = ["DEFAULT_WINDOW_FRAMES", "ChunkedFuseSummary", "fuse_file"]
+
+#: Frames per window: 2,000 frames (5 min at 150 ms) of 10 nodes are a few MB.
+DEFAULT_WINDOW_FRAMES = 2000
+
+
+@dataclass(frozen=True)
+class ChunkedFuseSummary:
+    """What :func:`fuse_file` wrote: the file, the ``/fused`` rows (fused
+    targets), how many succeeded, the frames with a target, the windows
+    fused (those with a detection)."""
+
+    path: Path
+    n_rows: int
+    n_success: int
+    n_frames: int
+    n_windows: int
+    mode: str
+    covariance_method: str
+    solver: str
+
+
+def _progress(total: int, progress: bool | None):
+    import sys
+
+    from tqdm.auto import tqdm  # here: only a run with a progress bar needs it
+
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+    return tqdm(total=total, desc="fuse (frames)", unit="frame", disable=not show, leave=False)
+
+
+def _global_rows(fused, rows: Mapping[str, np.ndarray], names):
+    """``fused`` with its detection indices taken to the file's rows."""
+    idx = fused.detection_index.copy()
+    for n, name in enumerate(names):
+        seen = idx[:, n] >= 0
+        if np.any(seen):
+            idx[seen, n] = rows[name][idx[seen, n]]
+    return dataclasses.replace(fused, detection_index=idx)
+
+
+def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = None,
+              node_poses: Mapping[str, ArrayLike] | None = None,
+              window_frames: int = DEFAULT_WINDOW_FRAMES, progress: bool | None = None,
+              **options) -> ChunkedFuseSummary:
+    """Fuse every target in every frame of the recording file at ``path``
+    window by window and store the ``/fused`` group (in ``path``, or in a
+    copy of it at ``output``), atomically.
+
+    node_poses : calibrated poses (default: the file's).
+    window_frames : frames read and fused at a time.
+    progress : a tqdm bar over frames (default: when stderr is a terminal).
+    options : keyword arguments of
+        :func:`~mmsnap_graph.fusion.sequence.fuse_recording` (``mode``,
+        ``covariance``, ``solver``, ``noise``, ``prior``,
+        ``gate_probability``, ``source``, ``grid_points_per_axis``,
+        ``robust``, ...), with its defaults.
+
+    Returns a :class:`ChunkedFuseSummary`. Raises what ``fuse_recording``
+    raises for bad options, and :class:`~mmsnap_graph.errors.FileFormatError`
+    naming the file for a missing or damaged one; the destination is then
+    left as it was.
+    """
+    if isinstance(window_frames, bool) or not isinstance(window_frames, (int, np.integer)) \
+            or window_frames < 1:
+        raise ValidationError(f"window_frames must be an integer >= 1, got {window_frames!r}")
+    if "progress" in options or "recording" in options:
+        raise ValidationError("fuse_file takes the file, not a recording; progress is its own")
+    windows = open_detection_windows(path, source=options.get("source", "centroids"))
+    # Clock offsets move each node's frames by its own whole-frame shift
+    # before fusion (fusion.timing.align_recording): each node's window is
+    # read shifted the same way, so that a window holds the same reference
+    # frames for every node.
+    shifts = {str(n): split_offset(float(t), windows.frame_period_s)[0]
+              for n, t in dict(options.get("time_offset_s") or {}).items()}
+    margin = max((abs(m) for m in shifts.values()), default=0)
+    spans = list(windows.windows(int(window_frames), margin))
+    if not spans:  # no detection at all: fuse_recording says so (ValidationError)
+        fuse_recording(windows.read(0, 0)[0], node_poses=node_poses, progress=False, **options)
+    n_frames = n_windows = 0
+    with fused_writer(path, output=output) as writer, \
+            _progress(windows.last_frame - windows.first_frame + 1, progress) as bar:
+        for start, stop in spans:
+            rec, rows = windows.read(start, stop, shifts)
+            bar.update(stop - start)
+            if not any(r.size for r in rows.values()):
+                continue  # a gap: no node has a detection in these frames
+            fused = fuse_recording(rec, node_poses=node_poses, progress=False, **options)
+            writer.append(_global_rows(fused, rows, rec.node_names))
+            n_frames += int(np.unique(fused.frame).size)
+            n_windows += 1
+    dst = Path(path) if output is None else Path(output)
+    return ChunkedFuseSummary(path=dst, n_rows=writer.n_rows, n_success=writer.n_success,
+                              n_frames=n_frames, n_windows=n_windows,
+                              mode=options.get("mode", "map"),
+                              covariance_method=options.get("covariance", "laplace"),
+                              solver=options.get("solver", "batch"))
