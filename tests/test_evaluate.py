@@ -159,5 +159,5 @@ def test_evaluate_command_errors(tmp_path, capsys, recording_c_straight):
     rec = recording_c_straight
     path = tmp_path / "no_truth.h5"
     write_recording(path, dataclasses.replace(rec, truth=None))
-    assert main(["evaluate", str(path)]) == 2
+    assert main(["evaluate", str(path)]) == 1  # a data error, not a usage error
     assert "no truth" in capsys.readouterr().err

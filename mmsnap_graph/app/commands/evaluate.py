@@ -89,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.calibration import load_calibration_poses
 
     rec = read_recording(args.recording, load_cubes=False)
+    if rec.truth is None:  # the file lacks what evaluate needs: a data error (exit 1)
+        from mmsnap_graph.errors import FileFormatError
+        raise FileFormatError(f"{args.recording} has no truth (/truth): nothing to evaluate "
+                              f"against")
     with read_guard(args.recording), h5py.File(args.recording, "r") as f:
         has_fused = FUSED_GROUP in f
     fused = read_fused(args.recording) if has_fused else None
