@@ -103,9 +103,12 @@ def node_chain(recording: Recording, *, cluster: ClusterConfig | None = None,
     rec = recording
     for name, node in recording.nodes.items():
         if node.point_cloud is not None:
-            new, _ = cluster_node(node, recording.frame_period_s, config=config, ekf=ekf)
+            # The demo's EKF sigmas as given (the paper's protocol, the
+            # README's tables), not the ones the data would give.
+            new, _ = cluster_node(node, recording.frame_period_s, config=config, ekf=ekf,
+                                  ekf_noise="config")
         elif node.centroids is not None:
-            new, _ = track_node(node, recording.frame_period_s, ekf=ekf)
+            new, _ = track_node(node, recording.frame_period_s, ekf=ekf, ekf_noise="config")
         else:
             raise ValidationError(f"node {name} has neither a point cloud nor centroids")
         rec = rec.with_node(new)
