@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,12 +33,11 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from .._atomic import atomic_path, recording_lock
 from ..data.recording import Detections, NodeData, Recording
 from ..data.results import FusedSequence
 from ..errors import FileFormatError, MmsnapError
 from .fused import FUSED_GROUP, write_fused
-from .guard import H5_ERRORS, read_guard
+from .guard import H5_ERRORS, edited_copy, read_guard, replace_group
 from .hdf5 import FORMAT_NAME, FORMAT_VERSION
 
 __all__ = ["DetectionWindows", "open_detection_windows", "FusedWriter", "fused_writer"]
@@ -336,23 +334,6 @@ def fused_writer(path: str | os.PathLike, *, output: str | os.PathLike | None = 
     kill) the destination is left as it was. The recording's lock is held
     throughout (:func:`mmsnap_graph._atomic.recording_lock`).
     """
-    src = Path(path)
-    dst = src if output is None else Path(output)
-    with recording_lock(src), recording_lock(dst), atomic_path(dst) as tmp, \
+    with edited_copy(path, output) as f, \
             tempfile.TemporaryDirectory(prefix="mmsnap_fused_") as scratch:
-        if not src.exists():
-            raise FileFormatError(f"{src} does not exist")
-        shutil.copyfile(src, tmp)
-        writer_scratch = Path(scratch)
-        try:
-            f = h5py.File(tmp, "r+")
-        except OSError as exc:
-            raise FileFormatError(f"{src} is not a writable HDF5 file: {exc}") from exc
-        with f:
-            try:
-                if FUSED_GROUP in f:
-                    del f[FUSED_GROUP]
-            except H5_ERRORS as exc:
-                raise FileFormatError(f"{src}: /{FUSED_GROUP} cannot be replaced (damaged "
-                                      f"file?): {exc}") from exc
-            yield FusedWriter(f.create_group(FUSED_GROUP), writer_scratch, src)
+        yield FusedWriter(replace_group(f, FUSED_GROUP, path), Path(scratch), Path(path))

@@ -12,16 +12,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 from pathlib import Path
 
 import h5py
 import numpy as np
 
-from .._atomic import atomic_path, recording_lock
 from ..data.results import FusedSequence, Status
 from ..errors import FileFormatError, MmsnapError
-from .guard import H5_ERRORS, open_group, read_guard
+from .guard import H5_ERRORS, edited_copy, open_group, read_guard, replace_group
 
 __all__ = ["FUSED_GROUP", "FUSED_LAYOUT", "FUSED_STATUSES", "write_fused", "read_fused"]
 
@@ -134,25 +132,9 @@ def write_fused(path: str | os.PathLike, fused: FusedSequence, *,
     the group written there, and the copy moved over the target
     (:func:`mmsnap_graph._atomic.atomic_path`). Returns the path written.
     """
-    src = Path(path)
-    dst = src if output is None else Path(output)
-    with recording_lock(src), recording_lock(dst), atomic_path(dst) as tmp:
-        if not src.exists():
-            raise FileFormatError(f"{src} does not exist")
-        shutil.copyfile(src, tmp)
-        try:
-            f = h5py.File(tmp, "r+")
-        except OSError as exc:
-            raise FileFormatError(f"{src} is not a writable HDF5 file: {exc}") from exc
-        with f:
-            try:
-                if FUSED_GROUP in f:
-                    del f[FUSED_GROUP]
-            except H5_ERRORS as exc:
-                raise FileFormatError(f"{src}: /{FUSED_GROUP} cannot be replaced (damaged "
-                                      f"file?): {exc}") from exc
-            _fill_group(f.create_group(FUSED_GROUP), _with_clock(fused, f))
-    return dst
+    with edited_copy(path, output) as f:
+        _fill_group(replace_group(f, FUSED_GROUP, path), _with_clock(fused, f))
+    return Path(path) if output is None else Path(output)
 
 
 def _recording_clock(f: h5py.File) -> tuple[float | None, float | None]:

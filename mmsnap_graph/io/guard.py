@@ -7,14 +7,16 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 from pathlib import Path
 from typing import Iterator
 
 import h5py
 
+from .._atomic import atomic_path, recording_lock
 from ..errors import FileFormatError, MmsnapError
 
-__all__ = ["H5_ERRORS", "read_guard", "open_group"]
+__all__ = ["H5_ERRORS", "read_guard", "open_group", "edited_copy", "replace_group"]
 
 #: What h5py and numpy raise on a damaged file.
 H5_ERRORS = (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, OverflowError,
@@ -57,3 +59,39 @@ def open_group(path: str | os.PathLike, name: str, missing: str) -> Iterator[h5p
             if name not in f:
                 raise FileFormatError(f"{path}{missing}")
             yield f[name]
+
+
+@contextlib.contextmanager
+def edited_copy(path: str | os.PathLike, output: str | os.PathLike | None = None
+                ) -> Iterator[h5py.File]:
+    """The recording at ``path`` copied to a temporary file beside the
+    destination (``output``, default ``path``) and open for writing; when the
+    block ends without an error the copy is moved over the destination
+    (:func:`mmsnap_graph._atomic.atomic_path`), else the destination is left
+    as it was. Both files' locks are held throughout (concurrent writers
+    wait). A missing or unwritable file raises :class:`FileFormatError`."""
+    src = Path(path)
+    dst = src if output is None else Path(output)
+    with recording_lock(src), recording_lock(dst), atomic_path(dst) as tmp:
+        if not src.exists():
+            raise FileFormatError(f"{src} does not exist")
+        shutil.copyfile(src, tmp)
+        try:
+            f = h5py.File(tmp, "r+")
+        except H5_ERRORS as exc:
+            raise FileFormatError(f"{src} is not a writable HDF5 file: {exc}") from exc
+        with f:
+            yield f
+
+
+def replace_group(f: h5py.File, name: str, path: str | os.PathLike) -> h5py.Group:
+    """A new, empty group ``/name`` of ``f``, replacing an existing one (a
+    damaged one that cannot be removed raises :class:`FileFormatError`
+    naming ``path``)."""
+    try:
+        if name in f:
+            del f[name]
+    except H5_ERRORS as exc:
+        raise FileFormatError(f"{path}: /{name} cannot be replaced (damaged file?): "
+                              f"{exc}") from exc
+    return f.create_group(name)

@@ -13,16 +13,14 @@ pass as another group).
 from __future__ import annotations
 
 import os
-import shutil
 from pathlib import Path
 
 import h5py
 import numpy as np
 
-from .._atomic import atomic_path, recording_lock
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..errors import FileFormatError, MmsnapError
-from .guard import H5_ERRORS, read_guard
+from .guard import H5_ERRORS, edited_copy, read_guard
 
 __all__ = ["NOISE_GROUP", "NOISE_LAYOUT", "write_noise", "read_noise", "fill_noise_group",
            "noise_for_fusion"]
@@ -78,25 +76,15 @@ def write_noise(path: str | os.PathLike, estimate: NoiseEstimate, *,
     beside the target, the group written there, and the copy moved over the
     target. Returns the path written.
     """
-    src = Path(path)
-    dst = src if output is None else Path(output)
-    with recording_lock(src), recording_lock(dst), atomic_path(dst) as tmp:
-        if not src.exists():
-            raise FileFormatError(f"{src} does not exist")
-        shutil.copyfile(src, tmp)
+    with edited_copy(path, output) as f:
         try:
-            f = h5py.File(tmp, "r+")
+            fill_noise_group(f, estimate)
         except H5_ERRORS as exc:
-            raise FileFormatError(f"{src} is not a writable HDF5 file: {exc}") from exc
-        with f:
-            try:
-                fill_noise_group(f, estimate)
-            except H5_ERRORS as exc:
-                if isinstance(exc, MmsnapError):
-                    raise
-                raise FileFormatError(f"{src}: /{NOISE_GROUP} cannot be written (damaged "
-                                      f"file?): {exc}") from exc
-    return dst
+            if isinstance(exc, MmsnapError):
+                raise
+            raise FileFormatError(f"{path}: /{NOISE_GROUP} cannot be written (damaged "
+                                  f"file?): {exc}") from exc
+    return Path(path) if output is None else Path(output)
 
 
 def _text(v) -> str:
