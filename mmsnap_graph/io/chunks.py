@@ -37,7 +37,7 @@ from ..data.recording import Detections, NodeData, Recording
 from ..data.results import FusedSequence
 from ..errors import FileFormatError, MmsnapError
 from .fused import FUSED_GROUP, write_fused
-from .guard import H5_ERRORS, edited_copy, read_guard, replace_group
+from .guard import H5_ERRORS, edited_copy, open_for_reading, read_guard, replace_group
 from .hdf5 import FORMAT_NAME, FORMAT_VERSION
 
 __all__ = ["DetectionWindows", "open_detection_windows", "FusedWriter", "fused_writer"]
@@ -231,28 +231,20 @@ def open_detection_windows(path: str | os.PathLike, *, source: str = "centroids"
     path = Path(path)
     if source not in ("centroids", "point_cloud"):
         raise FileFormatError(f"source must be 'centroids' or 'point_cloud', got {source!r}")
-    if not path.exists():
-        raise FileFormatError(f"{path} does not exist")
-    with read_guard(path):
-        try:
-            f = h5py.File(path, "r")
-        except H5_ERRORS as exc:
-            raise FileFormatError(f"{path} is not a readable HDF5 file (truncated or corrupt): "
-                                  f"{exc}") from exc
-        with f:
-            _check_format(f, path)
-            period = _frame_period(f, path)
-            names = _node_order(f, path)
-            poses, frames, orders = {}, {}, {}
-            for name in names:
-                group = _members(f["nodes"], path)[name]
-                if not isinstance(group, h5py.Group):
-                    raise FileFormatError(f"{path}: {group.name} must be a group")
-                poses[name] = _pose(group, path)
-                level = _members(group, path).get(source)
-                if level is not None and not isinstance(level, h5py.Group):
-                    raise FileFormatError(f"{path}: {level.name} must be a group")
-                frames[name] = None if level is None else _frames(level, path)
+    with open_for_reading(path) as f:
+        _check_format(f, path)
+        period = _frame_period(f, path)
+        names = _node_order(f, path)
+        poses, frames, orders = {}, {}, {}
+        for name in names:
+            group = _members(f["nodes"], path)[name]
+            if not isinstance(group, h5py.Group):
+                raise FileFormatError(f"{path}: {group.name} must be a group")
+            poses[name] = _pose(group, path)
+            level = _members(group, path).get(source)
+            if level is not None and not isinstance(level, h5py.Group):
+                raise FileFormatError(f"{path}: {level.name} must be a group")
+            frames[name] = None if level is None else _frames(level, path)
     for name, fr in frames.items():
         orders[name] = None if fr is None or np.all(fr[1:] >= fr[:-1]) else \
             np.argsort(fr, kind="stable")

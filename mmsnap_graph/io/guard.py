@@ -16,7 +16,8 @@ import h5py
 from .._atomic import atomic_path, recording_lock
 from ..errors import FileFormatError, MmsnapError
 
-__all__ = ["H5_ERRORS", "read_guard", "open_group", "edited_copy", "replace_group"]
+__all__ = ["H5_ERRORS", "read_guard", "open_for_reading", "open_group", "edited_copy",
+           "replace_group"]
 
 #: What h5py and numpy raise on a damaged file.
 H5_ERRORS = (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, OverflowError,
@@ -42,11 +43,10 @@ def read_guard(path: str | os.PathLike) -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def open_group(path: str | os.PathLike, name: str, missing: str) -> Iterator[h5py.Group]:
-    """The group ``/name`` of the HDF5 file at ``path``, open for reading,
-    inside :func:`read_guard`. A missing file or group, or a file h5py cannot
-    open, raises :class:`FileFormatError` naming the file (``missing`` is the
-    message's tail for a missing group, e.g. "has no /fused group; ...")."""
+def open_for_reading(path: str | os.PathLike) -> Iterator[h5py.File]:
+    """The HDF5 file at ``path`` open for reading, inside :func:`read_guard`.
+    A missing file, or one h5py cannot open (truncated, corrupt), raises
+    :class:`FileFormatError` naming it."""
     path = Path(path)
     if not path.exists():
         raise FileFormatError(f"{path} does not exist")
@@ -54,11 +54,23 @@ def open_group(path: str | os.PathLike, name: str, missing: str) -> Iterator[h5p
         try:
             f = h5py.File(path, "r")
         except H5_ERRORS as exc:
-            raise FileFormatError(f"{path} is not a readable HDF5 file: {exc}") from exc
+            raise FileFormatError(f"{path} is not a readable HDF5 file (truncated or "
+                                  f"corrupt?): {exc}") from exc
         with f:
-            if name not in f:
-                raise FileFormatError(f"{path}{missing}")
-            yield f[name]
+            yield f
+
+
+@contextlib.contextmanager
+def open_group(path: str | os.PathLike, name: str, missing: str) -> Iterator[h5py.Group]:
+    """The group ``/name`` of the HDF5 file at ``path``, open for reading,
+    inside :func:`read_guard`. A missing file or group, or a file h5py cannot
+    open, raises :class:`FileFormatError` naming the file (``missing`` is the
+    message's tail for a missing group, e.g. "has no /fused group; ...")."""
+    path = Path(path)
+    with open_for_reading(path) as f:
+        if name not in f:
+            raise FileFormatError(f"{path}{missing}")
+        yield f[name]
 
 
 @contextlib.contextmanager

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..errors import FileFormatError, MmsnapError
-from .guard import H5_ERRORS, edited_copy, read_guard
+from .guard import H5_ERRORS, edited_copy, open_for_reading
 
 __all__ = ["NOISE_GROUP", "NOISE_LAYOUT", "write_noise", "read_noise", "fill_noise_group",
            "noise_for_fusion"]
@@ -140,20 +140,13 @@ def read_noise(path: str | os.PathLike) -> NoiseEstimate | None:
     inconsistent group, raises :class:`FileFormatError` naming the file and
     the field."""
     p = Path(path)
-    if not p.exists():
-        raise FileFormatError(f"{p} does not exist")
-    with read_guard(p):
-        try:
-            f = h5py.File(p, "r")
-        except H5_ERRORS as exc:
-            raise FileFormatError(f"{p} is not a readable HDF5 file: {exc}") from exc
-        with f:
-            if NOISE_GROUP not in f:
-                return None
-            g = f[NOISE_GROUP]
-            if not isinstance(g, h5py.Group):
-                raise FileFormatError(f"{p}:/{NOISE_GROUP} is not a group")
-            return _read_group(g, f"{p}:/{NOISE_GROUP}")
+    with open_for_reading(p) as f:
+        if NOISE_GROUP not in f:
+            return None
+        g = f[NOISE_GROUP]
+        if not isinstance(g, h5py.Group):
+            raise FileFormatError(f"{p}:/{NOISE_GROUP} is not a group")
+        return _read_group(g, f"{p}:/{NOISE_GROUP}")
 
 
 def noise_for_fusion(path: str | os.PathLike, node_names, *, per_node: bool = True
