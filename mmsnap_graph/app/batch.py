@@ -39,7 +39,6 @@ from threadpoolctl import threadpool_limits  # a scikit-learn dependency
 from ..errors import MmsnapError, ValidationError
 from .commands.fuse import (
     DEFAULT_ROBUST,
-    accepts_per_node_noise,
     calibration_options,
     stored_calibration,
 )
@@ -195,7 +194,7 @@ def _step_fuse(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
     options = dict(options)
     if "noise" not in options:  # as `mmsnap fuse`: /noise per node, else the paper's
         options["noise"], _ = _library("noise_for_fusion")(
-            src, rec.node_names, per_node=accepts_per_node_noise(_library("fuse_recording")))
+            src, rec.node_names, per_node=True)
     options.setdefault("robust", DEFAULT_ROBUST)
     if "pose_covariances" not in options and "time_offset_s" not in options:
         # as `mmsnap fuse`: the stored calibration's pose covariances and clocks

@@ -119,19 +119,10 @@ def calibration_options(args, cal) -> tuple[dict, list[str]]:
     return opts, text
 
 
-def accepts_per_node_noise(fuse) -> bool:
-    """True when ``fuse`` (``fuse_recording``) takes a mapping node name ->
-    MeasurementNoise as ``noise`` (issue 11; until then one noise for all)."""
-    import inspect
-
-    ann = inspect.signature(fuse).parameters["noise"].annotation
-    return "Mapping" in str(ann)
-
-
-def choose_noise(args, path, node_names, fuse):
-    """(noise to pass to ``fuse``, what it is in words): ``--sigmas``, else
-    the ``/noise`` group per node (pooled into one noise when ``fuse`` takes
-    only one), else the paper's (:func:`mmsnap_graph.io.noise.noise_for_fusion`)."""
+def choose_noise(args, path, node_names):
+    """(noise for ``fuse_recording``, what it is in words): ``--sigmas``, else
+    each node's sigmas of the ``/noise`` group, else the paper's
+    (:func:`mmsnap_graph.io.noise.noise_for_fusion`)."""
     from mmsnap_graph.data.noise import MeasurementNoise
     from mmsnap_graph.io.noise import noise_for_fusion
 
@@ -139,12 +130,11 @@ def choose_noise(args, path, node_names, fuse):
         r, w, v = args.sigmas
         return (MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v),
                 "sigmas from --sigmas")
-    return noise_for_fusion(path, node_names, per_node=accepts_per_node_noise(fuse))
+    return noise_for_fusion(path, node_names, per_node=True)
 
 
 def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.app.chunked_fuse import fuse_file
-    from mmsnap_graph.fusion.sequence import fuse_recording
     from mmsnap_graph.io.chunks import open_detection_windows
 
     if args.grid_points < 5 or args.grid_points % 2 == 0:
@@ -157,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         # Node names only: the detections are read, fused and written window
         # by window (long recordings in bounded memory, issue 13).
         names = open_detection_windows(args.recording, source=args.source).node_names
-        noise, noise_text = choose_noise(args, args.recording, names, fuse_recording)
+        noise, noise_text = choose_noise(args, args.recording, names)
         cal = stored_calibration(args, args.recording)
         options, cal_text = calibration_options(args, cal)
         print(noise_text, file=sys.stdout)
