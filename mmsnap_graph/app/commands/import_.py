@@ -234,8 +234,7 @@ def run_uart(args: argparse.Namespace) -> int:
             raise ValidationError(f"--node {name} is given {len(paths)} times; one log per node")
         log = read_ti_uart(paths[0], demo=args.demo)
         for bad in log.bad[:10]:
-            print(f"{name}: skipped packet {bad.index} at byte {bad.byte_offset}: {bad.reason}",
-                  file=sys.stderr)
+            print(f"{name}: skipped {bad}", file=sys.stderr)
         if len(log.bad) > 10:
             print(f"{name}: ... {len(log.bad) - 10} more bad packets", file=sys.stderr)
         clouds[name] = log.points
