@@ -140,6 +140,54 @@ def write_dca_sample(out_dir: Path) -> None:
                                                          for parts in zip(*frames)))
 
 
+#: The .cfg of the fast-target sample (data/ti/dca1000_fast.bin): one
+#: profile, TX0, TX2, TX1 in turn (TDM-MIMO), 16 loops of 150 us: the
+#: unambiguous speed is +-6.41 m/s.
+FAST_CFG = """\
+% AWR1843BOOST, TDM-MIMO TX0, TX2, TX1, 16 loops: a target faster than the unambiguous speed
+sensorStop
+flushCfg
+dfeDataOutputMode 1
+channelCfg 15 7 0
+adcCfg 2 1
+adcbufCfg -1 0 1 1 1
+profileCfg 0 77 10 3 40 0 0 50 1 64 2000 0 0 30
+chirpCfg 0 0 0 0 0 0 0 1
+chirpCfg 1 1 0 0 0 0 0 4
+chirpCfg 2 2 0 0 0 0 0 2
+frameCfg 0 2 16 0 50 1 0
+lvdsStreamCfg -1 0 1 0
+sensorStart
+"""
+#: The fast target: range at frame 0 (m), azimuth (rad), radial speed (m/s,
+#: approaching), one point scatterer moving straight at the radar.
+FAST_TARGET = (4.0, 0.3, -8.5)
+
+
+def fast_sample_cubes(n_frames=3, seed=0):
+    """Node S1's cubes of the fast target (int16 counts as complex)."""
+    from mmsnap_graph.io.ti_cfg import parse_ti_cfg
+    from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cube
+    cfg = parse_ti_cfg(FAST_CFG, board="AWR1843BOOST").configs[0]
+    rng = np.random.default_rng(seed)
+    r0, azimuth, speed = FAST_TARGET
+    cubes = []
+    for k in range(n_frames):
+        r = r0 + speed * cfg.frame_period_s * k
+        p = np.array([[r * np.sin(azimuth), r * np.cos(azimuth)]])
+        cube = synthesize_cube(cfg, p, speed * p / r, scatterer_amplitude(cfg, 1.0, r),
+                               rng=rng) * DCA_SCALE
+        cubes.append(np.round(cube.real) + 1j * np.round(cube.imag))
+    return cfg, np.stack(cubes)
+
+
+def write_fast_sample(out_dir: Path) -> None:
+    from mmsnap_graph.io import write_dca1000_bin
+    (out_dir / "dca1000_fast.cfg").write_text(FAST_CFG)
+    cfg, cubes = fast_sample_cubes()
+    write_dca1000_bin(out_dir / "dca1000_fast.bin", cubes, cfg)
+
+
 def main(out_dir: Path = DATA) -> None:
     out_dir = Path(out_dir)
     rec = simulated()
@@ -151,6 +199,7 @@ def main(out_dir: Path = DATA) -> None:
     table_rows(rec, room=True).to_csv(out_dir / "points_room_frame.csv", index=False,
                                       float_format="%.6f")
     write_dca_sample(out_dir)
+    write_fast_sample(out_dir)
 
 
 if __name__ == "__main__":
