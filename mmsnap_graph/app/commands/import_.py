@@ -146,7 +146,9 @@ def run_dca1000(args: argparse.Namespace) -> int:
                                  iq_swap=args.iq_swap,
                                  allow_partial_frame=args.allow_partial_frame,
                                  sub_frame=sub_frame,
-                                 metadata={"board": ti.board, "cfg": str(args.cfg)})
+                                 metadata={"board": ti.board, "cfg": str(args.cfg),
+                                           **({} if sub_frame is None
+                                              else {"sub_frame": int(sub_frame)})})
     return _write(args, rec)
 
 
