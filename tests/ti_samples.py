@@ -29,9 +29,12 @@ from _shared import TI_DATA as DATA  # noqa: E402
 #: node -> (mounting height m, down tilt rad) of the samples.
 MOUNTS = {"S1": (0.8, np.deg2rad(5.0)), "S2": (1.2, np.deg2rad(15.0))}
 FRAME_PERIOD_S = 0.05
+#: Frames of the point-cloud samples: 5 s at 20 fps, enough for ``mmsnap
+#: calibrate`` to match the two nodes' tracks (docs/TI.md's walkthrough).
+SAMPLE_FRAMES = 100
 
 
-def simulated(n_frames=20, seed=1):
+def simulated(n_frames=SAMPLE_FRAMES, seed=1):
     """A simulated recording (point clouds) at 20 fps."""
     return simulate_recording("C", "straight", levels=["point_cloud"], n_frames=n_frames,
                               frame_period_s=FRAME_PERIOD_S, seed=seed)
@@ -103,13 +106,18 @@ sensorStart
 DCA_SCALE = 100.0
 
 
-def dca_sample_cubes(n_frames=3, seed=4):
-    """Node S1's simulated cubes of each sub-frame (int16 counts as complex)."""
+def dca_sample_cubes(n_frames=3, seed=1):
+    """Node S1's simulated cubes of each sub-frame (int16 counts as complex).
+
+    A random walk whose radial speed (0.7-0.9 m/s) keeps the target out of
+    the zero-Doppler bin, which static clutter removal empties: with only 8
+    loops, the straight walk's first frames (|Doppler| < 0.1 m/s) left
+    ``mmsnap process`` no point at all."""
     from mmsnap_graph.io.ti_cfg import parse_ti_cfg
     ti = parse_ti_cfg(DCA_CFG, board="AWR1843BOOST")
     cubes = []
     for cfg in ti.configs:
-        rec = simulate_recording("C", "straight", levels=["cube"], n_frames=n_frames,
+        rec = simulate_recording("C", "random", levels=["cube"], n_frames=n_frames,
                                  radar=cfg, seed=seed)
         cube = rec.nodes["S1"].cube * DCA_SCALE
         cubes.append(np.round(cube.real) + 1j * np.round(cube.imag))
@@ -132,17 +140,66 @@ def write_dca_sample(out_dir: Path) -> None:
                                                          for parts in zip(*frames)))
 
 
+#: The .cfg of the fast-target sample (data/ti/dca1000_fast.bin): one
+#: profile, TX0, TX2, TX1 in turn (TDM-MIMO), 16 loops of 150 us: the
+#: unambiguous speed is +-6.41 m/s.
+FAST_CFG = """\
+% AWR1843BOOST, TDM-MIMO TX0, TX2, TX1, 16 loops: a target faster than the unambiguous speed
+sensorStop
+flushCfg
+dfeDataOutputMode 1
+channelCfg 15 7 0
+adcCfg 2 1
+adcbufCfg -1 0 1 1 1
+profileCfg 0 77 10 3 40 0 0 50 1 64 2000 0 0 30
+chirpCfg 0 0 0 0 0 0 0 1
+chirpCfg 1 1 0 0 0 0 0 4
+chirpCfg 2 2 0 0 0 0 0 2
+frameCfg 0 2 16 0 50 1 0
+lvdsStreamCfg -1 0 1 0
+sensorStart
+"""
+#: The fast target: range at frame 0 (m), azimuth (rad), radial speed (m/s,
+#: approaching), one point scatterer moving straight at the radar.
+FAST_TARGET = (4.0, 0.3, -8.5)
+
+
+def fast_sample_cubes(n_frames=3, seed=0):
+    """Node S1's cubes of the fast target (int16 counts as complex)."""
+    from mmsnap_graph.io.ti_cfg import parse_ti_cfg
+    from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cube
+    cfg = parse_ti_cfg(FAST_CFG, board="AWR1843BOOST").configs[0]
+    rng = np.random.default_rng(seed)
+    r0, azimuth, speed = FAST_TARGET
+    cubes = []
+    for k in range(n_frames):
+        r = r0 + speed * cfg.frame_period_s * k
+        p = np.array([[r * np.sin(azimuth), r * np.cos(azimuth)]])
+        cube = synthesize_cube(cfg, p, speed * p / r, scatterer_amplitude(cfg, 1.0, r),
+                               rng=rng) * DCA_SCALE
+        cubes.append(np.round(cube.real) + 1j * np.round(cube.imag))
+    return cfg, np.stack(cubes)
+
+
+def write_fast_sample(out_dir: Path) -> None:
+    from mmsnap_graph.io import write_dca1000_bin
+    (out_dir / "dca1000_fast.cfg").write_text(FAST_CFG)
+    cfg, cubes = fast_sample_cubes()
+    write_dca1000_bin(out_dir / "dca1000_fast.bin", cubes, cfg)
+
+
 def main(out_dir: Path = DATA) -> None:
     out_dir = Path(out_dir)
     rec = simulated()
-    height, tilt = MOUNTS["S1"]
-    write_uart_log(out_dir / "oob_uart_S1.bin", rec.nodes["S1"].point_cloud, height, tilt,
-                   seed=0)
+    for k, (name, (height, tilt)) in enumerate(MOUNTS.items()):
+        write_uart_log(out_dir / f"oob_uart_{name}.bin", rec.nodes[name].point_cloud, height,
+                       tilt, seed=k)
     table_rows(rec, room=False).to_csv(out_dir / "points_sensor_frame.csv", index=False,
                                        float_format="%.6f")
     table_rows(rec, room=True).to_csv(out_dir / "points_room_frame.csv", index=False,
                                       float_format="%.6f")
     write_dca_sample(out_dir)
+    write_fast_sample(out_dir)
 
 
 if __name__ == "__main__":

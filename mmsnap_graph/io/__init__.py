@@ -3,14 +3,22 @@
 - :func:`write_recording`, :func:`update_recording`, :func:`read_recording`,
   :func:`iter_cubes`: the HDF5 recording format;
 - :func:`write_fused`, :func:`read_fused`: the ``/fused`` group of one-shot estimates;
-- :func:`read_dca1000_bin`: TI DCA1000 / mmWave Studio raw ADC ``.bin`` captures.
+- :func:`read_dca1000_bin`, :func:`read_dca1000_sub_frame`: TI DCA1000 /
+  mmWave Studio raw ADC ``.bin`` captures;
+- TI data (docs/TI.md): :func:`read_ti_cfg` (mmWave SDK ``.cfg`` / mmWave
+  Studio JSON -> one ``RadarConfig`` per sub-frame), :func:`read_ti_uart`
+  (UART TLV logs), :func:`read_point_tables` (CSV / ``.npy`` / DataFrame
+  point logs), :func:`recording_from_point_clouds` (3D points of mounted,
+  tilted radars -> a recording).
 """
 
 from .dca1000 import (
     frame_bytes,
     iter_dca1000_frames,
     read_dca1000_bin,
+    read_dca1000_sub_frame,
     recording_from_dca1000,
+    sub_frame_layout,
     write_dca1000_bin,
 )
 from .fused import FUSED_GROUP, FUSED_LAYOUT, read_fused, write_fused
@@ -23,6 +31,10 @@ from .hdf5 import (
     update_recording,
     write_recording,
 )
+from .point_cloud import Mounting, PointCloud3D, recording_from_point_clouds
+from .point_table import read_point_table, read_point_tables
+from .ti_cfg import BOARD_PRESETS, BoardLayout, TiConfig, parse_ti_cfg, read_ti_cfg
+from .ti_uart import BadFrame, UartLog, parse_ti_uart, read_ti_uart
 
 __all__ = [
     "FORMAT_NAME",
@@ -37,6 +49,22 @@ __all__ = [
     "iter_dca1000_frames",
     "write_dca1000_bin",
     "recording_from_dca1000",
+    "read_dca1000_sub_frame",
+    "sub_frame_layout",
+    "BOARD_PRESETS",
+    "BoardLayout",
+    "TiConfig",
+    "parse_ti_cfg",
+    "read_ti_cfg",
+    "BadFrame",
+    "UartLog",
+    "parse_ti_uart",
+    "read_ti_uart",
+    "PointCloud3D",
+    "Mounting",
+    "read_point_table",
+    "read_point_tables",
+    "recording_from_point_clouds",
     "FUSED_GROUP",
     "FUSED_LAYOUT",
     "write_fused",

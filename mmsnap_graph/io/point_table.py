@@ -102,20 +102,75 @@ def _kind(cols: dict, coordinates: str, name: str, present: list[str]) -> str:
         if not have(SPHERICAL_COLUMNS):
             return "spherical"
         cart, sph = have(CARTESIAN_COLUMNS), have(SPHERICAL_COLUMNS)
-        raise FileFormatError(f"{name}: missing columns: Cartesian points need {cart}, "
-                              f"spherical points need {sph} (columns present: {present})")
+        raise FileFormatError(f"{name}: missing columns: Cartesian points need {cart} "
+                              f"({_short(cart)}), spherical points need {sph} ({_short(sph)}) "
+                              f"(columns present: {present})")
     required = CARTESIAN_COLUMNS if coordinates == "cartesian" else SPHERICAL_COLUMNS
     if have(required):
         raise FileFormatError(f"{name}: missing {coordinates} columns {have(required)} "
-                              f"(columns present: {present})")
+                              f"({_short(have(required))}) (columns present: {present})")
     return coordinates
 
 
-def _float(cols: dict, key: str, name: str) -> NDArray:
+def _short(canonical: list[str]) -> str:
+    """The names a log usually has for these columns: ``or z, doppler``."""
+    return "or " + ", ".join(_ALIASES[c][1] for c in canonical)
+
+
+class _Rows:
+    """Names a table row for an error: ``line N`` of a CSV file (counted only
+    when an error needs it: blank and ``#`` lines are skipped as pandas
+    does), else ``row N`` (0-based, a DataFrame's position)."""
+
+    def __init__(self, source: Any):
+        self._path = (Path(source) if isinstance(source, (str, os.PathLike))
+                      and Path(source).suffix.lower() not in (".npy", ".npz") else None)
+        self._lines: list[int] | None = None
+
+    def __call__(self, row: int) -> str:
+        if self._path is None:
+            return f"row {row}"
+        if self._lines is None:
+            text = self._path.read_text(errors="replace").splitlines()
+            self._lines = [k for k, line in enumerate(text, start=1)
+                           if line.strip() and not line.lstrip().startswith("#")]
+        k = row + 1                                   # the header is the first line kept
+        return f"line {self._lines[k]}" if k < len(self._lines) else f"row {row}"
+
+
+def _scalar(value: Any) -> Any:
+    """A NumPy scalar as the plain Python value (for ``repr`` in messages)."""
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _first_bad_value(column: NDArray) -> int:
+    """Index of the first entry that is not a number (-1 if none)."""
+    for i, value in enumerate(np.asarray(column, dtype=object).ravel()):
+        try:
+            float(value)
+        except (TypeError, ValueError):
+            return i
+    return -1
+
+
+def _float(cols: dict, key: str, name: str, where: _Rows) -> NDArray:
     try:
         return np.asarray(cols[key], dtype=float)
     except (TypeError, ValueError):
-        raise FileFormatError(f"{name}: column {key} must be numeric") from None
+        bad = _first_bad_value(cols[key])
+        value = np.asarray(cols[key], dtype=object).ravel()[bad] if bad >= 0 else None
+        at = f"; {where(bad)} holds {_scalar(value)!r}" if bad >= 0 else ""
+        raise FileFormatError(f"{name}: column {key} must be numeric{at}") from None
+
+
+def _checked(values: NDArray, key: str, rows: NDArray, name: str, where: _Rows) -> NDArray:
+    """``values`` (the column ``key`` at ``rows``) if finite, else an error
+    naming the first row that is not (an empty CSV cell is NaN)."""
+    if key in ("snr_db", "noise_db") or np.all(np.isfinite(values)):
+        return values                               # side info may be missing (NaN)
+    j = int(np.flatnonzero(~np.isfinite(values))[0])
+    raise FileFormatError(f"{name}: column {key} must be finite; point {j} ({where(rows[j])}) "
+                          f"holds {float(values[j])!r}")
 
 
 def _frames_from_time(time_s: NDArray, frame_period_s: float | None) -> NDArray:
@@ -126,13 +181,15 @@ def _frames_from_time(time_s: NDArray, frame_period_s: float | None) -> NDArray:
 
 
 def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, degrees: bool,
-           time_unit: str, frame_period_s: float | None) -> PointCloud3D:
-    get = lambda k: _float(cols, k, name)[rows]
+           time_unit: str, frame_period_s: float | None, where: _Rows) -> PointCloud3D:
+    get = lambda k: _checked(_float(cols, k, name, where)[rows], k, rows, name, where)
     time = get("time_s") * _TIME_UNITS[time_unit] if "time_s" in cols else None
     if "frame" in cols:
         frame = get("frame")
-        if not np.all(np.isfinite(frame)) or np.any(frame != np.round(frame)):
-            raise FileFormatError(f"{name}: column frame must hold integers")
+        if np.any(frame != np.round(frame)):
+            bad = rows[np.flatnonzero(frame != np.round(frame))[0]]
+            raise FileFormatError(f"{name}: column frame must hold integers; {where(bad)} "
+                                  f"holds {_scalar(cols['frame'][bad])!r}")
         frame = frame.astype(np.int64)
     else:
         frame = _frames_from_time(time, frame_period_s)
@@ -165,7 +222,9 @@ def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
     frame_period_s)`` when there is no frame column (else the distinct time
     stamps are numbered in order). default_node : the node of a table
     without a node column.
-    Raises :class:`FileFormatError` naming the missing columns and the table.
+    Raises :class:`FileFormatError` naming the missing columns and the table,
+    or a value that is not a finite number (or a frame that is not an integer)
+    with its line in a CSV file (its row in a DataFrame).
     """
     if coordinates not in ("auto", "cartesian", "spherical"):
         raise ValidationError(f"coordinates={coordinates!r} must be 'auto', 'cartesian' or "
@@ -181,13 +240,12 @@ def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
                               f"stamp (time_s) is needed (columns present: {present})")
     kind = _kind(cols, coordinates, name, present)
     n = len(next(iter(cols.values())))
+    opts = dict(name=name, degrees=degrees, time_unit=time_unit,
+                frame_period_s=frame_period_s, where=_Rows(source))
     if "node" not in cols:
-        return {default_node: _cloud(cols, np.arange(n), kind, name=name, degrees=degrees,
-                                     time_unit=time_unit, frame_period_s=frame_period_s)}
+        return {default_node: _cloud(cols, np.arange(n), kind, **opts)}
     nodes = np.asarray(cols["node"]).astype(str)
-    return {str(node): _cloud(cols, np.flatnonzero(nodes == node), kind, name=name,
-                              degrees=degrees, time_unit=time_unit,
-                              frame_period_s=frame_period_s)
+    return {str(node): _cloud(cols, np.flatnonzero(nodes == node), kind, **opts)
             for node in dict.fromkeys(nodes.tolist())}
 
 

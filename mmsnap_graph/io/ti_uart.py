@@ -69,11 +69,26 @@ _SPHERICAL = np.dtype([("el", "i1"), ("az", "i1"), ("v", "<i2"), ("r", "<u2"), (
 class BadFrame:
     """A frame that could not be read: ``index`` = its position among the
     packets of the stream (0-based; -1 for bytes before any magic word),
-    ``byte_offset`` = where it starts, ``reason``."""
+    ``byte_offset`` = where it starts, ``reason``; ``frame_number`` = the
+    frame number of its header when the header was read, ``gap`` = True for
+    bytes without a magic word after packet ``index`` (not a packet)."""
 
     index: int
     byte_offset: int
     reason: str
+    frame_number: int | None = None
+    gap: bool = False
+
+    def __str__(self) -> str:
+        """What a report names: ``packet 98 (frame 100) at byte 45920:
+        truncated: ...``, ``480 bytes without a magic word at byte 480, after
+        packet 0 (frame 1)``, ``7 bytes before the first magic word``."""
+        if self.index < 0:
+            return self.reason
+        frame = "" if self.frame_number is None else f" (frame {self.frame_number})"
+        if self.gap:
+            return f"{self.reason} at byte {self.byte_offset}, after packet {self.index}{frame}"
+        return f"packet {self.index}{frame} at byte {self.byte_offset}: {self.reason}"
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -172,30 +187,31 @@ def _scan(data: bytes, demo: str) -> Iterator[_Frame | BadFrame]:
     pos = data.find(MAGIC_WORD)
     if pos != 0:
         where = len(data) if pos < 0 else pos
-        yield BadFrame(-1, 0, f"{where} bytes before the first magic word skipped")
+        yield BadFrame(-1, 0, f"{where} bytes before the first magic word")
     index = 0
     while pos >= 0:
         if pos + hsize > len(data):
             yield BadFrame(index, pos, f"truncated header: {len(data) - pos} of {hsize} bytes")
             return
-        total = _HEADER[demo].unpack_from(data, pos)[2]
+        header = _HEADER[demo].unpack_from(data, pos)
+        total, number = header[2], int(header[4])
         nxt = data.find(MAGIC_WORD, pos + len(MAGIC_WORD))
         if not hsize <= total <= MAX_PACKET_BYTES:
             yield BadFrame(index, pos, f"implausible totalPacketLen={total}")
         elif pos + total > len(data):
-            yield BadFrame(index, pos, f"truncated: {len(data) - pos} of {total} bytes")
+            yield BadFrame(index, pos, f"truncated: {len(data) - pos} of {total} bytes", number)
         elif 0 <= nxt < pos + total:
             yield BadFrame(index, pos, f"cut short: the next magic word comes at byte {nxt}, "
-                                       f"{nxt - pos} bytes into a {total}-byte packet")
+                                       f"{nxt - pos} bytes into a {total}-byte packet", number)
         else:
             try:
                 yield _decode_packet(data[pos:pos + total], demo)
             except _BadPacket as exc:
-                yield BadFrame(index, pos, str(exc))
+                yield BadFrame(index, pos, str(exc), number)
             if pos + total < len(data) and data[pos + total:pos + total + 8] != MAGIC_WORD:
                 gap = (len(data) if nxt < 0 else nxt) - pos - total
-                yield BadFrame(index, pos + total, f"{gap} bytes without a magic word after "
-                                                   "the packet skipped")
+                yield BadFrame(index, pos + total, f"{gap} bytes without a magic word", number,
+                               gap=True)
         index += 1
         pos = nxt
 
@@ -220,8 +236,7 @@ def parse_ti_uart(data: bytes, *, demo: Literal["oob", "tracking"] = "oob",
     for item in _scan(data, demo):
         (bad if isinstance(item, BadFrame) else good).append(item)
     if not good:
-        reasons = "; ".join(f"packet {b.index} at byte {b.byte_offset}: {b.reason}"
-                            for b in bad[:3])
+        reasons = "; ".join(str(b) for b in bad[:3])
         raise FileFormatError(f"no readable {demo} frame in {len(data)} bytes ({reasons})")
     cloud, sub = _assemble(good, frame_period_s)
     return UartLog(points=cloud, sub_frame=sub, bad=tuple(bad),

@@ -12,10 +12,13 @@ outside its 95% interval) is printed with its value and interval; with
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 
 import numpy as np
+
+from .arguments import named_pose
 
 
 def register(subparsers) -> None:
@@ -28,6 +31,11 @@ def register(subparsers) -> None:
     p.add_argument("--calibration", default=None,
                    help="calibration JSON whose poses are evaluated and used to place the "
                         "tracks (default: the poses stored on the nodes)")
+    p.add_argument("--surveyed", action="append", type=named_pose, default=[],
+                   metavar="NAME=X,Y,PHI_DEG",
+                   help="a surveyed node pose (repeat; degrees) to score the calibrated poses "
+                        "against, in place of /truth's; a recording without /truth (a real "
+                        "capture) then gets pose errors alone")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.add_argument("--check", action="store_true",
                    help="exit with status 1 when a consistency check fails (the fused states' "
@@ -79,6 +87,23 @@ def format_metrics(m: dict, path: str) -> str:
     return "\n".join(lines)
 
 
+def surveyed_truth(rec, surveyed: dict):
+    """``rec``'s truth with its node poses replaced by ``surveyed`` (name ->
+    (3,) pose, radians), or a truth of surveyed poses alone (no trajectory)
+    when the recording has none. A name that is not a node is a
+    :class:`ValidationError`."""
+    from mmsnap_graph.data.recording import Truth
+    from mmsnap_graph.errors import ValidationError
+    unknown = sorted(set(surveyed) - set(rec.nodes))
+    if unknown:
+        raise ValidationError(f"--surveyed {unknown[0]}: no such node (nodes: {rec.node_names})")
+    poses = {name: np.asarray(pose, dtype=float) for name, pose in surveyed.items()}
+    if rec.truth is not None:
+        return dataclasses.replace(rec.truth, node_poses={**rec.truth.node_poses, **poses})
+    return Truth(frame=np.zeros(0, np.int64), target_id=np.zeros(0, np.int64),
+                 state=np.zeros((0, 4)), node_poses=poses)
+
+
 def run(args: argparse.Namespace) -> int:
     import h5py
 
@@ -89,10 +114,12 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.calibration import load_calibration_poses
 
     rec = read_recording(args.recording, load_cubes=False)
+    if args.surveyed:
+        rec = dataclasses.replace(rec, truth=surveyed_truth(rec, dict(args.surveyed)))
     if rec.truth is None:  # the file lacks what evaluate needs: a data error (exit 1)
         from mmsnap_graph.errors import FileFormatError
         raise FileFormatError(f"{args.recording} has no truth (/truth): nothing to evaluate "
-                              f"against")
+                              f"against (give surveyed poses with --surveyed NAME=X,Y,PHI_DEG)")
     with read_guard(args.recording), h5py.File(args.recording, "r") as f:
         has_fused = FUSED_GROUP in f
     fused = read_fused(args.recording) if has_fused else None

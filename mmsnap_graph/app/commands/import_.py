@@ -14,28 +14,12 @@ import numpy as np
 
 from mmsnap_graph.errors import ValidationError
 
+from .arguments import named_values
+
 #: A layout for reading only the timing of a ``.cfg`` (point-cloud imports):
 #: every transmitter at the same place, so any Tx subset forms a valid array.
 _TIMING_ONLY = dict(name="timing only", tx_azimuth_half_wl=(0.0,) * 16,
                     tx_elevation_half_wl=(0.0,) * 16, rx_azimuth_half_wl=tuple(range(8)))
-
-
-def _named(kind: str, n_values: int | None):
-    """argparse type for ``NAME=VALUE`` (n_values None: one string value)."""
-    def parse(text: str):
-        name, sep, rest = text.partition("=")
-        if not sep or not name or not rest:
-            raise argparse.ArgumentTypeError(f"{text!r} must look like NAME={kind}")
-        if n_values is None:
-            return name, rest
-        try:
-            values = [float(v) for v in rest.split(",")]
-        except ValueError:
-            values = []
-        if len(values) != n_values:
-            raise argparse.ArgumentTypeError(f"{text!r} must look like NAME={kind}")
-        return name, values
-    return parse
 
 
 def _band(text: str) -> tuple[float, float]:
@@ -48,18 +32,18 @@ def _band(text: str) -> tuple[float, float]:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--pose", action="append", type=_named("X_M,Y_M,PHI_DEG", 3), default=[],
+    p.add_argument("--pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3), default=[],
                    metavar="NAME=X,Y,PHI_DEG", help="a known (surveyed) node pose; repeat")
     p.add_argument("-o", "--output", required=True, help="output HDF5 recording")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
 
 def _points_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--mount", action="append", type=_named("HEIGHT_M,TILT_DEG", 2), default=[],
+    p.add_argument("--mount", action="append", type=named_values("HEIGHT_M,TILT_DEG", 2), default=[],
                    metavar="NAME=HEIGHT_M,TILT_DEG",
                    help="mounting height above the floor and down tilt of a node (repeat; "
                         "default: the .cfg's sensorPosition, else 0, 0)")
-    p.add_argument("--room-pose", action="append", type=_named("X_M,Y_M,PHI_DEG", 3),
+    p.add_argument("--room-pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3),
                    default=[], metavar="NAME=X,Y,PHI_DEG",
                    help="the points of this node are in a room frame made with this nominal "
                         "mounting pose (with --mount's height and tilt); they are taken back "
@@ -92,7 +76,7 @@ def register(subparsers) -> None:
     d.add_argument("--board", default=None, help="board preset giving the antenna layout "
                                                  "(AWR1843BOOST, IWR6843ISK, IWR6843AOP, "
                                                  "AWR2243BOOST); required")
-    d.add_argument("--node", action="append", type=_named("CAPTURE.bin", None), required=True,
+    d.add_argument("--node", action="append", type=named_values("CAPTURE.bin", None), required=True,
                    metavar="NAME=CAPTURE.bin",
                    help="a node's capture (repeat the same NAME for split parts, in order)")
     d.add_argument("--sub-frame", type=int, default=None,
@@ -103,7 +87,7 @@ def register(subparsers) -> None:
     _common(d)
     d.set_defaults(func=run_dca1000)
     u = sub.add_parser("ti-uart", help="binary logs of a TI demo's data UART (TLV frames)")
-    u.add_argument("--node", action="append", type=_named("LOG.bin", None), required=True,
+    u.add_argument("--node", action="append", type=named_values("LOG.bin", None), required=True,
                    metavar="NAME=LOG.bin", help="a node's UART log (repeat per node)")
     u.add_argument("--demo", choices=["oob", "tracking"], default="oob",
                    help="out-of-box demo (TLVs 1, 7) or 3D people tracking (TLV 1020) "
@@ -112,7 +96,7 @@ def register(subparsers) -> None:
     _common(u)
     u.set_defaults(func=run_uart)
     t = sub.add_parser("table", help="CSV / .npy / .npz point logs")
-    t.add_argument("--node", action="append", type=_named("TABLE", None), default=[],
+    t.add_argument("--node", action="append", type=named_values("TABLE", None), default=[],
                    metavar="NAME=TABLE", help="a node's table (repeat per node)")
     t.add_argument("--table", default=None,
                    help="one table holding every node (a node column)")
@@ -162,7 +146,9 @@ def run_dca1000(args: argparse.Namespace) -> int:
                                  iq_swap=args.iq_swap,
                                  allow_partial_frame=args.allow_partial_frame,
                                  sub_frame=sub_frame,
-                                 metadata={"board": ti.board, "cfg": str(args.cfg)})
+                                 metadata={"board": ti.board, "cfg": str(args.cfg),
+                                           **({} if sub_frame is None
+                                              else {"sub_frame": int(sub_frame)})})
     return _write(args, rec)
 
 
@@ -234,8 +220,7 @@ def run_uart(args: argparse.Namespace) -> int:
             raise ValidationError(f"--node {name} is given {len(paths)} times; one log per node")
         log = read_ti_uart(paths[0], demo=args.demo)
         for bad in log.bad[:10]:
-            print(f"{name}: skipped packet {bad.index} at byte {bad.byte_offset}: {bad.reason}",
-                  file=sys.stderr)
+            print(f"{name}: skipped {bad}", file=sys.stderr)
         if len(log.bad) > 10:
             print(f"{name}: ... {len(log.bad) - 10} more bad packets", file=sys.stderr)
         clouds[name] = log.points

@@ -7,20 +7,10 @@ import shutil
 import sys
 import tempfile
 
-import numpy as np
-
 from mmsnap_graph._atomic import check_output_path
 from mmsnap_graph.errors import ValidationError
 
-
-def _node(text: str) -> tuple[str, list[float]]:
-    try:
-        name, rest = text.split("=", 1)
-        x, y, phi_deg = (float(v) for v in rest.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--node {text!r} must look like NAME=X_M,Y_M,PHI_DEG (e.g. S2=0,7,180)") from None
-    return name, [x, y, np.deg2rad(phi_deg)]
+from .arguments import named_pose
 
 
 def register(subparsers) -> None:
@@ -32,7 +22,7 @@ def register(subparsers) -> None:
                     "the paper's configurations (docs/SIMULATOR.md); --node gives any other.")
     p.add_argument("-c", "--configuration", choices=["A", "B", "C"], default="C",
                    help="network configuration (default %(default)s); ignored with --node")
-    p.add_argument("--node", action="append", type=_node, metavar="NAME=X,Y,PHI_DEG",
+    p.add_argument("--node", action="append", type=named_pose, metavar="NAME=X,Y,PHI_DEG",
                    help="a node pose (repeat; the first is the reference S1), e.g. S1=0,0,0")
     p.add_argument("-t", "--trajectory", choices=["straight", "random"], default="straight",
                    help="target trajectory (default %(default)s)")
