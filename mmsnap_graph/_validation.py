@@ -71,7 +71,13 @@ def int_array(value: ArrayLike, name: str) -> NDArray:
     arr = np.asarray(value)
     if arr.ndim != 1:
         raise ValidationError(f"{name} must be 1-D, got shape {arr.shape}")
-    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+    if arr.size and arr.dtype.kind not in "iubf":
+        raise ValidationError(f"{name} must hold integers, got dtype {arr.dtype}")
+    if arr.size and arr.dtype.kind == "f":
         if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
             raise ValidationError(f"{name} must hold integers, got dtype {arr.dtype}")
+        if np.any(np.abs(arr) >= 2.0 ** 63):
+            raise ValidationError(f"{name} must fit in int64, got {arr[np.abs(arr) >= 2.0 ** 63][0]:g}")
+    if arr.size and arr.dtype.kind == "u" and np.any(arr > np.iinfo(np.int64).max):
+        raise ValidationError(f"{name} must fit in int64, got {arr[arr > np.iinfo(np.int64).max][0]}")
     return arr.astype(np.int64)
