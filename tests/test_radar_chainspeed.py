@@ -125,3 +125,20 @@ def test_torso_centroids_of_many_frames_equal_frame_by_frame(cluster, with_snr):
     for name in ("frame", "range_m", "omega_rad", "doppler_mps", "snr_db"):
         want = np.concatenate([getattr(d, name) for d in parts if len(d)])
         np.testing.assert_array_equal(getattr(together, name), want)
+
+
+@pytest.mark.parametrize("cfar", [CfarConfig(guard_cells=(0, 1), train_cells=(0, 3)),
+                                  CfarConfig(guard_cells=(2, 0), train_cells=(8, 0))])
+def test_cells_chain_with_a_one_axis_footprint_matches_the_whole_map_cfar(cfar):
+    # Half-size 0 on one axis: the local-maximum test pads that axis itself.
+    config = dataclasses.replace(TABLE_I, n_loops=32)
+    rng = np.random.default_rng(9)
+    p = np.array([[1.0, 3.0], [-2.0, 6.0], [0.5, 8.0]])
+    v = np.array([[0.0, 1.0], [0.5, -1.0], [-0.3, 0.7]])
+    amp = scatterer_amplitude(config, 0.3, np.hypot(p[:, 0], p[:, 1]))
+    cube = synthesize_cube(config, p, v, amp, rng=rng, noise_std=1.0)
+    a, _ = point_cloud_of_cube(cube, config, ChainConfig(cfar=cfar, cfar_method="cells"))
+    b, _ = point_cloud_of_cube(cube, config, ChainConfig(cfar=cfar, cfar_method="full"))
+    assert len(a[0]) >= 3
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(np.sort(x), np.sort(y))

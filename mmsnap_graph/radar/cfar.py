@@ -22,8 +22,10 @@ Two evaluations give the same decisions:
 - :func:`os_cfar_2d` on the whole map, with ``scipy.ndimage.rank_filter``
   and a ring footprint (the reference; about 50 ms for a 512 x 60 map);
 - :func:`os_cfar_cells` at chosen cells only (gathering their training
-  cells and ``np.partition``), which the chain uses on the local maxima of
-  the map that exceed a pre-screen level (see :mod:`.chain`).
+  cells and ``np.partition``); :func:`os_cfar_detections` returns only its
+  detections, screening the cells first by a count of a subset of their
+  training cells (exact: a cell it drops cannot pass). The chain uses it on
+  the local maxima of the map that exceed a pre-screen level (see :mod:`.chain`).
 """
 
 from __future__ import annotations
@@ -303,8 +305,8 @@ def os_cfar_detections(
     Faster when few cells pass (a frame's local maxima): a detection needs
     ``Z_(k) < power / alpha``, so at most ``N - k`` of its ``N`` training
     cells at or above that level. A cell with more than ``N - k`` of a
-    fixed subset of its training cells (every ``s``-th, about ``N - k + 16``
-    of them) at or above the level (raised by a relative 1e-4, which covers
+    fixed subset of its training cells (every ``s``-th, ``s = N // (N - k +
+    8)``; no screen when ``s = 1``) at or above the level (raised by a relative 1e-4, which covers
     the float32 rounding of ``alpha * Z_(k)``) cannot pass and is dropped
     before the order statistic is taken for the others.
     """

@@ -11,7 +11,7 @@ Per frame (:func:`point_cloud_of_cube`):
    that the map's median noise would give; cells in the clutter notch
    (Doppler bin 0, when clutter removal is on) and closer than
    ``min_range_m`` are skipped;
-3. 2D OS-CFAR at those cells (:func:`mmsnap_graph.radar.cfar.os_cfar_cells`,
+3. 2D OS-CFAR at those cells (:func:`mmsnap_graph.radar.cfar.os_cfar_detections`,
    identical to the whole-map ``scipy.ndimage.rank_filter`` evaluation,
    ``cfar_method="full"``, which is about 5x slower). The pre-screen only
    drops peaks whose local noise estimate would have to be ``prescreen_db``
@@ -28,6 +28,14 @@ design rate ``pfa`` per searched cell (measured 1.27x at ``pfa = 1e-3`` and
 correlate neighbouring cells (more false alarms than for independent cells,
 for which :mod:`.cfar`'s threshold is exact) and peak grouping keeps one per
 local maximum (fewer).
+
+Speed (``benchmarks/bench_chain.py``): the constants of a radar and chain
+configuration (range interval, CFAR factor and noise scale, padding) are
+computed once per :func:`process_cubes` call, the 3 x 3 local maxima are two
+separable 3-cell maxima of the padded map, the OS statistic is taken only for
+peaks that a count of a subset of their training cells cannot rule out, and
+the angle FFTs of all cells and Doppler hypotheses are one batch; the point
+clouds are the same to the last bit as with the straightforward evaluation.
 
 Frames that cannot be processed give no detections and a flag, never NaN:
 non-finite samples, all-zero cubes (no noise to set a threshold), and, when
