@@ -143,7 +143,13 @@ def range_doppler(
     x = check_cube(cube, config)
     s, l, v = x.shape
     w2, wbins, wvals = _rd_weights(s, l, str(range_window), str(doppler_window))
-    spec = scipy.fft.fft(x * w2, axis=0, workers=1, overwrite_x=True)
+    # Windows on the interleaved real and imaginary parts: a float32 product
+    # (``x * w2`` would cast the window to complex first, 1.5x slower; the
+    # numbers are the same, up to the sign of zeros).
+    xc = np.ascontiguousarray(x)
+    xw = np.empty_like(xc)
+    np.multiply(xc.view(np.float32), w2, out=xw.view(np.float32))
+    spec = scipy.fft.fft(xw, axis=0, workers=1, overwrite_x=True)
     if range_bins is not None:
         spec = spec[range_bins]
     if clutter_removal:
