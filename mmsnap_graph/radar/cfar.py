@@ -80,12 +80,18 @@ class CfarConfig:
 
     @property
     def n_train(self) -> int:
-        return int(footprint(self).sum())
+        return _n_train_cached(self.guard_cells, self.train_cells)
 
     @property
     def rank(self) -> int:
         """1-based rank k of the order statistic."""
-        return int(min(max(round(self.rank_fraction * self.n_train), 1), self.n_train))
+        n = _n_train_cached(self.guard_cells, self.train_cells)
+        return int(min(max(round(self.rank_fraction * n), 1), n))
+
+
+@lru_cache(maxsize=32)
+def _n_train_cached(guard: tuple, train: tuple) -> int:
+    return int(_footprint_cached(guard, train).sum())
 
 
 def _is_int(v) -> bool:
