@@ -11,7 +11,7 @@ Per frame (:func:`point_cloud_of_cube`):
    that the map's median noise would give; cells in the clutter notch
    (Doppler bin 0, when clutter removal is on) and closer than
    ``min_range_m`` are skipped;
-3. 2D OS-CFAR at those cells (:func:`mmsnap_graph.radar.cfar.os_cfar_cells`,
+3. 2D OS-CFAR at those cells (:func:`mmsnap_graph.radar.cfar.os_cfar_detections`,
    identical to the whole-map ``scipy.ndimage.rank_filter`` evaluation,
    ``cfar_method="full"``, which is about 5x slower). The pre-screen only
    drops peaks whose local noise estimate would have to be ``prescreen_db``
@@ -28,6 +28,14 @@ design rate ``pfa`` per searched cell (measured 1.27x at ``pfa = 1e-3`` and
 correlate neighbouring cells (more false alarms than for independent cells,
 for which :mod:`.cfar`'s threshold is exact) and peak grouping keeps one per
 local maximum (fewer).
+
+Speed (``benchmarks/bench_chain.py``): the constants of a radar and chain
+configuration (range interval, CFAR factor and noise scale, padding) are
+computed once per :func:`process_cubes` call, the 3 x 3 local maxima are two
+separable 3-cell maxima of the padded map, the OS statistic is taken only for
+peaks that a count of a subset of their training cells cannot rule out, and
+the angle FFTs of all cells and Doppler hypotheses are one batch; the point
+clouds are the same to the last bit as with the straightforward evaluation.
 
 Frames that cannot be processed give no detections and a flag, never NaN:
 non-finite samples, all-zero cubes (no noise to set a threshold), and, when
@@ -50,9 +58,10 @@ from ..data.recording import Detections
 from ..data.results import Status
 from .cfar import (
     CfarConfig,
+    footprint,
     os_cfar_2d,
     os_cfar_alpha,
-    os_cfar_cells,
+    os_cfar_detections,
     os_cfar_noise_scale,
     pad_map,
 )
@@ -230,10 +239,6 @@ def doppler_near_limit(doppler_mps: NDArray, config: RadarConfig,
     return v >= chain.near_limit_fraction * unambiguous_speed_mps(config, chain)
 
 
-_NEIGHBOURS_R = np.array([-1, -1, -1, 0, 0, 1, 1, 1])
-_NEIGHBOURS_D = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
-
-
 def _range_slice(config: RadarConfig, chain: ChainConfig) -> slice:
     res = config.range_resolution_m
     lo = int(np.ceil(chain.min_range_m / res))
@@ -274,6 +279,36 @@ def _empty_cloud_arrays():
     return z, z, z, z
 
 
+@dataclass(frozen=True, slots=True)
+class _FramePlan:
+    """The constants of the per-frame work for one radar and chain
+    configuration (computed once, not per frame)."""
+
+    rs: slice                # processed range bins
+    alpha: float             # OS-CFAR threshold factor
+    prescreen_factor: float  # 10^(-prescreen_db / 10)
+    floor_factor: float      # 10^(-dynamic_range_db / 10)
+    noise_scale: float       # E[Z_(k)] / E[cell]
+    q_index: int             # rank of the pre-screen statistic in power[::2, ::2]
+    hr: int                  # footprint half-sizes (the padding of the map)
+    hd: int
+
+
+@lru_cache(maxsize=16)
+def _frame_plan(config: RadarConfig, chain: ChainConfig) -> _FramePlan:
+    rs = _range_slice(config, chain)
+    cfar = chain.cfar
+    n_ch = config.n_virtual
+    fp = footprint(cfar)
+    hr, hd = fp.shape[0] // 2, fp.shape[1] // 2
+    n_sub = ((rs.stop - rs.start + 1) // 2) * ((config.n_loops + 1) // 2)
+    return _FramePlan(rs=rs, alpha=os_cfar_alpha(cfar.n_train, cfar.rank, cfar.pfa, n_ch),
+                      prescreen_factor=10.0 ** (-chain.prescreen_db / 10.0),
+                      floor_factor=10.0 ** (-chain.dynamic_range_db / 10.0),
+                      noise_scale=os_cfar_noise_scale(cfar.n_train, cfar.rank, n_ch),
+                      q_index=int(cfar.rank_fraction * (n_sub - 1)), hr=hr, hd=hd)
+
+
 def point_cloud_of_cube(
     cube: NDArray, config: RadarConfig, chain: ChainConfig | None = None
 ) -> tuple[tuple[NDArray, NDArray, NDArray, NDArray], int]:
@@ -286,84 +321,104 @@ def point_cloud_of_cube(
     """
     chain = _default_chain() if chain is None else chain
     x = check_cube(cube, config)
+    return _point_cloud(x, config, chain, _frame_plan(config, chain))
+
+
+def _point_cloud(x: NDArray, config: RadarConfig, chain: ChainConfig, plan: _FramePlan):
+    """:func:`point_cloud_of_cube` of a checked cube, with its plan."""
     status, energy = _frame_status(x, chain)
     if status != Status.OK:
         return _empty_cloud_arrays(), status
-    rs = _range_slice(config, chain)
     spec, power = range_doppler(x, config, range_window=chain.range_window,
                                 doppler_window=chain.doppler_window,
-                                clutter_removal=chain.clutter_removal, range_bins=rs)
-    cfar = chain.cfar
-    n_ch = config.n_virtual
-    alpha = os_cfar_alpha(cfar.n_train, cfar.rank, cfar.pfa, n_ch)
+                                clutter_removal=chain.clutter_removal, range_bins=plan.rs)
     # Cells below the float32 processing floor are rounding residue (of a
     # removed static return, for instance), not signal.
-    floor = energy * 10.0 ** (-chain.dynamic_range_db / 10.0)
+    floor = energy * plan.floor_factor
     if chain.cfar_method == "full":
-        detected, z_map = os_cfar_2d(power, cfar, n_ch)
-        peaks = power >= ndimage.maximum_filter(power, size=3, mode="wrap")
-        if chain.clutter_removal:
-            peaks[:, 0] = False  # the clutter notch
-        rows, cols = np.nonzero(detected & peaks & (power > floor))
-        z = z_map[rows, cols]
+        rows, cols, z = _detect_full(power, floor, config, chain)
     else:
-        # Pre-screen: above the threshold that the map's own rank statistic
-        # would give, lowered by prescreen_db, and above the floor.
-        sub = power[::2, ::2].ravel()
-        q = np.partition(sub, int(cfar.rank_fraction * (sub.size - 1)))[
-            int(cfar.rank_fraction * (sub.size - 1))]
-        level = max(alpha * float(q) * 10.0 ** (-chain.prescreen_db / 10.0), floor)
-        cand = power > level
-        if chain.clutter_removal:
-            cand[:, 0] = False  # the clutter notch
-        rows, cols = np.nonzero(cand)
-        if rows.size == 0:
-            return _empty_cloud_arrays(), status
-        # 3 x 3 local-maximum test at the candidates, on the padded map.
-        padded = pad_map(power, cfar)
-        hr, hd = (padded.shape[0] - power.shape[0]) // 2, (padded.shape[1] - power.shape[1]) // 2
-        width = padded.shape[1]
-        centre = (rows + hr) * width + (cols + hd)
-        flat = padded.ravel()
-        neigh = flat[centre[:, None] + (_NEIGHBOURS_R * width + _NEIGHBOURS_D)[None, :]]
-        is_peak = np.all(flat[centre][:, None] >= neigh, axis=1)
-        rows, cols = rows[is_peak], cols[is_peak]
-        detected, z = os_cfar_cells(power, rows, cols, cfar, n_ch, padded=padded)
-        rows, cols, z = rows[detected], cols[detected], z[detected]
+        rows, cols, z = _detect_cells(power, floor, config, chain, plan)
     if rows.size == 0:
         return _empty_cloud_arrays(), status
-    # Sub-bin refinement on log power (at the detections and their neighbours).
+    return _measure(spec, power, rows, cols, z, config, chain, plan), status
+
+
+def _detect_full(power, floor, config: RadarConfig, chain: ChainConfig):
+    """Detections by the whole-map OS-CFAR (the reference): local maxima
+    (3 x 3, Doppler periodic) that pass, outside the clutter notch."""
+    detected, z_map = os_cfar_2d(power, chain.cfar, config.n_virtual)
+    peaks = power >= ndimage.maximum_filter(power, size=3, mode="wrap")
+    if chain.clutter_removal:
+        peaks[:, 0] = False  # the clutter notch
+    rows, cols = np.nonzero(detected & peaks & (power > floor))
+    return rows, cols, z_map[rows, cols]
+
+
+def _detect_cells(power, floor, config: RadarConfig, chain: ChainConfig, plan: _FramePlan):
+    """Detections by OS-CFAR at the pre-screened local maxima (module
+    docstring): the same as :func:`_detect_full` at those cells."""
+    # Pre-screen: above the threshold that the map's own rank statistic
+    # would give, lowered by prescreen_db, and above the floor.
+    sub = power[::2, ::2].ravel()
+    q = np.partition(sub, plan.q_index)[plan.q_index]
+    level = max(plan.alpha * float(q) * plan.prescreen_factor, floor)
+    cand = power > level
+    if chain.clutter_removal:
+        cand[:, 0] = False  # the clutter notch
+    if not cand.any():
+        return np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0, power.dtype)
+    # 3 x 3 local maxima (Doppler periodic, range reflected as in the padded
+    # map): the cell is at least the maximum of its 3 x 3 block, taken as
+    # two 3-cell maxima (Doppler, then range) of slices of the padded map.
+    padded = pad_map(power, chain.cfar)
     nr, nd = power.shape
-    tiny = np.finfo(np.float32).tiny
+    if plan.hr and plan.hd:
+        block = padded[plan.hr - 1:plan.hr + nr + 1, plan.hd - 1:plan.hd + nd + 1]
+    else:  # no CFAR padding on one axis: pad by one cell for this test
+        block = np.pad(np.pad(power, ((0, 0), (1, 1)), mode="wrap"), ((1, 1), (0, 0)),
+                       mode="symmetric")
+    m = np.maximum(np.maximum(block[:, :-2], block[:, 1:-1]), block[:, 2:])
+    m = np.maximum(np.maximum(m[:-2], m[1:-1]), m[2:])
+    rows, cols = np.nonzero(cand & (power >= m))
+    keep, z = os_cfar_detections(power, rows, cols, chain.cfar, config.n_virtual,
+                                 padded=padded)
+    return rows[keep], cols[keep], z
 
-    def lp(r, c):
-        return np.log(np.maximum(power[r, c], tiny).astype(float))
 
-    r_off = parabolic_offset(lp(np.maximum(rows - 1, 0), cols), lp(rows, cols),
-                             lp(np.minimum(rows + 1, nr - 1), cols))
-    d_off = parabolic_offset(lp(rows, (cols - 1) % nd), lp(rows, cols), lp(rows, (cols + 1) % nd))
-    range_m = (rows + rs.start + r_off) * config.range_resolution_m
-    doppler = doppler_of_bin(cols + d_off, config)
-    noise = z / os_cfar_noise_scale(cfar.n_train, cfar.rank, n_ch)
+def _measure(spec, power, rows, cols, z, config: RadarConfig, chain: ChainConfig,
+             plan: _FramePlan):
+    """Range, spatial frequency, Doppler and SNR of the detected cells."""
+    # Sub-bin refinement on log power: the cell, its range neighbours
+    # (clamped at the ends) and its Doppler neighbours (periodic).
+    nr, nd = power.shape
+    r_idx = np.stack([rows, np.maximum(rows - 1, 0), np.minimum(rows + 1, nr - 1), rows, rows])
+    c_idx = np.stack([cols, cols, cols, (cols - 1) % nd, (cols + 1) % nd])
+    cell = power[rows, cols]
+    lp = np.log(np.maximum(power[r_idx, c_idx], np.finfo(np.float32).tiny).astype(float))
+    off = parabolic_offset(lp[[1, 3]], lp[[0, 0]], lp[[2, 4]])  # (range, Doppler)
+    range_m = (rows + plan.rs.start + off[0]) * config.range_resolution_m
+    doppler = doppler_of_bin(cols + off[1], config)
+    noise = z / plan.noise_scale
     with np.errstate(divide="ignore"):
-        snr_db = 10.0 * np.log10(power[rows, cols] / np.maximum(noise, np.finfo(np.float32).tiny))
+        snr_db = 10.0 * np.log10(cell / np.maximum(noise, np.finfo(np.float32).tiny))
     omega, doppler = _angle_and_doppler(spec[rows, cols, :], doppler, snr_db, config, chain)
     return (range_m.astype(float), omega.astype(float), doppler.astype(float),
-            snr_db.astype(float)), status
+            snr_db.astype(float))
 
 
 def _angle_and_doppler(snapshots, doppler, snr_db, config: RadarConfig, chain: ChainConfig):
     """Spatial frequency and (de-aliased) Doppler of the detected cells:
-    de-aliasing only where ``snr_db >= chain.dealias_min_snr_db``."""
-    omega, _ = estimate_omega(snapshots, doppler, config, angle_window=chain.angle_window,
-                              n_fft=int(chain.angle_fft_size))
+    de-aliasing only where ``snr_db >= chain.dealias_min_snr_db`` (one batch
+    of angle FFTs for all cells and hypotheses)."""
     strong = snr_db >= chain.dealias_min_snr_db
     if chain.doppler_wraps and np.any(strong):
-        om, _, dop = estimate_omega_dealiased(
-            snapshots[strong], doppler[strong], config, max_wraps=int(chain.doppler_wraps),
-            angle_window=chain.angle_window, n_fft=int(chain.angle_fft_size))
-        omega, doppler = omega.copy(), doppler.copy()
-        omega[strong], doppler[strong] = om, dop
+        omega, _, doppler = estimate_omega_dealiased(
+            snapshots, doppler, config, max_wraps=int(chain.doppler_wraps),
+            angle_window=chain.angle_window, n_fft=int(chain.angle_fft_size), dealias=strong)
+        return omega, doppler
+    omega, _ = estimate_omega(snapshots, doppler, config, angle_window=chain.angle_window,
+                              n_fft=int(chain.angle_fft_size))
     return omega, doppler
 
 
@@ -417,12 +472,13 @@ def process_cubes(
 
     cols: list[list[NDArray]] = [[], [], [], [], []]
     status = np.zeros(n, dtype=np.int64)
+    plan = _frame_plan(config, chain)
     bar = tqdm(total=n, desc=desc, disable=not progress, unit="frame", leave=False)
     try:
         for i, cube in enumerate(frame_iter):
             if i >= n:
                 break
-            (r, w, v, s), st = point_cloud_of_cube(cube, config, chain)
+            (r, w, v, s), st = _point_cloud(check_cube(cube, config), config, chain, plan)
             status[i] = st
             cols[0].append(np.full(r.size, frames[i], dtype=np.int64))
             for j, arr in enumerate((r, w, v, s)):

@@ -104,9 +104,16 @@ def cluster_labels(range_m: NDArray, omega_rad: NDArray, config: ClusterConfig) 
     k = range_m.shape[0]
     if k < config.min_samples:
         return np.full(k, -1, dtype=np.int64)
+    return _labels_of_local(detection_to_local(range_m, omega_rad), config)
+
+
+def _labels_of_local(p: NDArray, config: ClusterConfig) -> NDArray:
+    """:func:`cluster_labels` of the points' local positions ``p`` (K, 2)."""
+    k = p.shape[0]
+    if k < config.min_samples:
+        return np.full(k, -1, dtype=np.int64)
     # Rotate each point into (radial, cross-range) of the cloud's mean
     # direction, shrink cross-range, then cluster.
-    p = detection_to_local(range_m, omega_rad)
     direction = p.mean(axis=0)
     norm = np.hypot(*direction)
     u = direction / norm if norm > 0 else np.array([0.0, 1.0])
@@ -204,27 +211,33 @@ def torso_centroids(
     frames = point_cloud.frame
     order = np.argsort(frames, kind="stable")
     bounds = np.flatnonzero(np.diff(frames[order])) + 1
-    for rows in np.split(order, bounds):
-        rng_m = point_cloud.range_m[rows]
-        om = point_cloud.omega_rad[rows]
-        dop = point_cloud.doppler_mps[rows]
-        snr = (point_cloud.snr_db[rows] if point_cloud.snr_db is not None
-               else np.zeros(rows.size))
-        labels = point_target_labels(cluster_labels(rng_m, om, config),
-                                     None if point_cloud.snr_db is None else snr, config)
+    # Positions and weights of all points at once (elementwise, the same
+    # numbers as per frame), in frame order.
+    p_all = detection_to_local(point_cloud.range_m[order], point_cloud.omega_rad[order])
+    dop_all = point_cloud.doppler_mps[order]
+    has_snr = point_cloud.snr_db is not None
+    snr_all = point_cloud.snr_db[order] if has_snr else np.zeros(order.size)
+    # Log-compressed weights (SNR in dB above 0): one strong specular
+    # point (a foot at close range) must not outvote the many torso points.
+    w_all = np.maximum(snr_all, 0.0) + 1e-3
+    lone_ok = config.point_targets and has_snr
+    starts = np.concatenate([[0], bounds]).tolist()
+    stops = np.concatenate([bounds, [order.size]]).tolist()
+    for a, b in zip(starts, stops):
+        if b - a < config.min_samples and not lone_ok:
+            continue  # all DBSCAN noise, no point targets: no centroid
+        p, dop, snr, w = p_all[a:b], dop_all[a:b], snr_all[a:b], w_all[a:b]
+        labels = point_target_labels(_labels_of_local(p, config),
+                                     snr if has_snr else None, config)
         if not np.any(labels >= 0):
             continue
-        p = detection_to_local(rng_m, om)
-        # Log-compressed weights (SNR in dB above 0): one strong specular
-        # point (a foot at close range) must not outvote the many torso points.
-        w = np.maximum(snr, 0.0) + 1e-3
         for lab in np.unique(labels[labels >= 0]):
             m = labels == lab
             pos, v = _torso_of_cluster(p[m], dop[m], w[m], config, doppler_resolution_mps)
             r = float(np.hypot(*pos))
             if r <= 0:
                 continue
-            out_f.append(frames[rows[0]])
+            out_f.append(frames[order[a]])
             out_r.append(r)
             out_w.append(float(np.clip(np.pi * pos[0] / r, -np.pi, np.pi)))
             out_v.append(v)
