@@ -45,11 +45,7 @@ def _evaluate(path, capsys) -> dict:
 @pytest.mark.parametrize("network,seed", [
     (["-c", "C"], 1),
     (THREE, 2),
-    pytest.param(["-c", "C", "-t", "random"], 3, marks=pytest.mark.xfail(strict=True, reason=(
-        "two nodes on the simulator's random walk: only the nodes' own centroid sequences see "
-        "the Doppler noise, and the walk's rough speed (an Ornstein-Uhlenbeck speed, ~0.08 m/s "
-        "per frame) passes for noise: Doppler sigma +8-12 %, NEES 3.48-3.80 (mean 3.65) below "
-        "the band (3.78, 4.23) on 9 of 10 seeds (true sigmas: 3.82-4.10); RMSE unchanged"))),
+    (["-c", "C", "-t", "random"], 3),
 ], ids=["2 nodes", "3 nodes", "2 nodes random walk"])
 def test_fuse_without_sigmas_is_consistent_on_data_nobody_described(tmp_path, capsys, network,
                                                                     seed):

@@ -46,6 +46,7 @@ _LAZY = {
     "estimate_noise": "noise_estimate",
     "network_noise": "noise_estimate",
     "temporal_noise": "noise_estimate",
+    "motion_doppler_noise": "motion_noise",
     "ChangePoint": "monitor",
     "DecalibrationMonitor": "monitor",
     "MonitorResult": "monitor",
