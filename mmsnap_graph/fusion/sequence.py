@@ -492,13 +492,10 @@ def fuse_recording(
         whole frames, then the range by Doppler times the rest). A node left
         out keeps its clock.
     motion_check : bool, optional
-        Check every fused row against the motion of the neighbouring frames'
-        rows (:mod:`mmsnap_graph.fusion.motion_check`, docs/ROBUST.md): a
-        row no neighbouring frame confirms is refitted from the predicted
-        state with every subset of its nodes, the subset that agrees is kept
-        (the others ``rejected``), and a row none explains (a ghost, an
-        ambiguous frame) is flagged, ``success`` False. Default (None): on
-        with a ``robust`` option, off without.
+        Check each row against its neighbouring frames' motion
+        (:mod:`~mmsnap_graph.fusion.motion_check`, docs/ROBUST.md): refit it
+        without the nodes that disagree, or flag it (a ghost, an ambiguous
+        frame). Default (None): on with a ``robust`` option.
     """
     if time_offset_s:
         if source != "centroids":
