@@ -10,30 +10,35 @@ against the constant-velocity motion of the rows of the neighbouring frames
 (:func:`factors.motion.cv_transition`, white acceleration of
 :data:`MOTION_ACCEL_SIGMA_MPS2`):
 
-1. **Confirm**: a successful row is *confirmed* when successful rows of at
-   least :data:`MOTION_MIN_SUPPORT` other frames within
-   :data:`MOTION_WINDOW_FRAMES` frames predict its position within the
-   chi-square gate (2 dof, :data:`MOTION_GATE_PROBABILITY`; the predicted and
-   the row's own position covariances summed). Confirmed rows are kept as
-   they are.
-2. **Predict**: each frame's predictions are the confirmed rows of the
-   neighbouring frames carried to it (the tightest of each group of agreeing
-   predictions); a prediction a confirmed row of the frame agrees
-   with is taken.
-3. **Explain**: an unconfirmed row that agrees with a free prediction is
+1. **Confirm**: a successful row is *confirmed* when the successful rows of
+   at least :data:`MOTION_MIN_SUPPORT` other frames within
+   :data:`MOTION_WINDOW_FRAMES` frames, and of at least half of those frames
+   that have one, predict its state within the chi-square gate (4 dof,
+   :data:`MOTION_GATE_PROBABILITY`; the prediction's and the row's own
+   covariances summed: a ghost's Doppler disagrees with the target's velocity
+   even where its position agrees). Confirmed rows are kept as they are.
+2. **Twice**: a successful one-node row that agrees with a prediction a row of
+   more nodes of its frame takes (and with no other free one) counts that
+   target twice: flagged.
+3. **Predict**: each frame's predictions are the confirmed rows of the
+   neighbouring frames carried to it (those of two nodes or more where there
+   are any; the tightest of each group of agreeing predictions); a
+   prediction a confirmed row of the frame agrees with is taken.
+4. **Explain**: an unconfirmed one-node row is flagged (its cross-range
+   velocity comes from the prior: a ghost can agree with a wide prediction).
+   An unconfirmed row of more nodes that agrees with a free prediction is
    kept as it is; otherwise its hypotheses (every non-empty subset of its
-   nodes, started at each free prediction, so that the intersection of two
+   nodes, started at each free prediction, so that the crossing of two
    circles near the prediction is found rather than its mirror) are fitted
    and the one with most nodes that passes the residual test
    (:func:`~mmsnap_graph.fusion.robust.residual_test_fails`) and agrees with
    the prediction is kept; the nodes it leaves out are ``rejected``.
-4. **Flag**: a row no hypothesis explains is returned with ``success``
-   False and a message saying why (a ghost, or a frame left ambiguous),
-   never as a confident wrong target; so is a one-node row that agrees with
-   a row of more nodes in its frame (the same target twice), and a one-node
-   row with no confirmation and no prediction (no neighbouring frame
-   supports it). A row of two or more nodes in a frame with no prediction
-   (no temporal context) keeps its per-frame result.
+5. **Flag**: a row no hypothesis explains is returned with ``success``
+   False and a message saying why (a ghost, or a frame left ambiguous) when
+   it is where a free prediction is, or when no other frame agrees with it at
+   all; never as a confident wrong target. A row of two or more nodes away
+   from every free prediction that some neighbouring frame agrees with (a
+   second target without confirmed neighbours) keeps its per-frame result.
 
 The estimate and covariance of a kept row are always the one-shot ones of the
 measurements kept (no motion prior enters them: a tracker downstream may use
@@ -451,7 +456,7 @@ def apply_motion_check(rows, frame: NDArray, observed: NDArray, valid: NDArray, 
         for r in todo:
             if free.any():
                 jobs.append((r, pi[free]))
-            elif pi.size and not (ok[r] and supported[r]):
+            elif pi.size and ok[r] and not supported[r]:
                 lone.append((r, _GHOST))
     hr, hp, hm = _hypotheses(jobs, observed, valid, preds)
     done = np.zeros(0, dtype=np.int64)
@@ -463,10 +468,11 @@ def apply_motion_check(rows, frame: NDArray, observed: NDArray, valid: NDArray, 
     pos_gate = float(chi2.ppf(MOTION_GATE_PROBABILITY, 2))
     for r, pis in jobs:
         # A row of two nodes or more no hypothesis explains is flagged when
-        # it is where a free prediction is (a target's wrong estimate);
-        # elsewhere it is a target with no confirmed neighbours: kept.
-        if r not in explained and (not ok[r] or not supported[r]
-                                   or _near(rows, r, preds, pis, pos_gate)):
+        # it is where a free prediction is (a target's wrong estimate) or no
+        # frame agrees with it; else it is a target with no confirmed
+        # neighbours: kept. A row that failed already keeps its status.
+        if r not in explained and ok[r] and (not supported[r]
+                                             or _near(rows, r, preds, pis, pos_gate)):
             _flag(rows, r, observed, _GHOST)
     for r, text in lone:
         _flag(rows, r, observed, text)
