@@ -27,9 +27,10 @@ against the constant-velocity motion of the rows of the neighbouring frames
 4. **Explain**: an unconfirmed one-node row is flagged (its cross-range
    velocity comes from the prior: a ghost can agree with a wide prediction).
    An unconfirmed row of more nodes that agrees with a free prediction is
-   kept as it is; otherwise its hypotheses (every non-empty subset of its
-   nodes, started at each free prediction, so that the crossing of two
-   circles near the prediction is found rather than its mirror) are fitted
+   kept as it is; otherwise its hypotheses (the subsets of its nodes that
+   leave out at most :data:`MOTION_MAX_LEFT_OUT`, started at each free
+   prediction, so that the crossing of two circles near the prediction is
+   found rather than its mirror) are fitted
    and the one with most nodes that passes the residual test
    (:func:`~mmsnap_graph.fusion.robust.residual_test_fails`) and agrees with
    the prediction is kept; the nodes it leaves out are ``rejected``.
@@ -67,6 +68,7 @@ __all__ = [
     "MOTION_ACCEL_SIGMA_MPS2",
     "MOTION_FLAG_STATUS",
     "MOTION_CONTEXT_FRAMES",
+    "MOTION_MAX_LEFT_OUT",
     "Refit",
     "apply_motion_check",
 ]
@@ -81,6 +83,9 @@ MOTION_GATE_PROBABILITY = 0.999
 #: turn or start leaves the rows on one side of it confirmed by the other
 #: side (half of the frames around suffice, :func:`_confirmed`).
 MOTION_ACCEL_SIGMA_MPS2 = 1.0
+#: Nodes a hypothesis may leave out of a row (with more nodes the subsets
+#: would grow as 2^N; two ghosts in one row of many nodes are rare).
+MOTION_MAX_LEFT_OUT = 2
 #: How far (frames) the check of a row looks: its neighbours' confirmation
 #: looks ``MOTION_WINDOW_FRAMES`` further, and the one-node rows they
 #: exclude as many again. A window fused with this many frames of context on
@@ -242,10 +247,12 @@ def _predictions(rows, frame, confirmed, frames_needed, frame_period_s, accel, g
 
 
 def _subsets(observed: NDArray) -> list[NDArray]:
-    """Every non-empty subset of the observed nodes, largest first, as masks."""
+    """The subsets of the observed nodes that leave out at most
+    :data:`MOTION_MAX_LEFT_OUT` of them (every non-empty one for three
+    nodes), largest first, as masks."""
     nodes = np.flatnonzero(observed)
     out = []
-    for size in range(nodes.size, 0, -1):
+    for size in range(nodes.size, max(0, nodes.size - MOTION_MAX_LEFT_OUT - 1), -1):
         for c in combinations(nodes.tolist(), size):
             m = np.zeros(observed.size, dtype=bool)
             m[list(c)] = True
