@@ -318,7 +318,8 @@ def _score(res, preds, hp, probability, gate):
 
 
 def _near(rows, r: int, preds: _Predictions, pis: NDArray, gate: float) -> bool:
-    """Whether row ``r``'s position agrees (chi-square, 2 dof) with one of the predictions ``pis``."""
+    """Whether row ``r``'s position agrees (chi-square, 2 dof) with one of
+    the predictions ``pis``."""
     d = rows.state[r, :2] - preds.state[pis, :2]
     s = rows.laplace[r, :2, :2] + preds.cov[pis, :2, :2]
     return bool(np.any(_m2(d, s) <= gate))

@@ -174,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
                           motion_check=args.robust != "none" and not args.no_motion_check)
     n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
     print(f"fused {fused.n_rows} targets in {frames} frames ({args.mode}, {args.covariance}, "
-          f"{args.solver}, robust {args.robust}{motion_text(args)}): {n_ok} succeeded, {fused.n_rows - n_ok} "
+          f"{args.solver}, robust {args.robust}{motion_text(args)}): {n_ok} succeeded, "
+          f"{fused.n_rows - n_ok} "
           f"flagged; wrote {path}:/fused", file=sys.stdout)
     return 0
