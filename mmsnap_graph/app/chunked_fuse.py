@@ -8,7 +8,10 @@ to the ``/fused`` group being written (:func:`mmsnap_graph.io.chunks.fused_write
 memory holds one window, never the whole recording nor its whole
 ``/fused``. Association and fusion are per frame, so the result equals
 ``fuse_recording`` on the whole recording, row for row; the detection
-indices are those of the file's rows.
+indices are those of the file's rows. The motion check of robust fusion
+(:mod:`mmsnap_graph.fusion.motion_check`) looks at neighbouring frames: each
+window is read and fused with :data:`~mmsnap_graph.fusion.motion_check.MOTION_CONTEXT_FRAMES`
+frames of context on each side and keeps the rows of its own frames.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ValidationError
+from ..fusion.motion_check import MOTION_CONTEXT_FRAMES
 from ..fusion.sequence import fuse_recording
 from ..fusion.timing import split_offset
 from ..io.chunks import open_detection_windows, fused_writer
@@ -58,6 +62,12 @@ def _progress(total: int, progress: bool | None):
     return tqdm(total=total, desc="fuse (frames)", unit="frame", disable=not show, leave=False)
 
 
+def _motion_checked(options) -> bool:
+    """Whether ``fuse_recording`` runs the motion check with these options."""
+    check = options.get("motion_check")
+    return bool(options.get("robust") is not None if check is None else check)
+
+
 def _global_rows(fused, rows: Mapping[str, np.ndarray], names):
     """``fused`` with its detection indices taken to the file's rows."""
     idx = fused.detection_index.copy()
@@ -66,6 +76,21 @@ def _global_rows(fused, rows: Mapping[str, np.ndarray], names):
         if np.any(seen):
             idx[seen, n] = rows[name][idx[seen, n]]
     return dataclasses.replace(fused, detection_index=idx)
+
+
+#: The per-row fields of a FusedSequence (those a window keeps of its context).
+_ROW_FIELDS = ("frame", "target", "label", "detection_index", "observed", "state", "covariance",
+               "laplace_covariance", "success", "status", "message", "iterations", "final_cost",
+               "degeneracy", "rejected", "time_s", "information", "information_vector")
+
+
+def _own_rows(fused, start: int, stop: int):
+    """``fused`` without the rows of the context frames (outside ``[start, stop)``)."""
+    keep = (fused.frame >= start) & (fused.frame < stop)
+    if keep.all():
+        return fused
+    return dataclasses.replace(fused, **{k: getattr(fused, k)[keep] for k in _ROW_FIELDS
+                                         if getattr(fused, k) is not None})
 
 
 def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = None,
@@ -109,12 +134,18 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     n_frames = n_windows = 0
     with fused_writer(path, output=output) as writer, \
             _progress(windows.last_frame - windows.first_frame + 1, progress) as bar:
+        # Context frames around each window when rows are checked against
+        # their neighbours' motion (the check reaches this far).
+        context = MOTION_CONTEXT_FRAMES if _motion_checked(options) else 0
         for start, stop in spans:
-            rec, rows = windows.read(start, stop, shifts)
+            rec, rows = windows.read(start - context, stop + context, shifts)
             bar.update(stop - start)
             if not any(r.size for r in rows.values()):
                 continue  # a gap: no node has a detection in these frames
             fused = fuse_recording(rec, node_poses=node_poses, progress=False, **options)
+            fused = _own_rows(fused, start, stop)
+            if len(fused) == 0:
+                continue  # detections in the context frames only
             writer.append(_global_rows(fused, rows, rec.node_names))
             n_frames += int(np.unique(fused.frame).size)
             n_windows += 1

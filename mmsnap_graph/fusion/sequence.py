@@ -45,7 +45,8 @@ from .problem import (
     node_sigmas,
     valid_rows,
 )
-from .robust import check_robust
+from .motion_check import apply_motion_check
+from .robust import RESIDUAL_GATE_PROBABILITY, check_robust
 from .timing import align_recording
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.recording import Recording
@@ -371,6 +372,42 @@ def _fuse_gtsam_rows(out: _Rows, poses, z, obs, noise, prior, bar, robust=None,
         bar.update(1)
 
 
+def _motion_option(motion_check, robust) -> bool:
+    """``motion_check`` validated; None: on with a ``robust`` option."""
+    if motion_check is None:
+        return robust is not None
+    if not isinstance(motion_check, (bool, np.bool_)):
+        raise ValidationError(f"motion_check must be True, False or None, got {motion_check!r}")
+    return bool(motion_check)
+
+
+def _check_motion(out: _Rows, groups, recording, poses, noise, prior, pose_cov, solver) -> None:
+    """The motion check of :func:`fuse_recording` (hypotheses fitted by
+    ``fuse_batch``; with the GTSAM solver the rows it refits are fitted
+    again by ``fuse_frame`` from its solution)."""
+    z = groups.measurements
+    obs = groups.detection_index >= 0
+
+    def refit(rows, mask, x0):
+        return fuse_batch(poses, z[rows], observed=mask, noise=noise, prior=prior,
+                          initial_state=x0, pose_covariances=pose_cov)
+
+    done = apply_motion_check(out, groups.frame, obs, obs & valid_rows(z),
+                              frame_period_s=recording.frame_period_s, refit=refit,
+                              node_names=recording.node_names,
+                              residual_gate_probability=RESIDUAL_GATE_PROBABILITY)
+    if solver == "gtsam" and done.size:
+        from .oneshot import fuse_frame  # deferred: keeps GTSAM out of the batch path
+
+        for i in done:
+            r = fuse_frame(poses, z[i], observed=obs[i] & ~out.rejected[i], noise=noise,
+                           prior=prior, initial_state=out.state[i], pose_covariances=pose_cov)
+            out.state[i], out.laplace[i], out.iterations[i] = r.state, r.covariance, r.iterations
+            out.cost[i], out.degeneracy[i], out.status[i] = r.final_cost, r.degeneracy, r.status
+            if not r.success:
+                out.message[i] = r.message
+
+
 def _grid_covariances(out: _Rows, poses, z, obs, noise, prior, points, progress) -> NDArray:
     """The grid covariance of every converged row (a failure flags the row)."""
     chosen = out.laplace.copy()
@@ -409,6 +446,7 @@ def fuse_recording(
     robust: Literal["gate", "huber", "cauchy"] | None = None,
     pose_covariances: Mapping[str, ArrayLike] | None = None,
     time_offset_s: Mapping[str, float] | None = None,
+    motion_check: bool | None = None,
 ) -> FusedSequence:
     """Fuse every target in every frame of ``recording``.
 
@@ -453,6 +491,11 @@ def fuse_recording(
         reference clock first (:func:`mmsnap_graph.fusion.timing.align_recording`:
         whole frames, then the range by Doppler times the rest). A node left
         out keeps its clock.
+    motion_check : bool, optional
+        Check each row against its neighbouring frames' motion
+        (:mod:`~mmsnap_graph.fusion.motion_check`, docs/ROBUST.md): refit it
+        without the nodes that disagree, or flag it (a ghost, an ambiguous
+        frame). Default (None): on with a ``robust`` option.
     """
     if time_offset_s:
         if source != "centroids":
@@ -461,6 +504,7 @@ def fuse_recording(
     prior = _check_options(recording, mode, covariance, solver, source, block_rows, prior)
     noise, pose_cov = _node_options(recording, noise, pose_covariances, covariance)
     robust = check_robust(robust)
+    motion_check = _motion_option(motion_check, robust)
     if progress is not None and not isinstance(progress, (bool, np.bool_)):
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     poses = recording_poses(recording, node_poses)
@@ -475,10 +519,11 @@ def fuse_recording(
                              pose_cov)
         else:
             _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar, robust, pose_cov)
+    if motion_check:
+        _check_motion(out, groups, recording, poses, noise, prior, pose_cov, solver)
     chosen = out.laplace.copy()
-    if covariance == "grid":
-        # The grid posterior of the measurements kept by the residual gate.
-        kept = obs & ~out.rejected if robust == "gate" else obs
+    if covariance == "grid":  # the grid posterior of the measurements kept
+        kept = obs & ~out.rejected if (robust == "gate" or motion_check) else obs
         chosen = _grid_covariances(out, poses, z, kept, noise, prior, grid_points_per_axis, progress)
     return _sequence(recording, poses, groups, out, chosen, mode=mode, covariance=covariance,
                      solver=solver, noise=noise, prior=prior, gate_probability=gate_probability,

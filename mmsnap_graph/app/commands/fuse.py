@@ -7,7 +7,9 @@ a copy of the recording given by ``--output``.
 The measurement noise: ``--sigmas`` when given; else each node's sigmas of
 the recording's ``/noise`` group (estimated from the data by ``mmsnap
 calibrate`` or ``mmsnap noise``); else the paper's, said so. Robust fusion
-(``--robust``, :data:`DEFAULT_ROBUST`) is on by default.
+(``--robust``, :data:`DEFAULT_ROBUST`) is on by default, with the motion check
+of every row against its neighbouring frames (docs/ROBUST.md;
+``--no-motion-check`` turns it off).
 """
 
 from __future__ import annotations
@@ -55,6 +57,11 @@ def register(subparsers) -> None:
                    help="robust one-shot fusion: leave out a node whose residual fails the "
                         "chi-square gate (gate), or down-weight it (huber, cauchy); none = "
                         "plain least squares (default %(default)s)")
+    p.add_argument("--no-motion-check", action="store_true",
+                   help="with --robust: do not check each fused target against the motion of "
+                        "the neighbouring frames (default: a target no neighbouring frame "
+                        "confirms is refitted without the nodes that disagree, or flagged; "
+                        "docs/ROBUST.md)")
     p.add_argument("--solver", choices=["batch", "gtsam"], default="batch",
                    help="vectorized batch solver or one GTSAM graph per frame (default %(default)s)")
     p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
@@ -133,6 +140,11 @@ def choose_noise(args, path, node_names):
     return noise_for_fusion(path, node_names, per_node=True)
 
 
+def motion_text(args) -> str:
+    """``", motion check"`` when the run checks rows against their neighbours."""
+    return "" if (args.robust == "none" or args.no_motion_check) else ", motion check"
+
+
 def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.app.chunked_fuse import fuse_file
     from mmsnap_graph.io.chunks import open_detection_windows
@@ -158,9 +170,11 @@ def run(args: argparse.Namespace) -> int:
                           solver=args.solver, source=args.source, gate_probability=args.gate,
                           grid_points_per_axis=args.grid_points,
                           progress=False if args.no_progress else None,
-                          robust=None if args.robust == "none" else args.robust)
+                          robust=None if args.robust == "none" else args.robust,
+                          motion_check=args.robust != "none" and not args.no_motion_check)
     n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
     print(f"fused {fused.n_rows} targets in {frames} frames ({args.mode}, {args.covariance}, "
-          f"{args.solver}, robust {args.robust}): {n_ok} succeeded, {fused.n_rows - n_ok} "
+          f"{args.solver}, robust {args.robust}{motion_text(args)}): {n_ok} succeeded, "
+          f"{fused.n_rows - n_ok} "
           f"flagged; wrote {path}:/fused", file=sys.stdout)
     return 0
