@@ -177,7 +177,9 @@ def test_window_frames_must_be_a_positive_integer(good, window):
         fuse_file(good, window_frames=window)
 
 
-def test_the_cli_writes_what_fuse_file_writes(good, reference, tmp_path, capsys):
+def test_the_cli_writes_what_fuse_file_writes(good, tmp_path, capsys):
+    """The CLI's default is the robust gate with the motion check."""
+    reference = fuse_recording(read_recording(good), progress=False, robust="gate")
     out = tmp_path / "cli.h5"
     assert main(["fuse", str(good), "-o", str(out), "--no-progress"]) == 0
     assert f"fused {len(reference)} targets" in capsys.readouterr().out

@@ -167,9 +167,11 @@ def test_ghost_detections_are_rejected_or_flagged():
         ghosts += int(is_ghost.sum())
         used += int(np.sum(is_ghost & kept))
     assert ghosts > 100 and used <= 0.01 * ghosts, (used, ghosts)
-    flagged = fused.status == Status.RESIDUAL_TEST_FAILED
-    assert flagged.any()
+    flagged = np.isin(fused.status, [Status.RESIDUAL_TEST_FAILED, Status.MOTION_INCONSISTENT])
+    assert flagged.any() and (fused.status == Status.MOTION_INCONSISTENT).any()
     assert all("motion check" in m or "chi-square" in m for m in fused.message[flagged])
+    motion = fused.status == Status.MOTION_INCONSISTENT
+    assert all(m.startswith("motion check") for m in fused.message[motion])
     assert np.all(np.isnan(fused.covariance[~fused.success]))
 
 

@@ -33,12 +33,14 @@ DEGENERACY_THRESHOLD = 100.0
 class Status(enum.IntEnum):
     """Status codes of fused frames and of radar frames (one scheme).
 
-    Codes 0-5 and 9 are the ``status`` dataset of a recording's ``/fused``
+    Codes 0-5, 9 and 10 are the ``status`` dataset of a recording's ``/fused``
     group (a file contract, docs/FORMAT.md); codes 6-8 are the radar signal
     chain's (:attr:`mmsnap_graph.radar.chain.ChainResult.status`, not stored
     in files). Code 9 comes from the robust fusion (``robust="gate"``): the
     residuals fail the chi-square test and leaving out one node does not
-    repair them.
+    repair them. Code 10 comes from the motion check of a recording
+    (:mod:`mmsnap_graph.fusion.motion_check`): no subset of the row's nodes
+    agrees with the motion of a target in the neighbouring frames.
     ``Status.OK`` (alias ``Status.CONVERGED``) is success for both.
     """
 
@@ -52,6 +54,7 @@ class Status(enum.IntEnum):
     ALL_ZERO_CUBE = 7
     SATURATED = 8
     RESIDUAL_TEST_FAILED = 9
+    MOTION_INCONSISTENT = 10
     CONVERGED = 0  # alias of OK, the estimators' word for it
 
     @property
@@ -76,6 +79,7 @@ _MESSAGES = {
     7: "all-zero cube",
     8: "saturated",
     9: "residuals fail the chi-square test and no single node's removal repairs them",
+    10: "not consistent with the motion of any target in the neighbouring frames",
 }
 
 

@@ -93,7 +93,7 @@ MOTION_MAX_LEFT_OUT = 2
 MOTION_CONTEXT_FRAMES = 3 * MOTION_WINDOW_FRAMES
 #: The status of a row the motion check flags: its residuals with the motion
 #: prediction fail the chi-square test for every subset of its nodes.
-MOTION_FLAG_STATUS = Status.RESIDUAL_TEST_FAILED
+MOTION_FLAG_STATUS = Status.MOTION_INCONSISTENT
 
 #: ``refit(rows (H,), observed (H, N), initial_state (H, 4))`` -> an object
 #: with fuse_batch's per-row fields (``state``, ``covariance``, ``status``,
