@@ -59,6 +59,7 @@ from .._validation import as_float_array, check_finite
 from .ekf import config_integer, config_number
 
 __all__ = [
+    "spd_inverse_4x4",
     "CentralConfig",
     "CentralTracker",
     "FixedLagTracker",
@@ -69,8 +70,12 @@ __all__ = [
 
 def _check_estimates(states: ArrayLike, covariances: ArrayLike) -> tuple[NDArray, NDArray]:
     """One frame's one-shot estimates, validated: ``(M, 4)`` and ``(M, 4, 4)``."""
-    z = check_finite(as_float_array(states, "states"), "states").reshape(-1, 4)
-    r = check_finite(as_float_array(covariances, "covariances"), "covariances")
+    z = as_float_array(states, "states")
+    r = as_float_array(covariances, "covariances")
+    if not (np.isfinite(z).all() and np.isfinite(r).all()):  # cheap test, then the message
+        check_finite(z, "states")
+        check_finite(r, "covariances")
+    z = z.reshape(-1, 4)
     if r.shape != (z.shape[0], 4, 4):
         raise ValidationError(f"covariances must have shape ({z.shape[0]}, 4, 4), got {r.shape}")
     return z, r
@@ -118,12 +123,59 @@ class CentralConfig:
             raise ConfigurationError(f"max_misses={self.max_misses!r} must be an integer >= 1")
 
 
-def _spd_inverse(p: NDArray) -> NDArray:
-    """Inverse of a symmetric positive-definite matrix through its Cholesky
-    factor (``LinAlgError`` when it is not positive definite). Plain numpy:
-    scipy's wrappers cost more than the 4x4 work."""
-    li = np.linalg.inv(np.linalg.cholesky(p))
-    return symmetrize(li.T @ li)
+def _cholesky_4x4(a: list[float]) -> tuple[float, ...] | None:
+    """Lower Cholesky factor ``(l00, l10, l11, l20, l21, l22, l30, l31, l32,
+    l33)`` of a symmetric 4x4 matrix given row-major (16 floats), unrolled in
+    plain floats; None when it is not positive definite (a pivot not above
+    1e-14 times its diagonal entry, or not finite)."""
+    a00, a11, a22, a33 = a[0], a[5], a[10], a[15]
+    if not (a00 > 0.0 and a11 > 0.0 and a22 > 0.0 and a33 > 0.0):
+        return None
+    l00 = math.sqrt(a00)
+    l10, l20, l30 = a[4] / l00, a[8] / l00, a[12] / l00
+    d = a11 - l10 * l10
+    if not d > 1e-14 * a11:
+        return None
+    l11 = math.sqrt(d)
+    l21 = (a[9] - l20 * l10) / l11
+    l31 = (a[13] - l30 * l10) / l11
+    d = a22 - l20 * l20 - l21 * l21
+    if not d > 1e-14 * a22:
+        return None
+    l22 = math.sqrt(d)
+    l32 = (a[14] - l30 * l20 - l31 * l21) / l22
+    d = a33 - l30 * l30 - l31 * l31 - l32 * l32
+    if not (d > 1e-14 * a33 and math.isfinite(d)):
+        return None
+    return l00, l10, l11, l20, l21, l22, l30, l31, l32, math.sqrt(d)
+
+
+def spd_inverse_4x4(p: NDArray) -> NDArray:
+    """Inverse (4, 4) of a symmetric positive-definite 4x4 matrix as
+    ``L^-T L^-1`` from its Cholesky factor, exactly symmetric, in plain
+    floats (a tracker step inverts a few 4x4 matrices; numpy's per-call
+    cost is larger than the arithmetic). Raises ``LinAlgError`` when ``p``
+    is not positive definite."""
+    lo = _cholesky_4x4(p.ravel().tolist())
+    if lo is None:
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+    l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = lo
+    m00, m11, m22, m33 = 1.0 / l00, 1.0 / l11, 1.0 / l22, 1.0 / l33
+    m10 = -l10 * m00 * m11
+    m21 = -l21 * m11 * m22
+    m20 = -(l20 * m00 + l21 * m10) * m22
+    m32 = -l32 * m22 * m33
+    m31 = -(l31 * m11 + l32 * m21) * m33
+    m30 = -(l30 * m00 + l31 * m10 + l32 * m20) * m33
+    c01 = m10 * m11 + m20 * m21 + m30 * m31
+    c02 = m20 * m22 + m30 * m32
+    c12 = m21 * m22 + m31 * m32
+    c03, c13, c23 = m30 * m33, m31 * m33, m32 * m33
+    return np.array(((m00 * m00 + m10 * m10 + m20 * m20 + m30 * m30, c01, c02, c03),
+                     (c01, m11 * m11 + m21 * m21 + m31 * m31, c12, c13),
+                     (c02, c12, m22 * m22 + m32 * m32, c23),
+                     (c03, c13, c23, m33 * m33)))
+
 
 
 def _gate_2dof(probability: float) -> float:
@@ -152,14 +204,16 @@ def measurement_information(
     estimate itself. Negative eigenvalues from rounding (directions the prior
     alone determined) are clipped to zero."""
     x = np.asarray(state, dtype=float)
-    info = _spd_inverse(symmetrize(np.asarray(covariance, dtype=float)))
+    info = spd_inverse_4x4(symmetrize(np.asarray(covariance, dtype=float)))
     eta = info @ x
     if prior_mean is not None:
         lam_p = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
         info = info - np.diag(lam_p)
         eta = eta - lam_p * np.asarray(prior_mean, dtype=float)
-        w, v = np.linalg.eigh(symmetrize(info))
-        info = symmetrize((v * np.maximum(w, 0.0)) @ v.T)
+        # Positive definite (the common case): no eigenvalue to clip.
+        if _cholesky_4x4(info.ravel().tolist()) is None:
+            w, v = np.linalg.eigh(symmetrize(info))
+            info = symmetrize((v * np.maximum(w, 0.0)) @ v.T)
     return info, eta
 
 
@@ -235,9 +289,9 @@ class CentralTracker:
         for j in np.flatnonzero(assigned >= 0):
             tr = self._tracks[assigned[j]]
             lam_z, eta_z = self._information(z[j], r[j])
-            info_pred = _spd_inverse(tr.p)
+            info_pred = spd_inverse_4x4(tr.p)
             info_post = symmetrize(info_pred + lam_z)
-            tr.p = _spd_inverse(info_post)
+            tr.p = spd_inverse_4x4(info_post)
             tr.x = tr.p @ (info_pred @ tr.x + eta_z)
             hit[assigned[j]] = True
         for i, tr in enumerate(self._tracks):
