@@ -52,7 +52,7 @@ from factors.models import measurement_model_scalar, wrap_angle_scalar
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.results import Status
 from .degeneracy import condition_2x2
-from .oneshot_assess import NEWTON_DECREMENT_TOLERANCE, positive_definite
+from .oneshot_assess import NEWTON_DECREMENT_TOLERANCE
 from .problem import frame_initial_state
 
 __all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "FrameSolution", "FrameSolver"]
@@ -75,11 +75,36 @@ _LAMBDA_INITIAL, _LAMBDA_FACTOR, _LAMBDA_MAX = 1e-5, 10.0, 1e5
 _MIN_DIAGONAL, _MAX_DIAGONAL = 1e-6, 1e32
 _MIN_MODEL_FIDELITY = 1e-3
 _EPSILON = 2.220446049250313e-16
+# oneshot_assess.positive_definite's smallest eigenvalue ratio of a covariance.
+_MIN_EIGENVALUE_RATIO = 1e-13
 # Relative Cholesky pivot below which the information counts as singular
 # (as mmsnap_graph._linalg's batched Cholesky).
 _PIVOT_RTOL = 1e-12
 _OK, _MAX_ITER, _SINGULAR, _NON_FINITE = (int(Status.OK), int(Status.MAX_ITERATIONS),
                                           int(Status.SINGULAR), int(Status.NON_FINITE))
+
+
+def _positive_definite(cov: NDArray) -> bool:
+    """:func:`~mmsnap_graph.fusion.oneshot_assess.positive_definite` in
+    floats: every squared Cholesky pivot of ``cov`` above
+    ``_MIN_EIGENVALUE_RATIO`` times its largest diagonal entry, all finite."""
+    c = cov.ravel().tolist()
+    floor = _MIN_EIGENVALUE_RATIO * max(c[0], c[5], c[10], c[15])
+    if not (c[0] > 0.0 and c[0] > floor and math.isfinite(floor)):
+        return False
+    l00 = math.sqrt(c[0])
+    l10, l20, l30 = c[4] / l00, c[8] / l00, c[12] / l00
+    d = c[5] - l10 * l10
+    if not d > floor:
+        return False
+    l11 = math.sqrt(d)
+    l21, l31 = (c[9] - l20 * l10) / l11, (c[13] - l30 * l10) / l11
+    d = c[10] - l20 * l20 - l21 * l21
+    if not d > floor:
+        return False
+    l32 = (c[14] - l30 * l20 - l31 * l21) / math.sqrt(d)
+    d = c[15] - l30 * l30 - l31 * l31 - l32 * l32
+    return d > floor and math.isfinite(d)
 
 
 def _nan44() -> NDArray:
@@ -188,6 +213,10 @@ class FrameSolver:
         self.noises = tuple(noises)
         self.prior = prior
         self.max_iterations = int(max_iterations)
+        # One noise for every node: the initial state's Doppler weights are all 1
+        # either way (problem.frame_initial_state), one noise skips them.
+        self._initial_noise = (self.noises[0] if all(m == self.noises[0] for m in self.noises)
+                               else self.noises)
         self._nodes = [(px, py, math.cos(phi), math.sin(phi)) for px, py, phi in poses.tolist()]
         self._inv_sigma = [(1.0 / m.range_m, 1.0 / m.omega_rad, 1.0 / m.doppler_mps)
                            for m in self.noises]
@@ -337,7 +366,7 @@ class FrameSolver:
         obs = observed.tolist()
         zl = z.tolist()
         rows = [(n, zl[n]) for n in range(len(obs)) if obs[n]]
-        x0 = frame_initial_state(self.poses, z, observed, self.prior, self.noises)
+        x0 = frame_initial_state(self.poses, z, observed, self.prior, self._initial_noise)
         if not all(map(math.isfinite, x0)):  # the average detection on a node
             return FrameSolution([math.nan] * 4, _nan44(), _NON_FINITE, math.inf, 0)
         try:
@@ -357,7 +386,7 @@ class FrameSolver:
             return FrameSolution(x, _nan44(), _SINGULAR, math.inf, it)
         cov = _cholesky_inverse(lo)
         degeneracy = condition_2x2(*lines)
-        if not positive_definite(cov):
+        if not _positive_definite(cov):
             return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it)
         # The squared Newton decrement g^T H^-1 g = |L^-1 g|^2.
         y = _forward(lo, grad)

@@ -262,14 +262,14 @@ class FrameStream:
     def _fuse(self, per_node, members):
         """``(state, covariance, status, degeneracy)`` of the groups ``members (G, N)``."""
         g, n_nodes = members.shape
-        obs = members >= 0
-        z = np.zeros((g, n_nodes, 3))
-        for n in range(n_nodes):
-            m = obs[:, n]
-            if np.any(m):
-                z[m, n] = per_node[n][members[m, n]]
         if g == 0:
             return np.zeros((0, 4)), np.zeros((0, 4, 4)), _EMPTY_I8, np.zeros(0)
+        obs = members >= 0
+        z = np.zeros((g, n_nodes, 3))
+        for i, row in enumerate(members.tolist()):
+            for n, k in enumerate(row):
+                if k >= 0:
+                    z[i, n] = per_node[n][k]
         if self.solver == "batch":
             res = fuse_batch(self.node_poses, z, observed=obs, noise=self.noise, prior=self.prior,
                              pose_covariances=self.pose_covariances)
@@ -304,7 +304,7 @@ class FrameStream:
         return state, cov, status, degeneracy
 
     def _update(self, index, t, ok, message, fused, start) -> StreamUpdate:
-        tracks = self._tracker.tracks
+        track_id, track_state, track_cov = self._tracker.track_arrays()
         n_nodes = len(self.node_names)
         if fused is None:
             fused = (np.zeros((0, 4)), np.zeros((0, 4, 4)), _EMPTY_I8, np.zeros(0),
@@ -313,9 +313,7 @@ class FrameStream:
         return StreamUpdate(
             index=index, time_s=t, ok=ok, message=message,
             state=state, covariance=cov, status=status, members=members, degeneracy=degeneracy,
-            track_id=np.array([tid for tid, _, _ in tracks], dtype=np.int64),
-            track_state=np.array([x for _, x, _ in tracks]).reshape(-1, 4),
-            track_covariance=np.array([p for _, _, p in tracks]).reshape(-1, 4, 4),
+            track_id=track_id, track_state=track_state, track_covariance=track_cov,
             latency_s=time.perf_counter() - start,
         )
 

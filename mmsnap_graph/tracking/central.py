@@ -297,6 +297,14 @@ class CentralTracker:
     def tracks(self) -> list[tuple[int, NDArray, NDArray]]:
         return [(t.track_id, np.array(t.x), np.array(t.p).reshape(4, 4)) for t in self._tracks]
 
+    def track_arrays(self) -> tuple[NDArray, NDArray, NDArray]:
+        """The live tracks as arrays: ``track_id (T,)`` int64, ``state (T, 4)``,
+        ``covariance (T, 4, 4)`` (new arrays)."""
+        tracks = self._tracks
+        return (np.array([t.track_id for t in tracks], dtype=np.int64),
+                np.array([t.x for t in tracks], dtype=float).reshape(-1, 4),
+                np.array([t.p for t in tracks], dtype=float).reshape(-1, 4, 4))
+
     def step(self, states: ArrayLike, covariances: ArrayLike, frame_period_s: float | None = None):
         """One frame: predict every track, associate, update, start and end tracks.
 
