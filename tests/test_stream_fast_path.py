@@ -47,10 +47,12 @@ def test_fast_association_makes_the_decisions_of_associate_frame(noise):
     noises = noise if isinstance(noise, tuple) else (noise,) * 4
     assoc = StreamAssociator(SQUARE, noises, 0.999)
     n_groups = []
-    for k in range(400):
-        # One target (the fast path), two targets with one detection per node
-        # (the fast path with several groups), two targets (associate_frame itself).
-        dets = _detections(rng, 1 + (k % 3 > 0), 0.25, one_per_node=k % 3 < 2)
+    for k in range(600):
+        # One target, two targets with one detection per node (several groups),
+        # two to four targets (several detections per node; five or more go to
+        # associate_frame itself).
+        n_targets = (1, 2, 2, 3, 4, 5)[k % 6]
+        dets = _detections(rng, n_targets, 0.25, one_per_node=k % 6 < 2)
         ref = associate_frame(dets, SQUARE, noise, gate_probability=0.999).members
         got = assoc.members(dets)
         np.testing.assert_array_equal(got, ref)

@@ -17,6 +17,7 @@ or a degenerate detection covariance) goes to ``associate_frame`` itself.
 from __future__ import annotations
 
 import math
+from itertools import permutations
 from typing import Sequence
 
 import numpy as np
@@ -30,6 +31,10 @@ from .association import MAX_CONDITION, MIN_VARIANCE_M2, associate_frame, gate_t
 __all__ = ["StreamAssociator"]
 
 _PI = math.pi
+# Cost of a forbidden pair (as association's) and the most detections per node
+# and groups the fast path enumerates assignments for.
+_FORBIDDEN = 1e12
+_MAX_DETECTIONS = 4
 
 
 class StreamAssociator:
@@ -57,8 +62,12 @@ class StreamAssociator:
             rows = [z.tolist() for z in per_node]
         if all(len(r) <= 1 for r in rows):
             out = self._singles(rows)
-            if out is not None:
-                return out
+        elif max(len(r) for r in rows) <= _MAX_DETECTIONS:
+            out = self._several(rows)
+        else:
+            out = None
+        if out is not None:
+            return out
         noise = self.noises[0] if self._one_noise else self.noises
         return associate_frame(per_node, self.node_poses, noise,
                                gate_probability=self.gate_probability).members
@@ -100,6 +109,100 @@ class StreamAssociator:
             groups[best] = [a + ia, b + ib, c + ic, d + id_,
                             e0 + ia * px + ib * py, e1 + ic * px + id_ * py]
         return np.array(members, dtype=np.int64)
+
+
+    def _several(self, rows) -> NDArray | None:
+        """The members when a node has several detections (``associate_frame``'s
+        general path: each node's detections assigned to the groups so far by
+        gated minimum-cost assignment); None when a detection's covariance is
+        degenerate or there are more than ``_MAX_DETECTIONS`` groups."""
+        n_nodes = len(rows)
+        gate = self._gate
+        members: list[list[int]] = []
+        infos: list[list[float]] = []   # each group's summed information (a, b, c, d)
+        etas: list[list[float]] = []
+        for n, node_rows in enumerate(rows):
+            if not node_rows:
+                continue
+            dets = [_detection(r[0], r[1], self._nodes[n]) for r in node_rows]
+            if any(d is None for d in dets) or len(members) > _MAX_DETECTIONS:
+                return None
+            assigned = [-1] * len(dets)
+            if members:
+                cost = []
+                for info, eta in zip(infos, etas):
+                    mx, my, (ga, gb, gc, gd) = _group_mean(info, eta)
+                    cost.append([_gated_m2(mx - px, my - py, ga + sa, gb + sb, gc + sc, gd + sd, gate)
+                                 for px, py, sa, sb, sc, sd, *_ in dets])
+                for g, k in _assignment(cost):
+                    if cost[g][k] < _FORBIDDEN:
+                        assigned[k] = g
+            for k, (px, py, _, _, _, _, ia, ib, ic, id_) in enumerate(dets):
+                g = assigned[k]
+                if g < 0:
+                    members.append([-1] * n_nodes)
+                    infos.append([0.0, 0.0, 0.0, 0.0])
+                    etas.append([0.0, 0.0])
+                    g = len(members) - 1
+                members[g][n] = k
+                a, b, c, d = infos[g]
+                infos[g] = [a + ia, b + ib, c + ic, d + id_]
+                etas[g] = [etas[g][0] + ia * px + ib * py, etas[g][1] + ic * px + id_ * py]
+        return np.array(members, dtype=np.int64).reshape(-1, n_nodes)
+
+
+def _scaled(a, b, c, d):
+    """``(a, b, c, d) / scale, det, scale`` of a 2x2 matrix as
+    ``association``'s scaled closed forms take it."""
+    scale = max(abs(a), abs(b), abs(c), abs(d))
+    if not (scale > 0.0 and math.isfinite(scale)):
+        scale = 1.0
+    a, b, c, d = a / scale, b / scale, c / scale, d / scale
+    return a, b, c, d, a * d - b * c, scale
+
+
+def _group_mean(info, eta):
+    """A group's mean and covariance ``(mx, my, (a, b, c, d))`` from its summed
+    information and information vector (``association._inv_2x2``)."""
+    a, b, c, d, det, scale = _scaled(*info)
+    f = det * scale
+    ga, gb, gc, gd = d / f, -b / f, -c / f, a / f
+    return ga * eta[0] + gb * eta[1], gc * eta[0] + gd * eta[1], (ga, gb, gc, gd)
+
+
+def _gated_m2(dx, dy, a, b, c, d, gate) -> float:
+    """The squared Mahalanobis distance, or ``_FORBIDDEN`` beyond the gate or
+    where ``S`` is singular (``association._mahalanobis2_2x2``)."""
+    a, b, c, d, det, scale = _scaled(a, b, c, d)
+    try:
+        m2 = (d * dx * dx - (b + c) * dx * dy + a * dy * dy) / (det * scale)
+    except ZeroDivisionError:
+        return _FORBIDDEN
+    return m2 if math.isfinite(m2) and m2 <= gate else _FORBIDDEN
+
+
+def _assignment(cost: list[list[float]]) -> list[tuple[int, int]]:
+    """The (group, detection) pairs of least total cost, as
+    ``association._assign`` picks them: the single cheapest pair for one group
+    or one detection, else a full assignment of min(G, K) pairs (by
+    enumeration: at most ``_MAX_DETECTIONS`` detections and groups)."""
+    n_g, n_k = len(cost), len(cost[0])
+    if n_g == 1 or n_k == 1:
+        flat = [v for row in cost for v in row]
+        best = flat.index(min(flat))
+        return [divmod(best, n_k)]
+    if n_g <= n_k:
+        options = ((list(range(n_g)), list(cols)) for cols in permutations(range(n_k), n_g))
+    else:
+        options = ((list(rows), list(range(n_k))) for rows in permutations(range(n_g), n_k))
+    best, best_cost = None, math.inf
+    for rows, cols in options:
+        total = 0.0
+        for i, j in zip(rows, cols):
+            total += cost[i][j]
+        if total < best_cost:
+            best, best_cost = (rows, cols), total
+    return list(zip(*best))
 
 
 def _detection(range_m: float, omega_rad: float, node) -> tuple[float, ...] | None:
