@@ -4,13 +4,23 @@
 ``(range_m, omega_rad, doppler_mps)`` and a time stamp in seconds) and returns
 a :class:`StreamUpdate`: the frame's fused targets with their covariances and
 the central tracker's tracks after the update. Per frame it does what
-:func:`mmsnap_graph.fusion.sequence.fuse_recording` does for that frame
-(:func:`mmsnap_graph.fusion.association.associate_frame`, then
-:func:`mmsnap_graph.fusion.oneshot.fuse_frame` or
-:func:`mmsnap_graph.fusion.batch.fuse_batch` on the frame's groups), and what
+:func:`mmsnap_graph.fusion.sequence.fuse_recording` does for that frame (the
+grouping of :func:`mmsnap_graph.fusion.association.associate_frame`, then
+one-shot fusion of each group), and what
 :func:`mmsnap_graph.tracking.central.track_fused` does (one
 :meth:`~mmsnap_graph.tracking.central.CentralTracker.step` with the frame's
 successful estimates; a MAP estimate has its prior removed by the tracker).
+
+It is built for latency (docs/STREAMING.md, "Latency"): the grouping is
+:class:`~mmsnap_graph.fusion.stream_association.StreamAssociator` (the
+decisions of ``associate_frame`` in plain floats for up to four detections
+per node, ``associate_frame`` itself otherwise); the default solver
+``"numpy"`` is :class:`~mmsnap_graph.fusion.frame_solver.FrameSolver` (the
+problem of :func:`~mmsnap_graph.fusion.oneshot.fuse_frame` solved as GTSAM
+solves it, in plain floats, equal to it to the tolerance stated there);
+``"gtsam"`` runs ``fuse_frame`` itself and ``"batch"``
+:func:`mmsnap_graph.fusion.batch.fuse_batch`. Each frame is validated once,
+with checks on plain floats.
 
 State is bounded: the node poses and settings, the time of the last good
 frame, three counters and the tracker's live tracks (each deleted after
