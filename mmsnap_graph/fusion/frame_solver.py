@@ -314,7 +314,8 @@ class FrameSolver:
                 step = self._try(x, cost, info, grad, lam, diag, rows)
                 if step is not None and step[0]:
                     _, fidelity, new_x, new = step
-                    lam = max(0.0, lam * max(1.0 / 3.0, 1.0 - (2.0 * fidelity - 1.0) ** 3))
+                    t = 2.0 * fidelity - 1.0  # a product, not **: inf instead of OverflowError
+                    lam = max(0.0, lam * max(1.0 / 3.0, 1.0 - t * t * t))
                     factor = 2.0
                     x = new_x
                     cost, info, grad, lines = new

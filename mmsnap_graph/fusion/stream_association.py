@@ -166,6 +166,8 @@ def _group_mean(info, eta):
     information and information vector (``association._inv_2x2``)."""
     a, b, c, d, det, scale = _scaled(*info)
     f = det * scale
+    if f == 0.0:  # singular (numpy gives inf and NaN, and no pair passes the gate)
+        return math.nan, math.nan, (math.nan,) * 4
     ga, gb, gc, gd = d / f, -b / f, -c / f, a / f
     return ga * eta[0] + gb * eta[1], gc * eta[0] + gd * eta[1], (ga, gb, gc, gd)
 
