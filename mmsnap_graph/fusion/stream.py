@@ -4,13 +4,23 @@
 ``(range_m, omega_rad, doppler_mps)`` and a time stamp in seconds) and returns
 a :class:`StreamUpdate`: the frame's fused targets with their covariances and
 the central tracker's tracks after the update. Per frame it does what
-:func:`mmsnap_graph.fusion.sequence.fuse_recording` does for that frame
-(:func:`mmsnap_graph.fusion.association.associate_frame`, then
-:func:`mmsnap_graph.fusion.oneshot.fuse_frame` or
-:func:`mmsnap_graph.fusion.batch.fuse_batch` on the frame's groups), and what
+:func:`mmsnap_graph.fusion.sequence.fuse_recording` does for that frame (the
+grouping of :func:`mmsnap_graph.fusion.association.associate_frame`, then
+one-shot fusion of each group), and what
 :func:`mmsnap_graph.tracking.central.track_fused` does (one
 :meth:`~mmsnap_graph.tracking.central.CentralTracker.step` with the frame's
 successful estimates; a MAP estimate has its prior removed by the tracker).
+
+It is built for latency (docs/STREAMING.md, "Latency"): the grouping is
+:class:`~mmsnap_graph.fusion.stream_association.StreamAssociator` (the
+decisions of ``associate_frame`` in plain floats for up to four detections
+per node, ``associate_frame`` itself otherwise); the default solver
+``"numpy"`` is :class:`~mmsnap_graph.fusion.frame_solver.FrameSolver` (the
+problem of :func:`~mmsnap_graph.fusion.oneshot.fuse_frame` solved as GTSAM
+solves it, in plain floats, equal to it to the tolerance stated there);
+``"gtsam"`` runs ``fuse_frame`` itself and ``"batch"``
+:func:`mmsnap_graph.fusion.batch.fuse_batch`. Each frame is validated once,
+with checks on plain floats.
 
 State is bounded: the node poses and settings, the time of the last good
 frame, three counters and the tracker's live tracks (each deleted after
@@ -37,8 +47,9 @@ from typing import Iterator, Literal, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .association import associate_frame
 from .batch import fuse_batch
+from .frame_solver import FrameSolver
+from .stream_association import StreamAssociator
 from .problem import check_node_noise, check_pose_covariances, check_prior
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.recording import Recording
@@ -113,9 +124,12 @@ class FrameStream:
         holding every node (docs/CONVENTIONS.md, "Per-node noise").
     prior : GaussianPrior or None
         The one-shot prior (MAP, default the paper's); None for ML.
-    solver : ``"gtsam"`` (:func:`~mmsnap_graph.fusion.oneshot.fuse_frame` per
-        group; the faster for one frame) or ``"batch"``
-        (:func:`~mmsnap_graph.fusion.batch.fuse_batch` on the frame's groups).
+    solver : ``"numpy"`` (the default: :class:`~mmsnap_graph.fusion.frame_solver.FrameSolver`
+        per group, the same problem as ``fuse_frame`` solved in plain floats,
+        equal to it to the tolerance stated there and several times faster),
+        ``"gtsam"`` (:func:`~mmsnap_graph.fusion.oneshot.fuse_frame` per
+        group) or ``"batch"`` (:func:`~mmsnap_graph.fusion.batch.fuse_batch`
+        on the frame's groups).
     gate_probability : association gate (see :mod:`mmsnap_graph.fusion.association`).
     tracker : CentralConfig or None
         The central tracker's settings (default ``CentralConfig()``); its
@@ -135,7 +149,7 @@ class FrameStream:
     def __init__(self, node_names: Sequence[str], node_poses: ArrayLike, *,
                  noise: MeasurementNoise = MeasurementNoise(),
                  prior: GaussianPrior | None = GaussianPrior(),
-                 solver: Literal["gtsam", "batch"] = "gtsam",
+                 solver: Literal["numpy", "gtsam", "batch"] = "numpy",
                  gate_probability: float = 0.999,
                  tracker: CentralConfig | None = None,
                  pose_covariances: ArrayLike | Mapping[str, ArrayLike] | None = None) -> None:
@@ -145,8 +159,8 @@ class FrameStream:
         poses = check_finite(as_float_array(node_poses, "node_poses"), "node_poses")
         if poses.shape != (len(names), 3):
             raise ValidationError(f"node_poses must have shape ({len(names)}, 3), got {poses.shape}")
-        if solver not in ("gtsam", "batch"):
-            raise ValidationError(f"solver must be 'gtsam' or 'batch', got {solver!r}")
+        if solver not in ("numpy", "gtsam", "batch"):
+            raise ValidationError(f"solver must be 'numpy', 'gtsam' or 'batch', got {solver!r}")
         if tracker is not None and not isinstance(tracker, CentralConfig):
             raise ValidationError(f"tracker must be a CentralConfig, got {type(tracker).__name__}")
         p = float(gate_probability)
@@ -161,6 +175,8 @@ class FrameStream:
         self.pose_covariances = check_pose_covariances(pose_covariances, len(names), names)
         self.prior = check_prior(prior)
         self.solver = solver
+        self._frame_solver = FrameSolver(poses, noises, self.prior, self.pose_covariances)
+        self._associator = StreamAssociator(poses, noises, p)
         self.gate_probability = p
         self._index = {name: i for i, name in enumerate(names)}
         self._tracker = CentralTracker(
@@ -201,9 +217,8 @@ class FrameStream:
         dt = None if self._last_time_s is None else t - self._last_time_s
         self._last_time_s = t
         try:
-            assoc = associate_frame(per_node, self.node_poses, self.noise,
-                                    gate_probability=self.gate_probability)
-            fused = (*self._fuse(per_node, assoc.members), assoc.members)
+            members = self._associator.members(per_node)
+            fused = (*self._fuse(per_node, members), members)
         except _FRAME_FAILURES as exc:
             self._step_tracker(np.zeros((0, 4)), np.zeros((0, 4, 4)), dt)
             return self._update(index, t, False, f"fusion failed: {type(exc).__name__}: {exc}",
@@ -252,25 +267,36 @@ class FrameStream:
             if problem is not None:
                 return t, None, problem
             per_node[i] = z
-        empty = np.zeros((0, 3))
-        return t, [empty if z is None else z for z in per_node], None
+        return t, [_EMPTY_ROWS if z is None else z for z in per_node], None
 
     def _fuse(self, per_node, members):
         """``(state, covariance, status, degeneracy)`` of the groups ``members (G, N)``."""
         g, n_nodes = members.shape
-        obs = members >= 0
-        z = np.zeros((g, n_nodes, 3))
-        for n in range(n_nodes):
-            m = obs[:, n]
-            if np.any(m):
-                z[m, n] = per_node[n][members[m, n]]
         if g == 0:
             return np.zeros((0, 4)), np.zeros((0, 4, 4)), _EMPTY_I8, np.zeros(0)
+        obs = members >= 0
+        z = np.zeros((g, n_nodes, 3))
+        for i, row in enumerate(members.tolist()):
+            for n, k in enumerate(row):
+                if k >= 0:
+                    z[i, n] = per_node[n][k]
         if self.solver == "batch":
             res = fuse_batch(self.node_poses, z, observed=obs, noise=self.noise, prior=self.prior,
                              pose_covariances=self.pose_covariances)
             return res.state, res.covariance, np.asarray(res.status, dtype=np.int8), res.degeneracy
+        if self.solver == "numpy":
+            return self._fuse_numpy(z, obs)
         return self._fuse_gtsam(z, obs)
+
+    def _fuse_numpy(self, z, obs):
+        g = z.shape[0]
+        state, cov = np.empty((g, 4)), np.empty((g, 4, 4))
+        status, degeneracy = np.empty(g, dtype=np.int8), np.empty(g)
+        for i in range(g):
+            sol = self._frame_solver.solve(z[i], obs[i])
+            state[i], cov[i], status[i], degeneracy[i] = (sol.state, sol.covariance, sol.status,
+                                                          sol.degeneracy)
+        return state, cov, status, degeneracy
 
     def _fuse_gtsam(self, z, obs):
         from .oneshot import fuse_frame  # deferred: keeps GTSAM out of this module's import path
@@ -288,7 +314,7 @@ class FrameStream:
         return state, cov, status, degeneracy
 
     def _update(self, index, t, ok, message, fused, start) -> StreamUpdate:
-        tracks = self._tracker.tracks
+        track_id, track_state, track_cov = self._tracker.track_arrays()
         n_nodes = len(self.node_names)
         if fused is None:
             fused = (np.zeros((0, 4)), np.zeros((0, 4, 4)), _EMPTY_I8, np.zeros(0),
@@ -297,11 +323,14 @@ class FrameStream:
         return StreamUpdate(
             index=index, time_s=t, ok=ok, message=message,
             state=state, covariance=cov, status=status, members=members, degeneracy=degeneracy,
-            track_id=np.array([tid for tid, _, _ in tracks], dtype=np.int64),
-            track_state=np.array([x for _, x, _ in tracks]).reshape(-1, 4),
-            track_covariance=np.array([p for _, _, p in tracks]).reshape(-1, 4, 4),
+            track_id=track_id, track_state=track_state, track_covariance=track_cov,
             latency_s=time.perf_counter() - start,
         )
+
+
+_OMEGA_MAX = np.pi + 1e-9
+_EMPTY_ROWS = np.zeros((0, 3))
+_INF = math.inf
 
 
 def _check_rows(rows, name):
@@ -311,16 +340,25 @@ def _check_rows(rows, name):
     except (TypeError, ValueError) as exc:
         return None, f"detections of {name} are not numbers: {exc}"
     if z.size == 0:
-        return np.zeros((0, 3)), None
+        return _EMPTY_ROWS, None
     if z.ndim == 1 and z.shape[0] == 3:
         z = z[None]
     if z.ndim != 2 or z.shape[1] != 3:
         return None, f"detections of {name} must have shape (K, 3), got {z.shape}"
+    if z.shape[0] <= 8:
+        # A few rows (centroids): plain float checks (NaN fails every comparison).
+        if all(0.0 <= r < _INF and abs(w) <= _OMEGA_MAX and abs(d) < _INF for r, w, d in z.tolist()):
+            return z, None
+    return _row_problem(z, name)
+
+
+def _row_problem(z, name):
+    """The checks of :func:`_check_rows` on arrays, in the order of their messages."""
     if not np.all(np.isfinite(z)):
         return None, f"detections of {name} have non-finite values"
     if np.any(z[:, 0] < 0):
         return None, f"detections of {name} have a negative range {z[:, 0].min()!r}"
-    if np.any(np.abs(z[:, 1]) > np.pi + 1e-9):
+    if np.any(np.abs(z[:, 1]) > _OMEGA_MAX):
         return None, f"detections of {name} have |omega| > pi ({np.abs(z[:, 1]).max()!r})"
     return z, None
 

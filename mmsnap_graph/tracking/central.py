@@ -59,6 +59,7 @@ from .._validation import as_float_array, check_finite
 from .ekf import config_integer, config_number
 
 __all__ = [
+    "spd_inverse_4x4",
     "CentralConfig",
     "CentralTracker",
     "FixedLagTracker",
@@ -69,8 +70,12 @@ __all__ = [
 
 def _check_estimates(states: ArrayLike, covariances: ArrayLike) -> tuple[NDArray, NDArray]:
     """One frame's one-shot estimates, validated: ``(M, 4)`` and ``(M, 4, 4)``."""
-    z = check_finite(as_float_array(states, "states"), "states").reshape(-1, 4)
-    r = check_finite(as_float_array(covariances, "covariances"), "covariances")
+    z = as_float_array(states, "states")
+    r = as_float_array(covariances, "covariances")
+    if not (np.isfinite(z).all() and np.isfinite(r).all()):  # cheap test, then the message
+        check_finite(z, "states")
+        check_finite(r, "covariances")
+    z = z.reshape(-1, 4)
     if r.shape != (z.shape[0], 4, 4):
         raise ValidationError(f"covariances must have shape ({z.shape[0]}, 4, 4), got {r.shape}")
     return z, r
@@ -118,27 +123,81 @@ class CentralConfig:
             raise ConfigurationError(f"max_misses={self.max_misses!r} must be an integer >= 1")
 
 
-def _spd_inverse(p: NDArray) -> NDArray:
-    """Inverse of a symmetric positive-definite matrix through its Cholesky
-    factor (``LinAlgError`` when it is not positive definite). Plain numpy:
-    scipy's wrappers cost more than the 4x4 work."""
-    li = np.linalg.inv(np.linalg.cholesky(p))
-    return symmetrize(li.T @ li)
+def _cholesky_4x4(a: list[float]) -> tuple[float, ...] | None:
+    """Lower Cholesky factor ``(l00, l10, l11, l20, l21, l22, l30, l31, l32,
+    l33)`` of a symmetric 4x4 matrix given row-major (16 floats), unrolled in
+    plain floats; None when it is not positive definite (a pivot not above
+    1e-14 times its diagonal entry, or not finite)."""
+    a00, a11, a22, a33 = a[0], a[5], a[10], a[15]
+    if not (a00 > 0.0 and a11 > 0.0 and a22 > 0.0 and a33 > 0.0):
+        return None
+    l00 = math.sqrt(a00)
+    l10, l20, l30 = a[4] / l00, a[8] / l00, a[12] / l00
+    d = a11 - l10 * l10
+    if not d > 1e-14 * a11:
+        return None
+    l11 = math.sqrt(d)
+    l21 = (a[9] - l20 * l10) / l11
+    l31 = (a[13] - l30 * l10) / l11
+    d = a22 - l20 * l20 - l21 * l21
+    if not d > 1e-14 * a22:
+        return None
+    l22 = math.sqrt(d)
+    l32 = (a[14] - l30 * l20 - l31 * l21) / l22
+    d = a33 - l30 * l30 - l31 * l31 - l32 * l32
+    if not (d > 1e-14 * a33 and math.isfinite(d)):
+        return None
+    return l00, l10, l11, l20, l21, l22, l30, l31, l32, math.sqrt(d)
+
+
+def _inverse_floats(a: list[float]) -> list[float]:
+    """``a^-1`` of a symmetric positive-definite 4x4 (row-major 16 floats) as
+    ``L^-T L^-1``, exactly symmetric; ``LinAlgError`` when not positive definite."""
+    lo = _cholesky_4x4(a)
+    if lo is None:
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+    l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = lo
+    m00, m11, m22, m33 = 1.0 / l00, 1.0 / l11, 1.0 / l22, 1.0 / l33
+    m10 = -l10 * m00 * m11
+    m21 = -l21 * m11 * m22
+    m20 = -(l20 * m00 + l21 * m10) * m22
+    m32 = -l32 * m22 * m33
+    m31 = -(l31 * m11 + l32 * m21) * m33
+    m30 = -(l30 * m00 + l31 * m10 + l32 * m20) * m33
+    c01 = m10 * m11 + m20 * m21 + m30 * m31
+    c02 = m20 * m22 + m30 * m32
+    c12 = m21 * m22 + m31 * m32
+    c03, c13, c23 = m30 * m33, m31 * m33, m32 * m33
+    return [m00 * m00 + m10 * m10 + m20 * m20 + m30 * m30, c01, c02, c03,
+            c01, m11 * m11 + m21 * m21 + m31 * m31, c12, c13,
+            c02, c12, m22 * m22 + m32 * m32, c23,
+            c03, c13, c23, m33 * m33]
+
+
+def _matvec(a: list[float], x: list[float]) -> list[float]:
+    """``a x`` of a row-major 4x4 and a 4-vector, in floats."""
+    x0, x1, x2, x3 = x
+    return [a[4 * i] * x0 + a[4 * i + 1] * x1 + a[4 * i + 2] * x2 + a[4 * i + 3] * x3
+            for i in range(4)]
+
+
+def _symmetric(a: list[float]) -> list[float]:
+    """``(a + a^T) / 2`` of a row-major 4x4."""
+    return [0.5 * (a[4 * i + j] + a[4 * j + i]) for i in range(4) for j in range(4)]
+
+
+def spd_inverse_4x4(p: ArrayLike) -> NDArray:
+    """Inverse (4, 4) of a symmetric positive-definite 4x4 matrix as
+    ``L^-T L^-1`` from its Cholesky factor, exactly symmetric, in plain
+    floats (a tracker step inverts a few 4x4 matrices; numpy's per-call
+    cost is larger than the arithmetic). Raises ``LinAlgError`` when ``p``
+    is not positive definite."""
+    return np.array(_inverse_floats(np.asarray(p, dtype=float).ravel().tolist())).reshape(4, 4)
 
 
 def _gate_2dof(probability: float) -> float:
     """``chi2.ppf(p, 2)`` in closed form: ``-2 log(1 - p)``."""
     return -2.0 * math.log1p(-float(probability))
-
-
-def _mahalanobis2(d: NDArray, s: NDArray) -> float:
-    """``d^T s^-1 d`` for a 2-vector and a 2x2 matrix, in closed form (inf
-    when ``s`` is singular or not positive definite)."""
-    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
-    if not det > 0:
-        return math.inf
-    return float((s[1, 1] * d[0] ** 2 - (s[0, 1] + s[1, 0]) * d[0] * d[1] + s[0, 0] * d[1] ** 2)
-                 / det)
 
 
 def measurement_information(
@@ -151,24 +210,62 @@ def measurement_information(
     in a one-shot estimate (module docstring); without a prior, of the
     estimate itself. Negative eigenvalues from rounding (directions the prior
     alone determined) are clipped to zero."""
-    x = np.asarray(state, dtype=float)
-    info = _spd_inverse(symmetrize(np.asarray(covariance, dtype=float)))
-    eta = info @ x
-    if prior_mean is not None:
-        lam_p = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
-        info = info - np.diag(lam_p)
-        eta = eta - lam_p * np.asarray(prior_mean, dtype=float)
-        w, v = np.linalg.eigh(symmetrize(info))
-        info = symmetrize((v * np.maximum(w, 0.0)) @ v.T)
+    x = np.asarray(state, dtype=float).tolist()
+    lam_p = None if prior_mean is None else (1.0 / np.asarray(prior_sigmas, dtype=float) ** 2).tolist()
+    mean = None if prior_mean is None else np.asarray(prior_mean, dtype=float).tolist()
+    info, eta = _measurement_information(
+        x, _symmetric(np.asarray(covariance, dtype=float).ravel().tolist()), mean, lam_p)
+    return np.array(info).reshape(4, 4), np.array(eta)
+
+
+def _measurement_information(x, p, mean, lam_p):
+    """:func:`measurement_information` in floats: ``x`` 4, ``p`` row-major 16
+    (symmetric), the prior's mean and information diagonal (4 each) or None."""
+    info = _inverse_floats(p)
+    eta = _matvec(info, x)
+    if mean is not None:
+        for k in range(4):
+            info[5 * k] -= lam_p[k]
+            eta[k] -= lam_p[k] * mean[k]
+        # Positive definite (the common case): no eigenvalue to clip.
+        if _cholesky_4x4(info) is None:
+            w, v = np.linalg.eigh(np.array(info).reshape(4, 4))
+            info = symmetrize((v * np.maximum(w, 0.0)) @ v.T).ravel().tolist()
     return info, eta
 
 
 @dataclass(slots=True)
 class _Track:
+    """A live track: its state (4 floats) and covariance (16 floats, row-major)."""
+
     track_id: int
-    x: NDArray
-    p: NDArray
+    x: list
+    p: list
     misses: int = 0
+
+
+def _predict(x: list[float], p: list[float], t: float, q: list[float]) -> tuple[list, list]:
+    """The constant-velocity prediction ``(F x, F P F^T + Q)`` over ``t``, in
+    floats (``F = [[I, t I], [0, I]]``; :func:`factors.motion.cv_transition`)."""
+    x0, x1, x2, x3 = x
+    # A = F P: rows 0 and 1 gain t times rows 2 and 3.
+    a = [p[k] + t * p[k + 8] for k in range(8)] + p[8:]
+    # F P F^T = A F^T: columns 0 and 1 gain t times columns 2 and 3.
+    out = []
+    for i in range(4):
+        r = a[4 * i:4 * i + 4]
+        out += [r[0] + t * r[2], r[1] + t * r[3], r[2], r[3]]
+    return ([x0 + t * x2, x1 + t * x3, x2, x3],
+            [0.5 * (out[4 * i + j] + out[4 * j + i]) + q[4 * i + j]
+             for i in range(4) for j in range(4)])
+
+
+def _mahalanobis2_floats(dx: float, dy: float, a: float, b: float, c: float, d: float) -> float:
+    """``(dx, dy) S^-1 (dx, dy)^T`` with ``S = [[a, b], [c, d]]`` (inf unless det > 0)."""
+    det = a * d - b * c
+    if not det > 0:
+        return math.inf
+    return (d * dx * dx - (b + c) * dx * dy + a * dy * dy) / det
 
 
 class CentralTracker:
@@ -176,6 +273,8 @@ class CentralTracker:
 
     ``step(states, covariances, frame_period_s)`` advances one frame and returns the
     live tracks ``[(track_id, x (4,), P (4, 4)), ...]`` after the update.
+    The 4x4 algebra of a step is done in plain floats (a few tracks and
+    estimates per frame: numpy's per-call cost would be most of the step).
     """
 
     def __init__(self, config: CentralConfig | None = None, *, prior_mean: ArrayLike | None = None,
@@ -188,16 +287,23 @@ class CentralTracker:
         self._tracks: list[_Track] = []
         self._next_id = 0
         self._gate = _gate_2dof(self.config.gate_probability)
-        self._motion: tuple | None = None  # (period, F, Q) of the last step
+        self._motion: tuple | None = None  # (period, Q as 16 floats) of the last step
+        # The prior removed from MAP estimates (mean, information diagonal), or None.
+        self._prior = None
+        if self.config.remove_prior and self.prior_mean is not None:
+            self._prior = (self.prior_mean.tolist(), (1.0 / self.prior_sigmas**2).tolist())
 
     @property
     def tracks(self) -> list[tuple[int, NDArray, NDArray]]:
-        return [(t.track_id, t.x.copy(), t.p.copy()) for t in self._tracks]
+        return [(t.track_id, np.array(t.x), np.array(t.p).reshape(4, 4)) for t in self._tracks]
 
-    def _information(self, x, p):
-        if self.config.remove_prior and self.prior_mean is not None:
-            return measurement_information(x, p, self.prior_mean, self.prior_sigmas)
-        return measurement_information(x, p)
+    def track_arrays(self) -> tuple[NDArray, NDArray, NDArray]:
+        """The live tracks as arrays: ``track_id (T,)`` int64, ``state (T, 4)``,
+        ``covariance (T, 4, 4)`` (new arrays)."""
+        tracks = self._tracks
+        return (np.array([t.track_id for t in tracks], dtype=np.int64),
+                np.array([t.x for t in tracks], dtype=float).reshape(-1, 4),
+                np.array([t.p for t in tracks], dtype=float).reshape(-1, 4, 4))
 
     def step(self, states: ArrayLike, covariances: ArrayLike, frame_period_s: float | None = None):
         """One frame: predict every track, associate, update, start and end tracks.
@@ -210,47 +316,60 @@ class CentralTracker:
         z, r = _check_estimates(states, covariances)
         t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
         if self._motion is None or self._motion[0] != t:  # frames mostly share one period
-            self._motion = (t, cv_transition(t), cv_process_noise(t, cfg.sigma_a_mps2))
-        _, f, q = self._motion
+            self._motion = (t, cv_process_noise(t, cfg.sigma_a_mps2).ravel().tolist())
+        q = self._motion[1]
         for tr in self._tracks:
-            tr.x = f @ tr.x
-            tr.p = symmetrize(f @ tr.p @ f.T + q)
-        assigned = np.full(z.shape[0], -1)
-        if self._tracks and z.shape[0]:
-            cost = np.full((len(self._tracks), z.shape[0]), np.inf)
-            for i, tr in enumerate(self._tracks):
-                for j in range(z.shape[0]):
-                    m2 = _mahalanobis2(z[j, :2] - tr.x[:2], tr.p[:2, :2] + r[j, :2, :2])
-                    if m2 <= self._gate:
-                        cost[i, j] = m2
-            finite = np.where(np.isfinite(cost), cost, 1e12)
-            if finite.shape == (1, 1):  # one track, one estimate
-                rows, cols = np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64)
-            else:
-                rows, cols = linear_sum_assignment(finite)
-            for i, j in zip(rows, cols):
-                if np.isfinite(cost[i, j]):
-                    assigned[j] = i
-        hit = np.zeros(len(self._tracks), dtype=bool)
-        for j in np.flatnonzero(assigned >= 0):
-            tr = self._tracks[assigned[j]]
-            lam_z, eta_z = self._information(z[j], r[j])
-            info_pred = _spd_inverse(tr.p)
-            info_post = symmetrize(info_pred + lam_z)
-            tr.p = _spd_inverse(info_post)
-            tr.x = tr.p @ (info_pred @ tr.x + eta_z)
-            hit[assigned[j]] = True
+            tr.x, tr.p = _predict(tr.x, tr.p, t, q)
+        zl, rl = z.tolist(), r.reshape(-1, 16).tolist()
+        assigned = self._associate(zl, rl)
+        hit = [False] * len(self._tracks)
+        for j, i in enumerate(assigned):
+            if i < 0:
+                continue
+            tr = self._tracks[i]
+            lam_z, eta_z = _measurement_information(zl[j], _symmetric(rl[j]), *(
+                self._prior if self._prior is not None else (None, None)))
+            info_pred = _inverse_floats(tr.p)
+            tr.p = _inverse_floats([u + v for u, v in zip(info_pred, lam_z)])
+            tr.x = _matvec(tr.p, [u + v for u, v in zip(_matvec(info_pred, tr.x), eta_z)])
+            hit[i] = True
         for i, tr in enumerate(self._tracks):
             tr.misses = 0 if hit[i] else tr.misses + 1
         self._tracks = [tr for tr in self._tracks if tr.misses < cfg.max_misses]
-        for j in np.flatnonzero(assigned < 0):
-            p0 = symmetrize(r[j].copy())
-            v_floor = cfg.init_velocity_sigma_mps**2
-            for k in (2, 3):
-                p0[k, k] = max(p0[k, k], v_floor)
-            self._tracks.append(_Track(track_id=self._next_id, x=z[j].copy(), p=p0))
+        v_floor = cfg.init_velocity_sigma_mps**2
+        for j, i in enumerate(assigned):
+            if i >= 0:
+                continue
+            p0 = _symmetric(rl[j])
+            p0[10], p0[15] = max(p0[10], v_floor), max(p0[15], v_floor)
+            self._tracks.append(_Track(track_id=self._next_id, x=list(zl[j]), p=p0))
             self._next_id += 1
         return self.tracks
+
+    def _associate(self, zl, rl) -> list[int]:
+        """The track of each estimate (-1: none): gated (chi-square, 2 dof, on
+        position) global nearest neighbour."""
+        assigned = [-1] * len(zl)
+        if not (self._tracks and zl):
+            return assigned
+        cost = [[math.inf] * len(zl) for _ in self._tracks]
+        for i, tr in enumerate(self._tracks):
+            x, p = tr.x, tr.p
+            for j, (zj, rj) in enumerate(zip(zl, rl)):
+                m2 = _mahalanobis2_floats(zj[0] - x[0], zj[1] - x[1], p[0] + rj[0], p[1] + rj[1],
+                                          p[4] + rj[4], p[5] + rj[5])
+                if m2 <= self._gate:
+                    cost[i][j] = m2
+        if len(cost) == 1 and len(zl) == 1:  # one track, one estimate
+            pairs = [(0, 0)]
+        else:
+            arr = np.array(cost)
+            rows, cols = linear_sum_assignment(np.where(np.isfinite(arr), arr, 1e12))
+            pairs = zip(rows.tolist(), cols.tolist())
+        for i, j in pairs:
+            if math.isfinite(cost[i][j]):
+                assigned[j] = i
+        return assigned
 
 
 def _information_error(a, b, this, values, jacobians):
