@@ -9,5 +9,11 @@ measurements of a target from several nodes -> its state and covariance.
 - :mod:`.grid`: the paper's grid posterior (the check for degenerate geometry);
 - :mod:`.bounds`: Cramer-Rao and Bayesian bounds;
 - :mod:`.association`: which centroids of different nodes are one target;
-- :mod:`.sequence`: a whole recording, frame after frame.
+- :mod:`.sequence`: a whole recording, frame after frame;
+- :mod:`.motion_check`: a recording's rows checked against the motion of the
+  neighbouring frames (ghosts, mirror solutions; docs/ROBUST.md);
+- :mod:`.stream`: one frame at a time (``FrameStream``), with
+  :mod:`.frame_solver` (the one-frame problem in plain floats, GTSAM's
+  Levenberg-Marquardt steps) and :mod:`.stream_association` (the
+  association's decisions, fast path).
 """

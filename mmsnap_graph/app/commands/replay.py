@@ -36,8 +36,9 @@ def register(subparsers) -> None:
                    help="with --realtime (implied), play X times faster than recorded")
     p.add_argument("--mode", choices=["map", "ml"], default="map",
                    help="MAP with the paper's prior, or maximum likelihood (default %(default)s)")
-    p.add_argument("--solver", choices=["gtsam", "batch"], default="gtsam",
-                   help="one GTSAM graph per group, or the batch solver on the frame's groups "
+    p.add_argument("--solver", choices=["numpy", "gtsam", "batch"], default="numpy",
+                   help="the single-frame numpy solver (GTSAM's steps, docs/STREAMING.md), one "
+                        "GTSAM graph per group, or the batch solver on the frame's groups "
                         "(default %(default)s)")
     p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
                    help="detections to stream (default %(default)s)")
