@@ -90,12 +90,11 @@ def test_frame_stream_never_raises_and_ok_groups_are_sound(run):
             assert_pd(cov)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "found by test_frame_stream_never_raises_and_ok_groups_are_sound with 400 random examples: "
-    "a track of the central tracker (tracking/central) outlives any gap between two pushes "
-    "(its deletion counts pushes, not seconds) and its predicted covariance loses positive "
-    "definiteness: smallest eigenvalue 0.0 after a 1e6 s gap, -4.5e15 after 1e8 s, -2.9e31 "
-    "after 1e12 s (the stream reports ok=True)"))
+# Found by test_frame_stream_never_raises_and_ok_groups_are_sound with 400
+# random examples: a central-tracker track outlived any gap between two pushes
+# (deletion counted pushes, not seconds) and its predicted covariance lost
+# positive definiteness (smallest eigenvalue 0.0 after 1e6 s, -4.5e15 after
+# 1e8 s, -2.9e31 after 1e12 s, with ok=True). Failed before the fix.
 @pytest.mark.parametrize("gap_s", [1e6, 1e8, 1e12])
 def test_live_tracks_keep_a_positive_definite_covariance_after_a_long_gap(gap_s):
     stream = FrameStream(NAMES[:2], POSES[:2])

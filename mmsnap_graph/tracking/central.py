@@ -35,7 +35,10 @@ Data association between tracks and the frame's estimates: gated
 :func:`scipy.optimize.linear_sum_assignment`; an unassigned successful
 estimate starts a track (from that estimate, its velocity covariance floored
 at ``init_velocity_sigma_mps``); a track is deleted after ``max_misses``
-consecutive frames without an estimate.
+consecutive frames without an estimate, or, before association, when more
+than ``max_misses + 1`` nominal frame periods (``frame_period_s``) have passed
+since its last estimate (a long gap between two steps: its prediction says
+nothing any more) or its predicted covariance is not positive definite.
 """
 
 from __future__ import annotations
@@ -90,7 +93,9 @@ class CentralConfig:
         per-node EKF (:class:`~mmsnap_graph.tracking.ekf.EkfConfig` says why
         the paper's 0.2 is too stiff for a person turning in a small area).
     gate_probability : chi-square gate (2 dof, position) for association.
-    max_misses : consecutive frames without an estimate that end a track.
+    max_misses : consecutive frames without an estimate that end a track;
+        more than ``(max_misses + 1) * frame_period_s`` seconds without one
+        end it too (a gap between steps).
     init_velocity_sigma_mps : floor of a new track's velocity std.
     remove_prior : turn MAP estimates into measurement-only information
         (see the module docstring); ignored for ML estimates.
@@ -242,6 +247,7 @@ class _Track:
     x: list
     p: list
     misses: int = 0
+    since_hit_s: float = 0.0
 
 
 def _predict(x: list[float], p: list[float], t: float, q: list[float]) -> tuple[list, list]:
@@ -318,8 +324,14 @@ class CentralTracker:
         if self._motion is None or self._motion[0] != t:  # frames mostly share one period
             self._motion = (t, cv_process_noise(t, cfg.sigma_a_mps2).ravel().tolist())
         q = self._motion[1]
+        coast_limit_s = (cfg.max_misses + 1) * cfg.frame_period_s
         for tr in self._tracks:
             tr.x, tr.p = _predict(tr.x, tr.p, t, q)
+            tr.since_hit_s += t
+        # A gap between steps longer than the coast limit, or a prediction
+        # that lost positive definiteness (rounding over a huge t), ends it.
+        self._tracks = [tr for tr in self._tracks
+                        if tr.since_hit_s <= coast_limit_s and _cholesky_4x4(tr.p) is not None]
         zl, rl = z.tolist(), r.reshape(-1, 16).tolist()
         assigned = self._associate(zl, rl)
         hit = [False] * len(self._tracks)
@@ -333,6 +345,7 @@ class CentralTracker:
             tr.p = _inverse_floats([u + v for u, v in zip(info_pred, lam_z)])
             tr.x = _matvec(tr.p, [u + v for u, v in zip(_matvec(info_pred, tr.x), eta_z)])
             hit[i] = True
+            tr.since_hit_s = 0.0
         for i, tr in enumerate(self._tracks):
             tr.misses = 0 if hit[i] else tr.misses + 1
         self._tracks = [tr for tr in self._tracks if tr.misses < cfg.max_misses]
