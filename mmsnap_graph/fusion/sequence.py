@@ -52,6 +52,7 @@ from ..data.recording import Recording
 from ..data.results import FusedSequence, Status
 from ..errors import CalibrationError, MmsnapError, ValidationError
 from .._validation import as_float_array, check_finite
+from .split_check import flag_split_singles
 
 __all__ = [
     "FusedSequence",
@@ -475,6 +476,7 @@ def fuse_recording(
                              pose_cov)
         else:
             _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar, robust, pose_cov)
+    flag_split_singles(groups.frame, groups.detection_index, out.status, out.message)
     chosen = out.laplace.copy()
     if covariance == "grid":
         # The grid posterior of the measurements kept by the residual gate.
