@@ -82,6 +82,7 @@ from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..data.recording import Detections, Recording
 from ..errors import ValidationError
 from .motion_noise import motion_doppler_noise
+from .tail_noise import with_tails
 
 __all__ = ["estimate_noise", "network_noise", "temporal_noise", "TEMPORAL_ORDER", "KAPPA_4",
            "MIN_DOF", "TRIM_K", "NETWORK_GATE_K", "POOL_LEVEL", "GHOST_K",
@@ -461,7 +462,8 @@ def estimate_noise(
     msg = (f"noise from the data ({label}): {n_id} of {3 * len(all_names)} node sigmas "
            f"identified" + ("; no node poses: temporal estimate only"
                             if net_poses is None and method != "temporal" else ""))
-    return NoiseEstimate(nodes=nodes, fallback=fallback, method=label, message=msg)
+    est = NoiseEstimate(nodes=nodes, fallback=fallback, method=label, message=msg)
+    return with_tails(est, _aligned(recording, names, lag_frames), net_poses)
 
 
 def _temporal_parts(tmp) -> dict:

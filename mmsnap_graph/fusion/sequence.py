@@ -53,6 +53,7 @@ from ..data.recording import Recording
 from ..data.results import FusedSequence, Status
 from ..errors import CalibrationError, MmsnapError, ValidationError
 from .._validation import as_float_array, check_finite
+from .split_check import flag_split_singles
 
 __all__ = [
     "FusedSequence",
@@ -521,6 +522,7 @@ def fuse_recording(
             _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar, robust, pose_cov)
     if motion_check:
         _check_motion(out, groups, recording, poses, noise, prior, pose_cov, solver)
+    flag_split_singles(groups.frame, groups.detection_index, out.status, out.message)
     chosen = out.laplace.copy()
     if covariance == "grid":  # the grid posterior of the measurements kept
         kept = obs & ~out.rejected if (robust == "gate" or motion_check) else obs
