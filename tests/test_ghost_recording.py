@@ -140,7 +140,9 @@ def test_clean_recording_is_not_made_worse(monte_carlo):
     above plain fusion's, NEES in band, every frame keeps its target).
     Measured: 0.0529 m against 0.0550 m plain (the one-node rows that count
     the target twice, where the association split a frame, are flagged:
-    frames with a second target 10 -> 1 of 3600)."""
+    frames with a second target 10 -> 1 of 3600). Plain fusion now flags
+    those rows too (fusion.split_check: 0 of 3600), so the bound on frames
+    with a second target is absolute: at most 0.1% (the issue allows 2%)."""
     tally = Tally()
     for seed in range(10, 16):
         rec = recording(seed)
@@ -149,7 +151,7 @@ def test_clean_recording_is_not_made_worse(monte_carlo):
     assert clean.rmse <= 1.02 * tally.rmse, (clean.rmse, tally.rmse)
     nees, lo, hi = clean.nees_and_band()
     assert lo < nees < hi, (nees, lo, hi)
-    assert clean.empty_frames == 0 and clean.ghost_frames <= tally.ghost_frames
+    assert clean.empty_frames == 0 and clean.ghost_frames <= 0.001 * clean.frames
 
 
 def test_ghost_detections_are_rejected_or_flagged():
@@ -195,7 +197,9 @@ def test_a_frame_no_neighbour_explains_is_flagged_not_fused():
     np.testing.assert_array_equal(moved.success[~at], base.success[base.frame != 30])
     plain = fuse_recording(dataclasses.replace(rec, nodes=nodes), noise=CENTROID_NOISE,
                            robust="gate", motion_check=False, progress=False)
-    assert plain.success[plain.frame == 30].any()  # one frame alone cannot tell
+    # One frame alone cannot tell: without the motion check the frame is at
+    # best flagged as split by the association (fusion.split_check).
+    assert not any("motion check" in m for m in plain.message[plain.frame == 30])
 
 
 def test_batch_and_gtsam_agree_with_the_motion_check():
@@ -251,7 +255,10 @@ def test_mmsnap_fuse_on_a_ghost_recording(tmp_path, capsys):
                  "--no-motion-check"]) == 0
     off = Tally()
     off.add(read_fused(ghost_path), rec)
-    assert off.ghost_frames > 0.2 * off.frames  # what the check removes
+    # What the check removes: the mirror solutions of rows with a ghost range
+    # (measured 0.151 m against 0.056 m). The one-node ghost rows of split
+    # frames are flagged without it too (fusion.split_check: 1 ghost frame).
+    assert off.rmse > 2.0 * ghost.rmse, (off.rmse, ghost.rmse)
 
 
 def _print_figures(motion_check: bool) -> None:

@@ -522,7 +522,8 @@ def fuse_recording(
             _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar, robust, pose_cov)
     if motion_check:
         _check_motion(out, groups, recording, poses, noise, prior, pose_cov, solver)
-    flag_split_singles(groups.frame, groups.detection_index, out.status, out.message)
+    flag_split_singles(groups.frame, groups.detection_index, out.status, out.message,
+                       keep_sole=bool(motion_check))
     chosen = out.laplace.copy()
     if covariance == "grid":  # the grid posterior of the measurements kept
         kept = obs & ~out.rejected if (robust == "gate" or motion_check) else obs

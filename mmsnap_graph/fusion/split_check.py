@@ -53,11 +53,22 @@ def split_singles(frame: ArrayLike, detection_index: ArrayLike) -> NDArray:
 
 
 def flag_split_singles(frame: ArrayLike, detection_index: ArrayLike, status: NDArray,
-                       message: NDArray) -> NDArray:
+                       message: NDArray, *, keep_sole: bool = False) -> NDArray:
     """Mark the successful rows of :func:`split_singles` in place:
     ``status`` becomes :attr:`Status.RESIDUAL_TEST_FAILED`, ``message``
-    :data:`SPLIT_MESSAGE`. Returns the (K,) bool of the rows marked."""
-    rows = split_singles(frame, detection_index) & (np.asarray(status) == Status.OK)
+    :data:`SPLIT_MESSAGE`. Returns the (K,) bool of the rows marked.
+
+    keep_sole : leave a row that is the only successful row of its frame (after
+    the motion check, which has flagged the frame's other rows and kept this
+    one because the neighbouring frames confirm it)."""
+    ok = np.asarray(status) == Status.OK
+    rows = split_singles(frame, detection_index) & ok
+    if keep_sole and rows.any():
+        fr = np.asarray(frame, dtype=np.int64)
+        _, inverse, counts = np.unique(fr[ok], return_inverse=True, return_counts=True)
+        n_ok = np.zeros(fr.size, np.int64)
+        n_ok[ok] = counts[inverse]
+        rows &= n_ok > 1
     status[rows] = Status.RESIDUAL_TEST_FAILED
     message[rows] = SPLIT_MESSAGE
     return rows
