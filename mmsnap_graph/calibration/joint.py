@@ -91,6 +91,10 @@ class JointCalibration:
     time_offset_variances : name -> its marginal variance (s^2; 0 for the
         reference, NaN where not estimated).
     turns : motion factors left out of the final pass as sharp turns.
+    joint_covariance : (3M, 3M) covariance of the M non-reference poses in
+        ``joint_order`` with their cross-covariances (the poses share the
+        target's states, so a network's pose errors are correlated); None
+        when the marginals failed.
     """
 
     reference: str
@@ -111,6 +115,8 @@ class JointCalibration:
     time_offset_s: Mapping[str, float] = field(default_factory=dict)
     time_offset_variances: Mapping[str, float] = field(default_factory=dict)
     turns: int = 0
+    joint_covariance: NDArray | None = None
+    joint_order: tuple[str, ...] = ()
 
 
 def _detections_table(dets: Mapping[str, Detections]):
@@ -516,7 +522,7 @@ def _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, p
     final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig, prior_sig,
                                       robust, k, presolve, max_iterations, outlier_probability)
     poses, states, offsets = graph.current(result)
-    covs, variances, state_covs, unobservable, notes = assess(
+    covs, variances, state_covs, unobservable, notes, joint_cov = assess(
         graph, final_graph, result, state_covariances, max_pose_variance, max_pose_condition,
         run["linear"])
     if run["turns"]:
@@ -531,7 +537,8 @@ def _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, p
         initial_error=run["initial_error"], final_error=run["final_error"],
         unobservable=unobservable, unreachable=tuple(unreachable),
         time_offset_s={n: graph.lag_offsets[n] + offsets[n] for n in active},
-        time_offset_variances=variances, turns=run["turns"])
+        time_offset_variances=variances, turns=run["turns"], joint_covariance=joint_cov,
+        joint_order=tuple(n for n in active if n != ref) if joint_cov is not None else ())
 
 
 def _broken_down(graph, frames, init, x0, unreachable, exc) -> JointCalibration:
