@@ -151,3 +151,25 @@ def test_tracks_and_centroids_network_nees_in_band():
     band = chi2.ppf([0.025, 0.975], 6 * len(seeds)) / len(seeds)
     mean = np.mean([_reported_joint_nees(s, with_tracks=True) for s in seeds])
     assert band[0] < mean < band[1], (mean, band)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="EKF tracks only (no centroids: the pose graph is "
+                   "reported), seeds 0-11: mean joint NEES 32.2 against the band (4.20, 8.11); "
+                   "the tracks' EKF bias (module doc of tests/test_pose_nees.py) and lags one "
+                   "frame off (seeds 2, 8: NEES 76, 85) are not fixed")
+def test_tracks_only_network_nees_in_band():
+    seeds = range(12)
+    band = chi2.ppf([0.025, 0.975], 6 * len(seeds)) / len(seeds)
+    nees = []
+    for s in seeds:
+        rec = _recording(s, with_tracks=True)
+        rec = dataclasses.replace(rec, nodes={n: dataclasses.replace(node, centroids=None)
+                                              for n, node in rec.nodes.items()})
+        cal = calibrate_recording(rec)
+        assert cal.method == "pose_graph"
+        pg = cal.pose_graph
+        e = np.concatenate([pose_tangent_error(cal.poses[n], rec.truth.node_poses[n])
+                            for n in pg.joint_order])
+        nees.append(float(e @ np.linalg.solve(pg.joint_covariance, e)))
+    assert band[0] < np.mean(nees) < band[1], (np.mean(nees), band)
