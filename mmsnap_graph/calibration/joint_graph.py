@@ -250,13 +250,23 @@ def flag_turns(motion: MotionSpec | None, norms: NDArray | None, outlier_probabi
 
 
 def _node_covariances(marg, graph, covs, variances):
-    for n in graph.active:
-        if n == graph.ref:
-            continue
+    """Each pose's marginal and offset variance into ``covs`` and
+    ``variances``; returns the joint covariance (3M, 3M) of the M
+    non-reference poses in ``graph.active`` order (cross-covariances
+    included: the poses share every frame's state)."""
+    others = [n for n in graph.active if n != graph.ref]
+    for n in others:
         c = marg.marginalCovariance(graph.pose_key[n])
         covs[n] = 0.5 * (c + c.T)
         if n in graph.offset_key:
             variances[n] = float(marg.marginalCovariance(graph.offset_key[n])[0, 0])
+    if not others:
+        return np.zeros((0, 0))
+    # The poses are the root clique of graph.ordering(): their joint is cheap.
+    jm = marg.jointMarginalCovariance([graph.pose_key[n] for n in others])
+    joint = np.block([[jm.at(graph.pose_key[a], graph.pose_key[b]) for b in others]
+                      for a in others])
+    return 0.5 * (joint + joint.T)
 
 
 def eliminate_in_order(linear: gtsam.GaussianFactorGraph, order: gtsam.Ordering):
@@ -269,20 +279,22 @@ def eliminate_in_order(linear: gtsam.GaussianFactorGraph, order: gtsam.Ordering)
 def assess(graph, final_graph, result, state_covariances, max_pose_variance,
            max_pose_condition, linear=None):
     """Marginal covariances, offset variances (name -> s^2, NaN where not
-    estimated, 0 for the reference) and the unobservable pose directions;
-    the dense Schur complement when the elimination fails."""
+    estimated, 0 for the reference), the state marginals, the unobservable
+    pose directions, notes and the joint pose covariance (None when the
+    elimination fails: then the marginals are the dense Schur complement's)."""
     ref, active = graph.ref, graph.active
     covs: dict[str, NDArray] = {ref: np.zeros((3, 3))}
     variances = {n: (0.0 if n == ref else float("nan")) for n in active}
     state_covs = np.full((graph.f, 4, 4), np.nan)
     unobservable: dict[str, NDArray] = {}
     notes = []
+    joint = None
     try:
         # The marginals from a Bayes tree in the graph's own order (linear in
         # frames; gtsam.Marginals would use COLAMD: JointGraph.ordering).
         lin = final_graph.linearize(result) if linear is None else linear
         marg = eliminate_in_order(lin, graph.ordering())
-        _node_covariances(marg, graph, covs, variances)
+        joint = _node_covariances(marg, graph, covs, variances)
         if state_covariances:
             for k in range(graph.f):
                 c = marg.marginalCovariance(graph.state_key[k])
@@ -298,7 +310,7 @@ def assess(graph, final_graph, result, state_covariances, max_pose_variance,
         notes.append(f"marginals failed ({str(exc).splitlines()[0]})")
         covs.update(schur_covariances(final_graph, result, graph, unobservable,
                                       max_pose_condition))
-    return covs, variances, state_covs, unobservable, notes
+    return covs, variances, state_covs, unobservable, notes, joint
 
 
 def schur_covariances(final_graph, values, graph, unobservable, condition):

@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 
 from ..errors import ValidationError
 from .._validation import as_float_array, check_finite, check_shape
+from .centroid_points import debias_centroid_tracks
 from .closed_form import PairwiseCalibration
 from .matching import LocalTracks, match_tracks
 from .point_graph import PointEdge, solve_point_graph
@@ -311,15 +312,22 @@ def pairwise_edges(
     tracks: Mapping[str, LocalTracks],
     *,
     pairs: Sequence[tuple[str, str]] | None = None,
+    debias_centroids: bool = True,
     **match_kwargs,
 ) -> tuple[list[PoseEdge], dict[str, str]]:
     """Match every pair of nodes (or the given ``pairs``) and turn each
     successful match into a :class:`PoseEdge`.
 
     tracks : node name -> its local tracks, in network order.
+    debias_centroids : centroid tracks (``source="centroids"``, no
+        covariances) first lose the boresight bias of their angle noise
+        (:func:`~mmsnap_graph.calibration.centroid_points.debias_centroid_tracks`:
+        a bias common to every frame, which the pose covariance cannot show).
     match_kwargs : passed to :func:`match_tracks`.
     Returns the edges and, for each failed pair ``"a-b"``, the reason.
     """
+    if debias_centroids:
+        tracks = {n: debias_centroid_tracks(t)[0] for n, t in tracks.items()}
     names = list(tracks)
     if pairs is None:
         pairs = [(names[i], names[j]) for i in range(len(names)) for j in range(i + 1, len(names))]
