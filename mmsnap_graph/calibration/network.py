@@ -28,15 +28,14 @@ from typing import Literal, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.models import measurement_model, residual
-
 from ..errors import CalibrationError, ValidationError
 from ..data.noise import MeasurementNoise, NoiseEstimate
 from ..data.recording import Detections, Recording
 from .joint import JointCalibration, joint_calibration
 from .matching import LocalTracks, local_tracks
-from .multi_target import joint_detections_multi
+from .multi_refine import refine_associated
 from .noise_estimate import estimate_noise
+from .residual import residual_noise
 from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 
 __all__ = ["RecordingCalibration", "calibrate_recording", "residual_noise", "describe_noise"]
@@ -81,54 +80,6 @@ class RecordingCalibration:
     time_offset_variances: Mapping[str, float] = field(default_factory=dict)
 
 
-def residual_noise(result: JointCalibration, detections: Mapping[str, Detections], *,
-                   noise: MeasurementNoise, prior_sigmas=(1e3, 1e3, 3.5, 3.5), n_rounds: int = 3,
-                   min_redundancy: float = 0.1) -> MeasurementNoise:
-    """Noise of each measurement component (range_m, omega_rad, doppler_mps)
-    from the inlier residuals of a joint solution *without motion factors*
-    (the leverages treat frames apart), corrected for what each
-    frame's state absorbs (leverage):
-
-    .. math:: \\hat\\sigma_c^2 = \\sum e_c^2 / \\sum (1 - h_c),
-
-    ``h`` the diagonal of the per-frame hat matrix ``J (J^T W J + P)^{-1}
-    J^T W`` (the states at fixed poses), iterated ``n_rounds`` times since
-    ``W`` depends on the sigmas. A component whose residuals carry less than
-    ``min_redundancy`` of a degree of freedom per measurement is not
-    identifiable (e.g. the Doppler of two nodes without motion factors fits
-    each frame's velocity exactly) and keeps its value in ``noise``.
-    """
-    sig = noise.sigmas.copy()
-    prior_w = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
-    rows = []  # (frame index, residual (3,), Jacobian (3, 4)) per inlier detection
-    for n, det in detections.items():
-        if n not in result.poses:
-            continue
-        idx = np.clip(np.searchsorted(result.frames, det.frame), 0, result.frames.size - 1)
-        hit = result.frames[idx] == det.frame
-        keep = hit.copy()
-        keep[hit] = ~result.outliers[n][idx[hit]]
-        h, jac = measurement_model(result.states[idx[keep]], result.poses[n])
-        rows.append((idx[keep], residual(h, det.measurements[keep]), jac))
-    if not rows or sum(r[0].size for r in rows) == 0:
-        raise CalibrationError("no inlier detection to estimate the noise from")
-    f = result.frames.size
-    for _ in range(n_rounds):
-        info = np.tile(np.diag(prior_w), (f, 1, 1))
-        for k, _, jac in rows:
-            np.add.at(info, k, np.einsum("kri,r,krj->kij", jac, 1.0 / sig**2, jac))
-        cov = np.linalg.inv(info)
-        num, den = np.zeros(3), np.zeros(3)
-        for k, e, jac in rows:
-            lev = np.einsum("kri,kij,krj->kr", jac, cov[k], jac) / sig**2
-            num += np.sum(e**2, axis=0)
-            den += np.sum(1.0 - lev, axis=0)
-        count = sum(r[0].size for r in rows)
-        ok = den > min_redundancy * count
-        sig = np.where(ok, np.sqrt(num / np.maximum(den, 1e-300)), sig)
-    return MeasurementNoise(range_m=sig[0], omega_rad=sig[1], doppler_mps=sig[2])
-
-
 def _joint_detections(rec: Recording, names, lags) -> dict[str, Detections] | None:
     """Each node's centroids on the reference's frame clock, or None when a
     node has no centroids or several per frame (the joint graph needs one
@@ -151,6 +102,12 @@ def _first_noise(pg: PoseGraphCalibration, dets: Mapping[str, Detections]) -> Me
     mean_range = float(np.mean(np.concatenate([d.range_m for d in dets.values()])))
     omega0 = float(np.clip(np.pi * rmse / (np.sqrt(2.0) * mean_range), 0.01, paper.omega_rad))
     return dataclasses.replace(paper, omega_rad=omega0)
+
+
+def describe_sigmas(noise: MeasurementNoise) -> str:
+    """``range R m, omega W rad, doppler D m/s``."""
+    return (f"range {noise.range_m:.3g} m, omega {noise.omega_rad:.3g} rad, "
+            f"doppler {noise.doppler_mps:.3g} m/s")
 
 
 def describe_noise(noise: MeasurementNoise, estimate: NoiseEstimate) -> str:
@@ -177,34 +134,74 @@ def _joint_noise(recording, pg, dets) -> tuple[MeasurementNoise, str]:
 
 
 def _refine(recording, pg, reachable, method, noise, options, notes):
-    """The joint step: its result (None when skipped) and the noise used."""
+    """The joint step: its result (None when skipped)."""
     dets = _joint_detections(recording, reachable, pg.lag_frames)
     if dets is None:
-        # Several centroids per frame (several people, clutter): associate
-        # them across nodes with the pose graph, one block of frames per
-        # target track (calibration.multi_target).
-        try:
-            dets, _, assoc = joint_detections_multi(recording, reachable, pg.poses,
-                                                    pg.lag_frames, covariances=pg.covariances)
-        except CalibrationError as exc:  # e.g. no centroids at all (tracks only)
-            dets, assoc = None, None
-            notes.append(f"no association across nodes: {exc}")
-        if dets is not None:
-            notes.append(f"several centroids per frame: {assoc.n_targets} target tracks, "
-                         f"{assoc.n_groups} (frame, target) states")
-    if dets is None:
-        if method == "joint":
-            raise CalibrationError("the joint calibration needs centroids of a common target "
-                                   "from at least two nodes; none could be associated")
-        notes.append("joint refinement skipped: no centroids of a common target could be "
-                     "associated across nodes")
-        return None
+        return _refine_multi(recording, pg, reachable, method, noise, options, notes)
     if noise is None:
         noise, note = _joint_noise(recording, pg, dets)
         notes.append(note)
     joint = joint_calibration(dets, noise=noise, **options)
     notes.append(joint.message)
     return joint
+
+
+def _refine_multi(recording, pg, reachable, method, noise, options, notes):
+    """Several centroids per frame (several people, clutter, sparse clouds):
+    associate them across nodes with the calibration in progress, rounds of
+    association and joint solve (:func:`~mmsnap_graph.calibration.multi_refine.refine_associated`),
+    the noise learned from the joint graph's residuals unless given."""
+    options = {**options, "max_motion_gap_frames": 3}
+    try:
+        out = refine_associated(recording, reachable, pg.poses, pg.covariances, pg.lag_frames,
+                                noise=noise, options={**options, "time_offsets": False})
+    except CalibrationError as exc:  # e.g. no centroids at all (tracks only)
+        out = None
+        notes.append(f"no association across nodes: {exc}")
+    if out is None:
+        if method == "joint":
+            raise CalibrationError("the joint calibration needs centroids of a common target "
+                                   "from at least two nodes; none could be associated")
+        notes.append("joint refinement skipped: no centroids of a common target could be "
+                     "associated across nodes")
+        return None
+    notes.append(f"several centroids per frame: {out.association.n_targets} target tracks, "
+                 f"{out.association.n_groups} (frame, target) states; sigmas from the "
+                 f"residuals: {describe_sigmas(out.noise)}")
+    notes.append(out.joint.message)
+    if options.get("time_offsets") and out.joint.success:
+        return _with_clock_offsets(out, options, recording.frame_period_s, notes)
+    return out.joint
+
+
+#: A clock offset (beyond the whole-frame lag) is kept when it is at least
+#: this many of its sigmas from zero (:func:`_with_clock_offsets`).
+OFFSET_SIGNIFICANCE = 3.0
+
+
+def _with_clock_offsets(out, options, frame_period_s, notes):
+    """The associated detections solved again with clock offsets; kept only
+    when some node's offset is significant (:data:`OFFSET_SIGNIFICANCE`):
+    on sparse, noisy centroids a free offset of half a frame (2 sigma) took
+    the poses 5-13 cm away (issue 14), against 4-7 mm without."""
+    dets = out.detections
+    lags = {n: int(options["lag_frames"].get(n, 0)) for n in dets}
+    timed = joint_calibration(dets, noise=out.noise, **{
+        **options, "lag_frames": lags,
+        "initial_poses": {n: out.joint.poses[n] for n in dets}})
+    if not timed.success:
+        notes.append("clock offsets not estimated: " + timed.message)
+        return out.joint
+    z = {n: abs(timed.time_offset_s[n] + lags[n] * frame_period_s)
+         / np.sqrt(timed.time_offset_variances[n]) for n in timed.time_offset_s
+         if n in lags and timed.time_offset_variances.get(n, 0) > 0}
+    if any(v >= OFFSET_SIGNIFICANCE for v in z.values()):
+        notes.append("clock offsets estimated: " + timed.message)
+        return timed
+    notes.append("clock offsets not significant ("
+                 + ", ".join(f"{n} {v:.1f} sigma" for n, v in z.items())
+                 + "): whole-frame lags kept")
+    return out.joint
 
 
 def _pose_graph_step(recording, names, source, max_lag_frames, max_rmse_m, max_lag_s=None):
