@@ -191,10 +191,11 @@ def cluster_node(
 
 
 def _from_stored_levels(node: NodeData, frame_period_s: float, config, ekf, centroids_only,
-                        ekf_noise="data"):
+                        ekf_noise="data", sparse=None):
     """The highest stored level below the cube: point cloud, else centroids."""
     if node.point_cloud is not None and not centroids_only:
-        return cluster_node(node, frame_period_s, config=config, ekf=ekf, ekf_noise=ekf_noise)
+        return cluster_node(node, frame_period_s, config=config, ekf=ekf, ekf_noise=ekf_noise,
+                            sparse=sparse)
     if node.centroids is not None:
         return track_node(node, frame_period_s, ekf=ekf, ekf_noise=ekf_noise)
     return None
@@ -239,10 +240,11 @@ def process_recording(
     ekf: EkfConfig | None = None,
     progress: bool = False,
     ekf_noise: str = "data",
+    sparse: bool | None = None,
 ) -> tuple[Recording, dict[str, NodeReport]]:
     """Run the chain on every node from the highest level it holds: the cube,
     else the point cloud, else the centroids; nodes with none are reported,
-    unchanged."""
+    unchanged. ``sparse``: point clouds' clustering (:func:`cluster_node`)."""
     fp = recording.frame_period_s
 
     def one(node: NodeData):
@@ -250,7 +252,7 @@ def process_recording(
             return process_node(node, fp, config=config, ekf=ekf, progress=progress,
                                 ekf_noise=ekf_noise)
         return _from_stored_levels(node, fp, config, ekf, centroids_only=False,
-                                   ekf_noise=ekf_noise)
+                                   ekf_noise=ekf_noise, sparse=sparse)
 
     return _each_node(recording, one)
 
@@ -264,7 +266,8 @@ def track_recording(recording: Recording, *, ekf: EkfConfig | None = None,
 
 
 def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, centroids_only,
-                         progress, ekf_noise="data") -> tuple[NodeData | None, NodeReport]:
+                         progress, ekf_noise="data",
+                         sparse=None) -> tuple[NodeData | None, NodeReport]:
     """One node of :func:`process_file`: its cube streamed from ``src``, else
     its stored levels. Returns the new node (None: nothing to process) and
     its report."""
@@ -275,7 +278,7 @@ def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, cent
         except FileFormatError:
             cube_meta = None  # this node has no cube
     if cube_meta is None:
-        out = _from_stored_levels(node, fp, config, ekf, centroids_only, ekf_noise)
+        out = _from_stored_levels(node, fp, config, ekf, centroids_only, ekf_noise, sparse)
         if out is None:
             return None, NodeReport(name=node.name, level="none", n_frames=0, n_points=0,
                                     n_centroids=0, n_tracks=0, success=False,
@@ -308,6 +311,7 @@ def process_file(
     centroids_only: bool = False,
     progress: bool = False,
     ekf_noise: str = "data",
+    sparse: bool | None = None,
 ) -> tuple[Path, dict[str, NodeReport]]:
     """Process an HDF5 recording (cubes streamed, not loaded whole) and write
     the point-cloud, centroid and track levels back.
@@ -320,6 +324,8 @@ def process_file(
         point cloud, else its centroids.
     ekf_noise : the EKF's measurement noise, from each node's centroids
         (``"data"``, default) or ``ekf.measurement_std`` (``"config"``).
+    sparse : clustering of stored point clouds (:func:`sparse_cluster_config`;
+        None: detected per node).
     """
     src = Path(path)
     dst = src if output is None else check_output_path(output)
@@ -330,7 +336,8 @@ def process_file(
         reports: dict[str, NodeReport] = {}
         for name, node in rec.nodes.items():
             new, reports[name] = _process_stored_node(src, node, rec.frame_period_s, config,
-                                                      ekf, centroids_only, progress, ekf_noise)
+                                                      ekf, centroids_only, progress, ekf_noise,
+                                                      sparse)
             if new is not None:
                 rec = rec.with_node(new)
         update_recording(src, rec, keep_cubes=True, output=None if dst.resolve() == src.resolve() else dst)

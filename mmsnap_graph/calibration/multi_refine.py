@@ -16,6 +16,7 @@ poses stop moving (by less than :data:`ROUND_TOLERANCE`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -111,6 +112,15 @@ def _one_round(recording, names, poses, covariances, lag_frames, noise, options,
     if noise is None:
         noise = _learned_noise(dets, opts)
     joint = joint_calibration(dets, noise=noise, **opts)
+    if not joint.success and opts.get("robust") is not None:
+        # The robust pass can leave GTSAM an indeterminate system (a dense
+        # two-person scene, seed 2: every detection of a state down-weighted);
+        # the association has gated the outliers already: Gaussian factors.
+        plain = joint_calibration(dets, noise=noise, **{**opts, "robust": None})
+        if plain.success:
+            joint = dataclasses.replace(plain, message=(
+                f"{plain.message} (Gaussian factors: the robust pass failed: "
+                f"{joint.message})"))
     return MultiTargetRefinement(joint=joint, mapping=mapping, association=assoc, noise=noise,
                                  detections=dets)
 
