@@ -13,7 +13,7 @@ from mmsnap_graph.app.pipeline import (
     process_recording,
     sparse_cluster_config,
 )
-from mmsnap_graph.calibration import calibrate_recording
+from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
 from mmsnap_graph.calibration.multi_refine import refine_multi
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.radar.chain import ChainConfig
@@ -73,3 +73,27 @@ def test_more_rounds_do_not_move_a_converged_calibration(dense):
     assert one.joint.success and three.joint.success
     for n in ("S2", "S3"):
         assert np.hypot(*(three.joint.poses[n][:2] - one.joint.poses[n][:2])) < 0.05
+
+
+def _default_path_error(rec):
+    """Mean position error of S2 and S3 on the default path (``mmsnap
+    process`` then ``mmsnap calibrate``), without the simulator's noise
+    metadata (a real recording has none)."""
+    meta = {k: v for k, v in rec.metadata.items() if not k.startswith("centroid_")}
+    proc = dataclasses.replace(process_recording(rec)[0], metadata=meta)
+    cal = calibrate_recording(proc)
+    assert cal.success and cal.method == "joint"
+    return float(np.mean([np.hypot(*pose_tangent_error(cal.poses[n], rec.truth.node_poses[n])[:2])
+                          for n in ("S2", "S3")]))
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 14 target (1.2x the dense error) not reached on every seed: 30 s at 20 fps, two "
+    "people, seed 0: dense 7.0 mm, sparse 42 mm (6.0x; S3 72 mm, 1.7 of its reported 42 mm "
+    "sigma: the sparse centroids are single body points, 14 cm rms from the torso, about 16x "
+    "the dense centroids' variance); seed 1 0.72x, seed 2 2.8x (dense 11 mm, sparse 32 mm)"))
+def test_sparse_clouds_within_1_2x_of_the_dense_case_seed_0():
+    dense = simulate_recording(NETWORK, "random", levels=("point_cloud",), n_frames=600,
+                               n_targets=2, seed=0, frame_period_s=0.05)
+    assert _default_path_error(sparse_clouds(dense, seed=0)) <= 1.2 * _default_path_error(dense)
