@@ -3,16 +3,20 @@
 :func:`calibrate_recording` chains the steps: each node's local tracks (EKF
 tracks when the recording has them, else centroids mapped to local xy),
 track matching and lag search for every node pair, the pose graph anchored
-at the reference (first) node, and -- when every calibrated node has one
-centroid per frame -- the joint calibration graph on the raw centroid
-measurements, started from the pose graph. The result, a
+at the reference (first) node, and the joint calibration graph on the raw
+centroid measurements, started from the pose graph: directly when every
+calibrated node has one centroid per frame, else (several people, clutter,
+sparse clouds) after associating the centroids across nodes, in rounds of
+association and joint solve
+(:func:`~mmsnap_graph.calibration.multi_refine.refine_associated`). The result, a
 :class:`RecordingCalibration`, is stored and read back by
 :mod:`mmsnap_graph.io.calibration` (the ``/calibration`` group and the
 calibration JSON).
 
 The centroid noise comes from the data first
-(:mod:`mmsnap_graph.calibration.noise_estimate`): the joint graph is weighted
-by each node's temporal estimate (no poses needed), and once the poses are
+(:mod:`mmsnap_graph.calibration.noise_estimate`): the one-centroid joint graph
+is weighted by each node's temporal estimate (no poses needed), the
+multi-target one by the noise learned from its residuals; once the poses are
 known every node's noise is estimated again from the cross-node residuals
 and the temporal differences together (:attr:`RecordingCalibration.noise`,
 stored as ``/noise`` by ``mmsnap calibrate``). A simulator's metadata sigmas
@@ -243,6 +247,8 @@ def calibrate_recording(
     time_offsets : estimate each node's clock offset (a fraction of a frame
         beyond the whole-frame lag of the track matching) in the joint graph
         (docs/CALIBRATION.md, "Clock offsets"); False: whole frames only.
+        With several centroids per frame: whole frames only (they biased
+        the poses there: :func:`_refine_multi`).
     Raises :class:`CalibrationError` when no node pair can be matched.
     """
     if method not in ("auto", "joint", "pose_graph"):
