@@ -5,7 +5,12 @@ cube -> point cloud -> torso centroids (:mod:`.chain`) -> local EKF tracks
 - :func:`process_node` / :func:`process_recording`: from each node's cube
   (else its point cloud, else its centroids);
 - :func:`cluster_node`: from a point cloud (torso DBSCAN, then the EKF), for
-  recordings stored at the point-cloud level;
+  recordings stored at the point-cloud level; a *sparse* cloud (fewer than
+  :data:`SPARSE_POINTS_PER_FRAME` points in its median non-empty frame, as
+  TI's out-of-box demo gives: 2-3 points per person) is clustered with
+  ``min_samples=1`` (:func:`sparse_cluster_config`): the torso DBSCAN's
+  three-point minimum would drop most of it (issue 14: 94 centroids in 600
+  frames, and a calibration 0.2-2 m off);
 - :func:`track_node` / :func:`track_recording`: tracks from the centroids
   only;
 - :func:`process_file`: an HDF5 recording, cubes streamed frame by frame,
@@ -32,7 +37,12 @@ from ..radar.cluster import torso_centroids
 from ..tracking.ekf import EkfConfig, frames_to_step, track_centroids
 
 __all__ = ["NodeReport", "process_node", "process_recording", "cluster_node", "track_node",
-           "track_recording", "process_file"]
+           "track_recording", "process_file", "sparse_cluster_config", "SPARSE_POINTS_PER_FRAME"]
+
+#: A point cloud whose median non-empty frame holds fewer points than this
+#: is sparse (:func:`sparse_cluster_config`). The simulator's dense clouds of
+#: two walkers hold 20-40 per frame, TI's demo clouds 2-3 per person.
+SPARSE_POINTS_PER_FRAME = 6
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -131,6 +141,24 @@ def process_node(
                            message=result.message, chain=result)
 
 
+def sparse_cluster_config(point_cloud: Detections, config: ChainConfig,
+                          sparse: bool | None = None) -> tuple[ChainConfig, bool]:
+    """``config`` for a sparse cloud: its clustering with ``min_samples=1``
+    (every DBSCAN cluster of one or more points is a centroid; a person's
+    2-3 points within ``eps_m`` are one). ``sparse`` None (auto): when the
+    median non-empty frame of ``point_cloud`` holds fewer than
+    :data:`SPARSE_POINTS_PER_FRAME` points; True / False: always / never.
+    Returns the configuration and whether it was changed."""
+    if sparse is None:
+        counts = np.bincount(point_cloud.frame) if len(point_cloud) else np.zeros(0, np.int64)
+        counts = counts[counts > 0]
+        sparse = bool(counts.size) and float(np.median(counts)) < SPARSE_POINTS_PER_FRAME
+    if not sparse or config.cluster.min_samples == 1:
+        return config, False
+    return dataclasses.replace(config, cluster=dataclasses.replace(config.cluster,
+                                                                   min_samples=1)), True
+
+
 def cluster_node(
     node: NodeData,
     frame_period_s: float,
@@ -138,12 +166,15 @@ def cluster_node(
     config: ChainConfig | None = None,
     ekf: EkfConfig | None = None,
     ekf_noise: str = "data",
+    sparse: bool | None = None,
 ) -> tuple[NodeData, NodeReport]:
     """Fill a node's centroids (torso DBSCAN with ``config.cluster``) and
-    tracks from its point cloud (``ekf_noise``: :func:`process_node`)."""
+    tracks from its point cloud (``ekf_noise``: :func:`process_node`;
+    ``sparse``: :func:`sparse_cluster_config`, None: detected)."""
     if node.point_cloud is None:
         raise ValidationError(f"nodes[{node.name}] has no point cloud to cluster")
-    config = ChainConfig() if config is None else config
+    config, thinned = sparse_cluster_config(node.point_cloud,
+                                            ChainConfig() if config is None else config, sparse)
     radar = TABLE_I if node.radar is None else node.radar
     cents = torso_centroids(node.point_cloud, config.cluster,
                             doppler_resolution_mps=radar.doppler_resolution_mps)
@@ -155,14 +186,16 @@ def cluster_node(
                            n_frames=int(np.unique(frames).size),
                            n_points=len(node.point_cloud), n_centroids=len(cents),
                            n_tracks=int(tracks.track_ids.size), success=True,
-                           message=f"{len(node.point_cloud)} points clustered")
+                           message=f"{len(node.point_cloud)} points clustered"
+                           + (" (sparse cloud: min_samples=1)" if thinned else ""))
 
 
 def _from_stored_levels(node: NodeData, frame_period_s: float, config, ekf, centroids_only,
-                        ekf_noise="data"):
+                        ekf_noise="data", sparse=None):
     """The highest stored level below the cube: point cloud, else centroids."""
     if node.point_cloud is not None and not centroids_only:
-        return cluster_node(node, frame_period_s, config=config, ekf=ekf, ekf_noise=ekf_noise)
+        return cluster_node(node, frame_period_s, config=config, ekf=ekf, ekf_noise=ekf_noise,
+                            sparse=sparse)
     if node.centroids is not None:
         return track_node(node, frame_period_s, ekf=ekf, ekf_noise=ekf_noise)
     return None
@@ -207,10 +240,11 @@ def process_recording(
     ekf: EkfConfig | None = None,
     progress: bool = False,
     ekf_noise: str = "data",
+    sparse: bool | None = None,
 ) -> tuple[Recording, dict[str, NodeReport]]:
     """Run the chain on every node from the highest level it holds: the cube,
     else the point cloud, else the centroids; nodes with none are reported,
-    unchanged."""
+    unchanged. ``sparse``: point clouds' clustering (:func:`cluster_node`)."""
     fp = recording.frame_period_s
 
     def one(node: NodeData):
@@ -218,7 +252,7 @@ def process_recording(
             return process_node(node, fp, config=config, ekf=ekf, progress=progress,
                                 ekf_noise=ekf_noise)
         return _from_stored_levels(node, fp, config, ekf, centroids_only=False,
-                                   ekf_noise=ekf_noise)
+                                   ekf_noise=ekf_noise, sparse=sparse)
 
     return _each_node(recording, one)
 
@@ -232,7 +266,8 @@ def track_recording(recording: Recording, *, ekf: EkfConfig | None = None,
 
 
 def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, centroids_only,
-                         progress, ekf_noise="data") -> tuple[NodeData | None, NodeReport]:
+                         progress, ekf_noise="data",
+                         sparse=None) -> tuple[NodeData | None, NodeReport]:
     """One node of :func:`process_file`: its cube streamed from ``src``, else
     its stored levels. Returns the new node (None: nothing to process) and
     its report."""
@@ -243,7 +278,7 @@ def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, cent
         except FileFormatError:
             cube_meta = None  # this node has no cube
     if cube_meta is None:
-        out = _from_stored_levels(node, fp, config, ekf, centroids_only, ekf_noise)
+        out = _from_stored_levels(node, fp, config, ekf, centroids_only, ekf_noise, sparse)
         if out is None:
             return None, NodeReport(name=node.name, level="none", n_frames=0, n_points=0,
                                     n_centroids=0, n_tracks=0, success=False,
@@ -276,6 +311,7 @@ def process_file(
     centroids_only: bool = False,
     progress: bool = False,
     ekf_noise: str = "data",
+    sparse: bool | None = None,
 ) -> tuple[Path, dict[str, NodeReport]]:
     """Process an HDF5 recording (cubes streamed, not loaded whole) and write
     the point-cloud, centroid and track levels back.
@@ -288,6 +324,8 @@ def process_file(
         point cloud, else its centroids.
     ekf_noise : the EKF's measurement noise, from each node's centroids
         (``"data"``, default) or ``ekf.measurement_std`` (``"config"``).
+    sparse : clustering of stored point clouds (:func:`sparse_cluster_config`;
+        None: detected per node).
     """
     src = Path(path)
     dst = src if output is None else check_output_path(output)
@@ -298,7 +336,8 @@ def process_file(
         reports: dict[str, NodeReport] = {}
         for name, node in rec.nodes.items():
             new, reports[name] = _process_stored_node(src, node, rec.frame_period_s, config,
-                                                      ekf, centroids_only, progress, ekf_noise)
+                                                      ekf, centroids_only, progress, ekf_noise,
+                                                      sparse)
             if new is not None:
                 rec = rec.with_node(new)
         update_recording(src, rec, keep_cubes=True, output=None if dst.resolve() == src.resolve() else dst)
