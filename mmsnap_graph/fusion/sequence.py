@@ -430,6 +430,18 @@ def _grid_covariances(out: _Rows, poses, z, obs, noise, prior, points, progress)
     return chosen
 
 
+def _screen_rows(out, groups, recording, poses, noise, prior, pose_cov, solver,
+                 motion_check) -> None:
+    """The recording-level screens of the fused rows, in place: the motion
+    check (docs/ROBUST.md), then the one-node rows of frames the association
+    split (:mod:`.split_check`; after the motion check, the only row of a
+    frame it kept stays)."""
+    if motion_check:
+        _check_motion(out, groups, recording, poses, noise, prior, pose_cov, solver)
+    flag_split_singles(groups.frame, groups.detection_index, out.status, out.message,
+                       keep_sole=bool(motion_check))
+
+
 def fuse_recording(
     recording: Recording,
     *,
@@ -520,10 +532,7 @@ def fuse_recording(
                              pose_cov)
         else:
             _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar, robust, pose_cov)
-    if motion_check:
-        _check_motion(out, groups, recording, poses, noise, prior, pose_cov, solver)
-    flag_split_singles(groups.frame, groups.detection_index, out.status, out.message,
-                       keep_sole=bool(motion_check))
+    _screen_rows(out, groups, recording, poses, noise, prior, pose_cov, solver, motion_check)
     chosen = out.laplace.copy()
     if covariance == "grid":  # the grid posterior of the measurements kept
         kept = obs & ~out.rejected if (robust == "gate" or motion_check) else obs
