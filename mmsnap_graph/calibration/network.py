@@ -276,13 +276,16 @@ def calibrate_recording(
         elif joint is not None:
             notes.append("kept the pose-graph poses")
     success = pg.success and (joint is None or joint.success or result_method == "pose_graph")
-    noise_est = estimate_noise(recording, poses=poses, lag_frames=pg.lag_frames)
+    lags = dict(pg.lag_frames)
+    if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
+        lags.update({n: int(v) for n, v in joint.lag_frames.items() if n in lags})
+    noise_est = estimate_noise(recording, poses=poses, lag_frames=lags)
     notes.append(noise_est.message)
     offsets, variances = _clock_offsets(recording, names, pg, joint if result_method == "joint"
                                         else None)
     return RecordingCalibration(
         reference=names[0], node_names=tuple(names), poses=poses, covariances=covs,
-        lag_frames=dict(pg.lag_frames), unreachable=pg.unreachable, edges=pg.edges,
+        lag_frames=lags, unreachable=pg.unreachable, edges=pg.edges,
         method=result_method, source=used_source, success=bool(success),
         message="; ".join(notes), failures=failures, pose_graph=pg, joint=joint,
         noise=noise_est, time_offset_s=offsets, time_offset_variances=variances)
