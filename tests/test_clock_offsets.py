@@ -352,7 +352,12 @@ def test_end_to_end_calibrate_then_fuse_on_the_reference_clock():
                         kind="straight", rng=np.random.default_rng(11))
     rec = scene_recording(scene)
     cal = calibrate_recording(rec)
-    assert cal.lag_frames["S2"] == 1
+    assert cal.pose_graph.lag_frames["S2"] == 1  # the lag search finds the whole frame
+    # The joint graph may move the whole frame to 2 (the rest, 0.3 frame, is
+    # beyond joint.LAG_RECENTRE_FRACTION); the total offset is what counts.
+    assert cal.lag_frames["S2"] in (1, 2)
+    total = cal.time_offset_s["S2"] + 1.3 * T
+    assert abs(total) < 4 * np.sqrt(cal.time_offset_variances["S2"]), total
     dets = {n: dataclasses.replace(rec.nodes[n].centroids,
                                    frame=rec.nodes[n].centroids.frame - cal.lag_frames[n])
             for n in rec.node_names}
