@@ -269,8 +269,9 @@ def process_config_to_toml(config: ProcessConfig) -> str:
     lines += _table_lines(config.chain, "chain")
     for name in _CHAIN_TABLES:
         lines += [""] + _table_lines(getattr(config.chain, name), f"chain.{name}")
-    sparse = {None: '"auto"', True: "true", False: "false"}[config.sparse]
-    lines.append(f"sparse = {sparse}  # stored point clouds: \"auto\", true or false")
+        if name == "cluster":  # not a ClusterConfig field (process_file's switch)
+            sparse = {None: '"auto"', True: "true", False: "false"}[config.sparse]
+            lines.append(f"sparse = {sparse}  # stored point clouds: \"auto\", true or false")
     commented = ({"measurement_std": "estimated from each node's centroids; set it to fix "
                                      "the EKF's range, omega, Doppler sigmas"}
                  if config.ekf_noise_from_data else {})
