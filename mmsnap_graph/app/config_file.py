@@ -1,17 +1,25 @@
-"""The ``mmsnap process --config FILE`` TOML file: every option of the signal
-chain, the clustering and the local EKF in one place.
+"""The ``--config FILE`` TOML file of ``mmsnap process`` and ``mmsnap
+calibrate``: every option of the signal chain, the clustering, the local EKF
+and the calibration's track matching in one place.
 
-Layout (every key optional; an absent key keeps its default; ``mmsnap process
---show-config`` prints the effective file with every default)::
+Layout (every key optional; an absent key keeps its default; ``--show-config``
+prints the effective file with every default)::
 
     [chain]            # radar.chain.ChainConfig (windows, ranges, de-aliasing, ...)
     min_range_m = 0.9
     [chain.cfar]       # radar.cfar.CfarConfig
     pfa = 1e-6
-    [chain.cluster]    # radar.cluster.ClusterConfig
+    [chain.cluster]    # radar.cluster.ClusterConfig, and:
     point_targets = true
+    sparse = "auto"    # stored point clouds: min_samples=1 (true), never (false)
     [ekf]              # tracking.ekf.EkfConfig (thresholds in seconds)
     sigma_a_mps2 = 1.0
+    [matching]         # mmsnap calibrate: track matching, seconds and metres
+    min_common_s = 0.5
+
+One file may hold every table: ``mmsnap process`` reads ``[chain]``,
+``[chain.*]`` and ``[ekf]`` and ignores ``[matching]``; ``mmsnap calibrate``
+reads ``[matching]`` and ignores the others. Any other table is an error.
 
 TOML has no null: a key whose default is "unset" (e.g. ``max_range_m``, the
 radar's unambiguous range) is set by giving a value and unset by leaving it
@@ -32,19 +40,28 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..errors import ConfigurationError
+from ..calibration.matching_options import MATCHING_DEFAULTS, check_matching_options
+from ..errors import ConfigurationError, ValidationError
 from ..radar.cfar import CfarConfig
 from ..radar.chain import ChainConfig
 from ..radar.cluster import ClusterConfig
 from ..tracking.ekf import EkfConfig
 
 __all__ = ["ProcessConfig", "read_process_config", "process_config_from_mapping",
-           "process_config_to_toml"]
+           "process_config_to_toml", "MatchingConfig", "read_matching_config",
+           "matching_config_from_mapping", "matching_config_to_toml", "SPARSE_VALUES"]
 
 #: EKF fields the file may not set (the recording gives them).
 _EKF_FROM_RECORDING = ("frame_period_s",)
 #: Nested configuration objects of ChainConfig: TOML sub-tables.
 _CHAIN_TABLES = {"cfar": CfarConfig, "cluster": ClusterConfig}
+#: Top-level tables: read by ``process`` and by ``calibrate``.
+_PROCESS_TABLES = ("chain", "ekf")
+_CALIBRATE_TABLES = ("matching",)
+_KNOWN_TABLES = "chain, chain.cfar, chain.cluster, ekf (mmsnap process), matching (mmsnap calibrate)"
+#: ``[chain.cluster] sparse`` (and ``mmsnap process --sparse``): the TOML or
+#: option value -> ``process_file(sparse=...)``.
+SPARSE_VALUES = {"auto": None, True: True, False: False, "on": True, "off": False}
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -57,6 +74,34 @@ class ProcessConfig:
     #: The EKF's measurement sigmas from each node's centroids (True, unless
     #: the file sets ``[ekf] measurement_std``).
     ekf_noise_from_data: bool = True
+    #: Clustering of stored point clouds with ``min_samples=1``: None (auto:
+    #: when the median non-empty frame holds fewer than 6 points), True, False
+    #: (:func:`mmsnap_graph.app.pipeline.sparse_cluster_config`).
+    sparse: bool | None = None
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class MatchingConfig:
+    """What ``mmsnap calibrate`` matches tracks with (the ``[matching]``
+    table): :func:`~mmsnap_graph.calibration.network.calibrate_recording`'s
+    thresholds, in seconds and metres."""
+
+    max_lag_s: float = MATCHING_DEFAULTS["max_lag_s"]
+    min_common_s: float = MATCHING_DEFAULTS["min_common_s"]
+    min_spread_m: float = MATCHING_DEFAULTS["min_spread_m"]
+    max_rmse_m: float = MATCHING_DEFAULTS["max_rmse_m"]
+    inlier_gate_m: float = MATCHING_DEFAULTS["inlier_gate_m"]
+    gate_probability: float = MATCHING_DEFAULTS["gate_probability"]
+
+    def __post_init__(self) -> None:
+        try:
+            check_matching_options(**self.as_kwargs())
+        except ValidationError as exc:
+            raise ConfigurationError(str(exc)) from None
+
+    def as_kwargs(self) -> dict[str, float]:
+        """The thresholds as keywords of ``calibrate_recording``."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 def _coerce(where: str, default: Any, value: Any) -> Any:
@@ -109,21 +154,73 @@ def _build(cls, table: Mapping[str, Any], where: str, *, nested=None, forbidden=
         raise ConfigurationError(f"[{where}] {exc}") from None
 
 
+def _check_tables(data: Any, where: str) -> None:
+    if not isinstance(data, Mapping):
+        raise ConfigurationError(f"{where}: expected a table, got {type(data).__name__}")
+    unknown = set(data) - set(_PROCESS_TABLES) - set(_CALIBRATE_TABLES)
+    if unknown:
+        raise ConfigurationError(f"{where}: unknown table(s) {sorted(unknown)} "
+                                 f"(known: {_KNOWN_TABLES})")
+
+
+def _sparse_of(chain_table: Any, where: str) -> tuple[Any, bool | None]:
+    """``[chain.cluster] sparse`` taken out of the chain table (ClusterConfig
+    has no such field): the table without it, and its value."""
+    if not isinstance(chain_table, Mapping) or not isinstance(chain_table.get("cluster"), Mapping):
+        return chain_table, None
+    cluster = dict(chain_table["cluster"])
+    if "sparse" not in cluster:
+        return chain_table, None
+    value = cluster.pop("sparse")
+    if isinstance(value, (bool, str)) and value in ("auto", True, False):
+        return {**chain_table, "cluster": cluster}, SPARSE_VALUES[value]
+    raise ConfigurationError(f"{where}: chain.cluster.sparse must be \"auto\", true or false, "
+                             f"got {value!r}")
+
+
 def process_config_from_mapping(data: Mapping[str, Any], *, where: str = "config"
                                 ) -> ProcessConfig:
     """A :class:`ProcessConfig` from a parsed TOML document (tables ``chain``,
-    ``chain.cfar``, ``chain.cluster``, ``ekf``)."""
-    if not isinstance(data, Mapping):
-        raise ConfigurationError(f"{where}: expected a table, got {type(data).__name__}")
-    unknown = set(data) - {"chain", "ekf"}
-    if unknown:
-        raise ConfigurationError(f"{where}: unknown table(s) {sorted(unknown)} "
-                                 f"(known: chain, chain.cfar, chain.cluster, ekf)")
-    chain = _build(ChainConfig, data.get("chain", {}), f"{where}: chain", nested=_CHAIN_TABLES)
+    ``chain.cfar``, ``chain.cluster``, ``ekf``; ``matching`` is
+    ``mmsnap calibrate``'s and is ignored)."""
+    _check_tables(data, where)
+    chain_table, sparse = _sparse_of(data.get("chain", {}), where)
+    chain = _build(ChainConfig, chain_table, f"{where}: chain", nested=_CHAIN_TABLES)
     ekf_table = data.get("ekf", {})
     ekf = _build(EkfConfig, ekf_table, f"{where}: ekf", forbidden=_EKF_FROM_RECORDING)
     from_data = not (isinstance(ekf_table, Mapping) and "measurement_std" in ekf_table)
-    return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=from_data)
+    return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=from_data, sparse=sparse)
+
+
+def matching_config_from_mapping(data: Mapping[str, Any], *, where: str = "config"
+                                 ) -> MatchingConfig:
+    """A :class:`MatchingConfig` from a parsed TOML document (table
+    ``matching``; ``chain``, ``ekf`` are ``mmsnap process``'s and are
+    ignored)."""
+    _check_tables(data, where)
+    table = data.get("matching", {})
+    if not isinstance(table, Mapping):
+        raise ConfigurationError(f"{where}: matching must be a table [matching]")
+    return _build(MatchingConfig, table, f"{where}: matching")
+
+
+def _read_toml(path: str | os.PathLike) -> tuple[dict[str, Any], str]:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigurationError(f"{p}: cannot read the configuration file: {exc}") from None
+    try:
+        return tomllib.loads(text), str(p)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigurationError(f"{p}: not valid TOML: {exc}") from None
+
+
+def read_matching_config(path: str | os.PathLike) -> MatchingConfig:
+    """Read the ``[matching]`` table of a ``--config`` TOML file (errors as
+    :func:`read_process_config`)."""
+    data, where = _read_toml(path)
+    return matching_config_from_mapping(data, where=where)
 
 
 def read_process_config(path: str | os.PathLike) -> ProcessConfig:
@@ -132,16 +229,8 @@ def read_process_config(path: str | os.PathLike) -> ProcessConfig:
     Raises :class:`ConfigurationError` naming the file and the line of a
     syntax error, or the table and key of a bad value.
     """
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigurationError(f"{p}: cannot read the configuration file: {exc}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigurationError(f"{p}: not valid TOML: {exc}") from None
-    return process_config_from_mapping(data, where=str(p))
+    data, where = _read_toml(path)
+    return process_config_from_mapping(data, where=where)
 
 
 def _toml_value(value: Any) -> str:
@@ -180,9 +269,22 @@ def process_config_to_toml(config: ProcessConfig) -> str:
     lines += _table_lines(config.chain, "chain")
     for name in _CHAIN_TABLES:
         lines += [""] + _table_lines(getattr(config.chain, name), f"chain.{name}")
+        if name == "cluster":  # not a ClusterConfig field (process_file's switch)
+            sparse = {None: '"auto"', True: "true", False: "false"}[config.sparse]
+            lines.append(f"sparse = {sparse}  # stored point clouds: \"auto\", true or false")
     commented = ({"measurement_std": "estimated from each node's centroids; set it to fix "
                                      "the EKF's range, omega, Doppler sigmas"}
                  if config.ekf_noise_from_data else {})
     lines += [""] + _table_lines(config.ekf, "ekf", skip=_EKF_FROM_RECORDING,
                                  commented=commented)
+    return "\n".join(lines) + "\n"
+
+
+def matching_config_to_toml(config: MatchingConfig) -> str:
+    """The ``[matching]`` table that :func:`read_matching_config` reads back
+    to an equal configuration (the same file may hold ``mmsnap process``'s
+    tables)."""
+    lines = ["# mmsnap calibrate configuration (docs/CALIBRATION.md, 'Matching gate and "
+             "thresholds in seconds'); seconds and metres"]
+    lines += _table_lines(config, "matching")
     return "\n".join(lines) + "\n"

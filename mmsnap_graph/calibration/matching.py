@@ -52,6 +52,13 @@ from .closed_form import (
     closed_form_calibration,
     closed_form_pose,
 )
+from .matching_options import (
+    DEFAULT_GATE_PROBABILITY,
+    DEFAULT_INLIER_GATE_M,
+    DEFAULT_MAX_LAG_S,
+    DEFAULT_MAX_RMSE_M,
+    DEFAULT_MIN_COMMON_S,
+)
 
 __all__ = ["LocalTracks", "TrackCandidate", "TrackMatching", "match_tracks", "local_tracks"]
 
@@ -357,8 +364,6 @@ def _failed(message, cands=()) -> TrackMatching:
 
 #: Default lag window (s) and minimum overlap (s) of :func:`match_tracks`
 #: when ``frame_period_s`` is given: 2 and 5 frames at 150 ms.
-DEFAULT_MAX_LAG_S = 0.3
-DEFAULT_MIN_COMMON_S = 0.5
 
 
 def _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity, gate_probability) -> None:
@@ -439,9 +444,9 @@ def match_tracks(
     max_lag_s: float | None = None,
     min_common_s: float | None = None,
     min_spread_m: float = DEFAULT_MIN_SPREAD_M,
-    max_rmse_m: float = 1.0,
-    inlier_gate_m: float = 0.5,
-    gate_probability: float = 0.997,
+    max_rmse_m: float = DEFAULT_MAX_RMSE_M,
+    inlier_gate_m: float = DEFAULT_INLIER_GATE_M,
+    gate_probability: float = DEFAULT_GATE_PROBABILITY,
     covariance: str = "residual",
     lag_min_improvement: float = 0.05,
     lag_ambiguity: float = 0.15,

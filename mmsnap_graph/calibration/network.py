@@ -37,6 +37,15 @@ from ..data.noise import MeasurementNoise, NoiseEstimate
 from ..data.recording import Detections, Recording
 from .joint import JointCalibration, joint_calibration
 from .matching import LocalTracks, local_tracks
+from .matching_options import (
+    DEFAULT_GATE_PROBABILITY,
+    DEFAULT_INLIER_GATE_M,
+    DEFAULT_MAX_LAG_S,
+    DEFAULT_MAX_RMSE_M,
+    DEFAULT_MIN_COMMON_S,
+    DEFAULT_MIN_SPREAD_M,
+    check_matching_options,
+)
 from .multi_refine import refine_associated
 from .noise_estimate import estimate_noise
 from .residual import residual_noise
@@ -184,8 +193,17 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
     return out.joint
 
 
-def _pose_graph_step(recording, names, source, max_lag_frames, max_rmse_m, max_lag_s=None):
-    """Local tracks of every node, pairwise matches, the pose graph."""
+def _describe_matching(matching: Mapping[str, float], max_lag_frames) -> str:
+    """The matching thresholds as ``name=value unit`` (for a failure message)."""
+    units = {"_s": " s", "_m": " m"}
+    parts = [f"max_lag_frames={int(max_lag_frames)}"] if max_lag_frames is not None else []
+    parts += [f"{k}={v:g}{units.get(k[-2:], '')}" for k, v in matching.items()]
+    return ", ".join(parts)
+
+
+def _pose_graph_step(recording, names, source, max_lag_frames, matching):
+    """Local tracks of every node, pairwise matches (``matching``: the
+    :func:`match_tracks` thresholds, checked), the pose graph."""
     ref = names[0]
     tracks: dict[str, LocalTracks] = {}
     failures: dict[str, str] = {}
@@ -197,14 +215,17 @@ def _pose_graph_step(recording, names, source, max_lag_frames, max_rmse_m, max_l
     if ref not in tracks:
         raise CalibrationError(f"reference node {ref}: {failures[ref]}")
     # Thresholds in seconds (issue 14): frame counts only when a caller gives them.
-    lag = ({"max_lag_frames": int(max_lag_frames)} if max_lag_frames is not None
-           else {"max_lag_s": max_lag_s})
-    edges, pair_fail = pairwise_edges(tracks, frame_period_s=recording.frame_period_s,
-                                      max_rmse_m=max_rmse_m, **lag)
+    kwargs = dict(matching)
+    if max_lag_frames is not None:
+        kwargs.pop("max_lag_s", None)
+        kwargs["max_lag_frames"] = int(max_lag_frames)
+    edges, pair_fail = pairwise_edges(tracks, frame_period_s=recording.frame_period_s, **kwargs)
     failures.update(pair_fail)
     if not edges:
-        raise CalibrationError("no pair of nodes shares a matched track: "
-                               + "; ".join(f"{k}: {v}" for k, v in failures.items()))
+        raise CalibrationError(
+            f"no pair of nodes shares a matched track (matching: "
+            f"{_describe_matching(matching, max_lag_frames)}): "
+            + "; ".join(f"{k}: {v}" for k, v in failures.items()))
     return pose_graph_calibration(names, edges, failures=failures), tracks[ref].source, failures
 
 
@@ -214,23 +235,35 @@ def calibrate_recording(
     source: Literal["auto", "tracks", "centroids"] = "auto",
     method: Literal["auto", "joint", "pose_graph"] = "auto",
     max_lag_frames: int | None = None,
-    max_rmse_m: float = 1.0,
+    max_rmse_m: float = DEFAULT_MAX_RMSE_M,
     noise: MeasurementNoise | None = None,
     robust: str | None = "cauchy",
     motion: bool = True,
     sigma_a_mps2: float = 3.0,
     time_offsets: bool = True,
     max_lag_s: float | None = None,
+    min_common_s: float = DEFAULT_MIN_COMMON_S,
+    min_spread_m: float = DEFAULT_MIN_SPREAD_M,
+    inlier_gate_m: float = DEFAULT_INLIER_GATE_M,
+    gate_probability: float = DEFAULT_GATE_PROBABILITY,
 ) -> RecordingCalibration:
     """Calibrate every node of ``recording`` (module doc).
 
     method : ``"pose_graph"`` stops after the pose graph of pairwise closed
         forms; ``"joint"`` requires the joint refinement (CalibrationError if
         the centroids cannot feed it); ``"auto"`` refines when it can.
-    max_lag_s, max_rmse_m : track matching (:func:`match_tracks`): lags up to
-        ``max_lag_s`` (default 0.3 s) are searched, whole frames of the
-        recording's period. ``max_lag_frames`` (deprecated) gives the window
-        in frames instead.
+    max_lag_s, min_common_s, min_spread_m, max_rmse_m, inlier_gate_m,
+        gate_probability : track matching (:func:`match_tracks`), in seconds
+        and metres: lags up to ``max_lag_s`` (default 0.3 s) are searched,
+        whole frames of the recording's period; a track pair must share
+        ``min_common_s`` (default 0.5 s, and at least 5 frames) of a target
+        that moves ``min_spread_m`` (default 0.2 m) in each node; a match
+        whose track RMSE exceeds ``max_rmse_m`` (default 1 m) is rejected; a
+        frame pair supports a pose within ``inlier_gate_m`` (default 0.5 m;
+        tracks without covariances) or the chi-square gate of
+        ``gate_probability`` (default 0.997; EKF tracks on both sides).
+        ValidationError names a bad value. ``max_lag_frames`` (deprecated)
+        gives the lag window in frames instead.
     noise : measurement noise of the centroids for the joint graph;
         None (default): estimated from the data, each node's own centroid
         sequence pooled over the nodes (module doc); the recording's
@@ -255,11 +288,14 @@ def calibrate_recording(
         raise ValidationError(f"method={method!r} must be 'auto', 'joint' or 'pose_graph'")
     if noise is not None and not isinstance(noise, MeasurementNoise):
         raise ValidationError(f"noise must be a MeasurementNoise or None, got {noise!r}")
+    matching = check_matching_options(
+        max_lag_s=DEFAULT_MAX_LAG_S if max_lag_s is None else max_lag_s, min_common_s=min_common_s, min_spread_m=min_spread_m,
+        max_rmse_m=max_rmse_m, inlier_gate_m=inlier_gate_m, gate_probability=gate_probability)
     names = list(recording.node_names)
     if len(names) < 2:
         raise CalibrationError(f"a calibration needs at least two nodes, got {names!r}")
     pg, used_source, failures = _pose_graph_step(recording, names, source, max_lag_frames,
-                                                 max_rmse_m, max_lag_s)
+                                                 matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
     result_method, joint, notes = "pose_graph", None, [pg.message]
     reachable = [n for n in names if n in poses]

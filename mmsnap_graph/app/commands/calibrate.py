@@ -9,16 +9,43 @@ measurement noise is estimated from the data at the calibrated poses, printed
 component by component (estimated, or not identified and what is used
 instead) and stored as the ``/noise`` group (:mod:`mmsnap_graph.io.noise`),
 which ``mmsnap fuse`` uses by default.
+
+The track-matching thresholds (seconds and metres) come from their defaults,
+then the ``[matching]`` table of ``--config FILE`` (the TOML file of
+``mmsnap process --config``; its other tables are ignored here), then the
+explicit options; ``--show-config`` prints the effective table.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.app.config_file import (
+    MatchingConfig,
+    matching_config_to_toml,
+    read_matching_config,
+)
+from mmsnap_graph.calibration.matching_options import MATCHING_DEFAULTS
+from mmsnap_graph.errors import ConfigurationError, ValidationError
+
+#: Matching options: option name -> (MatchingConfig field, metavar, help).
+MATCHING_OPTIONS = {
+    "max_lag_s": ("SECONDS", "largest clock lag between nodes to search, in seconds (whole "
+                             "frames)"),
+    "min_common_s": ("SECONDS", "a track pair must share this long (and at least 5 frames)"),
+    "min_spread_m": ("METRES", "the shared target must move this far in each node's tracks"),
+    "max_rmse_m": ("METRES", "largest track RMSE of a matched pair"),
+    "inlier_gate_m": ("METRES", "a frame pair supports a pose within this distance (tracks "
+                                "without covariances: centroids)"),
+    "gate_probability": ("P", "the same with track covariances on both sides (EKF tracks): "
+                              "chi-square(2) gate probability"),
+}
 
 
 def register(subparsers) -> None:
@@ -30,20 +57,28 @@ def register(subparsers) -> None:
                     "with frame-lag search, pose graph, joint refinement on the raw centroid "
                     "measurements. Writes JSON and updates the recording's node poses and "
                     "/calibration group.")
-    p.add_argument("recording", help="HDF5 recording (docs/FORMAT.md)")
+    p.add_argument("recording", nargs="?", default=None,
+                   help="HDF5 recording (docs/FORMAT.md); not needed with --show-config")
     p.add_argument("--source", choices=["auto", "tracks", "centroids"], default="auto",
                    help="local positions to match: EKF tracks when present (auto), or "
                         "centroids (default %(default)s)")
     p.add_argument("--method", choices=["auto", "joint", "pose_graph"], default="auto",
                    help="refine with the joint graph when the centroids allow (auto), always "
                         "(joint), or stop at the pose graph (default %(default)s)")
-    p.add_argument("--max-lag-s", type=float, default=None, metavar="SECONDS",
-                   help="largest clock lag between nodes to search, in seconds (whole "
-                        "frames; default 0.3 s)")
+    p.add_argument("--config", metavar="FILE", default=None,
+                   help="TOML file: its [matching] table sets the options below (the file of "
+                        "mmsnap process --config; its other tables are ignored here)")
+    p.add_argument("--show-config", action="store_true",
+                   help="print the effective [matching] table (defaults, --config, options) "
+                        "and exit")
+    for name, (metavar, text) in MATCHING_OPTIONS.items():
+        flags = ["--" + name.replace("_", "-")]
+        if name == "max_rmse_m":
+            flags.append("--max-rmse")
+        p.add_argument(*flags, dest=name, type=float, default=None, metavar=metavar,
+                       help=f"{text}; overrides the file (default {MATCHING_DEFAULTS[name]:g})")
     p.add_argument("--max-lag", type=int, default=None, metavar="FRAMES",
-                   help="the same in frames (deprecated: use --max-lag-s)")
-    p.add_argument("--max-rmse", type=float, default=1.0,
-                   help="largest track RMSE (m) of a matched pair (default %(default)s)")
+                   help="the lag window in frames (deprecated: use --max-lag-s)")
     p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
                    default=None, help="centroid noise for the joint graph (default: "
                                       "estimated from the data; the /noise group is "
@@ -97,18 +132,37 @@ def format_table(cal) -> str:
     return "\n".join(lines)
 
 
+def effective_matching(args: argparse.Namespace) -> MatchingConfig:
+    """Defaults, then the ``[matching]`` table of ``--config``, then the
+    explicit options (a bad one is named as its option)."""
+    cfg = MatchingConfig() if args.config is None else read_matching_config(args.config)
+    for name in MATCHING_OPTIONS:
+        value = getattr(args, name)
+        if value is None:
+            continue
+        try:
+            cfg = dataclasses.replace(cfg, **{name: value})
+        except ConfigurationError as exc:
+            raise ValidationError(f"--{name.replace('_', '-')}: {exc}") from None
+    return cfg
+
+
 def run(args: argparse.Namespace) -> int:
+    matching = effective_matching(args)
+    if args.show_config:
+        sys.stdout.write(matching_config_to_toml(matching))
+        return 0
+    if args.recording is None:
+        raise ValidationError("mmsnap calibrate: a recording is required (unless --show-config)")
+    # Here: `mmsnap --help` does not import GTSAM or h5py.
     from mmsnap_graph.calibration import calibrate_recording
     from mmsnap_graph.data.noise import MeasurementNoise
-    from mmsnap_graph.errors import ValidationError
     from mmsnap_graph.io import read_recording
     from mmsnap_graph.io.calibration import write_calibration, write_calibration_json
     from mmsnap_graph.io.noise import write_noise
 
     if args.max_lag is not None and args.max_lag < 0:
         raise ValidationError(f"--max-lag must be >= 0, got {args.max_lag}")
-    if args.max_lag_s is not None and not args.max_lag_s >= 0:
-        raise ValidationError(f"--max-lag-s must be >= 0, got {args.max_lag_s}")
     noise = None
     if args.sigmas is not None:
         r, w, v = args.sigmas
@@ -124,8 +178,7 @@ def run(args: argparse.Namespace) -> int:
         rec = read_recording(args.recording, load_cubes=False)
         cal = calibrate_recording(
             rec, source=args.source, method=args.method, max_lag_frames=args.max_lag,
-            max_lag_s=args.max_lag_s,
-            max_rmse_m=args.max_rmse, noise=noise,
+            **matching.as_kwargs(), noise=noise,
             robust=None if args.robust == "none" else args.robust, motion=not args.no_motion,
             sigma_a_mps2=args.sigma_a, time_offsets=not args.no_time_offsets)
         print(format_table(cal))

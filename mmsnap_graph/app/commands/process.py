@@ -8,7 +8,12 @@ import dataclasses
 import sys
 
 from mmsnap_graph._atomic import check_output_path
-from mmsnap_graph.app.config_file import ProcessConfig, process_config_to_toml, read_process_config
+from mmsnap_graph.app.config_file import (
+    SPARSE_VALUES,
+    ProcessConfig,
+    process_config_to_toml,
+    read_process_config,
+)
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 from mmsnap_graph.radar.cfar import CfarConfig
 from mmsnap_graph.tracking.ekf import EkfConfig
@@ -29,7 +34,8 @@ def register(subparsers) -> None:
                    help="ignore cubes and point clouds: only build tracks from the stored centroids")
     p.add_argument("--config", metavar="FILE", default=None,
                    help="TOML file with every chain, clustering and EKF option (tables [chain], "
-                        "[chain.cfar], [chain.cluster], [ekf]; see --show-config and docs/TI.md)")
+                        "[chain.cfar], [chain.cluster], [ekf]; a [matching] table, mmsnap "
+                        "calibrate's, is ignored; see --show-config and docs/TI.md)")
     p.add_argument("--show-config", action="store_true",
                    help="print the effective configuration (defaults, --config, options) as "
                         "TOML and exit")
@@ -39,6 +45,11 @@ def register(subparsers) -> None:
     p.add_argument("--sigma-a", type=float, default=None,
                    help=f"EKF white-acceleration std, m/s^2; overrides the file "
                         f"(default {EkfConfig().sigma_a_mps2:g})")
+    p.add_argument("--sparse", choices=["auto", "on", "off"], default=None,
+                   help="cluster stored point clouds as sparse (DBSCAN min_samples=1: a "
+                        "person's 2-3 points are a centroid): when the median non-empty frame "
+                        "holds fewer than 6 points (auto), always (on) or never (off); "
+                        "overrides the file's [chain.cluster] sparse (default auto)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -54,7 +65,9 @@ def effective_config(args: argparse.Namespace) -> ProcessConfig:
             ekf = dataclasses.replace(ekf, sigma_a_mps2=args.sigma_a)
     except (TypeError, ValueError) as exc:
         raise ConfigurationError(f"mmsnap process option: {exc}") from None
-    return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=cfg.ekf_noise_from_data)
+    sparse = cfg.sparse if args.sparse is None else SPARSE_VALUES[args.sparse]
+    return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=cfg.ekf_noise_from_data,
+                         sparse=sparse)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
     progress = not args.no_progress and sys.stderr.isatty()
     path, reports = process_file(args.recording, output=args.output, config=config, ekf=ekf,
                                  centroids_only=args.centroids_only, progress=progress,
-                                 ekf_noise="data" if cfg.ekf_noise_from_data else "config")
+                                 ekf_noise="data" if cfg.ekf_noise_from_data else "config",
+                                 sparse=cfg.sparse)
     for rep in reports.values():
         print(f"{rep.name}: {rep.level}: {rep.n_points} points, {rep.n_centroids} centroids, "
               f"{rep.n_tracks} tracks ({rep.message})")

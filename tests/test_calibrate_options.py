@@ -1,0 +1,291 @@
+"""Every track-matching threshold of a calibration settable from
+``calibrate_recording``, the ``mmsnap calibrate`` options and the ``[matching]``
+table of ``--config`` (issue 14, Build 7); ``mmsnap process --sparse`` and
+``[chain.cluster] sparse``."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from mmsnap_graph.app.cli import main
+from mmsnap_graph.app.config_file import (
+    MatchingConfig,
+    ProcessConfig,
+    matching_config_to_toml,
+    read_matching_config,
+    read_process_config,
+)
+from mmsnap_graph.app.pipeline import track_recording
+from mmsnap_graph.calibration import calibrate_recording
+from mmsnap_graph.errors import CalibrationError, ValidationError
+from mmsnap_graph.io import write_recording
+from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim.sparse import sparse_clouds
+
+
+@pytest.fixture(scope="module")
+def rec_path(recording_c_random, tmp_path_factory):
+    path = tmp_path_factory.mktemp("calopts") / "rec.h5"
+    write_recording(path, recording_c_random)
+    return path
+
+
+def _duration_s(rec) -> float:
+    frames = np.concatenate([n.centroids.frame for n in rec.nodes.values()])
+    return float(np.ptp(frames) + 1) * rec.frame_period_s
+
+
+def _cli(capsys, *argv):
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse: a value of the wrong type or choice
+        code = exc.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def _error_line(err: str) -> str:
+    """The one error line (argparse prints its usage before it)."""
+    lines = [ln for ln in err.strip().splitlines() if ": error: " in ln]
+    assert len(lines) == 1 and lines[0] == err.strip().splitlines()[-1], err
+    return lines[0]
+
+
+# --- calibrate_recording: the pass-through changes what matching does ----------------------
+
+def test_defaults_given_explicitly_give_the_same_calibration(recording_c_random):
+    plain = calibrate_recording(recording_c_random, method="pose_graph")
+    explicit = calibrate_recording(recording_c_random, method="pose_graph", max_lag_s=0.3,
+                                   min_common_s=0.5, min_spread_m=0.2, max_rmse_m=1.0,
+                                   inlier_gate_m=0.5, gate_probability=0.997)
+    assert plain.success and explicit.success
+    np.testing.assert_array_equal(plain.poses["S2"], explicit.poses["S2"])
+    assert plain.edges[0].n_frames == explicit.edges[0].n_frames
+
+
+def test_min_common_s_longer_than_the_recording_fails_clearly(recording_c_random):
+    rec = recording_c_random
+    too_long = _duration_s(rec) + 1.0
+    with pytest.raises(CalibrationError) as err:
+        calibrate_recording(rec, method="pose_graph", min_common_s=too_long)
+    text = str(err.value)
+    assert f"min_common_s={too_long:g} s" in text
+    need = int(np.ceil(too_long / rec.frame_period_s - 1e-9))
+    assert f"shares >= {need} frames" in text
+    # A tiny overlap is accepted (the 5-frame floor still applies).
+    assert calibrate_recording(rec, method="pose_graph", min_common_s=0.0).success
+
+
+def test_min_spread_m_and_inlier_gate_m_reach_the_matching(recording_c_random):
+    with pytest.raises(CalibrationError, match=r"spread >= 50\.0 m"):
+        calibrate_recording(recording_c_random, method="pose_graph", min_spread_m=50.0)
+    with pytest.raises(CalibrationError, match=r"within inlier_gate_m=0\.0001 m"):
+        calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
+                            inlier_gate_m=1e-4)
+    wide = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
+                               inlier_gate_m=0.5)
+    tight = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
+                                inlier_gate_m=0.2)
+    assert wide.success and tight.success
+    assert tight.edges[0].n_frames < wide.edges[0].n_frames
+
+
+def test_gate_probability_gates_ekf_tracks(recording_c_random):
+    tracked, _ = track_recording(recording_c_random)
+    assert tracked.nodes["S2"].tracks.covariance is not None
+    wide = calibrate_recording(tracked, method="pose_graph", source="tracks")
+    tight = calibrate_recording(tracked, method="pose_graph", source="tracks",
+                                gate_probability=0.5)
+    assert wide.success and tight.success and wide.source == "tracks"
+    assert tight.edges[0].n_frames < wide.edges[0].n_frames
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"min_common_s": -1.0}, "min_common_s"),
+    ({"min_common_s": float("nan")}, "min_common_s"),
+    ({"min_spread_m": -0.1}, "min_spread_m"),
+    ({"inlier_gate_m": 0.0}, "inlier_gate_m"),
+    ({"gate_probability": 1.0}, "gate_probability"),
+    ({"max_rmse_m": 0.0}, "max_rmse_m"),
+    ({"max_lag_s": -0.1}, "max_lag_s"),
+    ({"min_spread_m": True}, "min_spread_m"),
+    ({"min_common_s": "long"}, "min_common_s"),
+])
+def test_bad_thresholds_name_the_field_and_value(recording_c_random, kwargs, field):
+    with pytest.raises(ValidationError, match=rf"^{field} must be .*got {re.escape(repr(kwargs[field]))}"):
+        calibrate_recording(recording_c_random, **kwargs)
+
+
+# --- mmsnap calibrate: options and the [matching] table -------------------------------------
+
+def test_options_reach_calibrate_recording(recording_c_random, rec_path, tmp_path, capsys):
+    js = tmp_path / "c.json"
+    too_long = _duration_s(recording_c_random) + 1.0
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+                        "--method", "pose_graph", "--min-common-s", too_long)
+    assert code == 1 and f"min_common_s={too_long:g} s" in err
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+                        "--method", "pose_graph", "--source", "centroids",
+                        "--inlier-gate-m", 1e-4, "--min-spread-m", 0.3)
+    assert code == 1 and "inlier_gate_m=0.0001 m" in err and "min_spread_m=0.3 m" in err
+    code, out, _ = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+                        "--method", "pose_graph", "--min-common-s", 0.0)
+    assert code == 0 and "ok: " in out
+
+
+def test_config_file_reaches_calibrate_recording_and_options_win(recording_c_random, rec_path,
+                                                                  tmp_path, capsys):
+    js = tmp_path / "c.json"
+    too_long = _duration_s(recording_c_random) + 1.0
+    cfg = tmp_path / "cal.toml"
+    cfg.write_text(f"[matching]\nmin_common_s = {too_long}\nmax_lag_s = 0.2\n")
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+                        "--method", "pose_graph", "--config", cfg)
+    assert code == 1 and f"min_common_s={too_long:g} s" in err and "max_lag_s=0.2 s" in err
+    code, out, _ = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+                        "--method", "pose_graph", "--config", cfg, "--min-common-s", 0.5)
+    assert code == 0 and "ok: " in out
+
+
+def test_show_config_prints_the_matching_table_and_reads_back(tmp_path, capsys):
+    code, text, _ = _cli(capsys, "calibrate", "--show-config")
+    assert code == 0 and "[matching]" in text
+    for name in ("max_lag_s = 0.3", "min_common_s = 0.5", "min_spread_m = 0.2",
+                 "max_rmse_m = 1.0", "inlier_gate_m = 0.5", "gate_probability = 0.997"):
+        assert name in text
+    path = tmp_path / "m.toml"
+    path.write_text(text)
+    assert read_matching_config(path) == MatchingConfig()
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[matching]\nmin_common_s = 2\ninlier_gate_m = 0.3\n")
+    code, text, _ = _cli(capsys, "calibrate", "--show-config", "--config", cfg,
+                         "--inlier-gate-m", "0.25", "--max-rmse", "0.8")
+    assert code == 0
+    assert "min_common_s = 2.0" in text and "inlier_gate_m = 0.25" in text \
+        and "max_rmse_m = 0.8" in text
+    assert matching_config_to_toml(read_matching_config(cfg)).count("[matching]") == 1
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["--min-common-s", "-1"], "--min-common-s"),
+    (["--min-spread-m", "nan"], "--min-spread-m"),
+    (["--inlier-gate-m", "0"], "--inlier-gate-m"),
+    (["--gate-probability", "1.5"], "--gate-probability"),
+    (["--max-lag-s", "-0.5"], "--max-lag-s"),
+    (["--max-rmse", "-1"], "--max-rmse-m"),
+    (["--min-common-s", "soon"], "--min-common-s"),
+])
+def test_bad_options_exit_2_with_one_line_naming_the_option(rec_path, tmp_path, capsys, argv,
+                                                            option):
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json",
+                        tmp_path / "c.json", *argv)
+    assert code == 2 and option in _error_line(err)
+
+
+@pytest.mark.parametrize("text, where", [
+    ("[matching]\nmin_common_s = -1\n", "matching"),
+    ("[matching]\nmin_comon_s = 1\n", "matching.min_comon_s"),
+    ("[matching]\ngate_probability = \"high\"\n", "matching.gate_probability"),
+    ("[tracker]\nx = 1\n", "tracker"),
+    ("[matching]\nmin_common_s = \n", "line 2"),
+])
+def test_bad_files_exit_2_naming_the_file_table_and_key(rec_path, tmp_path, capsys, text,
+                                                        where):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(text)
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json",
+                        tmp_path / "c.json", "--config", cfg)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert str(cfg) in err and where in err, err
+
+
+def test_process_and_calibrate_share_one_file(tmp_path, capsys):
+    cfg = tmp_path / "both.toml"
+    cfg.write_text("[chain]\nmin_range_m = 0.5\n[chain.cluster]\nsparse = true\n"
+                   "[ekf]\nmax_coast_s = 0.4\n[matching]\nmin_common_s = 1.5\n")
+    proc = read_process_config(cfg)
+    assert proc.chain.min_range_m == 0.5 and proc.sparse is True and proc.ekf.max_coast_s == 0.4
+    assert read_matching_config(cfg) == MatchingConfig(min_common_s=1.5)
+    # Both --show-config outputs in one file read back to the same settings.
+    _, text_p, _ = _cli(capsys, "process", "--show-config", "--config", cfg)
+    _, text_c, _ = _cli(capsys, "calibrate", "--show-config", "--config", cfg)
+    both = tmp_path / "again.toml"
+    both.write_text(text_p + "\n" + text_c)
+    assert read_process_config(both) == proc
+    assert read_matching_config(both) == MatchingConfig(min_common_s=1.5)
+    # A bad [matching] is calibrate's business: process ignores the table.
+    cfg.write_text("[matching]\nmin_common_s = -1\n")
+    assert read_process_config(cfg) == ProcessConfig()
+
+
+# --- mmsnap process --sparse and [chain.cluster] sparse ------------------------------------
+
+@pytest.fixture(scope="module")
+def cloud_paths(tmp_path_factory):
+    """A dense point cloud (20-40 points per frame) and its sparse thinning
+    (2-3 moving points, a quarter of the frames empty), 120 frames at 20 fps."""
+    dense = simulate_recording({"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi)}, "random",
+                               levels=("point_cloud",), n_frames=120, n_targets=2, seed=4,
+                               frame_period_s=0.05)
+    folder = tmp_path_factory.mktemp("sparse")
+    paths = {}
+    for name, rec in (("dense", dense), ("sparse", sparse_clouds(dense, seed=4))):
+        paths[name] = folder / f"{name}.h5"
+        write_recording(paths[name], rec)
+    return paths
+
+
+def _centroids(out: str) -> dict[str, tuple[int, bool]]:
+    """node -> (centroids, clustered as sparse) from ``mmsnap process``'s report."""
+    rows = re.findall(r"^(\w+): point_cloud: \d+ points, (\d+) centroids.*$", out, re.M)
+    return {n: (int(c), "min_samples=1" in line)
+            for (n, c), line in zip(rows, [ln for ln in out.splitlines()
+                                           if ": point_cloud: " in ln])}
+
+
+def _process(capsys, path, tmp_path, *argv):
+    out_path = tmp_path / f"out{len(list(tmp_path.iterdir()))}.h5"
+    code, out, err = _cli(capsys, "process", path, "-o", out_path, "--no-progress", *argv)
+    assert code == 0, err
+    return _centroids(out)
+
+
+def test_sparse_option_switches_the_clustering(cloud_paths, tmp_path, capsys):
+    auto_d = _process(capsys, cloud_paths["dense"], tmp_path)
+    on_d = _process(capsys, cloud_paths["dense"], tmp_path, "--sparse", "on")
+    assert set(auto_d) == {"S1", "S2"}
+    for n in auto_d:
+        assert not auto_d[n][1] and on_d[n][1]      # auto: dense, not sparse; on: sparse
+        assert on_d[n][0] > auto_d[n][0]            # lone points become centroids
+    auto_s = _process(capsys, cloud_paths["sparse"], tmp_path)
+    off_s = _process(capsys, cloud_paths["sparse"], tmp_path, "--sparse", "off")
+    for n in auto_s:
+        assert auto_s[n][1] and not off_s[n][1]     # auto detects the sparse cloud
+        assert off_s[n][0] < auto_s[n][0]           # DBSCAN's 3-point minimum drops most
+
+
+def test_sparse_key_in_the_file_and_the_option_wins(cloud_paths, tmp_path, capsys):
+    cfg = tmp_path / "p.toml"
+    cfg.write_text("[chain.cluster]\nsparse = false\n")
+    off = _process(capsys, cloud_paths["sparse"], tmp_path, "--config", cfg)
+    assert not any(s for _, s in off.values())
+    on = _process(capsys, cloud_paths["sparse"], tmp_path, "--config", cfg, "--sparse", "auto")
+    assert all(s for _, s in on.values())
+    code, text, _ = _cli(capsys, "process", "--show-config", "--config", cfg, "--sparse", "on")
+    assert code == 0 and "sparse = true" in text
+    code, text, _ = _cli(capsys, "process", "--show-config")
+    assert 'sparse = "auto"' in text
+
+
+@pytest.mark.parametrize("value", ['"yes"', "1", '"on"'])
+def test_a_bad_sparse_key_exits_2_naming_it(cloud_paths, tmp_path, capsys, value):
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(f"[chain.cluster]\nsparse = {value}\n")
+    code, _, err = _cli(capsys, "process", cloud_paths["sparse"], "-o", tmp_path / "o.h5",
+                        "--config", cfg)
+    assert code == 2 and "chain.cluster.sparse" in err and str(cfg) in err
+    code, _, err = _cli(capsys, "process", "--show-config", "--sparse", "maybe")
+    assert code == 2 and "--sparse" in _error_line(err)
