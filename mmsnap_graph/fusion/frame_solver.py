@@ -59,6 +59,7 @@ from factors.models import measurement_model_scalar, wrap_angle_scalar
 
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..data.results import Status
+from .._floats4 import cholesky_4x4, cholesky_inverse_4x4, cholesky_solve_4x4, forward_4x4
 from .degeneracy import condition_2x2
 from .oneshot_assess import NEWTON_DECREMENT_TOLERANCE
 from .problem import frame_initial_state
@@ -133,73 +134,14 @@ class FrameSolution:
 
 
 def _cholesky(a: list[float]) -> tuple[float, ...] | None:
-    """Lower Cholesky factor ``(l00, l10, l11, l20, l21, l22, l30, l31, l32,
-    l33)`` of the symmetric 4x4 ``a`` (row-major, 16 floats), unrolled; None
-    when a pivot is not positive to rounding (``_PIVOT_RTOL``; NaN too)."""
-    a00, a11, a22, a33 = a[0], a[5], a[10], a[15]
-    if not (a00 > 0.0 and a11 > 0.0 and a22 > 0.0 and a33 > 0.0):
-        return None
-    l00 = math.sqrt(a00)
-    l10, l20, l30 = a[4] / l00, a[8] / l00, a[12] / l00
-    d = a11 - l10 * l10
-    if not d > _PIVOT_RTOL * a11:
-        return None
-    l11 = math.sqrt(d)
-    l21 = (a[9] - l20 * l10) / l11
-    l31 = (a[13] - l30 * l10) / l11
-    d = a22 - l20 * l20 - l21 * l21
-    if not d > _PIVOT_RTOL * a22:
-        return None
-    l22 = math.sqrt(d)
-    l32 = (a[14] - l30 * l20 - l31 * l21) / l22
-    d = a33 - l30 * l30 - l31 * l31 - l32 * l32
-    if not d > _PIVOT_RTOL * a33:
-        return None
-    return l00, l10, l11, l20, l21, l22, l30, l31, l32, math.sqrt(d)
-
-
-def _forward(lo, b) -> tuple[float, float, float, float]:
-    """``y`` with ``L y = b``."""
-    l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = lo
-    y0 = b[0] / l00
-    y1 = (b[1] - l10 * y0) / l11
-    y2 = (b[2] - l20 * y0 - l21 * y1) / l22
-    return y0, y1, y2, (b[3] - l30 * y0 - l31 * y1 - l32 * y2) / l33
-
-
-def _cholesky_solve(lo, b) -> tuple[float, float, float, float]:
-    """``x`` with ``L L^T x = b``."""
-    l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = lo
-    y0, y1, y2, y3 = _forward(lo, b)
-    x3 = y3 / l33
-    x2 = (y2 - l32 * x3) / l22
-    x1 = (y1 - l21 * x2 - l31 * x3) / l11
-    return (y0 - l10 * x1 - l20 * x2 - l30 * x3) / l00, x1, x2, x3
+    """The Cholesky factor of ``a`` (16 floats) with this solver's pivot
+    tolerance (``_PIVOT_RTOL``), or None."""
+    return cholesky_4x4(a, _PIVOT_RTOL)
 
 
 def _cholesky_inverse(lo) -> NDArray:
-    """``(L L^T)^-1 = L^-T L^-1`` (4, 4), symmetric by construction."""
-    l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = lo
-    # M = L^-1 (lower triangular), column by column.
-    m00, m11, m22, m33 = 1.0 / l00, 1.0 / l11, 1.0 / l22, 1.0 / l33
-    m10 = -l10 * m00 * m11
-    m21 = -l21 * m11 * m22
-    m20 = -(l20 * m00 + l21 * m10) * m22
-    m32 = -l32 * m22 * m33
-    m31 = -(l31 * m11 + l32 * m21) * m33
-    m30 = -(l30 * m00 + l31 * m10 + l32 * m20) * m33
-    c00 = m00 * m00 + m10 * m10 + m20 * m20 + m30 * m30
-    c01 = m10 * m11 + m20 * m21 + m30 * m31
-    c02 = m20 * m22 + m30 * m32
-    c03 = m30 * m33
-    c11 = m11 * m11 + m21 * m21 + m31 * m31
-    c12 = m21 * m22 + m31 * m32
-    c13 = m31 * m33
-    c22 = m22 * m22 + m32 * m32
-    c23 = m32 * m33
-    c33 = m33 * m33
-    return np.array(((c00, c01, c02, c03), (c01, c11, c12, c13), (c02, c12, c22, c23),
-                     (c03, c13, c23, c33)))
+    """``(L L^T)^-1`` as a (4, 4) array."""
+    return np.array(cholesky_inverse_4x4(lo)).reshape(4, 4)
 
 
 class FrameSolver:
@@ -342,7 +284,7 @@ class FrameSolver:
         lo = _cholesky(damped)
         if lo is None:
             return None
-        s0, s1, s2, s3 = _cholesky_solve(lo, grad)
+        s0, s1, s2, s3 = cholesky_solve_4x4(lo, grad)
         d = (-s0, -s1, -s2, -s3)
         # The undamped model's decrease: -(g.d + d^T H d / 2).
         hd = [info[4 * i] * d[0] + info[4 * i + 1] * d[1] + info[4 * i + 2] * d[2]
@@ -398,7 +340,7 @@ class FrameSolver:
         if not _positive_definite(cov):
             return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it)
         # The squared Newton decrement g^T H^-1 g = |L^-1 g|^2.
-        y = _forward(lo, grad)
+        y = forward_4x4(lo, grad)
         if not y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3] <= NEWTON_DECREMENT_TOLERANCE:
             return FrameSolution(x, _nan44(), _NON_FINITE, degeneracy, it)
         if self._pose_info is not None:

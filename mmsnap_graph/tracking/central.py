@@ -57,6 +57,7 @@ from factors.motion import cv_process_noise, cv_transition
 
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Tracks
+from .._floats4 import cholesky_4x4, cholesky_inverse_4x4
 from .._linalg import symmetrize
 from .._validation import as_float_array, check_finite
 from .ekf import config_integer, config_number
@@ -128,55 +129,13 @@ class CentralConfig:
             raise ConfigurationError(f"max_misses={self.max_misses!r} must be an integer >= 1")
 
 
-def _cholesky_4x4(a: list[float]) -> tuple[float, ...] | None:
-    """Lower Cholesky factor ``(l00, l10, l11, l20, l21, l22, l30, l31, l32,
-    l33)`` of a symmetric 4x4 matrix given row-major (16 floats), unrolled in
-    plain floats; None when it is not positive definite (a pivot not above
-    1e-14 times its diagonal entry, or not finite)."""
-    a00, a11, a22, a33 = a[0], a[5], a[10], a[15]
-    if not (a00 > 0.0 and a11 > 0.0 and a22 > 0.0 and a33 > 0.0):
-        return None
-    l00 = math.sqrt(a00)
-    l10, l20, l30 = a[4] / l00, a[8] / l00, a[12] / l00
-    d = a11 - l10 * l10
-    if not d > 1e-14 * a11:
-        return None
-    l11 = math.sqrt(d)
-    l21 = (a[9] - l20 * l10) / l11
-    l31 = (a[13] - l30 * l10) / l11
-    d = a22 - l20 * l20 - l21 * l21
-    if not d > 1e-14 * a22:
-        return None
-    l22 = math.sqrt(d)
-    l32 = (a[14] - l30 * l20 - l31 * l21) / l22
-    d = a33 - l30 * l30 - l31 * l31 - l32 * l32
-    if not (d > 1e-14 * a33 and math.isfinite(d)):
-        return None
-    return l00, l10, l11, l20, l21, l22, l30, l31, l32, math.sqrt(d)
-
-
 def _inverse_floats(a: list[float]) -> list[float]:
     """``a^-1`` of a symmetric positive-definite 4x4 (row-major 16 floats) as
     ``L^-T L^-1``, exactly symmetric; ``LinAlgError`` when not positive definite."""
-    lo = _cholesky_4x4(a)
+    lo = cholesky_4x4(a)
     if lo is None:
         raise np.linalg.LinAlgError("matrix is not positive definite")
-    l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = lo
-    m00, m11, m22, m33 = 1.0 / l00, 1.0 / l11, 1.0 / l22, 1.0 / l33
-    m10 = -l10 * m00 * m11
-    m21 = -l21 * m11 * m22
-    m20 = -(l20 * m00 + l21 * m10) * m22
-    m32 = -l32 * m22 * m33
-    m31 = -(l31 * m11 + l32 * m21) * m33
-    m30 = -(l30 * m00 + l31 * m10 + l32 * m20) * m33
-    c01 = m10 * m11 + m20 * m21 + m30 * m31
-    c02 = m20 * m22 + m30 * m32
-    c12 = m21 * m22 + m31 * m32
-    c03, c13, c23 = m30 * m33, m31 * m33, m32 * m33
-    return [m00 * m00 + m10 * m10 + m20 * m20 + m30 * m30, c01, c02, c03,
-            c01, m11 * m11 + m21 * m21 + m31 * m31, c12, c13,
-            c02, c12, m22 * m22 + m32 * m32, c23,
-            c03, c13, c23, m33 * m33]
+    return cholesky_inverse_4x4(lo)
 
 
 def _matvec(a: list[float], x: list[float]) -> list[float]:
@@ -233,7 +192,7 @@ def _measurement_information(x, p, mean, lam_p):
             info[5 * k] -= lam_p[k]
             eta[k] -= lam_p[k] * mean[k]
         # Positive definite (the common case): no eigenvalue to clip.
-        if _cholesky_4x4(info) is None:
+        if cholesky_4x4(info) is None:
             w, v = np.linalg.eigh(np.array(info).reshape(4, 4))
             info = symmetrize((v * np.maximum(w, 0.0)) @ v.T).ravel().tolist()
     return info, eta
@@ -331,7 +290,7 @@ class CentralTracker:
         # A gap between steps longer than the coast limit, or a prediction
         # that lost positive definiteness (rounding over a huge t), ends it.
         self._tracks = [tr for tr in self._tracks
-                        if tr.since_hit_s <= coast_limit_s and _cholesky_4x4(tr.p) is not None]
+                        if tr.since_hit_s <= coast_limit_s and cholesky_4x4(tr.p) is not None]
         zl, rl = z.tolist(), r.reshape(-1, 16).tolist()
         assigned = self._associate(zl, rl)
         hit = [False] * len(self._tracks)
