@@ -33,6 +33,7 @@ from .problem import check_node_noise
 
 __all__ = [
     "FrameAssociation",
+    "group_distance2",
     "detection_position_covariance",
     "associate_frame",
     "gate_threshold",
@@ -234,14 +235,7 @@ def _associate_singles(counts, pos_all, cov_all, info_all, gate) -> FrameAssocia
             info_all.tolist())):
         best, best_m2 = -1, math.inf
         for g, (a, b, c, d) in enumerate(info):
-            det = a * d - b * c
-            ga, gb, gc, gd = d / det, -b / det, -c / det, a / det   # the group's covariance
-            mx, my = ga * eta[g][0] + gb * eta[g][1], gc * eta[g][0] + gd * eta[g][1]
-            dx, dy = mx - px, my - py
-            qa, qb, qc, qd = ga + sa, gb + sb, gc + sc, gd + sd
-            det_q = qa * qd - qb * qc
-            m2 = (qd * dx * dx - (qb + qc) * dx * dy + qa * dy * dy) / det_q if det_q > 0 \
-                else math.inf
+            m2 = group_distance2(a, b, c, d, eta[g][0], eta[g][1], px, py, sa, sb, sc, sd)
             if m2 <= gate and m2 < best_m2:
                 best, best_m2 = g, m2
         if best < 0:
@@ -258,6 +252,25 @@ def _associate_singles(counts, pos_all, cov_all, info_all, gate) -> FrameAssocia
     return FrameAssociation(members=np.asarray(members, dtype=np.int64),
                             position_m=np.einsum("gij,gj->gi", cov_g, np.array(eta)),
                             covariance_m2=cov_g)
+
+
+def group_distance2(a: float, b: float, c: float, d: float, e0: float, e1: float,
+                    px: float, py: float, sa: float, sb: float, sc: float, sd: float) -> float:
+    """Squared Mahalanobis distance between a group's fused position and a
+    detection, in floats: the group's summed position information
+    ``[[a, b], [c, d]]`` and information vector ``(e0, e1)``, the detection's
+    position ``(px, py)`` and covariance ``[[sa, sb], [sc, sd]]``; the
+    distance uses the sum of the two covariances (inf when it is not
+    positive definite)."""
+    det = a * d - b * c
+    ga, gb, gc, gd = d / det, -b / det, -c / det, a / det   # the group's covariance
+    dx = ga * e0 + gb * e1 - px
+    dy = gc * e0 + gd * e1 - py
+    qa, qb, qc, qd = ga + sa, gb + sb, gc + sc, gd + sd
+    det_q = qa * qd - qb * qc
+    if not det_q > 0:
+        return math.inf
+    return (qd * dx * dx - (qb + qc) * dx * dy + qa * dy * dy) / det_q
 
 
 def associate_frame(

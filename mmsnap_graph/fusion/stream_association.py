@@ -26,7 +26,8 @@ from numpy.typing import NDArray
 from factors.models import DETECTION_MIN_COS
 
 from ..data.noise import MeasurementNoise
-from .association import MAX_CONDITION, MIN_VARIANCE_M2, associate_frame, gate_threshold
+from .association import (MAX_CONDITION, MIN_VARIANCE_M2, associate_frame, gate_threshold,
+                          group_distance2)
 
 __all__ = ["StreamAssociator"]
 
@@ -91,14 +92,7 @@ class StreamAssociator:
         for n, (px, py, sa, sb, sc, sd, ia, ib, ic, id_) in dets:
             best, best_m2 = -1, math.inf
             for g, (a, b, c, d, e0, e1) in enumerate(groups):
-                det = a * d - b * c
-                ga, gb, gc, gd = d / det, -b / det, -c / det, a / det   # the group's covariance
-                mx, my = ga * e0 + gb * e1, gc * e0 + gd * e1
-                dx, dy = mx - px, my - py
-                qa, qb, qc, qd = ga + sa, gb + sb, gc + sc, gd + sd
-                det_q = qa * qd - qb * qc
-                m2 = (qd * dx * dx - (qb + qc) * dx * dy + qa * dy * dy) / det_q if det_q > 0 \
-                    else math.inf
+                m2 = group_distance2(a, b, c, d, e0, e1, px, py, sa, sb, sc, sd)
                 if m2 <= gate and m2 < best_m2:
                     best, best_m2 = g, m2
             if best < 0:
