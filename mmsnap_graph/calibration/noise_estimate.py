@@ -76,11 +76,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-from factors.models import detection_to_global, measurement_model, residual
 
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..data.recording import Detections, Recording
 from ..errors import ValidationError
+from .frame_states import solve_frame_states
 from .motion_noise import motion_doppler_noise
 from .tail_noise import with_tails
 
@@ -250,29 +250,6 @@ def _frame_table(detections: Mapping[str, Detections], names) -> tuple[NDArray, 
     return frames, z
 
 
-def _solve_states(z: NDArray, poses: NDArray, w: NDArray, prior_w: NDArray,
-                  iterations: int = 6) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """Gauss-Newton per frame; returns states, residuals, Jacobians and
-    covariances (weights ``w (F, N, 3)``, 0 = left out)."""
-    f, n, _ = z.shape
-    seen = np.isfinite(z[..., 0])
-    first = np.argmax(seen, axis=1)
-    zf = z[np.arange(f), first]
-    x = np.zeros((f, 4))
-    x[:, :2] = detection_to_global(zf[:, 0], zf[:, 1], poses[first])
-    zz = np.where(np.isfinite(z), z, 0.0)
-    for _ in range(iterations):
-        h, jac = measurement_model(x[:, None, :], poses[None])
-        e = np.where(seen[..., None], residual(h, zz), 0.0)
-        info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + np.diag(prior_w)
-        grad = np.einsum("fnri,fnr,fnr->fi", jac, w, e)
-        x = x - np.linalg.solve(info, grad[..., None])[..., 0]
-    h, jac = measurement_model(x[:, None, :], poses[None])
-    e = np.where(seen[..., None], residual(h, zz), np.nan)
-    info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + np.diag(prior_w)
-    return x, e, jac, np.linalg.inv(info)
-
-
 def _frame_information(z, p, theta, keep, prior_w):
     """Residuals, REML score and information of one round at variances
     ``theta (N, 3)``: per frame ``R = W - W J C J^T W`` (``C`` the state's
@@ -280,7 +257,7 @@ def _frame_information(z, p, theta, keep, prior_w):
     ``0.5 sum R_ij^2``, over the measurements ``i = 3 node + component``."""
     f, n, _ = z.shape
     w = np.where(keep, 1.0 / theta[None], 0.0)
-    _, e, jac, cov = _solve_states(z, p, w, prior_w)
+    _, e, jac, cov = solve_frame_states(z, p, w, prior_w)
     wf = w.reshape(f, 3 * n)
     wj = wf[..., None] * jac.reshape(f, 3 * n, 4)
     r = -np.einsum("fia,fab,fjb->fij", wj, cov, wj)
@@ -508,7 +485,7 @@ def _with_motion_doppler(dets, poses, t_sig, t_dof, t_cnt, init):
         return t_sig, t_dof, t_cnt
     p = np.array([np.asarray(poses[n], dtype=float) for n in names])
     w = np.where(np.isfinite(z), 1.0 / init[None, None, :] ** 2, 0.0)
-    states = _solve_states(z, p, w, np.full(4, 1e-6))[0]
+    states = solve_frame_states(z, p, w, np.full(4, 1e-6))[0]
     sig, dof, counts = motion_doppler_noise(dets, poses, states, frames,
                                             initial=np.full(len(names), init[2]))
     t_sig, t_dof, t_cnt = t_sig.copy(), t_dof.copy(), t_cnt.copy()

@@ -48,10 +48,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-from factors.models import detection_to_global, measurement_model, residual
 
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..data.recording import Detections
+from .frame_states import solve_frame_states
 
 __all__ = ["TAIL_GATE_PROBABILITY", "TAIL_Z", "TAIL_ORDER", "TAIL_GROSS_K",
            "TAIL_MIN_DIFFERENCES", "consistent_rows",
@@ -109,24 +109,9 @@ def _frame_chi2(z: NDArray, poses: NDArray, sig: NDArray, iterations: int = 8) -
     """Per frame, the weighted least-squares residual chi-square of the
     nodes that see it (Gauss-Newton from the first node's detection; a weak
     prior keeps an unobserved velocity direction in place)."""
-    f = z.shape[0]
-    seen = np.isfinite(z[..., 0])
-    first = np.argmax(seen, axis=1)
-    zf = z[np.arange(f), first]
-    x = np.zeros((f, 4))
-    x[:, :2] = detection_to_global(zf[:, 0], zf[:, 1], poses[first])
-    zz = np.where(np.isfinite(z), z, 0.0)
-    w = np.where(seen[..., None], 1.0 / sig[None] ** 2, 0.0)
-    prior = np.diag(np.full(4, 1e-6))
-    for _ in range(iterations):
-        h, jac = measurement_model(x[:, None, :], poses[None])
-        e = np.where(seen[..., None], residual(h, zz), 0.0)
-        info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + prior
-        grad = np.einsum("fnri,fnr,fnr->fi", jac, w, e)
-        x = x - np.linalg.solve(info, grad[..., None])[..., 0]
-    h, _ = measurement_model(x[:, None, :], poses[None])
-    e = np.where(seen[..., None], residual(h, zz), 0.0)
-    return np.sum(w * e**2, axis=(1, 2))
+    w = np.where(np.isfinite(z[..., :1]), 1.0 / sig[None] ** 2, 0.0)
+    e = solve_frame_states(z, poses, w, np.full(4, 1e-6), iterations)[1]
+    return np.nansum(w * e**2, axis=(1, 2))
 
 
 def consistent_rows(detections: Mapping[str, Detections], poses: Mapping[str, NDArray],

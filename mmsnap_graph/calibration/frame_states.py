@@ -1,0 +1,43 @@
+"""Each frame's least-squares target state from the nodes that see it, at
+known poses (the noise estimators' inner solve; docs/CALIBRATION.md, "Noise
+from the data")."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from factors.models import detection_to_global, measurement_model, residual
+
+__all__ = ["solve_frame_states"]
+
+
+def solve_frame_states(z: NDArray, poses: NDArray, w: NDArray, prior_w: NDArray,
+                       iterations: int = 6) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Gauss-Newton per frame, vectorized over frames.
+
+    z : (F, N, 3) measurements (NaN = the node does not see the frame);
+    poses : (N, 3); w : (F, N, 3) weights (inverse variances, 0 = left out);
+    prior_w : (4,) information of a zero-mean prior on the state (a weak one
+    keeps an unobserved velocity direction in place). Starts at the first
+    observing node's detection. Returns states (F, 4), residuals (F, N, 3)
+    (NaN where unseen), Jacobians (F, N, 3, 4) and covariances (F, 4, 4).
+    """
+    f = z.shape[0]
+    seen = np.isfinite(z[..., 0])
+    first = np.argmax(seen, axis=1)
+    zf = z[np.arange(f), first]
+    x = np.zeros((f, 4))
+    x[:, :2] = detection_to_global(zf[:, 0], zf[:, 1], poses[first])
+    zz = np.where(np.isfinite(z), z, 0.0)
+    prior = np.diag(prior_w)
+    for _ in range(iterations):
+        h, jac = measurement_model(x[:, None, :], poses[None])
+        e = np.where(seen[..., None], residual(h, zz), 0.0)
+        info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + prior
+        grad = np.einsum("fnri,fnr,fnr->fi", jac, w, e)
+        x = x - np.linalg.solve(info, grad[..., None])[..., 0]
+    h, jac = measurement_model(x[:, None, :], poses[None])
+    e = np.where(seen[..., None], residual(h, zz), np.nan)
+    info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + prior
+    return x, e, jac, np.linalg.inv(info)
