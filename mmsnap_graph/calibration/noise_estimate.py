@@ -76,7 +76,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..data.recording import Detections, Recording
 from ..errors import ValidationError

@@ -48,7 +48,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..data.recording import Detections
 from .frame_states import solve_frame_states
