@@ -131,6 +131,11 @@ def test_bound_inputs_are_checked():
         pose_crb(obs, truth, POSES, "S1")
     with pytest.raises(ValidationError, match="node_poses"):
         pose_crb({**obs, "S9": obs["S1"]}, truth, POSES, "S1")
+    with pytest.raises(ValidationError, match="no truth state"):
+        pose_crb({**obs, "S2": (truth.frame + 100, truth.target_id, SIGMAS)}, truth, POSES, "S1")
+    with pytest.raises(ValidationError, match="singular"):
+        pose_crb({**obs, "S2": (truth.frame[:1], truth.target_id[:1], SIGMAS)}, truth, POSES,
+                 "S1")
     with pytest.raises(ValidationError, match="node_pose"):
         centroid_residuals(_detections(truth, POSES["S1"], 0.0), truth, np.zeros(2))
     with pytest.raises(ValidationError, match="residual"):

@@ -94,7 +94,13 @@ def lag1_correlation(frame: NDArray, target_id: NDArray, residual: NDArray) -> N
 def _true_states(truth: Truth, frame: NDArray, target_id: NDArray) -> NDArray:
     key = truth.frame.astype(np.int64) * 1_000_003 + truth.target_id
     order = np.argsort(key)
-    at = order[np.searchsorted(key[order], frame.astype(np.int64) * 1_000_003 + target_id)]
+    want = frame.astype(np.int64) * 1_000_003 + target_id
+    at = order[np.minimum(np.searchsorted(key[order], want), order.size - 1)]
+    missing = key[at] != want
+    if missing.any():
+        i = int(np.argmax(missing))
+        raise ValidationError(f"(frame, target_id) = ({int(frame[i])}, {int(target_id[i])}) "
+                              f"has no truth state")
     return truth.state[at]
 
 
@@ -131,6 +137,9 @@ def pose_crb(observations: Mapping[str, tuple[NDArray, NDArray, NDArray]], truth
                 (k, j_pose[i], j_state[i], w[i]))
     for obs in groups.values():
         info += _group_information(obs, n_p, nuisance)
+    if np.linalg.matrix_rank(info) < n_p:
+        raise ValidationError("the observations do not determine every node's pose "
+                              "(singular Fisher information)")
     cov = np.linalg.inv(info)
     return {n: cov[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i, n in enumerate(free)}
 
