@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.app.commands.files import add_overwrite
 from mmsnap_graph.app.config_file import (
     MatchingConfig,
     matching_config_to_toml,
@@ -99,6 +100,7 @@ def register(subparsers) -> None:
                    help="write a copy of the recording here instead of updating it")
     p.add_argument("--no-write", action="store_true",
                    help="do not touch the recording (JSON only)")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 

@@ -20,6 +20,7 @@ import sys
 import numpy as np
 
 from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.app.commands.files import add_overwrite
 from mmsnap_graph.errors import ValidationError
 
 #: Robust one-shot fusion used unless ``--robust none``: the per-node
@@ -80,6 +81,7 @@ def register(subparsers) -> None:
                    help="do not bring the nodes' detections to the reference clock with the "
                         "calibration's clock offsets (default: they are)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 

@@ -8,6 +8,7 @@ import dataclasses
 import sys
 
 from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph.app.commands.files import add_overwrite
 from mmsnap_graph.app.config_file import (
     SPARSE_VALUES,
     ProcessConfig,
@@ -51,6 +52,7 @@ def register(subparsers) -> None:
                         "holds fewer than 6 points (auto), always (on) or never (off); "
                         "overrides the file's [chain.cluster] sparse (default auto)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 

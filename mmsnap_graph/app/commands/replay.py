@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from mmsnap_graph.app.commands.files import add_overwrite
 from mmsnap_graph.errors import ValidationError
 
 
@@ -47,6 +48,7 @@ def register(subparsers) -> None:
     p.add_argument("--summary", action="store_true", help="print only the summary")
     p.add_argument("-o", "--output", default=None,
                    help="write one JSON line per frame (fused targets and tracks) to this file")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
