@@ -96,9 +96,11 @@ def test_height_band_drops_floor_and_ceiling(tmp_path, truth, capsys):
     args = ["import", "table", "--node", f"S1={DATA / 'points_sensor_frame.csv'}",
             "--frame-period", "0.05", "--mount", "S1=0.8,5", "--height-band", "0.5,1.5",
             "-o", str(out)]
-    # The table holds two nodes: --node with a multi-node table is refused.
-    assert main(args) == 1
-    assert "holds 2 nodes" in capsys.readouterr().err
+    # The table holds two nodes: --node with a multi-node table is a usage error
+    # that names the option to use.
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "holds 2 nodes" in err and "import it with --table" in err
     import pandas as pd
     df = pd.read_csv(DATA / "points_sensor_frame.csv")
     one = tmp_path / "s1.csv"
