@@ -23,8 +23,8 @@ from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_BC
 from factors.models import measurement_model_pose, predict_measurements, wrap_angle
 from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.fusion.sequence import fuse_recording
-from mmsnap_graph.fusion.stream import FrameStream
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
 
 #: 3 cm and 1 degree on the two non-reference poses; S1 is exact (all NaN).

@@ -13,7 +13,7 @@ from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.app.evaluation import evaluate_recording, pose_mapping_error, state_errors, truth_reference
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.data.recording import Tracks
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io.fused import write_fused
 from mmsnap_graph.sim import simulate_recording
 
