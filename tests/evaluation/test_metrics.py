@@ -1,11 +1,11 @@
-"""Tests of the evaluation metrics (mmsnap_graph.app.evaluation)."""
+"""Tests of the evaluation metrics (mmsnap_graph.evaluation.metrics)."""
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
 from mmsnap_graph import ValidationError
-from mmsnap_graph.app.evaluation import align_frames, chi2_mean_interval, nees, pose_error, state_errors
+from mmsnap_graph.evaluation import align_frames, chi2_mean_interval, nees, nees_check, pose_error, state_errors
 
 
 def test_state_errors_known_values_and_skips_nonfinite_rows():
@@ -48,3 +48,31 @@ def test_nees_is_chi_square_for_gaussian_errors():
     assert lo < nees(e, cov).mean() < hi
     # A covariance twice too large halves the NEES and falls outside.
     assert nees(e, 2 * cov).mean() < lo
+
+
+def test_nees_check_passes_honest_covariances_and_flags_wrong_ones():
+    """Seeded: 2,000 rows of 4-dof errors drawn from their covariances pass
+    the 95% check; covariances four times too small (NEES x4) or too large
+    (NEES /4) fail it."""
+    rng = np.random.default_rng(3)
+    k, d = 2000, 4
+    a = rng.normal(size=(k, d, d))
+    cov = a @ np.swapaxes(a, 1, 2) + 0.1 * np.eye(d)
+    e = np.einsum("kij,kj->ki", np.linalg.cholesky(cov), rng.normal(size=(k, d)))
+    ok = nees_check(e, cov)
+    assert ok.passed and ok.n == k
+    assert ok.interval == chi2_mean_interval(d, k, 0.95)
+    assert nees_check(e, cov / 4).passed is False
+    assert nees_check(e, cov * 4).passed is False
+
+
+def test_nees_check_skips_failed_and_singular_rows():
+    e = np.array([[1.0, 0.0], [np.nan, 0.0], [0.5, 0.5]])
+    cov = np.stack([np.eye(2), np.eye(2), np.zeros((2, 2))])
+    out = nees_check(e, cov)
+    assert out.n == 1
+    assert out.mean == pytest.approx(1.0)
+    none = nees_check(e[1:], cov[1:])
+    assert none.n == 0 and none.passed is None
+    with pytest.raises(ValidationError, match="disagree"):
+        nees_check(e, cov[:, :1])
