@@ -19,7 +19,7 @@ network, pose-graph NEES 6.82 over 200 seeds against the band (5.53, 6.49):
 :func:`debias_centroid_tracks` adds the second-order term back, ``v = R (c +
 sigma_s^2 / (2 c^3))``, with ``c`` floored at :data:`MIN_COS` and
 ``sigma_Omega`` estimated from each node's own centroid sequence
-(:func:`~mmsnap_graph.calibration.noise_estimate.temporal_noise`: no poses
+(:func:`~mmsnap_graph.calibration.noise.estimate.temporal_noise`: no poses
 needed). The range's noise does not bias ``(u, v)`` (it multiplies both
 coordinates and is independent of the angle's).
 """
@@ -31,9 +31,9 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
-from ..data.recording import Detections
+from ...data.recording import Detections
 from .matching import LocalTracks
-from .noise_estimate import temporal_noise
+from ..noise.estimate import temporal_noise
 
 __all__ = ["MIN_COS", "boresight_bias_correction", "debias_centroid_tracks"]
 

@@ -29,7 +29,7 @@ noise with their expectation corrected to the noise variance:
   differences of white noise are correlated (the variance of the estimate is
   ``KAPPA_4 = 2.63`` times that of independent residuals).
 
-- **motion** (:func:`~.motion_noise.motion_doppler_noise`, with poses, the
+- **motion** (:func:`~.motion.motion_doppler_noise`, with poses, the
   Doppler only): the same target's motion is common to all nodes, the noise
   is not: the products of the nodes' 2nd differences of Doppler give each
   node's variance with the walk's along- and across-heading roughness fitted
@@ -76,12 +76,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
-from ..data.recording import Detections, Recording
-from ..errors import ValidationError
+from ...data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
+from ...data.recording import Detections, Recording
+from ...errors import ValidationError
 from .frame_states import solve_frame_states
-from .motion_noise import motion_doppler_noise
-from .tail_noise import with_tails
+from .motion import motion_doppler_noise
+from .tails import with_tails
 
 __all__ = ["estimate_noise", "network_noise", "temporal_noise", "TEMPORAL_ORDER", "KAPPA_4",
            "MIN_DOF", "TRIM_K", "NETWORK_GATE_K", "POOL_LEVEL", "GHOST_K",
@@ -475,7 +475,7 @@ def _network_parts(dets, poses, tmp, fallback, method) -> dict:
 
 def _with_motion_doppler(dets, poses, t_sig, t_dof, t_cnt, init):
     """The nodes' temporal Doppler estimates replaced by
-    :func:`~.motion_noise.motion_doppler_noise` (the target's motion fitted
+    :func:`~.motion.motion_doppler_noise` (the target's motion fitted
     jointly across the nodes, at each frame's least-squares state); the
     others kept. Returns new ``(t_sig, t_dof, t_cnt)``."""
     names = list(dets)

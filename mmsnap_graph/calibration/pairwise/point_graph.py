@@ -14,7 +14,7 @@ poses). Here the poses are solved jointly from the points themselves:
 points of the edge a-b at a's frame ``k`` (and b's ``k + lag``), residuals in
 the reference frame. Gauss-Newton in GTSAM's body tangent of each pose
 (``d T(z) / d xi = R [I, J z]``,
-:func:`~mmsnap_graph.calibration.closed_form.alignment_jacobian`), started
+:func:`~mmsnap_graph.calibration.pairwise.closed_form.alignment_jacobian`), started
 from the composed pairwise poses. For two nodes this is the closed form.
 
 Covariance: the sandwich ``H^{-1} Omega H^{-1}``, ``H = sum J^T J``, with the
@@ -23,7 +23,7 @@ clock: every edge that uses the same detection) summed before their outer
 product, so that shared detections are counted once (a cluster-robust
 sandwich), times ``n / (n - p)`` (``n`` instants, ``p`` unknowns); then
 multiplied by the integrated autocorrelation time of that score series
-(:func:`~mmsnap_graph.calibration.correlation.autocorrelation_factor`) for
+(:func:`~mmsnap_graph.calibration.pairwise.effective_samples.autocorrelation_factor`) for
 tracks whose errors are correlated from frame to frame.
 """
 
@@ -36,8 +36,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .closed_form import alignment_jacobian
-from .correlation import autocorrelation_factor
-from .poses import pose_array, to_pose2
+from .effective_samples import autocorrelation_factor
+from ..poses import pose_array, to_pose2
 
 __all__ = ["PointEdge", "PointGraphSolution", "solve_point_graph", "STEP_TOLERANCE"]
 

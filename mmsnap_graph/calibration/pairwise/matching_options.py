@@ -1,7 +1,7 @@
 """The track-matching thresholds of a calibration, in seconds and metres, with
 their defaults and checks (no GTSAM: the command line reads them).
 
-:func:`~mmsnap_graph.calibration.matching.match_tracks` and
+:func:`~mmsnap_graph.calibration.pairwise.matching.match_tracks` and
 :func:`~mmsnap_graph.calibration.network.calibrate_recording` take them as
 keywords; ``mmsnap calibrate`` as options and as the ``[matching]`` table of
 its ``--config`` file (docs/CALIBRATION.md, "Matching gate and thresholds in
@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from ..errors import ValidationError
+from ...errors import ValidationError
 from .closed_form import DEFAULT_MIN_SPREAD_M
 
 __all__ = ["DEFAULT_MAX_LAG_S", "DEFAULT_MIN_COMMON_S", "DEFAULT_MIN_SPREAD_M",

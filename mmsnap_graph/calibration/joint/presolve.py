@@ -41,7 +41,7 @@ import scipy.linalg as la
 from factors.models import measurement_model, measurement_model_pose, residual
 from factors.motion import cv_process_noise_continuous
 
-from .poses import pose_array, to_pose2
+from ..poses import pose_array, to_pose2
 
 __all__ = ["presolve", "normal_equations", "cv_information", "kernel_weight", "robust_cost",
            "shifted_states", "motion_norms"]

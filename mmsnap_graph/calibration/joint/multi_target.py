@@ -1,6 +1,6 @@
 """The joint calibration graph with several people (issue 12, Build 3).
 
-:func:`~mmsnap_graph.calibration.joint.joint_calibration` takes one detection
+:func:`~mmsnap_graph.calibration.joint.solve.joint_calibration` takes one detection
 of the common target per node per frame. With several people walking, each
 node sees several centroids per frame, and which centroid of one node is
 which of another's is not known. This module associates them across nodes
@@ -37,8 +37,8 @@ hands the joint graph one detection per node per (frame, target):
    ``(frame, target)``.
 
 :func:`joint_detections_multi` returns the relabelled detections (this
-module imports neither :mod:`.network` nor GTSAM-heavy steps, so that
-:mod:`.network` can call it); :func:`~mmsnap_graph.calibration.multi_refine.refine_multi`
+module imports neither :mod:`~mmsnap_graph.calibration.network` nor GTSAM-heavy steps, so that
+:mod:`~mmsnap_graph.calibration.network` can call it); :func:`~mmsnap_graph.calibration.joint.multi_refine.refine_multi`
 runs the joint graph on them from a pose-graph result.
 """
 
@@ -55,11 +55,11 @@ from scipy.stats import chi2
 
 from factors.models import detection_covariance_global, detection_to_global, detection_to_local
 
-from ..data.noise import MeasurementNoise
-from ..data.recording import Detections, Recording
-from ..errors import CalibrationError, ValidationError
-from .._validation import check_positive
-from .joint import JointCalibration
+from ...data.noise import MeasurementNoise
+from ...data.recording import Detections, Recording
+from ...errors import CalibrationError, ValidationError
+from ..._validation import check_positive
+from .solve import JointCalibration
 
 __all__ = ["ASSOCIATION_NOISE", "TargetMapping", "TargetAssociation", "associate_targets",
            "joint_detections_multi", "target_states"]
@@ -328,7 +328,7 @@ def associate_targets(
 
     names : the nodes to associate (each with a pose in ``poses``).
     poses, lag_frames, covariances : the calibration in progress (e.g. a
-        :class:`~mmsnap_graph.calibration.pose_graph.PoseGraphCalibration`'s
+        :class:`~mmsnap_graph.calibration.pairwise.pose_graph.PoseGraphCalibration`'s
         ``poses``, ``lag_frames`` and ``covariances``; no covariances: the
         floor only).
     noise : centroid noise of the gates (range and spatial frequency).

@@ -31,13 +31,13 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import ValidationError
-from .._validation import as_float_array, check_finite, check_shape
+from ...errors import ValidationError
+from ..._validation import as_float_array, check_finite, check_shape
 from .centroid_points import debias_centroid_tracks
 from .closed_form import PairwiseCalibration
 from .matching import LocalTracks, match_tracks
 from .point_graph import PointEdge, solve_point_graph
-from .poses import pose_array, to_pose2
+from ..poses import pose_array, to_pose2
 
 __all__ = ["PoseEdge", "PoseGraphCalibration", "pose_graph_calibration", "pairwise_edges"]
 
@@ -321,7 +321,7 @@ def pairwise_edges(
     tracks : node name -> its local tracks, in network order.
     debias_centroids : centroid tracks (``source="centroids"``, no
         covariances) first lose the boresight bias of their angle noise
-        (:func:`~mmsnap_graph.calibration.centroid_points.debias_centroid_tracks`:
+        (:func:`~mmsnap_graph.calibration.pairwise.centroid_points.debias_centroid_tracks`:
         a bias common to every frame, which the pose covariance cannot show).
     match_kwargs : passed to :func:`match_tracks`.
     Returns the edges and, for each failed pair ``"a-b"``, the reason.

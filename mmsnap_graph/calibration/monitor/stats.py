@@ -1,4 +1,4 @@
-"""The statistics of the decalibration monitor (:mod:`.monitor`;
+"""The statistics of the decalibration monitor (:mod:`.decalibration`;
 docs/CALIBRATION.md, "Noticing a moved radar").
 
 Node ``i`` is checked against the target state fused from the *other* nodes
@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from factors.models import measurement_model_pose, wrap_angle
 
-from ..data.noise import MeasurementNoise
+from ...data.noise import MeasurementNoise
 
 __all__ = ["HUBER_K", "FrameContributions", "frame_contributions", "compose_pose", "window_statistic",
            "suffix_statistics", "recalibrate_pose", "PoseFit"]

@@ -1,6 +1,6 @@
 """The Doppler sigmas of a network's nodes with the target's motion estimated jointly.
 
-A node's own 4th differences of Doppler (:func:`~.noise_estimate.temporal_noise`)
+A node's own 4th differences of Doppler (:func:`~.estimate.temporal_noise`)
 see the noise plus the 4th differences of the target's radial velocity. On a
 smooth walk the latter are negligible, but a walker whose speed and heading
 change from frame to frame (the simulator's random walk: an
@@ -44,7 +44,7 @@ difference of two larger variances); perpendicular lines of sight leave the
 noise and the motion unseparated, and the dof say so.
 
 2nd differences (3 consecutive frames) rather than the 4th of
-:func:`~.noise_estimate.temporal_noise`: the motion is fitted, not
+:func:`~.estimate.temporal_noise`: the motion is fitted, not
 differenced away, and the 2nd differences are less correlated (1.94 against
 2.63) and survive gaps and ghosts better (measured: +20 % dof, bias the
 same). Differences beyond :data:`MOTION_GATE_K` robust sigmas are trimmed
@@ -67,8 +67,8 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from ..data.recording import Detections
-from ..errors import ValidationError
+from ...data.recording import Detections
+from ...errors import ValidationError
 
 __all__ = ["motion_doppler_noise", "difference_kappa", "MOTION_GATE_K", "MOTION_ORDER"]
 

@@ -1,8 +1,8 @@
 """The joint calibration graph on several people from a pose-graph result
 (issue 12, Build 3): :func:`refine_multi` associates the centroids with the
-pose graph's poses (:func:`~mmsnap_graph.calibration.multi_target.joint_detections_multi`),
+pose graph's poses (:func:`~mmsnap_graph.calibration.joint.multi_target.joint_detections_multi`),
 picks the centroid noise as :func:`~mmsnap_graph.calibration.calibrate_recording`
-does, and runs :func:`~mmsnap_graph.calibration.joint.joint_calibration`
+does, and runs :func:`~mmsnap_graph.calibration.joint.solve.joint_calibration`
 unchanged on the targets' blocks of virtual frames.
 
 The association is only as good as the poses it starts from: on sparse
@@ -22,19 +22,19 @@ from typing import Mapping
 
 import numpy as np
 
-from ..data.noise import MeasurementNoise
-from ..data.recording import Recording
-from ..errors import CalibrationError, ValidationError
-from .joint import JointCalibration, joint_calibration
+from ...data.noise import MeasurementNoise
+from ...data.recording import Recording
+from ...errors import CalibrationError, ValidationError
+from .solve import JointCalibration, joint_calibration
 from .multi_target import (
     ASSOCIATION_NOISE,
     TargetAssociation,
     TargetMapping,
     joint_detections_multi,
 )
-from .pose_graph import PoseGraphCalibration
-from .poses import pose_tangent_error
-from .residual import residual_noise
+from ..pairwise.pose_graph import PoseGraphCalibration
+from ..poses import pose_tangent_error
+from .residual_noise import residual_noise
 
 __all__ = ["MultiTargetRefinement", "refine_multi", "refine_associated", "DEFAULT_ROUNDS"]
 
@@ -171,7 +171,7 @@ def refine_multi(
     """The joint calibration graph on several people, from the pose graph
     (module doc).
 
-    pose_graph : a :class:`~mmsnap_graph.calibration.pose_graph.PoseGraphCalibration`
+    pose_graph : a :class:`~mmsnap_graph.calibration.pairwise.pose_graph.PoseGraphCalibration`
         (e.g. ``calibrate_recording(rec, method="pose_graph").pose_graph``):
         its poses, covariances and lags drive the first association and
         start the joint graph.

@@ -1,6 +1,6 @@
 """Measurement noise from the residuals of a joint calibration
-(:func:`residual_noise`; moved from :mod:`.network`, which still exports
-it, so that :mod:`.multi_refine` and :mod:`.network` can both use it).
+(:func:`residual_noise`), used by :mod:`.multi_refine` and by
+:mod:`~mmsnap_graph.calibration.network` (which exports it too).
 """
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import numpy as np
 
 from factors.models import measurement_model, residual
 
-from ..data.noise import MeasurementNoise
-from ..data.recording import Detections
-from ..errors import CalibrationError
-from .joint import JointCalibration
+from ...data.noise import MeasurementNoise
+from ...data.recording import Detections
+from ...errors import CalibrationError
+from .solve import JointCalibration
 
 __all__ = ["residual_noise"]
 

@@ -41,10 +41,10 @@ from scipy.stats import chi2
 
 from factors.models import detection_to_local
 
-from ..errors import CalibrationError, ValidationError
-from ..data.recording import NodeData
-from .._validation import as_float_array, check_finite, check_shape
-from .poses import pose_tangent_error
+from ...errors import CalibrationError, ValidationError
+from ...data.recording import NodeData
+from ..._validation import as_float_array, check_finite, check_shape
+from ..poses import pose_tangent_error
 from .closed_form import (
     DEFAULT_MIN_COMMON_FRAMES,
     DEFAULT_MIN_SPREAD_M,

@@ -1,4 +1,4 @@
-"""The joint calibration graph in GTSAM (:mod:`.joint`): keys, factors and
+"""The joint calibration graph in GTSAM (:mod:`.solve`): keys, factors and
 values; the outlier test; the marginal covariances and unobservable
 directions of a solution.
 
@@ -27,7 +27,7 @@ from factors.gtsam_factors import (
 )
 from factors.models import measurement_model, residual
 
-from .poses import pose_array, to_pose2
+from ..poses import pose_array, to_pose2
 from .presolve import motion_norms, shifted_states
 
 __all__ = ["MotionSpec", "motion_spec", "JointGraph", "flag_outliers", "flag_turns",

@@ -12,9 +12,9 @@ from numpy.typing import NDArray
 
 from factors.models import detection_to_local, local_to_global, measurement_model, residual
 
-from ..errors import CalibrationError
-from .closed_form import PairwiseCalibration, closed_form_calibration, closed_form_pose
-from .pose_graph import PoseEdge, pose_graph_calibration
+from ...errors import CalibrationError
+from ..pairwise.closed_form import PairwiseCalibration, closed_form_calibration, closed_form_pose
+from ..pairwise.pose_graph import PoseEdge, pose_graph_calibration
 
 __all__ = ["trimmed_closed_form", "starting_poses", "starting_states"]
 

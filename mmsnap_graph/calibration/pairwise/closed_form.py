@@ -41,7 +41,7 @@ are correlated from frame to frame, and the covariance is then too small by
 the integrated autocorrelation time ``tau`` of the scores ``A_k^T e_k``
 (``K / tau`` is the effective number of frames). ``autocorrelation="auto"``
 (default) estimates ``tau`` from the residuals
-(:func:`~mmsnap_graph.calibration.correlation.autocorrelation_factor`) and
+(:func:`~mmsnap_graph.calibration.pairwise.effective_samples.autocorrelation_factor`) and
 multiplies the covariance by it; ``"none"`` keeps the independent-frames
 figure.
 """
@@ -54,9 +54,9 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import CalibrationError, ValidationError
-from .._validation import as_float_array, check_finite, check_shape
-from .correlation import autocorrelation_factor
+from ...errors import CalibrationError, ValidationError
+from ..._validation import as_float_array, check_finite, check_shape
+from .effective_samples import autocorrelation_factor
 
 __all__ = ["PairwiseCalibration", "closed_form_pose", "closed_form_calibration",
            "alignment_jacobian", "DEFAULT_MIN_COMMON_FRAMES", "DEFAULT_MIN_SPREAD_M"]

@@ -41,12 +41,12 @@ from numpy.typing import ArrayLike, NDArray
 from factors.gtsam_factors import measurement_noise
 from factors.robust import ROBUST_K_DEFAULT
 
-from ..errors import CalibrationError, MmsnapError, ValidationError
-from ..data.noise import MeasurementNoise
-from ..data.recording import Detections
-from .._validation import as_float_array, check_finite, check_positive, check_shape
-from .closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
-from .joint_graph import (
+from ...errors import CalibrationError, MmsnapError, ValidationError
+from ...data.noise import MeasurementNoise
+from ...data.recording import Detections
+from ..._validation import as_float_array, check_finite, check_positive, check_shape
+from ..pairwise.closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
+from .graph import (
     JointGraph,
     assess,
     exonerate_turns,

@@ -2,7 +2,7 @@
 
 A Gaussian covariance is honest in the mean (mean NEES = dimension) when the
 sigmas it is built from are the root mean square of the errors it fuses. The
-robust estimators of :mod:`mmsnap_graph.calibration.noise_estimate` give the
+robust estimators of :mod:`mmsnap_graph.calibration.noise.estimate` give the
 scale of the *core* of the errors: they screen ghosts and trim beyond a few
 robust sigmas. On Gaussian centroids the two agree. Centroids made by the
 radar chain from point clouds (the torso cluster of a walking body, limbs
@@ -48,8 +48,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
-from ..data.recording import Detections
+from ...data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
+from ...data.recording import Detections
 from .frame_states import solve_frame_states
 
 __all__ = ["TAIL_GATE_PROBABILITY", "TAIL_Z", "TAIL_ORDER", "TAIL_GROSS_K",
