@@ -397,6 +397,25 @@ def test_private_use_scan_sees_each_form(source, expected):
     assert _private_uses(source) == expected
 
 
+def test_nested_packages_resolve_relative_imports(tmp_path):
+    # A module two folders down: ``...`` leaves the sub-package and the package.
+    _tree(tmp_path, {
+        "mmsnap_graph/errors.py": "",
+        "mmsnap_graph/fusion/problem.py": "def _hidden():\n    pass\n",
+        "mmsnap_graph/fusion/solvers/scalar.py": "from ...errors import *\nfrom ..problem import *\n",
+    })
+    report = cs.check(tmp_path)
+    assert report.ok, cs.format_report(report)
+    assert {(e.source, e.target) for e in cs._imports(
+        cs._scan(tmp_path)["mmsnap_graph.fusion.solvers.scalar"], cs._scan(tmp_path))[0]} == {
+        ("mmsnap_graph.fusion.solvers.scalar", "mmsnap_graph.errors"),
+        ("mmsnap_graph.fusion.solvers.scalar", "mmsnap_graph.fusion.problem")}
+    _tree(tmp_path, {"mmsnap_graph/fusion/solvers/scalar.py":
+                     "from ...io import hdf5\nfrom ..problem import _hidden\n",
+                     "mmsnap_graph/io/hdf5.py": ""})
+    assert _rules(tmp_path) == {"layer-order", "private-import"}
+
+
 # ------------------------------------------------- rules of the second step
 
 

@@ -188,7 +188,7 @@ class Report:
 
 @dataclass
 class _Module:
-    name: str          # dotted, e.g. mmsnap_graph.fusion.oneshot
+    name: str          # dotted, e.g. mmsnap_graph.fusion.solvers.gtsam_graph
     path: Path
     rel: str           # path relative to the root, for messages
     is_package: bool   # an __init__.py
