@@ -1,6 +1,6 @@
 """The ``/fused`` group of a recording file: one-shot estimates of every target
 in every frame (:class:`~mmsnap_graph.data.results.FusedSequence`, made by
-:func:`mmsnap_graph.fusion.sequence.fuse_recording`).
+:func:`mmsnap_graph.fusion.recording.sequence.fuse_recording`).
 
 :func:`write_fused` and :func:`read_fused` are a symmetric pair; the layout is
 :data:`FUSED_LAYOUT` (quoted in docs/FORMAT.md). The ``status`` codes are those
