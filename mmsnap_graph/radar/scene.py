@@ -196,7 +196,8 @@ def merge_close_centroids(cents: Detections, config: SceneConfig = SceneConfig()
         out["doppler_mps"].append(float(ww @ cents.doppler_mps[m]))
         out["snr_db"].append(float(cents.snr_db[m].max()) if cents.snr_db is not None
                              else np.nan)
-    snr = np.asarray(out.pop("snr_db")) if cents.snr_db is not None else None
+    snr = np.asarray(out.pop("snr_db"))
+    snr = snr if cents.snr_db is not None else None
     order = np.argsort(out["frame"], kind="stable")
     merged = Detections(**{k: np.asarray(v)[order] for k, v in out.items()},
                         snr_db=None if snr is None else snr[order],

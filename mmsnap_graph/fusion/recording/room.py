@@ -7,11 +7,22 @@ reference frame), after the robust gate and the motion check:
   outside the room box (``x_min..x_max, y_min..y_max`` in the reference
   frame) is flagged :attr:`~mmsnap_graph.data.results.Status.OUTSIDE_BOUNDS`.
   A reflection via a wall is seen behind the wall: outside the room.
-- **one target per body**: two successful rows of a frame closer than
-  ``body_m`` (a body's width) are one person seen twice (a split body, or a
-  node's centroid not associated with the other node's); the row seen by
-  fewer nodes (else with the larger cost) is flagged
-  :attr:`~mmsnap_graph.data.results.Status.DUPLICATE`.
+- **static bounds** (optional, TI's ``staticBoundaryBox``): a row slower than
+  :data:`STILL_MPS` outside this box is flagged the same way (a target may
+  stand still only inside it).
+- **one target per body**: two successful rows of a frame whose distance is
+  consistent with one body are one person seen twice (a split body, or a
+  node's centroid not associated with the other node's): with ``d`` their
+  distance, ``C_a``, ``C_b`` their position covariances and a body of
+  ``body_m`` across (a Gaussian extent of sigma ``body_m / 2`` for each
+  node's view of it), ``d' (C_a + C_b + (body_m / 2)^2 I)^-1 d`` within the
+  99% chi-square(2) quantile, or ``d < body_m`` (about 0.75 m for rows
+  known to a few centimetres). Each radar sees the near side of a body, so
+  two radars facing each other see one walker up to a torso's depth apart,
+  and a node's own centroid is often a few decimetres off across range. The
+  row seen by fewer nodes (else with the larger cost) is flagged
+  :attr:`~mmsnap_graph.data.results.Status.DUPLICATE`. Two people closer
+  than that are one target for this check.
 
 :func:`screen_room` applies both to a :class:`FusedSequence` and says what it
 flagged.
@@ -28,10 +39,14 @@ from numpy.typing import NDArray
 from ...data.results import FusedSequence, Status
 from ...errors import ValidationError
 
-__all__ = ["RoomBounds", "RoomReport", "screen_room", "DEFAULT_BODY_M"]
+__all__ = ["RoomBounds", "RoomReport", "screen_room", "DEFAULT_BODY_M", "STILL_MPS"]
 
 #: A body's width (m): fused people closer than this in one frame are one.
 DEFAULT_BODY_M = 0.5
+#: Two rows are one body within this chi-square(2) quantile (99%).
+BODY_CHI2 = 9.21
+#: A fused target slower than this (m/s) stands still (``static_bounds``).
+STILL_MPS = 0.2
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -88,10 +103,19 @@ def _duplicates(fused: FusedSequence, ok: NDArray, body_m: float) -> NDArray:
     order = np.lexsort((cost, -nodes))
     frame = np.asarray(fused.frame)[rows]
     xy = np.asarray(fused.state, dtype=float)[rows, :2]
+    cov = np.nan_to_num(np.asarray(fused.covariance, dtype=float)[rows, :2, :2], nan=0.0)
+    extent = (body_m / 2.0) ** 2 * np.eye(2)
+
+    def same_body(a: int, b: int) -> bool:
+        d = xy[a] - xy[b]
+        if np.hypot(*d) < body_m:
+            return True
+        return float(d @ np.linalg.solve(cov[a] + cov[b] + extent, d)) <= BODY_CHI2
+
     kept: dict[int, list[int]] = {}
     for k in order:
         here = kept.setdefault(int(frame[k]), [])
-        if any(np.hypot(*(xy[k] - xy[j])) < body_m for j in here):
+        if any(same_body(k, j) for j in here):
             dup[rows[k]] = True
         else:
             here.append(k)
@@ -99,10 +123,12 @@ def _duplicates(fused: FusedSequence, ok: NDArray, body_m: float) -> NDArray:
 
 
 def screen_room(fused: FusedSequence, *, bounds: RoomBounds | None = None,
+                static_bounds: RoomBounds | None = None,
                 body_m: float | None = DEFAULT_BODY_M) -> tuple[FusedSequence, RoomReport]:
-    """Flag the successful rows outside ``bounds`` (None: no bounds) and the
-    duplicates of one body (``body_m``; None: off). Returns the rows with
-    their ``success``, ``status`` and ``message`` updated, and the counts."""
+    """Flag the successful rows outside ``bounds`` (None: no bounds), the
+    still rows outside ``static_bounds`` and the duplicates of one body
+    (``body_m``; None: off). Returns the rows with their ``success``,
+    ``status`` and ``message`` updated, and the counts."""
     if body_m is not None and not (np.isfinite(body_m) and body_m > 0):
         raise ValidationError(f"body_m={body_m!r} must be finite and > 0 (m)")
     if len(fused) == 0:
@@ -116,11 +142,21 @@ def screen_room(fused: FusedSequence, *, bounds: RoomBounds | None = None,
         status[outside] = Status.OUTSIDE_BOUNDS
         message[outside] = f"outside the room bounds ({bounds.text()})"
         success &= ~outside
+    if static_bounds is not None:
+        state = np.asarray(fused.state, dtype=float)
+        still = success & (np.hypot(state[:, 2], state[:, 3]) < STILL_MPS) \
+            & ~static_bounds.contains(state[:, :2])
+        status[still] = Status.OUTSIDE_BOUNDS
+        message[still] = (f"still (< {STILL_MPS:g} m/s) outside the static bounds "
+                          f"({static_bounds.text()})")
+        success &= ~still
+        outside |= still
     dup = np.zeros(len(fused), dtype=bool)
     if body_m is not None:
         dup = _duplicates(fused, success, float(body_m))
         status[dup] = Status.DUPLICATE
-        message[dup] = f"within {body_m:g} m of a better-supported target of its frame"
+        message[dup] = (f"one body ({body_m:g} m across) with a better-supported target of its "
+                        "frame")
         success &= ~dup
     if not (outside.any() or dup.any()):
         return fused, RoomReport()
