@@ -44,7 +44,7 @@ from factors.robust import ROBUST_K_DEFAULT
 from ..errors import CalibrationError, MmsnapError, ValidationError
 from ..data.noise import MeasurementNoise
 from ..data.recording import Detections
-from .._validation import as_float_array, check_finite, check_positive, check_shape
+from .._validation import as_float_array, check_count, check_finite, check_positive, check_shape
 from .closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
 from .joint_graph import (
     JointGraph,
@@ -178,12 +178,6 @@ def _validate(names, reference, noise, state_prior_sigmas, robust, motion, frame
     return ref, noise.sigmas, prior_sig
 
 
-def _check_count(value, name: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValidationError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
 def _validate_numbers(sig, robust_k, motion, frame_period_s, sigma_a_mps2, max_motion_gap_frames,
                       max_iterations, max_pose_variance, max_pose_condition):
     """Check the numeric options at the boundary (issue 13: zero or NaN
@@ -195,8 +189,8 @@ def _validate_numbers(sig, robust_k, motion, frame_period_s, sigma_a_mps2, max_m
         check_positive(frame_period_s, "frame_period_s")
     if motion:
         check_positive(sigma_a_mps2, "sigma_a_mps2")
-    _check_count(max_motion_gap_frames, "max_motion_gap_frames")
-    _check_count(max_iterations, "max_iterations")
+    check_count(max_motion_gap_frames, "max_motion_gap_frames")
+    check_count(max_iterations, "max_iterations")
     check_positive(max_pose_variance, "max_pose_variance")
     check_positive(max_pose_condition, "max_pose_condition")
     with np.errstate(over="ignore", divide="ignore"):
@@ -566,7 +560,7 @@ def _validate_timing(names, motion_robust, motion_robust_k, time_offsets, lag_fr
     for n, lag in dict(lag_frames or {}).items():
         if str(n) not in names:
             raise ValidationError(f"lag_frames names an unknown node {n!r}")
-        lags[str(n)] = _check_count(lag, f"lag_frames[{n!r}]", minimum=-(2**31))
+        lags[str(n)] = check_count(lag, f"lag_frames[{n!r}]", minimum=-(2**31))
     if any(lags.values()) and frame_period_s is None:
         raise ValidationError("lag_frames needs frame_period_s")
     return lags

@@ -69,6 +69,7 @@ from numpy.typing import NDArray
 
 from ..data.recording import Detections
 from ..errors import ValidationError
+from .._validation import check_count
 
 __all__ = ["motion_doppler_noise", "difference_kappa", "MOTION_GATE_K", "MOTION_ORDER"]
 
@@ -218,8 +219,7 @@ def _validated(names, poses, states, state_frames, initial, order):
     initial = np.asarray(initial, dtype=float)
     if initial.shape != (len(names),) or not np.all(np.isfinite(initial) & (initial > 0)):
         raise ValidationError(f"initial must be {len(names)} finite sigmas > 0, got {initial!r}")
-    if int(order) != order or not 1 <= order <= 6:
-        raise ValidationError(f"order={order!r} must be an integer in [1, 6]")
+    check_count(order, "order", 1, 6)
     return states, state_frames, initial
 
 

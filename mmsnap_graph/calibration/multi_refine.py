@@ -24,7 +24,8 @@ import numpy as np
 
 from ..data.noise import MeasurementNoise
 from ..data.recording import Recording
-from ..errors import CalibrationError, ValidationError
+from ..errors import CalibrationError
+from .._validation import check_count
 from .joint import JointCalibration, joint_calibration
 from .multi_target import (
     ASSOCIATION_NOISE,
@@ -136,8 +137,7 @@ def refine_associated(recording: Recording, names, poses, covariances, lag_frame
     metadata are not read). Returns the last successful round
     (else the first), None when the first association leaves fewer than two
     nodes."""
-    if isinstance(n_rounds, bool) or int(n_rounds) < 1:
-        raise ValidationError(f"n_rounds must be an integer >= 1, got {n_rounds!r}")
+    check_count(n_rounds, "n_rounds")
     given = dict(association or {})
     best = None
     for _ in range(int(n_rounds)):
@@ -190,9 +190,7 @@ def refine_multi(
     options = dict(reference=pose_graph.reference, robust=robust, motion=motion,
                    frame_period_s=recording.frame_period_s, sigma_a_mps2=sigma_a_mps2,
                    max_motion_gap_frames=max_motion_gap_frames)
-    if isinstance(max_motion_gap_frames, bool) or int(max_motion_gap_frames) < 1:
-        raise ValidationError(f"max_motion_gap_frames must be an integer >= 1, got "
-                              f"{max_motion_gap_frames!r}")
+    check_count(max_motion_gap_frames, "max_motion_gap_frames")
     if noise is None:
         noise = _recorded_noise(recording.metadata)
     out = refine_associated(recording, names, pose_graph.poses, pose_graph.covariances,

@@ -66,8 +66,8 @@ from ..data.results import DEGENERACY_THRESHOLD, FusionResult, Status
 from .grid import grid_posterior
 from .oneshot_assess import NEWTON_DECREMENT_TOLERANCE, assess_fit, residuals_and_degeneracy
 from .oneshot_poses import pose_aware_covariance
+from .._validation import check_count
 from .problem import (
-    check_count,
     check_initial_state,
     check_node_noise,
     check_pose_covariances,

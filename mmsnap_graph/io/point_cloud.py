@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.projection import project_to_plane, room_to_sensor
-from .._validation import as_float_array, int_array
+from .._validation import as_float_array, check_count, int_array
 from ..data.recording import Detections, NodeData, Recording
 from ..errors import ValidationError
 
@@ -144,8 +144,7 @@ def accumulate_frames(cloud: PointCloud3D, n_frames: int) -> PointCloud3D:
     """Frame accumulation for sparse clouds: frame ``f`` of the result holds
     the points of frames ``f - n_frames + 1 .. f`` (each point then appears
     in ``n_frames`` frames; time stamps stay those of the original frame)."""
-    if int(n_frames) != n_frames or n_frames < 1:
-        raise ValidationError(f"n_frames={n_frames!r} must be an integer >= 1")
+    check_count(n_frames, "n_frames")
     # Oldest first, so that each frame lists its points in time order.
     parts = [(cloud.frame + lag, np.arange(len(cloud))) for lag in range(int(n_frames) - 1, -1, -1)]
     frame = np.concatenate([f for f, _ in parts])
