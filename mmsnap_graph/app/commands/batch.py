@@ -133,6 +133,8 @@ def _ready(client, args) -> str:
     now, side by side, before the first recording."""
     from mmsnap_graph.app.batch import load_library
 
+    if not hasattr(client, "scheduler_info"):  # a concurrent.futures executor
+        return type(client).__name__
     n = len(client.scheduler_info().get("workers", {}))
     if args.scheduler is None:
         return f"{n} local worker(s), library loaded as each started"
