@@ -19,18 +19,18 @@ import numpy as np
 import pytest
 
 from factors.models import predict_measurements
-from mmsnap_graph.calibration.tail_noise import with_tails
+from mmsnap_graph.calibration.noise.tails import with_tails
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.data.results import Status
-from mmsnap_graph.fusion.split_check import SPLIT_MESSAGE, flag_split_singles, split_singles
+from mmsnap_graph.fusion.recording.split_check import SPLIT_MESSAGE, flag_split_singles, split_singles
 from mmsnap_graph.sim.networks import network_poses
 from mmsnap_graph.sim.scenes import target_trajectory
 
 SIGMA = np.array([0.03, 0.05, 0.1])
 #: Heavy tails recovered at least to this ratio (of 1.43): the 4th differences
 #: mix five centroids and so make the tails look more Gaussian (module doc of
-#: calibration.tail_noise).
+#: calibration.noise.tails).
 RATIO_LO = 1.2
 
 

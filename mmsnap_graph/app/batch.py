@@ -160,7 +160,7 @@ def _step_target(step: str) -> Callable:
         from ..calibration import calibrate_recording
 
         return calibrate_recording
-    from ..fusion.sequence import fuse_recording
+    from ..fusion.recording.sequence import fuse_recording
 
     return fuse_recording
 
@@ -400,7 +400,7 @@ def load_library() -> float:
     a cluster import side by side while the cluster comes up."""
     t0 = time.perf_counter()
     from ..calibration import calibrate_recording  # noqa: F401 -- GTSAM, the calibration graphs
-    from ..fusion.sequence import fuse_recording  # noqa: F401 -- the fusion solvers
+    from ..fusion.recording.sequence import fuse_recording  # noqa: F401 -- the fusion solvers
     from .pipeline import process_file  # noqa: F401 -- signal chain, scikit-learn, h5py
 
     return time.perf_counter() - t0

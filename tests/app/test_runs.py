@@ -9,9 +9,9 @@ import pytest
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.runs import stored_calibration
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
-from mmsnap_graph.fusion.sequence import recording_poses
-from mmsnap_graph.fusion.stream import FrameStream, recording_frames
-from mmsnap_graph.fusion.timing import align_recording
+from mmsnap_graph.fusion.recording.sequence import recording_poses
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
+from mmsnap_graph.fusion.recording.timing import align_recording
 from mmsnap_graph.io import read_recording
 from mmsnap_graph.io.calibration import read_calibration
 from mmsnap_graph.io.noise import read_noise
@@ -65,7 +65,7 @@ def test_monitor_uses_the_stored_noise_poses_and_clocks(calibrated, tmp_path, ca
     meta = rec.metadata
     assert not np.isclose(pooled.omega_rad, float(meta.get("centroid_omega_std", np.nan)))
     # The same run by hand from the stored parts.
-    from mmsnap_graph.calibration.monitor import DEFAULT_THRESHOLD, monitor_recording
+    from mmsnap_graph.calibration.monitor.decalibration import DEFAULT_THRESHOLD, monitor_recording
 
     cal = read_calibration(calibrated)
     expected = monitor_recording(align_recording(rec, dict(cal.time_offset_s)),

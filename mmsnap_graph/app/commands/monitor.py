@@ -1,6 +1,6 @@
 """``mmsnap monitor``: notice a moved radar in a recording and re-calibrate it.
 
-Runs the decalibration monitor (:mod:`mmsnap_graph.calibration.monitor`,
+Runs the decalibration monitor (:mod:`mmsnap_graph.calibration.monitor.decalibration`,
 docs/CALIBRATION.md "Noticing a moved radar") over the recording's centroids
 with what ``mmsnap calibrate`` stored, read as ``mmsnap fuse`` reads it
 (:func:`mmsnap_graph.app.runs.stored_calibration`): the node poses (or
@@ -96,8 +96,8 @@ def result_json(result) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.app.runs import stored_calibration
-    from mmsnap_graph.calibration.monitor import DEFAULT_THRESHOLD, monitor_recording
-    from mmsnap_graph.fusion.timing import align_recording
+    from mmsnap_graph.calibration.monitor.decalibration import DEFAULT_THRESHOLD, monitor_recording
+    from mmsnap_graph.fusion.recording.timing import align_recording
     from mmsnap_graph.io import read_recording
 
     json_path = check_output_path(args.json) if args.json else None

@@ -1,5 +1,5 @@
 """``mmsnap replay``: stream a recording frame by frame through the online API
-(:class:`mmsnap_graph.fusion.stream.FrameStream`, docs/STREAMING.md).
+(:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`, docs/STREAMING.md).
 
 Fuses with what ``mmsnap calibrate`` stored, read as ``mmsnap fuse`` reads it
 (:func:`mmsnap_graph.app.runs.stored_calibration`: poses or ``--calibration``,
@@ -96,9 +96,9 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph._atomic import atomic_path
     from mmsnap_graph.app.runs import paper_noise, stored_calibration
     from mmsnap_graph.data.noise import GaussianPrior
-    from mmsnap_graph.fusion.sequence import recording_poses
-    from mmsnap_graph.fusion.stream import FrameStream, recording_frames
-    from mmsnap_graph.fusion.timing import align_recording
+    from mmsnap_graph.fusion.recording.sequence import recording_poses
+    from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
+    from mmsnap_graph.fusion.recording.timing import align_recording
     from mmsnap_graph.io import read_recording
 
     speed = _check_args(args)
