@@ -25,11 +25,6 @@ import sys
 import numpy as np
 
 from mmsnap_graph._atomic import check_output_path
-from mmsnap_graph.app.config_file import (
-    MatchingConfig,
-    matching_config_to_toml,
-    read_matching_config,
-)
 from mmsnap_graph.app.runs import calibrate_and_store, calibration_json_path
 from mmsnap_graph.calibration.pairwise.matching_options import MATCHING_DEFAULTS
 from mmsnap_graph.errors import ConfigurationError, ValidationError
@@ -132,9 +127,14 @@ def format_table(cal) -> str:
     return "\n".join(lines)
 
 
-def effective_matching(args: argparse.Namespace) -> MatchingConfig:
+def effective_matching(args: argparse.Namespace):
     """Defaults, then the ``[matching]`` table of ``--config``, then the
-    explicit options (a bad one is named as its option)."""
+    explicit options (a bad one is named as its option): a
+    :class:`~mmsnap_graph.app.config_file.MatchingConfig`."""
+    # Here: the config module imports the signal chain (SciPy, scikit-learn),
+    # which building the parser (`mmsnap --help`) must not.
+    from mmsnap_graph.app.config_file import MatchingConfig, read_matching_config
+
     cfg = MatchingConfig() if args.config is None else read_matching_config(args.config)
     for name in MATCHING_OPTIONS:
         value = getattr(args, name)
@@ -148,6 +148,8 @@ def effective_matching(args: argparse.Namespace) -> MatchingConfig:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmsnap_graph.app.config_file import matching_config_to_toml
+
     matching = effective_matching(args)
     if args.show_config:
         sys.stdout.write(matching_config_to_toml(matching))
