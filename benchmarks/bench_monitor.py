@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from mmsnap_graph.calibration.monitor import DEFAULT_THRESHOLD, monitor_recording
+from mmsnap_graph.calibration.monitor.decalibration import DEFAULT_THRESHOLD, monitor_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.bump import simulate_bumped_recording
 from mmsnap_graph.sim import SimulationOptions

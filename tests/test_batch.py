@@ -178,7 +178,7 @@ def test_ml_covariance_is_consistent_monte_carlo():
     circles apart (the mirror image across the line through the radars is a
     local minimum), which is a property of the problem, not of the solver.
     """
-    from mmsnap_graph.app.evaluation import chi2_mean_interval, nees
+    from mmsnap_graph.evaluation import chi2_mean_interval, nees
 
     rng = np.random.default_rng(9)
     noise = MeasurementNoise(omega_rad=0.1)

@@ -23,6 +23,7 @@ from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_BC
 from factors.models import measurement_model_pose, predict_measurements, wrap_angle
 from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.evaluation import nees
 from mmsnap_graph.fusion.sequence import fuse_recording
 from mmsnap_graph.fusion.stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
@@ -299,11 +300,6 @@ def test_frame_stream_passes_pose_covariances(recording_3):
 # Monte Carlo: the issue 11 target
 
 
-def _nees(states, est, cov):
-    e = est - states
-    return np.einsum("fi,fij,fj->f", e, np.linalg.inv(cov), e)
-
-
 @pytest.mark.slow
 def test_calibration_aware_nees_in_band_when_poses_are_drawn_from_their_covariance():
     """3 nodes, S2 and S3 with 3 cm / 1 degree pose sigmas: each trial draws
@@ -325,12 +321,12 @@ def test_calibration_aware_nees_in_band_when_poses_are_drawn_from_their_covarian
     aware = fuse_batch(used, z, pose_covariances=POSE_COV)
     ok = plain.success & aware.success
     assert ok.mean() > 0.99
-    nees_plain = _nees(states[ok], plain.state[ok], plain.covariance[ok]).mean()
-    nees_batch = _nees(states[ok], aware.state[ok], aware.covariance[ok]).mean()
+    nees_plain = nees(plain.state[ok] - states[ok], plain.covariance[ok]).mean()
+    nees_batch = nees(aware.state[ok] - states[ok], aware.covariance[ok]).mean()
     gtsam = [fuse_frame(used[f], z[f], pose_covariances=POSE_COV) for f in range(n_trials)]
     good = np.array([r.success for r in gtsam]) & ok
-    nees_gtsam = _nees(states[good], np.array([gtsam[f].state for f in np.flatnonzero(good)]),
-                       np.array([gtsam[f].covariance for f in np.flatnonzero(good)])).mean()
+    nees_gtsam = nees(np.array([gtsam[f].state for f in np.flatnonzero(good)]) - states[good],
+                      np.array([gtsam[f].covariance for f in np.flatnonzero(good)])).mean()
     assert band[0] < nees_batch < band[1], (nees_batch, band)
     assert band[0] < nees_gtsam < band[1], (nees_gtsam, band)
     assert nees_plain > band[1], (nees_plain, band)

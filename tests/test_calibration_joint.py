@@ -27,7 +27,7 @@ from mmsnap_graph.calibration import (
     pose_tangent_error,
 )
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
-from mmsnap_graph.calibration.presolve import cv_information, normal_equations
+from mmsnap_graph.calibration.joint.presolve import cv_information, normal_equations
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.data.recording import Detections
@@ -237,7 +237,7 @@ def test_singular_marginals_fall_back_to_the_schur_complement(monkeypatch):
     """Force the elimination for the marginals to fail (as on an exactly singular system): the
     dense Schur complement names the unobservable direction and puts inf in
     the covariance."""
-    import mmsnap_graph.calibration.joint_graph as joint_graph_mod
+    import mmsnap_graph.calibration.joint.graph as joint_graph_mod
 
     def broken(*args, **kwargs):
         raise RuntimeError("Indeterminant linear system detected")

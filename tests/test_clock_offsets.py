@@ -34,7 +34,7 @@ from factors.gtsam_factors import (
     timed_pose_measurement_factor,
 )
 from mmsnap_graph.calibration import RecordingCalibration, calibrate_recording, joint_calibration
-from mmsnap_graph.calibration.presolve import normal_equations, shifted_states
+from mmsnap_graph.calibration.joint.presolve import normal_equations, shifted_states
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.errors import CalibrationError, ValidationError

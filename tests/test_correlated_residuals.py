@@ -19,7 +19,7 @@ import pytest
 from scipy.stats import chi2
 
 from mmsnap_graph.calibration import LocalTracks, local_tracks, match_tracks, pose_tangent_error
-from mmsnap_graph.calibration.correlation import autocorrelation_factor
+from mmsnap_graph.calibration.pairwise.effective_samples import autocorrelation_factor
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
 from mmsnap_graph.sim import CLEAN

@@ -7,7 +7,7 @@ import pytest
 from factors.models import detection_to_local, measurement_model
 from factors.motion import cv_process_noise, cv_transition
 from mmsnap_graph.errors import ConfigurationError, ValidationError
-from mmsnap_graph.app.evaluation import chi2_mean_interval, nees
+from mmsnap_graph.evaluation import chi2_mean_interval, nees
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.tracking.ekf import (
     EkfConfig,

@@ -10,7 +10,8 @@ import pytest
 
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.app.evaluation import evaluate_recording, pose_mapping_error, state_errors, truth_reference
+from mmsnap_graph.app.evaluation import evaluate_recording
+from mmsnap_graph.evaluation import pose_mapping_error, state_errors, truth_reference
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.data.recording import Tracks
 from mmsnap_graph.fusion.sequence import fuse_recording

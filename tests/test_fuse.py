@@ -10,7 +10,7 @@ from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError, FileFormatError, ValidationError
-from mmsnap_graph.app.evaluation import state_errors
+from mmsnap_graph.evaluation import state_errors
 from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.fusion.oneshot import fuse_frame
 from mmsnap_graph.fusion.sequence import fuse_recording, recording_poses

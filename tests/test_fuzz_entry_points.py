@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mmsnap_graph.calibration.matching import LocalTracks, match_tracks
+from mmsnap_graph.calibration.pairwise.matching import LocalTracks, match_tracks
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import MmsnapError
 from mmsnap_graph.fusion.stream import FrameStream

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model
-from mmsnap_graph.calibration.monitor import (
+from mmsnap_graph.calibration.monitor.decalibration import (
     DEFAULT_THRESHOLD,
     DecalibrationMonitor,
     monitor_recording,
     recording_measurements,
 )
-from mmsnap_graph.calibration.monitor_stats import (
+from mmsnap_graph.calibration.monitor.stats import (
     compose_pose,
     frame_contributions,
     recalibrate_pose,

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model
-from mmsnap_graph.calibration.motion_noise import difference_kappa, motion_doppler_noise
-from mmsnap_graph.calibration.noise_estimate import MIN_DOF, estimate_noise, temporal_noise
+from mmsnap_graph.calibration.noise.motion import difference_kappa, motion_doppler_noise
+from mmsnap_graph.calibration.noise.estimate import MIN_DOF, estimate_noise, temporal_noise
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.errors import ValidationError

@@ -1,6 +1,6 @@
 """The joint calibration graph with several people (issue 12, Build 3):
 centroids associated across nodes with the pose graph's poses
-(calibration.multi_target), one block of virtual frames per target."""
+(calibration.joint.multi_target), one block of virtual frames per target."""
 
 import dataclasses
 
@@ -9,8 +9,8 @@ import pytest
 
 from mmsnap_graph.app.pipeline import track_recording
 from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
-from mmsnap_graph.calibration.multi_refine import refine_multi
-from mmsnap_graph.calibration.multi_target import (
+from mmsnap_graph.calibration.joint.multi_refine import refine_multi
+from mmsnap_graph.calibration.joint.multi_target import (
     associate_targets,
     joint_detections_multi,
     target_states,

@@ -31,8 +31,8 @@ from scipy.stats import chi2
 from factors.models import detection_to_local, measurement_model
 from mmsnap_graph.calibration import (LocalTracks, calibrate_recording, joint_calibration,
                                       pose_tangent_error)
-from mmsnap_graph.calibration import joint as joint_module
-from mmsnap_graph.calibration.centroid_points import debias_centroid_tracks
+from mmsnap_graph.calibration.joint import solve as joint_module
+from mmsnap_graph.calibration.pairwise.centroid_points import debias_centroid_tracks
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mmsnap_graph.calibration import calibrate_recording
-from mmsnap_graph.calibration.noise_estimate import (
+from mmsnap_graph.calibration.noise.estimate import (
     estimate_noise,
     network_noise,
     temporal_noise,

@@ -24,7 +24,7 @@ Measured (seeds 0-19 unless said; the Monte Carlo functions in this file):
   noise through the concave ``sqrt(1 - s^2)``, so every centroid falls
   short along boresight by ``R sigma_s^2 / (2 c^3)`` (2-6 mm here). With
   the linearised noise instead 6.16; with the bias removed
-  (:mod:`mmsnap_graph.calibration.centroid_points`, on by default in
+  (:mod:`mmsnap_graph.calibration.pairwise.centroid_points`, on by default in
   ``pairwise_edges``) 6.19, bias part 0.02; seeds 0-19 7.12 (was 8.10).
 """
 

@@ -9,7 +9,7 @@ import pytest
 
 from mmsnap_graph import MmsnapError
 from mmsnap_graph.calibration import joint_calibration
-from mmsnap_graph.calibration.presolve import robust_cost
+from mmsnap_graph.calibration.joint.presolve import robust_cost
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.errors import ValidationError

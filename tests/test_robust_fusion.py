@@ -16,12 +16,12 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
 
 from factors.models import predict_measurements
 from mmsnap_graph import GaussianPrior, MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import GeometryError, ValidationError
+from mmsnap_graph.evaluation import chi2_mean_interval, nees
 from mmsnap_graph.fusion.robust import kernel_weight_and_loss, residual_gate_threshold
 from mmsnap_graph.fusion.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions
@@ -53,13 +53,11 @@ def rmse_and_nees(res, truth):
     ok = res.success
     err = res.state[ok] - truth[ok]
     rmse = float(np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1))))
-    nees = float(np.mean(np.einsum("fi,fij,fj->f", err, np.linalg.inv(res.covariance[ok]), err)))
-    return rmse, nees
+    return rmse, float(np.mean(nees(err, res.covariance[ok])))
 
 
 def nees_band(k: int) -> tuple[float, float]:
-    lo, hi = chi2.ppf([0.025, 0.975], 4 * k) / k
-    return float(lo), float(hi)
+    return chi2_mean_interval(4, k, 0.95)
 
 
 # ----------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from factors.gtsam_factors import (
     state_prior_factor,
 )
 from mmsnap_graph.calibration import joint_calibration
-from mmsnap_graph.calibration.presolve import normal_equations
+from mmsnap_graph.calibration.joint.presolve import normal_equations
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.sim.clocks import timed_scene
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS

@@ -14,7 +14,7 @@ from mmsnap_graph.app.pipeline import (
     sparse_cluster_config,
 )
 from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
-from mmsnap_graph.calibration.multi_refine import refine_multi
+from mmsnap_graph.calibration.joint.multi_refine import refine_multi
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.sim import simulate_recording

@@ -2,7 +2,7 @@
 sim.sparse thins the simulator's clouds to the issue's shape (2-3 moving
 points per radar per frame, a quarter of the frames empty in bursts), and
 the whole default path -- chain clustering, EKF tracks, pose graph, the
-joint graph on several people (calibration.multi_refine) -- is measured
+joint graph on several people (calibration.joint.multi_refine) -- is measured
 against the same scene's dense clouds."""
 
 import dataclasses

@@ -150,6 +150,33 @@ def test_import_against_the_layers_is_detected(tmp_path, importer, statement):
     assert report.broken_rules() == {"layer-order"}, cs.format_report(report)
 
 
+@pytest.mark.parametrize("importer, statement, ok", [
+    ("mmsnap_graph/evaluation/metrics.py", "from factors.models import wrap_angle\n", True),
+    ("mmsnap_graph/evaluation/metrics.py", "from ..data.recording import Truth\n", True),
+    ("mmsnap_graph/evaluation/metrics.py", "from .._validation import check\n", True),
+    ("mmsnap_graph/fusion/oneshot.py", "from ..evaluation.metrics import nees\n", True),
+    ("mmsnap_graph/app/cli.py", "from ..evaluation import nees\n", True),
+    ("mmsnap_graph/evaluation/metrics.py", "from ..fusion.oneshot import solve\n", False),
+    ("mmsnap_graph/evaluation/metrics.py", "from ..tracking import ekf\n", False),
+    ("mmsnap_graph/evaluation/metrics.py", "from ..app import cli\n", False),
+    ("mmsnap_graph/data/recording.py", "from ..evaluation import nees\n", False),
+    ("mmsnap_graph/_validation.py", "from .evaluation.metrics import nees\n", False),
+])
+def test_metrics_sit_between_the_data_and_the_estimators(tmp_path, importer, statement, ok):
+    _tree(tmp_path, {
+        "factors/models.py": "", "mmsnap_graph/errors.py": "", "mmsnap_graph/_validation.py": "",
+        "mmsnap_graph/data/recording.py": "", "mmsnap_graph/evaluation/metrics.py": "",
+        "mmsnap_graph/fusion/oneshot.py": "", "mmsnap_graph/tracking/ekf.py": "",
+        "mmsnap_graph/app/cli.py": "",
+    })
+    assert cs.check(tmp_path).ok
+    _tree(tmp_path, {importer: statement})
+    report = cs.check(tmp_path)
+    assert report.ok == ok, cs.format_report(report)
+    if not ok:
+        assert report.broken_rules() == {"layer-order"}
+
+
 def test_module_outside_every_layer_is_detected(tmp_path):
     _tree(tmp_path, {"mmsnap_graph/misc/helpers.py": "x = 1\n"})
     assert "layer-order" in _rules(tmp_path)

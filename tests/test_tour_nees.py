@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from factors.models import predict_measurements
-from mmsnap_graph.calibration.tail_noise import with_tails
+from mmsnap_graph.calibration.noise.tails import with_tails
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.data.results import Status
@@ -30,7 +30,7 @@ from mmsnap_graph.sim.scenes import target_trajectory
 SIGMA = np.array([0.03, 0.05, 0.1])
 #: Heavy tails recovered at least to this ratio (of 1.43): the 4th differences
 #: mix five centroids and so make the tails look more Gaussian (module doc of
-#: calibration.tail_noise).
+#: calibration.noise.tails).
 RATIO_LO = 1.2
 
 

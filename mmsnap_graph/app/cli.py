@@ -46,7 +46,7 @@ from ..errors import (
 )
 
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
-COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch", "replay", "monitor", "noise"]
+COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch", "replay", "monitor", "noise", "info", "export"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -60,7 +60,8 @@ USAGE_ERRORS = (ValidationError, ConfigurationError)
 #: Per command, the options naming an output file (checked before it runs).
 OUTPUT_FILE_OPTIONS = {"process": ("output",), "fuse": ("output",),
                        "calibrate": ("json", "output"), "simulate": ("output",),
-                       "replay": ("output",), "import": ("output",)}
+                       "replay": ("output",), "import": ("output",),
+                       "export": ("output",)}
 
 
 def package_version() -> str:

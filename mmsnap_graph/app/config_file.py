@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..calibration.matching_options import MATCHING_DEFAULTS, check_matching_options
+from ..calibration.pairwise.matching_options import MATCHING_DEFAULTS, check_matching_options
 from ..errors import ConfigurationError, ValidationError
 from ..radar.cfar import CfarConfig
 from ..radar.chain import ChainConfig

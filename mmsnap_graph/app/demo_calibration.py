@@ -22,7 +22,7 @@ from .demo_chain import (
     centroids_near_track,
     single_target_track,
 )
-from .evaluation import PoseError, align_frames, pose_error, pose_mapping_error
+from ..evaluation.metrics import PoseError, align_frames, pose_error, pose_mapping_error
 
 #: The joint graph weighs the centroids with the demo EKF's sigmas.
 _DEMO_NOISE = MeasurementNoise(range_m=DEMO_EKF_MEASUREMENT_STD[0], omega_rad=DEMO_EKF_MEASUREMENT_STD[1],
@@ -42,7 +42,7 @@ class CalibrationOutcome:
     refined_error : :class:`PoseError` against it. closed_form_mapping_error_m,
     refined_mapping_error_m : RMS displacement of the true walking path when
     S2 sees it with the estimated instead of the true pose
-    (:func:`mmsnap_graph.app.evaluation.pose_mapping_error`). n_frames : matched
+    (:func:`mmsnap_graph.evaluation.pose_mapping_error`). n_frames : matched
     frames; lag_frames : the matched frame lag.
     """
 

@@ -17,7 +17,7 @@ from ..data.recording import Detections, Recording
 from ..errors import ValidationError
 from ..fusion.sequence import fuse_recording
 from .demo_fusion import one_row_per_frame
-from .evaluation import StateErrors, align_frames, state_errors
+from ..evaluation.metrics import StateErrors, align_frames, state_errors
 from .pipeline import process_recording
 
 __all__ = ["CubeStretch", "run_cube_stretch"]

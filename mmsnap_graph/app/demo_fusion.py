@@ -20,7 +20,7 @@ from ..tracking.central import CentralConfig, track_fused
 from ..tracking.track_fusion import fuse_tracks, transform_tracks
 from .demo_calibration import CalibrationOutcome
 from .demo_chain import DEMO_EKF_SIGMA_A_MPS2, SingleTrack, single_target_track
-from .evaluation import StateErrors, state_errors
+from ..evaluation.metrics import StateErrors, state_errors
 
 __all__ = [
     "FusionOutcome",

@@ -28,7 +28,7 @@ import numpy as np
 
 from .._atomic import check_output_path, recording_lock
 from ..data.radar_config import TABLE_I
-from ..calibration.noise_estimate import MIN_DOF, temporal_noise
+from ..calibration.noise.estimate import MIN_DOF, temporal_noise
 from ..data.recording import Detections, NodeData, Recording
 from ..errors import FileFormatError, ValidationError
 from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
@@ -65,7 +65,7 @@ class NodeReport:
 
 #: Where the local EKF's measurement noise comes from: ``"data"`` (default):
 #: each node's own centroids (temporal differences,
-#: :func:`~mmsnap_graph.calibration.noise_estimate.temporal_noise`), every
+#: :func:`~mmsnap_graph.calibration.noise.estimate.temporal_noise`), every
 #: component they identify; ``"config"``: ``EkfConfig.measurement_std`` as given.
 EKF_NOISE_SOURCES = ("data", "config")
 

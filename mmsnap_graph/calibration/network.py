@@ -8,13 +8,13 @@ centroid measurements, started from the pose graph: directly when every
 calibrated node has one centroid per frame, else (several people, clutter,
 sparse clouds) after associating the centroids across nodes, in rounds of
 association and joint solve
-(:func:`~mmsnap_graph.calibration.multi_refine.refine_associated`). The result, a
+(:func:`~mmsnap_graph.calibration.joint.multi_refine.refine_associated`). The result, a
 :class:`RecordingCalibration`, is stored and read back by
 :mod:`mmsnap_graph.io.calibration` (the ``/calibration`` group and the
 calibration JSON).
 
 The centroid noise comes from the data first
-(:mod:`mmsnap_graph.calibration.noise_estimate`): the one-centroid joint graph
+(:mod:`mmsnap_graph.calibration.noise.estimate`): the one-centroid joint graph
 is weighted by each node's temporal estimate (no poses needed), the
 multi-target one by the noise learned from its residuals; once the poses are
 known every node's noise is estimated again from the cross-node residuals
@@ -35,9 +35,9 @@ from numpy.typing import NDArray
 from ..errors import CalibrationError, ValidationError
 from ..data.noise import MeasurementNoise, NoiseEstimate
 from ..data.recording import Detections, Recording
-from .joint import JointCalibration, joint_calibration
-from .matching import LocalTracks, local_tracks
-from .matching_options import (
+from .joint.solve import JointCalibration, joint_calibration
+from .pairwise.matching import LocalTracks, local_tracks
+from .pairwise.matching_options import (
     DEFAULT_GATE_PROBABILITY,
     DEFAULT_INLIER_GATE_M,
     DEFAULT_MAX_LAG_S,
@@ -46,10 +46,10 @@ from .matching_options import (
     DEFAULT_MIN_SPREAD_M,
     check_matching_options,
 )
-from .multi_refine import refine_associated
-from .noise_estimate import estimate_noise
-from .residual import residual_noise
-from .pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
+from .joint.multi_refine import refine_associated
+from .noise.estimate import estimate_noise
+from .joint.residual_noise import residual_noise
+from .pairwise.pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 
 __all__ = ["RecordingCalibration", "calibrate_recording", "residual_noise", "describe_noise"]
 
@@ -162,7 +162,7 @@ def _refine(recording, pg, reachable, method, noise, options, notes):
 def _refine_multi(recording, pg, reachable, method, noise, options, notes):
     """Several centroids per frame (several people, clutter, sparse clouds):
     associate them across nodes with the calibration in progress, rounds of
-    association and joint solve (:func:`~mmsnap_graph.calibration.multi_refine.refine_associated`),
+    association and joint solve (:func:`~mmsnap_graph.calibration.joint.multi_refine.refine_associated`),
     the noise learned from the joint graph's residuals unless given.
 
     No sub-frame clock offsets here: on the simulator's two-person scenes

@@ -1,7 +1,7 @@
 """The ``/noise`` group of a recording file: each node's measurement noise as
 estimated from the recording's data
 (:class:`~mmsnap_graph.data.noise.NoiseEstimate`, made by
-:func:`mmsnap_graph.calibration.noise_estimate.estimate_noise`; written by
+:func:`mmsnap_graph.calibration.noise.estimate.estimate_noise`; written by
 ``mmsnap calibrate`` and ``mmsnap noise``, used by ``mmsnap fuse``).
 
 :func:`write_noise` and :func:`read_noise` are a symmetric pair; the layout is

@@ -1,5 +1,5 @@
 """A recording in which one radar is bumped (moved) part-way through, for the
-decalibration monitor (:mod:`mmsnap_graph.calibration.monitor`, docs/CALIBRATION.md,
+decalibration monitor (:mod:`mmsnap_graph.calibration.monitor.decalibration`, docs/CALIBRATION.md,
 "Noticing a moved radar").
 
 :func:`simulate_bumped_recording` simulates the centroid level twice with the

@@ -31,7 +31,7 @@ from mmsnap_graph.app.config_file import (
     matching_config_to_toml,
     read_matching_config,
 )
-from mmsnap_graph.calibration.matching_options import MATCHING_DEFAULTS
+from mmsnap_graph.calibration.pairwise.matching_options import MATCHING_DEFAULTS
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 
 #: Matching options: option name -> (MatchingConfig field, metavar, help).

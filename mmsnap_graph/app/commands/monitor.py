@@ -1,6 +1,6 @@
 """``mmsnap monitor``: notice a moved radar in a recording and re-calibrate it.
 
-Runs the decalibration monitor (:mod:`mmsnap_graph.calibration.monitor`,
+Runs the decalibration monitor (:mod:`mmsnap_graph.calibration.monitor.decalibration`,
 docs/CALIBRATION.md "Noticing a moved radar") over the recording's centroids
 with the recording's node poses and, when ``mmsnap calibrate`` stored them,
 their covariances (else ``--poses`` from a calibration JSON), and prints every change
@@ -90,7 +90,7 @@ def result_json(result) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph.calibration.monitor import DEFAULT_THRESHOLD, monitor_recording
+    from mmsnap_graph.calibration.monitor.decalibration import DEFAULT_THRESHOLD, monitor_recording
     from mmsnap_graph.data.noise import MeasurementNoise
     from mmsnap_graph.io import read_recording
     from mmsnap_graph.errors import FileFormatError
