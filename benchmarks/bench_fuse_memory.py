@@ -12,7 +12,7 @@ reports its peak resident set size (``VmHWM`` of ``/proc/self/status``, Linux) a
 
 - whole: what ``mmsnap fuse`` did before chunked reading:
   :func:`~mmsnap_graph.io.read_recording` +
-  :func:`~mmsnap_graph.fusion.sequence.fuse_recording` +
+  :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording` +
   :func:`~mmsnap_graph.io.write_fused`;
 - chunked: ``mmsnap fuse`` (:func:`mmsnap_graph.app.chunked_fuse.fuse_file`,
   windows of ``--window`` frames).
@@ -47,7 +47,7 @@ CHILD = r"""
 import json, sys, time, tracemalloc
 path, mode, window, trace = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4] == "1"
 import h5py, numpy, gtsam  # noqa: F401  the same imports in every mode
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import read_recording, write_fused
 if trace:
     tracemalloc.start()

@@ -24,8 +24,8 @@ from factors.models import measurement_model_pose, predict_measurements, wrap_an
 from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.evaluation import nees
-from mmsnap_graph.fusion.sequence import fuse_recording
-from mmsnap_graph.fusion.stream import FrameStream
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions
 

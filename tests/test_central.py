@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model
-from mmsnap_graph.fusion import batch, oneshot
+from mmsnap_graph.fusion.solvers import gtsam_graph as oneshot, vectorized as batch
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 from mmsnap_graph.evaluation import chi2_mean_interval, nees
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import (
     CentralConfig,

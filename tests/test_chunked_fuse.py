@@ -14,7 +14,7 @@ from mmsnap_graph.app.chunked_fuse import fuse_file
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.data.recording import Detections, Recording
 from mmsnap_graph.errors import FileFormatError, ValidationError
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import read_fused, read_recording, write_recording
 from mmsnap_graph.io.chunks import open_detection_windows
 

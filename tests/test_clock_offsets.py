@@ -47,9 +47,9 @@ from mmsnap_graph.io.calibration import (
     write_calibration,
     write_calibration_json,
 )
-from mmsnap_graph.fusion.timing import align_detections, align_recording, split_offset
+from mmsnap_graph.fusion.recording.timing import align_detections, align_recording, split_offset
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim.clocks import scene_recording, timed_scene, trajectory_function
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
 from mmsnap_graph.sim import CLEAN

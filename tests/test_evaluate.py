@@ -14,7 +14,7 @@ from mmsnap_graph.app.evaluation import evaluate_recording
 from mmsnap_graph.evaluation import pose_mapping_error, state_errors, truth_reference
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.data.recording import Tracks
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io.fused import write_fused
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions

@@ -12,7 +12,7 @@ import pytest
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.evaluation import evaluate_recording
 from mmsnap_graph.data.recording import Truth
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import write_fused, write_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions

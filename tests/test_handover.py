@@ -15,7 +15,7 @@ from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.evaluation import evaluate_recording, failed_checks
 from mmsnap_graph.data.noise import GaussianPrior
 from mmsnap_graph.data.results import measurement_information
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import write_fused, write_recording
 from mmsnap_graph.io.fused import read_fused
 from mmsnap_graph.sim import simulate_recording

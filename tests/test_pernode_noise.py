@@ -18,8 +18,8 @@ from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.association import associate_frame
 from mmsnap_graph.fusion.problem import check_node_noise, initial_states
-from mmsnap_graph.fusion.sequence import fuse_recording, group_detections
-from mmsnap_graph.fusion.stream import FrameStream
+from mmsnap_graph.fusion.recording.sequence import fuse_recording, group_detections
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions
 

@@ -23,7 +23,7 @@ from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import GeometryError, ValidationError
 from mmsnap_graph.evaluation import chi2_mean_interval, nees
 from mmsnap_graph.fusion.robust import kernel_weight_and_loss, residual_gate_threshold
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions
 
 POSES = np.array([[0.0, 0.0, np.pi / 4], [6.0, 0.0, 3 * np.pi / 4], [3.0, 7.0, -np.pi / 2]])
@@ -283,7 +283,7 @@ def test_sigmas_outside_the_sane_range_are_refused():
 
 @pytest.mark.parametrize("robust", ["gate", "huber"])
 def test_fuse_recording_takes_the_robust_option_with_both_solvers(robust):
-    from mmsnap_graph.fusion.sequence import fuse_recording
+    from mmsnap_graph.fusion.recording.sequence import fuse_recording
     from mmsnap_graph.sim import simulate_recording
 
     rec = simulate_recording("A", "random",

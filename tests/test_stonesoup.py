@@ -21,7 +21,7 @@ from stonesoup.types.track import Track
 from stonesoup.updater.kalman import KalmanUpdater
 
 from mmsnap_graph.errors import MmsnapError, ValidationError
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import write_fused, write_recording
 from mmsnap_graph.io.fused import read_fused
 from mmsnap_graph.io.stonesoup import (

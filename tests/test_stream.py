@@ -1,4 +1,4 @@
-"""The streaming API (mmsnap_graph.fusion.stream) and ``mmsnap replay``."""
+"""The streaming API (mmsnap_graph.fusion.stream.frame_stream) and ``mmsnap replay``."""
 
 import dataclasses
 import json
@@ -13,8 +13,8 @@ from mmsnap_graph.app import cli
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.fusion.sequence import fuse_recording
-from mmsnap_graph.fusion.stream import FrameStream, recording_frames
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import track_fused

@@ -14,9 +14,9 @@ from mmsnap_graph import MeasurementNoise
 from mmsnap_graph.data.noise import GaussianPrior
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.fusion.association import associate_frame
-from mmsnap_graph.fusion.frame_solver import COVARIANCE_TOLERANCE, STATE_TOLERANCE
-from mmsnap_graph.fusion.stream import FrameStream, recording_frames
-from mmsnap_graph.fusion.stream_association import StreamAssociator
+from mmsnap_graph.fusion.solvers.scalar import COVARIANCE_TOLERANCE, STATE_TOLERANCE
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
+from mmsnap_graph.fusion.stream.association import StreamAssociator
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import (CentralConfig, CentralTracker, measurement_information,
                                            spd_inverse_4x4)

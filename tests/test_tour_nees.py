@@ -23,7 +23,7 @@ from mmsnap_graph.calibration.noise.tails import with_tails
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.data.results import Status
-from mmsnap_graph.fusion.split_check import SPLIT_MESSAGE, flag_split_singles, split_singles
+from mmsnap_graph.fusion.recording.split_check import SPLIT_MESSAGE, flag_split_singles, split_singles
 from mmsnap_graph.sim.networks import network_poses
 from mmsnap_graph.sim.scenes import target_trajectory
 

@@ -31,9 +31,9 @@ from factors.models import detection_to_local, local_to_global
 from .._atomic import atomic_path
 from ..data.noise import GaussianPrior, MeasurementNoise
 # The degeneracy names move with the fusion redesign; imported here only.
-from ..fusion.batch import velocity_degeneracy
+from ..fusion.solvers.vectorized import velocity_degeneracy
 from ..fusion.grid import neg_log_posterior
-from ..fusion.oneshot import DEGENERACY_THRESHOLD, fuse_frame
+from ..fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD, fuse_frame
 from ..sim.networks import in_common_field_of_view
 
 __all__ = [
@@ -332,7 +332,7 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
                        n_plot: int = 161, noise=None, prior=None) -> dict:
     """One frame's velocity posterior, for :func:`plot_velocity_posteriors`.
 
-    MAP with the grid covariance (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`,
+    MAP with the grid covariance (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`,
     ``covariance="both"``), ML with its Laplace covariance, and the
     negative log posterior and log likelihood on an ``n_plot`` x ``n_plot``
     grid of ``(vx, vy)`` at the MAP position (a conditional slice).
@@ -439,7 +439,7 @@ def degeneracy_grid(node_poses: Mapping[str, ArrayLike], *, step_m: float = 0.1,
                     extent_m: tuple[float, float, float, float] | None = None,
                     **fov_limits) -> tuple[NDArray, NDArray, NDArray]:
     """The velocity-degeneracy indicator (condition number of the lines of
-    sight's velocity information, :func:`mmsnap_graph.fusion.batch.velocity_degeneracy`)
+    sight's velocity information, :func:`mmsnap_graph.fusion.solvers.vectorized.velocity_degeneracy`)
     on a grid over the nodes' common field of view.
 
     Returns ``x (nx,)``, ``y (ny,)`` and ``cond (ny, nx)`` (NaN outside the
@@ -470,7 +470,7 @@ def plot_degeneracy_map(networks: Mapping[str, Mapping[str, ArrayLike]], *,
     """log10 of the degeneracy indicator over each network's common field of
     view, with the nodes, the walking area and optionally a trajectory
     ``(K, >=2)`` per network; the contour marks ``threshold`` (default
-    :data:`mmsnap_graph.fusion.oneshot.DEGENERACY_THRESHOLD`)."""
+    :data:`mmsnap_graph.fusion.solvers.gtsam_graph.DEGENERACY_THRESHOLD`)."""
     thr = DEGENERACY_THRESHOLD if threshold is None else float(threshold)
     fig = Figure(figsize=(4.6 * len(networks), 4.6), layout="constrained")
     axes = fig.subplots(1, len(networks), squeeze=False)[0]

@@ -16,7 +16,7 @@ import pytest
 from scipy.stats import chi2
 
 from _shared import POSES_BC
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.ghosts import ghost_centroids
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
