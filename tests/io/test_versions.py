@@ -8,7 +8,7 @@ import pytest
 
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from mmsnap_graph.errors import FileFormatError
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion import fuse_recording
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.io.noise import read_noise, write_noise
