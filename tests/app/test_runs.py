@@ -22,8 +22,9 @@ def calibrated(tmp_path_factory):
     """Configuration C, 300 frames, calibrated: node poses, /calibration with
     pose covariances and a clock offset of S2, /noise from the data."""
     path = tmp_path_factory.mktemp("runs") / "rec.h5"
+    # The clean model: its clocks give S2 an offset for calibrate to find.
     assert main(["simulate", "-c", "C", "-l", "centroids", "-n", "300", "-s", "2",
-                 "-o", str(path)]) == 0
+                 "--model", "clean", "-o", str(path)]) == 0
     assert main(["process", str(path), "--centroids-only", "--no-progress"]) == 0
     assert main(["calibrate", str(path)]) == 0
     return path
