@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from mmsnap_graph.calibration import RECORDING_JOINT_OPTIONS
 from mmsnap_graph.app.pipeline import track_recording
 from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
 from mmsnap_graph.calibration.joint.multi_refine import refine_multi
@@ -85,7 +86,7 @@ def test_one_walker_gives_the_single_target_graph():
     track restarts); poses within 5 mm and 0.05 deg of each other (measured
     3.4 mm, against pose sigmas of 30-40 mm; both 8-24 mm from the truth)."""
     rec = _recording(1, 5, n_frames=200)
-    cal = calibrate_recording(rec, time_offsets=False)  # refine_multi: whole frames
+    cal = calibrate_recording(rec, joint=dataclasses.replace(RECORDING_JOINT_OPTIONS, time_offsets=False))  # refine_multi: whole frames
     assert cal.method == "joint"
     res = refine_multi(rec, cal.pose_graph)
     assert res.mapping.n_targets <= 3
