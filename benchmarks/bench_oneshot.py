@@ -29,7 +29,7 @@ import numpy as np
 
 from frames import POSES, scipy_fuse, simulate
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
-from mmsnap_graph.fusion.oneshot import fuse_frame
+from mmsnap_graph.fusion.solvers.gtsam_graph import fuse_frame
 
 POSES_B = POSES["B"]
 

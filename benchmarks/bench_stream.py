@@ -6,11 +6,11 @@ targets (``--targets``), centroids with the simulator's noise, MAP with the
 paper's prior and noise (seeded). For each solver (``--solvers``, default
 ``numpy gtsam``):
 
-- stream: :class:`mmsnap_graph.fusion.stream.FrameStream`, one ``push`` per
+- stream: :class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`, one ``push`` per
   frame (validation, association, one-shot fusion of the frame's groups,
   central tracker step); the latency of every frame is timed (wall clock and
   the thread's CPU time) and the median, 95th and 99th percentiles are printed;
-- baseline: :func:`mmsnap_graph.fusion.sequence.fuse_recording` on the whole
+- baseline: :func:`mmsnap_graph.fusion.recording.sequence.fuse_recording` on the whole
   recording plus :func:`mmsnap_graph.tracking.central.track_fused`, the
   total divided by the number of frames (best of ``--repeat``), with the
   solver of the same name (``batch`` for the stream's ``numpy`` solver: the
@@ -20,7 +20,7 @@ The stream and the baseline alternate ``--repeat`` times so that machine load
 hits them alike. The script also checks the stream's fused states: equal to
 ``fuse_recording``'s with the same solver (to 1e-9), and for ``numpy`` equal
 to ``fuse_recording``'s with ``gtsam`` to
-:data:`mmsnap_graph.fusion.frame_solver.STATE_TOLERANCE` of each component's
+:data:`mmsnap_graph.fusion.solvers.scalar.STATE_TOLERANCE` of each component's
 sigma. ``--profile`` adds where a push's CPU time goes (median per stage:
 validation, association, fusion, tracker step, the update's arrays).
 Wall-clock figures on a shared machine are inflated by other processes; the
@@ -40,11 +40,12 @@ import time
 
 import numpy as np
 
-from mmsnap_graph.fusion.frame_solver import COVARIANCE_TOLERANCE, STATE_TOLERANCE
-from mmsnap_graph.fusion.sequence import fuse_recording
-from mmsnap_graph.fusion.stream import FrameStream, recording_frames
+from mmsnap_graph.fusion.solvers.scalar import COVARIANCE_TOLERANCE, STATE_TOLERANCE
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import track_fused
+from mmsnap_graph.sim import SimulationOptions
 
 #: Four nodes around a 7 m square, each facing the centre.
 NETWORK = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi],
@@ -120,8 +121,9 @@ def _check_states(solver, states, covs, fused, reference):
 
 
 def _run(n_targets, args):
-    rec = simulate_recording(NETWORK, "random", levels=("centroids",), n_frames=args.frames,
-                             n_targets=n_targets, known_poses=True, seed=args.seed)
+    rec = simulate_recording(NETWORK, "random",
+                             SimulationOptions(physics=None, n_targets=n_targets, known_poses=True),
+                             levels=("centroids",), n_frames=args.frames, seed=args.seed)
     poses = np.array([NETWORK[n] for n in rec.node_names])
     reference = fuse_recording(rec, solver="gtsam", progress=False) if "numpy" in args.solvers else None
     medians = {}

@@ -1,4 +1,4 @@
-"""Vectorized batch fusion (mmsnap_graph.fusion.batch) against the per-frame GTSAM solve."""
+"""Vectorized batch fusion (mmsnap_graph.fusion.solvers.vectorized) against the per-frame GTSAM solve."""
 
 import numpy as np
 import pytest
@@ -6,7 +6,8 @@ import pytest
 from factors.models import measurement_model, residual
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.results import Status
-from mmsnap_graph.fusion import batch, oneshot, problem
+from mmsnap_graph.fusion import problem
+from mmsnap_graph.fusion.solvers import gtsam_graph as oneshot, vectorized as batch
 from mmsnap_graph.errors import ValidationError
 
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_B, POSES_C

@@ -24,6 +24,7 @@ from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim import SimulationOptions
 
 
 @pytest.fixture(scope="module")
@@ -222,8 +223,8 @@ def cloud_paths(tmp_path_factory):
     """A dense point cloud (20-40 points per frame) and its sparse thinning
     (2-3 moving points, a quarter of the frames empty), 120 frames at 20 fps."""
     dense = simulate_recording({"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi)}, "random",
-                               levels=("point_cloud",), n_frames=120, n_targets=2, seed=4,
-                               frame_period_s=0.05)
+                               SimulationOptions(physics=None, n_targets=2, frame_period_s=0.05),
+                               levels=("point_cloud",), n_frames=120, seed=4)
     folder = tmp_path_factory.mktemp("sparse")
     paths = {}
     for name, rec in (("dense", dense), ("sparse", sparse_clouds(dense, seed=4))):

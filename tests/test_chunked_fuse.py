@@ -14,7 +14,7 @@ from mmsnap_graph.app.chunked_fuse import fuse_file
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.data.recording import Detections, Recording
 from mmsnap_graph.errors import FileFormatError, ValidationError
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import read_fused, read_recording, write_recording
 from mmsnap_graph.io.chunks import open_detection_windows
 
@@ -26,7 +26,7 @@ CLOSE = ("state", "covariance", "laplace_covariance", "degeneracy", "information
 @pytest.fixture(scope="module")
 def good(tmp_path_factory):
     path = tmp_path_factory.mktemp("chunked") / "good.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "150", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "150", "-l", "centroids",
                  "--targets", "2", "--seed", "3", "--known-poses", "-o", str(path),
                  "--no-progress"]) == 0
     return path

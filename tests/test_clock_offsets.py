@@ -48,11 +48,12 @@ from mmsnap_graph.io.calibration import (
     write_calibration,
     write_calibration_json,
 )
-from mmsnap_graph.fusion.timing import align_detections, align_recording, split_offset
+from mmsnap_graph.fusion.recording.timing import align_detections, align_recording, split_offset
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim.clocks import scene_recording, timed_scene, trajectory_function
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
+from mmsnap_graph.sim import CLEAN
 
 T = 0.15
 #: The simulator's centroid noise (sim.simulator.CENTROID_NOISE).
@@ -279,7 +280,7 @@ def test_alignment_brings_detections_to_the_reference_time(tau):
 
 
 def test_align_recording_moves_only_the_offset_nodes_centroids():
-    rec = simulate_recording("B", "straight", levels=("centroids",), n_frames=30, seed=1)
+    rec = simulate_recording("B", "straight", CLEAN, levels=("centroids",), n_frames=30, seed=1)
     out = align_recording(rec, {"S2": 1.4 * rec.frame_period_s})
     assert out.nodes["S1"].centroids is rec.nodes["S1"].centroids
     assert_allclose(out.nodes["S2"].centroids.frame, rec.nodes["S2"].centroids.frame + 1)
@@ -317,7 +318,7 @@ def test_time_offsets_round_trip_through_json_and_hdf5(tmp_path):
     assert load_time_offsets(data) == ({"S1": 0.0, "S2": -0.09}, {"S1": 0.0, "S2": 2.5e-5})
     write_calibration_json(tmp_path / "cal.json", cal)
     assert load_time_offsets(tmp_path / "cal.json")[0] == {"S1": 0.0, "S2": -0.09}
-    rec = simulate_recording("B", "straight", levels=("centroids",), n_frames=20, seed=2)
+    rec = simulate_recording("B", "straight", CLEAN, levels=("centroids",), n_frames=20, seed=2)
     write_recording(tmp_path / "rec.h5", rec)
     write_calibration(tmp_path / "rec.h5", rec, cal)
     offsets, variances = load_time_offsets(tmp_path / "rec.h5")

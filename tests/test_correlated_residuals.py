@@ -23,6 +23,7 @@ from mmsnap_graph.calibration import LocalTracks, local_tracks, match_tracks, po
 from mmsnap_graph.calibration.pairwise.effective_samples import autocorrelation_factor
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
+from mmsnap_graph.sim import CLEAN
 
 SEEDS = range(12)
 BAND = chi2.ppf([0.025, 0.975], 3 * len(SEEDS)) / len(SEEDS)
@@ -34,7 +35,7 @@ def _half(lt: LocalTracks, lo: int, hi: int) -> LocalTracks:
 
 
 def _halves_distance(seed: int, autocorrelation: str) -> float:
-    rec = simulate_recording("C", "random", levels=("centroids",), n_frames=400, seed=seed)
+    rec = simulate_recording("C", "random", CLEAN, levels=("centroids",), n_frames=400, seed=seed)
     ekf = EkfConfig(frame_period_s=rec.frame_period_s)
     tracks = {n: local_tracks(dataclasses.replace(node, tracks=track_centroids(node.centroids,
                                                                                 ekf)))

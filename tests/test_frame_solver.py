@@ -1,4 +1,4 @@
-"""The stream's single-frame solver (mmsnap_graph.fusion.frame_solver) against
+"""The stream's single-frame solver (mmsnap_graph.fusion.solvers.scalar) against
 GTSAM's fuse_frame: same statuses, states and covariances to the stated
 tolerances, on random frames of several networks (MAP and ML, missed nodes,
 per-node noise, uncertain poses)."""
@@ -12,7 +12,7 @@ from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_A, POSES_BC, POSES_C
 from factors.models import predict_measurements, wrap_angle
 from mmsnap_graph import MeasurementNoise, fuse_frame
 from mmsnap_graph.data.results import DEGENERACY_THRESHOLD, Status
-from mmsnap_graph.fusion.frame_solver import COVARIANCE_TOLERANCE, STATE_TOLERANCE, FrameSolver
+from mmsnap_graph.fusion.solvers.scalar import COVARIANCE_TOLERANCE, STATE_TOLERANCE, FrameSolver
 from mmsnap_graph.fusion.problem import check_pose_covariances
 
 #: Four nodes around a 7 m square, each facing the centre (the stream benchmark's).

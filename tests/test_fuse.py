@@ -1,4 +1,4 @@
-"""Fusing a whole recording (mmsnap_graph.fusion.sequence) and ``mmsnap fuse``."""
+"""Fusing a whole recording (mmsnap_graph.fusion.recording.sequence) and ``mmsnap fuse``."""
 
 import json
 
@@ -12,11 +12,12 @@ from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError, FileFormatError, ValidationError
 from mmsnap_graph.evaluation import state_errors
 from mmsnap_graph.io import read_recording, write_recording
-from mmsnap_graph.fusion.oneshot import fuse_frame
-from mmsnap_graph.fusion.sequence import fuse_recording, recording_poses
+from mmsnap_graph.fusion.solvers.gtsam_graph import fuse_frame
+from mmsnap_graph.fusion.recording.sequence import fuse_recording, recording_poses
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 
 @pytest.fixture
@@ -232,10 +233,11 @@ def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
     """The fast path of group_detections (one detection per node, one gate)
     gives what associate_frame gives frame by frame."""
     from mmsnap_graph.fusion.association import associate_frame
-    from mmsnap_graph.fusion.sequence import group_detections
+    from mmsnap_graph.fusion.recording.sequence import group_detections
 
-    rec = simulate_recording("A", "random", levels=("centroids",), n_frames=80, seed=2,
-                             known_poses=True, centroid_p_miss=0.2)
+    rec = simulate_recording("A", "random",
+                             SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.2),
+                             levels=("centroids",), n_frames=80, seed=2)
     import dataclasses
 
     from mmsnap_graph.data.recording import Detections

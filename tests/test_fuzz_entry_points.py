@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from mmsnap_graph.calibration.pairwise.matching import LocalTracks, match_tracks
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import MmsnapError
-from mmsnap_graph.fusion.stream import FrameStream
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.io import read_dca1000_bin
 from mmsnap_graph.io.ti_cfg import read_ti_cfg
 from mmsnap_graph.radar.chain import ChainConfig, point_cloud_of_cube

@@ -6,7 +6,7 @@ Target: position RMSE at most 1.3x / 1.6x the clean run, a ghost target in
 at most 2% of the frames, the NEES of the rows kept inside the 95%
 chi-square band. The per-frame gate alone cannot (``test_robust_fusion``:
 one frame's mirror ambiguity); the motion check
-(:mod:`mmsnap_graph.fusion.motion_check`, on by default with ``robust``)
+(:mod:`mmsnap_graph.fusion.recording.motion_check`, on by default with ``robust``)
 uses the neighbouring frames.
 
 The ghost model is ``test_robust_fusion``'s: each centroid is replaced with
@@ -26,10 +26,11 @@ from _shared import POSES_BC
 from mmsnap_graph.app.chunked_fuse import fuse_file
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.data.results import Status
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import read_fused, write_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
+from mmsnap_graph.sim import SimulationOptions
 
 NETWORK = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
 #: A fused row further than this from the truth is a ghost target (the clean
@@ -38,8 +39,9 @@ GHOST_ERROR_M = 0.5
 
 
 def recording(seed: int, n_frames: int = 600):
-    return simulate_recording(NETWORK, "random", levels=("centroids",), n_frames=n_frames,
-                              seed=seed, known_poses=True)
+    return simulate_recording(NETWORK, "random",
+                              SimulationOptions(physics=None, known_poses=True),
+                              levels=("centroids",), n_frames=n_frames, seed=seed)
 
 
 def with_ghosts(rec, p_ghost: float, seed: int):
@@ -141,7 +143,7 @@ def test_clean_recording_is_not_made_worse(monte_carlo):
     Measured: 0.0529 m against 0.0550 m plain (the one-node rows that count
     the target twice, where the association split a frame, are flagged:
     frames with a second target 10 -> 1 of 3600). Plain fusion now flags
-    those rows too (fusion.split_check: 0 of 3600), so the bound on frames
+    those rows too (fusion.recording.split_check: 0 of 3600), so the bound on frames
     with a second target is absolute: at most 0.1% (the issue allows 2%)."""
     tally = Tally()
     for seed in range(10, 16):
@@ -198,7 +200,7 @@ def test_a_frame_no_neighbour_explains_is_flagged_not_fused():
     plain = fuse_recording(dataclasses.replace(rec, nodes=nodes), noise=CENTROID_NOISE,
                            robust="gate", motion_check=False, progress=False)
     # One frame alone cannot tell: without the motion check the frame is at
-    # best flagged as split by the association (fusion.split_check).
+    # best flagged as split by the association (fusion.recording.split_check).
     assert not any("motion check" in m for m in plain.message[plain.frame == 30])
 
 
@@ -257,7 +259,7 @@ def test_mmsnap_fuse_on_a_ghost_recording(tmp_path, capsys):
     off.add(read_fused(ghost_path), rec)
     # What the check removes: the mirror solutions of rows with a ghost range
     # (measured 0.151 m against 0.056 m). The one-node ghost rows of split
-    # frames are flagged without it too (fusion.split_check: 1 ghost frame).
+    # frames are flagged without it too (fusion.recording.split_check: 1 ghost frame).
     assert off.rmse > 2.0 * ghost.rmse, (off.rmse, ghost.rmse)
 
 

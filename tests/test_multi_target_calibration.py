@@ -18,6 +18,7 @@ from mmsnap_graph.calibration.joint.multi_target import (
 )
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 #: Three nodes: S1 and S2 face each other across 7 m, S3 beside S1 turned 30 deg.
 NETWORK = {"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi), "S3": (4.0, 0.0, np.pi / 6)}
@@ -27,8 +28,9 @@ SEEDS = (0, 1, 2)
 def _recording(n_targets, seed, n_frames=600):
     """Centroids (10% missed, unlabelled: target_id dropped, as from the
     chain) and each node's EKF tracks."""
-    rec = simulate_recording(NETWORK, "random", levels=("centroids",), n_frames=n_frames,
-                             n_targets=n_targets, seed=seed, centroid_p_miss=0.1)
+    rec = simulate_recording(NETWORK, "random",
+                             SimulationOptions(physics=None, n_targets=n_targets, centroid_p_miss=0.1),
+                             levels=("centroids",), n_frames=n_frames, seed=seed)
     for node in rec.nodes.values():
         rec = rec.with_node(dataclasses.replace(
             node, centroids=dataclasses.replace(node.centroids, target_id=None)))
@@ -122,8 +124,9 @@ def test_each_target_track_follows_one_walker(three_walkers):
     """Linking never guesses when two walkers are close: a target track's
     centroids come from one true walker (the simulator's labels, kept aside)."""
     rec, pg, res = three_walkers
-    labelled = simulate_recording(NETWORK, "random", levels=("centroids",), n_frames=600,
-                                  n_targets=3, seed=SEEDS[0], centroid_p_miss=0.1)
+    labelled = simulate_recording(NETWORK, "random",
+                                  SimulationOptions(physics=None, n_targets=3, centroid_p_miss=0.1),
+                                  levels=("centroids",), n_frames=600, seed=SEEDS[0])
     pure, total = 0, 0
     for n, tgt in res.association.target.items():
         truth_id = labelled.nodes[n].centroids.target_id

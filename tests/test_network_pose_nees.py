@@ -37,6 +37,7 @@ from mmsnap_graph.calibration.pairwise.centroid_points import debias_centroid_tr
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
+from mmsnap_graph.sim import CLEAN
 
 NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
 #: The simulator's centroid noise (sim.simulator.CENTROID_NOISE).
@@ -44,7 +45,7 @@ NOISE = MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.10)
 
 
 def _recording(seed, with_tracks=False):
-    rec = simulate_recording(NET, "random", levels=("centroids",), n_frames=300, seed=seed)
+    rec = simulate_recording(NET, "random", CLEAN, levels=("centroids",), n_frames=300, seed=seed)
     if with_tracks:
         cfg = EkfConfig(frame_period_s=rec.frame_period_s)
         rec = dataclasses.replace(rec, nodes={

@@ -1,4 +1,4 @@
-"""One-shot fusion (mmsnap_graph.fusion.oneshot): input checks, failures flagged
+"""One-shot fusion (mmsnap_graph.fusion.solvers.gtsam_graph): input checks, failures flagged
 without raising, initial values, agreement with scipy, and seeded Monte Carlo
 checks of accuracy (RMSE against the bounds), consistency (NEES) and the
 degenerate geometry of configuration C."""
@@ -15,13 +15,13 @@ from numpy.testing import assert_allclose
 from scipy import stats
 from scipy.optimize import least_squares
 
-import mmsnap_graph.fusion.oneshot as oneshot
+import mmsnap_graph.fusion.solvers.gtsam_graph as oneshot
 from factors.models import measurement_model, residual, wrap_angle
 from mmsnap_graph.fusion.bounds import bayesian_bound, cramer_rao_bound, fisher_information
 from mmsnap_graph.errors import GeometryError, ValidationError
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
 from mmsnap_graph.data.results import DEGENERACY_THRESHOLD, FusionResult, Status
-from mmsnap_graph.fusion.oneshot import build_frame_graph, fuse_frame
+from mmsnap_graph.fusion.solvers.gtsam_graph import build_frame_graph, fuse_frame
 from mmsnap_graph.fusion.problem import (
     frame_initial_state,
     initial_state,

@@ -42,12 +42,13 @@ from mmsnap_graph.calibration import (LocalTracks, local_tracks, pairwise_edges,
                                       pose_graph_calibration, pose_tangent_error)
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
+from mmsnap_graph.sim import CLEAN
 
 NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
 
 
 def _joint_nees(seed, source, **options):
-    rec = simulate_recording(NET, "random", levels=("centroids",), n_frames=300, seed=seed)
+    rec = simulate_recording(NET, "random", CLEAN, levels=("centroids",), n_frames=300, seed=seed)
     tracks = {}
     for n, node in rec.nodes.items():
         if source == "tracks":

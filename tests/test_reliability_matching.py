@@ -14,6 +14,7 @@ from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.calibration import local_tracks, match_tracks, pose_tangent_error
 from mmsnap_graph.sim.networks import COMMON_AREAS, CONFIGURATIONS
 from mmsnap_graph.sim.simulator import simulate_recording
+from mmsnap_graph.sim import CLEAN
 
 
 def circular_walk(seed: int):
@@ -27,7 +28,7 @@ def circular_walk(seed: int):
     a = w * t + ph
     states = np.column_stack([c[0] + r * np.cos(a), c[1] + r * np.sin(a),
                               -r * w * np.sin(a), r * w * np.cos(a)])
-    rec = simulate_recording(cfg, states, levels=("centroids",), n_frames=f, seed=seed)
+    rec = simulate_recording(cfg, states, CLEAN, levels=("centroids",), n_frames=f, seed=seed)
     return CONFIGURATIONS[cfg]["S2"], rec
 
 

@@ -23,7 +23,7 @@ from mmsnap_graph.calibration.noise.tails import with_tails
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.data.results import Status
-from mmsnap_graph.fusion.split_check import SPLIT_MESSAGE, flag_split_singles, split_singles
+from mmsnap_graph.fusion.recording.split_check import SPLIT_MESSAGE, flag_split_singles, split_singles
 from mmsnap_graph.sim.networks import network_poses
 from mmsnap_graph.sim.scenes import target_trajectory
 
@@ -42,7 +42,7 @@ def _run(*args, cwd):
 @pytest.mark.slow
 def test_readme_tour_passes_the_nees_check(tmp_path):
     rec = "rec.h5"
-    for args in (("simulate", "-c", "C", "-t", "random", "-n", "600", "--seed", "1", "-o", rec),
+    for args in (("simulate", "--model", "clean", "-c", "C", "-t", "random", "-n", "600", "--seed", "1", "-o", rec),
                  ("process", rec), ("calibrate", rec), ("fuse", rec)):
         r = _run(*args, cwd=tmp_path)
         assert r.returncode == 0, (args, r.stderr[-2000:])

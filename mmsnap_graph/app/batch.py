@@ -71,8 +71,8 @@ _LIBRARY: dict[str, tuple[str, ...]] = {
     "calibrate_recording": ("mmsnap_graph.calibration",),
     "write_calibration": ("mmsnap_graph.io.calibration", "mmsnap_graph.calibration"),
     "write_calibration_json": ("mmsnap_graph.io.calibration", "mmsnap_graph.calibration"),
-    "fuse_recording": ("mmsnap_graph.fusion.sequence",),
-    "write_fused": ("mmsnap_graph.io.fused", "mmsnap_graph.fusion.sequence"),
+    "fuse_recording": ("mmsnap_graph.fusion.recording.sequence",),
+    "write_fused": ("mmsnap_graph.io.fused", "mmsnap_graph.fusion.recording.sequence"),
     "write_noise": ("mmsnap_graph.io.noise",),
     "noise_for_fusion": ("mmsnap_graph.io.noise",),
 }

@@ -3,14 +3,14 @@ of 10 nodes under 500 MB).
 
 :func:`fuse_file` reads the detections of ``window_frames`` frames at a time
 (:func:`mmsnap_graph.io.chunks.open_detection_windows`), fuses each window
-with :func:`mmsnap_graph.fusion.sequence.fuse_recording` and appends its rows
+with :func:`mmsnap_graph.fusion.recording.sequence.fuse_recording` and appends its rows
 to the ``/fused`` group being written (:func:`mmsnap_graph.io.chunks.fused_writer`):
 memory holds one window, never the whole recording nor its whole
 ``/fused``. Association and fusion are per frame, so the result equals
 ``fuse_recording`` on the whole recording, row for row; the detection
 indices are those of the file's rows. The motion check of robust fusion
-(:mod:`mmsnap_graph.fusion.motion_check`) looks at neighbouring frames: each
-window is read and fused with :data:`~mmsnap_graph.fusion.motion_check.MOTION_CONTEXT_FRAMES`
+(:mod:`mmsnap_graph.fusion.recording.motion_check`) looks at neighbouring frames: each
+window is read and fused with :data:`~mmsnap_graph.fusion.recording.motion_check.MOTION_CONTEXT_FRAMES`
 frames of context on each side and keeps the rows of its own frames.
 """
 
@@ -26,9 +26,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ValidationError
-from ..fusion.motion_check import MOTION_CONTEXT_FRAMES
-from ..fusion.sequence import fuse_recording
-from ..fusion.timing import split_offset
+from ..fusion.recording.motion_check import MOTION_CONTEXT_FRAMES
+from ..fusion.recording.sequence import fuse_recording
+from ..fusion.recording.timing import split_offset
 from ..io.chunks import open_detection_windows, fused_writer
 
 __all__ = ["DEFAULT_WINDOW_FRAMES", "ChunkedFuseSummary", "fuse_file"]
@@ -105,7 +105,7 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     window_frames : frames read and fused at a time.
     progress : a tqdm bar over frames (default: when stderr is a terminal).
     options : keyword arguments of
-        :func:`~mmsnap_graph.fusion.sequence.fuse_recording` (``mode``,
+        :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording` (``mode``,
         ``covariance``, ``solver``, ``noise``, ``prior``,
         ``gate_probability``, ``source``, ``grid_points_per_axis``,
         ``robust``, ...), with its defaults.
@@ -122,7 +122,7 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
         raise ValidationError("fuse_file takes the file, not a recording; progress is its own")
     windows = open_detection_windows(path, source=options.get("source", "centroids"))
     # Clock offsets move each node's frames by its own whole-frame shift
-    # before fusion (fusion.timing.align_recording): each node's window is
+    # before fusion (fusion.recording.timing.align_recording): each node's window is
     # read shifted the same way, so that a window holds the same reference
     # frames for every node.
     shifts = {str(n): split_offset(float(t), windows.frame_period_s)[0]

@@ -13,9 +13,9 @@ from numpy.typing import NDArray
 
 from ..data.recording import Recording
 from ..errors import ValidationError
-from ..fusion.oneshot import DEGENERACY_THRESHOLD
+from ..fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD
 from ..data.results import FusedSequence
-from ..fusion.sequence import fuse_recording
+from ..fusion.recording.sequence import fuse_recording
 from ..tracking.central import CentralConfig, track_fused
 from ..tracking.track_fusion import fuse_tracks, transform_tracks
 from .demo_calibration import CalibrationOutcome
@@ -185,7 +185,7 @@ def fuse_run(recording: Recording, calibration: CalibrationOutcome, *, configura
     processed run (:func:`mmsnap_graph.app.demo_chain.node_chain`) with
     ``calibration``'s refined pose.
 
-    One-shot: :func:`mmsnap_graph.fusion.sequence.fuse_recording` of the torso
+    One-shot: :func:`mmsnap_graph.fusion.recording.sequence.fuse_recording` of the torso
     centroids (MAP with the paper's prior; ML). Track-level fusion: the two
     nodes' stitched EKF tracks in S1's frame, fused by covariance intersection
     (:func:`track_level_fusion`). Central tracker:

@@ -42,10 +42,10 @@ def failed_checks(metrics: dict) -> list[str]:
 
 
 def _degeneracy_threshold() -> float:
-    # Imported here: GTSAM (fusion.oneshot) stays off this module's path,
+    # Imported here: GTSAM (fusion.solvers.gtsam_graph) stays off this module's path,
     # pure functions on arrays. The threshold moves to a GTSAM-free module
     # with the fusion redesign; then this import goes to the module level.
-    from ..fusion.oneshot import DEGENERACY_THRESHOLD
+    from ..fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD
 
     return float(DEGENERACY_THRESHOLD)
 
@@ -54,7 +54,7 @@ def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
     """Metrics of a recording with truth, as a JSON-ready dict.
 
     recording : :class:`mmsnap_graph.data.recording.Recording` with ``truth``.
-    fused : :class:`mmsnap_graph.fusion.sequence.FusedSequence` (the ``/fused``
+    fused : :class:`mmsnap_graph.fusion.recording.sequence.FusedSequence` (the ``/fused``
         group) or None. Each successful fused row is compared with the true
         state of the nearest target in its frame (:func:`truth_reference`):
         position and velocity RMSE (all rows, and the rows every node

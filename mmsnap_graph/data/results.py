@@ -2,10 +2,10 @@
 
 - :class:`Status`: why a frame (of the fusion solvers, of a recording's
   ``/fused`` group, or of the radar signal chain) has no usable result;
-- :class:`FusionResult`: one frame fused by :func:`mmsnap_graph.fusion.oneshot.fuse_frame`;
-- :class:`BatchResult`: many frames fused by :func:`mmsnap_graph.fusion.batch.fuse_batch`;
+- :class:`FusionResult`: one frame fused by :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`;
+- :class:`BatchResult`: many frames fused by :func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`;
 - :class:`FusedSequence`: every target of every frame of a recording
-  (:func:`mmsnap_graph.fusion.sequence.fuse_recording`; stored as ``/fused``
+  (:func:`mmsnap_graph.fusion.recording.sequence.fuse_recording`; stored as ``/fused``
   by :mod:`mmsnap_graph.io.fused`).
 """
 
@@ -39,7 +39,7 @@ class Status(enum.IntEnum):
     in files). Code 9 comes from the robust fusion (``robust="gate"``): the
     residuals fail the chi-square test and leaving out one node does not
     repair them. Code 10 comes from the motion check of a recording
-    (:mod:`mmsnap_graph.fusion.motion_check`): no subset of the row's nodes
+    (:mod:`mmsnap_graph.fusion.recording.motion_check`): no subset of the row's nodes
     agrees with the motion of a target in the neighbouring frames.
     ``Status.OK`` (alias ``Status.CONVERGED``) is success for both.
     """

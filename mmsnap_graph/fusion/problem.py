@@ -1,7 +1,7 @@
 """The one-frame fusion problem without a solver (docs/CONVENTIONS.md, "One-shot fusion").
 
-Everything :mod:`mmsnap_graph.fusion.oneshot` (GTSAM) and
-:mod:`mmsnap_graph.fusion.batch` (numpy) share, with no GTSAM import:
+Everything :mod:`mmsnap_graph.fusion.solvers.gtsam_graph` (GTSAM) and
+:mod:`mmsnap_graph.fusion.solvers.vectorized` (numpy) share, with no GTSAM import:
 
 - validation at the public boundary: :func:`validate_frame` (with
   :func:`check_poses`, :func:`check_observed`), :func:`check_noise`,

@@ -18,7 +18,7 @@ are not stored. :func:`load_calibration_poses` reads only ``name -> pose``
 from a JSON that may hold nothing but ``{"nodes": {name: {"pose": [...]}}}``;
 :func:`load_time_offsets` reads only the clock offsets (node time + offset =
 reference time) from either format, for fusion
-(:func:`mmsnap_graph.fusion.timing.align_recording`). The clock offsets are
+(:func:`mmsnap_graph.fusion.recording.timing.align_recording`). The clock offsets are
 written from, and read into, the calibration's ``time_offset_s`` and
 ``time_offset_variances`` fields when it has them.
 """

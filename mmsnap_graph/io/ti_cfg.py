@@ -121,6 +121,8 @@ class TiConfig:
     n_rx : enabled receivers. sensor_height_m, azimuth_tilt_rad,
     elevation_tilt_rad : from ``sensorPosition`` when present, else None.
     board : the preset's name (or the explicit layout's).
+    ignored : the known non-waveform commands skipped. unknown : the unknown
+    commands skipped with ``ignore_unknown=True`` (``"name (line N)"``).
     """
 
     configs: tuple
@@ -132,6 +134,7 @@ class TiConfig:
     elevation_tilt_rad: float | None = None
     board: str = ""
     ignored: tuple = field(default=())
+    unknown: tuple = field(default=())
 
     @property
     def n_sub_frames(self) -> int:
@@ -176,6 +179,7 @@ class _Commands:
         self.sub_frames: dict[int, _Line] = {}
         self.adcbuf: dict[int, _Line] = {}
         self.ignored: list[str] = []
+        self.unknown: list[str] = []
 
     def error(self, line: _Line | int, message: str) -> ConfigurationError:
         number = line.number if isinstance(line, _Line) else line
@@ -191,7 +195,8 @@ def _numbers(cmds: _Commands, number: int, command: str, words: list[str]) -> li
                                  f"{' '.join(words)!r}") from None
 
 
-def _tokenize(text: str, source: str, extra_commands: Iterable[str]) -> _Commands:
+def _tokenize(text: str, source: str, extra_commands: Iterable[str],
+              ignore_unknown: bool = False) -> _Commands:
     cmds = _Commands(source)
     ignored = IGNORED_COMMANDS | frozenset(extra_commands)
     for number, raw in enumerate(text.splitlines(), start=1):
@@ -202,10 +207,14 @@ def _tokenize(text: str, source: str, extra_commands: Iterable[str]) -> _Command
         if command in ignored:
             cmds.ignored.append(command)
             continue
+        if command not in _ARGS and ignore_unknown:
+            cmds.unknown.append(f"{command} (line {number})")
+            continue
         if command not in _ARGS:
             raise cmds.error(number, f"unknown command {command!r} (known: {sorted(_ARGS)} and "
-                                     "the processing commands of the SDK demos; pass "
-                                     "extra_commands= to ignore others)")
+                                     "the processing commands of the SDK demos); to ignore "
+                                     "it: mmsnap import --ignore-unknown-commands (in Python "
+                                     "extra_commands=[...] or ignore_unknown=True)")
         if len(rest) not in _ARGS[command]:
             raise cmds.error(number, f"{command} takes {' or '.join(map(str, _ARGS[command]))}"
                                      f" arguments, got {len(rest)}")
@@ -414,19 +423,20 @@ def _sensor_position(cmds: _Commands) -> dict[str, Any]:
 
 def parse_ti_cfg(text: str, *, board: str | BoardLayout | None = None,
                  layout: BoardLayout | None = None, source: str = "<cfg>",
-                 extra_commands: Iterable[str] = ()) -> TiConfig:
+                 extra_commands: Iterable[str] = (), ignore_unknown: bool = False) -> TiConfig:
     """Parse the text of an mmWave SDK ``.cfg`` (module docstring).
 
     board : a preset name (:data:`BOARD_PRESETS`) or layout : an explicit
     :class:`BoardLayout`; one of them is required. source : the name used in
     error messages. extra_commands : more command names to ignore.
+    ignore_unknown : skip every unknown command (listed in ``TiConfig.unknown``).
     Raises :class:`ConfigurationError` naming the line for unknown commands,
     wrong argument counts and contradictory commands.
     """
     if not isinstance(text, str):
         raise ConfigurationError(f"text must be a str, got {type(text).__name__}")
     lay = board_layout(board, layout, source=source)
-    cmds = _tokenize(text, source, extra_commands)
+    cmds = _tokenize(text, source, extra_commands, bool(ignore_unknown))
     if not cmds.profiles:
         raise cmds.error(0, "no profileCfg is given")
     advanced = _frame_kind(cmds)
@@ -434,12 +444,13 @@ def parse_ti_cfg(text: str, *, board: str | BoardLayout | None = None,
     configs, n_frames = (_advanced if advanced else _legacy)(cmds, table, lay)
     return TiConfig(configs=tuple(configs), n_frames=n_frames, advanced=advanced,
                     n_rx=configs[0].n_rx, board=lay.name, ignored=tuple(cmds.ignored),
+                    unknown=tuple(cmds.unknown),
                     **_sensor_position(cmds))
 
 
 def read_ti_cfg(path: str | os.PathLike, *, board: str | BoardLayout | None = None,
                 layout: BoardLayout | None = None,
-                extra_commands: Iterable[str] = ()) -> TiConfig:
+                extra_commands: Iterable[str] = (), ignore_unknown: bool = False) -> TiConfig:
     """Read and parse an mmWave SDK ``.cfg`` file (:func:`parse_ti_cfg`); a
     ``.json`` file is read as an mmWave Studio export (:func:`read_studio_json`)."""
     p = Path(path)
@@ -452,7 +463,7 @@ def read_ti_cfg(path: str | os.PathLike, *, board: str | BoardLayout | None = No
     except UnicodeDecodeError as exc:
         raise FileFormatError(f"{p} is not a text file: {exc}") from None
     return parse_ti_cfg(text, board=board, layout=layout, source=str(p.name),
-                        extra_commands=extra_commands)
+                        extra_commands=extra_commands, ignore_unknown=ignore_unknown)
 
 
 # ---- mmWave Studio JSON export ---------------------------------------------------------

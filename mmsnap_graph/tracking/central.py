@@ -1,7 +1,7 @@
 """Central tracker fed by one-shot estimates (paper Sec. II, "inputs to a
 centralized tracker").
 
-Each frame's fused targets (:class:`mmsnap_graph.fusion.sequence.FusedSequence`)
+Each frame's fused targets (:class:`mmsnap_graph.fusion.recording.sequence.FusedSequence`)
 are measurements of the full state ``(x_m, y_m, vx_mps, vy_mps)`` with their
 covariance, in the global frame: a linear Kalman filter with the
 constant-velocity model of :mod:`factors.motion` (``F = [[I, T I], [0, I]]``,
@@ -462,7 +462,7 @@ class FixedLagTracker:
 
 
 def track_fused(fused, config: CentralConfig | None = None, *, progress: bool = False) -> Tracks:
-    """Run a :class:`CentralTracker` over a :class:`~mmsnap_graph.fusion.sequence.FusedSequence`.
+    """Run a :class:`CentralTracker` over a :class:`~mmsnap_graph.fusion.recording.sequence.FusedSequence`.
 
     Successful estimates only; MAP estimates have their prior removed
     (``config.remove_prior``). Every frame from the first to the last fused

@@ -52,10 +52,13 @@ def _points_options(p: argparse.ArgumentParser) -> None:
                    metavar="LOW_M,HIGH_M",
                    help="keep points between these heights above the floor (drops floor and "
                         "ceiling points)")
-    p.add_argument("--frame-period", type=float, default=None,
-                   help="frame period in seconds (default: from --cfg)")
+    p.add_argument("--frame-period", type=float, default=None, metavar="SECONDS",
+                   help="frame period in seconds, e.g. 0.05 for 20 fps (default: from --cfg); "
+                        "checked against the log's time stamps")
     p.add_argument("--cfg", default=None, help="the .cfg the radars ran (for the frame period "
                                                "and sensorPosition)")
+    p.add_argument("--ignore-unknown-commands", action="store_true",
+                   help="skip .cfg commands this reader does not know (listed on stderr)")
     p.add_argument("--destack", action="store_true",
                    help="the log stores each frame as a stack of the last frames' points: "
                         "drop points repeated from the previous frame")
@@ -84,6 +87,8 @@ def register(subparsers) -> None:
     d.add_argument("--iq-swap", action="store_true", help="the device sent Q before I")
     d.add_argument("--allow-partial-frame", action="store_true",
                    help="drop an incomplete last frame of a capture cut short (warns)")
+    d.add_argument("--ignore-unknown-commands", action="store_true",
+                   help="skip .cfg commands this reader does not know (listed on stderr)")
     _common(d)
     d.set_defaults(func=run_dca1000)
     u = sub.add_parser("ti-uart", help="binary logs of a TI demo's data UART (TLV frames)")
@@ -102,7 +107,13 @@ def register(subparsers) -> None:
                    help="one table holding every node (a node column)")
     t.add_argument("--coordinates", choices=["auto", "cartesian", "spherical"], default="auto")
     t.add_argument("--degrees", action="store_true", help="angles are in degrees")
-    t.add_argument("--time-unit", choices=["s", "ms", "us"], default="s")
+    t.add_argument("--time-unit", choices=["s", "ms", "us"], default="s",
+                   help="unit of the time-stamp column (default %(default)s)")
+    t.add_argument("--columns", action="append", type=named_values("COLUMN", None), default=[],
+                   metavar="HEADER=COLUMN",
+                   help="read the table's column HEADER as COLUMN (x, y, z, doppler, frame, "
+                        "time_s, range, azimuth, elevation, snr, noise, node), e.g. "
+                        "--columns 'X [m]=x' --columns 'Velocity [m/s]=doppler'; repeat")
     _points_options(t)
     _common(t)
     t.set_defaults(func=run_table)
@@ -131,10 +142,18 @@ def _write(args, recording) -> int:
     return 0
 
 
+def _read_cfg(args, **options):
+    """The ``.cfg`` of ``--cfg``; unknown commands skipped are listed on stderr."""
+    from mmsnap_graph.io.ti_cfg import read_ti_cfg
+    ti = read_ti_cfg(args.cfg, ignore_unknown=args.ignore_unknown_commands, **options)
+    if ti.unknown:
+        print(f"{args.cfg}: ignored unknown commands {', '.join(ti.unknown)}", file=sys.stderr)
+    return ti
+
+
 def run_dca1000(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.dca1000 import recording_from_dca1000
-    from mmsnap_graph.io.ti_cfg import read_ti_cfg
-    ti = read_ti_cfg(args.cfg, board=args.board)
+    ti = _read_cfg(args, board=args.board)
     if ti.advanced and args.sub_frame is None:
         raise ValidationError(f"{args.cfg} is an advanced frame of {ti.n_sub_frames} "
                               "sub-frames: choose one with --sub-frame")
@@ -152,13 +171,41 @@ def run_dca1000(args: argparse.Namespace) -> int:
     return _write(args, rec)
 
 
+#: TI's frame periodicity is 5 ns x 2^28 = 1.34 s at most; a longer frame
+#: period on the command line is a unit mistake (milliseconds typed as seconds).
+MAX_FRAME_PERIOD_S = 1.35
+#: A frame period below 0.1 ms (10 kHz frames) is none a TI radar makes.
+MIN_FRAME_PERIOD_S = 1e-4
+#: Mounting heights above this are a unit mistake (centimetres typed as metres).
+MAX_MOUNT_HEIGHT_M = 12.0
+
+
 def _check_point_options(args) -> None:
     """Usage errors (exit 2) of the point-cloud imports' numeric options."""
     if args.accumulate < 1:
         raise ValidationError(f"--accumulate: n_frames={args.accumulate} must be an integer >= 1")
-    if args.frame_period is not None and not (np.isfinite(args.frame_period)
-                                              and args.frame_period > 0):
-        raise ValidationError(f"--frame-period must be finite and > 0, got {args.frame_period}")
+    period = args.frame_period
+    if period is not None and not (np.isfinite(period) and period > 0):
+        raise ValidationError(f"--frame-period must be finite and > 0, got {period}")
+    if period is not None and period > MAX_FRAME_PERIOD_S:
+        raise ValidationError(f"--frame-period {period:g}: the frame period is in seconds and a "
+                              f"TI radar's is at most {MAX_FRAME_PERIOD_S} s; milliseconds? "
+                              f"({period:g} ms is --frame-period {period / 1000:g})")
+    if period is not None and period < MIN_FRAME_PERIOD_S:
+        raise ValidationError(f"--frame-period {period:g}: the frame period is in seconds (e.g. "
+                              f"0.05 for 20 fps); {period:g} s is below any TI radar's "
+                              f"({MIN_FRAME_PERIOD_S:g} s)")
+    for name, (height, tilt) in args.mount:
+        if not (np.isfinite(height) and np.isfinite(tilt)):
+            raise ValidationError(f"--mount {name}={height:g},{tilt:g}: height and tilt must be "
+                                  "finite")
+        if abs(height) > MAX_MOUNT_HEIGHT_M:
+            raise ValidationError(f"--mount {name}={height:g},{tilt:g}: a sensor {height:g} m "
+                                  f"above the floor; the height is in metres (centimetres? "
+                                  f"{height:g} cm is --mount {name}={height / 100:g},{tilt:g})")
+        if abs(tilt) >= 90:
+            raise ValidationError(f"--mount {name}={height:g},{tilt:g}: the down tilt is in "
+                                  "degrees and must lie in (-90, 90)")
 
 
 def _timing(args):
@@ -166,8 +213,8 @@ def _timing(args):
     _check_point_options(args)
     ti = None
     if args.cfg is not None:
-        from mmsnap_graph.io.ti_cfg import BoardLayout, read_ti_cfg
-        ti = read_ti_cfg(args.cfg, layout=BoardLayout(**_TIMING_ONLY))
+        from mmsnap_graph.io.ti_cfg import BoardLayout
+        ti = _read_cfg(args, layout=BoardLayout(**_TIMING_ONLY))
     period = args.frame_period if args.frame_period is not None else (
         ti.configs[0].frame_period_s if ti is not None else None)
     if period is None:
@@ -196,13 +243,27 @@ def _mountings(args, names, ti) -> dict:
     return out
 
 
+def _check_period(args, clouds, period) -> None:
+    """The frame period agrees with each cloud's time stamps (usage error)."""
+    from mmsnap_graph.io.point_cloud import check_frame_period
+    option = "--frame-period" if args.frame_period is not None else f"the frame period of " \
+                                                                     f"--cfg {args.cfg}"
+    for name, cloud in clouds.items():
+        problem = check_frame_period(cloud, period, node=name, option=option)
+        if problem:
+            raise ValidationError(f"{problem}; give the log's frame period in seconds with "
+                                  "--frame-period")
+
+
 def _points_recording(args, clouds, ti, period, metadata):
     from mmsnap_graph.io.point_cloud import (accumulate_frames, destack_frames,
                                              recording_from_point_clouds)
+    _check_period(args, clouds, period)
     if args.destack:
         clouds = {name: destack_frames(c) for name, c in clouds.items()}
     if args.accumulate != 1:
-        clouds = {name: accumulate_frames(c, args.accumulate) for name, c in clouds.items()}
+        clouds = {name: accumulate_frames(c, args.accumulate, frame_period_s=period)
+                  for name, c in clouds.items()}
         metadata = dict(metadata, accumulated_frames=args.accumulate)
     band = args.height_band
     return recording_from_point_clouds(clouds, frame_period_s=period,
@@ -229,15 +290,27 @@ def run_uart(args: argparse.Namespace) -> int:
 
 
 def run_table(args: argparse.Namespace) -> int:
-    from mmsnap_graph.io.point_table import read_point_table, read_point_tables
+    from mmsnap_graph.io.point_table import read_point_tables
     if bool(args.node) == bool(args.table):
         raise ValidationError("give either --node NAME=TABLE (repeat) or --table FILE")
     period, ti = _timing(args)
     opts = dict(coordinates=args.coordinates, degrees=args.degrees, time_unit=args.time_unit,
-                frame_period_s=period)
+                frame_period_s=period, columns=dict(args.columns) or None)
     if args.table:
         clouds = read_point_tables(args.table, **opts)
     else:
-        clouds = {name: read_point_table(path, **opts) for name, path in args.node}
+        names = [name for name, _ in args.node]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValidationError(f"--node {twice[0]} is given {names.count(twice[0])} times; "
+                                  "one table per node")
+        clouds = {}
+        for name, path in args.node:
+            several = read_point_tables(path, **opts)
+            if len(several) != 1:
+                raise ValidationError(f"--node {name}={path}: the table holds {len(several)} "
+                                      f"nodes {sorted(several)} (a node column); import it "
+                                      f"with --table {path}")
+            clouds[name] = next(iter(several.values()))
     rec = _points_recording(args, clouds, ti, period, {"source": "table"})
     return _write(args, rec)

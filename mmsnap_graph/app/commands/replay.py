@@ -1,5 +1,5 @@
 """``mmsnap replay``: stream a recording frame by frame through the online API
-(:class:`mmsnap_graph.fusion.stream.FrameStream`, docs/STREAMING.md).
+(:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`, docs/STREAMING.md).
 
 Prints one line per frame (or only the summary with ``--summary``); with
 ``--realtime`` the frames are paced at the recorded frame rate (``--speed``
@@ -91,8 +91,8 @@ def run(args: argparse.Namespace) -> int:
     # Deferred as in the other commands: building the parser imports no numerics or h5py.
     from mmsnap_graph._atomic import atomic_path
     from mmsnap_graph.data.noise import GaussianPrior
-    from mmsnap_graph.fusion.sequence import recording_poses
-    from mmsnap_graph.fusion.stream import FrameStream, recording_frames
+    from mmsnap_graph.fusion.recording.sequence import recording_poses
+    from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
     from mmsnap_graph.io import read_recording
     from mmsnap_graph.io.calibration import load_calibration_poses
 

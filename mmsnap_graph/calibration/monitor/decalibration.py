@@ -3,7 +3,7 @@
 
 Per frame, each monitored node's range and spatial frequency are compared with
 the target state fused from the other nodes (leave-one-node-out,
-:func:`mmsnap_graph.fusion.batch.fuse_batch`); the innovations give per-frame
+:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`); the innovations give per-frame
 information and score about the node's pose error (:mod:`.stats`).
 Windows of the last 3 to 20 s are tested against the reference (all earlier
 data since the last reset, with the calibration covariance as prior) by a
@@ -36,7 +36,7 @@ from scipy.stats import chi2
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...errors import ValidationError
-from ...fusion.batch import fuse_batch
+from ...fusion.solvers.vectorized import fuse_batch
 from ..._validation import as_float_array, check_finite
 from .stats import (
     frame_contributions,

@@ -4,7 +4,7 @@
 ``(range_m, omega_rad, doppler_mps)`` and a time stamp in seconds) and returns
 a :class:`StreamUpdate`: the frame's fused targets with their covariances and
 the central tracker's tracks after the update. Per frame it does what
-:func:`mmsnap_graph.fusion.sequence.fuse_recording` does for that frame (the
+:func:`mmsnap_graph.fusion.recording.sequence.fuse_recording` does for that frame (the
 grouping of :func:`mmsnap_graph.fusion.association.associate_frame`, then
 one-shot fusion of each group), and what
 :func:`mmsnap_graph.tracking.central.track_fused` does (one
@@ -12,14 +12,14 @@ one-shot fusion of each group), and what
 successful estimates; a MAP estimate has its prior removed by the tracker).
 
 It is built for latency (docs/STREAMING.md, "Latency"): the grouping is
-:class:`~mmsnap_graph.fusion.stream_association.StreamAssociator` (the
+:class:`~mmsnap_graph.fusion.stream.association.StreamAssociator` (the
 decisions of ``associate_frame`` in plain floats for up to four detections
 per node, ``associate_frame`` itself otherwise); the default solver
-``"numpy"`` is :class:`~mmsnap_graph.fusion.frame_solver.FrameSolver` (the
-problem of :func:`~mmsnap_graph.fusion.oneshot.fuse_frame` solved as GTSAM
+``"numpy"`` is :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver` (the
+problem of :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` solved as GTSAM
 solves it, in plain floats, equal to it to the tolerance stated there);
 ``"gtsam"`` runs ``fuse_frame`` itself and ``"batch"``
-:func:`mmsnap_graph.fusion.batch.fuse_batch`. Each frame is validated once,
+:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`. Each frame is validated once,
 with checks on plain floats.
 
 State is bounded: the node poses and settings, the time of the last good
@@ -47,16 +47,16 @@ from typing import Iterator, Literal, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .batch import fuse_batch
-from .frame_solver import FrameSolver
-from .stream_association import StreamAssociator
-from .problem import check_node_noise, check_pose_covariances, check_prior
-from ..data.noise import GaussianPrior, MeasurementNoise
-from ..data.recording import Recording
-from ..data.results import Status
-from ..errors import MmsnapError, ValidationError
-from ..tracking.central import CentralConfig, CentralTracker
-from .._validation import as_float_array, check_finite
+from ..solvers.vectorized import fuse_batch
+from ..solvers.scalar import FrameSolver
+from .association import StreamAssociator
+from ..problem import check_node_noise, check_pose_covariances, check_prior
+from ...data.noise import GaussianPrior, MeasurementNoise
+from ...data.recording import Recording
+from ...data.results import Status
+from ...errors import MmsnapError, ValidationError
+from ...tracking.central import CentralConfig, CentralTracker
+from ..._validation import as_float_array, check_finite
 
 __all__ = ["StreamUpdate", "FrameStream", "recording_frames"]
 
@@ -124,11 +124,11 @@ class FrameStream:
         holding every node (docs/CONVENTIONS.md, "Per-node noise").
     prior : GaussianPrior or None
         The one-shot prior (MAP, default the paper's); None for ML.
-    solver : ``"numpy"`` (the default: :class:`~mmsnap_graph.fusion.frame_solver.FrameSolver`
+    solver : ``"numpy"`` (the default: :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver`
         per group, the same problem as ``fuse_frame`` solved in plain floats,
         equal to it to the tolerance stated there and several times faster),
-        ``"gtsam"`` (:func:`~mmsnap_graph.fusion.oneshot.fuse_frame` per
-        group) or ``"batch"`` (:func:`~mmsnap_graph.fusion.batch.fuse_batch`
+        ``"gtsam"`` (:func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` per
+        group) or ``"batch"`` (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`
         on the frame's groups).
     gate_probability : association gate (see :mod:`mmsnap_graph.fusion.association`).
     tracker : CentralConfig or None
@@ -299,7 +299,7 @@ class FrameStream:
         return state, cov, status, degeneracy
 
     def _fuse_gtsam(self, z, obs):
-        from .oneshot import fuse_frame  # deferred: keeps GTSAM out of this module's import path
+        from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of this module's import path
 
         g = z.shape[0]
         state, cov = np.full((g, 4), np.nan), np.full((g, 4, 4), np.nan)

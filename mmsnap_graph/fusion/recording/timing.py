@@ -34,9 +34,9 @@ from numpy.typing import NDArray
 
 from factors.models import wrap_angle
 
-from ..data.recording import Detections, Recording
-from ..errors import ValidationError
-from .._validation import check_positive
+from ...data.recording import Detections, Recording
+from ...errors import ValidationError
+from ..._validation import check_positive
 
 __all__ = ["split_offset", "align_detections", "align_recording"]
 

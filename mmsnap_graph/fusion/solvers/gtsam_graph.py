@@ -27,12 +27,12 @@ GTSAM-free and lives in :mod:`mmsnap_graph.fusion.problem`; this module builds
 the graph, solves it and assesses the solution. ``fuse_frame`` is the steps
 validate (:func:`_check_options`, :func:`~.problem.validate_frame`),
 initialise (:func:`_start`), build (:func:`_build`), solve (:func:`_solve`) and
-assess (:func:`~.oneshot_assess.assess_fit`).
+assess (:func:`~.assess.assess_fit`).
 
 Cost: ``benchmarks/bench_oneshot.py`` prints the per-frame median (two nodes,
 configuration B) against ``scipy.optimize.least_squares`` with the same model.
 Most of it is GTSAM calling the Python error function (~12 calls per frame);
-for thousands of frames at once see :mod:`mmsnap_graph.fusion.batch`.
+for thousands of frames at once see :mod:`mmsnap_graph.fusion.solvers.vectorized`.
 
 Two properties of the problem a user meets (tests/test_oneshot.py):
 
@@ -60,13 +60,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import frame_measurement_factor, measurement_noise, node_measurement_factor
 
-from ..errors import MmsnapError, ValidationError
-from ..data.noise import GaussianPrior, MeasurementNoise
-from ..data.results import DEGENERACY_THRESHOLD, FusionResult, Status
-from .grid import grid_posterior
-from .oneshot_assess import NEWTON_DECREMENT_TOLERANCE, assess_fit, residuals_and_degeneracy
-from .oneshot_poses import pose_aware_covariance
-from .problem import (
+from ...errors import MmsnapError, ValidationError
+from ...data.noise import GaussianPrior, MeasurementNoise
+from ...data.results import DEGENERACY_THRESHOLD, FusionResult, Status
+from ..grid import grid_posterior
+from .assess import NEWTON_DECREMENT_TOLERANCE, assess_fit, residuals_and_degeneracy
+from .gtsam_poses import pose_aware_covariance
+from ..problem import (
     check_count,
     check_initial_state,
     check_node_noise,
@@ -78,7 +78,7 @@ from .problem import (
     validate_frame,
     velocity_degeneracy,
 )
-from .robust import (
+from ..robust import (
     RESIDUAL_GATE_PROBABILITY,
     check_robust,
     check_robust_k,
@@ -348,7 +348,7 @@ def fuse_frame(
         in the Pose2 body tangent, all NaN (or zero) for an exact pose. The
         estimate is unchanged; the covariance is ``gtsam.Marginals`` of the
         graph with the uncertain poses as variables under their priors
-        (:mod:`~mmsnap_graph.fusion.oneshot_poses`). Needs ``"laplace"``.
+        (:mod:`~mmsnap_graph.fusion.solvers.gtsam_poses`). Needs ``"laplace"``.
 
     Returns
     -------
@@ -502,7 +502,7 @@ def _kept(obs, rejected):
 
 def _gate(fit, poses, z, obs, noise, prior, max_iterations, probability):
     """``robust="gate"`` on a solved frame: ``(fit, rejected (N,) or None)``
-    (as :func:`mmsnap_graph.fusion.batch.fuse_batch`'s gate): the passing
+    (as :func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`'s gate): the passing
     leave-one-node-out refit when exactly one passes."""
     if not residual_test_fails(fit.whitened, probability):
         return fit, None

@@ -1,10 +1,10 @@
-"""The vectorized Levenberg-Marquardt solver of :mod:`mmsnap_graph.fusion.batch`.
+"""The vectorized Levenberg-Marquardt solver of :mod:`mmsnap_graph.fusion.solvers.vectorized`.
 
 :func:`evaluate` (whitened Jacobian, residuals and cost of ``F`` frames, frames
 last), :func:`normal_equations`, :func:`residual_curvature` (the second-order
 term of the Newton steps) and :func:`levenberg_marquardt` (damped Gauss-Newton
 over the frame axis with Nielsen's damping update and an active set). See the
-module docstring of :mod:`mmsnap_graph.fusion.batch` for how it is fast.
+module docstring of :mod:`mmsnap_graph.fusion.solvers.vectorized` for how it is fast.
 Each node has its own sigmas (``SolverParams.inv_sigma`` (N, 3)).
 """
 
@@ -17,9 +17,9 @@ from numpy.typing import NDArray
 
 from factors.models import measurement_model, wrap_angle
 
-from .._linalg import chol_soa, solve_soa
-from ..data.results import Status
-from .robust import kernel_weight_and_loss
+from ..._linalg import chol_soa, solve_soa
+from ...data.results import Status
+from ..robust import kernel_weight_and_loss
 
 __all__ = [
     "SolverParams",

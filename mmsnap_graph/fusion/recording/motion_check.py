@@ -1,4 +1,4 @@
-"""The motion check of :func:`mmsnap_graph.fusion.sequence.fuse_recording`:
+"""The motion check of :func:`mmsnap_graph.fusion.recording.sequence.fuse_recording`:
 robust fusion of a recording with its temporal context (docs/ROBUST.md).
 
 One frame alone cannot always tell a ghost centroid (multipath, clutter) from
@@ -58,8 +58,8 @@ from scipy.stats import chi2
 
 from factors.motion import cv_process_noise, cv_transition
 
-from ..data.results import Status
-from .robust import residual_test_fails
+from ...data.results import Status
+from ..robust import residual_test_fails
 
 __all__ = [
     "MOTION_WINDOW_FRAMES",
@@ -424,7 +424,7 @@ def apply_motion_check(rows, frame: NDArray, observed: NDArray, valid: NDArray, 
                  residual_gate_probability: float) -> NDArray:
     """Check every fused row of a recording against the motion of its
     neighbouring frames (module docstring); ``rows`` (the per-row arrays of
-    :func:`~mmsnap_graph.fusion.sequence.fuse_recording`: ``state``,
+    :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording`: ``state``,
     ``laplace``, ``status``, ``message``, ``iterations``, ``cost``,
     ``degeneracy``, ``rejected``) is updated in place.
 

@@ -1,6 +1,6 @@
 """Vectorized one-shot fusion of many frames at once (docs/CONVENTIONS.md, "One-shot fusion").
 
-The per-frame GTSAM solve (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`) costs a
+The per-frame GTSAM solve (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`) costs a
 factor graph, an optimizer and a ``Marginals`` object per frame. This module
 solves the same problem, the same negative log posterior (paper eq. 18)
 
@@ -42,13 +42,13 @@ from typing import Literal, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import ValidationError
-from .._linalg import chol_soa, cholesky4, cholesky4_inverse, cholesky4_solve, from_soa, inverse_soa
-from .._validation import as_float_array, check_finite
-from ..data.noise import GaussianPrior, MeasurementNoise
-from ..data.results import BatchResult, Status
-from .pose_uncertainty import propagate_pose_covariance
-from .problem import (
+from ...errors import ValidationError
+from ..._linalg import chol_soa, cholesky4, cholesky4_inverse, cholesky4_solve, from_soa, inverse_soa
+from ..._validation import as_float_array, check_finite
+from ...data.noise import GaussianPrior, MeasurementNoise
+from ...data.results import BatchResult, Status
+from .vectorized_poses import propagate_pose_covariance
+from ..problem import (
     check_count,
     check_node_noise,
     check_pose_covariances,
@@ -58,14 +58,14 @@ from .problem import (
     validate_frames,
     velocity_degeneracy,
 )
-from .batch_solver import (
+from .vectorized_lm import (
     SolverParams,
     evaluate,
     levenberg_marquardt,
     normal_equations,
     residual_curvature,
 )
-from .robust import (
+from ..robust import (
     RESIDUAL_GATE_PROBABILITY,
     check_robust,
     check_robust_k,
@@ -161,7 +161,7 @@ def fuse_batch(
         temporaries stay in cache); the frames that need more iterations are
         then solved together.
     robust : {"gate", "huber", "cauchy"} or None
-        Robust fusion, as :func:`mmsnap_graph.fusion.oneshot.fuse_frame`
+        Robust fusion, as :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`
         (the same answers): ``"gate"`` tests each node's whitened residual
         3-vector after the fit against ``chi2.ppf(residual_gate_probability,
         3)`` and refits a failing frame without each node in turn;
@@ -177,7 +177,7 @@ def fuse_batch(
         in the Pose2 body tangent, all NaN (or zero) for an exact pose. The
         estimate is unchanged; the covariance adds the poses' by linear
         propagation, ``P = P_x + A Sigma_p A^T``
-        (:mod:`~mmsnap_graph.fusion.pose_uncertainty`).
+        (:mod:`~mmsnap_graph.fusion.solvers.vectorized_poses`).
 
     Returns
     -------

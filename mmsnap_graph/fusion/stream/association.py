@@ -25,8 +25,8 @@ from numpy.typing import NDArray
 
 from factors.models import DETECTION_MIN_COS
 
-from ..data.noise import MeasurementNoise
-from .association import (MAX_CONDITION, MIN_VARIANCE_M2, associate_frame, gate_threshold,
+from ...data.noise import MeasurementNoise
+from ..association import (MAX_CONDITION, MIN_VARIANCE_M2, associate_frame, gate_threshold,
                           group_distance2)
 
 __all__ = ["StreamAssociator"]

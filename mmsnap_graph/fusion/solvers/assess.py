@@ -2,7 +2,7 @@
 velocity degeneracy, the gradient of the cost and the checks that make a
 :class:`~mmsnap_graph.data.results.FusionResult` a success (a positive-definite
 covariance, a vanishing Newton decrement); used by
-:mod:`mmsnap_graph.fusion.oneshot`. Each node has its own sigmas (a sequence of
+:mod:`mmsnap_graph.fusion.solvers.gtsam_graph`. Each node has its own sigmas (a sequence of
 N :class:`~mmsnap_graph.data.noise.MeasurementNoise`).
 """
 
@@ -14,8 +14,8 @@ import numpy as np
 
 from factors.models import measurement_model_scalar, wrap_angle_scalar
 
-from ..data.results import DEGENERACY_THRESHOLD, Status
-from .problem import condition_2x2
+from ...data.results import DEGENERACY_THRESHOLD, Status
+from ..problem import condition_2x2
 
 __all__ = [
     "NEWTON_DECREMENT_TOLERANCE",

@@ -13,7 +13,7 @@ calibrated poses, is the calibration-aware covariance: the estimate is not
 moved, only its covariance grows.
 
 The vectorized twin (linear propagation, no GTSAM) is
-:mod:`mmsnap_graph.fusion.pose_uncertainty`.
+:mod:`mmsnap_graph.fusion.solvers.vectorized_poses`.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from factors.gtsam_factors import (
     pose_measurement_factor,
 )
 
-from ..data.noise import GaussianPrior, MeasurementNoise
+from ...data.noise import GaussianPrior, MeasurementNoise
 
 __all__ = ["STATE_KEY", "pose_key", "build_pose_aware_graph", "pose_aware_covariance"]
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..data.results import Status
+from ...data.results import Status
 
 __all__ = ["split_singles", "flag_split_singles", "SPLIT_MESSAGE"]
 
@@ -37,7 +37,7 @@ def split_singles(frame: ArrayLike, detection_index: ArrayLike) -> NDArray:
 
     frame : (K,) int, each group's frame; detection_index : (K, N) int, the
     member detection of each node (-1 = none), as
-    :class:`~mmsnap_graph.fusion.sequence.DetectionGroups`.
+    :class:`~mmsnap_graph.fusion.recording.sequence.DetectionGroups`.
     """
     fr = np.asarray(frame, dtype=np.int64)
     obs = np.asarray(detection_index) >= 0

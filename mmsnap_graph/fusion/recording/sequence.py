@@ -9,8 +9,8 @@ be fused is flagged (``success`` False, a :class:`~mmsnap_graph.data.results.Sta
 and a message), never raised.
 
 Two solvers give the same answers (the tests compare them):
-``"batch"`` (:func:`mmsnap_graph.fusion.batch.fuse_batch`, vectorized over frames)
-and ``"gtsam"`` (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`, one factor graph per
+``"batch"`` (:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`, vectorized over frames)
+and ``"gtsam"`` (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`, one factor graph per
 frame); with ``pose_covariances`` their covariances differ by a few percent
 (docs/CONVENTIONS.md, "Calibration-aware fusion").
 
@@ -29,15 +29,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.models import detection_to_global
 
-from .association import (
+from ..association import (
     associate_frame,
     detection_information,
     detection_position_covariance,
     gate_threshold,
 )
-from .batch import fuse_batch
-from .grid import grid_posterior
-from .problem import (
+from ..solvers.vectorized import fuse_batch
+from ..grid import grid_posterior
+from ..problem import (
     check_count,
     check_node_noise,
     check_pose_covariances,
@@ -46,13 +46,13 @@ from .problem import (
     valid_rows,
 )
 from .motion_check import apply_motion_check
-from .robust import RESIDUAL_GATE_PROBABILITY, check_robust
+from ..robust import RESIDUAL_GATE_PROBABILITY, check_robust
 from .timing import align_recording
-from ..data.noise import GaussianPrior, MeasurementNoise
-from ..data.recording import Recording
-from ..data.results import FusedSequence, Status
-from ..errors import CalibrationError, MmsnapError, ValidationError
-from .._validation import as_float_array, check_finite
+from ...data.noise import GaussianPrior, MeasurementNoise
+from ...data.recording import Recording
+from ...data.results import FusedSequence, Status
+from ...errors import CalibrationError, MmsnapError, ValidationError
+from ..._validation import as_float_array, check_finite
 from .split_check import flag_split_singles
 
 __all__ = [
@@ -356,7 +356,7 @@ def _fuse_batch_rows(out: _Rows, poses, z, obs, noise, prior, block_rows, bar, r
 
 def _fuse_gtsam_rows(out: _Rows, poses, z, obs, noise, prior, bar, robust=None,
                      pose_cov=None) -> None:
-    from .oneshot import fuse_frame  # deferred: keeps GTSAM out of the batch path
+    from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of the batch path
 
     out.rejected = np.zeros(obs.shape, dtype=bool)
     for i in range(z.shape[0]):
@@ -398,7 +398,7 @@ def _check_motion(out: _Rows, groups, recording, poses, noise, prior, pose_cov, 
                               node_names=recording.node_names,
                               residual_gate_probability=RESIDUAL_GATE_PROBABILITY)
     if solver == "gtsam" and done.size:
-        from .oneshot import fuse_frame  # deferred: keeps GTSAM out of the batch path
+        from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of the batch path
 
         for i in done:
             r = fuse_frame(poses, z[i], observed=obs[i] & ~out.rejected[i], noise=noise,
@@ -495,18 +495,18 @@ def fuse_recording(
         body tangent (the calibration's marginals); a node left out (or all
         NaN / all zero) has an exact pose. The estimates do not change;
         ``covariance`` and ``laplace_covariance`` include the poses'
-        (:func:`~mmsnap_graph.fusion.batch.fuse_batch`,
-        :func:`~mmsnap_graph.fusion.oneshot.fuse_frame`). Needs
+        (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
+        :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`). Needs
         ``covariance="laplace"``.
     time_offset_s : mapping name -> seconds, optional
         Each node's clock offset (node time + offset = reference time; the
         calibration's ``time_offset_s``): the centroids are brought to the
-        reference clock first (:func:`mmsnap_graph.fusion.timing.align_recording`:
+        reference clock first (:func:`mmsnap_graph.fusion.recording.timing.align_recording`:
         whole frames, then the range by Doppler times the rest). A node left
         out keeps its clock.
     motion_check : bool, optional
         Check each row against its neighbouring frames' motion
-        (:mod:`~mmsnap_graph.fusion.motion_check`, docs/ROBUST.md): refit it
+        (:mod:`~mmsnap_graph.fusion.recording.motion_check`, docs/ROBUST.md): refit it
         without the nodes that disagree, or flag it (a ghost, an ambiguous
         frame). Default (None): on with a ``robust`` option.
     """

@@ -23,7 +23,7 @@ of the measurement noise, so
     \\qquad B_i = J_{x,i}^T W_i J_{p,i},
 
 the sum over the observed nodes with an uncertain pose. The GTSAM twin is
-:mod:`mmsnap_graph.fusion.oneshot_poses`.
+:mod:`mmsnap_graph.fusion.solvers.gtsam_poses`.
 """
 
 from __future__ import annotations

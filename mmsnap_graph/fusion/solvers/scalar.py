@@ -1,8 +1,8 @@
 """One-shot fusion of one target in one frame, in plain Python floats: the
-solver of the stream (:class:`mmsnap_graph.fusion.stream.FrameStream`,
+solver of the stream (:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`,
 ``solver="numpy"``, docs/STREAMING.md).
 
-The same problem as :func:`mmsnap_graph.fusion.oneshot.fuse_frame` (GTSAM):
+The same problem as :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` (GTSAM):
 the cost ``0.5 * sum of squared whitened residuals`` of every observed node's
 range, spatial frequency (wrapped) and Doppler, each node with its own
 sigmas, plus the Gaussian prior (MAP; none for ML), from the same initial
@@ -12,7 +12,7 @@ update, as the GTSAM settings of ``fuse_frame``) and the covariance is the
 inverse of the Gauss-Newton information ``J^T W J + Lambda_prior`` at the
 solution (what ``gtsam.Marginals`` returns for that graph). With uncertain
 node poses the covariance is the marginal of the state in the joint graph of
-:mod:`mmsnap_graph.fusion.oneshot_poses` (each uncertain pose a variable
+:mod:`mmsnap_graph.fusion.solvers.gtsam_poses` (each uncertain pose a variable
 under its prior, linearized at the estimate and the calibrated poses),
 computed here as a Schur complement: the same number as GTSAM's.
 
@@ -42,7 +42,7 @@ the largest where the cost is flattest).
 Status codes as ``fuse_frame``: ``NON_FINITE`` for an initial position on a
 node (``fuse_frame`` raises there; the stream flags the group) or a
 non-finite solution or a Newton decrement above
-:data:`~mmsnap_graph.fusion.oneshot_assess.NEWTON_DECREMENT_TOLERANCE`;
+:data:`~mmsnap_graph.fusion.solvers.assess.NEWTON_DECREMENT_TOLERANCE`;
 ``MAX_ITERATIONS``; ``SINGULAR`` when the information is not positive
 definite (an ML group seen by one node).
 """
@@ -57,12 +57,12 @@ from numpy.typing import NDArray
 
 from factors.models import measurement_model_scalar, wrap_angle_scalar
 
-from ..data.noise import GaussianPrior, MeasurementNoise
-from ..data.results import Status
-from .._floats4 import cholesky_4x4, cholesky_inverse_4x4, cholesky_solve_4x4, forward_4x4
-from .degeneracy import condition_2x2
-from .oneshot_assess import NEWTON_DECREMENT_TOLERANCE
-from .problem import frame_initial_state
+from ...data.noise import GaussianPrior, MeasurementNoise
+from ...data.results import Status
+from ..._floats4 import cholesky_4x4, cholesky_inverse_4x4, cholesky_solve_4x4, forward_4x4
+from ..degeneracy import condition_2x2
+from .assess import NEWTON_DECREMENT_TOLERANCE
+from ..problem import frame_initial_state
 
 __all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "FrameSolution", "FrameSolver"]
 
@@ -94,7 +94,7 @@ _OK, _MAX_ITER, _SINGULAR, _NON_FINITE = (int(Status.OK), int(Status.MAX_ITERATI
 
 
 def _positive_definite(cov: NDArray) -> bool:
-    """:func:`~mmsnap_graph.fusion.oneshot_assess.positive_definite` in
+    """:func:`~mmsnap_graph.fusion.solvers.assess.positive_definite` in
     floats: every squared Cholesky pivot of ``cov`` above
     ``_MIN_EIGENVALUE_RATIO`` times its largest diagonal entry, all finite."""
     c = cov.ravel().tolist()
