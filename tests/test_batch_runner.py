@@ -30,7 +30,8 @@ BAD = "rec_corrupt.h5"
 
 
 def _simulate(path: Path, seed: int) -> None:
-    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(N_FRAMES), "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(N_FRAMES),
+                 "-l", "centroids",
                  "--seed", str(seed), "-o", str(path), "--no-progress"]) == 0
 
 

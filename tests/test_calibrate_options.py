@@ -59,7 +59,10 @@ def _error_line(err: str) -> str:
 
 def test_defaults_given_explicitly_give_the_same_calibration(recording_c_random):
     plain = calibrate_recording(recording_c_random, method="pose_graph")
-    explicit = calibrate_recording(recording_c_random, method="pose_graph", matching=MatchingOptions(max_lag_s=0.3, min_common_s=0.5, min_spread_m=0.2, max_rmse_m=1.0, inlier_gate_m=0.5, gate_probability=0.997))
+    explicit = calibrate_recording(recording_c_random, method="pose_graph",
+                                   matching=MatchingOptions(
+                                       max_lag_s=0.3, min_common_s=0.5, min_spread_m=0.2,
+                                       max_rmse_m=1.0, inlier_gate_m=0.5, gate_probability=0.997))
     assert plain.success and explicit.success
     np.testing.assert_array_equal(plain.poses["S2"], explicit.poses["S2"])
     assert plain.edges[0].n_frames == explicit.edges[0].n_frames
@@ -69,22 +72,28 @@ def test_min_common_s_longer_than_the_recording_fails_clearly(recording_c_random
     rec = recording_c_random
     too_long = _duration_s(rec) + 1.0
     with pytest.raises(CalibrationError) as err:
-        calibrate_recording(rec, method="pose_graph", matching=MatchingOptions(min_common_s=too_long))
+        calibrate_recording(rec, method="pose_graph",
+                            matching=MatchingOptions(min_common_s=too_long))
     text = str(err.value)
     assert f"min_common_s={too_long:g} s" in text
     need = int(np.ceil(too_long / rec.frame_period_s - 1e-9))
     assert f"shares >= {need} frames" in text
     # A tiny overlap is accepted (the 5-frame floor still applies).
-    assert calibrate_recording(rec, method="pose_graph", matching=MatchingOptions(min_common_s=0.0)).success
+    assert calibrate_recording(rec, method="pose_graph",
+                               matching=MatchingOptions(min_common_s=0.0)).success
 
 
 def test_min_spread_m_and_inlier_gate_m_reach_the_matching(recording_c_random):
     with pytest.raises(CalibrationError, match=r"spread >= 50\.0 m"):
-        calibrate_recording(recording_c_random, method="pose_graph", matching=MatchingOptions(min_spread_m=50.0))
+        calibrate_recording(recording_c_random, method="pose_graph",
+                            matching=MatchingOptions(min_spread_m=50.0))
     with pytest.raises(CalibrationError, match=r"within inlier_gate_m=0\.0001 m"):
-        calibrate_recording(recording_c_random, method="pose_graph", source="centroids", matching=MatchingOptions(inlier_gate_m=1e-4))
-    wide = calibrate_recording(recording_c_random, method="pose_graph", source="centroids", matching=MatchingOptions(inlier_gate_m=0.5))
-    tight = calibrate_recording(recording_c_random, method="pose_graph", source="centroids", matching=MatchingOptions(inlier_gate_m=0.2))
+        calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
+                            matching=MatchingOptions(inlier_gate_m=1e-4))
+    wide = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
+                               matching=MatchingOptions(inlier_gate_m=0.5))
+    tight = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
+                                matching=MatchingOptions(inlier_gate_m=0.2))
     assert wide.success and tight.success
     assert tight.edges[0].n_frames < wide.edges[0].n_frames
 
@@ -93,7 +102,8 @@ def test_gate_probability_gates_ekf_tracks(recording_c_random):
     tracked, _ = track_recording(recording_c_random)
     assert tracked.nodes["S2"].tracks.covariance is not None
     wide = calibrate_recording(tracked, method="pose_graph", source="tracks")
-    tight = calibrate_recording(tracked, method="pose_graph", source="tracks", matching=MatchingOptions(gate_probability=0.5))
+    tight = calibrate_recording(tracked, method="pose_graph", source="tracks",
+                                matching=MatchingOptions(gate_probability=0.5))
     assert wide.success and tight.success and wide.source == "tracks"
     assert tight.edges[0].n_frames < wide.edges[0].n_frames
 
@@ -110,7 +120,8 @@ def test_gate_probability_gates_ekf_tracks(recording_c_random):
     ({"min_common_s": "long"}, "min_common_s"),
 ])
 def test_bad_thresholds_name_the_field_and_value(recording_c_random, kwargs, field):
-    with pytest.raises(ValidationError, match=rf"^{field} must be .*got {re.escape(repr(kwargs[field]))}"):
+    with pytest.raises(ValidationError,
+                       match=rf"^{field} must be .*got {re.escape(repr(kwargs[field]))}"):
         calibrate_recording(recording_c_random, matching=MatchingOptions(**kwargs))
 
 

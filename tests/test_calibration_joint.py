@@ -95,7 +95,8 @@ def test_joint_beats_the_closed_form_under_paper_noise(config):
         rng = np.random.default_rng(400 + t)
         scene = _scene(config, rng, n_frames=300, noise=PAPER_NOISE)
         cf = closed_form_calibration(scene.local_points_m["S1"], scene.local_points_m["S2"])
-        jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5), noise=PAPER_NOISE, frame_period_s=scene.frame_period_s)
+        jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5),
+                               noise=PAPER_NOISE, frame_period_s=scene.frame_period_s)
         assert jt.success, jt.message
         cf_err.append(_registration_error(cf.pose, scene.poses["S2"], scene.truth[:, :2]))
         jt_err.append(_registration_error(jt.poses["S2"], scene.poses["S2"], scene.truth[:, :2]))
@@ -115,7 +116,8 @@ def test_pose_covariance_is_consistent():
     for t in range(60):
         rng = np.random.default_rng(600 + t)
         scene = _scene("C", rng, n_frames=100, noise=MODERATE_NOISE)
-        jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5), noise=MODERATE_NOISE, frame_period_s=scene.frame_period_s)
+        jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5),
+                               noise=MODERATE_NOISE, frame_period_s=scene.frame_period_s)
         e = pose_tangent_error(jt.poses["S2"], scene.poses["S2"])
         nees.append(e @ np.linalg.solve(jt.covariances["S2"], e))
     assert 2.2 < np.mean(nees) < 4.3, np.mean(nees)
@@ -134,7 +136,8 @@ def test_ghost_frames_cost_at_most_twice_the_clean_error(config):
         for frac, out in ((0.0, clean), (0.2, ghost)):
             rng = np.random.default_rng(700 + t)
             scene = _scene(config, rng, n_frames=300, noise=MODERATE_NOISE, ghost_fraction=frac)
-            jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5), noise=MODERATE_NOISE, frame_period_s=scene.frame_period_s)
+            jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5),
+                                   noise=MODERATE_NOISE, frame_period_s=scene.frame_period_s)
             out.append(_registration_error(jt.poses["S2"], scene.poses["S2"],
                                             scene.truth[:, :2]))
             if frac:
@@ -157,7 +160,8 @@ def test_ghost_frames_under_paper_noise():
         for frac, out in ((0.0, clean), (0.2, ghost)):
             rng = np.random.default_rng(400 + t)
             scene = _scene("A", rng, n_frames=300, noise=PAPER_NOISE, ghost_fraction=frac)
-            jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5), noise=PAPER_NOISE, frame_period_s=scene.frame_period_s)
+            jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5),
+                                   noise=PAPER_NOISE, frame_period_s=scene.frame_period_s)
             out.append(_registration_error(jt.poses["S2"], scene.poses["S2"],
                                            scene.truth[:, :2]))
     assert np.sqrt(np.mean(np.square(ghost))) <= 2.0 * np.sqrt(np.mean(np.square(clean)))
@@ -304,7 +308,8 @@ def test_huber_kernel_also_flags_ghosts():
     them a free per-frame state absorbs part of it: ~55% flagged)."""
     rng = np.random.default_rng(13)
     scene = _scene("B", rng, n_frames=200, noise=MODERATE_NOISE, ghost_fraction=0.2)
-    jt = joint_calibration(_detections(scene), JointOptions(robust="huber", motion=True, sigma_a_mps2=0.5), noise=MODERATE_NOISE, frame_period_s=0.15)
+    jt = joint_calibration(_detections(scene), JointOptions(robust="huber", motion=True,
+                                                            sigma_a_mps2=0.5), noise=MODERATE_NOISE, frame_period_s=0.15)
     assert jt.success, jt.message
     is_ghost = np.concatenate([scene.ghost["S1"], scene.ghost["S2"]])
     got = np.concatenate([jt.outliers["S1"], jt.outliers["S2"]])

@@ -93,7 +93,8 @@ def test_timed_factor_jacobians_match_numerical_derivatives():
         values.insert(kp, p2)
         values.insert(ks, state)
         values.insert(kt, t)
-        expected = models.residual(models.measurement_model(shifted_states(state, tau), pose)[0], z)
+        expected = models.residual(models.measurement_model(shifted_states(state, tau), pose)[0],
+                                   z)
         assert_allclose(factor.unwhitenedError(values), expected, atol=1e-12)
         lin = factor.linearize(values)
         a, _ = lin.jacobian()
@@ -177,7 +178,8 @@ def _calibrate(poses, taus, seed, n_frames, time_offsets=True):
     lags = {n: -split_offset(taus.get(n, 0.0), T)[0] for n in poses}
     dets = {n: Detections(frame=scene.frame - lags[n], range_m=z[:, 0], omega_rad=z[:, 1],
                           doppler_mps=z[:, 2]) for n, z in scene.measurements.items()}
-    return scene, joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=time_offsets), noise=NOISE, frame_period_s=T, lag_frames=lags)
+    options = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=time_offsets)
+    return scene, joint_calibration(dets, options, noise=NOISE, frame_period_s=T, lag_frames=lags)
 
 
 def _pose_error(res, scene):
@@ -362,7 +364,9 @@ def test_end_to_end_calibrate_then_fuse_on_the_reference_clock():
     dets = {n: dataclasses.replace(rec.nodes[n].centroids,
                                    frame=rec.nodes[n].centroids.frame - cal.lag_frames[n])
             for n in rec.node_names}
-    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True), initial_poses=cal.poses, noise=NOISE, frame_period_s=T, lag_frames=cal.lag_frames)
+    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True),
+                            initial_poses=cal.poses, noise=NOISE, frame_period_s=T,
+                            lag_frames=cal.lag_frames)
     err = res.time_offset_s["S2"] + 1.3 * T
     assert abs(err) < 4 * np.sqrt(res.time_offset_variances["S2"]), err
 

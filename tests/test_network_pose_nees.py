@@ -93,7 +93,9 @@ def test_a_lag_one_frame_off_is_recentred(monkeypatch, recentre):
     lags = {"S1": 0, "S2": 1, "S3": 0}
     dets = {n: dataclasses.replace(node.centroids, frame=node.centroids.frame - lags[n])
             for n, node in rec.nodes.items()}
-    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True), noise=NOISE, frame_period_s=rec.frame_period_s, lag_frames=lags, initial_poses=NET)
+    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True),
+                            noise=NOISE, frame_period_s=rec.frame_period_s, lag_frames=lags,
+                            initial_poses=NET)
     err = np.hypot(*pose_tangent_error(res.poses["S2"], NET["S2"])[:2])
     if recentre:
         assert res.lag_frames["S2"] == 0

@@ -67,7 +67,8 @@ def test_clean_turning_walk_flags_at_most_half_a_percent(seed, sigma_a):
     """Failed before (73-87 and 9-14 of 1200 flagged); measured now 0-1."""
     scene, _ = _scene(seed)
     dets = {n: (scene.frame, z) for n, z in scene.measurements.items()}
-    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=sigma_a), noise=NOISE, frame_period_s=T)
+    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=sigma_a), noise=NOISE,
+                            frame_period_s=T)
     flagged = sum(int(o.sum()) for o in res.outliers.values())
     assert flagged <= 0.005 * 2 * scene.frame.size, (flagged, res.message)
     assert res.success and res.turns > 0, res.message
@@ -78,7 +79,8 @@ def test_ghosts_in_a_turning_walk_are_still_flagged():
     detections."""
     scene, ghost = _scene(3, ghost_fraction=0.1)
     dets = {n: (scene.frame, z) for n, z in scene.measurements.items()}
-    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0), noise=NOISE, frame_period_s=T)
+    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0), noise=NOISE,
+                            frame_period_s=T)
     g = np.concatenate([ghost["S1"], ghost["S2"]])
     got = np.concatenate([res.outliers["S1"], res.outliers["S2"]])
     assert np.mean(got[g]) > 0.9 and np.mean(got[~g]) <= 0.005
@@ -124,6 +126,7 @@ def test_motion_kernel_option_runs_and_keeps_turns_clean():
     turning walk with few flags too and reports the turns it left out."""
     scene, _ = _scene(0)
     dets = {n: (scene.frame, z) for n, z in scene.measurements.items()}
-    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=1.0, motion_robust="cauchy"), noise=NOISE, frame_period_s=T)
+    options = JointOptions(motion=True, sigma_a_mps2=1.0, motion_robust="cauchy")
+    res = joint_calibration(dets, options, noise=NOISE, frame_period_s=T)
     assert sum(int(o.sum()) for o in res.outliers.values()) <= 6
     assert res.turns > 0 and "sharp turn" in res.message
