@@ -22,7 +22,7 @@ command-line parser imports this module and must stay light.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -187,14 +187,17 @@ def calibration_json_path(recording: str | os.PathLike) -> Path:
     return p.with_name(p.stem + ".calibration.json")
 
 
-def calibrate_and_store(path: str | os.PathLike, options: Mapping[str, Any] | None = None, *,
+def calibrate_and_store(path: str | os.PathLike,
+                        options: Mapping[str, Any] | Callable[[Any], Mapping] | None = None, *,
                         output: str | os.PathLike | None = None,
                         json_path: str | os.PathLike | None = None,
                         write: bool = True, on_result=None):
     """Calibrate the recording at ``path`` and store the result.
 
     options : keyword arguments of
-        :func:`~mmsnap_graph.calibration.calibrate_recording`.
+        :func:`~mmsnap_graph.calibration.calibrate_recording`, or a function
+        of the recording read that returns them (an option that depends on
+        the recording, e.g. a lag window in frames).
     output : write a copy of the recording here (default: update ``path``).
     json_path : the calibration JSON (default :func:`calibration_json_path`
         of the recording written).
@@ -215,7 +218,8 @@ def calibrate_and_store(path: str | os.PathLike, options: Mapping[str, Any] | No
     written: list[Path] = []
     with recording_lock(path):
         rec = read_recording(path, load_cubes=False)
-        cal = calibrate_recording(rec, **dict(options or {}))
+        kwargs = options(rec) if callable(options) else dict(options or {})
+        cal = calibrate_recording(rec, **kwargs)
         if on_result is not None:
             on_result(cal)
         written.append(Path(write_calibration_json(json_path, cal)))
