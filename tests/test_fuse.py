@@ -17,6 +17,7 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording, recording_pos
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 
 @pytest.fixture
@@ -187,7 +188,7 @@ def test_missing_calibration_file_and_poses(tmp_path, recordings):
         (dict(solver="scipy"), "solver must be 'batch' or 'gtsam'"),
         (dict(source="cube"), "source must be 'centroids' or 'point_cloud'"),
         (dict(mode="ml", prior=GaussianPrior(mean=[0, 0, 0, 0])), "mode='ml' takes no prior"),
-        (dict(block_rows=0), "block_rows must be >= 1"),
+        (dict(block_rows=0), "block_rows=0 must be an integer >= 1"),
         (dict(source="point_cloud"), "no node of the recording has point_cloud"),
     ],
 )
@@ -234,8 +235,9 @@ def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
     from mmsnap_graph.fusion.association import associate_frame
     from mmsnap_graph.fusion.recording.sequence import group_detections
 
-    rec = simulate_recording("A", "random", levels=("centroids",), n_frames=80, seed=2,
-                             known_poses=True, centroid_p_miss=0.2)
+    rec = simulate_recording("A", "random",
+                             SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.2),
+                             levels=("centroids",), n_frames=80, seed=2)
     import dataclasses
 
     from mmsnap_graph.data.recording import Detections

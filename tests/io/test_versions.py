@@ -13,12 +13,13 @@ from mmsnap_graph.io import write_recording
 from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.io.noise import read_noise, write_noise
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
-    rec = simulate_recording("A", "straight", levels=("centroids",), n_frames=10, seed=3,
-                             known_poses=True)
+    rec = simulate_recording("A", "straight", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=10, seed=3)
     path = write_recording(tmp_path_factory.mktemp("v") / "rec.h5", rec)
     write_fused(path, fuse_recording(rec, progress=False))
     node = NodeNoiseEstimate(noise=MeasurementNoise(), identified=(1, 1, 1),
