@@ -72,7 +72,8 @@ def test_one_simulated_walker_is_one_target(tmp_path, capsys, seed):
     walls, split clusters, sparse clouds) in the geometry of the real
     recordings, one walker, 30 s, known poses: with the filters (and the
     body check) two or more fused targets in at most 2% of the frames (0.2%
-    and 0.5% on seeds 1 and 2; 88.7% and 87.5% with every filter off)."""
+    and 0.0% on seeds 1 and 2; 90.8% and 86.0% with every filter and the
+    body check off), and the walker unseen in 7.0% and 7.5% of them."""
     from mmsnap_graph.io.fused import read_fused
 
     path = tmp_path / "sim.h5"
