@@ -1,5 +1,5 @@
-"""Fusing a recording file window by window (``mmsnap fuse``; issue 13: 1 hour
-of 10 nodes under 500 MB).
+"""Fusing a recording file window by window (``mmsnap fuse``): an hour of 10
+nodes in under 500 MB.
 
 :func:`fuse_file` reads the detections of ``window_frames`` frames at a time
 (:func:`mmsnap_graph.io.chunks.open_detection_windows`), fuses each window

@@ -9,7 +9,7 @@ cube -> point cloud -> torso centroids (:mod:`.chain`) -> local EKF tracks
   :data:`SPARSE_POINTS_PER_FRAME` points in its median non-empty frame, as
   TI's out-of-box demo gives: 2-3 points per person) is clustered with
   ``min_samples=1`` (:func:`sparse_cluster_config`): the torso DBSCAN's
-  three-point minimum would drop most of it (issue 14: 94 centroids in 600
+  three-point minimum would drop most of it (measured: 94 centroids in 600
   frames, and a calibration 0.2-2 m off);
 - :func:`track_node` / :func:`track_recording`: tracks from the centroids
   only;
@@ -96,8 +96,8 @@ def _ekf_for(ekf: EkfConfig | None, frame_period_s: float, centroids: Detections
 
 def _frames_span(frames: np.ndarray, ekf: EkfConfig | None = None) -> np.ndarray | None:
     """The frames the EKF steps through: those present, and the first frames
-    of each gap while a track could still coast (issue 13: a gap of 10^12
-    frames is not 10^12 steps; :func:`~mmsnap_graph.tracking.ekf.frames_to_step`)."""
+    of each gap while a track could still coast (a gap of 10^12 frames is not
+    10^12 steps; :func:`~mmsnap_graph.tracking.ekf.frames_to_step`)."""
     if frames.size == 0:
         return None
     return frames_to_step(frames, EkfConfig() if ekf is None else ekf)
@@ -130,7 +130,7 @@ def process_node(
     tracker = _ekf_for(ekf, frame_period_s, result.centroids, ekf_noise)
     if tracker.doppler_wrap_mps is None:
         # The chain's Doppler is unambiguous only within +-U: the EKF wraps its
-        # Doppler innovation modulo 2 U (issue 14).
+        # Doppler innovation modulo 2 U.
         tracker = dataclasses.replace(
             tracker, doppler_wrap_mps=unambiguous_speed_mps(node.radar, config))
     tracks = track_centroids(result.centroids, tracker, frames=_frames_span(node.cube_frame, ekf))
