@@ -51,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import FileFormatError, ValidationError
-from .point_cloud import PointCloud3D
+from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
 __all__ = ["MAGIC_WORD", "TLV_DETECTED_POINTS", "TLV_SIDE_INFO", "TLV_COMPRESSED_SPHERICAL",
            "BadFrame", "UartLog", "parse_ti_uart", "read_ti_uart"]
@@ -187,9 +187,12 @@ def _decode_packet(packet: bytes, demo: str) -> _Frame:
         if name in cols and len(cols[name]) != n:
             raise _BadPacket(f"side info holds {len(cols[name])} points, the point TLV {n}")
     for name in ("x", "y", "z", "doppler"):
-        if name in cols and not np.all(np.isfinite(cols[name])):
-            k = int(np.flatnonzero(~np.isfinite(cols[name]))[0])
-            raise _BadPacket(f"point {k} of {n} holds {name}={float(cols[name][k])!r}")
+        limit = MAX_SPEED_MPS if name == "doppler" else MAX_COORDINATE_M
+        values = np.asarray(cols.get(name, ()), dtype=float)
+        if values.size and not np.all(np.abs(values) <= limit):     # NaN fails too
+            k = int(np.flatnonzero(~(np.abs(values) <= limit))[0])
+            raise _BadPacket(f"point {k} of {n} holds {name}={float(values[k])!r} (not a "
+                             f"finite number within +-{limit:g})")
     return _Frame(number=int(number), sub_frame=int(sub), n_declared=n_obj, columns=cols)
 
 
