@@ -40,11 +40,16 @@ def test_a_repeated_number_with_other_points_is_dropped_and_reported():
     assert "frame number 2 goes back in the sequence 3, ..., 4" in str(log.bad[0])
 
 
-def test_one_corrupted_frame_number_is_dropped():
-    data = _log([1, 2, 3, 2 ** 31 + 4, 5, 6])
-    log = parse_ti_uart(data)
-    assert log.frame_numbers.tolist() == [1, 2, 3, 5, 6]
-    assert "frame number 2147483652 leaves the sequence 3, ..., 5" in str(log.bad[0])
+@pytest.mark.parametrize("numbers, around", [
+    ([1, 2, 3, 2 ** 31 + 4, 5, 6], "3, ..., 5"),          # one flipped bit inside
+    ([2 ** 31 + 1, 2, 3, 4, 5, 6], "2, 3"),               # ... in the first header
+    ([1, 2, 3, 4, 5, 2 ** 31 + 6], "5, ..., end")])       # ... in the last one
+def test_one_corrupted_frame_number_is_dropped(numbers, around):
+    """One flipped bit in a header used to put a frame at 2^31 (and then ask
+    `process` for 16 GiB); the packet is dropped and reported."""
+    log = parse_ti_uart(_log(numbers))
+    assert log.frame_numbers.tolist() == [k for k in numbers if k < 2 ** 31]
+    assert f"leaves the sequence {around} (a corrupted header" in str(log.bad[0])
 
 
 @pytest.mark.parametrize("numbers, at", [([1, 2, 3, 4, 1, 2, 3], 4),     # radar restart
