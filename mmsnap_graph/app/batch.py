@@ -189,6 +189,13 @@ def _step_calibrate(src: Path, dst: Path | None, options: Mapping) -> StepOutcom
     return counts, [Path(path), Path(json_path)], failed
 
 
+def _fusion_options(options: Mapping):
+    """The ``FusionOptions`` among a fuse step's options (default ones)."""
+    from ..fusion.options import DEFAULT_OPTIONS  # deferred: the runner imports light
+
+    return options.get("options", DEFAULT_OPTIONS)
+
+
 def _step_fuse(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
     rec = _library("read_recording")(src, load_cubes=False)
     options = dict(options)
@@ -200,7 +207,7 @@ def _step_fuse(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
         # as `mmsnap fuse`: the stored calibration's pose covariances and clocks
         args = SimpleNamespace(calibration=None, no_pose_covariance=False,
                                no_time_offsets=False,
-                               covariance=options.get("covariance", "laplace"))
+                               covariance=_fusion_options(options).covariance)
         options.update(calibration_options(args, stored_calibration(args, src))[0])
     fused = _library("fuse_recording")(rec, progress=False, **options)
     path = _library("write_fused")(src, fused, output=dst)
@@ -396,7 +403,8 @@ def run_many(
     options : per step, keyword arguments of the step's library function:
         ``process`` -> ``process_file`` (e.g. ``centroids_only``, ``ekf``),
         ``calibrate`` -> ``calibrate_recording`` (e.g. ``max_lag_frames``),
-        ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``solver``, ``noise``).
+        ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``noise``,
+        ``options=FusionOptions(solver="gtsam")``).
         They are pickled to the workers: plain values and frozen configs.
     blas_threads : BLAS / OpenMP threads per worker (None: leave them).
     progress : a tqdm bar over recordings on stderr; on_result : called

@@ -22,6 +22,8 @@ import numpy as np
 from mmsnap_graph._atomic import check_output_path, recording_lock
 from mmsnap_graph.errors import ValidationError
 
+from .arguments import solver_choice
+
 #: Robust one-shot fusion used unless ``--robust none``: the per-node
 #: residual gate. Measured on clean simulated data (networks A, C and a
 #: 3-node one, straight and random walks, 600 frames, 3 seeds each): the gate
@@ -62,8 +64,10 @@ def register(subparsers) -> None:
                         "the neighbouring frames (default: a target no neighbouring frame "
                         "confirms is refitted without the nodes that disagree, or flagged; "
                         "docs/ROBUST.md)")
-    p.add_argument("--solver", choices=["batch", "gtsam"], default="batch",
-                   help="vectorized batch solver or one GTSAM graph per frame (default %(default)s)")
+    p.add_argument("--solver", type=solver_choice(("vectorized", "gtsam")), default="vectorized",
+                   metavar="{vectorized,gtsam}",
+                   help="the vectorized numpy solver over many frames or one GTSAM graph per "
+                        "frame (default %(default)s)")
     p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
                    help="detections to fuse (default %(default)s)")
     p.add_argument("--gate", type=float, default=0.999,
@@ -165,13 +169,16 @@ def run(args: argparse.Namespace) -> int:
         print(noise_text, file=sys.stdout)
         print("; ".join(cal_text), file=sys.stdout)
         poses = dict(cal.poses) if (cal is not None and args.calibration) else None
+        from mmsnap_graph.fusion.options import FusionOptions
+
+        fusion = FusionOptions(covariance=args.covariance, solver=args.solver,
+                               source=args.source, gate_probability=args.gate,
+                               grid_points_per_axis=args.grid_points,
+                               motion_check=args.robust != "none" and not args.no_motion_check)
         fused = fuse_file(args.recording, output=args.output, node_poses=poses, mode=args.mode,
-                          **options, covariance=args.covariance, noise=noise,
-                          solver=args.solver, source=args.source, gate_probability=args.gate,
-                          grid_points_per_axis=args.grid_points,
+                          **options, noise=noise, options=fusion,
                           progress=False if args.no_progress else None,
-                          robust=None if args.robust == "none" else args.robust,
-                          motion_check=args.robust != "none" and not args.no_motion_check)
+                          robust=None if args.robust == "none" else args.robust)
     n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
     print(f"fused {fused.n_rows} targets in {frames} frames ({args.mode}, {args.covariance}, "
           f"{args.solver}, robust {args.robust}{motion_text(args)}): {n_ok} succeeded, "
