@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from mmsnap_graph.sim import SimulationOptions
 
 FRAME_PERIOD_S = 0.15
 BASE_FRAMES = 2400
@@ -115,8 +116,9 @@ def main(argv=None) -> int:
     from mmsnap_graph.sim import simulate_recording
 
     t0 = time.perf_counter()
-    base = simulate_recording(_network(), "random", levels=("centroids",), n_frames=BASE_FRAMES,
-                              frame_period_s=FRAME_PERIOD_S, known_poses=True, seed=0)
+    base = simulate_recording(_network(), "random",
+                              SimulationOptions(physics=None, frame_period_s=FRAME_PERIOD_S, known_poses=True),
+                              levels=("centroids",), n_frames=BASE_FRAMES, seed=0)
     print(f"10 nodes, 1 target, centroids, {FRAME_PERIOD_S * 1e3:.0f} ms frames; simulated "
           f"{BASE_FRAMES} frames in {time.perf_counter() - t0:.1f} s; window {args.window} frames")
     with tempfile.TemporaryDirectory() as tmp:

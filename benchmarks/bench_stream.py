@@ -46,6 +46,7 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import track_fused
+from mmsnap_graph.sim import SimulationOptions
 
 #: Four nodes around a 7 m square, each facing the centre.
 NETWORK = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi],
@@ -121,8 +122,9 @@ def _check_states(solver, states, covs, fused, reference):
 
 
 def _run(n_targets, args):
-    rec = simulate_recording(NETWORK, "random", levels=("centroids",), n_frames=args.frames,
-                             n_targets=n_targets, known_poses=True, seed=args.seed)
+    rec = simulate_recording(NETWORK, "random",
+                             SimulationOptions(physics=None, n_targets=n_targets, known_poses=True),
+                             levels=("centroids",), n_frames=args.frames, seed=args.seed)
     poses = np.array([NETWORK[n] for n in rec.node_names])
     reference = (fuse_recording(rec, progress=False, options=FusionOptions(solver="gtsam"))
                  if "scalar" in args.solvers else None)

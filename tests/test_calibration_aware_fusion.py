@@ -28,6 +28,7 @@ from mmsnap_graph.evaluation import nees
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 #: 3 cm and 1 degree on the two non-reference poses; S1 is exact (all NaN).
 POSE_SIGMAS = np.array([0.03, 0.03, np.deg2rad(1.0)])
@@ -271,8 +272,9 @@ def test_gate_leaves_the_rejected_nodes_pose_out():
 @pytest.fixture(scope="module")
 def recording_3():
     network = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
-    return simulate_recording(network, "random", levels=("centroids",), n_frames=40, seed=9,
-                              known_poses=True)
+    return simulate_recording(network, "random",
+                              SimulationOptions(physics=None, known_poses=True),
+                              levels=("centroids",), n_frames=40, seed=9)
 
 
 def test_fuse_recording_passes_pose_covariances_by_name(recording_3):

@@ -24,6 +24,7 @@ from mmsnap_graph.io.calibration import (
 from mmsnap_graph.sim import simulate_recording
 
 from _shared import POSES_A, POSES_C
+from mmsnap_graph.sim import CLEAN
 
 
 def _calibration() -> RecordingCalibration:
@@ -65,8 +66,8 @@ def _assert_same(back: RecordingCalibration, cal: RecordingCalibration) -> None:
 
 @pytest.fixture(scope="module")
 def rec3():
-    return simulate_recording({"S1": POSES_C[0], "S2": POSES_C[1], "S3": POSES_A[1]},
-                              "random", levels=["centroids"], n_frames=30, seed=1)
+    return simulate_recording({"S1": POSES_C[0], "S2": POSES_C[1], "S3": POSES_A[1]}, "random",
+                              CLEAN, levels=["centroids"], n_frames=30, seed=1)
 
 
 def test_hdf5_group_round_trip(tmp_path, rec3):
@@ -102,7 +103,7 @@ def test_json_round_trip(tmp_path):
 
 
 def test_a_real_calibration_round_trips(tmp_path):
-    rec = simulate_recording("C", "random", levels=["centroids"], n_frames=120, seed=5)
+    rec = simulate_recording("C", "random", CLEAN, levels=["centroids"], n_frames=120, seed=5)
     path = tmp_path / "c.h5"
     write_recording(path, rec)
     cal = calibrate_recording(rec, method="pose_graph")

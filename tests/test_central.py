@@ -18,6 +18,7 @@ from mmsnap_graph.tracking.central import (
 )
 
 from _shared import POSES_B, POSES_C
+from mmsnap_graph.sim import SimulationOptions
 
 T = 0.15
 SIGMA_A = 0.2
@@ -126,8 +127,9 @@ def test_tracks_two_targets_of_a_simulated_recording():
     """Walking humans turn harder than the paper's sigma_a = 0.2 m/s^2 allows
     (and the simulated centroids are noisier in range than the fusion's
     0.035 m), so this run uses sigma_a = 2 m/s^2 and a wide gate."""
-    rec = simulate_recording("B", "random", levels=("centroids",), n_frames=120, seed=5,
-                             n_targets=2, known_poses=True, centroid_p_miss=0.1)
+    rec = simulate_recording("B", "random",
+                             SimulationOptions(physics=None, n_targets=2, known_poses=True, centroid_p_miss=0.1),
+                             levels=("centroids",), n_frames=120, seed=5)
     fused = fuse_recording(rec)
     cfg = CentralConfig(frame_period_s=rec.frame_period_s, sigma_a_mps2=2.0, gate_probability=0.999999)
     tracks = track_fused(fused, cfg)
@@ -161,8 +163,8 @@ def test_tracks_end_after_misses_and_new_estimates_start_tracks():
 
 
 def test_track_fused_without_successful_frames_is_empty():
-    rec = simulate_recording("B", "straight", levels=("centroids",), n_frames=5, seed=1,
-                             known_poses=True)
+    rec = simulate_recording("B", "straight", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=5, seed=1)
     fused = fuse_recording(rec)
     import dataclasses
 

@@ -26,7 +26,7 @@ CLOSE = ("state", "covariance", "laplace_covariance", "degeneracy", "information
 @pytest.fixture(scope="module")
 def good(tmp_path_factory):
     path = tmp_path_factory.mktemp("chunked") / "good.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "150", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "150", "-l", "centroids",
                  "--targets", "2", "--seed", "3", "--known-poses", "-o", str(path),
                  "--no-progress"]) == 0
     return path

@@ -18,10 +18,12 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.calibration import LocalTracks, local_tracks, match_tracks, pose_tangent_error
 from mmsnap_graph.calibration.pairwise.effective_samples import autocorrelation_factor
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
+from mmsnap_graph.sim import CLEAN
 
 SEEDS = range(12)
 BAND = chi2.ppf([0.025, 0.975], 3 * len(SEEDS)) / len(SEEDS)
@@ -33,13 +35,15 @@ def _half(lt: LocalTracks, lo: int, hi: int) -> LocalTracks:
 
 
 def _halves_distance(seed: int, autocorrelation: str) -> float:
-    rec = simulate_recording("C", "random", levels=("centroids",), n_frames=400, seed=seed)
+    rec = simulate_recording("C", "random", CLEAN, levels=("centroids",), n_frames=400, seed=seed)
     ekf = EkfConfig(frame_period_s=rec.frame_period_s)
     tracks = {n: local_tracks(dataclasses.replace(node, tracks=track_centroids(node.centroids,
                                                                                 ekf)))
               for n, node in rec.nodes.items()}
+    p = rec.frame_period_s  # a lag window of 2 frames, at least 5 common frames
+    opts = MatchingOptions(max_lag_s=2 * p, min_common_s=5 * p, autocorrelation=autocorrelation)
     cals = [match_tracks(_half(tracks["S1"], lo, hi), _half(tracks["S2"], lo, hi),
-                         autocorrelation=autocorrelation).calibration
+                         frame_period_s=p, options=opts).calibration
             for lo, hi in ((0, 200), (200, 400))]
     d = pose_tangent_error(cals[0].pose, cals[1].pose)
     return float(d @ np.linalg.solve(cals[0].covariance + cals[1].covariance, d))

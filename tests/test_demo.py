@@ -29,6 +29,7 @@ from mmsnap_graph.app.report import (
 )
 
 from _shared import DATA
+from mmsnap_graph.sim import CLEAN
 
 
 @pytest.fixture(scope="module")
@@ -300,7 +301,7 @@ def test_find_sample_data(tmp_path, monkeypatch):
 def test_cube_stretch_runs_the_whole_chain():
     from mmsnap_graph.sim import simulate_recording
 
-    rec = simulate_recording("C", "straight", levels=("cube",), n_frames=6, seed=3)
+    rec = simulate_recording("C", "straight", CLEAN, levels=("cube",), n_frames=6, seed=3)
     cs = demo.run_cube_stretch(rec, source="test", configuration="C")
     assert cs.n_frames == 6
     for name in ("S1", "S2"):

@@ -17,6 +17,7 @@ from mmsnap_graph.data.recording import Tracks
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io.fused import write_fused
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 
 # ----------------------------------------------------------------------------
@@ -79,8 +80,8 @@ def processed(tmp_path_factory):
     """A configuration B recording with known poses, EKF tracks and /fused."""
     from mmsnap_graph.app.pipeline import track_recording
 
-    rec = simulate_recording("B", "random", levels=("centroids",), n_frames=80, seed=4,
-                             known_poses=True)
+    rec = simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=80, seed=4)
     rec, _ = track_recording(rec)
     fused = fuse_recording(rec, progress=False)
     path = tmp_path_factory.mktemp("ev") / "rec.h5"

@@ -19,7 +19,7 @@ def imported(tmp_path_factory):
     """A calibrated recording without truth (the mounting known to the test)."""
     d = tmp_path_factory.mktemp("surveyed")
     sim = d / "sim.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
                  "--seed", "3", "--known-poses", "-o", str(sim), "--no-progress"]) == 0
     import h5py
     with h5py.File(sim, "r+") as f:
@@ -55,7 +55,7 @@ def test_bad_surveyed_poses_are_usage_errors(imported, capsys):
 
 def test_surveyed_poses_replace_the_truths_on_a_simulation(tmp_path, capsys):
     sim = tmp_path / "sim.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "30", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "30", "-l", "centroids",
                  "--seed", "3", "--known-poses", "-o", str(sim), "--no-progress"]) == 0
     pose = read_recording(sim).nodes["S2"].pose
     capsys.readouterr()

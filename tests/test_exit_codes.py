@@ -20,7 +20,7 @@ from mmsnap_graph.app.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, main
 def files(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("exit_codes")
     good = d / "good.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
                  "--seed", "5", "--known-poses", "-o", str(good), "--no-progress"]) == 0
     data = good.read_bytes()
     out = {"good": good, "dir": d, "missing": d / "missing.h5"}

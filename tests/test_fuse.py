@@ -18,6 +18,7 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording, recording_pos
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 
 @pytest.fixture
@@ -193,7 +194,7 @@ def test_missing_calibration_file_and_poses(tmp_path, recordings):
         (dict(options=dict(solver="scalar")), "options.solver must be 'vectorized' or 'gtsam'"),
         (dict(options=dict(source="cube")), "source must be 'centroids', 'point_cloud'"),
         (dict(mode="ml", prior=GaussianPrior(mean=[0, 0, 0, 0])), "mode='ml' takes no prior"),
-        (dict(options=dict(block_rows=0)), "block_rows must be >= 1"),
+        (dict(options=dict(block_rows=0)), "block_rows=0 must be an integer >= 1"),
         (dict(options=dict(source="point_cloud")), "no node of the recording has point_cloud"),
         (dict(options="laplace"), "options must be a FusionOptions, got str"),
     ],
@@ -243,8 +244,9 @@ def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
     from mmsnap_graph.fusion.association import associate_frame
     from mmsnap_graph.fusion.recording.sequence import group_detections
 
-    rec = simulate_recording("A", "random", levels=("centroids",), n_frames=80, seed=2,
-                             known_poses=True, centroid_p_miss=0.2)
+    rec = simulate_recording("A", "random",
+                             SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.2),
+                             levels=("centroids",), n_frames=80, seed=2)
     import dataclasses
 
     from mmsnap_graph.data.recording import Detections

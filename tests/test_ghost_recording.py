@@ -31,6 +31,7 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import read_fused, write_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
+from mmsnap_graph.sim import SimulationOptions
 
 NETWORK = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
 #: A fused row further than this from the truth is a ghost target (the clean
@@ -39,8 +40,9 @@ GHOST_ERROR_M = 0.5
 
 
 def recording(seed: int, n_frames: int = 600):
-    return simulate_recording(NETWORK, "random", levels=("centroids",), n_frames=n_frames,
-                              seed=seed, known_poses=True)
+    return simulate_recording(NETWORK, "random",
+                              SimulationOptions(physics=None, known_poses=True),
+                              levels=("centroids",), n_frames=n_frames, seed=seed)
 
 
 def with_ghosts(rec, p_ghost: float, seed: int):

@@ -20,12 +20,13 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import write_fused, write_recording
 from mmsnap_graph.io.fused import read_fused
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 
 @pytest.fixture(scope="module")
 def recording():
-    return simulate_recording("B", "random", levels=("centroids",), n_frames=60, seed=5,
-                              known_poses=True)
+    return simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
+                              levels=("centroids",), n_frames=60, seed=5)
 
 
 @pytest.fixture(scope="module")
@@ -221,8 +222,9 @@ def test_fuse_recording_carries_the_recording_clock():
     import dataclasses
 
     from mmsnap_graph import fuse_recording, simulate_recording
-    rec = simulate_recording("B", levels=("centroids",), n_frames=12, known_poses=True,
-                             frame_period_s=0.05)
+    rec = simulate_recording("B",
+                             options=SimulationOptions(physics=None, known_poses=True, frame_period_s=0.05),
+                             levels=("centroids",), n_frames=12)
     fused = fuse_recording(rec)
     np.testing.assert_allclose(fused.time_s, fused.frame * 0.05)
     assert fused.frame_period_s == 0.05 and fused.time_origin_s is None

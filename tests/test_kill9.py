@@ -72,7 +72,7 @@ def recordings(tmp_path_factory):
     """The original recording and, per verb, the file after a full run."""
     d = tmp_path_factory.mktemp("kill9")
     good = d / "good.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "120", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "120", "-l", "centroids",
                  "--seed", "2", "--known-poses", "-o", str(good), "--no-progress"]) == 0
     done = {}
     for verb, options in VERBS.items():

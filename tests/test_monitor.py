@@ -22,6 +22,7 @@ from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.bump import simulate_bumped_recording
+from mmsnap_graph.sim import CLEAN, SimulationOptions
 
 NOISE = MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.10)   # sim.CENTROID_NOISE
 BUMP_TIME_S = 45.0
@@ -30,7 +31,7 @@ TRIANGLE = {"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi), "S3": (-3.5, 3.5, -n
 
 
 def _bumped(network, node, bump, seed):
-    return simulate_bumped_recording(network, "random", node=node, bump=bump,
+    return simulate_bumped_recording(network, "random", physics=None, node=node, bump=bump,
                                      bump_time_s=BUMP_TIME_S, n_frames=N_FRAMES, seed=seed)
 
 
@@ -48,9 +49,9 @@ def _tangent_error(pose, truth) -> np.ndarray:
 
 # ------------------------------------------------------------------ simulator
 def test_bumped_recording_moves_only_that_node_from_the_bump_frame():
-    plain = simulate_recording("C", "random", levels=("centroids",), n_frames=120, seed=4,
-                               known_poses=True)
-    rec = simulate_bumped_recording("C", "random", node="S2", bump=(0.1, -0.05, 0.03),
+    plain = simulate_recording("C", "random", SimulationOptions(physics=None, known_poses=True),
+                               levels=("centroids",), n_frames=120, seed=4)
+    rec = simulate_bumped_recording("C", "random", physics=None, node="S2", bump=(0.1, -0.05, 0.03),
                                     bump_time_s=9.0, n_frames=120, seed=4)
     k = rec.metadata["bump_frame"]
     assert k == 60 and rec.metadata["bump_node"] == "S2"
@@ -69,9 +70,9 @@ def test_bumped_recording_moves_only_that_node_from_the_bump_frame():
     assert abs(np.mean(resid[:, 0])) < 0.02 and abs(np.std(resid[:, 0]) - 0.05) < 0.01
     np.testing.assert_allclose(rec.nodes["S2"].pose, [0.0, 7.0, np.pi])     # the old calibration
     with pytest.raises(ValidationError, match="bump_time_s"):
-        simulate_bumped_recording("C", node="S2", bump_time_s=100.0, n_frames=100)
+        simulate_bumped_recording("C", physics=None, node="S2", bump_time_s=100.0, n_frames=100)
     with pytest.raises(ValidationError, match="node"):
-        simulate_bumped_recording("C", node="S9", n_frames=100)
+        simulate_bumped_recording("C", physics=None, node="S9", n_frames=100)
 
 
 # ------------------------------------------------------------------ statistics
@@ -145,8 +146,8 @@ def test_three_nodes_name_the_node_that_moved(node, bump):
 def test_no_false_alarm_on_ten_clean_minutes():
     """4,000 clean frames (10 min) of configuration C: no change, the largest
     statistic below the threshold (one hour per network: benchmarks/bench_monitor.py)."""
-    rec = simulate_recording("C", "random", levels=("centroids",), n_frames=4000, seed=21,
-                             known_poses=True)
+    rec = simulate_recording("C", "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=4000, seed=21)
     res = monitor_recording(rec)
     assert res.changes == () and res.recalibrations == ()
     tested = res.statistics[:, 1]
@@ -157,7 +158,7 @@ def test_no_false_alarm_on_ten_clean_minutes():
 
 # ------------------------------------------------------------------ streaming API
 def test_frame_by_frame_updates_equal_the_batch_run():
-    rec = simulate_bumped_recording("C", "random", node="S2", bump=(0.25, 0.0, 0.05),
+    rec = simulate_bumped_recording("C", "random", physics=None, node="S2", bump=(0.25, 0.0, 0.05),
                                     bump_time_s=15.0, n_frames=260, seed=5)
     _, z = recording_measurements(rec)
     tight = {"S2": np.diag([0.01, 0.01, 0.003]) ** 2}
@@ -198,7 +199,7 @@ def test_monitor_validates_its_inputs():
         mon.update({"S7": (3.0, 0.0, 0.0)})
     up = mon.update({"S1": (3.5, 0.0, 0.0), "S2": None})        # S2 unseen: not tested
     assert up.frame == 0 and np.isnan(up.statistics["S2"]) and up.change is None
-    rec = simulate_recording("C", levels=("centroids",), n_frames=20, seed=1)  # poses unknown
+    rec = simulate_recording("C", options=CLEAN, levels=("centroids",), n_frames=20, seed=1)  # poses unknown
     with pytest.raises(ValidationError, match="no pose"):
         monitor_recording(rec)
 
@@ -210,7 +211,7 @@ def test_monitor_validates_its_inputs():
                    "this is seed 0; with the bump at 45 s seed 0 is detected): the move is mostly a turn about the small common area, which the walk "
                    "hardly separates from the old pose")
 def test_configuration_a_bump_along_the_baseline_detected_within_20_s():
-    rec = simulate_bumped_recording("A", "random", node="S2", bump=(0.1, 0.0, 0.0),
+    rec = simulate_bumped_recording("A", "random", physics=None, node="S2", bump=(0.1, 0.0, 0.0),
                                     bump_time_s=60.0, n_frames=800, seed=0)
     res = monitor_recording(rec)
     assert [c.node for c in res.changes] == ["S2"]

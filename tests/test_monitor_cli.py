@@ -14,6 +14,7 @@ from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.bump import simulate_bumped_recording
+from mmsnap_graph.sim import CLEAN, SimulationOptions
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -29,7 +30,7 @@ def _run(argv: list[str]) -> int:
 
 @pytest.fixture(scope="module")
 def bumped_path(tmp_path_factory):
-    rec = simulate_bumped_recording("C", "random", node="S2", bump=(0.0, 0.0, np.deg2rad(2.0)),
+    rec = simulate_bumped_recording("C", "random", physics=None, node="S2", bump=(0.0, 0.0, np.deg2rad(2.0)),
                                     bump_time_s=45.0, n_frames=540, seed=3)
     path = tmp_path_factory.mktemp("monitor") / "bumped.h5"
     write_recording(path, rec)
@@ -67,13 +68,14 @@ def test_monitor_options_poses_sigmas_threshold(bumped_path, tmp_path, capsys):
 
 
 def test_monitor_clean_recording_and_errors(tmp_path, capsys):
-    clean = simulate_recording("C", "random", levels=("centroids",), n_frames=300, seed=8,
-                               known_poses=True)
+    clean = simulate_recording("C", "random", SimulationOptions(physics=None, known_poses=True),
+                               levels=("centroids",), n_frames=300, seed=8)
     path = tmp_path / "clean.h5"
     write_recording(path, clean)
     assert _run([str(path)]) == 0
     assert "no change detected" in capsys.readouterr().out
     unknown = tmp_path / "unknown.h5"
-    write_recording(unknown, simulate_recording("C", levels=("centroids",), n_frames=30, seed=8))
+    write_recording(unknown, simulate_recording("C", options=CLEAN, levels=("centroids",),
+                                                n_frames=30, seed=8))
     with pytest.raises(ValidationError, match="no pose"):
         _run([str(unknown)])

@@ -15,6 +15,7 @@ from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 DT = 0.15
 FACING = {"S1": np.array([0.0, 0.0, 0.0]), "S2": np.array([0.0, 7.0, np.pi])}
@@ -132,8 +133,9 @@ def test_estimate_noise_on_the_simulators_random_walk(network):
     truth = MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.10)
     est, own = [], []
     for seed in range(1, 9):
-        rec = simulate_recording(network, "random", levels=("centroids",), n_frames=600,
-                                 seed=seed, centroid_noise=truth, known_poses=True)
+        rec = simulate_recording(network, "random",
+                                 SimulationOptions(physics=None, centroid_noise=truth, known_poses=True),
+                                 levels=("centroids",), n_frames=600, seed=seed)
         e = estimate_noise(rec)
         assert all(all(n.identified) for n in e.nodes.values())
         est.append([n.noise.doppler_mps for n in e.nodes.values()])

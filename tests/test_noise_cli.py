@@ -27,7 +27,7 @@ def _simulate(path, network, frames, seed, *extra):
     """A simulated recording whose centroid sigmas nobody wrote down: the
     simulator's metadata sigmas are removed (the estimate must come from the
     data)."""
-    assert main(["simulate", *network, "-l", "centroids", "-n", str(frames), "-s", str(seed),
+    assert main(["simulate", "--model", "clean", *network, "-l", "centroids", "-n", str(frames), "-s", str(seed),
                  "-o", str(path), "--no-progress", *extra]) == 0
     with h5py.File(path, "r+") as f:
         for k in _SIM_KEYS:

@@ -22,6 +22,7 @@ from mmsnap_graph.errors import FileFormatError, ValidationError
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.io.noise import NOISE_LAYOUT, read_noise, write_noise
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 TRUE = MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.10)
 THREE = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi], "S3": [3.5, 3.5, np.pi / 2]}
@@ -29,14 +30,16 @@ THREE = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi], "S3": [3.5, 3.5, np.pi 
 
 @pytest.fixture(scope="module")
 def rec3():
-    return simulate_recording(THREE, "straight", levels=("centroids",), n_frames=400, seed=11,
-                              centroid_noise=TRUE, known_poses=True)
+    return simulate_recording(THREE, "straight",
+                              SimulationOptions(physics=None, centroid_noise=TRUE, known_poses=True),
+                              levels=("centroids",), n_frames=400, seed=11)
 
 
 @pytest.fixture(scope="module")
 def rec2():
-    return simulate_recording("C", "straight", levels=("centroids",), n_frames=400, seed=12,
-                              centroid_noise=TRUE, known_poses=True)
+    return simulate_recording("C", "straight",
+                              SimulationOptions(physics=None, centroid_noise=TRUE, known_poses=True),
+                              levels=("centroids",), n_frames=400, seed=12)
 
 
 def test_trimmed_scale_is_consistent_and_ignores_ghosts():
@@ -80,11 +83,13 @@ def test_per_node_estimate_of_three_nodes_is_close_to_the_truth(rec3):
 
 
 def test_different_nodes_keep_their_own_sigmas():
-    a = simulate_recording("C", "straight", levels=("centroids",), n_frames=500, seed=5,
-                           centroid_noise=TRUE, known_poses=True)
+    a = simulate_recording("C", "straight",
+                           SimulationOptions(physics=None, centroid_noise=TRUE, known_poses=True),
+                           levels=("centroids",), n_frames=500, seed=5)
     loud = MeasurementNoise(range_m=0.10, omega_rad=0.16, doppler_mps=0.2)
-    b = simulate_recording("C", "straight", levels=("centroids",), n_frames=500, seed=5,
-                           centroid_noise=loud, known_poses=True)
+    b = simulate_recording("C", "straight",
+                           SimulationOptions(physics=None, centroid_noise=loud, known_poses=True),
+                           levels=("centroids",), n_frames=500, seed=5)
     rec = a.with_node(b.nodes["S2"])  # same truth, S2 twice as noisy
     est = estimate_noise(rec)
     np.testing.assert_allclose(est.nodes["S1"].noise.sigmas, TRUE.sigmas, rtol=0.2)
@@ -94,8 +99,9 @@ def test_different_nodes_keep_their_own_sigmas():
 def test_two_nodes_cross_node_residuals_cannot_identify_the_doppler():
     # network A: two nodes looking the same way; the two Dopplers fix each
     # frame's velocity, and the two ranges are checked only together
-    rec = simulate_recording("A", "straight", levels=("centroids",), n_frames=400, seed=12,
-                             centroid_noise=TRUE, known_poses=True)
+    rec = simulate_recording("A", "straight",
+                             SimulationOptions(physics=None, centroid_noise=TRUE, known_poses=True),
+                             levels=("centroids",), n_frames=400, seed=12)
     est = estimate_noise(rec, method="network")
     for e in est.nodes.values():
         assert not e.identified[2]

@@ -22,6 +22,7 @@ from mmsnap_graph.fusion.problem import check_node_noise, initial_states
 from mmsnap_graph.fusion.recording.sequence import fuse_recording, group_detections
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 #: Three nodes with sigmas far apart (node 1 has a poor range, node 2 a poor Doppler).
 NOISES = (
@@ -221,8 +222,9 @@ def test_association_gates_each_node_with_its_own_sigmas():
 @pytest.fixture(scope="module")
 def recording_3():
     network = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
-    return simulate_recording(network, "random", levels=("centroids",), n_frames=60, seed=7,
-                              known_poses=True, centroid_p_miss=0.1)
+    return simulate_recording(network, "random",
+                              SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.1),
+                              levels=("centroids",), n_frames=60, seed=7)
 
 
 def test_fuse_recording_takes_a_noise_mapping_with_both_solvers(recording_3):

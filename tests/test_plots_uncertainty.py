@@ -24,6 +24,7 @@ from mmsnap_graph.app.plots import (
 )
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.networks import COMMON_AREAS, CONFIGURATIONS
+from mmsnap_graph.sim import CLEAN
 
 
 def _render(fig):
@@ -166,7 +167,7 @@ def test_calibration_panel_shows_the_pose_uncertainty_and_explains_the_arrow():
 
 
 def test_point_clouds_have_a_colour_bar_and_say_which_frame():
-    rec = simulate_recording("B", "random", levels=("point_cloud",), n_frames=12, seed=1)
+    rec = simulate_recording("B", "random", CLEAN, levels=("point_cloud",), n_frames=12, seed=1)
     fig = plot_point_clouds(rec, frame=5)
     assert _colorbar_labels(fig) == ["Doppler [m/s] (positive = receding)"]
     assert "frame 5" in fig.get_suptitle() and "of 12 frames" in fig.get_suptitle()

@@ -17,6 +17,7 @@ from mmsnap_graph.radar.cfar import CfarConfig
 from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.radar.cluster import ClusterConfig
 from mmsnap_graph.tracking.ekf import EkfConfig
+from mmsnap_graph.sim import CLEAN
 
 
 def _show(capsys, *argv) -> str:
@@ -91,7 +92,7 @@ def test_process_runs_with_the_file(tmp_path):
     leaves every node without tracks; the defaults give tracks."""
     io = pytest.importorskip("mmsnap_graph.io")
     from mmsnap_graph.sim import simulate_recording
-    rec = simulate_recording("C", levels=("centroids",), n_frames=40, seed=3)
+    rec = simulate_recording("C", options=CLEAN, levels=("centroids",), n_frames=40, seed=3)
     path = tmp_path / "rec.h5"
     io.write_recording(path, rec)
     assert main(["process", str(path), "--centroids-only", "--no-progress"]) == 0
@@ -119,7 +120,7 @@ def test_the_ekf_noise_comes_from_the_data_unless_the_file_sets_it(tmp_path):
     0.2); a file with [ekf] measurement_std fixes them."""
     from mmsnap_graph.app.pipeline import ekf_noise_from_centroids
     from mmsnap_graph.sim import simulate_recording
-    rec = simulate_recording("C", levels=("centroids",), n_frames=400, seed=5)
+    rec = simulate_recording("C", options=CLEAN, levels=("centroids",), n_frames=400, seed=5)
     ekf = ekf_noise_from_centroids(EkfConfig(), rec.nodes["S1"].centroids)
     np.testing.assert_allclose(ekf.measurement_std, (0.05, 0.08, 0.1), rtol=0.2)
     assert ProcessConfig().ekf_noise_from_data

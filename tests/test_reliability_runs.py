@@ -31,7 +31,7 @@ POSES = np.array([[0.0, 0.0, 0.0], [6.0, 0.0, np.pi / 2]])
 @pytest.fixture(scope="module")
 def good(tmp_path_factory):
     path = tmp_path_factory.mktemp("rel") / "good.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
                  "--seed", "5", "--known-poses", "-o", str(path), "--no-progress"]) == 0
     return path
 

@@ -25,6 +25,7 @@ from mmsnap_graph.errors import GeometryError, ValidationError
 from mmsnap_graph.evaluation import chi2_mean_interval, nees
 from mmsnap_graph.fusion.robust import kernel_weight_and_loss, residual_gate_threshold
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.sim import SimulationOptions
 
 POSES = np.array([[0.0, 0.0, np.pi / 4], [6.0, 0.0, 3 * np.pi / 4], [3.0, 7.0, -np.pi / 2]])
 NOISE = MeasurementNoise()
@@ -289,8 +290,9 @@ def test_fuse_recording_takes_the_robust_option_with_both_solvers(robust):
     from mmsnap_graph.fusion.recording.sequence import fuse_recording
     from mmsnap_graph.sim import simulate_recording
 
-    rec = simulate_recording("A", "random", levels=("centroids",), n_frames=80, seed=4,
-                             n_targets=1, known_poses=True, centroid_p_miss=0.1)
+    rec = simulate_recording("A", "random",
+                             SimulationOptions(physics=None, n_targets=1, known_poses=True, centroid_p_miss=0.1),
+                             levels=("centroids",), n_frames=80, seed=4)
     plain = fuse_recording(rec, options=FusionOptions(solver="vectorized"))
     fb = fuse_recording(rec, robust=robust, options=FusionOptions(solver="vectorized"))
     fg = fuse_recording(rec, robust=robust, options=FusionOptions(solver="gtsam"))
@@ -313,8 +315,8 @@ def test_fused_group_keeps_the_robust_option_and_the_rejections(tmp_path):
     from mmsnap_graph.io.fused import read_fused, write_fused
     from mmsnap_graph.sim import simulate_recording
 
-    rec = simulate_recording("B", "random", levels=("centroids",), n_frames=60, seed=3,
-                             known_poses=True)
+    rec = simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=60, seed=3)
     path = tmp_path / "rec.h5"
     write_recording(path, rec)
     fused = fuse_recording(rec, robust="gate")

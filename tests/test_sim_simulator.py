@@ -12,6 +12,7 @@ from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.data.radar_config import TABLE_I
 from mmsnap_graph.sim import CENTROID_NOISE, PointCloudModel, network_poses, simulate_recording
 from mmsnap_graph.sim.networks import in_field_of_view
+from mmsnap_graph.sim import CLEAN, SimulationOptions
 
 
 @pytest.fixture
@@ -58,8 +59,9 @@ def test_out_of_view_frames_have_no_centroid():
     n = 100
     x = np.linspace(-8, 8, n)
     states = np.stack([x, np.full(n, 3.0), np.full(n, 16 / (n - 1) / 0.15), np.zeros(n)], axis=1)
-    rec = simulate_recording("C", states, levels=("centroids", "point_cloud"), seed=1,
-                             point_cloud_model=PointCloudModel(false_alarms_per_frame=0.0))
+    rec = simulate_recording("C", states,
+                             SimulationOptions(physics=None, point_cloud_model=PointCloudModel(false_alarms_per_frame=0.0)),
+                             levels=("centroids", "point_cloud"), seed=1)
     for name, pose in network_poses("C").items():
         seen = in_field_of_view(states[:, :2], pose)
         assert 0 < seen.sum() < n
@@ -74,8 +76,9 @@ def test_out_of_view_frames_have_no_centroid():
 
 
 def test_missed_detections_rate():
-    rec = simulate_recording("C", "straight", levels=("centroids",), seed=2,
-                             centroid_p_miss=0.2)
+    rec = simulate_recording("C", "straight",
+                             SimulationOptions(physics=None, centroid_p_miss=0.2),
+                             levels=("centroids",), seed=2)
     n = len(rec.nodes["S1"].centroids)
     # Binomial(600, 0.8): std 9.8.
     assert abs(n - 480) < 40
@@ -104,15 +107,15 @@ def test_point_cloud_has_limb_doppler_spread_and_false_alarms(rec_b):
 
 
 def test_seeded_and_levels_independent(rec_b):
-    again = simulate_recording("B", "random", levels=("centroids",), seed=11)
+    again = simulate_recording("B", "random", CLEAN, levels=("centroids",), seed=11)
     assert_array_equal(again.nodes["S2"].centroids.range_m, rec_b.nodes["S2"].centroids.range_m)
-    other = simulate_recording("B", "random", levels=("centroids",), seed=12)
+    other = simulate_recording("B", "random", CLEAN, levels=("centroids",), seed=12)
     assert not np.array_equal(other.truth.state, rec_b.truth.state)
 
 
 def test_multiple_targets_are_labelled():
-    rec = simulate_recording("A", "random", levels=("centroids", "point_cloud"), n_frames=50,
-                             n_targets=3, seed=4)
+    rec = simulate_recording("A", "random", SimulationOptions(physics=None, n_targets=3),
+                             levels=("centroids", "point_cloud"), n_frames=50, seed=4)
     assert sorted(set(rec.truth.target_id.tolist())) == [0, 1, 2]
     assert rec.truth.state.shape == (150, 4)
     for name in rec.node_names:
@@ -125,16 +128,17 @@ def test_multiple_targets_are_labelled():
 
 def test_any_network_by_poses():
     poses = {"S1": [0, 0, 0], "S2": [6, 0, 0.0], "S3": [3, 8, np.pi]}
-    rec = simulate_recording(poses, "random", levels=("centroids",), n_frames=40, seed=5,
-                             known_poses=True)
+    rec = simulate_recording(poses, "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=40, seed=5)
     assert rec.node_names == ["S1", "S2", "S3"]
     assert_allclose(rec.nodes["S3"].pose, [3, 8, np.pi])
     assert all(len(rec.nodes[n].centroids) == 40 for n in rec.node_names)
 
 
 def test_cube_level_puts_the_torso_at_its_range_and_angle():
-    rec = simulate_recording("B", "straight", levels=("cube",), n_frames=30, cube_frames=[10, 20],
-                             seed=6)
+    rec = simulate_recording("B", "straight",
+                             SimulationOptions(physics=None, cube_frames=[10, 20]),
+                             levels=("cube",), n_frames=30, seed=6)
     radar = TABLE_I
     for name in rec.node_names:
         node = rec.nodes[name]
@@ -159,7 +163,8 @@ def test_cube_level_puts_the_torso_at_its_range_and_angle():
 
 
 def test_simulated_recording_round_trips(tmp_path):
-    rec = simulate_recording("C", "straight", n_frames=20, cube_frames=2, seed=3)
+    rec = simulate_recording("C", "straight", SimulationOptions(physics=None, cube_frames=2),
+                             n_frames=20, seed=3)
     back = read_recording(write_recording(tmp_path / "s.h5", rec))
     assert_array_equal(back.nodes["S2"].cube, rec.nodes["S2"].cube)
     assert_array_equal(back.nodes["S1"].point_cloud.doppler_mps,
@@ -170,21 +175,27 @@ def test_simulated_recording_round_trips(tmp_path):
 
 def test_simulator_argument_errors():
     with pytest.raises(ValidationError, match="levels="):
-        simulate_recording("C", levels=("cubes",), n_frames=5)
+        simulate_recording("C", options=CLEAN, levels=("cubes",), n_frames=5)
     with pytest.raises(ValidationError, match="cube_frames=9"):
-        simulate_recording("C", levels=("cube",), n_frames=5, cube_frames=9)
+        simulate_recording("C", options=SimulationOptions(physics=None, cube_frames=9),
+                           levels=("cube",), n_frames=5)
     with pytest.raises(ValidationError, match="trajectory='loop'"):
-        simulate_recording("C", "loop", levels=("centroids",), n_frames=5)
+        simulate_recording("C", "loop", CLEAN, levels=("centroids",), n_frames=5)
     with pytest.raises(ValidationError, match="trajectory states must have shape"):
-        simulate_recording("C", np.zeros((5, 3)), levels=("centroids",))
+        simulate_recording("C", np.zeros((5, 3)), CLEAN, levels=("centroids",))
     with pytest.raises(ConfigurationError, match="radar must be a RadarConfig"):
-        simulate_recording("C", levels=("centroids",), n_frames=5, radar={"n_loops": 3})
+        simulate_recording("C", options=SimulationOptions(physics=None, radar={"n_loops": 3}),
+                           levels=("centroids",), n_frames=5)
     with pytest.raises(ValidationError, match="n_targets=0"):
-        simulate_recording("C", levels=("centroids",), n_frames=5, n_targets=0)
+        simulate_recording("C", options=SimulationOptions(physics=None, n_targets=0),
+                           levels=("centroids",), n_frames=5)
     with pytest.raises(ValidationError, match="centroid_p_miss=1.0"):
-        simulate_recording("C", levels=("centroids",), n_frames=5, centroid_p_miss=1.0)
+        simulate_recording("C", options=SimulationOptions(physics=None, centroid_p_miss=1.0),
+                           levels=("centroids",), n_frames=5)
     with pytest.raises(ConfigurationError, match="centroid_noise must be a MeasurementNoise"):
-        simulate_recording("C", levels=("centroids",), n_frames=5, centroid_noise=(0.1, 0.1, 0.1))
+        simulate_recording("C",
+                           options=SimulationOptions(physics=None, centroid_noise=(0.1, 0.1, 0.1)),
+                           levels=("centroids",), n_frames=5)
 
 
 def test_point_cloud_noise_matches_its_stated_model():
@@ -195,8 +206,9 @@ def test_point_cloud_noise_matches_its_stated_model():
     point = HumanBody(torso_half_width_m=1e-6, torso_half_depth_m=1e-6, arm_amplitude=0.0,
                       leg_amplitude=0.0, torso_rcs_m2=0.02)
     model = PointCloudModel(false_alarms_per_frame=0.0)
-    rec = simulate_recording("C", "random", levels=("point_cloud",), seed=8, body=point,
-                             point_cloud_model=model)
+    rec = simulate_recording("C", "random",
+                             SimulationOptions(physics=None, body=point, point_cloud_model=model),
+                             levels=("point_cloud",), seed=8)
     radar = TABLE_I
     bins = np.array([radar.range_resolution_m, 2 * np.pi / model.angle_fft_size,
                      radar.doppler_resolution_mps])

@@ -19,14 +19,16 @@ from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim import SimulationOptions
 
 NETWORK = {"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi), "S3": (4.0, 0.0, np.pi / 6)}
 
 
 @pytest.fixture(scope="module")
 def dense():
-    return simulate_recording(NETWORK, "random", levels=("point_cloud",), n_frames=120,
-                              n_targets=2, seed=4, frame_period_s=0.05)
+    return simulate_recording(NETWORK, "random",
+                              SimulationOptions(physics=None, n_targets=2, frame_period_s=0.05),
+                              levels=("point_cloud",), n_frames=120, seed=4)
 
 
 def test_sparse_clouds_are_clustered_with_one_point_minimum(dense):
@@ -99,6 +101,7 @@ def _default_path_error(rec):
     "S3 72 mm, 1.7 of its reported 42 mm sigma); seed 1 0.72x (sparse 5.7 mm, 0.2 of its "
     "bound: luck), seed 2 2.8x"))
 def test_sparse_clouds_within_1_2x_of_the_dense_case_seed_0():
-    dense = simulate_recording(NETWORK, "random", levels=("point_cloud",), n_frames=600,
-                               n_targets=2, seed=0, frame_period_s=0.05)
+    dense = simulate_recording(NETWORK, "random",
+                               SimulationOptions(physics=None, n_targets=2, frame_period_s=0.05),
+                               levels=("point_cloud",), n_frames=600, seed=0)
     assert _default_path_error(sparse_clouds(dense, seed=0)) <= 1.2 * _default_path_error(dense)

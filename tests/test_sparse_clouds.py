@@ -15,6 +15,7 @@ from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.sparse import empty_frame_mask, sparse_clouds
+from mmsnap_graph.sim import SimulationOptions
 
 #: Three nodes (as in test_multi_target_calibration): S1 and S2 face each
 #: other across 7 m, S3 beside S1 turned 30 deg.
@@ -23,8 +24,9 @@ FRAME_PERIOD_S = 0.05
 
 
 def _dense(n_frames, seed):
-    return simulate_recording(NETWORK, "random", levels=("point_cloud",), n_frames=n_frames,
-                              n_targets=2, seed=seed, frame_period_s=FRAME_PERIOD_S)
+    return simulate_recording(NETWORK, "random",
+                              SimulationOptions(physics=None, n_targets=2, frame_period_s=FRAME_PERIOD_S),
+                              levels=("point_cloud",), n_frames=n_frames, seed=seed)
 
 
 def _without_noise_metadata(rec):

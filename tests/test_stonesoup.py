@@ -31,14 +31,15 @@ from mmsnap_graph.io.stonesoup import (
     to_stonesoup_order,
 )
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 
 @pytest.fixture(scope="module")
 def fused_file(tmp_path_factory):
     """200 frames (30 s) of one person walking in configuration B: the
     recording and its /fused group as read back from the file."""
-    rec = simulate_recording("B", "random", levels=("centroids",), n_frames=200, seed=3,
-                             known_poses=True)
+    rec = simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=200, seed=3)
     path = tmp_path_factory.mktemp("ss") / "rec.h5"
     write_recording(path, rec)
     write_fused(path, fuse_recording(rec, progress=False))
@@ -133,8 +134,8 @@ def test_prior_free_detections_are_the_information_form(fused_file):
 
 def test_rows_without_full_information_are_left_out_of_the_prior_free_form():
     # One node: no cross-line velocity, Y is singular; the MAP form keeps them.
-    rec = simulate_recording("B", "random", levels=("centroids",), n_frames=20, seed=1,
-                             known_poses=True)
+    rec = simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=20, seed=1)
     one = dataclasses.replace(rec, nodes={"S1": rec.nodes["S1"]})
     fused = fuse_recording(one, progress=False)
     assert fused.success.sum() > 10

@@ -19,6 +19,7 @@ from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frame
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import track_fused
+from mmsnap_graph.sim import SimulationOptions
 
 #: Four nodes around a 7 m square, each facing the centre.
 NETWORK = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi],
@@ -40,8 +41,9 @@ def _drop_frames(rec, lo, hi):
 @pytest.fixture(scope="module")
 def recording():
     """Four nodes, two walking targets, 10 % missed centroids, a 30-frame gap."""
-    rec = simulate_recording(NETWORK, "random", levels=("centroids",), n_frames=160, seed=3,
-                             n_targets=2, known_poses=True, centroid_p_miss=0.1)
+    rec = simulate_recording(NETWORK, "random",
+                             SimulationOptions(physics=None, n_targets=2, known_poses=True, centroid_p_miss=0.1),
+                             levels=("centroids",), n_frames=160, seed=3)
     return _drop_frames(rec, 70, 100)
 
 
@@ -115,8 +117,8 @@ BAD_FRAMES = [
 
 @pytest.mark.parametrize("label, time_s, detections, message", BAD_FRAMES, ids=[b[0] for b in BAD_FRAMES])
 def test_a_bad_frame_is_flagged_and_changes_nothing(label, time_s, detections, message):
-    rec = simulate_recording("C", "straight", levels=("centroids",), n_frames=30, seed=1,
-                             known_poses=True)
+    rec = simulate_recording("C", "straight", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=30, seed=1)
     frames = list(recording_frames(rec))
     clean = FrameStream(rec.node_names, _poses(rec))
     dirty = FrameStream(rec.node_names, _poses(rec))
@@ -141,8 +143,8 @@ def test_a_bad_frame_is_flagged_and_changes_nothing(label, time_s, detections, m
 
 def test_a_numerically_degenerate_frame_does_not_stop_the_stream():
     """Range 0 at omega 0 and a tiny range (issue 13): flagged or fused, never raised."""
-    rec = simulate_recording("C", "straight", levels=("centroids",), n_frames=20, seed=2,
-                             known_poses=True)
+    rec = simulate_recording("C", "straight", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=20, seed=2)
     stream = FrameStream(rec.node_names, _poses(rec))
     frames = list(recording_frames(rec))
     for _, t, d in frames[:5]:
@@ -173,8 +175,9 @@ def test_stream_validates_its_settings():
 
 
 def test_ml_stream_flags_single_node_groups_like_the_batch_path():
-    rec = simulate_recording("C", "random", levels=("centroids",), n_frames=60, seed=4,
-                             known_poses=True, centroid_p_miss=0.3)
+    rec = simulate_recording("C", "random",
+                             SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.3),
+                             levels=("centroids",), n_frames=60, seed=4)
     fused = fuse_recording(rec, mode="ml", progress=False, options=FusionOptions(solver="gtsam"))
     _, updates = _stream_all(rec, "gtsam", prior=None)
     status = np.concatenate([u.status for _, u in updates])
@@ -186,8 +189,8 @@ def test_ml_stream_flags_single_node_groups_like_the_batch_path():
 def test_state_stays_bounded_over_10000_frames():
     """10,000 frames: bursts of a target (a track starts), empty frames (it
     ends), a bad frame in each burst; tracks end, memory does not grow."""
-    rec = simulate_recording("C", "random", levels=("centroids",), n_frames=300, seed=5,
-                             known_poses=True)
+    rec = simulate_recording("C", "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=300, seed=5)
     frames = [d for _, _, d in recording_frames(rec)]
     stream = FrameStream(rec.node_names, _poses(rec))
     n_tracks, ids = [], set()
@@ -228,8 +231,8 @@ def replay_cli():
 
 @pytest.fixture(scope="module")
 def small_file(tmp_path_factory):
-    rec = simulate_recording("C", "straight", levels=("centroids",), n_frames=12, seed=6,
-                             known_poses=True)
+    rec = simulate_recording("C", "straight", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=12, seed=6)
     path = tmp_path_factory.mktemp("replay") / "rec.h5"
     write_recording(path, rec)
     return path

@@ -20,6 +20,7 @@ from mmsnap_graph.fusion.stream.association import StreamAssociator
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import (CentralConfig, CentralTracker, measurement_information,
                                            spd_inverse_4x4)
+from mmsnap_graph.sim import SimulationOptions
 
 SQUARE = np.array([[0.0, 0.0, 0.0], [0.0, 7.0, np.pi], [-3.5, 3.5, -np.pi / 2], [3.5, 3.5, np.pi / 2]])
 NETWORK = {"S1": SQUARE[0], "S2": SQUARE[1], "S3": SQUARE[2], "S4": SQUARE[3]}
@@ -73,8 +74,9 @@ def test_fast_association_hands_degenerate_detections_to_associate_frame():
 @pytest.fixture(scope="module")
 def recording():
     """Four nodes, two walking targets, 10 % missed centroids."""
-    return simulate_recording(NETWORK, "random", levels=("centroids",), n_frames=120, seed=5,
-                              n_targets=2, known_poses=True, centroid_p_miss=0.1)
+    return simulate_recording(NETWORK, "random",
+                              SimulationOptions(physics=None, n_targets=2, known_poses=True, centroid_p_miss=0.1),
+                              levels=("centroids",), n_frames=120, seed=5)
 
 
 @pytest.mark.parametrize("prior", [GaussianPrior(), None], ids=["MAP", "ML"])

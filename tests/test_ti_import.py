@@ -10,6 +10,7 @@ from mmsnap_graph.io.dca1000 import frame_bytes
 from mmsnap_graph.io.ti_cfg import parse_ti_cfg
 from mmsnap_graph.io.ti_uart import parse_ti_uart
 from ti_samples import DATA, MOUNTS, dca_sample_cubes, main as make_samples, simulated
+from mmsnap_graph.sim import CLEAN
 
 
 @pytest.fixture(scope="module")
@@ -181,7 +182,7 @@ def test_lifted_point_clouds_calibrate_like_the_2d_simulation(tmp_path):
     from mmsnap_graph.io import write_recording
     from mmsnap_graph.sim import simulate_recording
     from ti_samples import lift
-    sim = simulate_recording("C", "straight", levels=["point_cloud"], n_frames=300, seed=2)
+    sim = simulate_recording("C", "straight", CLEAN, levels=["point_cloud"], n_frames=300, seed=2)
     mounts = {"S1": (0.8, np.deg2rad(5.0)), "S2": (1.2, np.deg2rad(12.0))}
     rows = []
     for k, (name, node) in enumerate(sim.nodes.items()):

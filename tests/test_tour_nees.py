@@ -42,7 +42,7 @@ def _run(*args, cwd):
 @pytest.mark.slow
 def test_readme_tour_passes_the_nees_check(tmp_path):
     rec = "rec.h5"
-    for args in (("simulate", "-c", "C", "-t", "random", "-n", "600", "--seed", "1", "-o", rec),
+    for args in (("simulate", "--model", "clean", "-c", "C", "-t", "random", "-n", "600", "--seed", "1", "-o", rec),
                  ("process", rec), ("calibrate", rec), ("fuse", rec)):
         r = _run(*args, cwd=tmp_path)
         assert r.returncode == 0, (args, r.stderr[-2000:])

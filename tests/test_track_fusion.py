@@ -10,6 +10,7 @@ from mmsnap_graph.data.recording import Tracks
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
 from mmsnap_graph.tracking.track_fusion import covariance_intersection, fuse_tracks, transform_tracks
+from mmsnap_graph.sim import SimulationOptions
 
 
 def _spd(rng, k, n=4, scale=1.0):
@@ -86,8 +87,9 @@ def test_ci_is_consistent_whatever_the_unknown_correlation():
 
 
 def test_fused_ekf_tracks_follow_the_target():
-    rec = simulate_recording("C", "random", levels=("centroids",), n_frames=200, seed=4, known_poses=True,
-                             centroid_p_miss=0.05)
+    rec = simulate_recording("C", "random",
+                             SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.05),
+                             levels=("centroids",), n_frames=200, seed=4)
     config = EkfConfig(frame_period_s=rec.frame_period_s)
     t1 = track_centroids(rec.nodes["S1"].centroids, config)
     t2 = track_centroids(rec.nodes["S2"].centroids, config)
@@ -140,8 +142,8 @@ def test_one_track_per_frame_agrees_with_the_assignment_per_frame():
     """The vectorized pairing of single tracks gives what the per-frame gated
     assignment gives (a second S1 track in a frame S2 lacks forces the
     assignment path without changing any pair)."""
-    rec = simulate_recording("B", "straight", levels=("centroids",), n_frames=80, seed=2,
-                             known_poses=True)
+    rec = simulate_recording("B", "straight", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=80, seed=2)
     config = EkfConfig(frame_period_s=rec.frame_period_s)
     tracks = [track_centroids(rec.nodes[n].centroids, config) for n in ("S1", "S2")]
     single = []

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from mmsnap_graph.sim import SimulationOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
@@ -36,8 +37,9 @@ SAMPLE_FRAMES = 100
 
 def simulated(n_frames=SAMPLE_FRAMES, seed=1):
     """A simulated recording (point clouds) at 20 fps."""
-    return simulate_recording("C", "straight", levels=["point_cloud"], n_frames=n_frames,
-                              frame_period_s=FRAME_PERIOD_S, seed=seed)
+    return simulate_recording("C", "straight",
+                              SimulationOptions(physics=None, frame_period_s=FRAME_PERIOD_S),
+                              levels=["point_cloud"], n_frames=n_frames, seed=seed)
 
 
 def lift(det, height_m, tilt_rad, seed):
@@ -117,8 +119,8 @@ def dca_sample_cubes(n_frames=3, seed=1):
     ti = parse_ti_cfg(DCA_CFG, board="AWR1843BOOST")
     cubes = []
     for cfg in ti.configs:
-        rec = simulate_recording("C", "random", levels=["cube"], n_frames=n_frames,
-                                 radar=cfg, seed=seed)
+        rec = simulate_recording("C", "random", SimulationOptions(physics=None, radar=cfg),
+                                 levels=["cube"], n_frames=n_frames, seed=seed)
         cube = rec.nodes["S1"].cube * DCA_SCALE
         cubes.append(np.round(cube.real) + 1j * np.round(cube.imag))
     return ti, cubes

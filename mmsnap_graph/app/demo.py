@@ -39,7 +39,7 @@ from tqdm.auto import tqdm
 
 from ..errors import CalibrationError, ValidationError
 from ..io import read_recording
-from ..sim import simulate_recording
+from ..sim import CLEAN, simulate_recording
 from .demo_calibration import CalibrationOutcome, calibrate_run, track_alignment_rmse
 from .demo_chain import (
     DEMO_EKF_MEASUREMENT_STD,
@@ -245,7 +245,7 @@ def _cube_stretches(config: DemoConfig, cube_recording_paths: Sequence, bar) -> 
     if config.cube_frames:
         bar.set_postfix_str(f"raw cubes: {config.cube_configuration}, {config.cube_frames} frames")
         seed = run_seed(config.seed, config.cube_configuration, "straight") + 500
-        rec = simulate_recording(config.cube_configuration, "straight", levels=("cube",),
+        rec = simulate_recording(config.cube_configuration, "straight", CLEAN, levels=("cube",),
                                  n_frames=config.cube_frames, seed=seed)
         cubes.append(run_cube_stretch(
             rec, source=f"simulated raw ADC cubes (seed {seed})",

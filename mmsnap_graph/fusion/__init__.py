@@ -61,7 +61,6 @@ _LAZY = {
     "validate_frame": "problem",
     "validate_frames": "problem",
     "valid_rows": "problem",
-    "check_count": "problem",
     "initial_state": "problem",
     "initial_states": "problem",
     "frame_initial_state": "problem",

@@ -14,20 +14,12 @@ from typing import Literal
 
 import numpy as np
 
+from .._validation import check_count, check_probability
 from ..errors import ValidationError
-from .problem import check_count
 from .robust import RESIDUAL_GATE_PROBABILITY, check_robust, check_robust_k, residual_gate_threshold
 from .solvers.settings import LM_SETTINGS, SOLVERS, LevenbergMarquardtSettings, check_solver
 
 __all__ = ["RobustOptions", "FusionOptions", "DEFAULT_OPTIONS", "robust_options"]
-
-
-def _probability(value: object, name: str) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.floating)):
-        raise ValidationError(f"{name} must be a number in (0, 1), got {value!r}")
-    if not 0.0 < float(value) < 1.0:
-        raise ValidationError(f"{name} must be in (0, 1), got {value!r}")
-    return float(value)
 
 
 def _positive(value: object, name: str) -> float:
@@ -75,7 +67,7 @@ class RobustOptions:
                 raise ValidationError(f"k must be finite and > 0, got {self.k!r}")
             object.__setattr__(self, "k", check_robust_k(self.kernel, self.k))
         object.__setattr__(self, "gate_probability",
-                           _probability(self.gate_probability, "gate_probability"))
+                           check_probability(self.gate_probability, "gate_probability"))
 
     @property
     def threshold(self) -> float:
@@ -164,7 +156,7 @@ class FusionOptions:
         for name in ("grid_half_width_sigmas", "step_tolerance"):
             object.__setattr__(self, name, _positive(getattr(self, name), name))
         object.__setattr__(self, "gate_probability",
-                           _probability(self.gate_probability, "gate_probability"))
+                           check_probability(self.gate_probability, "gate_probability"))
         if self.motion_check is not None and not isinstance(self.motion_check, (bool, np.bool_)):
             raise ValidationError(
                 f"motion_check must be True, False or None, got {self.motion_check!r}")

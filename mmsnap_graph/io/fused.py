@@ -20,6 +20,7 @@ import numpy as np
 from ..data.results import FusedSequence, Status
 from ..errors import FileFormatError, MmsnapError
 from .guard import H5_ERRORS, edited_copy, open_group, read_guard, replace_group
+from .versions import check_format_version
 
 __all__ = ["FUSED_GROUP", "FUSED_LAYOUT", "FUSED_STATUSES", "write_fused", "read_fused"]
 
@@ -179,6 +180,7 @@ def read_fused(path: str | os.PathLike) -> FusedSequence:
     with read_guard(p):
         with open_group(p, FUSED_GROUP,
                         f" has no /{FUSED_GROUP} group; run `mmsnap fuse` first") as group:
+            check_format_version(group.attrs, f"{p}:/{FUSED_GROUP}", _FUSED_VERSION)
             fields = _read_fields(group, p)
             period, origin = _recording_clock(group.file)
         # Files of format 1.0 have no time stamps: from the recording's clock.

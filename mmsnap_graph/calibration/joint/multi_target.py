@@ -1,4 +1,4 @@
-"""The joint calibration graph with several people (issue 12, Build 3).
+"""The joint calibration graph with several people.
 
 :func:`~mmsnap_graph.calibration.joint.solve.joint_calibration` takes one detection
 of the common target per node per frame. With several people walking, each
@@ -51,14 +51,13 @@ from typing import Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
 
 from factors.models import detection_covariance_global, detection_to_global, detection_to_local
 
 from ...data.noise import MeasurementNoise
 from ...data.recording import Detections, Recording
 from ...errors import CalibrationError, ValidationError
-from ..._validation import check_positive
+from ..._validation import check_count, check_positive, chi2_gate
 from .solve import JointCalibration
 
 __all__ = ["ASSOCIATION_NOISE", "TargetMapping", "TargetAssociation", "associate_targets",
@@ -352,7 +351,7 @@ def associate_targets(
     frame, node, row, pts, cov, radial, doppler = _global_rows(recording, names, poses, covariances, lag_frames,
                                               noise, float(pose_inflation), float(floor_m))
     row_group, g_frame, g_centre, g_vel, g_size = _groups(
-        frame, node, pts, cov, radial, doppler, float(chi2.ppf(gate_probability, 2)))
+        frame, node, pts, cov, radial, doppler, chi2_gate(gate_probability, 2))
     max_gap = max(1, int(np.ceil(max_gap_s / recording.frame_period_s - 1e-9)))
     g_track, n_tracks, n_breaks = _link(g_frame, g_centre, g_vel, g_size >= 2,
                                         recording.frame_period_s, float(link_gate_m),
@@ -408,9 +407,7 @@ def joint_detections_multi(
     have an associated centroid. ``target_id`` of the detections is the
     target track.
     """
-    if isinstance(max_motion_gap_frames, bool) or int(max_motion_gap_frames) < 1:
-        raise ValidationError(f"max_motion_gap_frames must be an integer >= 1, got "
-                              f"{max_motion_gap_frames!r}")
+    check_count(max_motion_gap_frames, "max_motion_gap_frames")
     assoc = associate_targets(recording, names, poses, lag_frames, covariances=covariances,
                               **association)
     first = str(names[0])

@@ -15,22 +15,14 @@ then needs one Gauss-Newton step, which is what keeps long recordings
 affordable (a GTSAM ``CustomFactor`` costs a Python call per factor per
 evaluation).
 
-Arguments shared by :func:`presolve` and :func:`normal_equations`:
-``measurements`` name -> (F, 3) (NaN rows where the node saw nothing);
-``poses`` name -> (3,); ``states`` (F, 4); ``names`` the nodes, ``reference``
-the one whose pose is held at the origin; ``sigmas`` (3,) measurement noise;
-``prior_sigmas`` (4,) of the zero-mean state prior; ``robust`` None,
-``"huber"`` or ``"cauchy"`` with kernel width ``k``; ``use`` name -> (F,)
-bool, the detections in the graph (default: every finite one); ``motion``
-``(index (G,), dt_s (G,), sigma_a_mps2)`` of the constant-velocity factors
-between states ``index`` and ``index + 1``, optionally followed by
-``(robust, k)``: a kernel on the motion factors' whitened norms (sharp turns
-are not Gaussian accelerations).
+:func:`presolve` and :func:`normal_equations` take the graph as a
+:class:`PresolveProblem` and the point as ``poses`` name -> (3,), ``states``
+(F, 4) and, when clock offsets are estimated, ``offsets`` name -> seconds.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -43,7 +35,7 @@ from factors.motion import cv_process_noise_continuous
 
 from ..poses import pose_array, to_pose2
 
-__all__ = ["presolve", "normal_equations", "cv_information", "kernel_weight", "robust_cost",
+__all__ = ["PresolveProblem", "presolve", "normal_equations", "cv_information", "kernel_weight", "robust_cost",
            "shifted_states", "motion_norms"]
 
 
@@ -325,23 +317,49 @@ def shifted_states(states: NDArray, offset_s: float) -> NDArray:
     return out
 
 
-def _problem(measurements, poses, states, names, reference, sigmas, prior_sigmas, robust, k,
-             use, motion, offsets=None):
+@dataclass(frozen=True, kw_only=True, slots=True)
+class PresolveProblem:
+    """The calibration graph as the pre-solve sees it.
+
+    measurements : name -> (F, 3) (NaN rows where the node saw nothing).
+    names : the nodes; reference : the one whose pose is held at the origin.
+    sigmas : (3,) measurement noise; prior_sigmas : (4,) of the zero-mean
+        state prior.
+    robust : None, ``"huber"`` or ``"cauchy"``, with kernel width ``k``.
+    use : name -> (F,) bool, the detections in the graph (None: every finite
+        one).
+    motion : ``(index (G,), dt_s (G,), sigma_a_mps2)`` of the
+        constant-velocity factors between states ``index`` and ``index + 1``,
+        optionally followed by ``(robust, k)``: a kernel on the motion
+        factors' whitened norms (sharp turns are not Gaussian accelerations);
+        None: no motion factors.
+    """
+
+    measurements: Mapping[str, NDArray]
+    names: Sequence[str]
+    reference: str
+    sigmas: NDArray
+    prior_sigmas: NDArray
+    robust: str | None = None
+    k: float = 1.0
+    use: Mapping[str, NDArray] | None = field(default=None)
+    motion: tuple | None = None
+
+
+def _problem(problem: PresolveProblem, poses, states, offsets=None):
     poses = {n: np.asarray(p, dtype=float).copy() for n, p in poses.items()}
     states = np.array(states, dtype=float)
-    prob = _Problem(measurements, names, reference, np.asarray(sigmas, dtype=float), prior_sigmas,
-                    robust, k, use, motion, states.shape[0],
+    q = problem
+    prob = _Problem(q.measurements, q.names, q.reference, np.asarray(q.sigmas, dtype=float),
+                    q.prior_sigmas, q.robust, q.k, q.use, q.motion, states.shape[0],
                     timed=() if offsets is None else tuple(offsets))
     if offsets is not None:
-        offsets = {n: float(offsets.get(n, 0.0)) for n in names}
+        offsets = {n: float(offsets.get(n, 0.0)) for n in q.names}
     return prob, poses, states, offsets
 
 
-def normal_equations(measurements: Mapping[str, NDArray], poses: Mapping[str, NDArray],
-                     states: NDArray, names: Sequence[str], reference: str, sigmas: NDArray,
-                     prior_sigmas: NDArray, robust: str | None, k: float, *,
-                     use: Mapping[str, NDArray] | None = None, motion=None,
-                     offsets: Mapping[str, float] | None = None
+def normal_equations(problem: PresolveProblem, poses: Mapping[str, NDArray], states: NDArray,
+                     *, offsets: Mapping[str, float] | None = None
                      ) -> tuple[sp.csc_matrix, NDArray]:
     """The pre-solve's linear system at a point (module doc): the sparse
     Gauss-Newton Hessian (IRLS-weighted under a kernel) and the gradient,
@@ -349,8 +367,7 @@ def normal_equations(measurements: Mapping[str, NDArray], poses: Mapping[str, ND
     clock offsets of the non-reference nodes in ``offsets`` (when given).
     GTSAM's ``linearize(...).hessian`` of the same graph gives the same
     matrices."""
-    prob, poses, states, offsets = _problem(measurements, poses, states, names, reference,
-                                            sigmas, prior_sigmas, robust, k, use, motion, offsets)
+    prob, poses, states, offsets = _problem(problem, poses, states, offsets)
     return prob.system(poses, states, offsets)
 
 
@@ -378,10 +395,8 @@ def _damped_step(prob, poses, states, offsets, cost, lam, nu):
     return None, lam, nu
 
 
-def presolve(measurements: Mapping[str, NDArray], poses: Mapping[str, NDArray], states: NDArray,
-             names: Sequence[str], reference: str, sigmas: NDArray, prior_sigmas: NDArray,
-             robust: str | None, k: float, *, use: Mapping[str, NDArray] | None = None,
-             motion=None, offsets: Mapping[str, float] | None = None, max_steps: int = 50,
+def presolve(problem: PresolveProblem, poses: Mapping[str, NDArray], states: NDArray, *,
+             offsets: Mapping[str, float] | None = None, max_steps: int = 50,
              tol: float = 1e-7, report: dict | None = None):
     """Levenberg-damped Gauss-Newton on the calibration graph (module doc),
     from ``(poses, states)``; stops after ``max_steps`` steps, when no damping
@@ -393,8 +408,7 @@ def presolve(measurements: Mapping[str, NDArray], poses: Mapping[str, NDArray], 
     ``report`` dict receives ``initial_cost``, ``cost`` (GTSAM's error of the
     same graph), ``steps`` and ``converged``."""
     timed = offsets is not None
-    prob, poses, states, offsets = _problem(measurements, poses, states, names, reference,
-                                            sigmas, prior_sigmas, robust, k, use, motion, offsets)
+    prob, poses, states, offsets = _problem(problem, poses, states, offsets)
     lam, nu = 1e-4, 2.0
     cost = initial_cost = prob.cost(poses, states, offsets)
     steps, done = 0, False
