@@ -357,6 +357,8 @@ def _metadata(network, trajectory, setup: _Setup) -> dict:
         "centroid_range_std_m": noise.range_m,
         "centroid_omega_std_rad": noise.omega_rad,
         "centroid_doppler_std_mps": noise.doppler_mps,
+        # Each person's near-side offset of the centroid level (real physics).
+        **({} if setup.depths is None else {"reflection_depth_m": setup.depths.copy()}),
     }
 
 
