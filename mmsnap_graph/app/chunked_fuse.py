@@ -25,6 +25,7 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .._validation import check_count
 from ..errors import ValidationError
 from ..fusion.recording.motion_check import MOTION_CONTEXT_FRAMES
 from ..fusion.recording.sequence import fuse_recording
@@ -115,9 +116,7 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     naming the file for a missing or damaged one; the destination is then
     left as it was.
     """
-    if isinstance(window_frames, bool) or not isinstance(window_frames, (int, np.integer)) \
-            or window_frames < 1:
-        raise ValidationError(f"window_frames must be an integer >= 1, got {window_frames!r}")
+    check_count(window_frames, "window_frames")
     if "progress" in options or "recording" in options:
         raise ValidationError("fuse_file takes the file, not a recording; progress is its own")
     windows = open_detection_windows(path, source=options.get("source", "centroids"))

@@ -113,3 +113,12 @@ def test_people_differ_in_size_and_depth():
         e = c.range_m[own] - h[:, 0]
         means.append(np.mean(e[np.abs(e) < 0.5]))
     assert max(means) - min(means) > 0.005
+
+
+def test_truth_metadata_holds_each_persons_reflection_depth():
+    rec = simulate_recording("B", "random", SimulationOptions(n_targets=2), levels=("centroids",),
+                             n_frames=10, seed=1)
+    d = np.asarray(rec.metadata["reflection_depth_m"])
+    assert d.shape == (2,) and np.all((0 <= d) & (d <= 0.1)) and d[0] != d[1]
+    clean = simulate_recording("B", "random", CLEAN, levels=("centroids",), n_frames=10, seed=1)
+    assert "reflection_depth_m" not in clean.metadata

@@ -17,17 +17,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
 from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.app.runs import DEFAULT_ROBUST, fuse_stored, paper_noise, stored_calibration
 from mmsnap_graph.errors import ValidationError
-
-#: Robust one-shot fusion used unless ``--robust none``: the per-node
-#: residual gate. Measured on clean simulated data (networks A, C and a
-#: 3-node one, straight and random walks, 600 frames, 3 seeds each): the gate
-#: gave the same position RMSE and NEES as no robust fusion (to 3 digits);
-#: Huber raised the RMSE by 0.5-2 % and lowered the NEES by 0.05-0.15.
-DEFAULT_ROBUST = "gate"
 
 
 def register(subparsers) -> None:
@@ -83,70 +75,27 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def stored_calibration(args, path):
-    """The calibration fusion takes its poses' uncertainty and the clocks
-    from: ``--calibration`` JSON, else the recording's ``/calibration``
-    group, else None."""
-    import h5py
-
-    from mmsnap_graph.io.calibration import CALIBRATION_GROUP, read_calibration, read_calibration_json
-
-    if args.calibration:
-        return read_calibration_json(args.calibration)
-    with h5py.File(path, "r") as f:  # readable: the recording was just read
-        if CALIBRATION_GROUP not in f:
-            return None
-    return read_calibration(path)
-
-
-def calibration_options(args, cal) -> tuple[dict, list[str]]:
-    """``fuse_recording`` options from the calibration (pose covariances,
-    clock offsets) and what they are in words."""
-    if cal is None:
-        return {}, ["no calibration: poses exact, clocks as recorded"]
-    opts, text = {}, []
-    covs = {n: c for n, c in cal.covariances.items()
-            if np.all(np.isfinite(c)) and np.any(np.asarray(c) != 0)}
-    if args.no_pose_covariance or not covs:
-        text.append("poses exact" + ("" if args.no_pose_covariance else
-                                     " (the calibration has no pose covariance)"))
-    elif args.covariance != "laplace":
-        text.append("poses exact (pose covariances need --covariance laplace)")
-    else:
-        opts["pose_covariances"] = covs
-        text.append(f"pose covariances of {', '.join(sorted(covs))} included")
-    offsets = {n: float(t) for n, t in getattr(cal, "time_offset_s", {}).items()
-               if float(t) != 0.0}
-    if offsets and not args.no_time_offsets:
-        opts["time_offset_s"] = offsets
-        text.append("clock offsets applied: " + ", ".join(
-            f"{n} {1e3 * t:+.1f} ms" for n, t in sorted(offsets.items())))
-    else:
-        text.append("clocks as recorded")
-    return opts, text
-
-
-def choose_noise(args, path, node_names):
-    """(noise for ``fuse_recording``, what it is in words): ``--sigmas``, else
-    each node's sigmas of the ``/noise`` group, else the paper's
-    (:func:`mmsnap_graph.io.noise.noise_for_fusion`)."""
-    from mmsnap_graph.data.noise import MeasurementNoise
-    from mmsnap_graph.io.noise import noise_for_fusion
-
-    if args.sigmas is not None:
-        r, w, v = args.sigmas
-        return (MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v),
-                "sigmas from --sigmas")
-    return noise_for_fusion(path, node_names, per_node=True)
-
-
 def motion_text(args) -> str:
     """``", motion check"`` when the run checks rows against their neighbours."""
     return "" if (args.robust == "none" or args.no_motion_check) else ", motion check"
 
 
+def calibration_for(args, path, node_names):
+    """The stored calibration as the options ask for it (poses, their
+    covariances, clock offsets, noise; :func:`mmsnap_graph.app.runs.stored_calibration`)."""
+    if args.no_pose_covariance:
+        covs = False
+    elif args.covariance != "laplace":
+        covs = "poses exact (pose covariances need --covariance laplace)"
+    else:
+        covs = True
+    cal = stored_calibration(path, node_names, calibration_json=args.calibration,
+                             sigmas=args.sigmas, pose_covariances=covs,
+                             time_offsets=not args.no_time_offsets)
+    return cal.with_default_noise(*paper_noise())
+
+
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph.app.chunked_fuse import fuse_file
     from mmsnap_graph.io.chunks import open_detection_windows
 
     if args.grid_points < 5 or args.grid_points % 2 == 0:
@@ -157,21 +106,18 @@ def run(args: argparse.Namespace) -> int:
     # `calibrate` of the same file waits instead of being overwritten.
     with recording_lock(args.recording):
         # Node names only: the detections are read, fused and written window
-        # by window (long recordings in bounded memory, issue 13).
+        # by window (long recordings in bounded memory).
         names = open_detection_windows(args.recording, source=args.source).node_names
-        noise, noise_text = choose_noise(args, args.recording, names)
-        cal = stored_calibration(args, args.recording)
-        options, cal_text = calibration_options(args, cal)
-        print(noise_text, file=sys.stdout)
-        print("; ".join(cal_text), file=sys.stdout)
-        poses = dict(cal.poses) if (cal is not None and args.calibration) else None
-        fused = fuse_file(args.recording, output=args.output, node_poses=poses, mode=args.mode,
-                          **options, covariance=args.covariance, noise=noise,
-                          solver=args.solver, source=args.source, gate_probability=args.gate,
-                          grid_points_per_axis=args.grid_points,
-                          progress=False if args.no_progress else None,
-                          robust=None if args.robust == "none" else args.robust,
-                          motion_check=args.robust != "none" and not args.no_motion_check)
+        cal = calibration_for(args, args.recording, names)
+        for line in cal.text:
+            print(line, file=sys.stdout)
+        options = dict(mode=args.mode, covariance=args.covariance, solver=args.solver,
+                       source=args.source, gate_probability=args.gate,
+                       grid_points_per_axis=args.grid_points,
+                       robust=None if args.robust == "none" else args.robust,
+                       motion_check=args.robust != "none" and not args.no_motion_check)
+        fused, _ = fuse_stored(args.recording, options, output=args.output, calibration=cal,
+                               progress=False if args.no_progress else None)
     n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
     print(f"fused {fused.n_rows} targets in {frames} frames ({args.mode}, {args.covariance}, "
           f"{args.solver}, robust {args.robust}{motion_text(args)}): {n_ok} succeeded, "

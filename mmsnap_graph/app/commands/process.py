@@ -8,15 +8,13 @@ import dataclasses
 import sys
 
 from mmsnap_graph._atomic import check_output_path
-from mmsnap_graph.app.config_file import (
-    SPARSE_VALUES,
-    ProcessConfig,
-    process_config_to_toml,
-    read_process_config,
-)
 from mmsnap_graph.errors import ConfigurationError, ValidationError
-from mmsnap_graph.radar.cfar import CfarConfig
-from mmsnap_graph.tracking.ekf import EkfConfig
+
+#: Defaults quoted in the help: ``CfarConfig().pfa`` and
+#: ``EkfConfig().sigma_a_mps2``, written out so that building the parser
+#: (``mmsnap --help``) does not import the signal chain, SciPy and
+#: scikit-learn (a test keeps them equal).
+HELP_DEFAULTS = {"pfa": 1e-6, "sigma_a_mps2": 1.0}
 
 
 def register(subparsers) -> None:
@@ -41,10 +39,10 @@ def register(subparsers) -> None:
                         "TOML and exit")
     p.add_argument("--pfa", type=float, default=None,
                    help=f"OS-CFAR false-alarm probability per cell; overrides the file "
-                        f"(default {CfarConfig().pfa:g})")
+                        f"(default {HELP_DEFAULTS['pfa']:g})")
     p.add_argument("--sigma-a", type=float, default=None,
                    help=f"EKF white-acceleration std, m/s^2; overrides the file "
-                        f"(default {EkfConfig().sigma_a_mps2:g})")
+                        f"(default {HELP_DEFAULTS['sigma_a_mps2']:g})")
     p.add_argument("--sparse", choices=["auto", "on", "off"], default=None,
                    help="cluster stored point clouds as sparse (DBSCAN min_samples=1: a "
                         "person's 2-3 points are a centroid): when the median non-empty frame "
@@ -54,8 +52,11 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def effective_config(args: argparse.Namespace) -> ProcessConfig:
-    """Defaults, then the ``--config`` file, then the explicit options."""
+def effective_config(args: argparse.Namespace):
+    """Defaults, then the ``--config`` file, then the explicit options: a
+    :class:`~mmsnap_graph.app.config_file.ProcessConfig`."""
+    from mmsnap_graph.app.config_file import SPARSE_VALUES, ProcessConfig, read_process_config
+
     cfg = ProcessConfig() if args.config is None else read_process_config(args.config)
     chain, ekf = cfg.chain, cfg.ekf
     try:
@@ -71,6 +72,8 @@ def effective_config(args: argparse.Namespace) -> ProcessConfig:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmsnap_graph.app.config_file import process_config_to_toml
+
     cfg = effective_config(args)
     if args.show_config:
         sys.stdout.write(process_config_to_toml(cfg))

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from factors.gtsam_factors import (
     constant_velocity_factor,
@@ -27,6 +26,7 @@ from factors.gtsam_factors import (
 )
 from factors.models import measurement_model, residual
 
+from ..._validation import chi2_gate
 from ..poses import pose_array, to_pose2
 from .presolve import motion_norms, shifted_states
 
@@ -159,7 +159,7 @@ def _whitened_sq(state, pose, z, sigmas):
 def flag_outliers(graph, poses, states, offsets, has, sig, outlier_probability):
     """name -> (F,) bool: detections whose whitened squared residual exceeds
     the chi-square(3) ``1 - outlier_probability`` quantile."""
-    threshold = chi2.ppf(1.0 - outlier_probability, 3)
+    threshold = chi2_gate(1.0 - outlier_probability, 3)
     outliers = {}
     for n in graph.active:
         e2 = np.full(graph.f, 0.0)
@@ -230,7 +230,7 @@ def exonerate_turns(graph, poses, states, offsets, has, outliers, sig, prior_sig
         return outliers, rows
     chi, count = _frame_refit(graph, poses, states, offsets, has, rows, sig, prior_sig, gn_steps)
     dof = 3 * count
-    ok = (count >= 2) & (chi <= chi2.ppf(1.0 - outlier_probability, dof))
+    ok = (count >= 2) & (chi <= chi2_gate(1.0 - outlier_probability, np.maximum(dof, 1)))
     turn_frames = rows[ok]
     new = {}
     for n in graph.active:
@@ -246,7 +246,7 @@ def flag_turns(motion: MotionSpec | None, norms: NDArray | None, outlier_probabi
     white acceleration explains), or None without motion factors."""
     if motion is None or norms is None:
         return None
-    return norms**2 > chi2.ppf(1.0 - outlier_probability, 4)
+    return norms**2 > chi2_gate(1.0 - outlier_probability, 4)
 
 
 def _node_covariances(marg, graph, covs, variances):

@@ -22,6 +22,7 @@ from typing import Mapping
 
 import numpy as np
 
+from ..._validation import check_count
 from ...data.noise import MeasurementNoise
 from ...data.recording import Recording
 from ...errors import CalibrationError, ValidationError
@@ -147,8 +148,7 @@ def refine_associated(recording: Recording, names, poses, covariances, lag_frame
     association leaves fewer than two nodes."""
     if not isinstance(options, JointOptions):
         raise ValidationError(f"options must be a JointOptions, got {options!r}")
-    if isinstance(n_rounds, bool) or int(n_rounds) < 1:
-        raise ValidationError(f"n_rounds must be an integer >= 1, got {n_rounds!r}")
+    check_count(n_rounds, "n_rounds")
     given = AssociationOptions() if association is None else association
     learn_gates = given.noise is None
     best = None

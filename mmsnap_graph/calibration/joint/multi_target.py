@@ -51,14 +51,13 @@ from typing import Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
 
 from factors.models import detection_covariance_global, detection_to_global, detection_to_local
 
 from ...data.noise import MeasurementNoise
 from ...data.recording import Detections, Recording
 from ...errors import CalibrationError, ValidationError
-from ..._validation import check_positive
+from ..._validation import check_count, check_positive, check_probability, chi2_gate
 from .solve import JointCalibration
 
 __all__ = ["ASSOCIATION_NOISE", "AssociationOptions", "TargetMapping", "TargetAssociation",
@@ -324,15 +323,13 @@ class AssociationOptions:
     max_gap_s: float = 0.5
 
     def __post_init__(self) -> None:
-        p = self.gate_probability
-        if isinstance(p, bool) or not isinstance(p, (int, float, np.floating)) or not 0 < p < 1:
-            raise ValidationError(f"gate_probability={p!r} must lie in (0, 1)")
+        object.__setattr__(self, "gate_probability",
+                           check_probability(self.gate_probability, "gate_probability"))
         for name, strict in (("pose_inflation", False), ("floor_m", True), ("link_gate_m", True),
                              ("velocity_error_mps", True), ("ambiguity_m", False),
                              ("max_gap_s", True)):
             value = check_positive(getattr(self, name), name, strict=strict)
             object.__setattr__(self, name, float(value))
-        object.__setattr__(self, "gate_probability", float(p))
         if self.noise is not None and not isinstance(self.noise, MeasurementNoise):
             raise ValidationError(f"noise must be a MeasurementNoise or None, got {self.noise!r}")
 
@@ -367,7 +364,7 @@ def associate_targets(
     frame, node, row, pts, cov, radial, doppler = _global_rows(recording, names, poses, covariances, lag_frames,
                                               noise, o.pose_inflation, o.floor_m)
     row_group, g_frame, g_centre, g_vel, g_size = _groups(
-        frame, node, pts, cov, radial, doppler, float(chi2.ppf(o.gate_probability, 2)))
+        frame, node, pts, cov, radial, doppler, chi2_gate(o.gate_probability, 2))
     max_gap = max(1, int(np.ceil(o.max_gap_s / recording.frame_period_s - 1e-9)))
     g_track, n_tracks, n_breaks = _link(g_frame, g_centre, g_vel, g_size >= 2,
                                         recording.frame_period_s, o.link_gate_m,
@@ -423,9 +420,7 @@ def joint_detections_multi(
     have an associated centroid. ``target_id`` of the detections is the
     target track.
     """
-    if isinstance(max_motion_gap_frames, bool) or int(max_motion_gap_frames) < 1:
-        raise ValidationError(f"max_motion_gap_frames must be an integer >= 1, got "
-                              f"{max_motion_gap_frames!r}")
+    check_count(max_motion_gap_frames, "max_motion_gap_frames")
     assoc = associate_targets(recording, names, poses, lag_frames, covariances=covariances,
                               options=association)
     first = str(names[0])

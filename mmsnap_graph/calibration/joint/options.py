@@ -17,7 +17,7 @@ import numpy as np
 from factors.robust import ROBUST_K_DEFAULT
 
 from ...errors import ValidationError
-from ..._validation import check_positive, frozen_vector
+from ..._validation import check_count, check_positive, check_probability, frozen_vector
 from ..pairwise.closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
 
 __all__ = ["DEFAULT_ROBUST_K", "DEFAULT_MOTION_ROBUST_K", "JointOptions"]
@@ -32,12 +32,6 @@ DEFAULT_ROBUST_K = ROBUST_K_DEFAULT
 DEFAULT_MOTION_ROBUST_K = 3.0
 
 _KERNELS = (None, "huber", "cauchy")
-
-
-def _count(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValidationError(f"{name} must be an integer >= 1, got {value!r}")
-    return int(value)
 
 
 def _flag(value, name: str) -> bool:
@@ -121,16 +115,14 @@ class JointOptions:
             raise ValidationError(f"min_spread_m must be >= 0, got {self.min_spread_m!r}")
         object.__setattr__(self, "min_spread_m", float(self.min_spread_m))
         for name in ("max_motion_gap_frames", "min_common_frames", "max_iterations"):
-            object.__setattr__(self, name, _count(getattr(self, name), name))
+            object.__setattr__(self, name, check_count(getattr(self, name), name))
         for name in ("motion", "time_offsets", "presolve", "state_covariances"):
             object.__setattr__(self, name, _flag(getattr(self, name), name))
         prior = check_positive(frozen_vector(self.state_prior_sigmas, "state_prior_sigmas", 4),
                                "state_prior_sigmas")
         object.__setattr__(self, "state_prior_sigmas", tuple(float(v) for v in prior))
-        p = self.outlier_probability
-        if isinstance(p, bool) or not isinstance(p, (int, float, np.floating)) or not 0 < p < 1:
-            raise ValidationError(f"outlier_probability must lie in (0, 1), got {p!r}")
-        object.__setattr__(self, "outlier_probability", float(p))
+        object.__setattr__(self, "outlier_probability",
+                           check_probability(self.outlier_probability, "outlier_probability"))
 
     @property
     def kernel_k(self) -> float | None:

@@ -54,10 +54,10 @@ from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from factors.motion import cv_process_noise, cv_transition
 
+from ..._validation import chi2_gate
 from ...data.results import Status
 from ..robust import residual_test_fails
 
@@ -432,7 +432,7 @@ def apply_motion_check(rows, frame: NDArray, observed: NDArray, valid: NDArray, 
     nodes of each row and those whose measurement may be fitted.
     refit : fits hypotheses (:data:`Refit`). Returns the rows refitted.
     """
-    gate = float(chi2.ppf(MOTION_GATE_PROBABILITY, 4))
+    gate = chi2_gate(MOTION_GATE_PROBABILITY, 4)
     accel = MOTION_ACCEL_SIGMA_MPS2
     ok = (rows.status == Status.OK) & np.all(np.isfinite(rows.laplace), axis=(1, 2))
     kept = observed & ~rows.rejected
@@ -473,7 +473,7 @@ def apply_motion_check(rows, frame: NDArray, observed: NDArray, valid: NDArray, 
         passes, score = _score(res, preds, hp, residual_gate_probability, gate)
         done = _select(rows, observed, hr, hp, hm, res, passes, score, node_names)
     explained = set(done.tolist())
-    pos_gate = float(chi2.ppf(MOTION_GATE_PROBABILITY, 2))
+    pos_gate = chi2_gate(MOTION_GATE_PROBABILITY, 2)
     for r, pis in jobs:
         # A row of two nodes or more no hypothesis explains is flagged when
         # it is where a free prediction is (a target's wrong estimate) or no

@@ -38,7 +38,6 @@ from ..association import (
 from ..solvers.vectorized import fuse_batch
 from ..grid import grid_posterior
 from ..problem import (
-    check_count,
     check_node_noise,
     check_pose_covariances,
     check_prior,
@@ -52,7 +51,7 @@ from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import FusedSequence, Status
 from ...errors import CalibrationError, MmsnapError, ValidationError
-from ..._validation import as_float_array, check_finite
+from ..._validation import as_float_array, check_count, check_finite
 from .split_check import flag_split_singles
 
 __all__ = [

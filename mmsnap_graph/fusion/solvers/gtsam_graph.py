@@ -60,6 +60,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import frame_measurement_factor, measurement_noise, node_measurement_factor
 
+from ..._validation import check_count
 from ...errors import MmsnapError, ValidationError
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.results import DEGENERACY_THRESHOLD, FusionResult, Status
@@ -67,7 +68,6 @@ from ..grid import grid_posterior
 from .assess import NEWTON_DECREMENT_TOLERANCE, assess_fit, residuals_and_degeneracy
 from .gtsam_poses import pose_aware_covariance
 from ..problem import (
-    check_count,
     check_initial_state,
     check_node_noise,
     check_pose_covariances,

@@ -44,12 +44,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from ...errors import ValidationError
 from ..._linalg import chol_soa, cholesky4, cholesky4_inverse, cholesky4_solve, from_soa, inverse_soa
-from ..._validation import as_float_array, check_finite
+from ..._validation import as_float_array, check_count, check_finite
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.results import BatchResult, Status
 from .vectorized_poses import propagate_pose_covariance
 from ..problem import (
-    check_count,
     check_node_noise,
     check_pose_covariances,
     check_prior,

@@ -56,7 +56,7 @@ from ...data.recording import Recording
 from ...data.results import Status
 from ...errors import MmsnapError, ValidationError
 from ...tracking.central import CentralConfig, CentralTracker
-from ..._validation import as_float_array, check_finite
+from ..._validation import as_float_array, check_count, check_finite, check_probability
 
 __all__ = ["StreamUpdate", "FrameStream", "recording_frames"]
 
@@ -163,9 +163,7 @@ class FrameStream:
             raise ValidationError(f"solver must be 'numpy', 'gtsam' or 'batch', got {solver!r}")
         if tracker is not None and not isinstance(tracker, CentralConfig):
             raise ValidationError(f"tracker must be a CentralConfig, got {type(tracker).__name__}")
-        p = float(gate_probability)
-        if not 0.0 < p < 1.0:
-            raise ValidationError(f"gate_probability must be in (0, 1), got {gate_probability!r}")
+        p = check_probability(gate_probability, "gate_probability")
         self.node_names = names
         self.node_poses = poses
         poses.setflags(write=False)
@@ -381,8 +379,7 @@ def recording_frames(recording: Recording, *, source: Literal["centroids", "poin
         raise ValidationError(f"recording must be a Recording, got {type(recording).__name__}")
     if source not in ("centroids", "point_cloud"):
         raise ValidationError(f"source must be 'centroids' or 'point_cloud', got {source!r}")
-    if int(fill_frames) != fill_frames or fill_frames < 0:
-        raise ValidationError(f"fill_frames must be an integer >= 0, got {fill_frames!r}")
+    check_count(fill_frames, "fill_frames", 0)
     names = recording.node_names
     dets = [getattr(recording.nodes[name], source) for name in names]
     sorted_rows = []

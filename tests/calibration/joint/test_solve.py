@@ -222,7 +222,7 @@ def test_argument_errors():
         joint_calibration(dets, JointOptions(robust="tukey"))
     with pytest.raises(ValidationError, match="motion=True needs frame_period_s"):
         joint_calibration(dets, JointOptions(motion=True))
-    with pytest.raises(ValidationError, match="outlier_probability must lie in"):
+    with pytest.raises(ValidationError, match="outlier_probability must be in"):
         joint_calibration(dets, JointOptions(outlier_probability=1.5))
     with pytest.raises(ValidationError, match="initial_poses has no pose for node 'S2'"):
         joint_calibration(dets, initial_poses={"S1": np.zeros(3)})

@@ -24,6 +24,8 @@ from mmsnap_graph.io.noise import NOISE_LAYOUT, read_noise, write_noise
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions
 
+from _shared import ROOT
+
 TRUE = MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.10)
 THREE = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi], "S3": [3.5, 3.5, np.pi / 2]}
 
@@ -230,7 +232,7 @@ def test_noise_group_round_trip_absent_and_damaged(tmp_path, rec2):
 def test_format_doc_quotes_the_noise_layout():
     from pathlib import Path
 
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "FORMAT.md").read_text()
+    doc = (ROOT / "docs" / "FORMAT.md").read_text()
     assert NOISE_LAYOUT in doc
 
 

@@ -188,7 +188,7 @@ def test_missing_calibration_file_and_poses(tmp_path, recordings):
         (dict(solver="scipy"), "solver must be 'batch' or 'gtsam'"),
         (dict(source="cube"), "source must be 'centroids' or 'point_cloud'"),
         (dict(mode="ml", prior=GaussianPrior(mean=[0, 0, 0, 0])), "mode='ml' takes no prior"),
-        (dict(block_rows=0), "block_rows must be >= 1"),
+        (dict(block_rows=0), "block_rows=0 must be an integer >= 1"),
         (dict(source="point_cloud"), "no node of the recording has point_cloud"),
     ],
 )

@@ -165,7 +165,7 @@ def test_nan_allowed_in_unobserved_rows_only():
     "kwargs, match",
     [
         ({"covariance": "exact"}, "covariance must be 'laplace', 'grid' or 'both', got 'exact'"),
-        ({"max_iterations": 0}, "max_iterations must be >= 1, got 0"),
+        ({"max_iterations": 0}, "max_iterations=0 must be an integer >= 1"),
         ({"noise": (0.1, 0.1, 0.1)}, "noise must be a MeasurementNoise, got tuple"),
         ({"prior": np.zeros(4)}, "prior must be a GaussianPrior or None, got ndarray"),
         ({"initial_state": np.zeros(3)}, r"initial_state must have shape \(4,\), got \(3,\)"),
