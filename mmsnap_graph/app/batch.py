@@ -401,7 +401,11 @@ def load_library() -> float:
     t0 = time.perf_counter()
     from ..calibration import calibrate_recording  # noqa: F401 -- GTSAM, the calibration graphs
     from ..fusion.recording.sequence import fuse_recording  # noqa: F401 -- the fusion solvers
+    from ..io.calibration import write_calibration  # noqa: F401 -- the files the steps write
+    from ..io.noise import write_noise  # noqa: F401
+    from .chunked_fuse import fuse_file  # noqa: F401 -- window-by-window fusion, tqdm
     from .pipeline import process_file  # noqa: F401 -- signal chain, scikit-learn, h5py
+    from tqdm.auto import tqdm  # noqa: F401 -- the progress bars' module
 
     return time.perf_counter() - t0
 

@@ -294,6 +294,23 @@ def _frame_offsets(clouds: Mapping[str, PointCloud3D], frame_period_s: float
     return out, {"frame_clock": "frame_numbers"}
 
 
+def _no_twins(clouds: Mapping[str, PointCloud3D]) -> None:
+    """Two nodes with the same points in the same frames are one log imported
+    twice: co-located, identical nodes make every calibration and noise
+    estimate degenerate, so they are refused here, where the cause is known."""
+    seen: dict[tuple, str] = {}
+    for name, c in clouds.items():
+        if len(c) == 0:
+            continue
+        key = (len(c), c.frame.tobytes(), c.x_m.tobytes(), c.y_m.tobytes(), c.z_m.tobytes(),
+               c.doppler_mps.tobytes())
+        if key in seen:
+            raise ValidationError(f"nodes {seen[key]} and {name} hold the same {len(c)} points in "
+                                  "the same frames: one log imported twice? (give each node its "
+                                  "own log)")
+        seen[key] = name
+
+
 def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_period_s: float,
                                 mounting: Mounting | Mapping[str, Mounting] = Mounting(),
                                 height_band_m: tuple[float, float] | None = None,
@@ -310,6 +327,7 @@ def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_per
     fp = float(frame_period_s)
     if not (np.isfinite(fp) and fp > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
+    _no_twins(clouds)
     aligned, md = _frame_offsets(clouds, fp)
     nodes = {}
     for name, cloud in aligned.items():

@@ -37,6 +37,7 @@ commands and parses those (errors then name the JSON field).
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -50,6 +51,7 @@ from ..errors import ConfigurationError, FileFormatError
 from .ti_cfg_fields import cfg_fields
 
 __all__ = ["BoardLayout", "BOARD_PRESETS", "TiConfig", "parse_ti_cfg", "read_ti_cfg",
+           "read_boundary_boxes", "BOUNDARY_COMMANDS",
            "board_layout", "studio_json_to_cfg", "read_studio_json"]
 
 
@@ -599,3 +601,44 @@ def read_studio_json(path: str | os.PathLike, *, board: str | BoardLayout | None
     except ConfigurationError as exc:
         message = re.sub(r"line (\d+)", lambda m: paths[int(m.group(1)) - 1], str(exc))
         raise ConfigurationError(message) from None
+
+
+#: The people-tracking demos' boxes (x_min, x_max, y_min, y_max, z_min, z_max;
+#: metres): ``boundaryBox`` (where tracks may exist), ``staticBoundaryBox``
+#: (where a target may stand still), ``presenceBoundaryBox`` (presence
+#: detection). The 2D people-counting demo's boxes have four values (no z).
+BOUNDARY_COMMANDS = ("boundaryBox", "staticBoundaryBox", "presenceBoundaryBox")
+
+
+def read_boundary_boxes(path: str | os.PathLike) -> dict[str, tuple[float, ...]]:
+    """The boxes of a people-tracking ``.cfg`` (:data:`BOUNDARY_COMMANDS`):
+    command -> its 4 or 6 numbers, for the commands present (the last one
+    when repeated). The boxes are in the tracker's world frame of that radar
+    (origin on the floor below it, ``y`` along its boresight without azimuth
+    tilt). Raises :class:`~mmsnap_graph.errors.ConfigurationError` naming the
+    file and line of a box that is not 4 or 6 numbers or whose minimum is not
+    below its maximum."""
+    p = Path(path)
+    try:
+        text = p.read_text(errors="replace")
+    except OSError as exc:
+        raise FileFormatError(f"cannot read {p}: {exc.strerror or exc}") from None
+    boxes: dict[str, tuple[float, ...]] = {}
+    for number, raw in enumerate(text.splitlines(), start=1):
+        words = raw.split("%", 1)[0].split()
+        if not words or words[0] not in BOUNDARY_COMMANDS:
+            continue
+        where = f"{p} line {number}: {words[0]}"
+        try:
+            values = tuple(float(w) for w in words[1:])
+        except ValueError:
+            raise ConfigurationError(f"{where} arguments must be numbers, got "
+                                     f"{' '.join(words[1:])!r}") from None
+        if len(values) not in (4, 6) or not all(math.isfinite(v) for v in values):
+            raise ConfigurationError(f"{where} takes 4 or 6 finite numbers (x_min x_max y_min "
+                                     f"y_max [z_min z_max], metres), got {len(values)}")
+        if any(values[k] >= values[k + 1] for k in range(0, len(values), 2)):
+            raise ConfigurationError(f"{where}: each minimum must be below its maximum, got "
+                                     f"{' '.join(words[1:])}")
+        boxes[words[0]] = values
+    return boxes

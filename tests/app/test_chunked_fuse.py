@@ -178,8 +178,11 @@ def test_window_frames_must_be_a_positive_integer(good, window):
 
 
 def test_the_cli_writes_what_fuse_file_writes(good, tmp_path, capsys):
-    """The CLI's default is the robust gate with the motion check."""
-    reference = fuse_recording(read_recording(good), progress=False, robust="gate")
+    """The CLI's default is the robust gate with the motion check, then one
+    target per body (fusion.recording.room)."""
+    from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, screen_room
+    reference = screen_room(fuse_recording(read_recording(good), progress=False, robust="gate"),
+                            body_m=DEFAULT_BODY_M)[0]
     out = tmp_path / "cli.h5"
     assert main(["fuse", str(good), "-o", str(out), "--no-progress"]) == 0
     assert f"fused {len(reference)} targets" in capsys.readouterr().out

@@ -141,3 +141,57 @@ def test_read_errors_name_the_problem(tmp_path, rec3):
         read_calibration(path)
     with pytest.raises(FileFormatError, match="does not exist"):
         write_calibration(tmp_path / "nope.h5", rec3, _calibration())
+
+
+# ---- calibration JSON: every malformed field is a CalibrationError naming it ---------
+_GOOD_JSON = {"reference": "S1", "node_names": ["S1", "S2", "S3"],
+              "nodes": {"S1": {"pose": [0, 0, 0], "lag_frames": 0},
+                        "S2": {"pose": [0, 7, 3.1], "lag_frames": 2,
+                               "covariance": np.eye(3).tolist()}},
+              "unreachable": ["S3"], "edges": [], "failures": {}, "success": True}
+
+
+def _json_with(path, value):
+    import copy
+    data = copy.deepcopy(_GOOD_JSON)
+    obj = data
+    for key in path[:-1]:
+        obj = obj[key]
+    obj[path[-1]] = value
+    return data
+
+
+@pytest.mark.parametrize("path, value, match", [
+    (("nodes", "S2", "lag_frames"), "x", r"nodes\['S2'\].lag_frames='x' must be an integer"),
+    (("nodes", "S2", "lag_frames"), 1e400, r"lag_frames=inf must be an integer within"),
+    (("nodes", "S2", "lag_frames"), 2.5, r"lag_frames=2.5 must be an integer within"),
+    (("nodes", "S2", "lag_frames"), True, r"lag_frames=True must be an integer"),
+    (("unreachable",), True, r"unreachable must be a list of node names, got True"),
+    (("unreachable",), "S3", r"unreachable must be a list of node names"),
+    (("node_names",), {"S1": 1}, r"node_names must be a list of node names"),
+    (("edges",), {"a": 1}, r"edges must be a list"),
+    (("edges",), [{"node_a": "S1", "node_b": "S2", "pose": [0, 7, 3.1],
+                   "covariance": np.eye(3).tolist(), "n_frames": 1e400}],
+     r"edges\[0\].n_frames=inf must be an integer"),
+    (("edges",), [[1, 2]], r"edges\[0\] is not a pose edge"),
+    (("failures",), [1], r"failures must be an object"),
+    (("success",), "yes", r"success must be true or false"),
+    (("reference",), 5, r"reference must be a string"),
+    (("nodes", "S2", "pose"), [0, 7, 180], r"phi_rad=180.0 lies outside \[-2 pi, 2 pi\].*degrees"),
+])
+def test_calibration_json_bad_fields_are_calibration_errors(path, value, match):
+    from mmsnap_graph.errors import CalibrationError
+    from mmsnap_graph.io.calibration import read_calibration_json
+    cal = read_calibration_json(_GOOD_JSON)
+    assert cal.lag_frames == {"S1": 0, "S2": 2} and cal.unreachable == ("S3",)
+    with pytest.raises(CalibrationError, match=match):
+        read_calibration_json(_json_with(path, value))
+
+
+def test_calibration_json_nested_too_deeply(tmp_path):
+    from mmsnap_graph.errors import CalibrationError
+    from mmsnap_graph.io.calibration import read_calibration_json
+    path = tmp_path / "deep.json"
+    path.write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(CalibrationError, match="nested too deeply"):
+        read_calibration_json(path)

@@ -92,3 +92,19 @@ def test_cli_refuses_a_restart_with_the_offset(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"packet 5 at byte {len(_log(range(1, 6)))} has frame 1" in err
     assert not (tmp_path / "u.h5").exists()
+
+
+def test_one_log_imported_as_two_nodes_is_refused(tmp_path, capsys):
+    """The same log for two nodes made calibrate and noise fail on a singular
+    system; the import says what happened instead."""
+    path = tmp_path / "log.bin"
+    path.write_bytes(_log(range(1, 21)))
+    args = ["import", "ti-uart", "--node", f"S1={path}", "--node", f"S2={path}",
+            "--frame-period", "0.05", "-o", str(tmp_path / "u.h5")]
+    assert main(args) == 2
+    assert "nodes S1 and S2 hold the same 40 points in the same frames: one log imported " \
+           "twice?" in capsys.readouterr().err
+    other = tmp_path / "other.bin"
+    other.write_bytes(_log(range(1, 21), x=0.7))
+    args[5] = f"S2={other}"
+    assert main(args) == 0

@@ -106,7 +106,7 @@ def test_the_dense_case_calibrates_by_default(dense_and_sparse):
 def test_sparse_clouds_calibrate_within_1_2x_of_the_dense_case(dense_and_sparse):
     """Seed 1: 5.7 mm sparse against 7.9 mm dense (0.72x). A lucky seed:
     5.7 mm is 0.2 of the sparse Cramer-Rao bound (29 mm with the
-    trajectory known, tests/test_sparse_bound.py); the bounds are 2.5-4.7x
+    trajectory known, tests/evaluation/test_pose_bound.py); the bounds are 2.5-4.7x
     apart on seeds 0-7, so 1.2x is out of reach in general (strict xfail in
     test_sparse_calibration.py, seed 0: 6x)."""
     (ok_d, pos_d, _), (ok_s, pos_s, _) = dense_and_sparse

@@ -71,8 +71,61 @@ def register(subparsers) -> None:
     p.add_argument("--no-time-offsets", action="store_true",
                    help="do not bring the nodes' detections to the reference clock with the "
                         "calibration's clock offsets (default: they are)")
+    p.add_argument("--bounds", type=_bounds, default=None, metavar="XMIN,XMAX,YMIN,YMAX",
+                   help="the room box in the reference frame (m): fused targets outside it are "
+                        "flagged (status 11; e.g. reflections via a wall)")
+    p.add_argument("--bounds-cfg", default=None, metavar="FILE.cfg",
+                   help="the reference radar's people-tracking .cfg: its boundaryBox is the room "
+                        "box, and a target standing still outside its staticBoundaryBox is "
+                        "flagged (docs/ROBUST.md)")
+    p.add_argument("--no-body-check", action="store_true",
+                   help="keep fused targets of a frame closer than a body's width (default: "
+                        "the one seen by fewer nodes is flagged, status 12)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
+
+
+def _bounds(text: str) -> tuple[float, float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4:
+        raise argparse.ArgumentTypeError(f"--bounds {text!r} must look like XMIN,XMAX,YMIN,YMAX "
+                                         "in metres (e.g. -2,1.6,0,3.6)")
+    return values
+
+
+def room_options(args) -> tuple[dict, list[str]]:
+    """``fuse_file`` room-frame options from ``--bounds`` / ``--bounds-cfg`` /
+    ``--no-body-check``, and what they are in words."""
+    from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, RoomBounds
+    from mmsnap_graph.io.ti_cfg import read_boundary_boxes
+
+    opts: dict = {"body_m": None if args.no_body_check else DEFAULT_BODY_M}
+    text = ["no body check" if args.no_body_check else f"one target per {DEFAULT_BODY_M:g} m"]
+    box = lambda v: RoomBounds(x_min=v[0], x_max=v[1], y_min=v[2], y_max=v[3])
+    if args.bounds is not None and args.bounds_cfg is not None:
+        raise ValidationError("give --bounds or --bounds-cfg, not both")
+    if args.bounds is not None:
+        try:
+            opts["bounds"] = box(args.bounds)
+        except ValidationError as exc:
+            raise ValidationError(f"--bounds: {exc}") from None
+    elif args.bounds_cfg is not None:
+        boxes = read_boundary_boxes(args.bounds_cfg)
+        if "boundaryBox" not in boxes and "staticBoundaryBox" not in boxes:
+            raise ValidationError(f"--bounds-cfg {args.bounds_cfg}: no boundaryBox or "
+                                  "staticBoundaryBox command")
+        if "boundaryBox" in boxes:
+            opts["bounds"] = box(boxes["boundaryBox"])
+        if "staticBoundaryBox" in boxes:
+            opts["static_bounds"] = box(boxes["staticBoundaryBox"])
+    if "bounds" in opts:
+        text.append(f"room bounds {opts['bounds'].text()}")
+    if "static_bounds" in opts:
+        text.append(f"static bounds {opts['static_bounds'].text()}")
+    return opts, text
 
 
 def motion_text(args) -> str:
@@ -109,13 +162,16 @@ def run(args: argparse.Namespace) -> int:
         # by window (long recordings in bounded memory).
         names = open_detection_windows(args.recording, source=args.source).node_names
         cal = calibration_for(args, args.recording, names)
+        room, room_text = room_options(args)
         for line in cal.text:
             print(line, file=sys.stdout)
+        print("; ".join(room_text), file=sys.stdout)
         options = dict(mode=args.mode, covariance=args.covariance, solver=args.solver,
                        source=args.source, gate_probability=args.gate,
                        grid_points_per_axis=args.grid_points,
                        robust=None if args.robust == "none" else args.robust,
-                       motion_check=args.robust != "none" and not args.no_motion_check)
+                       motion_check=args.robust != "none" and not args.no_motion_check,
+                       **room)
         fused, _ = fuse_stored(args.recording, options, output=args.output, calibration=cal,
                                progress=False if args.no_progress else None)
     n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
@@ -123,4 +179,7 @@ def run(args: argparse.Namespace) -> int:
           f"{args.solver}, robust {args.robust}{motion_text(args)}): {n_ok} succeeded, "
           f"{fused.n_rows - n_ok} "
           f"flagged; wrote {path}:/fused", file=sys.stdout)
+    if fused.room.outside or fused.room.duplicate:
+        print(f"room checks flagged {fused.room.outside} target(s) outside the bounds and "
+              f"{fused.room.duplicate} duplicate(s) of a body", file=sys.stdout)
     return 0

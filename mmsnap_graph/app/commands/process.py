@@ -48,6 +48,19 @@ def register(subparsers) -> None:
                         "person's 2-3 points are a centroid): when the median non-empty frame "
                         "holds fewer than 6 points (auto), always (on) or never (off); "
                         "overrides the file's [chain.cluster] sparse (default auto)")
+    p.add_argument("--no-static-scene", action="store_true",
+                   help="stored point clouds: keep zero-Doppler points of the static scene "
+                        "(default: dropped where a background map learned over the recording "
+                        "finds them; docs/TI.md)")
+    p.add_argument("--no-body-merge", action="store_true",
+                   help="stored point clouds: do not merge centroids of a frame closer than a "
+                        "body's width (0.5 m)")
+    p.add_argument("--no-ghost-filter", action="store_true",
+                   help="stored point clouds: keep multipath ghosts (a weaker centroid further "
+                        "along the same bearing with a consistent Doppler)")
+    p.add_argument("--no-existence-check", action="store_true",
+                   help="stored point clouds: keep centroids that no neighbouring frame "
+                        "confirms (one-frame blips)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -71,6 +84,13 @@ def effective_config(args: argparse.Namespace):
                          sparse=sparse)
 
 
+def scene_config(args: argparse.Namespace):
+    """The scene filters of stored point clouds, each on unless switched off."""
+    from mmsnap_graph.radar.scene import SceneConfig
+    return SceneConfig(static=not args.no_static_scene, merge=not args.no_body_merge,
+                       ghosts=not args.no_ghost_filter, existence=not args.no_existence_check)
+
+
 def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.app.config_file import process_config_to_toml
 
@@ -89,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     path, reports = process_file(args.recording, output=args.output, config=config, ekf=ekf,
                                  centroids_only=args.centroids_only, progress=progress,
                                  ekf_noise="data" if cfg.ekf_noise_from_data else "config",
-                                 sparse=cfg.sparse)
+                                 sparse=cfg.sparse, scene=scene_config(args))
     for rep in reports.values():
         print(f"{rep.name}: {rep.level}: {rep.n_points} points, {rep.n_centroids} centroids, "
               f"{rep.n_tracks} tracks ({rep.message})")

@@ -55,15 +55,17 @@ class JointOptions:
         4-vector norm in the robust pass (with ``robust`` set), so that a
         sharp turn bends the track instead of making its detections
         outliers; the motion factors it finds beyond the chi-square(4)
-        ``1 - outlier_probability`` quantile (the turns) are left out of the
+        gate of ``gate_probability`` (the turns) are left out of the
         final Gaussian pass. None: Gaussian motion factors throughout.
     time_offsets : estimate each non-reference node's clock offset jointly
         with the poses (docs/CALIBRATION.md, "Clock offsets"); the node's
         detection at frame ``k`` is of the state ``F(tau) x_k``.
     state_prior_sigmas : (4,) sigmas of the zero-mean state prior (m, m,
         m/s, m/s).
-    outlier_probability : a detection whose whitened squared residual exceeds
-        the chi-square(3) ``1 - outlier_probability`` quantile is an outlier.
+    gate_probability : the probability of keeping a consistent detection:
+        a detection whose whitened squared residual exceeds the chi-square(3)
+        ``gate_probability`` quantile is an outlier (0.999: one consistent
+        detection in 1,000 is flagged).
     min_common_frames : fewer frames seen by two nodes raise CalibrationError.
     min_spread_m : the robust start's closed forms need the target to move
         this far in each node.
@@ -92,7 +94,7 @@ class JointOptions:
     motion_robust_k: float = DEFAULT_MOTION_ROBUST_K
     time_offsets: bool = False
     state_prior_sigmas: tuple[float, float, float, float] = (1e3, 1e3, 3.5, 3.5)
-    outlier_probability: float = 1e-3
+    gate_probability: float = 0.999
     min_common_frames: int = DEFAULT_MIN_COMMON_FRAMES
     min_spread_m: float = DEFAULT_MIN_SPREAD_M
     max_pose_variance: float = 1.0
@@ -121,8 +123,8 @@ class JointOptions:
         prior = check_positive(frozen_vector(self.state_prior_sigmas, "state_prior_sigmas", 4),
                                "state_prior_sigmas")
         object.__setattr__(self, "state_prior_sigmas", tuple(float(v) for v in prior))
-        object.__setattr__(self, "outlier_probability",
-                           check_probability(self.outlier_probability, "outlier_probability"))
+        object.__setattr__(self, "gate_probability",
+                           check_probability(self.gate_probability, "gate_probability"))
 
     @property
     def kernel_k(self) -> float | None:

@@ -107,7 +107,7 @@ def test_write_and_read_fused_round_trip(recordings, tmp_path):
     assert (back.status == Status.SINGULAR).any()
     with h5py.File(path, "r") as f:
         codes = json.loads(f["fused"].attrs["status_messages"])
-    assert sorted(int(c) for c in codes) == [0, 1, 2, 3, 4, 5, 9, 10]
+    assert sorted(int(c) for c in codes) == [0, 1, 2, 3, 4, 5, 9, 10, 11, 12]
     # The recording itself is intact, and a second write replaces /fused.
     assert read_recording(path).node_names == rec.node_names
     write_fused(path, fuse_recording(rec))
@@ -206,7 +206,9 @@ def test_cli_fuse_writes_the_fused_group(tmp_path, recordings, capsys):
     assert "wrote" in capsys.readouterr().out
     fused = read_fused(path)
     assert fused.mode == "ml" and fused.covariance_method == "laplace" and fused.solver == "batch"
-    ref = fuse_recording(rec, mode="ml", robust="gate")  # the CLI's default
+    from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, screen_room
+    # The CLI's default: the robust gate, then one target per body.
+    ref = screen_room(fuse_recording(rec, mode="ml", robust="gate"), body_m=DEFAULT_BODY_M)[0]
     np.testing.assert_allclose(fused.state[fused.success], ref.state[ref.success], atol=1e-12)
     out = tmp_path / "copy.h5"
     assert main(["fuse", str(path), "-o", str(out), "--no-progress"]) == 0

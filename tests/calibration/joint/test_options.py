@@ -50,8 +50,8 @@ def test_values_are_normalised_and_frozen():
     ("min_spread_m", -0.1), ("max_motion_gap_frames", 0), ("min_common_frames", 2.5),
     ("max_iterations", True), ("motion", "yes"), ("time_offsets", 1), ("presolve", None),
     ("state_covariances", "no"), ("state_prior_sigmas", (1.0, 1.0, 1.0)),
-    ("state_prior_sigmas", (1.0, 1.0, 0.0, 1.0)), ("outlier_probability", 1.0),
-    ("outlier_probability", 0.0), ("outlier_probability", True),
+    ("state_prior_sigmas", (1.0, 1.0, 0.0, 1.0)), ("gate_probability", 1.0),
+    ("gate_probability", 0.0), ("gate_probability", True),
 ])
 def test_a_bad_value_names_its_field(field, value):
     with pytest.raises(ValidationError, match=field):

@@ -222,8 +222,8 @@ def test_argument_errors():
         joint_calibration(dets, JointOptions(robust="tukey"))
     with pytest.raises(ValidationError, match="motion=True needs frame_period_s"):
         joint_calibration(dets, JointOptions(motion=True))
-    with pytest.raises(ValidationError, match="outlier_probability must be in"):
-        joint_calibration(dets, JointOptions(outlier_probability=1.5))
+    with pytest.raises(ValidationError, match=r"gate_probability must be in \(0, 1\), got 1.5"):
+        joint_calibration(dets, JointOptions(gate_probability=1.5))
     with pytest.raises(ValidationError, match="initial_poses has no pose for node 'S2'"):
         joint_calibration(dets, initial_poses={"S1": np.zeros(3)})
     dup = Detections(frame=[0, 0, 1], range_m=[1, 2, 3], omega_rad=[0, 0, 0],

@@ -11,16 +11,16 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from ..data.recording import Recording
-from ..errors import ValidationError
-from ..fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD
-from ..data.results import FusedSequence
-from ..fusion.recording.sequence import fuse_recording
-from ..tracking.central import CentralConfig, track_fused
-from ..tracking.track_fusion import fuse_tracks, transform_tracks
-from .demo_calibration import CalibrationOutcome
-from .demo_chain import DEMO_EKF_SIGMA_A_MPS2, SingleTrack, single_target_track
-from ..evaluation.metrics import StateErrors, state_errors
+from ...data.recording import Recording
+from ...errors import ValidationError
+from ...fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD
+from ...data.results import FusedSequence
+from ...fusion.recording.sequence import fuse_recording
+from ...tracking.central import CentralConfig, track_fused
+from ...tracking.track_fusion import fuse_tracks, transform_tracks
+from .calibration import CalibrationOutcome
+from .chain import DEMO_EKF_SIGMA_A_MPS2, SingleTrack, single_target_track
+from ...evaluation.metrics import StateErrors, state_errors
 
 __all__ = [
     "FusionOutcome",
@@ -182,7 +182,7 @@ def _estimate_run(recording: Recording, calibration: CalibrationOutcome) -> dict
 def fuse_run(recording: Recording, calibration: CalibrationOutcome, *, configuration: str = "?",
              trajectory: str = "?") -> FusionOutcome:
     """One-shot (Bayesian and ML), track-level and central estimates of a
-    processed run (:func:`mmsnap_graph.app.demo_chain.node_chain`) with
+    processed run (:func:`mmsnap_graph.app.demo.chain.node_chain`) with
     ``calibration``'s refined pose.
 
     One-shot: :func:`mmsnap_graph.fusion.recording.sequence.fuse_recording` of the torso

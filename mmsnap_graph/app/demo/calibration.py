@@ -12,17 +12,17 @@ from numpy.typing import NDArray
 
 from factors.models import local_to_global
 
-from ..calibration import LocalTracks, MatchingOptions, joint_calibration, match_tracks
-from ..data.noise import MeasurementNoise
-from ..data.recording import Detections, Recording, Tracks
-from ..errors import CalibrationError, ValidationError
-from .demo_chain import (
+from ...calibration import LocalTracks, MatchingOptions, joint_calibration, match_tracks
+from ...data.noise import MeasurementNoise
+from ...data.recording import Detections, Recording, Tracks
+from ...errors import CalibrationError, ValidationError
+from .chain import (
     DEMO_EKF_MEASUREMENT_STD,
     SingleTrack,
     centroids_near_track,
     single_target_track,
 )
-from ..evaluation.metrics import PoseError, align_frames, pose_error, pose_mapping_error
+from ...evaluation.metrics import PoseError, align_frames, pose_error, pose_mapping_error
 
 #: The joint graph weighs the centroids with the demo EKF's sigmas.
 _DEMO_NOISE = MeasurementNoise(range_m=DEMO_EKF_MEASUREMENT_STD[0], omega_rad=DEMO_EKF_MEASUREMENT_STD[1],
@@ -171,14 +171,14 @@ def _truth_errors(recording: Recording, name: str, cf_pose: NDArray, refined_pos
 def calibrate_run(recording: Recording, *, configuration: str = "?", trajectory: str = "?",
                   max_lag_frames: int = 2) -> CalibrationOutcome:
     """Calibrate S2 in S1's frame from a processed run
-    (:func:`mmsnap_graph.app.demo_chain.node_chain`).
+    (:func:`mmsnap_graph.app.demo.chain.node_chain`).
 
     Closed form: :func:`mmsnap_graph.calibration.match_tracks` on each node's
     stitched single-target EKF track (frame-lag search). Refined:
     :func:`mmsnap_graph.calibration.joint_calibration` on the torso centroids
     (one per node and frame, the one on the node's track), started from the
     closed form, with the demo's centroid sigmas
-    (:data:`~mmsnap_graph.app.demo_chain.DEMO_EKF_MEASUREMENT_STD`). Raises
+    (:data:`~mmsnap_graph.app.demo.chain.DEMO_EKF_MEASUREMENT_STD`). Raises
     :class:`CalibrationError` when the closed form fails.
     """
     names, tracks = _run_nodes(recording)

@@ -11,12 +11,12 @@ from numpy.typing import NDArray
 
 from factors.models import detection_to_local
 
-from ..data.recording import Detections, Recording, Tracks
-from ..errors import ValidationError
-from ..radar.chain import ChainConfig
-from ..radar.cluster import ClusterConfig
-from ..tracking.ekf import EkfConfig
-from .pipeline import cluster_node, track_node
+from ...data.recording import Detections, Recording, Tracks
+from ...errors import ValidationError
+from ...radar.chain import ChainConfig
+from ...radar.cluster import ClusterConfig
+from ...tracking.ekf import EkfConfig
+from ..pipeline import cluster_node, track_node
 
 __all__ = [
     "DEMO_EKF_MEASUREMENT_STD",

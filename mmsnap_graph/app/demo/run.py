@@ -37,63 +37,16 @@ from typing import Callable, Mapping, Sequence
 
 from tqdm.auto import tqdm
 
-from ..errors import CalibrationError, ValidationError
-from ..io import read_recording
-from ..sim import CLEAN, simulate_recording
-from .demo_calibration import CalibrationOutcome, calibrate_run, track_alignment_rmse
-from .demo_chain import (
-    DEMO_EKF_MEASUREMENT_STD,
-    DEMO_EKF_SIGMA_A_MPS2,
-    SingleTrack,
-    centroids_near_track,
-    node_chain,
-    single_target_track,
-)
-from .demo_cubes import CubeStretch, run_cube_stretch
-from .demo_fusion import FusionOutcome, fuse_run, global_track, track_level_fusion
-from .samples import (
-    CONFIGURATION_NAMES,
-    TRAJECTORY_NAMES,
-    find_sample_data,
-    load_run,
-    run_seed,
-    sample_path,
-    simulate_run,
-    truncate_recording,
-)
+from ...errors import CalibrationError, ValidationError
+from ...io import read_recording
+from ...sim import CLEAN, simulate_recording
+from .calibration import CalibrationOutcome, calibrate_run
+from .chain import node_chain
+from .cubes import CubeStretch, run_cube_stretch
+from .fusion import FusionOutcome, fuse_run
+from .samples import CONFIGURATION_NAMES, TRAJECTORY_NAMES, load_run, run_seed
 
-# The demo's steps live in demo_chain, demo_calibration, demo_fusion,
-# demo_cubes and samples; their names are re-exported here, where the demo
-# has always kept them.
-__all__ = [
-    "CONFIGURATION_NAMES",
-    "TRAJECTORY_NAMES",
-    "DEMO_EKF_MEASUREMENT_STD",
-    "DEMO_EKF_SIGMA_A_MPS2",
-    "DemoConfig",
-    "SingleTrack",
-    "CalibrationOutcome",
-    "FusionOutcome",
-    "CubeStretch",
-    "DemoResult",
-    "single_target_track",
-    "centroids_near_track",
-    "node_chain",
-    "track_alignment_rmse",
-    "calibrate_run",
-    "global_track",
-    "track_level_fusion",
-    "fuse_run",
-    "sample_path",
-    "find_sample_data",
-    "truncate_recording",
-    "simulate_run",
-    "load_run",
-    "run_cube_stretch",
-    "run_configuration",
-    "run_demo",
-    "other_trajectory",
-]
+__all__ = ["DemoConfig", "DemoResult", "run_configuration", "run_demo", "other_trajectory"]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

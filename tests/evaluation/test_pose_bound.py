@@ -1,6 +1,6 @@
 """What sparse clouds allow (issue 14, Build 7: "sparse within 1.2x of the
 dense error"): the Cramer-Rao bound of the node poses from each case's
-centroids (calibration.pose_bound), checked against a Monte Carlo of the
+centroids (evaluation.pose_bound), checked against a Monte Carlo of the
 least-squares estimator, and the bound ratio sparse / dense measured on
 the scene of tests/test_sparse_clouds.py."""
 
@@ -11,7 +11,7 @@ import pytest
 
 from factors.models import measurement_model_pose, predict_measurements, wrap_angle
 from mmsnap_graph.app.pipeline import process_recording
-from mmsnap_graph.calibration.pose_bound import (
+from mmsnap_graph.evaluation.pose_bound import (
     centroid_residuals,
     consensus_sigmas,
     lag1_correlation,

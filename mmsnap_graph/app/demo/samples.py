@@ -14,10 +14,10 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from ..data.recording import Recording
-from ..errors import ValidationError
-from ..io import read_recording
-from ..sim import CLEAN, simulate_recording
+from ...data.recording import Recording
+from ...errors import ValidationError
+from ...io import read_recording
+from ...sim import CLEAN, simulate_recording
 
 __all__ = [
     "CONFIGURATION_NAMES",
@@ -33,8 +33,8 @@ __all__ = [
 CONFIGURATION_NAMES = ("A", "B", "C")
 TRAJECTORY_NAMES = ("straight", "random")
 
-#: The repository's ``data/`` for a source checkout (``<root>/mmsnap_graph/app/samples.py``).
-_CHECKOUT_DATA = Path(__file__).resolve().parents[2] / "data"
+#: The repository's ``data/`` for a source checkout (``<root>/mmsnap_graph/app/demo/samples.py``).
+_CHECKOUT_DATA = Path(__file__).resolve().parents[3] / "data"
 
 
 def run_seed(seed: int, configuration: str, trajectory: str) -> int:

@@ -13,12 +13,12 @@ from numpy.typing import NDArray
 
 from factors.models import measurement_model, wrap_angle
 
-from ..data.recording import Detections, Recording
-from ..errors import ValidationError
-from ..fusion.recording.sequence import fuse_recording
-from .demo_fusion import one_row_per_frame
-from ..evaluation.metrics import StateErrors, align_frames, state_errors
-from .pipeline import process_recording
+from ...data.recording import Detections, Recording
+from ...errors import ValidationError
+from ...fusion.recording.sequence import fuse_recording
+from .fusion import one_row_per_frame
+from ...evaluation.metrics import StateErrors, align_frames, state_errors
+from ..pipeline import process_recording
 
 __all__ = ["CubeStretch", "run_cube_stretch"]
 
