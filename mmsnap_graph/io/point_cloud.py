@@ -25,6 +25,10 @@ __all__ = ["PointCloud3D", "Mounting", "cloud_to_detections", "recording_from_po
            "destack_frames", "accumulate_frames", "check_frame_period"]
 
 _COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
+#: Limits of a radar point (no mmWave radar sees beyond a few hundred metres
+#: or faster than a few hundred m/s): a larger value is a corrupted number.
+MAX_COORDINATE_M = 1e4
+MAX_SPEED_MPS = 1e3
 #: :func:`accumulate_frames` refuses to make more points than this (memory).
 MAX_ACCUMULATED_POINTS = 50_000_000
 
@@ -66,6 +70,11 @@ class PointCloud3D:
                 bad = int(np.flatnonzero(~np.isfinite(arr))[0])
                 raise ValidationError(f"{name} must be finite; point {bad} (frame "
                                       f"{frame[bad]}) holds {arr[bad]!r}")
+            limit = MAX_SPEED_MPS if name == "doppler_mps" else MAX_COORDINATE_M
+            if name in _COLUMNS and arr.size and np.max(np.abs(arr)) > limit:
+                bad = int(np.argmax(np.abs(arr)))
+                raise ValidationError(f"{name} must lie within +-{limit:g}; point {bad} (frame "
+                                      f"{frame[bad]}) holds {float(arr[bad])!r}")
             object.__setattr__(self, name, arr)
         frames = np.unique(frame) if self.frames is None else int_array(self.frames, "frames")
         missing = np.setdiff1d(frame, frames)

@@ -40,11 +40,16 @@ def test_a_repeated_number_with_other_points_is_dropped_and_reported():
     assert "frame number 2 goes back in the sequence 3, ..., 4" in str(log.bad[0])
 
 
-def test_one_corrupted_frame_number_is_dropped():
-    data = _log([1, 2, 3, 2 ** 31 + 4, 5, 6])
-    log = parse_ti_uart(data)
-    assert log.frame_numbers.tolist() == [1, 2, 3, 5, 6]
-    assert "frame number 2147483652 leaves the sequence 3, ..., 5" in str(log.bad[0])
+@pytest.mark.parametrize("numbers, around", [
+    ([1, 2, 3, 2 ** 31 + 4, 5, 6], "3, ..., 5"),          # one flipped bit inside
+    ([2 ** 31 + 1, 2, 3, 4, 5, 6], "2, 3"),               # ... in the first header
+    ([1, 2, 3, 4, 5, 2 ** 31 + 6], "5, ..., end")])       # ... in the last one
+def test_one_corrupted_frame_number_is_dropped(numbers, around):
+    """One flipped bit in a header used to put a frame at 2^31 (and then ask
+    `process` for 16 GiB); the packet is dropped and reported."""
+    log = parse_ti_uart(_log(numbers))
+    assert log.frame_numbers.tolist() == [k for k in numbers if k < 2 ** 31]
+    assert f"leaves the sequence {around} (a corrupted header" in str(log.bad[0])
 
 
 @pytest.mark.parametrize("numbers, at", [([1, 2, 3, 4, 1, 2, 3], 4),     # radar restart
@@ -65,14 +70,14 @@ def test_sub_frames_of_one_frame_are_not_repeats():
     assert log.bad == () and log.sub_frame.tolist() == [0, 1, 0, 1]
 
 
-@pytest.mark.parametrize("value", [np.nan, np.inf])
+@pytest.mark.parametrize("value", [np.nan, np.inf, 3e38])
 def test_a_non_finite_point_skips_only_its_frame(value):
     data = _log([1, 2]) + _packet(3, x=value) + _log([4])
     log = parse_ti_uart(data)
     assert log.frame_numbers.tolist() == [1, 2, 4]
     (bad,) = log.bad
     assert bad.frame_number == 3 and bad.byte_offset == len(_log([1, 2]))
-    assert f"point 0 of 2 holds x={value!r}" in str(bad)
+    assert f"point 0 of 2 holds x={float(np.float32(value))!r} (not a finite number" in str(bad)
 
 
 def test_cli_keeps_the_good_frames_and_names_the_bad_one(tmp_path, capsys):
