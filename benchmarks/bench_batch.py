@@ -4,10 +4,10 @@ Two nodes (configuration B by default), MAP with the paper's prior and noise,
 noisy measurements drawn around the common area (seeded). Every method returns
 the state and its 4x4 Laplace covariance:
 
-- batch: :func:`mmsnap_graph.fusion.batch.fuse_batch` on all frames at once
+- batch: :func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch` on all frames at once
   (the problem module's vectorized initial values, LM vectorized over frames, covariance
   by batched Cholesky); the whole public call, validation included;
-- GTSAM: :func:`mmsnap_graph.fusion.oneshot.fuse_frame`, one frame at a time;
+- GTSAM: :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`, one frame at a time;
 - scipy: ``scipy.optimize.least_squares`` (method "lm", analytic Jacobian from
   :func:`factors.models.measurement_model`, the same initial values, tight
   tolerances) and ``(J^T J)^{-1}``, one frame at a time.
@@ -34,9 +34,9 @@ import time
 import numpy as np
 
 from frames import POSES, scipy_fuse, simulate
-from mmsnap_graph.fusion.batch import fuse_batch
+from mmsnap_graph.fusion.solvers.vectorized import fuse_batch
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
-from mmsnap_graph.fusion.oneshot import fuse_frame
+from mmsnap_graph.fusion.solvers.gtsam_graph import fuse_frame
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

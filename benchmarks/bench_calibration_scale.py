@@ -38,6 +38,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from mmsnap_graph.sim import SimulationOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAME_PERIOD_S = 0.15
@@ -54,8 +55,9 @@ def make_recording(path: Path, n_nodes: int, n_frames: int) -> None:
     from mmsnap_graph.io.hdf5 import write_recording
     from mmsnap_graph.sim.simulator import simulate_recording
 
-    rec = simulate_recording(network(n_nodes), "random", levels=("centroids",),
-                             n_frames=n_frames, frame_period_s=FRAME_PERIOD_S, seed=1)
+    rec = simulate_recording(network(n_nodes), "random",
+                             SimulationOptions(physics=None, frame_period_s=FRAME_PERIOD_S),
+                             levels=("centroids",), n_frames=n_frames, seed=1)
     write_recording(path, rec, overwrite=True)
 
 

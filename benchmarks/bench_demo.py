@@ -24,6 +24,7 @@ import time
 from mmsnap_graph.app import demo
 from mmsnap_graph.app.pipeline import process_recording
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import CLEAN
 
 
 def main() -> None:
@@ -39,7 +40,8 @@ def main() -> None:
     n_runs = len(res.sources)
 
     t0 = time.perf_counter()
-    rec = simulate_recording("C", "straight", levels=("cube",), n_frames=args.cube_frames, seed=1)
+    rec = simulate_recording("C", "straight", CLEAN, levels=("cube",), n_frames=args.cube_frames,
+                             seed=1)
     t_synth = time.perf_counter() - t0
     t0 = time.perf_counter()
     process_recording(rec)

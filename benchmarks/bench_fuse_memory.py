@@ -12,7 +12,7 @@ reports its peak resident set size (``VmHWM`` of ``/proc/self/status``, Linux) a
 
 - whole: what ``mmsnap fuse`` did before chunked reading:
   :func:`~mmsnap_graph.io.read_recording` +
-  :func:`~mmsnap_graph.fusion.sequence.fuse_recording` +
+  :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording` +
   :func:`~mmsnap_graph.io.write_fused`;
 - chunked: ``mmsnap fuse`` (:func:`mmsnap_graph.app.chunked_fuse.fuse_file`,
   windows of ``--window`` frames).
@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from mmsnap_graph.sim import SimulationOptions
 
 FRAME_PERIOD_S = 0.15
 BASE_FRAMES = 2400
@@ -46,7 +47,7 @@ CHILD = r"""
 import json, sys, time, tracemalloc
 path, mode, window, trace = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4] == "1"
 import h5py, numpy, gtsam  # noqa: F401  the same imports in every mode
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import read_recording, write_fused
 if trace:
     tracemalloc.start()
@@ -115,8 +116,9 @@ def main(argv=None) -> int:
     from mmsnap_graph.sim import simulate_recording
 
     t0 = time.perf_counter()
-    base = simulate_recording(_network(), "random", levels=("centroids",), n_frames=BASE_FRAMES,
-                              frame_period_s=FRAME_PERIOD_S, known_poses=True, seed=0)
+    base = simulate_recording(_network(), "random",
+                              SimulationOptions(physics=None, frame_period_s=FRAME_PERIOD_S, known_poses=True),
+                              levels=("centroids",), n_frames=BASE_FRAMES, seed=0)
     print(f"10 nodes, 1 target, centroids, {FRAME_PERIOD_S * 1e3:.0f} ms frames; simulated "
           f"{BASE_FRAMES} frames in {time.perf_counter() - t0:.1f} s; window {args.window} frames")
     with tempfile.TemporaryDirectory() as tmp:

@@ -22,9 +22,10 @@ import time
 
 import numpy as np
 
-from mmsnap_graph.calibration.monitor import DEFAULT_THRESHOLD, monitor_recording
+from mmsnap_graph.calibration.monitor.decalibration import DEFAULT_THRESHOLD, monitor_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.bump import simulate_bumped_recording
+from mmsnap_graph.sim import SimulationOptions
 
 TRIANGLE = {"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi), "S3": (-3.5, 3.5, -np.pi / 2)}
 NETWORKS = {"C": "C", "B": "B", "A": "A", "triangle": TRIANGLE}
@@ -51,7 +52,7 @@ def detection(seeds: int) -> None:
         for bump_name, bump in BUMPS.items():
             delays = []
             for seed in range(seeds):
-                rec = simulate_bumped_recording(network, "random", node=node, bump=bump,
+                rec = simulate_bumped_recording(network, "random", physics=None, node=node, bump=bump,
                                                 bump_time_s=BUMP_TIME_S, n_frames=N_FRAMES,
                                                 seed=seed)
                 res = monitor_recording(rec)
@@ -89,8 +90,9 @@ def false_alarms(hours: float, seeds: int) -> None:
     for net_name in ("C", "triangle"):
         for seed in range(100, 100 + seeds):
             t0 = time.perf_counter()
-            rec = simulate_recording(NETWORKS[net_name], "random", levels=("centroids",),
-                                     n_frames=n_frames, seed=seed, known_poses=True)
+            rec = simulate_recording(NETWORKS[net_name], "random",
+                                     SimulationOptions(physics=None, known_poses=True),
+                                     levels=("centroids",), n_frames=n_frames, seed=seed)
             res = monitor_recording(rec)
             total_alarms += len(res.changes)
             total_hours += hours

@@ -34,7 +34,7 @@ from mmsnap_graph.app.cli import main as mmsnap
 
 #: Modules every step imports (GTSAM, scikit-learn, h5py behind them).
 WARM_MODULES = ("mmsnap_graph.app.pipeline", "mmsnap_graph.calibration",
-                "mmsnap_graph.fusion.sequence", "mmsnap_graph.io")
+                "mmsnap_graph.fusion.recording.sequence", "mmsnap_graph.io")
 
 
 def _warm_up() -> int:

@@ -22,6 +22,7 @@ from mmsnap_graph.data.radar_config import SPEED_OF_LIGHT_MPS, TABLE_I
 from mmsnap_graph.sim import network_poses, simulate_recording, simulate_targets
 from mmsnap_graph.sim.body import body_scatterers
 from mmsnap_graph.sim.cube import scatterer_amplitude
+from mmsnap_graph.sim import CLEAN
 
 
 def direct_cube(cfg, p_local, v_local, amp, rng, noise_std=1.0):
@@ -56,14 +57,14 @@ def main() -> None:
           f"cpus={os.cpu_count()}")
 
     t0 = time.perf_counter()
-    simulate_recording(args.configuration, "random", levels=("centroids", "point_cloud"),
+    simulate_recording(args.configuration, "random", CLEAN, levels=("centroids", "point_cloud"),
                        n_frames=args.frames, seed=0)
     t_light = time.perf_counter() - t0
     print(f"centroids + point clouds, 2 nodes x {args.frames} frames: {t_light:.2f} s")
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        rec = simulate_recording(args.configuration, "random", levels=("cube",),
+        rec = simulate_recording(args.configuration, "random", CLEAN, levels=("cube",),
                                  n_frames=args.frames, seed=0,
                                  cube_memmap_dir=tmp if args.memmap else None)
         t_cube = time.perf_counter() - t0

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.sim import CubeModel, simulate_recording
+from mmsnap_graph.sim import CLEAN, SimulationOptions
 
 #: (configuration, trajectory) -> seed
 SEEDS = {
@@ -33,13 +34,14 @@ def make_samples(out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for (config, trajectory), seed in SEEDS.items():
-        rec = simulate_recording(config, trajectory, levels=("centroids", "point_cloud"),
+        rec = simulate_recording(config, trajectory, CLEAN, levels=("centroids", "point_cloud"),
                                  n_frames=600, seed=seed)
         written.append(write_recording(out / f"config_{config}_{trajectory}.h5", rec,
                                        overwrite=True))
-    rec = simulate_recording("B", "random", levels=("centroids", "point_cloud", "cube"),
-                             n_frames=4, seed=CUBE_SEED,
-                             cube_model=CubeModel(noise_std=4.0, quantize=True))
+    rec = simulate_recording("B", "random",
+                             SimulationOptions(physics=None, cube_model=CubeModel(noise_std=4.0, quantize=True)),
+                             levels=("centroids", "point_cloud", "cube"), n_frames=4,
+                             seed=CUBE_SEED)
     written.append(write_recording(out / "cubes_B_random_4frames.h5", rec, overwrite=True,
                                    cube_storage="int16", compression_opts=4))
     return written

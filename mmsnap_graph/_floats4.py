@@ -1,6 +1,6 @@
 """Symmetric 4x4 algebra in plain Python floats (private helper module).
 
-The one-frame solver of the stream (:mod:`mmsnap_graph.fusion.frame_solver`)
+The one-frame solver of the stream (:mod:`mmsnap_graph.fusion.solvers.scalar`)
 and the central tracker (:mod:`mmsnap_graph.tracking.central`) work on a
 few 4x4 matrices per frame, where numpy's per-call cost would be most of the
 time. A matrix is given row-major as 16 floats; a Cholesky factor as the

@@ -14,6 +14,7 @@ from __future__ import annotations
 import pytest
 
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import CLEAN, SimulationOptions
 
 
 @pytest.fixture(scope="session")
@@ -21,8 +22,9 @@ def two_target_recordings():
     """Configurations A, B, C: two walking targets, 200 frames, known poses,
     10 % missed centroids (seed 11)."""
     return {
-        net: simulate_recording(net, "random", levels=("centroids",), n_frames=200, seed=11,
-                                n_targets=2, known_poses=True, centroid_p_miss=0.1)
+        net: simulate_recording(net, "random",
+                                SimulationOptions(physics=None, n_targets=2, known_poses=True, centroid_p_miss=0.1),
+                                levels=("centroids",), n_frames=200, seed=11)
         for net in "ABC"
     }
 
@@ -31,17 +33,17 @@ def two_target_recordings():
 def recording_b_point_cloud():
     """Configuration B, one random walker, centroids and point clouds, default
     length (seed 11)."""
-    return simulate_recording("B", "random", levels=("centroids", "point_cloud"), seed=11)
+    return simulate_recording("B", "random", CLEAN, levels=("centroids", "point_cloud"), seed=11)
 
 
 @pytest.fixture(scope="session")
 def recording_c_random():
     """Configuration C, one random walker, 300 frames of centroids, poses
     unknown (seed 3): enough for calibration."""
-    return simulate_recording("C", "random", levels=["centroids"], n_frames=300, seed=3)
+    return simulate_recording("C", "random", CLEAN, levels=["centroids"], n_frames=300, seed=3)
 
 
 @pytest.fixture(scope="session")
 def recording_c_straight():
     """Configuration C, a straight walk, 20 frames of centroids (seed 0)."""
-    return simulate_recording("C", "straight", levels=("centroids",), n_frames=20, seed=0)
+    return simulate_recording("C", "straight", CLEAN, levels=("centroids",), n_frames=20, seed=0)

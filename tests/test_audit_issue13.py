@@ -22,7 +22,7 @@ from mmsnap_graph.app.cli import main
 def files(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("audit13")
     good = d / "good.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "60", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "60", "-l", "centroids",
                  "--seed", "5", "--known-poses", "-o", str(good), "--no-progress"]) == 0
     data = good.read_bytes()
     out = {"good": good, "missing": d / "missing.h5"}

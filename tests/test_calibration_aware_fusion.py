@@ -21,11 +21,14 @@ from scipy.stats import chi2
 
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_BC
 from factors.models import measurement_model_pose, predict_measurements, wrap_angle
+from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.fusion.sequence import fuse_recording
-from mmsnap_graph.fusion.stream import FrameStream
+from mmsnap_graph.evaluation import nees
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 #: 3 cm and 1 degree on the two non-reference poses; S1 is exact (all NaN).
 POSE_SIGMAS = np.array([0.03, 0.03, np.deg2rad(1.0)])
@@ -88,7 +91,10 @@ def test_bad_pose_covariances_raise_naming_the_entry(pose_cov, match):
 def test_grid_covariance_refuses_pose_covariances():
     _, z = _frames(np.random.default_rng(0), 1)
     with pytest.raises(ValidationError, match="pose_covariances needs covariance='laplace'"):
-        fuse_frame(POSES_BC, z[0], covariance="grid", pose_covariances=POSE_COV)
+        fuse_frame(POSES_BC,
+                   z[0],
+                   pose_covariances=POSE_COV,
+                   options=FusionOptions(covariance="grid"))
 
 
 def test_exact_poses_give_the_plain_result():
@@ -139,9 +145,12 @@ def test_batch_propagation_equals_the_solvers_own_pose_sensitivity(noisy, tolera
     states, z = _frames(np.random.default_rng(3), 8, noises=NOISES)
     if not noisy:
         z = np.stack([predict_measurements(states, p) for p in POSES_BC], axis=1)
-    aware = fuse_batch(POSES_BC, z, noise=NOISES, pose_covariances=POSE_COV,
-                       step_tolerance=1e-14)
-    plain = fuse_batch(POSES_BC, z, noise=NOISES, step_tolerance=1e-14)
+    aware = fuse_batch(POSES_BC,
+                       z,
+                       noise=NOISES,
+                       pose_covariances=POSE_COV,
+                       options=FusionOptions(step_tolerance=1e-14))
+    plain = fuse_batch(POSES_BC, z, noise=NOISES, options=FusionOptions(step_tolerance=1e-14))
     assert plain.success.all()
     h = 1e-5
     ref = plain.covariance.copy()
@@ -154,8 +163,11 @@ def test_batch_propagation_equals_the_solvers_own_pose_sensitivity(noisy, tolera
             for sign in (1.0, -1.0):
                 poses = POSES_BC.copy()
                 poses[n] = _retract(POSES_BC[n], sign * xi)
-                shifted.append(fuse_batch(poses, z, noise=NOISES, initial_state=plain.state,
-                                          step_tolerance=1e-14).state)
+                shifted.append(fuse_batch(poses,
+                                          z,
+                                          noise=NOISES,
+                                          initial_state=plain.state,
+                                          options=FusionOptions(step_tolerance=1e-14)).state)
             jac[:, :, k] = (shifted[0] - shifted[1]) / (2 * h)
         ref += jac @ POSE_COV[n] @ np.swapaxes(jac, 1, 2)
     sig = np.sqrt(np.einsum("fii->fi", ref))
@@ -260,15 +272,18 @@ def test_gate_leaves_the_rejected_nodes_pose_out():
 @pytest.fixture(scope="module")
 def recording_3():
     network = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
-    return simulate_recording(network, "random", levels=("centroids",), n_frames=40, seed=9,
-                              known_poses=True)
+    return simulate_recording(network, "random",
+                              SimulationOptions(physics=None, known_poses=True),
+                              levels=("centroids",), n_frames=40, seed=9)
 
 
 def test_fuse_recording_passes_pose_covariances_by_name(recording_3):
     by_name = {"S2": POSE_COV[1], "S3": POSE_COV[2]}  # S1 left out: exact
     plain = fuse_recording(recording_3)
     fb = fuse_recording(recording_3, pose_covariances=by_name)
-    fg = fuse_recording(recording_3, solver="gtsam", pose_covariances=by_name)
+    fg = fuse_recording(recording_3,
+                        pose_covariances=by_name,
+                        options=FusionOptions(solver="gtsam"))
     ok = plain.success
     assert ok.mean() > 0.9
     np.testing.assert_array_equal(fb.state[ok], plain.state[ok])
@@ -285,7 +300,7 @@ def test_fuse_recording_passes_pose_covariances_by_name(recording_3):
 
 
 def test_frame_stream_passes_pose_covariances(recording_3):
-    stream = FrameStream(recording_3.node_names, POSES_BC, solver="batch",
+    stream = FrameStream(recording_3.node_names, POSES_BC, solver="vectorized",
                          pose_covariances={"S2": POSE_COV[1], "S3": POSE_COV[2]})
     _, z = _frames(np.random.default_rng(10), 1)
     update = stream.push(0.1, [z[0, n][None] for n in range(3)])
@@ -295,11 +310,6 @@ def test_frame_stream_passes_pose_covariances(recording_3):
 
 # ----------------------------------------------------------------------------
 # Monte Carlo: the issue 11 target
-
-
-def _nees(states, est, cov):
-    e = est - states
-    return np.einsum("fi,fij,fj->f", e, np.linalg.inv(cov), e)
 
 
 @pytest.mark.slow
@@ -323,12 +333,12 @@ def test_calibration_aware_nees_in_band_when_poses_are_drawn_from_their_covarian
     aware = fuse_batch(used, z, pose_covariances=POSE_COV)
     ok = plain.success & aware.success
     assert ok.mean() > 0.99
-    nees_plain = _nees(states[ok], plain.state[ok], plain.covariance[ok]).mean()
-    nees_batch = _nees(states[ok], aware.state[ok], aware.covariance[ok]).mean()
+    nees_plain = nees(plain.state[ok] - states[ok], plain.covariance[ok]).mean()
+    nees_batch = nees(aware.state[ok] - states[ok], aware.covariance[ok]).mean()
     gtsam = [fuse_frame(used[f], z[f], pose_covariances=POSE_COV) for f in range(n_trials)]
     good = np.array([r.success for r in gtsam]) & ok
-    nees_gtsam = _nees(states[good], np.array([gtsam[f].state for f in np.flatnonzero(good)]),
-                       np.array([gtsam[f].covariance for f in np.flatnonzero(good)])).mean()
+    nees_gtsam = nees(np.array([gtsam[f].state for f in np.flatnonzero(good)]) - states[good],
+                      np.array([gtsam[f].covariance for f in np.flatnonzero(good)])).mean()
     assert band[0] < nees_batch < band[1], (nees_batch, band)
     assert band[0] < nees_gtsam < band[1], (nees_gtsam, band)
     assert nees_plain > band[1], (nees_plain, band)

@@ -1,7 +1,7 @@
 """``RecordingCalibration.lag_frames`` holds the lags of the solve it reports.
 
 The joint graph re-centres a whole-frame lag its clock offset only partly
-recovers (``calibration.joint.LAG_RECENTRE_FRACTION``). Before this test,
+recovers (``calibration.joint.solve.LAG_RECENTRE_FRACTION``). Before this test,
 ``calibrate_recording`` reported the joint graph's poses and offsets with
 the pose graph's lags (seed 2 below: S3 -1 from the tracks' matching, 0
 after the joint graph; the true lag is 0).

@@ -29,6 +29,7 @@ from mmsnap_graph.app.report import (
 )
 
 from _shared import DATA
+from mmsnap_graph.sim import CLEAN
 
 
 @pytest.fixture(scope="module")
@@ -300,7 +301,7 @@ def test_find_sample_data(tmp_path, monkeypatch):
 def test_cube_stretch_runs_the_whole_chain():
     from mmsnap_graph.sim import simulate_recording
 
-    rec = simulate_recording("C", "straight", levels=("cube",), n_frames=6, seed=3)
+    rec = simulate_recording("C", "straight", CLEAN, levels=("cube",), n_frames=6, seed=3)
     cs = demo.run_cube_stretch(rec, source="test", configuration="C")
     assert cs.n_frames == 6
     for name in ("S1", "S2"):
@@ -392,7 +393,7 @@ def test_a_failed_calibration_is_reported_and_the_other_run_not_fused(monkeypatc
             raise CalibrationError("forced")
         return real(rec, configuration=configuration, trajectory=trajectory, **kw)
 
-    monkeypatch.setattr(demo, "calibrate_run", failing)
+    monkeypatch.setattr(demo.run, "calibrate_run", failing)  # where run_demo looks it up
     res = demo.run_demo(demo.DemoConfig(configurations=("B",), n_frames=40, cube_frames=0))
     assert set(res.calibrations) == {("B", "random")}
     assert set(res.fusions) == {("B", "straight")}

@@ -12,16 +12,17 @@ import pytest
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.evaluation import evaluate_recording
 from mmsnap_graph.data.recording import Truth
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import write_fused, write_recording
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 
 @pytest.fixture(scope="module")
 def surveyed():
     """Configuration B with known poses; the truth keeps only the surveyed poses."""
-    rec = simulate_recording("B", "random", levels=("centroids",), n_frames=30, seed=2,
-                             known_poses=True)
+    rec = simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=30, seed=2)
     truth = Truth(frame=np.zeros(0, np.int64), target_id=np.zeros(0, np.int64),
                   state=np.zeros((0, 4)), node_poses=rec.truth.node_poses)
     return dataclasses.replace(rec, truth=truth)

@@ -11,7 +11,7 @@ from mmsnap_graph.io import read_fused
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
     path = tmp_path_factory.mktemp("fusecal") / "rec.h5"
-    assert main(["simulate", "-c", "C", "-l", "centroids", "-n", "300", "-s", "2",
+    assert main(["simulate", "--model", "clean", "-c", "C", "-l", "centroids", "-n", "300", "-s", "2",
                  "-o", str(path)]) == 0
     assert main(["process", str(path), "--centroids-only", "--no-progress"]) == 0
     assert main(["calibrate", str(path)]) == 0

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import network_poses
 from mmsnap_graph.sim.clocks import scene_recording, timed_scene
 

@@ -28,7 +28,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
     """A good recording (known poses, with truth) and damaged copies of it."""
     d = tmp_path_factory.mktemp("fuzz_cli")
     good = d / "good.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "60", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "60", "-l", "centroids",
                  "--seed", "5", "--known-poses", "-o", str(good), "--no-progress"]) == 0
     data = good.read_bytes()
     out = {"good": good}

@@ -15,10 +15,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mmsnap_graph.calibration.matching import LocalTracks, match_tracks
+from mmsnap_graph.calibration.pairwise.matching import LocalTracks, match_tracks
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import MmsnapError
-from mmsnap_graph.fusion.stream import FrameStream
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.io import read_dca1000_bin
 from mmsnap_graph.io.ti_cfg import read_ti_cfg
 from mmsnap_graph.radar.chain import ChainConfig, point_cloud_of_cube
@@ -66,7 +66,7 @@ def stream_runs(draw):
         t = t + draw(st.sampled_from([0.15, 0.15, 0.05, 0.0, -0.1, np.nan, 1e5]))
         frames.append((t, detections(draw, n_nodes)))
     sigma = draw(st.sampled_from([None, 1e-300, 1e-8, 1e8]))
-    return n_nodes, frames, sigma, draw(st.sampled_from(["gtsam", "batch"]))
+    return n_nodes, frames, sigma, draw(st.sampled_from(["gtsam", "vectorized"]))
 
 
 @FUZZ

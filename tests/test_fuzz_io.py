@@ -37,7 +37,7 @@ def recording_bytes(tmp_path_factory) -> Source:
     clouds), and a folder for the damaged copies."""
     d = tmp_path_factory.mktemp("fuzz_io")
     path = d / "good.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "--seed", "3",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "--seed", "3",
                  "-o", str(path), "--no-progress"]) == 0
     read_recording(path)  # the undamaged file reads
     return Source((path.read_bytes(), d))

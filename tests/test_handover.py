@@ -11,20 +11,22 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model
+from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.evaluation import evaluate_recording, failed_checks
 from mmsnap_graph.data.noise import GaussianPrior
 from mmsnap_graph.data.results import measurement_information
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io import write_fused, write_recording
 from mmsnap_graph.io.fused import read_fused
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions
 
 
 @pytest.fixture(scope="module")
 def recording():
-    return simulate_recording("B", "random", levels=("centroids",), n_frames=60, seed=5,
-                              known_poses=True)
+    return simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
+                              levels=("centroids",), n_frames=60, seed=5)
 
 
 @pytest.fixture(scope="module")
@@ -48,12 +50,15 @@ def _jtwj(fused, i):
 
 
 @pytest.mark.parametrize("which", ["fused_map", "fused_ml"])
-@pytest.mark.parametrize("solver", ["batch", "gtsam"])
+@pytest.mark.parametrize("solver", ["vectorized", "gtsam"])
 def test_information_is_jtwj_at_the_estimate(which, solver, recording, request):
     fused = request.getfixturevalue(which)
     if solver == "gtsam":
         kw = {} if fused.mode == "map" else {"mode": "ml", "prior": None}
-        fused = fuse_recording(recording, solver="gtsam", progress=False, **kw)
+        fused = fuse_recording(recording,
+                               progress=False,
+                               **kw,
+                               options=FusionOptions(solver="gtsam"))
     rows = np.flatnonzero(fused.success)
     assert rows.size > 50
     for i in rows:
@@ -217,8 +222,9 @@ def test_fuse_recording_carries_the_recording_clock():
     import dataclasses
 
     from mmsnap_graph import fuse_recording, simulate_recording
-    rec = simulate_recording("B", levels=("centroids",), n_frames=12, known_poses=True,
-                             frame_period_s=0.05)
+    rec = simulate_recording("B",
+                             options=SimulationOptions(physics=None, known_poses=True, frame_period_s=0.05),
+                             levels=("centroids",), n_frames=12)
     fused = fuse_recording(rec)
     np.testing.assert_allclose(fused.time_s, fused.frame * 0.05)
     assert fused.frame_period_s == 0.05 and fused.time_origin_s is None

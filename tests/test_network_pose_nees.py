@@ -28,14 +28,16 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from mmsnap_graph.calibration import JointOptions
 from factors.models import detection_to_local, measurement_model
 from mmsnap_graph.calibration import (LocalTracks, calibrate_recording, joint_calibration,
                                       pose_tangent_error)
-from mmsnap_graph.calibration import joint as joint_module
-from mmsnap_graph.calibration.centroid_points import debias_centroid_tracks
+from mmsnap_graph.calibration.joint import solve as joint_module
+from mmsnap_graph.calibration.pairwise.centroid_points import debias_centroid_tracks
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
+from mmsnap_graph.sim import CLEAN
 
 NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
 #: The simulator's centroid noise (sim.simulator.CENTROID_NOISE).
@@ -43,7 +45,7 @@ NOISE = MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.10)
 
 
 def _recording(seed, with_tracks=False):
-    rec = simulate_recording(NET, "random", levels=("centroids",), n_frames=300, seed=seed)
+    rec = simulate_recording(NET, "random", CLEAN, levels=("centroids",), n_frames=300, seed=seed)
     if with_tracks:
         cfg = EkfConfig(frame_period_s=rec.frame_period_s)
         rec = dataclasses.replace(rec, nodes={
@@ -91,8 +93,8 @@ def test_a_lag_one_frame_off_is_recentred(monkeypatch, recentre):
     lags = {"S1": 0, "S2": 1, "S3": 0}
     dets = {n: dataclasses.replace(node.centroids, frame=node.centroids.frame - lags[n])
             for n, node in rec.nodes.items()}
-    res = joint_calibration(dets, noise=NOISE, motion=True, frame_period_s=rec.frame_period_s,
-                            sigma_a_mps2=3.0, time_offsets=True, lag_frames=lags,
+    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True),
+                            noise=NOISE, frame_period_s=rec.frame_period_s, lag_frames=lags,
                             initial_poses=NET)
     err = np.hypot(*pose_tangent_error(res.poses["S2"], NET["S2"])[:2])
     if recentre:

@@ -24,6 +24,7 @@ from mmsnap_graph.app.plots import (
 )
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.networks import COMMON_AREAS, CONFIGURATIONS
+from mmsnap_graph.sim import CLEAN
 
 
 def _render(fig):
@@ -137,7 +138,8 @@ def _cal(true_pose):
     track = lambda xy: SimpleNamespace(state=np.concatenate([xy, np.zeros_like(xy)], 1))  # noqa: E731
     return SimpleNamespace(truth_state=s1, track_s1=track(s1), track_s2=track(s2),
                            closed_form_pose=true_pose + [0.05, 0, 0.01], refined_pose=true_pose,
-                           closed_form_rmse_m=0.05, refined_rmse_m=0.01, true_pose=true_pose)
+                           closed_form_rmse_m=0.05, refined_rmse_m=0.01, true_pose=true_pose,
+                           refined_covariance=np.diag([0.02, 0.005, 0.004]) ** 2)
 
 
 def test_calibration_legend_does_not_cover_the_nodes():
@@ -146,8 +148,26 @@ def test_calibration_legend_does_not_cover_the_nodes():
     _assert_legend_clear_of_nodes(fig, fig.axes[0], [(0.0, 0.0), true_pose[:2]])
 
 
+def test_calibration_panel_shows_the_pose_uncertainty_and_explains_the_arrow():
+    true_pose = np.array(CONFIGURATIONS["B"]["S2"], dtype=float)
+    fig = plot_calibration_tracks({("B", "random"): _cal(true_pose)}, ["B"], ["random"])
+    ax = fig.axes[0]
+    texts = _legend_texts(ax)
+    assert any("boresight" in t for t in texts)
+    sigma = next(t for t in texts if t.startswith("S2 pose sigma"))
+    assert "2.0 cm, 0.5 cm, 0.23 deg" in sigma and "2-sigma ellipse x" in sigma
+    ellipses = [p for p in ax.patches if type(p).__name__ == "Ellipse"]
+    assert len(ellipses) == 1
+    k = int(sigma.rsplit("x", 1)[1].rstrip(")"))
+    # 2 sigma of the larger axis (2 cm), magnified k times, as the ellipse's full width
+    assert max(ellipses[0].width, ellipses[0].height) == pytest.approx(2 * 2 * 0.02 * k)
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    for x, y in [(0.0, 0.0), true_pose[:2]]:   # node labels sit inside, not clipped
+        assert x0 + 0.5 < x < x1 - 0.5 and y0 + 0.5 < y < y1 - 0.5
+
+
 def test_point_clouds_have_a_colour_bar_and_say_which_frame():
-    rec = simulate_recording("B", "random", levels=("point_cloud",), n_frames=12, seed=1)
+    rec = simulate_recording("B", "random", CLEAN, levels=("point_cloud",), n_frames=12, seed=1)
     fig = plot_point_clouds(rec, frame=5)
     assert _colorbar_labels(fig) == ["Doppler [m/s] (positive = receding)"]
     assert "frame 5" in fig.get_suptitle() and "of 12 frames" in fig.get_suptitle()

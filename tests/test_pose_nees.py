@@ -24,7 +24,7 @@ Measured (seeds 0-19 unless said; the Monte Carlo functions in this file):
   noise through the concave ``sqrt(1 - s^2)``, so every centroid falls
   short along boresight by ``R sigma_s^2 / (2 c^3)`` (2-6 mm here). With
   the linearised noise instead 6.16; with the bias removed
-  (:mod:`mmsnap_graph.calibration.centroid_points`, on by default in
+  (:mod:`mmsnap_graph.calibration.pairwise.centroid_points`, on by default in
   ``pairwise_edges``) 6.19, bias part 0.02; seeds 0-19 7.12 (was 8.10).
 """
 
@@ -36,17 +36,19 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from mmsnap_graph.calibration import MatchingOptions
 from factors.models import global_to_local
 from mmsnap_graph.calibration import (LocalTracks, local_tracks, pairwise_edges,
                                       pose_graph_calibration, pose_tangent_error)
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
+from mmsnap_graph.sim import CLEAN
 
 NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
 
 
 def _joint_nees(seed, source, **options):
-    rec = simulate_recording(NET, "random", levels=("centroids",), n_frames=300, seed=seed)
+    rec = simulate_recording(NET, "random", CLEAN, levels=("centroids",), n_frames=300, seed=seed)
     tracks = {}
     for n, node in rec.nodes.items():
         if source == "tracks":
@@ -76,8 +78,9 @@ def _synthetic_joint_nees(seed, method):
         noisy = loc + 0.03 * rng.normal(size=(300, 1)) * u + 0.25 * rng.normal(size=(300, 1)) * v
         tracks[name] = LocalTracks(frame=np.arange(300), points_m=noisy,
                                    track_id=np.zeros(300, int))
-    edges, failures = pairwise_edges(tracks, max_rmse_m=5.0, inlier_gate_m=5.0,
-                                     autocorrelation="none")
+    # 2 frames of lag and 5 common frames at a nominal 0.1 s frame period
+    edges, failures = pairwise_edges(tracks, frame_period_s=0.1, options=MatchingOptions(
+        max_lag_s=0.2, max_rmse_m=5.0, inlier_gate_m=5.0, autocorrelation="none"))
     assert not failures, failures
     pg = pose_graph_calibration(list(NET), edges, method=method, autocorrelation="none")
     e = np.concatenate([pose_tangent_error(pg.poses[n], NET[n]) for n in pg.joint_order])

@@ -27,7 +27,7 @@ def mmsnap(*argv: str) -> subprocess.Popen:
 
 
 def simulated(path: Path, n_frames: int) -> Path:
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", str(n_frames), "-l",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(n_frames), "-l",
                  "centroids", "--seed", "2", "-o", str(path), "--no-progress"]) == 0
     return path
 

@@ -19,9 +19,9 @@ from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.errors import ConfigurationError, FileFormatError
 from mmsnap_graph.fusion.association import associate_frame
-from mmsnap_graph.fusion.sequence import group_detections
+from mmsnap_graph.fusion.recording.sequence import group_detections
 from mmsnap_graph.io import write_fused
-from mmsnap_graph.fusion.sequence import fuse_recording
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.tracking.central import CentralConfig
 from mmsnap_graph.tracking.ekf import EkfConfig, LocalTracker, frames_to_step, track_centroids
 
@@ -31,7 +31,7 @@ POSES = np.array([[0.0, 0.0, 0.0], [6.0, 0.0, np.pi / 2]])
 @pytest.fixture(scope="module")
 def good(tmp_path_factory):
     path = tmp_path_factory.mktemp("rel") / "good.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
                  "--seed", "5", "--known-poses", "-o", str(path), "--no-progress"]) == 0
     return path
 

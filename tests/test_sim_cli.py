@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.io import read_recording
-from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions, simulate_recording
 
 
 def test_simulate_command_writes_the_library_result(tmp_path, capsys):
@@ -19,7 +19,9 @@ def test_simulate_command_writes_the_library_result(tmp_path, capsys):
     assert rc == 0
     assert "wrote" in capsys.readouterr().out
     rec = read_recording(out)
-    ref = simulate_recording("B", "random", n_frames=40, seed=3, cube_frames=2)
+    # The command's default is the real physics.
+    ref = simulate_recording("B", "random", SimulationOptions(cube_frames=2),
+                             levels=("centroids", "point_cloud", "cube"), n_frames=40, seed=3)
     assert_array_equal(rec.truth.state, ref.truth.state)
     assert_array_equal(rec.nodes["S2"].point_cloud.range_m, ref.nodes["S2"].point_cloud.range_m)
     assert_array_equal(rec.nodes["S1"].cube, ref.nodes["S1"].cube)

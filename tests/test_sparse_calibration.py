@@ -14,19 +14,21 @@ from mmsnap_graph.app.pipeline import (
     sparse_cluster_config,
 )
 from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
-from mmsnap_graph.calibration.multi_refine import refine_multi
+from mmsnap_graph.calibration.joint.multi_refine import refine_multi
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim import SimulationOptions
 
 NETWORK = {"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi), "S3": (4.0, 0.0, np.pi / 6)}
 
 
 @pytest.fixture(scope="module")
 def dense():
-    return simulate_recording(NETWORK, "random", levels=("point_cloud",), n_frames=120,
-                              n_targets=2, seed=4, frame_period_s=0.05)
+    return simulate_recording(NETWORK, "random",
+                              SimulationOptions(physics=None, n_targets=2, frame_period_s=0.05),
+                              levels=("point_cloud",), n_frames=120, seed=4)
 
 
 def test_sparse_clouds_are_clustered_with_one_point_minimum(dense):
@@ -91,7 +93,7 @@ def _default_path_error(rec):
 @pytest.mark.xfail(strict=True, reason=(
     "issue 14 target (1.2x the dense error) not reachable on these data by any estimator: the "
     "Cramer-Rao bound of the S2/S3 positions from the chain's centroids "
-    "(calibration.pose_bound, tests/test_sparse_bound.py) is, on seed 0, sparse 47 mm against "
+    "(evaluation.pose_bound, tests/evaluation/test_pose_bound.py) is, on seed 0, sparse 47 mm against "
     "dense 17 mm (2.8x; 26 against 10 mm, 2.5x, with the trajectory known), 2.5-4.7x on "
     "seeds 0-7: sparse centroids are single body points, 0.14-0.17 m range / 0.09-0.14 rad "
     "omega / 0.4-0.7 m/s Doppler about the nodes' consensus against 0.03-0.08 m / "
@@ -99,6 +101,7 @@ def _default_path_error(rec):
     "S3 72 mm, 1.7 of its reported 42 mm sigma); seed 1 0.72x (sparse 5.7 mm, 0.2 of its "
     "bound: luck), seed 2 2.8x"))
 def test_sparse_clouds_within_1_2x_of_the_dense_case_seed_0():
-    dense = simulate_recording(NETWORK, "random", levels=("point_cloud",), n_frames=600,
-                               n_targets=2, seed=0, frame_period_s=0.05)
+    dense = simulate_recording(NETWORK, "random",
+                               SimulationOptions(physics=None, n_targets=2, frame_period_s=0.05),
+                               levels=("point_cloud",), n_frames=600, seed=0)
     assert _default_path_error(sparse_clouds(dense, seed=0)) <= 1.2 * _default_path_error(dense)

@@ -10,12 +10,13 @@ import numpy as np
 from mmsnap_graph.data.radar_config import TABLE_I
 from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import CLEAN
 
 
 def test_ti_radar_fields_round_trip(tmp_path):
     radar = dataclasses.replace(TABLE_I, adc_start_s=6e-6, rx_elevation_half_wl=(0.0, 0.0, 0.0, 0.0),
                                 tx_channels=(0, 2, 1), wavelength_reference="band_centre")
-    rec = simulate_recording("B", "straight", levels=("centroids",), n_frames=5, seed=1)
+    rec = simulate_recording("B", "straight", CLEAN, levels=("centroids",), n_frames=5, seed=1)
     nodes = {n: dataclasses.replace(d, radar=radar) for n, d in rec.nodes.items()}
     rec = dataclasses.replace(rec, nodes=nodes)
     path = write_recording(tmp_path / "ti.h5", rec)
@@ -39,7 +40,7 @@ def test_process_node_wraps_the_ekf_doppler_at_the_chains_unambiguous_speed(monk
 
     real = pipeline.track_centroids
     monkeypatch.setattr(pipeline, "track_centroids", spy)
-    rec = simulate_recording("B", "straight", levels=("cube",), n_frames=2, seed=2)
+    rec = simulate_recording("B", "straight", CLEAN, levels=("cube",), n_frames=2, seed=2)
     node = rec.nodes["S1"]
     pipeline.process_node(node, rec.frame_period_s)
     assert seen["wrap"] == unambiguous_speed_mps(node.radar)

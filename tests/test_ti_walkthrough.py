@@ -32,7 +32,7 @@ def walkthrough_blocks() -> list[list[list[str]]]:
     text = TI_MD.read_text()
     section = text.split("## Walkthrough with the samples", 1)[1].split("\n## ", 1)[0]
     blocks = []
-    for body in re.findall(r"```\n(.*?)```", section, flags=re.S):
+    for body in re.findall(r"```bash\n(.*?)```", section, flags=re.S):
         joined = body.replace("\\\n", " ")
         commands = [shlex.split(line)[1:] for line in joined.splitlines()
                     if line.startswith("mmsnap ")]

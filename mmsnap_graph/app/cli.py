@@ -20,7 +20,7 @@ Exit codes (:data:`EXIT_OK`, :data:`EXIT_FAILURE`, :data:`EXIT_USAGE`):
   :class:`~mmsnap_graph.errors.ConfigurationError` raised for an option),
   including an output path that is a folder, lies in a missing folder, is
   one of the command's input files, or exists without ``--overwrite``
-  (checked before the command runs: :mod:`mmsnap_graph.app.commands.files`).
+  (checked before the command runs: :mod:`mmsnap_graph.app.commands.file_rules`).
 
 Errors are one line on stderr, ``mmsnap VERB: error: ...``; an error of an
 input file names the file. ``-v``/``-q`` set the level of the
@@ -31,12 +31,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.metadata
 import logging
 import sys
 from pathlib import Path
 
-from .commands.files import check_files
+from .commands.file_rules import check_files
 from ..errors import (
     CalibrationError,
     ConfigurationError,
@@ -47,7 +46,9 @@ from ..errors import (
 )
 
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
-COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch", "replay", "monitor", "noise"]
+COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate",
+                       "files.import_", "batch", "replay", "monitor", "noise", "files.info",
+                       "files.export"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -60,10 +61,21 @@ USAGE_ERRORS = (ValidationError, ConfigurationError)
 
 def package_version() -> str:
     """The installed distribution's version (``mmsnap_graph.__version__``)."""
+    import importlib.metadata  # here: it costs a tenth of a second, --help does without
+
     try:
         return importlib.metadata.version("mmsnap_graph")
     except importlib.metadata.PackageNotFoundError:  # run from a source tree
         return "unknown"
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: the version is looked up when asked for, not each time
+    the parser is built."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"mmsnap {package_version()}")  # on stdout, as argparse's own version action
+        parser.exit()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -73,7 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Exit codes: 0 ok, 1 data or estimation failure (a bad input file included), "
                "2 usage (a bad option or option value).",
     )
-    parser.add_argument("--version", action="version", version=f"mmsnap {package_version()}")
+    parser.add_argument("--version", action=_VersionAction, nargs=0,
+                        help="show the program's version number and exit")
     parser.add_argument("-v", "--verbose", action="count", default=0,
                         help="more log messages (-v info, -vv debug)")
     parser.add_argument("-q", "--quiet", action="count", default=0,

@@ -31,9 +31,10 @@ from factors.models import detection_to_local, local_to_global
 from .._atomic import atomic_path
 from ..data.noise import GaussianPrior, MeasurementNoise
 # The degeneracy names move with the fusion redesign; imported here only.
-from ..fusion.batch import velocity_degeneracy
+from ..fusion.solvers.vectorized import velocity_degeneracy
 from ..fusion.grid import neg_log_posterior
-from ..fusion.oneshot import DEGENERACY_THRESHOLD, fuse_frame
+from ..fusion.options import FusionOptions
+from ..fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD, fuse_frame
 from ..sim.networks import in_common_field_of_view
 
 __all__ = [
@@ -116,15 +117,80 @@ def _mark_outside(ax, x: ArrayLike, y: ArrayLike, *, color: str, label: str | No
 # ----------------------------------------------------------------------------
 
 
+def _pose_ellipse_scale(cov_xy: NDArray, *, visible_m: float = 0.12) -> int:
+    """A round magnification (1, 2, 5, 10, 20, ...) that makes a 2-sigma
+    ellipse's larger semi-axis at least ``visible_m`` on a room-sized plot."""
+    semi = 2.0 * float(np.sqrt(max(np.linalg.eigvalsh(cov_xy).max(), 0.0)))
+    for k in (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000):
+        if semi * k >= visible_m:
+            return k
+    return 1000
+
+
+def _draw_pose_uncertainty(ax, pose: NDArray, cov: NDArray, color: str) -> str:
+    """The 2-sigma ellipse of a calibrated node's position (the Pose2 body
+    tangent's position block rotated into the global frame, docs/CONVENTIONS.md)
+    magnified to be visible, and its heading's +-2 sigma as a wedge of two
+    thin lines about the boresight arrow. Returns the legend text."""
+    x, y, phi = pose
+    c, s = np.cos(phi), np.sin(phi)
+    rot = np.array([[c, -s], [s, c]])
+    cov_xy = rot @ cov[:2, :2] @ rot.T
+    k = _pose_ellipse_scale(cov_xy)
+    _cov_ellipse(ax, pose[:2], cov_xy * k * k, n_sigma=2.0, ec=color, lw=1.0)
+    sig = np.sqrt(np.clip(np.diagonal(cov), 0, None))
+    for side in (-1, 1):
+        a = phi + side * 2.0 * sig[2]
+        ax.plot([x, x - 0.8 * np.sin(a)], [y, y + 0.8 * np.cos(a)], color=color, lw=0.6,
+                alpha=0.7)
+    return (f"S2 pose sigma {sig[0] * 100:.1f} cm, {sig[1] * 100:.1f} cm, "
+            f"{np.degrees(sig[2]):.2f} deg (2-sigma ellipse x{k})")
+
+
+def _fit_limits(ax, points: NDArray, margin_m: float = 0.8) -> None:
+    """Axis limits holding every point with a margin (node labels not clipped)."""
+    lo, hi = np.nanmin(points, axis=0) - margin_m, np.nanmax(points, axis=0) + margin_m
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+
+
+def _calibration_panel(ax, cal) -> None:
+    if cal.truth_state is not None:
+        ax.plot(cal.truth_state[:, 0], cal.truth_state[:, 1], color=_COLORS["truth"],
+                lw=3, alpha=0.35, label="truth")
+    t1, t2 = cal.track_s1, cal.track_s2
+    ax.plot(t1.state[:, 0], t1.state[:, 1], color=_COLORS["s1"], lw=0.9, label="S1 track")
+    cf = local_to_global(t2.state[:, :2], cal.closed_form_pose)
+    rf = local_to_global(t2.state[:, :2], cal.refined_pose)
+    ax.plot(cf[:, 0], cf[:, 1], color=_COLORS["s2"], lw=0.8, ls="--",
+            label=f"S2, closed form ({cal.closed_form_rmse_m:.3f} m)")
+    ax.plot(rf[:, 0], rf[:, 1], color="tab:red", lw=0.8,
+            label=f"S2, refined ({cal.refined_rmse_m:.3f} m)")
+    draw_nodes(ax, {"S1": np.zeros(3), "S2": cal.true_pose}, color="k")
+    draw_nodes(ax, {"S2'": cal.refined_pose}, color="tab:red", label=False)
+    text = _draw_pose_uncertainty(ax, np.asarray(cal.refined_pose, float),
+                                  np.asarray(cal.refined_covariance, float), "tab:red")
+    handles, _ = ax.get_legend_handles_labels()
+    handles += [Line2D([], [], color="k", marker=r"$\uparrow$", ms=9, ls="none",
+                       label="node and boresight (phi: array axis)"),
+                Line2D([], [], color="tab:red", lw=1.0, label=text)]
+    _legend_outside(ax, handles, ncol=1)
+    _fit_limits(ax, np.vstack([t1.state[:, :2], rf, np.zeros((1, 2)), cal.true_pose[None, :2],
+                               cal.refined_pose[None, :2]]))
+
+
 def plot_calibration_tracks(calibrations: Mapping[tuple[str, str], object],
                             configurations: Sequence[str], trajectories: Sequence[str]) -> Figure:
     """Each calibration run: S1's track, S2's track mapped into S1's frame with
     the closed-form pose and with the refined pose, and the truth (paper's
-    "tracks overlaid after calibration"). ``calibrations`` maps
-    ``(configuration, trajectory)`` to :class:`mmsnap_graph.app.demo.CalibrationOutcome`.
+    "tracks overlaid after calibration"); the nodes with their boresight
+    arrows (black: true, red: refined), the refined pose's 2-sigma position
+    ellipse (magnified as its legend says) and heading wedge.
+    ``calibrations`` maps ``(configuration, trajectory)`` to
+    :class:`mmsnap_graph.app.demo.CalibrationOutcome`.
     """
     nr, nc = len(trajectories), len(configurations)
-    fig = Figure(figsize=(4.2 * nc, 4.0 * nr), layout="constrained")
+    fig = Figure(figsize=(4.4 * nc, 5.2 * nr), layout="constrained")
     axes = fig.subplots(nr, nc, squeeze=False)
     for i, traj in enumerate(trajectories):
         for j, conf in enumerate(configurations):
@@ -134,24 +200,12 @@ def plot_calibration_tracks(calibrations: Mapping[tuple[str, str], object],
             ax.set_aspect("equal")
             if cal is None:
                 continue
-            if cal.truth_state is not None:
-                ax.plot(cal.truth_state[:, 0], cal.truth_state[:, 1], color=_COLORS["truth"],
-                        lw=3, alpha=0.35, label="truth")
-            t1, t2 = cal.track_s1, cal.track_s2
-            ax.plot(t1.state[:, 0], t1.state[:, 1], color=_COLORS["s1"], lw=0.9, label="S1 track")
-            cf = local_to_global(t2.state[:, :2], cal.closed_form_pose)
-            rf = local_to_global(t2.state[:, :2], cal.refined_pose)
-            ax.plot(cf[:, 0], cf[:, 1], color=_COLORS["s2"], lw=0.8, ls="--",
-                    label=f"S2, closed form ({cal.closed_form_rmse_m:.3f} m)")
-            ax.plot(rf[:, 0], rf[:, 1], color="tab:red", lw=0.8,
-                    label=f"S2, refined ({cal.refined_rmse_m:.3f} m)")
-            draw_nodes(ax, {"S1": np.zeros(3), "S2": cal.true_pose}, color="k")
-            draw_nodes(ax, {"S2'": cal.refined_pose}, color="tab:red", label=False)
-            _legend_outside(ax)
+            _calibration_panel(ax, cal)
             ax.set_xlabel("x [m]")
             ax.set_ylabel("y [m]")
             ax.grid(alpha=0.3)
-    fig.suptitle("Tracks overlaid after self-calibration (S1 frame); track RMSE in brackets")
+    fig.suptitle("Tracks overlaid after self-calibration (S1 frame); track RMSE in brackets; "
+                 "arrows point along each radar's boresight")
     return fig
 
 
@@ -279,7 +333,7 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
                        n_plot: int = 161, noise=None, prior=None) -> dict:
     """One frame's velocity posterior, for :func:`plot_velocity_posteriors`.
 
-    MAP with the grid covariance (:func:`mmsnap_graph.fusion.oneshot.fuse_frame`,
+    MAP with the grid covariance (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`,
     ``covariance="both"``), ML with its Laplace covariance, and the
     negative log posterior and log likelihood on an ``n_plot`` x ``n_plot``
     grid of ``(vx, vy)`` at the MAP position (a conditional slice).
@@ -290,8 +344,8 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
     prior = GaussianPrior() if prior is None else prior
     poses = np.asarray(node_poses, dtype=float)
     z = np.asarray(measurements, dtype=float)
-    res_map = fuse_frame(poses, z, noise=noise, prior=prior, covariance="both",
-                         grid_points_per_axis=int(grid_points_per_axis))
+    grid = FusionOptions(covariance="both", grid_points_per_axis=int(grid_points_per_axis))
+    res_map = fuse_frame(poses, z, noise=noise, prior=prior, options=grid)
     res_ml = fuse_frame(poses, z, noise=noise, prior=None)
     c = res_map.state
     cov = res_map.grid_covariance if res_map.grid_covariance is not None and \
@@ -386,7 +440,7 @@ def degeneracy_grid(node_poses: Mapping[str, ArrayLike], *, step_m: float = 0.1,
                     extent_m: tuple[float, float, float, float] | None = None,
                     **fov_limits) -> tuple[NDArray, NDArray, NDArray]:
     """The velocity-degeneracy indicator (condition number of the lines of
-    sight's velocity information, :func:`mmsnap_graph.fusion.batch.velocity_degeneracy`)
+    sight's velocity information, :func:`mmsnap_graph.fusion.solvers.vectorized.velocity_degeneracy`)
     on a grid over the nodes' common field of view.
 
     Returns ``x (nx,)``, ``y (ny,)`` and ``cond (ny, nx)`` (NaN outside the
@@ -417,7 +471,7 @@ def plot_degeneracy_map(networks: Mapping[str, Mapping[str, ArrayLike]], *,
     """log10 of the degeneracy indicator over each network's common field of
     view, with the nodes, the walking area and optionally a trajectory
     ``(K, >=2)`` per network; the contour marks ``threshold`` (default
-    :data:`mmsnap_graph.fusion.oneshot.DEGENERACY_THRESHOLD`)."""
+    :data:`mmsnap_graph.fusion.solvers.gtsam_graph.DEGENERACY_THRESHOLD`)."""
     thr = DEGENERACY_THRESHOLD if threshold is None else float(threshold)
     fig = Figure(figsize=(4.6 * len(networks), 4.6), layout="constrained")
     axes = fig.subplots(1, len(networks), squeeze=False)[0]
@@ -456,7 +510,10 @@ def plot_degeneracy_map(networks: Mapping[str, Mapping[str, ArrayLike]], *,
                 :3 if trajectories is not None and name in trajectories else 2])
     if mesh is not None:
         cb = fig.colorbar(mesh, ax=list(axes), shrink=0.85)
-        cb.set_label("log10 condition number of the velocity information")
-    fig.suptitle(f"Velocity degeneracy over the common field of view (cyan: {thr:g}; "
-                 "green: walking area; blue: trajectory)")
+        cb.set_label("log10 condition number of the velocity information\n"
+                     "0: both components seen alike; 3: one barely seen", fontsize=8)
+    fig.suptitle("Where one frame determines a walker's velocity: dark where the radars' lines "
+                 f"of sight are nearly parallel\n(beyond the cyan line, condition number {thr:g}, "
+                 "one velocity component is poorly determined; green: walking area; "
+                 "blue: trajectory)")
     return fig

@@ -204,7 +204,7 @@ def qualitative_checks(result) -> list[Check]:
     1. configuration B best and C worst for the Bayesian position RMSE;
     2. ML velocity fails in C (RMSE > 3x Bayesian) while ML and Bayesian
        agree elsewhere (ML < 1.5x Bayesian in A and B);
-    3. the refined calibration's path error (:func:`mmsnap_graph.app.evaluation.pose_mapping_error`
+    3. the refined calibration's path error (:func:`mmsnap_graph.evaluation.pose_mapping_error`
        over the true walking path) is at most the closed form's, every run.
     Claims whose configurations were not run are left out.
     """

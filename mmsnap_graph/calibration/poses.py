@@ -25,6 +25,6 @@ def pose_tangent_error(estimate: ArrayLike, truth: ArrayLike) -> NDArray:
     ``truth.localCoordinates(estimate)`` = ``Log(truth^-1 estimate)``, (3,)
     ``(dx_b, dy_b, dphi)``: the coordinates in which pose covariances are
     given, so ``e^T P^-1 e`` is the NEES. (Not
-    :func:`mmsnap_graph.app.evaluation.pose_error`, which reports position
+    :func:`mmsnap_graph.evaluation.pose_error`, which reports position
     and heading errors in the global frame.)"""
     return np.asarray(to_pose2(truth).localCoordinates(to_pose2(estimate)), dtype=float)

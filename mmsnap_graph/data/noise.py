@@ -2,7 +2,7 @@
 deviations of one node's measurements (:class:`MeasurementNoise`), what a
 recording's data say about them (:class:`NodeNoiseEstimate`,
 :class:`NoiseEstimate`, made by
-:func:`mmsnap_graph.calibration.noise_estimate.estimate_noise`) and the
+:func:`mmsnap_graph.calibration.noise.estimate.estimate_noise`) and the
 Gaussian prior on a target state.
 """
 
@@ -74,7 +74,7 @@ class NodeNoiseEstimate:
     n_residuals : (3,) int, residuals the estimate of each component used
         (0 when not identified).
     method : how the identified components were estimated (e.g.
-        ``"network+temporal"``; :mod:`mmsnap_graph.calibration.noise_estimate`).
+        ``"network+temporal"``; :mod:`mmsnap_graph.calibration.noise.estimate`).
     reasons : (3,) str, why each unidentified component is not (``""`` when
         identified).
     """
@@ -106,7 +106,7 @@ class NoiseEstimate:
     nodes : name -> :class:`NodeNoiseEstimate`, in the recording's node order.
     fallback : the sigmas used for components the data do not identify
         (default the paper's, :class:`MeasurementNoise`).
-    method : the estimator (:mod:`mmsnap_graph.calibration.noise_estimate`).
+    method : the estimator (:mod:`mmsnap_graph.calibration.noise.estimate`).
     message : a one-line account (what was estimated, what was not and why).
     """
 

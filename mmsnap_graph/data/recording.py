@@ -35,7 +35,20 @@ def _column(value: ArrayLike, name: str, n: int, *, finite: bool = True) -> NDAr
     return check_finite(arr, name) if finite else arr
 
 
-@dataclass(frozen=True, kw_only=True, slots=True)
+def _frames_text(frame: NDArray) -> str:
+    """``"K rows, frames a-b"`` of a frame column (a short repr, not the arrays)."""
+    if frame.size == 0:
+        return "0 rows"
+    return f"{frame.size} rows, frames {int(frame.min())}-{int(frame.max())}"
+
+
+def _pose_text(pose: NDArray | None) -> str:
+    if pose is None:
+        return "pose unknown"
+    return f"pose=({pose[0]:.3f} m, {pose[1]:.3f} m, {pose[2]:.4f} rad)"
+
+
+@dataclass(frozen=True, kw_only=True, slots=True, repr=False)
 class Detections:
     """Detections of one node, one row per detection: a point cloud (many rows
     per frame) or centroids (one row per target per frame).
@@ -51,6 +64,9 @@ class Detections:
     doppler_mps: NDArray
     snr_db: NDArray | None = None
     target_id: NDArray | None = None
+
+    def __repr__(self) -> str:
+        return f"Detections({_frames_text(self.frame)})"
 
     def __post_init__(self) -> None:
         frame = int_array(self.frame, "frame")
@@ -97,7 +113,7 @@ class Detections:
         return cls(frame=np.zeros(0, np.int64), range_m=z, omega_rad=z, doppler_mps=z)
 
 
-@dataclass(frozen=True, kw_only=True, slots=True)
+@dataclass(frozen=True, kw_only=True, slots=True, repr=False)
 class Tracks:
     """Tracks of one node in its local frame, one row per track per frame.
 
@@ -109,6 +125,10 @@ class Tracks:
     track_id: NDArray
     state: NDArray
     covariance: NDArray
+
+    def __repr__(self) -> str:
+        n = np.unique(self.track_id).size
+        return f"Tracks({_frames_text(self.frame)}, {n} tracks)"
 
     def __post_init__(self) -> None:
         frame = int_array(self.frame, "frame")
@@ -150,7 +170,7 @@ class Tracks:
                    state=np.zeros((0, 4)), covariance=np.zeros((0, 4, 4)))
 
 
-@dataclass(frozen=True, kw_only=True, slots=True)
+@dataclass(frozen=True, kw_only=True, slots=True, repr=False)
 class NodeData:
     """Everything one node recorded, at each level of the chain.
 
@@ -171,6 +191,13 @@ class NodeData:
     point_cloud: Detections | None = None
     centroids: Detections | None = None
     tracks: Tracks | None = None
+
+    def __repr__(self) -> str:
+        levels = [f"{name}: {getattr(self, name)!r}" for name in ("point_cloud", "centroids", "tracks")
+                  if getattr(self, name) is not None]
+        if self.cube is not None:
+            levels.insert(0, f"cube: {self.cube.shape[0]} frames of {self.cube.shape[1:]}")
+        return f"NodeData({self.name!r}, {_pose_text(self.pose)}" + "".join(", " + x for x in levels) + ")"
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name or "/" in self.name:
@@ -200,7 +227,7 @@ class NodeData:
             object.__setattr__(self, "cube_frame", frames)
 
 
-@dataclass(frozen=True, kw_only=True, slots=True)
+@dataclass(frozen=True, kw_only=True, slots=True, repr=False)
 class Truth:
     """Ground truth of a simulated (or surveyed) recording, global frame.
 
@@ -212,6 +239,10 @@ class Truth:
     target_id: NDArray
     state: NDArray
     node_poses: Mapping[str, NDArray] = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        n = np.unique(self.target_id).size
+        return f"Truth({_frames_text(self.frame)}, {n} targets)"
 
     def __post_init__(self) -> None:
         frame = int_array(self.frame, "truth.frame")
@@ -242,7 +273,7 @@ class Truth:
         return self.frame[rows], self.state[rows]
 
 
-@dataclass(frozen=True, kw_only=True, slots=True)
+@dataclass(frozen=True, kw_only=True, slots=True, repr=False)
 class Recording:
     """A recording: nodes (in order; the first is the reference S1), the frame
     period, optional truth and free-form metadata (str, int, float values)."""
@@ -251,6 +282,13 @@ class Recording:
     nodes: Mapping[str, NodeData]
     truth: Truth | None = None
     metadata: Mapping[str, Any] = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        nodes = ",\n  ".join(repr(node) for node in self.nodes.values())
+        truth = "" if self.truth is None else f",\n  {self.truth!r}"
+        meta = f",\n  metadata keys: {sorted(self.metadata)}" if self.metadata else ""
+        return (f"Recording(frame_period_s={self.frame_period_s:g}, {len(self.nodes)} nodes:\n  "
+                f"{nodes}{truth}{meta})")
 
     def __post_init__(self) -> None:
         fp = float(self.frame_period_s)

@@ -1,19 +1,141 @@
 """One-shot fusion: each frame's range, spatial-frequency and Doppler
 measurements of a target from several nodes -> its state and covariance.
 
-- :mod:`.problem`: the one-frame problem without a solver (validation, initial
-  states, the velocity degeneracy indicator; no GTSAM);
-- :mod:`.oneshot`: the per-frame GTSAM graph, solved by Levenberg-Marquardt,
-  with the Laplace covariance (the inverse Gauss-Newton information);
-- :mod:`.batch`: the same problem vectorized over many frames;
-- :mod:`.grid`: the paper's grid posterior (the check for degenerate geometry);
-- :mod:`.bounds`: Cramer-Rao and Bayesian bounds;
-- :mod:`.association`: which centroids of different nodes are one target;
-- :mod:`.sequence`: a whole recording, frame after frame;
-- :mod:`.motion_check`: a recording's rows checked against the motion of the
-  neighbouring frames (ghosts, mirror solutions; docs/ROBUST.md);
-- :mod:`.stream`: one frame at a time (``FrameStream``), with
-  :mod:`.frame_solver` (the one-frame problem in plain floats, GTSAM's
-  Levenberg-Marquardt steps) and :mod:`.stream_association` (the
-  association's decisions, fast path).
+The package is laid out by stage:
+
+- :mod:`.options`: :class:`FusionOptions` and :class:`RobustOptions`, taken
+  by every entry point;
+- the one-frame problem, shared by every solver (no GTSAM):
+  :mod:`.problem` (validation, initial states), :mod:`.degeneracy` (the
+  velocity degeneracy indicator), :mod:`.robust` (kernels and the residual
+  gate), :mod:`.association` (which centroids of different nodes are one
+  target);
+- checks and references: :mod:`.grid` (the paper's grid posterior, the check
+  for degenerate geometry), :mod:`.bounds` (Cramer-Rao and Bayesian bounds);
+- :mod:`.solvers`: three solvers of the same problem, tested equal --
+  GTSAM (:mod:`.solvers.gtsam_graph`, Levenberg-Marquardt and the Laplace
+  covariance from ``Marginals``; :mod:`.solvers.gtsam_poses` for uncertain
+  node poses), vectorized numpy over many frames (:mod:`.solvers.vectorized`,
+  :mod:`.solvers.vectorized_lm`, :mod:`.solvers.vectorized_poses`) and plain
+  floats for one frame at a time (:mod:`.solvers.scalar`), with their
+  contract (:mod:`.solvers.settings`: one name per solver, the
+  Levenberg-Marquardt settings they all follow, what a solved frame
+  reports) and the shared assessment of a solved frame
+  (:mod:`.solvers.assess`);
+- :mod:`.recording`: a whole recording -- :mod:`.recording.sequence`
+  (``fuse_recording``), :mod:`.recording.rows` (its rows while they are
+  built), :mod:`.recording.timing` (clock alignment),
+  :mod:`.recording.motion_check` (rows checked against the motion of the
+  neighbouring frames: ghosts, mirror solutions; docs/ROBUST.md),
+  :mod:`.recording.split_check` (one target split by the association);
+- :mod:`.stream`: one frame at a time -- :mod:`.stream.frame_stream`
+  (``FrameStream``) and :mod:`.stream.association` (the association's
+  decisions, fast path).
+
+The public names below load their module on first use, so importing
+:mod:`mmsnap_graph.fusion` imports neither GTSAM nor scipy.
 """
+
+from .._lazy import lazy_getattr
+
+_LAZY = {
+    # the options and the solvers' contract
+    "FusionOptions": "options",
+    "RobustOptions": "options",
+    "DEFAULT_OPTIONS": "options",
+    "robust_options": "options",
+    "SOLVERS": "solvers.settings",
+    "check_solver": "solvers.settings",
+    "LevenbergMarquardtSettings": "solvers.settings",
+    "LM_SETTINGS": "solvers.settings",
+    "FrameSolve": "solvers.settings",
+    # the one-frame problem
+    "check_poses": "problem",
+    "check_observed": "problem",
+    "check_noise": "problem",
+    "check_node_noise": "problem",
+    "node_sigmas": "problem",
+    "check_pose_covariances": "problem",
+    "check_prior": "problem",
+    "check_initial_state": "problem",
+    "validate_frame": "problem",
+    "validate_frames": "problem",
+    "valid_rows": "problem",
+    "initial_state": "problem",
+    "initial_states": "problem",
+    "frame_initial_state": "problem",
+    "checked_initial_state": "problem",
+    "condition_2x2": "degeneracy",
+    "velocity_degeneracy": "degeneracy",
+    "ROBUST_CHOICES": "robust",
+    "RESIDUAL_GATE_PROBABILITY": "robust",
+    "check_robust": "robust",
+    "check_robust_k": "robust",
+    "residual_gate_threshold": "robust",
+    "kernel_weight_and_loss": "robust",
+    "node_d2": "robust",
+    "FrameAssociation": "association",
+    "group_distance2": "association",
+    "detection_position_covariance": "association",
+    "associate_frame": "association",
+    "gate_threshold": "association",
+    "detection_information": "association",
+    "MIN_VARIANCE_M2": "association",
+    "MAX_CONDITION": "association",
+    # checks and references
+    "GridPosterior": "grid",
+    "grid_posterior": "grid",
+    "neg_log_posterior": "grid",
+    "fisher_information": "bounds",
+    "cramer_rao_bound": "bounds",
+    "bayesian_bound": "bounds",
+    # the solvers
+    "STATE_KEY": "solvers.gtsam_graph",
+    "build_frame_graph": "solvers.gtsam_graph",
+    "fuse_frame": "solvers.gtsam_graph",
+    "pose_key": "solvers.gtsam_poses",
+    "build_pose_aware_graph": "solvers.gtsam_poses",
+    "pose_aware_covariance": "solvers.gtsam_poses",
+    "NEWTON_DECREMENT_TOLERANCE": "solvers.assess",
+    "residuals_and_degeneracy": "solvers.assess",
+    "kernel_weight": "solvers.assess",
+    "positive_definite": "solvers.assess",
+    "assess_fit": "solvers.assess",
+    "fuse_batch": "solvers.vectorized",
+    "pose_information_term": "solvers.vectorized_poses",
+    "propagate_pose_covariance": "solvers.vectorized_poses",
+    "STATE_TOLERANCE": "solvers.scalar",
+    "COVARIANCE_TOLERANCE": "solvers.scalar",
+    "FrameSolution": "solvers.scalar",
+    "FrameSolver": "solvers.scalar",
+    # a whole recording
+    "fuse_recording": "recording.sequence",
+    "recording_poses": "recording.sequence",
+    "group_detections": "recording.sequence",
+    "MOTION_WINDOW_FRAMES": "recording.motion_check",
+    "MOTION_MIN_SUPPORT": "recording.motion_check",
+    "MOTION_GATE_PROBABILITY": "recording.motion_check",
+    "MOTION_ACCEL_SIGMA_MPS2": "recording.motion_check",
+    "MOTION_FLAG_STATUS": "recording.motion_check",
+    "MOTION_CONTEXT_FRAMES": "recording.motion_check",
+    "MOTION_MAX_LEFT_OUT": "recording.motion_check",
+    "Refit": "recording.motion_check",
+    "apply_motion_check": "recording.motion_check",
+    "split_singles": "recording.split_check",
+    "split_rows": "recording.split_check",
+    "FusedRows": "recording.rows",
+    "RECORDING_SOLVERS": "recording.sequence",
+    "SPLIT_MESSAGE": "recording.split_check",
+    "split_offset": "recording.timing",
+    "align_detections": "recording.timing",
+    "align_recording": "recording.timing",
+    # one frame at a time
+    "StreamUpdate": "stream.frame_stream",
+    "FrameStream": "stream.frame_stream",
+    "recording_frames": "stream.frame_stream",
+    "StreamAssociator": "stream.association",
+}
+
+__getattr__ = lazy_getattr(__name__, _LAZY)
+
+__all__ = list(_LAZY)

@@ -181,7 +181,8 @@ def _frame_count(stream: _Stream, config: RadarConfig, *, allow_partial_frame: b
             f"{config.n_loops}, n_tx={config.n_tx}, n_rx={config.n_rx}) differs from the "
             f"capture's (expected a multiple of {lay.stride} bytes). Check the configuration "
             "first: with a wrong one every frame decodes wrong bytes; only for a capture cut "
-            "short, allow_partial_frame=True drops the incomplete last frame")
+            "short, allow_partial_frame=True (mmsnap import dca1000 --allow-partial-frame) "
+            "drops the incomplete last frame")
     if rest:
         warnings.warn(f"capture {where}: dropped the incomplete last frame ({rest} of "
                       f"{lay.stride} bytes)", stacklevel=3)
@@ -261,7 +262,8 @@ def sub_frame_layout(configs: Sequence[RadarConfig], sub_frame: int) -> tuple[in
     if not configs:
         raise ConfigurationError("configs must hold at least one sub-frame configuration")
     if int(sub_frame) != sub_frame or not 0 <= sub_frame < len(configs):
-        raise ValidationError(f"sub_frame={sub_frame!r} must be in 0..{len(configs) - 1}")
+        raise ValidationError(f"sub_frame={sub_frame!r} must be in 0..{len(configs) - 1} "
+                              "(mmsnap import dca1000 --sub-frame)")
     sizes = [frame_bytes(c) for c in configs]
     return int(sum(sizes[:int(sub_frame)])), int(sum(sizes))
 

@@ -1,10 +1,10 @@
 """The ``/fused`` group of a recording file: one-shot estimates of every target
 in every frame (:class:`~mmsnap_graph.data.results.FusedSequence`, made by
-:func:`mmsnap_graph.fusion.sequence.fuse_recording`).
+:func:`mmsnap_graph.fusion.recording.sequence.fuse_recording`).
 
 :func:`write_fused` and :func:`read_fused` are a symmetric pair; the layout is
 :data:`FUSED_LAYOUT` (quoted in docs/FORMAT.md). The ``status`` codes are those
-of :class:`~mmsnap_graph.data.results.Status` 0 to 5, 9 and 10 (:data:`FUSED_STATUSES`).
+of :class:`~mmsnap_graph.data.results.Status` 0 to 5 and 9 to 12 (:data:`FUSED_STATUSES`).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import numpy as np
 from ..data.results import FusedSequence, Status
 from ..errors import FileFormatError, MmsnapError
 from .guard import H5_ERRORS, edited_copy, open_group, read_guard, replace_group
+from .versions import check_format_version
 
 __all__ = ["FUSED_GROUP", "FUSED_LAYOUT", "FUSED_STATUSES", "write_fused", "read_fused"]
 
@@ -32,7 +33,7 @@ FUSED_LAYOUT = """\
 /fused                 attrs: format_version = "1.1" (1.0: without time_s and information),
                               mode = "map" | "ml",
                               covariance_method = "laplace" | "grid",
-                              solver = "batch" | "gtsam",
+                              solver = "vectorized" | "gtsam",
                               node_order (str array, N), node_poses (N, 3) [x_m, y_m, phi_rad],
                               noise_sigmas (3,) [range_m, omega_rad, doppler_mps],
                               prior_mean (4,), prior_sigmas (4,) (MAP only),
@@ -59,7 +60,10 @@ FUSED_LAYOUT = """\
                                       3 non-finite, 4 no measurement and no prior, 5 grid failed,
                                       9 residual test failed (robust fusion could not repair it),
                                       10 not consistent with the motion of any target in the
-                                      neighbouring frames (the motion check, docs/ROBUST.md)
+                                      neighbouring frames (the motion check, docs/ROBUST.md),
+                                      11 outside the room bounds (mmsnap fuse --bounds),
+                                      12 within a body's width of a better-supported target of
+                                      its frame (docs/ROBUST.md)
     rejected           (K, N) bool    node left out / down-weighted by robust fusion (optional;
                                       absent = none)
     message            (K,) str
@@ -71,7 +75,7 @@ FUSED_LAYOUT = """\
 #: The status codes a ``/fused`` group holds (its ``status_messages`` attribute).
 FUSED_STATUSES = (Status.OK, Status.MAX_ITERATIONS, Status.SINGULAR, Status.NON_FINITE,
                   Status.NO_INFORMATION, Status.GRID_FAILED, Status.RESIDUAL_TEST_FAILED,
-                  Status.MOTION_INCONSISTENT)
+                  Status.MOTION_INCONSISTENT, Status.OUTSIDE_BOUNDS, Status.DUPLICATE)
 
 _STATE_NAMES = ("x_m", "y_m", "vx_mps", "vy_mps")
 
@@ -179,6 +183,7 @@ def read_fused(path: str | os.PathLike) -> FusedSequence:
     with read_guard(p):
         with open_group(p, FUSED_GROUP,
                         f" has no /{FUSED_GROUP} group; run `mmsnap fuse` first") as group:
+            check_format_version(group.attrs, f"{p}:/{FUSED_GROUP}", _FUSED_VERSION)
             fields = _read_fields(group, p)
             period, origin = _recording_clock(group.file)
         # Files of format 1.0 have no time stamps: from the recording's clock.

@@ -102,7 +102,7 @@ def _radar_attrs(obj: h5py.HLObject, radar: RadarConfig) -> None:
 
 
 def _write_cube(group: h5py.Group, node: NodeData, compression: str | None,
-                compression_opts: int | None, cube_storage: str) -> None:
+                compression_opts: int | None, cube_storage: str, progress=None) -> None:
     _radar_attrs(group, node.radar)
     cube = node.cube
     n_f = cube.shape[0]
@@ -131,11 +131,13 @@ def _write_cube(group: h5py.Group, node: NodeData, compression: str | None,
             ds[f] = iq.astype(np.int16)
         else:
             ds[f] = block
+        if progress is not None:
+            progress(1)
     group.create_dataset("frame", data=np.asarray(node.cube_frame, dtype=np.int64))
 
 
 def _write_into(f: h5py.File, rec: Recording, compression: str | None,
-                compression_opts: int | None, cube_storage: str = "complex64") -> None:
+                compression_opts: int | None, cube_storage: str = "complex64", progress=None):
     f.attrs["format"] = FORMAT_NAME
     f.attrs["format_version"] = FORMAT_VERSION
     f.attrs["frame_period_s"] = float(rec.frame_period_s)
@@ -170,7 +172,7 @@ def _write_into(f: h5py.File, rec: Recording, compression: str | None,
             _write_tracks(g.create_group("tracks"), node.tracks)
         if node.cube is not None:
             _write_cube(g.create_group("cube"), node, compression, compression_opts,
-                        cube_storage)
+                        cube_storage, progress)
     if rec.truth is not None:
         t = f.create_group("truth")
         _column(t, "frame", rec.truth.frame, np.int64)
@@ -195,17 +197,17 @@ def _check_storage(cube_storage: str) -> None:
 
 def write_recording(path: str | os.PathLike, recording: Recording, *, overwrite: bool = False,
                     compression: str | None = "gzip", compression_opts: int | None = 1,
-                    cube_storage: str = "complex64") -> Path:
+                    cube_storage: str = "complex64", progress=None) -> Path:
     """Write ``recording`` to a new HDF5 file, atomically.
 
-    ``overwrite=False`` refuses an existing ``path`` (:class:`FileFormatError`);
-    with ``overwrite=True`` the old file is replaced as a whole (extension
-    groups are lost: use :func:`update_recording` to keep them).
+    ``overwrite=False`` refuses an existing ``path`` (:class:`FileFormatError`); with
+    ``overwrite=True`` the old file is replaced (extensions lost: see :func:`update_recording`).
     ``compression``/``compression_opts`` apply to raw ADC cubes (chunked one
     frame per chunk); other datasets of 1024 elements or more are always
     chunked and gzip-compressed. ``cube_storage="int16"`` stores cubes as
     int16 I/Q ADC counts (half the size, compresses well; the cube must hold
-    whole counts in the int16 range), else complex64. Returns the path.
+    whole counts in the int16 range), else complex64. Returns the path; ``progress(1)``
+    (e.g. a tqdm bar's ``update``) is called after each cube frame written.
     """
     _check_storage(cube_storage)
     path = Path(path)
@@ -214,7 +216,7 @@ def write_recording(path: str | os.PathLike, recording: Recording, *, overwrite:
     if path.exists() and not overwrite:
         raise FileFormatError(f"{path} exists; pass overwrite=True to replace it")
     _atomic_write(path, lambda f: _write_into(f, recording, compression, compression_opts,
-                                              cube_storage))
+                                              cube_storage, progress))
     return path
 
 

@@ -1,7 +1,7 @@
 """The ``/noise`` group of a recording file: each node's measurement noise as
 estimated from the recording's data
 (:class:`~mmsnap_graph.data.noise.NoiseEstimate`, made by
-:func:`mmsnap_graph.calibration.noise_estimate.estimate_noise`; written by
+:func:`mmsnap_graph.calibration.noise.estimate.estimate_noise`; written by
 ``mmsnap calibrate`` and ``mmsnap noise``, used by ``mmsnap fuse``).
 
 :func:`write_noise` and :func:`read_noise` are a symmetric pair; the layout is
@@ -21,6 +21,7 @@ import numpy as np
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..errors import FileFormatError, MmsnapError
 from .guard import H5_ERRORS, edited_copy, open_for_reading
+from .versions import check_format_version
 
 __all__ = ["NOISE_GROUP", "NOISE_LAYOUT", "write_noise", "read_noise", "fill_noise_group",
            "noise_for_fusion"]
@@ -103,6 +104,7 @@ def _dataset(g: h5py.Group, name: str, where: str, shape: tuple, kind: str) -> n
 
 
 def _read_group(g: h5py.Group, where: str) -> NoiseEstimate:
+    check_format_version(g.attrs, where, _NOISE_VERSION)
     for key in ("method", "message", "fallback_sigmas"):
         if key not in g.attrs:
             raise FileFormatError(f"{where} attribute {key!r} is missing")

@@ -22,9 +22,15 @@ from ..data.recording import Detections, NodeData, Recording
 from ..errors import ValidationError
 
 __all__ = ["PointCloud3D", "Mounting", "cloud_to_detections", "recording_from_point_clouds",
-           "destack_frames", "accumulate_frames"]
+           "destack_frames", "accumulate_frames", "check_frame_period"]
 
 _COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
+#: Limits of a radar point (no mmWave radar sees beyond a few hundred metres
+#: or faster than a few hundred m/s): a larger value is a corrupted number.
+MAX_COORDINATE_M = 1e4
+MAX_SPEED_MPS = 1e3
+#: :func:`accumulate_frames` refuses to make more points than this (memory).
+MAX_ACCUMULATED_POINTS = 50_000_000
 
 
 
@@ -64,6 +70,11 @@ class PointCloud3D:
                 bad = int(np.flatnonzero(~np.isfinite(arr))[0])
                 raise ValidationError(f"{name} must be finite; point {bad} (frame "
                                       f"{frame[bad]}) holds {arr[bad]!r}")
+            limit = MAX_SPEED_MPS if name == "doppler_mps" else MAX_COORDINATE_M
+            if name in _COLUMNS and arr.size and np.max(np.abs(arr)) > limit:
+                bad = int(np.argmax(np.abs(arr)))
+                raise ValidationError(f"{name} must lie within +-{limit:g}; point {bad} (frame "
+                                      f"{frame[bad]}) holds {float(arr[bad])!r}")
             object.__setattr__(self, name, arr)
         frames = np.unique(frame) if self.frames is None else int_array(self.frames, "frames")
         missing = np.setdiff1d(frame, frames)
@@ -140,25 +151,38 @@ def destack_frames(cloud: PointCloud3D) -> PointCloud3D:
     return cloud.select(keep)
 
 
-def accumulate_frames(cloud: PointCloud3D, n_frames: int) -> PointCloud3D:
+def accumulate_frames(cloud: PointCloud3D, n_frames: int, *,
+                      frame_period_s: float | None = None) -> PointCloud3D:
     """Frame accumulation for sparse clouds: frame ``f`` of the result holds
     the points of frames ``f - n_frames + 1 .. f`` (each point then appears
-    in ``n_frames`` frames; time stamps stay those of the original frame)."""
-    if int(n_frames) != n_frames or n_frames < 1:
+    in ``n_frames`` frames). Time stamps move with the frame, by
+    ``frame_period_s`` per frame, when it is given (else they stay those of
+    the original frame: a recording clocked by time stamps would then undo
+    the accumulation)."""
+    if not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
         raise ValidationError(f"n_frames={n_frames!r} must be an integer >= 1")
+    if frame_period_s is not None and not (np.isfinite(frame_period_s) and frame_period_s > 0):
+        raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
+    if len(cloud) * int(n_frames) > MAX_ACCUMULATED_POINTS:
+        raise ValidationError(f"n_frames={n_frames} would make {len(cloud)} x {n_frames} "
+                              f"points (at most {MAX_ACCUMULATED_POINTS:,})")
     # Oldest first, so that each frame lists its points in time order.
-    parts = [(cloud.frame + lag, np.arange(len(cloud))) for lag in range(int(n_frames) - 1, -1, -1)]
-    frame = np.concatenate([f for f, _ in parts])
-    rows = np.concatenate([r for _, r in parts])
+    lags = range(int(n_frames) - 1, -1, -1)
+    parts = [(cloud.frame + lag, np.arange(len(cloud)), np.full(len(cloud), lag)) for lag in lags]
+    frame = np.concatenate([f for f, _, _ in parts])
+    rows = np.concatenate([r for _, r, _ in parts])
+    lag = np.concatenate([g for _, _, g in parts])
     inside = frame <= cloud.frames.max() if cloud.frames.size else frame < 0
-    frame, rows = frame[inside], rows[inside]
-    order = np.argsort(frame, kind="stable")
-    frame, rows = frame[order], rows[order]
+    order = np.argsort(frame[inside], kind="stable")
+    frame, rows, lag = frame[inside][order], rows[inside][order], lag[inside][order]
     pick = lambda a: None if a is None else a[rows]
+    time = pick(cloud.time_s)
+    if time is not None and frame_period_s is not None:
+        time = time + lag * float(frame_period_s)
     return PointCloud3D(frame=frame, x_m=cloud.x_m[rows], y_m=cloud.y_m[rows],
                         z_m=cloud.z_m[rows], doppler_mps=cloud.doppler_mps[rows],
                         snr_db=pick(cloud.snr_db), noise_db=pick(cloud.noise_db),
-                        time_s=pick(cloud.time_s), frames=cloud.frames)
+                        time_s=time, frames=cloud.frames)
 
 
 def cloud_to_detections(cloud: PointCloud3D, mounting: Mounting = Mounting(), *,
@@ -190,17 +214,83 @@ def cloud_to_detections(cloud: PointCloud3D, mounting: Mounting = Mounting(), *,
                       snr_db=snr[keep] if use_snr else None)
 
 
+#: A frame period and time stamps disagree when the stamps advance by more than
+#: this fraction more or less than the period per frame number.
+PERIOD_TOLERANCE = 0.25
+
+
+def _stamp_frames(clouds: Mapping[str, PointCloud3D], frame_period_s: float,
+                  t0: float) -> dict[str, NDArray]:
+    """Each node's frame numbers from its time stamps, round((t - t0) / period);
+    an error when they do not fit an int64 frame counter (2^53)."""
+    out = {}
+    for name, c in clouds.items():
+        with np.errstate(over="ignore", invalid="ignore"):
+            frame = np.round((c.time_s - t0) / frame_period_s)
+        if not (np.all(np.isfinite(frame)) and np.max(np.abs(frame)) <= 2 ** 53):
+            span = float(c.time_s.max()) - t0
+            raise ValidationError(f"node {name}: its time stamps reach {span:.6g} s after the "
+                                  f"first one, {span / frame_period_s:.3g} frames of "
+                                  f"frame_period_s={frame_period_s!r} s (at most 2^53 frames); "
+                                  "check the time stamps and the frame period")
+        out[name] = frame.astype(np.int64)
+    return out
+
+
+def check_frame_period(cloud: PointCloud3D, frame_period_s: float, *, node: str = "S1",
+                       option: str = "frame_period_s") -> str | None:
+    """Why ``frame_period_s`` disagrees with the cloud's time stamps, or None.
+
+    With frame numbers from the source (a frame column, a UART header), the
+    stamps must advance by the period per frame number (median over
+    consecutive frames, within :data:`PERIOD_TOLERANCE`): stamps coarser
+    than the frame (1 s stamps of a 20 fps log) or a period in the wrong unit
+    would merge or spread frames. Without distinct frame numbers, distinct
+    stamps that each hold several points (one stamp per radar frame) must not
+    fall into one frame. ``option`` names the setting in the message.
+    """
+    if cloud.time_s is None or len(cloud) == 0:
+        return None
+    frames, inverse, count = np.unique(cloud.frame, return_inverse=True, return_counts=True)
+    t_min = float(cloud.time_s.min())
+    stamps = np.bincount(inverse, weights=cloud.time_s - t_min) / count    # mean per frame
+    if frames.size >= 3:
+        rate = np.median(np.diff(stamps) / np.diff(frames))
+        if abs(rate / frame_period_s - 1.0) > PERIOD_TOLERANCE:
+            distinct = np.unique(cloud.time_s).size
+            coarse = (f"; the stamps hold only {distinct} distinct values for {frames.size} "
+                      "frames: coarser than a frame" if distinct < frames.size else "")
+            return (f"node {node}: {option}={frame_period_s:g} s disagrees with the time stamps, "
+                    f"which advance {rate:.6g} s per frame number (median of {frames.size - 1} "
+                    f"frame steps){coarse}")
+    values, counts = np.unique(cloud.time_s, return_counts=True)
+    if values.size >= 3 and np.median(counts) >= 2:
+        with np.errstate(over="ignore", invalid="ignore"):
+            derived = np.round((values - t_min) / frame_period_s)
+        per_frame = np.unique(derived, return_counts=True)[1]
+        if np.median(per_frame) >= 2:
+            step = float(np.median(np.diff(values)))
+            return (f"node {node}: {option}={frame_period_s:g} s merges distinct time stamps "
+                    f"{step:.6g} s apart into one frame ({values.size} stamps of several points "
+                    f"each fall into {per_frame.size} frames)")
+    return None
+
+
 def _frame_offsets(clouds: Mapping[str, PointCloud3D], frame_period_s: float
                    ) -> tuple[dict[str, PointCloud3D], dict[str, Any]]:
     """Put every node on one frame clock: from time stamps when every cloud
     has them (frame = round((t - t0) / period), t0 = the earliest stamp), else
     each node's frames counted from its first frame (nodes started together)."""
     if all(c.time_s is not None and len(c) for c in clouds.values()):
+        for name, c in clouds.items():
+            problem = check_frame_period(c, frame_period_s, node=name)
+            if problem:
+                raise ValidationError(problem)
         t0 = min(float(c.time_s.min()) for c in clouds.values())
+        frames = _stamp_frames(clouds, frame_period_s, t0)
         out = {}
         for name, c in clouds.items():
-            frame = np.round((c.time_s - t0) / frame_period_s).astype(np.int64)
-            out[name] = PointCloud3D(frame=frame, x_m=c.x_m, y_m=c.y_m, z_m=c.z_m,
+            out[name] = PointCloud3D(frame=frames[name], x_m=c.x_m, y_m=c.y_m, z_m=c.z_m,
                                      doppler_mps=c.doppler_mps, snr_db=c.snr_db,
                                      noise_db=c.noise_db, time_s=c.time_s)
         return out, {"frame_clock": "time_stamps", "time_origin_s": t0}
@@ -211,6 +301,23 @@ def _frame_offsets(clouds: Mapping[str, PointCloud3D], frame_period_s: float
                                  doppler_mps=c.doppler_mps, snr_db=c.snr_db,
                                  noise_db=c.noise_db, time_s=c.time_s, frames=c.frames - first)
     return out, {"frame_clock": "frame_numbers"}
+
+
+def _no_twins(clouds: Mapping[str, PointCloud3D]) -> None:
+    """Two nodes with the same points in the same frames are one log imported
+    twice: co-located, identical nodes make every calibration and noise
+    estimate degenerate, so they are refused here, where the cause is known."""
+    seen: dict[tuple, str] = {}
+    for name, c in clouds.items():
+        if len(c) == 0:
+            continue
+        key = (len(c), c.frame.tobytes(), c.x_m.tobytes(), c.y_m.tobytes(), c.z_m.tobytes(),
+               c.doppler_mps.tobytes())
+        if key in seen:
+            raise ValidationError(f"nodes {seen[key]} and {name} hold the same {len(c)} points in "
+                                  "the same frames: one log imported twice? (give each node its "
+                                  "own log)")
+        seen[key] = name
 
 
 def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_period_s: float,
@@ -229,6 +336,7 @@ def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_per
     fp = float(frame_period_s)
     if not (np.isfinite(fp) and fp > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
+    _no_twins(clouds)
     aligned, md = _frame_offsets(clouds, fp)
     nodes = {}
     for name, cloud in aligned.items():

@@ -16,7 +16,9 @@ aliases below (a ``columns=`` mapping renames others):
 
 from __future__ import annotations
 
+import csv
 import os
+import zipfile
 from pathlib import Path
 from typing import Any, Literal, Mapping
 
@@ -25,7 +27,7 @@ from numpy.typing import NDArray
 
 from factors.projection import spherical_to_cartesian
 from ..errors import FileFormatError, ValidationError
-from .point_cloud import PointCloud3D
+from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
 __all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "read_point_table", "read_point_tables"]
 
@@ -44,6 +46,47 @@ _ALIASES = {
     "node": ("node", "sensor", "radar"),
 }
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+#: Per column, the largest magnitude a radar point can have (a corrupted cell).
+_LIMITS = {"x_m": MAX_COORDINATE_M, "y_m": MAX_COORDINATE_M, "z_m": MAX_COORDINATE_M,
+           "range_m": MAX_COORDINATE_M, "doppler_mps": MAX_SPEED_MPS}
+#: Time stamps beyond this (about 31,700 years) are not a clock (a bad cell).
+_MAX_TIME_S = 1e12
+
+
+def _read_csv(path: Path) -> dict[str, NDArray]:
+    """A CSV file -> name -> column, with the standard library (no pandas).
+
+    Blank lines and lines starting with ``#`` are skipped, spaces around a
+    cell are dropped; a column whose every non-empty cell is a number is a
+    float column (an empty cell is NaN), any other a column of strings (the
+    errors that follow then name the line of a bad cell)."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (UnicodeDecodeError, OSError) as exc:
+        raise FileFormatError(f"{path}: not a readable CSV table ({exc})") from None
+    kept = [(k, line) for k, line in enumerate(text.splitlines(), start=1)
+            if line.strip() and not line.lstrip().startswith("#")]
+    try:
+        rows = list(csv.reader([line for _, line in kept], skipinitialspace=True))
+    except csv.Error as exc:
+        raise FileFormatError(f"{path}: not a readable CSV table ({exc})") from None
+    if not rows:
+        raise FileFormatError(f"{path}: not a readable CSV table (no header line)")
+    header = [c.strip() for c in rows[0]]
+    _no_duplicates(header, str(path))
+    for (number, _), row in zip(kept[1:], rows[1:]):
+        if len(row) != len(header):
+            raise FileFormatError(f"{path}: line {number} has {len(row)} cells, the header "
+                                  f"(line {kept[0][0]}) names {len(header)} columns")
+    cells = list(zip(*(tuple(c.strip() for c in row) for row in rows[1:]))) or [()] * len(header)
+    return {name: _csv_column(values) for name, values in zip(header, cells)}
+
+
+def _csv_column(cells: tuple) -> NDArray:
+    try:
+        return np.array([float(c) if c else np.nan for c in cells], dtype=float)
+    except ValueError:
+        return np.array(cells, dtype=object)
 
 
 def _as_columns(source: Any, name: str) -> dict[str, NDArray]:
@@ -53,23 +96,20 @@ def _as_columns(source: Any, name: str) -> dict[str, NDArray]:
         path = Path(source)
         if not path.is_file():
             raise FileFormatError(f"point table {path} does not exist")
-        if path.suffix.lower() in (".npy", ".npz"):
-            try:
-                arr = np.load(path, allow_pickle=False)
-            except ValueError as exc:
-                raise FileFormatError(f"{path}: not a plain NumPy array file ({exc})") from None
-            if isinstance(arr, np.lib.npyio.NpzFile):
-                return {k: arr[k] for k in arr.files}
-            return _as_columns(arr, name)
-        # pandas only here, to keep it out of the import path of the library.
-        import pandas as pd
+        if path.suffix.lower() not in (".npy", ".npz"):
+            return _read_csv(path)
         try:
-            frame = pd.read_csv(path, comment="#", skipinitialspace=True)
-        except (ValueError, pd.errors.ParserError, UnicodeDecodeError) as exc:
-            raise FileFormatError(f"{path}: not a readable CSV table ({exc})") from None
-        return {str(c): frame[c].to_numpy() for c in frame.columns}
+            arr = np.load(path, allow_pickle=False)
+            if isinstance(arr, np.lib.npyio.NpzFile):
+                with arr:
+                    return {k: arr[k] for k in arr.files}
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            raise FileFormatError(f"{path}: not a plain NumPy array file ({exc})") from None
+        return _as_columns(arr, name)
     if hasattr(source, "columns") and hasattr(source, "to_numpy"):
-        return {str(c): source[c].to_numpy() for c in source.columns}
+        names = [str(c) for c in source.columns]
+        _no_duplicates(names, name)
+        return {n: source[c].to_numpy() for n, c in zip(names, source.columns)}
     if isinstance(source, np.ndarray) and source.dtype.names:
         return {k: source[k] for k in source.dtype.names}
     if isinstance(source, Mapping):
@@ -82,15 +122,65 @@ def _as_columns(source: Any, name: str) -> dict[str, NDArray]:
                                                         else ""))
 
 
-def _canonical(raw: dict[str, NDArray], columns: Mapping[str, str] | None) -> dict[str, NDArray]:
-    renamed = {(columns or {}).get(k, k): v for k, v in raw.items()}
-    lower = {k.strip().lower(): v for k, v in renamed.items()}
+def _no_duplicates(names: list[str], name: str) -> None:
+    """Column names must be unique (ignoring case and spaces around them)."""
+    seen: dict[str, str] = {}
+    for n in names:
+        key = n.strip().lower()
+        if key in seen:
+            raise FileFormatError(f"{name}: columns {seen[key]!r} and {n!r} have the same name; "
+                                  "rename one")
+        seen[key] = n
+
+
+def _checked_columns(raw: dict[str, Any], name: str) -> dict[str, NDArray]:
+    """Every column one-dimensional, of numbers or strings, all of one length."""
+    _no_duplicates(list(raw), name)
+    out, lengths = {}, {}
+    for key, value in raw.items():
+        arr = np.asarray(value)
+        if arr.ndim != 1:
+            raise FileFormatError(f"{name}: column {key} must be one-dimensional (one value "
+                                  f"per point), got shape {arr.shape}")
+        if arr.dtype.kind not in "biufUSO":
+            raise FileFormatError(f"{name}: column {key} has dtype {arr.dtype}; a point table "
+                                  "holds numbers (and node names)")
+        out[key], lengths[key] = arr, arr.shape[0]
+    if len(set(lengths.values())) > 1:
+        raise FileFormatError(f"{name}: columns differ in length {lengths}; every column "
+                              "needs one value per point")
+    return out
+
+
+def _canonical(raw: dict[str, NDArray], columns: Mapping[str, str] | None,
+               name: str) -> dict[str, NDArray]:
+    """The columns under their canonical names (``_ALIASES``), after the
+    ``columns`` renames (matched like the aliases: case and surrounding
+    spaces ignored)."""
+    lower = {k.strip().lower(): k for k in raw}
+    renames = {}
+    for old, new in dict(columns or {}).items():
+        key, target = str(old).strip().lower(), str(new).strip().lower()
+        if key not in lower:
+            raise FileFormatError(f"{name}: the columns mapping renames {old!r}, which the table "
+                                  f"does not have (columns present: {sorted(raw)})")
+        if not any(target in aliases for aliases in _ALIASES.values()):
+            raise FileFormatError(f"{name}: the columns mapping renames {old!r} to {new!r}, "
+                                  f"which is not a column name this reader knows "
+                                  f"({sorted(_ALIASES)} or their aliases)")
+        renames[key] = target
+    named = {renames.get(k, k): raw[original] for k, original in lower.items()}
+    origin = {renames.get(k, k): original for k, original in lower.items()}
+    _no_duplicates([renames.get(k, k) for k in lower], name)
     out = {}
     for canon, aliases in _ALIASES.items():
-        for alias in aliases:
-            if alias in lower:
-                out[canon] = lower[alias]
-                break
+        found = [a for a in aliases if a in named]
+        if len(found) > 1:
+            raise FileFormatError(f"{name}: columns {[origin[a] for a in found]} all mean "
+                                  f"{canon}; keep one (or rename the others with a columns "
+                                  "mapping, mmsnap import table --columns)")
+        if found:
+            out[canon] = named[found[0]]
     return out
 
 
@@ -166,33 +256,76 @@ def _float(cols: dict, key: str, name: str, where: _Rows) -> NDArray:
 def _checked(values: NDArray, key: str, rows: NDArray, name: str, where: _Rows) -> NDArray:
     """``values`` (the column ``key`` at ``rows``) if finite, else an error
     naming the first row that is not (an empty CSV cell is NaN)."""
-    if key in ("snr_db", "noise_db") or np.all(np.isfinite(values)):
+    if key in ("snr_db", "noise_db"):
         return values                               # side info may be missing (NaN)
-    j = int(np.flatnonzero(~np.isfinite(values))[0])
-    raise FileFormatError(f"{name}: column {key} must be finite; point {j} ({where(rows[j])}) "
-                          f"holds {float(values[j])!r}")
+    if not np.all(np.isfinite(values)):
+        j = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise FileFormatError(f"{name}: column {key} must be finite; point {j} "
+                              f"({where(rows[j])}) holds {float(values[j])!r}")
+    limit = _LIMITS.get(key)
+    if limit is not None and values.size and np.max(np.abs(values)) > limit:
+        j = int(np.argmax(np.abs(values)))
+        raise FileFormatError(f"{name}: column {key} must lie within +-{limit:g}; point {j} "
+                              f"({where(rows[j])}) holds {float(values[j])!r}")
+    return values
 
 
-def _frames_from_time(time_s: NDArray, frame_period_s: float | None) -> NDArray:
+#: The largest frame number a table may give: every frame number up to it is an
+#: exact float64 (the CSV reader's numbers) and an int64.
+MAX_FRAME = 2 ** 53
+
+
+def _frames_from_time(time_s: NDArray, frame_period_s: float | None, name: str) -> NDArray:
     if frame_period_s is None:
         _, inverse = np.unique(time_s, return_inverse=True)
         return inverse.astype(np.int64)
-    return np.round((time_s - time_s.min()) / frame_period_s).astype(np.int64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        frame = np.round((time_s - time_s.min()) / frame_period_s)
+    if frame.size and not (np.all(np.isfinite(frame)) and frame.max() <= MAX_FRAME):
+        span = float(time_s.max()) - float(time_s.min())
+        raise FileFormatError(f"{name}: the time stamps span {span:.6g} s, "
+                              f"{span / frame_period_s:.3g} frames of frame_period_s="
+                              f"{frame_period_s!r} s (at most 2^53); check the time stamps and "
+                              "the frame period (mmsnap import --frame-period)")
+    return frame.astype(np.int64)
+
+
+def _frame_column(cols: dict, rows: NDArray, get, name: str, where: "_Rows") -> NDArray:
+    frame = get("frame")
+    bad = np.flatnonzero((frame != np.round(frame)) | (np.abs(frame) > MAX_FRAME))
+    if bad.size:
+        row = rows[bad[0]]
+        raise FileFormatError(f"{name}: column frame must hold integers; {where(row)} holds "
+                              f"{_scalar(cols['frame'][row])!r} (frame numbers lie within "
+                              "+-2^53)")
+    return frame.astype(np.int64)
+
+
+def _node_names(column: NDArray, name: str, where: "_Rows") -> NDArray:
+    """The node column as strings; an empty cell is an error naming its line."""
+    values = np.asarray(column, dtype=object)
+    empty = [i for i, v in enumerate(values)
+             if v is None or (isinstance(v, float) and not np.isfinite(v))
+             or (isinstance(v, str) and not v.strip())]
+    if empty:
+        raise FileFormatError(f"{name}: column node is empty at {where(empty[0])}; every point "
+                              "needs its node's name")
+    return np.array([str(_scalar(v)).strip() for v in values], dtype=object)
 
 
 def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, degrees: bool,
            time_unit: str, frame_period_s: float | None, where: _Rows) -> PointCloud3D:
     get = lambda k: _checked(_float(cols, k, name, where)[rows], k, rows, name, where)
     time = get("time_s") * _TIME_UNITS[time_unit] if "time_s" in cols else None
+    if time is not None and time.size and np.max(np.abs(time)) > _MAX_TIME_S:
+        j = int(np.argmax(np.abs(time)))
+        raise FileFormatError(f"{name}: column time_s holds {float(time[j])!r} s at "
+                              f"{where(rows[j])}; time stamps must lie within +-1e12 s "
+                              f"(check --time-unit)")
     if "frame" in cols:
-        frame = get("frame")
-        if np.any(frame != np.round(frame)):
-            bad = rows[np.flatnonzero(frame != np.round(frame))[0]]
-            raise FileFormatError(f"{name}: column frame must hold integers; {where(bad)} "
-                                  f"holds {_scalar(cols['frame'][bad])!r}")
-        frame = frame.astype(np.int64)
+        frame = _frame_column(cols, rows, get, name, where)
     else:
-        frame = _frames_from_time(time, frame_period_s)
+        frame = _frames_from_time(time, frame_period_s, name)
     if kind == "cartesian":
         x, y, z = get("x_m"), get("y_m"), get("z_m")
     else:
@@ -231,20 +364,24 @@ def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
                               "'spherical'")
     if time_unit not in _TIME_UNITS:
         raise ValidationError(f"time_unit={time_unit!r} must be one of {sorted(_TIME_UNITS)}")
+    if frame_period_s is not None and not (isinstance(frame_period_s, (int, float))
+                                           and np.isfinite(frame_period_s)
+                                           and frame_period_s > 0):
+        raise ValidationError(f"frame_period_s={frame_period_s!r} must be a finite number > 0")
     name = str(source) if isinstance(source, (str, os.PathLike)) else "point table"
-    raw = _as_columns(source, name)
-    cols = _canonical(raw, columns)
+    raw = _checked_columns(_as_columns(source, name), name)
+    cols = _canonical(raw, columns, name)
     present = sorted(raw)
     if "frame" not in cols and "time_s" not in cols:
         raise FileFormatError(f"{name}: missing columns: a frame number (frame) or a time "
                               f"stamp (time_s) is needed (columns present: {present})")
     kind = _kind(cols, coordinates, name, present)
-    n = len(next(iter(cols.values())))
+    n = len(next(iter(raw.values())))
     opts = dict(name=name, degrees=degrees, time_unit=time_unit,
                 frame_period_s=frame_period_s, where=_Rows(source))
     if "node" not in cols:
         return {default_node: _cloud(cols, np.arange(n), kind, **opts)}
-    nodes = np.asarray(cols["node"]).astype(str)
+    nodes = _node_names(cols["node"], name, opts["where"])
     return {str(node): _cloud(cols, np.flatnonzero(nodes == node), kind, **opts)
             for node in dict.fromkeys(nodes.tolist())}
 
@@ -253,6 +390,6 @@ def read_point_table(source: Any, **options) -> PointCloud3D:
     """Read a one-radar point table (:func:`read_point_tables`, same options)."""
     clouds = read_point_tables(source, **options)
     if len(clouds) != 1:
-        raise FileFormatError(f"the table holds {len(clouds)} nodes {sorted(clouds)}; use "
-                              "read_point_tables")
+        raise FileFormatError(f"the table holds {len(clouds)} nodes {sorted(clouds)}; read it "
+                              "with read_point_tables (mmsnap import table --table FILE)")
     return next(iter(clouds.values()))

@@ -31,11 +31,16 @@ sin(az)``, ``y = r cos(el) cos(az)``, ``z = r sin(el)``.
 Other TLV types (range profiles, statistics, the target list) are skipped. A
 stream with bad frames keeps its good ones: every bad one is reported with
 its position in the stream, byte offset and reason, and reading resumes at
-the next magic word.
+the next magic word. A packet with a point that is not finite is a bad frame;
+so is a copy of an earlier packet and a packet whose frame number leaves the
+sequence for one packet. Frame numbers (with the sub-frame) only increase:
+one that goes back (a radar restart, logs joined out of order) is an error
+naming the packet's byte offset, not merged into the earlier frames.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import struct
 from dataclasses import dataclass, field
@@ -46,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import FileFormatError, ValidationError
-from .point_cloud import PointCloud3D
+from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
 __all__ = ["MAGIC_WORD", "TLV_DETECTED_POINTS", "TLV_SIDE_INFO", "TLV_COMPRESSED_SPHERICAL",
            "BadFrame", "UartLog", "parse_ti_uart", "read_ti_uart"]
@@ -57,6 +62,9 @@ TLV_SIDE_INFO = 7
 TLV_COMPRESSED_SPHERICAL = 1020
 #: Refuse packets longer than this (a corrupted length field).
 MAX_PACKET_BYTES = 1 << 20
+#: A last packet this many frames (about 14 hours at 20 fps) after the one
+#: before it has a corrupted frame number.
+MAX_FRAME_JUMP = 1 << 20
 
 _HEADER = {"oob": struct.Struct("<8s8I"), "tracking": struct.Struct("<8s9I2H")}
 _TLV = struct.Struct("<2I")
@@ -114,6 +122,9 @@ class _Frame:
     sub_frame: int
     n_declared: int | None
     columns: dict
+    index: int = -1
+    byte_offset: int = -1
+    digest: bytes = b""
 
 
 class _BadPacket(Exception):
@@ -178,6 +189,13 @@ def _decode_packet(packet: bytes, demo: str) -> _Frame:
     for name in ("snr", "noise"):
         if name in cols and len(cols[name]) != n:
             raise _BadPacket(f"side info holds {len(cols[name])} points, the point TLV {n}")
+    for name in ("x", "y", "z", "doppler"):
+        limit = MAX_SPEED_MPS if name == "doppler" else MAX_COORDINATE_M
+        values = np.asarray(cols.get(name, ()), dtype=float)
+        if values.size and not np.all(np.abs(values) <= limit):     # NaN fails too
+            k = int(np.flatnonzero(~(np.abs(values) <= limit))[0])
+            raise _BadPacket(f"point {k} of {n} holds {name}={float(values[k])!r} (not a "
+                             f"finite number within +-{limit:g})")
     return _Frame(number=int(number), sub_frame=int(sub), n_declared=n_obj, columns=cols)
 
 
@@ -205,7 +223,10 @@ def _scan(data: bytes, demo: str) -> Iterator[_Frame | BadFrame]:
                                        f"{nxt - pos} bytes into a {total}-byte packet", number)
         else:
             try:
-                yield _decode_packet(data[pos:pos + total], demo)
+                frame = _decode_packet(data[pos:pos + total], demo)
+                frame.index, frame.byte_offset = index, pos
+                frame.digest = hashlib.blake2b(data[pos:pos + total], digest_size=16).digest()
+                yield frame
             except _BadPacket as exc:
                 yield BadFrame(index, pos, str(exc), number)
             if pos + total < len(data) and data[pos + total:pos + total + 8] != MAGIC_WORD:
@@ -238,9 +259,64 @@ def parse_ti_uart(data: bytes, *, demo: Literal["oob", "tracking"] = "oob",
     if not good:
         reasons = "; ".join(str(b) for b in bad[:3])
         raise FileFormatError(f"no readable {demo} frame in {len(data)} bytes ({reasons})")
+    good, dropped = _in_sequence(good)
+    bad = sorted(bad + dropped, key=lambda b: (b.byte_offset, b.gap))
     cloud, sub = _assemble(good, frame_period_s)
     return UartLog(points=cloud, sub_frame=sub, bad=tuple(bad),
                    n_packets=data.count(MAGIC_WORD))
+
+
+def _key(frame: _Frame) -> tuple[int, int]:
+    return frame.number, frame.sub_frame
+
+
+def _in_sequence(frames: list[_Frame]) -> tuple[list[_Frame], list[BadFrame]]:
+    """The packets in the order of their (frame number, sub-frame), which a
+    radar only ever increases. A packet equal byte for byte to an earlier one
+    (sent or logged twice) and a packet whose number leaves the sequence for
+    one packet (a corrupted header) are dropped and reported; any other
+    repeated or backward number (a radar restart, logs joined out of order)
+    is an error naming the packet and its byte offset: merging it into the
+    earlier frames would mix two recordings."""
+    kept: list[_Frame] = []
+    dropped: list[BadFrame] = []
+    seen: dict[bytes, _Frame] = {}
+    for i, f in enumerate(frames):
+        twin = seen.get(f.digest)
+        if twin is not None:
+            dropped.append(BadFrame(f.index, f.byte_offset, f"a copy of packet {twin.index} "
+                                    "(dropped)", f.number))
+            continue
+        after = frames[i + 1] if i + 1 < len(frames) else None
+        later = frames[i + 2] if i + 2 < len(frames) else None
+        first_off = (not kept and later is not None and _key(after) < _key(later)
+                     and _key(f) > _key(after))
+        last_off = (kept and after is None and f.number - kept[-1].number > MAX_FRAME_JUMP)
+        if first_off or last_off or (kept and after is not None
+                                     and _key(f) > _key(after) > _key(kept[-1])):
+            around = (f"{after.number}, {later.number}" if first_off else
+                      f"{kept[-1].number}, ..., {'end' if after is None else after.number}")
+            dropped.append(BadFrame(f.index, f.byte_offset, f"frame number {f.number} leaves "
+                                    f"the sequence {around} (a corrupted header; dropped)",
+                                    f.number))
+            continue
+        if kept and after is not None and _key(kept[-1]) < _key(after) and _key(f) <= _key(
+                kept[-1]):
+            dropped.append(BadFrame(f.index, f.byte_offset, f"frame number {f.number} goes back "
+                                    f"in the sequence {kept[-1].number}, ..., {after.number} "
+                                    "(a repeated or corrupted packet; dropped)", f.number))
+            continue
+        if kept and _key(f) <= _key(kept[-1]):
+            last = kept[-1]
+            raise FileFormatError(
+                f"packet {f.index} at byte {f.byte_offset} has frame {f.number} (sub-frame "
+                f"{f.sub_frame}) after frame {last.number} (sub-frame {last.sub_frame}) of "
+                f"packet {last.index}: frame numbers go back (the radar restarted, or logs were "
+                f"joined out of order); split the log at byte {f.byte_offset} and import the "
+                "parts as separate recordings")
+        seen[f.digest] = f
+        kept.append(f)
+    return kept, dropped
 
 
 def _assemble(frames: list[_Frame], frame_period_s: float | None) -> tuple[PointCloud3D, NDArray]:

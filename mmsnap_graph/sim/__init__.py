@@ -6,7 +6,11 @@
 - :mod:`.trajectories`: straight-line and random-walk torso trajectories;
 - :mod:`.body`: the walking human (torso, arms, legs) as point scatterers;
 - :mod:`.cube`: raw ADC cube synthesis (FMCW TDM-MIMO);
-- :mod:`.simulator`: :func:`simulate_recording`, the whole recording;
+- :mod:`.simulator`: :func:`simulate_recording`, the whole recording, with
+  :class:`SimulationOptions` (:mod:`.options`);
+- :mod:`.physics`: what real TI point clouds of people do
+  (:class:`RealPhysics`, on by default; :data:`CLEAN` switches it off);
+- :mod:`.ghosts`: centroid ghost generators for robustness tests;
 - :mod:`.scenes`: small calibration scenes (tracks of one target seen by
   several nodes) for tests and benchmarks;
 - :mod:`.clocks`: scenes whose nodes sample at their own clock offsets
@@ -19,6 +23,8 @@
 
 from .body import HumanBody, body_scatterers
 from .networks import CONFIGURATIONS, COMMON_AREAS, Area, common_area, network_poses
+from .options import CLEAN, DEFAULT_LEVELS, SimulationOptions
+from .physics import RealPhysics
 from .simulator import (
     LEVELS,
     CENTROID_NOISE,
@@ -52,6 +58,10 @@ __all__ = [
     "HumanBody",
     "body_scatterers",
     "LEVELS",
+    "DEFAULT_LEVELS",
+    "SimulationOptions",
+    "CLEAN",
+    "RealPhysics",
     "CENTROID_NOISE",
     "PointCloudModel",
     "CubeModel",

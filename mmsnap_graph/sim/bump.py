@@ -1,5 +1,5 @@
 """A recording in which one radar is bumped (moved) part-way through, for the
-decalibration monitor (:mod:`mmsnap_graph.calibration.monitor`, docs/CALIBRATION.md,
+decalibration monitor (:mod:`mmsnap_graph.calibration.monitor.decalibration`, docs/CALIBRATION.md,
 "Noticing a moved radar").
 
 :func:`simulate_bumped_recording` simulates the centroid level twice with the
@@ -24,6 +24,7 @@ from ..data.recording import Detections, Recording
 from ..errors import ValidationError
 from .._validation import as_float_array, check_finite
 from .networks import network_poses
+from .options import SimulationOptions
 from .simulator import simulate_recording, simulate_targets
 
 __all__ = ["BUMP_METADATA_KEYS", "simulate_bumped_recording", "bumped_pose"]
@@ -82,7 +83,8 @@ def simulate_bumped_recording(
     """A centroid-level recording in which ``node`` moves by ``bump`` at ``bump_time_s``.
 
     network, trajectory, n_frames, frame_period_s, seed, known_poses and
-    ``options`` (e.g. ``centroid_noise``, ``n_targets``) are passed to
+    ``options`` (fields of :class:`~mmsnap_graph.sim.SimulationOptions`,
+    e.g. ``centroid_noise``, ``n_targets``, ``physics``) are passed to
     :func:`~mmsnap_graph.sim.simulate_recording` (level ``"centroids"``).
     bump : ``(dx_m, dy_m, dphi_rad)`` added to the node's pose (global frame).
     bump_time_s : the node has its new pose from the first frame at or after
@@ -96,16 +98,16 @@ def simulate_bumped_recording(
                               "do not pass levels")
     poses = network_poses(network)
     b, frame = _check_bump(poses, node, bump, bump_time_s, n_frames, frame_period_s)
-    n_targets = options.pop("n_targets", 1)
-    states = simulate_targets(network, trajectory, n_targets=n_targets, n_frames=n_frames,
+    opt = SimulationOptions(frame_period_s=frame_period_s, known_poses=known_poses, **options)
+    states = simulate_targets(network, trajectory, n_targets=opt.n_targets, n_frames=n_frames,
                               frame_period_s=frame_period_s, seed=seed,
-                              **dict(options.pop("trajectory_options", None) or {}))
-    common = dict(levels=("centroids",), n_frames=n_frames, frame_period_s=frame_period_s,
-                  seed=seed, known_poses=known_poses, **options)
-    before = simulate_recording(poses, states, **common)
+                              **dict(opt.trajectory_options or {}))
+    opt = dataclasses.replace(opt, n_targets=1, trajectory_options=None)
+    common = dict(levels=("centroids",), n_frames=n_frames, seed=seed)
+    before = simulate_recording(poses, states, opt, **common)
     moved = dict(poses)
     moved[node] = bumped_pose(poses[node], b)
-    after = simulate_recording(moved, states, **common)
+    after = simulate_recording(moved, states, opt, **common)
     spliced = _splice(before.nodes[node].centroids, after.nodes[node].centroids, frame)
     rec = before.with_node(dataclasses.replace(before.nodes[node], centroids=spliced))
     meta = dict(before.metadata)

@@ -135,7 +135,7 @@ def scene_recording(scene: SyntheticScene) -> Recording:
     on each node's own frame clock), with the truth at the reference frame
     times and the noise in the metadata (``centroid_*_std_*``, as the
     simulator writes it), for :func:`~mmsnap_graph.calibration.calibrate_recording`
-    and :func:`~mmsnap_graph.fusion.sequence.fuse_recording`."""
+    and :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording`."""
     nodes = {}
     for name, z in scene.measurements.items():
         det = Detections(frame=scene.frame, range_m=np.abs(z[:, 0]), omega_rad=z[:, 1],

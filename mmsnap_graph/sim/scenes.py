@@ -23,6 +23,7 @@ from factors.models import detection_to_local, global_to_local, measurement_mode
 from ..data.noise import MeasurementNoise
 from ..errors import GeometryError, ValidationError
 from .networks import COMMON_AREAS, CONFIGURATIONS
+from .options import SimulationOptions
 from .simulator import simulate_recording
 
 __all__ = ["PAPER_CONFIGURATIONS", "COMMON_AREA_CENTERS", "SyntheticScene",
@@ -148,10 +149,12 @@ def synthetic_scene(
                               extent_m=extent_m, rng=rng)
     _check_geometry(truth, poses, min_range_m)
     # Every frame in view (the half plane was checked): the widest limits.
+    # The clean model: these scenes test estimators against their own model.
     rec = simulate_recording(
-        poses, truth, levels=("centroids",), frame_period_s=frame_period_s,
-        seed=int(rng.integers(2**63)), fov_rad=np.pi / 2, min_range_m=0.0, max_range_m=np.inf,
-        centroid_noise=noise)
+        poses, truth, SimulationOptions(physics=None, frame_period_s=frame_period_s,
+                                        fov_rad=np.pi / 2, min_range_m=0.0, max_range_m=np.inf,
+                                        centroid_noise=noise),
+        levels=("centroids",), seed=int(rng.integers(2**63)))
     meas, local, ghost = {}, {}, {}
     for name in poses:
         z = rec.nodes[name].centroids.measurements.copy()

@@ -34,14 +34,15 @@ from tqdm import tqdm
 
 from factors.models import global_to_local, measurement_model, wrap_angle
 
-from ..errors import ConfigurationError, ValidationError
+from ..errors import ValidationError
 from ..data.noise import MeasurementNoise
 from ..data.radar_config import TABLE_I, RadarConfig
 from ..data.recording import Detections, NodeData, Recording, Truth
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_count, check_finite
 from .body import BodyScatterers, HumanBody, body_scatterers
 from .cube import post_fft_snr_db, scatterer_amplitude, synthesize_cubes
 from .networks import (
+    Area,
     DEFAULT_FOV_RAD,
     DEFAULT_MAX_RANGE_M,
     DEFAULT_MIN_RANGE_M,
@@ -49,125 +50,21 @@ from .networks import (
     in_field_of_view,
     network_poses,
 )
+from .options import (CENTROID_NOISE, CLEAN, DEFAULT_LEVELS, LEVELS, CubeModel, PointCloudModel,
+                      SimulationOptions)
+from .physics import (PhysicsContext, body_shift, person_depths, physical_centroids,
+                      physical_point_cloud, room_box, self_occluded, static_reflectors)
 from .trajectories import DEFAULT_N_FRAMES, TRAJECTORY_KINDS, make_trajectory
 
-__all__ = ["LEVELS", "CENTROID_NOISE", "PointCloudModel", "CubeModel", "simulate_recording",
-           "simulate_targets"]
-
-LEVELS = ("centroids", "point_cloud", "cube")
+__all__ = ["LEVELS", "DEFAULT_LEVELS", "CENTROID_NOISE", "PointCloudModel", "CubeModel",
+           "SimulationOptions", "CLEAN", "simulate_recording", "simulate_targets"]
 
 # Stream identifiers for the derived random generators.
-_TRAJECTORY, _BODY, _CENTROIDS, _POINT_CLOUD, _CUBE, _CLUTTER = range(6)
+_TRAJECTORY, _BODY, _CENTROIDS, _POINT_CLOUD, _CUBE, _CLUTTER, _PHYSICS, _PEOPLE = range(8)
 
 
 def _stream(seed: int, purpose: int, index: int = 0) -> np.random.Generator:
     return np.random.default_rng([int(seed), purpose, index])
-
-
-#: Noise of the centroid level, one row per target per frame (a
-#: :class:`~mmsnap_graph.data.noise.MeasurementNoise`). These are the errors of
-#: a torso-cluster centroid, not the radar's resolutions (the paper's 0.035 m,
-#: pi/4 rad, 0.1807 m/s are the resolutions, used by the fusion as
-#: conservative sigmas):
-#:
-#: - range 0.05 m: the centroid of points spread over the torso's depth
-#:   (about 0.2 m) with 3.5 cm range cells;
-#: - spatial frequency 0.08 rad: about 1.5 deg at broadside
-#:   (``d omega = pi cos(theta) d theta``), the scatter of an interpolated
-#:   8-element-array angle estimate of a 0.4 m wide torso at a few metres;
-#: - Doppler 0.1 m/s: the torso's Doppler centroid, perturbed by limb points
-#:   that leak into the torso cluster (Doppler cell 0.18 m/s).
-CENTROID_NOISE = MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.10)
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class PointCloudModel:
-    """Statistical model of the detections of the FFT + OS-CFAR chain.
-
-    SNR of a scatterer after the range, Doppler and angle FFTs: the cube
-    module's radar equation (:func:`mmsnap_graph.sim.cube.scatterer_amplitude`,
-    per channel after the 2D FFT) plus ``10 log10(n_virtual)`` of coherent
-    angle gain. Detection probability (Swerling 1, square-law detector,
-    threshold set for ``p_false_alarm``): ``Pd = p_false_alarm ** (1 / (1 + snr))``,
-    times ``1 - p_miss``.
-
-    Scatterers of one target that fall in the same (range, Doppler, angle)
-    cell (``angle_fft_size`` bins over ``[-pi, pi)``) merge into one
-    detection, the strongest. Each detection's error is Gaussian with
-    variance ``bin**2 / 12 + resolution**2 / (2 snr)`` per coordinate
-    (bin quantization plus thermal noise), the Doppler aliased into
-    ``[-max_doppler, max_doppler)``; its ``snr_db`` is the true SNR plus
-    ``snr_std_db`` of noise.
-
-    False alarms: ``false_alarms_per_frame`` (Poisson mean) per node and
-    frame, uniform in range ``[min_range, max_range]``, in spatial frequency
-    over the field of view, and in Doppler over the unambiguous interval,
-    with an SNR just above the threshold (threshold + exponential of mean
-    1.5 dB); their ``target_id`` is -1.
-    """
-
-    p_false_alarm: float = 1e-4
-    p_miss: float = 0.0
-    false_alarms_per_frame: float = 1.0
-    angle_fft_size: int = 64
-    snr_std_db: float = 1.0
-    noise_std: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not 0 < self.p_false_alarm < 1:
-            raise ValidationError(f"p_false_alarm={self.p_false_alarm!r} must be in (0, 1)")
-        if not 0 <= self.p_miss < 1:
-            raise ValidationError(f"p_miss={self.p_miss!r} must be in [0, 1)")
-        if not (np.isfinite(self.false_alarms_per_frame) and self.false_alarms_per_frame >= 0):
-            raise ValidationError(f"false_alarms_per_frame={self.false_alarms_per_frame!r} "
-                                  "must be finite and >= 0")
-        if int(self.angle_fft_size) != self.angle_fft_size or self.angle_fft_size < 2:
-            raise ValidationError(f"angle_fft_size={self.angle_fft_size!r} must be an integer >= 2")
-        if not (np.isfinite(self.snr_std_db) and self.snr_std_db >= 0):
-            raise ValidationError(f"snr_std_db={self.snr_std_db!r} must be finite and >= 0")
-        if not (np.isfinite(self.noise_std) and self.noise_std > 0):
-            raise ValidationError(f"noise_std={self.noise_std!r} must be finite and > 0")
-
-    @property
-    def threshold_db(self) -> float:
-        """Detection threshold over the noise, ``10 log10(-ln p_false_alarm)``."""
-        return float(10 * np.log10(-np.log(self.p_false_alarm)))
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class CubeModel:
-    """Raw-ADC level: thermal noise and static clutter.
-
-    noise_std : complex noise std per ADC sample (the scatterers' amplitudes
-    follow the radar equation relative to it, :mod:`mmsnap_graph.sim.cube`).
-    n_clutter : static scatterers per node (walls, poles, furniture), placed
-    uniformly in the node's field of view between ``clutter_min_range_m``
-    and ``clutter_max_range_m`` with RCS log-uniform in ``clutter_rcs_m2``;
-    fixed for the whole recording.
-    quantize : round I and Q to whole ADC counts and clip them to int16, as
-    a capture holds them (then ``noise_std`` is in counts; use 8 or more).
-    Integer-valued cubes also compress several times better.
-    """
-
-    noise_std: float = 1.0
-    quantize: bool = False
-    n_clutter: int = 8
-    clutter_rcs_m2: tuple[float, float] = (1.0, 20.0)
-    clutter_min_range_m: float = 2.0
-    clutter_max_range_m: float = 15.0
-
-    def __post_init__(self) -> None:
-        if not (np.isfinite(self.noise_std) and self.noise_std >= 0):
-            raise ValidationError(f"noise_std={self.noise_std!r} must be finite and >= 0")
-        if int(self.n_clutter) != self.n_clutter or self.n_clutter < 0:
-            raise ValidationError(f"n_clutter={self.n_clutter!r} must be an integer >= 0")
-        lo, hi = self.clutter_rcs_m2
-        if not (0 < lo <= hi):
-            raise ValidationError(f"clutter_rcs_m2={self.clutter_rcs_m2!r} must be 0 < lo <= hi")
-        if not (0 < self.clutter_min_range_m < self.clutter_max_range_m):
-            raise ValidationError("clutter ranges must satisfy 0 < clutter_min_range_m < "
-                                  f"clutter_max_range_m, got {self.clutter_min_range_m!r}, "
-                                  f"{self.clutter_max_range_m!r}")
 
 
 # --------------------------------------------------------------------------
@@ -185,8 +82,7 @@ def simulate_targets(network: str | Mapping[str, ArrayLike], trajectory: str | A
         if trajectory not in TRAJECTORY_KINDS:
             raise ValidationError(f"trajectory={trajectory!r} must be one of "
                                   f"{TRAJECTORY_KINDS} or an array of states")
-        if int(n_targets) != n_targets or n_targets < 1:
-            raise ValidationError(f"n_targets={n_targets!r} must be an integer >= 1")
+        check_count(n_targets, "n_targets")
         area = common_area(network)
         return np.stack([make_trajectory(trajectory, area, n_frames=n_frames,
                                          frame_period_s=frame_period_s,
@@ -227,7 +123,10 @@ def _detection_snr_db(radar: RadarConfig, rcs_m2: NDArray, range_m: NDArray,
 
 
 def _point_cloud(bodies: Sequence[BodyScatterers], pose: NDArray, radar: RadarConfig,
-                 model: PointCloudModel, limits, rng: np.random.Generator) -> Detections:
+                 model: PointCloudModel, limits, rng: np.random.Generator,
+                 hidden: Sequence[NDArray] | None = None) -> Detections:
+    """The detector's points of the bodies; ``hidden`` (per body, (F, M)
+    bool) masks scatterers the node cannot see (self-occlusion)."""
     n_f = bodies[0].positions_m.shape[0]
     rows = []
     for tid, b in enumerate(bodies):
@@ -236,6 +135,8 @@ def _point_cloud(bodies: Sequence[BodyScatterers], pose: NDArray, radar: RadarCo
         h, _ = measurement_model(st, pose)                                   # (F, M, 3)
         # Scatterers without RCS (e.g. a body with limbs switched off) reflect nothing.
         vis = _in_view(b.positions_m, pose, limits) & (b.rcs_m2 > 0)[None, :]
+        if hidden is not None:
+            vis &= ~hidden[tid]
         snr = _detection_snr_db(radar, np.broadcast_to(b.rcs_m2, (n_f, m)), h[..., 0],
                                 model.noise_std)
         f_idx, m_idx = np.nonzero(vis)
@@ -349,28 +250,12 @@ def _cubes(bodies, pose, radar, model, frames, limits, rng, clutter_rng, progres
     return out
 
 
-def _check_inputs(levels, radar, centroid_noise, centroid_p_miss) -> tuple[str, ...]:
-    levels = tuple(levels)
-    bad = [lv for lv in levels if lv not in LEVELS]
-    if bad or not levels:
-        raise ValidationError(f"levels={levels!r} must be a non-empty subset of {LEVELS}")
-    if not isinstance(radar, RadarConfig):
-        raise ConfigurationError(f"radar must be a RadarConfig, got {type(radar).__name__}")
-    if not isinstance(centroid_noise, MeasurementNoise):
-        raise ConfigurationError(f"centroid_noise must be a MeasurementNoise, "
-                                 f"got {type(centroid_noise).__name__}")
-    if not 0 <= centroid_p_miss < 1:
-        raise ValidationError(f"centroid_p_miss={centroid_p_miss!r} must be in [0, 1)")
-    return levels
-
-
 def _cube_frame_numbers(cube_frames, n_f: int) -> NDArray:
     """The frames that get a raw cube (see :func:`simulate_recording`)."""
     if cube_frames is None:
         return np.arange(n_f)
     if np.ndim(cube_frames) == 0:
-        if int(cube_frames) != cube_frames or not 0 <= cube_frames <= n_f:
-            raise ValidationError(f"cube_frames={cube_frames!r} must be an integer in [0, {n_f}]")
+        check_count(cube_frames, "cube_frames", 0, n_f)
         return np.arange(int(cube_frames))
     frames_c = np.asarray(cube_frames)
     if (frames_c.ndim != 1 or not np.issubdtype(frames_c.dtype, np.integer)
@@ -380,43 +265,76 @@ def _cube_frame_numbers(cube_frames, n_f: int) -> NDArray:
     return frames_c
 
 
+
 @dataclass(frozen=True, slots=True)
 class _Setup:
     """Everything a node's simulation needs besides its pose and index."""
 
     levels: tuple
+    options: SimulationOptions
     radar: RadarConfig
     states: NDArray
     bodies: list
     limits: dict
     seed: int
-    centroid_noise: MeasurementNoise
-    centroid_p_miss: float
-    point_cloud_model: PointCloudModel
-    cube_model: CubeModel
-    torso_rcs_m2: float
     frames_c: NDArray
-    known_poses: bool
     cube_memmap_dir: object
+    room: NDArray | None
+    depths: NDArray | None
+
+
+def _physics_context(setup: _Setup, i: int, pose: NDArray, torso_snr) -> PhysicsContext:
+    ph = setup.options.physics
+    rng = _stream(setup.seed, _PHYSICS, i)
+    in_view = lambda p, q: _in_view(p, q, setup.limits)  # noqa: E731
+    return PhysicsContext(
+        physics=ph, rng=rng, frame_period_s=setup.radar.frame_period_s, room=setup.room,
+        reflectors=static_reflectors(pose, setup.room, ph.n_static_reflectors, in_view, rng),
+        in_view=in_view, snr_db=lambda tid, frame: torso_snr[tid, frame],
+        threshold_db=setup.options.point_cloud_model.threshold_db,
+        doppler_std_mps=setup.options.centroid_noise.doppler_mps)
+
+
+def _physical_bodies(setup: _Setup, pose: NDArray, ctx: PhysicsContext):
+    """The bodies as one node sees them: shifted by its slow correlated error,
+    with the torso's far side hidden."""
+    bodies, hidden = [], []
+    torso = setup.bodies[0].part == 0
+    for t, b in enumerate(setup.bodies):
+        centre = setup.states[t, :, :2]
+        shift = body_shift(centre.shape[0], centre, pose[:2], ctx)
+        bodies.append(dataclasses.replace(b, positions_m=b.positions_m + shift[:, None, :]))
+        hidden.append(self_occluded(centre, b.positions_m, torso, pose[:2]))
+    return bodies, hidden
 
 
 def _simulate_node(setup: _Setup, i: int, name: str, pose: NDArray, bar) -> NodeData:
     """One node's levels, each from its own random stream."""
-    radar, states, seed = setup.radar, setup.states, setup.seed
+    radar, states, seed, opt = setup.radar, setup.states, setup.seed, setup.options
     n_t, n_f, _ = states.shape
-    kw = {"name": name, "radar": radar, "pose": pose if setup.known_poses else None}
+    kw = {"name": name, "radar": radar, "pose": pose if opt.known_poses else None}
+    torso_snr = np.stack([
+        _detection_snr_db(radar, np.full(n_f, opt.body.torso_rcs_m2),
+                          measurement_model(states[t], pose)[0][:, 0],
+                          opt.point_cloud_model.noise_std) for t in range(n_t)])
+    ctx = None if opt.physics is None else _physics_context(setup, i, pose, torso_snr)
     if "centroids" in setup.levels:
-        torso_snr = np.stack([
-            _detection_snr_db(radar, np.full(n_f, setup.torso_rcs_m2),
-                              measurement_model(states[t], pose)[0][:, 0],
-                              setup.point_cloud_model.noise_std) for t in range(n_t)])
-        kw["centroids"] = _centroids(states, pose, setup.centroid_noise, setup.centroid_p_miss,
-                                     setup.limits, _stream(seed, _CENTROIDS, i), torso_snr)
+        if ctx is None:
+            kw["centroids"] = _centroids(states, pose, opt.centroid_noise, opt.centroid_p_miss,
+                                         setup.limits, _stream(seed, _CENTROIDS, i), torso_snr)
+        else:
+            kw["centroids"] = physical_centroids(states, pose, setup.depths, ctx)
     if "point_cloud" in setup.levels:
-        kw["point_cloud"] = _point_cloud(setup.bodies, pose, radar, setup.point_cloud_model,
-                                         setup.limits, _stream(seed, _POINT_CLOUD, i))
+        if ctx is None:
+            kw["point_cloud"] = _point_cloud(setup.bodies, pose, radar, opt.point_cloud_model,
+                                             setup.limits, _stream(seed, _POINT_CLOUD, i))
+        else:
+            bodies, hidden = _physical_bodies(setup, pose, ctx)
+            det = _point_cloud(bodies, pose, radar, opt.point_cloud_model, setup.limits,
+                               _stream(seed, _POINT_CLOUD, i), hidden)
+            kw["point_cloud"] = physical_point_cloud(det, pose, n_f, ctx)
     if "cube" in setup.levels:
-        kw["cube"] = _cubes(setup.bodies, pose, radar, setup.cube_model, setup.frames_c,
+        kw["cube"] = _cubes(setup.bodies, pose, radar, opt.cube_model, setup.frames_c,
                             setup.limits, _stream(seed, _CUBE, i), _stream(seed, _CLUTTER, i),
                             bar, setup.cube_memmap_dir, name)
         kw["cube_frame"] = setup.frames_c
@@ -424,6 +342,7 @@ def _simulate_node(setup: _Setup, i: int, name: str, pose: NDArray, bar) -> Node
 
 
 def _metadata(network, trajectory, setup: _Setup) -> dict:
+    noise = setup.options.centroid_noise
     return {
         "generator": "mmsnap_graph.sim.simulate_recording",
         "network": network if isinstance(network, str) else "custom",
@@ -431,83 +350,96 @@ def _metadata(network, trajectory, setup: _Setup) -> dict:
         "seed": int(setup.seed),
         "n_targets": int(setup.states.shape[0]),
         "levels": ",".join(setup.levels),
+        "model": "clean" if setup.options.physics is None else "real",
         "fov_rad": setup.limits["fov_rad"],
         "max_range_m": setup.limits["max_range_m"],
         "min_range_m": setup.limits["min_range_m"],
-        "centroid_range_std_m": setup.centroid_noise.range_m,
-        "centroid_omega_std_rad": setup.centroid_noise.omega_rad,
-        "centroid_doppler_std_mps": setup.centroid_noise.doppler_mps,
+        "centroid_range_std_m": noise.range_m,
+        "centroid_omega_std_rad": noise.omega_rad,
+        "centroid_doppler_std_mps": noise.doppler_mps,
+        # Each person's near-side offset of the centroid level (real physics).
+        **({} if setup.depths is None else {"reflection_depth_m": setup.depths.copy()}),
     }
+
+
+def _check_levels(levels) -> tuple[str, ...]:
+    levels = (levels,) if isinstance(levels, str) else tuple(levels)
+    bad = [lv for lv in levels if lv not in LEVELS]
+    if bad or not levels:
+        raise ValidationError(f"levels={levels!r} must be a non-empty subset of {LEVELS}")
+    return levels
+
+
+def _bodies(states: NDArray, frame_period_s: float, opt: SimulationOptions, seed: int) -> list:
+    """One body per target; with physics each person has their own size."""
+    n_t = states.shape[0]
+    scale = np.ones(n_t)
+    if opt.physics is not None:
+        rng = _stream(seed, _PEOPLE, 1)
+        scale = np.clip(1 + opt.physics.body_size_std * rng.standard_normal(n_t), 0.6, 1.4)
+    out = []
+    for t in range(n_t):
+        body = opt.body if scale[t] == 1 else dataclasses.replace(
+            opt.body, torso_half_width_m=opt.body.torso_half_width_m * scale[t],
+            torso_half_depth_m=opt.body.torso_half_depth_m * scale[t])
+        out.append(body_scatterers(states[t], frame_period_s, body=body,
+                                   rng=_stream(seed, _BODY, t)))
+    return out
 
 
 def simulate_recording(
     network: str | Mapping[str, ArrayLike] = "C",
     trajectory: str | ArrayLike = "straight",
+    options: SimulationOptions | None = None,
     *,
-    levels: Iterable[str] = LEVELS,
+    levels: Iterable[str] = DEFAULT_LEVELS,
     n_frames: int = DEFAULT_N_FRAMES,
-    frame_period_s: float | None = None,
     seed: int = 0,
-    radar: RadarConfig = TABLE_I,
-    n_targets: int = 1,
-    fov_rad: float = DEFAULT_FOV_RAD,
-    max_range_m: float = DEFAULT_MAX_RANGE_M,
-    min_range_m: float = DEFAULT_MIN_RANGE_M,
-    centroid_noise: MeasurementNoise = CENTROID_NOISE,
-    centroid_p_miss: float = 0.0,
-    point_cloud_model: PointCloudModel = PointCloudModel(),
-    cube_model: CubeModel = CubeModel(),
-    cube_frames: int | ArrayLike | None = None,
-    body: HumanBody = HumanBody(),
-    known_poses: bool = False,
     progress: bool = False,
     cube_memmap_dir: str | os.PathLike | None = None,
-    trajectory_options: Mapping | None = None,
 ) -> Recording:
-    """Simulate a recording of ``n_targets`` walking humans.
+    """Simulate a recording of walking humans.
 
     network : ``"A"``, ``"B"``, ``"C"`` or a mapping ``name -> (3,) pose``
         (first = reference S1).
     trajectory : ``"straight"``, ``"random"`` or states ``(F, 4)`` /
         ``(n_targets, F, 4)`` (global frame, torso).
-    levels : any of ``"centroids"``, ``"point_cloud"``, ``"cube"``.
-    n_frames, frame_period_s : length and frame period (default the radar's,
-        150 ms; 600 frames = 90 s).
+    options : :class:`SimulationOptions` (default: the real physics on, one
+        target, Table I radars); :data:`CLEAN` for the clean model.
+    levels : any of ``"centroids"``, ``"point_cloud"``, ``"cube"`` (default
+        the first two: a Table I raw cube is 5.9 MB per node and frame).
+    n_frames : length (600 frames of the radar's 150 ms = 90 s).
     seed : all randomness derives from it (per purpose and node).
-    radar : chirp configuration of every node (Table I by default).
-    fov_rad, max_range_m, min_range_m : visibility limits of every level.
-    centroid_noise : sigmas of the centroid level (default :data:`CENTROID_NOISE`).
-    centroid_p_miss : probability that a target in view has no centroid.
-    point_cloud_model, cube_model, body : level models.
-    cube_frames : frames that get a raw cube: None = all, an int N = the
-        first N, or an array of frame numbers.
-    known_poses : store each node's true pose as its ``pose`` (else None; the
-        true poses are always in ``truth.node_poses``).
     progress : show a tqdm bar over the cube synthesis.
     cube_memmap_dir : if given, cubes are built in memory-mapped files in that
         folder (for long cube recordings); the caller deletes the files.
-    Returns the :class:`Recording` with truth and metadata.
+    Returns the :class:`Recording` with truth and metadata (``model``:
+    ``"real"`` or ``"clean"``).
     """
-    levels = _check_inputs(levels, radar, centroid_noise, centroid_p_miss)
-    if frame_period_s is None:
-        frame_period_s = radar.frame_period_s
-    elif frame_period_s != radar.frame_period_s:
+    opt = SimulationOptions() if options is None else options
+    if not isinstance(opt, SimulationOptions):
+        raise ValidationError(f"options must be a SimulationOptions, got {type(opt).__name__}")
+    levels = _check_levels(levels)
+    radar = opt.radar
+    frame_period_s = radar.frame_period_s if opt.frame_period_s is None else opt.frame_period_s
+    if frame_period_s != radar.frame_period_s:
         radar = dataclasses.replace(radar, frame_period_s=float(frame_period_s))
     poses = network_poses(network)
-    states = simulate_targets(network, trajectory, n_targets=n_targets, n_frames=n_frames,
+    states = simulate_targets(network, trajectory, n_targets=opt.n_targets, n_frames=n_frames,
                               frame_period_s=frame_period_s, seed=seed,
-                              **dict(trajectory_options or {}))
+                              **dict(opt.trajectory_options or {}))
     n_t, n_f, _ = states.shape
-    setup = _Setup(
-        levels=levels, radar=radar, states=states,
-        bodies=[body_scatterers(states[t], frame_period_s, body=body, rng=_stream(seed, _BODY, t))
-                for t in range(n_t)],
-        limits=dict(fov_rad=float(fov_rad), max_range_m=float(max_range_m),
-                    min_range_m=float(min_range_m)),
-        seed=seed, centroid_noise=centroid_noise, centroid_p_miss=float(centroid_p_miss),
-        point_cloud_model=point_cloud_model, cube_model=cube_model,
-        torso_rcs_m2=body.torso_rcs_m2, frames_c=_cube_frame_numbers(cube_frames, n_f),
-        known_poses=known_poses, cube_memmap_dir=cube_memmap_dir)
+    limits = dict(fov_rad=float(opt.fov_rad), max_range_m=float(opt.max_range_m),
+                  min_range_m=float(opt.min_range_m))
+    room = depths = None
+    if opt.physics is not None:
+        area = common_area(network, **limits) if isinstance(trajectory, str) else _box_of(states)
+        room = room_box(opt.physics, np.array([p[:2] for p in poses.values()]), area)
+        depths = person_depths(n_t, opt.physics, _stream(seed, _PEOPLE))
+    setup = _Setup(levels=levels, options=opt, radar=radar, states=states,
+                   bodies=_bodies(states, frame_period_s, opt, seed), limits=limits, seed=seed,
+                   frames_c=_cube_frame_numbers(opt.cube_frames, n_f),
+                   cube_memmap_dir=cube_memmap_dir, room=room, depths=depths)
     bar = None
     if "cube" in levels and progress:
         bar = tqdm(total=len(poses) * setup.frames_c.size, unit="frame", desc="raw ADC cubes")
@@ -521,3 +453,10 @@ def simulate_recording(
                   state=states.reshape(n_t * n_f, 4), node_poses=poses)
     return Recording(frame_period_s=frame_period_s, nodes=nodes, truth=truth,
                      metadata=_metadata(network, trajectory, setup))
+
+
+def _box_of(states: NDArray):
+    """The walking area of given states (for the room's walls)."""
+    xy = states[..., :2].reshape(-1, 2)
+    return Area(x_min_m=float(xy[:, 0].min()), x_max_m=float(xy[:, 0].max()),
+                y_min_m=float(xy[:, 1].min()), y_max_m=float(xy[:, 1].max()))

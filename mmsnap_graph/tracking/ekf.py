@@ -34,7 +34,6 @@ from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
 from scipy.optimize import linear_sum_assignment
 
 from factors.models import detection_covariance_local, detection_to_local, measurement_model, wrap_angle
@@ -43,7 +42,7 @@ from factors.motion import cv_process_noise, cv_transition
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Detections, Tracks
 from .._linalg import symmetrize
-from .._validation import as_float_array, check_finite, check_positive
+from .._validation import as_float_array, check_count, check_finite, check_positive, chi2_gate
 
 __all__ = [
     "EkfConfig",
@@ -173,8 +172,7 @@ class EkfConfig:
             v = getattr(self, name)
             if v is None and name != "confirm_hits":
                 continue
-            if isinstance(v, bool) or int(v) != v or v < 1:
-                raise ConfigurationError(f"{name}={v!r} must be an integer >= 1")
+            check_count(v, name, error=ConfigurationError)
         for name in ("confirm_window_s", "max_coast_s"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (np.isfinite(v) and v > 0):
@@ -212,7 +210,7 @@ class EkfConfig:
 
     @property
     def gate_d2(self) -> float:
-        return float(stats.chi2.ppf(self.gate_probability, 3))
+        return chi2_gate(self.gate_probability, 3)
 
 
 def track_initial_state(measurement: ArrayLike, config: EkfConfig) -> tuple[NDArray, NDArray]:

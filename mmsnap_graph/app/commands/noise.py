@@ -2,7 +2,7 @@
 data and store it as the ``/noise`` group (:mod:`mmsnap_graph.io.noise`),
 without calibrating.
 
-The estimator is :func:`mmsnap_graph.calibration.noise_estimate.estimate_noise`:
+The estimator is :func:`mmsnap_graph.calibration.noise.estimate.estimate_noise`:
 cross-node residuals at the node poses (those stored in the recording, or a
 calibration JSON) combined with each node's own centroid sequence; with no
 poses, the centroid sequences alone. Each component is printed as estimated,
@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 
 from mmsnap_graph._atomic import check_output_path, recording_lock
-from mmsnap_graph.app.commands.files import add_overwrite
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 
 
 def register(subparsers) -> None:
@@ -53,7 +53,7 @@ def _lags(path) -> dict[str, int] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph.calibration.noise_estimate import estimate_noise
+    from mmsnap_graph.calibration.noise.estimate import estimate_noise
     from mmsnap_graph.io import read_recording
     from mmsnap_graph.io.calibration import load_calibration_poses
     from mmsnap_graph.io.noise import write_noise

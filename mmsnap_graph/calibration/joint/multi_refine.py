@@ -1,0 +1,213 @@
+"""The joint calibration graph on several people from a pose-graph result:
+:func:`refine_multi` associates the centroids with the
+pose graph's poses (:func:`~mmsnap_graph.calibration.joint.multi_target.joint_detections_multi`),
+picks the centroid noise as :func:`~mmsnap_graph.calibration.calibrate_recording`
+does, and runs :func:`~mmsnap_graph.calibration.joint.solve.joint_calibration`
+unchanged on the targets' blocks of virtual frames.
+
+The association is only as good as the poses it starts from: on sparse
+clouds (2-3 points per frame) the pose graph is often 0.1-0.5 m
+off, the gates then miss or mix people, and one joint solve inherits that.
+:func:`refine_associated` therefore alternates (``n_rounds``): associate
+with the current poses, solve the joint graph, associate again with its
+poses, covariances and the noise learned from its residuals, until the
+poses stop moving (by less than :data:`ROUND_TOLERANCE`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from ..._validation import check_count
+from ...data.noise import MeasurementNoise
+from ...data.recording import Recording
+from ...errors import CalibrationError, ValidationError
+from .options import JointOptions
+from .solve import JointCalibration, joint_calibration
+from .multi_target import (
+    ASSOCIATION_NOISE,
+    AssociationOptions,
+    TargetAssociation,
+    TargetMapping,
+    joint_detections_multi,
+)
+from ..pairwise.pose_graph import PoseGraphCalibration
+from ..poses import pose_tangent_error
+from .residual_noise import residual_noise
+
+__all__ = ["MultiTargetRefinement", "refine_multi", "refine_associated", "DEFAULT_ROUNDS"]
+
+#: Rounds of association and joint solve (module doc).
+DEFAULT_ROUNDS = 3
+#: The rounds stop when no pose moved by more than this (m, and rad).
+ROUND_TOLERANCE = 1e-3
+#: The joint graph's options of :func:`refine_multi` by default: as
+#: :func:`~mmsnap_graph.calibration.calibrate_recording`'s, whole-frame lags
+#: only.
+MULTI_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class MultiTargetRefinement:
+    """Result of :func:`refine_multi`: the joint graph's result (its frames
+    are virtual frames), the mapping back to ``(frame, target)``, the
+    association and the measurement noise used; detections: the
+    associated detections the joint graph ran on (virtual frames)."""
+
+    joint: JointCalibration
+    mapping: TargetMapping
+    association: TargetAssociation
+    noise: MeasurementNoise
+    detections: Mapping | None = None
+
+
+def _recorded_noise(metadata) -> MeasurementNoise | None:
+    """The simulator's centroid-noise metadata, when complete and valid (as
+    :func:`calibrate_recording` reads it)."""
+    keys = ("centroid_range_std_m", "centroid_omega_std_rad", "centroid_doppler_std_mps")
+    try:
+        vals = [float(metadata[k]) for k in keys]
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not all(np.isfinite(v) and v > 0 for v in vals):
+        return None
+    return MeasurementNoise(range_m=vals[0], omega_rad=vals[1], doppler_mps=vals[2])
+
+
+def _learned_noise(dets, options: JointOptions, data: Mapping) -> MeasurementNoise:
+    """The association noise, then the residuals of two joint solves without
+    motion factors (:func:`residual_noise`); ``data``: the keyword data of
+    :func:`joint_calibration`."""
+    noise = ASSOCIATION_NOISE
+    plain = dataclasses.replace(options, motion=False, time_offsets=False)
+    for _ in range(2):
+        first = joint_calibration(dets, plain, noise=noise, **data)
+        if not first.success:
+            break
+        noise = residual_noise(first, dets, noise=noise)
+    return noise
+
+
+def _association_noise(noise: MeasurementNoise) -> MeasurementNoise:
+    """The gates' noise after a round: the learned range and spatial
+    frequency sigmas, never below :data:`ASSOCIATION_NOISE`'s."""
+    return MeasurementNoise(range_m=max(noise.range_m, ASSOCIATION_NOISE.range_m),
+                            omega_rad=max(noise.omega_rad, ASSOCIATION_NOISE.omega_rad),
+                            doppler_mps=max(noise.doppler_mps, ASSOCIATION_NOISE.doppler_mps))
+
+
+def _moved(joint: JointCalibration, poses: Mapping) -> float:
+    """Largest change of a pose component between two rounds."""
+    return max(float(np.max(np.abs(pose_tangent_error(joint.poses[n], poses[n]))))
+               for n in joint.poses if n in poses)
+
+
+def _one_round(recording, names, poses, covariances, lag_frames, noise,
+               options: JointOptions, association):
+    """Associate with ``poses`` and solve the joint graph: the refinement,
+    or None when fewer than two nodes have associated centroids."""
+    dets, mapping, assoc = joint_detections_multi(
+        recording, names, poses, lag_frames, covariances=covariances,
+        max_motion_gap_frames=options.max_motion_gap_frames, association=association)
+    if dets is None:
+        return None
+    data = dict(reference=names[0], initial_poses={n: poses[n] for n in dets},
+                frame_period_s=recording.frame_period_s,
+                lag_frames={n: int(lag_frames.get(n, 0)) for n in dets})
+    if noise is None:
+        noise = _learned_noise(dets, options, data)
+    joint = joint_calibration(dets, options, noise=noise, **data)
+    if not joint.success and options.robust is not None:
+        # The robust pass can leave GTSAM an indeterminate system (a dense
+        # two-person scene, seed 2: every detection of a state down-weighted);
+        # the association has gated the outliers already: Gaussian factors.
+        plain = joint_calibration(dets, dataclasses.replace(options, robust=None), noise=noise,
+                                  **data)
+        if plain.success:
+            joint = dataclasses.replace(plain, message=(
+                f"{plain.message} (Gaussian factors: the robust pass failed: "
+                f"{joint.message})"))
+    return MultiTargetRefinement(joint=joint, mapping=mapping, association=assoc, noise=noise,
+                                 detections=dets)
+
+
+def refine_associated(recording: Recording, names, poses, covariances, lag_frames, *,
+                      noise: MeasurementNoise | None, options: JointOptions,
+                      association: AssociationOptions | None = None,
+                      n_rounds: int = DEFAULT_ROUNDS) -> MultiTargetRefinement | None:
+    """Rounds of association and joint solve (module doc) from ``poses``
+    (``covariances`` may be None) of ``names`` (the first is the reference);
+    ``options`` are the joint graph's (its ``max_motion_gap_frames`` also
+    links the associated targets' states). ``noise`` None: learned from the
+    residuals each round (the recording's metadata are not read). Returns
+    the last successful round (else the first), None when the first
+    association leaves fewer than two nodes."""
+    if not isinstance(options, JointOptions):
+        raise ValidationError(f"options must be a JointOptions, got {options!r}")
+    check_count(n_rounds, "n_rounds")
+    given = AssociationOptions() if association is None else association
+    learn_gates = given.noise is None
+    best = None
+    for _ in range(int(n_rounds)):
+        out = _one_round(recording, names, poses, covariances, lag_frames, noise, options,
+                         given)
+        if out is None or (best is not None and not out.joint.success):
+            break
+        moved = _moved(out.joint, poses)
+        best = out
+        if not out.joint.success or moved < ROUND_TOLERANCE:
+            break
+        poses = {**poses, **{n: out.joint.poses[n] for n in out.joint.poses}}
+        covariances = {n: out.joint.covariances[n] for n in out.joint.poses}
+        if learn_gates:
+            given = dataclasses.replace(given, noise=_association_noise(out.noise))
+    return best
+
+
+def refine_multi(
+    recording: Recording,
+    pose_graph: PoseGraphCalibration,
+    options: JointOptions = MULTI_JOINT_OPTIONS,
+    *,
+    noise: MeasurementNoise | None = None,
+    association: AssociationOptions | None = None,
+    n_rounds: int = DEFAULT_ROUNDS,
+) -> MultiTargetRefinement:
+    """The joint calibration graph on several people, from the pose graph
+    (module doc).
+
+    pose_graph : a :class:`~mmsnap_graph.calibration.pairwise.pose_graph.PoseGraphCalibration`
+        (e.g. ``calibrate_recording(rec, method="pose_graph").pose_graph``):
+        its poses, covariances and lags drive the first association and
+        start the joint graph.
+    noise : centroid noise of the joint graph; None: the recording's
+        ``centroid_*_std`` metadata, else learned from the residuals as
+        :func:`calibrate_recording` does.
+    options : the joint graph's (:class:`JointOptions`; default
+        :data:`MULTI_JOINT_OPTIONS`); clock offsets are not estimated here.
+    association : the gates of :func:`associate_targets`
+        (:class:`AssociationOptions`; its ``noise``, when given, is kept in
+        every round).
+    n_rounds : rounds of association and joint solve (module doc; 1: one
+        association with the pose graph's poses).
+    Raises :class:`CalibrationError` when fewer than two nodes have an
+    associated centroid.
+    """
+    names = [pose_graph.reference] + [n for n in pose_graph.poses if n != pose_graph.reference]
+    if not isinstance(options, JointOptions):
+        raise ValidationError(f"options must be a JointOptions, got {options!r}")
+    options = dataclasses.replace(options, time_offsets=False)
+    if noise is None:
+        noise = _recorded_noise(recording.metadata)
+    out = refine_associated(recording, names, pose_graph.poses, pose_graph.covariances,
+                            pose_graph.lag_frames, noise=noise, options=options,
+                            association=association, n_rounds=n_rounds)
+    if out is None:
+        raise CalibrationError(f"fewer than two nodes, or not the reference "
+                               f"{pose_graph.reference}, have centroids associated with a "
+                               f"target seen by another node")
+    return out

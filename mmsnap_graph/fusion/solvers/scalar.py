@@ -1,0 +1,368 @@
+"""One-shot fusion of one target in one frame, in plain Python floats: the
+solver of the stream (:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`,
+``solver="scalar"``, docs/STREAMING.md).
+
+The same problem as :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` (GTSAM):
+the cost ``0.5 * sum of squared whitened residuals`` of every observed node's
+range, spatial frequency (wrapped) and Doppler, each node with its own
+sigmas, plus the Gaussian prior (MAP; none for ML), from the same initial
+state (:func:`~mmsnap_graph.fusion.problem.frame_initial_state`). It is
+minimized by Levenberg-Marquardt (Marquardt's diagonal damping and Nielsen's
+update, as the GTSAM settings of ``fuse_frame``) and the covariance is the
+inverse of the Gauss-Newton information ``J^T W J + Lambda_prior`` at the
+solution (what ``gtsam.Marginals`` returns for that graph). With uncertain
+node poses the covariance is the marginal of the state in the joint graph of
+:mod:`mmsnap_graph.fusion.solvers.gtsam_poses` (each uncertain pose a variable
+under its prior, linearized at the estimate and the calibrated poses),
+computed here as a Schur complement: the same number as GTSAM's.
+
+Why floats: a frame has four unknowns and ``3 N`` residuals; numpy's
+per-call overhead on arrays of that size costs more than the arithmetic, and
+a GTSAM graph costs a Python callback per evaluation plus the graph's own
+fixed cost. Here one Levenberg-Marquardt iteration of four nodes is a few
+microseconds of arithmetic: the model is
+:func:`factors.models.measurement_model_scalar` (the GTSAM factor's), the
+information and gradient are accumulated entry by entry (a node's Jacobian
+is sparse: range and spatial frequency do not depend on the velocity) and
+the 4x4 Cholesky factorization is unrolled.
+
+The iteration is GTSAM's Levenberg-Marquardt step for step (the initial
+lambda, its update from the model fidelity, Marquardt's diagonal clamped as
+GTSAM clamps it, the relative and absolute error tolerances of 1e-14), so
+that both reach the same local minimum (two nodes can have a mirror
+minimum) and stop alike; they differ by rounding (GTSAM solves the normal
+equations by its own elimination). ``tests/test_frame_solver.py`` checks
+the two against each other on random frames of seven networks and modes
+(MAP, ML, missed nodes, per-node noise, uncertain poses, degenerate
+geometry): statuses equal, states to :data:`STATE_TOLERANCE` and
+covariances to :data:`COVARIANCE_TOLERANCE`, both relative to the
+standard deviations (measured on 2,100 frames: 3e-7 and 2.5e-6 at most,
+the largest where the cost is flattest).
+
+Status codes as ``fuse_frame``: ``NON_FINITE`` for an initial position on a
+node (``fuse_frame`` raises there; the stream flags the group) or a
+non-finite solution or a Newton decrement above
+:data:`~mmsnap_graph.fusion.solvers.assess.NEWTON_DECREMENT_TOLERANCE`;
+``MAX_ITERATIONS``; ``SINGULAR`` when the information is not positive
+definite (an ML group seen by one node).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from factors.models import measurement_model_scalar, wrap_angle_scalar
+
+from ...data.noise import GaussianPrior, MeasurementNoise
+from ...data.results import Status
+from ..._floats4 import cholesky_4x4, cholesky_inverse_4x4, cholesky_solve_4x4, forward_4x4
+from ..degeneracy import condition_2x2
+from .assess import NEWTON_DECREMENT_TOLERANCE
+from .settings import LM_SETTINGS, LevenbergMarquardtSettings
+from ..problem import frame_initial_state
+
+__all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "FrameSolution", "FrameSolver"]
+
+#: Largest difference between this solver's state and ``fuse_frame``'s, in
+#: units of each component's standard deviation (measured: 3e-7 at most,
+#: typically 1e-10).
+STATE_TOLERANCE = 1e-6
+#: Largest difference between the covariances, relative to
+#: ``sigma_i sigma_j`` (measured: 2.5e-6 at most).
+COVARIANCE_TOLERANCE = 1e-5
+
+_EPSILON = 2.220446049250313e-16
+# oneshot_assess.positive_definite's smallest eigenvalue ratio of a covariance.
+_MIN_EIGENVALUE_RATIO = 1e-13
+# Relative Cholesky pivot below which the information counts as singular
+# (as mmsnap_graph._linalg's batched Cholesky).
+_PIVOT_RTOL = 1e-12
+_OK, _MAX_ITER, _SINGULAR, _NON_FINITE = (int(Status.OK), int(Status.MAX_ITERATIONS),
+                                          int(Status.SINGULAR), int(Status.NON_FINITE))
+
+
+def _positive_definite(cov: NDArray) -> bool:
+    """:func:`~mmsnap_graph.fusion.solvers.assess.positive_definite` in
+    floats: every squared Cholesky pivot of ``cov`` above
+    ``_MIN_EIGENVALUE_RATIO`` times its largest diagonal entry, all finite."""
+    c = cov.ravel().tolist()
+    floor = _MIN_EIGENVALUE_RATIO * max(c[0], c[5], c[10], c[15])
+    if not (c[0] > 0.0 and c[0] > floor and math.isfinite(floor)):
+        return False
+    l00 = math.sqrt(c[0])
+    l10, l20, l30 = c[4] / l00, c[8] / l00, c[12] / l00
+    d = c[5] - l10 * l10
+    if not d > floor:
+        return False
+    l11 = math.sqrt(d)
+    l21, l31 = (c[9] - l20 * l10) / l11, (c[13] - l30 * l10) / l11
+    d = c[10] - l20 * l20 - l21 * l21
+    if not d > floor:
+        return False
+    l32 = (c[14] - l30 * l20 - l31 * l21) / math.sqrt(d)
+    d = c[15] - l30 * l30 - l31 * l31 - l32 * l32
+    return d > floor and math.isfinite(d)
+
+
+def _nan44() -> NDArray:
+    return np.full((4, 4), np.nan)
+
+
+class FrameSolution:
+    """One solved group (a :class:`~mmsnap_graph.fusion.solvers.settings.FrameSolve`):
+    ``state`` (4,) list of floats, ``covariance`` (4, 4) array (NaN unless
+    ``status`` is OK), ``status`` (int
+    :class:`~mmsnap_graph.data.results.Status` code), ``degeneracy``,
+    ``iterations`` and ``final_cost`` (NaN when the solver did not start)."""
+
+    __slots__ = ("state", "covariance", "status", "degeneracy", "iterations", "final_cost")
+
+    def __init__(self, state, covariance, status, degeneracy, iterations, final_cost=math.nan):
+        self.state, self.covariance, self.status = state, covariance, status
+        self.degeneracy, self.iterations, self.final_cost = degeneracy, iterations, final_cost
+
+
+def _cholesky(a: list[float]) -> tuple[float, ...] | None:
+    """The Cholesky factor of ``a`` (16 floats) with this solver's pivot
+    tolerance (``_PIVOT_RTOL``), or None."""
+    return cholesky_4x4(a, _PIVOT_RTOL)
+
+
+def _cholesky_inverse(lo) -> NDArray:
+    """``(L L^T)^-1`` as a (4, 4) array."""
+    return np.array(cholesky_inverse_4x4(lo)).reshape(4, 4)
+
+
+class FrameSolver:
+    """The one-shot solver of one network: node poses, per-node sigmas, prior
+    and pose covariances, precomputed once; :meth:`solve` fuses one group.
+
+    node_poses : (N, 3) float, validated; noises : N
+    :class:`MeasurementNoise` (node order); prior : GaussianPrior or None;
+    pose_covariances : (N, 3, 3) with NaN for an exact pose, or None
+    (validated by :func:`~mmsnap_graph.fusion.problem.check_pose_covariances`);
+    lm : the Levenberg-Marquardt settings, as ``fuse_frame``'s.
+    """
+
+    def __init__(self, node_poses: NDArray, noises: Sequence[MeasurementNoise],
+                 prior: GaussianPrior | None, pose_covariances: NDArray | None = None,
+                 lm: LevenbergMarquardtSettings = LM_SETTINGS) -> None:
+        poses = np.asarray(node_poses, dtype=float)
+        self.poses = poses
+        self.noises = tuple(noises)
+        self.prior = prior
+        self.lm = lm
+        # One noise for every node: the initial state's Doppler weights are all 1
+        # either way (problem.frame_initial_state), one noise skips them.
+        self._initial_noise = (self.noises[0] if all(m == self.noises[0] for m in self.noises)
+                               else self.noises)
+        self._nodes = [(px, py, math.cos(phi), math.sin(phi)) for px, py, phi in poses.tolist()]
+        self._inv_sigma = [(1.0 / m.range_m, 1.0 / m.omega_rad, 1.0 / m.doppler_mps)
+                           for m in self.noises]
+        if prior is None:
+            self._prior = None
+        else:
+            inv2 = (1.0 / prior.sigmas**2).tolist()
+            self._prior = (prior.mean.tolist(), inv2)
+        # Each uncertain pose's information (its covariance's inverse), None for an exact one.
+        self._pose_info = None
+        if pose_covariances is not None:
+            self._pose_info = [None if np.isnan(c).all() else np.linalg.inv(0.5 * (c + c.T))
+                               for c in np.asarray(pose_covariances, dtype=float)]
+
+    # ------------------------------------------------------------------
+    def _normal(self, x, rows):
+        """``(cost, H (16 floats, row-major), g (4), (a11, a12, a22))`` at
+        ``x``: the Gauss-Newton information and gradient of the cost, and
+        the lines-of-sight sums of the degeneracy. ``rows``: (node, z)
+        pairs of the observed nodes. Raises ZeroDivisionError for a state on
+        a node."""
+        x0, x1, x2, x3 = x
+        cost = 0.0
+        h00 = h01 = h11 = h02 = h03 = h12 = h13 = h22 = h23 = h33 = 0.0
+        g0 = g1 = g2 = g3 = 0.0
+        a11 = a12 = a22 = 0.0
+        nodes, inv_sigma = self._nodes, self._inv_sigma
+        for n, (zr, zw, zv) in rows:
+            px, py, c, s = nodes[n]
+            r, w, v, j = measurement_model_scalar(x0, x1, x2, x3, px, py, c, s)
+            sr, sw, sv = inv_sigma[n]
+            er = (r - zr) * sr
+            ew = wrap_angle_scalar(w - zw) * sw
+            ev = (v - zv) * sv
+            cost += er * er + ew * ew + ev * ev
+            ux, uy = j[0], j[1]
+            a11 += ux * ux
+            a12 += ux * uy
+            a22 += uy * uy
+            rx, ry = ux * sr, uy * sr                      # whitened range row (rx, ry, 0, 0)
+            wx, wy = j[4] * sw, j[5] * sw                  # spatial frequency row (wx, wy, 0, 0)
+            dx, dy, dvx, dvy = j[8] * sv, j[9] * sv, ux * sv, uy * sv   # Doppler row
+            h00 += rx * rx + wx * wx + dx * dx
+            h01 += rx * ry + wx * wy + dx * dy
+            h11 += ry * ry + wy * wy + dy * dy
+            h02 += dx * dvx
+            h03 += dx * dvy
+            h12 += dy * dvx
+            h13 += dy * dvy
+            h22 += dvx * dvx
+            h23 += dvx * dvy
+            h33 += dvy * dvy
+            g0 += rx * er + wx * ew + dx * ev
+            g1 += ry * er + wy * ew + dy * ev
+            g2 += dvx * ev
+            g3 += dvy * ev
+        cost *= 0.5
+        if self._prior is not None:
+            (m0, m1, m2, m3), (p0, p1, p2, p3) = self._prior
+            d0, d1, d2, d3 = x0 - m0, x1 - m1, x2 - m2, x3 - m3
+            cost += 0.5 * (p0 * d0 * d0 + p1 * d1 * d1 + p2 * d2 * d2 + p3 * d3 * d3)
+            h00 += p0
+            h11 += p1
+            h22 += p2
+            h33 += p3
+            g0 += p0 * d0
+            g1 += p1 * d1
+            g2 += p2 * d2
+            g3 += p3 * d3
+        info = [h00, h01, h02, h03, h01, h11, h12, h13, h02, h12, h22, h23, h03, h13, h23, h33]
+        return cost, info, (g0, g1, g2, g3), (a11, a12, a22)
+
+    def _lm(self, x, rows):
+        """Levenberg-Marquardt from ``x``, step for step as GTSAM's
+        ``LevenbergMarquardtOptimizer`` with the settings of ``fuse_frame``
+        (so that both reach the same local minimum and stop alike): ``(x,
+        cost, H, g, lines, iterations, converged)``."""
+        lm = self.lm
+        cost, info, grad, lines = self._normal(x, rows)
+        lam, factor = lm.lambda_initial, lm.lambda_factor
+        it = 0
+        while it < lm.max_iterations:
+            it += 1
+            previous = cost
+            # Marquardt's damping: lambda times the clamped diagonal of H.
+            diag = [min(max(info[5 * k], lm.min_diagonal), lm.max_diagonal) for k in range(4)]
+            while True:
+                step = self._try(x, cost, info, grad, lam, diag, rows)
+                if step is not None and step[0]:
+                    _, fidelity, new_x, new = step
+                    lam = max(lm.lambda_min, lam * lm.damping_update(fidelity))
+                    factor = 2.0
+                    x = new_x
+                    cost, info, grad, lines = new
+                    break
+                if step is not None and step[1] is None:
+                    break  # the cost change is below rounding: stop searching lambda
+                lam *= factor
+                factor *= 2.0
+                if lam >= lm.lambda_max:
+                    break  # giving up: cannot decrease the cost with the largest lambda
+            decrease = previous - cost
+            if (cost <= 0.0 or decrease <= lm.relative_tolerance * previous
+                    or decrease <= lm.absolute_tolerance):
+                return x, cost, info, grad, lines, it, True
+        return x, cost, info, grad, lines, it, False
+
+    def _try(self, x, cost, info, grad, lam, diag, rows):
+        """One damped step (GTSAM's ``tryLambda``): None when the damped system
+        is not positive definite or the linearized cost grows; else
+        ``(successful, fidelity, x_new, normal equations at x_new)``, with
+        fidelity None when the cost change is below rounding."""
+        damped = list(info)
+        for k in range(4):
+            damped[5 * k] += lam * diag[k]
+        lo = _cholesky(damped)
+        if lo is None:
+            return None
+        s0, s1, s2, s3 = cholesky_solve_4x4(lo, grad)
+        d = (-s0, -s1, -s2, -s3)
+        # The undamped model's decrease: -(g.d + d^T H d / 2).
+        hd = [info[4 * i] * d[0] + info[4 * i + 1] * d[1] + info[4 * i + 2] * d[2]
+              + info[4 * i + 3] * d[3] for i in range(4)]
+        linearized = -(grad[0] * d[0] + grad[1] * d[1] + grad[2] * d[2] + grad[3] * d[3]
+                       + 0.5 * (d[0] * hd[0] + d[1] * hd[1] + d[2] * hd[2] + d[3] * hd[3]))
+        if not linearized >= 0.0:
+            return None
+        x_new = [x[0] + d[0], x[1] + d[1], x[2] + d[2], x[3] + d[3]]
+        try:
+            new = self._normal(x_new, rows)
+        except ZeroDivisionError:
+            new = (math.inf, None, None, None)
+        change = cost - new[0]
+        fidelity = 0.0
+        if linearized > _EPSILON * cost:
+            fidelity = change / linearized
+            successful = fidelity > self.lm.min_model_fidelity
+        else:
+            successful = True  # the linearized change is zero to rounding
+        if not successful and abs(change) < self.lm.relative_tolerance * cost:
+            return False, None, x_new, new
+        return successful, fidelity, x_new, new
+
+    # ------------------------------------------------------------------
+    def solve(self, z: NDArray, observed: NDArray) -> FrameSolution:
+        """Fuse one group: ``z (N, 3)`` each node's measurement (rows of the
+        unobserved nodes ignored), ``observed (N,)`` bool (at least one True,
+        or a prior)."""
+        obs = observed.tolist()
+        zl = z.tolist()
+        rows = [(n, zl[n]) for n in range(len(obs)) if obs[n]]
+        x0 = frame_initial_state(self.poses, z, observed, self.prior, self._initial_noise)
+        if not all(map(math.isfinite, x0)):  # the average detection on a node
+            return FrameSolution([math.nan] * 4, _nan44(), _NON_FINITE, math.inf, 0)
+        try:
+            x, cost, info, grad, lines, it, converged = self._lm(x0, rows)
+        except ZeroDivisionError:  # the initial state on a node
+            return FrameSolution([math.nan] * 4, _nan44(), _NON_FINITE, math.inf, 0)
+        return self._assess(x, cost, info, grad, lines, it, converged, rows)
+
+    def _assess(self, x, cost, info, grad, lines, it, converged, rows) -> FrameSolution:
+        """Status, covariance and degeneracy of a solution (as ``fuse_frame``)."""
+        if not (math.isfinite(cost) and all(map(math.isfinite, x))):
+            return FrameSolution(x, _nan44(), _NON_FINITE, math.inf, it, cost)
+        if not converged:
+            return FrameSolution(x, _nan44(), _MAX_ITER, math.inf, it, cost)
+        lo = _cholesky(info)
+        if lo is None:  # indeterminate system (gtsam.Marginals raises)
+            return FrameSolution(x, _nan44(), _SINGULAR, math.inf, it, cost)
+        cov = _cholesky_inverse(lo)
+        degeneracy = condition_2x2(*lines)
+        if not _positive_definite(cov):
+            return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it, cost)
+        # The squared Newton decrement g^T H^-1 g = |L^-1 g|^2.
+        y = forward_4x4(lo, grad)
+        if not y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3] <= NEWTON_DECREMENT_TOLERANCE:
+            return FrameSolution(x, _nan44(), _NON_FINITE, degeneracy, it, cost)
+        if self._pose_info is not None:
+            cov = self._pose_aware(x, info, rows)
+            if cov is None:
+                return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it, cost)
+        return FrameSolution(x, cov, _OK, degeneracy, it, cost)
+
+    def _pose_aware(self, x, info, rows) -> NDArray | None:
+        """The state's marginal covariance in the joint graph with the uncertain
+        poses (Schur complement of the pose blocks); None when singular."""
+        h = np.array(info).reshape(4, 4)
+        for n, (zr, zw, zv) in rows:
+            pose_info = self._pose_info[n]
+            if pose_info is None:
+                continue
+            px, py, c, s = self._nodes[n]
+            _, _, _, j_state, j_pose = measurement_model_scalar(*x, px, py, c, s, pose_jacobian=True)
+            inv_sigma = np.array(self._inv_sigma[n])[:, None]
+            jx = np.array(j_state).reshape(3, 4) * inv_sigma
+            jp = np.array(j_pose).reshape(3, 3) * inv_sigma
+            h_xp = jx.T @ jp
+            h_pp = jp.T @ jp + pose_info
+            try:
+                h = h - h_xp @ np.linalg.solve(h_pp, h_xp.T)
+            except np.linalg.LinAlgError:
+                return None
+        lo = _cholesky((0.5 * (h + h.T)).ravel().tolist())
+        if lo is None:
+            return None
+        return _cholesky_inverse(lo)

@@ -1,0 +1,404 @@
+"""Online fusion: one frame at a time from N radars (docs/STREAMING.md).
+
+:class:`FrameStream` takes each frame as it arrives (every node's detections
+``(range_m, omega_rad, doppler_mps)`` and a time stamp in seconds) and returns
+a :class:`StreamUpdate`: the frame's fused targets with their covariances and
+the central tracker's tracks after the update. Per frame it does what
+:func:`mmsnap_graph.fusion.recording.sequence.fuse_recording` does for that frame (the
+grouping of :func:`mmsnap_graph.fusion.association.associate_frame`, then
+one-shot fusion of each group), and what
+:func:`mmsnap_graph.tracking.central.track_fused` does (one
+:meth:`~mmsnap_graph.tracking.central.CentralTracker.step` with the frame's
+successful estimates; a MAP estimate has its prior removed by the tracker).
+
+It is built for latency (docs/STREAMING.md, "Latency"): the grouping is
+:class:`~mmsnap_graph.fusion.stream.association.StreamAssociator` (the
+decisions of ``associate_frame`` in plain floats for up to four detections
+per node, ``associate_frame`` itself otherwise); the default solver
+``"scalar"`` is :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver` (the
+problem of :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` solved as GTSAM
+solves it, in plain floats, equal to it to the tolerance stated there);
+``"gtsam"`` runs ``fuse_frame`` itself and ``"vectorized"``
+:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`. Each frame is validated once,
+with checks on plain floats.
+
+State is bounded: the node poses and settings, the time of the last good
+frame, three counters and the tracker's live tracks (each deleted after
+``max_misses`` frames without an estimate). Nothing grows with the number of
+frames.
+
+A bad frame (a time stamp that is not finite or not after the previous one,
+an unknown node, a detection array of the wrong shape, non-finite values, a
+negative range or ``|omega| > pi``) is flagged (``ok`` False, a message) and
+skipped: no fusion and no tracker step; the stream goes on with the next
+frame. A frame whose association or fusion fails numerically is flagged too,
+and the tracker predicts over it (no estimates); so is a frame whose tracker
+update fails. A group that cannot be fused is flagged by its status, as in
+``fuse_recording``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Iterator, Literal, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..solvers.vectorized import fuse_batch
+from ..solvers.scalar import FrameSolver
+from .association import StreamAssociator
+from ..problem import check_node_noise, check_pose_covariances, check_prior
+from ..solvers.settings import check_solver
+from ...data.noise import GaussianPrior, MeasurementNoise
+from ...data.recording import Recording
+from ...data.results import Status
+from ...errors import MmsnapError, ValidationError
+from ...tracking.central import CentralConfig, CentralTracker
+from ..._validation import as_float_array, check_count, check_finite, check_probability
+
+__all__ = ["StreamUpdate", "FrameStream", "recording_frames"]
+
+# Failures of one frame's association, fusion or tracker step (numerical ones,
+# e.g. a singular covariance of a degenerate detection) that flag the frame.
+_FRAME_FAILURES = (MmsnapError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError,
+                   OverflowError, ValueError)
+
+_EMPTY_I8 = np.zeros(0, dtype=np.int8)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class StreamUpdate:
+    """What :meth:`FrameStream.push` returns for one frame.
+
+    index : 0-based count of frames pushed (bad ones included).
+    time_s : the frame's time stamp (as given; NaN if it was not a number).
+    ok : False for a bad frame (skipped) or a failed association, fusion or
+        tracker update; ``message`` says why.
+    state, covariance : (G, 4), (G, 4, 4) fused targets of the frame (NaN where a
+        group failed); G = 0 for a bad frame.
+    status : (G,) int8 :class:`~mmsnap_graph.data.results.Status` codes; success is ``Status.OK``.
+    members : (G, N) int, each node's detection row in each group, -1 where none.
+    degeneracy : (G,) velocity degeneracy of each group.
+    track_id, track_state, track_covariance : (T,), (T, 4), (T, 4, 4) the live
+        tracks after this frame's update (unchanged by a bad frame).
+    latency_s : wall-clock time spent in :meth:`FrameStream.push`.
+    """
+
+    index: int
+    time_s: float
+    ok: bool
+    message: str
+    state: NDArray
+    covariance: NDArray
+    status: NDArray
+    members: NDArray
+    degeneracy: NDArray
+    track_id: NDArray
+    track_state: NDArray
+    track_covariance: NDArray
+    latency_s: float
+
+    @property
+    def success(self) -> NDArray:
+        """(G,) bool, the groups fused successfully."""
+        return self.status == Status.OK
+
+    def __len__(self) -> int:
+        return int(self.state.shape[0])
+
+
+class FrameStream:
+    """Fuse and track frame by frame.
+
+    Parameters
+    ----------
+    node_names : sequence of N str
+        The nodes, in the order of ``node_poses``.
+    node_poses : (N, 3) float
+        Calibrated poses ``(x_m, y_m, phi_rad)`` in the global frame.
+    noise : MeasurementNoise, sequence of N MeasurementNoise or mapping
+        Measurement sigmas (default the paper's): one for every node, one per
+        node in the order of ``node_names``, or ``{node name: MeasurementNoise}``
+        holding every node (docs/CONVENTIONS.md, "Per-node noise").
+    prior : GaussianPrior or None
+        The one-shot prior (MAP, default the paper's); None for ML.
+    solver : ``"scalar"`` (the default: :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver`
+        per group, the same problem as ``fuse_frame`` solved in plain floats,
+        equal to it to the tolerance stated there and several times faster),
+        ``"gtsam"`` (:func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` per
+        group) or ``"vectorized"`` (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`
+        on the frame's groups); :data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`.
+    gate_probability : association gate (see :mod:`mmsnap_graph.fusion.association`).
+    tracker : CentralConfig or None
+        The central tracker's settings (default ``CentralConfig()``); its
+        ``frame_period_s`` is used only for the first frame, afterwards the
+        time between frames comes from the time stamps.
+    pose_covariances : (N, 3, 3) or mapping name -> (3, 3), optional
+        Calibration-aware fusion (docs/CONVENTIONS.md): each pose's covariance
+        in the Pose2 body tangent (all NaN, all zero or a node left out of the
+        mapping: an exact pose); the fused covariances include them.
+
+    Example
+    -------
+    >>> stream = FrameStream(["S1", "S2"], poses)                      # doctest: +SKIP
+    >>> update = stream.push(0.15, {"S1": [[3.1, 0.2, -0.4]], "S2": [[4.0, -0.1, 0.3]]})
+    """
+
+    def __init__(self, node_names: Sequence[str], node_poses: ArrayLike, *,
+                 noise: MeasurementNoise = MeasurementNoise(),
+                 prior: GaussianPrior | None = GaussianPrior(),
+                 solver: Literal["scalar", "gtsam", "vectorized"] = "scalar",
+                 gate_probability: float = 0.999,
+                 tracker: CentralConfig | None = None,
+                 pose_covariances: ArrayLike | Mapping[str, ArrayLike] | None = None) -> None:
+        names = tuple(node_names)
+        if not names or not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
+            raise ValidationError(f"node_names must be distinct strings, got {node_names!r}")
+        poses = check_finite(as_float_array(node_poses, "node_poses"), "node_poses")
+        if poses.shape != (len(names), 3):
+            raise ValidationError(f"node_poses must have shape ({len(names)}, 3), got {poses.shape}")
+        check_solver(solver)
+        if tracker is not None and not isinstance(tracker, CentralConfig):
+            raise ValidationError(f"tracker must be a CentralConfig, got {type(tracker).__name__}")
+        p = check_probability(gate_probability, "gate_probability")
+        self.node_names = names
+        self.node_poses = poses
+        poses.setflags(write=False)
+        noises = check_node_noise(noise, len(names), names)
+        # The given noise, or the N per-node ones in node order (a tuple).
+        self.noise = noises[0] if isinstance(noise, MeasurementNoise) else noises
+        self.pose_covariances = check_pose_covariances(pose_covariances, len(names), names)
+        self.prior = check_prior(prior)
+        self.solver = solver
+        self._frame_solver = FrameSolver(poses, noises, self.prior, self.pose_covariances)
+        self._associator = StreamAssociator(poses, noises, p)
+        self.gate_probability = p
+        self._index = {name: i for i, name in enumerate(names)}
+        self._tracker = CentralTracker(
+            tracker, prior_mean=None if prior is None else prior.mean,
+            prior_sigmas=None if prior is None else prior.sigmas)
+        self._last_time_s: float | None = None
+        self.frames = 0
+        self.bad_frames = 0
+        self.failed_groups = 0
+
+    # ------------------------------------------------------------------
+    @property
+    def tracker_config(self) -> CentralConfig:
+        return self._tracker.config
+
+    @property
+    def n_tracks(self) -> int:
+        """Live tracks of the central tracker."""
+        return len(self._tracker.tracks)
+
+    def push(self, time_s: float, detections: Mapping[str, ArrayLike] | Sequence[ArrayLike]
+             ) -> StreamUpdate:
+        """One frame: validate, associate, fuse, track.
+
+        time_s : the frame's time stamp in seconds, after the previous good frame's.
+        detections : ``{node_name: (K, 3) array}`` (a node left out has no
+            detections) or a sequence of N arrays in node order; rows are
+            ``(range_m, omega_rad, doppler_mps)``.
+        Never raises for a bad frame: it returns ``ok=False`` with a message.
+        """
+        start = time.perf_counter()
+        index = self.frames
+        self.frames += 1
+        t, per_node, problem = self._validate(time_s, detections)
+        if problem is not None:
+            self.bad_frames += 1
+            return self._update(index, t, False, problem, None, start)
+        dt = None if self._last_time_s is None else t - self._last_time_s
+        self._last_time_s = t
+        try:
+            members = self._associator.members(per_node)
+            fused = (*self._fuse(per_node, members), members)
+        except _FRAME_FAILURES as exc:
+            self._step_tracker(np.zeros((0, 4)), np.zeros((0, 4, 4)), dt)
+            return self._update(index, t, False, f"fusion failed: {type(exc).__name__}: {exc}",
+                                None, start)
+        ok = fused[2] == Status.OK
+        self.failed_groups += int(np.count_nonzero(~ok))
+        problem = self._step_tracker(fused[0][ok], fused[1][ok], dt)
+        return self._update(index, t, problem is None, problem or "", fused, start)
+
+    def _step_tracker(self, states, covariances, dt) -> str | None:
+        """One tracker step; a numerical failure is returned as a message."""
+        try:
+            self._tracker.step(states, covariances, dt)
+        except _FRAME_FAILURES as exc:
+            return f"tracker update failed: {type(exc).__name__}: {exc}"
+        return None
+
+    # ------------------------------------------------------------------
+    def _validate(self, time_s, detections):
+        """``(time, per-node (K_n, 3) arrays, problem message or None)``."""
+        try:
+            t = float(time_s)
+        except (TypeError, ValueError):
+            return math.nan, None, f"time stamp {time_s!r} is not a number"
+        if not math.isfinite(t):
+            return t, None, f"time stamp {time_s!r} is not finite"
+        if self._last_time_s is not None and not t > self._last_time_s:
+            return t, None, (f"time stamp {t!r} s is not after the previous frame's "
+                             f"{self._last_time_s!r} s")
+        n_nodes = len(self.node_names)
+        per_node: list = [None] * n_nodes
+        if isinstance(detections, Mapping):
+            items = []
+            for name, rows in detections.items():
+                if name not in self._index:
+                    return t, None, f"unknown node {name!r} (the stream has {list(self.node_names)})"
+                items.append((self._index[name], name, rows))
+        elif isinstance(detections, Sequence) and not isinstance(detections, str):
+            if len(detections) != n_nodes:
+                return t, None, f"{len(detections)} detection arrays for {n_nodes} nodes"
+            items = [(i, self.node_names[i], rows) for i, rows in enumerate(detections)]
+        else:
+            return t, None, f"detections must be a mapping or a sequence, got {type(detections).__name__}"
+        for i, name, rows in items:
+            z, problem = _check_rows(rows, name)
+            if problem is not None:
+                return t, None, problem
+            per_node[i] = z
+        return t, [_EMPTY_ROWS if z is None else z for z in per_node], None
+
+    def _fuse(self, per_node, members):
+        """``(state, covariance, status, degeneracy)`` of the groups ``members (G, N)``."""
+        g, n_nodes = members.shape
+        if g == 0:
+            return np.zeros((0, 4)), np.zeros((0, 4, 4)), _EMPTY_I8, np.zeros(0)
+        obs = members >= 0
+        z = np.zeros((g, n_nodes, 3))
+        for i, row in enumerate(members.tolist()):
+            for n, k in enumerate(row):
+                if k >= 0:
+                    z[i, n] = per_node[n][k]
+        if self.solver == "vectorized":
+            res = fuse_batch(self.node_poses, z, observed=obs, noise=self.noise, prior=self.prior,
+                             pose_covariances=self.pose_covariances)
+            return res.state, res.covariance, np.asarray(res.status, dtype=np.int8), res.degeneracy
+        if self.solver == "scalar":
+            return self._fuse_scalar(z, obs)
+        return self._fuse_gtsam(z, obs)
+
+    def _fuse_scalar(self, z, obs):
+        g = z.shape[0]
+        state, cov = np.empty((g, 4)), np.empty((g, 4, 4))
+        status, degeneracy = np.empty(g, dtype=np.int8), np.empty(g)
+        for i in range(g):
+            sol = self._frame_solver.solve(z[i], obs[i])
+            state[i], cov[i], status[i], degeneracy[i] = (sol.state, sol.covariance, sol.status,
+                                                          sol.degeneracy)
+        return state, cov, status, degeneracy
+
+    def _fuse_gtsam(self, z, obs):
+        from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of this module's import path
+
+        g = z.shape[0]
+        state, cov = np.full((g, 4), np.nan), np.full((g, 4, 4), np.nan)
+        status, degeneracy = np.full(g, int(Status.NON_FINITE), dtype=np.int8), np.full(g, np.inf)
+        for i in range(g):
+            try:
+                r = fuse_frame(self.node_poses, z[i], observed=obs[i], noise=self.noise,
+                               prior=self.prior, pose_covariances=self.pose_covariances)
+            except MmsnapError:  # e.g. an initial position on a node; flagged as fuse_recording does
+                continue
+            state[i], cov[i], status[i], degeneracy[i] = r.state, r.covariance, r.status, r.degeneracy
+        return state, cov, status, degeneracy
+
+    def _update(self, index, t, ok, message, fused, start) -> StreamUpdate:
+        track_id, track_state, track_cov = self._tracker.track_arrays()
+        n_nodes = len(self.node_names)
+        if fused is None:
+            fused = (np.zeros((0, 4)), np.zeros((0, 4, 4)), _EMPTY_I8, np.zeros(0),
+                     np.zeros((0, n_nodes), dtype=np.int64))
+        state, cov, status, degeneracy, members = fused
+        return StreamUpdate(
+            index=index, time_s=t, ok=ok, message=message,
+            state=state, covariance=cov, status=status, members=members, degeneracy=degeneracy,
+            track_id=track_id, track_state=track_state, track_covariance=track_cov,
+            latency_s=time.perf_counter() - start,
+        )
+
+
+_OMEGA_MAX = np.pi + 1e-9
+_EMPTY_ROWS = np.zeros((0, 3))
+_INF = math.inf
+
+
+def _check_rows(rows, name):
+    """``(z (K, 3) or None, problem message or None)`` of one node's detections."""
+    try:
+        z = np.asarray(rows, dtype=float)
+    except (TypeError, ValueError) as exc:
+        return None, f"detections of {name} are not numbers: {exc}"
+    if z.size == 0:
+        return _EMPTY_ROWS, None
+    if z.ndim == 1 and z.shape[0] == 3:
+        z = z[None]
+    if z.ndim != 2 or z.shape[1] != 3:
+        return None, f"detections of {name} must have shape (K, 3), got {z.shape}"
+    if z.shape[0] <= 8:
+        # A few rows (centroids): plain float checks (NaN fails every comparison).
+        if all(0.0 <= r < _INF and abs(w) <= _OMEGA_MAX and abs(d) < _INF for r, w, d in z.tolist()):
+            return z, None
+    return _row_problem(z, name)
+
+
+def _row_problem(z, name):
+    """The checks of :func:`_check_rows` on arrays, in the order of their messages."""
+    if not np.all(np.isfinite(z)):
+        return None, f"detections of {name} have non-finite values"
+    if np.any(z[:, 0] < 0):
+        return None, f"detections of {name} have a negative range {z[:, 0].min()!r}"
+    if np.any(np.abs(z[:, 1]) > _OMEGA_MAX):
+        return None, f"detections of {name} have |omega| > pi ({np.abs(z[:, 1]).max()!r})"
+    return z, None
+
+
+def recording_frames(recording: Recording, *, source: Literal["centroids", "point_cloud"] = "centroids",
+                     fill_frames: int = 5) -> Iterator[tuple[int, float, dict[str, NDArray]]]:
+    """A recording's frames as a live source would send them:
+    ``(frame, time_s, {node_name: (K, 3) detections})`` in frame order, with
+    ``time_s = frame * frame_period_s``.
+
+    Every frame with a detection is yielded, and after it up to
+    ``fill_frames`` empty frames (no node has a detection) before the next
+    one: with ``fill_frames`` at least the tracker's ``max_misses``, every
+    track has ended by the last of them, so skipping the rest of a gap
+    changes nothing, and a gap of any length costs at most ``fill_frames``
+    steps. The last frame yielded is the recording's last frame with a
+    detection. Each node's rows keep the recording's order within a frame.
+    """
+    if not isinstance(recording, Recording):
+        raise ValidationError(f"recording must be a Recording, got {type(recording).__name__}")
+    if source not in ("centroids", "point_cloud"):
+        raise ValidationError(f"source must be 'centroids' or 'point_cloud', got {source!r}")
+    check_count(fill_frames, "fill_frames", 0)
+    names = recording.node_names
+    dets = [getattr(recording.nodes[name], source) for name in names]
+    sorted_rows = []
+    for d in dets:
+        if d is None or len(d) == 0:
+            sorted_rows.append((np.zeros(0, np.int64), np.zeros((0, 3))))
+            continue
+        order = np.argsort(d.frame, kind="stable")
+        sorted_rows.append((d.frame[order], d.measurements[order]))
+    present = np.unique(np.concatenate([f for f, _ in sorted_rows]))
+    period = float(recording.frame_period_s)
+    empty = np.zeros((0, 3))
+    for k, frame in enumerate(present):
+        frame = int(frame)
+        out = {}
+        for name, (frames, z) in zip(names, sorted_rows):
+            lo, hi = np.searchsorted(frames, [frame, frame + 1])
+            out[name] = z[lo:hi]
+        yield frame, frame * period, out
+        stop = int(present[k + 1]) if k + 1 < present.size else frame + 1
+        for gap in range(frame + 1, min(stop, frame + int(fill_frames) + 1)):
+            yield gap, gap * period, {name: empty for name in names}

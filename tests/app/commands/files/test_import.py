@@ -1,0 +1,126 @@
+"""``mmsnap import``: unit mistakes, frame clocks that disagree, and messages
+that name the command-line options."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mmsnap_graph.app.cli import main
+from mmsnap_graph.io import read_recording
+
+from _shared import TI_DATA
+
+SENSOR_CSV = TI_DATA / "points_sensor_frame.csv"
+
+
+def _import_table(tmp_path, *extra, table=SENSOR_CSV):
+    return main(["import", "table", "--table", str(table), "-o", str(tmp_path / "o.h5"),
+                 "--overwrite", *extra])
+
+
+def _sample_with(tmp_path, change, name="edited.csv"):
+    """The sensor-frame sample with ``change(header, cells)`` applied to each row."""
+    lines = SENSOR_CSV.read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [change(header, line.split(",")) for line in lines[1:]]
+    path = tmp_path / name
+    path.write_text("\n".join([",".join(header)] + [",".join(r) for r in rows]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("period, words", [("50", "milliseconds? (50 ms is --frame-period 0.05)"),
+                                           ("1e-300", "below any TI radar's")])
+def test_frame_period_in_the_wrong_unit(tmp_path, capsys, period, words):
+    assert _import_table(tmp_path, "--frame-period", period) == 2
+    err = capsys.readouterr().err
+    assert "--frame-period" in err and words in err
+
+
+def test_frame_period_that_disagrees_with_the_stamps(tmp_path, capsys):
+    """The sample is 20 fps: 0.1 s would merge frames in pairs."""
+    assert _import_table(tmp_path, "--frame-period", "0.1") == 2
+    err = capsys.readouterr().err
+    assert "--frame-period=0.1 s disagrees with the time stamps, which advance 0.05 s" in err
+    assert _import_table(tmp_path, "--frame-period", "0.05") == 0
+
+
+def test_stamps_coarser_than_a_frame(tmp_path, capsys):
+    """Time stamps rounded to whole seconds would merge 20 frames into one."""
+    def whole_seconds(header, cells):
+        k = header.index("time_s")
+        cells[k] = f"{np.floor(float(cells[k])):.0f}"
+        return cells
+    path = _sample_with(tmp_path, whole_seconds)
+    assert _import_table(tmp_path, "--frame-period", "0.05", table=path) == 2
+    err = capsys.readouterr().err
+    assert "disagrees with the time stamps" in err and "coarser than a frame" in err
+
+
+def test_period_merging_stamps_of_a_table_without_frames(tmp_path, capsys):
+    def no_frame(header, cells):
+        return [c for h, c in zip(header, cells) if h != "frame"]
+    path = _sample_with(tmp_path, no_frame)
+    lines = path.read_text().splitlines()
+    lines[0] = ",".join(h for h in lines[0].split(",") if h != "frame")
+    path.write_text("\n".join(lines) + "\n")
+    assert _import_table(tmp_path, "--frame-period", "1.0", table=path) == 2
+    assert "--frame-period=1 s merges distinct time stamps 0.05 s apart" in \
+        capsys.readouterr().err
+    assert _import_table(tmp_path, "--frame-period", "0.05", table=path) == 0
+
+
+def test_huge_time_stamp_is_a_clear_error(tmp_path, capsys):
+    def huge(header, cells):
+        if cells[header.index("frame")] == "7":
+            cells[header.index("time_s")] = "1e308"
+        return cells
+    assert _import_table(tmp_path, "--frame-period", "0.05",
+                         table=_sample_with(tmp_path, huge)) == 1
+    err = capsys.readouterr().err
+    assert "column time_s holds 1e+308 s at line" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("mount, words", [("S1=80,5", "80 cm is --mount S1=0.8,5"),
+                                          ("S1=0.8,95", "must lie in (-90, 90)")])
+def test_mount_in_the_wrong_unit(tmp_path, capsys, mount, words):
+    assert _import_table(tmp_path, "--frame-period", "0.05", "--mount", mount) == 2
+    err = capsys.readouterr().err
+    assert f"--mount {mount}" in err and words in err
+
+
+def test_gui_headers_with_a_columns_mapping(tmp_path, capsys):
+    path = tmp_path / "gui.csv"
+    rows = [f"{f},{0.5 + 0.01 * f},{2.0 + 0.01 * k},0.2,0.4" for f in range(20) for k in range(3)]
+    path.write_text("\n".join(["Frame,X [m],Y [m],Z [m],Velocity [m/s]", *rows]) + "\n")
+    args = ["import", "table", "--node", f"S1={path}", "--frame-period", "0.05", "-o",
+            str(tmp_path / "gui.h5")]
+    assert main(args) == 1
+    assert "missing columns" in capsys.readouterr().err
+    assert main(args + ["--columns", "X [m]=x", "--columns", "Y [m]=y", "--columns", "Z [m]=z",
+                        "--columns", "Velocity [m/s]=doppler"]) == 0
+    assert len(read_recording(tmp_path / "gui.h5").nodes["S1"].point_cloud) == 60
+
+
+def test_unknown_cfg_command_names_the_flag(tmp_path, capsys):
+    cfg = tmp_path / "new_sdk.cfg"
+    cfg.write_text((TI_DATA / "iwr1843_oob.cfg").read_text() + "shinyNewCmd 1 2 3\n")
+    args = ["import", "ti-uart", "--cfg", str(cfg), "--node",
+            f"S1={TI_DATA / 'oob_uart_S1.bin'}", "-o", str(tmp_path / "u.h5")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "unknown command 'shinyNewCmd'" in err and "--ignore-unknown-commands" in err
+    assert main(args + ["--ignore-unknown-commands"]) == 0
+    assert "ignored unknown commands shinyNewCmd (line" in capsys.readouterr().err
+
+
+def test_accumulate_survives_the_time_stamp_clock(tmp_path):
+    """Accumulated points keep their new frame on a recording clocked by the
+    stamps (before, the stamps put every copy back into its original frame)."""
+    assert _import_table(tmp_path, "--frame-period", "0.05") == 0
+    one = read_recording(tmp_path / "o.h5").nodes["S1"].point_cloud
+    assert _import_table(tmp_path, "--frame-period", "0.05", "--accumulate", "3") == 0
+    three = read_recording(tmp_path / "o.h5").nodes["S1"].point_cloud
+    for f in (30, 31, 60):
+        want = sum(np.sum(one.frame == f - lag) for lag in range(3))
+        assert np.sum(three.frame == f) == want

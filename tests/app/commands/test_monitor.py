@@ -1,0 +1,81 @@
+"""``mmsnap monitor`` (app.commands.monitor), registered in a throwaway parser
+(the lead adds "monitor" to app.cli.COMMANDS)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from mmsnap_graph.app.commands import monitor as monitor_command
+from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.io import write_recording
+from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim.bump import simulate_bumped_recording
+from mmsnap_graph.sim import CLEAN, SimulationOptions
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mmsnap")
+    monitor_command.register(parser.add_subparsers(dest="command"))
+    return parser
+
+
+def _run(argv: list[str]) -> int:
+    args = _parser().parse_args(["monitor", *argv])
+    return args.func(args)
+
+
+@pytest.fixture(scope="module")
+def bumped_path(tmp_path_factory):
+    rec = simulate_bumped_recording("C", "random", physics=None, node="S2", bump=(0.0, 0.0, np.deg2rad(2.0)),
+                                    bump_time_s=45.0, n_frames=540, seed=3)
+    path = tmp_path_factory.mktemp("monitor") / "bumped.h5"
+    write_recording(path, rec)
+    return path, rec
+
+
+def test_monitor_reports_the_change_and_the_new_pose(bumped_path, tmp_path, capsys):
+    path, rec = bumped_path
+    out_json = tmp_path / "monitor.json"
+    assert _run([str(path), "--json", str(out_json)]) == 0
+    out = capsys.readouterr().out
+    assert "change: S2 moved at t=" in out and "S2 new pose from frames" in out
+    data = json.loads(out_json.read_text())
+    assert data["node_order"] == ["S1", "S2"] and data["n_frames"] == 540
+    (change,) = data["changes"]
+    assert change["node"] == "S2" and change["statistic"] >= data["threshold"]
+    assert 0 <= change["detection_time_s"] - rec.metadata["bump_time_s"] <= 20.0
+    (recal,) = data["recalibrations"]
+    assert recal["success"] and recal["first_frame"] == change["frame"]
+    dphi = (recal["pose"][2] - rec.metadata["bumped_phi_rad"] + np.pi) % (2 * np.pi) - np.pi
+    assert abs(dphi) < 3 * np.sqrt(recal["covariance"][2][2])
+    np.testing.assert_allclose(data["poses"]["S2"], recal["pose"])
+
+
+def test_monitor_options_poses_sigmas_threshold(bumped_path, tmp_path, capsys):
+    path, _ = bumped_path
+    poses = tmp_path / "cal.json"
+    poses.write_text(json.dumps({"node_order": ["S1", "S2"], "nodes": {
+        "S1": {"pose": [0.0, 0.0, 0.0]}, "S2": {"pose": [0.0, 7.0, float(np.pi)]}}}))
+    # an absurd threshold: no change; the sigmas are echoed
+    assert _run([str(path), "--poses", str(poses), "--sigmas", "0.06", "0.09", "0.1",
+                 "--threshold", "1e9"]) == 0
+    out = capsys.readouterr().out
+    assert "no change detected" in out and "range 0.06 m, omega 0.09 rad" in out
+
+
+def test_monitor_clean_recording_and_errors(tmp_path, capsys):
+    clean = simulate_recording("C", "random", SimulationOptions(physics=None, known_poses=True),
+                               levels=("centroids",), n_frames=300, seed=8)
+    path = tmp_path / "clean.h5"
+    write_recording(path, clean)
+    assert _run([str(path)]) == 0
+    assert "no change detected" in capsys.readouterr().out
+    unknown = tmp_path / "unknown.h5"
+    write_recording(unknown, simulate_recording("C", options=CLEAN, levels=("centroids",),
+                                                n_frames=30, seed=8))
+    with pytest.raises(ValidationError, match="no pose"):
+        _run([str(unknown)])

@@ -1,0 +1,137 @@
+"""``mmsnap process --config FILE`` (TOML) and ``--show-config`` (issue 14, item 4)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from mmsnap_graph.app.cli import main
+from mmsnap_graph.app.config_file import (
+    ProcessConfig,
+    process_config_from_mapping,
+    process_config_to_toml,
+    read_process_config,
+)
+from mmsnap_graph.errors import ConfigurationError
+from mmsnap_graph.radar.cfar import CfarConfig
+from mmsnap_graph.radar.chain import ChainConfig
+from mmsnap_graph.radar.cluster import ClusterConfig
+from mmsnap_graph.tracking.ekf import EkfConfig
+from mmsnap_graph.sim import CLEAN
+
+
+def _show(capsys, *argv) -> str:
+    assert main(["process", "--show-config", *argv]) == 0
+    return capsys.readouterr().out
+
+
+def test_show_config_prints_every_default_and_reads_back_equal(tmp_path, capsys):
+    text = _show(capsys)
+    for table in ("[chain]", "[chain.cfar]", "[chain.cluster]", "[ekf]"):
+        assert table in text
+    # Every field of every configuration is printed (unset ones as comments).
+    for cls in (ChainConfig, CfarConfig, ClusterConfig):
+        for f in dataclasses.fields(cls):
+            if f.name not in ("cfar", "cluster"):
+                assert f"{f.name} = " in text, f.name
+    assert "frame_period_s" not in text  # the recording gives it
+    path = tmp_path / "defaults.toml"
+    path.write_text(text)
+    assert read_process_config(path) == ProcessConfig()
+
+
+def test_a_file_changes_the_configuration_and_options_override_it(tmp_path, capsys):
+    path = tmp_path / "sparse.toml"
+    path.write_text("[chain]\nmin_range_m = 0.5\nmax_range_m = 12\n"
+                    "[chain.cfar]\npfa = 1e-4\nguard_cells = [3, 2]\n"
+                    "[chain.cluster]\npoint_targets = true\n"
+                    "[ekf]\nconfirm_window_s = 0.3\nmax_coast_s = 0.4\nmeasurement_std = [0.1, 0.2, 0.3]\n")
+    cfg = read_process_config(path)
+    assert cfg.chain.min_range_m == 0.5 and cfg.chain.max_range_m == 12.0
+    assert cfg.chain.cfar.pfa == 1e-4 and cfg.chain.cfar.guard_cells == (3, 2)
+    assert cfg.chain.cluster.point_targets is True
+    assert cfg.ekf.confirm_window_s == 0.3 and cfg.ekf.measurement_std == (0.1, 0.2, 0.3)
+    # Round trip through --show-config with the file.
+    again = tmp_path / "again.toml"
+    again.write_text(_show(capsys, "--config", str(path)))
+    assert read_process_config(again) == cfg
+    # Explicit options win over the file.
+    text = _show(capsys, "--config", str(path), "--pfa", "1e-3", "--sigma-a", "2.5")
+    assert "pfa = 0.001" in text and "sigma_a_mps2 = 2.5" in text
+    assert "guard_cells = [3, 2]" in text  # the rest of the file is kept
+
+
+@pytest.mark.parametrize("doc, where", [
+    ({"chain": {"min_rang_m": 1.0}}, "chain.min_rang_m"),
+    ({"chain": {"cfar": {"pfa": 2.0}}}, "chain.cfar"),
+    ({"chain": {"cfar": {"guard_cells": 3}}}, "chain.cfar.guard_cells"),
+    ({"chain": {"clutter_removal": "yes"}}, "chain.clutter_removal"),
+    ({"chain": {"cluster": 3}}, "chain.cluster"),
+    ({"ekf": {"frame_period_s": 0.05}}, "ekf.frame_period_s"),
+    ({"ekf": {"max_coast_s": -1.0}}, "ekf"),
+    ({"tracker": {}}, "tracker"),
+])
+def test_bad_files_name_the_table_and_key(doc, where):
+    with pytest.raises(ConfigurationError, match=where.replace(".", r"\.")):
+        process_config_from_mapping(doc)
+
+
+def test_a_syntax_error_names_the_file_and_line(tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text("[chain]\nmin_range_m = \n")
+    with pytest.raises(ConfigurationError, match=r"bad\.toml.*line 2"):
+        read_process_config(path)
+    assert main(["process", "--show-config", "--config", str(path)]) != 0
+    assert "bad.toml" in capsys.readouterr().err
+    with pytest.raises(ConfigurationError, match="cannot read"):
+        read_process_config(tmp_path / "missing.toml")
+
+
+def test_process_runs_with_the_file(tmp_path):
+    """The file reaches the EKF: a confirmation count no track can meet
+    leaves every node without tracks; the defaults give tracks."""
+    io = pytest.importorskip("mmsnap_graph.io")
+    from mmsnap_graph.sim import simulate_recording
+    rec = simulate_recording("C", options=CLEAN, levels=("centroids",), n_frames=40, seed=3)
+    path = tmp_path / "rec.h5"
+    io.write_recording(path, rec)
+    assert main(["process", str(path), "--centroids-only", "--no-progress"]) == 0
+    assert all(len(n.tracks) > 0 for n in io.read_recording(path).nodes.values())
+    cfg = tmp_path / "strict.toml"
+    cfg.write_text("[ekf]\nconfirm_hits = 60\nconfirm_window_s = 9.0\n")
+    assert main(["process", str(path), "--centroids-only", "--no-progress",
+                 "--config", str(cfg)]) == 0
+    got = io.read_recording(path)
+    assert all(n.tracks is None or len(n.tracks) == 0 for n in got.nodes.values())
+    # The centroids were not touched.
+    np.testing.assert_array_equal(got.nodes["S1"].centroids.frame, rec.nodes["S1"].centroids.frame)
+
+
+def test_to_toml_writes_infinities_and_strings_that_read_back():
+    cfg = ProcessConfig(chain=ChainConfig(range_window="blackman"),
+                        ekf=EkfConfig(sigma_a_mps2=0.5))
+    assert process_config_from_mapping(__import__("tomllib").loads(
+        process_config_to_toml(cfg))) == cfg
+
+
+def test_the_ekf_noise_comes_from_the_data_unless_the_file_sets_it(tmp_path):
+    """Default: each node's EKF takes the sigmas its own centroids identify
+    (the simulator's 0.05 m, 0.08 rad, 0.1 m/s, not EkfConfig's 0.05, 0.1,
+    0.2); a file with [ekf] measurement_std fixes them."""
+    from mmsnap_graph.app.pipeline import ekf_noise_from_centroids
+    from mmsnap_graph.sim import simulate_recording
+    rec = simulate_recording("C", options=CLEAN, levels=("centroids",), n_frames=400, seed=5)
+    ekf = ekf_noise_from_centroids(EkfConfig(), rec.nodes["S1"].centroids)
+    np.testing.assert_allclose(ekf.measurement_std, (0.05, 0.08, 0.1), rtol=0.2)
+    assert ProcessConfig().ekf_noise_from_data
+    cfg = process_config_from_mapping({"ekf": {"measurement_std": [0.1, 0.2, 0.3]}})
+    assert not cfg.ekf_noise_from_data and cfg.ekf.measurement_std == (0.1, 0.2, 0.3)
+    # A file shown by --show-config reads back with the noise still from the data.
+    assert read_process_config_text(process_config_to_toml(ProcessConfig()), tmp_path) \
+        .ekf_noise_from_data
+
+
+def read_process_config_text(text, tmp_path):
+    path = tmp_path / "shown.toml"
+    path.write_text(text)
+    return read_process_config(path)

@@ -1,0 +1,300 @@
+"""Two real TI recordings (``data/real/darksz/``) through the whole CLI:
+``import table`` -> ``process`` -> ``calibrate`` -> ``fuse`` -> ``evaluate
+--surveyed``, as a user with these point tables would run it.
+
+There is no ground truth of the people. What can be known is checked: S2's
+pose against the tape-measured mounting (0.1 m, 3 degrees), the two halves of
+a recording calibrated separately agreeing within their reported covariance,
+the fused people inside the room box of the recorder's configuration, and at
+most the known number of people in a frame (the recorder tracked at most two
+objects in both recordings: ``TRK_obj_bin_number = 2`` in its configuration).
+Each test prints the figures it measured (``pytest -s``).
+"""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import io
+import json
+import pickle
+from contextlib import redirect_stdout
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from _shared import DATA
+from mmsnap_graph.app.cli import main
+from mmsnap_graph.data.results import Status
+from mmsnap_graph.io.fused import read_fused
+
+REAL = DATA / "real" / "darksz"
+SURVEYED_S2 = (1.70, 1.65, 90.0)            # x_m, y_m, phi_deg in S1's frame (tape)
+TAPE_M, TAPE_DEG = 0.1, 3.0
+MAX_PEOPLE = 2
+
+
+@dataclass(frozen=True)
+class Real:
+    """One recording: its tables, the S2 mounting height and the room box."""
+
+    stem: str
+    s2_height_m: float
+    room: tuple[float, float, float, float]          # x_min, x_max, y_min, y_max (m)
+
+
+RECORDINGS = {
+    "multiple_tracking": Real("multiple_tracking", 1.1, (-2.0, 1.6, 0.0, 3.6)),
+    "fall_detection": Real("fall_detection", 2.45, (-1.7, 1.6, 0.0, 3.6)),
+}
+
+
+def import_args(real: Real, s1: Path, s2: Path, out: Path) -> list[str]:
+    """The import of docs/TI.md for these tables: room-frame points, each
+    radar's nominal pose and height, floor and ceiling dropped."""
+    return ["import", "table", "--node", f"S1={s1}", "--node", f"S2={s2}",
+            "--frame-period", "0.05", "--mount", "S1=0.8,0",
+            "--mount", f"S2={real.s2_height_m},0", "--room-pose", "S1=0,0,0",
+            "--room-pose", "S2={},{},{}".format(*SURVEYED_S2), "--height-band", "0.2,2.0",
+            "-o", str(out)]
+
+
+def run(args: list[str]) -> None:
+    assert main(args) == 0, f"mmsnap {' '.join(args)} failed"
+
+
+def calibrated(real: Real, s1: Path, s2: Path, out: Path) -> dict:
+    """import -> process -> calibrate; the calibration JSON."""
+    run(import_args(real, s1, s2, out))
+    run(["process", str(out)])
+    run(["calibrate", str(out)])
+    return json.loads(out.with_suffix(".calibration.json").read_text())
+
+
+def split_table(src: Path, mid: int, first: Path, second: Path) -> None:
+    """Rows of frames < mid to ``first``, the others to ``second``."""
+    with open(src, newline="") as f:
+        rows = list(csv.reader(f))
+    header, body = rows[0], rows[1:]
+    k = header.index("frame")
+    for path, keep in ((first, lambda r: int(r[k]) < mid), (second, lambda r: int(r[k]) >= mid)):
+        with open(path, "w", newline="") as f:
+            csv.writer(f).writerows([header] + [r for r in body if keep(r)])
+
+
+def n_frames(real: Real) -> int:
+    frames = set()
+    for node in ("S1", "S2"):
+        with open(REAL / f"{real.stem}_{node}.csv", newline="") as f:
+            frames |= {int(r["frame"]) for r in csv.DictReader(f)}
+    return max(frames) + 1
+
+
+class _Runs:
+    """The chain run once per recording (whole and halves), on demand."""
+
+    def __init__(self, base: Path):
+        self.base, self.whole, self.halves = base, {}, {}
+
+    def full(self, stem: str):
+        """(calibration JSON, evaluate JSON, fused sequence with --bounds,
+        without, with --in-front) of the whole recording."""
+        if stem not in self.whole:
+            real = RECORDINGS[stem]
+            out = self.base / f"{stem}.h5"
+            cal = calibrated(real, REAL / f"{stem}_S1.csv", REAL / f"{stem}_S2.csv", out)
+            free = self.base / f"{stem}_no_bounds.h5"
+            run(["fuse", str(out), "-o", str(free)])
+            front = self.base / f"{stem}_in_front.h5"
+            run(["fuse", str(out), "-o", str(front), "--in-front"])
+            run(["fuse", str(out), "--bounds={},{},{},{}".format(*real.room)])
+            buf = io.StringIO()
+            with redirect_stdout(buf):
+                assert main(["evaluate", str(out), "--json", "--surveyed", "S1=0,0,0",
+                             "--surveyed", "S2={},{},{}".format(*SURVEYED_S2)]) == 0
+            self.whole[stem] = (cal, json.loads(buf.getvalue()), read_fused(out),
+                                read_fused(free), read_fused(front))
+        return self.whole[stem]
+
+    def half_calibrations(self, stem: str) -> list[dict]:
+        """The calibration JSON of each half (frames split at the middle)."""
+        if stem not in self.halves:
+            real, mid = RECORDINGS[stem], n_frames(RECORDINGS[stem]) // 2
+            for node in ("S1", "S2"):
+                split_table(REAL / f"{stem}_{node}.csv", mid, self.base / f"{stem}_a_{node}.csv",
+                            self.base / f"{stem}_b_{node}.csv")
+            self.halves[stem] = [calibrated(real, self.base / f"{stem}_{h}_S1.csv",
+                                            self.base / f"{stem}_{h}_S2.csv",
+                                            self.base / f"{stem}_{h}.h5") for h in "ab"]
+        return self.halves[stem]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    return _Runs(tmp_path_factory.mktemp("real"))
+
+
+def inside_fraction(real: Real, fused) -> float:
+    ok = np.asarray(fused.success, bool)
+    xy = np.asarray(fused.state)[ok, :2]
+    x0, x1, y0, y1 = real.room
+    return float(np.mean((xy[:, 0] >= x0) & (xy[:, 0] <= x1)
+                         & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)))
+
+
+def people_ok_fraction(real: Real, fused) -> tuple[float, int]:
+    """Fraction of the recording's frames with at most MAX_PEOPLE fused
+    people (successful rows), and the largest count in a frame."""
+    ok = np.asarray(fused.success, bool)
+    counts = np.bincount(np.asarray(fused.frame)[ok], minlength=n_frames(real))
+    return float(np.mean(counts <= MAX_PEOPLE)), int(counts.max())
+
+
+def _cases(xfails: dict) -> list:
+    """Both recordings; those in ``xfails`` (stem -> today's figures) as
+    strict xfails: they must fail until the target is reached."""
+    return [pytest.param(stem, marks=pytest.mark.xfail(strict=True, reason=xfails[stem]))
+            if stem in xfails else stem for stem in RECORDINGS]
+
+
+# Measured on these tables; the targets are the asserts. Before the scene
+# filters and room checks: 72.4% / 59.1% of fused rows inside the room, <= 2
+# people in 6.7% / 54.2% of frames (multiple tracking / fall detection).
+POSE_XFAIL = {"multiple_tracking": "S2 heading -3.76 deg from the tape (0.046 m); tape 3 deg"}
+HALVES_XFAIL = {
+    "multiple_tracking": "halves differ by (+0.038 m, +0.143 m, +2.86 deg) = (0.6, 7.1, 1.8) "
+                         "sigma of their combined reported covariance",
+    "fall_detection": "halves differ by (-0.013 m, -0.184 m, -6.16 deg) = (0.6, 20.5, 6.3) "
+                      "sigma of their combined reported covariance"}
+NO_BOUNDS_XFAIL = {
+    "multiple_tracking": "90.8% of fused rows inside the room without --bounds (target 95%)",
+    "fall_detection": "93.8% of fused rows inside the room without --bounds (target 95%)"}
+IN_FRONT_XFAIL = {
+    "fall_detection": "94.6% of fused rows inside the room with --in-front (target 95%)"}
+INSIDE_XFAIL: dict = {}
+COUNT_XFAIL: dict = {}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stem", _cases(POSE_XFAIL))
+def test_s2_pose_within_the_tape_measured_mounting(runs, stem):
+    cal, ev = runs.full(stem)[:2]
+    pose = ev["poses"]["S2"]
+    err_m, err_deg = pose["position_error_m"], np.rad2deg(pose["heading_error_rad"])
+    s = np.sqrt(np.diag(cal["nodes"]["S2"]["covariance"]))
+    print(f"{stem}: S2 {err_m:.3f} m, {err_deg:+.2f} deg from the tape; reported sigma "
+          f"({s[0]:.3f} m, {s[1]:.3f} m, {np.rad2deg(s[2]):.2f} deg)")
+    assert err_m <= TAPE_M and abs(err_deg) <= TAPE_DEG
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stem", _cases(HALVES_XFAIL))
+def test_halves_agree_within_their_reported_covariance(runs, stem):
+    a, b = (np.asarray(c["nodes"]["S2"]["pose"]) for c in runs.half_calibrations(stem))
+    ca, cb = (np.asarray(c["nodes"]["S2"]["covariance"]) for c in runs.half_calibrations(stem))
+    d = b - a
+    d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
+    z = d / np.sqrt(np.diag(ca + cb))
+    print(f"{stem}: halves differ by ({d[0]:+.3f} m, {d[1]:+.3f} m, "
+          f"{np.rad2deg(d[2]):+.2f} deg) = ({abs(z[0]):.1f}, {abs(z[1]):.1f}, "
+          f"{abs(z[2]):.1f}) sigma of their combined reported covariance")
+    assert np.all(np.abs(z) <= 3.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stem", _cases(NO_BOUNDS_XFAIL))
+def test_fused_people_inside_the_room_without_bounds(runs, stem):
+    """The scene filters and the body check alone (no room box given)."""
+    fused = runs.full(stem)[3]
+    frac = inside_fraction(RECORDINGS[stem], fused)
+    most = people_ok_fraction(RECORDINGS[stem], fused)
+    print(f"{stem}, no --bounds: {100 * frac:.1f}% of {int(np.sum(fused.success))} fused rows "
+          f"inside the room; <= {MAX_PEOPLE} people in {100 * most[0]:.1f}% of frames")
+    assert frac >= 0.95
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stem", _cases(IN_FRONT_XFAIL))
+def test_fused_people_inside_the_room_in_front_of_the_radars(runs, stem):
+    """No room box, but the radars hang on the walls (``--in-front``)."""
+    fused = runs.full(stem)[4]
+    frac = inside_fraction(RECORDINGS[stem], fused)
+    most = people_ok_fraction(RECORDINGS[stem], fused)
+    print(f"{stem}, --in-front: {100 * frac:.1f}% of {int(np.sum(fused.success))} fused rows "
+          f"inside the room; <= {MAX_PEOPLE} people in {100 * most[0]:.1f}% of frames")
+    assert frac >= 0.95
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stem", _cases(INSIDE_XFAIL))
+def test_fused_people_inside_the_room(runs, stem):
+    """With the room box (``mmsnap fuse --bounds``): the rows outside, and only
+    they, are flagged."""
+    fused = runs.full(stem)[2]
+    frac = inside_fraction(RECORDINGS[stem], fused)
+    flagged = int(np.sum(fused.status == Status.OUTSIDE_BOUNDS))
+    print(f"{stem}: {100 * frac:.1f}% of {int(np.sum(fused.success))} fused rows inside the "
+          f"room; {flagged} flagged outside")
+    x0, x1, y0, y1 = RECORDINGS[stem].room
+    xy = np.asarray(fused.state)[fused.status == Status.OUTSIDE_BOUNDS, :2]
+    assert frac == 1.0 and flagged > 0
+    assert np.all((xy[:, 0] < x0) | (xy[:, 0] > x1) | (xy[:, 1] < y0) | (xy[:, 1] > y1))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stem", _cases(COUNT_XFAIL))
+def test_at_most_the_known_number_of_people_per_frame(runs, stem):
+    fused = runs.full(stem)[2]
+    frac, most = people_ok_fraction(RECORDINGS[stem], fused)
+    print(f"{stem}: <= {MAX_PEOPLE} fused people in {100 * frac:.1f}% of frames (max {most})")
+    assert frac >= 0.98
+
+
+# The tables and their conversion script (fast).
+
+def _make_tables():
+    spec = importlib.util.spec_from_file_location("make_tables", REAL / "make_tables.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_unpickler_refuses_anything_but_arrays_lists_and_dicts():
+    mt = _make_tables()
+    arrays = [{"IWR1843_Ori": np.zeros((2, 5), np.float16)}]
+    out = mt._ArraysOnly(io.BytesIO(pickle.dumps(arrays))).load()
+    assert out[0]["IWR1843_Ori"].shape == (2, 5)
+    with pytest.raises(pickle.UnpicklingError, match=r"refusing .*system"):
+        mt._ArraysOnly(io.BytesIO(pickle.dumps(_Evil()))).load()
+
+
+class _Evil:
+    def __reduce__(self):
+        import os
+        return os.system, ("echo unpickled",)
+
+
+def test_destack_recovers_each_frame_of_a_ten_frame_stack():
+    mt = _make_tables()
+    rng = np.random.default_rng(0)
+    raw = [rng.normal(size=(int(rng.integers(0, 4)), 5)).astype(np.float16) for _ in range(30)]
+    stacks = [np.concatenate(raw[k - 9:k + 1]) for k in range(9, 30)]
+    frames = mt.destack(stacks)
+    assert len(frames) == len(raw)
+    for got, want in zip(frames, raw):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_tables_hold_float16_values_and_read_as_point_tables():
+    from mmsnap_graph.io.point_table import read_point_table
+    for real in RECORDINGS.values():
+        for node in ("S1", "S2"):
+            cloud = read_point_table(REAL / f"{real.stem}_{node}.csv")
+            for col in (cloud.x_m, cloud.y_m, cloud.z_m, cloud.doppler_mps):
+                shortest = [float(str(v)) for v in col.astype(np.float16)]   # float16's own
+                np.testing.assert_array_equal(shortest, col)
+            assert cloud.snr_db is not None and np.all(np.isfinite(cloud.snr_db))
+            np.testing.assert_allclose(cloud.time_s, 0.05 * cloud.frame, atol=1e-9)
+    assert (REAL / "LICENSE").read_text().startswith("MIT License")

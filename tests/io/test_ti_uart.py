@@ -1,0 +1,115 @@
+"""UART logs (mmsnap_graph.io.ti_uart): repeated and backward frame numbers,
+non-finite points (encoded by tests/ti_encode.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mmsnap_graph.app.cli import main
+from mmsnap_graph.errors import FileFormatError
+from mmsnap_graph.io import read_recording
+from mmsnap_graph.io.ti_uart import parse_ti_uart
+from ti_encode import encode_oob_frame
+
+
+def _packet(number, x=0.5, n=2):
+    xyz = np.column_stack([np.full(n, x), np.linspace(2, 3, n), np.zeros(n)])
+    return encode_oob_frame(number, xyz, np.full(n, 0.3), np.full(n, 20.0), np.full(n, 40.0))
+
+
+def _log(numbers, x=0.5):
+    return b"".join(_packet(k, x=x) for k in numbers)
+
+
+def test_a_duplicated_packet_is_dropped_and_reported():
+    data = _log([1, 2, 3]) + _packet(3) + _log([4, 5])
+    log = parse_ti_uart(data)
+    assert log.frame_numbers.tolist() == [1, 2, 3, 4, 5]
+    assert len(log.points) == 10                       # frame 3 once, not twice
+    (bad,) = log.bad
+    assert bad.index == 3 and bad.byte_offset == len(_log([1, 2, 3]))
+    assert "packet 3 (frame 3) at byte" in str(bad) and "a copy of packet 2" in str(bad)
+
+
+def test_a_repeated_number_with_other_points_is_dropped_and_reported():
+    data = _log([1, 2, 3]) + _packet(2, x=-1.0) + _log([4, 5])
+    log = parse_ti_uart(data)
+    assert log.frame_numbers.tolist() == [1, 2, 3, 4, 5]
+    assert not np.any(log.points.x_m == -1.0)
+    assert "frame number 2 goes back in the sequence 3, ..., 4" in str(log.bad[0])
+
+
+@pytest.mark.parametrize("numbers, around", [
+    ([1, 2, 3, 2 ** 31 + 4, 5, 6], "3, ..., 5"),          # one flipped bit inside
+    ([2 ** 31 + 1, 2, 3, 4, 5, 6], "2, 3"),               # ... in the first header
+    ([1, 2, 3, 4, 5, 2 ** 31 + 6], "5, ..., end")])       # ... in the last one
+def test_one_corrupted_frame_number_is_dropped(numbers, around):
+    """One flipped bit in a header used to put a frame at 2^31 (and then ask
+    `process` for 16 GiB); the packet is dropped and reported."""
+    log = parse_ti_uart(_log(numbers))
+    assert log.frame_numbers.tolist() == [k for k in numbers if k < 2 ** 31]
+    assert f"leaves the sequence {around} (a corrupted header" in str(log.bad[0])
+
+
+@pytest.mark.parametrize("numbers, at", [([1, 2, 3, 4, 1, 2, 3], 4),     # radar restart
+                                         ([50, 51, 52, 1, 2, 3], 3),     # joined out of order
+                                         ([1, 2, 3, 3], 3)])             # last packet again
+def test_frame_numbers_that_go_back_are_refused(numbers, at):
+    data = b"".join(_packet(k, x=0.1 * i) for i, k in enumerate(numbers))
+    offset = len(b"".join(_packet(k, x=0.1 * i) for i, k in enumerate(numbers[:at])))
+    with pytest.raises(FileFormatError, match=rf"packet {at} at byte {offset} has frame "
+                                              rf"{numbers[at]} .*split the log at byte {offset}"):
+        parse_ti_uart(data)
+
+
+def test_sub_frames_of_one_frame_are_not_repeats():
+    xyz = np.array([[0.5, 2.0, 0.0]])
+    data = b"".join(encode_oob_frame(f, xyz, [0.1], sub_frame=s) for f in (1, 2) for s in (0, 1))
+    log = parse_ti_uart(data)
+    assert log.bad == () and log.sub_frame.tolist() == [0, 1, 0, 1]
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, 3e38])
+def test_a_non_finite_point_skips_only_its_frame(value):
+    data = _log([1, 2]) + _packet(3, x=value) + _log([4])
+    log = parse_ti_uart(data)
+    assert log.frame_numbers.tolist() == [1, 2, 4]
+    (bad,) = log.bad
+    assert bad.frame_number == 3 and bad.byte_offset == len(_log([1, 2]))
+    assert f"point 0 of 2 holds x={float(np.float32(value))!r} (not a finite number" in str(bad)
+
+
+def test_cli_keeps_the_good_frames_and_names_the_bad_one(tmp_path, capsys):
+    path = tmp_path / "log.bin"
+    path.write_bytes(_log(range(1, 11)) + _packet(11, x=np.nan) + _log(range(12, 21)))
+    assert main(["import", "ti-uart", "--node", f"S1={path}", "--frame-period", "0.05",
+                 "-o", str(tmp_path / "u.h5")]) == 0
+    assert "S1: skipped packet 10 (frame 11) at byte" in capsys.readouterr().err
+    assert len(read_recording(tmp_path / "u.h5").nodes["S1"].point_cloud) == 38
+
+
+def test_cli_refuses_a_restart_with_the_offset(tmp_path, capsys):
+    path = tmp_path / "log.bin"
+    path.write_bytes(_log(range(1, 6)) + _log(range(1, 4), x=2.0))
+    assert main(["import", "ti-uart", "--node", f"S1={path}", "--frame-period", "0.05",
+                 "-o", str(tmp_path / "u.h5")]) == 1
+    err = capsys.readouterr().err
+    assert f"packet 5 at byte {len(_log(range(1, 6)))} has frame 1" in err
+    assert not (tmp_path / "u.h5").exists()
+
+
+def test_one_log_imported_as_two_nodes_is_refused(tmp_path, capsys):
+    """The same log for two nodes made calibrate and noise fail on a singular
+    system; the import says what happened instead."""
+    path = tmp_path / "log.bin"
+    path.write_bytes(_log(range(1, 21)))
+    args = ["import", "ti-uart", "--node", f"S1={path}", "--node", f"S2={path}",
+            "--frame-period", "0.05", "-o", str(tmp_path / "u.h5")]
+    assert main(args) == 2
+    assert "nodes S1 and S2 hold the same 40 points in the same frames: one log imported " \
+           "twice?" in capsys.readouterr().err
+    other = tmp_path / "other.bin"
+    other.write_bytes(_log(range(1, 21), x=0.7))
+    args[5] = f"S2={other}"
+    assert main(args) == 0
