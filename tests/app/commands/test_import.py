@@ -153,5 +153,5 @@ def test_odd_option_values_are_one_line_errors(tmp_path, capsys, option):
     assert code in (1, 2), err
     assert "Traceback" not in err and err.strip(), err
     expected = {"100000": "--accumulate 100000: n_frames=100000 would make 1828 x 100000",
-                "ms": "time stamps in ms read as seconds?"}.get(option[-1])
+                "ms": "a factor of 0.001: a unit mistake in the time stamps or the frame period?"}.get(option[-1])
     assert expected is None or expected in err, err
