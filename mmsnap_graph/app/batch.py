@@ -343,7 +343,8 @@ def run_many(
     options : per step, keyword arguments of the step's library function:
         ``process`` -> ``process_file`` (e.g. ``centroids_only``, ``ekf``),
         ``calibrate`` -> ``calibrate_recording`` (e.g. ``matching``, ``joint``),
-        ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``solver``, ``noise``).
+        ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``noise``,
+        ``options=FusionOptions(solver="gtsam")``).
         They are pickled to the workers: plain values and frozen configs.
     blas_threads : BLAS / OpenMP threads per worker (None: leave them).
     progress : a tqdm bar over recordings on stderr; on_result : called

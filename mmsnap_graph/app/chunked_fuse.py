@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike
 from .._validation import check_count
 from ..errors import ValidationError
 from ..fusion.recording.motion_check import MOTION_CONTEXT_FRAMES
+from ..fusion.options import DEFAULT_OPTIONS, FusionOptions
 from ..fusion.recording.room import RoomReport, screen_room
 from ..fusion.recording.sequence import fuse_recording
 from ..fusion.recording.timing import split_offset
@@ -68,7 +69,7 @@ def _progress(total: int, progress: bool | None):
 
 def _motion_checked(options) -> bool:
     """Whether ``fuse_recording`` runs the motion check with these options."""
-    check = options.get("motion_check")
+    check = options.get("options", DEFAULT_OPTIONS).motion_check
     return bool(options.get("robust") is not None if check is None else check)
 
 
@@ -110,9 +111,10 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     progress : a tqdm bar over frames (default: when stderr is a terminal).
     options : keyword arguments of
         :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording` (``mode``,
-        ``covariance``, ``solver``, ``noise``, ``prior``,
-        ``gate_probability``, ``source``, ``grid_points_per_axis``,
-        ``robust``, ...), with its defaults; and the room-frame checks of
+        ``noise``, ``prior``, ``robust``, ``options`` (a
+        :class:`~mmsnap_graph.fusion.options.FusionOptions`: ``covariance``,
+        ``solver``, ``gate_probability``, ``source``, ...), with its defaults; and the
+        room-frame checks of
         :func:`~mmsnap_graph.fusion.recording.room.screen_room`:
         ``bounds``, ``static_bounds`` and ``body_m`` (each None, the
         default: off; ``mmsnap fuse`` checks one target per
@@ -129,7 +131,10 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     room = dict(bounds=options.pop("bounds", None), static_bounds=options.pop("static_bounds", None),
                 body_m=options.pop("body_m", None))
     flagged = RoomReport()
-    windows = open_detection_windows(path, source=options.get("source", "centroids"))
+    fusion = options.get("options", DEFAULT_OPTIONS)
+    if not isinstance(fusion, FusionOptions):
+        raise ValidationError(f"options must be a FusionOptions, got {type(fusion).__name__}")
+    windows = open_detection_windows(path, source=fusion.source)
     # Clock offsets move each node's frames by its own whole-frame shift
     # before fusion (fusion.recording.timing.align_recording): each node's window is
     # read shifted the same way, so that a window holds the same reference
@@ -164,5 +169,5 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     return ChunkedFuseSummary(path=dst, n_rows=writer.n_rows, n_success=writer.n_success,
                               n_frames=n_frames, n_windows=n_windows,
                               mode=options.get("mode", "map"),
-                              covariance_method=options.get("covariance", "laplace"),
-                              solver=options.get("solver", "batch"), room=flagged)
+                              covariance_method=fusion.covariance, solver=fusion.solver,
+                              room=flagged)

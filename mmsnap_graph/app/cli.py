@@ -45,7 +45,9 @@ from ..errors import (
 )
 
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
-COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch", "replay", "monitor", "noise", "info", "export"]
+COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate",
+                       "files.import_", "batch", "replay", "monitor", "noise", "files.info",
+                       "files.export"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1

@@ -240,7 +240,8 @@ def fuse_stored(path: str | os.PathLike, options: Mapping[str, Any] | None = Non
     (:func:`~mmsnap_graph.app.chunked_fuse.fuse_file`) with its stored
     calibration and write ``/fused`` (in ``path``, or a copy at ``output``).
 
-    options : keyword arguments of ``fuse_recording`` (``mode``, ``solver``,
+    options : keyword arguments of ``fuse_recording`` (``mode``, ``noise``,
+        ``options``: a :class:`~mmsnap_graph.fusion.options.FusionOptions`,
         ...); ``robust`` defaults to :data:`DEFAULT_ROBUST`. An option given
         here wins over the stored calibration's.
     calibration : what to fuse with (default :func:`stored_calibration` of
@@ -249,16 +250,18 @@ def fuse_stored(path: str | os.PathLike, options: Mapping[str, Any] | None = Non
     calibration used)``.
     """
     from .._atomic import recording_lock
+    from ..fusion.options import DEFAULT_OPTIONS
     from ..io.chunks import open_detection_windows
     from .chunked_fuse import fuse_file
 
     opts = dict(options or {})
+    fusion = opts.get("options", DEFAULT_OPTIONS)
     opts.setdefault("robust", DEFAULT_ROBUST)
     with recording_lock(path):
         if calibration is None:
-            names = open_detection_windows(path, source=opts.get("source", "centroids")).node_names
+            names = open_detection_windows(path, source=fusion.source).node_names
             calibration = stored_calibration(
-                path, names, pose_covariances=opts.get("covariance", "laplace") == "laplace")
+                path, names, pose_covariances=fusion.covariance == "laplace")
         calibration = calibration.with_default_noise(*paper_noise())
         merged = {**calibration.fuse_options(), **opts}
         summary = fuse_file(path, output=output, progress=progress, **merged)

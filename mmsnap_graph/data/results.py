@@ -258,7 +258,7 @@ class FusedSequence:
 
     node_names : (N,) names, in the recording's order; node_poses : (N, 3).
     mode : ``"map"`` or ``"ml"``; covariance_method : ``"laplace"`` or ``"grid"``;
-    solver : ``"batch"`` or ``"gtsam"``.
+    solver : ``"vectorized"`` or ``"gtsam"`` (:data:`~mmsnap_graph.fusion.recording.sequence.RECORDING_SOLVERS`).
     frame, target, label : (K,) int (see :data:`mmsnap_graph.io.fused.FUSED_LAYOUT`).
     detection_index : (K, N) int; observed : (K, N) bool.
     state : (K, 4) ``(x_m, y_m, vx_mps, vy_mps)``; covariance : (K, 4, 4) the

@@ -123,7 +123,7 @@ class FrameAssociation:
 #: A detection's 2x2 position covariance is usable for gating and weighting
 #: when its smallest eigenvalue is above this (m^2) and above
 #: ``MAX_CONDITION``-th of its largest. Range 0 (at any angle), a range of
-#: 1e-300 m or sigmas of 1e-300 give a singular one (issue 13: LinAlgError).
+#: 1e-300 m or sigmas of 1e-300 give a singular one (numpy would raise LinAlgError).
 MIN_VARIANCE_M2 = 1e-100
 MAX_CONDITION = 1e12
 

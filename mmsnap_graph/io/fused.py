@@ -33,7 +33,7 @@ FUSED_LAYOUT = """\
 /fused                 attrs: format_version = "1.1" (1.0: without time_s and information),
                               mode = "map" | "ml",
                               covariance_method = "laplace" | "grid",
-                              solver = "batch" | "gtsam",
+                              solver = "vectorized" | "gtsam",
                               node_order (str array, N), node_poses (N, 3) [x_m, y_m, phi_rad],
                               noise_sigmas (3,) [range_m, omega_rad, doppler_mps],
                               prior_mean (4,), prior_sigmas (4,) (MAP only),

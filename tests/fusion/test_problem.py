@@ -14,6 +14,7 @@ from scipy.stats import chi2
 
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_BC
 from factors.models import measurement_model, predict_measurements, wrap_angle
+from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
 from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.association import associate_frame
@@ -142,7 +143,11 @@ def test_initial_velocity_weighs_each_nodes_doppler_by_its_sigma():
     rng = np.random.default_rng(4)
     _, z, obs = _frames(rng, 30, p_miss=0.2)
     x0 = initial_states(POSES_BC, z, obs, PAPER_PRIOR, noise=NOISES)
-    res = fuse_batch(POSES_BC, z, observed=obs, noise=NOISES, max_iterations=1)
+    res = fuse_batch(POSES_BC,
+                     z,
+                     observed=obs,
+                     noise=NOISES,
+                     options=FusionOptions(lm=LevenbergMarquardtSettings(max_steps=1)))
     np.testing.assert_allclose(res.initial_state, x0, rtol=0, atol=1e-12)
     for f in range(5):
         r = fuse_frame(POSES_BC, z[f], observed=obs[f], noise=NOISES)
@@ -224,15 +229,15 @@ def recording_3():
 
 def test_fuse_recording_takes_a_noise_mapping_with_both_solvers(recording_3):
     by_name = dict(zip(recording_3.node_names, NOISES))
-    fb = fuse_recording(recording_3, solver="batch", noise=by_name)
-    fg = fuse_recording(recording_3, solver="gtsam", noise=by_name)
+    fb = fuse_recording(recording_3, noise=by_name, options=FusionOptions(solver="vectorized"))
+    fg = fuse_recording(recording_3, noise=by_name, options=FusionOptions(solver="gtsam"))
     np.testing.assert_array_equal(fb.status, fg.status)
     ok = fb.success
     assert ok.mean() > 0.9
     np.testing.assert_allclose(fb.state[ok], fg.state[ok], atol=1e-6)
     np.testing.assert_allclose(fb.covariance[ok], fg.covariance[ok], rtol=1e-5, atol=1e-10)
     np.testing.assert_array_equal(fb.noise_sigmas, SIGMAS)
-    plain = fuse_recording(recording_3, solver="batch")
+    plain = fuse_recording(recording_3, options=FusionOptions(solver="vectorized"))
     assert plain.noise_sigmas.shape == (3,)
     assert np.abs(plain.covariance[ok] - fb.covariance[ok]).max() > 1e-4
     # The grouping used the per-node sigmas (one call, the same groups).
@@ -244,11 +249,12 @@ def test_fuse_recording_names_the_node_without_noise(recording_3):
     with pytest.raises(ValidationError, match="no MeasurementNoise for node 'S3'"):
         fuse_recording(recording_3, noise={"S1": NOISES[0], "S2": NOISES[1]})
     with pytest.raises(ValidationError, match="per-node noise and pose_covariances need"):
-        fuse_recording(recording_3, covariance="grid",
-                       noise=dict(zip(recording_3.node_names, NOISES)))
+        fuse_recording(recording_3,
+                       noise=dict(zip(recording_3.node_names, NOISES)),
+                       options=FusionOptions(covariance="grid"))
 
 
-@pytest.mark.parametrize("solver", ["gtsam", "batch"])
+@pytest.mark.parametrize("solver", ["gtsam", "vectorized"])
 def test_frame_stream_takes_per_node_noise(recording_3, solver):
     by_name = dict(zip(recording_3.node_names, NOISES))
     stream = FrameStream(recording_3.node_names, POSES_BC, noise=by_name, solver=solver)

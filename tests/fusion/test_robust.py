@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from factors.models import predict_measurements
+from mmsnap_graph.fusion import FusionOptions, RobustOptions
 from mmsnap_graph import GaussianPrior, MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import GeometryError, ValidationError
@@ -140,18 +141,21 @@ def test_robust_off_is_the_plain_fit():
     assert r.rejected.shape == (3,) and not r.rejected.any()
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(robust="tukey"), "robust must be None, 'gate', 'huber' or 'cauchy'"),
-    (dict(robust="huber", robust_k=0.0), "robust_k must be finite and > 0"),
-    (dict(robust="huber", robust_k="1"), "robust_k must be a number"),
-    (dict(robust="gate", residual_gate_probability=1.0), r"residual_gate_probability must be in \(0, 1\)"),
+@pytest.mark.parametrize("robust, match", [
+    (lambda: "tukey", "robust must be None, 'gate', 'huber' or 'cauchy'"),
+    (lambda: 1.345, "robust must be None, 'gate', 'huber', 'cauchy' or a RobustOptions"),
+    (lambda: RobustOptions(kernel="huber", k=0.0), "k must be finite and > 0"),
+    (lambda: RobustOptions(kernel="huber", k="1"), "k must be a number"),
+    (lambda: RobustOptions(kernel="gate", k=1.0), "kernel='gate' takes none"),
+    (lambda: RobustOptions(kernel="gate", gate_probability=1.0),
+     r"gate_probability must be in \(0, 1\)"),
 ])
-def test_robust_options_are_validated(kwargs, match):
+def test_robust_options_are_validated(robust, match):
     z = predict_measurements(np.array([3.0, 3.0, 0.1, 0.2]), POSES)
     with pytest.raises(ValidationError, match=match):
-        fuse_frame(POSES, z, **kwargs)
+        fuse_frame(POSES, z, robust=robust())
     with pytest.raises(ValidationError, match=match):
-        fuse_batch(POSES, z[None], **kwargs)
+        fuse_batch(POSES, z[None], robust=robust())
 
 
 # ----------------------------------------------------------------------------
@@ -289,9 +293,9 @@ def test_fuse_recording_takes_the_robust_option_with_both_solvers(robust):
     rec = simulate_recording("A", "random",
                              SimulationOptions(physics=None, n_targets=1, known_poses=True, centroid_p_miss=0.1),
                              levels=("centroids",), n_frames=80, seed=4)
-    plain = fuse_recording(rec, solver="batch")
-    fb = fuse_recording(rec, solver="batch", robust=robust)
-    fg = fuse_recording(rec, solver="gtsam", robust=robust)
+    plain = fuse_recording(rec, options=FusionOptions(solver="vectorized"))
+    fb = fuse_recording(rec, robust=robust, options=FusionOptions(solver="vectorized"))
+    fg = fuse_recording(rec, robust=robust, options=FusionOptions(solver="gtsam"))
     assert fb.robust == robust and fb.rejected.shape == fb.observed.shape
     np.testing.assert_array_equal(fb.status, fg.status)
     np.testing.assert_array_equal(fb.rejected, fg.rejected)

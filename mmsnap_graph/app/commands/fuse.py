@@ -21,6 +21,8 @@ from mmsnap_graph._atomic import check_output_path, recording_lock
 from mmsnap_graph.app.runs import DEFAULT_ROBUST, fuse_stored, paper_noise, stored_calibration
 from mmsnap_graph.errors import ValidationError
 
+from .arguments import solver_choice
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -54,8 +56,10 @@ def register(subparsers) -> None:
                         "the neighbouring frames (default: a target no neighbouring frame "
                         "confirms is refitted without the nodes that disagree, or flagged; "
                         "docs/ROBUST.md)")
-    p.add_argument("--solver", choices=["batch", "gtsam"], default="batch",
-                   help="vectorized batch solver or one GTSAM graph per frame (default %(default)s)")
+    p.add_argument("--solver", type=solver_choice(("vectorized", "gtsam")), default="vectorized",
+                   metavar="{vectorized,gtsam}",
+                   help="the vectorized numpy solver over many frames or one GTSAM graph per "
+                        "frame (default %(default)s)")
     p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
                    help="detections to fuse (default %(default)s)")
     p.add_argument("--gate", type=float, default=0.999,
@@ -166,12 +170,14 @@ def run(args: argparse.Namespace) -> int:
         for line in cal.text:
             print(line, file=sys.stdout)
         print("; ".join(room_text), file=sys.stdout)
-        options = dict(mode=args.mode, covariance=args.covariance, solver=args.solver,
-                       source=args.source, gate_probability=args.gate,
-                       grid_points_per_axis=args.grid_points,
-                       robust=None if args.robust == "none" else args.robust,
-                       motion_check=args.robust != "none" and not args.no_motion_check,
-                       **room)
+        from mmsnap_graph.fusion.options import FusionOptions
+
+        fusion = FusionOptions(covariance=args.covariance, solver=args.solver,
+                               source=args.source, gate_probability=args.gate,
+                               grid_points_per_axis=args.grid_points,
+                               motion_check=args.robust != "none" and not args.no_motion_check)
+        options = dict(mode=args.mode, robust=None if args.robust == "none" else args.robust,
+                       options=fusion, **room)
         fused, _ = fuse_stored(args.recording, options, output=args.output, calibration=cal,
                                progress=False if args.no_progress else None)
     n_ok, path, frames = fused.n_success, fused.path, fused.n_frames

@@ -22,6 +22,8 @@ import numpy as np
 
 from mmsnap_graph.errors import ValidationError
 
+from .arguments import solver_choice
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -40,10 +42,11 @@ def register(subparsers) -> None:
                    help="with --realtime (implied), play X times faster than recorded")
     p.add_argument("--mode", choices=["map", "ml"], default="map",
                    help="MAP with the paper's prior, or maximum likelihood (default %(default)s)")
-    p.add_argument("--solver", choices=["numpy", "gtsam", "batch"], default="numpy",
-                   help="the single-frame numpy solver (GTSAM's steps, docs/STREAMING.md), one "
-                        "GTSAM graph per group, or the batch solver on the frame's groups "
-                        "(default %(default)s)")
+    p.add_argument("--solver", type=solver_choice(("scalar", "gtsam", "vectorized")), default="scalar",
+                   metavar="{scalar,gtsam,vectorized}",
+                   help="the scalar solver (one frame in plain floats, GTSAM's steps, "
+                        "docs/STREAMING.md), one GTSAM graph per group, or the vectorized "
+                        "solver on the frame's groups (default %(default)s)")
     p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
                    help="detections to stream (default %(default)s)")
     p.add_argument("--gate", type=float, default=0.999,

@@ -30,6 +30,7 @@ from .options import JointOptions
 from .solve import JointCalibration, joint_calibration
 from .multi_target import (
     ASSOCIATION_NOISE,
+    AssociationOptions,
     TargetAssociation,
     TargetMapping,
     joint_detections_multi,
@@ -111,7 +112,7 @@ def _one_round(recording, names, poses, covariances, lag_frames, noise,
     or None when fewer than two nodes have associated centroids."""
     dets, mapping, assoc = joint_detections_multi(
         recording, names, poses, lag_frames, covariances=covariances,
-        max_motion_gap_frames=options.max_motion_gap_frames, **association)
+        max_motion_gap_frames=options.max_motion_gap_frames, association=association)
     if dets is None:
         return None
     data = dict(reference=names[0], initial_poses={n: poses[n] for n in dets},
@@ -136,7 +137,7 @@ def _one_round(recording, names, poses, covariances, lag_frames, noise,
 
 def refine_associated(recording: Recording, names, poses, covariances, lag_frames, *,
                       noise: MeasurementNoise | None, options: JointOptions,
-                      association: Mapping | None = None,
+                      association: AssociationOptions | None = None,
                       n_rounds: int = DEFAULT_ROUNDS) -> MultiTargetRefinement | None:
     """Rounds of association and joint solve (module doc) from ``poses``
     (``covariances`` may be None) of ``names`` (the first is the reference);
@@ -148,7 +149,8 @@ def refine_associated(recording: Recording, names, poses, covariances, lag_frame
     if not isinstance(options, JointOptions):
         raise ValidationError(f"options must be a JointOptions, got {options!r}")
     check_count(n_rounds, "n_rounds")
-    given = dict(association or {})
+    given = AssociationOptions() if association is None else association
+    learn_gates = given.noise is None
     best = None
     for _ in range(int(n_rounds)):
         out = _one_round(recording, names, poses, covariances, lag_frames, noise, options,
@@ -161,8 +163,8 @@ def refine_associated(recording: Recording, names, poses, covariances, lag_frame
             break
         poses = {**poses, **{n: out.joint.poses[n] for n in out.joint.poses}}
         covariances = {n: out.joint.covariances[n] for n in out.joint.poses}
-        if "noise" not in given:
-            given = {**given, "noise": _association_noise(out.noise)}
+        if learn_gates:
+            given = dataclasses.replace(given, noise=_association_noise(out.noise))
     return best
 
 
@@ -172,7 +174,7 @@ def refine_multi(
     options: JointOptions = MULTI_JOINT_OPTIONS,
     *,
     noise: MeasurementNoise | None = None,
-    association: Mapping | None = None,
+    association: AssociationOptions | None = None,
     n_rounds: int = DEFAULT_ROUNDS,
 ) -> MultiTargetRefinement:
     """The joint calibration graph on several people, from the pose graph
@@ -187,8 +189,9 @@ def refine_multi(
         :func:`calibrate_recording` does.
     options : the joint graph's (:class:`JointOptions`; default
         :data:`MULTI_JOINT_OPTIONS`); clock offsets are not estimated here.
-    association : options of :func:`associate_targets` (its ``noise``, when
-        given, is kept in every round).
+    association : the gates of :func:`associate_targets`
+        (:class:`AssociationOptions`; its ``noise``, when given, is kept in
+        every round).
     n_rounds : rounds of association and joint solve (module doc; 1: one
         association with the pose graph's poses).
     Raises :class:`CalibrationError` when fewer than two nodes have an

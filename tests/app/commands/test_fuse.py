@@ -6,6 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
+from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.app.cli import main
@@ -30,8 +31,8 @@ def recordings(two_target_recordings):
 @pytest.mark.parametrize("mode", ["map", "ml"])
 def test_batch_and_gtsam_agree_on_every_frame(recordings, net, mode):
     rec = recordings[net]
-    fb = fuse_recording(rec, mode=mode, solver="batch")
-    fg = fuse_recording(rec, mode=mode, solver="gtsam")
+    fb = fuse_recording(rec, mode=mode, options=FusionOptions(solver="vectorized"))
+    fg = fuse_recording(rec, mode=mode, options=FusionOptions(solver="gtsam"))
     np.testing.assert_array_equal(fb.frame, fg.frame)
     np.testing.assert_array_equal(fb.success, fg.success)
     # Both solvers report the same Status codes (carried by the results).
@@ -50,8 +51,8 @@ def test_configuration_c_batch_at_least_as_converged_as_gtsam(recordings):
     """Near the line through both radars GTSAM's LM stops in a flat valley a
     few 1e-6 short of the minimum; the batch solver's cost is never higher."""
     rec = recordings["C"]
-    fb = fuse_recording(rec, solver="batch")
-    fg = fuse_recording(rec, solver="gtsam")
+    fb = fuse_recording(rec, options=FusionOptions(solver="vectorized"))
+    fg = fuse_recording(rec, options=FusionOptions(solver="gtsam"))
     np.testing.assert_array_equal(fb.success, fg.success)
     ok = fb.success
     assert np.all(fb.final_cost[ok] <= fg.final_cost[ok] + 1e-12 * np.maximum(1, fg.final_cost[ok]))
@@ -76,7 +77,7 @@ def test_targets_are_recovered_with_their_labels(recordings):
 
 def test_grid_covariance_matches_fuse_frame(recordings):
     rec = recordings["B"]
-    fused = fuse_recording(rec, covariance="grid", grid_points_per_axis=7)
+    fused = fuse_recording(rec, options=FusionOptions(covariance="grid", grid_points_per_axis=7))
     rows = np.flatnonzero(fused.success)[:4]
     obs = fused.observed
     for i in rows:
@@ -84,8 +85,10 @@ def test_grid_covariance_matches_fuse_frame(recordings):
         for n, name in enumerate(fused.node_names):
             if obs[i, n]:
                 z[n] = rec.nodes[name].centroids.measurements[fused.detection_index[i, n]]
-        ref = fuse_frame(fused.node_poses, z, observed=obs[i], covariance="grid",
-                                 grid_points_per_axis=7)
+        ref = fuse_frame(fused.node_poses,
+                         z,
+                         observed=obs[i],
+                         options=FusionOptions(covariance="grid", grid_points_per_axis=7))
         np.testing.assert_allclose(fused.covariance[i], ref.grid_covariance, rtol=1e-4, atol=1e-7)
         np.testing.assert_allclose(fused.laplace_covariance[i], ref.covariance, atol=1e-6)
 
@@ -184,16 +187,22 @@ def test_missing_calibration_file_and_poses(tmp_path, recordings):
     "kwargs, match",
     [
         (dict(mode="bayes"), "mode must be 'map' or 'ml'"),
-        (dict(covariance="exact"), "covariance must be 'laplace' or 'grid'"),
-        (dict(solver="scipy"), "solver must be 'batch' or 'gtsam'"),
-        (dict(source="cube"), "source must be 'centroids' or 'point_cloud'"),
+        (dict(options=dict(covariance="exact")), "covariance must be 'laplace', 'grid', 'both'"),
+        (dict(options=dict(covariance="both")), "options.covariance must be 'laplace' or 'grid'"),
+        (dict(options=dict(solver="scipy")), "solver must be 'gtsam' or 'vectorized' or 'scalar'"),
+        (dict(options=dict(solver="batch")), "'batch' is now called 'vectorized'"),
+        (dict(options=dict(solver="scalar")), "options.solver must be 'vectorized' or 'gtsam'"),
+        (dict(options=dict(source="cube")), "source must be 'centroids', 'point_cloud'"),
         (dict(mode="ml", prior=GaussianPrior(mean=[0, 0, 0, 0])), "mode='ml' takes no prior"),
-        (dict(block_rows=0), "block_rows=0 must be an integer >= 1"),
-        (dict(source="point_cloud"), "no node of the recording has point_cloud"),
+        (dict(options=dict(block_rows=0)), "block_rows=0 must be an integer >= 1"),
+        (dict(options=dict(source="point_cloud")), "no node of the recording has point_cloud"),
+        (dict(options="laplace"), "options must be a FusionOptions, got str"),
     ],
 )
 def test_fuse_recording_invalid_arguments(recordings, kwargs, match):
     with pytest.raises(ValidationError, match=match):
+        if isinstance(kwargs.get("options"), dict):
+            kwargs = dict(kwargs, options=FusionOptions(**kwargs["options"]))
         fuse_recording(recordings["A"], **kwargs)
 
 
@@ -205,7 +214,7 @@ def test_cli_fuse_writes_the_fused_group(tmp_path, recordings, capsys):
     assert main(["fuse", str(path), "--calibration", str(calib), "--mode", "ml", "--no-progress"]) == 0
     assert "wrote" in capsys.readouterr().out
     fused = read_fused(path)
-    assert fused.mode == "ml" and fused.covariance_method == "laplace" and fused.solver == "batch"
+    assert fused.mode == "ml" and fused.covariance_method == "laplace" and fused.solver == "vectorized"
     from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, screen_room
     # The CLI's default: the robust gate, then one target per body.
     ref = screen_room(fuse_recording(rec, mode="ml", robust="gate"), body_m=DEFAULT_BODY_M)[0]

@@ -12,6 +12,7 @@ from mmsnap_graph.app.pipeline import track_recording
 from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
 from mmsnap_graph.calibration.joint.multi_refine import refine_multi
 from mmsnap_graph.calibration.joint.multi_target import (
+    AssociationOptions,
     associate_targets,
     joint_detections_multi,
     target_states,
@@ -160,9 +161,9 @@ def test_association_checks_its_inputs(three_walkers):
     rec, pg, _ = three_walkers
     args = (rec, list(pg.poses), pg.poses, pg.lag_frames)
     with pytest.raises(ValidationError, match="gate_probability"):
-        associate_targets(*args, gate_probability=1.5)
+        associate_targets(*args, options=AssociationOptions(gate_probability=1.5))
     with pytest.raises(ValidationError, match="link_gate_m"):
-        associate_targets(*args, link_gate_m=0.0)
+        associate_targets(*args, options=AssociationOptions(link_gate_m=0.0))
     with pytest.raises(ValidationError, match="no pose"):
         associate_targets(rec, ["S1", "S9"], pg.poses, pg.lag_frames)
     with pytest.raises(ValidationError, match="max_motion_gap_frames"):

@@ -23,6 +23,7 @@ import pytest
 from scipy.stats import chi2
 
 from _shared import POSES_BC
+from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.app.chunked_fuse import fuse_file
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.data.results import Status
@@ -109,8 +110,11 @@ def run_monte_carlo(motion_check: bool | None = None) -> dict:
         rec = recording(seed)
         for p, tally in tallies.items():
             data = with_ghosts(rec, p, seed + 100) if p else rec
-            tally.add(fuse_recording(data, noise=CENTROID_NOISE, robust="gate",
-                                     motion_check=motion_check, progress=False), rec)
+            tally.add(fuse_recording(data,
+                                     noise=CENTROID_NOISE,
+                                     robust="gate",
+                                     progress=False,
+                                     options=FusionOptions(motion_check=motion_check)), rec)
     return tallies
 
 
@@ -197,8 +201,11 @@ def test_a_frame_no_neighbour_explains_is_flagged_not_fused():
     assert at.any() and not moved.success[at].any()
     assert "motion check" in moved.message[at][0]
     np.testing.assert_array_equal(moved.success[~at], base.success[base.frame != 30])
-    plain = fuse_recording(dataclasses.replace(rec, nodes=nodes), noise=CENTROID_NOISE,
-                           robust="gate", motion_check=False, progress=False)
+    plain = fuse_recording(dataclasses.replace(rec, nodes=nodes),
+                           noise=CENTROID_NOISE,
+                           robust="gate",
+                           progress=False,
+                           options=FusionOptions(motion_check=False))
     # One frame alone cannot tell: without the motion check the frame is at
     # best flagged as split by the association (fusion.recording.split_check).
     assert not any("motion check" in m for m in plain.message[plain.frame == 30])
@@ -206,8 +213,16 @@ def test_a_frame_no_neighbour_explains_is_flagged_not_fused():
 
 def test_batch_and_gtsam_agree_with_the_motion_check():
     rec = with_ghosts(recording(4, n_frames=80), 0.2, 9)
-    fb = fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", solver="batch", progress=False)
-    fg = fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", solver="gtsam", progress=False)
+    fb = fuse_recording(rec,
+                        noise=CENTROID_NOISE,
+                        robust="gate",
+                        progress=False,
+                        options=FusionOptions(solver="vectorized"))
+    fg = fuse_recording(rec,
+                        noise=CENTROID_NOISE,
+                        robust="gate",
+                        progress=False,
+                        options=FusionOptions(solver="gtsam"))
     np.testing.assert_array_equal(fb.status, fg.status)
     np.testing.assert_array_equal(fb.rejected, fg.rejected)
     ok = fb.success

@@ -23,7 +23,7 @@ def fused_rows(frame, xy, *, nodes=None, velocity=None, sigma_m=0.03, cost=None)
     cov = np.tile(np.eye(4) * sigma_m**2, (k, 1, 1))
     return FusedSequence(
         node_names=("S1", "S2"), node_poses=np.array([[0, 0, 0], [1.7, 1.65, np.pi / 2]]),
-        mode="ml", covariance_method="laplace", solver="batch", frame=np.asarray(frame),
+        mode="ml", covariance_method="laplace", solver="vectorized", frame=np.asarray(frame),
         target=np.zeros(k, int), label=np.full(k, -1), detection_index=np.where(observed, 0, -1),
         observed=observed, state=np.c_[xy, vel], covariance=cov, laplace_covariance=cov,
         success=np.ones(k, bool), status=np.zeros(k, np.int8),

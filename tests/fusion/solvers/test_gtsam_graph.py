@@ -17,6 +17,7 @@ from scipy.optimize import least_squares
 
 import mmsnap_graph.fusion.solvers.gtsam_graph as oneshot
 from factors.models import measurement_model, residual, wrap_angle
+from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
 from mmsnap_graph.fusion.bounds import bayesian_bound, cramer_rao_bound, fisher_information
 from mmsnap_graph.errors import GeometryError, ValidationError
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
@@ -164,8 +165,7 @@ def test_nan_allowed_in_unobserved_rows_only():
 @pytest.mark.parametrize(
     "kwargs, match",
     [
-        ({"covariance": "exact"}, "covariance must be 'laplace', 'grid' or 'both', got 'exact'"),
-        ({"max_iterations": 0}, "max_iterations=0 must be an integer >= 1"),
+        ({"options": {"covariance": "grid"}}, "options must be a FusionOptions, got dict"),
         ({"noise": (0.1, 0.1, 0.1)}, "noise must be a MeasurementNoise, got tuple"),
         ({"prior": np.zeros(4)}, "prior must be a GaussianPrior or None, got ndarray"),
         ({"initial_state": np.zeros(3)}, r"initial_state must have shape \(4,\), got \(3,\)"),
@@ -201,7 +201,9 @@ def test_fusion_result_carries_its_status():
     z = exact(POSES_B, TRUTH_B)
     assert fuse_frame(POSES_B, z).status is Status.OK
     assert fuse_frame(POSES_B[:1], z[:1], prior=None).status is Status.SINGULAR
-    assert fuse_frame(POSES_B, z, max_iterations=1).status is Status.MAX_ITERATIONS
+    assert fuse_frame(POSES_B,
+                      z,
+                      options=FusionOptions(lm=LevenbergMarquardtSettings(max_iterations=1))).status is Status.MAX_ITERATIONS
     none = fuse_frame(POSES_B, z, observed=np.array([False, False]), prior=None)
     assert none.status is Status.NO_INFORMATION and not none.success
 
@@ -224,7 +226,9 @@ def test_ml_with_one_node_is_indeterminate():
 
 def test_non_converging_lm_is_flagged():
     z = simulate(POSES_B, TRUTH_B, 1, seed=3)[0]
-    res = fuse_frame(POSES_B, z, max_iterations=1)
+    res = fuse_frame(POSES_B,
+                     z,
+                     options=FusionOptions(lm=LevenbergMarquardtSettings(max_iterations=1)))
     assert_failed(res, "did not converge within max_iterations=1")
     assert res.iterations == 1
     assert np.isfinite(res.state).all()  # the last iterate is reported
@@ -569,19 +573,21 @@ def test_grid_covariance_agrees_with_laplace_in_benign_geometry():
     metric: every entry of ``L^-1 (G - S) L^-T`` below 0.05."""
     z = simulate(POSES_B, TRUTH_B, 2, seed=31)
     for zk in z:
-        res = fuse_frame(POSES_B, zk, covariance="both")
+        res = fuse_frame(POSES_B, zk, options=FusionOptions(covariance="both"))
         assert res.success and res.grid_covariance.shape == (4, 4)
         chol = np.linalg.cholesky(res.covariance)
         inv = np.linalg.inv(chol)
         rel = inv @ (res.grid_covariance - res.covariance) @ inv.T
         assert np.abs(rel).max() < 0.05, rel
-    only_grid = fuse_frame(POSES_B, z[0], covariance="grid")
-    assert_allclose(only_grid.grid_covariance, fuse_frame(POSES_B, z[0], covariance="both").grid_covariance)
+    only_grid = fuse_frame(POSES_B, z[0], options=FusionOptions(covariance="grid"))
+    assert_allclose(only_grid.grid_covariance, fuse_frame(POSES_B,
+                                                          z[0],
+                                                          options=FusionOptions(covariance="both")).grid_covariance)
 
 
 def test_grid_covariance_in_degenerate_geometry_reports_both():
     z = simulate(POSES_C, TRUTH_C, 1, seed=33)[0]
-    res = fuse_frame(POSES_C, z, covariance="both")
+    res = fuse_frame(POSES_C, z, options=FusionOptions(covariance="both"))
     assert res.success
     for cov in (res.covariance, res.grid_covariance):
         assert np.isfinite(cov).all()
@@ -641,7 +647,7 @@ def test_grid_posterior_widens_and_reports_truncation():
 
 def test_grid_covariance_of_a_failed_frame_is_nan():
     z = exact(POSES_B, TRUTH_B)
-    res = fuse_frame(POSES_B[:1], z[:1], prior=None, covariance="both")
+    res = fuse_frame(POSES_B[:1], z[:1], prior=None, options=FusionOptions(covariance="both"))
     assert not res.success
     assert res.grid_covariance.shape == (4, 4) and np.isnan(res.grid_covariance).all()
 

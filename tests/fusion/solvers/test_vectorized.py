@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model, residual
+from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.fusion import problem
@@ -98,7 +99,11 @@ def test_near_degenerate_frames_reach_at_least_gtsams_minimum():
     assert res.success.all()
     assert np.all(res.degeneracy > 20)
     for f in range(len(z)):
-        ref = oneshot.fuse_frame(POSES_C, z[f], noise=PAPER_NOISE, prior=PAPER_PRIOR, max_iterations=2000)
+        ref = oneshot.fuse_frame(POSES_C,
+                                 z[f],
+                                 noise=PAPER_NOISE,
+                                 prior=PAPER_PRIOR,
+                                 options=FusionOptions(lm=LevenbergMarquardtSettings(max_iterations=2000)))
         assert ref.success
         assert res.final_cost[f] <= ref.final_cost + 1e-12 * max(1.0, ref.final_cost)
         np.testing.assert_allclose(res.state[f], ref.state, atol=1e-4)
@@ -116,7 +121,7 @@ def test_chunking_and_per_frame_poses_do_not_change_results():
     rng = np.random.default_rng(5)
     _, z, obs = _frames(rng, 60, POSES_B)
     ref = batch.fuse_batch(POSES_B, z, observed=obs)
-    small = batch.fuse_batch(POSES_B, z, observed=obs, chunk_size=7)
+    small = batch.fuse_batch(POSES_B, z, observed=obs, options=FusionOptions(chunk_size=7))
     tiled = batch.fuse_batch(np.broadcast_to(POSES_B, (60, 2, 3)), z, observed=obs)
     for other in (small, tiled):
         np.testing.assert_allclose(other.state, ref.state, rtol=0, atol=1e-12)
@@ -127,8 +132,10 @@ def test_chunking_and_per_frame_poses_do_not_change_results():
 def test_newton_polish_finds_the_gauss_newton_minimum():
     rng = np.random.default_rng(6)
     _, z, obs = _frames(rng, 200, POSES_C, centre=(0.0, 3.5), spread=1.0, p_miss=0.0)
-    newton = batch.fuse_batch(POSES_C, z, newton_after=2)
-    plain = batch.fuse_batch(POSES_C, z, newton_after=10**6, max_iterations=5000)
+    newton = batch.fuse_batch(POSES_C, z, options=FusionOptions(newton_after=2))
+    plain = batch.fuse_batch(POSES_C,
+                             z,
+                             options=FusionOptions(lm=LevenbergMarquardtSettings(max_steps=5000), newton_after=10**6))
     assert newton.success.all() and plain.success.all()
     np.testing.assert_allclose(newton.state, plain.state, atol=1e-6)
     assert newton.iterations.max() < plain.iterations.max()
@@ -193,7 +200,9 @@ def test_ml_covariance_is_consistent_monte_carlo():
 def test_flags_max_iterations_and_non_finite():
     rng = np.random.default_rng(10)
     _, z, _ = _frames(rng, 10, POSES_B, p_miss=0.0)
-    res = batch.fuse_batch(POSES_B, z, max_iterations=1)
+    res = batch.fuse_batch(POSES_B,
+                           z,
+                           options=FusionOptions(lm=LevenbergMarquardtSettings(max_steps=1)))
     assert np.all(res.status == 1) and not res.success.any()
     assert res.message(0) == "maximum number of iterations reached"
     x0 = problem.initial_states(POSES_B, z, prior=PAPER_PRIOR)
@@ -210,9 +219,8 @@ def test_flags_max_iterations_and_non_finite():
         (dict(node_poses=np.zeros((3, 3))), r"node_poses must have shape \(2, 3\)"),
         (dict(observed=np.ones((3, 2))), "observed must be a bool array"),
         (dict(prior="flat"), "prior must be a GaussianPrior"),
-        (dict(max_iterations=0), "max_iterations=0 must be an integer >= 1"),
-        (dict(step_tolerance=0.0), "step_tolerance must be finite and > 0"),
-        (dict(chunk_size=0), "chunk_size=0 must be an integer >= 1"),
+        (dict(options="laplace"), "options must be a FusionOptions, got str"),
+        (dict(options=FusionOptions(covariance="grid")), "options.covariance must be 'laplace'"),
         (dict(initial_state=np.zeros((2, 4))), r"initial_state must have shape \(3, 4\)"),
         (dict(measurements=np.full((3, 2, 3), np.inf)), "measurements must be finite"),
     ],

@@ -82,7 +82,7 @@ def recording():
 @pytest.mark.parametrize("prior", [GaussianPrior(), None], ids=["MAP", "ML"])
 def test_numpy_stream_equals_the_gtsam_stream(recording, prior):
     streams = [FrameStream(recording.node_names, SQUARE, solver=s, prior=prior)
-               for s in ("numpy", "gtsam")]
+               for s in ("scalar", "gtsam")]
     n_ok = 0
     for _, t, d in recording_frames(recording):
         a, b = (s.push(t, d) for s in streams)
@@ -151,7 +151,7 @@ def test_central_tracker_equals_the_numpy_information_filter():
     prior, cfg = GaussianPrior(), CentralConfig(gate_probability=1.0 - 1e-12)
     tracker = CentralTracker(cfg, prior_mean=prior.mean, prior_sigmas=prior.sigmas)
     ref = _ReferenceTracker(cfg, prior)
-    stream = FrameStream(list(NETWORK), SQUARE, solver="numpy")
+    stream = FrameStream(list(NETWORK), SQUARE, solver="scalar")
     truth = np.array([-1.5, 2.0, 0.4, 0.3])
     clipped = 0
     for k in range(50):

@@ -9,6 +9,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.app import cli
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.data.results import Status
@@ -56,9 +57,9 @@ def _stream_all(rec, solver, **kwargs):
     return stream, [(f, stream.push(t, d)) for f, t, d in frames]
 
 
-@pytest.mark.parametrize("solver", ["gtsam", "batch"])
+@pytest.mark.parametrize("solver", ["gtsam", "vectorized"])
 def test_stream_gives_the_fused_states_and_tracks_of_the_batch_path(recording, solver):
-    fused = fuse_recording(recording, solver=solver, progress=False)
+    fused = fuse_recording(recording, progress=False, options=FusionOptions(solver=solver))
     tracks = track_fused(fused)
     _, updates = _stream_all(recording, solver)
     assert all(u.ok for _, u in updates)
@@ -177,7 +178,7 @@ def test_ml_stream_flags_single_node_groups_like_the_batch_path():
     rec = simulate_recording("C", "random",
                              SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.3),
                              levels=("centroids",), n_frames=60, seed=4)
-    fused = fuse_recording(rec, mode="ml", solver="gtsam", progress=False)
+    fused = fuse_recording(rec, mode="ml", progress=False, options=FusionOptions(solver="gtsam"))
     _, updates = _stream_all(rec, "gtsam", prior=None)
     status = np.concatenate([u.status for _, u in updates])
     np.testing.assert_array_equal(status, fused.status)

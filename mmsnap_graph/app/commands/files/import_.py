@@ -14,7 +14,7 @@ import numpy as np
 
 from mmsnap_graph.errors import ValidationError
 
-from .arguments import named_values
+from ..arguments import named_values
 
 #: A layout for reading only the timing of a ``.cfg`` (point-cloud imports):
 #: every transmitter at the same place, so any Tx subset forms a valid array.
