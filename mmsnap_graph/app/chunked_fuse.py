@@ -116,8 +116,8 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
         ``solver``, ``gate_probability``, ``source``, ...), with its defaults; and the
         room-frame checks of
         :func:`~mmsnap_graph.fusion.recording.room.screen_room`:
-        ``bounds``, ``static_bounds`` and ``body_m`` (each None, the
-        default: off; ``mmsnap fuse`` checks one target per
+        ``bounds``, ``static_bounds``, ``in_front`` and ``body_m`` (each
+        None or False, the default: off; ``mmsnap fuse`` checks one target per
         :data:`~mmsnap_graph.fusion.recording.room.DEFAULT_BODY_M`).
 
     Returns a :class:`ChunkedFuseSummary`. Raises what ``fuse_recording``
@@ -129,7 +129,7 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     if "progress" in options or "recording" in options:
         raise ValidationError("fuse_file takes the file, not a recording; progress is its own")
     room = dict(bounds=options.pop("bounds", None), static_bounds=options.pop("static_bounds", None),
-                body_m=options.pop("body_m", None))
+                in_front=options.pop("in_front", False), body_m=options.pop("body_m", None))
     flagged = RoomReport()
     fusion = options.get("options", DEFAULT_OPTIONS)
     if not isinstance(fusion, FusionOptions):

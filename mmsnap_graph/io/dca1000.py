@@ -45,6 +45,7 @@ from .._atomic import atomic_path
 from ..errors import ConfigurationError, FileFormatError, ValidationError
 from ..data.radar_config import RadarConfig
 from ..data.recording import NodeData, Recording
+from .inputs import require_file
 
 __all__ = ["MAX_LVDS_RECEIVERS", "frame_bytes", "read_dca1000_bin", "iter_dca1000_frames",
            "write_dca1000_bin", "recording_from_dca1000", "sub_frame_layout",
@@ -86,8 +87,7 @@ def _paths(path: str | os.PathLike | Sequence[str | os.PathLike]) -> list[Path]:
     if not paths:
         raise FileFormatError("no capture file given")
     for p in paths:
-        if not p.is_file():
-            raise FileFormatError(f"capture file {p} does not exist")
+        require_file(p, "capture file")
     return paths
 
 

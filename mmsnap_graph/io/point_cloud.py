@@ -260,9 +260,13 @@ def check_frame_period(cloud: PointCloud3D, frame_period_s: float, *, node: str 
             distinct = np.unique(cloud.time_s).size
             coarse = (f"; the stamps hold only {distinct} distinct values for {frames.size} "
                       "frames: coarser than a frame" if distinct < frames.size else "")
+            ratio = rate / frame_period_s
+            unit = next((f"; a factor of {f:g}: a unit mistake in the time stamps or the "
+                         "frame period?" for f in (1e-6, 1e-3, 1e3, 1e6)
+                         if abs(ratio / f - 1) < PERIOD_TOLERANCE), "")
             return (f"node {node}: {option}={frame_period_s:g} s disagrees with the time stamps, "
                     f"which advance {rate:.6g} s per frame number (median of {frames.size - 1} "
-                    f"frame steps){coarse}")
+                    f"frame steps){coarse}{unit}")
     values, counts = np.unique(cloud.time_s, return_counts=True)
     if values.size >= 3 and np.median(counts) >= 2:
         with np.errstate(over="ignore", invalid="ignore"):

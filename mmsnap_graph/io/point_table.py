@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from factors.projection import spherical_to_cartesian
 from ..errors import FileFormatError, ValidationError
+from .inputs import require_file
 from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
 __all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "read_point_table", "read_point_tables"]
@@ -94,8 +95,7 @@ def _as_columns(source: Any, name: str) -> dict[str, NDArray]:
     name -> column."""
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
-        if not path.is_file():
-            raise FileFormatError(f"point table {path} does not exist")
+        require_file(path, "point table")
         if path.suffix.lower() not in (".npy", ".npz"):
             return _read_csv(path)
         try:

@@ -252,7 +252,7 @@ def _check_period(args, clouds, period) -> None:
         problem = check_frame_period(cloud, period, node=name, option=option)
         if problem:
             raise ValidationError(f"{problem}; give the log's frame period in seconds with "
-                                  "--frame-period")
+                                  "--frame-period (and the stamps' unit with --time-unit)")
 
 
 def _points_recording(args, clouds, ti, period, metadata):
@@ -262,8 +262,11 @@ def _points_recording(args, clouds, ti, period, metadata):
     if args.destack:
         clouds = {name: destack_frames(c) for name, c in clouds.items()}
     if args.accumulate != 1:
-        clouds = {name: accumulate_frames(c, args.accumulate, frame_period_s=period)
-                  for name, c in clouds.items()}
+        try:
+            clouds = {name: accumulate_frames(c, args.accumulate, frame_period_s=period)
+                      for name, c in clouds.items()}
+        except ValidationError as exc:
+            raise ValidationError(f"--accumulate {args.accumulate}: {exc}") from None
         metadata = dict(metadata, accumulated_frames=args.accumulate)
     band = args.height_band
     return recording_from_point_clouds(clouds, frame_period_s=period,
