@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._atomic import atomic_path, recording_lock
-from .guard import H5_ERRORS, read_guard
+from .guard import H5_ERRORS, existing_file, read_guard
 from ..errors import ConfigurationError, FileFormatError, MmsnapError
 from ..data.radar_config import OPTIONAL_FIELD_DEFAULTS, RadarConfig
 from ..data.recording import Detections, NodeData, Recording, Tracks, Truth
@@ -301,9 +301,7 @@ def update_recording(path: str | os.PathLike, recording: Recording, *,
 # reading
 # --------------------------------------------------------------------------
 def _open_checked(path: Path) -> h5py.File:
-    path = Path(path)
-    if not path.exists():
-        raise FileFormatError(f"{path} does not exist")
+    path = existing_file(path)
     try:
         f = h5py.File(path, "r")
     except H5_ERRORS as exc:
