@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mmsnap_graph.data.recording import Detections, NodeData, Recording, Truth
-import pytest
 from mmsnap_graph.errors import ValidationError
 
 

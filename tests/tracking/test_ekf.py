@@ -1,14 +1,16 @@
 """Per-node EKF: model matrices, update algebra, NEES consistency (seeded
 Monte Carlo), multi-target association, track management, errors."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from factors.models import detection_to_local, measurement_model
 from factors.motion import cv_process_noise, cv_transition
+from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 from mmsnap_graph.evaluation import chi2_mean_interval, nees
-from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.tracking.ekf import (
     EkfConfig,
     LocalTracker,
@@ -17,7 +19,6 @@ from mmsnap_graph.tracking.ekf import (
     track_centroids,
     track_initial_state,
 )
-import dataclasses
 
 
 def test_ekf_predict_is_the_cv_model():

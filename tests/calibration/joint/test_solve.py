@@ -14,25 +14,27 @@ position and heading errors separately.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from mmsnap_graph.calibration import JointOptions
 from factors.models import global_to_local, local_to_global
+from mmsnap_graph import MmsnapError
 from mmsnap_graph.calibration import (
     closed_form_calibration,
     joint_calibration,
     pose_tangent_error,
 )
-from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
-from mmsnap_graph.data.noise import MeasurementNoise
-from mmsnap_graph.errors import CalibrationError, ValidationError
-from mmsnap_graph.data.recording import Detections
-import dataclasses
+from mmsnap_graph.calibration import JointOptions
 from mmsnap_graph.calibration.joint import solve as joint_module
+from mmsnap_graph.data.noise import MeasurementNoise
+from mmsnap_graph.data.recording import Detections
+from mmsnap_graph.errors import CalibrationError, ValidationError
+from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
+
 from _shared import NETWORK_3
-from mmsnap_graph import MmsnapError
 
 MODERATE_NOISE = MeasurementNoise(range_m=0.035, omega_rad=0.2, doppler_mps=0.18)
 SMALL_NOISE = MeasurementNoise(range_m=0.005, omega_rad=0.01, doppler_mps=0.02)

@@ -4,25 +4,25 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
-from mmsnap_graph.calibration import MatchingOptions
+from factors.models import global_to_local
 from mmsnap_graph.calibration import (
     LocalTracks,
     local_tracks,
     match_tracks,
     pose_tangent_error,
 )
-from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
-from mmsnap_graph.errors import CalibrationError, ValidationError
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.data.recording import Detections, NodeData, Tracks
-
-from _shared import TRACK_NOISE
-from scipy.stats import chi2
+from mmsnap_graph.errors import CalibrationError, ValidationError
+from mmsnap_graph.sim import CLEAN
 from mmsnap_graph.sim.networks import COMMON_AREAS
 from mmsnap_graph.sim.networks import CONFIGURATIONS
+from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
 from mmsnap_graph.sim.simulator import simulate_recording
-from mmsnap_graph.sim import CLEAN
-from factors.models import global_to_local
+
+from _shared import TRACK_NOISE
 
 # Track-like noise (TRACK_NOISE): a 1-frame lag moves a ~0.5 m/s target by
 # ~8 cm, over 400 frames, so the lag is clearly visible in the RMSE.

@@ -35,8 +35,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
+from scipy.stats import chi2
 
-from mmsnap_graph.calibration import MatchingOptions
+from factors.models import global_to_local
 from mmsnap_graph.calibration import (
     LocalTracks,
     PoseEdge,
@@ -46,14 +47,13 @@ from mmsnap_graph.calibration import (
     pose_graph_calibration,
     to_pose2,
 )
-from mmsnap_graph.sim.scenes import synthetic_scene
-from mmsnap_graph.errors import ValidationError
-
-from _shared import NETWORK_BCA, TRACK_NOISE
-from scipy.stats import chi2
-from factors.models import global_to_local
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.calibration import local_tracks
+from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.sim.scenes import synthetic_scene
+
 from _shared import NETWORK_3
+from _shared import NETWORK_BCA, TRACK_NOISE
 
 #: S1 and the S2 of configurations B, C and A.
 TRUE_POSES = NETWORK_BCA
