@@ -18,8 +18,9 @@ Exit codes (:data:`EXIT_OK`, :data:`EXIT_FAILURE`, :data:`EXIT_USAGE`):
 - 2 usage: a bad option (argparse) or option value
   (:data:`USAGE_ERRORS`: a :class:`~mmsnap_graph.errors.ValidationError` or
   :class:`~mmsnap_graph.errors.ConfigurationError` raised for an option),
-  including an output path that is a folder, lies in a missing folder, or
-  exists without ``--overwrite`` (checked before the command runs).
+  including an output path that is a folder, lies in a missing folder, is
+  one of the command's input files, or exists without ``--overwrite``
+  (checked before the command runs: :mod:`mmsnap_graph.app.commands.file_rules`).
 
 Errors are one line on stderr, ``mmsnap VERB: error: ...``; an error of an
 input file names the file. ``-v``/``-q`` set the level of the
@@ -34,7 +35,7 @@ import logging
 import sys
 from pathlib import Path
 
-from .._atomic import check_output_path
+from .commands.file_rules import check_files
 from ..errors import (
     CalibrationError,
     ConfigurationError,
@@ -57,13 +58,6 @@ EXIT_USAGE = 2
 DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError)
 #: Errors of an option value: exit 2.
 USAGE_ERRORS = (ValidationError, ConfigurationError)
-
-#: Per command, the options naming an output file (checked before it runs).
-OUTPUT_FILE_OPTIONS = {"process": ("output",), "fuse": ("output",),
-                       "calibrate": ("json", "output"), "simulate": ("output",),
-                       "replay": ("output",), "import": ("output",),
-                       "export": ("output",)}
-
 
 def package_version() -> str:
     """The installed distribution's version (``mmsnap_graph.__version__``)."""
@@ -128,24 +122,6 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
-def check_output_options(args: argparse.Namespace) -> None:
-    """Usage errors of the output-file options of ``args.command``
-    (:data:`OUTPUT_FILE_OPTIONS`): a folder, a path in a missing folder, or
-    an existing file without ``--overwrite`` (where the command has it).
-    Raises :class:`~mmsnap_graph.errors.ValidationError` naming the option."""
-    for name in OUTPUT_FILE_OPTIONS.get(args.command, ()):
-        value = getattr(args, name, None)
-        if value is None:
-            continue
-        option = "--" + name.replace("_", "-")
-        try:
-            check_output_path(value)
-        except FileFormatError as exc:
-            raise ValidationError(f"{option}: {exc}") from None
-        if getattr(args, "overwrite", True) is False and Path(value).exists():
-            raise ValidationError(f"{option}: {value} exists; pass --overwrite to replace it")
-
-
 def input_files(args: argparse.Namespace) -> list[str]:
     """The input files named on the command line (for error messages)."""
     names = [getattr(args, "recording", None), getattr(args, "calibration", None)]
@@ -169,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.verbose, args.quiet)
     prefix = f"mmsnap {args.command}: error:"
     try:
-        check_output_options(args)
+        check_files(args)
         return int(args.func(args) or 0)
     except DATA_ERRORS as exc:
         print(f"{prefix} {_data_error_text(exc, args)}", file=sys.stderr)

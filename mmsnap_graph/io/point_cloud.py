@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.projection import project_to_plane, room_to_sensor
-from .._validation import as_float_array, int_array
+from .._validation import as_float_array, check_count, int_array
 from ..data.recording import Detections, NodeData, Recording
 from ..errors import ValidationError
 
@@ -159,8 +159,7 @@ def accumulate_frames(cloud: PointCloud3D, n_frames: int, *,
     ``frame_period_s`` per frame, when it is given (else they stay those of
     the original frame: a recording clocked by time stamps would then undo
     the accumulation)."""
-    if not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
-        raise ValidationError(f"n_frames={n_frames!r} must be an integer >= 1")
+    check_count(n_frames, "n_frames")
     if frame_period_s is not None and not (np.isfinite(frame_period_s) and frame_period_s > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
     if len(cloud) * int(n_frames) > MAX_ACCUMULATED_POINTS:

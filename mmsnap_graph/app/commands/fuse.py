@@ -18,6 +18,7 @@ import argparse
 import sys
 
 from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.app.runs import DEFAULT_ROBUST, fuse_stored, paper_noise, stored_calibration
 from mmsnap_graph.errors import ValidationError
 
@@ -89,6 +90,7 @@ def register(subparsers) -> None:
                    help="keep fused targets of a frame closer than a body's width (default: "
                         "the one seen by fewer nodes is flagged, status 12)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 

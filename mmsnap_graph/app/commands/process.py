@@ -8,6 +8,7 @@ import dataclasses
 import sys
 
 from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 
 #: Defaults quoted in the help: ``CfarConfig().pfa`` and
@@ -62,6 +63,7 @@ def register(subparsers) -> None:
                    help="stored point clouds: keep centroids that no neighbouring frame "
                         "confirms (one-frame blips)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 

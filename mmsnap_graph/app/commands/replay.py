@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import ValidationError
 
 from .arguments import solver_choice
@@ -54,6 +55,7 @@ def register(subparsers) -> None:
     p.add_argument("--summary", action="store_true", help="print only the summary")
     p.add_argument("-o", "--output", default=None,
                    help="write one JSON line per frame (fused targets and tracks) to this file")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 

@@ -22,7 +22,7 @@ def recording(tmp_path_factory):
 
 def _fuse(recording, tmp_path, *extra):
     out = tmp_path / "fused.h5"
-    code = main(["fuse", str(recording), "-o", str(out), "--no-progress", *extra])
+    code = main(["fuse", str(recording), "-o", str(out), "--no-progress", "--overwrite", *extra])
     return code, out
 
 

@@ -38,7 +38,7 @@ def imported(tmp_path_factory):
 
 def _process(src, tmp_path, *flags):
     out = tmp_path / "p.h5"
-    assert main(["process", str(src), "-o", str(out), "--no-progress", *flags]) == 0
+    assert main(["process", str(src), "-o", str(out), "--no-progress", "--overwrite", *flags]) == 0
     return read_recording(out)
 
 
