@@ -23,7 +23,7 @@ from mmsnap_graph.calibration import calibrate_recording
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 from mmsnap_graph.sim import SimulationOptions
 
 

@@ -18,7 +18,7 @@ from mmsnap_graph.calibration.joint.multi_refine import refine_multi
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 from mmsnap_graph.sim import SimulationOptions
 
 NETWORK = {"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi), "S3": (4.0, 0.0, np.pi / 6)}
