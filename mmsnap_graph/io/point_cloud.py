@@ -29,6 +29,8 @@ _COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
 #: or faster than a few hundred m/s): a larger value is a corrupted number.
 MAX_COORDINATE_M = 1e4
 MAX_SPEED_MPS = 1e3
+#: A mounting height beyond this is a unit mistake (centimetres as metres).
+MAX_MOUNT_HEIGHT_M = 12.0
 #: :func:`accumulate_frames` refuses to make more points than this (memory).
 MAX_ACCUMULATED_POINTS = 50_000_000
 
@@ -119,6 +121,10 @@ class Mounting:
             object.__setattr__(self, name, value)
         if abs(self.tilt_rad) >= np.pi / 2:
             raise ValidationError(f"tilt_rad={self.tilt_rad!r} must lie in (-pi/2, pi/2)")
+        if abs(self.height_m) > MAX_MOUNT_HEIGHT_M:
+            raise ValidationError(f"height_m={self.height_m!r} lies beyond +-{MAX_MOUNT_HEIGHT_M:g}"
+                                  f" m: the height is in metres (centimetres? "
+                                  f"{self.height_m:g} cm is {self.height_m / 100:g} m)")
         if self.room_pose is not None:
             pose = tuple(float(v) for v in self.room_pose)
             if len(pose) != 3 or not np.all(np.isfinite(pose)):

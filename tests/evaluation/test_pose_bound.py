@@ -161,7 +161,7 @@ def _bound_mm(rec):
 
 @pytest.mark.slow
 def test_sparse_clouds_bound_is_over_twice_the_dense_bound_seed_0():
-    """The scene of the strict xfail (test_sparse_calibration.py), seed 0:
+    """The scene of the strict xfail (tests/calibration/test_network.py), seed 0:
     bound dense 17.0 mm (10.4 with the trajectory known), sparse 47.4 mm
     (26.3): 2.8x (2.5x). No estimator reaches 1.2x on these data."""
     dense = simulate_recording(NETWORK, "random",

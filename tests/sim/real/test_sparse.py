@@ -108,7 +108,7 @@ def test_sparse_clouds_calibrate_within_1_2x_of_the_dense_case(dense_and_sparse)
     5.7 mm is 0.2 of the sparse Cramer-Rao bound (29 mm with the
     trajectory known, tests/evaluation/test_pose_bound.py); the bounds are 2.5-4.7x
     apart on seeds 0-7, so 1.2x is out of reach in general (strict xfail in
-    test_sparse_calibration.py, seed 0: 6x)."""
+    tests/calibration/test_network.py, seed 0: 6x)."""
     (ok_d, pos_d, _), (ok_s, pos_s, _) = dense_and_sparse
     assert ok_d and ok_s
     assert pos_s <= 1.2 * pos_d
