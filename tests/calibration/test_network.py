@@ -36,7 +36,7 @@ from mmsnap_graph.errors import CalibrationError
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import SimulationOptions
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 
 from _shared import NETWORK_3_OPEN
 
