@@ -6,9 +6,13 @@ import numpy as np
 import pytest
 
 from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import network_poses
 from mmsnap_graph.sim.clocks import scene_recording, timed_scene
+
+from _pose_aware import GTSAM_BATCH_TOLERANCE
+from _pose_aware import POSE_COV
 
 
 def _rmse(rec, fused):
@@ -31,3 +35,25 @@ def test_the_offsets_lower_the_fused_error_and_a_zero_offset_changes_nothing():
     np.testing.assert_array_equal(zero.state, plain.state)
     with pytest.raises(ValidationError, match="S9"):
         fuse_recording(rec, node_poses=poses, time_offset_s={"S9": 0.1})
+
+
+def test_fuse_recording_passes_pose_covariances_by_name(recording_bc_known_poses):
+    by_name = {"S2": POSE_COV[1], "S3": POSE_COV[2]}  # S1 left out: exact
+    plain = fuse_recording(recording_bc_known_poses)
+    fb = fuse_recording(recording_bc_known_poses, pose_covariances=by_name)
+    fg = fuse_recording(recording_bc_known_poses,
+                        pose_covariances=by_name,
+                        options=FusionOptions(solver="gtsam"))
+    ok = plain.success
+    assert ok.mean() > 0.9
+    np.testing.assert_array_equal(fb.state[ok], plain.state[ok])
+    np.testing.assert_allclose(fg.state[ok], fb.state[ok], atol=1e-6)
+    assert np.all(fb.covariance[ok, 0, 0] > plain.covariance[ok, 0, 0])
+    sig = np.sqrt(np.einsum("fii->fi", fb.covariance[ok]))
+    gap = np.abs(fb.covariance[ok] - fg.covariance[ok]) / (sig[:, :, None] * sig[:, None, :])
+    assert gap.max() < GTSAM_BATCH_TOLERANCE
+    with pytest.raises(ValidationError,
+                       match=r"pose_covariances\['S2'\] must be positive definite"):
+        fuse_recording(recording_bc_known_poses, pose_covariances={"S2": -np.eye(3)})
+    with pytest.raises(ValidationError, match="must be a mapping"):
+        fuse_recording(recording_bc_known_poses, pose_covariances=POSE_COV)
