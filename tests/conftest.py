@@ -67,3 +67,25 @@ def recording_bc_known_poses():
     network = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
     return simulate_recording(network, "random", SimulationOptions(physics=None, known_poses=True),
                               levels=("centroids",), n_frames=40, seed=9)
+
+
+@pytest.fixture(scope="session")
+def recording_b_known_poses():
+    """Configuration B, one random walker, 60 frames of centroids, poses
+    known, no radar physics (seed 5)."""
+    return simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
+                              levels=("centroids",), n_frames=60, seed=5)
+
+
+@pytest.fixture(scope="session")
+def fused_b_map(recording_b_known_poses):
+    """``recording_b_known_poses`` fused with the default MAP mode."""
+    from mmsnap_graph.fusion.recording.sequence import fuse_recording
+    return fuse_recording(recording_b_known_poses, progress=False)
+
+
+@pytest.fixture(scope="session")
+def fused_b_ml(recording_b_known_poses):
+    """``recording_b_known_poses`` fused in ML mode without a prior."""
+    from mmsnap_graph.fusion.recording.sequence import fuse_recording
+    return fuse_recording(recording_b_known_poses, mode="ml", prior=None, progress=False)
