@@ -11,13 +11,10 @@ from factors.models import measurement_model
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
-from mmsnap_graph.sim import SimulationOptions
-from mmsnap_graph.sim import network_poses
-from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions, network_poses, simulate_recording
 from mmsnap_graph.sim.clocks import scene_recording, timed_scene
 
-from _pose_aware import GTSAM_BATCH_TOLERANCE
-from _pose_aware import POSE_COV
+from _pose_aware import GTSAM_BATCH_TOLERANCE, POSE_COV
 
 
 def _rmse(rec, fused):

@@ -11,17 +11,12 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model_pose
-from mmsnap_graph import fuse_batch
-from mmsnap_graph import fuse_frame
+from mmsnap_graph import fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion import FusionOptions
 
-from _pose_aware import GTSAM_BATCH_TOLERANCE
-from _pose_aware import NOISES
-from _pose_aware import POSE_COV
-from _pose_aware import pose_frames
-from _shared import PAPER_PRIOR
-from _shared import POSES_BC
+from _pose_aware import GTSAM_BATCH_TOLERANCE, NOISES, POSE_COV, pose_frames
+from _shared import PAPER_PRIOR, POSES_BC
 
 
 def test_grid_covariance_refuses_pose_covariances():

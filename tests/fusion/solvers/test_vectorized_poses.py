@@ -17,19 +17,13 @@ import pytest
 from scipy.stats import chi2
 
 from factors.models import predict_measurements
-from mmsnap_graph import fuse_batch
-from mmsnap_graph import fuse_frame
+from mmsnap_graph import fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.evaluation import nees
 from mmsnap_graph.fusion import FusionOptions
 
-from _pose_aware import GTSAM_BATCH_TOLERANCE
-from _pose_aware import NOISES
-from _pose_aware import POSE_COV
-from _pose_aware import pose_frames
-from _pose_aware import retract
-from _shared import PAPER_NOISE
-from _shared import POSES_BC
+from _pose_aware import GTSAM_BATCH_TOLERANCE, NOISES, POSE_COV, pose_frames, retract
+from _shared import PAPER_NOISE, POSES_BC
 
 
 @pytest.mark.parametrize(

@@ -18,12 +18,10 @@ from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
 from mmsnap_graph.io import write_recording
-from mmsnap_graph.sim import SimulationOptions
-from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.tracking.central import track_fused
 
-from _pose_aware import POSE_COV
-from _pose_aware import pose_frames
+from _pose_aware import POSE_COV, pose_frames
 from _shared import POSES_BC
 
 #: Four nodes around a 7 m square, each facing the centre.
