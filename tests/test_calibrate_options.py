@@ -21,7 +21,7 @@ from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.sim import SimulationOptions
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 
 
 @pytest.fixture(scope="module")

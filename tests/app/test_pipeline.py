@@ -20,7 +20,7 @@ from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.sim import network_poses
 from mmsnap_graph.sim.body import body_scatterers
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 
 POSES = network_poses("C")
 N_FRAMES = 16

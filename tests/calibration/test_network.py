@@ -32,7 +32,7 @@ from mmsnap_graph.app.pipeline import process_recording, track_recording
 from mmsnap_graph.calibration import MatchingOptions, calibrate_recording, pose_tangent_error
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 
 from _shared import NETWORK_3_OPEN
 
