@@ -17,8 +17,7 @@ from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.data.recording import Detections, NodeData, Tracks
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.sim import CLEAN
-from mmsnap_graph.sim.networks import COMMON_AREAS
-from mmsnap_graph.sim.networks import CONFIGURATIONS
+from mmsnap_graph.sim.networks import COMMON_AREAS, CONFIGURATIONS
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
 from mmsnap_graph.sim.simulator import simulate_recording
 
