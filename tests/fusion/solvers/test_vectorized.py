@@ -141,30 +141,6 @@ def test_newton_polish_finds_the_gauss_newton_minimum():
     assert newton.iterations.max() < plain.iterations.max()
 
 
-def test_residual_curvature_matches_finite_difference_hessian():
-    """GN information + curvature term = the Hessian of the cost."""
-    rng = np.random.default_rng(7)
-    _, z, _ = _frames(rng, 5, POSES_B, p_miss=0.0)
-    x = problem.initial_states(POSES_B, z, prior=None)
-    w = np.ones((5, 2))
-    inv = 1.0 / PAPER_NOISE.sigmas
-    aug, _ = batch._evaluate(x, POSES_B, z, w, inv, None, None)
-    info, _ = batch._normal_equations(x, aug, None, None)
-    full = info + batch._residual_curvature(x, POSES_B, z, w, inv, aug)
-
-    def cost(s):
-        return batch._evaluate(s, POSES_B, z, w, inv, None, None)[1]
-
-    eps = 1e-4
-    hess = np.zeros((4, 4, 5))
-    for i in range(4):
-        for j in range(4):
-            e_i, e_j = np.eye(4)[i] * eps, np.eye(4)[j] * eps
-            hess[i, j] = (cost(x + e_i + e_j) - cost(x + e_i - e_j) - cost(x - e_i + e_j)
-                          + cost(x - e_i - e_j)) / (4 * eps**2)
-    np.testing.assert_allclose(full, hess, rtol=2e-4, atol=2e-3)
-
-
 def test_whitened_residuals_and_cost_at_the_solution():
     rng = np.random.default_rng(8)
     _, z, obs = _frames(rng, 30, POSES_B)
