@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_BC
-from factors.models import measurement_model_pose, predict_measurements, wrap_angle
+from _shared import PAPER_NOISE, POSES_BC
+from factors.models import predict_measurements, wrap_angle
 from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
@@ -132,77 +132,6 @@ def test_estimate_unchanged_and_covariance_grows():
 
 # ----------------------------------------------------------------------------
 # Each path against an independent computation
-
-
-@pytest.mark.parametrize("noisy, tolerance", [(False, 1e-4), (True, 0.05)])
-def test_batch_propagation_equals_the_solvers_own_pose_sensitivity(noisy, tolerance):
-    """``A = d x_hat / d xi`` by central differences of fuse_batch over each
-    pose's retraction; ``P_x + A Sigma_p A^T`` is the batch answer. With
-    noise-free measurements (residuals ~0: Gauss-Newton's Jacobians are the
-    exact sensitivity) to 1e-4 of sigma_i sigma_j; with noisy ones the solver's
-    sensitivity also holds the residual-curvature terms that the first-order
-    propagation leaves out (measured: up to 2%), tolerance 5%."""
-    states, z = _frames(np.random.default_rng(3), 8, noises=NOISES)
-    if not noisy:
-        z = np.stack([predict_measurements(states, p) for p in POSES_BC], axis=1)
-    aware = fuse_batch(POSES_BC,
-                       z,
-                       noise=NOISES,
-                       pose_covariances=POSE_COV,
-                       options=FusionOptions(step_tolerance=1e-14))
-    plain = fuse_batch(POSES_BC, z, noise=NOISES, options=FusionOptions(step_tolerance=1e-14))
-    assert plain.success.all()
-    h = 1e-5
-    ref = plain.covariance.copy()
-    for n in (1, 2):
-        jac = np.zeros((z.shape[0], 4, 3))
-        for k in range(3):
-            xi = np.zeros(3)
-            xi[k] = h
-            shifted = []
-            for sign in (1.0, -1.0):
-                poses = POSES_BC.copy()
-                poses[n] = _retract(POSES_BC[n], sign * xi)
-                shifted.append(fuse_batch(poses,
-                                          z,
-                                          noise=NOISES,
-                                          initial_state=plain.state,
-                                          options=FusionOptions(step_tolerance=1e-14)).state)
-            jac[:, :, k] = (shifted[0] - shifted[1]) / (2 * h)
-        ref += jac @ POSE_COV[n] @ np.swapaxes(jac, 1, 2)
-    sig = np.sqrt(np.einsum("fii->fi", ref))
-    scale = sig[:, :, None] * sig[:, None, :]
-    np.testing.assert_allclose(aware.covariance / scale, ref / scale, rtol=0, atol=tolerance)
-
-
-def _joint_marginal(state, poses, z, noises, pose_cov, prior):
-    """The dense joint information of (state, uncertain poses) at the given
-    point, state block marginalized (what gtsam.Marginals computes)."""
-    uncertain = [n for n in range(len(poses)) if not np.isnan(pose_cov[n]).all()]
-    dim = 4 + 3 * len(uncertain)
-    info = np.zeros((dim, dim))
-    info[:4, :4] = prior.information
-    for n, pose in enumerate(poses):
-        _, j_pose, j_state = measurement_model_pose(pose, state)
-        jac = np.zeros((3, dim))
-        jac[:, :4] = j_state
-        if n in uncertain:
-            b = 4 + 3 * uncertain.index(n)
-            jac[:, b:b + 3] = j_pose
-            info[b:b + 3, b:b + 3] += np.linalg.inv(pose_cov[n])
-        info += jac.T @ np.diag(1.0 / noises[n].sigmas ** 2) @ jac
-    return np.linalg.inv(info)[:4, :4]
-
-
-def test_gtsam_covariance_is_the_joint_graph_marginal():
-    _, z = _frames(np.random.default_rng(4), 10, noises=NOISES)
-    for f in range(z.shape[0]):
-        r = fuse_frame(POSES_BC, z[f], noise=NOISES, pose_covariances=POSE_COV)
-        assert r.success
-        ref = _joint_marginal(r.state, POSES_BC, z[f], NOISES, POSE_COV, PAPER_PRIOR)
-        sig = np.sqrt(np.diag(ref))
-        np.testing.assert_allclose(r.covariance / np.outer(sig, sig),
-                                   ref / np.outer(sig, sig), rtol=0, atol=1e-7)
 
 
 #: GTSAM's joint-graph marginal against the batch propagation: the joint graph
