@@ -1,34 +1,31 @@
-"""Calibration-aware fusion in the GTSAM solver
-(mmsnap_graph.fusion.solvers.gtsam_poses): the covariance is the state's
-marginal in the joint graph of the state and the uncertain poses."""
+"""Calibration-aware covariance of one frame with GTSAM
+(mmsnap_graph.fusion.solvers.gtsam_poses): node poses with covariances
+(Pose2 body tangent) become ``Pose2`` variables under priors; the fused
+covariance is ``gtsam.Marginals``' of that graph, checked against the dense
+joint information computed here and against the batch propagation
+(tests/fusion/solvers/test_vectorized_poses.py)."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_BC
-from factors.models import measurement_model_pose, predict_measurements, wrap_angle
-from mmsnap_graph import MeasurementNoise, fuse_frame
+from factors.models import measurement_model_pose
+from mmsnap_graph import fuse_batch, fuse_frame
+from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.fusion import FusionOptions
 
-
-#: 3 cm and 1 degree on the two non-reference poses; S1 is exact (all NaN).
-POSE_SIGMAS = np.array([0.03, 0.03, np.deg2rad(1.0)])
-POSE_COV = np.stack([np.full((3, 3), np.nan), np.diag(POSE_SIGMAS**2), np.diag(POSE_SIGMAS**2)])
-NOISES = (PAPER_NOISE, MeasurementNoise(range_m=0.05, omega_rad=0.5, doppler_mps=0.15),
-          MeasurementNoise(range_m=0.03, omega_rad=0.9, doppler_mps=0.2))
+from _pose_aware import GTSAM_BATCH_TOLERANCE, NOISES, POSE_COV, pose_frames
+from _shared import PAPER_PRIOR, POSES_BC
 
 
-def _frames(rng, n_frames, poses=POSES_BC, noises=(PAPER_NOISE,) * 3):
-    sig = np.array([m.sigmas for m in noises])
-    states = np.column_stack([rng.uniform(1.0, 4.0, n_frames), rng.uniform(1.5, 5.5, n_frames),
-                              rng.normal(0.0, 0.7, (n_frames, 2))])
-    if poses.ndim == 2:
-        poses = np.broadcast_to(poses, (n_frames,) + poses.shape)
-    z = np.stack([predict_measurements(states, poses[:, n]) for n in range(poses.shape[1])],
-                 axis=1)
-    z = z + rng.normal(size=z.shape) * sig
-    z[..., 1] = wrap_angle(z[..., 1])
-    return states, z
+def test_grid_covariance_refuses_pose_covariances():
+    _, z = pose_frames(np.random.default_rng(0), 1)
+    with pytest.raises(ValidationError, match="pose_covariances needs covariance='laplace'"):
+        fuse_frame(POSES_BC,
+                   z[0],
+                   pose_covariances=POSE_COV,
+                   options=FusionOptions(covariance="grid"))
 
 
 def _joint_marginal(state, poses, z, noises, pose_cov, prior):
@@ -51,7 +48,7 @@ def _joint_marginal(state, poses, z, noises, pose_cov, prior):
 
 
 def test_gtsam_covariance_is_the_joint_graph_marginal():
-    _, z = _frames(np.random.default_rng(4), 10, noises=NOISES)
+    _, z = pose_frames(np.random.default_rng(4), 10, noises=NOISES)
     for f in range(z.shape[0]):
         r = fuse_frame(POSES_BC, z[f], noise=NOISES, pose_covariances=POSE_COV)
         assert r.success
@@ -59,3 +56,18 @@ def test_gtsam_covariance_is_the_joint_graph_marginal():
         sig = np.sqrt(np.diag(ref))
         np.testing.assert_allclose(r.covariance / np.outer(sig, sig),
                                    ref / np.outer(sig, sig), rtol=0, atol=1e-7)
+
+
+def test_gtsam_and_batch_agree_to_the_stated_tolerance():
+    _, z = pose_frames(np.random.default_rng(5), 40, noises=NOISES)
+    res = fuse_batch(POSES_BC, z, noise=NOISES, pose_covariances=POSE_COV)
+    gaps = []
+    for f in range(z.shape[0]):
+        r = fuse_frame(POSES_BC, z[f], noise=NOISES, pose_covariances=POSE_COV)
+        assert r.success == res.success[f]
+        np.testing.assert_allclose(res.state[f], r.state, rtol=0, atol=1e-6)
+        sig = np.sqrt(np.diag(res.covariance[f]))
+        gaps.append(np.max(np.abs(res.covariance[f] - r.covariance) / np.outer(sig, sig)))
+        # The propagation is never the smaller (the joint graph uses more information).
+        assert np.linalg.eigvalsh(res.covariance[f] - r.covariance).min() > -1e-12
+    assert max(gaps) < GTSAM_BATCH_TOLERANCE, max(gaps)
