@@ -180,8 +180,9 @@ def format_table(cal) -> str:
         lines.append(f"  {k}: {v}")
     if cal.noise is not None:
         lines.extend(noise_lines(cal.noise))
-    lines.append("ok:" if cal.success else "INCOMPLETE:")
-    lines.extend("  " + part.strip() for part in cal.message.split("; ") if part.strip())
+    facts = [part.strip() for part in cal.message.split("; ") if part.strip()] or [""]
+    lines.append(("ok: " if cal.success else "INCOMPLETE: ") + facts[0])
+    lines.extend("  " + fact for fact in facts[1:])
     return "\n".join(lines)
 
 

@@ -46,7 +46,7 @@ def test_summary_has_units_one_fact_a_line_and_says_the_terms(calibrated, capsys
     assert "estimators: network = " in out
     # The outcome's facts are on lines of their own, not one long line.
     assert max(len(line) for line in lines) < 200, max(lines, key=len)
-    ok = lines.index("ok:")
+    (ok,) = [k for k, line in enumerate(lines) if line.startswith("ok: ")]
     assert sum(line.startswith("  ") for line in lines[ok + 1:ok + 4]) == 3
     assert "range 0.0" in out and re.search(r"sigmas estimated from residuals for the joint "
                                             r"graph: range [0-9.]+ m ", out)
