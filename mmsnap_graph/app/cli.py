@@ -20,7 +20,9 @@ Exit codes (:data:`EXIT_OK`, :data:`EXIT_FAILURE`, :data:`EXIT_USAGE`):
   :class:`~mmsnap_graph.errors.ConfigurationError` raised for an option),
   including an output path that is a folder, lies in a missing folder, is
   one of the command's input files, or exists without ``--overwrite``
-  (checked before the command runs: :mod:`mmsnap_graph.app.commands.file_rules`).
+  (checked before the command runs: :mod:`mmsnap_graph.app.commands.file_rules`);
+- 141 standard output was closed by its reader (``mmsnap replay ... | head``);
+  nothing is printed.
 
 Errors are one line on stderr, ``mmsnap VERB: error: ...``; an error of an
 input file names the file. ``-v``/``-q`` set the level of the
@@ -32,6 +34,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -53,6 +56,9 @@ COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "eval
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+#: The reader of standard output went away (``mmsnap replay ... | head``):
+#: no message, the shell's code for a write to a closed pipe (128 + SIGPIPE).
+EXIT_BROKEN_PIPE = 141
 
 #: Errors of the data (an input file, an estimation): exit 1.
 DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError)
@@ -138,6 +144,18 @@ def _data_error_text(exc: BaseException, args: argparse.Namespace) -> str:
     return text
 
 
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null: its reader is gone, and the interpreter's
+    last flush would report the broken pipe again."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a real file (captured)
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``mmsnap`` with ``argv``; the exit code (module docstring)."""
     parser = build_parser()
@@ -153,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
     except MmsnapError as exc:  # USAGE_ERRORS and any other option check
         print(f"{prefix} {_one_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:  # `mmsnap replay ... | head`: the reader has all it wants
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
     except OSError as exc:  # an input file, or the environment: permissions, a full disk, ...
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"{prefix} {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)

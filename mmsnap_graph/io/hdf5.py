@@ -31,6 +31,7 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
+from .._validation import check_count
 from .._atomic import atomic_path, recording_lock
 from .guard import H5_ERRORS, existing_file, read_guard
 from ..errors import ConfigurationError, FileFormatError, MmsnapError
@@ -627,8 +628,7 @@ def iter_cubes(path: str | os.PathLike, node_name: str, *, chunk_frames: int = 1
     """Yield ``(frame (n,), cube (n, n_samples, n_loops, n_virtual) complex64)``
     chunks of a node's raw ADC cube, ``n <= chunk_frames``, without loading
     the whole cube."""
-    if int(chunk_frames) != chunk_frames or chunk_frames < 1:
-        raise FileFormatError(f"chunk_frames={chunk_frames!r} must be an integer >= 1")
+    check_count(chunk_frames, "chunk_frames", error=FileFormatError)
     with read_guard(path), _open_checked(Path(path)) as f:
         nodes = _group(f, "nodes")
         if node_name not in nodes:

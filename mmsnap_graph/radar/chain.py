@@ -160,10 +160,7 @@ class ChainConfig:
         if self.max_range_m is not None and not self.max_range_m > self.min_range_m:
             raise ConfigurationError(f"max_range_m={self.max_range_m!r} must exceed "
                                      f"min_range_m={self.min_range_m!r}")
-        if (isinstance(self.doppler_wraps, bool) or not isinstance(self.doppler_wraps, (int, np.integer))
-                or not 0 <= self.doppler_wraps <= 8):
-            raise ConfigurationError(f"doppler_wraps={self.doppler_wraps!r} must be an integer "
-                                     f"in [0, 8]")
+        check_count(self.doppler_wraps, "doppler_wraps", 0, 8, error=ConfigurationError)
         if isinstance(self.dealias_min_snr_db, bool) or not np.isfinite(self.dealias_min_snr_db):
             raise ConfigurationError(f"dealias_min_snr_db={self.dealias_min_snr_db!r} must be a "
                                      f"finite number (dB)")

@@ -1,5 +1,5 @@
 """Robust fusion against ghost models it was not written with
-(:mod:`mmsnap_graph.sim.ghosts`): 3-node networks, 10% and 20% of each node's
+(:mod:`mmsnap_graph.sim.real.ghosts`): 3-node networks, 10% and 20% of each node's
 centroids corrupted, fused as ``mmsnap fuse`` does by default (``robust="gate"``
 with the motion check, then one target per body,
 :func:`~mmsnap_graph.fusion.recording.room.screen_room`), with and without
@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
+from mmsnap_graph.evaluation import chi2_mean_interval, nees
 
 from _shared import POSES_BC
 from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, RoomBounds, screen_room
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
-from mmsnap_graph.sim.ghosts import ghost_centroids
+from mmsnap_graph.sim.real.ghosts import ghost_centroids
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
 
 NETWORK = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
@@ -58,8 +58,7 @@ def _tally(fused, rec, acc):
     err = fused.state - rec.truth.state[fused.frame]     # one target: truth row = frame
     pos = np.hypot(err[:, 0], err[:, 1])
     acc["se"] += float(np.sum(pos[ok] ** 2))
-    acc["nees"].append(np.einsum("ki,kij,kj->k", err[ok], np.linalg.inv(fused.covariance[ok]),
-                                 err[ok]))
+    acc["nees"].append(nees(err[ok], fused.covariance[ok]))
     frames, at = np.unique(fused.frame, return_inverse=True)
     far = np.bincount(at, weights=ok & (pos > 0.5), minlength=frames.size)
     acc["ghost_frames"] += int(np.sum(far > 0))
@@ -105,6 +104,6 @@ def test_robust_fusion_holds_against_the_ghost_model(results, kind, p, bounds):
     acc, clean = results[(kind, p, bounds)], results[("clean", 0.0, bounds)]
     assert _rmse(acc) <= FACTOR[p] * _rmse(clean), (_rmse(acc), _rmse(clean))
     n = np.concatenate(acc["nees"])
-    lo, hi = chi2.ppf([0.025, 0.975], 4 * n.size) / n.size
+    lo, hi = chi2_mean_interval(4, n.size, 0.95)
     assert lo < n.mean() < hi, (n.mean(), lo, hi)
     assert acc["ghost_frames"] <= 0.02 * acc["frames"], acc["ghost_frames"]

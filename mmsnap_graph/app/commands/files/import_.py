@@ -177,12 +177,11 @@ def run_dca1000(args: argparse.Namespace) -> int:
 MAX_FRAME_PERIOD_S = 1.35
 #: A frame period below 0.1 ms (10 kHz frames) is none a TI radar makes.
 MIN_FRAME_PERIOD_S = 1e-4
-#: Mounting heights above this are a unit mistake (centimetres typed as metres).
-MAX_MOUNT_HEIGHT_M = 12.0
 
 
 def _check_point_options(args) -> None:
     """Usage errors (exit 2) of the point-cloud imports' numeric options."""
+    from mmsnap_graph.io.point_cloud import MAX_MOUNT_HEIGHT_M
     if args.accumulate < 1:
         raise ValidationError(f"--accumulate: n_frames={args.accumulate} must be an integer >= 1")
     period = args.frame_period
