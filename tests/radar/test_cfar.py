@@ -13,6 +13,7 @@ from mmsnap_graph.radar.cfar import (
     os_cfar_cells,
     os_cfar_noise_scale,
     pad_map,
+    os_cfar_detections,
 )
 
 CFG = CfarConfig()
@@ -100,3 +101,41 @@ def test_valid_calls_still_agree():
     np.testing.assert_array_equal(det_c, det.ravel())
     np.testing.assert_allclose(z_c, z.ravel())
     assert os_cfar_cells(MAP, [], [], CFG)[0].shape == (0,)
+
+
+@pytest.mark.parametrize("cfg", [
+    CfarConfig(),
+    CfarConfig(rank_fraction=0.5, pfa=1e-3),
+    CfarConfig(rank_fraction=1.0, pfa=1e-2),
+    CfarConfig(guard_cells=(0, 0), train_cells=(1, 1), rank_fraction=0.9),
+    CfarConfig(guard_cells=(1, 2), train_cells=(3, 0)),
+])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_os_cfar_detections_are_the_detected_cells_of_os_cfar_cells(cfg, dtype):
+    rng = np.random.default_rng(3)
+    power = rng.gamma(12, size=(60, 32)).astype(dtype)
+    hot = rng.integers(0, power.size, 40)
+    power.ravel()[hot] *= rng.uniform(1, 30, hot.size)  # some pass, some fail
+    rows, cols = np.nonzero(np.ones(power.shape, bool))
+    det, z = os_cfar_cells(power, rows, cols, cfg, 12)
+    keep, z_keep = os_cfar_detections(power, rows, cols, cfg, 12)
+    assert det.sum() > 0 and det.sum() < det.size
+    np.testing.assert_array_equal(keep, np.flatnonzero(det))
+    np.testing.assert_array_equal(z_keep, z[det])
+    keep2, z2 = os_cfar_detections(power, rows, cols, cfg, 12, padded=pad_map(power, cfg))
+    np.testing.assert_array_equal(keep2, keep)
+    np.testing.assert_array_equal(z2, z_keep)
+    empty = os_cfar_detections(power, rows[:0], cols[:0], cfg, 12)
+    assert empty[0].shape == (0,) and empty[1].shape == (0,)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (3, 2), (5, 9), (21, 9), (40, 16), (486, 32)])
+def test_pad_map_equals_numpy_pad(shape):
+    cfg = CfarConfig()
+    power = np.random.default_rng(1).random(shape).astype(np.float32)
+    hr, hd = 10, 4
+    want = np.pad(np.pad(power, ((0, 0), (hd, hd)), mode="wrap"), ((hr, hr), (0, 0)),
+                  mode="symmetric")
+    got = pad_map(power, cfg)
+    assert got.dtype == want.dtype
+    np.testing.assert_array_equal(got, want)

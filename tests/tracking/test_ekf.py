@@ -18,7 +18,9 @@ from mmsnap_graph.tracking.ekf import (
     ekf_update,
     track_centroids,
     track_initial_state,
+    wrap_innovation,
 )
+from mmsnap_graph.data.radar_config import TABLE_I
 
 
 def test_ekf_predict_is_the_cv_model():
@@ -302,3 +304,25 @@ def test_frame_counts_follow_the_frame_period():
 def test_time_thresholds_are_checked(kwargs):
     with pytest.raises(ConfigurationError, match=next(iter(kwargs))):
         EkfConfig(**kwargs)
+
+
+#: Table I chirps at 20 fps (so that a 6-9 m/s target stays in view for a second).
+FAST = dataclasses.replace(TABLE_I, frame_period_s=0.05)
+
+
+def test_ekf_wraps_the_doppler_innovation():
+    u = FAST.max_doppler_mps
+    nu = wrap_innovation(np.array([[0.0, 0.0, 2 * u - 0.1], [0.0, 7.0, -2 * u + 0.2]]), u)
+    np.testing.assert_allclose(nu[:, 2], [-0.1, 0.2], atol=1e-12)
+    np.testing.assert_allclose(nu[:, 1], [0.0, 7.0 - 2 * np.pi])
+    # A track approaching at 6.5 m/s, an aliased measurement (+4.46 m/s).
+    x = np.array([0.0, 8.0, 0.0, -6.5])
+    p = np.diag([0.01, 0.01, 0.1, 0.1])
+    z = np.array([8.0, 0.0, -6.5 + 2 * u])
+    r = np.diag([0.05, 0.1, 0.2]) ** 2
+    x_wrap, _, d2_wrap = ekf_update(x, p, z, r, doppler_wrap_mps=u)
+    x_raw, _, d2_raw = ekf_update(x, p, z, r)
+    assert x_wrap[3] == pytest.approx(-6.5, abs=1e-6) and d2_wrap < 1e-9
+    assert x_raw[3] > -3.0 and d2_raw > 100
+    with pytest.raises(ConfigurationError, match="doppler_wrap_mps"):
+        EkfConfig(doppler_wrap_mps=0.0)
