@@ -3,8 +3,9 @@ CFAR functions check nothing"; CfarConfig was not type-checked)."""
 
 import numpy as np
 import pytest
+from hypothesis import given, strategies as st
 
-from mmsnap_graph.errors import ConfigurationError, ValidationError
+from mmsnap_graph.errors import ConfigurationError, ValidationError, MmsnapError
 from mmsnap_graph.radar.cfar import (
     CfarConfig,
     footprint,
@@ -15,6 +16,8 @@ from mmsnap_graph.radar.cfar import (
     pad_map,
     os_cfar_detections,
 )
+
+from _fuzz import ANY_VALUE, EDGE, FUZZ
 
 CFG = CfarConfig()
 MAP = np.random.default_rng(0).exponential(size=(40, 16))
@@ -139,3 +142,71 @@ def test_pad_map_equals_numpy_pad(shape):
     got = pad_map(power, cfg)
     assert got.dtype == want.dtype
     np.testing.assert_array_equal(got, want)
+
+
+# Fuzzing: only the project's errors, and the cell-by-cell OS-CFAR agrees with
+# the whole-map one.
+
+
+def power_maps():
+    shape = st.tuples(st.integers(1, 12), st.integers(1, 9))
+    return shape.flatmap(lambda s: st.lists(st.one_of(st.floats(0, 1e3), EDGE),
+                                            min_size=s[0] * s[1], max_size=s[0] * s[1])
+                         .map(lambda v: np.array(v, dtype=float).reshape(s)))
+
+
+cfar_configs = st.builds(
+    dict, guard_cells=st.tuples(st.integers(0, 3), st.integers(0, 2)),
+    train_cells=st.tuples(st.integers(0, 4), st.integers(0, 3)),
+    rank_fraction=st.one_of(st.floats(0.05, 1.0), EDGE), pfa=st.one_of(
+        st.floats(1e-12, 0.5), st.sampled_from([1e-300, 1e-100, 0.999999]), EDGE))
+
+
+@FUZZ
+@given(power=power_maps(), cfg=cfar_configs, channels=st.one_of(st.integers(1, 4), ANY_VALUE))
+def test_os_cfar_raises_only_typed_errors_and_agrees_cell_by_cell(power, cfg, channels):
+    try:
+        config = CfarConfig(**cfg)
+        detected, z = os_cfar_2d(power, config, channels)
+    except MmsnapError:
+        return
+    assert detected.shape == power.shape and detected.dtype == bool
+    assert np.all(np.isfinite(z))
+    r, c = np.nonzero(np.ones(power.shape, bool))
+    cells, z_cells = os_cfar_cells(power, r, c, config, channels)
+    np.testing.assert_array_equal(cells, detected.ravel())
+    np.testing.assert_allclose(z_cells, z.ravel())
+
+
+@FUZZ
+@given(rows_=st.one_of(st.lists(st.integers(-3, 14), max_size=4), ANY_VALUE),
+       cols_=st.one_of(st.lists(st.integers(-3, 10), max_size=4), ANY_VALUE))
+def test_os_cfar_cells_rejects_bad_cells_with_typed_errors(rows_, cols_):
+    power = np.random.default_rng(1).exponential(size=(12, 8))
+    try:
+        detected, z = os_cfar_cells(power, rows_, cols_, CfarConfig())
+    except MmsnapError:
+        return
+    assert detected.shape == z.shape and np.all(np.isfinite(z))
+
+
+@FUZZ
+@given(n_train=ANY_VALUE, rank=ANY_VALUE, pfa=st.one_of(EDGE, st.sampled_from([1e-300, 1e-200])),
+       channels=ANY_VALUE)
+def test_os_cfar_alpha_raises_only_typed_errors(n_train, rank, pfa, channels):
+    """Found: unhashable arguments gave TypeError (the cache), a pfa near 1
+    brentq's ValueError, a pfa of 1e-300 the bracket's end as the factor."""
+    try:
+        alpha = os_cfar_alpha(n_train, rank, pfa, channels)
+    except MmsnapError:
+        return
+    assert np.isfinite(alpha) and alpha > 0
+
+
+@pytest.mark.parametrize("args", [([16], 12, 1e-6, 1), (16, 12, 0.999999, 1), (16, 12, 1e-300, 1),
+                                  (16, 12, 1e-6, [2])])
+def test_os_cfar_alpha_found_cases_are_configuration_errors(args):
+    from mmsnap_graph.errors import ConfigurationError
+
+    with pytest.raises(ConfigurationError):
+        os_cfar_alpha(*args)
