@@ -2,15 +2,19 @@
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from factors.models import measurement_model, residual
-from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
+from mmsnap_graph import MmsnapError, fuse_batch
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.results import Status
-from mmsnap_graph.fusion import problem
-from mmsnap_graph.fusion.solvers import gtsam_graph as oneshot, vectorized as batch
 from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings, problem
+from mmsnap_graph.fusion.solvers import gtsam_graph as oneshot, vectorized as batch
 
+from _fusion_fuzz import (FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames, edge_frames,
+                          node_poses)
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_B, POSES_C
 
 # Configuration B: orthogonal lines of sight around (0.5, 4.5).
@@ -254,3 +258,49 @@ def test_velocity_degeneracy_is_the_condition_number_of_the_lines_of_sight():
             assert np.isinf(got[f]) or got[f] > 1e10
         else:
             np.testing.assert_allclose(got[f], want, rtol=1e-9)
+
+
+@FUZZ
+@given(consistent_frames(), PRIORS)
+def test_fuse_batch_on_radar_like_frames_is_sound(frame, prior):
+    poses, z, observed, noise = frame
+    try:
+        r = fuse_batch(poses, z[None], observed=observed[None], noise=noise, prior=prior)
+    except MmsnapError:
+        return
+    assert_sound(r.success, r.state, r.covariance)
+
+
+@FUZZ
+@given(node_poses(2, 3), st.sampled_from([(-1.0, 0.0), (0.0, 0.1), (5.0, 4.0), (5.0, -3.5)]))
+def test_fuse_batch_rejects_or_flags_out_of_range_measurements(poses, bad):
+    z = np.tile([5.0, 0.2, 0.5], (len(poses), 1))
+    z[0, :2] = bad
+    try:
+        r = fuse_batch(poses, z[None])
+    except MmsnapError:
+        return
+    assert not r.success[0], f"range {bad[0]}, omega {bad[1]} fused with success=True"
+
+
+@FUZZ
+@given(edge_frames(), PRIORS)
+def test_fuse_batch_on_edge_values_is_sound(frame, prior):
+    poses, z, noise = frame
+    try:
+        r = fuse_batch(poses, z[None], noise=noise, prior=prior)
+    except MmsnapError:
+        return
+    assert_sound(r.success, r.state, r.covariance)
+
+
+@FUZZ
+@given(consistent_frames(), HUGE_DOPPLER, PRIORS)
+def test_fuse_batch_with_a_huge_doppler_is_sound(frame, doppler, prior):
+    poses, z, observed, noise = frame
+    z[:, 2] = doppler
+    try:
+        r = fuse_batch(poses, z[None], noise=noise, prior=prior)
+    except MmsnapError:
+        return
+    assert_sound(r.success, r.state, r.covariance)
