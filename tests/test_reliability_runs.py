@@ -88,7 +88,7 @@ def test_group_detections_and_fuse_go_on_past_degenerate_centroids(good, tmp_pat
     assert main(["fuse", str(path), "--no-progress"]) == 0
     assert "flagged" in capsys.readouterr().out
     assert main(["fuse", str(good), "--no-progress", "-o", str(tmp_path / "s.h5"),
-                 "--sigmas", "1e-55", "1e-55", "1e-55"]) == 0
+                 "--sigmas", "1e-55", "1e-55", "1e-55", "--max-flagged", "1"]) == 0
     capsys.readouterr()
     assert main(["fuse", str(good), "--no-progress", "-o", str(tmp_path / "t.h5"),
                  "--sigmas", "1e-300", "1e-300", "1e-300"]) == 2
