@@ -33,7 +33,7 @@ from mmsnap_graph.fusion.problem import (
 )
 from mmsnap_graph.fusion.solvers.gtsam_graph import build_frame_graph, fuse_frame
 
-from _fusion_fuzz import (FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames, edge_frames,
+from _fuzz import (FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames, edge_frames,
                           finite)
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_A, POSES_B, POSES_BC, POSES_C
 

@@ -13,7 +13,7 @@ from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings, problem
 from mmsnap_graph.fusion.solvers import gtsam_graph as oneshot, vectorized as batch
 
-from _fusion_fuzz import (FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames, edge_frames,
+from _fuzz import (FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames, edge_frames,
                           node_poses)
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_B, POSES_C
 

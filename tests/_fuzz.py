@@ -1,6 +1,8 @@
-"""Hypothesis strategies and checks shared by the fuzz tests of one-shot
-fusion (fuse_frame in tests/fusion/solvers/test_gtsam_graph.py, fuse_batch in
-test_vectorized.py, the option records in tests/fusion/test_options.py).
+"""Hypothesis settings, strategies and checks shared by the fuzz tests: of
+one-shot fusion (fuse_frame in tests/fusion/solvers/test_gtsam_graph.py,
+fuse_batch in test_vectorized.py, the option records in
+tests/fusion/test_options.py) and of the other entry points (the stream, track
+matching, the radar chain, the DCA1000 reader).
 
 Properties: the solvers raise only the project's errors
 (:class:`mmsnap_graph.MmsnapError`), and ``success=True`` implies a finite
@@ -93,3 +95,16 @@ def assert_rejected(fn, **kwargs) -> None:
 
 
 HUGE_DOPPLER = st.sampled_from([1e16, -3e16, 1e100, -1e300])
+
+
+#: The entry-point fuzz tests' settings: 40 derandomized examples, sized for CI.
+FUZZ_40 = settings(max_examples=40, deadline=None, derandomize=True, database=None,
+                   report_multiple_bugs=False, suppress_health_check=list(HealthCheck))
+
+
+def assert_pd(cov) -> None:
+    """A finite, symmetric, positive-definite covariance (or stack of them)."""
+    cov = np.asarray(cov, dtype=float)
+    assert np.all(np.isfinite(cov)), cov
+    np.testing.assert_allclose(cov, np.swapaxes(cov, -1, -2), rtol=1e-6, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(cov) > 0), np.linalg.eigvalsh(cov)
