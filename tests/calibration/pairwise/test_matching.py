@@ -344,3 +344,28 @@ def test_match_tracks_raises_only_typed_errors_and_success_is_sound(tracks, peri
         cal = result.calibration
         assert cal is not None and np.all(np.isfinite(cal.pose)), cal
         assert_pd(cal.covariance)
+
+
+@pytest.mark.parametrize("max_lag_s,gap", [(1e6, 0), (1e308, 0), (1e12, 10 ** 12)])
+def test_a_lag_window_wider_than_the_recording_is_bounded_by_its_frames(max_lag_s, gap):
+    # 200 frames: at most 400 lags can pair frames, whatever the window (a
+    # 1e6 s window was 1e7 lags; 1e308 s an OverflowError). `gap` moves the
+    # second half of b's frames 10^12 frames away: only the lags that occur
+    # are searched.
+    import time
+
+    a, b, truth = _two_target_tracks("B", 1, np.random.default_rng(23), n_frames=200)
+    if gap:
+        late = b.frame >= 150
+        b = LocalTracks(frame=np.where(late, b.frame + gap, b.frame), points_m=b.points_m,
+                        track_id=b.track_id)
+    t0 = time.monotonic()
+    res = match_tracks(a, b, frame_period_s=T, options=MatchingOptions(max_lag_s=max_lag_s))
+    assert time.monotonic() - t0 < 5
+    assert res.success and res.lag_frames == 1, res.message
+
+
+def test_a_huge_minimum_overlap_is_a_failed_result_not_an_overflow():
+    a, b, _ = _two_target_tracks("B", 0, np.random.default_rng(24), n_frames=60)
+    res = match_tracks(a, b, frame_period_s=T, options=MatchingOptions(min_common_s=1e308))
+    assert not res.success and "shares >=" in res.message
