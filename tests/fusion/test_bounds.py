@@ -1,4 +1,5 @@
-"""Cramer-Rao and Bayesian bounds of one-shot fusion (mmsnap_graph.fusion.bounds)."""
+"""Cramer-Rao and Bayesian bounds (mmsnap_graph.fusion.bounds): their order,
+the singular Fisher information of a degenerate geometry, bad input."""
 
 from __future__ import annotations
 
@@ -6,12 +7,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_B, POSES_C
 from mmsnap_graph.errors import GeometryError, ValidationError
 from mmsnap_graph.fusion.bounds import bayesian_bound, cramer_rao_bound, fisher_information
 
-from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_B, POSES_C
-
-#: A target in the common area of configuration B.
 TRUTH_B = np.array([0.5, 4.5, 0.6, -0.4])
 #: On the line through C's two radars: the cross-line velocity vx is
 #: unobservable from Doppler.

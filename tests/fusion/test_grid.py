@@ -1,4 +1,5 @@
-"""The numerical posterior covariance on a 4D grid (mmsnap_graph.fusion.grid)."""
+"""The paper's grid posterior (mmsnap_graph.fusion.grid): its layout checks,
+exactness on a Gaussian posterior, widening and the truncation report."""
 
 from __future__ import annotations
 
@@ -6,24 +7,20 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from _shared import POSES_B
 from factors.models import measurement_model
 from mmsnap_graph.data.noise import GaussianPrior
 from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.fusion.grid import grid_posterior
 
-from _shared import POSES_B
-
-#: A target in the common area of configuration B.
 TRUTH_B = np.array([0.5, 4.5, 0.6, -0.4])
 
 
 def exact(poses, truth):
-    """Noise-free measurements of ``truth`` by each node."""
     return measurement_model(truth, poses)[0]
 
 
 def test_grid_posterior_validates_its_layout():
-    from mmsnap_graph.fusion.grid import grid_posterior
-
     z = exact(POSES_B, TRUTH_B)
     with pytest.raises(ValidationError, match="points_per_axis must be odd and >= 5, got 4"):
         grid_posterior(TRUTH_B, POSES_B, z, scale_covariance=np.eye(4), points_per_axis=4)
@@ -36,8 +33,6 @@ def test_grid_posterior_validates_its_layout():
 def test_grid_posterior_of_a_linear_gaussian_is_exact():
     """A grid laid along the exact covariance of a Gaussian posterior
     returns it: a prior-only posterior (no node observed)."""
-    from mmsnap_graph.fusion.grid import grid_posterior
-
     prior = GaussianPrior(mean=[1.0, 2.0, 0.3, -0.1], sigmas=[0.5, 1.5, 2.0, 0.7])
     grid = grid_posterior(
         prior.mean, POSES_B, np.full((2, 3), np.nan), observed=np.zeros(2, bool),
@@ -51,8 +46,6 @@ def test_grid_posterior_of_a_linear_gaussian_is_exact():
 def test_grid_posterior_widens_and_reports_truncation():
     """A grid laid out far too narrow is widened (doubling its half-width),
     and when it still cuts the posterior off, the result says so."""
-    from mmsnap_graph.fusion.grid import grid_posterior
-
     prior = GaussianPrior(mean=[0.0, 0.0, 0.0, 0.0], sigmas=[1.0, 1.0, 1.0, 1.0])
     kw = dict(observed=np.zeros(2, bool), prior=prior, points_per_axis=9)
     z = np.full((2, 3), np.nan)

@@ -1,5 +1,5 @@
-"""Rows whose covariance cannot be trusted because the association split one
-frame's detections (mmsnap_graph.fusion.recording.split_check)."""
+"""The one-node rows of a frame the association split
+(mmsnap_graph.fusion.recording.split_check)."""
 
 from __future__ import annotations
 
@@ -27,3 +27,12 @@ def test_split_singles_are_the_one_node_groups_of_a_split_frame():
     marked = split_rows(frame, idx, status)
     assert marked.tolist() == [False, True] + [False] * 6   # a failed row keeps its status
     assert not split_singles(np.zeros(0, int), np.zeros((0, 2), int)).any()
+
+
+def test_a_sole_row_the_motion_check_kept_stays():
+    # frame 1 split in two one-node rows; the motion check flagged one of them
+    frame = np.array([1, 1])
+    idx = np.array([[1, -1], [-1, 1]])
+    status = np.array([Status.OK, Status.MOTION_INCONSISTENT], dtype=np.int8)
+    assert split_rows(frame, idx, status).tolist() == [True, False]
+    assert split_rows(frame, idx, status, keep_sole=True).tolist() == [False, False]
