@@ -16,9 +16,12 @@ import time
 from pathlib import Path
 
 import pytest
+from numpy.testing import assert_array_equal
 
 from mmsnap_graph.app import report
 from mmsnap_graph.app.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, main
+from mmsnap_graph.io import read_recording
+from mmsnap_graph.sim import simulate_recording
 
 from _shared import ROOT
 
@@ -220,6 +223,36 @@ def test_batch_exits_1_when_a_recording_fails(files, tmp_path, capsys, monkeypat
     out = capsys.readouterr().out
     assert code == EXIT_FAILURE
     assert "1 of 2 recording(s) ok, 1 failed" in out and "b.h5" in out
+
+
+@pytest.mark.slow
+def test_python_dash_m_runs_the_command_line(tmp_path):
+    """``python -m mmsnap_graph`` is the ``mmsnap`` command."""
+    import os
+    import subprocess
+    import sys
+
+    root = ROOT
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(root)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    help_ = subprocess.run([sys.executable, "-m", "mmsnap_graph", "--help"], capture_output=True,
+                           text=True, env=env, cwd=tmp_path, timeout=120)
+    assert help_.returncode == 0, help_.stderr
+    for command in ("process", "simulate", "calibrate", "fuse", "demo", "evaluate"):
+        assert command in help_.stdout
+    out = tmp_path / "a.h5"
+    run = subprocess.run([sys.executable, "-m", "mmsnap_graph", "simulate", "-c", "A", "-n", "20",
+                          "-s", "5", "-l", "centroids", "-o", str(out), "--no-progress"],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert run.returncode == 0, run.stderr
+    rec = read_recording(out)
+    ref = simulate_recording("A", "straight", n_frames=20, seed=5, levels=("centroids",))
+    assert_array_equal(rec.truth.state, ref.truth.state)
+    # Errors come back as the command's exit status 2, not a traceback.
+    bad = subprocess.run([sys.executable, "-m", "mmsnap_graph", "demo", "--frames", "5",
+                          "-o", str(tmp_path / "x")], capture_output=True, text=True, env=env,
+                         cwd=tmp_path, timeout=120)
+    assert bad.returncode == 2 and "--frames must be >= 20" in bad.stderr
 
 
 def _all_parsers(parser, prefix=()):
