@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from mmsnap_graph.errors import MissingStepError
+
 import numpy as np
 import pytest
 
@@ -170,8 +172,9 @@ def test_monitor_validates_its_inputs():
     up = mon.update({"S1": (3.5, 0.0, 0.0), "S2": None})        # S2 unseen: not tested
     assert up.frame == 0 and np.isnan(up.statistics["S2"]) and up.change is None
     rec = simulate_recording("C", options=CLEAN, levels=("centroids",), n_frames=20, seed=1)  # poses unknown
-    with pytest.raises(ValidationError, match="no pose"):
+    with pytest.raises(MissingStepError, match="no pose") as info:  # a data error, as in fusion
         monitor_recording(rec)
+    assert info.value.step == "calibrate"
 
 
 @pytest.mark.slow
