@@ -43,7 +43,11 @@ from factors.motion import cv_process_noise_continuous
 
 from ..poses import pose_array, to_pose2
 
-__all__ = ["presolve", "normal_equations", "cv_information", "kernel_weight", "robust_cost",
+#: The key of the range offset (metres) in the pre-solve's ``offsets``
+#: (not a node name: node names are strings).
+RANGE_OFFSET = ("range offset",)
+
+__all__ = ["RANGE_OFFSET", "presolve", "normal_equations", "cv_information", "kernel_weight", "robust_cost",
            "shifted_states", "motion_norms"]
 
 
@@ -155,7 +159,7 @@ class _Problem:
     """
 
     def __init__(self, measurements, names, reference, sigmas, prior_sigmas, robust, k, use,
-                 motion, n_frames, timed=()):
+                 motion, n_frames, timed=(), range_offset=None):
         self.meas = measurements
         self.names = list(names)
         self.ref = reference
@@ -173,6 +177,13 @@ class _Problem:
                                  + ([p0 + self.timed.index(n)] if n in self.timed else []))
                      for i, n in enumerate(self.others)}
         self.dim = self.s0 + p0 + len(self.timed)
+        # The range offset (module doc), when estimated: one more unknown
+        # after the clock offsets, with its prior (mean, sigma) in metres.
+        self.range_prior = None if range_offset is None else tuple(map(float, range_offset))
+        self.dcol = None
+        if self.range_prior is not None:
+            self.dcol = self.dim - self.s0
+            self.dim += 1
         self.use = ({n: np.isfinite(measurements[n][:, 0]) for n in self.names} if use is None
                     else use)
         self.prior_w = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
@@ -187,11 +198,21 @@ class _Problem:
             # Optional kernel on the motion factors' whitened norm (sharp turns).
             self.motion_robust, self.motion_k = (motion[3], motion[4]) if len(motion) > 3 else (None, 1.0)
 
+    def range_offset(self, offsets) -> float:
+        """The range offset (m) in ``offsets`` (0 when not estimated)."""
+        if self.dcol is None or offsets is None:
+            return 0.0
+        return float(offsets.get(RANGE_OFFSET, 0.0))
+
     def cost(self, poses, states, offsets=None) -> float:
         c = 0.5 * np.sum(self.prior_w * states**2)
+        d = self.range_offset(offsets)
+        if self.dcol is not None:
+            c += 0.5 * ((d - self.range_prior[0]) / self.range_prior[1]) ** 2
         for n in self.names:
             ok = self.use[n]
             h, _ = measurement_model(shifted_states(states[ok], _offset(offsets, n)), poses[n])
+            h[:, 0] -= d
             c += robust_cost(np.linalg.norm(residual(h, self.meas[n][ok]) / self.sigmas, axis=1),
                              self.robust, self.k)
         if self.mi is not None:
@@ -205,10 +226,12 @@ class _Problem:
         p = self.dim - self.s0
         hpp = np.zeros((p, p))
         sig = self.sigmas
+        d = self.range_offset(offsets)
         for n in self.names:
             ok = self.use[n]
             tau = _offset(offsets, n)
             h, jp, js = measurement_model_pose(poses[n], shifted_states(states[ok], tau))
+            h[:, 0] -= d
             e = residual(h, self.meas[n][ok]) / sig
             w = kernel_weight(np.linalg.norm(e, axis=1), self.robust, self.k)
             js = js / sig[:, None]
@@ -221,6 +244,8 @@ class _Problem:
             jsw = np.swapaxes(js, 1, 2) * w[:, None, None]  # (K, 4, 3), matmul: no einsum loops
             hss[ok] += jsw @ js
             gs[ok] += (np.swapaxes(js, 1, 2) @ ew[:, :, None])[:, :, 0]
+            if self.dcol is not None:
+                self._range_offset_blocks(n, ok, jp, jsw, ew, w, hpp, g, bmat)
             if n != self.ref:
                 cols = self.cols[n]
                 jp = jp / sig[:, None]
@@ -231,6 +256,23 @@ class _Problem:
                 bmat[rows[:, None, None], np.arange(4)[None, :, None],
                      cols[None, None, :]] += jsw @ jp  # (K, 4, q)
         return hpp
+
+    def _range_offset_blocks(self, n, ok, jp, jsw, ew, w, hpp, g, bmat):
+        """Add node ``n``'s terms of the range offset (every node's range
+        is ``|p - p_i| - d``: whitened Jacobian ``-1 / sigma_range`` on the
+        range row): its diagonal, gradient, coupling with the states and
+        with the node's pose (and clock offset)."""
+        dc, sr = self.dcol, self.sigmas[0]
+        hpp[dc, dc] += np.sum(w) / sr**2
+        g[self.s0 + dc] -= np.sum(ew[:, 0]) / sr
+        rows = np.flatnonzero(ok)
+        bmat[rows, :, dc] -= jsw[:, :, 0] / sr
+        if n != self.ref:
+            cols = self.cols[n]
+            jpw = jp / self.sigmas[:, None]  # whitened (K, 3, q)
+            cross = -np.sum(jpw[:, 0, :] * w[:, None], axis=0) / sr
+            hpp[cols, dc] += cross
+            hpp[dc, cols] += cross
 
     def motion_norms(self, states) -> NDArray:
         """(G,) whitened norms ``sqrt(e^T Lambda e)`` of the CV factors."""
@@ -267,6 +309,61 @@ class _Problem:
         mi = self.mi if self.mi is not None else np.zeros(0, dtype=int)
         return _Blocks(hss=hss, off=off, mi=mi, bmat=bmat, hpp=hpp, g=g)
 
+    def influences(self, poses, states, offsets=None) -> tuple[NDArray, NDArray]:
+        """Each frame's influence on the pose block at a solution and the
+        model's covariance of that block (:func:`pose_influences`)."""
+        blk = self.blocks(poses, states, offsets)
+        s0, p = self.s0, self.dim - self.s0
+        chol = la.cholesky_banded(_state_band(blk.hss, blk.off, blk.mi, np.zeros(s0)),
+                                  lower=True)
+        bm = blk.bmat.reshape(s0, p)
+        y = la.cho_solve_banded((chol, True), bm, check_finite=False)  # H_ss^-1 H_sp
+        schur = blk.hpp - bm.T @ y
+        cov = la.inv(0.5 * (schur + schur.T))
+        yk = y.reshape(self.f, 4, p)
+        psi = self._frame_pose_gradients(poses, states, offsets)
+        gs = blk.g[:s0].reshape(self.f, 4).copy()
+        if self.mi is not None:
+            # The motion factor k -> k+1 belongs to frame k: its gradient at
+            # state k + 1 leaves frame k + 1's share and joins frame k's.
+            mi = self.mi
+            e = states[mi + 1] - (self.fm @ states[mi][:, :, None])[:, :, 0]
+            le = (self.lam_cv @ e[:, :, None])[:, :, 0]
+            ga = -(np.swapaxes(self.fm, 1, 2) @ le[:, :, None])[:, :, 0]
+            np.subtract.at(gs, mi, ga)
+            np.subtract.at(gs, mi + 1, le)
+            psi[mi] -= (np.einsum("kip,ki->kp", yk[mi], ga)
+                        + np.einsum("kip,ki->kp", yk[mi + 1], le))
+        psi -= np.einsum("kip,ki->kp", yk, gs)
+        if self.dcol is not None:  # the prior's share of the gradient, spread evenly
+            d = self.range_offset(offsets)
+            psi[:, self.dcol] += (d - self.range_prior[0]) / self.range_prior[1] ** 2 / self.f
+        return psi @ cov, cov
+
+    def _frame_pose_gradients(self, poses, states, offsets) -> NDArray:
+        """(F, P) each frame's measurement gradient with respect to the pose
+        block (Gaussian: the final pass has no kernel)."""
+        psi = np.zeros((self.f, self.dim - self.s0))
+        sig = self.sigmas
+        d = self.range_offset(offsets)
+        for n in self.names:
+            ok = self.use[n]
+            tau = _offset(offsets, n)
+            h, jp, js = measurement_model_pose(poses[n], shifted_states(states[ok], tau))
+            h[:, 0] -= d
+            e = residual(h, self.meas[n][ok]) / sig
+            rows = np.flatnonzero(ok)
+            if self.dcol is not None:
+                psi[rows, self.dcol] -= e[:, 0] / sig[0]
+            if n == self.ref:
+                continue
+            if n in self.timed:
+                jt = (js / sig[:, None])[:, :, :2] @ states[ok, 2:, None]
+                jp = np.concatenate([jp, jt * sig[:, None]], axis=2)
+            jp = jp / sig[:, None]
+            psi[np.ix_(rows, self.cols[n])] += np.einsum("kri,kr->ki", jp, e)
+        return psi
+
     def system(self, poses, states, offsets=None) -> tuple[sp.csc_matrix, NDArray]:
         """Gauss-Newton Hessian (sparse) and gradient at ``(poses, states, offsets)``."""
         b = self.blocks(poses, states, offsets)
@@ -294,6 +391,9 @@ class _Problem:
         new_offsets = None if offsets is None else dict(offsets)
         for n in self.timed:
             new_offsets[n] = float(offsets[n] + delta[self.s0 + self.cols[n][3]])
+        if self.dcol is not None:
+            new_offsets[RANGE_OFFSET] = self.range_offset(offsets) + float(
+                delta[self.s0 + self.dcol])
         return new, states + delta[:self.s0].reshape(self.f, 4), new_offsets
 
 
