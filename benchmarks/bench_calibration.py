@@ -20,11 +20,13 @@ the comparable numbers.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import gtsam
 import numpy as np
 
+from mmsnap_graph.calibration import JointOptions
 from factors.models import global_to_local, local_to_global
 from mmsnap_graph.calibration import (
     PoseEdge,
@@ -89,13 +91,16 @@ def bench_joint(quick):
             scene = synthetic_scene(PAPER_CONFIGURATIONS["C"], center_m=COMMON_AREA_CENTERS["C"],
                                     n_frames=k, noise=NOISE, rng=rng)
             d = _dets(scene)
-            kw = dict(noise=NOISE, motion=motion, frame_period_s=0.15, sigma_a_mps2=0.5)
-            t = _median_time(lambda: joint_calibration(d, **kw), 3)
-            t_gauss = _median_time(lambda: joint_calibration(d, robust=None, **kw), 3)
+            kw = dict(noise=NOISE, frame_period_s=0.15)
+            opts = JointOptions(motion=motion, sigma_a_mps2=0.5)
+            t = _median_time(lambda: joint_calibration(d, opts, **kw), 3)
+            t_gauss = _median_time(
+                lambda: joint_calibration(d, dataclasses.replace(opts, robust=None), **kw), 3)
             line = (f"  2 nodes x {k:4d} frames, motion={'on ' if motion else 'off'}: "
                     f"Cauchy + inlier refit {t:6.3f} s | Gaussian {t_gauss:6.3f} s")
             if k == 600:
-                t_plain = _median_time(lambda: joint_calibration(d, presolve=False, **kw), 1)
+                t_plain = _median_time(lambda: joint_calibration(
+                    d, dataclasses.replace(opts, presolve=False), **kw), 1)
                 line += f" | plain LM (baseline) {t_plain:6.3f} s, ratio {t / t_plain:.2f}"
             print(line)
     for n_nodes in (2, 3, 4):
@@ -150,8 +155,7 @@ def bench_accuracy(quick):
                 s = synthetic_scene(PAPER_CONFIGURATIONS[cfg], center_m=COMMON_AREA_CENTERS[cfg],
                                     n_frames=k, noise=sig, rng=rng)
                 cf = closed_form_calibration(s.local_points_m["S1"], s.local_points_m["S2"])
-                jt = joint_calibration(_dets(s), noise=sig, motion=True, frame_period_s=0.15,
-                                       sigma_a_mps2=0.5)
+                jt = joint_calibration(_dets(s), JointOptions(motion=True, sigma_a_mps2=0.5), noise=sig, frame_period_s=0.15)
                 truth = s.poses["S2"]
                 r_cf.append(reg(cf.pose, truth, s.truth[:, :2]))
                 r_jt.append(reg(jt.poses["S2"], truth, s.truth[:, :2]))

@@ -53,6 +53,8 @@ _LAZY = {
     "calibrate_recording": "calibration",
     "closed_form_calibration": "calibration",
     "joint_calibration": "calibration",
+    "JointOptions": "calibration",
+    "MatchingOptions": "calibration",
     "match_tracks": "calibration",
     "pose_graph_calibration": "calibration",
 }

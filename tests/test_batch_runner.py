@@ -13,6 +13,7 @@ import h5py
 import numpy as np
 import pytest
 
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.app.batch import (
     STEPS,
     calibration_json_path,
@@ -29,7 +30,8 @@ BAD = "rec_corrupt.h5"
 
 
 def _simulate(path: Path, seed: int) -> None:
-    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(N_FRAMES), "-l", "centroids",
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(N_FRAMES),
+                 "-l", "centroids",
                  "--seed", str(seed), "-o", str(path), "--no-progress"]) == 0
 
 
@@ -139,7 +141,7 @@ def test_a_calibration_that_fails_stops_the_recording(sources, tmp_path):
     """calibrate_recording with success=False (pose graph on a one-node
     network is fine, but max_rmse_m tiny rejects every pair): flagged, no fuse."""
     s = run_recording(sources / GOOD[0], output=tmp_path / "x.h5",
-                      options={"calibrate": {"max_rmse_m": 1e-6}})
+                      options={"calibrate": {"matching": MatchingOptions(max_rmse_m=1e-6)}})
     assert not s.success and s.steps_done == ("process",)
     assert s.error.startswith("calibrate: ")
     assert str(tmp_path / "x.h5") in s.outputs

@@ -10,9 +10,9 @@ import re
 import numpy as np
 import pytest
 
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.config_file import (
-    MatchingConfig,
     ProcessConfig,
     matching_config_to_toml,
     read_matching_config,
@@ -59,9 +59,10 @@ def _error_line(err: str) -> str:
 
 def test_defaults_given_explicitly_give_the_same_calibration(recording_c_random):
     plain = calibrate_recording(recording_c_random, method="pose_graph")
-    explicit = calibrate_recording(recording_c_random, method="pose_graph", max_lag_s=0.3,
-                                   min_common_s=0.5, min_spread_m=0.2, max_rmse_m=1.0,
-                                   inlier_gate_m=0.5, gate_probability=0.997)
+    explicit = calibrate_recording(recording_c_random, method="pose_graph",
+                                   matching=MatchingOptions(
+                                       max_lag_s=0.3, min_common_s=0.5, min_spread_m=0.2,
+                                       max_rmse_m=1.0, inlier_gate_m=0.5, gate_probability=0.997))
     assert plain.success and explicit.success
     np.testing.assert_array_equal(plain.poses["S2"], explicit.poses["S2"])
     assert plain.edges[0].n_frames == explicit.edges[0].n_frames
@@ -71,25 +72,28 @@ def test_min_common_s_longer_than_the_recording_fails_clearly(recording_c_random
     rec = recording_c_random
     too_long = _duration_s(rec) + 1.0
     with pytest.raises(CalibrationError) as err:
-        calibrate_recording(rec, method="pose_graph", min_common_s=too_long)
+        calibrate_recording(rec, method="pose_graph",
+                            matching=MatchingOptions(min_common_s=too_long))
     text = str(err.value)
     assert f"min_common_s={too_long:g} s" in text
     need = int(np.ceil(too_long / rec.frame_period_s - 1e-9))
     assert f"shares >= {need} frames" in text
     # A tiny overlap is accepted (the 5-frame floor still applies).
-    assert calibrate_recording(rec, method="pose_graph", min_common_s=0.0).success
+    assert calibrate_recording(rec, method="pose_graph",
+                               matching=MatchingOptions(min_common_s=0.0)).success
 
 
 def test_min_spread_m_and_inlier_gate_m_reach_the_matching(recording_c_random):
     with pytest.raises(CalibrationError, match=r"spread >= 50\.0 m"):
-        calibrate_recording(recording_c_random, method="pose_graph", min_spread_m=50.0)
+        calibrate_recording(recording_c_random, method="pose_graph",
+                            matching=MatchingOptions(min_spread_m=50.0))
     with pytest.raises(CalibrationError, match=r"within inlier_gate_m=0\.0001 m"):
         calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
-                            inlier_gate_m=1e-4)
+                            matching=MatchingOptions(inlier_gate_m=1e-4))
     wide = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
-                               inlier_gate_m=0.5)
+                               matching=MatchingOptions(inlier_gate_m=0.5))
     tight = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
-                                inlier_gate_m=0.2)
+                                matching=MatchingOptions(inlier_gate_m=0.2))
     assert wide.success and tight.success
     assert tight.edges[0].n_frames < wide.edges[0].n_frames
 
@@ -99,7 +103,7 @@ def test_gate_probability_gates_ekf_tracks(recording_c_random):
     assert tracked.nodes["S2"].tracks.covariance is not None
     wide = calibrate_recording(tracked, method="pose_graph", source="tracks")
     tight = calibrate_recording(tracked, method="pose_graph", source="tracks",
-                                gate_probability=0.5)
+                                matching=MatchingOptions(gate_probability=0.5))
     assert wide.success and tight.success and wide.source == "tracks"
     assert tight.edges[0].n_frames < wide.edges[0].n_frames
 
@@ -116,8 +120,9 @@ def test_gate_probability_gates_ekf_tracks(recording_c_random):
     ({"min_common_s": "long"}, "min_common_s"),
 ])
 def test_bad_thresholds_name_the_field_and_value(recording_c_random, kwargs, field):
-    with pytest.raises(ValidationError, match=rf"^{field} must be .*got {re.escape(repr(kwargs[field]))}"):
-        calibrate_recording(recording_c_random, **kwargs)
+    with pytest.raises(ValidationError,
+                       match=rf"^{field} must be .*got {re.escape(repr(kwargs[field]))}"):
+        calibrate_recording(recording_c_random, matching=MatchingOptions(**kwargs))
 
 
 # --- mmsnap calibrate: options and the [matching] table -------------------------------------
@@ -159,7 +164,7 @@ def test_show_config_prints_the_matching_table_and_reads_back(tmp_path, capsys):
         assert name in text
     path = tmp_path / "m.toml"
     path.write_text(text)
-    assert read_matching_config(path) == MatchingConfig()
+    assert read_matching_config(path) == MatchingOptions()
     cfg = tmp_path / "c.toml"
     cfg.write_text("[matching]\nmin_common_s = 2\ninlier_gate_m = 0.3\n")
     code, text, _ = _cli(capsys, "calibrate", "--show-config", "--config", cfg,
@@ -209,14 +214,14 @@ def test_process_and_calibrate_share_one_file(tmp_path, capsys):
                    "[ekf]\nmax_coast_s = 0.4\n[matching]\nmin_common_s = 1.5\n")
     proc = read_process_config(cfg)
     assert proc.chain.min_range_m == 0.5 and proc.sparse is True and proc.ekf.max_coast_s == 0.4
-    assert read_matching_config(cfg) == MatchingConfig(min_common_s=1.5)
+    assert read_matching_config(cfg) == MatchingOptions(min_common_s=1.5)
     # Both --show-config outputs in one file read back to the same settings.
     _, text_p, _ = _cli(capsys, "process", "--show-config", "--config", cfg)
     _, text_c, _ = _cli(capsys, "calibrate", "--show-config", "--config", cfg)
     both = tmp_path / "again.toml"
     both.write_text(text_p + "\n" + text_c)
     assert read_process_config(both) == proc
-    assert read_matching_config(both) == MatchingConfig(min_common_s=1.5)
+    assert read_matching_config(both) == MatchingOptions(min_common_s=1.5)
     # A bad [matching] is calibrate's business: process ignores the table.
     cfg.write_text("[matching]\nmin_common_s = -1\n")
     assert read_process_config(cfg) == ProcessConfig()

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from mmsnap_graph.calibration import JointOptions
 from factors.gtsam_factors import constant_velocity_factor
 from factors.models import global_to_local, local_to_global
 from mmsnap_graph.calibration import (
@@ -27,7 +28,7 @@ from mmsnap_graph.calibration import (
     pose_tangent_error,
 )
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
-from mmsnap_graph.calibration.joint.presolve import cv_information, normal_equations
+from mmsnap_graph.calibration.joint.presolve import PresolveProblem, cv_information, normal_equations
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.data.recording import Detections
@@ -67,7 +68,7 @@ def test_small_noise_recovers_the_pose_and_agrees_with_plain_lm():
     assert np.all(sd < [0.01, 0.01, np.radians(0.2)])
     assert_allclose(res.poses["S1"], np.zeros(3))
     # the numpy presolve only speeds LM up: plain LM reaches the same optimum
-    plain = joint_calibration(_detections(scene), noise=SMALL_NOISE, presolve=False)
+    plain = joint_calibration(_detections(scene), JointOptions(presolve=False), noise=SMALL_NOISE)
     assert_allclose(plain.poses["S2"], res.poses["S2"], atol=1e-3 * sd.max() + 1e-7)
     assert res.states.shape == (80, 4) and res.frames.shape == (80,)
     assert np.all(np.isnan(res.state_covariances))
@@ -94,8 +95,8 @@ def test_joint_beats_the_closed_form_under_paper_noise(config):
         rng = np.random.default_rng(400 + t)
         scene = _scene(config, rng, n_frames=300, noise=PAPER_NOISE)
         cf = closed_form_calibration(scene.local_points_m["S1"], scene.local_points_m["S2"])
-        jt = joint_calibration(_detections(scene), noise=PAPER_NOISE, motion=True,
-                               frame_period_s=scene.frame_period_s, sigma_a_mps2=0.5)
+        jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5),
+                               noise=PAPER_NOISE, frame_period_s=scene.frame_period_s)
         assert jt.success, jt.message
         cf_err.append(_registration_error(cf.pose, scene.poses["S2"], scene.truth[:, :2]))
         jt_err.append(_registration_error(jt.poses["S2"], scene.poses["S2"], scene.truth[:, :2]))
@@ -115,8 +116,8 @@ def test_pose_covariance_is_consistent():
     for t in range(60):
         rng = np.random.default_rng(600 + t)
         scene = _scene("C", rng, n_frames=100, noise=MODERATE_NOISE)
-        jt = joint_calibration(_detections(scene), noise=MODERATE_NOISE, motion=True,
-                               frame_period_s=scene.frame_period_s, sigma_a_mps2=0.5)
+        jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5),
+                               noise=MODERATE_NOISE, frame_period_s=scene.frame_period_s)
         e = pose_tangent_error(jt.poses["S2"], scene.poses["S2"])
         nees.append(e @ np.linalg.solve(jt.covariances["S2"], e))
     assert 2.2 < np.mean(nees) < 4.3, np.mean(nees)
@@ -135,8 +136,8 @@ def test_ghost_frames_cost_at_most_twice_the_clean_error(config):
         for frac, out in ((0.0, clean), (0.2, ghost)):
             rng = np.random.default_rng(700 + t)
             scene = _scene(config, rng, n_frames=300, noise=MODERATE_NOISE, ghost_fraction=frac)
-            jt = joint_calibration(_detections(scene), noise=MODERATE_NOISE, motion=True,
-                                   frame_period_s=scene.frame_period_s, sigma_a_mps2=0.5)
+            jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5),
+                                   noise=MODERATE_NOISE, frame_period_s=scene.frame_period_s)
             out.append(_registration_error(jt.poses["S2"], scene.poses["S2"],
                                             scene.truth[:, :2]))
             if frac:
@@ -159,8 +160,8 @@ def test_ghost_frames_under_paper_noise():
         for frac, out in ((0.0, clean), (0.2, ghost)):
             rng = np.random.default_rng(400 + t)
             scene = _scene("A", rng, n_frames=300, noise=PAPER_NOISE, ghost_fraction=frac)
-            jt = joint_calibration(_detections(scene), noise=PAPER_NOISE, motion=True,
-                                   frame_period_s=scene.frame_period_s, sigma_a_mps2=0.5)
+            jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5),
+                                   noise=PAPER_NOISE, frame_period_s=scene.frame_period_s)
             out.append(_registration_error(jt.poses["S2"], scene.poses["S2"],
                                            scene.truth[:, :2]))
     assert np.sqrt(np.mean(np.square(ghost))) <= 2.0 * np.sqrt(np.mean(np.square(clean)))
@@ -218,11 +219,11 @@ def test_argument_errors():
     with pytest.raises(ValidationError, match="noise must be a MeasurementNoise"):
         joint_calibration(dets, noise=(0.035, 0.2, 0.2))
     with pytest.raises(ValidationError, match="robust='tukey'"):
-        joint_calibration(dets, robust="tukey")
+        joint_calibration(dets, JointOptions(robust="tukey"))
     with pytest.raises(ValidationError, match="motion=True needs frame_period_s"):
-        joint_calibration(dets, motion=True)
+        joint_calibration(dets, JointOptions(motion=True))
     with pytest.raises(ValidationError, match="outlier_probability must lie in"):
-        joint_calibration(dets, outlier_probability=1.5)
+        joint_calibration(dets, JointOptions(outlier_probability=1.5))
     with pytest.raises(ValidationError, match="initial_poses has no pose for node 'S2'"):
         joint_calibration(dets, initial_poses={"S1": np.zeros(3)})
     dup = Detections(frame=[0, 0, 1], range_m=[1, 2, 3], omega_rad=[0, 0, 0],
@@ -276,8 +277,9 @@ def test_presolve_linear_system_matches_gtsam_linearization(robust):
     prior = np.array([1e3, 1e3, 3.5, 3.5])
     k = {None: 1.0, "huber": 1.345, "cauchy": 2.5}[robust]
     motion = (np.arange(5), np.full(5, 0.15), 0.7)
-    hmat, g = normal_equations(meas, poses, states, ["S1", "S2"], "S1", sig, prior, robust, k,
-                               motion=motion)
+    problem = PresolveProblem(measurements=meas, names=["S1", "S2"], reference="S1", sigmas=sig,
+                              prior_sigmas=prior, robust=robust, k=k, motion=motion)
+    hmat, g = normal_equations(problem, poses, states)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     x = gtsam.symbol("x", 1)
@@ -306,8 +308,8 @@ def test_huber_kernel_also_flags_ghosts():
     them a free per-frame state absorbs part of it: ~55% flagged)."""
     rng = np.random.default_rng(13)
     scene = _scene("B", rng, n_frames=200, noise=MODERATE_NOISE, ghost_fraction=0.2)
-    jt = joint_calibration(_detections(scene), noise=MODERATE_NOISE, robust="huber",
-                           motion=True, frame_period_s=0.15, sigma_a_mps2=0.5)
+    jt = joint_calibration(_detections(scene), JointOptions(robust="huber", motion=True,
+                                                            sigma_a_mps2=0.5), noise=MODERATE_NOISE, frame_period_s=0.15)
     assert jt.success, jt.message
     is_ghost = np.concatenate([scene.ghost["S1"], scene.ghost["S2"]])
     got = np.concatenate([jt.outliers["S1"], jt.outliers["S2"]])
@@ -316,10 +318,10 @@ def test_huber_kernel_also_flags_ghosts():
     assert err @ np.linalg.solve(jt.covariances["S2"], err) < 16.3  # chi2(3) 0.999
 
 
-def test_deprecated_sigmas_keyword_is_the_noise():
+def test_options_must_be_joint_options():
     rng = np.random.default_rng(3)
     dets = _detections(_scene("A", rng, n_frames=40, noise=MODERATE_NOISE))
-    with pytest.warns(DeprecationWarning, match="pass noise=MeasurementNoise"):
-        old = joint_calibration(dets, sigmas=MODERATE_NOISE.sigmas, robust=None)
-    new = joint_calibration(dets, noise=MODERATE_NOISE, robust=None)
-    np.testing.assert_array_equal(old.poses["S2"], new.poses["S2"])
+    with pytest.raises(ValidationError, match="options must be a JointOptions"):
+        joint_calibration(dets, {"robust": None}, noise=MODERATE_NOISE)
+    with pytest.raises(TypeError):
+        joint_calibration(dets, noise=MODERATE_NOISE, robust=None)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.calibration import (
     LocalTracks,
     local_tracks,
@@ -19,6 +20,14 @@ from _shared import TRACK_NOISE
 
 # Track-like noise (TRACK_NOISE): a 1-frame lag moves a ~0.5 m/s target by
 # ~8 cm, over 400 frames, so the lag is clearly visible in the RMSE.
+
+#: The frame period of these track tables (s): the thresholds are seconds.
+T = 0.1
+
+
+def _lag(frames: int, **options) -> MatchingOptions:
+    """Matching options searching ``frames`` whole frames of lag at :data:`T`."""
+    return MatchingOptions(max_lag_s=frames * T, **options)
 
 
 def _two_target_tracks(config, lag, rng, n_frames=400):
@@ -51,7 +60,7 @@ def test_two_targets_are_matched_and_the_lag_found(config, lag):
     # frame pairs beyond the 0.5 m gate (a ~3.5 sigma cross-range error).
     rng = np.random.default_rng(22 + lag)
     a, b, truth = _two_target_tracks(config, lag, rng)
-    res = match_tracks(a, b, max_lag_frames=2)
+    res = match_tracks(a, b, frame_period_s=T, options=_lag(2))
     assert res.success, res.message
     assert res.lag_frames == lag
     assert res.calibration.lag_frames == lag
@@ -67,9 +76,9 @@ def test_two_targets_are_matched_and_the_lag_found(config, lag):
 def test_lag_outside_the_search_window_is_not_found():
     rng = np.random.default_rng(30)
     a, b, _ = _two_target_tracks("B", 3, rng)
-    res = match_tracks(a, b, max_lag_frames=1)
+    res = match_tracks(a, b, frame_period_s=T, options=_lag(1))
     # the best it can do is a lag of 1 (nearest), with a visibly worse RMSE
-    good = match_tracks(a, b, max_lag_frames=3)
+    good = match_tracks(a, b, frame_period_s=T, options=_lag(3))
     assert good.lag_frames == 3
     assert res.calibration.rmse_m > 1.3 * good.calibration.rmse_m
 
@@ -78,7 +87,7 @@ def test_no_common_frames_is_a_failed_result():
     rng = np.random.default_rng(31)
     a, b, _ = _two_target_tracks("A", 0, rng)
     b_late = LocalTracks(frame=b.frame + 10_000, points_m=b.points_m, track_id=b.track_id)
-    res = match_tracks(a, b_late)
+    res = match_tracks(a, b_late, frame_period_s=T)
     assert not res.success and res.calibration is None
     assert "no pair of tracks shares >= 5 frames" in res.message
 
@@ -91,7 +100,7 @@ def test_tracks_of_different_targets_only_are_rejected():
                      track_id=a.track_id[a.track_id == 3])
     b2 = LocalTracks(frame=b.frame[b.track_id == 1], points_m=b.points_m[b.track_id == 1],
                      track_id=b.track_id[b.track_id == 1])
-    res = match_tracks(a1, b2, max_rmse_m=0.5)
+    res = match_tracks(a1, b2, frame_period_s=T, options=_lag(2, max_rmse_m=0.5))
     assert not res.success
     # No single pose aligns most of the two trajectories' common frames.
     assert "majority of its common frames" in res.message
@@ -110,7 +119,7 @@ def test_fragmented_tracks_are_matched_by_support_not_by_the_shortest_fit():
     # Different fragment boundaries on each node (every 37 and 23 frames).
     a = LocalTracks(frame=k, points_m=scene.local_points_m["S1"], track_id=k // 37)
     b = LocalTracks(frame=k, points_m=scene.local_points_m["S2"], track_id=100 + k // 23)
-    res = match_tracks(a, b, max_lag_frames=2, min_common_frames=5)
+    res = match_tracks(a, b, frame_period_s=T, options=_lag(2, min_common_s=5 * T))
     assert res.success, res.message
     assert res.lag_frames == 0
     shortest = min(res.candidates, key=lambda c: c.rmse_m)
@@ -152,10 +161,12 @@ def test_local_tracks_errors():
 
 def test_match_tracks_argument_errors():
     lt = LocalTracks(frame=[0, 1], points_m=[[0, 1], [1, 1]], track_id=[0, 0])
-    with pytest.raises(ValidationError, match="max_lag_frames must be >= 0, got -1"):
-        match_tracks(lt, lt, max_lag_frames=-1)
-    with pytest.raises(ValidationError, match="max_rmse_m must be > 0"):
-        match_tracks(lt, lt, max_rmse_m=0.0)
+    with pytest.raises(ValidationError, match=r"max_lag_s must be a finite number \(s, >= 0\)"):
+        match_tracks(lt, lt, frame_period_s=T, options=MatchingOptions(max_lag_s=-0.1))
+    with pytest.raises(ValidationError, match=r"max_rmse_m must be a finite number \(m, > 0\)"):
+        match_tracks(lt, lt, frame_period_s=T, options=MatchingOptions(max_rmse_m=0.0))
+    with pytest.raises(ValidationError, match="options must be a MatchingOptions"):
+        match_tracks(lt, lt, frame_period_s=T, options={"max_rmse_m": 1.0})
     with pytest.raises(ValidationError, match=r"points_m must have shape \(2, 2\)"):
         LocalTracks(frame=[0, 1], points_m=[[0, 1, 2], [1, 1, 2]], track_id=[0, 0])
     with pytest.raises(ValidationError, match=r"track_id must have shape \(2,\)"):
@@ -172,8 +183,8 @@ def test_a_lag_the_data_cannot_show_is_not_reported():
                             noise=TRACK_NOISE, extent_m=1.0, rng=rng)
     a, b = (LocalTracks(frame=scene.frame, points_m=scene.local_points_m[n],
                         track_id=np.zeros(300, int)) for n in ("S1", "S2"))
-    raw = match_tracks(a, b, max_lag_frames=1, lag_min_improvement=0.0)
-    kept = match_tracks(a, b, max_lag_frames=1)
+    raw = match_tracks(a, b, frame_period_s=T, options=_lag(1, lag_min_improvement=0.0))
+    kept = match_tracks(a, b, frame_period_s=T, options=_lag(1))
     assert raw.lag_frames != 0
     assert kept.lag_frames == 0
     rm = {c.lag_frames: c.rmse_m for c in kept.candidates}

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.calibration import (
     LocalTracks,
     PoseEdge,
@@ -117,7 +118,8 @@ def test_end_to_end_from_tracks_of_four_nodes():
                             noise=TRACK_NOISE, extent_m=1.0, rng=rng)
     tracks = {n: LocalTracks(frame=scene.frame, points_m=scene.local_points_m[n],
                              track_id=np.zeros(300, int), source="synthetic") for n in TRUE_POSES}
-    edges, failures = pairwise_edges(tracks, max_lag_frames=1)
+    edges, failures = pairwise_edges(tracks, frame_period_s=0.1,
+                                     options=MatchingOptions(max_lag_s=0.1))
     assert failures == {} and len(edges) == 6
     res = pose_graph_calibration(list(TRUE_POSES), edges, failures=failures)
     assert res.success, res.message

@@ -25,6 +25,7 @@ from gtsam.utils.numerical_derivative import (
 )
 from numpy.testing import assert_allclose
 
+from mmsnap_graph.calibration import JointOptions
 from factors import models
 from factors.gtsam_factors import (
     constant_velocity_factor,
@@ -34,7 +35,7 @@ from factors.gtsam_factors import (
     timed_pose_measurement_factor,
 )
 from mmsnap_graph.calibration import RecordingCalibration, calibrate_recording, joint_calibration
-from mmsnap_graph.calibration.joint.presolve import normal_equations, shifted_states
+from mmsnap_graph.calibration.joint.presolve import PresolveProblem, normal_equations, shifted_states
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.errors import CalibrationError, ValidationError
@@ -92,7 +93,8 @@ def test_timed_factor_jacobians_match_numerical_derivatives():
         values.insert(kp, p2)
         values.insert(ks, state)
         values.insert(kt, t)
-        expected = models.residual(models.measurement_model(shifted_states(state, tau), pose)[0], z)
+        expected = models.residual(models.measurement_model(shifted_states(state, tau), pose)[0],
+                                   z)
         assert_allclose(factor.unwhitenedError(values), expected, atol=1e-12)
         lin = factor.linearize(values)
         a, _ = lin.jacobian()
@@ -113,8 +115,9 @@ def test_presolve_with_offsets_matches_the_gtsam_linearization():
     offsets = {"S2": 0.03}
     prior = np.array([1e3, 1e3, 3.5, 3.5])
     motion = (np.arange(5), np.full(5, T), 0.7)
-    hmat, g = normal_equations(scene.measurements, poses, states, ["S1", "S2"], "S1", sig, prior,
-                               None, 1.0, motion=motion, offsets=offsets)
+    problem = PresolveProblem(measurements=scene.measurements, names=["S1", "S2"],
+                              reference="S1", sigmas=sig, prior_sigmas=prior, motion=motion)
+    hmat, g = normal_equations(problem, poses, states, offsets=offsets)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     x, t = gtsam.symbol("x", 1), gtsam.symbol("t", 1)
     values.insert(x, gtsam.Pose2(*poses["S2"]))
@@ -175,9 +178,8 @@ def _calibrate(poses, taus, seed, n_frames, time_offsets=True):
     lags = {n: -split_offset(taus.get(n, 0.0), T)[0] for n in poses}
     dets = {n: Detections(frame=scene.frame - lags[n], range_m=z[:, 0], omega_rad=z[:, 1],
                           doppler_mps=z[:, 2]) for n, z in scene.measurements.items()}
-    return scene, joint_calibration(dets, noise=NOISE, motion=True, frame_period_s=T,
-                                    sigma_a_mps2=3.0, time_offsets=time_offsets,
-                                    lag_frames=lags)
+    options = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=time_offsets)
+    return scene, joint_calibration(dets, options, noise=NOISE, frame_period_s=T, lag_frames=lags)
 
 
 def _pose_error(res, scene):
@@ -243,9 +245,9 @@ def test_timing_argument_errors():
     with pytest.raises(ValidationError, match="needs frame_period_s"):
         joint_calibration(dets, lag_frames={"S2": 1})
     with pytest.raises(ValidationError, match="time_offsets"):
-        joint_calibration(dets, time_offsets="yes")
+        joint_calibration(dets, JointOptions(time_offsets="yes"))
     with pytest.raises(ValidationError, match="motion_robust"):
-        joint_calibration(dets, motion_robust="tukey")
+        joint_calibration(dets, JointOptions(motion_robust="tukey"))
 
 
 # ------------------------------------------------------------------ fusion side
@@ -362,8 +364,8 @@ def test_end_to_end_calibrate_then_fuse_on_the_reference_clock():
     dets = {n: dataclasses.replace(rec.nodes[n].centroids,
                                    frame=rec.nodes[n].centroids.frame - cal.lag_frames[n])
             for n in rec.node_names}
-    res = joint_calibration(dets, initial_poses=cal.poses, noise=NOISE, motion=True,
-                            frame_period_s=T, sigma_a_mps2=3.0, time_offsets=True,
+    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True),
+                            initial_poses=cal.poses, noise=NOISE, frame_period_s=T,
                             lag_frames=cal.lag_frames)
     err = res.time_offset_s["S2"] + 1.3 * T
     assert abs(err) < 4 * np.sqrt(res.time_offset_variances["S2"]), err

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.calibration import LocalTracks, local_tracks, match_tracks, pose_tangent_error
 from mmsnap_graph.calibration.pairwise.effective_samples import autocorrelation_factor
 from mmsnap_graph.sim import simulate_recording
@@ -39,8 +40,10 @@ def _halves_distance(seed: int, autocorrelation: str) -> float:
     tracks = {n: local_tracks(dataclasses.replace(node, tracks=track_centroids(node.centroids,
                                                                                 ekf)))
               for n, node in rec.nodes.items()}
+    p = rec.frame_period_s  # a lag window of 2 frames, at least 5 common frames
+    opts = MatchingOptions(max_lag_s=2 * p, min_common_s=5 * p, autocorrelation=autocorrelation)
     cals = [match_tracks(_half(tracks["S1"], lo, hi), _half(tracks["S2"], lo, hi),
-                         autocorrelation=autocorrelation).calibration
+                         frame_period_s=p, options=opts).calibration
             for lo, hi in ((0, 200), (200, 400))]
     d = pose_tangent_error(cals[0].pose, cals[1].pose)
     return float(d @ np.linalg.solve(cals[0].covariance + cals[1].covariance, d))

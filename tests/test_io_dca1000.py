@@ -200,7 +200,7 @@ def test_sub_frame_errors_are_never_silent(tmp_path):
                                               rf"the selected sub-frame is {frame_bytes(CFG)} "
                                               rf"bytes at offset {2 * frame_bytes(SUB_A)}\)"):
         read_dca1000_sub_frame(path, configs, 2)
-    with pytest.raises(ValidationError, match=r"sub_frame=3 must be in 0..2"):
+    with pytest.raises(ValidationError, match=r"sub_frame=3 .*must be in 0..2"):
         read_dca1000_sub_frame(path, configs, 3)
     with pytest.raises(ConfigurationError, match="does not fit in stride_bytes"):
         read_dca1000_bin(path, CFG, offset_bytes=8, stride_bytes=frame_bytes(CFG))

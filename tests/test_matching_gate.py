@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.calibration import LocalTracks, match_tracks, pose_tangent_error
 from mmsnap_graph.errors import ValidationError
 from factors.models import global_to_local
@@ -38,6 +39,12 @@ def _far_tracks(seed, n=400, sigma_cross=0.4, sigma_range=0.03):
     return (a, b), plain
 
 
+#: A nominal frame period (s) for the track tables here, and options that
+#: search 2 frames of lag at it.
+T = 0.1
+OPTIONS = MatchingOptions(max_lag_s=2 * T, autocorrelation="none", covariance="sandwich")
+
+
 def test_chi_square_gate_keeps_far_noisy_frames_and_the_nees_honest():
     """Cross-range sigma 0.4 m per node: the fixed 0.5 m gate keeps about 60%
     of the frames (measured 55-65%) and cuts the residual tails; the
@@ -48,8 +55,8 @@ def test_chi_square_gate_keeps_far_noisy_frames_and_the_nees_honest():
     kept_fixed, kept_chi2, nees = [], [], []
     for seed in range(20):
         (a, b), (pa, pb) = _far_tracks(seed)
-        fixed = match_tracks(pa, pb, autocorrelation="none", covariance="sandwich")
-        gated = match_tracks(a, b, autocorrelation="none", covariance="sandwich")
+        fixed = match_tracks(pa, pb, frame_period_s=T, options=OPTIONS)
+        gated = match_tracks(a, b, frame_period_s=T, options=OPTIONS)
         assert fixed.success and gated.success
         kept_fixed.append(fixed.calibration.n_frames / 400)
         kept_chi2.append(gated.calibration.n_frames / 400)
@@ -60,21 +67,20 @@ def test_chi_square_gate_keeps_far_noisy_frames_and_the_nees_honest():
     assert 2.0 < np.mean(nees) < 4.2, np.mean(nees)
 
 
-def test_thresholds_in_seconds_and_deprecated_frames():
+def test_thresholds_in_seconds():
     (a, b), _ = _far_tracks(1, sigma_cross=0.05)
-    m = match_tracks(a, b, frame_period_s=0.05, max_lag_s=0.1)
+    m = match_tracks(a, b, frame_period_s=0.05, options=MatchingOptions(max_lag_s=0.1))
     assert m.success
     assert {c.lag_frames for c in m.candidates} == {-2, -1, 0, 1, 2}  # 0.1 s at 20 fps
-    with pytest.warns(DeprecationWarning, match="max_lag_frames"):
-        old = match_tracks(a, b, max_lag_frames=1)
-    assert {c.lag_frames for c in old.candidates} == {-1, 0, 1}
+    one = match_tracks(a, b, frame_period_s=0.1, options=MatchingOptions(max_lag_s=0.1))
+    assert {c.lag_frames for c in one.candidates} == {-1, 0, 1}  # 0.1 s at 10 fps
     # 0.5 s at 20 fps is 10 frames: a 8-frame overlap is refused
     short = [LocalTracks(frame=x.frame[:8], points_m=x.points_m[:8], track_id=x.track_id[:8])
              for x in (a, b)]
     assert not match_tracks(*short, frame_period_s=0.05).success
-    with pytest.raises(ValidationError, match="need frame_period_s"):
-        match_tracks(a, b, max_lag_s=0.3)
+    with pytest.raises(TypeError, match="frame_period_s"):
+        match_tracks(a, b, options=MatchingOptions(max_lag_s=0.3))
     with pytest.raises(ValidationError, match="frame_period_s must be finite"):
         match_tracks(a, b, frame_period_s=0.0)
     with pytest.raises(ValidationError, match="gate_probability"):
-        match_tracks(a, b, gate_probability=1.0)
+        MatchingOptions(gate_probability=1.0)

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from mmsnap_graph.calibration import RECORDING_JOINT_OPTIONS
 from mmsnap_graph.app.pipeline import track_recording
 from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
 from mmsnap_graph.calibration.joint.multi_refine import refine_multi
@@ -28,7 +29,8 @@ def _recording(n_targets, seed, n_frames=600):
     """Centroids (10% missed, unlabelled: target_id dropped, as from the
     chain) and each node's EKF tracks."""
     rec = simulate_recording(NETWORK, "random",
-                             SimulationOptions(physics=None, n_targets=n_targets, centroid_p_miss=0.1),
+                             SimulationOptions(physics=None, n_targets=n_targets,
+                                               centroid_p_miss=0.1),
                              levels=("centroids",), n_frames=n_frames, seed=seed)
     for node in rec.nodes.values():
         rec = rec.with_node(dataclasses.replace(
@@ -87,7 +89,9 @@ def test_one_walker_gives_the_single_target_graph():
     track restarts); poses within 5 mm and 0.05 deg of each other (measured
     3.4 mm, against pose sigmas of 30-40 mm; both 8-24 mm from the truth)."""
     rec = _recording(1, 5, n_frames=200)
-    cal = calibrate_recording(rec, time_offsets=False)  # refine_multi: whole frames
+    # refine_multi: whole frames
+    cal = calibrate_recording(rec, joint=dataclasses.replace(RECORDING_JOINT_OPTIONS,
+                                                             time_offsets=False))
     assert cal.method == "joint"
     res = refine_multi(rec, cal.pose_graph)
     assert res.mapping.n_targets <= 3
@@ -124,7 +128,8 @@ def test_each_target_track_follows_one_walker(three_walkers):
     centroids come from one true walker (the simulator's labels, kept aside)."""
     rec, pg, res = three_walkers
     labelled = simulate_recording(NETWORK, "random",
-                                  SimulationOptions(physics=None, n_targets=3, centroid_p_miss=0.1),
+                                  SimulationOptions(physics=None, n_targets=3,
+                                                    centroid_p_miss=0.1),
                                   levels=("centroids",), n_frames=600, seed=SEEDS[0])
     pure, total = 0, 0
     for n, tgt in res.association.target.items():

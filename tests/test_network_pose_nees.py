@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from mmsnap_graph.calibration import JointOptions
 from factors.models import detection_to_local, measurement_model
 from mmsnap_graph.calibration import (LocalTracks, calibrate_recording, joint_calibration,
                                       pose_tangent_error)
@@ -92,8 +93,8 @@ def test_a_lag_one_frame_off_is_recentred(monkeypatch, recentre):
     lags = {"S1": 0, "S2": 1, "S3": 0}
     dets = {n: dataclasses.replace(node.centroids, frame=node.centroids.frame - lags[n])
             for n, node in rec.nodes.items()}
-    res = joint_calibration(dets, noise=NOISE, motion=True, frame_period_s=rec.frame_period_s,
-                            sigma_a_mps2=3.0, time_offsets=True, lag_frames=lags,
+    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True),
+                            noise=NOISE, frame_period_s=rec.frame_period_s, lag_frames=lags,
                             initial_poses=NET)
     err = np.hypot(*pose_tangent_error(res.poses["S2"], NET["S2"])[:2])
     if recentre:

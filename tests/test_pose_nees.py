@@ -36,6 +36,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from mmsnap_graph.calibration import MatchingOptions
 from factors.models import global_to_local
 from mmsnap_graph.calibration import (LocalTracks, local_tracks, pairwise_edges,
                                       pose_graph_calibration, pose_tangent_error)
@@ -77,8 +78,9 @@ def _synthetic_joint_nees(seed, method):
         noisy = loc + 0.03 * rng.normal(size=(300, 1)) * u + 0.25 * rng.normal(size=(300, 1)) * v
         tracks[name] = LocalTracks(frame=np.arange(300), points_m=noisy,
                                    track_id=np.zeros(300, int))
-    edges, failures = pairwise_edges(tracks, max_rmse_m=5.0, inlier_gate_m=5.0,
-                                     autocorrelation="none")
+    # 2 frames of lag and 5 common frames at a nominal 0.1 s frame period
+    edges, failures = pairwise_edges(tracks, frame_period_s=0.1, options=MatchingOptions(
+        max_lag_s=0.2, max_rmse_m=5.0, inlier_gate_m=5.0, autocorrelation="none"))
     assert not failures, failures
     pg = pose_graph_calibration(list(NET), edges, method=method, autocorrelation="none")
     e = np.concatenate([pose_tangent_error(pg.poses[n], NET[n]) for n in pg.joint_order])

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mmsnap_graph.calibration import JointOptions
 from mmsnap_graph import MmsnapError
 from mmsnap_graph.calibration import joint_calibration
 from mmsnap_graph.calibration.joint.presolve import robust_cost
@@ -34,10 +35,13 @@ def detections():
     ("max_iterations", 0), ("max_motion_gap_frames", 0),
 ])
 def test_bad_options_raise_validation_errors_naming_them(detections, option, value):
-    kwargs = dict(noise=NOISE, motion=True, frame_period_s=0.15)
-    kwargs[option] = value
     with pytest.raises(ValidationError, match=option):
-        joint_calibration(detections, **kwargs)
+        if option == "frame_period_s":
+            joint_calibration(detections, JointOptions(motion=True), noise=NOISE,
+                              frame_period_s=value)
+        else:
+            joint_calibration(detections, JointOptions(motion=True, **{option: value}),
+                              noise=NOISE, frame_period_s=0.15)
 
 
 @pytest.mark.parametrize("sigma", [1e-300, 1e-160])
@@ -52,7 +56,7 @@ def test_vanishing_sigmas_raise_a_validation_error_or_fail(detections, sigma):
 
 def test_every_detection_an_outlier_gives_success_false(detections):
     # a threshold below every residual flags every detection
-    result = joint_calibration(detections, noise=NOISE, outlier_probability=1.0 - 1e-12)
+    result = joint_calibration(detections, JointOptions(outlier_probability=1.0 - 1e-12), noise=NOISE)
     assert not result.success
     assert "outlier" in result.message
 

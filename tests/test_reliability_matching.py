@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.calibration import local_tracks, match_tracks, pose_tangent_error
 from mmsnap_graph.sim.networks import COMMON_AREAS, CONFIGURATIONS
 from mmsnap_graph.sim.simulator import simulate_recording
@@ -35,7 +36,10 @@ def circular_walk(seed: int):
 @pytest.mark.parametrize("seed", [0, 13, 14, 26, 31, 1, 2])
 def test_an_ambiguous_lag_does_not_give_a_confident_wrong_pose(seed):
     truth, rec = circular_walk(seed)
-    m = match_tracks(local_tracks(rec.nodes["S1"]), local_tracks(rec.nodes["S2"]))
+    p = rec.frame_period_s  # a lag window of 2 frames, at least 5 common frames
+    m = match_tracks(local_tracks(rec.nodes["S1"]), local_tracks(rec.nodes["S2"]),
+                     frame_period_s=p, options=MatchingOptions(max_lag_s=2 * p,
+                                                               min_common_s=5 * p))
     if not m.success:
         return
     e = pose_tangent_error(m.calibration.pose, truth)
@@ -47,4 +51,5 @@ def test_lag_ambiguity_is_validated():
     truth, rec = circular_walk(1)
     with pytest.raises(Exception, match="lag_ambiguity"):
         match_tracks(local_tracks(rec.nodes["S1"]), local_tracks(rec.nodes["S2"]),
-                     lag_ambiguity=float("nan"))
+                     frame_period_s=rec.frame_period_s,
+                     options=MatchingOptions(lag_ambiguity=float("nan")))

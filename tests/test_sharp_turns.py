@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from mmsnap_graph.calibration import JointOptions
 from factors.gtsam_factors import (
     constant_velocity_factor,
     measurement_noise,
@@ -24,7 +25,7 @@ from factors.gtsam_factors import (
     state_prior_factor,
 )
 from mmsnap_graph.calibration import joint_calibration
-from mmsnap_graph.calibration.joint.presolve import normal_equations
+from mmsnap_graph.calibration.joint.presolve import PresolveProblem, normal_equations
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.sim.clocks import timed_scene
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
@@ -66,8 +67,8 @@ def test_clean_turning_walk_flags_at_most_half_a_percent(seed, sigma_a):
     """Failed before (73-87 and 9-14 of 1200 flagged); measured now 0-1."""
     scene, _ = _scene(seed)
     dets = {n: (scene.frame, z) for n, z in scene.measurements.items()}
-    res = joint_calibration(dets, noise=NOISE, motion=True, frame_period_s=T,
-                            sigma_a_mps2=sigma_a)
+    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=sigma_a), noise=NOISE,
+                            frame_period_s=T)
     flagged = sum(int(o.sum()) for o in res.outliers.values())
     assert flagged <= 0.005 * 2 * scene.frame.size, (flagged, res.message)
     assert res.success and res.turns > 0, res.message
@@ -78,7 +79,8 @@ def test_ghosts_in_a_turning_walk_are_still_flagged():
     detections."""
     scene, ghost = _scene(3, ghost_fraction=0.1)
     dets = {n: (scene.frame, z) for n, z in scene.measurements.items()}
-    res = joint_calibration(dets, noise=NOISE, motion=True, frame_period_s=T, sigma_a_mps2=3.0)
+    res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=3.0), noise=NOISE,
+                            frame_period_s=T)
     g = np.concatenate([ghost["S1"], ghost["S2"]])
     got = np.concatenate([res.outliers["S1"], res.outliers["S2"]])
     assert np.mean(got[g]) > 0.9 and np.mean(got[~g]) <= 0.005
@@ -96,8 +98,9 @@ def test_presolve_with_a_motion_kernel_matches_gtsam(kernel):
     states = scene.truth + rng.normal(size=scene.truth.shape) * 0.2
     prior = np.array([1e3, 1e3, 3.5, 3.5])
     motion = (np.arange(5), np.full(5, T), 0.7, kernel, 3.0)
-    hmat, g = normal_equations(meas, poses, states, ["S1", "S2"], "S1", sig, prior, None, 1.0,
-                               motion=motion)
+    problem = PresolveProblem(measurements=meas, names=["S1", "S2"], reference="S1", sigmas=sig,
+                              prior_sigmas=prior, motion=motion)
+    hmat, g = normal_equations(problem, poses, states)
     graph, values, order = gtsam.NonlinearFactorGraph(), gtsam.Values(), gtsam.Ordering()
     x = gtsam.symbol("x", 1)
     values.insert(x, gtsam.Pose2(*poses["S2"]))
@@ -123,7 +126,7 @@ def test_motion_kernel_option_runs_and_keeps_turns_clean():
     turning walk with few flags too and reports the turns it left out."""
     scene, _ = _scene(0)
     dets = {n: (scene.frame, z) for n, z in scene.measurements.items()}
-    res = joint_calibration(dets, noise=NOISE, motion=True, frame_period_s=T,
-                            sigma_a_mps2=1.0, motion_robust="cauchy")
+    options = JointOptions(motion=True, sigma_a_mps2=1.0, motion_robust="cauchy")
+    res = joint_calibration(dets, options, noise=NOISE, frame_period_s=T)
     assert sum(int(o.sum()) for o in res.outliers.values()) <= 6
     assert res.turns > 0 and "sharp turn" in res.message

@@ -29,6 +29,9 @@ only), and prints, per radar (S1 = "Ori" at (0, 0) facing +y, S2 = "Side" at
   tape-measured mounting taken as exact and once with a free translation
   of S2 (the mounting's own error).
 
+``--simulated N`` measures N seeded simulations (real physics) of the first
+recording's geometry the same way, with one and with two walkers.
+
 Run: ``python tools/measure_real_recordings.py DIR [--json OUT]`` with DIR the
 folder of the pickles (``multiple_tracking_Jun-05-16-07-02.pkl``,
 ``fall_detection_Jun-10-15-48-31.pkl``).
@@ -176,12 +179,45 @@ def _bootstrap(rows: np.ndarray, fn, rng, block: int = 40, n: int = 300) -> np.n
 
 def measure_recording(path: Path, xlim, ylim, n_people: int, rng) -> dict:
     stacks = load_stacks(path)
-    n_f = len(stacks)
+    return measure_frames({name: destack([s[key] for s in stacks])
+                           for name, (key, _) in RADARS.items()}, xlim, ylim, n_people, rng)
+
+
+def simulated_frames(seed: int, n_frames: int = 635, n_people: int = 2) -> dict:
+    """The simulator's point clouds (default options: real physics) of the
+    first recording's geometry and room at 20 fps, people walking at random
+    in the part of the room both radars see, as room-frame points per frame
+    (height 1 m, inside the band)."""
+    from factors.models import local_to_global
+    from mmsnap_graph.sim import Area, RealPhysics, SimulationOptions, simulate_recording
+    from mmsnap_graph.sim.trajectories import make_trajectory
+
+    net = {"S1": (0.0, 0.0, 0.0), "S2": (1.70, 1.65, np.pi / 2)}
+    area = Area(x_min_m=-1.6, x_max_m=1.0, y_min_m=0.8, y_max_m=3.3)
+    states = np.stack([make_trajectory("random", area, n_frames=n_frames, frame_period_s=FRAME_S,
+                                       rng=np.random.default_rng([seed, t]))
+                       for t in range(n_people)])
+    opt = SimulationOptions(frame_period_s=FRAME_S, min_range_m=0.25,
+                            physics=RealPhysics(room=(-2.0, 1.6, 0.0, 3.6)))
+    rec = simulate_recording(net, states, opt, levels=("point_cloud",), seed=seed)
+    out = {}
+    for name, node in rec.nodes.items():
+        pc = node.point_cloud
+        th = np.arcsin(pc.omega_rad / np.pi)
+        xy = local_to_global(np.stack([pc.range_m * np.sin(th), pc.range_m * np.cos(th)], 1),
+                             rec.truth.node_poses[name])
+        pts = np.column_stack([xy, np.ones(len(pc)), pc.doppler_mps, 10 * pc.snr_db])
+        out[name] = [pts[pc.frame == k] for k in range(n_frames)]
+    return out
+
+
+def measure_frames(frames_by_radar: dict, xlim, ylim, n_people: int, rng) -> dict:
+    """The figures of the module doc from new points per frame and radar."""
+    n_f = len(frames_by_radar["S1"])
     res: dict = {"frames": n_f, "radars": {}}
     clouds, moving = {}, {}
-    for name, (key, _) in RADARS.items():
-        new = destack([s[key] for s in stacks])
-        fr, p = _table(new)
+    for name in RADARS:
+        fr, p = _table(frames_by_radar[name])
         counts = np.bincount(fr, minlength=n_f)[1:]
         static = p[:, 3] == 0
         in_room = ((p[:, 0] >= xlim[0]) & (p[:, 0] < xlim[1]) & (p[:, 1] >= ylim[0])
@@ -262,8 +298,11 @@ def measure_recording(path: Path, xlim, ylim, n_people: int, rng) -> dict:
         u1 /= np.linalg.norm(u1, axis=1, keepdims=True)
         u2 /= np.linalg.norm(u2, axis=1, keepdims=True)
         rows.append(np.concatenate([s1[ok] - s2[ok], u1, u2], axis=1))
-    rows = np.concatenate(rows)
+    rows = np.concatenate(rows) if rows else np.zeros((0, 6))
     out = {"frames_both_radars": int(len(rows))}
+    if len(rows) < 50:
+        res["reflection_depth_d1_d2_m"] = out
+        return res
     for free in (False, True):
         fit = lambda idx: _depth_fit(rows[idx, :2], rows[idx, 2:4], rows[idx, 4:6], free)  # noqa: E731
         est = fit(np.arange(len(rows)))
@@ -287,11 +326,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("folder", type=Path)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--simulated", type=int, default=0, metavar="N",
+                    help="also measure N seeded simulations of the first recording's geometry")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
     result = {}
     for name, (fn, xlim, ylim, n_people) in RECORDINGS.items():
         result[name] = measure_recording(args.folder / fn, xlim, ylim, n_people, rng)
+    xlim, ylim = RECORDINGS["multiple_tracking"][1:3]
+    for seed in range(args.simulated):
+        for people in (1, 2):
+            result[f"simulated_{people}_people_seed_{seed}"] = measure_frames(
+                simulated_frames(seed, n_people=people), xlim, ylim, people, rng)
     text = json.dumps(result, indent=1)
     if args.json:
         args.json.write_text(text)

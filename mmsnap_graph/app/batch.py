@@ -395,7 +395,7 @@ def run_many(
         the recordings in place, as the commands do).
     options : per step, keyword arguments of the step's library function:
         ``process`` -> ``process_file`` (e.g. ``centroids_only``, ``ekf``),
-        ``calibrate`` -> ``calibrate_recording`` (e.g. ``max_lag_frames``),
+        ``calibrate`` -> ``calibrate_recording`` (e.g. ``matching``, ``joint``),
         ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``solver``, ``noise``).
         They are pickled to the workers: plain values and frozen configs.
     blas_threads : BLAS / OpenMP threads per worker (None: leave them).

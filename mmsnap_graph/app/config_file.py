@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..calibration.pairwise.matching_options import MATCHING_DEFAULTS, check_matching_options
+from ..calibration.pairwise.matching_options import MatchingOptions
 from ..errors import ConfigurationError, ValidationError
 from ..radar.cfar import CfarConfig
 from ..radar.chain import ChainConfig
@@ -48,7 +48,7 @@ from ..radar.cluster import ClusterConfig
 from ..tracking.ekf import EkfConfig
 
 __all__ = ["ProcessConfig", "read_process_config", "process_config_from_mapping",
-           "process_config_to_toml", "MatchingConfig", "read_matching_config",
+           "process_config_to_toml", "read_matching_config",
            "matching_config_from_mapping", "matching_config_to_toml", "SPARSE_VALUES"]
 
 #: EKF fields the file may not set (the recording gives them).
@@ -78,30 +78,6 @@ class ProcessConfig:
     #: when the median non-empty frame holds fewer than 6 points), True, False
     #: (:func:`mmsnap_graph.app.pipeline.sparse_cluster_config`).
     sparse: bool | None = None
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class MatchingConfig:
-    """What ``mmsnap calibrate`` matches tracks with (the ``[matching]``
-    table): :func:`~mmsnap_graph.calibration.network.calibrate_recording`'s
-    thresholds, in seconds and metres."""
-
-    max_lag_s: float = MATCHING_DEFAULTS["max_lag_s"]
-    min_common_s: float = MATCHING_DEFAULTS["min_common_s"]
-    min_spread_m: float = MATCHING_DEFAULTS["min_spread_m"]
-    max_rmse_m: float = MATCHING_DEFAULTS["max_rmse_m"]
-    inlier_gate_m: float = MATCHING_DEFAULTS["inlier_gate_m"]
-    gate_probability: float = MATCHING_DEFAULTS["gate_probability"]
-
-    def __post_init__(self) -> None:
-        try:
-            check_matching_options(**self.as_kwargs())
-        except ValidationError as exc:
-            raise ConfigurationError(str(exc)) from None
-
-    def as_kwargs(self) -> dict[str, float]:
-        """The thresholds as keywords of ``calibrate_recording``."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 def _coerce(where: str, default: Any, value: Any) -> Any:
@@ -148,7 +124,7 @@ def _build(cls, table: Mapping[str, Any], where: str, *, nested=None, forbidden=
         kwargs[key] = _coerce(here, default, value)
     try:
         return cls(**kwargs)
-    except ConfigurationError as exc:
+    except (ConfigurationError, ValidationError) as exc:
         raise ConfigurationError(f"[{where}] {exc}") from None
     except (TypeError, ValueError) as exc:
         raise ConfigurationError(f"[{where}] {exc}") from None
@@ -193,15 +169,16 @@ def process_config_from_mapping(data: Mapping[str, Any], *, where: str = "config
 
 
 def matching_config_from_mapping(data: Mapping[str, Any], *, where: str = "config"
-                                 ) -> MatchingConfig:
-    """A :class:`MatchingConfig` from a parsed TOML document (table
+                                 ) -> MatchingOptions:
+    """The library's :class:`~mmsnap_graph.calibration.MatchingOptions` from a
+    parsed TOML document (table
     ``matching``; ``chain``, ``ekf`` are ``mmsnap process``'s and are
     ignored)."""
     _check_tables(data, where)
     table = data.get("matching", {})
     if not isinstance(table, Mapping):
         raise ConfigurationError(f"{where}: matching must be a table [matching]")
-    return _build(MatchingConfig, table, f"{where}: matching")
+    return _build(MatchingOptions, table, f"{where}: matching")
 
 
 def _read_toml(path: str | os.PathLike) -> tuple[dict[str, Any], str]:
@@ -216,7 +193,7 @@ def _read_toml(path: str | os.PathLike) -> tuple[dict[str, Any], str]:
         raise ConfigurationError(f"{p}: not valid TOML: {exc}") from None
 
 
-def read_matching_config(path: str | os.PathLike) -> MatchingConfig:
+def read_matching_config(path: str | os.PathLike) -> MatchingOptions:
     """Read the ``[matching]`` table of a ``--config`` TOML file (errors as
     :func:`read_process_config`)."""
     data, where = _read_toml(path)
@@ -280,7 +257,7 @@ def process_config_to_toml(config: ProcessConfig) -> str:
     return "\n".join(lines) + "\n"
 
 
-def matching_config_to_toml(config: MatchingConfig) -> str:
+def matching_config_to_toml(config: MatchingOptions) -> str:
     """The ``[matching]`` table that :func:`read_matching_config` reads back
     to an equal configuration (the same file may hold ``mmsnap process``'s
     tables)."""

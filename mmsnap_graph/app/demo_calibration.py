@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 
 from factors.models import local_to_global
 
-from ..calibration import LocalTracks, joint_calibration, match_tracks
+from ..calibration import LocalTracks, MatchingOptions, joint_calibration, match_tracks
 from ..data.noise import MeasurementNoise
 from ..data.recording import Detections, Recording, Tracks
 from ..errors import CalibrationError, ValidationError
@@ -185,7 +185,8 @@ def calibrate_run(recording: Recording, *, configuration: str = "?", trajectory:
     lt = [LocalTracks(frame=t.frame, points_m=t.state[:, :2], track_id=np.zeros(len(t), np.int64))
           for t in tracks]
     period = recording.frame_period_s
-    m = match_tracks(lt[0], lt[1], frame_period_s=period, max_lag_s=max_lag_frames * period)
+    m = match_tracks(lt[0], lt[1], frame_period_s=period,
+                     options=MatchingOptions(max_lag_s=max_lag_frames * period))
     if not m.success:
         raise CalibrationError(f"configuration {configuration}, {trajectory}: closed form "
                                f"failed: {m.message}")

@@ -35,23 +35,25 @@ from numpy.typing import NDArray
 from ..errors import CalibrationError, ValidationError
 from ..data.noise import MeasurementNoise, NoiseEstimate
 from ..data.recording import Detections, Recording
+from .joint.options import JointOptions
 from .joint.solve import JointCalibration, joint_calibration
 from .pairwise.matching import LocalTracks, local_tracks
-from .pairwise.matching_options import (
-    DEFAULT_GATE_PROBABILITY,
-    DEFAULT_INLIER_GATE_M,
-    DEFAULT_MAX_LAG_S,
-    DEFAULT_MAX_RMSE_M,
-    DEFAULT_MIN_COMMON_S,
-    DEFAULT_MIN_SPREAD_M,
-    check_matching_options,
-)
+from .pairwise.matching_options import MatchingOptions
 from .joint.multi_refine import refine_associated
 from .noise.estimate import estimate_noise
 from .joint.residual_noise import residual_noise
 from .pairwise.pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 
-__all__ = ["RecordingCalibration", "calibrate_recording", "residual_noise", "describe_noise"]
+__all__ = ["RecordingCalibration", "RECORDING_JOINT_OPTIONS", "calibrate_recording",
+           "residual_noise", "describe_noise"]
+
+#: The joint graph's options of :func:`calibrate_recording` by default:
+#: constant-velocity factors (they let a ghost stand out from the smooth
+#: track; without them a free per-frame state absorbs part of it) with a
+#: white-acceleration sigma that covers a walking person's accelerations (on
+#: the simulator's walks 0.5 m/s^2 biased the poses by up to 9 cm, 2-5 m/s^2
+#: did not), and each node's clock offset.
+RECORDING_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -146,7 +148,7 @@ def _joint_noise(recording, pg, dets) -> tuple[MeasurementNoise, str]:
         describe_noise(noise, est)
 
 
-def _refine(recording, pg, reachable, method, noise, options, notes):
+def _refine(recording, pg, reachable, method, noise, options: JointOptions, notes):
     """The joint step: its result (None when skipped)."""
     dets = _joint_detections(recording, reachable, pg.lag_frames)
     if dets is None:
@@ -154,7 +156,10 @@ def _refine(recording, pg, reachable, method, noise, options, notes):
     if noise is None:
         noise, note = _joint_noise(recording, pg, dets)
         notes.append(note)
-    joint = joint_calibration(dets, noise=noise, **options)
+    joint = joint_calibration(dets, options, noise=noise,
+                              initial_poses={n: pg.poses[n] for n in reachable},
+                              frame_period_s=recording.frame_period_s,
+                              lag_frames={n: int(pg.lag_frames.get(n, 0)) for n in reachable})
     notes.append(joint.message)
     return joint
 
@@ -170,10 +175,10 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
     7.5 +- 3.3 and 19.7 +- 4.0 ms and moved the poses by 35-85 mm (14 and
     1.6 mm without); on sparse clouds 16 +- 9 and 25 +- 11 ms, 52-128 mm
     (7 and 4 mm without)."""
-    options = {**options, "max_motion_gap_frames": 3}
     try:
         out = refine_associated(recording, reachable, pg.poses, pg.covariances, pg.lag_frames,
-                                noise=noise, options={**options, "time_offsets": False})
+                                noise=noise,
+                                options=dataclasses.replace(options, time_offsets=False))
     except CalibrationError as exc:  # e.g. no centroids at all (tracks only)
         out = None
         notes.append(f"no association across nodes: {exc}")
@@ -188,22 +193,13 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
                  f"{out.association.n_groups} (frame, target) states; sigmas from the "
                  f"residuals: {describe_sigmas(out.noise)}")
     notes.append(out.joint.message)
-    if options.get("time_offsets"):
+    if options.time_offsets:
         notes.append("clock offsets: whole-frame lags only with several centroids per frame")
     return out.joint
 
 
-def _describe_matching(matching: Mapping[str, float], max_lag_frames) -> str:
-    """The matching thresholds as ``name=value unit`` (for a failure message)."""
-    units = {"_s": " s", "_m": " m"}
-    parts = [f"max_lag_frames={int(max_lag_frames)}"] if max_lag_frames is not None else []
-    parts += [f"{k}={v:g}{units.get(k[-2:], '')}" for k, v in matching.items()]
-    return ", ".join(parts)
-
-
-def _pose_graph_step(recording, names, source, max_lag_frames, matching):
-    """Local tracks of every node, pairwise matches (``matching``: the
-    :func:`match_tracks` thresholds, checked), the pose graph."""
+def _pose_graph_step(recording, names, source, matching: MatchingOptions):
+    """Local tracks of every node, pairwise matches, the pose graph."""
     ref = names[0]
     tracks: dict[str, LocalTracks] = {}
     failures: dict[str, str] = {}
@@ -214,17 +210,12 @@ def _pose_graph_step(recording, names, source, max_lag_frames, matching):
             failures[n] = str(exc)
     if ref not in tracks:
         raise CalibrationError(f"reference node {ref}: {failures[ref]}")
-    # Thresholds in seconds (issue 14): frame counts only when a caller gives them.
-    kwargs = dict(matching)
-    if max_lag_frames is not None:
-        kwargs.pop("max_lag_s", None)
-        kwargs["max_lag_frames"] = int(max_lag_frames)
-    edges, pair_fail = pairwise_edges(tracks, frame_period_s=recording.frame_period_s, **kwargs)
+    edges, pair_fail = pairwise_edges(tracks, frame_period_s=recording.frame_period_s,
+                                      options=matching)
     failures.update(pair_fail)
     if not edges:
         raise CalibrationError(
-            f"no pair of nodes shares a matched track (matching: "
-            f"{_describe_matching(matching, max_lag_frames)}): "
+            f"no pair of nodes shares a matched track (matching: {matching.describe()}): "
             + "; ".join(f"{k}: {v}" for k, v in failures.items()))
     return pose_graph_calibration(names, edges, failures=failures), tracks[ref].source, failures
 
@@ -234,36 +225,17 @@ def calibrate_recording(
     *,
     source: Literal["auto", "tracks", "centroids"] = "auto",
     method: Literal["auto", "joint", "pose_graph"] = "auto",
-    max_lag_frames: int | None = None,
-    max_rmse_m: float = DEFAULT_MAX_RMSE_M,
     noise: MeasurementNoise | None = None,
-    robust: str | None = "cauchy",
-    motion: bool = True,
-    sigma_a_mps2: float = 3.0,
-    time_offsets: bool = True,
-    max_lag_s: float | None = None,
-    min_common_s: float = DEFAULT_MIN_COMMON_S,
-    min_spread_m: float = DEFAULT_MIN_SPREAD_M,
-    inlier_gate_m: float = DEFAULT_INLIER_GATE_M,
-    gate_probability: float = DEFAULT_GATE_PROBABILITY,
+    matching: MatchingOptions | None = None,
+    joint: JointOptions = RECORDING_JOINT_OPTIONS,
 ) -> RecordingCalibration:
     """Calibrate every node of ``recording`` (module doc).
 
+    source : the local positions to match: EKF tracks when present
+        (``"auto"``), ``"tracks"`` or ``"centroids"``.
     method : ``"pose_graph"`` stops after the pose graph of pairwise closed
         forms; ``"joint"`` requires the joint refinement (CalibrationError if
         the centroids cannot feed it); ``"auto"`` refines when it can.
-    max_lag_s, min_common_s, min_spread_m, max_rmse_m, inlier_gate_m,
-        gate_probability : track matching (:func:`match_tracks`), in seconds
-        and metres: lags up to ``max_lag_s`` (default 0.3 s) are searched,
-        whole frames of the recording's period; a track pair must share
-        ``min_common_s`` (default 0.5 s, and at least 5 frames) of a target
-        that moves ``min_spread_m`` (default 0.2 m) in each node; a match
-        whose track RMSE exceeds ``max_rmse_m`` (default 1 m) is rejected; a
-        frame pair supports a pose within ``inlier_gate_m`` (default 0.5 m;
-        tracks without covariances) or the chi-square gate of
-        ``gate_probability`` (default 0.997; EKF tracks on both sides).
-        ValidationError names a bad value. ``max_lag_frames`` (deprecated)
-        gives the lag window in frames instead.
     noise : measurement noise of the centroids for the joint graph;
         None (default): estimated from the data, each node's own centroid
         sequence pooled over the nodes (module doc); the recording's
@@ -271,59 +243,58 @@ def calibrate_recording(
         joint graph weighs range against spatial frequency by them.
         Whatever the joint graph used, the result's ``noise`` is every
         node's estimate from the data at the calibrated poses.
-    robust, motion, sigma_a_mps2 : joint graph (:func:`joint_calibration`).
-        The constant-velocity factors let a ghost stand out from the smooth
-        track (without them a free per-frame state absorbs part of it); their
-        white-acceleration sigma must cover a walking person's accelerations:
-        on the simulator's walks 0.5 m/s^2 biased the poses by up to 9 cm,
-        2-5 m/s^2 did not (default 3).
-    time_offsets : estimate each node's clock offset (a fraction of a frame
-        beyond the whole-frame lag of the track matching) in the joint graph
-        (docs/CALIBRATION.md, "Clock offsets"); False: whole frames only.
-        With several centroids per frame: whole frames only (they biased
-        the poses there: :func:`_refine_multi`).
+    matching : the track matching's thresholds in seconds and metres
+        (:class:`MatchingOptions`; None: its defaults): lags up to
+        ``max_lag_s`` (whole frames of the recording's period) are searched,
+        a track pair must share ``min_common_s`` of a target that moves
+        ``min_spread_m`` in each node, a match whose track RMSE exceeds
+        ``max_rmse_m`` is rejected.
+    joint : the joint graph's options (default
+        :data:`RECORDING_JOINT_OPTIONS`). Clock offsets (``time_offsets``, a
+        fraction of a frame beyond the whole-frame lag of the track
+        matching; docs/CALIBRATION.md, "Clock offsets") need the motion
+        factors, and are not estimated with several centroids per frame
+        (they biased the poses there: :func:`_refine_multi`).
     Raises :class:`CalibrationError` when no node pair can be matched.
     """
     if method not in ("auto", "joint", "pose_graph"):
         raise ValidationError(f"method={method!r} must be 'auto', 'joint' or 'pose_graph'")
     if noise is not None and not isinstance(noise, MeasurementNoise):
         raise ValidationError(f"noise must be a MeasurementNoise or None, got {noise!r}")
-    matching = check_matching_options(
-        max_lag_s=DEFAULT_MAX_LAG_S if max_lag_s is None else max_lag_s, min_common_s=min_common_s, min_spread_m=min_spread_m,
-        max_rmse_m=max_rmse_m, inlier_gate_m=inlier_gate_m, gate_probability=gate_probability)
+    matching = MatchingOptions() if matching is None else matching
+    if not isinstance(matching, MatchingOptions):
+        raise ValidationError(f"matching must be a MatchingOptions or None, got {matching!r}")
+    if not isinstance(joint, JointOptions):
+        raise ValidationError(f"joint must be a JointOptions, got {joint!r}")
     names = list(recording.node_names)
     if len(names) < 2:
         raise CalibrationError(f"a calibration needs at least two nodes, got {names!r}")
-    pg, used_source, failures = _pose_graph_step(recording, names, source, max_lag_frames,
-                                                 matching)
+    pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
-    result_method, joint, notes = "pose_graph", None, [pg.message]
+    result_method, refined, notes = "pose_graph", None, [pg.message]
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
-        options = dict(initial_poses=poses, robust=robust, motion=motion,
-                       frame_period_s=recording.frame_period_s, sigma_a_mps2=sigma_a_mps2,
-                       time_offsets=bool(time_offsets) and bool(motion),
-                       lag_frames={n: int(pg.lag_frames.get(n, 0)) for n in reachable})
-        joint = _refine(recording, pg, reachable, method, noise, options, notes)
-        if joint is not None and (joint.success or method == "joint"):
-            poses = {n: joint.poses[n] for n in reachable}
-            covs = {n: joint.covariances[n] for n in reachable}
+        options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)
+        refined = _refine(recording, pg, reachable, method, noise, options, notes)
+        if refined is not None and (refined.success or method == "joint"):
+            poses = {n: refined.poses[n] for n in reachable}
+            covs = {n: refined.covariances[n] for n in reachable}
             result_method = "joint"
-        elif joint is not None:
+        elif refined is not None:
             notes.append("kept the pose-graph poses")
-    success = pg.success and (joint is None or joint.success or result_method == "pose_graph")
+    success = pg.success and (refined is None or refined.success or result_method == "pose_graph")
     lags = dict(pg.lag_frames)
     if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
-        lags.update({n: int(v) for n, v in joint.lag_frames.items() if n in lags})
+        lags.update({n: int(v) for n, v in refined.lag_frames.items() if n in lags})
     noise_est = estimate_noise(recording, poses=poses, lag_frames=lags)
     notes.append(noise_est.message)
-    offsets, variances = _clock_offsets(recording, names, pg, joint if result_method == "joint"
+    offsets, variances = _clock_offsets(recording, names, pg, refined if result_method == "joint"
                                         else None)
     return RecordingCalibration(
         reference=names[0], node_names=tuple(names), poses=poses, covariances=covs,
         lag_frames=lags, unreachable=pg.unreachable, edges=pg.edges,
         method=result_method, source=used_source, success=bool(success),
-        message="; ".join(notes), failures=failures, pose_graph=pg, joint=joint,
+        message="; ".join(notes), failures=failures, pose_graph=pg, joint=refined,
         noise=noise_est, time_offset_s=offsets, time_offset_variances=variances)
 
 

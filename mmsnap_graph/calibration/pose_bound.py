@@ -1,5 +1,5 @@
 """What the detections of a recording allow: a Cramer-Rao bound on the node
-poses (issue 14, Build 7: "sparse within 1.2x of dense").
+poses, against which sparse clouds are compared with dense ones.
 
 Two steps, both numpy, both given the truth (a simulated recording):
 

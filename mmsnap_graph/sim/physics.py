@@ -33,6 +33,7 @@ from factors.models import global_to_local, local_to_global, measurement_model, 
 
 from ..data.recording import Detections
 from ..errors import ValidationError
+from .sparse import empty_frame_mask
 
 __all__ = ["RealPhysics", "room_box", "person_depths", "correlated_errors", "mirror_through_walls",
            "static_reflectors", "quantize_float16", "physical_centroids", "physical_point_cloud"]
@@ -64,8 +65,10 @@ class RealPhysics:
         in a frame.
     points_per_person : Poisson mean of a person's points per frame and node
         (point-cloud level; what the detector found is thinned to it).
+    false_alarm_fraction : share of the point-cloud model's false alarms kept.
     split_probability : a person's detection split into two clusters
-        ``split_distance_m`` apart (range of a uniform draw).
+        ``split_distance_m`` apart (range of a uniform draw); in point clouds
+        the splits come in bursts of ``split_frames`` frames on average.
     ghost_probability : a person's detection mirrored through a wall of the
         room (a multipath image), per row or point.
     static_points_per_frame : Poisson mean of zero-Doppler scene points per
@@ -84,11 +87,13 @@ class RealPhysics:
     fast_error_std_m: tuple[float, float] = (0.09, 0.11)
     slow_error_std_m: float = 0.045
     slow_error_tau_s: float = 0.7
-    p_miss: float = 0.2
-    points_per_person: float = 2.5
-    split_probability: float = 0.1
+    p_miss: float = 0.05
+    points_per_person: float = 2.0
+    false_alarm_fraction: float = 0.2
+    split_probability: float = 0.08
     split_distance_m: tuple[float, float] = (0.3, 0.6)
-    ghost_probability: float = 0.06
+    split_frames: float = 10.0
+    ghost_probability: float = 0.03
     static_points_per_frame: float = 2.5
     static_centroids_per_frame: float = 1.0
     n_static_reflectors: int = 6
@@ -109,7 +114,9 @@ class RealPhysics:
         _check("slow_error_tau_s", self.slow_error_tau_s, open_lo=True, hi=600.0)
         _check("p_miss", self.p_miss, hi=1.0, open_hi=True)
         _check("points_per_person", self.points_per_person, open_lo=True, hi=1000.0)
-        _check("split_probability", self.split_probability, hi=1.0)
+        _check("false_alarm_fraction", self.false_alarm_fraction, hi=1.0)
+        _check("split_probability", self.split_probability, hi=0.9)
+        _check("split_frames", self.split_frames, lo=1.0, hi=1e4)
         lo, hi = self.split_distance_m
         if not 0 < lo <= hi <= 5:
             raise ValidationError(f"RealPhysics.split_distance_m={self.split_distance_m!r} must "
@@ -304,11 +311,14 @@ def physical_point_cloud(det: Detections, pose: NDArray, n_frames: int, ctx) -> 
     (the detector's points of the bodies, already self-occluded and shifted)."""
     ph, rng = ctx.physics, ctx.rng
     person = det.target_id >= 0
-    keep = ~person
-    # Sparse: a Poisson number of each person's points per frame, none in a missed frame.
+    keep = ~person & (rng.random(len(det)) < ph.false_alarm_fraction)
+    # Sparse: a Poisson number of each person's points per frame, none in a
+    # missed frame, drawn with probability proportional to their power (the
+    # torso's points are stronger than the limbs').
     idx = np.flatnonzero(person)
     key = det.frame[idx] * 1000 + det.target_id[idx]
-    order = idx[np.lexsort((rng.random(idx.size), key))]
+    power = 10 ** ((det.snr_db[idx] - det.snr_db[idx].max(initial=0)) / 10)
+    order = idx[np.lexsort((rng.exponential(1.0, idx.size) / power, key))]
     key = det.frame[order] * 1000 + det.target_id[order]
     start = np.r_[0, np.flatnonzero(np.diff(key)) + 1]
     counts = np.diff(np.r_[start, key.size])
@@ -321,16 +331,17 @@ def physical_point_cloud(det: Detections, pose: NDArray, n_frames: int, ctx) -> 
     xy = local_to_global(local, pose)
     frame, tid = det.frame[sel], det.target_id[sel]
     dop, snr = det.doppler_mps[sel], det.snr_db[sel]
-    # Split: half of a person's points of a frame moved away as a second cluster.
-    groups = np.unique(np.stack([frame, tid], 1)[tid >= 0], axis=0)
-    split = groups[rng.random(len(groups)) < ph.split_probability]
-    for f, t in split:
-        rows = np.flatnonzero((frame == f) & (tid == t))
-        if rows.size < 2:
-            continue
-        ang = rng.uniform(0, 2 * np.pi)
-        d = rng.uniform(*ph.split_distance_m)
-        xy[rows[: rows.size // 2]] += d * np.array([np.cos(ang), np.sin(ang)])
+    # Split: half of a person's points moved away as a second cluster, in
+    # bursts of frames (a limb or a body part that stays apart for a while).
+    for t in np.unique(tid[tid >= 0]):
+        burst = empty_frame_mask(n_frames, ph.split_probability, ph.split_frames, rng)
+        start = np.cumsum(burst & ~np.r_[False, burst[:-1]])
+        ang = rng.uniform(0, 2 * np.pi, start[-1] + 1 if n_frames else 1)
+        dist = rng.uniform(*ph.split_distance_m, ang.size)
+        for f in np.flatnonzero(burst):
+            rows = np.flatnonzero((frame == f) & (tid == t))
+            b = start[f]
+            xy[rows[: rows.size // 2]] += dist[b] * np.array([np.cos(ang[b]), np.sin(ang[b])])
     # Multipath: mirror a person's point through a wall (its Doppler: the image's).
     g = np.flatnonzero((tid >= 0) & (rng.random(tid.size) < ph.ghost_probability))
     vel_dir = np.zeros((g.size, 2))

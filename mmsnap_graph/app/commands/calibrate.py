@@ -26,15 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from mmsnap_graph._atomic import check_output_path, recording_lock
-from mmsnap_graph.app.config_file import (
-    MatchingConfig,
-    matching_config_to_toml,
-    read_matching_config,
-)
-from mmsnap_graph.calibration.pairwise.matching_options import MATCHING_DEFAULTS
+from mmsnap_graph.app.config_file import matching_config_to_toml, read_matching_config
+from mmsnap_graph.calibration.pairwise.matching_options import MatchingOptions
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 
-#: Matching options: option name -> (MatchingConfig field, metavar, help).
+#: Matching options: MatchingOptions field -> (metavar, help).
 MATCHING_OPTIONS = {
     "max_lag_s": ("SECONDS", "largest clock lag between nodes to search, in seconds (whole "
                              "frames)"),
@@ -76,7 +72,8 @@ def register(subparsers) -> None:
         if name == "max_rmse_m":
             flags.append("--max-rmse")
         p.add_argument(*flags, dest=name, type=float, default=None, metavar=metavar,
-                       help=f"{text}; overrides the file (default {MATCHING_DEFAULTS[name]:g})")
+                       help=f"{text}; overrides the file (default "
+                            f"{getattr(MatchingOptions(), name):g})")
     p.add_argument("--max-lag", type=int, default=None, metavar="FRAMES",
                    help="the lag window in frames (deprecated: use --max-lag-s)")
     p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
@@ -132,17 +129,17 @@ def format_table(cal) -> str:
     return "\n".join(lines)
 
 
-def effective_matching(args: argparse.Namespace) -> MatchingConfig:
+def effective_matching(args: argparse.Namespace) -> MatchingOptions:
     """Defaults, then the ``[matching]`` table of ``--config``, then the
     explicit options (a bad one is named as its option)."""
-    cfg = MatchingConfig() if args.config is None else read_matching_config(args.config)
+    cfg = MatchingOptions() if args.config is None else read_matching_config(args.config)
     for name in MATCHING_OPTIONS:
         value = getattr(args, name)
         if value is None:
             continue
         try:
             cfg = dataclasses.replace(cfg, **{name: value})
-        except ConfigurationError as exc:
+        except (ConfigurationError, ValidationError) as exc:
             raise ValidationError(f"--{name.replace('_', '-')}: {exc}") from None
     return cfg
 
@@ -155,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     if args.recording is None:
         raise ValidationError("mmsnap calibrate: a recording is required (unless --show-config)")
     # Here: `mmsnap --help` does not import GTSAM or h5py.
-    from mmsnap_graph.calibration import calibrate_recording
+    from mmsnap_graph.calibration import RECORDING_JOINT_OPTIONS, calibrate_recording
     from mmsnap_graph.data.noise import MeasurementNoise
     from mmsnap_graph.io import read_recording
     from mmsnap_graph.io.calibration import write_calibration, write_calibration_json
@@ -167,20 +164,27 @@ def run(args: argparse.Namespace) -> int:
     if args.sigmas is not None:
         r, w, v = args.sigmas
         noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
+    try:
+        joint = dataclasses.replace(
+            RECORDING_JOINT_OPTIONS, robust=None if args.robust == "none" else args.robust,
+            motion=not args.no_motion, sigma_a_mps2=args.sigma_a,
+            time_offsets=not args.no_time_offsets)
+    except ValidationError as exc:
+        raise ValidationError(f"--sigma-a: {exc}") from None
     json_path = check_output_path(
         args.json if args.json else Path(args.recording).with_suffix("").with_name(
             Path(args.recording).stem + ".calibration.json"))
     if args.output is not None and not args.no_write:
         check_output_path(args.output)
     # The lock spans read -> write: a concurrent `mmsnap process` or `fuse` of
-    # the same file waits instead of being overwritten (issue 13).
+    # the same file waits instead of being overwritten.
     with recording_lock(args.recording):
         rec = read_recording(args.recording, load_cubes=False)
-        cal = calibrate_recording(
-            rec, source=args.source, method=args.method, max_lag_frames=args.max_lag,
-            **matching.as_kwargs(), noise=noise,
-            robust=None if args.robust == "none" else args.robust, motion=not args.no_motion,
-            sigma_a_mps2=args.sigma_a, time_offsets=not args.no_time_offsets)
+        if args.max_lag is not None:  # the lag window in frames of this recording
+            matching = dataclasses.replace(matching,
+                                           max_lag_s=args.max_lag * rec.frame_period_s)
+        cal = calibrate_recording(rec, source=args.source, method=args.method, noise=noise,
+                                  matching=matching, joint=joint)
         print(format_table(cal))
         write_calibration_json(json_path, cal)
         print(f"wrote {json_path}")

@@ -211,7 +211,7 @@ def _frame_refit(graph, poses, states, offsets, use, rows, sig, prior_sig, gn_st
 def exonerate_turns(graph, poses, states, offsets, has, outliers, sig, prior_sig,
                     outlier_probability, gn_steps=3):
     """Unflag the detections of the frames that a new velocity explains
-    (issue 12, "sharp turns"). At an instant turn the motion factors smooth
+    (docs/CALIBRATION.md, "Sharp turns"). At an instant turn the motion factors smooth
     the velocity across the turn (and cut its corner by a few cm): every
     node's residual misfits, mostly in Doppler, although the detections agree
     with each other and with the track's position; a ghost disagrees with

@@ -1,12 +1,12 @@
-"""The joint calibration graph on several people from a pose-graph result
-(issue 12, Build 3): :func:`refine_multi` associates the centroids with the
+"""The joint calibration graph on several people from a pose-graph result:
+:func:`refine_multi` associates the centroids with the
 pose graph's poses (:func:`~mmsnap_graph.calibration.joint.multi_target.joint_detections_multi`),
 picks the centroid noise as :func:`~mmsnap_graph.calibration.calibrate_recording`
 does, and runs :func:`~mmsnap_graph.calibration.joint.solve.joint_calibration`
 unchanged on the targets' blocks of virtual frames.
 
 The association is only as good as the poses it starts from: on sparse
-clouds (issue 14: 2-3 points per frame) the pose graph is often 0.1-0.5 m
+clouds (2-3 points per frame) the pose graph is often 0.1-0.5 m
 off, the gates then miss or mix people, and one joint solve inherits that.
 :func:`refine_associated` therefore alternates (``n_rounds``): associate
 with the current poses, solve the joint graph, associate again with its
@@ -25,6 +25,7 @@ import numpy as np
 from ...data.noise import MeasurementNoise
 from ...data.recording import Recording
 from ...errors import CalibrationError, ValidationError
+from .options import JointOptions
 from .solve import JointCalibration, joint_calibration
 from .multi_target import (
     ASSOCIATION_NOISE,
@@ -42,6 +43,10 @@ __all__ = ["MultiTargetRefinement", "refine_multi", "refine_associated", "DEFAUL
 DEFAULT_ROUNDS = 3
 #: The rounds stop when no pose moved by more than this (m, and rad).
 ROUND_TOLERANCE = 1e-3
+#: The joint graph's options of :func:`refine_multi` by default: as
+#: :func:`~mmsnap_graph.calibration.calibrate_recording`'s, whole-frame lags
+#: only.
+MULTI_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -71,13 +76,14 @@ def _recorded_noise(metadata) -> MeasurementNoise | None:
     return MeasurementNoise(range_m=vals[0], omega_rad=vals[1], doppler_mps=vals[2])
 
 
-def _learned_noise(dets, options) -> MeasurementNoise:
+def _learned_noise(dets, options: JointOptions, data: Mapping) -> MeasurementNoise:
     """The association noise, then the residuals of two joint solves without
-    motion factors (:func:`residual_noise`)."""
+    motion factors (:func:`residual_noise`); ``data``: the keyword data of
+    :func:`joint_calibration`."""
     noise = ASSOCIATION_NOISE
+    plain = dataclasses.replace(options, motion=False, time_offsets=False)
     for _ in range(2):
-        first = joint_calibration(dets, noise=noise,
-                                  **{**options, "motion": False, "time_offsets": False})
+        first = joint_calibration(dets, plain, noise=noise, **data)
         if not first.success:
             break
         noise = residual_noise(first, dets, noise=noise)
@@ -98,25 +104,27 @@ def _moved(joint: JointCalibration, poses: Mapping) -> float:
                for n in joint.poses if n in poses)
 
 
-def _one_round(recording, names, poses, covariances, lag_frames, noise, options, association):
+def _one_round(recording, names, poses, covariances, lag_frames, noise,
+               options: JointOptions, association):
     """Associate with ``poses`` and solve the joint graph: the refinement,
     or None when fewer than two nodes have associated centroids."""
     dets, mapping, assoc = joint_detections_multi(
         recording, names, poses, lag_frames, covariances=covariances,
-        max_motion_gap_frames=options["max_motion_gap_frames"], **association)
+        max_motion_gap_frames=options.max_motion_gap_frames, **association)
     if dets is None:
         return None
-    opts = {**options, "initial_poses": {n: poses[n] for n in dets}}
-    if "lag_frames" in opts:
-        opts["lag_frames"] = {n: int(opts["lag_frames"].get(n, 0)) for n in dets}
+    data = dict(reference=names[0], initial_poses={n: poses[n] for n in dets},
+                frame_period_s=recording.frame_period_s,
+                lag_frames={n: int(lag_frames.get(n, 0)) for n in dets})
     if noise is None:
-        noise = _learned_noise(dets, opts)
-    joint = joint_calibration(dets, noise=noise, **opts)
-    if not joint.success and opts.get("robust") is not None:
+        noise = _learned_noise(dets, options, data)
+    joint = joint_calibration(dets, options, noise=noise, **data)
+    if not joint.success and options.robust is not None:
         # The robust pass can leave GTSAM an indeterminate system (a dense
         # two-person scene, seed 2: every detection of a state down-weighted);
         # the association has gated the outliers already: Gaussian factors.
-        plain = joint_calibration(dets, noise=noise, **{**opts, "robust": None})
+        plain = joint_calibration(dets, dataclasses.replace(options, robust=None), noise=noise,
+                                  **data)
         if plain.success:
             joint = dataclasses.replace(plain, message=(
                 f"{plain.message} (Gaussian factors: the robust pass failed: "
@@ -126,23 +134,25 @@ def _one_round(recording, names, poses, covariances, lag_frames, noise, options,
 
 
 def refine_associated(recording: Recording, names, poses, covariances, lag_frames, *,
-                      noise: MeasurementNoise | None, options: Mapping,
+                      noise: MeasurementNoise | None, options: JointOptions,
                       association: Mapping | None = None,
                       n_rounds: int = DEFAULT_ROUNDS) -> MultiTargetRefinement | None:
     """Rounds of association and joint solve (module doc) from ``poses``
-    (``covariances`` may be None); ``options`` are the joint graph's (they
-    must hold ``max_motion_gap_frames``; ``initial_poses`` is set here).
-    ``noise`` None: learned from the residuals each round (the recording's
-    metadata are not read). Returns the last successful round
-    (else the first), None when the first association leaves fewer than two
-    nodes."""
+    (``covariances`` may be None) of ``names`` (the first is the reference);
+    ``options`` are the joint graph's (its ``max_motion_gap_frames`` also
+    links the associated targets' states). ``noise`` None: learned from the
+    residuals each round (the recording's metadata are not read). Returns
+    the last successful round (else the first), None when the first
+    association leaves fewer than two nodes."""
+    if not isinstance(options, JointOptions):
+        raise ValidationError(f"options must be a JointOptions, got {options!r}")
     if isinstance(n_rounds, bool) or int(n_rounds) < 1:
         raise ValidationError(f"n_rounds must be an integer >= 1, got {n_rounds!r}")
     given = dict(association or {})
     best = None
     for _ in range(int(n_rounds)):
-        out = _one_round(recording, names, poses, covariances, lag_frames, noise,
-                         dict(options), given)
+        out = _one_round(recording, names, poses, covariances, lag_frames, noise, options,
+                         given)
         if out is None or (best is not None and not out.joint.success):
             break
         moved = _moved(out.joint, poses)
@@ -159,12 +169,9 @@ def refine_associated(recording: Recording, names, poses, covariances, lag_frame
 def refine_multi(
     recording: Recording,
     pose_graph: PoseGraphCalibration,
+    options: JointOptions = MULTI_JOINT_OPTIONS,
     *,
     noise: MeasurementNoise | None = None,
-    robust: str | None = "cauchy",
-    motion: bool = True,
-    sigma_a_mps2: float = 3.0,
-    max_motion_gap_frames: int = 3,
     association: Mapping | None = None,
     n_rounds: int = DEFAULT_ROUNDS,
 ) -> MultiTargetRefinement:
@@ -178,7 +185,8 @@ def refine_multi(
     noise : centroid noise of the joint graph; None: the recording's
         ``centroid_*_std`` metadata, else learned from the residuals as
         :func:`calibrate_recording` does.
-    robust, motion, sigma_a_mps2, max_motion_gap_frames : the joint graph's.
+    options : the joint graph's (:class:`JointOptions`; default
+        :data:`MULTI_JOINT_OPTIONS`); clock offsets are not estimated here.
     association : options of :func:`associate_targets` (its ``noise``, when
         given, is kept in every round).
     n_rounds : rounds of association and joint solve (module doc; 1: one
@@ -187,12 +195,9 @@ def refine_multi(
     associated centroid.
     """
     names = [pose_graph.reference] + [n for n in pose_graph.poses if n != pose_graph.reference]
-    options = dict(reference=pose_graph.reference, robust=robust, motion=motion,
-                   frame_period_s=recording.frame_period_s, sigma_a_mps2=sigma_a_mps2,
-                   max_motion_gap_frames=max_motion_gap_frames)
-    if isinstance(max_motion_gap_frames, bool) or int(max_motion_gap_frames) < 1:
-        raise ValidationError(f"max_motion_gap_frames must be an integer >= 1, got "
-                              f"{max_motion_gap_frames!r}")
+    if not isinstance(options, JointOptions):
+        raise ValidationError(f"options must be a JointOptions, got {options!r}")
+    options = dataclasses.replace(options, time_offsets=False)
     if noise is None:
         noise = _recorded_noise(recording.metadata)
     out = refine_associated(recording, names, pose_graph.poses, pose_graph.covariances,

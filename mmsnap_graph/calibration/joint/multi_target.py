@@ -1,4 +1,4 @@
-"""The joint calibration graph with several people (issue 12, Build 3).
+"""The joint calibration graph with several people.
 
 :func:`~mmsnap_graph.calibration.joint.solve.joint_calibration` takes one detection
 of the common target per node per frame. With several people walking, each

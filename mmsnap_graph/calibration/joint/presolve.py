@@ -15,22 +15,14 @@ then needs one Gauss-Newton step, which is what keeps long recordings
 affordable (a GTSAM ``CustomFactor`` costs a Python call per factor per
 evaluation).
 
-Arguments shared by :func:`presolve` and :func:`normal_equations`:
-``measurements`` name -> (F, 3) (NaN rows where the node saw nothing);
-``poses`` name -> (3,); ``states`` (F, 4); ``names`` the nodes, ``reference``
-the one whose pose is held at the origin; ``sigmas`` (3,) measurement noise;
-``prior_sigmas`` (4,) of the zero-mean state prior; ``robust`` None,
-``"huber"`` or ``"cauchy"`` with kernel width ``k``; ``use`` name -> (F,)
-bool, the detections in the graph (default: every finite one); ``motion``
-``(index (G,), dt_s (G,), sigma_a_mps2)`` of the constant-velocity factors
-between states ``index`` and ``index + 1``, optionally followed by
-``(robust, k)``: a kernel on the motion factors' whitened norms (sharp turns
-are not Gaussian accelerations).
+:func:`presolve` and :func:`normal_equations` take the graph as a
+:class:`PresolveProblem` and the point as ``poses`` name -> (3,), ``states``
+(F, 4) and, when clock offsets are estimated, ``offsets`` name -> seconds.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -41,13 +33,15 @@ import scipy.linalg as la
 from factors.models import measurement_model, measurement_model_pose, residual
 from factors.motion import cv_process_noise_continuous
 
+from ...errors import ValidationError
 from ..poses import pose_array, to_pose2
 
 #: The key of the range offset (metres) in the pre-solve's ``offsets``
 #: (not a node name: node names are strings).
 RANGE_OFFSET = ("range offset",)
 
-__all__ = ["RANGE_OFFSET", "presolve", "normal_equations", "cv_information", "kernel_weight", "robust_cost",
+__all__ = ["PresolveProblem", "RANGE_OFFSET", "presolve", "normal_equations", "pose_influences",
+           "cv_information", "kernel_weight", "robust_cost",
            "shifted_states", "motion_norms"]
 
 
@@ -425,23 +419,75 @@ def shifted_states(states: NDArray, offset_s: float) -> NDArray:
     return out
 
 
-def _problem(measurements, poses, states, names, reference, sigmas, prior_sigmas, robust, k,
-             use, motion, offsets=None):
+@dataclass(frozen=True, kw_only=True, slots=True)
+class PresolveProblem:
+    """The calibration graph as the pre-solve sees it.
+
+    measurements : name -> (F, 3) (NaN rows where the node saw nothing).
+    names : the nodes; reference : the one whose pose is held at the origin.
+    sigmas : (3,) measurement noise; prior_sigmas : (4,) of the zero-mean
+        state prior.
+    robust : None, ``"huber"`` or ``"cauchy"``, with kernel width ``k``.
+    use : name -> (F,) bool, the detections in the graph (None: every finite
+        one).
+    motion : ``(index (G,), dt_s (G,), sigma_a_mps2)`` of the
+        constant-velocity factors between states ``index`` and ``index + 1``,
+        optionally followed by ``(robust, k)``: a kernel on the motion
+        factors' whitened norms (sharp turns are not Gaussian accelerations);
+        None: no motion factors.
+    """
+
+    measurements: Mapping[str, NDArray]
+    names: Sequence[str]
+    reference: str
+    sigmas: NDArray
+    prior_sigmas: NDArray
+    robust: str | None = None
+    k: float = 1.0
+    use: Mapping[str, NDArray] | None = field(default=None)
+    motion: tuple | None = None
+    range_offset: tuple[float, float] | None = None
+
+
+def _problem(problem: PresolveProblem, poses, states, offsets=None):
     poses = {n: np.asarray(p, dtype=float).copy() for n, p in poses.items()}
     states = np.array(states, dtype=float)
-    prob = _Problem(measurements, names, reference, np.asarray(sigmas, dtype=float), prior_sigmas,
-                    robust, k, use, motion, states.shape[0],
-                    timed=() if offsets is None else tuple(offsets))
-    if offsets is not None:
-        offsets = {n: float(offsets.get(n, 0.0)) for n in names}
+    q = problem
+    prob = _Problem(q.measurements, q.names, q.reference, np.asarray(q.sigmas, dtype=float),
+                    q.prior_sigmas, q.robust, q.k, q.use, q.motion, states.shape[0],
+                    timed=() if offsets is None else tuple(n for n in offsets
+                                                           if n != RANGE_OFFSET),
+                    range_offset=q.range_offset)
+    if offsets is not None or q.range_offset is not None:
+        given = {} if offsets is None else offsets
+        offsets = {n: float(given.get(n, 0.0)) for n in q.names}
+        if q.range_offset is not None:
+            offsets[RANGE_OFFSET] = float(given.get(RANGE_OFFSET, q.range_offset[0]))
     return prob, poses, states, offsets
 
 
-def normal_equations(measurements: Mapping[str, NDArray], poses: Mapping[str, NDArray],
-                     states: NDArray, names: Sequence[str], reference: str, sigmas: NDArray,
-                     prior_sigmas: NDArray, robust: str | None, k: float, *,
-                     use: Mapping[str, NDArray] | None = None, motion=None,
-                     offsets: Mapping[str, float] | None = None
+def pose_influences(problem: PresolveProblem, poses: Mapping[str, NDArray], states: NDArray,
+                    *, offsets: Mapping | None = None) -> tuple[NDArray, NDArray]:
+    """Each frame's influence on the pose block at a solution of the
+    (Gaussian) graph, ``(F, P)``, and the model's covariance of that block
+    ``S^-1`` (``S`` the Schur complement onto it), in the block's order: the
+    non-reference poses (body tangent), the clock offsets of the nodes in
+    ``offsets``, the range offset when ``problem.range_offset`` is set.
+
+    Frame ``k``'s score with the states eliminated is ``psi_k = g_p[k] -
+    Y_k^T g_s[k]`` (``Y = H_ss^-1 H_sp``; ``g_p[k]``, ``g_s[k]`` the
+    gradients of frame ``k``'s measurement and prior factors and of its
+    outgoing motion factor); its influence is ``S^-1 psi_k``: the influences
+    sum to zero at the optimum, and their summed outer products equal ``S^-1``
+    on the average when the model holds (:mod:`.covariance`)."""
+    if problem.robust is not None:
+        raise ValidationError("pose_influences needs the Gaussian graph (robust=None)")
+    prob, poses, states, offsets = _problem(problem, poses, states, offsets)
+    return prob.influences(poses, states, offsets)
+
+
+def normal_equations(problem: PresolveProblem, poses: Mapping[str, NDArray], states: NDArray,
+                     *, offsets: Mapping[str, float] | None = None
                      ) -> tuple[sp.csc_matrix, NDArray]:
     """The pre-solve's linear system at a point (module doc): the sparse
     Gauss-Newton Hessian (IRLS-weighted under a kernel) and the gradient,
@@ -449,8 +495,7 @@ def normal_equations(measurements: Mapping[str, NDArray], poses: Mapping[str, ND
     clock offsets of the non-reference nodes in ``offsets`` (when given).
     GTSAM's ``linearize(...).hessian`` of the same graph gives the same
     matrices."""
-    prob, poses, states, offsets = _problem(measurements, poses, states, names, reference,
-                                            sigmas, prior_sigmas, robust, k, use, motion, offsets)
+    prob, poses, states, offsets = _problem(problem, poses, states, offsets)
     return prob.system(poses, states, offsets)
 
 
@@ -478,10 +523,8 @@ def _damped_step(prob, poses, states, offsets, cost, lam, nu):
     return None, lam, nu
 
 
-def presolve(measurements: Mapping[str, NDArray], poses: Mapping[str, NDArray], states: NDArray,
-             names: Sequence[str], reference: str, sigmas: NDArray, prior_sigmas: NDArray,
-             robust: str | None, k: float, *, use: Mapping[str, NDArray] | None = None,
-             motion=None, offsets: Mapping[str, float] | None = None, max_steps: int = 50,
+def presolve(problem: PresolveProblem, poses: Mapping[str, NDArray], states: NDArray, *,
+             offsets: Mapping[str, float] | None = None, max_steps: int = 50,
              tol: float = 1e-7, report: dict | None = None):
     """Levenberg-damped Gauss-Newton on the calibration graph (module doc),
     from ``(poses, states)``; stops after ``max_steps`` steps, when no damping
@@ -492,9 +535,8 @@ def presolve(measurements: Mapping[str, NDArray], poses: Mapping[str, NDArray], 
     :func:`shifted_states`) it returns ``(poses, states, offsets)``. A
     ``report`` dict receives ``initial_cost``, ``cost`` (GTSAM's error of the
     same graph), ``steps`` and ``converged``."""
-    timed = offsets is not None
-    prob, poses, states, offsets = _problem(measurements, poses, states, names, reference,
-                                            sigmas, prior_sigmas, robust, k, use, motion, offsets)
+    timed = offsets is not None or problem.range_offset is not None
+    prob, poses, states, offsets = _problem(problem, poses, states, offsets)
     lam, nu = 1e-4, 2.0
     cost = initial_cost = prob.cost(poses, states, offsets)
     steps, done = 0, False

@@ -30,22 +30,19 @@ unobservable direction (e.g. a standing target: a node may turn about it).
 from __future__ import annotations
 
 import dataclasses
-import warnings
 from dataclasses import dataclass, field
-from typing import Literal, Mapping
+from typing import Mapping
 
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import measurement_noise
-from factors.robust import ROBUST_K_DEFAULT
 
 from ...errors import CalibrationError, MmsnapError, ValidationError
 from ...data.noise import MeasurementNoise
 from ...data.recording import Detections
 from ..._validation import as_float_array, check_finite, check_positive, check_shape
-from ..pairwise.closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
 from .graph import (
     JointGraph,
     assess,
@@ -55,20 +52,12 @@ from .graph import (
     motion_spec,
     run_message,
 )
-from .presolve import motion_norms
+from .options import JointOptions
+from .presolve import PresolveProblem, motion_norms
 from .presolve import presolve as numpy_presolve
 from .robust_start import starting_poses, starting_states
 
-__all__ = ["DEFAULT_ROBUST_K", "DEFAULT_MOTION_ROBUST_K", "JointCalibration", "joint_calibration"]
-
-#: Default width of the robust kernels on the whitened 3-vector norm (GTSAM's
-#: mEstimator ``k``): Huber 1.345, Cauchy 2.5; the project's one table,
-#: :data:`factors.robust.ROBUST_K_DEFAULT`.
-DEFAULT_ROBUST_K = ROBUST_K_DEFAULT
-#: Default width of the Cauchy kernel on the motion factors' whitened
-#: 4-vector norm (a Gaussian acceleration's norm is about 2; a sharp turn's
-#: is 5-20): see docs/CALIBRATION.md, "Sharp turns".
-DEFAULT_MOTION_ROBUST_K = 3.0
+__all__ = ["JointCalibration", "joint_calibration"]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -149,17 +138,26 @@ def _detections_table(dets: Mapping[str, Detections]):
     return out
 
 
-def _noise_from_sigmas(sigmas: ArrayLike) -> MeasurementNoise:
-    """The deprecated ``sigmas=`` (3,) as a :class:`MeasurementNoise`."""
-    warnings.warn("joint_calibration(sigmas=...) is deprecated; pass "
-                  "noise=MeasurementNoise(...)", DeprecationWarning, stacklevel=3)
-    r, w, v = check_shape(as_float_array(sigmas, "sigmas"), (3,), "sigmas")
-    return MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
+@dataclass(frozen=True, slots=True)
+class _Inputs:
+    """The data of one solve (the arguments of :func:`joint_calibration`
+    besides the options), checked."""
+
+    detections: Mapping[str, tuple[NDArray, NDArray]]
+    reference: str
+    initial_poses: Mapping[str, NDArray] | None
+    sigmas: NDArray
+    frame_period_s: float | None
+    lag_frames: Mapping[str, int]
 
 
-def _validate(names, reference, noise, state_prior_sigmas, robust, motion, frame_period_s,
-              outlier_probability):
-    """Check the options; returns ``(reference, sigmas (3,), prior sigmas (4,))``."""
+def _inputs(detections, reference, initial_poses, noise, frame_period_s, lag_frames,
+            options: JointOptions) -> _Inputs:
+    """Check the data against each other and the options."""
+    if not isinstance(options, JointOptions):
+        raise ValidationError(f"options must be a JointOptions, got {options!r}")
+    dets = _detections_table(detections)
+    names = list(dets)
     if len(names) < 2:
         raise CalibrationError(f"a calibration needs at least two nodes, got {names!r}")
     ref = names[0] if reference is None else str(reference)
@@ -167,43 +165,26 @@ def _validate(names, reference, noise, state_prior_sigmas, robust, motion, frame
         raise ValidationError(f"reference={ref!r} is not one of the nodes {names!r}")
     if not isinstance(noise, MeasurementNoise):
         raise ValidationError(f"noise must be a MeasurementNoise, got {noise!r}")
-    prior_sig = check_positive(check_shape(as_float_array(state_prior_sigmas, "state_prior_sigmas"),
-                                           (4,), "state_prior_sigmas"), "state_prior_sigmas")
-    if robust not in (None, "huber", "cauchy"):
-        raise ValidationError(f"robust={robust!r} must be None, 'huber' or 'cauchy'")
-    if motion and frame_period_s is None:
-        raise ValidationError("motion=True needs frame_period_s")
-    if not 0 < outlier_probability < 1:
-        raise ValidationError(f"outlier_probability must lie in (0, 1), got {outlier_probability!r}")
-    return ref, noise.sigmas, prior_sig
-
-
-def _check_count(value, name: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValidationError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
-def _validate_numbers(sig, robust_k, motion, frame_period_s, sigma_a_mps2, max_motion_gap_frames,
-                      max_iterations, max_pose_variance, max_pose_condition):
-    """Check the numeric options at the boundary (issue 13: zero or NaN
-    sigma_a / frame period, k <= 0, vanishing sigmas reached GTSAM and numpy
-    as their own errors)."""
-    if robust_k is not None:
-        check_positive(robust_k, "robust_k")
-    if frame_period_s is not None:
-        check_positive(frame_period_s, "frame_period_s")
-    if motion:
-        check_positive(sigma_a_mps2, "sigma_a_mps2")
-    _check_count(max_motion_gap_frames, "max_motion_gap_frames")
-    _check_count(max_iterations, "max_iterations")
-    check_positive(max_pose_variance, "max_pose_variance")
-    check_positive(max_pose_condition, "max_pose_condition")
+    sig = noise.sigmas
     with np.errstate(over="ignore", divide="ignore"):
         info = 1.0 / np.asarray(sig, dtype=float) ** 2
     if not np.all(np.isfinite(info)) or np.any(info > 1e250):
         raise ValidationError(f"noise sigmas {tuple(float(v) for v in sig)} are too small: "
                               f"their information 1/sigma^2 overflows")
+    if frame_period_s is not None:
+        frame_period_s = float(check_positive(frame_period_s, "frame_period_s"))
+    elif options.motion:
+        raise ValidationError("motion=True needs frame_period_s (JointOptions.motion)")
+    lags = {}
+    for n, lag in dict(lag_frames or {}).items():
+        if str(n) not in names:
+            raise ValidationError(f"lag_frames names an unknown node {n!r}")
+        if isinstance(lag, bool) or not isinstance(lag, (int, np.integer)):
+            raise ValidationError(f"lag_frames[{n!r}] must be an integer, got {lag!r}")
+        lags[str(n)] = int(lag)
+    if any(lags.values()) and frame_period_s is None:
+        raise ValidationError("lag_frames needs frame_period_s")
+    return _Inputs(dets, ref, initial_poses, sig, frame_period_s, lags)
 
 
 def _frame_table(dets, names, min_common_frames):
@@ -300,36 +281,43 @@ def _refine(fg, values, params, presolved, order, rel_tol=1e-5):
     return result, int(opt.iterations()), float(fg.error(result)), None
 
 
-def _presolve(graph, poses, states, offsets, sig, prior_sig, robust, k, motion, use=None,
+def _presolve(graph, start, sig, options: JointOptions, *, kernel: bool, motion, use=None,
               report=None):
-    """The numpy pre-solve of the graph (with the clock offsets when the
-    graph has them); returns ``(poses, states, offsets)``."""
-    out = numpy_presolve(graph.meas, poses, states, names=graph.active, reference=graph.ref,
-                         sigmas=sig, prior_sigmas=prior_sig, robust=robust,
-                         k=k if k is not None else 1.0, use=use,
-                         motion=None if motion is None else motion.as_tuple(),
-                         offsets=offsets if graph.timed else None, report=report)
+    """The numpy pre-solve of the graph from ``start = (poses, states,
+    offsets)`` (the clock offsets are estimated when the graph has them),
+    under the options' robust kernel when ``kernel``; returns ``(poses,
+    states, offsets)``."""
+    poses, states, offsets = start
+    problem = PresolveProblem(
+        measurements=graph.meas, names=graph.active, reference=graph.ref, sigmas=sig,
+        prior_sigmas=np.asarray(options.state_prior_sigmas), use=use,
+        robust=options.robust if kernel else None,
+        k=options.kernel_k if kernel and options.robust is not None else 1.0,
+        motion=None if motion is None else motion.as_tuple())
+    out = numpy_presolve(problem, poses, states, offsets=offsets if graph.timed else None,
+                         report=report)
     return out if graph.timed else (out[0], out[1], offsets)
 
 
-def _robust_pass(graph, start, x0, offsets, sig, prior_sig, robust, k, presolve_first, params):
-    """The first pass (under the kernel, if any): the numpy pre-solve, then
-    GTSAM only when the pre-solve did not converge (the pre-solve minimizes
-    the same cost: its optimum is GTSAM's). Returns ``(poses, states,
-    offsets, GTSAM iterations, initial_error)``."""
+def _robust_pass(graph, start, sig, options: JointOptions, params):
+    """The first pass (under the kernel, if any) from ``start = (poses,
+    states, offsets)``: the numpy pre-solve, then GTSAM only when the
+    pre-solve did not converge (the pre-solve minimizes the same cost: its
+    optimum is GTSAM's). Returns ``(poses, states, offsets, GTSAM
+    iterations, initial_error)``."""
     has = {n: np.isfinite(graph.meas[n][:, 0]) for n in graph.active}
     report: dict = {}
-    if presolve_first:
-        start, x0, offsets = _presolve(graph, start, x0, offsets, sig, prior_sig, robust, k,
-                                       graph.motion, report=report)
+    if options.presolve:
+        start = _presolve(graph, start, sig, options, kernel=True, motion=graph.motion,
+                          report=report)
         if report["converged"]:
-            return start, x0, offsets, 0, report["initial_cost"]
-    fg = graph.build(measurement_noise(sig, robust, k), has)
+            return (*start, 0, report["initial_cost"])
+    fg = graph.build(measurement_noise(sig, options.robust, options.kernel_k), has)
     initial_error = report.get("initial_cost")
-    values = graph.values(start, x0, offsets)
+    values = graph.values(*start)
     if initial_error is None:
         initial_error = float(fg.error(values))
-    result, iterations, _, _ = _refine(fg, values, params, presolve_first, graph.ordering())
+    result, iterations, _, _ = _refine(fg, values, params, options.presolve, graph.ordering())
     poses, states, offsets = graph.current(result)
     return poses, states, offsets, iterations, initial_error
 
@@ -349,17 +337,18 @@ def _final_motion(graph, states, robust, turn_frames, outlier_probability):
     return m.subset(~turns, None), int(turns.sum())
 
 
-def _solve(graph, start, x0, sig, prior_sig, robust, k, presolve_first, max_iterations,
-           outlier_probability):
+def _solve(graph, start, x0, sig, options: JointOptions):
     """Robust pass (numpy pre-solve; GTSAM when needed), outliers, then a
     Gaussian pass on the inliers refined by GTSAM. Returns the final graph
     and values and a summary."""
     has = {n: np.isfinite(graph.meas[n][:, 0]) for n in graph.active}
     params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(max_iterations))
+    params.setMaxIterations(options.max_iterations)
+    robust, outlier_probability = options.robust, options.outlier_probability
+    prior_sig = np.asarray(options.state_prior_sigmas)
     offsets = {n: 0.0 for n in graph.active}
     poses, states, offsets, iterations, initial_error = _robust_pass(
-        graph, start, x0, offsets, sig, prior_sig, robust, k, presolve_first, params)
+        graph, (start, x0, offsets), sig, options, params)
     outliers = flag_outliers(graph, poses, states, offsets, has, sig, outlier_probability)
     turn_frames = np.zeros(0, dtype=int)
     if graph.motion is not None:
@@ -371,42 +360,25 @@ def _solve(graph, start, x0, sig, prior_sig, robust, k, presolve_first, max_iter
         raise _Breakdown(f"every detection of {', '.join(starved)} is an outlier: no pose "
                          f"left to estimate")
     motion, n_turns = _final_motion(graph, states, robust, turn_frames, outlier_probability)
-    if (robust is not None or n_turns) and presolve_first:
-        poses, states, offsets = _presolve(graph, poses, states, offsets, sig, prior_sig, None,
-                                           None, motion, use=inl)
+    if (robust is not None or n_turns) and options.presolve:
+        poses, states, offsets = _presolve(graph, (poses, states, offsets), sig, options,
+                                           kernel=False, motion=motion, use=inl)
     fg = graph.build(measurement_noise(sig), inl, motion)
     result, more, final_error, linear = _refine(fg, graph.values(poses, states, offsets),
-                                                params, presolve_first, graph.ordering())
+                                                params, options.presolve, graph.ordering())
     return fg, result, dict(outliers=outliers, iterations=iterations + more, turns=n_turns,
                             initial_error=initial_error, final_error=final_error, linear=linear)
 
 
 def joint_calibration(
     detections: Mapping[str, Detections],
+    options: JointOptions | None = None,
     *,
     reference: str | None = None,
     initial_poses: Mapping[str, ArrayLike] | None = None,
     noise: MeasurementNoise = MeasurementNoise(),
-    robust: Literal["huber", "cauchy"] | None = "cauchy",
-    robust_k: float | None = None,
-    motion: bool = False,
     frame_period_s: float | None = None,
-    sigma_a_mps2: float = 1.0,
-    max_motion_gap_frames: int = 3,
-    motion_robust: Literal["huber", "cauchy"] | None = None,
-    motion_robust_k: float = DEFAULT_MOTION_ROBUST_K,
-    time_offsets: bool = False,
     lag_frames: Mapping[str, int] | None = None,
-    state_prior_sigmas: ArrayLike = (1e3, 1e3, 3.5, 3.5),
-    outlier_probability: float = 1e-3,
-    min_common_frames: int = DEFAULT_MIN_COMMON_FRAMES,
-    min_spread_m: float = DEFAULT_MIN_SPREAD_M,
-    max_pose_variance: float = 1.0,
-    max_pose_condition: float = 1e4,
-    max_iterations: int = 50,
-    presolve: bool = True,
-    state_covariances: bool = False,
-    sigmas: ArrayLike | None = None,
 ) -> JointCalibration:
     """Refine node poses jointly with the target's states (module doc).
 
@@ -416,93 +388,41 @@ def joint_calibration(
         One detection of the common target per node per frame, frames
         already corrected for each node's whole-frame lag (``lag_frames``).
         The first node is the reference unless ``reference`` names another.
+    options : how to solve (:class:`JointOptions`; None: its defaults).
     initial_poses : name -> (3,), optional
         Starting poses (the reference's is ignored); by default the trimmed
         closed form (and a pose graph for N > 2).
     noise : measurement noise of the detections (default: the paper's).
-    robust, robust_k : kernel against ghost detections (None: Gaussian).
-        Default k (:data:`DEFAULT_ROBUST_K`): Huber 1.345, Cauchy 2.5 (on
-        the whitened 3-vector norm).
-    motion : add constant-velocity factors between consecutive frames no
-        more than ``max_motion_gap_frames`` apart; needs ``frame_period_s``.
-    sigma_a_mps2 : white-acceleration sigma of the motion factors.
-    motion_robust, motion_robust_k : kernel on the motion factors' whitened
-        4-vector norm in the robust pass (with ``robust`` set), so that a
-        sharp turn bends the track instead of making its detections
-        outliers; the motion factors it finds beyond the chi-square(4)
-        ``1 - outlier_probability`` quantile (the turns) are left out of the
-        final Gaussian pass. None: Gaussian motion factors throughout.
-    time_offsets : estimate each non-reference node's clock offset jointly
-        with the poses (module doc, "Clock offsets"); the node's detection
-        at frame ``k`` is of the state ``F(tau) x_k``.
+    frame_period_s : the frame period (s); needed by the motion factors,
+        the clock offsets and ``lag_frames``.
     lag_frames : name -> the whole-frame lag already removed from the node's
         frames (its frame ``k + lag`` is the reference's ``k``, as in
         :class:`~mmsnap_graph.calibration.PoseGraphCalibration`): the offset
         starts at ``-lag * frame_period_s``, part of ``time_offset_s``.
-    state_prior_sigmas : (4,) sigmas of the zero-mean state prior.
-    outlier_probability : a detection whose whitened squared residual exceeds
-        the chi-square(3) ``1 - outlier_probability`` quantile is an outlier.
-    min_common_frames : fewer frames seen by two nodes raise CalibrationError.
-    max_pose_variance : a pose marginal variance (m^2 or rad^2) above this
-        means that the pose is not determined: ``success=False``.
-    max_pose_condition : so does an eigenvalue of a pose covariance more
-        than this times its smallest (a standing target leaves S2 free to
-        turn about it: variances of 1e-6 against 0.2 in a test).
-    presolve : run the numpy pre-solve (:mod:`.presolve`, same models)
-        before each GTSAM LM pass; LM then needs one or two iterations.
-        False: LM from the closed form (slower, same optimum).
-    state_covariances : also return each frame's state marginal (slow for
-        long sequences; NaN otherwise).
-    sigmas : deprecated: (3,) ``(range_m, omega_rad, doppler_mps)``, read as
-        ``noise`` (DeprecationWarning); pass ``noise=MeasurementNoise(...)``.
 
     Returns a :class:`JointCalibration`.
     """
-    args = dict(locals())
-    result = _calibrate_once(args)
-    if time_offsets and frame_period_s is not None and result.success:
-        result = _recentred_lags(result, args)
+    options = JointOptions() if options is None else options
+    inputs = _inputs(detections, reference, initial_poses, noise, frame_period_s, lag_frames,
+                     options)
+    result = _calibrate_once(inputs, options)
+    if options.time_offsets and inputs.frame_period_s is not None and result.success:
+        result = _recentred_lags(result, inputs, options)
     return result
 
 
-def _calibrate_once(args: Mapping) -> JointCalibration:
+def _calibrate_once(inputs: _Inputs, options: JointOptions) -> JointCalibration:
     """One joint calibration with the whole-frame lags as given."""
-    (detections, reference, initial_poses, noise, robust, robust_k, motion, frame_period_s,
-     sigma_a_mps2, max_motion_gap_frames, motion_robust, motion_robust_k, time_offsets,
-     lag_frames, state_prior_sigmas, outlier_probability, min_common_frames, min_spread_m,
-     max_pose_variance, max_pose_condition, max_iterations, presolve, state_covariances,
-     sigmas) = (args[name] for name in _ARGS)
-    noise = _noise_from_sigmas(sigmas) if sigmas is not None else noise
-    dets = _detections_table(detections)
-    names = list(dets)
-    ref, sig, prior_sig = _validate(names, reference, noise, state_prior_sigmas, robust, motion,
-                                    frame_period_s, outlier_probability)
-    _validate_numbers(sig, robust_k, motion, frame_period_s, sigma_a_mps2, max_motion_gap_frames,
-                      max_iterations, max_pose_variance, max_pose_condition)
-    lags = _validate_timing(names, motion_robust, motion_robust_k, time_offsets, lag_frames,
-                            frame_period_s)
-    frames, init, x0, unreachable, graph = _setup(
-        dets, names, ref, sig, prior_sig, initial_poses, min_common_frames, min_spread_m,
-        motion_spec_args=(motion, frame_period_s, max_motion_gap_frames, sigma_a_mps2,
-                          motion_robust if robust else None, motion_robust_k),
-        timed=time_offsets, lags=lags)
-    k = None if robust is None else (robust_k if robust_k is not None else DEFAULT_ROBUST_K[robust])
+    frames, init, x0, unreachable, graph = _setup(inputs, options)
     try:
-        result = _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k,
-                           presolve, max_iterations, outlier_probability, state_covariances,
-                           max_pose_variance, max_pose_condition)
+        result = _estimate(graph, frames, init, x0, unreachable, inputs.sigmas, options)
     except MmsnapError:
         raise
     except _NUMERICAL_ERRORS as exc:
         result = _broken_down(graph, frames, init, x0, unreachable, exc)
-    return dataclasses.replace(result, lag_frames={n: lags.get(n, 0) for n in graph.active})
+    return dataclasses.replace(result, lag_frames={n: inputs.lag_frames.get(n, 0)
+                                                   for n in graph.active})
 
-
-_ARGS = ("detections", "reference", "initial_poses", "noise", "robust", "robust_k", "motion",
-         "frame_period_s", "sigma_a_mps2", "max_motion_gap_frames", "motion_robust",
-         "motion_robust_k", "time_offsets", "lag_frames", "state_prior_sigmas",
-         "outlier_probability", "min_common_frames", "min_spread_m", "max_pose_variance",
-         "max_pose_condition", "max_iterations", "presolve", "state_covariances", "sigmas")
 
 #: A node whose estimated clock offset lies more than this fraction of a frame
 #: beyond its whole-frame lag is solved again with the lag moved one frame
@@ -510,7 +430,8 @@ _ARGS = ("detections", "reference", "initial_poses", "noise", "robust", "robust_
 LAG_RECENTRE_FRACTION = 0.25
 
 
-def _recentred_lags(result: JointCalibration, args: Mapping) -> JointCalibration:
+def _recentred_lags(result: JointCalibration, inputs: _Inputs,
+                    options: JointOptions) -> JointCalibration:
     """``result``, or the solve with every node whose offset fraction exceeds
     :data:`LAG_RECENTRE_FRACTION` moved to the neighbouring whole-frame lag,
     whichever has the lower final error. The offset enters the model to
@@ -518,8 +439,8 @@ def _recentred_lags(result: JointCalibration, args: Mapping) -> JointCalibration
     whose filter delays differ from node to node) is only partly recovered,
     and the poses absorb the rest (measured: 0.34-0.45 of a frame recovered,
     pose errors of 0.4 m on a 3-node network)."""
-    period = float(args["frame_period_s"])
-    lags = {str(n): int(v) for n, v in dict(args["lag_frames"] or {}).items()}
+    period = inputs.frame_period_s
+    lags = dict(inputs.lag_frames)
     moves = {}
     for n, offset in result.time_offset_s.items():
         frac = (offset + lags.get(n, 0) * period) / period
@@ -527,63 +448,47 @@ def _recentred_lags(result: JointCalibration, args: Mapping) -> JointCalibration
             moves[n] = int(np.sign(frac))
     if not moves:
         return result
-    table = _detections_table(args["detections"])
-    dets = {n: ((fr + moves.get(n, 0)), z) for n, (fr, z) in table.items()}
+    dets = {n: ((fr + moves.get(n, 0)), z) for n, (fr, z) in inputs.detections.items()}
     new_lags = {**lags, **{n: lags.get(n, 0) - d for n, d in moves.items()}}
-    again = _calibrate_once({**args, "detections": dets, "lag_frames": new_lags,
-                             "initial_poses": result.poses})
+    again = _calibrate_once(dataclasses.replace(inputs, detections=dets, lag_frames=new_lags,
+                                                initial_poses=result.poses), options)
     better = again.success and again.final_error < result.final_error
     return again if better else result
 
 
-def _setup(dets, names, ref, sig, prior_sig, initial_poses, min_common_frames, min_spread_m,
-           motion_spec_args, timed, lags):
+def _setup(inputs: _Inputs, options: JointOptions):
     """Frames, starting poses and states, and the graph (the part of
     :func:`joint_calibration` after validation)."""
-    frames, meas_f = _frame_table(dets, names, min_common_frames)
-    init, unreachable = _start_poses(meas_f, names, ref, initial_poses, min_common_frames,
-                                     min_spread_m)
+    dets, ref, sig = inputs.detections, inputs.reference, inputs.sigmas
+    names = list(dets)
+    prior_sig = np.asarray(options.state_prior_sigmas)
+    frames, meas_f = _frame_table(dets, names, options.min_common_frames)
+    init, unreachable = _start_poses(meas_f, names, ref, inputs.initial_poses,
+                                     options.min_common_frames, options.min_spread_m)
     active = [n for n in names if n not in unreachable]
-    frames, meas_f = _restrict(frames, meas_f, active, min_common_frames)
+    frames, meas_f = _restrict(frames, meas_f, active, options.min_common_frames)
     x0 = starting_states(meas_f, init, active, sig, prior_sig[2])
-    graph = JointGraph(meas_f, active, ref, prior_sig, motion_spec(frames, *motion_spec_args),
-                       timed=active if timed else ())
-    period = float(motion_spec_args[1] or 0.0)
-    graph.lag_offsets = {n: -lags.get(n, 0) * period for n in active}
+    motion = motion_spec(frames, options.motion, inputs.frame_period_s,
+                         options.max_motion_gap_frames, options.sigma_a_mps2,
+                         options.motion_robust if options.robust else None,
+                         options.motion_robust_k)
+    graph = JointGraph(meas_f, active, ref, prior_sig, motion,
+                       timed=active if options.time_offsets else ())
+    period = float(inputs.frame_period_s or 0.0)
+    graph.lag_offsets = {n: -inputs.lag_frames.get(n, 0) * period for n in active}
     return frames, init, x0, unreachable, graph
 
 
-def _validate_timing(names, motion_robust, motion_robust_k, time_offsets, lag_frames,
-                     frame_period_s) -> dict[str, int]:
-    """Check the motion-kernel and clock-offset options; name -> lag."""
-    if motion_robust not in (None, "huber", "cauchy"):
-        raise ValidationError(f"motion_robust={motion_robust!r} must be None, 'huber' or "
-                              f"'cauchy'")
-    check_positive(motion_robust_k, "motion_robust_k")
-    if not isinstance(time_offsets, (bool, np.bool_)):
-        raise ValidationError(f"time_offsets must be a bool, got {time_offsets!r}")
-    lags = {}
-    for n, lag in dict(lag_frames or {}).items():
-        if str(n) not in names:
-            raise ValidationError(f"lag_frames names an unknown node {n!r}")
-        lags[str(n)] = _check_count(lag, f"lag_frames[{n!r}]", minimum=-(2**31))
-    if any(lags.values()) and frame_period_s is None:
-        raise ValidationError("lag_frames needs frame_period_s")
-    return lags
-
-
-def _estimate(graph, frames, init, x0, unreachable, sig, prior_sig, robust, k, presolve,
-              max_iterations, outlier_probability, state_covariances, max_pose_variance,
-              max_pose_condition) -> JointCalibration:
+def _estimate(graph, frames, init, x0, unreachable, sig,
+              options: JointOptions) -> JointCalibration:
     """Solve, assess, and the result (the numerical part of
     :func:`joint_calibration`)."""
     active, ref = graph.active, graph.ref
-    final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig, prior_sig,
-                                      robust, k, presolve, max_iterations, outlier_probability)
+    final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig, options)
     poses, states, offsets = graph.current(result)
     covs, variances, state_covs, unobservable, notes, joint_cov = assess(
-        graph, final_graph, result, state_covariances, max_pose_variance, max_pose_condition,
-        run["linear"])
+        graph, final_graph, result, options.state_covariances, options.max_pose_variance,
+        options.max_pose_condition, run["linear"])
     if run["turns"]:
         notes = [f"{run['turns']} sharp turn(s) left out of the motion factors"] + notes
     msg = run_message(active, frames.size, run["outliers"], run["iterations"], notes,

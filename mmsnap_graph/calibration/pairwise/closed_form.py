@@ -187,7 +187,7 @@ def _check_point_covariances(point_covariances: ArrayLike, k: int) -> NDArray:
 def _scale_of(a: NDArray, b: NDArray) -> float:
     """A length (m) the tracks are divided by before the arithmetic, so that
     coordinates of 1e-300 m or 1e300 m neither underflow nor overflow when
-    squared (issue 13). A power of two: the division is exact."""
+    squared. A power of two: the division is exact."""
     biggest = float(max(np.max(np.abs(a)), np.max(np.abs(b))))
     if biggest == 0.0:
         return 1.0

@@ -14,8 +14,8 @@ the scores,
 Treating frames as independent keeps ``Gamma_0`` only. EKF tracks are smooth:
 their errors are strongly autocorrelated (0.6-0.9 at lag 1), and ``Omega`` is
 then several times ``Gamma_0``: the pose sigma comes out several times too
-small (issue 14: two halves of one recording disagreed by 5.3 degrees against
-a reported 0.8-1.5).
+small (two halves of one recording disagreed by 5.3 degrees against a
+reported 0.8-1.5).
 
 :func:`autocorrelation_factor` estimates the integrated autocorrelation time
 ``tau = Omega / Gamma_0`` (averaged over the score components after whitening

@@ -12,14 +12,13 @@ position covariances (EKF tracks), the gate is a chi-square test on each
 frame pair, ``r^T (C_a + R C_b R^T)^{-1} r < chi2_2(gate_probability)``,
 ``r = z_a - T(z_b)``: it widens with range and along the cross-range axis as
 the tracks' own uncertainty does (a fixed gate cuts the tails of far tracks'
-residuals and the covariance comes out too small: issue 11, pose NEES 8 at
-longer ranges). Without covariances the gate is ``inlier_gate_m``.
+residuals and the covariance comes out too small: pose NEES 8 at longer
+ranges). Without covariances the gate is ``inlier_gate_m``.
 
-Thresholds in time (issue 14): with ``frame_period_s`` given, the lag window
-``max_lag_s`` and the minimum overlap ``min_common_s`` are seconds, turned
-into frames at that period (at least 5 common frames), so that one setting
-works from 5 to 30 fps. The older frame keywords ``max_lag_frames`` and
-``min_common_frames`` still work and are deprecated. Ranking by track RMSE instead
+Thresholds in time: the lag window ``max_lag_s`` and the minimum overlap
+``min_common_s`` of the :class:`MatchingOptions` are seconds, turned into
+frames at the recording's ``frame_period_s`` (at least 5 common frames), so
+that one setting works from 5 to 30 fps. Ranking by track RMSE instead
 would favour short fragments, which fit anything (an EKF that loses a walker
 at each turn leaves dozens of them). The best-supported hypothesis of each
 lag is refitted on its inliers (twice); lag 0 is kept unless another lag
@@ -32,7 +31,6 @@ targets seen by both nodes all agree with the one pose).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -45,20 +43,8 @@ from ...errors import CalibrationError, ValidationError
 from ...data.recording import NodeData
 from ..._validation import as_float_array, check_finite, check_shape
 from ..poses import pose_tangent_error
-from .closed_form import (
-    DEFAULT_MIN_COMMON_FRAMES,
-    DEFAULT_MIN_SPREAD_M,
-    PairwiseCalibration,
-    closed_form_calibration,
-    closed_form_pose,
-)
-from .matching_options import (
-    DEFAULT_GATE_PROBABILITY,
-    DEFAULT_INLIER_GATE_M,
-    DEFAULT_MAX_LAG_S,
-    DEFAULT_MAX_RMSE_M,
-    DEFAULT_MIN_COMMON_S,
-)
+from .closed_form import PairwiseCalibration, closed_form_calibration, closed_form_pose
+from .matching_options import MatchingOptions
 
 __all__ = ["LocalTracks", "TrackCandidate", "TrackMatching", "match_tracks", "local_tracks"]
 
@@ -366,51 +352,6 @@ def _failed(message, cands=()) -> TrackMatching:
 #: when ``frame_period_s`` is given: 2 and 5 frames at 150 ms.
 
 
-def _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity, gate_probability) -> None:
-    if not lag_ambiguity >= 0:
-        raise ValidationError(f"lag_ambiguity must be >= 0, got {lag_ambiguity!r}")
-    if int(max_lag_frames) < 0:
-        raise ValidationError(f"max_lag_frames must be >= 0, got {max_lag_frames!r}")
-    if not max_rmse_m > 0:
-        raise ValidationError(f"max_rmse_m must be > 0, got {max_rmse_m!r}")
-    if not inlier_gate_m > 0:
-        raise ValidationError(f"inlier_gate_m must be > 0, got {inlier_gate_m!r}")
-    if not 0 < gate_probability < 1:
-        raise ValidationError(f"gate_probability must be in (0, 1), got {gate_probability!r}")
-
-
-def frame_thresholds(frame_period_s, max_lag_s, min_common_s, max_lag_frames,
-                     min_common_frames) -> tuple[int, int]:
-    """The lag window and minimum overlap in frames (module doc): the frame
-    keywords when given (deprecated), else the seconds at ``frame_period_s``,
-    else the frame defaults (2, :data:`DEFAULT_MIN_COMMON_FRAMES`)."""
-    for name, value in (("max_lag_frames", max_lag_frames),
-                        ("min_common_frames", min_common_frames)):
-        if value is not None:
-            warnings.warn(f"match_tracks({name}=...) is deprecated: give frame_period_s and "
-                          f"{'max_lag_s' if name == 'max_lag_frames' else 'min_common_s'} "
-                          "in seconds", DeprecationWarning, stacklevel=3)
-    if frame_period_s is None:
-        if max_lag_s is not None or min_common_s is not None:
-            raise ValidationError("max_lag_s and min_common_s need frame_period_s")
-        lag, common = 2, DEFAULT_MIN_COMMON_FRAMES
-    else:
-        if not (np.isfinite(frame_period_s) and frame_period_s > 0):
-            raise ValidationError(f"frame_period_s must be finite and > 0, got {frame_period_s!r}")
-        lag_s = DEFAULT_MAX_LAG_S if max_lag_s is None else max_lag_s
-        common_s = DEFAULT_MIN_COMMON_S if min_common_s is None else min_common_s
-        for name, v in (("max_lag_s", lag_s), ("min_common_s", common_s)):
-            if not (np.isfinite(v) and v >= 0):
-                raise ValidationError(f"{name} must be finite and >= 0, got {v!r}")
-        lag = int(np.round(lag_s / frame_period_s))
-        common = max(int(np.ceil(common_s / frame_period_s - 1e-9)), DEFAULT_MIN_COMMON_FRAMES)
-    if max_lag_frames is not None:
-        lag = max_lag_frames
-    if min_common_frames is not None:
-        common = min_common_frames
-    return lag, common
-
-
 def _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m,
              autocorrelation):
     """The closed form on the accepted rows, and the accepted track pairs."""
@@ -440,64 +381,26 @@ def match_tracks(
     tracks_a: LocalTracks,
     tracks_b: LocalTracks,
     *,
-    frame_period_s: float | None = None,
-    max_lag_s: float | None = None,
-    min_common_s: float | None = None,
-    min_spread_m: float = DEFAULT_MIN_SPREAD_M,
-    max_rmse_m: float = DEFAULT_MAX_RMSE_M,
-    inlier_gate_m: float = DEFAULT_INLIER_GATE_M,
-    gate_probability: float = DEFAULT_GATE_PROBABILITY,
-    covariance: str = "residual",
-    lag_min_improvement: float = 0.05,
-    lag_ambiguity: float = 0.15,
-    autocorrelation: str = "auto",
-    max_lag_frames: int | None = None,
-    min_common_frames: int | None = None,
+    frame_period_s: float,
+    options: MatchingOptions | None = None,
 ) -> TrackMatching:
     """Match two nodes' local tracks and calibrate b in a's frame (module doc).
 
-    Parameters
-    ----------
-    tracks_a, tracks_b : LocalTracks
-    frame_period_s : float, optional
-        The frame period; with it the thresholds below are in seconds.
-    max_lag_s : float
-        Lags up to this (default 0.3 s) either way are searched, in whole
-        frames.
-    min_common_s : float
-        Track pairs that share less than this (default 0.5 s, and at least
-        5 frames) are skipped.
-    min_spread_m : as :func:`closed_form_calibration`; hypotheses from pairs
-        that fail it are skipped.
-    max_rmse_m : float
-        A final track RMSE above this means the tracks are not one target.
-    inlier_gate_m : float
-        Without track covariances, a frame pair supports a pose when b's
-        point lands within this distance of a's point.
-    gate_probability : float
-        With covariances on both sides, the chi-square(2) gate probability
-        (module doc).
-    covariance, autocorrelation : passed to :func:`closed_form_calibration`.
-    lag_min_improvement : float
-        A nonzero lag is reported only if its inlier RMSE is at least this
-        fraction below lag 0's with at least 95% of its support.
-    lag_ambiguity : float
-        Other lags with 95% of the chosen lag's support and an inlier RMSE
-        within this fraction of its make the lag ambiguous (a walk along a
-        circle): the covariance is widened by the spread of their poses when
-        they differ from the chosen one by more than 3 sigma (issue 13: a
-        circular walk gave a pose 0.8 m off with a 0.08 m sigma).
-    max_lag_frames, min_common_frames : int
-        Deprecated frame counts (``DeprecationWarning``); they override the
-        seconds. Without ``frame_period_s`` and these, 2 and 5 frames.
+    tracks_a, tracks_b : the two nodes' local tracks.
+    frame_period_s : the frame period (s), which turns the thresholds in
+        seconds into frames.
+    options : the thresholds (:class:`MatchingOptions`; None: its defaults).
 
     Returns a :class:`TrackMatching`; ``success=False`` (no calibration) when
     no pair has enough common frames of a moving target, or the best pose
-    leaves a track RMSE above ``max_rmse_m``.
+    leaves a track RMSE above ``options.max_rmse_m``.
     """
-    max_lag_frames, min_common_frames = frame_thresholds(
-        frame_period_s, max_lag_s, min_common_s, max_lag_frames, min_common_frames)
-    _validate(max_lag_frames, max_rmse_m, inlier_gate_m, lag_ambiguity, gate_probability)
+    o = MatchingOptions() if options is None else options
+    if not isinstance(o, MatchingOptions):
+        raise ValidationError(f"options must be a MatchingOptions, got {o!r}")
+    max_lag_frames, min_common_frames = o.frame_counts(frame_period_s)
+    min_spread_m, max_rmse_m = o.min_spread_m, o.max_rmse_m
+    inlier_gate_m, gate_probability = o.inlier_gate_m, o.gate_probability
     ta, tb = tracks_a.split_rows(), tracks_b.split_rows()
     lags = range(-int(max_lag_frames), int(max_lag_frames) + 1)
     if not ta or not tb:
@@ -515,17 +418,17 @@ def match_tracks(
                 else f"the chi-square gate (gate_probability={gate_probability})")
         return _failed(f"no pose aligns 3 frames within {gate}; the "
                        f"best track RMSE is {best.rmse_m:.3g} m", cands)
-    lag = _choose_lag(fits, lag_min_improvement)
+    lag = _choose_lag(fits, o.lag_min_improvement)
     _, ia, ib, rmse = fits[lag]
     if rmse > max_rmse_m:
         return _failed(f"no pair of tracks matches: the best track RMSE {rmse:.3g} m "
                        f"(lag {lag}) exceeds max_rmse_m={max_rmse_m}", cands)
-    ambiguous = _ambiguous_lags(fits, lag, lag_ambiguity)
+    ambiguous = _ambiguous_lags(fits, lag, o.lag_ambiguity)
     ia, ib = _majority_rows(pool, lag, ia, ib)
     if ia.size < 3:
         return _failed("no track pair has a majority of its common frames aligned by one pose",
                        cands)
-    matched = _matched(pool, lag, ia, ib, cands, covariance, min_common_frames, min_spread_m,
-                       autocorrelation)
+    matched = _matched(pool, lag, ia, ib, cands, o.covariance, min_common_frames, min_spread_m,
+                       o.autocorrelation)
     cal = _widened(matched.calibration, lag, fits, ambiguous)
     return replace(matched, calibration=cal, message=cal.message)

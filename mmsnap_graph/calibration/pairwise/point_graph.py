@@ -3,8 +3,7 @@
 Pairwise closed forms that reuse one node's detections (S1-S2 and S1-S3 both
 use S1's track) are correlated; a pose graph that takes them as independent
 edges counts S1's track twice and reports covariances that are too small
-(issue 11: pose NEES 6.8-8.5 on a clean 3-node network, 6 expected for two
-poses). Here the poses are solved jointly from the points themselves:
+(pose NEES 6.8-8.5 on a clean 3-node network, 6 expected for two poses). Here the poses are solved jointly from the points themselves:
 
 .. math::
 

@@ -13,8 +13,8 @@ reference are reported in ``unreachable`` and get no pose.
 Edges from matched tracks (:func:`pairwise_edges`) carry their matched
 points. Pairwise estimates that reuse one node's detections are correlated,
 and the between-factor graph, which takes them as independent, reports
-covariances that are too small (issue 11: pose NEES 6.8-8.5 for two poses on
-a clean 3-node network). When every edge has its points, ``method="auto"``
+covariances that are too small (pose NEES 6.8-8.5 for two poses on a clean
+3-node network). When every edge has its points, ``method="auto"``
 (default) solves all poses at once from the points instead
 (:mod:`.point_graph`: one least squares, a sandwich covariance with the
 residuals of one instant counted together and corrected for frame-to-frame
@@ -36,6 +36,7 @@ from ..._validation import as_float_array, check_finite, check_shape
 from .centroid_points import debias_centroid_tracks
 from .closed_form import PairwiseCalibration
 from .matching import LocalTracks, match_tracks
+from .matching_options import MatchingOptions
 from .point_graph import PointEdge, solve_point_graph
 from ..poses import pose_array, to_pose2
 
@@ -311,9 +312,10 @@ def pose_graph_calibration(
 def pairwise_edges(
     tracks: Mapping[str, LocalTracks],
     *,
+    frame_period_s: float,
+    options: MatchingOptions | None = None,
     pairs: Sequence[tuple[str, str]] | None = None,
     debias_centroids: bool = True,
-    **match_kwargs,
 ) -> tuple[list[PoseEdge], dict[str, str]]:
     """Match every pair of nodes (or the given ``pairs``) and turn each
     successful match into a :class:`PoseEdge`.
@@ -323,7 +325,8 @@ def pairwise_edges(
         covariances) first lose the boresight bias of their angle noise
         (:func:`~mmsnap_graph.calibration.pairwise.centroid_points.debias_centroid_tracks`:
         a bias common to every frame, which the pose covariance cannot show).
-    match_kwargs : passed to :func:`match_tracks`.
+    frame_period_s, options : the frame period and the thresholds of
+        :func:`match_tracks`.
     Returns the edges and, for each failed pair ``"a-b"``, the reason.
     """
     if debias_centroids:
@@ -333,7 +336,7 @@ def pairwise_edges(
         pairs = [(names[i], names[j]) for i in range(len(names)) for j in range(i + 1, len(names))]
     edges, failures = [], {}
     for a, b in pairs:
-        m = match_tracks(tracks[a], tracks[b], **match_kwargs)
+        m = match_tracks(tracks[a], tracks[b], frame_period_s=frame_period_s, options=options)
         if m.success:
             edges.append(PoseEdge.from_pairwise(a, b, m.calibration))
         else:

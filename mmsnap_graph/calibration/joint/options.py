@@ -1,0 +1,140 @@
+"""The settings of a joint calibration (:func:`~.solve.joint_calibration`),
+checked once when the object is made.
+
+The data of one solve (detections, reference, starting poses, measurement
+noise, frame period, whole-frame lags) are arguments of the function; what
+stays the same from one recording to the next (kernels, motion model, gates,
+limits) is a :class:`JointOptions`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from factors.robust import ROBUST_K_DEFAULT
+
+from ...errors import ValidationError
+from ..._validation import check_positive, frozen_vector
+from ..pairwise.closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
+
+__all__ = ["DEFAULT_ROBUST_K", "DEFAULT_MOTION_ROBUST_K", "JointOptions"]
+
+#: Default width of the robust kernels on the whitened 3-vector norm (GTSAM's
+#: mEstimator ``k``): Huber 1.345, Cauchy 2.5; the project's one table,
+#: :data:`factors.robust.ROBUST_K_DEFAULT`.
+DEFAULT_ROBUST_K = ROBUST_K_DEFAULT
+#: Default width of the Cauchy kernel on the motion factors' whitened
+#: 4-vector norm (a Gaussian acceleration's norm is about 2; a sharp turn's
+#: is 5-20): see docs/CALIBRATION.md, "Sharp turns".
+DEFAULT_MOTION_ROBUST_K = 3.0
+
+_KERNELS = (None, "huber", "cauchy")
+
+
+def _count(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValidationError(f"{name} must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
+def _flag(value, name: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValidationError(f"{name} must be a bool, got {value!r}")
+    return bool(value)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class JointOptions:
+    """How :func:`~mmsnap_graph.calibration.joint_calibration` solves.
+
+    robust, robust_k : kernel against ghost detections (None: Gaussian).
+        Default k (:data:`DEFAULT_ROBUST_K`): Huber 1.345, Cauchy 2.5 (on
+        the whitened 3-vector norm).
+    motion : add constant-velocity factors between consecutive frames no
+        more than ``max_motion_gap_frames`` apart (the solve then needs
+        ``frame_period_s``).
+    sigma_a_mps2 : white-acceleration sigma of the motion factors.
+    motion_robust, motion_robust_k : kernel on the motion factors' whitened
+        4-vector norm in the robust pass (with ``robust`` set), so that a
+        sharp turn bends the track instead of making its detections
+        outliers; the motion factors it finds beyond the chi-square(4)
+        ``1 - outlier_probability`` quantile (the turns) are left out of the
+        final Gaussian pass. None: Gaussian motion factors throughout.
+    time_offsets : estimate each non-reference node's clock offset jointly
+        with the poses (docs/CALIBRATION.md, "Clock offsets"); the node's
+        detection at frame ``k`` is of the state ``F(tau) x_k``.
+    state_prior_sigmas : (4,) sigmas of the zero-mean state prior (m, m,
+        m/s, m/s).
+    outlier_probability : a detection whose whitened squared residual exceeds
+        the chi-square(3) ``1 - outlier_probability`` quantile is an outlier.
+    min_common_frames : fewer frames seen by two nodes raise CalibrationError.
+    min_spread_m : the robust start's closed forms need the target to move
+        this far in each node.
+    max_pose_variance : a pose marginal variance (m^2 or rad^2) above this
+        means that the pose is not determined: ``success=False``.
+    max_pose_condition : so does an eigenvalue of a pose covariance more
+        than this times its smallest (a standing target leaves S2 free to
+        turn about it: variances of 1e-6 against 0.2 in a test).
+    max_iterations : GTSAM's iteration limit per pass.
+    presolve : run the numpy pre-solve (:mod:`.presolve`, same models)
+        before each GTSAM pass; LM then needs one or two iterations.
+        False: LM from the closed form (slower, same optimum).
+    state_covariances : also return each frame's state marginal (slow for
+        long sequences; NaN otherwise).
+
+    A bad value raises :class:`~mmsnap_graph.errors.ValidationError` naming
+    the field.
+    """
+
+    robust: Literal["huber", "cauchy"] | None = "cauchy"
+    robust_k: float | None = None
+    motion: bool = False
+    sigma_a_mps2: float = 1.0
+    max_motion_gap_frames: int = 3
+    motion_robust: Literal["huber", "cauchy"] | None = None
+    motion_robust_k: float = DEFAULT_MOTION_ROBUST_K
+    time_offsets: bool = False
+    state_prior_sigmas: tuple[float, float, float, float] = (1e3, 1e3, 3.5, 3.5)
+    outlier_probability: float = 1e-3
+    min_common_frames: int = DEFAULT_MIN_COMMON_FRAMES
+    min_spread_m: float = DEFAULT_MIN_SPREAD_M
+    max_pose_variance: float = 1.0
+    max_pose_condition: float = 1e4
+    max_iterations: int = 50
+    presolve: bool = True
+    state_covariances: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("robust", "motion_robust"):
+            if getattr(self, name) not in _KERNELS:
+                raise ValidationError(f"{name}={getattr(self, name)!r} must be None, 'huber' "
+                                      f"or 'cauchy'")
+        if self.robust_k is not None:
+            object.__setattr__(self, "robust_k", float(check_positive(self.robust_k, "robust_k")))
+        for name in ("sigma_a_mps2", "motion_robust_k", "max_pose_variance",
+                     "max_pose_condition"):
+            object.__setattr__(self, name, float(check_positive(getattr(self, name), name)))
+        if self.min_spread_m is None or not float(self.min_spread_m) >= 0:
+            raise ValidationError(f"min_spread_m must be >= 0, got {self.min_spread_m!r}")
+        object.__setattr__(self, "min_spread_m", float(self.min_spread_m))
+        for name in ("max_motion_gap_frames", "min_common_frames", "max_iterations"):
+            object.__setattr__(self, name, _count(getattr(self, name), name))
+        for name in ("motion", "time_offsets", "presolve", "state_covariances"):
+            object.__setattr__(self, name, _flag(getattr(self, name), name))
+        prior = check_positive(frozen_vector(self.state_prior_sigmas, "state_prior_sigmas", 4),
+                               "state_prior_sigmas")
+        object.__setattr__(self, "state_prior_sigmas", tuple(float(v) for v in prior))
+        p = self.outlier_probability
+        if isinstance(p, bool) or not isinstance(p, (int, float, np.floating)) or not 0 < p < 1:
+            raise ValidationError(f"outlier_probability must lie in (0, 1), got {p!r}")
+        object.__setattr__(self, "outlier_probability", float(p))
+
+    @property
+    def kernel_k(self) -> float | None:
+        """The width of the robust kernel in use (None without one)."""
+        if self.robust is None:
+            return None
+        return self.robust_k if self.robust_k is not None else DEFAULT_ROBUST_K[self.robust]
