@@ -29,13 +29,16 @@ simulator's network NEES fell from 6.0 to 5.3).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ...errors import ValidationError
+from .presolve import PresolveProblem, pose_influences
 
-__all__ = ["long_run_covariance", "robust_covariance", "bandwidth_frames",
-           "DEFAULT_BANDWIDTH_S", "MAX_GAP_FRAMES"]
+__all__ = ["BlockCovariance", "block_covariance", "long_run_covariance", "robust_covariance",
+           "bandwidth_frames", "DEFAULT_BANDWIDTH_S", "MAX_GAP_FRAMES"]
 
 #: Default Bartlett bandwidth (s): a walker's aspect and a cluster's shape
 #: change within about this; the real recordings' influences stay correlated
@@ -107,3 +110,65 @@ def robust_covariance(model: ArrayLike, long_run: ArrayLike, *, n_frames: int,
     lam = np.where(lw > 1.0 + noise, lw, 1.0)
     out = root @ (lv * lam) @ lv.T @ root.T
     return 0.5 * (out + out.T), np.sort(lam)[::-1]
+
+
+@dataclass(frozen=True, slots=True)
+class BlockCovariance:
+    """The covariance of the joint graph's pose block at its solution.
+
+    covariance, model : (P, P) the reported and the model's (the marginal
+        of the graph: ``S^-1``), in the block's order (:attr:`order`).
+    order : ``("pose", name)`` x 3 per non-reference node, ``("offset",
+        name)`` per timed node, ``("range",)`` for the range offset.
+    factors : (P,) the widening of the variances in the model's whitened
+        directions (1 where the model's was kept).
+    bandwidth : Bartlett bandwidth in frames (0 for the model's).
+    """
+
+    covariance: NDArray
+    model: NDArray
+    order: tuple
+    factors: NDArray
+    bandwidth: int
+
+    def node(self, name: str) -> NDArray:
+        """(3, 3) the covariance of ``name``'s pose."""
+        i = self.order.index(("pose", name))
+        return self.covariance[i:i + 3, i:i + 3].copy()
+
+    def variance(self, key: tuple) -> float:
+        """The variance of a clock offset ``("offset", name)`` or of the
+        range offset ``("range",)``; NaN when not in the block."""
+        if key not in self.order:
+            return float("nan")
+        i = self.order.index(key)
+        return float(self.covariance[i, i])
+
+    def describe(self) -> str:
+        """One clause for the calibration's message."""
+        if self.bandwidth == 0:
+            return "covariance: the graph's marginals"
+        top = float(np.max(self.factors))
+        if top <= 1.0:
+            return (f"covariance: the graph's marginals (the long-run covariance over "
+                    f"{self.bandwidth} frames is within their sampling noise)")
+        return (f"covariance: long-run over {self.bandwidth} frames (errors correlated in "
+                f"time or model error), variances widened up to x{top:.1f}")
+
+
+def block_covariance(problem: PresolveProblem, poses, states, offsets, frames, *,
+                     bandwidth: int | None, timed) -> BlockCovariance:
+    """:class:`BlockCovariance` of ``problem`` (Gaussian, the final pass's
+    detections and motion factors) at ``(poses, states, offsets)``;
+    ``bandwidth`` None: the model's; ``timed`` the nodes with clock offsets."""
+    infl, model = pose_influences(problem, poses, states, offsets=offsets)
+    others = [n for n in problem.names if n != problem.reference]
+    order = tuple([("pose", n) for n in others for _ in range(3)]
+                  + [("offset", n) for n in others if n in set(timed)]
+                  + ([("range",)] if problem.range_offset is not None else []))
+    # One key per column; a pose's three columns share a key: index() finds the first.
+    if bandwidth is None:
+        return BlockCovariance(model, model, order, np.ones(model.shape[0]), 0)
+    lr = long_run_covariance(infl, frames, bandwidth)
+    cov, factors = robust_covariance(model, lr, n_frames=len(frames), bandwidth=bandwidth)
+    return BlockCovariance(cov, model, order, factors, int(bandwidth))

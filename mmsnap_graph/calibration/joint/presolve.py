@@ -297,6 +297,10 @@ class _Problem:
         gs = states * self.prior_w
         bmat = np.zeros((self.f, 4, self.dim - self.s0))
         hpp = self._measurement_blocks(poses, states, offsets, hss, gs, g, bmat)
+        if self.dcol is not None:  # the range offset's prior
+            mean, sigma = self.range_prior
+            hpp[self.dcol, self.dcol] += 1.0 / sigma**2
+            g[self.s0 + self.dcol] += (self.range_offset(offsets) - mean) / sigma**2
         off = (self._motion_blocks(states, hss, gs) if self.mi is not None
                else np.zeros((0, 4, 4)))
         g[:self.s0] = gs.ravel()
@@ -453,16 +457,17 @@ def _problem(problem: PresolveProblem, poses, states, offsets=None):
     poses = {n: np.asarray(p, dtype=float).copy() for n, p in poses.items()}
     states = np.array(states, dtype=float)
     q = problem
+    given = {} if offsets is None else dict(offsets)
+    timed = tuple(n for n in given if n != RANGE_OFFSET)
     prob = _Problem(q.measurements, q.names, q.reference, np.asarray(q.sigmas, dtype=float),
                     q.prior_sigmas, q.robust, q.k, q.use, q.motion, states.shape[0],
-                    timed=() if offsets is None else tuple(n for n in offsets
-                                                           if n != RANGE_OFFSET),
-                    range_offset=q.range_offset)
-    if offsets is not None or q.range_offset is not None:
-        given = {} if offsets is None else offsets
+                    timed=timed, range_offset=q.range_offset)
+    if offsets is not None and (timed or q.range_offset is None):
         offsets = {n: float(given.get(n, 0.0)) for n in q.names}
-        if q.range_offset is not None:
-            offsets[RANGE_OFFSET] = float(given.get(RANGE_OFFSET, q.range_offset[0]))
+    elif q.range_offset is not None:
+        offsets = {}
+    if q.range_offset is not None:
+        offsets[RANGE_OFFSET] = float(given.get(RANGE_OFFSET, q.range_offset[0]))
     return prob, poses, states, offsets
 
 
