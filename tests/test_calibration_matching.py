@@ -176,7 +176,8 @@ def test_match_tracks_argument_errors():
 def test_a_lag_the_data_cannot_show_is_not_reported():
     """A slow target (~3 cm per frame) in ~11 cm track noise: some lag +-1
     happens to give a slightly lower RMSE than 0 (by noise); the 5% rule
-    keeps lag 0."""
+    keeps lag 0, and without it the lag-evidence test does (z = 0.7 against
+    lag 0 on the same tracks) and says so."""
     poses = PAPER_CONFIGURATIONS["B"]
     rng = np.random.default_rng(4)  # a seed where some lag +-1 wins by noise (4 in 30 do)
     scene = synthetic_scene(poses, center_m=np.array([1.5, 3.5]), n_frames=300,
@@ -185,7 +186,8 @@ def test_a_lag_the_data_cannot_show_is_not_reported():
                         track_id=np.zeros(300, int)) for n in ("S1", "S2"))
     raw = match_tracks(a, b, frame_period_s=T, options=_lag(1, lag_min_improvement=0.0))
     kept = match_tracks(a, b, frame_period_s=T, options=_lag(1))
-    assert raw.lag_frames != 0
-    assert kept.lag_frames == 0
+    assert raw.lag_frames == 0 and kept.lag_frames == 0
+    assert "not determined by the data" in raw.lag_note and raw.lag_note in raw.message
     rm = {c.lag_frames: c.rmse_m for c in kept.candidates}
-    assert rm[raw.lag_frames] > 0.95 * rm[0]
+    by_rmse = min(rm, key=rm.get)
+    assert by_rmse != 0 and rm[by_rmse] > 0.95 * rm[0]  # the noise's pick, close to lag 0

@@ -272,6 +272,7 @@ def calibrate_recording(
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
     result_method, refined, notes = "pose_graph", None, [pg.message]
+    notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in pg.edges if e.lag_note]
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)

@@ -119,7 +119,8 @@ def format_table(cal) -> str:
         lines.append("pairwise closed form (track RMSE, paper eq. 14):")
         for e in cal.edges:
             lines.append(f"  {e.node_a}-{e.node_b}: RMSE {e.rmse_m:.3f} m over {e.n_frames} "
-                         f"frames, lag {e.lag_frames}")
+                         f"frames, lag {e.lag_frames}"
+                         + (f" ({e.lag_note})" if getattr(e, "lag_note", "") else ""))
     for k, v in cal.failures.items():
         lines.append(f"  {k}: {v}")
     if cal.noise is not None:

@@ -530,6 +530,10 @@ def _estimate(graph, frames, init, x0, unreachable, sig,
     if block is not None:
         covs, variances, joint_cov = _from_block(block, graph, covs, variances)
         notes.append(block.describe())
+    if options.range_offset_prior_m is not None:
+        sd = np.sqrt(block.variance(("range",))) if block is not None else float("nan")
+        notes.append("range offset (reflection depth) {:.3f} +- {:.3f} m (prior {:.2f} +- "
+                     "{:.2f} m)".format(graph.range_offset_m, sd, *options.range_offset_prior_m))
     msg = run_message(active, frames.size, run["outliers"], _solver_note(graph, run), notes,
                       unobservable, unreachable, ref)
     return JointCalibration(

@@ -153,6 +153,8 @@ class TrackMatching:
     pairs : accepted ``(track_a, track_b)`` pairs.
     lag_frames : node b's frame ``k + lag`` matches node a's frame ``k``.
     candidates : every scored hypothesis.
+    lag_note : how the data decided a nonzero lag (kept: its evidence; not
+        determined: lag 0 kept), empty when lag 0 won outright.
     """
 
     calibration: PairwiseCalibration | None
@@ -161,6 +163,7 @@ class TrackMatching:
     candidates: tuple[TrackCandidate, ...]
     success: bool
     message: str
+    lag_note: str = ""
 
 
 def _common(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
@@ -492,7 +495,7 @@ def match_tracks(
     cal = _widened(matched.calibration, lag, fits, ambiguous)
     if note:
         cal = replace(cal, message=f"{cal.message}; {note}")
-    return replace(matched, calibration=cal, message=cal.message)
+    return replace(matched, calibration=cal, message=cal.message, lag_note=note)
 
 
 def _supported_lag(pool, fits, lag):
