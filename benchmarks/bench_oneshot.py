@@ -29,6 +29,7 @@ import numpy as np
 
 from frames import POSES, scipy_fuse, simulate
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
+from mmsnap_graph.fusion.options import FusionOptions
 from mmsnap_graph.fusion.solvers.gtsam_graph import fuse_frame
 
 POSES_B = POSES["B"]
@@ -97,7 +98,7 @@ def main(argv=None) -> int:
     t_grid = []
     for zk in z[:5]:
         t0 = time.perf_counter()
-        fuse_frame(POSES_B, zk, noise=noise, prior=prior, covariance="both")
+        fuse_frame(POSES_B, zk, noise=noise, prior=prior, options=FusionOptions(covariance="both"))
         t_grid.append(time.perf_counter() - t0)
 
     med_g = np.median(t_gtsam) * 1e3

@@ -4,7 +4,7 @@ A simulated network of four nodes around a 7 m square (S1 and S2 face each
 other, S3 and S4 face each other across the other axis), one or two walking
 targets (``--targets``), centroids with the simulator's noise, MAP with the
 paper's prior and noise (seeded). For each solver (``--solvers``, default
-``numpy gtsam``):
+``scalar gtsam``):
 
 - stream: :class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`, one ``push`` per
   frame (validation, association, one-shot fusion of the frame's groups,
@@ -13,12 +13,12 @@ paper's prior and noise (seeded). For each solver (``--solvers``, default
 - baseline: :func:`mmsnap_graph.fusion.recording.sequence.fuse_recording` on the whole
   recording plus :func:`mmsnap_graph.tracking.central.track_fused`, the
   total divided by the number of frames (best of ``--repeat``), with the
-  solver of the same name (``batch`` for the stream's ``numpy`` solver: the
-  fastest whole-recording path).
+  solver of the same name (``vectorized`` for the stream's ``scalar`` solver:
+  the fastest whole-recording path).
 
 The stream and the baseline alternate ``--repeat`` times so that machine load
 hits them alike. The script also checks the stream's fused states: equal to
-``fuse_recording``'s with the same solver (to 1e-9), and for ``numpy`` equal
+``fuse_recording``'s with the same solver (to 1e-9), and for ``scalar`` equal
 to ``fuse_recording``'s with ``gtsam`` to
 :data:`mmsnap_graph.fusion.solvers.scalar.STATE_TOLERANCE` of each component's
 sigma. ``--profile`` adds where a push's CPU time goes (median per stage:
@@ -29,7 +29,7 @@ CPU time per frame is the fairer figure.
 Usage::
 
     python benchmarks/bench_stream.py [--frames 400] [--targets 1 2] [--repeat 2] [--seed 0]
-                                      [--solvers numpy gtsam batch] [--profile]
+                                      [--solvers scalar gtsam vectorized] [--profile]
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ import time
 import numpy as np
 
 from mmsnap_graph.fusion.solvers.scalar import COVARIANCE_TOLERANCE, STATE_TOLERANCE
+from mmsnap_graph.fusion.options import FusionOptions
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
 from mmsnap_graph.sim import simulate_recording
@@ -53,7 +54,7 @@ NETWORK = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi],
 
 
 #: The whole-recording path each stream solver is compared with.
-BASELINE = {"numpy": "batch", "gtsam": "gtsam", "batch": "batch"}
+BASELINE = {"scalar": "vectorized", "gtsam": "gtsam", "vectorized": "vectorized"}
 #: The stages of a push timed by ``--profile`` (FrameStream's own steps).
 STAGES = {"validate": "_validate", "associate": "members", "fuse": "_fuse",
           "tracker": "_step_tracker", "update arrays": "_update"}
@@ -101,20 +102,20 @@ def _stream_once(rec, poses, solver, profile=False):
 
 def _batch_once(rec, solver):
     w0, c0 = time.perf_counter(), time.thread_time()
-    fused = fuse_recording(rec, solver=solver, progress=False)
+    fused = fuse_recording(rec, progress=False, options=FusionOptions(solver=solver))
     track_fused(fused)
     return time.perf_counter() - w0, time.thread_time() - c0, fused
 
 
 def _check_states(solver, states, covs, fused, reference):
     """The stream's states against the whole-recording path's."""
-    if solver != "numpy":
+    if solver != "scalar":
         assert np.allclose(states, fused.state, rtol=0, atol=1e-9), "stream != fuse_recording"
         return
     ok = reference.success
     sig = np.sqrt(np.einsum("fii->fi", reference.covariance[ok]))
     gap = np.max(np.abs(states[ok] - reference.state[ok]) / sig, initial=0.0)
-    assert gap <= STATE_TOLERANCE, f"stream (numpy) != fuse_recording (gtsam): {gap:.3g} sigma"
+    assert gap <= STATE_TOLERANCE, f"stream (scalar) != fuse_recording (gtsam): {gap:.3g} sigma"
     cov_gap = np.max(np.abs(covs[ok] - reference.covariance[ok]) / np.einsum("fi,fj->fij", sig, sig),
                      initial=0.0)
     assert cov_gap <= COVARIANCE_TOLERANCE, f"covariances differ by {cov_gap:.3g}"
@@ -125,7 +126,8 @@ def _run(n_targets, args):
                              SimulationOptions(physics=None, n_targets=n_targets, known_poses=True),
                              levels=("centroids",), n_frames=args.frames, seed=args.seed)
     poses = np.array([NETWORK[n] for n in rec.node_names])
-    reference = fuse_recording(rec, solver="gtsam", progress=False) if "numpy" in args.solvers else None
+    reference = (fuse_recording(rec, progress=False, options=FusionOptions(solver="gtsam"))
+                 if "scalar" in args.solvers else None)
     medians = {}
     for solver in args.solvers:
         wall, cpu, stages = [], [], {}
@@ -152,9 +154,9 @@ def _run(n_targets, args):
         if stages:
             print("    where a push's CPU time goes (median per push, ms): " + ", ".join(
                 f"{name} {np.median(v) * 1e3:.3f}" for name, v in stages.items()))
-    if "numpy" in medians and "gtsam" in medians:
-        print(f"    stream numpy / stream gtsam (CPU medians): "
-              f"{medians['numpy'] / medians['gtsam']:.2f}x")
+    if "scalar" in medians and "gtsam" in medians:
+        print(f"    stream scalar / stream gtsam (CPU medians): "
+              f"{medians['scalar'] / medians['gtsam']:.2f}x")
 
 
 def main(argv=None) -> int:
@@ -163,8 +165,8 @@ def main(argv=None) -> int:
     parser.add_argument("--targets", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--solvers", nargs="+", default=["numpy", "gtsam"],
-                        choices=["numpy", "gtsam", "batch"])
+    parser.add_argument("--solvers", nargs="+", default=["scalar", "gtsam"],
+                        choices=["scalar", "gtsam", "vectorized"])
     parser.add_argument("--profile", action="store_true",
                         help="also time each stage of a push (adds ~1 us per stage)")
     args = parser.parse_args(argv)

@@ -6,14 +6,25 @@ offending value.
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import ValidationError
+from .errors import MmsnapError, ValidationError
 
-__all__ = ["as_float_array", "check_finite", "check_positive", "check_shape", "frozen_vector", "int_array"]
+__all__ = [
+    "as_float_array",
+    "check_count",
+    "check_finite",
+    "check_positive",
+    "check_probability",
+    "check_shape",
+    "chi2_gate",
+    "frozen_vector",
+    "int_array",
+]
 
 
 def as_float_array(value: ArrayLike, name: str) -> NDArray:
@@ -81,3 +92,53 @@ def int_array(value: ArrayLike, name: str) -> NDArray:
     if arr.size and arr.dtype.kind == "u" and np.any(arr > np.iinfo(np.int64).max):
         raise ValidationError(f"{name} must fit in int64, got {arr[arr > np.iinfo(np.int64).max][0]}")
     return arr.astype(np.int64)
+
+
+def check_count(value: object, name: str, minimum: int = 1, maximum: int | None = None, *,
+                error: type[MmsnapError] = ValidationError) -> int:
+    """``value`` as an int in ``[minimum, maximum]``: a Python or numpy
+    integer, not a bool, a float or a string (a float count is most often a
+    unit or parsing mistake). Raises ``error`` (default ValidationError)
+    naming ``name`` and the value."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise error(f"{name}={value!r} must be an integer, got {type(value).__name__}")
+    if value < minimum or (maximum is not None and value > maximum):
+        span = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
+        raise error(f"{name}={value!r} must be an integer {span}")
+    return int(value)
+
+
+def check_probability(value: object, name: str, *,
+                      error: type[MmsnapError] = ValidationError) -> float:
+    """``value`` as a float strictly inside ``(0, 1)`` (a gate or confidence
+    probability: 0 and 1 make an empty or an infinite gate). Raises ``error``
+    naming ``name`` and the value."""
+    if isinstance(value, (bool, np.bool_, str)) or not isinstance(
+            value, (int, float, np.integer, np.floating)):
+        raise error(f"{name} must be a number in (0, 1), got {value!r}")
+    p = float(value)
+    if not 0.0 < p < 1.0:
+        raise error(f"{name} must be in (0, 1), got {value!r}")
+    return p
+
+
+def chi2_gate(gate_probability: float, dof: ArrayLike, *, name: str = "gate_probability"):
+    """The chi-square gate that keeps a fraction ``gate_probability`` of
+    consistent residuals: ``chi2.ppf(gate_probability, dof)``, a squared
+    Mahalanobis distance with ``dof`` degrees of freedom.
+
+    Every chi-square gate of the library is given this way, as the
+    probability of *keeping* a consistent residual (0.999 keeps 99.9%),
+    never as the outlier tail ``1 - p``. ``dof`` may be an array (one gate
+    per row); returns a float for a scalar ``dof``, an array otherwise.
+    """
+    p = check_probability(gate_probability, name)
+    d = np.asarray(dof, dtype=float)
+    if d.size == 0 or not np.all(np.isfinite(d)) or np.any(d <= 0):
+        raise ValidationError(f"dof must be > 0, got {dof!r}")
+    if d.ndim == 0 and d == 2.0:
+        return -2.0 * math.log1p(-p)  # closed form, and no scipy on a light path
+    from scipy.stats import chi2  # deferred: scipy.stats is slow to import
+
+    out = chi2.ppf(p, d)
+    return float(out) if d.ndim == 0 else out

@@ -21,6 +21,7 @@ from scipy.stats import chi2
 
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_BC
 from factors.models import measurement_model_pose, predict_measurements, wrap_angle
+from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.evaluation import nees
@@ -90,7 +91,10 @@ def test_bad_pose_covariances_raise_naming_the_entry(pose_cov, match):
 def test_grid_covariance_refuses_pose_covariances():
     _, z = _frames(np.random.default_rng(0), 1)
     with pytest.raises(ValidationError, match="pose_covariances needs covariance='laplace'"):
-        fuse_frame(POSES_BC, z[0], covariance="grid", pose_covariances=POSE_COV)
+        fuse_frame(POSES_BC,
+                   z[0],
+                   pose_covariances=POSE_COV,
+                   options=FusionOptions(covariance="grid"))
 
 
 def test_exact_poses_give_the_plain_result():
@@ -141,9 +145,12 @@ def test_batch_propagation_equals_the_solvers_own_pose_sensitivity(noisy, tolera
     states, z = _frames(np.random.default_rng(3), 8, noises=NOISES)
     if not noisy:
         z = np.stack([predict_measurements(states, p) for p in POSES_BC], axis=1)
-    aware = fuse_batch(POSES_BC, z, noise=NOISES, pose_covariances=POSE_COV,
-                       step_tolerance=1e-14)
-    plain = fuse_batch(POSES_BC, z, noise=NOISES, step_tolerance=1e-14)
+    aware = fuse_batch(POSES_BC,
+                       z,
+                       noise=NOISES,
+                       pose_covariances=POSE_COV,
+                       options=FusionOptions(step_tolerance=1e-14))
+    plain = fuse_batch(POSES_BC, z, noise=NOISES, options=FusionOptions(step_tolerance=1e-14))
     assert plain.success.all()
     h = 1e-5
     ref = plain.covariance.copy()
@@ -156,8 +163,11 @@ def test_batch_propagation_equals_the_solvers_own_pose_sensitivity(noisy, tolera
             for sign in (1.0, -1.0):
                 poses = POSES_BC.copy()
                 poses[n] = _retract(POSES_BC[n], sign * xi)
-                shifted.append(fuse_batch(poses, z, noise=NOISES, initial_state=plain.state,
-                                          step_tolerance=1e-14).state)
+                shifted.append(fuse_batch(poses,
+                                          z,
+                                          noise=NOISES,
+                                          initial_state=plain.state,
+                                          options=FusionOptions(step_tolerance=1e-14)).state)
             jac[:, :, k] = (shifted[0] - shifted[1]) / (2 * h)
         ref += jac @ POSE_COV[n] @ np.swapaxes(jac, 1, 2)
     sig = np.sqrt(np.einsum("fii->fi", ref))
@@ -271,7 +281,9 @@ def test_fuse_recording_passes_pose_covariances_by_name(recording_3):
     by_name = {"S2": POSE_COV[1], "S3": POSE_COV[2]}  # S1 left out: exact
     plain = fuse_recording(recording_3)
     fb = fuse_recording(recording_3, pose_covariances=by_name)
-    fg = fuse_recording(recording_3, solver="gtsam", pose_covariances=by_name)
+    fg = fuse_recording(recording_3,
+                        pose_covariances=by_name,
+                        options=FusionOptions(solver="gtsam"))
     ok = plain.success
     assert ok.mean() > 0.9
     np.testing.assert_array_equal(fb.state[ok], plain.state[ok])
@@ -288,7 +300,7 @@ def test_fuse_recording_passes_pose_covariances_by_name(recording_3):
 
 
 def test_frame_stream_passes_pose_covariances(recording_3):
-    stream = FrameStream(recording_3.node_names, POSES_BC, solver="batch",
+    stream = FrameStream(recording_3.node_names, POSES_BC, solver="vectorized",
                          pose_covariances={"S2": POSE_COV[1], "S3": POSE_COV[2]})
     _, z = _frames(np.random.default_rng(10), 1)
     update = stream.push(0.1, [z[0, n][None] for n in range(3)])

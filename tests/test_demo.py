@@ -393,7 +393,7 @@ def test_a_failed_calibration_is_reported_and_the_other_run_not_fused(monkeypatc
             raise CalibrationError("forced")
         return real(rec, configuration=configuration, trajectory=trajectory, **kw)
 
-    monkeypatch.setattr(demo, "calibrate_run", failing)
+    monkeypatch.setattr(demo.run, "calibrate_run", failing)  # where run_demo looks it up
     res = demo.run_demo(demo.DemoConfig(configurations=("B",), n_frames=40, cube_frames=0))
     assert set(res.calibrations) == {("B", "random")}
     assert set(res.fusions) == {("B", "straight")}

@@ -66,7 +66,7 @@ def stream_runs(draw):
         t = t + draw(st.sampled_from([0.15, 0.15, 0.05, 0.0, -0.1, np.nan, 1e5]))
         frames.append((t, detections(draw, n_nodes)))
     sigma = draw(st.sampled_from([None, 1e-300, 1e-8, 1e8]))
-    return n_nodes, frames, sigma, draw(st.sampled_from(["gtsam", "batch"]))
+    return n_nodes, frames, sigma, draw(st.sampled_from(["gtsam", "vectorized"]))
 
 
 @FUZZ

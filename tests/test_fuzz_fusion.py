@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from factors.models import predict_measurements
 from mmsnap_graph import GaussianPrior, MeasurementNoise, MmsnapError, fuse_batch, fuse_frame
+from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
 
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 report_multiple_bugs=False,
@@ -197,9 +198,11 @@ def test_fuse_batch_with_a_huge_doppler_is_sound(frame, doppler, prior):
     assert_sound(r.success, r.state, r.covariance)
 
 
-@pytest.mark.parametrize("kwargs", [{"max_iterations": 2.5}, {"chunk_size": "8"},
-                                    {"max_iterations": True}])
-def test_fuse_batch_rejects_scalar_options_of_the_wrong_type(kwargs):
-    poses = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])
-    z = predict_measurements(np.array([2.0, 3.0, 0.5, 0.1]), poses)
-    assert_rejected(lambda **kw: fuse_batch(poses, z[None], **kw), **kwargs)
+@pytest.mark.parametrize("make, kwargs", [
+    (FusionOptions, {"chunk_size": "8"}), (FusionOptions, {"newton_after": 2.5}),
+    (FusionOptions, {"step_tolerance": True}), (FusionOptions, {"lm": {"max_iterations": 5}}),
+    (LevenbergMarquardtSettings, {"max_iterations": 2.5}),
+    (LevenbergMarquardtSettings, {"max_iterations": True}),
+    (LevenbergMarquardtSettings, {"lambda_initial": float("nan")})])
+def test_fusion_options_reject_scalars_of_the_wrong_type(make, kwargs):
+    assert_rejected(make, **kwargs)

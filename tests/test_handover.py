@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model
+from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.evaluation import evaluate_recording, failed_checks
 from mmsnap_graph.data.noise import GaussianPrior
@@ -49,12 +50,15 @@ def _jtwj(fused, i):
 
 
 @pytest.mark.parametrize("which", ["fused_map", "fused_ml"])
-@pytest.mark.parametrize("solver", ["batch", "gtsam"])
+@pytest.mark.parametrize("solver", ["vectorized", "gtsam"])
 def test_information_is_jtwj_at_the_estimate(which, solver, recording, request):
     fused = request.getfixturevalue(which)
     if solver == "gtsam":
         kw = {} if fused.mode == "map" else {"mode": "ml", "prior": None}
-        fused = fuse_recording(recording, solver="gtsam", progress=False, **kw)
+        fused = fuse_recording(recording,
+                               progress=False,
+                               **kw,
+                               options=FusionOptions(solver="gtsam"))
     rows = np.flatnonzero(fused.success)
     assert rows.size > 50
     for i in rows:

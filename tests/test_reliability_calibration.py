@@ -56,7 +56,7 @@ def test_vanishing_sigmas_raise_a_validation_error_or_fail(detections, sigma):
 
 def test_every_detection_an_outlier_gives_success_false(detections):
     # a threshold below every residual flags every detection
-    result = joint_calibration(detections, JointOptions(outlier_probability=1.0 - 1e-12), noise=NOISE)
+    result = joint_calibration(detections, JointOptions(gate_probability=1e-12), noise=NOISE)
     assert not result.success
     assert "outlier" in result.message
 

@@ -93,7 +93,7 @@ def _default_path_error(rec):
 @pytest.mark.xfail(strict=True, reason=(
     "issue 14 target (1.2x the dense error) not reachable on these data by any estimator: the "
     "Cramer-Rao bound of the S2/S3 positions from the chain's centroids "
-    "(calibration.pose_bound, tests/test_sparse_bound.py) is, on seed 0, sparse 47 mm against "
+    "(evaluation.pose_bound, tests/evaluation/test_pose_bound.py) is, on seed 0, sparse 47 mm against "
     "dense 17 mm (2.8x; 26 against 10 mm, 2.5x, with the trajectory known), 2.5-4.7x on "
     "seeds 0-7: sparse centroids are single body points, 0.14-0.17 m range / 0.09-0.14 rad "
     "omega / 0.4-0.7 m/s Doppler about the nodes' consensus against 0.03-0.08 m / "

@@ -37,7 +37,7 @@ def test_samples_are_what_the_script_makes(tmp_path):
     simulator's floats may differ in the last bit between NumPy/SciPy builds,
     which moves an int16 ADC count by one LSB or a CSV's sixth decimal by one."""
     make_samples(tmp_path)
-    for name in ("dca1000_small.cfg", "dca1000_fast.cfg"):
+    for name in ("dca1000_small.cfg", "dca1000_fast.cfg", "dca1000_fast.mmwave.json"):
         assert (tmp_path / name).read_text() == (DATA / name).read_text(), name
     for name in ("dca1000_small.bin", "dca1000_fast.bin"):
         made = np.frombuffer((tmp_path / name).read_bytes(), dtype="<i2").astype(int)

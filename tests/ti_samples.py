@@ -12,6 +12,7 @@ the simulated 2D points again.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -190,6 +191,37 @@ def write_fast_sample(out_dir: Path) -> None:
     write_dca1000_bin(out_dir / "dca1000_fast.bin", cubes, cfg)
 
 
+def studio_json(cfg_text: str = FAST_CFG) -> dict:
+    """An mmWave Studio JSON export (the fields ``read_studio_json`` reads) of a
+    legacy-frame ``.cfg`` whose chirps each fire one transmitter."""
+    words = {line.split()[0]: line.split()[1:] for line in cfg_text.splitlines()
+             if line.strip() and not line.startswith("%") and line.split()[0] != "chirpCfg"}
+    num = lambda w: int(w) if float(w) == int(float(w)) else float(w)  # noqa: E731
+    p = [num(w) for w in words["profileCfg"]]
+    chirps = [[int(w) for w in line.split()[1:]] for line in cfg_text.splitlines()
+              if line.startswith("chirpCfg")]
+    f = [num(w) for w in words["frameCfg"]]
+    rx, tx, _ = (int(w) for w in words["channelCfg"])
+    bits, fmt = (int(w) for w in words["adcCfg"])
+    profile = {"profileId": p[0], "startFreqConst_GHz": p[1], "idleTimeConst_usec": p[2],
+               "adcStartTimeConst_usec": p[3], "rampEndTime_usec": p[4],
+               "freqSlopeConst_MHz_usec": p[7], "txStartTime_usec": p[8],
+               "numAdcSamples": p[9], "digOutSampleRate": p[10], "rxGain_dB": hex(p[13])}
+    rf = {"waveformType": "legacyFrameChirp",
+          "rlChanCfg_t": {"rxChannelEn": hex(rx), "txChannelEn": hex(tx), "cascading": 0},
+          "rlAdcOutCfg_t": {"fmt": {"b2AdcBits": bits, "b2AdcOutFmt": fmt}},
+          "rlProfiles": [{"rlProfileCfg_t": profile}],
+          "rlChirps": [{"rlChirpCfg_t": {"chirpStartIdx": c[0], "chirpEndIdx": c[1],
+                                         "profileId": c[2], "startFreqVar_MHz": 0.0,
+                                         "freqSlopeVar_KHz_usec": 0.0, "idleTimeVar_usec": 0.0,
+                                         "adcStartTimeVar_usec": 0.0, "txEnable": hex(c[7])}}
+                       for c in chirps],
+          "rlFrameCfg_t": {"chirpStartIdx": f[0], "chirpEndIdx": f[1], "numLoops": f[2],
+                           "numFrames": f[3], "framePeriodicity_msec": f[4]}}
+    return {"configGenerator": {"createdBy": "tests/ti_samples.py"},
+            "mmWaveDevices": [{"mmWaveDeviceId": 0, "rfConfig": rf}]}
+
+
 def main(out_dir: Path = DATA) -> None:
     out_dir = Path(out_dir)
     rec = simulated()
@@ -202,6 +234,7 @@ def main(out_dir: Path = DATA) -> None:
                                       float_format="%.6f")
     write_dca_sample(out_dir)
     write_fast_sample(out_dir)
+    (out_dir / "dca1000_fast.mmwave.json").write_text(json.dumps(studio_json(), indent=2) + "\n")
 
 
 if __name__ == "__main__":

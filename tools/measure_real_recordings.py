@@ -14,7 +14,9 @@ only), and prints, per radar (S1 = "Ori" at (0, 0) facing +y, S2 = "Side" at
   frame and person the centroid of that radar's points within 0.6 m of the
   track; its error relative to a local quadratic fit of the same radar's
   centroids (+-1 s), as range / cross-range standard deviations and the
-  lag-1 autocorrelation (per 50 ms frame, and the time constant it implies);
+  lag-1 autocorrelation (per 50 ms frame, and the time constant it implies),
+  with standard errors (the scatter's from the frames' effective number
+  ``n (1 - rho) / (1 + rho)``, the autocorrelation's ``1 / sqrt(n)``);
 - the extent of a person's points (standard deviation about the centroid);
 - split clusters: 10-frame windows in which one person's points of one
   radar form two or more DBSCAN clusters (eps 0.3 m, 3 points);
@@ -283,6 +285,11 @@ def measure_frames(frames_by_radar: dict, xlim, ylim, n_people: int, rng) -> dic
         r["person_frames_seen_share"] = float(len(counts) / max(np.isfinite(tracks[..., 0]).sum(), 1))
         r["centroid_error_std_range_cross_m"] = e.std(0).tolist()
         r["centroid_error_lag1_range_cross"] = rho.tolist()
+        # Standard errors with the effective number of independent frames.
+        n_eff = len(e) * (1 - np.clip(rho, 0, 0.95)) / (1 + np.clip(rho, 0, 0.95))
+        r["centroid_error_std_se_m"] = (e.std(0) / np.sqrt(2 * np.maximum(n_eff, 1))).tolist()
+        r["centroid_error_lag1_se"] = (1 / np.sqrt(np.maximum(len(e), 1)) + 0 * rho).tolist()
+        r["centroid_error_frames"] = int(len(e))
         r["centroid_error_tau_s_range_cross"] = (-FRAME_S / np.log(np.clip(rho, 1e-3, 0.999))).tolist()
         r["point_spread_std_range_cross_m"] = (np.mean(spread, axis=0).tolist() if spread else None)
         r["split_window_share"] = float(splits / max(windows, 1))

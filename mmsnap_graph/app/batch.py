@@ -10,22 +10,22 @@
 
 Workers receive paths and plain options only and build their factor graphs
 themselves: GTSAM ``CustomFactor`` objects do not pickle. Each step calls the
-library function of the matching command (``mmsnap process``, ``mmsnap
-calibrate``, ``mmsnap fuse``), so a batch run writes the same files as the
-commands run one by one. Running on a multi-machine cluster: docs/SCALE.md.
+function the matching command calls (``process_file`` for ``mmsnap process``,
+:func:`~mmsnap_graph.app.runs.calibrate_and_store` for ``mmsnap calibrate``,
+:func:`~mmsnap_graph.app.runs.fuse_stored` for ``mmsnap fuse``), so a batch
+run writes the same files as the commands run one by one. Running on a
+multi-machine cluster: docs/SCALE.md.
 """
 
 from __future__ import annotations
 
 import contextlib
-import importlib
 import inspect
 import os
 import socket
 import sys
 import time
 import traceback
-from types import SimpleNamespace
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor
 from concurrent.futures import as_completed as cf_as_completed
@@ -33,18 +33,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from threadpoolctl import threadpool_limits  # a scikit-learn dependency
 
+from .._validation import check_count
 from ..errors import MmsnapError, ValidationError
-from .commands.fuse import (
-    DEFAULT_ROBUST,
-    calibration_options,
-    stored_calibration,
-)
+from .runs import calibrate_and_store, calibration_json_path, fuse_stored
 
 __all__ = ["STEPS", "WORKER_ENVIRONMENT", "RecordingSummary", "run_recording", "run_many",
-           "local_client", "calibration_json_path"]
+           "local_client", "load_library", "dask_setup", "calibration_json_path"]
 
 #: The pipeline steps, in the order they run.
 STEPS: tuple[str, ...] = ("process", "calibrate", "fuse")
@@ -58,44 +54,6 @@ WORKER_ENVIRONMENT: dict[str, str] = {
     "OPENBLAS_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
 }
-
-# ----------------------------------------------------------------------------
-# The library functions the steps call: imported in this one place, because
-# some of them are moving between modules (the first module holding the name
-# wins). Resolved on first use, in the worker: they import GTSAM and h5py.
-# ----------------------------------------------------------------------------
-
-_LIBRARY: dict[str, tuple[str, ...]] = {
-    "process_file": ("mmsnap_graph.app.pipeline",),
-    "read_recording": ("mmsnap_graph.io",),
-    "calibrate_recording": ("mmsnap_graph.calibration",),
-    "write_calibration": ("mmsnap_graph.io.calibration", "mmsnap_graph.calibration"),
-    "write_calibration_json": ("mmsnap_graph.io.calibration", "mmsnap_graph.calibration"),
-    "fuse_recording": ("mmsnap_graph.fusion.recording.sequence",),
-    "write_fused": ("mmsnap_graph.io.fused", "mmsnap_graph.fusion.recording.sequence"),
-    "write_noise": ("mmsnap_graph.io.noise",),
-    "noise_for_fusion": ("mmsnap_graph.io.noise",),
-}
-_resolved: dict[str, Callable] = {}
-
-
-def _library(name: str) -> Callable:
-    """The library function ``name`` from the first of its modules that has it."""
-    if name not in _resolved:
-        for module_name in _LIBRARY[name]:
-            try:
-                module = importlib.import_module(module_name)
-            except ModuleNotFoundError as exc:
-                if exc.name is None or not module_name.startswith(exc.name):
-                    raise  # the module exists but one of its imports is missing
-                continue
-            if hasattr(module, name):
-                _resolved[name] = getattr(module, name)
-                break
-        else:
-            raise ImportError(f"{name} is in none of {', '.join(_LIBRARY[name])}")
-    return _resolved[name]
-
 
 # ----------------------------------------------------------------------------
 # Results
@@ -146,13 +104,6 @@ class RecordingSummary:
 # ----------------------------------------------------------------------------
 
 
-def calibration_json_path(recording: str | os.PathLike) -> Path:
-    """Where the calibrate step writes the calibration JSON: next to the
-    recording, ``<stem>.calibration.json`` (as ``mmsnap calibrate``)."""
-    p = Path(recording)
-    return p.with_name(p.stem + ".calibration.json")
-
-
 def _peak_rss_mb() -> float:
     try:
         import resource  # Unix only: imported here so that the module loads elsewhere
@@ -167,7 +118,9 @@ StepOutcome = tuple[dict[str, int], list[Path], str | None]
 
 
 def _step_process(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
-    path, reports = _library("process_file")(src, output=dst, progress=False, **options)
+    from .pipeline import process_file  # here: workers import the library, not the parser
+
+    path, reports = process_file(src, output=dst, progress=False, **options)
     counts = {"n_nodes": len(reports),
               "n_points": sum(r.n_points for r in reports.values()),
               "n_centroids": sum(r.n_centroids for r in reports.values()),
@@ -178,45 +131,38 @@ def _step_process(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
 
 
 def _step_calibrate(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
-    rec = _library("read_recording")(src, load_cubes=False)
-    cal = _library("calibrate_recording")(rec, **options)
-    json_path = _library("write_calibration_json")(calibration_json_path(dst or src), cal)
-    path = _library("write_calibration")(src, rec, cal, output=dst)
-    if cal.noise is not None:  # as `mmsnap calibrate`: the noise from the data, /noise
-        _library("write_noise")(path, cal.noise)
+    cal, written = calibrate_and_store(src, options, output=dst)
     counts = {"n_nodes": len(cal.node_names), "n_calibrated": len(cal.poses)}
     failed = None if cal.success else f"calibration incomplete: {cal.message}"
-    return counts, [Path(path), Path(json_path)], failed
+    return counts, [written[1], written[0]], failed
 
 
 def _step_fuse(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
-    rec = _library("read_recording")(src, load_cubes=False)
-    options = dict(options)
-    if "noise" not in options:  # as `mmsnap fuse`: /noise per node, else the paper's
-        options["noise"], _ = _library("noise_for_fusion")(
-            src, rec.node_names, per_node=True)
-    options.setdefault("robust", DEFAULT_ROBUST)
-    if "pose_covariances" not in options and "time_offset_s" not in options:
-        # as `mmsnap fuse`: the stored calibration's pose covariances and clocks
-        args = SimpleNamespace(calibration=None, no_pose_covariance=False,
-                               no_time_offsets=False,
-                               covariance=options.get("covariance", "laplace"))
-        options.update(calibration_options(args, stored_calibration(args, src))[0])
-    fused = _library("fuse_recording")(rec, progress=False, **options)
-    path = _library("write_fused")(src, fused, output=dst)
-    n_ok = int(np.count_nonzero(fused.success))
-    counts = {"n_fused": len(fused), "n_flagged": len(fused) - n_ok,
-              "n_frames": int(np.unique(fused.frame).size)}
-    return counts, [Path(path)], None
+    fused, _ = fuse_stored(src, options, output=dst, progress=False)
+    counts = {"n_fused": fused.n_rows, "n_flagged": fused.n_rows - fused.n_success,
+              "n_frames": fused.n_frames}
+    return counts, [Path(fused.path)], None
 
 
 _STEP_FUNCTIONS = {"process": _step_process, "calibrate": _step_calibrate, "fuse": _step_fuse}
 
-#: The library function whose keyword arguments each step's options are.
-_STEP_TARGETS = {"process": "process_file", "calibrate": "calibrate_recording",
-                 "fuse": "fuse_recording"}
 #: Keywords a step sets itself (not accepted in its options).
 _STEP_OWN = {"process": {"output", "progress"}, "calibrate": set(), "fuse": {"progress"}}
+
+
+def _step_target(step: str) -> Callable:
+    """The library function whose keyword arguments a step's options are."""
+    if step == "process":
+        from .pipeline import process_file
+
+        return process_file
+    if step == "calibrate":
+        from ..calibration import calibrate_recording
+
+        return calibrate_recording
+    from ..fusion.recording.sequence import fuse_recording
+
+    return fuse_recording
 
 
 def _error_line(step: str, exc: BaseException) -> str:
@@ -312,11 +258,12 @@ def _check_options(steps: tuple[str, ...], options: Mapping | None) -> dict[str,
         if not isinstance(opts, Mapping):
             raise ValidationError(f"options[{step!r}] must be a mapping of keyword arguments, "
                                   f"got {type(opts).__name__}")
-        params = inspect.signature(_library(_STEP_TARGETS[step])).parameters
+        target = _step_target(step)
+        params = inspect.signature(target).parameters
         for key in opts:
             if key not in params or key in _STEP_OWN[step] or key in ("recording", "path"):
                 raise ValidationError(f"options[{step!r}] has {key!r}, which is not an option "
-                                      f"of {_STEP_TARGETS[step]}")
+                                      f"of {target.__name__}")
     return {k: dict(v) for k, v in options.items()}
 
 
@@ -396,7 +343,8 @@ def run_many(
     options : per step, keyword arguments of the step's library function:
         ``process`` -> ``process_file`` (e.g. ``centroids_only``, ``ekf``),
         ``calibrate`` -> ``calibrate_recording`` (e.g. ``matching``, ``joint``),
-        ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``solver``, ``noise``).
+        ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``noise``,
+        ``options=FusionOptions(solver="gtsam")``).
         They are pickled to the workers: plain values and frozen configs.
     blas_threads : BLAS / OpenMP threads per worker (None: leave them).
     progress : a tqdm bar over recordings on stderr; on_result : called
@@ -412,9 +360,8 @@ def run_many(
     options = _check_options(steps, options)
     if executor is not None and client is not None:
         raise ValidationError("give an executor or a client, not both")
-    if blas_threads is not None and (not isinstance(blas_threads, (int, np.integer))
-                                     or isinstance(blas_threads, bool) or blas_threads < 1):
-        raise ValidationError(f"blas_threads must be an int >= 1 or None, got {blas_threads!r}")
+    if blas_threads is not None:
+        check_count(blas_threads, "blas_threads")
     if output_dir is not None:
         Path(output_dir).mkdir(parents=True, exist_ok=True)
     args = [((p, steps), {"output": o, "options": options, "blas_threads": blas_threads})
@@ -447,18 +394,41 @@ def run_many(
     return results  # type: ignore[return-value]
 
 
+def load_library() -> float:
+    """Import what the steps run (GTSAM, h5py, the estimators, the signal
+    chain); returns the seconds it took. A worker that runs it when it
+    starts spends its first recording on the recording, and the workers of
+    a cluster import side by side while the cluster comes up."""
+    t0 = time.perf_counter()
+    from ..calibration import calibrate_recording  # noqa: F401 -- GTSAM, the calibration graphs
+    from ..fusion.recording.sequence import fuse_recording  # noqa: F401 -- the fusion solvers
+    from ..io.calibration import write_calibration  # noqa: F401 -- the files the steps write
+    from ..io.noise import write_noise  # noqa: F401
+    from .chunked_fuse import fuse_file  # noqa: F401 -- window-by-window fusion, tqdm
+    from .pipeline import process_file  # noqa: F401 -- signal chain, scikit-learn, h5py
+    from tqdm.auto import tqdm  # noqa: F401 -- the progress bars' module
+
+    return time.perf_counter() - t0
+
+
+def dask_setup(worker=None) -> None:
+    """Dask's preload hook (``preload=["mmsnap_graph.app.batch"]``): load
+    the library when a worker process starts (:func:`load_library`)."""
+    load_library()
+
+
 @contextlib.contextmanager
 def local_client(n_workers: int, *, memory_limit: str | float | None = "auto"):
     """A Dask client on a local cluster of ``n_workers`` single-threaded
-    worker processes (:data:`WORKER_ENVIRONMENT`), closed on exit."""
+    worker processes (:data:`WORKER_ENVIRONMENT`), closed on exit. Each
+    worker loads the library as it starts (:func:`dask_setup`), so the
+    cluster is ready to run when this returns."""
     from distributed import Client, LocalCluster  # optional extra: mmsnap_graph[dask]
 
-    if not isinstance(n_workers, (int, np.integer)) or isinstance(n_workers, bool) \
-            or n_workers < 1:
-        raise ValidationError(f"n_workers must be an int >= 1, got {n_workers!r}")
+    check_count(n_workers, "n_workers")
     cluster = LocalCluster(n_workers=int(n_workers), threads_per_worker=1, processes=True,
                            dashboard_address=None, memory_limit=memory_limit,
-                           env=dict(WORKER_ENVIRONMENT),
+                           env=dict(WORKER_ENVIRONMENT), preload=[__name__],
                            silence_logs=50)  # worker errors reach the summaries; keep the CLI quiet
     try:
         with Client(cluster) as client:

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.metadata
 import logging
 import sys
 from pathlib import Path
@@ -46,7 +45,9 @@ from ..errors import (
 )
 
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
-COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate", "import_", "batch", "replay", "monitor", "noise", "info", "export"]
+COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate",
+                       "files.import_", "batch", "replay", "monitor", "noise", "files.info",
+                       "files.export"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -66,10 +67,21 @@ OUTPUT_FILE_OPTIONS = {"process": ("output",), "fuse": ("output",),
 
 def package_version() -> str:
     """The installed distribution's version (``mmsnap_graph.__version__``)."""
+    import importlib.metadata  # here: it costs a tenth of a second, --help does without
+
     try:
         return importlib.metadata.version("mmsnap_graph")
     except importlib.metadata.PackageNotFoundError:  # run from a source tree
         return "unknown"
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: the version is looked up when asked for, not each time
+    the parser is built."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"mmsnap {package_version()}")  # on stdout, as argparse's own version action
+        parser.exit()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -79,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Exit codes: 0 ok, 1 data or estimation failure (a bad input file included), "
                "2 usage (a bad option or option value).",
     )
-    parser.add_argument("--version", action="version", version=f"mmsnap {package_version()}")
+    parser.add_argument("--version", action=_VersionAction, nargs=0,
+                        help="show the program's version number and exit")
     parser.add_argument("-v", "--verbose", action="count", default=0,
                         help="more log messages (-v info, -vv debug)")
     parser.add_argument("-q", "--quiet", action="count", default=0,

@@ -9,7 +9,7 @@ cube -> point cloud -> torso centroids (:mod:`.chain`) -> local EKF tracks
   :data:`SPARSE_POINTS_PER_FRAME` points in its median non-empty frame, as
   TI's out-of-box demo gives: 2-3 points per person) is clustered with
   ``min_samples=1`` (:func:`sparse_cluster_config`): the torso DBSCAN's
-  three-point minimum would drop most of it (issue 14: 94 centroids in 600
+  three-point minimum would drop most of it (measured: 94 centroids in 600
   frames, and a calibration 0.2-2 m off);
 - :func:`track_node` / :func:`track_recording`: tracks from the centroids
   only;
@@ -34,6 +34,7 @@ from ..errors import FileFormatError, ValidationError
 from ..io import iter_cubes, read_cube_frames, read_recording, update_recording
 from ..radar.chain import ChainConfig, ChainResult, process_cubes, unambiguous_speed_mps
 from ..radar.cluster import torso_centroids
+from ..radar.scene import SceneConfig, SceneReport, filter_centroids, filter_points
 from ..tracking.ekf import EkfConfig, frames_to_step, track_centroids
 
 __all__ = ["NodeReport", "process_node", "process_recording", "cluster_node", "track_node",
@@ -95,8 +96,8 @@ def _ekf_for(ekf: EkfConfig | None, frame_period_s: float, centroids: Detections
 
 def _frames_span(frames: np.ndarray, ekf: EkfConfig | None = None) -> np.ndarray | None:
     """The frames the EKF steps through: those present, and the first frames
-    of each gap while a track could still coast (issue 13: a gap of 10^12
-    frames is not 10^12 steps; :func:`~mmsnap_graph.tracking.ekf.frames_to_step`)."""
+    of each gap while a track could still coast (a gap of 10^12 frames is not
+    10^12 steps; :func:`~mmsnap_graph.tracking.ekf.frames_to_step`)."""
     if frames.size == 0:
         return None
     return frames_to_step(frames, EkfConfig() if ekf is None else ekf)
@@ -129,7 +130,7 @@ def process_node(
     tracker = _ekf_for(ekf, frame_period_s, result.centroids, ekf_noise)
     if tracker.doppler_wrap_mps is None:
         # The chain's Doppler is unambiguous only within +-U: the EKF wraps its
-        # Doppler innovation modulo 2 U (issue 14).
+        # Doppler innovation modulo 2 U.
         tracker = dataclasses.replace(
             tracker, doppler_wrap_mps=unambiguous_speed_mps(node.radar, config))
     tracks = track_centroids(result.centroids, tracker, frames=_frames_span(node.cube_frame, ekf))
@@ -167,17 +168,26 @@ def cluster_node(
     ekf: EkfConfig | None = None,
     ekf_noise: str = "data",
     sparse: bool | None = None,
+    scene: SceneConfig | None = SceneConfig(),
 ) -> tuple[NodeData, NodeReport]:
     """Fill a node's centroids (torso DBSCAN with ``config.cluster``) and
     tracks from its point cloud (``ekf_noise``: :func:`process_node`;
-    ``sparse``: :func:`sparse_cluster_config`, None: detected)."""
+    ``sparse``: :func:`sparse_cluster_config`, None: detected). ``scene``:
+    the scene filters of real clouds (:mod:`mmsnap_graph.radar.scene`: static
+    scene, one cluster per body, multipath ghosts, existence; None: none);
+    the stored point cloud is kept whole."""
     if node.point_cloud is None:
         raise ValidationError(f"nodes[{node.name}] has no point cloud to cluster")
     config, thinned = sparse_cluster_config(node.point_cloud,
                                             ChainConfig() if config is None else config, sparse)
     radar = TABLE_I if node.radar is None else node.radar
-    cents = torso_centroids(node.point_cloud, config.cluster,
+    scene = SceneConfig(static=False, merge=False, ghosts=False,
+                        existence=False) if scene is None else scene
+    report = SceneReport()
+    points = filter_points(node.point_cloud, frame_period_s, scene, report)
+    cents = torso_centroids(points, config.cluster,
                             doppler_resolution_mps=radar.doppler_resolution_mps)
+    cents = filter_centroids(cents, frame_period_s, scene, report)
     frames = node.point_cloud.frame
     tracks = track_centroids(cents, _ekf_for(ekf, frame_period_s, cents, ekf_noise),
                              frames=_frames_span(frames, ekf))
@@ -187,15 +197,16 @@ def cluster_node(
                            n_points=len(node.point_cloud), n_centroids=len(cents),
                            n_tracks=int(tracks.track_ids.size), success=True,
                            message=f"{len(node.point_cloud)} points clustered"
-                           + (" (sparse cloud: min_samples=1)" if thinned else ""))
+                           + (" (sparse cloud: min_samples=1)" if thinned else "")
+                           + ("; " + report.text() if report.dropped else ""))
 
 
 def _from_stored_levels(node: NodeData, frame_period_s: float, config, ekf, centroids_only,
-                        ekf_noise="data", sparse=None):
+                        ekf_noise="data", sparse=None, scene=SceneConfig()):
     """The highest stored level below the cube: point cloud, else centroids."""
     if node.point_cloud is not None and not centroids_only:
         return cluster_node(node, frame_period_s, config=config, ekf=ekf, ekf_noise=ekf_noise,
-                            sparse=sparse)
+                            sparse=sparse, scene=scene)
     if node.centroids is not None:
         return track_node(node, frame_period_s, ekf=ekf, ekf_noise=ekf_noise)
     return None
@@ -241,10 +252,12 @@ def process_recording(
     progress: bool = False,
     ekf_noise: str = "data",
     sparse: bool | None = None,
+    scene: SceneConfig | None = SceneConfig(),
 ) -> tuple[Recording, dict[str, NodeReport]]:
     """Run the chain on every node from the highest level it holds: the cube,
     else the point cloud, else the centroids; nodes with none are reported,
-    unchanged. ``sparse``: point clouds' clustering (:func:`cluster_node`)."""
+    unchanged. ``sparse``, ``scene``: point clouds' clustering
+    (:func:`cluster_node`)."""
     fp = recording.frame_period_s
 
     def one(node: NodeData):
@@ -252,7 +265,7 @@ def process_recording(
             return process_node(node, fp, config=config, ekf=ekf, progress=progress,
                                 ekf_noise=ekf_noise)
         return _from_stored_levels(node, fp, config, ekf, centroids_only=False,
-                                   ekf_noise=ekf_noise, sparse=sparse)
+                                   ekf_noise=ekf_noise, sparse=sparse, scene=scene)
 
     return _each_node(recording, one)
 
@@ -266,8 +279,8 @@ def track_recording(recording: Recording, *, ekf: EkfConfig | None = None,
 
 
 def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, centroids_only,
-                         progress, ekf_noise="data",
-                         sparse=None) -> tuple[NodeData | None, NodeReport]:
+                         progress, ekf_noise="data", sparse=None,
+                         scene=SceneConfig()) -> tuple[NodeData | None, NodeReport]:
     """One node of :func:`process_file`: its cube streamed from ``src``, else
     its stored levels. Returns the new node (None: nothing to process) and
     its report."""
@@ -278,7 +291,8 @@ def _process_stored_node(src: Path, node: NodeData, fp: float, config, ekf, cent
         except FileFormatError:
             cube_meta = None  # this node has no cube
     if cube_meta is None:
-        out = _from_stored_levels(node, fp, config, ekf, centroids_only, ekf_noise, sparse)
+        out = _from_stored_levels(node, fp, config, ekf, centroids_only, ekf_noise, sparse,
+                                  scene)
         if out is None:
             return None, NodeReport(name=node.name, level="none", n_frames=0, n_points=0,
                                     n_centroids=0, n_tracks=0, success=False,
@@ -312,6 +326,7 @@ def process_file(
     progress: bool = False,
     ekf_noise: str = "data",
     sparse: bool | None = None,
+    scene: SceneConfig | None = SceneConfig(),
 ) -> tuple[Path, dict[str, NodeReport]]:
     """Process an HDF5 recording (cubes streamed, not loaded whole) and write
     the point-cloud, centroid and track levels back.
@@ -326,6 +341,7 @@ def process_file(
         (``"data"``, default) or ``ekf.measurement_std`` (``"config"``).
     sparse : clustering of stored point clouds (:func:`sparse_cluster_config`;
         None: detected per node).
+    scene : the scene filters of stored point clouds (:func:`cluster_node`).
     """
     src = Path(path)
     dst = src if output is None else check_output_path(output)
@@ -337,7 +353,7 @@ def process_file(
         for name, node in rec.nodes.items():
             new, reports[name] = _process_stored_node(src, node, rec.frame_period_s, config,
                                                       ekf, centroids_only, progress, ekf_noise,
-                                                      sparse)
+                                                      sparse, scene)
             if new is not None:
                 rec = rec.with_node(new)
         update_recording(src, rec, keep_cubes=True, output=None if dst.resolve() == src.resolve() else dst)

@@ -33,6 +33,7 @@ from ..data.noise import GaussianPrior, MeasurementNoise
 # The degeneracy names move with the fusion redesign; imported here only.
 from ..fusion.solvers.vectorized import velocity_degeneracy
 from ..fusion.grid import neg_log_posterior
+from ..fusion.options import FusionOptions
 from ..fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD, fuse_frame
 from ..sim.networks import in_common_field_of_view
 
@@ -343,8 +344,8 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
     prior = GaussianPrior() if prior is None else prior
     poses = np.asarray(node_poses, dtype=float)
     z = np.asarray(measurements, dtype=float)
-    res_map = fuse_frame(poses, z, noise=noise, prior=prior, covariance="both",
-                         grid_points_per_axis=int(grid_points_per_axis))
+    grid = FusionOptions(covariance="both", grid_points_per_axis=int(grid_points_per_axis))
+    res_map = fuse_frame(poses, z, noise=noise, prior=prior, options=grid)
     res_ml = fuse_frame(poses, z, noise=noise, prior=None)
     c = res_map.state
     cov = res_map.grid_covariance if res_map.grid_covariance is not None and \

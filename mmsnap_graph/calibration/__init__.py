@@ -39,6 +39,7 @@ _LAZY = {
     "joint_calibration": "joint.solve",
     "MultiTargetRefinement": "joint.multi_refine",
     "refine_multi": "joint.multi_refine",
+    "AssociationOptions": "joint.multi_target",
     "TargetAssociation": "joint.multi_target",
     "TargetMapping": "joint.multi_target",
     "associate_targets": "joint.multi_target",

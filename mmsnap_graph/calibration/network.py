@@ -269,6 +269,7 @@ def calibrate_recording(
     names = list(recording.node_names)
     if len(names) < 2:
         raise CalibrationError(f"a calibration needs at least two nodes, got {names!r}")
+    _no_identical_nodes(recording, names)
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
     result_method, refined, notes = "pose_graph", None, [pg.message]
@@ -297,6 +298,24 @@ def calibrate_recording(
         method=result_method, source=used_source, success=bool(success),
         message="; ".join(notes), failures=failures, pose_graph=pg, joint=refined,
         noise=noise_est, time_offset_s=offsets, time_offset_variances=variances)
+
+
+def _no_identical_nodes(recording: Recording, names: list[str]) -> None:
+    """Two nodes with the same centroids in the same frames (one log imported
+    twice) leave the relative pose singular: say so instead of failing in the
+    solver."""
+    seen: dict[tuple, str] = {}
+    for name in names:
+        c = recording.nodes[name].centroids
+        if c is None or len(c.frame) < 2:
+            continue
+        key = (c.frame.tobytes(), c.range_m.tobytes(), c.omega_rad.tobytes(),
+               c.doppler_mps.tobytes())
+        if key in seen:
+            raise CalibrationError(f"nodes {seen[key]} and {name} hold the same {len(c.frame)} "
+                                   "centroids in the same frames: one log imported twice? "
+                                   "(re-import with each node's own log)")
+        seen[key] = name
 
 
 def _clock_offsets(recording, names, pg, joint):

@@ -33,14 +33,17 @@ DEGENERACY_THRESHOLD = 100.0
 class Status(enum.IntEnum):
     """Status codes of fused frames and of radar frames (one scheme).
 
-    Codes 0-5, 9 and 10 are the ``status`` dataset of a recording's ``/fused``
+    Codes 0-5 and 9-12 are the ``status`` dataset of a recording's ``/fused``
     group (a file contract, docs/FORMAT.md); codes 6-8 are the radar signal
     chain's (:attr:`mmsnap_graph.radar.chain.ChainResult.status`, not stored
     in files). Code 9 comes from the robust fusion (``robust="gate"``): the
     residuals fail the chi-square test and leaving out one node does not
     repair them. Code 10 comes from the motion check of a recording
-    (:mod:`mmsnap_graph.fusion.recording.motion_check`): no subset of the row's nodes
-    agrees with the motion of a target in the neighbouring frames.
+    (:mod:`mmsnap_graph.fusion.recording.motion_check`): no subset of the row's
+    nodes agrees with the motion of a target in the neighbouring frames. Codes
+    11 and 12 come from the room-frame checks
+    (:mod:`mmsnap_graph.fusion.recording.room`): a row outside the room bounds,
+    a row repeating a better-supported one of its frame within a body's width.
     ``Status.OK`` (alias ``Status.CONVERGED``) is success for both.
     """
 
@@ -55,6 +58,8 @@ class Status(enum.IntEnum):
     SATURATED = 8
     RESIDUAL_TEST_FAILED = 9
     MOTION_INCONSISTENT = 10
+    OUTSIDE_BOUNDS = 11
+    DUPLICATE = 12
     CONVERGED = 0  # alias of OK, the estimators' word for it
 
     @property
@@ -80,6 +85,8 @@ _MESSAGES = {
     8: "saturated",
     9: "residuals fail the chi-square test and no single node's removal repairs them",
     10: "not consistent with the motion of any target in the neighbouring frames",
+    11: "outside the room bounds",
+    12: "within a body's width of a better-supported target of the same frame",
 }
 
 
@@ -251,12 +258,12 @@ class FusedSequence:
 
     node_names : (N,) names, in the recording's order; node_poses : (N, 3).
     mode : ``"map"`` or ``"ml"``; covariance_method : ``"laplace"`` or ``"grid"``;
-    solver : ``"batch"`` or ``"gtsam"``.
+    solver : ``"vectorized"`` or ``"gtsam"`` (:data:`~mmsnap_graph.fusion.recording.sequence.RECORDING_SOLVERS`).
     frame, target, label : (K,) int (see :data:`mmsnap_graph.io.fused.FUSED_LAYOUT`).
     detection_index : (K, N) int; observed : (K, N) bool.
     state : (K, 4) ``(x_m, y_m, vx_mps, vy_mps)``; covariance : (K, 4, 4) the
     chosen covariance; laplace_covariance : (K, 4, 4).
-    success : (K,) bool; status : (K,) int, :class:`Status` codes (0 to 5);
+    success : (K,) bool; status : (K,) int, :class:`Status` codes (0 to 5, 9 to 12);
     message : (K,) str (object array).
     iterations : (K,) int; final_cost, degeneracy : (K,) float.
     noise_sigmas : (3,); prior_mean, prior_sigmas : (4,) or None (ML);

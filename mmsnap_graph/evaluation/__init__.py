@@ -1,7 +1,9 @@
 """Metrics: how good an estimate is, below the estimators and the application.
 
 - :mod:`.metrics`: RMSE of states on common frames, pose errors, the truth
-  row each estimate refers to, and the NEES with its chi-square interval.
+  row each estimate refers to, and the NEES with its chi-square interval;
+- :mod:`.pose_bound`: what the detections of a simulated recording allow, a
+  Cramer-Rao bound on the node poses (import it from the module).
 
 Numpy and the data layer only (no GTSAM): the estimators' tests and the
 ``mmsnap evaluate`` command import the same definitions.

@@ -3,6 +3,8 @@ measurements of a target from several nodes -> its state and covariance.
 
 The package is laid out by stage:
 
+- :mod:`.options`: :class:`FusionOptions` and :class:`RobustOptions`, taken
+  by every entry point;
 - the one-frame problem, shared by every solver (no GTSAM):
   :mod:`.problem` (validation, initial states), :mod:`.degeneracy` (the
   velocity degeneracy indicator), :mod:`.robust` (kernels and the residual
@@ -15,10 +17,14 @@ The package is laid out by stage:
   covariance from ``Marginals``; :mod:`.solvers.gtsam_poses` for uncertain
   node poses), vectorized numpy over many frames (:mod:`.solvers.vectorized`,
   :mod:`.solvers.vectorized_lm`, :mod:`.solvers.vectorized_poses`) and plain
-  floats for one frame at a time (:mod:`.solvers.scalar`), with the shared
-  assessment of a solved frame (:mod:`.solvers.assess`);
+  floats for one frame at a time (:mod:`.solvers.scalar`), with their
+  contract (:mod:`.solvers.settings`: one name per solver, the
+  Levenberg-Marquardt settings they all follow, what a solved frame
+  reports) and the shared assessment of a solved frame
+  (:mod:`.solvers.assess`);
 - :mod:`.recording`: a whole recording -- :mod:`.recording.sequence`
-  (``fuse_recording``), :mod:`.recording.timing` (clock alignment),
+  (``fuse_recording``), :mod:`.recording.rows` (its rows while they are
+  built), :mod:`.recording.timing` (clock alignment),
   :mod:`.recording.motion_check` (rows checked against the motion of the
   neighbouring frames: ghosts, mirror solutions; docs/ROBUST.md),
   :mod:`.recording.split_check` (one target split by the association);
@@ -33,6 +39,16 @@ The public names below load their module on first use, so importing
 from .._lazy import lazy_getattr
 
 _LAZY = {
+    # the options and the solvers' contract
+    "FusionOptions": "options",
+    "RobustOptions": "options",
+    "DEFAULT_OPTIONS": "options",
+    "robust_options": "options",
+    "SOLVERS": "solvers.settings",
+    "check_solver": "solvers.settings",
+    "LevenbergMarquardtSettings": "solvers.settings",
+    "LM_SETTINGS": "solvers.settings",
+    "FrameSolve": "solvers.settings",
     # the one-frame problem
     "check_poses": "problem",
     "check_observed": "problem",
@@ -45,7 +61,6 @@ _LAZY = {
     "validate_frame": "problem",
     "validate_frames": "problem",
     "valid_rows": "problem",
-    "check_count": "problem",
     "initial_state": "problem",
     "initial_states": "problem",
     "frame_initial_state": "problem",
@@ -107,7 +122,9 @@ _LAZY = {
     "Refit": "recording.motion_check",
     "apply_motion_check": "recording.motion_check",
     "split_singles": "recording.split_check",
-    "flag_split_singles": "recording.split_check",
+    "split_rows": "recording.split_check",
+    "FusedRows": "recording.rows",
+    "RECORDING_SOLVERS": "recording.sequence",
     "SPLIT_MESSAGE": "recording.split_check",
     "split_offset": "recording.timing",
     "align_detections": "recording.timing",

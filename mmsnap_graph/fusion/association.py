@@ -27,7 +27,7 @@ from scipy.optimize import linear_sum_assignment
 from factors.models import detection_covariance_global, detection_to_global
 
 from ..errors import ValidationError
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_finite, chi2_gate
 from ..data.noise import MeasurementNoise
 from .problem import check_node_noise
 
@@ -49,10 +49,7 @@ _FORBIDDEN = 1e12
 def gate_threshold(gate_probability: float) -> float:
     """Squared-Mahalanobis gate of a 2D position: ``chi2.ppf(p, 2)``, in
     closed form (2 degrees of freedom: ``-2 log(1 - p)``)."""
-    p = float(gate_probability)
-    if not 0.0 < p < 1.0:
-        raise ValidationError(f"gate_probability must be in (0, 1), got {gate_probability!r}")
-    return -2.0 * math.log1p(-p)
+    return chi2_gate(gate_probability, 2)
 
 
 def _scaled_2x2(a: NDArray) -> tuple[NDArray, NDArray, NDArray]:
@@ -126,7 +123,7 @@ class FrameAssociation:
 #: A detection's 2x2 position covariance is usable for gating and weighting
 #: when its smallest eigenvalue is above this (m^2) and above
 #: ``MAX_CONDITION``-th of its largest. Range 0 (at any angle), a range of
-#: 1e-300 m or sigmas of 1e-300 give a singular one (issue 13: LinAlgError).
+#: 1e-300 m or sigmas of 1e-300 give a singular one (numpy would raise LinAlgError).
 MIN_VARIANCE_M2 = 1e-100
 MAX_CONDITION = 1e12
 

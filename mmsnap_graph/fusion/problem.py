@@ -44,7 +44,6 @@ __all__ = [
     "validate_frame",
     "validate_frames",
     "valid_rows",
-    "check_count",
     "initial_state",
     "initial_states",
     "frame_initial_state",
@@ -370,16 +369,6 @@ def valid_rows(z: NDArray) -> NDArray:
     with np.errstate(invalid="ignore"):
         return ((z[..., 0] > 0.0) & (z[..., 0] < np.inf) & (np.abs(z[..., 1]) <= np.pi)
                 & np.isfinite(z[..., 2]))
-
-
-def check_count(value: object, name: str, minimum: int = 1) -> int:
-    """``value`` as an int >= ``minimum``: an integer (numpy's too), not a bool,
-    not a float or a string; ValidationError otherwise."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValidationError(f"{name} must be an integer, got {type(value).__name__} {value!r}")
-    if value < minimum:
-        raise ValidationError(f"{name} must be >= {minimum}, got {value!r}")
-    return int(value)
 
 
 #: Sigmas (noise and prior) must lie in ``[SIGMA_MIN, SIGMA_MAX]``: squared

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from factors.robust import robust_k as kernel_constant
 
 from ..errors import ValidationError
+from .._validation import chi2_gate
 
 __all__ = [
     "ROBUST_CHOICES",
@@ -69,14 +70,7 @@ def check_robust_k(robust: str, robust_k: object) -> float:
 @lru_cache(maxsize=16)
 def residual_gate_threshold(probability: float) -> float:
     """``chi2.ppf(probability, 3)``; ValidationError unless ``0 < probability < 1``."""
-    if isinstance(probability, (bool, np.bool_, str)):
-        raise ValidationError(f"residual_gate_probability must be a number, got {probability!r}")
-    p = float(probability)
-    if not 0.0 < p < 1.0:
-        raise ValidationError(f"residual_gate_probability must be in (0, 1), got {probability!r}")
-    from scipy.stats import chi2  # deferred: scipy.stats is slow to import
-
-    return float(chi2.ppf(p, 3))
+    return chi2_gate(probability, 3, name="residual_gate_probability")
 
 
 def node_d2(residuals: NDArray) -> NDArray:
@@ -107,9 +101,7 @@ def kernel_weight_and_loss(name: str, k: float, s2: NDArray) -> tuple[NDArray, N
 
 @lru_cache(maxsize=64)
 def _total_threshold(probability: float, dof: int) -> float:
-    from scipy.stats import chi2  # deferred: scipy.stats is slow to import
-
-    return float(chi2.ppf(probability, dof))
+    return chi2_gate(probability, dof, name="residual_gate_probability")
 
 
 def residual_test_fails(residuals: NDArray, probability: float) -> NDArray:

@@ -33,7 +33,8 @@ from .hdf5 import (
 )
 from .point_cloud import Mounting, PointCloud3D, recording_from_point_clouds
 from .point_table import read_point_table, read_point_tables
-from .ti_cfg import BOARD_PRESETS, BoardLayout, TiConfig, parse_ti_cfg, read_ti_cfg
+from .ti_cfg import (BOARD_PRESETS, BoardLayout, TiConfig, parse_ti_cfg, read_boundary_boxes,
+                     read_ti_cfg)
 from .ti_uart import BadFrame, UartLog, parse_ti_uart, read_ti_uart
 
 __all__ = [
@@ -56,6 +57,7 @@ __all__ = [
     "TiConfig",
     "parse_ti_cfg",
     "read_ti_cfg",
+    "read_boundary_boxes",
     "BadFrame",
     "UartLog",
     "parse_ti_uart",

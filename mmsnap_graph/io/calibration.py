@@ -170,7 +170,29 @@ def _node_pose(where: str, name: str, entry: Any) -> NDArray:
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise CalibrationError(f"{where}: nodes[{name!r}].pose must be 3 finite numbers "
                                f"[x_m, y_m, phi_rad], got {pose!r}")
+    if abs(arr[2]) > 2 * np.pi + 1e-9:
+        phi = float(arr[2])
+        raise CalibrationError(f"{where}: nodes[{name!r}].pose phi_rad={phi!r} lies outside "
+                               f"[-2 pi, 2 pi]: the heading is in radians (degrees? {phi:g} deg "
+                               f"is {np.deg2rad(phi):.6g} rad)")
     return arr
+
+
+def _json_int(where: str, field: str, value: Any) -> int:
+    """An integer field (``lag_frames``, ``n_frames``): a JSON integer, or a
+    float that is one, within +-2^31."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise CalibrationError(f"{where}: {field}={value!r} must be an integer")
+    if not (np.isfinite(value) and value == int(value) and abs(value) <= 2 ** 31):
+        raise CalibrationError(f"{where}: {field}={value!r} must be an integer within +-2^31")
+    return int(value)
+
+
+def _json_names(where: str, field: str, value: Any) -> tuple[str, ...]:
+    """A list of node names."""
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        raise CalibrationError(f"{where}: {field} must be a list of node names, got {value!r}")
+    return tuple(value)
 
 
 def _json_nodes(data: Any, where: str) -> Mapping:
@@ -196,11 +218,15 @@ def _json_covariance(where: str, name: str, entry: Mapping) -> NDArray:
 
 def _json_edge(where: str, i: int, e: Any) -> PoseEdge:
     try:
+        at = f"edges[{i}]"
         return PoseEdge(node_a=str(e["node_a"]), node_b=str(e["node_b"]), pose=_floats(e["pose"]),
                         covariance=_floats(e["covariance"]),
                         rmse_m=float(_floats(e.get("rmse_m"))),
-                        n_frames=int(e.get("n_frames", 0)), lag_frames=int(e.get("lag_frames", 0)))
-    except (KeyError, TypeError, ValueError) as exc:
+                        n_frames=_json_int(where, f"{at}.n_frames", e.get("n_frames", 0)),
+                        lag_frames=_json_int(where, f"{at}.lag_frames", e.get("lag_frames", 0)))
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
+        if isinstance(exc, CalibrationError):
+            raise
         raise CalibrationError(f"{where}: edges[{i}] is not a pose edge ({exc})") from exc
 
 
@@ -216,20 +242,36 @@ def calibration_from_json(data: Mapping, *, where: str = "calibration") -> Recor
     nodes = _json_nodes(data, where)
     poses = {str(n): _node_pose(where, n, e) for n, e in nodes.items()}
     covs = {str(n): _json_covariance(where, n, e) for n, e in nodes.items()}
-    lags = {str(n): int(e.get("lag_frames", 0) or 0) for n, e in nodes.items()}
-    unreachable = tuple(str(n) for n in data.get("unreachable", ()))
-    names = tuple(str(n) for n in data.get("node_names", (*poses, *unreachable)))
+    lags = {str(n): _json_int(where, f"nodes[{n!r}].lag_frames", e.get("lag_frames", 0) or 0)
+            for n, e in nodes.items()}
+    unreachable = _json_names(where, "unreachable", data.get("unreachable", []))
+    names = _json_names(where, "node_names", data.get("node_names", [*poses, *unreachable]))
     missing = [n for n in poses if n not in names]
     if missing:
         raise CalibrationError(f"{where}: nodes {missing} are not in node_names {list(names)}")
-    edges = tuple(_json_edge(where, i, e) for i, e in enumerate(data.get("edges", ())))
-    return RecordingCalibration(**_with_timing(dict(
-        reference=str(data.get("reference", next(iter(poses)))), node_names=names, poses=poses,
-        covariances=covs, lag_frames=lags, unreachable=unreachable, edges=edges,
-        method=str(data.get("method", "")), source=str(data.get("source", "")),
-        success=bool(data.get("success", True)), message=str(data.get("message", "")),
-        failures={str(k): str(v) for k, v in dict(data.get("failures", {})).items()}),
-        *_json_timing(data, where)))
+    edges, failures = data.get("edges", []), data.get("failures", {})
+    if not isinstance(edges, list):
+        raise CalibrationError(f"{where}: edges must be a list, got {edges!r}")
+    if not isinstance(failures, Mapping):
+        raise CalibrationError(f"{where}: failures must be an object, got {failures!r}")
+    for key in ("reference", "method", "source", "message"):
+        if not isinstance(data.get(key, ""), str):
+            raise CalibrationError(f"{where}: {key} must be a string, got {data[key]!r}")
+    if not isinstance(data.get("success", True), bool):
+        raise CalibrationError(f"{where}: success must be true or false, got {data['success']!r}")
+    try:
+        return RecordingCalibration(**_with_timing(dict(
+            reference=str(data.get("reference", next(iter(poses)))), node_names=names,
+            poses=poses, covariances=covs, lag_frames=lags, unreachable=unreachable,
+            edges=tuple(_json_edge(where, i, e) for i, e in enumerate(edges)),
+            method=str(data.get("method", "")), source=str(data.get("source", "")),
+            success=bool(data.get("success", True)), message=str(data.get("message", "")),
+            failures={str(k): str(v) for k, v in failures.items()}),
+            *_json_timing(data, where)))
+    except MmsnapError as exc:
+        if isinstance(exc, CalibrationError):
+            raise
+        raise CalibrationError(f"{where}: {exc}") from None
 
 
 def _parse_json(source: str | os.PathLike | Mapping) -> tuple[Any, str]:
@@ -242,6 +284,8 @@ def _parse_json(source: str | os.PathLike | Mapping) -> tuple[Any, str]:
         raise CalibrationError(f"calibration file {path} does not exist") from exc
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CalibrationError(f"{path} is not readable calibration JSON: {exc}") from exc
+    except RecursionError:
+        raise CalibrationError(f"{path} is not calibration JSON: nested too deeply") from None
 
 
 def write_calibration_json(path: str | os.PathLike, cal: RecordingCalibration) -> Path:

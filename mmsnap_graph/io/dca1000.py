@@ -262,8 +262,8 @@ def sub_frame_layout(configs: Sequence[RadarConfig], sub_frame: int) -> tuple[in
     if not configs:
         raise ConfigurationError("configs must hold at least one sub-frame configuration")
     if int(sub_frame) != sub_frame or not 0 <= sub_frame < len(configs):
-        raise ValidationError(f"sub_frame={sub_frame!r} (mmsnap import dca1000 --sub-frame) "
-                              f"must be in 0..{len(configs) - 1}")
+        raise ValidationError(f"sub_frame={sub_frame!r} must be in 0..{len(configs) - 1} "
+                              "(mmsnap import dca1000 --sub-frame)")
     sizes = [frame_bytes(c) for c in configs]
     return int(sum(sizes[:int(sub_frame)])), int(sum(sizes))
 

@@ -4,7 +4,7 @@ in every frame (:class:`~mmsnap_graph.data.results.FusedSequence`, made by
 
 :func:`write_fused` and :func:`read_fused` are a symmetric pair; the layout is
 :data:`FUSED_LAYOUT` (quoted in docs/FORMAT.md). The ``status`` codes are those
-of :class:`~mmsnap_graph.data.results.Status` 0 to 5, 9 and 10 (:data:`FUSED_STATUSES`).
+of :class:`~mmsnap_graph.data.results.Status` 0 to 5 and 9 to 12 (:data:`FUSED_STATUSES`).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ FUSED_LAYOUT = """\
 /fused                 attrs: format_version = "1.1" (1.0: without time_s and information),
                               mode = "map" | "ml",
                               covariance_method = "laplace" | "grid",
-                              solver = "batch" | "gtsam",
+                              solver = "vectorized" | "gtsam",
                               node_order (str array, N), node_poses (N, 3) [x_m, y_m, phi_rad],
                               noise_sigmas (3,) [range_m, omega_rad, doppler_mps],
                               prior_mean (4,), prior_sigmas (4,) (MAP only),
@@ -60,7 +60,10 @@ FUSED_LAYOUT = """\
                                       3 non-finite, 4 no measurement and no prior, 5 grid failed,
                                       9 residual test failed (robust fusion could not repair it),
                                       10 not consistent with the motion of any target in the
-                                      neighbouring frames (the motion check, docs/ROBUST.md)
+                                      neighbouring frames (the motion check, docs/ROBUST.md),
+                                      11 outside the room bounds (mmsnap fuse --bounds),
+                                      12 within a body's width of a better-supported target of
+                                      its frame (docs/ROBUST.md)
     rejected           (K, N) bool    node left out / down-weighted by robust fusion (optional;
                                       absent = none)
     message            (K,) str
@@ -72,7 +75,7 @@ FUSED_LAYOUT = """\
 #: The status codes a ``/fused`` group holds (its ``status_messages`` attribute).
 FUSED_STATUSES = (Status.OK, Status.MAX_ITERATIONS, Status.SINGULAR, Status.NON_FINITE,
                   Status.NO_INFORMATION, Status.GRID_FAILED, Status.RESIDUAL_TEST_FAILED,
-                  Status.MOTION_INCONSISTENT)
+                  Status.MOTION_INCONSISTENT, Status.OUTSIDE_BOUNDS, Status.DUPLICATE)
 
 _STATE_NAMES = ("x_m", "y_m", "vx_mps", "vy_mps")
 

@@ -25,6 +25,10 @@ __all__ = ["PointCloud3D", "Mounting", "cloud_to_detections", "recording_from_po
            "destack_frames", "accumulate_frames", "check_frame_period"]
 
 _COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
+#: Limits of a radar point (no mmWave radar sees beyond a few hundred metres
+#: or faster than a few hundred m/s): a larger value is a corrupted number.
+MAX_COORDINATE_M = 1e4
+MAX_SPEED_MPS = 1e3
 #: :func:`accumulate_frames` refuses to make more points than this (memory).
 MAX_ACCUMULATED_POINTS = 50_000_000
 
@@ -66,6 +70,11 @@ class PointCloud3D:
                 bad = int(np.flatnonzero(~np.isfinite(arr))[0])
                 raise ValidationError(f"{name} must be finite; point {bad} (frame "
                                       f"{frame[bad]}) holds {arr[bad]!r}")
+            limit = MAX_SPEED_MPS if name == "doppler_mps" else MAX_COORDINATE_M
+            if name in _COLUMNS and arr.size and np.max(np.abs(arr)) > limit:
+                bad = int(np.argmax(np.abs(arr)))
+                raise ValidationError(f"{name} must lie within +-{limit:g}; point {bad} (frame "
+                                      f"{frame[bad]}) holds {float(arr[bad])!r}")
             object.__setattr__(self, name, arr)
         frames = np.unique(frame) if self.frames is None else int_array(self.frames, "frames")
         missing = np.setdiff1d(frame, frames)
@@ -294,6 +303,23 @@ def _frame_offsets(clouds: Mapping[str, PointCloud3D], frame_period_s: float
     return out, {"frame_clock": "frame_numbers"}
 
 
+def _no_twins(clouds: Mapping[str, PointCloud3D]) -> None:
+    """Two nodes with the same points in the same frames are one log imported
+    twice: co-located, identical nodes make every calibration and noise
+    estimate degenerate, so they are refused here, where the cause is known."""
+    seen: dict[tuple, str] = {}
+    for name, c in clouds.items():
+        if len(c) == 0:
+            continue
+        key = (len(c), c.frame.tobytes(), c.x_m.tobytes(), c.y_m.tobytes(), c.z_m.tobytes(),
+               c.doppler_mps.tobytes())
+        if key in seen:
+            raise ValidationError(f"nodes {seen[key]} and {name} hold the same {len(c)} points in "
+                                  "the same frames: one log imported twice? (give each node its "
+                                  "own log)")
+        seen[key] = name
+
+
 def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_period_s: float,
                                 mounting: Mounting | Mapping[str, Mounting] = Mounting(),
                                 height_band_m: tuple[float, float] | None = None,
@@ -310,6 +336,7 @@ def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_per
     fp = float(frame_period_s)
     if not (np.isfinite(fp) and fp > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
+    _no_twins(clouds)
     aligned, md = _frame_offsets(clouds, fp)
     nodes = {}
     for name, cloud in aligned.items():

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from factors.projection import spherical_to_cartesian
 from ..errors import FileFormatError, ValidationError
-from .point_cloud import PointCloud3D
+from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
 __all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "read_point_table", "read_point_tables"]
 
@@ -46,6 +46,9 @@ _ALIASES = {
     "node": ("node", "sensor", "radar"),
 }
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+#: Per column, the largest magnitude a radar point can have (a corrupted cell).
+_LIMITS = {"x_m": MAX_COORDINATE_M, "y_m": MAX_COORDINATE_M, "z_m": MAX_COORDINATE_M,
+           "range_m": MAX_COORDINATE_M, "doppler_mps": MAX_SPEED_MPS}
 #: Time stamps beyond this (about 31,700 years) are not a clock (a bad cell).
 _MAX_TIME_S = 1e12
 
@@ -253,11 +256,18 @@ def _float(cols: dict, key: str, name: str, where: _Rows) -> NDArray:
 def _checked(values: NDArray, key: str, rows: NDArray, name: str, where: _Rows) -> NDArray:
     """``values`` (the column ``key`` at ``rows``) if finite, else an error
     naming the first row that is not (an empty CSV cell is NaN)."""
-    if key in ("snr_db", "noise_db") or np.all(np.isfinite(values)):
+    if key in ("snr_db", "noise_db"):
         return values                               # side info may be missing (NaN)
-    j = int(np.flatnonzero(~np.isfinite(values))[0])
-    raise FileFormatError(f"{name}: column {key} must be finite; point {j} ({where(rows[j])}) "
-                          f"holds {float(values[j])!r}")
+    if not np.all(np.isfinite(values)):
+        j = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise FileFormatError(f"{name}: column {key} must be finite; point {j} "
+                              f"({where(rows[j])}) holds {float(values[j])!r}")
+    limit = _LIMITS.get(key)
+    if limit is not None and values.size and np.max(np.abs(values)) > limit:
+        j = int(np.argmax(np.abs(values)))
+        raise FileFormatError(f"{name}: column {key} must lie within +-{limit:g}; point {j} "
+                              f"({where(rows[j])}) holds {float(values[j])!r}")
+    return values
 
 
 #: The largest frame number a table may give: every frame number up to it is an

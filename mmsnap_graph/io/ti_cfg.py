@@ -37,6 +37,7 @@ commands and parses those (errors then name the JSON field).
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -47,8 +48,10 @@ import numpy as np
 
 from ..data.radar_config import RadarConfig
 from ..errors import ConfigurationError, FileFormatError
+from .ti_cfg_fields import cfg_fields
 
 __all__ = ["BoardLayout", "BOARD_PRESETS", "TiConfig", "parse_ti_cfg", "read_ti_cfg",
+           "read_boundary_boxes", "BOUNDARY_COMMANDS",
            "board_layout", "studio_json_to_cfg", "read_studio_json"]
 
 
@@ -188,11 +191,21 @@ class _Commands:
 
 
 def _numbers(cmds: _Commands, number: int, command: str, words: list[str]) -> list[float]:
+    """The arguments as numbers, each finite and within its field's range."""
     try:
-        return [float(w) for w in words]
+        values = [float(w) for w in words]
     except ValueError:
         raise cmds.error(number, f"{command} arguments must be numbers, got "
                                  f"{' '.join(words)!r}") from None
+    for (name, integer, low, high), value, word in zip(cfg_fields(command, len(values)), values,
+                                                       words):
+        if not np.isfinite(value):
+            raise cmds.error(number, f"{command} {name}={word} must be a finite number")
+        if integer and value != int(value):
+            raise cmds.error(number, f"{command} {name}={word} must be an integer")
+        if (low is not None and value < low) or (high is not None and value > high):
+            raise cmds.error(number, f"{command} {name}={word} must lie in [{low:g}, {high:g}]")
+    return values
 
 
 def _tokenize(text: str, source: str, extra_commands: Iterable[str],
@@ -468,27 +481,47 @@ def read_ti_cfg(path: str | os.PathLike, *, board: str | BoardLayout | None = No
 
 # ---- mmWave Studio JSON export ---------------------------------------------------------
 def _num(value: Any) -> float:
-    """JSON numbers, or TI's hex strings (``"0xF"``)."""
+    """JSON numbers, or TI's hex strings (``"0xF"``); anything else (a list,
+    an object, true) is a TypeError that names the value."""
     if isinstance(value, str):
         return float(int(value, 0))
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{value!r} is not a number")
     return float(value)
 
 
 def _fmt(values: Iterable[Any]) -> str:
-    return " ".join(f"{_num(v):g}" for v in values)
+    """Numbers as ``.cfg`` words; ``repr`` keeps every digit (``nan``/``inf``
+    reach the ``.cfg`` checks, which name the field)."""
+    return " ".join(repr(_num(v)) for v in values)
+
+
+def _object(value: Any, path: str) -> Mapping:
+    if not isinstance(value, Mapping):
+        raise TypeError(f"{path} must be an object, got {type(value).__name__}")
+    return value
+
+
+def _array(value: Any, path: str) -> list:
+    if not isinstance(value, list):
+        raise TypeError(f"{path} must be an array, got {type(value).__name__}")
+    return value
 
 
 def _studio_lines(rf: Mapping) -> list[tuple[str, str]]:
     """(command line, JSON path) pairs equivalent to an ``rfConfig``."""
-    ch = rf["rlChanCfg_t"]
+    rf = _object(rf, "rfConfig")
+    ch = _object(rf["rlChanCfg_t"], "rfConfig.rlChanCfg_t")
     lines = [(f"channelCfg {_fmt([ch['rxChannelEn'], ch['txChannelEn']])} 0",
               "rfConfig.rlChanCfg_t")]
-    fmt = rf.get("rlAdcOutCfg_t", {}).get("fmt")
+    fmt = _object(rf.get("rlAdcOutCfg_t", {}), "rfConfig.rlAdcOutCfg_t").get("fmt")
     if fmt is not None:
+        fmt = _object(fmt, "rfConfig.rlAdcOutCfg_t.fmt")
         lines.append((f"adcCfg {_fmt([fmt['b2AdcBits'], fmt['b2AdcOutFmt']])}",
                       "rfConfig.rlAdcOutCfg_t"))
-    for k, item in enumerate(rf["rlProfiles"]):
-        p = item["rlProfileCfg_t"]
+    for k, item in enumerate(_array(rf["rlProfiles"], "rfConfig.rlProfiles")):
+        p = _object(_object(item, f"rfConfig.rlProfiles[{k}]")["rlProfileCfg_t"],
+                    f"rfConfig.rlProfiles[{k}].rlProfileCfg_t")
         keys = ("profileId", "startFreqConst_GHz", "idleTimeConst_usec",
                 "adcStartTimeConst_usec", "rampEndTime_usec")
         rest = ("freqSlopeConst_MHz_usec", "txStartTime_usec", "numAdcSamples",
@@ -496,8 +529,9 @@ def _studio_lines(rf: Mapping) -> list[tuple[str, str]]:
         lines.append((f"profileCfg {_fmt(p[key] for key in keys)} 0 0 "
                       f"{_fmt(p.get(key, 0) for key in rest)} 0 0 30",
                       f"rfConfig.rlProfiles[{k}]"))
-    for k, item in enumerate(rf["rlChirps"]):
-        c = item["rlChirpCfg_t"]
+    for k, item in enumerate(_array(rf["rlChirps"], "rfConfig.rlChirps")):
+        c = _object(_object(item, f"rfConfig.rlChirps[{k}]")["rlChirpCfg_t"],
+                    f"rfConfig.rlChirps[{k}].rlChirpCfg_t")
         keys = ("chirpStartIdx", "chirpEndIdx", "profileId", "startFreqVar_MHz",
                 "freqSlopeVar_KHz_usec", "idleTimeVar_usec", "adcStartTimeVar_usec", "txEnable")
         lines.append((f"chirpCfg {_fmt(c.get(key, 0) for key in keys)}",
@@ -510,8 +544,14 @@ def _studio_frame(rf: Mapping) -> list[tuple[str, str]]:
     kind = str(rf.get("waveformType", "")).lower()
     adv = rf.get("rlAdvFrameCfg_t")
     if "advanced" in kind or (adv is not None and "rlFrameCfg_t" not in rf):
-        seq = adv["frameSeq"]
-        subs = seq["subFrameCfg"][:int(_num(seq["numOfSubFrames"]))]
+        seq = _object(_object(adv, "rfConfig.rlAdvFrameCfg_t")["frameSeq"],
+                      "rfConfig.rlAdvFrameCfg_t.frameSeq")
+        n_sub = _num(seq["numOfSubFrames"])
+        if not (np.isfinite(n_sub) and 1 <= n_sub <= 4 and n_sub == int(n_sub)):
+            raise ValueError(f"rfConfig.rlAdvFrameCfg_t.frameSeq.numOfSubFrames={n_sub!r} must "
+                             "be an integer in 1..4")
+        subs = _array(seq["subFrameCfg"], "rfConfig.rlAdvFrameCfg_t.frameSeq.subFrameCfg")
+        subs = [_object(sub, f"subFrameCfg[{k}]") for k, sub in enumerate(subs[:int(n_sub)])]
         out = [("dfeDataOutputMode 3", "rfConfig.waveformType"),
                (f"advFrameCfg {len(subs)} 0 {_fmt([seq.get('numFrames', 0)])} 1 0",
                 "rfConfig.rlAdvFrameCfg_t.frameSeq")]
@@ -522,7 +562,7 @@ def _studio_frame(rf: Mapping) -> list[tuple[str, str]]:
             out.append((f"subFrameCfg {k} {_fmt(sub.get(key, 0) for key in keys)}",
                         f"rfConfig.rlAdvFrameCfg_t.frameSeq.subFrameCfg[{k}]"))
         return out
-    f = rf["rlFrameCfg_t"]
+    f = _object(rf["rlFrameCfg_t"], "rfConfig.rlFrameCfg_t")
     keys = ("chirpStartIdx", "chirpEndIdx", "numLoops", "numFrames", "framePeriodicity_msec")
     return [(f"frameCfg {_fmt(f[key] for key in keys)} 1 0", "rfConfig.rlFrameCfg_t")]
 
@@ -532,11 +572,13 @@ def studio_json_to_cfg(data: Mapping, *, device: int = 0) -> tuple[str, list[str
     JSON path of each of its lines. Raises :class:`FileFormatError` for a
     missing or malformed field."""
     try:
-        devices = data["mmWaveDevices"]
+        devices = _object(data, "the file")["mmWaveDevices"]
         dev = devices[device] if isinstance(devices, list) else devices
-        pairs = _studio_lines(dev["rfConfig"])
-    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        pairs = _studio_lines(_object(dev, "mmWaveDevices[]")["rfConfig"])
+    except KeyError as exc:
         raise FileFormatError(f"mmWave Studio JSON: missing or malformed field {exc}") from None
+    except (IndexError, TypeError, ValueError, OverflowError, AttributeError) as exc:
+        raise FileFormatError(f"mmWave Studio JSON: malformed field: {exc}") from None
     return "\n".join(line for line, _ in pairs) + "\n", [path for _, path in pairs]
 
 
@@ -550,9 +592,53 @@ def read_studio_json(path: str | os.PathLike, *, board: str | BoardLayout | None
         data = json.loads(p.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise FileFormatError(f"{p} is not a JSON file: {exc}") from None
+    except RecursionError:
+        raise FileFormatError(f"{p}: JSON nested too deeply for an mmWave Studio export"
+                              ) from None
     text, paths = studio_json_to_cfg(data, device=device)
     try:
         return parse_ti_cfg(text, board=board, layout=layout, source=p.name)
     except ConfigurationError as exc:
         message = re.sub(r"line (\d+)", lambda m: paths[int(m.group(1)) - 1], str(exc))
         raise ConfigurationError(message) from None
+
+
+#: The people-tracking demos' boxes (x_min, x_max, y_min, y_max, z_min, z_max;
+#: metres): ``boundaryBox`` (where tracks may exist), ``staticBoundaryBox``
+#: (where a target may stand still), ``presenceBoundaryBox`` (presence
+#: detection). The 2D people-counting demo's boxes have four values (no z).
+BOUNDARY_COMMANDS = ("boundaryBox", "staticBoundaryBox", "presenceBoundaryBox")
+
+
+def read_boundary_boxes(path: str | os.PathLike) -> dict[str, tuple[float, ...]]:
+    """The boxes of a people-tracking ``.cfg`` (:data:`BOUNDARY_COMMANDS`):
+    command -> its 4 or 6 numbers, for the commands present (the last one
+    when repeated). The boxes are in the tracker's world frame of that radar
+    (origin on the floor below it, ``y`` along its boresight without azimuth
+    tilt). Raises :class:`~mmsnap_graph.errors.ConfigurationError` naming the
+    file and line of a box that is not 4 or 6 numbers or whose minimum is not
+    below its maximum."""
+    p = Path(path)
+    try:
+        text = p.read_text(errors="replace")
+    except OSError as exc:
+        raise FileFormatError(f"cannot read {p}: {exc.strerror or exc}") from None
+    boxes: dict[str, tuple[float, ...]] = {}
+    for number, raw in enumerate(text.splitlines(), start=1):
+        words = raw.split("%", 1)[0].split()
+        if not words or words[0] not in BOUNDARY_COMMANDS:
+            continue
+        where = f"{p} line {number}: {words[0]}"
+        try:
+            values = tuple(float(w) for w in words[1:])
+        except ValueError:
+            raise ConfigurationError(f"{where} arguments must be numbers, got "
+                                     f"{' '.join(words[1:])!r}") from None
+        if len(values) not in (4, 6) or not all(math.isfinite(v) for v in values):
+            raise ConfigurationError(f"{where} takes 4 or 6 finite numbers (x_min x_max y_min "
+                                     f"y_max [z_min z_max], metres), got {len(values)}")
+        if any(values[k] >= values[k + 1] for k in range(0, len(values), 2)):
+            raise ConfigurationError(f"{where}: each minimum must be below its maximum, got "
+                                     f"{' '.join(words[1:])}")
+        boxes[words[0]] = values
+    return boxes

@@ -51,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import FileFormatError, ValidationError
-from .point_cloud import PointCloud3D
+from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
 __all__ = ["MAGIC_WORD", "TLV_DETECTED_POINTS", "TLV_SIDE_INFO", "TLV_COMPRESSED_SPHERICAL",
            "BadFrame", "UartLog", "parse_ti_uart", "read_ti_uart"]
@@ -62,6 +62,9 @@ TLV_SIDE_INFO = 7
 TLV_COMPRESSED_SPHERICAL = 1020
 #: Refuse packets longer than this (a corrupted length field).
 MAX_PACKET_BYTES = 1 << 20
+#: A last packet this many frames (about 14 hours at 20 fps) after the one
+#: before it has a corrupted frame number.
+MAX_FRAME_JUMP = 1 << 20
 
 _HEADER = {"oob": struct.Struct("<8s8I"), "tracking": struct.Struct("<8s9I2H")}
 _TLV = struct.Struct("<2I")
@@ -187,9 +190,12 @@ def _decode_packet(packet: bytes, demo: str) -> _Frame:
         if name in cols and len(cols[name]) != n:
             raise _BadPacket(f"side info holds {len(cols[name])} points, the point TLV {n}")
     for name in ("x", "y", "z", "doppler"):
-        if name in cols and not np.all(np.isfinite(cols[name])):
-            k = int(np.flatnonzero(~np.isfinite(cols[name]))[0])
-            raise _BadPacket(f"point {k} of {n} holds {name}={float(cols[name][k])!r}")
+        limit = MAX_SPEED_MPS if name == "doppler" else MAX_COORDINATE_M
+        values = np.asarray(cols.get(name, ()), dtype=float)
+        if values.size and not np.all(np.abs(values) <= limit):     # NaN fails too
+            k = int(np.flatnonzero(~(np.abs(values) <= limit))[0])
+            raise _BadPacket(f"point {k} of {n} holds {name}={float(values[k])!r} (not a "
+                             f"finite number within +-{limit:g})")
     return _Frame(number=int(number), sub_frame=int(sub), n_declared=n_obj, columns=cols)
 
 
@@ -282,10 +288,17 @@ def _in_sequence(frames: list[_Frame]) -> tuple[list[_Frame], list[BadFrame]]:
                                     "(dropped)", f.number))
             continue
         after = frames[i + 1] if i + 1 < len(frames) else None
-        if kept and after is not None and _key(f) > _key(after) > _key(kept[-1]):
+        later = frames[i + 2] if i + 2 < len(frames) else None
+        first_off = (not kept and later is not None and _key(after) < _key(later)
+                     and _key(f) > _key(after))
+        last_off = (kept and after is None and f.number - kept[-1].number > MAX_FRAME_JUMP)
+        if first_off or last_off or (kept and after is not None
+                                     and _key(f) > _key(after) > _key(kept[-1])):
+            around = (f"{after.number}, {later.number}" if first_off else
+                      f"{kept[-1].number}, ..., {'end' if after is None else after.number}")
             dropped.append(BadFrame(f.index, f.byte_offset, f"frame number {f.number} leaves "
-                                    f"the sequence {kept[-1].number}, ..., {after.number} "
-                                    "(a corrupted header; dropped)", f.number))
+                                    f"the sequence {around} (a corrupted header; dropped)",
+                                    f.number))
             continue
         if kept and after is not None and _key(kept[-1]) < _key(after) and _key(f) <= _key(
                 kept[-1]):

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ValidationError
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_count, check_finite
 
 __all__ = ["PART_NAMES", "TORSO", "ARM", "LEG", "HumanBody", "BodyScatterers",
            "body_scatterers"]
@@ -82,8 +82,7 @@ class HumanBody:
                 raise ValidationError(f"{name}={v!r} must be finite and >= 0")
         for name in ("n_torso", "n_per_limb"):
             v = getattr(self, name)
-            if int(v) != v or v < 1:
-                raise ValidationError(f"{name}={v!r} must be an integer >= 1")
+            check_count(v, name)
         if self.n_torso % 2:
             raise ValidationError(f"n_torso={self.n_torso!r} must be even (a symmetric torso)")
 

@@ -58,7 +58,9 @@ class RealPhysics:
         level gets it from the body's geometry instead: only torso
         scatterers facing the radar reflect, and ``body_size_std`` scales each
         person's torso (relative standard deviation).
-    fast_error_std_m : (range, cross-range) per-frame centroid scatter.
+    fast_error_std_m, fast_error_tau_s : (range, cross-range) per-frame
+        centroid scatter and its AR(1) time constant (0.3 per 50 ms frame on
+        the real recordings; white at 150 ms; 0 = white).
     slow_error_std_m, slow_error_tau_s : the slow AR(1) part of the centroid
         error, per axis (coefficient ``exp(-frame_period / tau)`` per frame).
     p_miss : probability that a person in view gives no centroid / no point
@@ -85,6 +87,7 @@ class RealPhysics:
     reflection_depth_std_m: float = 0.015
     body_size_std: float = 0.10
     fast_error_std_m: tuple[float, float] = (0.09, 0.11)
+    fast_error_tau_s: float = 0.04
     slow_error_std_m: float = 0.045
     slow_error_tau_s: float = 0.7
     p_miss: float = 0.05
@@ -110,6 +113,7 @@ class RealPhysics:
                                   "be (range_m, cross_range_m)")
         for v in self.fast_error_std_m:
             _check("fast_error_std_m", v, hi=2.0)
+        _check("fast_error_tau_s", self.fast_error_tau_s, hi=600.0)
         _check("slow_error_std_m", self.slow_error_std_m, hi=2.0)
         _check("slow_error_tau_s", self.slow_error_tau_s, open_lo=True, hi=600.0)
         _check("p_miss", self.p_miss, hi=1.0, open_hi=True)
@@ -154,18 +158,28 @@ def person_depths(n_people: int, physics: RealPhysics, rng: np.random.Generator)
 def correlated_errors(n_frames: int, frame_period_s: float, physics: RealPhysics,
                       rng: np.random.Generator, *, fast: bool = True) -> NDArray:
     """(n_frames, 2) (range, cross-range) centroid errors: the slow AR(1)
-    part, stationary from the first frame, plus (``fast``) the white part."""
-    rho = float(np.exp(-frame_period_s / physics.slow_error_tau_s))
-    w = rng.standard_normal((n_frames, 2)) * physics.slow_error_std_m
-    slow = np.empty((n_frames, 2))
-    if n_frames:
-        slow[0] = w[0]
-    innov = np.sqrt(1 - rho ** 2)
-    for k in range(1, n_frames):
-        slow[k] = rho * slow[k - 1] + innov * w[k]
+    part plus (``fast``) the fast AR(1) part, both stationary from the first
+    frame."""
+    slow = _ar1(n_frames, frame_period_s, physics.slow_error_tau_s,
+                np.full(2, physics.slow_error_std_m), rng)
     if not fast:
         return slow
-    return slow + rng.standard_normal((n_frames, 2)) * np.asarray(physics.fast_error_std_m)
+    return slow + _ar1(n_frames, frame_period_s, physics.fast_error_tau_s,
+                       np.asarray(physics.fast_error_std_m, dtype=float), rng)
+
+
+def _ar1(n_frames: int, frame_period_s: float, tau_s: float, std, rng) -> NDArray:
+    """(n_frames, 2) stationary AR(1) of standard deviation ``std`` and
+    coefficient ``exp(-frame_period_s / tau_s)`` (white for ``tau_s`` 0)."""
+    rho = float(np.exp(-frame_period_s / tau_s)) if tau_s > 0 else 0.0
+    w = rng.standard_normal((n_frames, 2)) * std
+    out = np.empty((n_frames, 2))
+    if n_frames:
+        out[0] = w[0]
+    innov = np.sqrt(1 - rho ** 2)
+    for k in range(1, n_frames):
+        out[k] = rho * out[k - 1] + innov * w[k]
+    return out
 
 
 def _los(xy: NDArray, node_xy: NDArray) -> tuple[NDArray, NDArray]:

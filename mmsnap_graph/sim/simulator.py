@@ -38,7 +38,7 @@ from ..errors import ValidationError
 from ..data.noise import MeasurementNoise
 from ..data.radar_config import TABLE_I, RadarConfig
 from ..data.recording import Detections, NodeData, Recording, Truth
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_count, check_finite
 from .body import BodyScatterers, HumanBody, body_scatterers
 from .cube import post_fft_snr_db, scatterer_amplitude, synthesize_cubes
 from .networks import (
@@ -82,8 +82,7 @@ def simulate_targets(network: str | Mapping[str, ArrayLike], trajectory: str | A
         if trajectory not in TRAJECTORY_KINDS:
             raise ValidationError(f"trajectory={trajectory!r} must be one of "
                                   f"{TRAJECTORY_KINDS} or an array of states")
-        if int(n_targets) != n_targets or n_targets < 1:
-            raise ValidationError(f"n_targets={n_targets!r} must be an integer >= 1")
+        check_count(n_targets, "n_targets")
         area = common_area(network)
         return np.stack([make_trajectory(trajectory, area, n_frames=n_frames,
                                          frame_period_s=frame_period_s,
@@ -256,8 +255,7 @@ def _cube_frame_numbers(cube_frames, n_f: int) -> NDArray:
     if cube_frames is None:
         return np.arange(n_f)
     if np.ndim(cube_frames) == 0:
-        if int(cube_frames) != cube_frames or not 0 <= cube_frames <= n_f:
-            raise ValidationError(f"cube_frames={cube_frames!r} must be an integer in [0, {n_f}]")
+        check_count(cube_frames, "cube_frames", 0, n_f)
         return np.arange(int(cube_frames))
     frames_c = np.asarray(cube_frames)
     if (frames_c.ndim != 1 or not np.issubdtype(frames_c.dtype, np.integer)
@@ -359,6 +357,8 @@ def _metadata(network, trajectory, setup: _Setup) -> dict:
         "centroid_range_std_m": noise.range_m,
         "centroid_omega_std_rad": noise.omega_rad,
         "centroid_doppler_std_mps": noise.doppler_mps,
+        # Each person's near-side offset of the centroid level (real physics).
+        **({} if setup.depths is None else {"reflection_depth_m": setup.depths.copy()}),
     }
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ValidationError
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_count, check_finite
 from .networks import Area
 
 __all__ = ["DEFAULT_N_FRAMES", "DEFAULT_FRAME_PERIOD_S", "straight_line", "random_walk",
@@ -34,12 +34,10 @@ TRAJECTORY_KINDS = ("straight", "random")
 
 
 def _check_common(n_frames: int, frame_period_s: float, substeps: int) -> None:
-    if int(n_frames) != n_frames or n_frames < 1:
-        raise ValidationError(f"n_frames={n_frames!r} must be an integer >= 1")
+    check_count(n_frames, "n_frames")
     if not (np.isfinite(frame_period_s) and frame_period_s > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
-    if int(substeps) != substeps or substeps < 1:
-        raise ValidationError(f"substeps={substeps!r} must be an integer >= 1")
+    check_count(substeps, "substeps")
 
 
 def straight_line(area: Area, *, n_frames: int = DEFAULT_N_FRAMES,

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ValidationError
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_count, check_finite
 
 __all__ = ["turning_walk", "turning_walk_states"]
 
@@ -71,7 +71,6 @@ def turning_walk(center_m: ArrayLike, *, duration_s: float, speed_mps: float = 1
 def turning_walk_states(center_m: ArrayLike, *, n_frames: int, frame_period_s: float = 0.15,
                         rng: np.random.Generator, **options) -> NDArray:
     """:func:`turning_walk` sampled at frames ``0 .. n_frames-1``: (F, 4)."""
-    if int(n_frames) != n_frames or n_frames < 1:
-        raise ValidationError(f"n_frames={n_frames!r} must be an integer >= 1")
+    check_count(n_frames, "n_frames")
     walk = turning_walk(center_m, duration_s=n_frames * frame_period_s, rng=rng, **options)
     return walk(np.arange(int(n_frames)) * frame_period_s)

@@ -59,7 +59,7 @@ from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Tracks
 from .._floats4 import cholesky_4x4, cholesky_inverse_4x4
 from .._linalg import symmetrize
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_count, check_finite, check_probability, chi2_gate
 from .ekf import config_integer, config_number
 
 __all__ = [
@@ -123,10 +123,8 @@ class CentralConfig:
                 raise ConfigurationError(f"{name}={v!r} must be finite and > 0")
         if not (np.isfinite(self.sigma_a_mps2) and self.sigma_a_mps2 >= 0):
             raise ConfigurationError(f"sigma_a_mps2={self.sigma_a_mps2!r} must be finite and >= 0")
-        if not 0 < self.gate_probability < 1:
-            raise ConfigurationError(f"gate_probability={self.gate_probability!r} must be in (0, 1)")
-        if int(self.max_misses) != self.max_misses or self.max_misses < 1:
-            raise ConfigurationError(f"max_misses={self.max_misses!r} must be an integer >= 1")
+        check_probability(self.gate_probability, "gate_probability", error=ConfigurationError)
+        check_count(self.max_misses, "max_misses", error=ConfigurationError)
 
 
 def _inverse_floats(a: list[float]) -> list[float]:
@@ -160,8 +158,8 @@ def spd_inverse_4x4(p: ArrayLike) -> NDArray:
 
 
 def _gate_2dof(probability: float) -> float:
-    """``chi2.ppf(p, 2)`` in closed form: ``-2 log(1 - p)``."""
-    return -2.0 * math.log1p(-float(probability))
+    """``chi2.ppf(p, 2)`` (in closed form: ``-2 log(1 - p)``)."""
+    return chi2_gate(probability, 2)
 
 
 def measurement_information(

@@ -34,7 +34,6 @@ from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
 from scipy.optimize import linear_sum_assignment
 
 from factors.models import detection_covariance_local, detection_to_local, measurement_model, wrap_angle
@@ -43,7 +42,7 @@ from factors.motion import cv_process_noise, cv_transition
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Detections, Tracks
 from .._linalg import symmetrize
-from .._validation import as_float_array, check_finite, check_positive
+from .._validation import as_float_array, check_finite, check_positive, chi2_gate
 
 __all__ = [
     "EkfConfig",
@@ -212,7 +211,7 @@ class EkfConfig:
 
     @property
     def gate_d2(self) -> float:
-        return float(stats.chi2.ppf(self.gate_probability, 3))
+        return chi2_gate(self.gate_probability, 3)
 
 
 def track_initial_state(measurement: ArrayLike, config: EkfConfig) -> tuple[NDArray, NDArray]:

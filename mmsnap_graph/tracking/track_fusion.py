@@ -30,12 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
 
 from .._linalg import chol_soa, from_soa, inverse_soa, solve_soa, to_soa
 from ..errors import ValidationError
 from ..data.recording import Tracks
-from .._validation import as_float_array, check_finite
+from .._validation import as_float_array, check_finite, chi2_gate
 
 __all__ = [
     "transform_tracks",
@@ -184,7 +183,7 @@ def fuse_tracks(tracks_1: Tracks, pose_1: ArrayLike, tracks_2: Tracks, pose_2: A
     elif not 0.0 < gate_probability < 1.0:
         raise ValidationError(f"gate_probability must be in (0, 1) or None, got {gate_probability!r}")
     else:
-        gate = float(chi2.ppf(gate_probability, 2))
+        gate = chi2_gate(gate_probability, 2)
     x1, p1 = transform_tracks(tracks_1.state, tracks_1.covariance, pose_1)
     x2, p2 = transform_tracks(tracks_2.state, tracks_2.covariance, pose_2)
     if _one_row_per_frame(tracks_1.frame) and _one_row_per_frame(tracks_2.frame):

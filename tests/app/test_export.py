@@ -18,7 +18,7 @@ from mmsnap_graph.io.fused import read_fused
 @pytest.fixture(scope="module")
 def fused_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("export") / "rec.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-l", "centroids", "-n", "80",
+    assert main(["simulate", "-c", "B", "-t", "random", "-l", "centroids", "--model", "clean", "-n", "80",
                  "--seed", "4", "-o", str(path)]) == 0
     assert main(["calibrate", str(path)]) == 0
     assert main(["fuse", str(path)]) == 0
@@ -62,7 +62,7 @@ def test_calibration_csv_has_degrees_and_sigmas(fused_file, capsys):
 
 def test_export_before_fuse_names_the_command(tmp_path, capsys):
     path = tmp_path / "bare.h5"
-    assert main(["simulate", "-c", "A", "-t", "straight", "-l", "centroids", "-n", "20",
+    assert main(["simulate", "-c", "A", "-t", "straight", "-l", "centroids", "--model", "clean", "-n", "20",
                  "-o", str(path)]) == 0
     capsys.readouterr()
     assert main(["export", str(path), "fused"]) == 1

@@ -17,7 +17,7 @@ from mmsnap_graph.app.recording_info import format_info, recording_info
 def fused_file(tmp_path_factory):
     """Configuration B, 120 frames of centroids: simulated, calibrated, fused."""
     path = tmp_path_factory.mktemp("info") / "rec.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-l", "centroids", "-n", "120",
+    assert main(["simulate", "-c", "B", "-t", "random", "-l", "centroids", "--model", "clean", "-n", "120",
                  "--seed", "2", "-o", str(path)]) == 0
     assert main(["calibrate", str(path)]) == 0
     assert main(["fuse", str(path)]) == 0
@@ -54,7 +54,7 @@ def test_info_text_has_units_and_degrees(fused_file):
 
 def test_info_on_a_recording_without_results_says_what_to_run(tmp_path, capsys):
     path = tmp_path / "bare.h5"
-    assert main(["simulate", "-c", "A", "-t", "straight", "-l", "centroids", "-n", "20",
+    assert main(["simulate", "-c", "A", "-t", "straight", "-l", "centroids", "--model", "clean", "-n", "20",
                  "-o", str(path)]) == 0
     capsys.readouterr()
     assert main(["info", str(path)]) == 0

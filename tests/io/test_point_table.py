@@ -17,6 +17,7 @@ from mmsnap_graph.io.point_table import read_point_table, read_point_tables
 from _shared import ROOT, TI_DATA
 
 HEADER = "node,frame,time_s,x,y,z,doppler,snr"
+SENSOR_LINES = (TI_DATA / "points_sensor_frame.csv").read_text().splitlines()
 
 
 def _csv(tmp_path, rows, header=HEADER, name="log.csv"):
@@ -196,3 +197,49 @@ def test_one_radar_reader_names_the_cli_option(tmp_path):
     path = _csv(tmp_path, _rows() + _rows(node="S2"))
     with pytest.raises(FileFormatError, match=r"mmsnap import table --table"):
         read_point_table(path)
+
+
+def test_seeded_mutations_of_the_sample_raise_only_project_errors(tmp_path):
+    """300 seeded edits of the sample CSV (odd numbers, empty and text cells,
+    missing cells, duplicated headers), each read and turned into a recording:
+    a project error or a recording, never another exception."""
+    from mmsnap_graph.errors import MmsnapError
+    from mmsnap_graph.io.point_cloud import recording_from_point_clouds
+    lines = SENSOR_LINES[:120]
+    odd = ["", "nan", "inf", "-inf", "1e308", "-1e308", "18446744073709551615", "x", "1e-300",
+           "2.5", " ", "0x10", "1e30"]
+    rng = np.random.default_rng(7)
+    outcomes = {"error": 0, "read": 0}
+    for case in range(300):
+        rows = [line.split(",") for line in lines]
+        for _ in range(int(rng.integers(1, 4))):
+            r = int(rng.integers(0, len(rows)))
+            c = int(rng.integers(0, len(rows[r])))
+            kind = rng.integers(0, 10)
+            if kind == 0:
+                del rows[r][c]                          # a missing cell
+            elif kind == 1 and r == 0:
+                rows[0][c] = rows[0][(c + 1) % len(rows[0])]   # a duplicated header
+            else:
+                rows[r][c] = str(rng.choice(odd))
+        path = tmp_path / f"m{case}.csv"
+        path.write_text("\n".join(",".join(r) for r in rows) + "\n")
+        try:
+            clouds = read_point_tables(path, frame_period_s=0.05)
+            recording_from_point_clouds(clouds, frame_period_s=0.05)
+            outcomes["read"] += 1
+        except MmsnapError:
+            outcomes["error"] += 1
+    assert outcomes["error"] > 100 and outcomes["read"] > 10, outcomes
+
+
+@pytest.mark.parametrize("column, value", [("x", "1e308"), ("z", "-2e4"), ("doppler", "5000")])
+def test_points_beyond_any_radar_are_errors(tmp_path, column, value):
+    rows = _rows()
+    cells = rows[1].split(",")
+    cells[HEADER.split(",").index(column)] = value
+    rows[1] = ",".join(cells)
+    with pytest.raises(FileFormatError, match=rf"column {column}_m\w* must lie within "
+                                              rf"\+-10+; point 1 \(line 3\) holds "
+                                              + re.escape(repr(float(value)))):
+        read_point_tables(_csv(tmp_path, rows))

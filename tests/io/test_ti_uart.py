@@ -40,11 +40,16 @@ def test_a_repeated_number_with_other_points_is_dropped_and_reported():
     assert "frame number 2 goes back in the sequence 3, ..., 4" in str(log.bad[0])
 
 
-def test_one_corrupted_frame_number_is_dropped():
-    data = _log([1, 2, 3, 2 ** 31 + 4, 5, 6])
-    log = parse_ti_uart(data)
-    assert log.frame_numbers.tolist() == [1, 2, 3, 5, 6]
-    assert "frame number 2147483652 leaves the sequence 3, ..., 5" in str(log.bad[0])
+@pytest.mark.parametrize("numbers, around", [
+    ([1, 2, 3, 2 ** 31 + 4, 5, 6], "3, ..., 5"),          # one flipped bit inside
+    ([2 ** 31 + 1, 2, 3, 4, 5, 6], "2, 3"),               # ... in the first header
+    ([1, 2, 3, 4, 5, 2 ** 31 + 6], "5, ..., end")])       # ... in the last one
+def test_one_corrupted_frame_number_is_dropped(numbers, around):
+    """One flipped bit in a header used to put a frame at 2^31 (and then ask
+    `process` for 16 GiB); the packet is dropped and reported."""
+    log = parse_ti_uart(_log(numbers))
+    assert log.frame_numbers.tolist() == [k for k in numbers if k < 2 ** 31]
+    assert f"leaves the sequence {around} (a corrupted header" in str(log.bad[0])
 
 
 @pytest.mark.parametrize("numbers, at", [([1, 2, 3, 4, 1, 2, 3], 4),     # radar restart
@@ -65,14 +70,14 @@ def test_sub_frames_of_one_frame_are_not_repeats():
     assert log.bad == () and log.sub_frame.tolist() == [0, 1, 0, 1]
 
 
-@pytest.mark.parametrize("value", [np.nan, np.inf])
+@pytest.mark.parametrize("value", [np.nan, np.inf, 3e38])
 def test_a_non_finite_point_skips_only_its_frame(value):
     data = _log([1, 2]) + _packet(3, x=value) + _log([4])
     log = parse_ti_uart(data)
     assert log.frame_numbers.tolist() == [1, 2, 4]
     (bad,) = log.bad
     assert bad.frame_number == 3 and bad.byte_offset == len(_log([1, 2]))
-    assert f"point 0 of 2 holds x={value!r}" in str(bad)
+    assert f"point 0 of 2 holds x={float(np.float32(value))!r} (not a finite number" in str(bad)
 
 
 def test_cli_keeps_the_good_frames_and_names_the_bad_one(tmp_path, capsys):
@@ -92,3 +97,19 @@ def test_cli_refuses_a_restart_with_the_offset(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"packet 5 at byte {len(_log(range(1, 6)))} has frame 1" in err
     assert not (tmp_path / "u.h5").exists()
+
+
+def test_one_log_imported_as_two_nodes_is_refused(tmp_path, capsys):
+    """The same log for two nodes made calibrate and noise fail on a singular
+    system; the import says what happened instead."""
+    path = tmp_path / "log.bin"
+    path.write_bytes(_log(range(1, 21)))
+    args = ["import", "ti-uart", "--node", f"S1={path}", "--node", f"S2={path}",
+            "--frame-period", "0.05", "-o", str(tmp_path / "u.h5")]
+    assert main(args) == 2
+    assert "nodes S1 and S2 hold the same 40 points in the same frames: one log imported " \
+           "twice?" in capsys.readouterr().err
+    other = tmp_path / "other.bin"
+    other.write_bytes(_log(range(1, 21), x=0.7))
+    args[5] = f"S2={other}"
+    assert main(args) == 0

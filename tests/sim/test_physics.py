@@ -113,3 +113,21 @@ def test_people_differ_in_size_and_depth():
         e = c.range_m[own] - h[:, 0]
         means.append(np.mean(e[np.abs(e) < 0.5]))
     assert max(means) - min(means) > 0.005
+
+
+def test_truth_metadata_holds_each_persons_reflection_depth():
+    rec = simulate_recording("B", "random", SimulationOptions(n_targets=2), levels=("centroids",),
+                             n_frames=10, seed=1)
+    d = np.asarray(rec.metadata["reflection_depth_m"])
+    assert d.shape == (2,) and np.all((0 <= d) & (d <= 0.1)) and d[0] != d[1]
+    clean = simulate_recording("B", "random", CLEAN, levels=("centroids",), n_frames=10, seed=1)
+    assert "reflection_depth_m" not in clean.metadata
+
+
+def test_fast_errors_have_the_measured_coefficient_at_20_fps():
+    """Real recordings: lag-1 about 0.3 per 50 ms frame (tau 0.04 s)."""
+    ph = RealPhysics(slow_error_std_m=0.0, fast_error_std_m=(0.09, 0.11))
+    e = correlated_errors(20000, 0.05, ph, np.random.default_rng(1))
+    r1 = np.mean(e[1:, 0] * e[:-1, 0]) / np.mean(e[:, 0] ** 2)
+    assert abs(r1 - np.exp(-0.05 / 0.04)) < 0.03
+    assert abs(np.std(e[:, 1]) - 0.11) < 0.005

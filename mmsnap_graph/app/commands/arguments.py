@@ -8,7 +8,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["named_values", "named_pose"]
+__all__ = ["named_values", "named_pose", "solver_choice"]
 
 
 def named_values(kind: str, n_values: int | None) -> Callable[[str], tuple[str, object]]:
@@ -36,3 +36,19 @@ def named_pose(text: str) -> tuple[str, list[float]]:
     [x_m, y_m, phi_rad])`` (degrees on the command line, radians inside)."""
     name, (x, y, phi_deg) = named_values("X_M,Y_M,PHI_DEG (e.g. S2=0,7,180)", 3)(text)
     return name, [x, y, float(np.deg2rad(phi_deg))]
+
+
+def solver_choice(allowed: tuple[str, ...]) -> Callable[[str], str]:
+    """argparse type for ``--solver``: one of ``allowed`` (names of
+    :data:`mmsnap_graph.fusion.solvers.settings.SOLVERS`); a former name
+    (``batch``, ``numpy``) is refused naming the one that replaced it."""
+    def parse(text: str) -> str:
+        from mmsnap_graph.errors import ValidationError
+        from mmsnap_graph.fusion.solvers.settings import check_solver
+
+        try:
+            return check_solver(text, allowed, what="--solver")
+        except ValidationError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    parse.__name__ = "solver"
+    return parse

@@ -15,6 +15,7 @@ import glob
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 from mmsnap_graph.errors import MmsnapError, ValidationError
@@ -126,6 +127,22 @@ def _check_args(args: argparse.Namespace) -> tuple[tuple[str, ...], list[str]]:
     return steps, expand_patterns(args.patterns)
 
 
+def _ready(client, args) -> str:
+    """The cluster's start-up in words. A local cluster's workers have loaded
+    the library as they started; the workers of a ``--scheduler`` load it
+    now, side by side, before the first recording."""
+    from mmsnap_graph.app.batch import load_library
+
+    if not hasattr(client, "scheduler_info"):  # a concurrent.futures executor
+        return type(client).__name__
+    n = len(client.scheduler_info().get("workers", {}))
+    if args.scheduler is None:
+        return f"{n} local worker(s), library loaded as each started"
+    seconds = client.run(load_library)
+    slowest = max(seconds.values(), default=0.0)
+    return f"{n} worker(s) at {args.scheduler}, library loaded in {slowest:.1f} s"
+
+
 def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.app.batch import run_many
 
@@ -136,10 +153,16 @@ def run(args: argparse.Namespace) -> int:
     if "fuse" in steps:
         options["fuse"] = {"mode": args.mode}
     progress = not args.no_progress and sys.stderr.isatty()
+    t0 = time.perf_counter()
     with _client(args, len(paths)) as client:
+        ready = _ready(client, args)
+        start_s = time.perf_counter() - t0
+        t1 = time.perf_counter()
         summaries = run_many(paths, steps, client=client, output_dir=args.output_dir,
                              options=options, progress=progress)
+        run_s = time.perf_counter() - t1
     print(format_summary(summaries))
+    print(f"cluster started in {start_s:.1f} s ({ready}); recordings ran in {run_s:.1f} s")
     if args.summary_json:
         try:
             Path(args.summary_json).write_text(

@@ -21,12 +21,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-from pathlib import Path
 
 import numpy as np
 
-from mmsnap_graph._atomic import check_output_path, recording_lock
-from mmsnap_graph.app.config_file import matching_config_to_toml, read_matching_config
+from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph.app.runs import calibrate_and_store, calibration_json_path
 from mmsnap_graph.calibration.pairwise.matching_options import MatchingOptions
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 
@@ -133,6 +132,10 @@ def format_table(cal) -> str:
 def effective_matching(args: argparse.Namespace) -> MatchingOptions:
     """Defaults, then the ``[matching]`` table of ``--config``, then the
     explicit options (a bad one is named as its option)."""
+    # Here: the config module imports the signal chain (SciPy, scikit-learn),
+    # which building the parser (`mmsnap --help`) must not.
+    from mmsnap_graph.app.config_file import read_matching_config
+
     cfg = MatchingOptions() if args.config is None else read_matching_config(args.config)
     for name in MATCHING_OPTIONS:
         value = getattr(args, name)
@@ -146,6 +149,8 @@ def effective_matching(args: argparse.Namespace) -> MatchingOptions:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmsnap_graph.app.config_file import matching_config_to_toml
+
     matching = effective_matching(args)
     if args.show_config:
         sys.stdout.write(matching_config_to_toml(matching))
@@ -153,11 +158,8 @@ def run(args: argparse.Namespace) -> int:
     if args.recording is None:
         raise ValidationError("mmsnap calibrate: a recording is required (unless --show-config)")
     # Here: `mmsnap --help` does not import GTSAM or h5py.
-    from mmsnap_graph.calibration import RECORDING_JOINT_OPTIONS, calibrate_recording
+    from mmsnap_graph.calibration import RECORDING_JOINT_OPTIONS
     from mmsnap_graph.data.noise import MeasurementNoise
-    from mmsnap_graph.io import read_recording
-    from mmsnap_graph.io.calibration import write_calibration, write_calibration_json
-    from mmsnap_graph.io.noise import write_noise
 
     if args.max_lag is not None and args.max_lag < 0:
         raise ValidationError(f"--max-lag must be >= 0, got {args.max_lag}")
@@ -172,27 +174,21 @@ def run(args: argparse.Namespace) -> int:
             time_offsets=not args.no_time_offsets)
     except ValidationError as exc:
         raise ValidationError(f"--sigma-a: {exc}") from None
-    json_path = check_output_path(
-        args.json if args.json else Path(args.recording).with_suffix("").with_name(
-            Path(args.recording).stem + ".calibration.json"))
+    json_path = check_output_path(args.json if args.json else calibration_json_path(args.recording))
     if args.output is not None and not args.no_write:
         check_output_path(args.output)
-    # The lock spans read -> write: a concurrent `mmsnap process` or `fuse` of
-    # the same file waits instead of being overwritten.
-    with recording_lock(args.recording):
-        rec = read_recording(args.recording, load_cubes=False)
+
+    def options(rec) -> dict:
+        lagged = matching
         if args.max_lag is not None:  # the lag window in frames of this recording
-            matching = dataclasses.replace(matching,
-                                           max_lag_s=args.max_lag * rec.frame_period_s)
-        cal = calibrate_recording(rec, source=args.source, method=args.method, noise=noise,
-                                  matching=matching, joint=joint)
-        print(format_table(cal))
-        write_calibration_json(json_path, cal)
-        print(f"wrote {json_path}")
-        if not args.no_write:
-            path = write_calibration(args.recording, rec, cal, output=args.output)
-            if cal.noise is not None:
-                with recording_lock(path):
-                    write_noise(path, cal.noise)
-            print(f"wrote {path}: node poses, /calibration and /noise")
+            lagged = dataclasses.replace(matching, max_lag_s=args.max_lag * rec.frame_period_s)
+        return dict(source=args.source, method=args.method, noise=noise, matching=lagged,
+                    joint=joint)
+
+    cal, written = calibrate_and_store(args.recording, options, output=args.output,
+                                       json_path=json_path, write=not args.no_write,
+                                       on_result=lambda c: print(format_table(c)))
+    print(f"wrote {written[0]}")
+    if not args.no_write:
+        print(f"wrote {written[1]}: node poses, /calibration and /noise")
     return 0 if cal.success else 1

@@ -72,8 +72,8 @@ def register(subparsers) -> None:
 
 def _check_samples(data_dir, config) -> None:
     """A sample path that exists but is not a file (a folder, a broken
-    link) is an error, not a silent fall-back to simulation (issue 13)."""
-    from ..samples import sample_path
+    link) is an error, not a silent fall-back to simulation."""
+    from ..demo.samples import sample_path
 
     for c in config.configurations:
         for t in config.trajectories:

@@ -17,17 +17,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
 from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.app.runs import DEFAULT_ROBUST, fuse_stored, paper_noise, stored_calibration
 from mmsnap_graph.errors import ValidationError
 
-#: Robust one-shot fusion used unless ``--robust none``: the per-node
-#: residual gate. Measured on clean simulated data (networks A, C and a
-#: 3-node one, straight and random walks, 600 frames, 3 seeds each): the gate
-#: gave the same position RMSE and NEES as no robust fusion (to 3 digits);
-#: Huber raised the RMSE by 0.5-2 % and lowered the NEES by 0.05-0.15.
-DEFAULT_ROBUST = "gate"
+from .arguments import solver_choice
 
 
 def register(subparsers) -> None:
@@ -62,8 +56,10 @@ def register(subparsers) -> None:
                         "the neighbouring frames (default: a target no neighbouring frame "
                         "confirms is refitted without the nodes that disagree, or flagged; "
                         "docs/ROBUST.md)")
-    p.add_argument("--solver", choices=["batch", "gtsam"], default="batch",
-                   help="vectorized batch solver or one GTSAM graph per frame (default %(default)s)")
+    p.add_argument("--solver", type=solver_choice(("vectorized", "gtsam")), default="vectorized",
+                   metavar="{vectorized,gtsam}",
+                   help="the vectorized numpy solver over many frames or one GTSAM graph per "
+                        "frame (default %(default)s)")
     p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
                    help="detections to fuse (default %(default)s)")
     p.add_argument("--gate", type=float, default=0.999,
@@ -79,65 +75,61 @@ def register(subparsers) -> None:
     p.add_argument("--no-time-offsets", action="store_true",
                    help="do not bring the nodes' detections to the reference clock with the "
                         "calibration's clock offsets (default: they are)")
+    p.add_argument("--bounds", type=_bounds, default=None, metavar="XMIN,XMAX,YMIN,YMAX",
+                   help="the room box in the reference frame (m): fused targets outside it are "
+                        "flagged (status 11; e.g. reflections via a wall)")
+    p.add_argument("--bounds-cfg", default=None, metavar="FILE.cfg",
+                   help="the reference radar's people-tracking .cfg: its boundaryBox is the room "
+                        "box, and a target standing still outside its staticBoundaryBox is "
+                        "flagged (docs/ROBUST.md)")
+    p.add_argument("--no-body-check", action="store_true",
+                   help="keep fused targets of a frame closer than a body's width (default: "
+                        "the one seen by fewer nodes is flagged, status 12)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
-def stored_calibration(args, path):
-    """The calibration fusion takes its poses' uncertainty and the clocks
-    from: ``--calibration`` JSON, else the recording's ``/calibration``
-    group, else None."""
-    import h5py
-
-    from mmsnap_graph.io.calibration import CALIBRATION_GROUP, read_calibration, read_calibration_json
-
-    if args.calibration:
-        return read_calibration_json(args.calibration)
-    with h5py.File(path, "r") as f:  # readable: the recording was just read
-        if CALIBRATION_GROUP not in f:
-            return None
-    return read_calibration(path)
+def _bounds(text: str) -> tuple[float, float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4:
+        raise argparse.ArgumentTypeError(f"--bounds {text!r} must look like XMIN,XMAX,YMIN,YMAX "
+                                         "in metres (e.g. -2,1.6,0,3.6)")
+    return values
 
 
-def calibration_options(args, cal) -> tuple[dict, list[str]]:
-    """``fuse_recording`` options from the calibration (pose covariances,
-    clock offsets) and what they are in words."""
-    if cal is None:
-        return {}, ["no calibration: poses exact, clocks as recorded"]
-    opts, text = {}, []
-    covs = {n: c for n, c in cal.covariances.items()
-            if np.all(np.isfinite(c)) and np.any(np.asarray(c) != 0)}
-    if args.no_pose_covariance or not covs:
-        text.append("poses exact" + ("" if args.no_pose_covariance else
-                                     " (the calibration has no pose covariance)"))
-    elif args.covariance != "laplace":
-        text.append("poses exact (pose covariances need --covariance laplace)")
-    else:
-        opts["pose_covariances"] = covs
-        text.append(f"pose covariances of {', '.join(sorted(covs))} included")
-    offsets = {n: float(t) for n, t in getattr(cal, "time_offset_s", {}).items()
-               if float(t) != 0.0}
-    if offsets and not args.no_time_offsets:
-        opts["time_offset_s"] = offsets
-        text.append("clock offsets applied: " + ", ".join(
-            f"{n} {1e3 * t:+.1f} ms" for n, t in sorted(offsets.items())))
-    else:
-        text.append("clocks as recorded")
+def room_options(args) -> tuple[dict, list[str]]:
+    """``fuse_file`` room-frame options from ``--bounds`` / ``--bounds-cfg`` /
+    ``--no-body-check``, and what they are in words."""
+    from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, RoomBounds
+    from mmsnap_graph.io.ti_cfg import read_boundary_boxes
+
+    opts: dict = {"body_m": None if args.no_body_check else DEFAULT_BODY_M}
+    text = ["no body check" if args.no_body_check else f"one target per {DEFAULT_BODY_M:g} m"]
+    box = lambda v: RoomBounds(x_min=v[0], x_max=v[1], y_min=v[2], y_max=v[3])
+    if args.bounds is not None and args.bounds_cfg is not None:
+        raise ValidationError("give --bounds or --bounds-cfg, not both")
+    if args.bounds is not None:
+        try:
+            opts["bounds"] = box(args.bounds)
+        except ValidationError as exc:
+            raise ValidationError(f"--bounds: {exc}") from None
+    elif args.bounds_cfg is not None:
+        boxes = read_boundary_boxes(args.bounds_cfg)
+        if "boundaryBox" not in boxes and "staticBoundaryBox" not in boxes:
+            raise ValidationError(f"--bounds-cfg {args.bounds_cfg}: no boundaryBox or "
+                                  "staticBoundaryBox command")
+        if "boundaryBox" in boxes:
+            opts["bounds"] = box(boxes["boundaryBox"])
+        if "staticBoundaryBox" in boxes:
+            opts["static_bounds"] = box(boxes["staticBoundaryBox"])
+    if "bounds" in opts:
+        text.append(f"room bounds {opts['bounds'].text()}")
+    if "static_bounds" in opts:
+        text.append(f"static bounds {opts['static_bounds'].text()}")
     return opts, text
-
-
-def choose_noise(args, path, node_names):
-    """(noise for ``fuse_recording``, what it is in words): ``--sigmas``, else
-    each node's sigmas of the ``/noise`` group, else the paper's
-    (:func:`mmsnap_graph.io.noise.noise_for_fusion`)."""
-    from mmsnap_graph.data.noise import MeasurementNoise
-    from mmsnap_graph.io.noise import noise_for_fusion
-
-    if args.sigmas is not None:
-        r, w, v = args.sigmas
-        return (MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v),
-                "sigmas from --sigmas")
-    return noise_for_fusion(path, node_names, per_node=True)
 
 
 def motion_text(args) -> str:
@@ -145,8 +137,22 @@ def motion_text(args) -> str:
     return "" if (args.robust == "none" or args.no_motion_check) else ", motion check"
 
 
+def calibration_for(args, path, node_names):
+    """The stored calibration as the options ask for it (poses, their
+    covariances, clock offsets, noise; :func:`mmsnap_graph.app.runs.stored_calibration`)."""
+    if args.no_pose_covariance:
+        covs = False
+    elif args.covariance != "laplace":
+        covs = "poses exact (pose covariances need --covariance laplace)"
+    else:
+        covs = True
+    cal = stored_calibration(path, node_names, calibration_json=args.calibration,
+                             sigmas=args.sigmas, pose_covariances=covs,
+                             time_offsets=not args.no_time_offsets)
+    return cal.with_default_noise(*paper_noise())
+
+
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph.app.chunked_fuse import fuse_file
     from mmsnap_graph.io.chunks import open_detection_windows
 
     if args.grid_points < 5 or args.grid_points % 2 == 0:
@@ -157,24 +163,29 @@ def run(args: argparse.Namespace) -> int:
     # `calibrate` of the same file waits instead of being overwritten.
     with recording_lock(args.recording):
         # Node names only: the detections are read, fused and written window
-        # by window (long recordings in bounded memory, issue 13).
+        # by window (long recordings in bounded memory).
         names = open_detection_windows(args.recording, source=args.source).node_names
-        noise, noise_text = choose_noise(args, args.recording, names)
-        cal = stored_calibration(args, args.recording)
-        options, cal_text = calibration_options(args, cal)
-        print(noise_text, file=sys.stdout)
-        print("; ".join(cal_text), file=sys.stdout)
-        poses = dict(cal.poses) if (cal is not None and args.calibration) else None
-        fused = fuse_file(args.recording, output=args.output, node_poses=poses, mode=args.mode,
-                          **options, covariance=args.covariance, noise=noise,
-                          solver=args.solver, source=args.source, gate_probability=args.gate,
-                          grid_points_per_axis=args.grid_points,
-                          progress=False if args.no_progress else None,
-                          robust=None if args.robust == "none" else args.robust,
-                          motion_check=args.robust != "none" and not args.no_motion_check)
+        cal = calibration_for(args, args.recording, names)
+        room, room_text = room_options(args)
+        for line in cal.text:
+            print(line, file=sys.stdout)
+        print("; ".join(room_text), file=sys.stdout)
+        from mmsnap_graph.fusion.options import FusionOptions
+
+        fusion = FusionOptions(covariance=args.covariance, solver=args.solver,
+                               source=args.source, gate_probability=args.gate,
+                               grid_points_per_axis=args.grid_points,
+                               motion_check=args.robust != "none" and not args.no_motion_check)
+        options = dict(mode=args.mode, robust=None if args.robust == "none" else args.robust,
+                       options=fusion, **room)
+        fused, _ = fuse_stored(args.recording, options, output=args.output, calibration=cal,
+                               progress=False if args.no_progress else None)
     n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
     print(f"fused {fused.n_rows} targets in {frames} frames ({args.mode}, {args.covariance}, "
           f"{args.solver}, robust {args.robust}{motion_text(args)}): {n_ok} succeeded, "
           f"{fused.n_rows - n_ok} "
           f"flagged; wrote {path}:/fused", file=sys.stdout)
+    if fused.room.outside or fused.room.duplicate:
+        print(f"room checks flagged {fused.room.outside} target(s) outside the bounds and "
+              f"{fused.room.duplicate} duplicate(s) of a body", file=sys.stdout)
     return 0

@@ -2,9 +2,12 @@
 
 Runs the decalibration monitor (:mod:`mmsnap_graph.calibration.monitor.decalibration`,
 docs/CALIBRATION.md "Noticing a moved radar") over the recording's centroids
-with the recording's node poses and, when ``mmsnap calibrate`` stored them,
-their covariances (else ``--poses`` from a calibration JSON), and prints every change
-point (node, time, frame, statistic) and the re-calibrated poses. Read-only:
+with what ``mmsnap calibrate`` stored, read as ``mmsnap fuse`` reads it
+(:func:`mmsnap_graph.app.runs.stored_calibration`): the node poses (or
+``--poses`` from a calibration JSON), their covariances, the clock offsets
+and the ``/noise`` sigmas (pooled over the nodes: the monitor takes one
+noise). Prints every change point (node, time, frame, statistic) and the
+re-calibrated poses. Read-only:
 the recording is not changed. Exit status 0 whether or not a change was found,
 1 when a re-calibration failed, 2 on an error.
 """
@@ -31,8 +34,10 @@ def register(subparsers) -> None:
     p.add_argument("--poses", default=None, metavar="CALIBRATION_JSON",
                    help="node poses from this calibration JSON instead of the recording's")
     p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
-                   default=None, help="centroid noise (default: the recording's centroid_*_std "
-                                      "metadata, else the paper's resolutions)")
+                   default=None, help="centroid noise of every node (default: the recording's "
+                                      "/noise group pooled over the nodes, stored by `mmsnap "
+                                      "calibrate`; else the centroid_*_std metadata; else the "
+                                      "paper's resolutions)")
     p.add_argument("--threshold", type=float, default=None,
                    help="change threshold on the statistic (default: chi-square(3) at 1e-7, "
                         "about 35.4)")
@@ -90,28 +95,26 @@ def result_json(result) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmsnap_graph.app.runs import stored_calibration
     from mmsnap_graph.calibration.monitor.decalibration import DEFAULT_THRESHOLD, monitor_recording
-    from mmsnap_graph.data.noise import MeasurementNoise
+    from mmsnap_graph.fusion.recording.timing import align_recording
     from mmsnap_graph.io import read_recording
-    from mmsnap_graph.errors import FileFormatError
-    from mmsnap_graph.io.calibration import load_calibration_poses, read_calibration
 
     json_path = check_output_path(args.json) if args.json else None
     rec = read_recording(args.recording, load_cubes=False)
-    poses = load_calibration_poses(args.poses) if args.poses else None
-    covariances = None
-    if poses is None:
-        try:   # the calibration's covariances when `mmsnap calibrate` stored them
-            covariances = dict(read_calibration(args.recording).covariances)
-        except FileFormatError:
-            covariances = None
-    noise = None
-    if args.sigmas is not None:
-        r, w, v = args.sigmas
-        noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
+    cal = stored_calibration(args.recording, rec.node_names, calibration_json=args.poses,
+                             sigmas=args.sigmas, per_node_noise=False)
+    if cal.noise is None:
+        text = ("no /noise group (run `mmsnap calibrate` or `mmsnap noise`): the recording's "
+                "centroid noise metadata, else the paper's sigmas")
+        cal = cal.with_default_noise(None, text)
+    print("\n".join(cal.text))
+    if cal.time_offset_s:  # the centroids on the reference clock, as `mmsnap fuse` fuses them
+        rec = align_recording(rec, cal.time_offset_s)
     threshold = DEFAULT_THRESHOLD if args.threshold is None else args.threshold
-    result = monitor_recording(rec, node_poses=poses, node_covariances=covariances,
-                               noise=noise, threshold=threshold,
+    result = monitor_recording(rec, node_poses=cal.node_poses,
+                               node_covariances=cal.pose_covariances,
+                               noise=cal.noise, threshold=threshold,
                                recalibration_s=args.recalibration_s)
     print(format_result(result))
     if json_path is not None:

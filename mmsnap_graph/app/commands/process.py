@@ -8,15 +8,13 @@ import dataclasses
 import sys
 
 from mmsnap_graph._atomic import check_output_path
-from mmsnap_graph.app.config_file import (
-    SPARSE_VALUES,
-    ProcessConfig,
-    process_config_to_toml,
-    read_process_config,
-)
 from mmsnap_graph.errors import ConfigurationError, ValidationError
-from mmsnap_graph.radar.cfar import CfarConfig
-from mmsnap_graph.tracking.ekf import EkfConfig
+
+#: Defaults quoted in the help: ``CfarConfig().pfa`` and
+#: ``EkfConfig().sigma_a_mps2``, written out so that building the parser
+#: (``mmsnap --help``) does not import the signal chain, SciPy and
+#: scikit-learn (a test keeps them equal).
+HELP_DEFAULTS = {"pfa": 1e-6, "sigma_a_mps2": 1.0}
 
 
 def register(subparsers) -> None:
@@ -41,21 +39,37 @@ def register(subparsers) -> None:
                         "TOML and exit")
     p.add_argument("--pfa", type=float, default=None,
                    help=f"OS-CFAR false-alarm probability per cell; overrides the file "
-                        f"(default {CfarConfig().pfa:g})")
+                        f"(default {HELP_DEFAULTS['pfa']:g})")
     p.add_argument("--sigma-a", type=float, default=None,
                    help=f"EKF white-acceleration std, m/s^2; overrides the file "
-                        f"(default {EkfConfig().sigma_a_mps2:g})")
+                        f"(default {HELP_DEFAULTS['sigma_a_mps2']:g})")
     p.add_argument("--sparse", choices=["auto", "on", "off"], default=None,
                    help="cluster stored point clouds as sparse (DBSCAN min_samples=1: a "
                         "person's 2-3 points are a centroid): when the median non-empty frame "
                         "holds fewer than 6 points (auto), always (on) or never (off); "
                         "overrides the file's [chain.cluster] sparse (default auto)")
+    p.add_argument("--no-static-scene", action="store_true",
+                   help="stored point clouds: keep zero-Doppler points of the static scene "
+                        "(default: dropped where a background map learned over the recording "
+                        "finds them; docs/TI.md)")
+    p.add_argument("--no-body-merge", action="store_true",
+                   help="stored point clouds: do not merge centroids of a frame closer than a "
+                        "body's width (0.5 m)")
+    p.add_argument("--no-ghost-filter", action="store_true",
+                   help="stored point clouds: keep multipath ghosts (a weaker centroid further "
+                        "along the same bearing with a consistent Doppler)")
+    p.add_argument("--no-existence-check", action="store_true",
+                   help="stored point clouds: keep centroids that no neighbouring frame "
+                        "confirms (one-frame blips)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
-def effective_config(args: argparse.Namespace) -> ProcessConfig:
-    """Defaults, then the ``--config`` file, then the explicit options."""
+def effective_config(args: argparse.Namespace):
+    """Defaults, then the ``--config`` file, then the explicit options: a
+    :class:`~mmsnap_graph.app.config_file.ProcessConfig`."""
+    from mmsnap_graph.app.config_file import SPARSE_VALUES, ProcessConfig, read_process_config
+
     cfg = ProcessConfig() if args.config is None else read_process_config(args.config)
     chain, ekf = cfg.chain, cfg.ekf
     try:
@@ -70,7 +84,16 @@ def effective_config(args: argparse.Namespace) -> ProcessConfig:
                          sparse=sparse)
 
 
+def scene_config(args: argparse.Namespace):
+    """The scene filters of stored point clouds, each on unless switched off."""
+    from mmsnap_graph.radar.scene import SceneConfig
+    return SceneConfig(static=not args.no_static_scene, merge=not args.no_body_merge,
+                       ghosts=not args.no_ghost_filter, existence=not args.no_existence_check)
+
+
 def run(args: argparse.Namespace) -> int:
+    from mmsnap_graph.app.config_file import process_config_to_toml
+
     cfg = effective_config(args)
     if args.show_config:
         sys.stdout.write(process_config_to_toml(cfg))
@@ -86,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     path, reports = process_file(args.recording, output=args.output, config=config, ekf=ekf,
                                  centroids_only=args.centroids_only, progress=progress,
                                  ekf_noise="data" if cfg.ekf_noise_from_data else "config",
-                                 sparse=cfg.sparse)
+                                 sparse=cfg.sparse, scene=scene_config(args))
     for rep in reports.values():
         print(f"{rep.name}: {rep.level}: {rep.n_points} points, {rep.n_centroids} centroids, "
               f"{rep.n_tracks} tracks ({rep.message})")

@@ -1,6 +1,9 @@
 """``mmsnap replay``: stream a recording frame by frame through the online API
 (:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`, docs/STREAMING.md).
 
+Fuses with what ``mmsnap calibrate`` stored, read as ``mmsnap fuse`` reads it
+(:func:`mmsnap_graph.app.runs.stored_calibration`: poses or ``--calibration``,
+their covariances, the clock offsets, the ``/noise`` sigmas), said on stderr.
 Prints one line per frame (or only the summary with ``--summary``); with
 ``--realtime`` the frames are paced at the recorded frame rate (``--speed``
 times faster). Writes nothing unless ``--output`` is given (one JSON object
@@ -19,6 +22,8 @@ import numpy as np
 
 from mmsnap_graph.errors import ValidationError
 
+from .arguments import solver_choice
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -29,17 +34,19 @@ def register(subparsers) -> None:
                     "print one line per frame and a latency summary.")
     p.add_argument("recording", help="HDF5 recording (docs/FORMAT.md)")
     p.add_argument("--calibration", default=None,
-                   help="calibration JSON; default: the poses stored in the recording")
+                   help="calibration JSON; default: the poses stored in the recording (either "
+                        "way with their covariances and clock offsets, and the /noise sigmas)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the frames at the recorded frame rate")
     p.add_argument("--speed", type=float, default=None,
                    help="with --realtime (implied), play X times faster than recorded")
     p.add_argument("--mode", choices=["map", "ml"], default="map",
                    help="MAP with the paper's prior, or maximum likelihood (default %(default)s)")
-    p.add_argument("--solver", choices=["numpy", "gtsam", "batch"], default="numpy",
-                   help="the single-frame numpy solver (GTSAM's steps, docs/STREAMING.md), one "
-                        "GTSAM graph per group, or the batch solver on the frame's groups "
-                        "(default %(default)s)")
+    p.add_argument("--solver", type=solver_choice(("scalar", "gtsam", "vectorized")), default="scalar",
+                   metavar="{scalar,gtsam,vectorized}",
+                   help="the scalar solver (one frame in plain floats, GTSAM's steps, "
+                        "docs/STREAMING.md), one GTSAM graph per group, or the vectorized "
+                        "solver on the frame's groups (default %(default)s)")
     p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
                    help="detections to stream (default %(default)s)")
     p.add_argument("--gate", type=float, default=0.999,
@@ -90,17 +97,27 @@ def _summary(latencies, n_frames, n_bad, n_groups, n_ok, n_tracks_max) -> str:
 def run(args: argparse.Namespace) -> int:
     # Deferred as in the other commands: building the parser imports no numerics or h5py.
     from mmsnap_graph._atomic import atomic_path
+    from mmsnap_graph.app.runs import paper_noise, stored_calibration
     from mmsnap_graph.data.noise import GaussianPrior
     from mmsnap_graph.fusion.recording.sequence import recording_poses
     from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
+    from mmsnap_graph.fusion.recording.timing import align_recording
     from mmsnap_graph.io import read_recording
-    from mmsnap_graph.io.calibration import load_calibration_poses
 
     speed = _check_args(args)
     rec = read_recording(args.recording, load_cubes=False)
-    poses = recording_poses(rec, load_calibration_poses(args.calibration) if args.calibration else None)
+    cal = stored_calibration(args.recording, rec.node_names, calibration_json=args.calibration)
+    cal = cal.with_default_noise(*paper_noise())
+    print("\n".join(cal.text), file=sys.stderr)  # stdout: one line per frame
+    if cal.time_offset_s:
+        if args.source != "centroids":
+            raise ValidationError("the calibration's clock offsets align centroids: use "
+                                  "--source centroids")
+        rec = align_recording(rec, cal.time_offset_s)
+    poses = recording_poses(rec, cal.node_poses)
     stream = FrameStream(rec.node_names, poses, solver=args.solver, gate_probability=args.gate,
-                         prior=GaussianPrior() if args.mode == "map" else None)
+                         prior=GaussianPrior() if args.mode == "map" else None,
+                         noise=cal.noise, pose_covariances=cal.pose_covariances)
     fill = stream.tracker_config.max_misses
     out = atomic_path(args.output) if args.output else None
     with (out if out is not None else _Null()) as path:

@@ -112,10 +112,13 @@ def run(args: argparse.Namespace) -> int:
             shutil.rmtree(tmpdir, ignore_errors=True)
     for name, node in rec.nodes.items():
         parts = []
-        if node.centroids is not None:
-            parts.append(f"{len(node.centroids)} centroids")
-        if node.point_cloud is not None:
-            parts.append(f"{len(node.point_cloud)} points")
+        for level, noun in (("centroids", "centroids"), ("point_cloud", "points")):
+            det = getattr(node, level)
+            if det is not None:
+                other = int((det.target_id < 0).sum()) if det.target_id is not None else 0
+                parts.append(f"{len(det)} {noun}" + (
+                    f" ({other} not of a person: static scene, mirror images, split halves, "
+                    "false alarms)" if other else ""))
         if node.cube is not None:
             parts.append(f"{node.cube.shape[0]} cubes")
         print(f"{name}: " + ", ".join(parts))

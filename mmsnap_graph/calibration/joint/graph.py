@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from factors.gtsam_factors import (
     constant_velocity_factor,
@@ -27,6 +26,7 @@ from factors.gtsam_factors import (
 )
 from factors.models import measurement_model, residual
 
+from ..._validation import chi2_gate
 from ..poses import pose_array, to_pose2
 from .presolve import motion_norms, shifted_states
 
@@ -170,10 +170,10 @@ def _whitened_sq(state, pose, z, sigmas):
     return np.sum(e**2, axis=-1)
 
 
-def flag_outliers(graph, poses, states, offsets, has, sig, outlier_probability):
+def flag_outliers(graph, poses, states, offsets, has, sig, gate_probability):
     """name -> (F,) bool: detections whose whitened squared residual exceeds
-    the chi-square(3) ``1 - outlier_probability`` quantile."""
-    threshold = chi2.ppf(1.0 - outlier_probability, 3)
+    the chi-square(3) ``gate_probability`` quantile."""
+    threshold = chi2_gate(gate_probability, 3)
     outliers = {}
     for n in graph.active:
         e2 = np.full(graph.f, 0.0)
@@ -223,7 +223,7 @@ def _frame_refit(graph, poses, states, offsets, use, rows, sig, prior_sig, gn_st
 
 
 def exonerate_turns(graph, poses, states, offsets, has, outliers, sig, prior_sig,
-                    outlier_probability, gn_steps=3):
+                    gate_probability, gn_steps=3):
     """Unflag the detections of the frames that a new velocity explains
     (docs/CALIBRATION.md, "Sharp turns"). At an instant turn the motion factors smooth
     the velocity across the turn (and cut its corner by a few cm): every
@@ -232,7 +232,7 @@ def exonerate_turns(graph, poses, states, offsets, has, outliers, sig, prior_sig
     the position (its range is random). So a flagged frame is refitted alone
     (:func:`_frame_refit`: no motion factors, a free velocity, the position
     tied to the robust pass's): if its whitened squared residual is below the
-    chi-square(3 m) ``1 - outlier_probability`` quantile (m >= 2 detections),
+    chi-square(3 m) ``gate_probability`` quantile (m >= 2 detections),
     the motion model misfit, not a detection, and none of its detections is
     an outlier. Returns the new outliers and the indices of those frames
     (measured: docs/CALIBRATION.md, "Sharp turns")."""
@@ -244,7 +244,7 @@ def exonerate_turns(graph, poses, states, offsets, has, outliers, sig, prior_sig
         return outliers, rows
     chi, count = _frame_refit(graph, poses, states, offsets, has, rows, sig, prior_sig, gn_steps)
     dof = 3 * count
-    ok = (count >= 2) & (chi <= chi2.ppf(1.0 - outlier_probability, dof))
+    ok = (count >= 2) & (chi <= chi2_gate(gate_probability, np.maximum(dof, 1)))
     turn_frames = rows[ok]
     new = {}
     for n in graph.active:
@@ -254,13 +254,13 @@ def exonerate_turns(graph, poses, states, offsets, has, outliers, sig, prior_sig
     return new, turn_frames
 
 
-def flag_turns(motion: MotionSpec | None, norms: NDArray | None, outlier_probability):
+def flag_turns(motion: MotionSpec | None, norms: NDArray | None, gate_probability):
     """(G,) bool: motion factors whose whitened squared norm exceeds the
-    chi-square(4) ``1 - outlier_probability`` quantile (a turn sharper than the
+    chi-square(4) ``gate_probability`` quantile (a turn sharper than the
     white acceleration explains), or None without motion factors."""
     if motion is None or norms is None:
         return None
-    return norms**2 > chi2.ppf(1.0 - outlier_probability, 4)
+    return norms**2 > chi2_gate(gate_probability, 4)
 
 
 def _node_covariances(marg, graph, covs, variances):

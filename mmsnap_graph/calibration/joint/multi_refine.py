@@ -22,6 +22,7 @@ from typing import Mapping
 
 import numpy as np
 
+from ..._validation import check_count
 from ...data.noise import MeasurementNoise
 from ...data.recording import Recording
 from ...errors import CalibrationError, ValidationError
@@ -29,6 +30,7 @@ from .options import JointOptions
 from .solve import JointCalibration, joint_calibration
 from .multi_target import (
     ASSOCIATION_NOISE,
+    AssociationOptions,
     TargetAssociation,
     TargetMapping,
     joint_detections_multi,
@@ -110,7 +112,7 @@ def _one_round(recording, names, poses, covariances, lag_frames, noise,
     or None when fewer than two nodes have associated centroids."""
     dets, mapping, assoc = joint_detections_multi(
         recording, names, poses, lag_frames, covariances=covariances,
-        max_motion_gap_frames=options.max_motion_gap_frames, **association)
+        max_motion_gap_frames=options.max_motion_gap_frames, association=association)
     if dets is None:
         return None
     data = dict(reference=names[0], initial_poses={n: poses[n] for n in dets},
@@ -135,7 +137,7 @@ def _one_round(recording, names, poses, covariances, lag_frames, noise,
 
 def refine_associated(recording: Recording, names, poses, covariances, lag_frames, *,
                       noise: MeasurementNoise | None, options: JointOptions,
-                      association: Mapping | None = None,
+                      association: AssociationOptions | None = None,
                       n_rounds: int = DEFAULT_ROUNDS) -> MultiTargetRefinement | None:
     """Rounds of association and joint solve (module doc) from ``poses``
     (``covariances`` may be None) of ``names`` (the first is the reference);
@@ -146,9 +148,9 @@ def refine_associated(recording: Recording, names, poses, covariances, lag_frame
     association leaves fewer than two nodes."""
     if not isinstance(options, JointOptions):
         raise ValidationError(f"options must be a JointOptions, got {options!r}")
-    if isinstance(n_rounds, bool) or int(n_rounds) < 1:
-        raise ValidationError(f"n_rounds must be an integer >= 1, got {n_rounds!r}")
-    given = dict(association or {})
+    check_count(n_rounds, "n_rounds")
+    given = AssociationOptions() if association is None else association
+    learn_gates = given.noise is None
     best = None
     for _ in range(int(n_rounds)):
         out = _one_round(recording, names, poses, covariances, lag_frames, noise, options,
@@ -164,8 +166,8 @@ def refine_associated(recording: Recording, names, poses, covariances, lag_frame
         # widening covers errors that last seconds, not a frame's misfit.
         marg = out.joint.model_covariances or out.joint.covariances
         covariances = {n: marg[n] for n in out.joint.poses}
-        if "noise" not in given:
-            given = {**given, "noise": _association_noise(out.noise)}
+        if learn_gates:
+            given = dataclasses.replace(given, noise=_association_noise(out.noise))
     return best
 
 
@@ -175,7 +177,7 @@ def refine_multi(
     options: JointOptions = MULTI_JOINT_OPTIONS,
     *,
     noise: MeasurementNoise | None = None,
-    association: Mapping | None = None,
+    association: AssociationOptions | None = None,
     n_rounds: int = DEFAULT_ROUNDS,
 ) -> MultiTargetRefinement:
     """The joint calibration graph on several people, from the pose graph
@@ -190,8 +192,9 @@ def refine_multi(
         :func:`calibrate_recording` does.
     options : the joint graph's (:class:`JointOptions`; default
         :data:`MULTI_JOINT_OPTIONS`); clock offsets are not estimated here.
-    association : options of :func:`associate_targets` (its ``noise``, when
-        given, is kept in every round).
+    association : the gates of :func:`associate_targets`
+        (:class:`AssociationOptions`; its ``noise``, when given, is kept in
+        every round).
     n_rounds : rounds of association and joint solve (module doc; 1: one
         association with the pose graph's poses).
     Raises :class:`CalibrationError` when fewer than two nodes have an

@@ -51,17 +51,17 @@ from typing import Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
 
 from factors.models import detection_covariance_global, detection_to_global, detection_to_local
 
 from ...data.noise import MeasurementNoise
 from ...data.recording import Detections, Recording
 from ...errors import CalibrationError, ValidationError
-from ..._validation import check_positive
+from ..._validation import check_count, check_positive, check_probability, chi2_gate
 from .solve import JointCalibration
 
-__all__ = ["ASSOCIATION_NOISE", "TargetMapping", "TargetAssociation", "associate_targets",
+__all__ = ["ASSOCIATION_NOISE", "AssociationOptions", "TargetMapping", "TargetAssociation",
+           "associate_targets",
            "joint_detections_multi", "target_states"]
 
 #: Centroid noise assumed by the association gates when none is given: the
@@ -293,45 +293,14 @@ def _link(g_frame, g_centre, g_vel, usable, frame_period_s, link_gate_m, velocit
     return track, len(last_frame), n_breaks
 
 
-def _check_options(gate_probability, pose_inflation, floor_m, link_gate_m, velocity_error_mps,
-                   ambiguity_m, max_gap_s, noise):
-    if not 0 < gate_probability < 1:
-        raise ValidationError(f"gate_probability={gate_probability!r} must lie in (0, 1)")
-    check_positive(pose_inflation, "pose_inflation", strict=False)
-    check_positive(floor_m, "floor_m")
-    check_positive(link_gate_m, "link_gate_m")
-    check_positive(velocity_error_mps, "velocity_error_mps")
-    check_positive(ambiguity_m, "ambiguity_m", strict=False)
-    check_positive(max_gap_s, "max_gap_s")
-    if not isinstance(noise, MeasurementNoise):
-        raise ValidationError(f"noise must be a MeasurementNoise, got {noise!r}")
+@dataclass(frozen=True, kw_only=True, slots=True)
+class AssociationOptions:
+    """How :func:`associate_targets` groups and links the centroids.
 
-
-def associate_targets(
-    recording: Recording,
-    names: Sequence[str],
-    poses: Mapping[str, ArrayLike],
-    lag_frames: Mapping[str, int],
-    *,
-    covariances: Mapping[str, ArrayLike] | None = None,
-    noise: MeasurementNoise = ASSOCIATION_NOISE,
-    gate_probability: float = 0.999,
-    pose_inflation: float = 3.0,
-    floor_m: float = 0.1,
-    link_gate_m: float = 0.3,
-    velocity_error_mps: float = 1.0,
-    ambiguity_m: float = 0.1,
-    max_gap_s: float = 0.5,
-) -> TargetAssociation:
-    """Assign every node's centroids to common target tracks (module doc,
-    steps 1-3).
-
-    names : the nodes to associate (each with a pose in ``poses``).
-    poses, lag_frames, covariances : the calibration in progress (e.g. a
-        :class:`~mmsnap_graph.calibration.pairwise.pose_graph.PoseGraphCalibration`'s
-        ``poses``, ``lag_frames`` and ``covariances``; no covariances: the
-        floor only).
-    noise : centroid noise of the gates (range and spatial frequency).
+    noise : centroid noise of the gates (range and spatial frequency); None:
+        :data:`ASSOCIATION_NOISE` (and, in the rounds of
+        :func:`~mmsnap_graph.calibration.joint.multi_refine.refine_associated`,
+        the noise learned from the previous round).
     gate_probability : chi-square(2) gate of two centroids being one target.
     pose_inflation, floor_m : the pose covariance is scaled by
         ``pose_inflation ** 2`` and ``floor_m ** 2 I`` added to every
@@ -343,20 +312,63 @@ def associate_targets(
     ambiguity_m : a link is not made when another candidate is less than
         this farther (two people close together): the track ends there.
     """
-    _check_options(gate_probability, pose_inflation, floor_m, link_gate_m, velocity_error_mps,
-                   ambiguity_m, max_gap_s, noise)
+
+    noise: MeasurementNoise | None = None
+    gate_probability: float = 0.999
+    pose_inflation: float = 3.0
+    floor_m: float = 0.1
+    link_gate_m: float = 0.3
+    velocity_error_mps: float = 1.0
+    ambiguity_m: float = 0.1
+    max_gap_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "gate_probability",
+                           check_probability(self.gate_probability, "gate_probability"))
+        for name, strict in (("pose_inflation", False), ("floor_m", True), ("link_gate_m", True),
+                             ("velocity_error_mps", True), ("ambiguity_m", False),
+                             ("max_gap_s", True)):
+            value = check_positive(getattr(self, name), name, strict=strict)
+            object.__setattr__(self, name, float(value))
+        if self.noise is not None and not isinstance(self.noise, MeasurementNoise):
+            raise ValidationError(f"noise must be a MeasurementNoise or None, got {self.noise!r}")
+
+
+def associate_targets(
+    recording: Recording,
+    names: Sequence[str],
+    poses: Mapping[str, ArrayLike],
+    lag_frames: Mapping[str, int],
+    *,
+    covariances: Mapping[str, ArrayLike] | None = None,
+    options: AssociationOptions | None = None,
+) -> TargetAssociation:
+    """Assign every node's centroids to common target tracks (module doc,
+    steps 1-3).
+
+    names : the nodes to associate (each with a pose in ``poses``).
+    poses, lag_frames, covariances : the calibration in progress (e.g. a
+        :class:`~mmsnap_graph.calibration.pairwise.pose_graph.PoseGraphCalibration`'s
+        ``poses``, ``lag_frames`` and ``covariances``; no covariances: the
+        floor only).
+    options : the gates (:class:`AssociationOptions`; None: its defaults).
+    """
+    o = AssociationOptions() if options is None else options
+    if not isinstance(o, AssociationOptions):
+        raise ValidationError(f"options must be an AssociationOptions, got {o!r}")
+    noise = ASSOCIATION_NOISE if o.noise is None else o.noise
     names = [str(n) for n in names]
     missing = [n for n in names if n not in poses or n not in recording.nodes]
     if missing:
         raise ValidationError(f"nodes {missing} have no pose or are not in the recording")
     frame, node, row, pts, cov, radial, doppler = _global_rows(recording, names, poses, covariances, lag_frames,
-                                              noise, float(pose_inflation), float(floor_m))
+                                              noise, o.pose_inflation, o.floor_m)
     row_group, g_frame, g_centre, g_vel, g_size = _groups(
-        frame, node, pts, cov, radial, doppler, float(chi2.ppf(gate_probability, 2)))
-    max_gap = max(1, int(np.ceil(max_gap_s / recording.frame_period_s - 1e-9)))
+        frame, node, pts, cov, radial, doppler, chi2_gate(o.gate_probability, 2))
+    max_gap = max(1, int(np.ceil(o.max_gap_s / recording.frame_period_s - 1e-9)))
     g_track, n_tracks, n_breaks = _link(g_frame, g_centre, g_vel, g_size >= 2,
-                                        recording.frame_period_s, float(link_gate_m),
-                                        float(velocity_error_mps), float(ambiguity_m), max_gap)
+                                        recording.frame_period_s, o.link_gate_m,
+                                        o.velocity_error_mps, o.ambiguity_m, max_gap)
     target, frames = {}, {}
     for i, n in enumerate(names):
         det = recording.nodes[n].centroids
@@ -394,12 +406,12 @@ def joint_detections_multi(
     *,
     covariances: Mapping[str, ArrayLike] | None = None,
     max_motion_gap_frames: int = 3,
-    **association,
+    association: AssociationOptions | None = None,
 ) -> tuple[dict[str, Detections] | None, TargetMapping | None, TargetAssociation]:
     """Each node's associated centroids for :func:`joint_calibration`, one
     row per (virtual frame = target x frame), module doc.
 
-    association : options of :func:`associate_targets`.
+    association : the gates of :func:`associate_targets`.
     max_motion_gap_frames : the joint graph's (target blocks are one frame
         further apart, so that no motion factor joins two targets).
     Returns ``(detections, mapping, association)``, detections in the order
@@ -408,11 +420,9 @@ def joint_detections_multi(
     have an associated centroid. ``target_id`` of the detections is the
     target track.
     """
-    if isinstance(max_motion_gap_frames, bool) or int(max_motion_gap_frames) < 1:
-        raise ValidationError(f"max_motion_gap_frames must be an integer >= 1, got "
-                              f"{max_motion_gap_frames!r}")
+    check_count(max_motion_gap_frames, "max_motion_gap_frames")
     assoc = associate_targets(recording, names, poses, lag_frames, covariances=covariances,
-                              **association)
+                              options=association)
     first = str(names[0])
     if (sum(bool(np.any(t >= 0)) for t in assoc.target.values()) < 2
             or not np.any(assoc.target[first] >= 0)):

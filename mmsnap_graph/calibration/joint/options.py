@@ -17,7 +17,7 @@ import numpy as np
 from factors.robust import ROBUST_K_DEFAULT
 
 from ...errors import ValidationError
-from ..._validation import check_positive, frozen_vector
+from ..._validation import check_count, check_positive, check_probability, frozen_vector
 from ..pairwise.closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
 from .covariance import DEFAULT_BANDWIDTH_S
 
@@ -33,12 +33,6 @@ DEFAULT_ROBUST_K = ROBUST_K_DEFAULT
 DEFAULT_MOTION_ROBUST_K = 3.0
 
 _KERNELS = (None, "huber", "cauchy")
-
-
-def _count(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValidationError(f"{name} must be an integer >= 1, got {value!r}")
-    return int(value)
 
 
 def _flag(value, name: str) -> bool:
@@ -62,15 +56,17 @@ class JointOptions:
         4-vector norm in the robust pass (with ``robust`` set), so that a
         sharp turn bends the track instead of making its detections
         outliers; the motion factors it finds beyond the chi-square(4)
-        ``1 - outlier_probability`` quantile (the turns) are left out of the
+        gate of ``gate_probability`` (the turns) are left out of the
         final Gaussian pass. None: Gaussian motion factors throughout.
     time_offsets : estimate each non-reference node's clock offset jointly
         with the poses (docs/CALIBRATION.md, "Clock offsets"); the node's
         detection at frame ``k`` is of the state ``F(tau) x_k``.
     state_prior_sigmas : (4,) sigmas of the zero-mean state prior (m, m,
         m/s, m/s).
-    outlier_probability : a detection whose whitened squared residual exceeds
-        the chi-square(3) ``1 - outlier_probability`` quantile is an outlier.
+    gate_probability : the probability of keeping a consistent detection:
+        a detection whose whitened squared residual exceeds the chi-square(3)
+        ``gate_probability`` quantile is an outlier (0.999: one consistent
+        detection in 1,000 is flagged).
     min_common_frames : fewer frames seen by two nodes raise CalibrationError.
     min_spread_m : the robust start's closed forms need the target to move
         this far in each node.
@@ -112,7 +108,7 @@ class JointOptions:
     motion_robust_k: float = DEFAULT_MOTION_ROBUST_K
     time_offsets: bool = False
     state_prior_sigmas: tuple[float, float, float, float] = (1e3, 1e3, 3.5, 3.5)
-    outlier_probability: float = 1e-3
+    gate_probability: float = 0.999
     min_common_frames: int = DEFAULT_MIN_COMMON_FRAMES
     min_spread_m: float = DEFAULT_MIN_SPREAD_M
     max_pose_variance: float = 1.0
@@ -138,16 +134,14 @@ class JointOptions:
             raise ValidationError(f"min_spread_m must be >= 0, got {self.min_spread_m!r}")
         object.__setattr__(self, "min_spread_m", float(self.min_spread_m))
         for name in ("max_motion_gap_frames", "min_common_frames", "max_iterations"):
-            object.__setattr__(self, name, _count(getattr(self, name), name))
+            object.__setattr__(self, name, check_count(getattr(self, name), name))
         for name in ("motion", "time_offsets", "presolve", "state_covariances"):
             object.__setattr__(self, name, _flag(getattr(self, name), name))
         prior = check_positive(frozen_vector(self.state_prior_sigmas, "state_prior_sigmas", 4),
                                "state_prior_sigmas")
         object.__setattr__(self, "state_prior_sigmas", tuple(float(v) for v in prior))
-        p = self.outlier_probability
-        if isinstance(p, bool) or not isinstance(p, (int, float, np.floating)) or not 0 < p < 1:
-            raise ValidationError(f"outlier_probability must lie in (0, 1), got {p!r}")
-        object.__setattr__(self, "outlier_probability", float(p))
+        object.__setattr__(self, "gate_probability",
+                           check_probability(self.gate_probability, "gate_probability"))
         if self.range_offset_prior_m is not None:
             mean, sigma = frozen_vector(self.range_offset_prior_m, "range_offset_prior_m", 2)
             if not (np.isfinite(mean) and abs(mean) <= 1.0):

@@ -19,7 +19,7 @@ refit that drops frames whose alignment residual is far above the median)
 gives the initial poses, a pose graph over all node pairs when N > 2
 (:mod:`.robust_start`); LM solves, after a numpy pre-solve of the same graph
 (:mod:`.presolve`). With a robust kernel, detections whose whitened residual
-exceeds the chi-square(3) ``outlier_probability`` quantile are flagged as outliers and a
+exceeds the chi-square(3) ``gate_probability`` quantile are flagged as outliers and a
 final Gaussian LM pass on the inliers gives the estimate and
 ``gtsam.Marginals`` the covariances (a robust kernel's weights would inflate
 them). When the marginals are singular or a pose variance exceeds
@@ -347,7 +347,7 @@ def _robust_pass(graph, start, sig, options: JointOptions, params):
     return poses, states, offsets, iterations, initial_error
 
 
-def _final_motion(graph, states, robust, turn_frames, outlier_probability):
+def _final_motion(graph, states, robust, turn_frames, gate_probability):
     """The motion factors of the final Gaussian pass: without the turns,
     which would otherwise pull the states off the detections -- the factors
     into and out of the frames :func:`exonerate_turns` found, and under a
@@ -358,7 +358,7 @@ def _final_motion(graph, states, robust, turn_frames, outlier_probability):
     m = graph.motion
     turns = np.isin(m.index, turn_frames) | np.isin(m.index + 1, turn_frames)
     if robust is not None and m.robust is not None:
-        turns |= flag_turns(m, motion_norms(states, m.as_tuple()), outlier_probability)
+        turns |= flag_turns(m, motion_norms(states, m.as_tuple()), gate_probability)
     return m.subset(~turns, None), int(turns.sum())
 
 
@@ -369,22 +369,22 @@ def _solve(graph, start, x0, sig, options: JointOptions):
     has = {n: np.isfinite(graph.meas[n][:, 0]) for n in graph.active}
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(options.max_iterations)
-    robust, outlier_probability = options.robust, options.outlier_probability
+    robust, gate_probability = options.robust, options.gate_probability
     prior_sig = np.asarray(options.state_prior_sigmas)
     offsets = {n: 0.0 for n in graph.active}
     poses, states, offsets, iterations, initial_error = _robust_pass(
         graph, (start, x0, offsets), sig, options, params)
-    outliers = flag_outliers(graph, poses, states, offsets, has, sig, outlier_probability)
+    outliers = flag_outliers(graph, poses, states, offsets, has, sig, gate_probability)
     turn_frames = np.zeros(0, dtype=int)
     if graph.motion is not None:
         outliers, turn_frames = exonerate_turns(graph, poses, states, offsets, has, outliers,
-                                                sig, prior_sig, outlier_probability)
+                                                sig, prior_sig, gate_probability)
     inl = {n: has[n] & ~outliers[n] for n in graph.active} if robust is not None else has
     starved = [n for n in graph.active if n != graph.ref and not inl[n].any()]
     if starved:
         raise _Breakdown(f"every detection of {', '.join(starved)} is an outlier: no pose "
                          f"left to estimate")
-    motion, n_turns = _final_motion(graph, states, robust, turn_frames, outlier_probability)
+    motion, n_turns = _final_motion(graph, states, robust, turn_frames, gate_probability)
     if (robust is not None or n_turns or options.range_offset_prior_m is not None) \
             and options.presolve:
         report: dict = {}

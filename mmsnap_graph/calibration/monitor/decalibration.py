@@ -31,13 +31,12 @@ from typing import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2
 
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...errors import ValidationError
 from ...fusion.solvers.vectorized import fuse_batch
-from ..._validation import as_float_array, check_finite
+from ..._validation import as_float_array, check_count, check_finite, chi2_gate
 from .stats import (
     frame_contributions,
     recalibrate_pose,
@@ -52,7 +51,7 @@ __all__ = ["DEFAULT_THRESHOLD", "DEFAULT_WINDOWS_S", "DEFAULT_POSE_SIGMAS", "Cha
 #: Per-test false-alarm probability 1e-7 (35.4): with 24,000 frames per hour
 #: (150 ms), four window lengths and ten nodes, a Bonferroni bound of 0.1 false
 #: alarms per hour when the noise model holds.
-DEFAULT_THRESHOLD = float(chi2.isf(1e-7, 3))
+DEFAULT_THRESHOLD = chi2_gate(1.0 - 1e-7, 3)
 #: Window lengths of the change test, seconds of frames with an observation.
 DEFAULT_WINDOWS_S = (3.0, 6.0, 12.0, 20.0)
 #: Pose sigmas ``(x_m, y_m, phi_rad)`` assumed for a calibration given without
@@ -231,8 +230,7 @@ class DecalibrationMonitor:
         w = np.asarray(windows_s, dtype=float)
         if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w) & (w > 0)):
             raise ValidationError(f"windows_s must be positive lengths, got {windows_s!r}")
-        if int(min_frames) != min_frames or min_frames < 1:
-            raise ValidationError(f"min_frames must be an integer >= 1, got {min_frames!r}")
+        check_count(min_frames, "min_frames")
         self.noise, self.threshold = noise, float(threshold)
         self.frame_period_s = float(frame_period_s)
         self.node_names = list(self._poses)

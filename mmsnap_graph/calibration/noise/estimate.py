@@ -74,8 +74,8 @@ from typing import Literal, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
+from ..._validation import chi2_gate
 from ...data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ...data.recording import Detections, Recording
 from ...errors import ValidationError
@@ -503,7 +503,7 @@ def _pool(parts: dict, min_dof: float) -> None:
         log_s = np.log([r[0][c] for r in rows])
         pooled = 0.5 * np.log(np.sum(dof * np.exp(2 * log_s)) / np.sum(dof))
         stat = float(np.sum(2.0 * dof * (log_s - pooled) ** 2))
-        if stat <= chi2.ppf(1.0 - POOL_LEVEL, len(rows) - 1):
+        if stat <= chi2_gate(1.0 - POOL_LEVEL, len(rows) - 1):
             for r in rows:
                 r[0] = np.array(r[0], dtype=float)
                 r[0][c] = float(np.exp(pooled))

@@ -67,6 +67,7 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import NDArray
 
+from ..._validation import check_count
 from ...data.recording import Detections
 from ...errors import ValidationError
 
@@ -218,8 +219,7 @@ def _validated(names, poses, states, state_frames, initial, order):
     initial = np.asarray(initial, dtype=float)
     if initial.shape != (len(names),) or not np.all(np.isfinite(initial) & (initial > 0)):
         raise ValidationError(f"initial must be {len(names)} finite sigmas > 0, got {initial!r}")
-    if int(order) != order or not 1 <= order <= 6:
-        raise ValidationError(f"order={order!r} must be an integer in [1, 6]")
+    check_count(order, "order", 1, 6)
     return states, state_frames, initial
 
 

@@ -46,8 +46,8 @@ from typing import Mapping
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
+from ..._validation import chi2_gate
 from ...data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ...data.recording import Detections
 from .frame_states import solve_frame_states
@@ -130,7 +130,7 @@ def consistent_rows(detections: Mapping[str, Detections], poses: Mapping[str, ND
     sig = np.array([noise[n].sigmas for n in names])
     stat = _frame_chi2(z, p, sig)
     dof = 3 * np.sum(np.isfinite(z[..., 0]), axis=1) - 4
-    ok = stat <= chi2.ppf(gate_probability, np.maximum(dof, 1))
+    ok = stat <= chi2_gate(gate_probability, np.maximum(dof, 1))
     for j, n in enumerate(names):
         good = frames[ok & np.isfinite(z[:, j, 0])]
         out[n] = _single_rows(detections[n]) & np.isin(detections[n].frame, good)

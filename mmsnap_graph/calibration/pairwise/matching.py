@@ -35,13 +35,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from factors.models import detection_to_local
 
 from ...errors import CalibrationError, ValidationError
 from ...data.recording import NodeData
-from ..._validation import as_float_array, check_finite, check_shape
+from ..._validation import as_float_array, check_finite, check_shape, chi2_gate
 from ..poses import pose_tangent_error
 from .closed_form import PairwiseCalibration, closed_form_calibration, closed_form_pose
 from .effective_samples import autocorrelation_factor
@@ -225,7 +224,7 @@ class _Pool:
         self.rows = {lag: (self.za[ia], self.zb[ib], self.ca[ia], self.cb[ib])
                      for lag, (ia, ib) in self.joins.items()}
         self.gate = inlier_gate_m
-        self.chi2_gate = (float(chi2.ppf(gate_probability, 2)) if not (
+        self.chi2_gate = (chi2_gate(gate_probability, 2) if not (
             np.isnan(self.ca).any() or np.isnan(self.cb).any()) else None)
 
     def support(self, pose, lag):

@@ -54,12 +54,13 @@ from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from factors.motion import cv_process_noise, cv_transition
 
+from ..._validation import chi2_gate
 from ...data.results import Status
 from ..robust import residual_test_fails
+from .rows import FusedRows
 
 __all__ = [
     "MOTION_WINDOW_FRAMES",
@@ -180,8 +181,8 @@ def _pair_m2(rows, frame, src, dst, frame_period_s, accel):
     (4 dof: a ghost's Doppler disagrees with the target's velocity) of the
     destination row's state to the source row's prediction."""
     i, j, step = _pairs(frame, src, dst, MOTION_WINDOW_FRAMES)
-    x, p = _carry(rows.state[src[i]], rows.laplace[src[i]], step, frame_period_s, accel)
-    return i, j, _m4(rows.state[dst[j]] - x, p + rows.laplace[dst[j]])
+    x, p = _carry(rows.state[src[i]], rows.covariance[src[i]], step, frame_period_s, accel)
+    return i, j, _m4(rows.state[dst[j]] - x, p + rows.covariance[dst[j]])
 
 
 def _frames_per_row(j: NDArray, src_frame: NDArray, n: int) -> NDArray:
@@ -230,7 +231,7 @@ def _predictions(rows, frame, confirmed, frames_needed, frame_period_s, accel, g
     has_multi = np.bincount(j[multi], minlength=fn.size) > 0
     use = multi | ~has_multi[j]
     i, j, step = i[use], j[use], step[use]
-    x, p = _carry(rows.state[src[i]], rows.laplace[src[i]], step, frame_period_s, accel)
+    x, p = _carry(rows.state[src[i]], rows.covariance[src[i]], step, frame_period_s, accel)
     keep = np.full(i.size, not dedupe)
     order = np.lexsort((np.abs(step), np.trace(p[:, :2, :2], axis1=1, axis2=2), j))
     cuts = np.flatnonzero(np.diff(j[order])) + 1
@@ -275,11 +276,11 @@ def _claim(rows, rs, confirmed, ok, preds, pi, gate) -> tuple[NDArray, list[int]
     free = np.ones(pi.size, dtype=bool)
     conf = rs[confirmed[rs]]
     if conf.size and pi.size:
-        free &= ~np.any(_agree(rows.state[conf], rows.laplace[conf], preds, pi) <= gate, axis=0)
+        free &= ~np.any(_agree(rows.state[conf], rows.covariance[conf], preds, pi) <= gate, axis=0)
     todo = [int(r) for r in rs[~confirmed[rs]]]
     cand = [r for r in todo if ok[r]]
     if cand and free.any():
-        m2 = _agree(rows.state[cand], rows.laplace[cand], preds, pi)
+        m2 = _agree(rows.state[cand], rows.covariance[cand], preds, pi)
         m2[:, ~free] = np.inf
         for flat in np.argsort(m2, axis=None):
             a, b = np.unravel_index(flat, m2.shape)
@@ -321,7 +322,7 @@ def _near(rows, r: int, preds: _Predictions, pis: NDArray, gate: float) -> bool:
     """Whether row ``r``'s position agrees (chi-square, 2 dof) with one of
     the predictions ``pis``."""
     d = rows.state[r, :2] - preds.state[pis, :2]
-    s = rows.laplace[r, :2, :2] + preds.cov[pis, :2, :2]
+    s = rows.covariance[r, :2, :2] + preds.cov[pis, :2, :2]
     return bool(np.any(_m2(d, s) <= gate))
 
 
@@ -341,22 +342,27 @@ def _select(rows, observed, hr, hp, hm, res, passes, score, node_names) -> NDArr
             continue
         used_row.add(r)
         used_pred.add(q)
-        rows.state[r], rows.laplace[r] = res.state[h], res.covariance[h]
-        rows.status[r], rows.iterations[r] = Status.OK, res.iterations[h]
-        rows.cost[r], rows.degeneracy[r] = res.final_cost[h], res.degeneracy[h]
         left = observed[r] & ~hm[h]
-        rows.rejected[r] = left
-        rows.message[r] = "converged" + (
+        rows.put(r, _Hypothesis(res, h), rejected=left, message="converged" + (
             f"; motion check: {_names(left, node_names)} left out" if left.any() else
-            "; motion check: refitted from the predicted state")
+            "; motion check: refitted from the predicted state"))
     return np.array(sorted(used_row), dtype=np.int64)
 
 
-def _flag(rows, r: int, observed: NDArray, text: str) -> None:
-    rows.status[r] = MOTION_FLAG_STATUS
-    rows.laplace[r] = np.nan
-    rows.rejected[r] = observed[r]
-    rows.message[r] = f"motion check: {text}"
+class _Hypothesis:
+    """Hypothesis ``h`` of a refit, as one frame's solve (status OK: only
+    passing hypotheses are kept)."""
+
+    __slots__ = ("state", "covariance", "status", "iterations", "final_cost", "degeneracy")
+
+    def __init__(self, res, h: int) -> None:
+        self.state, self.covariance = res.state[h], res.covariance[h]
+        self.status, self.iterations = Status.OK, res.iterations[h]
+        self.final_cost, self.degeneracy = res.final_cost[h], res.degeneracy[h]
+
+
+def _flag(rows: FusedRows, r: int, observed: NDArray, text: str) -> None:
+    rows.flag(r, MOTION_FLAG_STATUS, f"motion check: {text}", rejected=observed[r])
 
 
 _GHOST = ("no subset of its nodes agrees with the motion of a target in the neighbouring "
@@ -388,14 +394,14 @@ def _twice(rows, frame, observed, shared, gate, preds_all, preds) -> list[int]:
         pa = np.arange(*np.searchsorted(preds_all.frame, [f, f + 1]))
         if pa.size == 0 or one.size == 0 or many.size == 0:
             continue
-        taken = np.any(_agree(rows.state[many], rows.laplace[many], preds_all, pa) <= gate,
+        taken = np.any(_agree(rows.state[many], rows.covariance[many], preds_all, pa) <= gate,
                        axis=0)
-        twice = np.any((_agree(rows.state[one], rows.laplace[one], preds_all, pa) <= gate)
+        twice = np.any((_agree(rows.state[one], rows.covariance[one], preds_all, pa) <= gate)
                        & taken, axis=1)
         pi = np.arange(*np.searchsorted(preds.frame, [f, f + 1]))
         free = _free_after(rows, many, preds, pi, gate)
         for r in one[twice]:
-            m2 = _agree(rows.state[[r]], rows.laplace[[r]], preds, pi)[0]
+            m2 = _agree(rows.state[[r]], rows.covariance[[r]], preds, pi)[0]
             best = np.flatnonzero(free & (m2 <= gate))
             if best.size:
                 free[best[np.argmin(m2[best])]] = False  # a second target
@@ -411,7 +417,7 @@ def _free_after(rows, taking, preds, pi, gate) -> NDArray:
     free = np.ones(pi.size, dtype=bool)
     if pi.size == 0:
         return free
-    m2 = _agree(rows.state[taking], rows.laplace[taking], preds, pi)
+    m2 = _agree(rows.state[taking], rows.covariance[taking], preds, pi)
     for a in np.argsort(m2.min(axis=1)):
         ok = np.flatnonzero(free & (m2[a] <= gate))
         if ok.size:
@@ -419,22 +425,22 @@ def _free_after(rows, taking, preds, pi, gate) -> NDArray:
     return free
 
 
-def apply_motion_check(rows, frame: NDArray, observed: NDArray, valid: NDArray, *,
-                 frame_period_s: float, refit: Refit, node_names,
-                 residual_gate_probability: float) -> NDArray:
+def apply_motion_check(rows: FusedRows, frame: NDArray, observed: NDArray, valid: NDArray, *,
+                       frame_period_s: float, refit: Refit, node_names,
+                       residual_gate_probability: float) -> NDArray:
     """Check every fused row of a recording against the motion of its
-    neighbouring frames (module docstring); ``rows`` (the per-row arrays of
-    :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording`: ``state``,
-    ``laplace``, ``status``, ``message``, ``iterations``, ``cost``,
-    ``degeneracy``, ``rejected``) is updated in place.
+    neighbouring frames (module docstring); ``rows`` (the rows of
+    :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording`) is updated
+    through :meth:`FusedRows.put` (a row refitted) and :meth:`FusedRows.flag`
+    (a row flagged).
 
     frame : (K,) the rows' frames, sorted. observed, valid : (K, N) bool, the
     nodes of each row and those whose measurement may be fitted.
     refit : fits hypotheses (:data:`Refit`). Returns the rows refitted.
     """
-    gate = float(chi2.ppf(MOTION_GATE_PROBABILITY, 4))
+    gate = chi2_gate(MOTION_GATE_PROBABILITY, 4)
     accel = MOTION_ACCEL_SIGMA_MPS2
-    ok = (rows.status == Status.OK) & np.all(np.isfinite(rows.laplace), axis=(1, 2))
+    ok = (rows.status == Status.OK) & np.all(np.isfinite(rows.covariance), axis=(1, 2))
     kept = observed & ~rows.rejected
     n_kept = kept.sum(axis=1)
     confirmed, supported = _confirmed(rows, frame, ok, frame_period_s, accel, gate)
@@ -473,7 +479,7 @@ def apply_motion_check(rows, frame: NDArray, observed: NDArray, valid: NDArray, 
         passes, score = _score(res, preds, hp, residual_gate_probability, gate)
         done = _select(rows, observed, hr, hp, hm, res, passes, score, node_names)
     explained = set(done.tolist())
-    pos_gate = float(chi2.ppf(MOTION_GATE_PROBABILITY, 2))
+    pos_gate = chi2_gate(MOTION_GATE_PROBABILITY, 2)
     for r, pis in jobs:
         # A row of two nodes or more no hypothesis explains is flagged when
         # it is where a free prediction is (a target's wrong estimate) or no

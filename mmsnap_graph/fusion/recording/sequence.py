@@ -9,7 +9,7 @@ be fused is flagged (``success`` False, a :class:`~mmsnap_graph.data.results.Sta
 and a message), never raised.
 
 Two solvers give the same answers (the tests compare them):
-``"batch"`` (:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`, vectorized over frames)
+``"vectorized"`` (:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`, vectorized over frames)
 and ``"gtsam"`` (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`, one factor graph per
 frame); with ``pose_covariances`` their covariances differ by a few percent
 (docs/CONVENTIONS.md, "Calibration-aware fusion").
@@ -21,7 +21,7 @@ The result can be stored in the recording's HDF5 file as a ``/fused`` group
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal, Mapping, Sequence
 
 import numpy as np
@@ -38,7 +38,6 @@ from ..association import (
 from ..solvers.vectorized import fuse_batch
 from ..grid import grid_posterior
 from ..problem import (
-    check_count,
     check_node_noise,
     check_pose_covariances,
     check_prior,
@@ -46,16 +45,20 @@ from ..problem import (
     valid_rows,
 )
 from .motion_check import apply_motion_check
-from ..robust import RESIDUAL_GATE_PROBABILITY, check_robust
+from .rows import FusedRows
+from ..robust import RESIDUAL_GATE_PROBABILITY
+from ..options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_options, robust_options
+from ..solvers.settings import check_solver
 from .timing import align_recording
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import FusedSequence, Status
 from ...errors import CalibrationError, MmsnapError, ValidationError
 from ..._validation import as_float_array, check_finite
-from .split_check import flag_split_singles
+from .split_check import SPLIT_MESSAGE, split_rows
 
 __all__ = [
+    "RECORDING_SOLVERS",
     "FusedSequence",
     "fuse_recording",
     "recording_poses",
@@ -278,31 +281,21 @@ def _progress(total: int, desc: str, progress: bool | None):
     return tqdm(total=total, desc=desc, unit="frame", disable=disable)
 
 
-class _Rows:
-    """The per-row outputs of :func:`fuse_recording`, filled by the solvers."""
-
-    def __init__(self, k: int):
-        self.state = np.full((k, 4), np.nan)
-        self.laplace = np.full((k, 4, 4), np.nan)
-        self.status = np.zeros(k, dtype=np.int8)
-        self.message = np.empty(k, dtype=object)
-        self.iterations = np.zeros(k, dtype=np.int64)
-        self.cost = np.full(k, np.nan)
-        self.degeneracy = np.full(k, np.inf)
-        self.rejected = None  # (K, N) bool, set by the solvers
+#: The solvers of a recording (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
+RECORDING_SOLVERS = ("vectorized", "gtsam")
 
 
-def _check_options(recording, mode, covariance, solver, source, block_rows, prior):
+def _check_options(recording, mode, options, prior):
     """Validate :func:`fuse_recording`'s options; return the prior to use."""
-    for name, value, choices in (("mode", mode, ("map", "ml")),
-                                 ("covariance", covariance, ("laplace", "grid")),
-                                 ("solver", solver, ("batch", "gtsam")),
-                                 ("source", source, ("centroids", "point_cloud"))):
-        if value not in choices:
-            raise ValidationError(f"{name} must be {' or '.join(map(repr, choices))}, got {value!r}")
+    if mode not in ("map", "ml"):
+        raise ValidationError(f"mode must be 'map' or 'ml', got {mode!r}")
+    options = check_options(options)
+    check_solver(options.solver, RECORDING_SOLVERS, what="options.solver")
+    if options.covariance not in ("laplace", "grid"):
+        raise ValidationError(f"options.covariance must be 'laplace' or 'grid' for a recording, "
+                              f"got {options.covariance!r}")
     if not isinstance(recording, Recording):
         raise ValidationError(f"recording must be a Recording, got {type(recording).__name__}")
-    check_count(block_rows, "block_rows")
     check_prior(prior)
     if mode == "map" and prior is None:
         raise ValidationError("mode='map' needs a prior; pass a GaussianPrior or mode='ml'")
@@ -331,10 +324,9 @@ def _node_options(recording, noise, pose_covariances, covariance):
     return noise, pose_cov
 
 
-def _fuse_batch_rows(out: _Rows, poses, z, obs, noise, prior, block_rows, bar, robust=None,
-                     pose_cov=None) -> None:
-    k, n_nodes = z.shape[:2]
-    out.rejected = np.zeros((k, n_nodes), dtype=bool)
+def _fuse_vectorized_rows(out: FusedRows, poses, z, obs, noise, prior, options, bar,
+                          robust=None, pose_cov=None) -> None:
+    k, block_rows = z.shape[0], options.block_rows
     # A row with an invalid observed measurement (range 0, say) is flagged,
     # not fused: fuse_batch would refuse the whole block.
     invalid = (obs & ~valid_rows(z)).any(axis=1)
@@ -342,47 +334,38 @@ def _fuse_batch_rows(out: _Rows, poses, z, obs, noise, prior, block_rows, bar, r
         sl = np.arange(start, min(k, start + block_rows))
         sl = sl[~invalid[sl]]
         if sl.size:
-            res = fuse_batch(poses, z[sl], observed=obs[sl], noise=noise, prior=prior, robust=robust,
-                             pose_covariances=pose_cov)
-            out.state[sl], out.laplace[sl], out.status[sl] = res.state, res.covariance, res.status
-            out.iterations[sl], out.cost[sl] = res.iterations, res.final_cost
-            out.degeneracy[sl], out.rejected[sl] = res.degeneracy, res.rejected
+            res = fuse_batch(poses, z[sl], observed=obs[sl], noise=noise, prior=prior,
+                             pose_covariances=pose_cov, robust=robust, options=options)
+            out.put(sl, res)
         bar.update(min(k, start + block_rows) - start)
-    out.status[invalid] = Status.NON_FINITE
-    texts = np.array([Status(c).message for c in range(max(Status) + 1)], dtype=object)
-    out.message[:] = texts[out.status]
-    out.message[invalid] = "a measurement is out of range (range <= 0, |omega| > pi or not finite)"
+    out.flag(invalid, Status.NON_FINITE,
+             "a measurement is out of range (range <= 0, |omega| > pi or not finite)")
 
 
-def _fuse_gtsam_rows(out: _Rows, poses, z, obs, noise, prior, bar, robust=None,
+def _fuse_gtsam_rows(out: FusedRows, poses, z, obs, noise, prior, options, bar, robust=None,
                      pose_cov=None) -> None:
-    from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of the batch path
+    from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of the vectorized path
 
-    out.rejected = np.zeros(obs.shape, dtype=bool)
     for i in range(z.shape[0]):
         try:
-            r = fuse_frame(poses, z[i], observed=obs[i], noise=noise, prior=prior, robust=robust,
-                           pose_covariances=pose_cov)
+            r = fuse_frame(poses, z[i], observed=obs[i], noise=noise, prior=prior,
+                           pose_covariances=pose_cov, robust=robust, options=options)
         except MmsnapError as exc:  # e.g. an initial position on a node
-            out.status[i], out.message[i] = Status.NON_FINITE, f"{type(exc).__name__}: {exc}"
+            out.flag(i, Status.NON_FINITE, f"{type(exc).__name__}: {exc}")
         else:
-            out.state[i], out.laplace[i], out.iterations[i] = r.state, r.covariance, r.iterations
-            out.cost[i], out.degeneracy[i] = r.final_cost, r.degeneracy
-            out.message[i], out.status[i] = r.message, r.status
-            out.rejected[i] = r.rejected
+            out.put(i, r, message=r.message)
         bar.update(1)
 
 
 def _motion_option(motion_check, robust) -> bool:
-    """``motion_check`` validated; None: on with a ``robust`` option."""
+    """``motion_check`` (validated by FusionOptions); None: on with a ``robust`` option."""
     if motion_check is None:
         return robust is not None
-    if not isinstance(motion_check, (bool, np.bool_)):
-        raise ValidationError(f"motion_check must be True, False or None, got {motion_check!r}")
     return bool(motion_check)
 
 
-def _check_motion(out: _Rows, groups, recording, poses, noise, prior, pose_cov, solver) -> None:
+def _check_motion(out: FusedRows, groups, recording, poses, noise, prior, pose_cov,
+                  options) -> None:
     """The motion check of :func:`fuse_recording` (hypotheses fitted by
     ``fuse_batch``; with the GTSAM solver the rows it refits are fitted
     again by ``fuse_frame`` from its solution)."""
@@ -391,55 +374,56 @@ def _check_motion(out: _Rows, groups, recording, poses, noise, prior, pose_cov, 
 
     def refit(rows, mask, x0):
         return fuse_batch(poses, z[rows], observed=mask, noise=noise, prior=prior,
-                          initial_state=x0, pose_covariances=pose_cov)
+                          initial_state=x0, pose_covariances=pose_cov, options=options)
 
     done = apply_motion_check(out, groups.frame, obs, obs & valid_rows(z),
                               frame_period_s=recording.frame_period_s, refit=refit,
                               node_names=recording.node_names,
                               residual_gate_probability=RESIDUAL_GATE_PROBABILITY)
-    if solver == "gtsam" and done.size:
-        from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of the batch path
+    if options.solver == "gtsam" and done.size:
+        from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of the vectorized path
 
         for i in done:
             r = fuse_frame(poses, z[i], observed=obs[i] & ~out.rejected[i], noise=noise,
-                           prior=prior, initial_state=out.state[i], pose_covariances=pose_cov)
-            out.state[i], out.laplace[i], out.iterations[i] = r.state, r.covariance, r.iterations
-            out.cost[i], out.degeneracy[i], out.status[i] = r.final_cost, r.degeneracy, r.status
-            if not r.success:
-                out.message[i] = r.message
+                           prior=prior, initial_state=out.state[i], pose_covariances=pose_cov,
+                           options=options)
+            out.put(i, r, rejected=out.rejected[i],
+                    message=out.message[i] if r.success else r.message)
 
 
-def _grid_covariances(out: _Rows, poses, z, obs, noise, prior, points, progress) -> NDArray:
+def _grid_covariances(out: FusedRows, poses, z, obs, noise, prior, points, progress) -> NDArray:
     """The grid covariance of every converged row (a failure flags the row)."""
-    chosen = out.laplace.copy()
+    chosen = out.covariance.copy()
     rows = np.flatnonzero(out.status == Status.OK)
     with _progress(rows.size, "grid covariance", progress) as bar:
         for i in rows:
             try:
                 grid = grid_posterior(out.state[i], poses, z[i], observed=obs[i], noise=noise[0],
-                                      prior=prior, scale_covariance=out.laplace[i],
+                                      prior=prior, scale_covariance=out.covariance[i],
                                       points_per_axis=points)
                 chosen[i] = grid.covariance
                 if grid.message:
                     out.message[i] = f"{out.message[i]}; {grid.message}"
             except MmsnapError as exc:
                 chosen[i] = np.nan
-                out.status[i] = Status.GRID_FAILED
-                out.message[i] = f"grid covariance failed: {exc}"
+                out.flag(i, Status.GRID_FAILED, f"grid covariance failed: {exc}",
+                         keep_covariance=True)
             bar.update(1)
     return chosen
 
 
-def _screen_rows(out, groups, recording, poses, noise, prior, pose_cov, solver,
+def _screen_rows(out: FusedRows, groups, recording, poses, noise, prior, pose_cov, options,
                  motion_check) -> None:
     """The recording-level screens of the fused rows, in place: the motion
     check (docs/ROBUST.md), then the one-node rows of frames the association
     split (:mod:`.split_check`; after the motion check, the only row of a
     frame it kept stays)."""
     if motion_check:
-        _check_motion(out, groups, recording, poses, noise, prior, pose_cov, solver)
-    flag_split_singles(groups.frame, groups.detection_index, out.status, out.message,
+        _check_motion(out, groups, recording, poses, noise, prior, pose_cov, options)
+    split = split_rows(groups.frame, groups.detection_index, out.status,
                        keep_sole=bool(motion_check))
+    # The estimate and its covariance stay for whoever wants them, untrusted.
+    out.flag(split, Status.RESIDUAL_TEST_FAILED, SPLIT_MESSAGE, keep_covariance=True)
 
 
 def fuse_recording(
@@ -447,19 +431,13 @@ def fuse_recording(
     *,
     node_poses: Mapping[str, ArrayLike] | None = None,
     mode: Literal["map", "ml"] = "map",
-    covariance: Literal["laplace", "grid"] = "laplace",
-    solver: Literal["batch", "gtsam"] = "batch",
     noise: MeasurementNoise | Mapping[str, MeasurementNoise] = MeasurementNoise(),
     prior: GaussianPrior | None = _PAPER_PRIOR,
-    gate_probability: float = 0.999,
-    source: Literal["centroids", "point_cloud"] = "centroids",
-    grid_points_per_axis: int = 21,
-    block_rows: int = 65536,
-    progress: bool | None = None,
-    robust: Literal["gate", "huber", "cauchy"] | None = None,
     pose_covariances: Mapping[str, ArrayLike] | None = None,
     time_offset_s: Mapping[str, float] | None = None,
-    motion_check: bool | None = None,
+    robust: RobustOptions | Literal["gate", "huber", "cauchy"] | None = None,
+    options: FusionOptions = DEFAULT_OPTIONS,
+    progress: bool | None = None,
 ) -> FusedSequence:
     """Fuse every target in every frame of ``recording``.
 
@@ -472,23 +450,10 @@ def fuse_recording(
         stored in the recording.
     mode : ``"map"`` (Bayesian, with ``prior``) or ``"ml"`` (no prior: pass
         ``prior=None`` or leave the default).
-    covariance : ``"laplace"`` or ``"grid"`` (the paper's numerical posterior
-        covariance, :func:`mmsnap_graph.fusion.grid.grid_posterior`, laid out
-        along the Laplace covariance; slow: ``grid_points_per_axis^4`` points
-        per frame).
-    solver : ``"batch"`` (vectorized) or ``"gtsam"`` (per-frame factor graphs).
     noise : MeasurementNoise (every node; default the paper's) or a mapping
         ``{node name: MeasurementNoise}`` holding every fused node (per-node
         noise, docs/CONVENTIONS.md); used by the association and the fusion.
     prior : GaussianPrior for MAP, default the paper's.
-    gate_probability : association gate (see :mod:`mmsnap_graph.fusion.association`).
-    source : which detections to fuse.
-    block_rows : rows per batch call (the progress bar advances per block).
-    progress : show a tqdm bar (default: when stderr is a terminal).
-    robust : robust one-shot fusion (:mod:`mmsnap_graph.fusion.robust`;
-        default None): ``"gate"`` leaves out a node whose residual fails the
-        chi-square gate (``FusedSequence.rejected``), ``"huber"`` /
-        ``"cauchy"`` down-weight it.
     pose_covariances : mapping name -> (3, 3), optional
         Calibration-aware fusion (docs/CONVENTIONS.md,
         "Calibration-aware fusion"): each node pose's covariance in the Pose2
@@ -497,61 +462,76 @@ def fuse_recording(
         ``covariance`` and ``laplace_covariance`` include the poses'
         (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
         :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`). Needs
-        ``covariance="laplace"``.
+        ``options.covariance="laplace"``.
     time_offset_s : mapping name -> seconds, optional
         Each node's clock offset (node time + offset = reference time; the
         calibration's ``time_offset_s``): the centroids are brought to the
         reference clock first (:func:`mmsnap_graph.fusion.recording.timing.align_recording`:
         whole frames, then the range by Doppler times the rest). A node left
         out keeps its clock.
-    motion_check : bool, optional
-        Check each row against its neighbouring frames' motion
-        (:mod:`~mmsnap_graph.fusion.recording.motion_check`, docs/ROBUST.md): refit it
-        without the nodes that disagree, or flag it (a ghost, an ambiguous
-        frame). Default (None): on with a ``robust`` option.
+    robust : RobustOptions, "gate", "huber", "cauchy" or None
+        Robust one-shot fusion (:mod:`mmsnap_graph.fusion.robust`; default
+        None): ``"gate"`` leaves out a node whose residual fails the
+        chi-square gate (``FusedSequence.rejected``), ``"huber"`` /
+        ``"cauchy"`` down-weight it.
+    options : FusionOptions
+        ``solver``: ``"vectorized"`` (the default) or ``"gtsam"`` (per-frame
+        factor graphs); ``covariance``: ``"laplace"`` or ``"grid"`` (the
+        paper's numerical posterior covariance,
+        :func:`mmsnap_graph.fusion.grid.grid_posterior`, laid out along the
+        Laplace covariance; slow: ``grid_points_per_axis^4`` points per
+        frame); ``gate_probability``: the association gate (see
+        :mod:`mmsnap_graph.fusion.association`); ``source``: which detections
+        to fuse; ``block_rows``: rows per call of the vectorized solver (the
+        progress bar advances per block); ``motion_check``: check each row
+        against its neighbouring frames' motion
+        (:mod:`~mmsnap_graph.fusion.recording.motion_check`, docs/ROBUST.md):
+        refit it without the nodes that disagree, or flag it (a ghost, an
+        ambiguous frame); None (the default): on with a ``robust`` option.
+        ``lm`` and the vectorized solver's settings as in ``fuse_batch``.
+    progress : show a tqdm bar (default: when stderr is a terminal).
     """
+    prior = _check_options(recording, mode, options, prior)
     if time_offset_s:
-        if source != "centroids":
+        if options.source != "centroids":
             raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
         recording = align_recording(recording, time_offset_s)
-    prior = _check_options(recording, mode, covariance, solver, source, block_rows, prior)
-    noise, pose_cov = _node_options(recording, noise, pose_covariances, covariance)
-    robust = check_robust(robust)
-    motion_check = _motion_option(motion_check, robust)
+    noise, pose_cov = _node_options(recording, noise, pose_covariances, options.covariance)
+    robust = robust_options(robust)
+    motion_check = _motion_option(options.motion_check, robust)
     if progress is not None and not isinstance(progress, (bool, np.bool_)):
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     poses = recording_poses(recording, node_poses)
-    groups = group_detections(recording, poses, noise, gate_probability=gate_probability,
-                              source=source)
+    groups = group_detections(recording, poses, noise, gate_probability=options.gate_probability,
+                              source=options.source)
     obs = groups.detection_index >= 0
     z = groups.measurements
-    out = _Rows(groups.frame.size)
-    with _progress(z.shape[0], f"fuse ({solver}, {mode})", progress) as bar:
-        if solver == "batch":
-            _fuse_batch_rows(out, poses, z, obs, noise, prior, int(block_rows), bar, robust,
-                             pose_cov)
-        else:
-            _fuse_gtsam_rows(out, poses, z, obs, noise, prior, bar, robust, pose_cov)
-    _screen_rows(out, groups, recording, poses, noise, prior, pose_cov, solver, motion_check)
-    chosen = out.laplace.copy()
-    if covariance == "grid":  # the grid posterior of the measurements kept
-        kept = obs & ~out.rejected if (robust == "gate" or motion_check) else obs
-        chosen = _grid_covariances(out, poses, z, kept, noise, prior, grid_points_per_axis, progress)
-    return _sequence(recording, poses, groups, out, chosen, mode=mode, covariance=covariance,
-                     solver=solver, noise=noise, prior=prior, gate_probability=gate_probability,
-                     robust=robust)
+    out = FusedRows(groups.frame.size, obs.shape[1])
+    solve = replace(options, covariance="laplace")  # the grid one comes after the checks
+    with _progress(z.shape[0], f"fuse ({options.solver}, {mode})", progress) as bar:
+        fuse_rows = _fuse_vectorized_rows if options.solver == "vectorized" else _fuse_gtsam_rows
+        fuse_rows(out, poses, z, obs, noise, prior, solve, bar, robust, pose_cov)
+    _screen_rows(out, groups, recording, poses, noise, prior, pose_cov, solve, motion_check)
+    chosen = out.covariance.copy()
+    if options.covariance == "grid":  # the grid posterior of the measurements kept
+        gate = robust is not None and robust.kernel == "gate"
+        kept = obs & ~out.rejected if (gate or motion_check) else obs
+        chosen = _grid_covariances(out, poses, z, kept, noise, prior, options.grid_points_per_axis,
+                                   progress)
+    return _sequence(recording, poses, groups, out, chosen, mode=mode, options=options,
+                     noise=noise, prior=prior, robust=robust)
 
 
-def _sequence(recording, poses, groups, out, chosen, *, mode, covariance, solver, noise, prior,
-              gate_probability, robust) -> FusedSequence:
+def _sequence(recording, poses, groups, out, chosen, *, mode, options, noise, prior,
+              robust) -> FusedSequence:
     """The :class:`FusedSequence` of :func:`fuse_recording`."""
     obs = groups.detection_index >= 0
     return FusedSequence(
         node_names=tuple(recording.node_names),
         node_poses=poses,
         mode=mode,
-        covariance_method=covariance,
-        solver=solver,
+        covariance_method=options.covariance,
+        solver=options.solver,
         frame=groups.frame,
         target=groups.target,
         label=groups.label,
@@ -559,21 +539,21 @@ def _sequence(recording, poses, groups, out, chosen, *, mode, covariance, solver
         observed=obs,
         state=out.state,
         covariance=chosen,
-        laplace_covariance=out.laplace,
+        laplace_covariance=out.covariance,
         success=out.status == Status.OK,
         status=out.status,
         message=out.message,
         iterations=out.iterations,
-        final_cost=out.cost,
+        final_cost=out.final_cost,
         degeneracy=out.degeneracy,
         # (3,) for one noise, (N, 3) (node order) for per-node noise.
         noise_sigmas=(np.asarray(noise[0].sigmas, dtype=float)
                       if noise.count(noise[0]) == len(noise) else node_sigmas(noise)),
         prior_mean=None if prior is None else np.asarray(prior.mean, dtype=float),
         prior_sigmas=None if prior is None else np.asarray(prior.sigmas, dtype=float),
-        gate_probability=float(gate_probability),
+        gate_probability=options.gate_probability,
         rejected=out.rejected,
-        robust=robust,
+        robust=None if robust is None else robust.kernel,
         frame_period_s=recording.frame_period_s,
         time_origin_s=_time_origin(recording.metadata),
     )

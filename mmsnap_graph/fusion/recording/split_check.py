@@ -11,9 +11,11 @@ case, conditioned on an error large enough to fail the gate, and its
 covariance (that of one clean detection) is too small: on the README's tour
 (network C, point-cloud centroids, 600 frames, seeds 1-3) 40-64 such rows
 had a mean NEES of 19-30 and pulled the fused mean NEES from 4.3-6.9 to
-5.6-9.2. :func:`split_singles` finds these rows; :func:`flag_split_singles`
-marks them ``success=False`` (:attr:`Status.RESIDUAL_TEST_FAILED`) with a
-message, as the robust gate marks a frame it cannot repair. The estimate
+5.6-9.2. :func:`split_singles` finds these rows; :func:`split_rows` picks
+those to mark ``success=False`` (:attr:`Status.RESIDUAL_TEST_FAILED`) with
+:data:`SPLIT_MESSAGE`, as the robust gate marks a frame it cannot repair
+(``fuse_recording`` marks them through
+:meth:`~mmsnap_graph.fusion.recording.rows.FusedRows.flag`). The estimate
 stays in ``/fused`` for whoever wants it.
 """
 
@@ -24,9 +26,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from ...data.results import Status
 
-__all__ = ["split_singles", "flag_split_singles", "SPLIT_MESSAGE"]
+__all__ = ["split_singles", "split_rows", "SPLIT_MESSAGE"]
 
-#: The message of a row :func:`flag_split_singles` marks.
+#: The message of a row :func:`split_rows` picks.
 SPLIT_MESSAGE = ("one node's only detection of the frame fails the association gate with the "
                  "other nodes' (an outlier, or a target only it sees): covariance not trusted")
 
@@ -52,11 +54,11 @@ def split_singles(frame: ArrayLike, detection_index: ArrayLike) -> NDArray:
     return single & one_each[inverse] & (groups[inverse] > 1)
 
 
-def flag_split_singles(frame: ArrayLike, detection_index: ArrayLike, status: NDArray,
-                       message: NDArray, *, keep_sole: bool = False) -> NDArray:
-    """Mark the successful rows of :func:`split_singles` in place:
-    ``status`` becomes :attr:`Status.RESIDUAL_TEST_FAILED`, ``message``
-    :data:`SPLIT_MESSAGE`. Returns the (K,) bool of the rows marked.
+def split_rows(frame: ArrayLike, detection_index: ArrayLike, status: ArrayLike, *,
+               keep_sole: bool = False) -> NDArray:
+    """(K,) bool: the successful rows (``status`` OK) of :func:`split_singles`,
+    which the caller marks :attr:`Status.RESIDUAL_TEST_FAILED` with
+    :data:`SPLIT_MESSAGE`.
 
     keep_sole : leave a row that is the only successful row of its frame (after
     the motion check, which has flagged the frame's other rows and kept this
@@ -69,6 +71,4 @@ def flag_split_singles(frame: ArrayLike, detection_index: ArrayLike, status: NDA
         n_ok = np.zeros(fr.size, np.int64)
         n_ok[ok] = counts[inverse]
         rows &= n_ok > 1
-    status[rows] = Status.RESIDUAL_TEST_FAILED
-    message[rows] = SPLIT_MESSAGE
     return rows

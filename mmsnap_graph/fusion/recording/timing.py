@@ -1,5 +1,5 @@
 """Bring each node's detections to the reference clock before fusion
-(issue 12, clock offsets; docs/CALIBRATION.md, "Clock offsets").
+(docs/CALIBRATION.md, "Clock offsets").
 
 Convention (docs/FORMAT.md, ``/calibration/time_offset_s``): node time +
 offset = reference time. A node with offset ``tau`` took its frame ``f`` at

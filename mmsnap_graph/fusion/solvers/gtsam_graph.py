@@ -66,8 +66,8 @@ from ...data.results import DEGENERACY_THRESHOLD, FusionResult, Status
 from ..grid import grid_posterior
 from .assess import NEWTON_DECREMENT_TOLERANCE, assess_fit, residuals_and_degeneracy
 from .gtsam_poses import pose_aware_covariance
+from ..options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_options, robust_options
 from ..problem import (
-    check_count,
     check_initial_state,
     check_node_noise,
     check_pose_covariances,
@@ -78,14 +78,8 @@ from ..problem import (
     validate_frame,
     velocity_degeneracy,
 )
-from ..robust import (
-    RESIDUAL_GATE_PROBABILITY,
-    check_robust,
-    check_robust_k,
-    node_d2,
-    residual_gate_threshold,
-    residual_test_fails,
-)
+from ..robust import node_d2, residual_gate_threshold, residual_test_fails
+from .settings import LM_SETTINGS, LevenbergMarquardtSettings
 
 __all__ = [
     "STATE_KEY",
@@ -102,7 +96,6 @@ _COMPAT = (DEGENERACY_THRESHOLD, MeasurementNoise, GaussianPrior, FusionResult,
 #: Key of the target state in the graphs built here.
 STATE_KEY = 0
 
-_COVARIANCE_CHOICES = ("laplace", "grid", "both")
 
 
 # ---------------------------------------------------------------------------
@@ -130,14 +123,28 @@ def _prior_factor(mean: tuple[float, ...], sigmas: tuple[float, ...], key: int) 
     return gtsam.PriorFactorVector(key, np.array(mean), gtsam.noiseModel.Diagonal.Sigmas(np.array(sigmas)))
 
 
+#: Settings GTSAM's Python wrapper does not expose, at GTSAM's values.
+_GTSAM_FIXED = {"min_model_fidelity": 1e-3, "min_diagonal": 1e-6, "max_diagonal": 1e32}
+
+
 @lru_cache(maxsize=16)
-def _lm_params(max_iterations: int) -> gtsam.LevenbergMarquardtParams:
+def lm_params(settings: LevenbergMarquardtSettings = LM_SETTINGS) -> gtsam.LevenbergMarquardtParams:
+    """GTSAM's ``LevenbergMarquardtParams`` mirroring ``settings`` (the rules
+    the hand-written solvers follow step for step). GTSAM's Python wrapper
+    cannot set the smallest model fidelity nor the clamp of the diagonal:
+    settings that differ from GTSAM's fixed values there are refused."""
+    for name, fixed in _GTSAM_FIXED.items():
+        if getattr(settings, name) != fixed:
+            raise ValidationError(f"the gtsam solver needs {name}={fixed!r} (GTSAM's value, "
+                                  f"not settable from Python), got {getattr(settings, name)!r}")
     params = gtsam.LevenbergMarquardtParams()
-    # Converge to rounding: the vectorized batch solver must agree to 1e-6, and
-    # Gauss-Newton's quadratic convergence makes the last steps cheap.
-    params.setRelativeErrorTol(1e-14)
-    params.setAbsoluteErrorTol(1e-14)
-    params.setMaxIterations(int(max_iterations))
+    params.setRelativeErrorTol(settings.relative_tolerance)
+    params.setAbsoluteErrorTol(settings.absolute_tolerance)
+    params.setMaxIterations(int(settings.max_iterations))
+    params.setlambdaInitial(settings.lambda_initial)
+    params.setlambdaFactor(settings.lambda_factor)
+    params.setlambdaLowerBound(settings.lambda_min)
+    params.setlambdaUpperBound(settings.lambda_max)
     # Near-degenerate geometry (configuration C) makes the cost a curved,
     # banana-shaped valley in (x, vx): Doppler measures roughly x * vx there.
     # Marquardt's diagonal scaling and Nielsen's lambda update take ~19 LM
@@ -213,15 +220,6 @@ def _build(poses, z, obs, noise, prior, x0, key, kernel=None):
 # Validate and initialise
 
 
-def _check_options(prior, covariance, max_iterations) -> int:
-    if covariance not in _COVARIANCE_CHOICES:
-        raise ValidationError(
-            f"covariance must be 'laplace', 'grid' or 'both', got {covariance!r}"
-        )
-    check_prior(prior)
-    return check_count(max_iterations, "max_iterations")
-
-
 def _start(poses, z, obs, prior, noise, initial_state) -> NDArray:
     """The starting state: the given one (checked) or the initial values."""
     if initial_state is None:
@@ -242,11 +240,12 @@ class _Failure(Exception):
         self.state, self.iterations, self.cost = state, iterations, cost
 
 
-def _solve(graph, values, max_iterations):
+def _solve(graph, values, lm):
     """Levenberg-Marquardt and Marginals: ``(state, covariance, iterations,
     cost)``; raises :class:`_Failure` when the frame cannot be solved."""
+    max_iterations = lm.max_iterations
     try:
-        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, _lm_params(max_iterations))
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(lm))
         solution = optimizer.optimize()
     except Exception as exc:  # GTSAM (or a callback) raised: flag the frame
         raise _Failure(Status.NON_FINITE, f"Levenberg-Marquardt failed: {type(exc).__name__}: {exc}")
@@ -295,15 +294,10 @@ def fuse_frame(
     observed: ArrayLike | None = None,
     noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
     prior: GaussianPrior | None = GaussianPrior(),
-    covariance: Literal["laplace", "grid", "both"] = "laplace",
     initial_state: ArrayLike | None = None,
-    max_iterations: int = 500,
-    grid_points_per_axis: int = 21,
-    grid_half_width_sigmas: float = 5.0,
-    robust: Literal["gate", "huber", "cauchy"] | None = None,
-    robust_k: float | None = None,
-    residual_gate_probability: float = RESIDUAL_GATE_PROBABILITY,
     pose_covariances: ArrayLike | None = None,
+    robust: RobustOptions | Literal["gate", "huber", "cauchy"] | None = None,
+    options: FusionOptions = DEFAULT_OPTIONS,
 ) -> FusionResult:
     """Bayesian (or ML) one-shot fusion of one frame (paper eqs. 15-18).
 
@@ -323,32 +317,32 @@ def fuse_frame(
         order of ``node_poses`` (docs/CONVENTIONS.md, "Per-node noise").
     prior : GaussianPrior or None
         The Gaussian prior (MAP, default the paper's); None for ML.
-    covariance : {"laplace", "grid", "both"}
-        ``"laplace"``: ``gtsam.Marginals`` only. ``"grid"`` / ``"both"``: also
-        the paper's numerical posterior covariance on a 4D grid laid out along
-        the Laplace one (``result.grid_covariance``).
     initial_state : (4,) float, optional
         Starting state (default: :func:`~.problem.initial_state`).
-    max_iterations : int
-        Levenberg-Marquardt iteration limit; reaching it is a failure.
-    grid_points_per_axis, grid_half_width_sigmas :
-        Grid layout, see :func:`mmsnap_graph.fusion.grid.grid_posterior`.
-    robust : {"gate", "huber", "cauchy"} or None
-        Robust fusion (:mod:`mmsnap_graph.fusion.robust`; default None).
-        ``"gate"``: a frame whose whitened residuals fail the chi-square test
-        is refitted without each node in turn; the one passing refit is kept
-        (``rejected``; the covariance of the measurements kept), else
-        ``Status.RESIDUAL_TEST_FAILED``. ``"huber"`` / ``"cauchy"``: GTSAM's
-        kernels per node, started from the plain fit.
-    robust_k, residual_gate_probability : float
-        The kernel constant (default :data:`factors.robust.ROBUST_K_DEFAULT`)
-        and the probability of the per-node gate, ``chi2.ppf(p, 3)``.
     pose_covariances : (N, 3, 3) float, optional
         Calibration-aware fusion (docs/CONVENTIONS.md): each pose's covariance
         in the Pose2 body tangent, all NaN (or zero) for an exact pose. The
         estimate is unchanged; the covariance is ``gtsam.Marginals`` of the
         graph with the uncertain poses as variables under their priors
-        (:mod:`~mmsnap_graph.fusion.solvers.gtsam_poses`). Needs ``"laplace"``.
+        (:mod:`~mmsnap_graph.fusion.solvers.gtsam_poses`). Needs
+        ``options.covariance="laplace"``.
+    robust : RobustOptions, "gate", "huber", "cauchy" or None
+        Robust fusion (:mod:`mmsnap_graph.fusion.robust`; default None; a
+        name is :class:`~mmsnap_graph.fusion.options.RobustOptions` with its
+        defaults). ``"gate"``: a frame whose whitened residuals fail the
+        chi-square test is refitted without each node in turn; the one
+        passing refit is kept (``rejected``; the covariance of the
+        measurements kept), else ``Status.RESIDUAL_TEST_FAILED``.
+        ``"huber"`` / ``"cauchy"``: GTSAM's kernels per node, started from
+        the plain fit.
+    options : FusionOptions
+        ``options.lm``: Levenberg-Marquardt's settings (``max_iterations``:
+        reaching it is a failure). ``options.covariance``: ``"laplace"``
+        (``gtsam.Marginals`` only), ``"grid"`` / ``"both"`` (also the paper's
+        numerical posterior covariance on a 4D grid laid out along the
+        Laplace one, ``result.grid_covariance``; layout
+        ``options.grid_points_per_axis``, ``options.grid_half_width_sigmas``,
+        see :func:`mmsnap_graph.fusion.grid.grid_posterior`).
 
     Returns
     -------
@@ -363,8 +357,11 @@ def fuse_frame(
         Invalid input (see :func:`~.problem.validate_frame`), or an initial
         position (given, or from the detections) on an observed node.
     """
-    max_iterations = _check_options(prior, covariance, max_iterations)
-    kernel, threshold = _robust_options(robust, robust_k, residual_gate_probability)
+    check_prior(prior)
+    options = check_options(options)
+    covariance, lm = options.covariance, options.lm
+    robust = robust_options(robust)
+    kernel = None if robust is None else robust.kernel_pair
     poses, z, obs, noise, pose_cov = _validate(node_poses, measurements, observed, noise,
                                                pose_covariances, covariance)
     n_observed = poses.shape[0] if obs is None else int(obs.sum())
@@ -374,18 +371,18 @@ def fuse_frame(
                                 "is no prior: the state is indeterminate"), None, **frame)
     x0 = _start(poses, z, obs, prior, noise, initial_state)
     try:
-        fit = _fit(poses, z, obs, noise, prior, x0, max_iterations)
-        fit, rejected = _robust_step(fit, poses, z, obs, noise, prior, max_iterations, robust,
-                                     kernel, threshold, residual_gate_probability)
+        fit = _fit(poses, z, obs, noise, prior, x0, lm)
+        fit, rejected = _robust_step(fit, poses, z, obs, noise, prior, lm, robust)
     except _Failure as failure:
         return _failed(failure, x0, **frame)
-    kept = obs if rejected is None or robust != "gate" else _kept(obs, rejected)
+    kept = obs if rejected is None or robust.kernel != "gate" else _kept(obs, rejected)
     if pose_cov is not None and fit.status == Status.OK:
         fit.cov = _pose_aware(fit, poses, z, kept, noise, prior, kernel, pose_cov)
     grid_cov = None
     if covariance != "laplace":
-        grid_cov = (_grid(fit.state, fit.cov, poses, z, kept, noise, prior, grid_points_per_axis,
-                          grid_half_width_sigmas, fit.messages)
+        grid_cov = (_grid(fit.state, fit.cov, poses, z, kept, noise, prior,
+                          options.grid_points_per_axis, options.grid_half_width_sigmas,
+                          fit.messages)
                     if fit.status == Status.OK else np.full((4, 4), np.nan))
     return _result(fit, grid_cov, n_observed, prior, rejected)
 
@@ -448,31 +445,19 @@ def _result(fit, grid_cov, n_observed, prior, rejected) -> FusionResult:
     )
 
 
-def _robust_step(fit, poses, z, obs, noise, prior, max_iterations, robust, kernel, threshold,
-                 probability):
+def _robust_step(fit, poses, z, obs, noise, prior, lm, robust):
     """The gate or the kernel fit after the plain fit: ``(fit, rejected or None)``;
     raises :class:`_Failure` when the kernel fit fails."""
     if fit.status != Status.OK or robust is None:
         return fit, None
-    if robust == "gate":
-        return _gate(fit, poses, z, obs, noise, prior, max_iterations, probability)
+    if robust.kernel == "gate":
+        return _gate(fit, poses, z, obs, noise, prior, lm, robust.gate_probability)
     # The kernel fit starts from the plain one (a non-convex kernel from the
     # detections' average can stall in a wrong basin).
     x0 = fit.x0
-    fit = _fit(poses, z, obs, noise, prior, fit.state.copy(), max_iterations, kernel)
+    fit = _fit(poses, z, obs, noise, prior, fit.state.copy(), lm, robust.kernel_pair)
     fit.x0 = x0
-    return fit, node_d2(fit.whitened) > threshold
-
-
-def _robust_options(robust, robust_k, probability):
-    """``(kernel (name, k) or None, gate threshold or None)``."""
-    robust = check_robust(robust)
-    if robust is None:
-        return None, None
-    threshold = residual_gate_threshold(probability)
-    if robust == "gate":
-        return None, threshold
-    return (robust, check_robust_k(robust, robust_k)), threshold
+    return fit, node_d2(fit.whitened) > robust.threshold
 
 
 class _Fit:
@@ -486,10 +471,10 @@ class _Fit:
             setattr(self, name, value)
 
 
-def _fit(poses, z, obs, noise, prior, x0, max_iterations, kernel=None) -> _Fit:
+def _fit(poses, z, obs, noise, prior, x0, lm, kernel=None) -> _Fit:
     """Build, solve and assess one frame from ``x0``; raises :class:`_Failure`."""
     graph, values = _build(poses, z, obs, noise, prior, x0, STATE_KEY, kernel)
-    state, cov, iterations, cost = _solve(graph, values, max_iterations)
+    state, cov, iterations, cost = _solve(graph, values, lm)
     status, messages, whitened, degeneracy = assess_fit(state, cov, poses, z, obs, noise, prior, kernel)
     return _Fit(state=state, cov=cov, iterations=iterations, cost=cost, status=status,
                 messages=messages, whitened=whitened, degeneracy=degeneracy, x0=x0)
@@ -500,7 +485,7 @@ def _kept(obs, rejected):
     return (np.ones(rejected.shape, dtype=bool) if obs is None else obs) & ~rejected
 
 
-def _gate(fit, poses, z, obs, noise, prior, max_iterations, probability):
+def _gate(fit, poses, z, obs, noise, prior, lm, probability):
     """``robust="gate"`` on a solved frame: ``(fit, rejected (N,) or None)``
     (as :func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`'s gate): the passing
     leave-one-node-out refit when exactly one passes."""
@@ -517,7 +502,7 @@ def _gate(fit, poses, z, obs, noise, prior, max_iterations, probability):
             kept[n] = False
             try:
                 sub = _fit(poses, z, kept, noise, prior,
-                           checked_initial_state(poses, z, kept, prior, noise), max_iterations)
+                           checked_initial_state(poses, z, kept, prior, noise), lm)
             except (_Failure, MmsnapError):
                 continue
             if sub.status != Status.OK or residual_test_fails(sub.whitened, probability):

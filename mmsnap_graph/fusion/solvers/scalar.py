@@ -1,6 +1,6 @@
 """One-shot fusion of one target in one frame, in plain Python floats: the
 solver of the stream (:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`,
-``solver="numpy"``, docs/STREAMING.md).
+``solver="scalar"``, docs/STREAMING.md).
 
 The same problem as :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` (GTSAM):
 the cost ``0.5 * sum of squared whitened residuals`` of every observed node's
@@ -62,6 +62,7 @@ from ...data.results import Status
 from ..._floats4 import cholesky_4x4, cholesky_inverse_4x4, cholesky_solve_4x4, forward_4x4
 from ..degeneracy import condition_2x2
 from .assess import NEWTON_DECREMENT_TOLERANCE
+from .settings import LM_SETTINGS, LevenbergMarquardtSettings
 from ..problem import frame_initial_state
 
 __all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "FrameSolution", "FrameSolver"]
@@ -74,15 +75,6 @@ STATE_TOLERANCE = 1e-6
 #: ``sigma_i sigma_j`` (measured: 2.5e-6 at most).
 COVARIANCE_TOLERANCE = 1e-5
 
-# GTSAM's Levenberg-Marquardt settings as fuse_frame sets them
-# (oneshot._lm_params; the others GTSAM's defaults): relative and absolute
-# error tolerance, initial lambda and factor, lambda's upper bound, the
-# clamp of the Hessian diagonal in Marquardt's damping, the smallest model
-# fidelity of an accepted step.
-_TOLERANCE = 1e-14
-_LAMBDA_INITIAL, _LAMBDA_FACTOR, _LAMBDA_MAX = 1e-5, 10.0, 1e5
-_MIN_DIAGONAL, _MAX_DIAGONAL = 1e-6, 1e32
-_MIN_MODEL_FIDELITY = 1e-3
 _EPSILON = 2.220446049250313e-16
 # oneshot_assess.positive_definite's smallest eigenvalue ratio of a covariance.
 _MIN_EIGENVALUE_RATIO = 1e-13
@@ -121,16 +113,17 @@ def _nan44() -> NDArray:
 
 
 class FrameSolution:
-    """One solved group: ``state`` (4,) list of floats, ``covariance`` (4, 4)
-    array (NaN unless ``status`` is OK), ``status`` (int
-    :class:`~mmsnap_graph.data.results.Status` code), ``degeneracy`` and
-    ``iterations``."""
+    """One solved group (a :class:`~mmsnap_graph.fusion.solvers.settings.FrameSolve`):
+    ``state`` (4,) list of floats, ``covariance`` (4, 4) array (NaN unless
+    ``status`` is OK), ``status`` (int
+    :class:`~mmsnap_graph.data.results.Status` code), ``degeneracy``,
+    ``iterations`` and ``final_cost`` (NaN when the solver did not start)."""
 
-    __slots__ = ("state", "covariance", "status", "degeneracy", "iterations")
+    __slots__ = ("state", "covariance", "status", "degeneracy", "iterations", "final_cost")
 
-    def __init__(self, state, covariance, status, degeneracy, iterations):
+    def __init__(self, state, covariance, status, degeneracy, iterations, final_cost=math.nan):
         self.state, self.covariance, self.status = state, covariance, status
-        self.degeneracy, self.iterations = degeneracy, iterations
+        self.degeneracy, self.iterations, self.final_cost = degeneracy, iterations, final_cost
 
 
 def _cholesky(a: list[float]) -> tuple[float, ...] | None:
@@ -152,17 +145,17 @@ class FrameSolver:
     :class:`MeasurementNoise` (node order); prior : GaussianPrior or None;
     pose_covariances : (N, 3, 3) with NaN for an exact pose, or None
     (validated by :func:`~mmsnap_graph.fusion.problem.check_pose_covariances`);
-    max_iterations : as ``fuse_frame``'s.
+    lm : the Levenberg-Marquardt settings, as ``fuse_frame``'s.
     """
 
     def __init__(self, node_poses: NDArray, noises: Sequence[MeasurementNoise],
                  prior: GaussianPrior | None, pose_covariances: NDArray | None = None,
-                 max_iterations: int = 500) -> None:
+                 lm: LevenbergMarquardtSettings = LM_SETTINGS) -> None:
         poses = np.asarray(node_poses, dtype=float)
         self.poses = poses
         self.noises = tuple(noises)
         self.prior = prior
-        self.max_iterations = int(max_iterations)
+        self.lm = lm
         # One noise for every node: the initial state's Doppler weights are all 1
         # either way (problem.frame_initial_state), one noise skips them.
         self._initial_noise = (self.noises[0] if all(m == self.noises[0] for m in self.noises)
@@ -244,20 +237,20 @@ class FrameSolver:
         ``LevenbergMarquardtOptimizer`` with the settings of ``fuse_frame``
         (so that both reach the same local minimum and stop alike): ``(x,
         cost, H, g, lines, iterations, converged)``."""
+        lm = self.lm
         cost, info, grad, lines = self._normal(x, rows)
-        lam, factor = _LAMBDA_INITIAL, _LAMBDA_FACTOR
+        lam, factor = lm.lambda_initial, lm.lambda_factor
         it = 0
-        while it < self.max_iterations:
+        while it < lm.max_iterations:
             it += 1
             previous = cost
             # Marquardt's damping: lambda times the clamped diagonal of H.
-            diag = [min(max(info[5 * k], _MIN_DIAGONAL), _MAX_DIAGONAL) for k in range(4)]
+            diag = [min(max(info[5 * k], lm.min_diagonal), lm.max_diagonal) for k in range(4)]
             while True:
                 step = self._try(x, cost, info, grad, lam, diag, rows)
                 if step is not None and step[0]:
                     _, fidelity, new_x, new = step
-                    t = 2.0 * fidelity - 1.0  # a product, not **: inf instead of OverflowError
-                    lam = max(0.0, lam * max(1.0 / 3.0, 1.0 - t * t * t))
+                    lam = max(lm.lambda_min, lam * lm.damping_update(fidelity))
                     factor = 2.0
                     x = new_x
                     cost, info, grad, lines = new
@@ -266,10 +259,11 @@ class FrameSolver:
                     break  # the cost change is below rounding: stop searching lambda
                 lam *= factor
                 factor *= 2.0
-                if lam >= _LAMBDA_MAX:
+                if lam >= lm.lambda_max:
                     break  # giving up: cannot decrease the cost with the largest lambda
             decrease = previous - cost
-            if cost <= 0.0 or decrease <= _TOLERANCE * previous or decrease <= _TOLERANCE:
+            if (cost <= 0.0 or decrease <= lm.relative_tolerance * previous
+                    or decrease <= lm.absolute_tolerance):
                 return x, cost, info, grad, lines, it, True
         return x, cost, info, grad, lines, it, False
 
@@ -302,10 +296,10 @@ class FrameSolver:
         fidelity = 0.0
         if linearized > _EPSILON * cost:
             fidelity = change / linearized
-            successful = fidelity > _MIN_MODEL_FIDELITY
+            successful = fidelity > self.lm.min_model_fidelity
         else:
             successful = True  # the linearized change is zero to rounding
-        if not successful and abs(change) < _TOLERANCE * cost:
+        if not successful and abs(change) < self.lm.relative_tolerance * cost:
             return False, None, x_new, new
         return successful, fidelity, x_new, new
 
@@ -329,25 +323,25 @@ class FrameSolver:
     def _assess(self, x, cost, info, grad, lines, it, converged, rows) -> FrameSolution:
         """Status, covariance and degeneracy of a solution (as ``fuse_frame``)."""
         if not (math.isfinite(cost) and all(map(math.isfinite, x))):
-            return FrameSolution(x, _nan44(), _NON_FINITE, math.inf, it)
+            return FrameSolution(x, _nan44(), _NON_FINITE, math.inf, it, cost)
         if not converged:
-            return FrameSolution(x, _nan44(), _MAX_ITER, math.inf, it)
+            return FrameSolution(x, _nan44(), _MAX_ITER, math.inf, it, cost)
         lo = _cholesky(info)
         if lo is None:  # indeterminate system (gtsam.Marginals raises)
-            return FrameSolution(x, _nan44(), _SINGULAR, math.inf, it)
+            return FrameSolution(x, _nan44(), _SINGULAR, math.inf, it, cost)
         cov = _cholesky_inverse(lo)
         degeneracy = condition_2x2(*lines)
         if not _positive_definite(cov):
-            return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it)
+            return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it, cost)
         # The squared Newton decrement g^T H^-1 g = |L^-1 g|^2.
         y = forward_4x4(lo, grad)
         if not y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3] <= NEWTON_DECREMENT_TOLERANCE:
-            return FrameSolution(x, _nan44(), _NON_FINITE, degeneracy, it)
+            return FrameSolution(x, _nan44(), _NON_FINITE, degeneracy, it, cost)
         if self._pose_info is not None:
             cov = self._pose_aware(x, info, rows)
             if cov is None:
-                return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it)
-        return FrameSolution(x, cov, _OK, degeneracy, it)
+                return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it, cost)
+        return FrameSolution(x, cov, _OK, degeneracy, it, cost)
 
     def _pose_aware(self, x, info, rows) -> NDArray | None:
         """The state's marginal covariance in the joint graph with the uncertain

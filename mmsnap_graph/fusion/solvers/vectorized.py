@@ -49,7 +49,6 @@ from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.results import BatchResult, Status
 from .vectorized_poses import propagate_pose_covariance
 from ..problem import (
-    check_count,
     check_node_noise,
     check_pose_covariances,
     check_prior,
@@ -65,15 +64,8 @@ from .vectorized_lm import (
     normal_equations,
     residual_curvature,
 )
-from ..robust import (
-    RESIDUAL_GATE_PROBABILITY,
-    check_robust,
-    check_robust_k,
-    kernel_weight_and_loss,
-    node_d2,
-    residual_gate_threshold,
-    residual_test_fails,
-)
+from ..options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_options, robust_options
+from ..robust import kernel_weight_and_loss, node_d2, residual_test_fails
 
 __all__ = [
     "BatchResult",
@@ -109,14 +101,9 @@ def fuse_batch(
     noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
     prior: GaussianPrior | None = GaussianPrior(),
     initial_state: ArrayLike | None = None,
-    max_iterations: int = 200,
-    step_tolerance: float = 1e-10,
-    newton_after: int = 10,
-    chunk_size: int = 8192,
-    robust: Literal["gate", "huber", "cauchy"] | None = None,
-    robust_k: float | None = None,
-    residual_gate_probability: float = RESIDUAL_GATE_PROBABILITY,
     pose_covariances: ArrayLike | None = None,
+    robust: RobustOptions | Literal["gate", "huber", "cauchy"] | None = None,
+    options: FusionOptions = DEFAULT_OPTIONS,
 ) -> BatchResult:
     """Fuse ``F`` frames of ``N`` nodes' measurements at once (MAP or ML).
 
@@ -140,44 +127,38 @@ def fuse_batch(
         likelihood.
     initial_state : (F, 4) float, optional
         Starting points; default :func:`mmsnap_graph.fusion.problem.initial_states`.
-    max_iterations : int
-        Levenberg-Marquardt steps per frame, rejected ones included. GTSAM's
-        limit in ``fuse_frame`` counts outer iterations only, each of which
-        may try several damping values, so the two limits are not the same
-        number.
-    step_tolerance : float
-        A frame has converged when an accepted step is smaller than
-        ``step_tolerance * (1 + |x|)`` in every component, or when no step
-        decreases the cost any more (then it sits at a minimum to rounding).
-    newton_after : int
-        After this many steps, a frame that has not converged adds the
-        second-order residual term to its information matrix (Newton steps,
-        where that matrix is positive definite), which turns Gauss-Newton's
-        slow linear convergence near weakly observed minima into quadratic
-        convergence. The minimum and the Laplace covariance (Gauss-Newton
-        information at the minimum) are unchanged.
-    chunk_size : int
-        Frames solved together in the first iterations (a size whose
-        temporaries stay in cache); the frames that need more iterations are
-        then solved together.
-    robust : {"gate", "huber", "cauchy"} or None
-        Robust fusion, as :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`
-        (the same answers): ``"gate"`` tests each node's whitened residual
-        3-vector after the fit against ``chi2.ppf(residual_gate_probability,
-        3)`` and refits a failing frame without each node in turn;
-        ``"huber"`` / ``"cauchy"`` weigh each node by GTSAM's kernel
-        (iteratively reweighted least squares, the same minimum and weighted
-        covariance as GTSAM's ``noiseModel.Robust``).
-    robust_k, residual_gate_probability : float
-        The kernel's constant on the whitened norm (default
-        :data:`factors.robust.ROBUST_K_DEFAULT`) and the gate's probability
-        (default :data:`~.robust.RESIDUAL_GATE_PROBABILITY`).
     pose_covariances : (N, 3, 3) float, optional
         Calibration-aware fusion (docs/CONVENTIONS.md): each pose's covariance
         in the Pose2 body tangent, all NaN (or zero) for an exact pose. The
         estimate is unchanged; the covariance adds the poses' by linear
         propagation, ``P = P_x + A Sigma_p A^T``
         (:mod:`~mmsnap_graph.fusion.solvers.vectorized_poses`).
+    robust : RobustOptions, "gate", "huber", "cauchy" or None
+        Robust fusion, as :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`
+        (the same answers): ``"gate"`` tests each node's whitened residual
+        3-vector after the fit against ``chi2.ppf(robust.gate_probability,
+        3)`` and refits a failing frame without each node in turn;
+        ``"huber"`` / ``"cauchy"`` weigh each node by GTSAM's kernel
+        (iteratively reweighted least squares, the same minimum and weighted
+        covariance as GTSAM's ``noiseModel.Robust``).
+    options : FusionOptions
+        ``options.lm``: Levenberg-Marquardt's settings; the limit is
+        ``lm.max_steps``, steps per frame, rejected ones included (GTSAM's
+        limit in ``fuse_frame``, ``lm.max_iterations``, counts outer
+        iterations only, each of which may try several damping values, so
+        the two limits are not the same number). ``options.step_tolerance``: a frame has converged
+        when an accepted step is smaller than ``step_tolerance * (1 + |x|)``
+        in every component, or when no step decreases the cost any more
+        (then it sits at a minimum to rounding). ``options.newton_after``:
+        after this many steps, a frame that has not converged adds the
+        second-order residual term to its information matrix (Newton steps,
+        where that matrix is positive definite), which turns Gauss-Newton's
+        slow linear convergence near weakly observed minima into quadratic
+        convergence; the minimum and the Laplace covariance (Gauss-Newton
+        information at the minimum) are unchanged. ``options.chunk_size``:
+        frames solved together in the first iterations (a size whose
+        temporaries stay in cache); the frames that need more iterations are
+        then solved together. ``options.covariance`` must be ``"laplace"``.
 
     Returns
     -------
@@ -189,15 +170,13 @@ def fuse_batch(
     poses, z, obs = validate_frames(node_poses, measurements, observed)
     noise = check_node_noise(noise, z.shape[1])
     pose_cov = check_pose_covariances(pose_covariances, z.shape[1])
-    params, max_iterations, chunk_size = _check_options(
-        noise, prior, max_iterations, step_tolerance, newton_after, chunk_size)
-    robust = check_robust(robust)
-    threshold = residual_gate_threshold(residual_gate_probability)
-    if robust in ("huber", "cauchy"):
-        params = replace(params, kernel=(robust, check_robust_k(robust, robust_k)))
+    params, max_iterations, chunk_size = _check_options(noise, prior, options)
+    robust = robust_options(robust)
+    if robust is not None and robust.kernel_pair is not None:
+        params = replace(params, kernel=robust.kernel_pair)
     x0 = _start(initial_state, poses, z, obs, prior, noise, chunk_size)
     result = _robust_solve(poses, z, obs, x0, prior, noise, params, max_iterations, chunk_size,
-                           robust, threshold, residual_gate_probability)
+                           robust)
     if pose_cov is None:
         return result
     return _with_pose_covariance(result, poses, obs, params, pose_cov)
@@ -229,43 +208,40 @@ def _with_pose_covariance(result, poses, obs, params, pose_cov) -> BatchResult:
 
 
 def _robust_solve(poses, z, obs, x0, prior, noise, params, max_iterations, chunk_size,
-                  robust, threshold, probability) -> BatchResult:
+                  robust) -> BatchResult:
     """The plain fit, then the gate or the kernel fit started from it."""
     plain = params if params.kernel is None else replace(params, kernel=None)
     result = _solve(poses, z, obs, x0, plain, max_iterations, chunk_size)
     if robust is None:
         return result
-    if robust == "gate":
+    if robust.kernel == "gate":
         return _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_size,
-                     probability)
+                     robust.gate_probability)
     # The kernel fit starts from the plain one (a non-convex kernel from the
     # detections' average can stall in a wrong basin), as fuse_frame.
     start = np.where(result.success[:, None], result.state, x0)
     result = replace(_solve(poses, z, obs, start, params, max_iterations, chunk_size),
                      initial_state=x0)
-    return _flag_outlying(result, obs, threshold)
+    return _flag_outlying(result, obs, robust.threshold)
 
 
-def _check_options(noise, prior, max_iterations, step_tolerance, newton_after, chunk_size):
+def _check_options(noise, prior, options):
     """Validated solver settings: ``(SolverParams, max_iterations, chunk_size)``;
     ``noise`` the validated per-node tuple."""
     check_prior(prior)
-    max_iterations = check_count(max_iterations, "max_iterations")
-    chunk_size = check_count(chunk_size, "chunk_size")
-    newton_after = check_count(newton_after, "newton_after", 0)
-    if isinstance(step_tolerance, (bool, np.bool_)) or not isinstance(
-            step_tolerance, (int, float, np.integer, np.floating)):
-        raise ValidationError(f"step_tolerance must be a number, got {step_tolerance!r}")
-    if not (np.isfinite(step_tolerance) and step_tolerance > 0):
-        raise ValidationError(f"step_tolerance must be finite and > 0, got {step_tolerance!r}")
+    options = check_options(options)
+    if options.covariance != "laplace":
+        raise ValidationError(f"fuse_batch returns the Laplace covariance only; "
+                              f"options.covariance must be 'laplace', got {options.covariance!r}")
     params = SolverParams(
         inv_sigma=1.0 / node_sigmas(noise),
         prior_mean=None if prior is None else np.asarray(prior.mean, dtype=float),
         prior_inv_sigma=None if prior is None else 1.0 / np.asarray(prior.sigmas, dtype=float),
-        step_tolerance=float(step_tolerance),
-        newton_after=newton_after,
+        step_tolerance=options.step_tolerance,
+        newton_after=options.newton_after,
+        lm=options.lm,
     )
-    return params, max_iterations, chunk_size
+    return params, options.lm.max_steps, options.chunk_size
 
 
 def _initial_states(poses, z, obs, prior, noise, chunk_size):
@@ -294,15 +270,18 @@ def _solve(poses, z, obs, x0, params, max_iterations, chunk_size) -> BatchResult
     info = np.full((4, 4, n_frames), np.nan)
     iterations = np.zeros(n_frames, dtype=np.int64)
     status = np.full(n_frames, _EMPTY, dtype=np.int8)
+    lam, nu = np.empty(n_frames), np.empty(n_frames)
     empty = ~obs.any(axis=1) if params.prior_mean is None else np.zeros(n_frames, dtype=bool)
     state[empty] = x0[empty]
 
-    def run(rows, x_start, it_start, budget, min_live=0):
+    def run(rows, x_start, it_start, budget, min_live=0, damping=None):
         if rows.size == 0:
             return
         p_rows = poses[rows] if poses.ndim == 3 else poses
-        out = levenberg_marquardt(x_start, p_rows, z[rows], weight[rows], params, it_start, budget, min_live)
-        state[rows], cost[rows], residuals[rows], info[:, :, rows], iterations[rows], status[rows] = out
+        out = levenberg_marquardt(x_start, p_rows, z[rows], weight[rows], params, it_start, budget,
+                                  min_live, damping)
+        state[rows], cost[rows], residuals[rows], info[:, :, rows], iterations[rows], status[rows] = out[:6]
+        lam[rows], nu[rows] = out[6]
 
     # Model evaluations at a state on a node give NaN that the solver flags.
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
@@ -316,7 +295,8 @@ def _solve(poses, z, obs, x0, params, max_iterations, chunk_size) -> BatchResult
                 max(1, rows.size // _STAGE1_MIN_LIVE_FRACTION))
         left = rows_all[status[rows_all] == _MAX_ITER]
         if left.size and max_iterations > first:
-            run(left, state[left].copy(), iterations[left].copy(), max_iterations)
+            run(left, state[left].copy(), iterations[left].copy(), max_iterations,
+                damping=(lam[left], nu[left]))
 
         # Laplace covariance: inverse of the undamped information at the solution.
         lo, pd = chol_soa(info)

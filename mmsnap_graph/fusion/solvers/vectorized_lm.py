@@ -20,6 +20,7 @@ from factors.models import measurement_model, wrap_angle
 from ..._linalg import chol_soa, solve_soa
 from ...data.results import Status
 from ..robust import kernel_weight_and_loss
+from .settings import LM_SETTINGS, LevenbergMarquardtSettings
 
 __all__ = [
     "SolverParams",
@@ -141,8 +142,10 @@ def residual_curvature(state, poses, z, weight, inv_sigma, aug, kernel=None):
 class SolverParams:
     """Settings of :func:`levenberg_marquardt`: ``inv_sigma`` (N, 3) (each
     node's inverse sigmas; (3,) for one noise), the prior's mean and inverse
-    sigmas (None: ML), the step tolerance, ``newton_after`` and the robust
-    kernel ``(name, k)`` or None."""
+    sigmas (None: ML), the step tolerance, ``newton_after``, the robust
+    kernel ``(name, k)`` or None and the damping rules ``lm`` (its
+    ``lambda_initial``, ``lambda_factor``, ``lambda_min`` and ``lambda_max``;
+    the convergence test is the step tolerance, not the cost's)."""
 
     inv_sigma: NDArray
     prior_mean: NDArray | None
@@ -150,13 +153,14 @@ class SolverParams:
     step_tolerance: float
     newton_after: int
     kernel: tuple | None = None
+    lm: LevenbergMarquardtSettings = LM_SETTINGS
 
 
 class _Frames:
     """The frames of one :func:`_lm` call: the output arrays (indexed by frame)
     and the active set (arrays with an ``_a`` suffix, indexed by ``idx``)."""
 
-    def __init__(self, x0, poses, z, weight, params, it_start):
+    def __init__(self, x0, poses, z, weight, params, it_start, damping=None):
         n_frames, n_nodes = z.shape[:2]
         self.n_nodes = n_nodes
         self.per_frame_poses = poses.ndim == 3
@@ -166,12 +170,17 @@ class _Frames:
         self.info_out = np.empty((4, 4, n_frames))
         self.iterations = np.empty(n_frames, dtype=np.int64)
         self.status = np.empty(n_frames, dtype=np.int8)
+        self.lam_out = np.empty(n_frames)
+        self.nu_out = np.empty(n_frames)
         self.idx = np.arange(n_frames)
         self.p_a, self.z_a, self.w_a, self.x_a = poses, z, weight, x0
         self.aug_a, self.c_a = evaluate(x0, poses, z, weight, params.inv_sigma,
                                          params.prior_mean, params.prior_inv_sigma, params.kernel)
-        self.lam_a = np.full(n_frames, 1e-5)
-        self.nu_a = np.full(n_frames, 2.0)
+        if damping is None:
+            self.lam_a = np.full(n_frames, params.lm.lambda_initial)
+            self.nu_a = np.full(n_frames, params.lm.lambda_factor)
+        else:  # a frame continued from an earlier call keeps its damping
+            self.lam_a, self.nu_a = (np.array(d, dtype=float) for d in damping)
         self.it_a = np.array(it_start, dtype=np.int64)
         self.small_a = np.zeros(n_frames, dtype=bool)
         self.live = np.ones(n_frames, dtype=bool)
@@ -190,6 +199,7 @@ class _Frames:
         self.residuals[out] = self.aug_a[:, 4, sel].T.reshape(-1, self.n_nodes, 3)
         self.iterations[out] = self.it_a[sel]
         self.status[out] = code
+        self.lam_out[out], self.nu_out[out] = self.lam_a[sel], self.nu_a[sel]
         self.info_out[:, :, out] = self.info[:, :, sel]
         self.live[sel] = False
 
@@ -207,18 +217,24 @@ class _Frames:
         self.live = np.ones(self.idx.size, dtype=bool)
 
     def outputs(self):
-        return self.state, self.cost, self.residuals, self.info_out, self.iterations, self.status
+        return (self.state, self.cost, self.residuals, self.info_out, self.iterations, self.status,
+                (self.lam_out, self.nu_out))
 
 
-def levenberg_marquardt(x0, poses, z, weight, params, it_start, max_iterations, min_live=0):
+def levenberg_marquardt(x0, poses, z, weight, params, it_start, max_iterations, min_live=0,
+                        damping=None):
     """Levenberg-Marquardt over the frames of ``x0 (F, 4)``.
 
     Returns ``state (F, 4)``, ``cost (F,)``, ``residuals (F, N, 3)``,
     ``info (4, 4, F)`` (undamped information at the returned state),
-    ``iterations (F,)`` (counting from ``it_start``) and ``status (F,)``;
-    frames still running after ``max_iterations`` have status ``_MAX_ITER``.
+    ``iterations (F,)`` (counting from ``it_start``), ``status (F,)`` and
+    ``damping`` ``(lambda (F,), factor (F,))``; frames still running after
+    ``max_iterations`` have status ``_MAX_ITER``. ``damping`` continues
+    frames from an earlier call where they stopped (default: the settings'
+    ``lambda_initial`` and ``lambda_factor``), so that how the frames are
+    split into calls does not change any frame's steps.
     """
-    fr = _Frames(x0, poses, z, weight, params, it_start)
+    fr = _Frames(x0, poses, z, weight, params, it_start, damping)
     while True:
         fr.info, fr.grad = normal_equations(fr.x_a, fr.aug_a, params.prior_mean, params.prior_inv_sigma)
         if not _retire(fr, max_iterations, min_live):
@@ -315,7 +331,9 @@ def _try_step(fr: _Frames, params, step_t, ok, predicted) -> None:
         gain = (c_a - c_n) / predicted
     gain = np.where(np.isfinite(gain), gain, 0.0)
     shrink = np.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-    fr.lam_a = np.where(accept, np.maximum(fr.lam_a * shrink, 1e-12), np.minimum(fr.lam_a * fr.nu_a, 1e12))
+    lm = params.lm
+    fr.lam_a = np.where(accept, np.maximum(fr.lam_a * shrink, lm.lambda_min),
+                        np.minimum(fr.lam_a * fr.nu_a, lm.lambda_max))
     fr.nu_a = np.where(accept, 2.0, fr.nu_a * 2.0)
     rejected = ~accept
     if np.any(rejected):
@@ -325,4 +343,4 @@ def _try_step(fr: _Frames, params, step_t, ok, predicted) -> None:
     fr.x_a, fr.c_a, fr.aug_a = x_new, c_n, aug_n
     # A frame whose damping has grown without bound cannot move: it sits
     # at a minimum to rounding (typical when the cost is flat).
-    fr.small_a |= live & (fr.lam_a >= 1e12)
+    fr.small_a |= live & (fr.lam_a >= lm.lambda_max)

@@ -15,10 +15,10 @@ It is built for latency (docs/STREAMING.md, "Latency"): the grouping is
 :class:`~mmsnap_graph.fusion.stream.association.StreamAssociator` (the
 decisions of ``associate_frame`` in plain floats for up to four detections
 per node, ``associate_frame`` itself otherwise); the default solver
-``"numpy"`` is :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver` (the
+``"scalar"`` is :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver` (the
 problem of :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` solved as GTSAM
 solves it, in plain floats, equal to it to the tolerance stated there);
-``"gtsam"`` runs ``fuse_frame`` itself and ``"batch"``
+``"gtsam"`` runs ``fuse_frame`` itself and ``"vectorized"``
 :func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`. Each frame is validated once,
 with checks on plain floats.
 
@@ -51,12 +51,13 @@ from ..solvers.vectorized import fuse_batch
 from ..solvers.scalar import FrameSolver
 from .association import StreamAssociator
 from ..problem import check_node_noise, check_pose_covariances, check_prior
+from ..solvers.settings import check_solver
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import Status
 from ...errors import MmsnapError, ValidationError
 from ...tracking.central import CentralConfig, CentralTracker
-from ..._validation import as_float_array, check_finite
+from ..._validation import as_float_array, check_count, check_finite, check_probability
 
 __all__ = ["StreamUpdate", "FrameStream", "recording_frames"]
 
@@ -124,12 +125,12 @@ class FrameStream:
         holding every node (docs/CONVENTIONS.md, "Per-node noise").
     prior : GaussianPrior or None
         The one-shot prior (MAP, default the paper's); None for ML.
-    solver : ``"numpy"`` (the default: :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver`
+    solver : ``"scalar"`` (the default: :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver`
         per group, the same problem as ``fuse_frame`` solved in plain floats,
         equal to it to the tolerance stated there and several times faster),
         ``"gtsam"`` (:func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` per
-        group) or ``"batch"`` (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`
-        on the frame's groups).
+        group) or ``"vectorized"`` (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`
+        on the frame's groups); :data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`.
     gate_probability : association gate (see :mod:`mmsnap_graph.fusion.association`).
     tracker : CentralConfig or None
         The central tracker's settings (default ``CentralConfig()``); its
@@ -149,7 +150,7 @@ class FrameStream:
     def __init__(self, node_names: Sequence[str], node_poses: ArrayLike, *,
                  noise: MeasurementNoise = MeasurementNoise(),
                  prior: GaussianPrior | None = GaussianPrior(),
-                 solver: Literal["numpy", "gtsam", "batch"] = "numpy",
+                 solver: Literal["scalar", "gtsam", "vectorized"] = "scalar",
                  gate_probability: float = 0.999,
                  tracker: CentralConfig | None = None,
                  pose_covariances: ArrayLike | Mapping[str, ArrayLike] | None = None) -> None:
@@ -159,13 +160,10 @@ class FrameStream:
         poses = check_finite(as_float_array(node_poses, "node_poses"), "node_poses")
         if poses.shape != (len(names), 3):
             raise ValidationError(f"node_poses must have shape ({len(names)}, 3), got {poses.shape}")
-        if solver not in ("numpy", "gtsam", "batch"):
-            raise ValidationError(f"solver must be 'numpy', 'gtsam' or 'batch', got {solver!r}")
+        check_solver(solver)
         if tracker is not None and not isinstance(tracker, CentralConfig):
             raise ValidationError(f"tracker must be a CentralConfig, got {type(tracker).__name__}")
-        p = float(gate_probability)
-        if not 0.0 < p < 1.0:
-            raise ValidationError(f"gate_probability must be in (0, 1), got {gate_probability!r}")
+        p = check_probability(gate_probability, "gate_probability")
         self.node_names = names
         self.node_poses = poses
         poses.setflags(write=False)
@@ -280,15 +278,15 @@ class FrameStream:
             for n, k in enumerate(row):
                 if k >= 0:
                     z[i, n] = per_node[n][k]
-        if self.solver == "batch":
+        if self.solver == "vectorized":
             res = fuse_batch(self.node_poses, z, observed=obs, noise=self.noise, prior=self.prior,
                              pose_covariances=self.pose_covariances)
             return res.state, res.covariance, np.asarray(res.status, dtype=np.int8), res.degeneracy
-        if self.solver == "numpy":
-            return self._fuse_numpy(z, obs)
+        if self.solver == "scalar":
+            return self._fuse_scalar(z, obs)
         return self._fuse_gtsam(z, obs)
 
-    def _fuse_numpy(self, z, obs):
+    def _fuse_scalar(self, z, obs):
         g = z.shape[0]
         state, cov = np.empty((g, 4)), np.empty((g, 4, 4))
         status, degeneracy = np.empty(g, dtype=np.int8), np.empty(g)
@@ -381,8 +379,7 @@ def recording_frames(recording: Recording, *, source: Literal["centroids", "poin
         raise ValidationError(f"recording must be a Recording, got {type(recording).__name__}")
     if source not in ("centroids", "point_cloud"):
         raise ValidationError(f"source must be 'centroids' or 'point_cloud', got {source!r}")
-    if int(fill_frames) != fill_frames or fill_frames < 0:
-        raise ValidationError(f"fill_frames must be an integer >= 0, got {fill_frames!r}")
+    check_count(fill_frames, "fill_frames", 0)
     names = recording.node_names
     dets = [getattr(recording.nodes[name], source) for name in names]
     sorted_rows = []

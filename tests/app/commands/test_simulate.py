@@ -13,10 +13,14 @@ from mmsnap_graph.io import read_recording
 from mmsnap_graph.sim import CLEAN, SimulationOptions, simulate_recording
 
 
-def test_model_switch_selects_real_or_clean(tmp_path):
+def test_model_switch_selects_real_or_clean(tmp_path, capsys):
     real, clean = tmp_path / "r.h5", tmp_path / "c.h5"
     assert main(["simulate", "-c", "B", "-n", "30", "-s", "2", "-l", "centroids", "-o", str(real),
                  "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    # The summary says how many rows are not of a person, and which model ran.
+    n_other = int(np.sum(read_recording(real).nodes["S1"].centroids.target_id < 0))
+    assert f"({n_other} not of a person: static scene" in out and "real model" in out
     assert main(["simulate", "--model", "clean", "-c", "B", "-n", "30", "-s", "2", "-l",
                  "centroids", "-o", str(clean), "--no-progress"]) == 0
     r, c = read_recording(real), read_recording(clean)

@@ -1,0 +1,316 @@
+"""``mmsnap import``: TI radar data -> an HDF5 recording (docs/TI.md).
+
+Three sources: ``dca1000`` (raw ADC captures with the ``.cfg`` they were made
+with), ``ti-uart`` (binary logs of a demo's data UART) and ``table`` (CSV /
+``.npy`` / ``.npz`` point logs). Degrees appear only here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from mmsnap_graph.errors import ValidationError
+
+from ..arguments import named_values
+
+#: A layout for reading only the timing of a ``.cfg`` (point-cloud imports):
+#: every transmitter at the same place, so any Tx subset forms a valid array.
+_TIMING_ONLY = dict(name="timing only", tx_azimuth_half_wl=(0.0,) * 16,
+                    tx_elevation_half_wl=(0.0,) * 16, rx_azimuth_half_wl=tuple(range(8)))
+
+
+def _band(text: str) -> tuple[float, float]:
+    try:
+        low, high = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--height-band {text!r} must look like LOW_M,HIGH_M "
+                                         "(e.g. 0.2,2.0)") from None
+    return low, high
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3), default=[],
+                   metavar="NAME=X,Y,PHI_DEG", help="a known (surveyed) node pose; repeat")
+    p.add_argument("-o", "--output", required=True, help="output HDF5 recording")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+
+
+def _points_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mount", action="append", type=named_values("HEIGHT_M,TILT_DEG", 2), default=[],
+                   metavar="NAME=HEIGHT_M,TILT_DEG",
+                   help="mounting height above the floor and down tilt of a node (repeat; "
+                        "default: the .cfg's sensorPosition, else 0, 0)")
+    p.add_argument("--room-pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3),
+                   default=[], metavar="NAME=X,Y,PHI_DEG",
+                   help="the points of this node are in a room frame made with this nominal "
+                        "mounting pose (with --mount's height and tilt); they are taken back "
+                        "to the sensor frame")
+    p.add_argument("--height-band", type=_band, default=None,
+                   metavar="LOW_M,HIGH_M",
+                   help="keep points between these heights above the floor (drops floor and "
+                        "ceiling points)")
+    p.add_argument("--frame-period", type=float, default=None, metavar="SECONDS",
+                   help="frame period in seconds, e.g. 0.05 for 20 fps (default: from --cfg); "
+                        "checked against the log's time stamps")
+    p.add_argument("--cfg", default=None, help="the .cfg the radars ran (for the frame period "
+                                               "and sensorPosition)")
+    p.add_argument("--ignore-unknown-commands", action="store_true",
+                   help="skip .cfg commands this reader does not know (listed on stderr)")
+    p.add_argument("--destack", action="store_true",
+                   help="the log stores each frame as a stack of the last frames' points: "
+                        "drop points repeated from the previous frame")
+    p.add_argument("--accumulate", type=int, default=1, metavar="K",
+                   help="merge the points of the last K frames into each frame (sparse "
+                        "clouds; default 1 = off)")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "import", help="import TI radar data (DCA1000 raw ADC, UART point clouds, tables)",
+        description="Write an HDF5 recording (docs/FORMAT.md) from TI radar data; "
+                    "docs/TI.md says which source needs which option.")
+    sub = p.add_subparsers(dest="source", metavar="SOURCE")
+    sub.required = True
+    d = sub.add_parser("dca1000", help="raw ADC captures (adc_data.bin) with their .cfg")
+    d.add_argument("--cfg", required=True, help="the mmWave SDK .cfg of the capture")
+    d.add_argument("--board", default=None, help="board preset giving the antenna layout "
+                                                 "(AWR1843BOOST, IWR6843ISK, IWR6843AOP, "
+                                                 "AWR2243BOOST); required")
+    d.add_argument("--node", action="append", type=named_values("CAPTURE.bin", None), required=True,
+                   metavar="NAME=CAPTURE.bin",
+                   help="a node's capture (repeat the same NAME for split parts, in order)")
+    d.add_argument("--sub-frame", type=int, default=None,
+                   help="sub-frame to import from an advanced frame (required then)")
+    d.add_argument("--iq-swap", action="store_true", help="the device sent Q before I")
+    d.add_argument("--allow-partial-frame", action="store_true",
+                   help="drop an incomplete last frame of a capture cut short (warns)")
+    d.add_argument("--ignore-unknown-commands", action="store_true",
+                   help="skip .cfg commands this reader does not know (listed on stderr)")
+    _common(d)
+    d.set_defaults(func=run_dca1000)
+    u = sub.add_parser("ti-uart", help="binary logs of a TI demo's data UART (TLV frames)")
+    u.add_argument("--node", action="append", type=named_values("LOG.bin", None), required=True,
+                   metavar="NAME=LOG.bin", help="a node's UART log (repeat per node)")
+    u.add_argument("--demo", choices=["oob", "tracking"], default="oob",
+                   help="out-of-box demo (TLVs 1, 7) or 3D people tracking (TLV 1020) "
+                        "(default %(default)s)")
+    _points_options(u)
+    _common(u)
+    u.set_defaults(func=run_uart)
+    t = sub.add_parser("table", help="CSV / .npy / .npz point logs")
+    t.add_argument("--node", action="append", type=named_values("TABLE", None), default=[],
+                   metavar="NAME=TABLE", help="a node's table (repeat per node)")
+    t.add_argument("--table", default=None,
+                   help="one table holding every node (a node column)")
+    t.add_argument("--coordinates", choices=["auto", "cartesian", "spherical"], default="auto")
+    t.add_argument("--degrees", action="store_true", help="angles are in degrees")
+    t.add_argument("--time-unit", choices=["s", "ms", "us"], default="s",
+                   help="unit of the time-stamp column (default %(default)s)")
+    t.add_argument("--columns", action="append", type=named_values("COLUMN", None), default=[],
+                   metavar="HEADER=COLUMN",
+                   help="read the table's column HEADER as COLUMN (x, y, z, doppler, frame, "
+                        "time_s, range, azimuth, elevation, snr, noise, node), e.g. "
+                        "--columns 'X [m]=x' --columns 'Velocity [m/s]=doppler'; repeat")
+    _points_options(t)
+    _common(t)
+    t.set_defaults(func=run_table)
+
+
+def _poses(args) -> dict:
+    return {name: [x, y, np.deg2rad(phi)] for name, (x, y, phi) in args.pose}
+
+
+def _grouped(pairs) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for name, value in pairs:
+        out.setdefault(name, []).append(value)
+    return out
+
+
+def _write(args, recording) -> int:
+    from mmsnap_graph.io import write_recording
+    path = write_recording(args.output, recording, overwrite=args.overwrite)
+    for name, node in recording.nodes.items():
+        level = node.point_cloud if node.point_cloud is not None else None
+        what = (f"{len(level)} points in {len(np.unique(level.frame))} frames" if level is not None
+                else f"{node.cube.shape[0]} cubes {node.cube.shape[1:]}")
+        print(f"{name}: {what}")
+    print(f"wrote {path}")
+    return 0
+
+
+def _read_cfg(args, **options):
+    """The ``.cfg`` of ``--cfg``; unknown commands skipped are listed on stderr."""
+    from mmsnap_graph.io.ti_cfg import read_ti_cfg
+    ti = read_ti_cfg(args.cfg, ignore_unknown=args.ignore_unknown_commands, **options)
+    if ti.unknown:
+        print(f"{args.cfg}: ignored unknown commands {', '.join(ti.unknown)}", file=sys.stderr)
+    return ti
+
+
+def run_dca1000(args: argparse.Namespace) -> int:
+    from mmsnap_graph.io.dca1000 import recording_from_dca1000
+    ti = _read_cfg(args, board=args.board)
+    if ti.advanced and args.sub_frame is None:
+        raise ValidationError(f"{args.cfg} is an advanced frame of {ti.n_sub_frames} "
+                              "sub-frames: choose one with --sub-frame")
+    config = ti.configs if ti.advanced else ti.configs[0]
+    sub_frame = args.sub_frame if ti.advanced else None
+    if not ti.advanced and args.sub_frame not in (None, 0):
+        raise ValidationError(f"--sub-frame {args.sub_frame}: {args.cfg} has no sub-frames")
+    rec = recording_from_dca1000(_grouped(args.node), config, poses=_poses(args) or None,
+                                 iq_swap=args.iq_swap,
+                                 allow_partial_frame=args.allow_partial_frame,
+                                 sub_frame=sub_frame,
+                                 metadata={"board": ti.board, "cfg": str(args.cfg),
+                                           **({} if sub_frame is None
+                                              else {"sub_frame": int(sub_frame)})})
+    return _write(args, rec)
+
+
+#: TI's frame periodicity is 5 ns x 2^28 = 1.34 s at most; a longer frame
+#: period on the command line is a unit mistake (milliseconds typed as seconds).
+MAX_FRAME_PERIOD_S = 1.35
+#: A frame period below 0.1 ms (10 kHz frames) is none a TI radar makes.
+MIN_FRAME_PERIOD_S = 1e-4
+#: Mounting heights above this are a unit mistake (centimetres typed as metres).
+MAX_MOUNT_HEIGHT_M = 12.0
+
+
+def _check_point_options(args) -> None:
+    """Usage errors (exit 2) of the point-cloud imports' numeric options."""
+    if args.accumulate < 1:
+        raise ValidationError(f"--accumulate: n_frames={args.accumulate} must be an integer >= 1")
+    period = args.frame_period
+    if period is not None and not (np.isfinite(period) and period > 0):
+        raise ValidationError(f"--frame-period must be finite and > 0, got {period}")
+    if period is not None and period > MAX_FRAME_PERIOD_S:
+        raise ValidationError(f"--frame-period {period:g}: the frame period is in seconds and a "
+                              f"TI radar's is at most {MAX_FRAME_PERIOD_S} s; milliseconds? "
+                              f"({period:g} ms is --frame-period {period / 1000:g})")
+    if period is not None and period < MIN_FRAME_PERIOD_S:
+        raise ValidationError(f"--frame-period {period:g}: the frame period is in seconds (e.g. "
+                              f"0.05 for 20 fps); {period:g} s is below any TI radar's "
+                              f"({MIN_FRAME_PERIOD_S:g} s)")
+    for name, (height, tilt) in args.mount:
+        if not (np.isfinite(height) and np.isfinite(tilt)):
+            raise ValidationError(f"--mount {name}={height:g},{tilt:g}: height and tilt must be "
+                                  "finite")
+        if abs(height) > MAX_MOUNT_HEIGHT_M:
+            raise ValidationError(f"--mount {name}={height:g},{tilt:g}: a sensor {height:g} m "
+                                  f"above the floor; the height is in metres (centimetres? "
+                                  f"{height:g} cm is --mount {name}={height / 100:g},{tilt:g})")
+        if abs(tilt) >= 90:
+            raise ValidationError(f"--mount {name}={height:g},{tilt:g}: the down tilt is in "
+                                  "degrees and must lie in (-90, 90)")
+
+
+def _timing(args):
+    """(frame period, TiConfig or None) from --frame-period / --cfg."""
+    _check_point_options(args)
+    ti = None
+    if args.cfg is not None:
+        from mmsnap_graph.io.ti_cfg import BoardLayout
+        ti = _read_cfg(args, layout=BoardLayout(**_TIMING_ONLY))
+    period = args.frame_period if args.frame_period is not None else (
+        ti.configs[0].frame_period_s if ti is not None else None)
+    if period is None:
+        raise ValidationError("the frame period is unknown: give --frame-period or --cfg")
+    return period, ti
+
+
+def _mountings(args, names, ti) -> dict:
+    from mmsnap_graph.io.point_cloud import Mounting
+    mounts = dict(args.mount)
+    rooms = dict(args.room_pose)
+    unknown = sorted((set(mounts) | set(rooms)) - set(names))
+    if unknown:
+        raise ValidationError(f"--mount/--room-pose name nodes {unknown} that are not imported "
+                              f"(nodes: {list(names)})")
+    default = (0.0, 0.0)
+    if ti is not None and ti.sensor_height_m is not None:
+        default = (ti.sensor_height_m, float(np.rad2deg(ti.elevation_tilt_rad)))
+    out = {}
+    for name in names:
+        height, tilt_deg = mounts.get(name, default)
+        room = rooms.get(name)
+        out[name] = Mounting(height_m=height, tilt_rad=np.deg2rad(tilt_deg),
+                             room_pose=None if room is None else (room[0], room[1],
+                                                                  np.deg2rad(room[2])))
+    return out
+
+
+def _check_period(args, clouds, period) -> None:
+    """The frame period agrees with each cloud's time stamps (usage error)."""
+    from mmsnap_graph.io.point_cloud import check_frame_period
+    option = "--frame-period" if args.frame_period is not None else f"the frame period of " \
+                                                                     f"--cfg {args.cfg}"
+    for name, cloud in clouds.items():
+        problem = check_frame_period(cloud, period, node=name, option=option)
+        if problem:
+            raise ValidationError(f"{problem}; give the log's frame period in seconds with "
+                                  "--frame-period")
+
+
+def _points_recording(args, clouds, ti, period, metadata):
+    from mmsnap_graph.io.point_cloud import (accumulate_frames, destack_frames,
+                                             recording_from_point_clouds)
+    _check_period(args, clouds, period)
+    if args.destack:
+        clouds = {name: destack_frames(c) for name, c in clouds.items()}
+    if args.accumulate != 1:
+        clouds = {name: accumulate_frames(c, args.accumulate, frame_period_s=period)
+                  for name, c in clouds.items()}
+        metadata = dict(metadata, accumulated_frames=args.accumulate)
+    band = args.height_band
+    return recording_from_point_clouds(clouds, frame_period_s=period,
+                                       mounting=_mountings(args, list(clouds), ti),
+                                       height_band_m=band, poses=_poses(args) or None,
+                                       metadata=metadata)
+
+
+def run_uart(args: argparse.Namespace) -> int:
+    from mmsnap_graph.io.ti_uart import read_ti_uart
+    period, ti = _timing(args)
+    clouds = {}
+    for name, paths in _grouped(args.node).items():
+        if len(paths) != 1:
+            raise ValidationError(f"--node {name} is given {len(paths)} times; one log per node")
+        log = read_ti_uart(paths[0], demo=args.demo)
+        for bad in log.bad[:10]:
+            print(f"{name}: skipped {bad}", file=sys.stderr)
+        if len(log.bad) > 10:
+            print(f"{name}: ... {len(log.bad) - 10} more bad packets", file=sys.stderr)
+        clouds[name] = log.points
+    rec = _points_recording(args, clouds, ti, period, {"source": f"ti-uart-{args.demo}"})
+    return _write(args, rec)
+
+
+def run_table(args: argparse.Namespace) -> int:
+    from mmsnap_graph.io.point_table import read_point_tables
+    if bool(args.node) == bool(args.table):
+        raise ValidationError("give either --node NAME=TABLE (repeat) or --table FILE")
+    period, ti = _timing(args)
+    opts = dict(coordinates=args.coordinates, degrees=args.degrees, time_unit=args.time_unit,
+                frame_period_s=period, columns=dict(args.columns) or None)
+    if args.table:
+        clouds = read_point_tables(args.table, **opts)
+    else:
+        names = [name for name, _ in args.node]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValidationError(f"--node {twice[0]} is given {names.count(twice[0])} times; "
+                                  "one table per node")
+        clouds = {}
+        for name, path in args.node:
+            several = read_point_tables(path, **opts)
+            if len(several) != 1:
+                raise ValidationError(f"--node {name}={path}: the table holds {len(several)} "
+                                      f"nodes {sorted(several)} (a node column); import it "
+                                      f"with --table {path}")
+            clouds[name] = next(iter(several.values()))
+    rec = _points_recording(args, clouds, ti, period, {"source": "table"})
+    return _write(args, rec)

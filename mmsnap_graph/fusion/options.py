@@ -1,0 +1,173 @@
+"""The options of one-shot fusion, validated once: :class:`RobustOptions`
+(the robust fit) and :class:`FusionOptions` (how to solve and what to
+return), taken by :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`,
+:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
+:func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording` and
+:class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream`. GTSAM-free.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from .._validation import check_count, check_probability
+from ..errors import ValidationError
+from .robust import RESIDUAL_GATE_PROBABILITY, check_robust, check_robust_k, residual_gate_threshold
+from .solvers.settings import LM_SETTINGS, SOLVERS, LevenbergMarquardtSettings, check_solver
+
+__all__ = ["RobustOptions", "FusionOptions", "DEFAULT_OPTIONS", "robust_options"]
+
+
+def _positive(value: object, name: str) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.floating)) \
+            or not (math.isfinite(value) and value > 0):
+        raise ValidationError(f"{name} must be a positive finite number, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class RobustOptions:
+    """Robust one-shot fusion (:mod:`mmsnap_graph.fusion.robust`,
+    docs/ROBUST.md).
+
+    kernel : ``"gate"`` (refit without the node whose whitened residual fails
+        the chi-square gate), ``"huber"`` or ``"cauchy"`` (GTSAM's
+        m-estimators per node).
+    k : the kernel constant (None: :data:`factors.robust.ROBUST_K_DEFAULT`
+        of the kernel); not taken by ``"gate"``.
+    gate_probability : the probability ``p`` of the per-node residual gate,
+        ``chi2.ppf(p, 3)`` (default :data:`~mmsnap_graph.fusion.robust.RESIDUAL_GATE_PROBABILITY`).
+
+    A plain string is shorthand for the kernel with the defaults
+    (:func:`robust_options`): ``robust="gate"`` is
+    ``RobustOptions(kernel="gate")``.
+    """
+
+    kernel: Literal["gate", "huber", "cauchy"]
+    k: float | None = None
+    gate_probability: float = RESIDUAL_GATE_PROBABILITY
+
+    def __post_init__(self) -> None:
+        if check_robust(self.kernel) is None:
+            raise ValidationError("kernel must be 'gate', 'huber' or 'cauchy', got None "
+                                  "(pass robust=None for plain least squares)")
+        if self.kernel == "gate":
+            if self.k is not None:
+                raise ValidationError(f"k is the constant of a kernel; kernel='gate' takes "
+                                      f"none, got k={self.k!r}")
+        else:
+            if self.k is not None and (isinstance(self.k, (bool, np.bool_)) or not isinstance(
+                    self.k, (int, float, np.integer, np.floating))):
+                raise ValidationError(f"k must be a number, got {self.k!r}")
+            if self.k is not None and not (math.isfinite(self.k) and self.k > 0):
+                raise ValidationError(f"k must be finite and > 0, got {self.k!r}")
+            object.__setattr__(self, "k", check_robust_k(self.kernel, self.k))
+        object.__setattr__(self, "gate_probability",
+                           check_probability(self.gate_probability, "gate_probability"))
+
+    @property
+    def threshold(self) -> float:
+        """The per-node gate ``chi2.ppf(gate_probability, 3)``."""
+        return residual_gate_threshold(self.gate_probability)
+
+    @property
+    def kernel_pair(self) -> tuple[str, float] | None:
+        """``(name, k)`` of a kernel, None for the gate."""
+        return None if self.kernel == "gate" else (self.kernel, self.k)
+
+
+def robust_options(robust: object) -> RobustOptions | None:
+    """``robust`` as :class:`RobustOptions`: None stays None, a kernel name
+    gets the defaults; ValidationError for anything else."""
+    if robust is None or isinstance(robust, RobustOptions):
+        return robust
+    if isinstance(robust, str):
+        return RobustOptions(kernel=robust)
+    raise ValidationError(
+        f"robust must be None, 'gate', 'huber', 'cauchy' or a RobustOptions, got {robust!r}")
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class FusionOptions:
+    """How one-shot fusion solves and what it returns; each entry point reads
+    the fields that concern it.
+
+    Every solver:
+
+    lm : :class:`~mmsnap_graph.fusion.solvers.settings.LevenbergMarquardtSettings`
+        the damping and stopping rules (``lm.max_iterations``: reaching it
+        is a failure).
+
+    ``fuse_frame`` (and ``fuse_recording``):
+
+    covariance : ``"laplace"`` (the inverse Gauss-Newton information, what
+        ``gtsam.Marginals`` returns), ``"grid"`` (the paper's numerical
+        posterior covariance on a 4D grid; ``fuse_frame`` also returns the
+        Laplace one) or ``"both"`` (``fuse_frame`` only).
+    grid_points_per_axis, grid_half_width_sigmas : the grid's layout
+        (:func:`mmsnap_graph.fusion.grid.grid_posterior`).
+
+    The vectorized solver (``fuse_batch``):
+
+    step_tolerance : a frame converges when a step is below this, relative
+        to ``1 + |state|``.
+    newton_after : steps after which a frame adds the second-order residual
+        term (Newton's quadratic convergence near a weakly observed minimum).
+    chunk_size : frames solved together in the first stage.
+
+    A recording (``fuse_recording``):
+
+    solver : ``"vectorized"`` (the default) or ``"gtsam"``
+        (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
+    gate_probability : the association gate.
+    source : ``"centroids"`` or ``"point_cloud"``.
+    block_rows : rows fused per call of the vectorized solver.
+    motion_check : True, False or None (on with a ``robust`` option).
+    """
+
+    lm: LevenbergMarquardtSettings = LM_SETTINGS
+    covariance: Literal["laplace", "grid", "both"] = "laplace"
+    grid_points_per_axis: int = 21
+    grid_half_width_sigmas: float = 5.0
+    step_tolerance: float = 1e-10
+    newton_after: int = 10
+    chunk_size: int = 8192
+    solver: Literal["gtsam", "vectorized", "scalar"] = "vectorized"
+    gate_probability: float = 0.999
+    source: Literal["centroids", "point_cloud"] = "centroids"
+    block_rows: int = 65536
+    motion_check: bool | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.lm, LevenbergMarquardtSettings):
+            raise ValidationError(f"lm must be a LevenbergMarquardtSettings, got {self.lm!r}")
+        for name, value, choices in (("covariance", self.covariance, ("laplace", "grid", "both")),
+                                     ("source", self.source, ("centroids", "point_cloud"))):
+            if value not in choices:
+                raise ValidationError(
+                    f"{name} must be {', '.join(map(repr, choices))}, got {value!r}")
+        check_solver(self.solver, SOLVERS)
+        for name in ("grid_points_per_axis", "newton_after", "chunk_size", "block_rows"):
+            object.__setattr__(self, name, check_count(getattr(self, name), name))
+        for name in ("grid_half_width_sigmas", "step_tolerance"):
+            object.__setattr__(self, name, _positive(getattr(self, name), name))
+        object.__setattr__(self, "gate_probability",
+                           check_probability(self.gate_probability, "gate_probability"))
+        if self.motion_check is not None and not isinstance(self.motion_check, (bool, np.bool_)):
+            raise ValidationError(
+                f"motion_check must be True, False or None, got {self.motion_check!r}")
+
+
+#: The default options.
+DEFAULT_OPTIONS = FusionOptions()
+
+
+def check_options(options: object) -> FusionOptions:
+    """``options`` if it is a :class:`FusionOptions`; ValidationError otherwise."""
+    if not isinstance(options, FusionOptions):
+        raise ValidationError(f"options must be a FusionOptions, got {type(options).__name__}")
+    return options

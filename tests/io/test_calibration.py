@@ -1,0 +1,197 @@
+"""The calibration file formats (mmsnap_graph.io.calibration): the
+``/calibration`` group and the calibration JSON, written and read back."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from mmsnap_graph.calibration import PoseEdge, RecordingCalibration, calibrate_recording
+from mmsnap_graph.errors import CalibrationError, FileFormatError
+from mmsnap_graph.io import read_recording, write_recording
+from mmsnap_graph.io.calibration import (
+    CALIBRATION_GROUP,
+    calibration_to_json,
+    load_calibration_poses,
+    read_calibration,
+    read_calibration_json,
+    write_calibration,
+    write_calibration_json,
+)
+from mmsnap_graph.sim import simulate_recording
+
+from _shared import POSES_A, POSES_C
+from mmsnap_graph.sim import CLEAN
+
+
+def _calibration() -> RecordingCalibration:
+    """Three nodes, S3 unreachable; a NaN RMSE and an inf in a covariance."""
+    cov = np.diag([1e-4, 2e-4, 3e-6])
+    edge = PoseEdge(node_a="S1", node_b="S2", pose=[0.1, 6.9, 3.1], covariance=cov, rmse_m=0.12,
+                    n_frames=250, lag_frames=1)
+    edge2 = PoseEdge(node_a="S2", node_b="S1", pose=[0.2, 7.0, -3.1], covariance=2 * cov,
+                     rmse_m=float("nan"), n_frames=7, lag_frames=-1)
+    cov2 = cov.copy()
+    cov2[2, 2] = np.inf
+    return RecordingCalibration(
+        reference="S1", node_names=("S1", "S3", "S2"),
+        poses={"S1": np.zeros(3), "S2": np.array([0.1, 6.9, 3.1])},
+        covariances={"S1": np.zeros((3, 3)), "S2": cov2}, lag_frames={"S1": 0, "S2": 1},
+        unreachable=("S3",), edges=(edge, edge2), method="joint", source="centroids",
+        success=False, message="no path from S3", failures={"S3": "node S3 has no tracks"})
+
+
+def _assert_same(back: RecordingCalibration, cal: RecordingCalibration) -> None:
+    for name in ("reference", "node_names", "unreachable", "method", "source", "success",
+                 "message"):
+        assert getattr(back, name) == getattr(cal, name), name
+    assert dict(back.failures) == dict(cal.failures)
+    assert dict(back.lag_frames) == dict(cal.lag_frames)
+    assert set(back.poses) == set(cal.poses) == set(back.covariances)
+    for n in cal.poses:
+        np.testing.assert_array_equal(back.poses[n], cal.poses[n])
+        np.testing.assert_array_equal(back.covariances[n], cal.covariances[n])
+    assert len(back.edges) == len(cal.edges)
+    for a, b in zip(back.edges, cal.edges):
+        assert (a.node_a, a.node_b, a.n_frames, a.lag_frames) == (b.node_a, b.node_b, b.n_frames,
+                                                                  b.lag_frames)
+        np.testing.assert_array_equal(a.pose, b.pose)
+        np.testing.assert_array_equal(a.covariance, b.covariance)
+        np.testing.assert_array_equal(a.rmse_m, b.rmse_m)
+    assert back.pose_graph is None and back.joint is None
+
+
+@pytest.fixture(scope="module")
+def rec3():
+    return simulate_recording({"S1": POSES_C[0], "S2": POSES_C[1], "S3": POSES_A[1]}, "random",
+                              CLEAN, levels=["centroids"], n_frames=30, seed=1)
+
+
+def test_hdf5_group_round_trip(tmp_path, rec3):
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec3)
+    cal = _calibration()
+    out = write_calibration(path, rec3, cal, output=tmp_path / "copy.h5")
+    assert out == tmp_path / "copy.h5"
+    _assert_same(read_calibration(out), cal)
+    back = read_recording(out)
+    np.testing.assert_array_equal(back.nodes["S2"].pose, cal.poses["S2"])
+    assert back.nodes["S3"].pose is None
+    with pytest.raises(FileFormatError, match="/calibration is missing"):
+        read_calibration(path)  # the original is untouched
+    # written in place, a second time: the group is replaced
+    write_calibration(path, rec3, cal)
+    write_calibration(path, rec3, cal)
+    _assert_same(read_calibration(path), cal)
+
+
+def test_json_round_trip(tmp_path):
+    cal = _calibration()
+    path = write_calibration_json(tmp_path / "cal.json", cal)
+    data = json.loads(path.read_text())
+    assert data["nodes"]["S2"]["covariance"][2][2] is None  # inf is not JSON
+    assert data["edges"][1]["rmse_m"] is None
+    back = read_calibration_json(path)
+    assert back.covariances["S2"][2, 2] != back.covariances["S2"][2, 2]  # None -> NaN
+    expected = dict(calibration_to_json(cal))
+    assert calibration_to_json(back) == expected
+    assert read_calibration_json(data).node_names == ("S1", "S3", "S2")
+    np.testing.assert_array_equal(load_calibration_poses(path)["S2"], cal.poses["S2"])
+
+
+def test_a_real_calibration_round_trips(tmp_path):
+    rec = simulate_recording("C", "random", CLEAN, levels=["centroids"], n_frames=120, seed=5)
+    path = tmp_path / "c.h5"
+    write_recording(path, rec)
+    cal = calibrate_recording(rec, method="pose_graph")
+    write_calibration(path, rec, cal)
+    _assert_same(read_calibration(path), cal)
+    _assert_same(read_calibration_json(write_calibration_json(tmp_path / "c.json", cal)), cal)
+
+
+def test_minimal_json_reads_with_defaults():
+    back = read_calibration_json({"nodes": {"S1": {"pose": [0, 0, 0]},
+                                            "S2": {"pose": [1, 2, 0.5]}}})
+    assert back.reference == "S1" and back.node_names == ("S1", "S2") and back.success
+    assert np.all(np.isnan(back.covariances["S2"])) and back.lag_frames["S2"] == 0
+    with pytest.raises(CalibrationError, match=r"nodes\['S2'\].covariance must be 3 x 3"):
+        read_calibration_json({"nodes": {"S2": {"pose": [1, 2, 0], "covariance": [1, 2]}}})
+    with pytest.raises(CalibrationError, match="not in node_names"):
+        read_calibration_json({"nodes": {"S2": {"pose": [1, 2, 0]}}, "node_names": ["S1"]})
+    with pytest.raises(CalibrationError, match=r"edges\[0\] is not a pose edge"):
+        read_calibration_json({"nodes": {"S2": {"pose": [1, 2, 0]}}, "edges": [{"node_a": "S1"}]})
+
+
+def test_read_errors_name_the_problem(tmp_path, rec3):
+    with pytest.raises(FileFormatError, match="does not exist"):
+        read_calibration(tmp_path / "none.h5")
+    bad = tmp_path / "bad.h5"
+    bad.write_text("not hdf5")
+    with pytest.raises(FileFormatError, match="not a readable HDF5 file"):
+        read_calibration(bad)
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec3)
+    write_calibration(path, rec3, _calibration())
+    with h5py.File(path, "r+") as f:
+        del f[f"{CALIBRATION_GROUP}/edges/pose"]
+    with pytest.raises(FileFormatError, match="/calibration/edges/pose is missing"):
+        read_calibration(path)
+    with pytest.raises(FileFormatError, match="does not exist"):
+        write_calibration(tmp_path / "nope.h5", rec3, _calibration())
+
+
+# ---- calibration JSON: every malformed field is a CalibrationError naming it ---------
+_GOOD_JSON = {"reference": "S1", "node_names": ["S1", "S2", "S3"],
+              "nodes": {"S1": {"pose": [0, 0, 0], "lag_frames": 0},
+                        "S2": {"pose": [0, 7, 3.1], "lag_frames": 2,
+                               "covariance": np.eye(3).tolist()}},
+              "unreachable": ["S3"], "edges": [], "failures": {}, "success": True}
+
+
+def _json_with(path, value):
+    import copy
+    data = copy.deepcopy(_GOOD_JSON)
+    obj = data
+    for key in path[:-1]:
+        obj = obj[key]
+    obj[path[-1]] = value
+    return data
+
+
+@pytest.mark.parametrize("path, value, match", [
+    (("nodes", "S2", "lag_frames"), "x", r"nodes\['S2'\].lag_frames='x' must be an integer"),
+    (("nodes", "S2", "lag_frames"), 1e400, r"lag_frames=inf must be an integer within"),
+    (("nodes", "S2", "lag_frames"), 2.5, r"lag_frames=2.5 must be an integer within"),
+    (("nodes", "S2", "lag_frames"), True, r"lag_frames=True must be an integer"),
+    (("unreachable",), True, r"unreachable must be a list of node names, got True"),
+    (("unreachable",), "S3", r"unreachable must be a list of node names"),
+    (("node_names",), {"S1": 1}, r"node_names must be a list of node names"),
+    (("edges",), {"a": 1}, r"edges must be a list"),
+    (("edges",), [{"node_a": "S1", "node_b": "S2", "pose": [0, 7, 3.1],
+                   "covariance": np.eye(3).tolist(), "n_frames": 1e400}],
+     r"edges\[0\].n_frames=inf must be an integer"),
+    (("edges",), [[1, 2]], r"edges\[0\] is not a pose edge"),
+    (("failures",), [1], r"failures must be an object"),
+    (("success",), "yes", r"success must be true or false"),
+    (("reference",), 5, r"reference must be a string"),
+    (("nodes", "S2", "pose"), [0, 7, 180], r"phi_rad=180.0 lies outside \[-2 pi, 2 pi\].*degrees"),
+])
+def test_calibration_json_bad_fields_are_calibration_errors(path, value, match):
+    from mmsnap_graph.errors import CalibrationError
+    from mmsnap_graph.io.calibration import read_calibration_json
+    cal = read_calibration_json(_GOOD_JSON)
+    assert cal.lag_frames == {"S1": 0, "S2": 2} and cal.unreachable == ("S3",)
+    with pytest.raises(CalibrationError, match=match):
+        read_calibration_json(_json_with(path, value))
+
+
+def test_calibration_json_nested_too_deeply(tmp_path):
+    from mmsnap_graph.errors import CalibrationError
+    from mmsnap_graph.io.calibration import read_calibration_json
+    path = tmp_path / "deep.json"
+    path.write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(CalibrationError, match="nested too deeply"):
+        read_calibration_json(path)

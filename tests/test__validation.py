@@ -1,0 +1,63 @@
+"""The boundary checks shared by the library (mmsnap_graph/_validation.py)."""
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from mmsnap_graph._validation import check_count, check_probability, chi2_gate
+from mmsnap_graph.errors import ConfigurationError, ValidationError
+
+
+@pytest.mark.parametrize("value", [1, 7, np.int32(3), np.int64(2**40)])
+def test_check_count_accepts_integers(value):
+    out = check_count(value, "n")
+    assert out == value and type(out) is int
+
+
+@pytest.mark.parametrize("value, match", [
+    (True, "n=True must be an integer, got bool"), (np.bool_(True), "integer"),
+    (2.0, "n=2.0 must be an integer, got float"), ("3", "got str"), (None, "integer"),
+    (0, r"n=0 must be an integer >= 1"), (np.int64(-1), ">= 1"),
+])
+def test_check_count_rejects_non_integers_and_small_values(value, match):
+    with pytest.raises(ValidationError, match=match):
+        check_count(value, "n")
+
+
+def test_check_count_bounds_and_error_class():
+    assert check_count(0, "n", 0) == 0
+    assert check_count(6, "order", 1, 6) == 6
+    with pytest.raises(ValidationError, match=r"order=7 must be an integer in \[1, 6\]"):
+        check_count(7, "order", 1, 6)
+    with pytest.raises(ConfigurationError, match="max_misses"):
+        check_count(0, "max_misses", error=ConfigurationError)
+
+
+@pytest.mark.parametrize("value", [1e-9, 0.5, 0.999, np.float32(0.25), np.float64(0.9)])
+def test_check_probability_accepts_open_interval(value):
+    assert check_probability(value, "p") == pytest.approx(float(value))
+
+
+@pytest.mark.parametrize("value", [0, 1, 0.0, 1.0, -0.1, 1.5, np.nan, np.inf, True, "0.5", None])
+def test_check_probability_rejects_outside_open_interval(value):
+    with pytest.raises(ValidationError, match="p must be"):
+        check_probability(value, "p")
+
+
+def test_chi2_gate_is_the_keep_quantile():
+    assert chi2_gate(0.999, 2) == pytest.approx(-2 * np.log(1 - 0.999))
+    assert chi2_gate(0.95, 3) == pytest.approx(chi2.ppf(0.95, 3))
+    assert isinstance(chi2_gate(0.9, 4), float)
+    rows = chi2_gate(0.99, np.array([1, 3, 5]))
+    np.testing.assert_allclose(rows, chi2.ppf(0.99, [1, 3, 5]))
+    # A larger keep probability is a wider gate.
+    assert chi2_gate(0.9999, 3) > chi2_gate(0.999, 3)
+
+
+@pytest.mark.parametrize("p, dof, match", [
+    (1e-3 - 1, 3, r"gate_probability must be in \(0, 1\), got -0.999"), (1.0, 3, "gate_probability"),
+    (0.99, 0, "dof must be > 0"), (0.99, [], "dof"), (0.99, np.nan, "dof"),
+])
+def test_chi2_gate_rejects_bad_input(p, dof, match):
+    with pytest.raises(ValidationError, match=match):
+        chi2_gate(p, dof)
