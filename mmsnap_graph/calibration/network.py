@@ -74,6 +74,10 @@ class RecordingCalibration:
         ``-lag_frames * frame period``.
     time_offset_variances : name -> its variance (s^2; NaN where not
         estimated, 0 for the reference).
+    range_offset_m, range_offset_variance : the joint graph's range offset
+        (reflection depth, m) and its variance (m^2) when it estimated one
+        (``JointOptions.range_offset_prior_m``); NaN otherwise. ``mmsnap
+        fuse`` adds it to every centroid range.
     """
 
     reference: str
@@ -93,6 +97,8 @@ class RecordingCalibration:
     noise: NoiseEstimate | None = None
     time_offset_s: Mapping[str, float] = field(default_factory=dict)
     time_offset_variances: Mapping[str, float] = field(default_factory=dict)
+    range_offset_m: float = float("nan")
+    range_offset_variance: float = float("nan")
 
 
 def _joint_detections(rec: Recording, names, lags) -> dict[str, Detections] | None:
@@ -297,7 +303,10 @@ def calibrate_recording(
         lag_frames=lags, unreachable=pg.unreachable, edges=pg.edges,
         method=result_method, source=used_source, success=bool(success),
         message="; ".join(notes), failures=failures, pose_graph=pg, joint=refined,
-        noise=noise_est, time_offset_s=offsets, time_offset_variances=variances)
+        noise=noise_est, time_offset_s=offsets, time_offset_variances=variances,
+        range_offset_m=refined.range_offset_m if result_method == "joint" else float("nan"),
+        range_offset_variance=(refined.range_offset_variance if result_method == "joint"
+                               else float("nan")))
 
 
 def _no_identical_nodes(recording: Recording, names: list[str]) -> None:
