@@ -161,9 +161,10 @@ def _cases(xfails: dict) -> list:
 # filters and room checks: 72.4% / 59.1% of fused rows inside the room, <= 2
 # people in 6.7% / 54.2% of frames (multiple tracking / fall detection).
 POSE_XFAIL = {"multiple_tracking": "S2 heading -3.76 deg from the tape (0.046 m); tape 3 deg"}
-# Halves: with the graph's marginals (before the long-run covariance), compared
-# in one frame, (1.3, 6.0, 4.6) sigma (multiple tracking) and (1.7, 11.4, 8.0)
-# (fall detection); with it (0.9, 0.9, 0.9) and (1.0, 2.9, 2.3).
+# Halves, compared in the reference frame: with the joint graph's marginals
+# (`mmsnap calibrate --covariance model`) (1.9, 2.3, 1.8) sigma (multiple
+# tracking) and (1.5, 8.2, 6.3) (fall detection); with the default long-run
+# covariance (0.9, 0.9, 0.9) and (1.0, 2.9, 2.3).
 HALVES_XFAIL: dict = {}
 NO_BOUNDS_XFAIL = {
     "multiple_tracking": "90.8% of fused rows inside the room without --bounds (target 95%)",
