@@ -123,9 +123,13 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     ``ndarray.tofile``, ``shutil.copyfile``, ...). If the block raises, the
     temporary file is removed and ``path`` is left as it was. A ``path``
     that is a folder, or in a missing folder, raises :class:`FileFormatError`.
+    A ``path`` that is a symlink: the file it points to is replaced (the
+    link stays a link).
     """
-    path = check_output_path(path)
-    folder = path.parent if str(path.parent) else Path(".")
+    check_output_path(path)
+    # Through a symlink the file it names is replaced, not the link.
+    path = check_output_path(os.path.realpath(path))
+    folder = path.parent
     remove_stale_temporaries(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}@{_HOST}.", suffix=".tmp",
                                dir=folder)
@@ -180,8 +184,10 @@ def recording_lock(path: str | os.PathLike, *, timeout_s: float = LOCK_TIMEOUT_S
                    ) -> Iterator[None]:
     """Hold the advisory lock of the file at ``path`` (module docstring):
     wait for another process holding it (up to ``timeout_s``, then
-    :class:`FileFormatError` naming the file). Re-entrant in a process."""
-    path = Path(path)
+    :class:`FileFormatError` naming the file). Re-entrant in a process.
+    Every name of one file (a symlink, a relative path) takes the same lock:
+    the lock file lies beside the real path."""
+    path = Path(os.path.realpath(path))
     if fcntl is None or not (path.parent if str(path.parent) else Path(".")).is_dir():
         yield  # no locking here (or nowhere to put the lock: the write will say why)
         return

@@ -21,7 +21,7 @@ from mmsnap_graph.sim import network_poses
 
 __all__ = [
     "ROOT", "DATA", "TI_DATA", "network_array", "POSES_A", "POSES_B", "POSES_C", "POSES_BC",
-    "NETWORK_BCA", "PAPER_NOISE", "PAPER_PRIOR", "PAPER_SIGMAS", "TRACK_NOISE", "SMALL_RADAR",
+    "NETWORK_BCA", "NETWORK_3", "NETWORK_3_OPEN", "PAPER_NOISE", "PAPER_PRIOR", "PAPER_SIGMAS", "TRACK_NOISE", "SMALL_RADAR",
 ]
 
 #: The repository root, its samples folder ``data/`` and the TI samples ``data/ti/``.
@@ -49,6 +49,16 @@ POSES_C = network_array("C")
 POSES_BC = _frozen(np.vstack([POSES_B, POSES_C[1:]]))
 #: Four named nodes: S1 and the S2 of B, C and A (as S2, S3, S4).
 NETWORK_BCA = {"S1": POSES_A[0], "S2": POSES_B[1], "S3": POSES_C[1], "S4": POSES_A[1]}
+
+#: Three nodes facing a common area: S1 (0, 0, 0), S2 (5, 5, pi/2), S3 (0, 7, pi)
+#: (the network of the calibration NEES tests and of ``three_node_recording``).
+NETWORK_3 = {"S1": _frozen([0.0, 0.0, 0.0]), "S2": _frozen([5.0, 5.0, np.pi / 2]),
+             "S3": _frozen([0.0, 7.0, np.pi])}
+
+#: Three nodes around an open area: S1 (0, 0, 0), S2 (0, 7, pi), S3 (4, 0, pi/6)
+#: (the network of the sparse point cloud tests and of ``point_cloud_recording_3``).
+NETWORK_3_OPEN = {"S1": _frozen([0.0, 0.0, 0.0]), "S2": _frozen([0.0, 7.0, np.pi]),
+                  "S3": _frozen([4.0, 0.0, np.pi / 6])}
 
 #: The paper's measurement noise, prior and sigmas (range_m, omega_rad, doppler_mps).
 PAPER_NOISE = MeasurementNoise()

@@ -16,6 +16,8 @@ import pytest
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import CLEAN, SimulationOptions
 
+from _shared import NETWORK_3_OPEN
+
 
 @pytest.fixture(scope="session")
 def two_target_recordings():
@@ -47,3 +49,12 @@ def recording_c_random():
 def recording_c_straight():
     """Configuration C, a straight walk, 20 frames of centroids (seed 0)."""
     return simulate_recording("C", "straight", CLEAN, levels=("centroids",), n_frames=20, seed=0)
+
+
+@pytest.fixture(scope="session")
+def point_cloud_recording_3():
+    """The network ``_shared.NETWORK_3_OPEN``, two walkers, 120 frames of point
+    clouds at 20 fps, no radar physics (seed 4)."""
+    return simulate_recording(NETWORK_3_OPEN, "random",
+                              SimulationOptions(physics=None, n_targets=2, frame_period_s=0.05),
+                              levels=("point_cloud",), n_frames=120, seed=4)

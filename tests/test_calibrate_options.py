@@ -1,7 +1,7 @@
-"""Every track-matching threshold of a calibration settable from
-``calibrate_recording``, the ``mmsnap calibrate`` options and the ``[matching]``
-table of ``--config`` (issue 14, Build 7); ``mmsnap process --sparse`` and
-``[chain.cluster] sparse``."""
+"""Every track-matching threshold of a calibration settable from the ``mmsnap
+calibrate`` options and the ``[matching]`` table of ``--config``; ``mmsnap
+process --sparse`` and ``[chain.cluster] sparse``. (The thresholds'
+effect through ``calibrate_recording``: tests/calibration/test_network.py.)"""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ import re
 import numpy as np
 import pytest
 
-from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.config_file import (
     ProcessConfig,
@@ -18,13 +17,11 @@ from mmsnap_graph.app.config_file import (
     read_matching_config,
     read_process_config,
 )
-from mmsnap_graph.app.pipeline import track_recording
-from mmsnap_graph.calibration import calibrate_recording
-from mmsnap_graph.errors import CalibrationError, ValidationError
+from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.io import write_recording
-from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import sparse_clouds
 from mmsnap_graph.sim import SimulationOptions
+from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 
 
 @pytest.fixture(scope="module")
@@ -53,76 +50,6 @@ def _error_line(err: str) -> str:
     lines = [ln for ln in err.strip().splitlines() if ": error: " in ln]
     assert len(lines) == 1 and lines[0] == err.strip().splitlines()[-1], err
     return lines[0]
-
-
-# --- calibrate_recording: the pass-through changes what matching does ----------------------
-
-def test_defaults_given_explicitly_give_the_same_calibration(recording_c_random):
-    plain = calibrate_recording(recording_c_random, method="pose_graph")
-    explicit = calibrate_recording(recording_c_random, method="pose_graph",
-                                   matching=MatchingOptions(
-                                       max_lag_s=0.3, min_common_s=0.5, min_spread_m=0.2,
-                                       max_rmse_m=1.0, inlier_gate_m=0.5, gate_probability=0.997))
-    assert plain.success and explicit.success
-    np.testing.assert_array_equal(plain.poses["S2"], explicit.poses["S2"])
-    assert plain.edges[0].n_frames == explicit.edges[0].n_frames
-
-
-def test_min_common_s_longer_than_the_recording_fails_clearly(recording_c_random):
-    rec = recording_c_random
-    too_long = _duration_s(rec) + 1.0
-    with pytest.raises(CalibrationError) as err:
-        calibrate_recording(rec, method="pose_graph",
-                            matching=MatchingOptions(min_common_s=too_long))
-    text = str(err.value)
-    assert f"min_common_s={too_long:g} s" in text
-    need = int(np.ceil(too_long / rec.frame_period_s - 1e-9))
-    assert f"shares >= {need} frames" in text
-    # A tiny overlap is accepted (the 5-frame floor still applies).
-    assert calibrate_recording(rec, method="pose_graph",
-                               matching=MatchingOptions(min_common_s=0.0)).success
-
-
-def test_min_spread_m_and_inlier_gate_m_reach_the_matching(recording_c_random):
-    with pytest.raises(CalibrationError, match=r"spread >= 50\.0 m"):
-        calibrate_recording(recording_c_random, method="pose_graph",
-                            matching=MatchingOptions(min_spread_m=50.0))
-    with pytest.raises(CalibrationError, match=r"within inlier_gate_m=0\.0001 m"):
-        calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
-                            matching=MatchingOptions(inlier_gate_m=1e-4))
-    wide = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
-                               matching=MatchingOptions(inlier_gate_m=0.5))
-    tight = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
-                                matching=MatchingOptions(inlier_gate_m=0.2))
-    assert wide.success and tight.success
-    assert tight.edges[0].n_frames < wide.edges[0].n_frames
-
-
-def test_gate_probability_gates_ekf_tracks(recording_c_random):
-    tracked, _ = track_recording(recording_c_random)
-    assert tracked.nodes["S2"].tracks.covariance is not None
-    wide = calibrate_recording(tracked, method="pose_graph", source="tracks")
-    tight = calibrate_recording(tracked, method="pose_graph", source="tracks",
-                                matching=MatchingOptions(gate_probability=0.5))
-    assert wide.success and tight.success and wide.source == "tracks"
-    assert tight.edges[0].n_frames < wide.edges[0].n_frames
-
-
-@pytest.mark.parametrize("kwargs, field", [
-    ({"min_common_s": -1.0}, "min_common_s"),
-    ({"min_common_s": float("nan")}, "min_common_s"),
-    ({"min_spread_m": -0.1}, "min_spread_m"),
-    ({"inlier_gate_m": 0.0}, "inlier_gate_m"),
-    ({"gate_probability": 1.0}, "gate_probability"),
-    ({"max_rmse_m": 0.0}, "max_rmse_m"),
-    ({"max_lag_s": -0.1}, "max_lag_s"),
-    ({"min_spread_m": True}, "min_spread_m"),
-    ({"min_common_s": "long"}, "min_common_s"),
-])
-def test_bad_thresholds_name_the_field_and_value(recording_c_random, kwargs, field):
-    with pytest.raises(ValidationError,
-                       match=rf"^{field} must be .*got {re.escape(repr(kwargs[field]))}"):
-        calibrate_recording(recording_c_random, matching=MatchingOptions(**kwargs))
 
 
 # --- mmsnap calibrate: options and the [matching] table -------------------------------------

@@ -78,7 +78,7 @@ def test_no_write_and_output_copy(rec_c, tmp_path):
     assert read_recording(path).nodes["S2"].pose is None
     copy = tmp_path / "copy.h5"
     assert main(["calibrate", str(path), "-o", str(copy), "--method", "pose_graph",
-                 "--json", str(js)]) == 0
+                 "--json", str(js), "--overwrite"]) == 0
     assert read_recording(path).nodes["S2"].pose is None
     assert read_recording(copy).nodes["S2"].pose is not None
 

@@ -46,5 +46,5 @@ def test_a_calibration_json_gives_poses_and_covariances(calibrated, capsys):
                  "--no-time-offsets", "-o", str(out)]) == 0
     assert "pose covariances of S2 included" in capsys.readouterr().out
     assert main(["fuse", str(calibrated), "--covariance", "grid", "--grid-points", "5",
-                 "--no-progress", "-o", str(out)]) == 0
+                 "--no-progress", "-o", str(out), "--overwrite"]) == 0
     assert "pose covariances need --covariance laplace" in capsys.readouterr().out

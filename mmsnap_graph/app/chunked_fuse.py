@@ -64,7 +64,7 @@ def _progress(total: int, progress: bool | None):
     from tqdm.auto import tqdm  # here: only a run with a progress bar needs it
 
     show = sys.stderr.isatty() if progress is None else bool(progress)
-    return tqdm(total=total, desc="fuse (frames)", unit="frame", disable=not show, leave=False)
+    return tqdm(total=total, desc="fuse (windows)", unit="window", disable=not show, leave=False)
 
 
 def _motion_checked(options) -> bool:
@@ -116,8 +116,8 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
         ``solver``, ``gate_probability``, ``source``, ...), with its defaults; and the
         room-frame checks of
         :func:`~mmsnap_graph.fusion.recording.room.screen_room`:
-        ``bounds``, ``static_bounds`` and ``body_m`` (each None, the
-        default: off; ``mmsnap fuse`` checks one target per
+        ``bounds``, ``static_bounds``, ``in_front`` and ``body_m`` (each
+        None or False, the default: off; ``mmsnap fuse`` checks one target per
         :data:`~mmsnap_graph.fusion.recording.room.DEFAULT_BODY_M`).
 
     Returns a :class:`ChunkedFuseSummary`. Raises what ``fuse_recording``
@@ -129,7 +129,7 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     if "progress" in options or "recording" in options:
         raise ValidationError("fuse_file takes the file, not a recording; progress is its own")
     room = dict(bounds=options.pop("bounds", None), static_bounds=options.pop("static_bounds", None),
-                body_m=options.pop("body_m", None))
+                in_front=options.pop("in_front", False), body_m=options.pop("body_m", None))
     flagged = RoomReport()
     fusion = options.get("options", DEFAULT_OPTIONS)
     if not isinstance(fusion, FusionOptions):
@@ -147,13 +147,13 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
         fuse_recording(windows.read(0, 0)[0], node_poses=node_poses, progress=False, **options)
     n_frames = n_windows = 0
     with fused_writer(path, output=output) as writer, \
-            _progress(windows.last_frame - windows.first_frame + 1, progress) as bar:
+            _progress(len(spans), progress) as bar:
         # Context frames around each window when rows are checked against
         # their neighbours' motion (the check reaches this far).
         context = MOTION_CONTEXT_FRAMES if _motion_checked(options) else 0
         for start, stop in spans:
             rec, rows = windows.read(start - context, stop + context, shifts)
-            bar.update(stop - start)
+            bar.update(1)
             if not any(r.size for r in rows.values()):
                 continue  # a gap: no node has a detection in these frames
             fused = fuse_recording(rec, node_poses=node_poses, progress=False, **options)

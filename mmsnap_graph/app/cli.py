@@ -18,8 +18,11 @@ Exit codes (:data:`EXIT_OK`, :data:`EXIT_FAILURE`, :data:`EXIT_USAGE`):
 - 2 usage: a bad option (argparse) or option value
   (:data:`USAGE_ERRORS`: a :class:`~mmsnap_graph.errors.ValidationError` or
   :class:`~mmsnap_graph.errors.ConfigurationError` raised for an option),
-  including an output path that is a folder, lies in a missing folder, or
-  exists without ``--overwrite`` (checked before the command runs).
+  including an output path that is a folder, lies in a missing folder, is
+  one of the command's input files, or exists without ``--overwrite``
+  (checked before the command runs: :mod:`mmsnap_graph.app.commands.file_rules`);
+- 141 standard output was closed by its reader (``mmsnap replay ... | head``);
+  nothing is printed.
 
 Errors are one line on stderr, ``mmsnap VERB: error: ...``; an error of an
 input file names the file. ``-v``/``-q`` set the level of the
@@ -31,10 +34,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from pathlib import Path
 
-from .._atomic import check_output_path
+from .commands.file_rules import check_files
 from ..errors import (
     CalibrationError,
     ConfigurationError,
@@ -52,18 +56,14 @@ COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "eval
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+#: The reader of standard output went away (``mmsnap replay ... | head``):
+#: no message, the shell's code for a write to a closed pipe (128 + SIGPIPE).
+EXIT_BROKEN_PIPE = 141
 
 #: Errors of the data (an input file, an estimation): exit 1.
 DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError)
 #: Errors of an option value: exit 2.
 USAGE_ERRORS = (ValidationError, ConfigurationError)
-
-#: Per command, the options naming an output file (checked before it runs).
-OUTPUT_FILE_OPTIONS = {"process": ("output",), "fuse": ("output",),
-                       "calibrate": ("json", "output"), "simulate": ("output",),
-                       "replay": ("output",), "import": ("output",),
-                       "export": ("output",)}
-
 
 def package_version() -> str:
     """The installed distribution's version (``mmsnap_graph.__version__``)."""
@@ -128,24 +128,6 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
-def check_output_options(args: argparse.Namespace) -> None:
-    """Usage errors of the output-file options of ``args.command``
-    (:data:`OUTPUT_FILE_OPTIONS`): a folder, a path in a missing folder, or
-    an existing file without ``--overwrite`` (where the command has it).
-    Raises :class:`~mmsnap_graph.errors.ValidationError` naming the option."""
-    for name in OUTPUT_FILE_OPTIONS.get(args.command, ()):
-        value = getattr(args, name, None)
-        if value is None:
-            continue
-        option = "--" + name.replace("_", "-")
-        try:
-            check_output_path(value)
-        except FileFormatError as exc:
-            raise ValidationError(f"{option}: {exc}") from None
-        if getattr(args, "overwrite", True) is False and Path(value).exists():
-            raise ValidationError(f"{option}: {value} exists; pass --overwrite to replace it")
-
-
 def input_files(args: argparse.Namespace) -> list[str]:
     """The input files named on the command line (for error messages)."""
     names = [getattr(args, "recording", None), getattr(args, "calibration", None)]
@@ -162,6 +144,18 @@ def _data_error_text(exc: BaseException, args: argparse.Namespace) -> str:
     return text
 
 
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null: its reader is gone, and the interpreter's
+    last flush would report the broken pipe again."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a real file (captured)
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``mmsnap`` with ``argv``; the exit code (module docstring)."""
     parser = build_parser()
@@ -169,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.verbose, args.quiet)
     prefix = f"mmsnap {args.command}: error:"
     try:
-        check_output_options(args)
+        check_files(args)
         return int(args.func(args) or 0)
     except DATA_ERRORS as exc:
         print(f"{prefix} {_data_error_text(exc, args)}", file=sys.stderr)
@@ -177,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
     except MmsnapError as exc:  # USAGE_ERRORS and any other option check
         print(f"{prefix} {_one_line(exc)}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:  # `mmsnap replay ... | head`: the reader has all it wants
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
     except OSError as exc:  # an input file, or the environment: permissions, a full disk, ...
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"{prefix} {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)

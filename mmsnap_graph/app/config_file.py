@@ -14,11 +14,13 @@ prints the effective file with every default)::
     sparse = "auto"    # stored point clouds: min_samples=1 (true), never (false)
     [ekf]              # tracking.ekf.EkfConfig (thresholds in seconds)
     sigma_a_mps2 = 1.0
+    [scene]            # radar.scene.SceneConfig: filters of stored point clouds
+    min_occupancy = 0.2
     [matching]         # mmsnap calibrate: track matching, seconds and metres
     min_common_s = 0.5
 
 One file may hold every table: ``mmsnap process`` reads ``[chain]``,
-``[chain.*]`` and ``[ekf]`` and ignores ``[matching]``; ``mmsnap calibrate``
+``[chain.*]``, ``[ekf]`` and ``[scene]`` and ignores ``[matching]``; ``mmsnap calibrate``
 reads ``[matching]`` and ignores the others. Any other table is an error.
 
 TOML has no null: a key whose default is "unset" (e.g. ``max_range_m``, the
@@ -45,6 +47,7 @@ from ..errors import ConfigurationError, ValidationError
 from ..radar.cfar import CfarConfig
 from ..radar.chain import ChainConfig
 from ..radar.cluster import ClusterConfig
+from ..radar.scene import SceneConfig
 from ..tracking.ekf import EkfConfig
 
 __all__ = ["ProcessConfig", "read_process_config", "process_config_from_mapping",
@@ -56,9 +59,10 @@ _EKF_FROM_RECORDING = ("frame_period_s",)
 #: Nested configuration objects of ChainConfig: TOML sub-tables.
 _CHAIN_TABLES = {"cfar": CfarConfig, "cluster": ClusterConfig}
 #: Top-level tables: read by ``process`` and by ``calibrate``.
-_PROCESS_TABLES = ("chain", "ekf")
+_PROCESS_TABLES = ("chain", "ekf", "scene")
 _CALIBRATE_TABLES = ("matching",)
-_KNOWN_TABLES = "chain, chain.cfar, chain.cluster, ekf (mmsnap process), matching (mmsnap calibrate)"
+_KNOWN_TABLES = ("chain, chain.cfar, chain.cluster, ekf, scene (mmsnap process), matching "
+                 "(mmsnap calibrate)")
 #: ``[chain.cluster] sparse`` (and ``mmsnap process --sparse``): the TOML or
 #: option value -> ``process_file(sparse=...)``.
 SPARSE_VALUES = {"auto": None, True: True, False: False, "on": True, "off": False}
@@ -78,6 +82,9 @@ class ProcessConfig:
     #: when the median non-empty frame holds fewer than 6 points), True, False
     #: (:func:`mmsnap_graph.app.pipeline.sparse_cluster_config`).
     sparse: bool | None = None
+    #: The scene filters of stored point clouds (static scene, one cluster per
+    #: body, ghosts, existence; :mod:`mmsnap_graph.radar.scene`).
+    scene: SceneConfig = field(default_factory=SceneConfig)
 
 
 def _coerce(where: str, default: Any, value: Any) -> Any:
@@ -165,7 +172,12 @@ def process_config_from_mapping(data: Mapping[str, Any], *, where: str = "config
     ekf_table = data.get("ekf", {})
     ekf = _build(EkfConfig, ekf_table, f"{where}: ekf", forbidden=_EKF_FROM_RECORDING)
     from_data = not (isinstance(ekf_table, Mapping) and "measurement_std" in ekf_table)
-    return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=from_data, sparse=sparse)
+    scene_table = data.get("scene", {})
+    if not isinstance(scene_table, Mapping):
+        raise ConfigurationError(f"{where}: scene must be a table [scene]")
+    scene = _build(SceneConfig, scene_table, f"{where}: scene")
+    return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=from_data, sparse=sparse,
+                         scene=scene)
 
 
 def matching_config_from_mapping(data: Mapping[str, Any], *, where: str = "config"
@@ -254,6 +266,7 @@ def process_config_to_toml(config: ProcessConfig) -> str:
                  if config.ekf_noise_from_data else {})
     lines += [""] + _table_lines(config.ekf, "ekf", skip=_EKF_FROM_RECORDING,
                                  commented=commented)
+    lines += [""] + _table_lines(config.scene, "scene")
     return "\n".join(lines) + "\n"
 
 

@@ -29,6 +29,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .._validation import check_count
 from ..errors import ConfigurationError
 
 __all__ = ["SPEED_OF_LIGHT_MPS", "WAVELENGTH_REFERENCES", "OPTIONAL_FIELD_DEFAULTS", "RadarConfig",
@@ -105,9 +106,7 @@ class RadarConfig:
             if not (np.isfinite(value) and value > 0):
                 raise ConfigurationError(f"{name}={value!r} must be finite and > 0")
         for name in ("n_samples", "n_loops"):
-            value = getattr(self, name)
-            if int(value) != value or value < 2:
-                raise ConfigurationError(f"{name}={value!r} must be an integer >= 2")
+            check_count(getattr(self, name), name, 2, error=ConfigurationError)
         if len(self.tx_azimuth_half_wl) != len(self.tx_elevation_half_wl):
             raise ConfigurationError(
                 f"tx_azimuth_half_wl has {len(self.tx_azimuth_half_wl)} entries but "

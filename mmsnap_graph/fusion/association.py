@@ -231,8 +231,8 @@ def _associate_singles(counts, pos_all, cov_all, info_all, gate) -> FrameAssocia
             np.flatnonzero(np.asarray(counts) > 0).tolist(), pos_all.tolist(), cov_all.tolist(),
             info_all.tolist())):
         best, best_m2 = -1, math.inf
-        for g, (a, b, c, d) in enumerate(info):
-            m2 = group_distance2(a, b, c, d, eta[g][0], eta[g][1], px, py, sa, sb, sc, sd)
+        for g in range(len(info)):
+            m2 = group_distance2(info[g] + eta[g], px, py, sa, sb, sc, sd)
             if m2 <= gate and m2 < best_m2:
                 best, best_m2 = g, m2
         if best < 0:
@@ -251,14 +251,15 @@ def _associate_singles(counts, pos_all, cov_all, info_all, gate) -> FrameAssocia
                             covariance_m2=cov_g)
 
 
-def group_distance2(a: float, b: float, c: float, d: float, e0: float, e1: float,
-                    px: float, py: float, sa: float, sb: float, sc: float, sd: float) -> float:
+def group_distance2(group: Sequence[float], px: float, py: float,
+                    sa: float, sb: float, sc: float, sd: float) -> float:
     """Squared Mahalanobis distance between a group's fused position and a
-    detection, in floats: the group's summed position information
-    ``[[a, b], [c, d]]`` and information vector ``(e0, e1)``, the detection's
-    position ``(px, py)`` and covariance ``[[sa, sb], [sc, sd]]``; the
-    distance uses the sum of the two covariances (inf when it is not
-    positive definite)."""
+    detection, in floats: ``group`` the group's summed position information
+    ``[[a, b], [c, d]]`` and information vector ``(e0, e1)`` as ``(a, b, c,
+    d, e0, e1)``, the detection's position ``(px, py)`` and covariance
+    ``[[sa, sb], [sc, sd]]``; the distance uses the sum of the two
+    covariances (inf when it is not positive definite)."""
+    a, b, c, d, e0, e1 = group
     det = a * d - b * c
     ga, gb, gc, gd = d / det, -b / det, -c / det, a / det   # the group's covariance
     dx = ga * e0 + gb * e1 - px

@@ -35,6 +35,10 @@ __all__ = ["GridPosterior", "grid_posterior", "neg_log_posterior"]
 #: Density on the grid faces, relative to the peak, above which the grid is widened.
 EDGE_DENSITY_TOLERANCE = 1e-4
 
+#: Grid points evaluated at a time (whole 3D slices): their temporaries stay
+#: in cache.
+GRID_CHUNK_POINTS = 100_000
+
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class GridPosterior:
@@ -139,7 +143,6 @@ def grid_posterior(
     points_per_axis: int = 21,
     half_width_sigmas: float = 5.0,
     max_widenings: int = 2,
-    chunk_size: int = 100_000,
 ) -> GridPosterior:
     """Posterior mean and covariance on a 4D grid around ``state``.
 
@@ -190,7 +193,7 @@ def grid_posterior(
     )
     widenings = int(max_widenings)
     while True:
-        result = _moments(center, chol, np.linspace(-k, k, n), kw, int(chunk_size))
+        result = _moments(center, chol, np.linspace(-k, k, n), kw, GRID_CHUNK_POINTS)
         if result is None or result[2] <= EDGE_DENSITY_TOLERANCE or widenings <= 0:
             break
         widenings -= 1

@@ -129,6 +129,14 @@ def _frames(level: h5py.Group, path: Path) -> NDArray:
     return frame.astype(np.int64, copy=False)
 
 
+_INT64 = np.iinfo(np.int64)
+
+
+def _clip64(frame: int) -> int:
+    """A frame number in the int64 range (windows reach past the frames)."""
+    return min(max(int(frame), int(_INT64.min)), int(_INT64.max))
+
+
 @dataclass(frozen=True, eq=False)
 class DetectionWindows:
     """A recording file's detections of one level, readable by frame windows
@@ -157,22 +165,36 @@ class DetectionWindows:
         return {n: 0 if f is None else int(f.size) for n, f in self._frames.items()}
 
     def windows(self, window_frames: int, margin: int = 0) -> Iterator[tuple[int, int]]:
-        """``(start, stop)`` frame ranges of ``window_frames`` frames covering
-        every detection, in order (none when there is no detection), widened
-        by ``margin`` frames on each side (for nodes read with shifts)."""
+        """``(start, stop)`` frame ranges of at most ``window_frames`` frames
+        covering every detection, in order (none when there is no
+        detection), widened by ``margin`` frames on each side (for nodes read
+        with shifts). Frames no detection is near are skipped: the number of
+        windows is bounded by the frames present, not by their span (a gap
+        of 10^12 frames costs nothing)."""
         w = int(window_frames)
         if w < 1 or w != window_frames:
             raise FileFormatError(f"window_frames must be an integer >= 1, got {window_frames!r}")
-        if self.last_frame < self.first_frame:
+        present = [fr for fr in self._frames.values() if fr is not None and fr.size]
+        if not present:
             return
-        first, last = self.first_frame - int(margin), self.last_frame + int(margin)
-        for start in range(first, last + 1, w):
-            yield start, min(start + w, last + 1)
+        frames = np.unique(np.concatenate(present))
+        margin = int(margin)
+        last = int(frames[-1]) + margin
+        start = int(frames[0]) - margin
+        while start <= last:
+            stop = min(start + w, last + 1)
+            yield start, stop
+            # the next frame within `margin` of a detection, at or after `stop`
+            i = int(np.searchsorted(frames, _clip64(stop - margin)))
+            if i >= frames.size:
+                return
+            start = max(stop, int(frames[i]) - margin)
 
     def _rows(self, name: str, start: int, stop: int) -> NDArray:
         frames, order = self._frames[name], self._order[name]
         if frames is None:
             return np.zeros(0, np.int64)
+        start, stop = _clip64(start), _clip64(stop)
         if order is None:
             lo, hi = np.searchsorted(frames, [start, stop])
             return np.arange(lo, hi, dtype=np.int64)

@@ -41,10 +41,12 @@ from typing import Iterator, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._validation import check_count
 from .._atomic import atomic_path
 from ..errors import ConfigurationError, FileFormatError, ValidationError
 from ..data.radar_config import RadarConfig
 from ..data.recording import NodeData, Recording
+from .inputs import require_file
 
 __all__ = ["MAX_LVDS_RECEIVERS", "frame_bytes", "read_dca1000_bin", "iter_dca1000_frames",
            "write_dca1000_bin", "recording_from_dca1000", "sub_frame_layout",
@@ -86,8 +88,7 @@ def _paths(path: str | os.PathLike | Sequence[str | os.PathLike]) -> list[Path]:
     if not paths:
         raise FileFormatError("no capture file given")
     for p in paths:
-        if not p.is_file():
-            raise FileFormatError(f"capture file {p} does not exist")
+        require_file(p, "capture file")
     return paths
 
 
@@ -149,8 +150,7 @@ def _layout(config: RadarConfig, offset_bytes: int, stride_bytes: int | None) ->
     fb = frame_bytes(config)
     stride = fb if stride_bytes is None else stride_bytes
     for name, value in (("offset_bytes", offset_bytes), ("stride_bytes", stride)):
-        if int(value) != value or value < 0:
-            raise ValidationError(f"{name}={value!r} must be an integer >= 0")
+        check_count(value, name, 0)
     if offset_bytes % 4 or stride % 4:
         raise ValidationError(f"offset_bytes={offset_bytes} and stride_bytes={stride} must be "
                               "multiples of 4 (one complex int16 sample)")
@@ -210,8 +210,7 @@ def iter_dca1000_frames(path: str | os.PathLike | Sequence[str | os.PathLike],
     """Yield ``(frame (n,), cube (n, n_samples, n_loops, n_virtual) complex64)``
     chunks of a capture without loading it whole (layout: module docstring;
     ``offset_bytes``/``stride_bytes`` as in :func:`read_dca1000_bin`)."""
-    if int(chunk_frames) != chunk_frames or chunk_frames < 1:
-        raise ValidationError(f"chunk_frames={chunk_frames!r} must be an integer >= 1")
+    check_count(chunk_frames, "chunk_frames")
     _check_config(config)
     lay = _layout(config, offset_bytes, stride_bytes)
     stream = _Stream(_paths(path))

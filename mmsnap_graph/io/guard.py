@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import stat
 from pathlib import Path
 from typing import Iterator
 
@@ -16,8 +17,8 @@ import h5py
 from .._atomic import atomic_path, recording_lock
 from ..errors import FileFormatError, MmsnapError
 
-__all__ = ["H5_ERRORS", "read_guard", "open_for_reading", "open_group", "edited_copy",
-           "replace_group"]
+__all__ = ["H5_ERRORS", "read_guard", "existing_file", "open_for_reading", "open_group",
+           "edited_copy", "replace_group"]
 
 #: What h5py and numpy raise on a damaged file.
 H5_ERRORS = (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, OverflowError,
@@ -42,14 +43,29 @@ def read_guard(path: str | os.PathLike) -> Iterator[None]:
         raise FileFormatError(f"{name} is damaged: {type(exc).__name__}: {exc}") from exc
 
 
+def existing_file(path: str | os.PathLike) -> Path:
+    """``path`` as a :class:`Path` when it names an existing regular file;
+    a missing path, or a FIFO, device or socket (opening one would block or
+    read for ever), raises :class:`FileFormatError` naming it."""
+    path = Path(path)
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise FileFormatError(f"{path} does not exist") from None
+    except OSError as exc:
+        raise FileFormatError(f"{path} cannot be read: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file (a FIFO, device or socket)"
+        raise FileFormatError(f"{path} is {kind}; give a recording file")
+    return path
+
+
 @contextlib.contextmanager
 def open_for_reading(path: str | os.PathLike) -> Iterator[h5py.File]:
     """The HDF5 file at ``path`` open for reading, inside :func:`read_guard`.
     A missing file, or one h5py cannot open (truncated, corrupt), raises
     :class:`FileFormatError` naming it."""
-    path = Path(path)
-    if not path.exists():
-        raise FileFormatError(f"{path} does not exist")
+    path = existing_file(path)
     with read_guard(path):
         try:
             f = h5py.File(path, "r")
@@ -85,8 +101,7 @@ def edited_copy(path: str | os.PathLike, output: str | os.PathLike | None = None
     src = Path(path)
     dst = src if output is None else Path(output)
     with recording_lock(src), recording_lock(dst), atomic_path(dst) as tmp:
-        if not src.exists():
-            raise FileFormatError(f"{src} does not exist")
+        existing_file(src)
         shutil.copyfile(src, tmp)
         try:
             f = h5py.File(tmp, "r+")

@@ -31,8 +31,9 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
+from .._validation import check_count
 from .._atomic import atomic_path, recording_lock
-from .guard import H5_ERRORS, read_guard
+from .guard import H5_ERRORS, existing_file, read_guard
 from ..errors import ConfigurationError, FileFormatError, MmsnapError
 from ..data.radar_config import OPTIONAL_FIELD_DEFAULTS, RadarConfig
 from ..data.recording import Detections, NodeData, Recording, Tracks, Truth
@@ -301,9 +302,7 @@ def update_recording(path: str | os.PathLike, recording: Recording, *,
 # reading
 # --------------------------------------------------------------------------
 def _open_checked(path: Path) -> h5py.File:
-    path = Path(path)
-    if not path.exists():
-        raise FileFormatError(f"{path} does not exist")
+    path = existing_file(path)
     try:
         f = h5py.File(path, "r")
     except H5_ERRORS as exc:
@@ -629,8 +628,7 @@ def iter_cubes(path: str | os.PathLike, node_name: str, *, chunk_frames: int = 1
     """Yield ``(frame (n,), cube (n, n_samples, n_loops, n_virtual) complex64)``
     chunks of a node's raw ADC cube, ``n <= chunk_frames``, without loading
     the whole cube."""
-    if int(chunk_frames) != chunk_frames or chunk_frames < 1:
-        raise FileFormatError(f"chunk_frames={chunk_frames!r} must be an integer >= 1")
+    check_count(chunk_frames, "chunk_frames", error=FileFormatError)
     with read_guard(path), _open_checked(Path(path)) as f:
         nodes = _group(f, "nodes")
         if node_name not in nodes:

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.projection import project_to_plane, room_to_sensor
-from .._validation import as_float_array, int_array
+from .._validation import as_float_array, check_count, int_array
 from ..data.recording import Detections, NodeData, Recording
 from ..errors import ValidationError
 
@@ -29,6 +29,8 @@ _COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
 #: or faster than a few hundred m/s): a larger value is a corrupted number.
 MAX_COORDINATE_M = 1e4
 MAX_SPEED_MPS = 1e3
+#: A mounting height beyond this is a unit mistake (centimetres as metres).
+MAX_MOUNT_HEIGHT_M = 12.0
 #: :func:`accumulate_frames` refuses to make more points than this (memory).
 MAX_ACCUMULATED_POINTS = 50_000_000
 
@@ -119,6 +121,10 @@ class Mounting:
             object.__setattr__(self, name, value)
         if abs(self.tilt_rad) >= np.pi / 2:
             raise ValidationError(f"tilt_rad={self.tilt_rad!r} must lie in (-pi/2, pi/2)")
+        if abs(self.height_m) > MAX_MOUNT_HEIGHT_M:
+            raise ValidationError(f"height_m={self.height_m!r} lies beyond +-{MAX_MOUNT_HEIGHT_M:g}"
+                                  f" m: the height is in metres (centimetres? "
+                                  f"{self.height_m:g} cm is {self.height_m / 100:g} m)")
         if self.room_pose is not None:
             pose = tuple(float(v) for v in self.room_pose)
             if len(pose) != 3 or not np.all(np.isfinite(pose)):
@@ -159,8 +165,7 @@ def accumulate_frames(cloud: PointCloud3D, n_frames: int, *,
     ``frame_period_s`` per frame, when it is given (else they stay those of
     the original frame: a recording clocked by time stamps would then undo
     the accumulation)."""
-    if not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
-        raise ValidationError(f"n_frames={n_frames!r} must be an integer >= 1")
+    check_count(n_frames, "n_frames")
     if frame_period_s is not None and not (np.isfinite(frame_period_s) and frame_period_s > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
     if len(cloud) * int(n_frames) > MAX_ACCUMULATED_POINTS:
@@ -260,9 +265,13 @@ def check_frame_period(cloud: PointCloud3D, frame_period_s: float, *, node: str 
             distinct = np.unique(cloud.time_s).size
             coarse = (f"; the stamps hold only {distinct} distinct values for {frames.size} "
                       "frames: coarser than a frame" if distinct < frames.size else "")
+            ratio = rate / frame_period_s
+            unit = next((f"; a factor of {f:g}: a unit mistake in the time stamps or the "
+                         "frame period?" for f in (1e-6, 1e-3, 1e3, 1e6)
+                         if abs(ratio / f - 1) < PERIOD_TOLERANCE), "")
             return (f"node {node}: {option}={frame_period_s:g} s disagrees with the time stamps, "
                     f"which advance {rate:.6g} s per frame number (median of {frames.size - 1} "
-                    f"frame steps){coarse}")
+                    f"frame steps){coarse}{unit}")
     values, counts = np.unique(cloud.time_s, return_counts=True)
     if values.size >= 3 and np.median(counts) >= 2:
         with np.errstate(over="ignore", invalid="ignore"):

@@ -48,6 +48,7 @@ import numpy as np
 
 from ..data.radar_config import RadarConfig
 from ..errors import ConfigurationError, FileFormatError
+from .inputs import require_file
 from .ti_cfg_fields import cfg_fields
 
 __all__ = ["BoardLayout", "BOARD_PRESETS", "TiConfig", "parse_ti_cfg", "read_ti_cfg",
@@ -469,8 +470,7 @@ def read_ti_cfg(path: str | os.PathLike, *, board: str | BoardLayout | None = No
     p = Path(path)
     if p.suffix.lower() == ".json":
         return read_studio_json(p, board=board, layout=layout)
-    if not p.is_file():
-        raise FileFormatError(f"configuration file {p} does not exist")
+    require_file(p, "configuration file")
     try:
         text = p.read_text(encoding="utf-8", errors="strict")
     except UnicodeDecodeError as exc:
@@ -586,8 +586,7 @@ def read_studio_json(path: str | os.PathLike, *, board: str | BoardLayout | None
                      layout: BoardLayout | None = None, device: int = 0) -> TiConfig:
     """Read an mmWave Studio JSON export (module docstring) like a ``.cfg``."""
     p = Path(path)
-    if not p.is_file():
-        raise FileFormatError(f"configuration file {p} does not exist")
+    require_file(p, "configuration file")
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:

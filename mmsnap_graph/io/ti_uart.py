@@ -51,6 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import FileFormatError, ValidationError
+from .inputs import require_file
 from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
 __all__ = ["MAGIC_WORD", "TLV_DETECTED_POINTS", "TLV_SIDE_INFO", "TLV_COMPRESSED_SPHERICAL",
@@ -342,8 +343,7 @@ def read_ti_uart(path: str | os.PathLike, *, demo: Literal["oob", "tracking"] = 
                  frame_period_s: float | None = None) -> UartLog:
     """Read a binary log of the demo's data UART (:func:`parse_ti_uart`)."""
     p = Path(path)
-    if not p.is_file():
-        raise FileFormatError(f"UART log {p} does not exist")
+    require_file(p, "UART log")
     try:
         return parse_ti_uart(p.read_bytes(), demo=demo, frame_period_s=frame_period_s)
     except FileFormatError as exc:

@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 from scipy import integrate, optimize, stats
 from scipy import ndimage
 
+from .._validation import check_count
 from ..errors import ConfigurationError, ValidationError
 
 __all__ = ["CfarConfig", "os_cfar_alpha", "os_cfar_noise_scale", "footprint", "pad_map",
@@ -118,9 +119,7 @@ def _check_cfg(cfg) -> None:
 
 
 def _check_channels(n_channels) -> int:
-    if not (_is_int(n_channels) and n_channels >= 1):
-        raise ConfigurationError(f"n_channels={n_channels!r} must be an integer >= 1")
-    return int(n_channels)
+    return check_count(n_channels, "n_channels", error=ConfigurationError)
 
 
 def _check_power(power) -> NDArray:
@@ -157,8 +156,7 @@ ALPHA_BRACKET = (1e-3, 1e7)
 
 
 def _check_order_statistic(n_train, rank) -> tuple[int, int]:
-    if not (_is_int(n_train) and n_train >= 1):
-        raise ConfigurationError(f"n_train={n_train!r} must be an integer >= 1")
+    check_count(n_train, "n_train", error=ConfigurationError)
     if not (_is_int(rank) and 1 <= rank <= n_train):
         raise ConfigurationError(f"rank={rank!r} must be in [1, n_train={n_train}] (an integer)")
     return int(n_train), int(rank)

@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from .._validation import check_count
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Detections
 from ..data.results import Status
@@ -153,18 +154,13 @@ class ChainConfig:
     def __post_init__(self) -> None:
         for name in ("range_window", "doppler_window", "angle_window"):
             window(getattr(self, name), 8)  # raises ConfigurationError on an unknown name
-        if int(self.angle_fft_size) != self.angle_fft_size or self.angle_fft_size < 8:
-            raise ConfigurationError(f"angle_fft_size={self.angle_fft_size!r} must be an "
-                                     f"integer >= 8")
+        check_count(self.angle_fft_size, "angle_fft_size", 8, error=ConfigurationError)
         if not (np.isfinite(self.min_range_m) and self.min_range_m >= 0):
             raise ConfigurationError(f"min_range_m={self.min_range_m!r} must be >= 0")
         if self.max_range_m is not None and not self.max_range_m > self.min_range_m:
             raise ConfigurationError(f"max_range_m={self.max_range_m!r} must exceed "
                                      f"min_range_m={self.min_range_m!r}")
-        if (isinstance(self.doppler_wraps, bool) or not isinstance(self.doppler_wraps, (int, np.integer))
-                or not 0 <= self.doppler_wraps <= 8):
-            raise ConfigurationError(f"doppler_wraps={self.doppler_wraps!r} must be an integer "
-                                     f"in [0, 8]")
+        check_count(self.doppler_wraps, "doppler_wraps", 0, 8, error=ConfigurationError)
         if isinstance(self.dealias_min_snr_db, bool) or not np.isfinite(self.dealias_min_snr_db):
             raise ConfigurationError(f"dealias_min_snr_db={self.dealias_min_snr_db!r} must be a "
                                      f"finite number (dB)")

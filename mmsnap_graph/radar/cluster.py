@@ -47,6 +47,7 @@ from sklearn.cluster import DBSCAN
 
 from factors.models import detection_to_local
 
+from .._validation import check_count
 from ..errors import ConfigurationError
 from ..data.recording import Detections
 
@@ -88,8 +89,7 @@ class ClusterConfig:
             val = getattr(self, name)
             if not (np.isfinite(val) and val > 0):
                 raise ConfigurationError(f"{name}={val!r} must be finite and > 0")
-        if int(self.min_samples) != self.min_samples or self.min_samples < 1:
-            raise ConfigurationError(f"min_samples={self.min_samples!r} must be an integer >= 1")
+        check_count(self.min_samples, "min_samples", error=ConfigurationError)
         if not isinstance(self.point_targets, (bool, np.bool_)):
             raise ConfigurationError(f"point_targets={self.point_targets!r} must be True or False")
         if isinstance(self.point_target_snr_db, bool) or not np.isfinite(self.point_target_snr_db):

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from factors.models import detection_to_local
 
+from .._validation import check_count
 from ..data.recording import Detections
 from ..errors import ConfigurationError
 
@@ -98,9 +99,7 @@ class SceneConfig:
             raise ConfigurationError(f"min_occupancy={self.min_occupancy!r} is a fraction "
                                      "of the windows, in [0, 1]")
         for name in ("min_windows", "existence_min_frames"):
-            val = getattr(self, name)
-            if int(val) != val or val < 0:
-                raise ConfigurationError(f"{name}={val!r} must be an integer >= 0")
+            check_count(getattr(self, name), name, 0, error=ConfigurationError)
 
 
 @dataclass(frozen=True, slots=True)

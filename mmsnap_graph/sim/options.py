@@ -9,12 +9,13 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .._validation import check_count
 from ..data.noise import MeasurementNoise
 from ..data.radar_config import TABLE_I, RadarConfig
 from ..errors import ConfigurationError, ValidationError
 from .body import HumanBody
 from .networks import DEFAULT_FOV_RAD, DEFAULT_MAX_RANGE_M, DEFAULT_MIN_RANGE_M
-from .physics import RealPhysics
+from .real.physics import RealPhysics
 
 __all__ = ["LEVELS", "DEFAULT_LEVELS", "CENTROID_NOISE", "PointCloudModel", "CubeModel",
            "SimulationOptions", "CLEAN"]
@@ -81,8 +82,7 @@ class PointCloudModel:
         if not (np.isfinite(self.false_alarms_per_frame) and self.false_alarms_per_frame >= 0):
             raise ValidationError(f"false_alarms_per_frame={self.false_alarms_per_frame!r} "
                                   "must be finite and >= 0")
-        if int(self.angle_fft_size) != self.angle_fft_size or self.angle_fft_size < 2:
-            raise ValidationError(f"angle_fft_size={self.angle_fft_size!r} must be an integer >= 2")
+        check_count(self.angle_fft_size, "angle_fft_size", 2)
         if not (np.isfinite(self.snr_std_db) and self.snr_std_db >= 0):
             raise ValidationError(f"snr_std_db={self.snr_std_db!r} must be finite and >= 0")
         if not (np.isfinite(self.noise_std) and self.noise_std > 0):
@@ -119,8 +119,7 @@ class CubeModel:
     def __post_init__(self) -> None:
         if not (np.isfinite(self.noise_std) and self.noise_std >= 0):
             raise ValidationError(f"noise_std={self.noise_std!r} must be finite and >= 0")
-        if int(self.n_clutter) != self.n_clutter or self.n_clutter < 0:
-            raise ValidationError(f"n_clutter={self.n_clutter!r} must be an integer >= 0")
+        check_count(self.n_clutter, "n_clutter", 0)
         lo, hi = self.clutter_rcs_m2
         if not (0 < lo <= hi):
             raise ValidationError(f"clutter_rcs_m2={self.clutter_rcs_m2!r} must be 0 < lo <= hi")
@@ -135,7 +134,7 @@ class SimulationOptions:
     """How to simulate (what to simulate, levels, length and seed, are
     arguments of :func:`~mmsnap_graph.sim.simulate_recording`).
 
-    physics : :class:`~mmsnap_graph.sim.physics.RealPhysics` (default: the
+    physics : :class:`~mmsnap_graph.sim.real.physics.RealPhysics` (default: the
         knobs measured on real TI recordings) applied to the centroid and
         point-cloud levels; None: the clean model (a point target with
         independent Gaussian centroid errors and a whole body in every
@@ -187,10 +186,7 @@ class SimulationOptions:
             if not (isinstance(fp, (int, float)) and np.isfinite(fp) and 0 < fp <= 10):
                 raise ValidationError(f"SimulationOptions.frame_period_s={fp!r} must be in "
                                       "(0, 10] seconds (milliseconds given?)")
-        if isinstance(self.n_targets, bool) or int(self.n_targets) != self.n_targets \
-                or self.n_targets < 1:
-            raise ValidationError(f"SimulationOptions.n_targets={self.n_targets!r} must be an "
-                                  "integer >= 1")
+        check_count(self.n_targets, "SimulationOptions.n_targets")
         if not (np.isfinite(self.fov_rad) and 0 < self.fov_rad <= np.pi / 2):
             raise ValidationError(f"SimulationOptions.fov_rad={self.fov_rad!r} must be in "
                                   "(0, pi/2] radians (degrees given?)")

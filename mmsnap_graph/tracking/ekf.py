@@ -42,7 +42,7 @@ from factors.motion import cv_process_noise, cv_transition
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Detections, Tracks
 from .._linalg import symmetrize
-from .._validation import as_float_array, check_finite, check_positive, chi2_gate
+from .._validation import as_float_array, check_count, check_finite, check_positive, chi2_gate
 
 __all__ = [
     "EkfConfig",
@@ -172,8 +172,7 @@ class EkfConfig:
             v = getattr(self, name)
             if v is None and name != "confirm_hits":
                 continue
-            if isinstance(v, bool) or int(v) != v or v < 1:
-                raise ConfigurationError(f"{name}={v!r} must be an integer >= 1")
+            check_count(v, name, error=ConfigurationError)
         for name in ("confirm_window_s", "max_coast_s"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (np.isfinite(v) and v > 0):

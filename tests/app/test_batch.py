@@ -246,3 +246,16 @@ def test_cli_batch_flags_the_corrupt_recording_and_exits_1(sources, tmp_path):
     assert [r["success"] for r in rows] == [True, True, False]
     assert rows[0]["steps_done"] == ["process", "calibrate"]
     assert calibration_json_path(work / GOOD[0]).exists()  # updated in place
+    assert "cluster started in " in out and "library loaded as each started" in out
+
+
+def test_the_preload_hook_loads_what_the_steps_run():
+    """``dask_setup`` (Dask's preload of ``mmsnap_graph.app.batch``) imports
+    GTSAM, h5py and scikit-learn, which importing the module does not."""
+    code = ("import sys\nimport mmsnap_graph.app.batch as b\n"
+            "heavy = ('gtsam', 'h5py', 'sklearn')\n"
+            "print([m in sys.modules for m in heavy])\n"
+            "b.dask_setup(None)\nprint([m in sys.modules for m in heavy])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split("\n")
+    assert out[:2] == ["[False, False, False]", "[True, True, True]"]

@@ -5,8 +5,6 @@ import pytest
 
 from factors.models import global_to_local
 from mmsnap_graph.app.cli import main
-from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.data.radar_config import TABLE_I
 from mmsnap_graph.app.pipeline import (
     cluster_node,
     process_node,
@@ -14,10 +12,16 @@ from mmsnap_graph.app.pipeline import (
     track_node,
     track_recording,
 )
+from mmsnap_graph.app.pipeline import SPARSE_POINTS_PER_FRAME
+from mmsnap_graph.app.pipeline import sparse_cluster_config
+from mmsnap_graph.data.radar_config import TABLE_I
 from mmsnap_graph.data.recording import NodeData, Recording
+from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.sim import network_poses
 from mmsnap_graph.sim.body import body_scatterers
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 
 POSES = network_poses("C")
 N_FRAMES = 16
@@ -156,3 +160,30 @@ def test_the_chain_does_not_import_gtsam():
             "mmsnap_graph.app.commands.process; print('gtsam' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_sparse_clouds_are_clustered_with_one_point_minimum(point_cloud_recording_3):
+    sparse = sparse_clouds(point_cloud_recording_3, seed=4)
+    cfg = ChainConfig()
+    same, changed = sparse_cluster_config(point_cloud_recording_3.nodes["S1"].point_cloud, cfg)
+    assert same is cfg and not changed                         # ~35 points per frame
+    thin, changed = sparse_cluster_config(sparse.nodes["S1"].point_cloud, cfg)
+    assert changed and thin.cluster.min_samples == 1
+    assert thin.cluster.eps_m == cfg.cluster.eps_m             # the rest kept
+    kept, changed = sparse_cluster_config(sparse.nodes["S1"].point_cloud, cfg, sparse=False)
+    assert kept is cfg and not changed
+    forced, changed = sparse_cluster_config(point_cloud_recording_3.nodes["S1"].point_cloud, cfg,
+                                            sparse=True)
+    assert changed and forced.cluster.min_samples == 1
+    counts = np.bincount(sparse.nodes["S1"].point_cloud.frame)
+    assert np.median(counts[counts > 0]) < SPARSE_POINTS_PER_FRAME
+
+
+def test_sparse_node_gets_a_centroid_in_most_non_empty_frames(point_cloud_recording_3):
+    node = sparse_clouds(point_cloud_recording_3, seed=4).nodes["S2"]
+    auto, rep = cluster_node(node, point_cloud_recording_3.frame_period_s)
+    off, _ = cluster_node(node, point_cloud_recording_3.frame_period_s, sparse=False)
+    full = np.unique(node.point_cloud.frame).size
+    assert np.unique(auto.centroids.frame).size > 0.9 * full
+    assert np.unique(off.centroids.frame).size < 0.5 * full     # DBSCAN's 3-point minimum
+    assert "sparse cloud" in rep.message

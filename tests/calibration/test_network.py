@@ -1,14 +1,44 @@
-"""calibrate_recording's input checks (mmsnap_graph.calibration.network)."""
+"""``calibrate_recording`` (mmsnap_graph.calibration.network): its input
+checks and the poses and covariances it reports for a 3-node network.
+
+By default (``method="auto"``) the reported poses are the joint calibration
+graph's on the raw centroids (started from the pose graph), their
+covariances its marginals; ``JointCalibration.joint_covariance`` holds the
+cross-covariances, so the joint NEES of the two non-reference poses is
+chi-square(6). Network ``_shared.NETWORK_3``: S1 (0, 0, 0), S2 (5, 5, pi/2),
+S3 (0, 7, pi); one random walker, 300 frames at 150 ms
+(``three_node_recording``).
+
+Measured (band of the mean of N chi-square(6)):
+- centroids only, seeds 0-59: mean joint NEES 5.88 in (5.16, 6.91) (seeds
+  0-39: 5.98 in (4.97, 7.12)); per node 2.84 / 3.14 in (2.41, 3.65).
+- EKF tracks and centroids (the pose graph from the tracks, the joint graph
+  on the centroids), seeds 0-39: 16.4 before the lag re-centring (4 seeds
+  with S2 or S3 one frame off: the nodes' EKF delays differ; pose errors
+  of 0.4 m), 5.98 with it (``joint.LAG_RECENTRE_FRACTION``), band (4.97,
+  7.12); seeds 0-19: 5.78, band (4.58, 7.61).
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import re
 
+import numpy as np
 import pytest
+from scipy.stats import chi2
 
-from mmsnap_graph.calibration import calibrate_recording
+from mmsnap_graph.app.pipeline import process_recording
+from mmsnap_graph.app.pipeline import track_recording
+from mmsnap_graph.calibration import MatchingOptions
+from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
 from mmsnap_graph.errors import CalibrationError
+from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.sim import SimulationOptions
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim.real.sparse import sparse_clouds
+
+from _shared import NETWORK_3_OPEN
 
 
 def test_two_nodes_with_identical_centroids_are_named():
@@ -19,3 +49,187 @@ def test_two_nodes_with_identical_centroids_are_named():
     with pytest.raises(CalibrationError, match=r"nodes S1 and S2 hold the same \d+ centroids "
                                                r"in the same frames: one log imported twice"):
         calibrate_recording(rec.with_node(twin))
+
+
+def _reported_joint_nees(rec):
+    """Joint NEES (6 dof) of what calibrate_recording reports for ``rec``."""
+    cal = calibrate_recording(rec)
+    assert cal.success and cal.method == "joint", cal.message
+    order = cal.joint.joint_order
+    assert order == ("S2", "S3")
+    e = np.concatenate([pose_tangent_error(cal.poses[n], rec.truth.node_poses[n]) for n in order])
+    return float(e @ np.linalg.solve(cal.joint.joint_covariance, e))
+
+
+def test_joint_covariance_holds_the_marginals(three_node_recording):
+    """The joint covariance's diagonal blocks are the reported marginals;
+    it is symmetric positive definite with nonzero cross-covariances."""
+    cal = calibrate_recording(three_node_recording(0))
+    jc = cal.joint.joint_covariance
+    assert jc.shape == (6, 6)
+    np.testing.assert_allclose(jc, jc.T, atol=0)
+    assert np.all(np.linalg.eigvalsh(jc) > 0)
+    np.testing.assert_allclose(jc[:3, :3], cal.covariances["S2"], rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(jc[3:, 3:], cal.covariances["S3"], rtol=1e-9, atol=1e-15)
+    cross = jc[:3, 3:] / np.sqrt(np.outer(np.diag(jc)[:3], np.diag(jc)[3:]))
+    assert np.max(np.abs(cross)) > 0.05, cross
+
+
+@pytest.mark.slow
+def test_centroid_network_nees_in_band(three_node_recording):
+    """Centroids only, seeds 0-39: the mean joint NEES of the reported poses
+    is in the band of 40 chi-square(6) (module doc for the figure)."""
+    seeds = range(40)
+    band = chi2.ppf([0.025, 0.975], 6 * len(seeds)) / len(seeds)
+    mean = np.mean([_reported_joint_nees(three_node_recording(s)) for s in seeds])
+    assert band[0] < mean < band[1], (mean, band)
+
+
+@pytest.mark.slow
+def test_tracks_and_centroids_network_nees_in_band(three_node_recording):
+    """EKF tracks and centroids, seeds 0-19 (module doc: 5.78)."""
+    seeds = range(20)
+    band = chi2.ppf([0.025, 0.975], 6 * len(seeds)) / len(seeds)
+    mean = np.mean([_reported_joint_nees(three_node_recording(s, with_tracks=True)) for s in seeds])
+    assert band[0] < mean < band[1], (mean, band)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="EKF tracks only (no centroids: the pose graph is "
+                   "reported), seeds 0-11: mean joint NEES 32.2 against the band (4.20, 8.11); "
+                   "the tracks' EKF bias (module doc of tests/calibration/pairwise/test_pose_graph.py) and lags one "
+                   "frame off (seeds 2, 8: NEES 76, 85) are not fixed")
+def test_tracks_only_network_nees_in_band(three_node_recording):
+    seeds = range(12)
+    band = chi2.ppf([0.025, 0.975], 6 * len(seeds)) / len(seeds)
+    nees = []
+    for s in seeds:
+        rec = three_node_recording(s, with_tracks=True)
+        rec = dataclasses.replace(rec, nodes={n: dataclasses.replace(node, centroids=None)
+                                              for n, node in rec.nodes.items()})
+        cal = calibrate_recording(rec)
+        assert cal.method == "pose_graph"
+        pg = cal.pose_graph
+        e = np.concatenate([pose_tangent_error(cal.poses[n], rec.truth.node_poses[n])
+                            for n in pg.joint_order])
+        nees.append(float(e @ np.linalg.solve(pg.joint_covariance, e)))
+    assert band[0] < np.mean(nees) < band[1], (np.mean(nees), band)
+
+
+def test_reported_lags_are_the_joint_graphs(three_node_recording):
+    """``RecordingCalibration.lag_frames`` holds the lags of the solve it
+    reports: the joint graph re-centres a whole-frame lag its clock offset
+    only partly recovers (``calibration.joint.solve.LAG_RECENTRE_FRACTION``);
+    on seed 2 the tracks' matching puts S3 at -1, the joint graph at 0 (the
+    true lag)."""
+    cal = calibrate_recording(three_node_recording(2, with_tracks=True))
+    assert cal.method == "joint" and cal.success, cal.message
+    # The tracks' matching once found -1 here (EKF delays); the lag-evidence
+    # test keeps 0 now, so the joint graph has nothing to re-centre.
+    assert cal.pose_graph.lag_frames["S3"] in (-1, 0)
+    assert dict(cal.joint.lag_frames)["S3"] == 0
+    assert cal.lag_frames == {"S1": 0, "S2": 0, "S3": 0}
+    assert abs(cal.time_offset_s["S3"]) < 0.02
+
+
+def _default_path_error(rec):
+    """Mean position error of S2 and S3 on the default path (``mmsnap
+    process`` then ``mmsnap calibrate``), without the simulator's noise
+    metadata (a real recording has none)."""
+    meta = {k: v for k, v in rec.metadata.items() if not k.startswith("centroid_")}
+    proc = dataclasses.replace(process_recording(rec)[0], metadata=meta)
+    cal = calibrate_recording(proc)
+    assert cal.success and cal.method == "joint"
+    return float(np.mean([np.hypot(*pose_tangent_error(cal.poses[n], rec.truth.node_poses[n])[:2])
+                          for n in ("S2", "S3")]))
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "the target 1.2x the dense error is not reachable on these data by any estimator: the "
+    "Cramer-Rao bound of the S2/S3 positions from the chain's centroids "
+    "(evaluation.pose_bound, tests/evaluation/test_pose_bound.py) is, on seed 0, sparse 47 mm against "
+    "dense 17 mm (2.8x; 26 against 10 mm, 2.5x, with the trajectory known), 2.5-4.7x on "
+    "seeds 0-7: sparse centroids are single body points, 0.14-0.17 m range / 0.09-0.14 rad "
+    "omega / 0.4-0.7 m/s Doppler about the nodes' consensus against 0.03-0.08 m / "
+    "0.03-0.12 rad / 0.06-0.15 m/s dense. Measured seed 0: dense 7.0 mm, sparse 42 mm (6.0x; "
+    "S3 72 mm, 1.7 of its reported 42 mm sigma); seed 1 0.72x (sparse 5.7 mm, 0.2 of its "
+    "bound: luck), seed 2 2.8x"))
+def test_sparse_clouds_within_1_2x_of_the_dense_case_seed_0():
+    dense = simulate_recording(NETWORK_3_OPEN, "random",
+                               SimulationOptions(physics=None, n_targets=2, frame_period_s=0.05),
+                               levels=("point_cloud",), n_frames=600, seed=0)
+    assert _default_path_error(sparse_clouds(dense, seed=0)) <= 1.2 * _default_path_error(dense)
+
+
+def _duration_s(rec) -> float:
+    frames = np.concatenate([n.centroids.frame for n in rec.nodes.values()])
+    return float(np.ptp(frames) + 1) * rec.frame_period_s
+
+
+def test_defaults_given_explicitly_give_the_same_calibration(recording_c_random):
+    plain = calibrate_recording(recording_c_random, method="pose_graph")
+    explicit = calibrate_recording(recording_c_random, method="pose_graph",
+                                   matching=MatchingOptions(
+                                       max_lag_s=0.3, min_common_s=0.5, min_spread_m=0.2,
+                                       max_rmse_m=1.0, inlier_gate_m=0.5, gate_probability=0.997))
+    assert plain.success and explicit.success
+    np.testing.assert_array_equal(plain.poses["S2"], explicit.poses["S2"])
+    assert plain.edges[0].n_frames == explicit.edges[0].n_frames
+
+
+def test_min_common_s_longer_than_the_recording_fails_clearly(recording_c_random):
+    rec = recording_c_random
+    too_long = _duration_s(rec) + 1.0
+    with pytest.raises(CalibrationError) as err:
+        calibrate_recording(rec, method="pose_graph",
+                            matching=MatchingOptions(min_common_s=too_long))
+    text = str(err.value)
+    assert f"min_common_s={too_long:g} s" in text
+    need = int(np.ceil(too_long / rec.frame_period_s - 1e-9))
+    assert f"shares >= {need} frames" in text
+    # A tiny overlap is accepted (the 5-frame floor still applies).
+    assert calibrate_recording(rec, method="pose_graph",
+                               matching=MatchingOptions(min_common_s=0.0)).success
+
+
+def test_min_spread_m_and_inlier_gate_m_reach_the_matching(recording_c_random):
+    with pytest.raises(CalibrationError, match=r"spread >= 50\.0 m"):
+        calibrate_recording(recording_c_random, method="pose_graph",
+                            matching=MatchingOptions(min_spread_m=50.0))
+    with pytest.raises(CalibrationError, match=r"within inlier_gate_m=0\.0001 m"):
+        calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
+                            matching=MatchingOptions(inlier_gate_m=1e-4))
+    wide = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
+                               matching=MatchingOptions(inlier_gate_m=0.5))
+    tight = calibrate_recording(recording_c_random, method="pose_graph", source="centroids",
+                                matching=MatchingOptions(inlier_gate_m=0.2))
+    assert wide.success and tight.success
+    assert tight.edges[0].n_frames < wide.edges[0].n_frames
+
+
+def test_gate_probability_gates_ekf_tracks(recording_c_random):
+    tracked, _ = track_recording(recording_c_random)
+    assert tracked.nodes["S2"].tracks.covariance is not None
+    wide = calibrate_recording(tracked, method="pose_graph", source="tracks")
+    tight = calibrate_recording(tracked, method="pose_graph", source="tracks",
+                                matching=MatchingOptions(gate_probability=0.5))
+    assert wide.success and tight.success and wide.source == "tracks"
+    assert tight.edges[0].n_frames < wide.edges[0].n_frames
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"min_common_s": -1.0}, "min_common_s"),
+    ({"min_common_s": float("nan")}, "min_common_s"),
+    ({"min_spread_m": -0.1}, "min_spread_m"),
+    ({"inlier_gate_m": 0.0}, "inlier_gate_m"),
+    ({"gate_probability": 1.0}, "gate_probability"),
+    ({"max_rmse_m": 0.0}, "max_rmse_m"),
+    ({"max_lag_s": -0.1}, "max_lag_s"),
+    ({"min_spread_m": True}, "min_spread_m"),
+    ({"min_common_s": "long"}, "min_common_s"),
+])
+def test_bad_thresholds_name_the_field_and_value(recording_c_random, kwargs, field):
+    with pytest.raises(ValidationError,
+                       match=rf"^{field} must be .*got {re.escape(repr(kwargs[field]))}"):
+        calibrate_recording(recording_c_random, matching=MatchingOptions(**kwargs))

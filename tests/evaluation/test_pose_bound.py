@@ -21,7 +21,7 @@ from mmsnap_graph.evaluation.pose_bound import (
 from mmsnap_graph.data.recording import Detections, Truth
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 from mmsnap_graph.sim import SimulationOptions
 
 NETWORK = {"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi), "S3": (4.0, 0.0, np.pi / 6)}
@@ -161,7 +161,7 @@ def _bound_mm(rec):
 
 @pytest.mark.slow
 def test_sparse_clouds_bound_is_over_twice_the_dense_bound_seed_0():
-    """The scene of the strict xfail (test_sparse_calibration.py), seed 0:
+    """The scene of the strict xfail (tests/calibration/test_network.py), seed 0:
     bound dense 17.0 mm (10.4 with the trajectory known), sparse 47.4 mm
     (26.3): 2.8x (2.5x). No estimator reaches 1.2x on these data."""
     dense = simulate_recording(NETWORK, "random",

@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+from mmsnap_graph._atomic import atomic_path
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import MmsnapError, ValidationError
 
 #: Seconds to wait for a ``--scheduler`` before giving up.
@@ -54,6 +56,7 @@ def register(subparsers) -> None:
     p.add_argument("--summary-json", default=None, metavar="PATH",
                    help="also write the per-recording summaries as JSON here")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
@@ -165,10 +168,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"cluster started in {start_s:.1f} s ({ready}); recordings ran in {run_s:.1f} s")
     if args.summary_json:
         try:
-            Path(args.summary_json).write_text(
-                json.dumps([s.to_json() for s in summaries], indent=2) + "\n")
-        except OSError as exc:
-            print(f"mmsnap batch: error: cannot write {args.summary_json}: {exc.strerror}",
+            with atomic_path(args.summary_json) as tmp:
+                tmp.write_text(json.dumps([s.to_json() for s in summaries], indent=2) + "\n")
+        except (OSError, MmsnapError) as exc:
+            print(f"mmsnap batch: error: cannot write {args.summary_json}: "
+                  f"{getattr(exc, 'strerror', None) or exc}",
                   file=sys.stderr)
             return 1
         print(f"wrote {args.summary_json}")

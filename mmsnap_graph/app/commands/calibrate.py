@@ -25,6 +25,7 @@ import sys
 import numpy as np
 
 from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.app.runs import calibrate_and_store, calibration_json_path
 from mmsnap_graph.calibration.pairwise.matching_options import MatchingOptions
 from mmsnap_graph.errors import ConfigurationError, ValidationError
@@ -104,6 +105,7 @@ def register(subparsers) -> None:
                    help="write a copy of the recording here instead of updating it")
     p.add_argument("--no-write", action="store_true",
                    help="do not touch the recording (JSON only)")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 

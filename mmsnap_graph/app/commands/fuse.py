@@ -18,6 +18,7 @@ import argparse
 import sys
 
 from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.app.runs import DEFAULT_ROBUST, fuse_stored, paper_noise, stored_calibration
 from mmsnap_graph.errors import ValidationError
 
@@ -82,10 +83,14 @@ def register(subparsers) -> None:
                    help="the reference radar's people-tracking .cfg: its boundaryBox is the room "
                         "box, and a target standing still outside its staticBoundaryBox is "
                         "flagged (docs/ROBUST.md)")
+    p.add_argument("--in-front", action="store_true",
+                   help="the radars hang on the room's walls, facing in: a fused target behind "
+                        "any radar is outside the room and flagged (status 11)")
     p.add_argument("--no-body-check", action="store_true",
                    help="keep fused targets of a frame closer than a body's width (default: "
                         "the one seen by fewer nodes is flagged, status 12)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
@@ -125,6 +130,9 @@ def room_options(args) -> tuple[dict, list[str]]:
             opts["bounds"] = box(boxes["boundaryBox"])
         if "staticBoundaryBox" in boxes:
             opts["static_bounds"] = box(boxes["staticBoundaryBox"])
+    if args.in_front:
+        opts["in_front"] = True
+        text.append("targets in front of every radar")
     if "bounds" in opts:
         text.append(f"room bounds {opts['bounds'].text()}")
     if "static_bounds" in opts:

@@ -19,7 +19,8 @@ import json
 
 import numpy as np
 
-from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph._atomic import atomic_path, check_output_path
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 
 
 def register(subparsers) -> None:
@@ -45,6 +46,7 @@ def register(subparsers) -> None:
                    help="seconds of data after a change used to re-calibrate (default "
                         "%(default)s)")
     p.add_argument("--json", default=None, help="also write the result as JSON to this path")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
@@ -118,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
                                recalibration_s=args.recalibration_s)
     print(format_result(result))
     if json_path is not None:
-        with open(json_path, "w", encoding="utf-8") as fh:
-            json.dump(result_json(result), fh, indent=2)
+        with atomic_path(json_path) as tmp:
+            tmp.write_text(json.dumps(result_json(result), indent=2) + "\n", encoding="utf-8")
         print(f"wrote {json_path}")
     return 1 if any(not r.success for r in result.recalibrations) else 0

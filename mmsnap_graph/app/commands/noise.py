@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 
 from mmsnap_graph._atomic import check_output_path, recording_lock
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 
 
 def register(subparsers) -> None:
@@ -35,6 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--output", default=None,
                    help="write a copy of the recording with /noise here instead of updating it")
     p.add_argument("--no-write", action="store_true", help="print only; do not write /noise")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 

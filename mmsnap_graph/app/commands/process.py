@@ -8,6 +8,7 @@ import dataclasses
 import sys
 
 from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 
 #: Defaults quoted in the help: ``CfarConfig().pfa`` and
@@ -32,7 +33,7 @@ def register(subparsers) -> None:
                    help="ignore cubes and point clouds: only build tracks from the stored centroids")
     p.add_argument("--config", metavar="FILE", default=None,
                    help="TOML file with every chain, clustering and EKF option (tables [chain], "
-                        "[chain.cfar], [chain.cluster], [ekf]; a [matching] table, mmsnap "
+                        "[chain.cfar], [chain.cluster], [ekf], [scene]; a [matching] table, mmsnap "
                         "calibrate's, is ignored; see --show-config and docs/TI.md)")
     p.add_argument("--show-config", action="store_true",
                    help="print the effective configuration (defaults, --config, options) as "
@@ -62,6 +63,7 @@ def register(subparsers) -> None:
                    help="stored point clouds: keep centroids that no neighbouring frame "
                         "confirms (one-frame blips)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
@@ -80,15 +82,13 @@ def effective_config(args: argparse.Namespace):
     except (TypeError, ValueError) as exc:
         raise ConfigurationError(f"mmsnap process option: {exc}") from None
     sparse = cfg.sparse if args.sparse is None else SPARSE_VALUES[args.sparse]
+    scene = dataclasses.replace(
+        cfg.scene, static=cfg.scene.static and not args.no_static_scene,
+        merge=cfg.scene.merge and not args.no_body_merge,
+        ghosts=cfg.scene.ghosts and not args.no_ghost_filter,
+        existence=cfg.scene.existence and not args.no_existence_check)
     return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=cfg.ekf_noise_from_data,
-                         sparse=sparse)
-
-
-def scene_config(args: argparse.Namespace):
-    """The scene filters of stored point clouds, each on unless switched off."""
-    from mmsnap_graph.radar.scene import SceneConfig
-    return SceneConfig(static=not args.no_static_scene, merge=not args.no_body_merge,
-                       ghosts=not args.no_ghost_filter, existence=not args.no_existence_check)
+                         sparse=sparse, scene=scene)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     path, reports = process_file(args.recording, output=args.output, config=config, ekf=ekf,
                                  centroids_only=args.centroids_only, progress=progress,
                                  ekf_noise="data" if cfg.ekf_noise_from_data else "config",
-                                 sparse=cfg.sparse, scene=scene_config(args))
+                                 sparse=cfg.sparse, scene=cfg.scene)
     for rep in reports.values():
         print(f"{rep.name}: {rep.level}: {rep.n_points} points, {rep.n_centroids} centroids, "
               f"{rep.n_tracks} tracks ({rep.message})")

@@ -20,9 +20,16 @@ import time
 
 import numpy as np
 
+from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import ValidationError
 
 from .arguments import solver_choice
+
+
+#: Playback speeds --speed accepts (1000 times slower to 10^6 times faster).
+SPEED_RANGE = (1e-3, 1e6)
+#: Longest pause between two frames with --realtime, s (a gap in the stamps).
+MAX_PAUSE_S = 10.0
 
 
 def register(subparsers) -> None:
@@ -54,6 +61,7 @@ def register(subparsers) -> None:
     p.add_argument("--summary", action="store_true", help="print only the summary")
     p.add_argument("-o", "--output", default=None,
                    help="write one JSON line per frame (fused targets and tracks) to this file")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
@@ -63,8 +71,9 @@ def _check_args(args) -> float | None:
         raise ValidationError(f"--output {args.output!r} is a directory; give a file name")
     if args.speed is None:
         return 1.0 if args.realtime else None
-    if not (np.isfinite(args.speed) and args.speed > 0):
-        raise ValidationError(f"--speed must be finite and > 0, got {args.speed!r}")
+    if not (SPEED_RANGE[0] <= args.speed <= SPEED_RANGE[1]):
+        raise ValidationError(f"--speed must be between {SPEED_RANGE[0]:g} and "
+                              f"{SPEED_RANGE[1]:g} (times the recorded rate), got {args.speed!r}")
     return float(args.speed)
 
 
@@ -154,8 +163,8 @@ def _play(stream, frames, speed, summary_only, sink):
             if t0_wall is None:
                 t0_wall, t0_rec = time.monotonic(), time_s
             wait = t0_wall + (time_s - t0_rec) / speed - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+            if wait > 0:  # a gap in the stamps waits at most MAX_PAUSE_S
+                time.sleep(min(wait, MAX_PAUSE_S))
         u = stream.push(time_s, detections)
         latencies.append(u.latency_s)
         n_groups += len(u)

@@ -37,6 +37,7 @@ from typing import Callable, Mapping, Sequence
 
 from tqdm.auto import tqdm
 
+from ..._validation import check_count
 from ...errors import CalibrationError, ValidationError
 from ...io import read_recording
 from ...sim import CLEAN, simulate_recording
@@ -85,16 +86,13 @@ class DemoConfig:
             raise ValidationError("configurations and trajectories must not repeat")
         object.__setattr__(self, "configurations", confs)
         object.__setattr__(self, "trajectories", trajs)
-        if int(self.n_frames) != self.n_frames or self.n_frames < 20:
-            raise ValidationError(f"n_frames={self.n_frames!r} must be an integer >= 20")
-        if int(self.cube_frames) != self.cube_frames or self.cube_frames < 0:
-            raise ValidationError(f"cube_frames={self.cube_frames!r} must be an integer >= 0")
+        check_count(self.n_frames, "n_frames", 20)
+        check_count(self.cube_frames, "cube_frames", 0)
         if str(self.cube_configuration).upper() not in CONFIGURATION_NAMES:
             raise ValidationError(f"cube_configuration={self.cube_configuration!r} must be one "
                                   f"of {CONFIGURATION_NAMES}")
         object.__setattr__(self, "cube_configuration", str(self.cube_configuration).upper())
-        if int(self.max_lag_frames) != self.max_lag_frames or self.max_lag_frames < 0:
-            raise ValidationError(f"max_lag_frames={self.max_lag_frames!r} must be an integer >= 0")
+        check_count(self.max_lag_frames, "max_lag_frames", 0)
 
     @property
     def protocol(self) -> str:

@@ -34,6 +34,7 @@ from factors.models import measurement_model, measurement_model_pose, residual
 from factors.motion import cv_process_noise_continuous
 
 from ...errors import ValidationError
+from ...fusion.solvers.settings import LM_SETTINGS
 from ..poses import pose_array, to_pose2
 
 #: The key of the range offset (metres) in the pre-solve's ``offsets``
@@ -522,7 +523,7 @@ def _damped_step(prob, poses, states, offsets, cost, lam, nu):
         rho = (cost - new_cost) / max(predicted, 1e-300)
         if new_cost <= cost and rho > 0:
             # Nielsen's damping update (as in Madsen, Nielsen & Tingleff)
-            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            lam = max(LM_SETTINGS.lambda_min, lam * LM_SETTINGS.damping_update(rho))
             return (new_poses, new_states, new_offsets, new_cost), lam, 2.0
         lam, nu = lam * nu, nu * 2.0
     return None, lam, nu
@@ -542,7 +543,7 @@ def presolve(problem: PresolveProblem, poses: Mapping[str, NDArray], states: NDA
     same graph), ``steps`` and ``converged``."""
     timed = offsets is not None or problem.range_offset is not None
     prob, poses, states, offsets = _problem(problem, poses, states, offsets)
-    lam, nu = 1e-4, 2.0
+    lam, nu = LM_SETTINGS.lambda_initial, LM_SETTINGS.lambda_factor
     cost = initial_cost = prob.cost(poses, states, offsets)
     steps, done = 0, False
     while steps < max_steps and not done:

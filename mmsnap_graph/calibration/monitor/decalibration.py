@@ -194,6 +194,10 @@ def _check_covariances(names, node_covariances) -> dict[str, NDArray]:
         out[name] = 0.5 * (c + c.T)
     return out
 
+#: Longest test window or re-calibration span, in frames (10^7 frames are
+#: 17 days at 150 ms: longer ones are unit mistakes, and would overflow).
+MAX_SPAN_FRAMES = 1e7
+
 
 class DecalibrationMonitor:
     """Streaming decalibration monitor (module doc).
@@ -231,6 +235,12 @@ class DecalibrationMonitor:
         if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w) & (w > 0)):
             raise ValidationError(f"windows_s must be positive lengths, got {windows_s!r}")
         check_count(min_frames, "min_frames")
+        for name, value in (("windows_s", float(w.max())), ("recalibration_s", recalibration_s)):
+            if value / frame_period_s > MAX_SPAN_FRAMES:
+                raise ValidationError(
+                    f"{name}={value!r} is {value / frame_period_s:.3g} frames of "
+                    f"{frame_period_s:g} s; at most {MAX_SPAN_FRAMES:.0e} frames (a longer "
+                    "span than any recording: seconds typed in another unit?)")
         self.noise, self.threshold = noise, float(threshold)
         self.frame_period_s = float(frame_period_s)
         self.node_names = list(self._poses)

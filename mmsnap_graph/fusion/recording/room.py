@@ -7,6 +7,10 @@ reference frame), after the robust gate and the motion check:
   outside the room box (``x_min..x_max, y_min..y_max`` in the reference
   frame) is flagged :attr:`~mmsnap_graph.data.results.Status.OUTSIDE_BOUNDS`.
   A reflection via a wall is seen behind the wall: outside the room.
+- **in front of the radars** (optional, ``in_front``): radars hung on the
+  room's walls look into the room, so a row behind any radar (negative
+  boresight coordinate in its frame) is outside it and flagged the same way.
+  Not for a radar in the middle of a room, with people behind it.
 - **static bounds** (optional, TI's ``staticBoundaryBox``): a row slower than
   :data:`STILL_MPS` outside this box is flagged the same way (a target may
   stand still only inside it).
@@ -122,13 +126,25 @@ def _duplicates(fused: FusedSequence, ok: NDArray, body_m: float) -> NDArray:
     return dup
 
 
+def _behind(fused: FusedSequence) -> tuple[NDArray, NDArray]:
+    """(K,) True for the rows behind a node (its boresight coordinate < 0),
+    and (K,) the index of the first such node."""
+    xy = np.asarray(fused.state, dtype=float)[:, :2]
+    poses = np.asarray(fused.node_poses, dtype=float)
+    d = xy[:, None, :] - poses[None, :, :2]
+    ahead = -np.sin(poses[:, 2]) * d[..., 0] + np.cos(poses[:, 2]) * d[..., 1]
+    back = ahead < 0
+    return back.any(axis=1), np.argmax(back, axis=1)
+
+
 def screen_room(fused: FusedSequence, *, bounds: RoomBounds | None = None,
-                static_bounds: RoomBounds | None = None,
+                static_bounds: RoomBounds | None = None, in_front: bool = False,
                 body_m: float | None = DEFAULT_BODY_M) -> tuple[FusedSequence, RoomReport]:
     """Flag the successful rows outside ``bounds`` (None: no bounds), the
-    still rows outside ``static_bounds`` and the duplicates of one body
-    (``body_m``; None: off). Returns the rows with their ``success``,
-    ``status`` and ``message`` updated, and the counts."""
+    still rows outside ``static_bounds``, the rows behind a node
+    (``in_front``) and the duplicates of one body (``body_m``; None: off).
+    Returns the rows with their ``success``, ``status`` and ``message``
+    updated, and the counts."""
     if body_m is not None and not (np.isfinite(body_m) and body_m > 0):
         raise ValidationError(f"body_m={body_m!r} must be finite and > 0 (m)")
     if len(fused) == 0:
@@ -142,6 +158,14 @@ def screen_room(fused: FusedSequence, *, bounds: RoomBounds | None = None,
         status[outside] = Status.OUTSIDE_BOUNDS
         message[outside] = f"outside the room bounds ({bounds.text()})"
         success &= ~outside
+    if in_front:
+        back, node = _behind(fused)
+        back &= success
+        status[back] = Status.OUTSIDE_BOUNDS
+        for k in np.flatnonzero(back):
+            message[k] = f"behind node {fused.node_names[node[k]]} (outside the room)"
+        success &= ~back
+        outside |= back
     if static_bounds is not None:
         state = np.asarray(fused.state, dtype=float)
         still = success & (np.hypot(state[:, 2], state[:, 3]) < STILL_MPS) \

@@ -91,8 +91,8 @@ class StreamAssociator:
         groups: list[list[float]] = []   # summed information (a, b, c, d) and eta (e0, e1)
         for n, (px, py, sa, sb, sc, sd, ia, ib, ic, id_) in dets:
             best, best_m2 = -1, math.inf
-            for g, (a, b, c, d, e0, e1) in enumerate(groups):
-                m2 = group_distance2(a, b, c, d, e0, e1, px, py, sa, sb, sc, sd)
+            for g, group in enumerate(groups):
+                m2 = group_distance2(group, px, py, sa, sb, sc, sd)
                 if m2 <= gate and m2 < best_m2:
                     best, best_m2 = g, m2
             if best < 0:

@@ -22,7 +22,7 @@ def recording(tmp_path_factory):
 
 def _fuse(recording, tmp_path, *extra):
     out = tmp_path / "fused.h5"
-    code = main(["fuse", str(recording), "-o", str(out), "--no-progress", *extra])
+    code = main(["fuse", str(recording), "-o", str(out), "--no-progress", "--overwrite", *extra])
     return code, out
 
 
@@ -53,6 +53,19 @@ def test_bounds_from_a_people_tracking_cfg(recording, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "room bounds x -50..50 m" in text and "static bounds x -1..1 m" in text
     assert read_fused(out).success.any()
+
+
+def test_in_front_flags_the_rows_behind_a_radar(recording, tmp_path, capsys):
+    assert _fuse(recording, tmp_path, "--no-body-check")[0] == 0
+    free = read_fused(tmp_path / "fused.h5")
+    capsys.readouterr()
+    code, out = _fuse(recording, tmp_path, "--no-body-check", "--in-front")
+    assert code == 0 and "targets in front of every radar" in capsys.readouterr().out
+    front = read_fused(out)
+    poses = free.node_poses
+    ahead = np.stack([-np.sin(p[2]) * (free.state[:, 0] - p[0])
+                      + np.cos(p[2]) * (free.state[:, 1] - p[1]) for p in poses], axis=1)
+    np.testing.assert_array_equal(front.success, free.success & np.all(ahead >= 0, axis=1))
 
 
 def test_one_target_per_body_is_the_default_and_switches_off(recording, tmp_path, capsys):

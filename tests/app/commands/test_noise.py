@@ -90,7 +90,7 @@ def test_fuse_without_noise_says_it_uses_the_papers_sigmas(tmp_path, capsys, sma
     assert fused.robust == "gate"                              # robust fusion on by default
     np.testing.assert_allclose(fused.noise_sigmas, [0.035, np.pi / 4, 0.1807])
     assert main(["fuse", str(small), "-o", str(out), "--no-progress", "--robust", "none",
-                 "--sigmas", *TRUE]) == 0
+                 "--sigmas", *TRUE, "--overwrite"]) == 0
     assert "sigmas from --sigmas" in capsys.readouterr().out
     fused = read_fused(out)
     assert fused.robust is None
@@ -121,7 +121,8 @@ def test_noise_command_and_sigmas_override(tmp_path, capsys, small):
     assert main(["fuse", str(copy), "-o", str(out), "--no-progress"]) == 0
     assert "sigmas from /noise" in capsys.readouterr().out
     np.testing.assert_allclose(read_fused(out).noise_sigmas, est.pooled().sigmas)
-    assert main(["fuse", str(copy), "-o", str(out), "--no-progress", "--sigmas", *PAPER]) == 0
+    assert main(["fuse", str(copy), "-o", str(out), "--no-progress", "--sigmas", *PAPER,
+                 "--overwrite"]) == 0
     np.testing.assert_allclose(read_fused(out).noise_sigmas, [0.035, np.pi / 4, 0.1807])
 
 
@@ -132,5 +133,5 @@ def test_calibrate_no_write_leaves_the_recording_without_noise(tmp_path, capsys,
     text = capsys.readouterr().out
     assert "measurement noise per node (from the data)" in text
     assert read_noise(copy) is None
-    assert main(["calibrate", str(copy), "--json", str(tmp_path / "c.json")]) == 0
+    assert main(["calibrate", str(copy), "--json", str(tmp_path / "c.json"), "--overwrite"]) == 0
     assert read_noise(copy) is not None

@@ -38,7 +38,7 @@ def imported(tmp_path_factory):
 
 def _process(src, tmp_path, *flags):
     out = tmp_path / "p.h5"
-    assert main(["process", str(src), "-o", str(out), "--no-progress", *flags]) == 0
+    assert main(["process", str(src), "-o", str(out), "--no-progress", "--overwrite", *flags]) == 0
     return read_recording(out)
 
 
@@ -90,3 +90,33 @@ def test_one_simulated_walker_is_one_target(tmp_path, capsys, seed):
           f"none in {100 * np.mean(count == 0):.1f}%")
     assert ghosts <= 0.02
     assert np.mean(count == 0) <= 0.10                    # the walker is not filtered away
+
+
+def test_the_scene_table_of_a_config_file_and_the_switches(imported, tmp_path, capsys):
+    from mmsnap_graph.app.config_file import process_config_to_toml, read_process_config
+    from mmsnap_graph.radar.scene import SceneConfig
+
+    assert main(["process", "--show-config"]) == 0
+    text = capsys.readouterr().out
+    assert "[scene]" in text and "min_occupancy = 0.2" in text
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(text.replace("ghosts = true", "ghosts = false")
+                   .replace("min_occupancy = 0.2", "min_occupancy = 0.5"))
+    read = read_process_config(cfg)
+    assert read.scene == SceneConfig(ghosts=False, min_occupancy=0.5)
+    assert read_process_config_round_trip(process_config_to_toml(read), tmp_path) == read
+    _process(imported, tmp_path, "--config", str(cfg), "--no-existence-check")
+    out = capsys.readouterr().out
+    assert "static-scene points" in out and "multipath ghosts" not in out
+    assert "without existence" not in out
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[scene]\nmin_occupancy = 2.0\n")
+    assert main(["process", str(imported), "--config", str(bad)]) == 2
+    assert "scene" in capsys.readouterr().err
+
+
+def read_process_config_round_trip(text, tmp_path):
+    from mmsnap_graph.app.config_file import read_process_config
+    path = tmp_path / "again.toml"
+    path.write_text(text)
+    return read_process_config(path)

@@ -216,3 +216,25 @@ def test_configuration_a_bump_along_the_baseline_detected_within_20_s():
     res = monitor_recording(rec)
     assert [c.node for c in res.changes] == ["S2"]
     assert res.changes[0].detection_time_s - rec.metadata["bump_time_s"] <= 20.0
+
+
+@pytest.mark.parametrize("kw", [dict(windows_s=[1e308]), dict(windows_s=[3.0, 1e9]),
+                                dict(recalibration_s=1e308), dict(recalibration_s=1e7)])
+def test_a_span_longer_than_any_recording_is_a_validation_error(kw):
+    from mmsnap_graph.calibration.monitor.decalibration import DecalibrationMonitor
+    from mmsnap_graph.errors import ValidationError
+
+    poses = {"S1": np.zeros(3), "S2": np.array([1.0, 2.0, 0.5])}
+    name = next(iter(kw))
+    with pytest.raises(ValidationError, match=f"{name}=.*at most 1e\\+07 frames"):
+        DecalibrationMonitor(poses, frame_period_s=0.1, **kw)
+
+
+def test_monitor_cli_names_a_huge_recalibration_span(tmp_path, capsys):
+    from mmsnap_graph.app.cli import main
+
+    path = tmp_path / "rec.h5"
+    assert main(["simulate", "-c", "B", "-n", "40", "-l", "centroids", "--known-poses",
+                 "-o", str(path), "--no-progress"]) == 0
+    assert main(["monitor", str(path), "--recalibration-s", "1e308"]) == 2
+    assert "recalibration_s=1e+308" in capsys.readouterr().err

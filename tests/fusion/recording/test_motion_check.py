@@ -20,7 +20,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
+from mmsnap_graph.evaluation import chi2_mean_interval, nees
 
 from _shared import POSES_BC
 from mmsnap_graph.fusion import FusionOptions
@@ -82,8 +82,7 @@ class Tally:
         err = fused.state - truth[fused.frame]
         pos = np.hypot(err[:, 0], err[:, 1])
         self.se += float(np.sum(pos[ok] ** 2))
-        self.nees.append(np.einsum("ki,kij,kj->k", err[ok], np.linalg.inv(fused.covariance[ok]),
-                                   err[ok]))
+        self.nees.append(nees(err[ok], fused.covariance[ok]))
         frames, at = np.unique(fused.frame, return_inverse=True)
         n_ok = np.bincount(at, weights=ok, minlength=frames.size)
         far = np.bincount(at, weights=ok & (pos > GHOST_ERROR_M), minlength=frames.size)
@@ -97,7 +96,7 @@ class Tally:
 
     def nees_and_band(self) -> tuple[float, float, float]:
         n = np.concatenate(self.nees)
-        lo, hi = chi2.ppf([0.025, 0.975], 4 * n.size) / n.size
+        lo, hi = chi2_mean_interval(4, n.size, 0.95)
         return float(n.mean()), float(lo), float(hi)
 
 

@@ -86,3 +86,15 @@ def test_bad_bounds_are_validation_errors(box):
         RoomBounds(**box)
     with pytest.raises(ValidationError, match="body_m"):
         screen_room(fused_rows([0], [[0, 1]]), body_m=0.0)
+
+
+def test_rows_behind_a_wall_mounted_radar_are_outside_the_room():
+    # S1 at the origin looking along +y, S2 at (1.7, 1.65) looking along -x:
+    # the room is y > 0 and x < 1.7.
+    rows = fused_rows([0, 0, 0, 0], [[0.0, 1.0], [2.5, 2.0], [0.0, -0.5], [1.69, 3.0]])
+    out, report = screen_room(rows, in_front=True, body_m=None)
+    np.testing.assert_array_equal(out.success, [True, False, False, True])
+    assert out.message[1] == "behind node S2 (outside the room)"
+    assert out.message[2] == "behind node S1 (outside the room)"
+    assert report.outside == 2
+    assert screen_room(rows, body_m=None)[1].outside == 0          # off by default

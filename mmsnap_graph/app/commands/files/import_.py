@@ -176,12 +176,11 @@ def run_dca1000(args: argparse.Namespace) -> int:
 MAX_FRAME_PERIOD_S = 1.35
 #: A frame period below 0.1 ms (10 kHz frames) is none a TI radar makes.
 MIN_FRAME_PERIOD_S = 1e-4
-#: Mounting heights above this are a unit mistake (centimetres typed as metres).
-MAX_MOUNT_HEIGHT_M = 12.0
 
 
 def _check_point_options(args) -> None:
     """Usage errors (exit 2) of the point-cloud imports' numeric options."""
+    from mmsnap_graph.io.point_cloud import MAX_MOUNT_HEIGHT_M
     if args.accumulate < 1:
         raise ValidationError(f"--accumulate: n_frames={args.accumulate} must be an integer >= 1")
     period = args.frame_period
@@ -252,7 +251,7 @@ def _check_period(args, clouds, period) -> None:
         problem = check_frame_period(cloud, period, node=name, option=option)
         if problem:
             raise ValidationError(f"{problem}; give the log's frame period in seconds with "
-                                  "--frame-period")
+                                  "--frame-period (and the stamps' unit with --time-unit)")
 
 
 def _points_recording(args, clouds, ti, period, metadata):
@@ -262,8 +261,11 @@ def _points_recording(args, clouds, ti, period, metadata):
     if args.destack:
         clouds = {name: destack_frames(c) for name, c in clouds.items()}
     if args.accumulate != 1:
-        clouds = {name: accumulate_frames(c, args.accumulate, frame_period_s=period)
-                  for name, c in clouds.items()}
+        try:
+            clouds = {name: accumulate_frames(c, args.accumulate, frame_period_s=period)
+                      for name, c in clouds.items()}
+        except ValidationError as exc:
+            raise ValidationError(f"--accumulate {args.accumulate}: {exc}") from None
         metadata = dict(metadata, accumulated_frames=args.accumulate)
     band = args.height_band
     return recording_from_point_clouds(clouds, frame_period_s=period,

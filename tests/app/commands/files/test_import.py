@@ -124,3 +124,34 @@ def test_accumulate_survives_the_time_stamp_clock(tmp_path):
     for f in (30, 31, 60):
         want = sum(np.sum(one.frame == f - lag) for lag in range(3))
         assert np.sum(three.frame == f) == want
+
+
+@pytest.mark.parametrize("option", [
+    ["--frame-period", "nan"], ["--frame-period", "inf"], ["--frame-period", "-1"],
+    ["--frame-period", "0"], ["--frame-period", "1e308"], ["--frame-period", "0.05",
+                                                           "--accumulate", "100000"],
+    ["--frame-period", "0.05", "--accumulate", "-5"],
+    ["--frame-period", "0.05", "--height-band", "1,0"],
+    ["--frame-period", "0.05", "--height-band", "nan,1"],
+    ["--frame-period", "0.05", "--mount", "S1=nan,5"],
+    ["--frame-period", "0.05", "--mount", "S1=inf,5"],
+    ["--frame-period", "0.05", "--mount", "S3=0.8,5"],
+    ["--frame-period", "0.05", "--room-pose", "S1=nan,0,0"],
+    ["--frame-period", "0.05", "--columns", "=x"],
+    ["--frame-period", "0.05", "--columns", "nothere=x"],
+    ["--frame-period", "0.05", "--columns", "x=notacolumn"],
+    ["--frame-period", "0.05", "--time-unit", "ms"],
+])
+def test_odd_option_values_are_one_line_errors(tmp_path, capsys, option):
+    """Each is a usage (2) or data (1) error in one line, without a traceback
+    (--accumulate 100000 asked for 180 million points: a MemoryError)."""
+    try:
+        code = _import_table(tmp_path, *option)
+    except SystemExit as exc:              # argparse's own usage errors
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code in (1, 2), err
+    assert "Traceback" not in err and err.strip(), err
+    expected = {"100000": "--accumulate 100000: n_frames=100000 would make 1828 x 100000",
+                "ms": "a factor of 0.001: a unit mistake in the time stamps or the frame period?"}.get(option[-1])
+    assert expected is None or expected in err, err

@@ -31,8 +31,9 @@ from numpy.typing import NDArray
 
 from factors.models import global_to_local, local_to_global, measurement_model, wrap_angle
 
-from ..data.recording import Detections
-from ..errors import ValidationError
+from ..._validation import check_count
+from ...data.recording import Detections
+from ...errors import ValidationError
 from .sparse import empty_frame_mask
 
 __all__ = ["RealPhysics", "room_box", "person_depths", "correlated_errors", "mirror_through_walls",
@@ -128,9 +129,7 @@ class RealPhysics:
         _check("ghost_probability", self.ghost_probability, hi=1.0)
         _check("static_points_per_frame", self.static_points_per_frame, hi=1000.0)
         _check("static_centroids_per_frame", self.static_centroids_per_frame, hi=1000.0)
-        if int(self.n_static_reflectors) != self.n_static_reflectors or self.n_static_reflectors < 1:
-            raise ValidationError(f"RealPhysics.n_static_reflectors={self.n_static_reflectors!r} "
-                                  "must be an integer >= 1")
+        check_count(self.n_static_reflectors, "RealPhysics.n_static_reflectors")
         if self.room is not None:
             x0, x1, y0, y1 = (float(v) for v in self.room)
             if not (np.all(np.isfinite(self.room)) and x0 < x1 and y0 < y1):

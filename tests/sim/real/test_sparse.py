@@ -1,5 +1,5 @@
 """Sparse point clouds at 20 fps with two people (issue 14, Build 7):
-sim.sparse thins the simulator's clouds to the issue's shape (2-3 moving
+sim.real.sparse thins the simulator's clouds to the issue's shape (2-3 moving
 points per radar per frame, a quarter of the frames empty in bursts), and
 the whole default path -- chain clustering, EKF tracks, pose graph, the
 joint graph on several people (calibration.joint.multi_refine) -- is measured
@@ -14,7 +14,7 @@ from mmsnap_graph.app.pipeline import process_recording
 from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import empty_frame_mask, sparse_clouds
+from mmsnap_graph.sim.real.sparse import empty_frame_mask, sparse_clouds
 from mmsnap_graph.sim import SimulationOptions
 
 #: Three nodes (as in test_multi_target_calibration): S1 and S2 face each
@@ -108,7 +108,7 @@ def test_sparse_clouds_calibrate_within_1_2x_of_the_dense_case(dense_and_sparse)
     5.7 mm is 0.2 of the sparse Cramer-Rao bound (29 mm with the
     trajectory known, tests/evaluation/test_pose_bound.py); the bounds are 2.5-4.7x
     apart on seeds 0-7, so 1.2x is out of reach in general (strict xfail in
-    test_sparse_calibration.py, seed 0: 6x)."""
+    tests/calibration/test_network.py, seed 0: 6x)."""
     (ok_d, pos_d, _), (ok_s, pos_s, _) = dense_and_sparse
     assert ok_d and ok_s
     assert pos_s <= 1.2 * pos_d

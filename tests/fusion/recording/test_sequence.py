@@ -1,5 +1,6 @@
-"""``fuse_recording(time_offset_s=...)``: a node whose clock runs late is
-brought to the reference clock before fusion (issue 12 item 1)."""
+"""``fuse_recording``: a recording fused frame by frame; with
+``time_offset_s`` a node whose clock runs late is brought to the reference
+clock before fusion."""
 
 import numpy as np
 import pytest

@@ -1,0 +1,36 @@
+"""mmsnap replay: odd --speed values are usage errors, and a reader that
+closes the pipe (``| head``) ends the run quietly."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from mmsnap_graph.app.cli import EXIT_BROKEN_PIPE, main
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory):
+    path = tmp_path_factory.mktemp("replay") / "rec.h5"
+    assert main(["simulate", "-c", "B", "-t", "random", "-n", "400", "-l", "centroids",
+                 "--seed", "2", "--known-poses", "-o", str(path), "--no-progress"]) == 0
+    return path
+
+
+@pytest.mark.parametrize("speed", ["1e-20", "0", "-1", "nan", "inf", "1e300"])
+def test_a_speed_out_of_range_is_a_usage_error(rec, capsys, speed):
+    assert main(["replay", str(rec), "--summary", "--speed", speed]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--speed must be between" in err
+
+
+def test_a_closed_pipe_ends_the_replay_quietly(rec):
+    proc = subprocess.Popen([sys.executable, "-m", "mmsnap_graph", "replay", str(rec)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout.readline().startswith(b"frame")
+    proc.stdout.close()  # as `head -1` does
+    assert proc.wait(timeout=60) == EXIT_BROKEN_PIPE
+    err = proc.stderr.read().decode()
+    assert "error" not in err and "Broken pipe" not in err and "Traceback" not in err, err

@@ -1,0 +1,77 @@
+"""The windowed reader (mmsnap_graph.io.chunks) walks the frames present,
+not their span: a gap of 10^12 frames, frame numbers near the int64 maximum
+or a tiny frame period cost no more than an ordinary recording."""
+
+from __future__ import annotations
+
+import shutil
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from mmsnap_graph.app.cli import main
+from mmsnap_graph.io.chunks import open_detection_windows
+from mmsnap_graph.io.fused import read_fused
+
+BIG = 2 ** 63 - 100
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    path = tmp_path_factory.mktemp("chunks") / "base.h5"
+    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
+                 "--seed", "5", "--known-poses", "-o", str(path), "--no-progress"]) == 0
+    return path
+
+
+def _edited(base, tmp_path, frames=None, period=None):
+    path = tmp_path / "rec.h5"
+    shutil.copy(base, path)
+    with h5py.File(path, "r+") as f:
+        for name in f["nodes"]:
+            g = f["nodes"][name]["centroids"]
+            new = frames(g["frame"][()]).astype(np.int64)
+            del g["frame"]
+            g["frame"] = new
+        del f["truth"]
+        if period is not None:
+            f.attrs["frame_period_s"] = period
+    return path
+
+
+CASES = {
+    "gap 1e12": dict(frames=lambda fr: np.where(fr >= 20, fr + 10 ** 12, fr)),
+    "near int64 max": dict(frames=lambda fr: fr + BIG),
+    "both ends of int64": dict(frames=lambda fr: np.where(fr >= 20, fr + BIG, fr - 2 ** 62)),
+    "tiny frame period": dict(frames=lambda fr: fr, period=1e-300),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_windows_are_bounded_by_the_frames_present(base, tmp_path, case):
+    windows = open_detection_windows(_edited(base, tmp_path, **CASES[case]))
+    t0 = time.monotonic()
+    spans = list(windows.windows(2000, margin=3))
+    assert time.monotonic() - t0 < 0.5
+    assert 1 <= len(spans) <= 2
+    frames = np.unique(np.concatenate([windows.read(a, b)[1]["S1"] for a, b in spans]))
+    assert frames.size == windows.n_rows["S1"]  # every row in exactly one window
+
+
+def test_windows_still_tile_a_contiguous_recording(base):
+    windows = open_detection_windows(base)
+    assert list(windows.windows(16)) == [(0, 16), (16, 32), (32, 40)]
+    assert list(windows.windows(16, margin=2)) == [(-2, 14), (14, 30), (30, 42)]
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_fuse_of_a_sparse_frame_span_is_quick(base, tmp_path, capsys, case):
+    path = _edited(base, tmp_path, **CASES[case])
+    t0 = time.monotonic()
+    assert main(["fuse", str(path), "--no-progress"]) == 0, capsys.readouterr().err
+    assert time.monotonic() - t0 < 10
+    fused = read_fused(path)
+    assert len(fused) > 0 and np.unique(fused.frame).size == 40
+    assert [p.name for p in tmp_path.iterdir()] == ["rec.h5"]  # no lock or temporary left
