@@ -39,7 +39,7 @@ from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.options import SimulationOptions
-from mmsnap_graph.sim.physics import RealPhysics
+from mmsnap_graph.sim import RealPhysics
 
 NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
 SIGMAS = np.array([0.03, 0.05, 0.1])

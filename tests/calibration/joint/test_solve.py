@@ -353,7 +353,7 @@ from mmsnap_graph.calibration import calibrate_recording  # noqa: E402
 from mmsnap_graph.calibration.network import RECORDING_JOINT_OPTIONS  # noqa: E402
 from mmsnap_graph.sim import simulate_recording  # noqa: E402
 from mmsnap_graph.sim.options import SimulationOptions  # noqa: E402
-from mmsnap_graph.sim.physics import RealPhysics  # noqa: E402
+from mmsnap_graph.sim import RealPhysics  # noqa: E402
 
 # The range offset (reflection depth) in the joint calibration graph.
 #

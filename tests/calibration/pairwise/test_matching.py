@@ -319,7 +319,7 @@ def _synchronised_walk(seed, lag=0):
     from mmsnap_graph.calibration import local_tracks
     from mmsnap_graph.sim import simulate_recording
     from mmsnap_graph.sim.options import SimulationOptions
-    from mmsnap_graph.sim.physics import RealPhysics
+    from mmsnap_graph.sim import RealPhysics
 
     opts = SimulationOptions(frame_period_s=0.05, physics=RealPhysics(
         static_centroids_per_frame=0, ghost_probability=0, split_probability=0))

@@ -390,7 +390,7 @@ def test_the_range_offset_moves_fused_bodies_to_their_centre():
     from mmsnap_graph.fusion.recording.timing import offset_ranges
     from mmsnap_graph.sim import simulate_recording
     from mmsnap_graph.sim.options import SimulationOptions
-    from mmsnap_graph.sim.physics import RealPhysics
+    from mmsnap_graph.sim import RealPhysics
 
     phys = RealPhysics(static_centroids_per_frame=0, ghost_probability=0, split_probability=0,
                        slow_error_std_m=0.0, reflection_depth_std_m=0.0, p_miss=0.0)
