@@ -426,6 +426,21 @@ def _screen_rows(out: FusedRows, groups, recording, poses, noise, prior, pose_co
     out.flag(split, Status.RESIDUAL_TEST_FAILED, SPLIT_MESSAGE, keep_covariance=True)
 
 
+def _calibrated_centroids(recording, time_offset_s, range_offset_m, options):
+    """The centroids on the reference clock and with the range offset
+    added (the calibration's), as :func:`fuse_recording` fuses them."""
+    if time_offset_s:
+        if options.source != "centroids":
+            raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
+        recording = align_recording(recording, time_offset_s)
+    if range_offset_m is not None:
+        if options.source != "centroids":
+            raise ValidationError("range_offset_m moves the centroids' ranges: use "
+                                  "source='centroids'")
+        recording = offset_ranges(recording, range_offset_m)
+    return recording
+
+
 def fuse_recording(
     recording: Recording,
     *,
@@ -499,15 +514,7 @@ def fuse_recording(
     progress : show a tqdm bar (default: when stderr is a terminal).
     """
     prior = _check_options(recording, mode, options, prior)
-    if time_offset_s:
-        if options.source != "centroids":
-            raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
-        recording = align_recording(recording, time_offset_s)
-    if range_offset_m is not None:
-        if options.source != "centroids":
-            raise ValidationError("range_offset_m moves the centroids' ranges: use "
-                                  "source='centroids'")
-        recording = offset_ranges(recording, range_offset_m)
+    recording = _calibrated_centroids(recording, time_offset_s, range_offset_m, options)
     noise, pose_cov = _node_options(recording, noise, pose_covariances, options.covariance)
     robust = robust_options(robust)
     motion_check = _motion_option(options.motion_check, robust)

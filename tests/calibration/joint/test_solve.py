@@ -369,13 +369,9 @@ from mmsnap_graph.sim import RealPhysics  # noqa: E402
 #
 # | joint graph | NEES | mean error of S3's y (along the S1-S3 baseline) |
 # |---|---|---|
-# | no range offset, graph marginals | 244.8 | +0.093 m |
-# | range offset (prior 0.10 +- 0.05 m), long-run covariance | 5.44 | -0.001 m |
-#
-# The estimated offset: 0.048 m on average (true 0.05 +- 0.015 per person),
-# spread 0.028 m over seeds, reported 0.027 m. With the slow AR(1) centroid
-# errors on as well: 255.7 -> 7.81 (long-run covariance; 10.8 with the
-# marginals), S3's y error +0.099 -> -0.009 m.
+# | no range offset, graph marginals | 254.9 | +0.093 m |
+# | range offset (prior 0.10 +- 0.05 m), long-run covariance | 5.67 | -0.001 m |
+
 
 RO_NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
 DEPTH_ONLY = RealPhysics(static_centroids_per_frame=0, ghost_probability=0, split_probability=0,
