@@ -78,7 +78,7 @@ def test_the_error_for_a_damaged_recording_names_the_file(files, capsys, verb):
 @pytest.mark.parametrize("argv", [
     ["process", "{good}", "-o", "{dir}", "--no-progress"],
     ["fuse", "{good}", "-o", "{dir}", "--no-progress"],
-    ["calibrate", "{good}", "--no-write", "--json", "{dir}"],
+    ["calibrate", "{good}", "--no-write", "--json-out", "{dir}"],
     ["simulate", "-n", "20", "-l", "centroids", "-o", "{dir}", "--overwrite", "--no-progress"],
 ])
 def test_an_output_path_that_is_a_directory_gives_a_one_line_error(files, tmp_path, capsys,

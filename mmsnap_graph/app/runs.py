@@ -200,7 +200,7 @@ def calibrate_and_store(path: str | os.PathLike,
                         options: Mapping[str, Any] | Callable[[Any], Mapping] | None = None, *,
                         output: str | os.PathLike | None = None,
                         json_path: str | os.PathLike | None = None,
-                        write: bool = True, on_result=None):
+                        write: bool = True, on_result=None, progress: bool = False):
     """Calibrate the recording at ``path`` and store the result.
 
     options : keyword arguments of
@@ -214,6 +214,7 @@ def calibrate_and_store(path: str | os.PathLike,
         recording (False: the JSON only).
     on_result : called with the calibration before anything is written
         (``mmsnap calibrate`` prints it).
+    progress : a tqdm bar over the steps (read, calibrate, write) on stderr.
     The recording is locked from the read to the last write. Returns
     ``(calibration, files written)``.
     """
@@ -222,13 +223,21 @@ def calibrate_and_store(path: str | os.PathLike,
     from ..io import read_recording
     from ..io.calibration import write_calibration, write_calibration_json
     from ..io.noise import write_noise
+    from tqdm import tqdm
 
     json_path = Path(json_path) if json_path else calibration_json_path(output or path)
     written: list[Path] = []
-    with recording_lock(path):
+    bar = tqdm(total=3, desc="calibrate: reading", unit="step", disable=not progress,
+               leave=False)
+    with bar, recording_lock(path):
         rec = read_recording(path, load_cubes=False)
         kwargs = options(rec) if callable(options) else dict(options or {})
+        bar.set_description("calibrate: matching, pose graph, joint graph, noise")
+        bar.update()
         cal = calibrate_recording(rec, **kwargs)
+        bar.set_description("calibrate: writing")
+        bar.update()
+        bar.clear()
         if on_result is not None:
             on_result(cal)
         written.append(Path(write_calibration_json(json_path, cal)))
@@ -238,6 +247,7 @@ def calibrate_and_store(path: str | os.PathLike,
                 with recording_lock(dst):
                     write_noise(dst, cal.noise)
             written.append(dst)
+        bar.update()
     return cal, written
 
 

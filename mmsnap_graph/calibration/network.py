@@ -135,9 +135,9 @@ def describe_noise(noise: MeasurementNoise, estimate: NoiseEstimate) -> str:
     """``noise`` (pooled from ``estimate``) component by component, each
     said to be estimated or not identified (then the fallback's value)."""
     parts = []
-    for i, comp in enumerate(("range", "omega", "doppler")):
+    for i, (comp, unit) in enumerate((("range", "m"), ("omega", "rad"), ("doppler", "m/s"))):
         ident = any(e.identified[i] for e in estimate.nodes.values())
-        parts.append(f"{comp} {noise.sigmas[i]:.3g} "
+        parts.append(f"{comp} {noise.sigmas[i]:.3g} {unit} "
                      + ("estimated" if ident else "NOT identified (fallback)"))
     return ", ".join(parts)
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, Mapping
@@ -212,7 +213,8 @@ def _json_int(where: str, field: str, value: Any) -> int:
     float that is one, within +-2^31."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise CalibrationError(f"{where}: {field}={value!r} must be an integer")
-    if not (np.isfinite(value) and value == int(value) and abs(value) <= 2 ** 31):
+    whole = isinstance(value, int) or (math.isfinite(value) and value == int(value))
+    if not (whole and abs(value) <= 2 ** 31):
         raise CalibrationError(f"{where}: {field}={value!r} must be an integer within +-2^31")
     return int(value)
 

@@ -109,7 +109,7 @@ def test_a_bad_input_recording_exits_1_naming_the_file(files, capsys, verb, dama
     (["fuse", "{good}", "--gate", "1.5", "--no-progress"], "gate"),
     (["fuse", "{good}", "-o", "{dir}/no/such/folder.h5"], "does not exist"),
     (["calibrate", "{good}", "--max-lag", "-1"], "--max-lag"),
-    (["calibrate", "{good}", "--json", "{dir}"], "--json"),
+    (["calibrate", "{good}", "--json-out", "{dir}"], "--json-out"),
     (["simulate", "-n", "20", "--frame-period", "-1", "-o", "{dir}/s.h5"], "frame_period"),
     (["simulate", "-n", "20", "-o", "{good}"], "--overwrite"),
     (["replay", "{good}", "--speed", "0"], "--speed"),
@@ -220,3 +220,43 @@ def test_batch_exits_1_when_a_recording_fails(files, tmp_path, capsys, monkeypat
     out = capsys.readouterr().out
     assert code == EXIT_FAILURE
     assert "1 of 2 recording(s) ok, 1 failed" in out and "b.h5" in out
+
+
+def _all_parsers(parser, prefix=()):
+    """(verb path, parser) of the CLI's every (sub)command."""
+    import argparse
+
+    yield prefix, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _all_parsers(sub, prefix + (name,))
+
+
+def test_json_flags_and_angle_units_mean_the_same_on_every_verb():
+    """``--json`` prints JSON to stdout (a flag) and ``--json-out PATH``
+    writes it, on every verb; an option that takes or prints an angle says its
+    unit: headings in degrees on the command line, radians in files."""
+    from mmsnap_graph.app.cli import build_parser
+
+    seen = set()
+    for verb, parser in _all_parsers(build_parser()):
+        for action in parser._actions:
+            names = set(action.option_strings)
+            json_names = {n for n in names if "json" in n}
+            assert json_names <= {"--json", "--json-out"}, (verb, names)
+            if "--json" in names:
+                assert action.nargs == 0 and "print" in action.help, verb
+                seen.add(verb)
+            if "--json-out" in names:
+                assert action.nargs is None and action.metavar == "PATH", verb
+            metavar = " ".join(action.metavar) if isinstance(action.metavar, tuple) \
+                else str(action.metavar or "")
+            if "PHI" in metavar:
+                assert "degrees" in action.help, (verb, names)
+            if "OMEGA" in metavar:
+                assert "radians, not an angle" in action.help, (verb, names)
+            if action.help and "JSON" in action.help and "print" in action.help \
+                    and verb[-1] in {"calibrate", "monitor", "info", "evaluate"}:
+                assert "radians" in action.help, (verb, names)
+    assert {("calibrate",), ("monitor",), ("batch",), ("info",), ("evaluate",)} <= seen

@@ -12,8 +12,7 @@ from mmsnap_graph.app.pipeline import (
     track_node,
     track_recording,
 )
-from mmsnap_graph.app.pipeline import SPARSE_POINTS_PER_FRAME
-from mmsnap_graph.app.pipeline import sparse_cluster_config
+from mmsnap_graph.app.pipeline import SPARSE_POINTS_PER_FRAME, sparse_cluster_config
 from mmsnap_graph.data.radar_config import TABLE_I
 from mmsnap_graph.data.recording import NodeData, Recording
 from mmsnap_graph.errors import ValidationError

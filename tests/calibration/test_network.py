@@ -28,14 +28,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from mmsnap_graph.app.pipeline import process_recording
-from mmsnap_graph.app.pipeline import track_recording
-from mmsnap_graph.calibration import MatchingOptions
-from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
-from mmsnap_graph.errors import CalibrationError
-from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.sim import SimulationOptions
-from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.app.pipeline import process_recording, track_recording
+from mmsnap_graph.calibration import MatchingOptions, calibrate_recording, pose_tangent_error
+from mmsnap_graph.errors import CalibrationError, ValidationError
+from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.real.sparse import sparse_clouds
 
 from _shared import NETWORK_3_OPEN

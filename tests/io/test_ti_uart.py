@@ -130,3 +130,36 @@ def test_a_pipe_or_folder_is_named_not_read(tmp_path):
             read(tmp_path)
         with pytest.raises(FileFormatError, match=rf"{kind} .*gone.bin does not exist"):
             read(tmp_path / "gone.bin")
+
+
+def test_seeded_sequences_never_merge_frames():
+    """Seeded logs with repeats, restarts, flipped bits and non-finite points:
+    the frames kept always increase (nothing merged into an earlier frame), or
+    the log is refused naming a byte offset."""
+    rng = np.random.default_rng(11)
+    refused = kept_logs = 0
+    for _ in range(150):
+        numbers = list(range(1, 31))
+        for _ in range(int(rng.integers(1, 4))):
+            k = int(rng.integers(0, len(numbers)))
+            kind = int(rng.integers(0, 4))
+            if kind == 0:
+                numbers.insert(k, numbers[k])                      # a repeat
+            elif kind == 1:
+                numbers[k:] = [n - numbers[k] + 1 for n in numbers[k:]]   # a restart
+            elif kind == 2:
+                numbers[k] += 2 ** int(rng.integers(10, 31))        # a flipped bit
+        numbers = [n % 2 ** 32 for n in numbers]                   # uint32 on the wire
+        bad_x = set(rng.choice(len(numbers), 2, replace=False).tolist())
+        data = b"".join(_packet(n, x=np.nan if i in bad_x else 0.01 * i)
+                        for i, n in enumerate(numbers))
+        try:
+            log = parse_ti_uart(data)
+        except FileFormatError as exc:
+            assert "split the log at byte" in str(exc) or "no readable" in str(exc)
+            refused += 1
+            continue
+        kept_logs += 1
+        assert np.all(np.diff(log.frame_numbers) > 0)
+        assert np.all(np.isfinite(log.points.x_m))
+    assert refused > 10 and kept_logs > 10, (refused, kept_logs)

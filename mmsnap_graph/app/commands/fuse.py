@@ -43,7 +43,8 @@ def register(subparsers) -> None:
                         "covariance (slow) (default %(default)s)")
     p.add_argument("--sigmas", nargs=3, type=float, default=None,
                    metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
-                   help="measurement noise sigmas of every node (default: each node's "
+                   help="measurement noise sigmas of every node (OMEGA_RAD: of omega = pi sin(theta), a "
+                        "phase in radians, not an angle; default: each node's "
                         "sigmas in the recording's /noise group, estimated from the data by "
                         "`mmsnap calibrate` or `mmsnap noise`; without it the paper's "
                         "resolutions 0.035 m, pi/4 rad, 0.1807 m/s)")

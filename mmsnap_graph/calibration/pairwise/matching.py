@@ -170,6 +170,38 @@ def _common(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
     return ia, ib
 
 
+#: Frame pairs compared at a time when the lags are found from the frame
+#: differences (bounds the memory of a sparse frame span).
+_DIFF_BLOCK = 1 << 22
+
+
+def _overlapping_lags(ta, tb, max_lag_frames: int, need: int) -> list[int]:
+    """The lags within ``+-max_lag_frames`` at which at least ``need`` frames
+    of a's tracks meet frames of b's: a lag window wider than the
+    recording costs no more than the recording (``max_lag_s=1e6`` on 200
+    frames searches at most 400 lags, not 13 million)."""
+    fa = np.unique(np.concatenate([f for f, _, _ in ta.values()]))
+    fb = np.unique(np.concatenate([f for f, _, _ in tb.values()]))
+    if not fa.size or not fb.size:
+        return []
+    lo = max(-int(max_lag_frames), int(fb[0]) - int(fa[-1]))
+    hi = min(int(max_lag_frames), int(fb[-1]) - int(fa[0]))
+    if lo > hi:
+        return []
+    if hi - lo + 1 <= 4 * (fa.size + fb.size):  # dense frames: every lag in the window
+        return list(range(lo, hi + 1))
+    # sparse frames (gaps): only the differences that occur, counted block by block
+    counts: dict[int, int] = {}
+    step = max(1, _DIFF_BLOCK // fb.size)
+    for i in range(0, fa.size, step):
+        with np.errstate(over="ignore"):  # a wrapped difference joins no frame: harmless
+            d = fb[None, :] - fa[i:i + step, None]
+        d = d[(d >= lo) & (d <= hi)]
+        for lag, n in zip(*np.unique(d, return_counts=True)):
+            counts[int(lag)] = counts.get(int(lag), 0) + int(n)
+    return sorted(lag for lag, n in counts.items() if n >= need)
+
+
 def _join(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
     """All row pairs ``(i, j)`` with ``fa[i] == fb[j] - lag`` (many to many)."""
     order = np.argsort(fb, kind="stable")
@@ -462,9 +494,9 @@ def match_tracks(
     min_spread_m, max_rmse_m = o.min_spread_m, o.max_rmse_m
     inlier_gate_m, gate_probability = o.inlier_gate_m, o.gate_probability
     ta, tb = tracks_a.split_rows(), tracks_b.split_rows()
-    lags = range(-int(max_lag_frames), int(max_lag_frames) + 1)
     if not ta or not tb:
         return _failed(f"no pair of tracks: node a has {len(ta)} track(s), node b {len(tb)}")
+    lags = _overlapping_lags(ta, tb, max_lag_frames, max(min_common_frames, 3))
     pool = _Pool(ta, tb, lags, inlier_gate_m, gate_probability)
     cands = _candidates(ta, tb, lags, pool, min_common_frames, min_spread_m)
     if not cands:

@@ -7,3 +7,30 @@ from mmsnap_graph.tracking.ekf import EkfConfig
 
 def test_the_defaults_quoted_in_the_help_are_the_configs():
     assert HELP_DEFAULTS == {"pfa": CfarConfig().pfa, "sigma_a_mps2": EkfConfig().sigma_a_mps2}
+
+
+def test_process_says_what_its_counts_mean(tmp_path, capsys):
+    """One walker: one centroid a frame, several track ids one after another
+    (a lost track ends, a new id starts); the output says so with the
+    numbers behind it."""
+    import numpy as np
+
+    from mmsnap_graph.app.cli import main
+    from mmsnap_graph.io import read_recording
+
+    path = tmp_path / "rec.h5"
+    assert main(["simulate", "--model", "clean", "-c", "C", "-t", "random", "-n", "200",
+                 "--seed", "1", "-l", "centroids", "-o", str(path), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["process", str(path), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    rec = read_recording(path, load_cubes=False)
+    for name, node in rec.nodes.items():
+        ids, lengths = np.unique(node.tracks.track_id, return_counts=True)
+        frames = np.unique(node.centroids.frame).size
+        assert f"centroids: {len(node.centroids)} clusters in {frames} frames (one a frame " \
+               f"is one person" in out
+        assert f"tracks: {ids.size} confirmed EKF track ids (a lost track ends and a new id " \
+               f"starts" in out
+        assert f"longest {lengths.max()} frames ({lengths.max() * rec.frame_period_s:.1f} s)" \
+            in out

@@ -218,6 +218,28 @@ def test_configuration_a_bump_along_the_baseline_detected_within_20_s():
     assert res.changes[0].detection_time_s - rec.metadata["bump_time_s"] <= 20.0
 
 
+def test_monitor_recording_in_blocks_with_a_bar_equals_one_batch_run(capsys):
+    """The progress bar steps update_frames over blocks of frames: the change
+    points, statistics and poses are those of one call over every frame."""
+    rec = simulate_bumped_recording("C", "random", physics=None, node="S2", bump=(0.25, 0.0, 0.05),
+                                    bump_time_s=15.0, n_frames=260, seed=5)
+    tight = {"S2": np.diag([0.01, 0.01, 0.003]) ** 2}
+    result = monitor_recording(rec, node_poses=rec.truth.node_poses, noise=NOISE,
+                               node_covariances=tight, recalibration_s=6.0, progress=True)
+    assert "monitor" in capsys.readouterr().err  # the bar, on stderr
+    _, z = recording_measurements(rec)
+    batch = DecalibrationMonitor(rec.truth.node_poses, noise=NOISE, node_covariances=tight,
+                                 recalibration_s=6.0, frame_period_s=rec.frame_period_s)
+    ups = batch.update_frames(z, np.arange(len(z)) * rec.frame_period_s)
+    assert result.changes and [(c.node, c.frame) for c in result.changes] == \
+        [(c.node, c.frame) for c in batch.changes]
+    np.testing.assert_allclose(result.statistics[:, 1], [u.statistics["S2"] for u in ups],
+                               rtol=1e-8)
+    np.testing.assert_allclose(result.poses["S2"], batch.poses["S2"], rtol=1e-8)
+    monitor_recording(rec, node_poses=rec.truth.node_poses, noise=NOISE)
+    assert capsys.readouterr().err == ""
+
+
 @pytest.mark.parametrize("kw", [dict(windows_s=[1e308]), dict(windows_s=[3.0, 1e9]),
                                 dict(recalibration_s=1e308), dict(recalibration_s=1e7)])
 def test_a_span_longer_than_any_recording_is_a_validation_error(kw):

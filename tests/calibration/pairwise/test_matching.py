@@ -17,8 +17,7 @@ from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.data.recording import Detections, NodeData, Tracks
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.sim import CLEAN
-from mmsnap_graph.sim.networks import COMMON_AREAS
-from mmsnap_graph.sim.networks import CONFIGURATIONS
+from mmsnap_graph.sim.networks import COMMON_AREAS, CONFIGURATIONS
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
 from mmsnap_graph.sim.simulator import simulate_recording
 
@@ -349,3 +348,28 @@ def test_lag_evidence_keeps_a_lag_the_data_show():
     assert res.lag_frames == 2
     z = float(res.lag_note.split("z = ")[1].rstrip(")"))
     assert z > 6, res.lag_note
+
+
+@pytest.mark.parametrize("max_lag_s,gap", [(1e6, 0), (1e308, 0), (1e12, 10 ** 12)])
+def test_a_lag_window_wider_than_the_recording_is_bounded_by_its_frames(max_lag_s, gap):
+    # 200 frames: at most 400 lags can pair frames, whatever the window (a
+    # 1e6 s window was 1e7 lags; 1e308 s an OverflowError). `gap` moves the
+    # second half of b's frames 10^12 frames away: only the lags that occur
+    # are searched.
+    import time
+
+    a, b, truth = _two_target_tracks("B", 1, np.random.default_rng(23), n_frames=200)
+    if gap:
+        late = b.frame >= 150
+        b = LocalTracks(frame=np.where(late, b.frame + gap, b.frame), points_m=b.points_m,
+                        track_id=b.track_id)
+    t0 = time.monotonic()
+    res = match_tracks(a, b, frame_period_s=T, options=MatchingOptions(max_lag_s=max_lag_s))
+    assert time.monotonic() - t0 < 5
+    assert res.success and res.lag_frames == 1, res.message
+
+
+def test_a_huge_minimum_overlap_is_a_failed_result_not_an_overflow():
+    a, b, _ = _two_target_tracks("B", 0, np.random.default_rng(24), n_frames=60)
+    res = match_tracks(a, b, frame_period_s=T, options=MatchingOptions(min_common_s=1e308))
+    assert not res.success and "shares >=" in res.message

@@ -9,17 +9,20 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from mmsnap_graph.fusion import FusionOptions
+from mmsnap_graph import fuse_batch
 from mmsnap_graph.app import cli
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
 from mmsnap_graph.io import write_recording
-from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.tracking.central import track_fused
-from mmsnap_graph.sim import SimulationOptions
+
+from _pose_aware import POSE_COV, pose_frames
+from _shared import POSES_BC
 
 #: Four nodes around a 7 m square, each facing the centre.
 NETWORK = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi],
@@ -270,3 +273,12 @@ def test_replay_usage_errors(replay_cli, small_file, capsys):
     with pytest.raises(SystemExit) as exc:
         replay_cli(["replay", str(small_file), "--solver", "scipy"])
     assert exc.value.code == 2
+
+
+def test_frame_stream_passes_pose_covariances(recording_bc_known_poses):
+    stream = FrameStream(recording_bc_known_poses.node_names, POSES_BC, solver="vectorized",
+                         pose_covariances={"S2": POSE_COV[1], "S3": POSE_COV[2]})
+    _, z = pose_frames(np.random.default_rng(10), 1)
+    update = stream.push(0.1, [z[0, n][None] for n in range(3)])
+    ref = fuse_batch(POSES_BC, z, pose_covariances=POSE_COV)
+    np.testing.assert_allclose(update.covariance[0], ref.covariance[0], rtol=1e-12)
