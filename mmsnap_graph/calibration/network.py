@@ -32,7 +32,7 @@ from typing import Literal, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import CalibrationError, ValidationError
+from ..errors import CalibrationError, MissingStepError, ValidationError
 from ..data.noise import MeasurementNoise, NoiseEstimate
 from ..data.recording import Detections, Recording
 from .joint.options import JointOptions
@@ -209,13 +209,20 @@ def _pose_graph_step(recording, names, source, matching: MatchingOptions):
     ref = names[0]
     tracks: dict[str, LocalTracks] = {}
     failures: dict[str, str] = {}
+    steps: dict[str, str] = {}
     for n in names:
         try:
             tracks[n] = local_tracks(recording.nodes[n], source)
         except CalibrationError as exc:
             failures[n] = str(exc)
+            if isinstance(exc, MissingStepError):
+                steps[n] = exc
     if ref not in tracks:
-        raise CalibrationError(f"reference node {ref}: {failures[ref]}")
+        text = f"reference node {ref}: {failures[ref]}"
+        if ref in steps:
+            raise MissingStepError(text, step=steps[ref].step,
+                                   what=f"reference node {ref}: {steps[ref].what}")
+        raise CalibrationError(text)
     edges, pair_fail = pairwise_edges(tracks, frame_period_s=recording.frame_period_s,
                                       options=matching)
     failures.update(pair_fail)

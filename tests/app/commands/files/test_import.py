@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, strategies as st
 
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.io import read_recording
 
-from _shared import TI_DATA
+from _shared import TI_DATA, DATA
+from _fuzz import CLI_FUZZ, one_line_data_error
 
 SENSOR_CSV = TI_DATA / "points_sensor_frame.csv"
 
@@ -155,3 +157,65 @@ def test_odd_option_values_are_one_line_errors(tmp_path, capsys, option):
     expected = {"100000": "--accumulate 100000: n_frames=100000 would make 1828 x 100000",
                 "ms": "a factor of 0.001: a unit mistake in the time stamps or the frame period?"}.get(option[-1])
     assert expected is None or expected in err, err
+
+
+# Fuzzing: a damaged UART log or table exits 0 or 1, with one line naming
+# the file (never a traceback, never exit 2).
+
+
+UART = (DATA / "ti" / "oob_uart_S1.bin").read_bytes()
+
+
+CSV_LINES = (DATA / "ti" / "points_sensor_frame.csv").read_text().splitlines()
+
+
+@CLI_FUZZ
+@given(cut=st.integers(0, len(UART)), flips=st.lists(
+    st.tuples(st.integers(0, len(UART) - 1), st.integers(0, 7)), max_size=4),
+    magic=st.booleans())
+def test_import_of_a_damaged_uart_log_exits_0_or_1(tmp_path_factory, capsys, cut, flips, magic):
+    d = tmp_path_factory.mktemp("uart")
+    data = bytearray(UART[:cut])
+    for at, bit in flips:
+        if at < len(data):
+            data[at] ^= 1 << bit
+    if magic and len(data) >= 8:
+        data[:8] = b"\x00" * 8  # the first packet's magic word destroyed
+    log = d / "log.bin"
+    log.write_bytes(bytes(data))
+    code = main(["import", "ti-uart", "--node", f"S1={log}", "--frame-period", "0.1",
+                 "-o", str(d / "out.h5")])
+    err = [line for line in capsys.readouterr().err.strip().splitlines()
+           if ": error: " in line or "Traceback" in line]
+    if code == 0:
+        assert (d / "out.h5").exists() and not err
+        return
+    one_line_data_error(code, err, "log.bin")
+    assert not (d / "out.h5").exists()
+
+
+@CLI_FUZZ
+@given(keep=st.lists(st.sampled_from(["frame", "time_s", "x", "y", "z", "doppler", "snr"]),
+                     unique=True, max_size=7),
+       rows_=st.integers(0, 40), garbage=st.booleans())
+def test_import_of_a_table_with_missing_columns_exits_0_or_1(tmp_path_factory, capsys, keep,
+                                                             rows_, garbage):
+    d = tmp_path_factory.mktemp("table")
+    header = CSV_LINES[0].split(",")
+    idx = [header.index(c) for c in keep]
+    lines = [",".join(keep)]
+    for line in CSV_LINES[1:1 + rows_]:
+        if not line.startswith("S1,"):
+            continue
+        values = line.split(",")
+        lines.append(",".join("x!" if garbage and i == 0 else values[j]
+                              for i, j in enumerate(idx)))
+    table = d / "t.csv"
+    table.write_text("\n".join(lines) + "\n")
+    code = main(["import", "table", "--node", f"S1={table}", "--frame-period", "0.05",
+                 "-o", str(d / "out.h5")])
+    err = capsys.readouterr().err.strip().splitlines()
+    if code == 0:
+        assert {"x", "y", "z", "doppler"} <= set(keep) or {"x", "y", "doppler"} <= set(keep)
+        return
+    one_line_data_error(code, err, "t.csv")

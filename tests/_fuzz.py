@@ -1,12 +1,9 @@
-"""Hypothesis strategies and checks shared by the fuzz tests of one-shot
-fusion (fuse_frame in tests/fusion/solvers/test_gtsam_graph.py, fuse_batch in
-test_vectorized.py, the option records in tests/fusion/test_options.py).
-
-Properties: the solvers raise only the project's errors
-(:class:`mmsnap_graph.MmsnapError`), and ``success=True`` implies a finite
-state and a symmetric positive-definite covariance. Examples are
-derandomized (the same in every run).
-"""
+"""Settings and strategies shared by the property-based fuzz tests: only the
+project's errors (:class:`mmsnap_graph.errors.MmsnapError`) may come out of a
+public entry point, and a CLI run on a bad input exits 1 with one line naming
+the file. Derandomized (the same examples on every run). The one-shot fusion fuzz
+tests (fuse_frame, fuse_batch, the option records) also check that
+``success=True`` implies a finite state and an SPD covariance."""
 
 from __future__ import annotations
 
@@ -17,10 +14,32 @@ from hypothesis import strategies as st
 from factors.models import predict_measurements
 from mmsnap_graph import GaussianPrior, MeasurementNoise, MmsnapError
 
+__all__ = ["FUZZ", "CLI_FUZZ", "EDGE", "ANY_VALUE", "one_line_data_error", "FUSION_FUZZ", "FUZZ_40",
+           "finite", "assert_sound", "assert_pd", "assert_rejected", "node_poses",
+           "consistent_frames", "edge_frames", "PRIORS", "HUGE_DOPPLER"]
 
-FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
+FUZZ = settings(max_examples=40, deadline=None, derandomize=True, database=None,
                 report_multiple_bugs=False,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much,
+                                       HealthCheck.function_scoped_fixture])
+CLI_FUZZ = settings(FUZZ, max_examples=12)
+
+#: Floats a fuzzer should try: ordinary, edge and non-finite values.
+EDGE = st.one_of(st.floats(-50, 50, allow_nan=False), st.sampled_from(
+    [0.0, -0.0, 1e-300, -1e-300, 1e300, -1e300, np.pi, -np.pi, 4.0, np.nan, np.inf, -np.inf]))
+ANY_VALUE = st.one_of(EDGE, st.integers(-10, 10), st.booleans(), st.none(), st.text(max_size=3),
+                      st.lists(st.integers(0, 3), max_size=2))
+
+
+def one_line_data_error(code, err, name):
+    """A CLI run that failed on its data: exit 1, one line naming the file."""
+    assert code == 1, err
+    assert len(err) == 1 and ": error: " in err[0] and name in err[0], err
+
+#: The fusion fuzz tests' settings: 60 derandomized examples.
+FUSION_FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
+                       report_multiple_bugs=False,
+                       suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 
 
 def finite(lo: float, hi: float):
@@ -93,3 +112,16 @@ def assert_rejected(fn, **kwargs) -> None:
 
 
 HUGE_DOPPLER = st.sampled_from([1e16, -3e16, 1e100, -1e300])
+
+
+#: The entry-point fuzz tests' settings: 40 derandomized examples, sized for CI.
+FUZZ_40 = settings(max_examples=40, deadline=None, derandomize=True, database=None,
+                   report_multiple_bugs=False, suppress_health_check=list(HealthCheck))
+
+
+def assert_pd(cov) -> None:
+    """A finite, symmetric, positive-definite covariance (or stack of them)."""
+    cov = np.asarray(cov, dtype=float)
+    assert np.all(np.isfinite(cov)), cov
+    np.testing.assert_allclose(cov, np.swapaxes(cov, -1, -2), rtol=1e-6, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(cov) > 0), np.linalg.eigvalsh(cov)
