@@ -366,8 +366,9 @@ def lag_evidence(pool, fits, lag) -> tuple[float, NDArray | None]:
     for _ in range(3):  # both poses on the rows either aligns within the gate
         p0, _ = closed_form_pose(za[keep], pool.zb[rb0][keep])
         pl, _ = closed_form_pose(za[keep], pool.zb[rbl][keep])
-        e0 = np.sum(_misalignment(p0, za, pool.zb[rb0]) ** 2, axis=1)
-        el = np.sum(_misalignment(pl, za, pool.zb[rbl]) ** 2, axis=1)
+        with np.errstate(over="ignore", invalid="ignore"):  # a wild point: inf, clipped
+            e0 = np.sum(_misalignment(p0, za, pool.zb[rb0]) ** 2, axis=1)
+            el = np.sum(_misalignment(pl, za, pool.zb[rbl]) ** 2, axis=1)
         keep = (e0 < gate2) | (el < gate2)
         if keep.sum() < 8:
             return float("nan"), None
