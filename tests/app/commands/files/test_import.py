@@ -219,3 +219,53 @@ def test_import_of_a_table_with_missing_columns_exits_0_or_1(tmp_path_factory, c
         assert {"x", "y", "z", "doppler"} <= set(keep) or {"x", "y", "doppler"} <= set(keep)
         return
     one_line_data_error(code, err, "t.csv")
+
+
+# Bad TI inputs: one line naming the file and the line (CSV) or the packet
+# and frame (UART).
+
+
+SENSOR_LINES = (TI_DATA / "points_sensor_frame.csv").read_text().splitlines()
+
+
+def _csv_lines(tmp_path, lines, name="log.csv"):
+    path = tmp_path / name
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _replace_cell(line: str, column: int, value: str) -> str:
+    cells = line.split(",")
+    cells[column] = value
+    return ",".join(cells)
+
+
+def test_the_cli_reports_the_line_in_one_line(tmp_path, capsys):
+    lines = list(SENSOR_LINES[:30])
+    lines[20] = _replace_cell(lines[20], 6, "fast")               # doppler of line 21
+    path = _csv_lines(tmp_path, lines, "bad.csv")
+    assert main(["import", "table", "--table", str(path), "--frame-period", "0.05", "-o",
+                 str(tmp_path / "out.h5")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.csv" in err[0] and "line 21 holds 'fast'" in err[0]
+    assert not (tmp_path / "out.h5").exists()
+
+
+def test_a_damaged_uart_log_keeps_its_good_frames_and_names_the_bad_ones(tmp_path, capsys):
+    data = bytearray((TI_DATA / "oob_uart_S1.bin").read_bytes())
+    second = data.find(b"\x02\x01\x04\x03\x06\x05\x08\x07", 8)     # the second packet
+    data[second:second + 8] = b"\x00" * 8                            # its magic word lost
+    data = data[:-100]                                               # the last one cut short
+    log = tmp_path / "S1.bin"
+    log.write_bytes(bytes(data))
+    assert main(["import", "ti-uart", "--node", f"S1={log}", "--frame-period", "0.05", "-o",
+                 str(tmp_path / "u.h5")]) == 0
+    out = capsys.readouterr()
+    assert "98 frames" in out.out                                    # 100 - 2 bad ones
+    err = out.err.strip().splitlines()
+    # Each bad stretch names its packet, the frame number of its header when it
+    # has one, and its byte offset (before: "skipped packet 0 at byte 480" for
+    # the bytes after packet 0, which was kept, and no frame numbers).
+    assert err[0] == ("S1: skipped 480 bytes without a magic word at byte 480, after packet 0 "
+                      "(frame 1)")
+    assert err[1].startswith("S1: skipped packet 98 (frame 100) at byte 45920: truncated")
