@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+import dataclasses
 
 import h5py
 import numpy as np
@@ -27,6 +28,8 @@ from mmsnap_graph.io import (
     update_recording,
     write_recording,
 )
+from mmsnap_graph.sim import CLEAN, simulate_recording
+from mmsnap_graph.data.radar_config import TABLE_I
 
 SMALL_RADAR = RadarConfig(n_samples=16, n_loops=4, chirp_period_s=20e-6)
 
@@ -342,3 +345,16 @@ def test_int16_cube_storage_round_trips_counts(tmp_path):
         f["nodes/S1/cube/adc"] = np.zeros((2, *SMALL_RADAR.cube_shape, 2), dtype=np.int32)
     with pytest.raises(FileFormatError, match="stored as ADC counts must be int16"):
         read_recording(path)
+
+
+def test_ti_radar_fields_round_trip(tmp_path):
+    radar = dataclasses.replace(TABLE_I, adc_start_s=6e-6, rx_elevation_half_wl=(0.0, 0.0, 0.0, 0.0),
+                                tx_channels=(0, 2, 1), wavelength_reference="band_centre")
+    rec = simulate_recording("B", "straight", CLEAN, levels=("centroids",), n_frames=5, seed=1)
+    nodes = {n: dataclasses.replace(d, radar=radar) for n, d in rec.nodes.items()}
+    rec = dataclasses.replace(rec, nodes=nodes)
+    path = write_recording(tmp_path / "ti.h5", rec)
+    back = read_recording(path).nodes["S1"].radar
+    assert back == radar
+    assert back.wavelength_m == radar.wavelength_m != TABLE_I.wavelength_m
+    np.testing.assert_array_equal(back.tx_channels, (0, 2, 1))
