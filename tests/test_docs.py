@@ -315,10 +315,18 @@ def scratch(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("block", BLOCKS, ids=lambda b: " ".join(b[0][:2]))
 def test_walkthrough_block_runs_and_gives_what_the_page_says(block, scratch, capsys):
+    printed = ""
     for argv in block:
         code = main(argv)
-        assert code == 0, (argv, capsys.readouterr().err)
+        captured = capsys.readouterr()
+        assert code == 0, (argv, captured.err)
+        printed += captured.out
     out = Path(block[0][block[0].index("-o") + 1])
+    if any(argv[0] == "calibrate" for argv in block):   # the pose the page quotes
+        quoted = re.search(r"`mmsnap calibrate` prints S2's pose: \(([-0-9.]+), ([-0-9.]+)\) "
+                           r"m, ([-0-9.]+) degrees", TI_MD.read_text())
+        row = next(line.split() for line in printed.splitlines() if line.startswith("S2 "))
+        assert row[1:4] == list(quoted.groups()), (row, quoted.groups())
     rec = read_recording(out)
     if out.name == "raw.h5":                # three frames of one node: a point cloud
         assert len(rec.nodes["S1"].point_cloud) == 8
@@ -356,3 +364,25 @@ def test_the_fast_target_stays_aliased_without_dealiasing(scratch):
                  "AWR1843BOOST", "--node", "S1=data/ti/dca1000_fast.bin", "-o", "f.h5"]) == 0
     assert main(["process", "f.h5", "--config", "nowrap.toml"]) == 0
     _assert_fast_target(read_recording("f.h5").nodes["S1"].point_cloud, dealiased=False)
+
+
+def test_the_stone_soup_block_runs_and_prints_what_the_page_says(scratch, capsys):
+    """The page's Stone Soup tracker (after ``pip install ".[stonesoup]"``)
+    on the CSV walkthrough's ``table.h5``."""
+    pytest.importorskip("stonesoup")
+    text = TI_MD.read_text()
+    section = text.split("## Handing the fused states to a tracker (Stone Soup)", 1)[1]
+    section = section.split("\n## ", 1)[0]
+    assert 'pip install ".[stonesoup]"' in section
+    (code,) = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    for argv in BLOCKS[0]:
+        assert main(argv) == 0
+    capsys.readouterr()
+    exec(compile(code, "TI.md", "exec"), {"__name__": "__main__"})
+    out = capsys.readouterr().out
+    n, x, y = re.search(r"It prints (\d+) track states \(the last at x ([-0-9.]+) m, "
+                        r"y ([-0-9.]+) m\)", section).groups()
+    one_shot, tracked = re.search(r"median x\s+sigma of ([0-9.]+) cm one-shot against "
+                                  r"([0-9.]+) cm tracked", section).groups()
+    assert f"{n} track states; last: x {x} m, y {y} m" in out, out
+    assert f"x sigma: one-shot {one_shot} cm, tracked {tracked} cm" in out, out

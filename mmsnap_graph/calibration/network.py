@@ -32,7 +32,7 @@ from typing import Literal, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import CalibrationError, ValidationError
+from ..errors import CalibrationError, MissingStepError, ValidationError
 from ..data.noise import MeasurementNoise, NoiseEstimate
 from ..data.recording import Detections, Recording
 from .joint.options import JointOptions
@@ -203,13 +203,20 @@ def _pose_graph_step(recording, names, source, matching: MatchingOptions):
     ref = names[0]
     tracks: dict[str, LocalTracks] = {}
     failures: dict[str, str] = {}
+    steps: dict[str, str] = {}
     for n in names:
         try:
             tracks[n] = local_tracks(recording.nodes[n], source)
         except CalibrationError as exc:
             failures[n] = str(exc)
+            if isinstance(exc, MissingStepError):
+                steps[n] = exc
     if ref not in tracks:
-        raise CalibrationError(f"reference node {ref}: {failures[ref]}")
+        text = f"reference node {ref}: {failures[ref]}"
+        if ref in steps:
+            raise MissingStepError(text, step=steps[ref].step,
+                                   what=f"reference node {ref}: {steps[ref].what}")
+        raise CalibrationError(text)
     edges, pair_fail = pairwise_edges(tracks, frame_period_s=recording.frame_period_s,
                                       options=matching)
     failures.update(pair_fail)
@@ -229,7 +236,26 @@ def calibrate_recording(
     matching: MatchingOptions | None = None,
     joint: JointOptions = RECORDING_JOINT_OPTIONS,
 ) -> RecordingCalibration:
-    """Calibrate every node of ``recording`` (module doc).
+    """Calibrate every node of ``recording``: each node's pose in the first
+    node's (the reference's) frame, with its covariance, frame lag and clock
+    offset (module doc).
+
+    What must exist first: at least two nodes, each with EKF tracks (``mmsnap
+    process`` makes them from centroids or point clouds) or centroids (one
+    per frame, or labelled with ``target_id`` when several people walk), and
+    a target that both nodes of a pair see moving for ``matching.min_common_s``
+    seconds. Poses stored on the nodes are not used (they are what this
+    estimates).
+
+    Returns a :class:`RecordingCalibration`: ``poses`` and ``covariances``
+    (Pose2 body tangent, ``(x_m, y_m, phi_rad)``) of every calibrated node,
+    ``lag_frames`` and ``time_offset_s`` per node, ``unreachable`` nodes,
+    the pairwise ``edges``, ``method`` (``"joint"`` or ``"pose_graph"``),
+    ``source``, ``success`` and ``message`` (why a step failed or what it
+    could not identify), ``noise`` (every node's sigmas estimated from the
+    data at the calibrated poses), and the step results ``pose_graph`` and
+    ``joint``. :func:`mmsnap_graph.io.calibration.write_calibration` stores it
+    as the recording's ``/calibration`` group (``mmsnap calibrate``).
 
     source : the local positions to match: EKF tracks when present
         (``"auto"``), ``"tracks"`` or ``"centroids"``.

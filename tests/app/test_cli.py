@@ -237,6 +237,44 @@ def test_batch_exits_1_when_a_recording_fails(files, tmp_path, capsys, monkeypat
     assert "1 of 2 recording(s) ok, 1 failed" in out and "b.h5" in out
 
 
+@pytest.fixture(scope="module")
+def unprocessed(tmp_path_factory):
+    """A recording of point clouds only (no centroids, tracks or poses)."""
+    import h5py
+
+    path = tmp_path_factory.mktemp("steps") / "raw.h5"
+    assert main(["simulate", "-c", "B", "-n", "30", "-l", "centroids,point_cloud", "--seed", "1",
+                 "-o", str(path), "--no-progress"]) == 0
+    with h5py.File(path, "r+") as f:
+        for name in f["nodes"]:
+            del f["nodes"][name]["centroids"]
+    return path
+
+
+@pytest.mark.parametrize("argv,step,option", [
+    (["calibrate", "{rec}", "--no-write", "--json-out", "{tmp}/c.json"], "process", None),
+    (["fuse", "{rec}", "--no-progress"], "calibrate", "--calibration"),
+    (["replay", "{rec}", "--summary"], "calibrate", "--calibration"),
+    (["monitor", "{rec}"], "calibrate", "--poses"),
+])
+def test_a_missing_step_names_the_command_to_run_with_one_exit_code(unprocessed, tmp_path,
+                                                                   capsys, argv, step, option):
+    if step == "calibrate":  # the nodes have centroids but no pose
+        rec = tmp_path / "rec.h5"
+        assert main(["simulate", "-c", "B", "-n", "30", "-l", "centroids", "-o", str(rec),
+                     "--no-progress"]) == 0
+    else:
+        rec = unprocessed
+    capsys.readouterr()
+    code = main([a.format(rec=rec, tmp=tmp_path) for a in argv])
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if "error:" in line]
+    assert code == 1 and len(err) == 1
+    assert f"run `mmsnap {step} {rec}` first" in err[0]
+    assert "node_poses" not in err[0]
+    if option:
+        assert f"or give {option} CALIBRATION_JSON" in err[0]
+
+
 @pytest.mark.slow
 def test_python_dash_m_runs_the_command_line(tmp_path):
     """``python -m mmsnap_graph`` is the ``mmsnap`` command."""

@@ -137,8 +137,8 @@ def noise_lines(noise) -> list[str]:
                     text += f", x{factors[i]} for heavy tails"
                     tails_said = True
             else:
-                text = (f"    {value}: NOT identified (the data cannot pin it down: "
-                        f"{e.reasons[i]}); this fallback value is used instead")
+                text = (f"    {value}: NOT identified, the data cannot pin it down; this "
+                        f"fallback value is used instead\n      why: {e.reasons[i]}")
                 dof_said = dof_said or "dof" in e.reasons[i]
             lines.append(text)
     if tails_said:

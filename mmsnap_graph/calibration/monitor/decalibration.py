@@ -35,7 +35,7 @@ from tqdm import tqdm
 
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
-from ...errors import ValidationError
+from ...errors import MissingStepError, ValidationError
 from ...fusion.solvers.vectorized import fuse_batch
 from ..._validation import as_float_array, check_count, check_finite, chi2_gate
 from .stats import (
@@ -508,7 +508,8 @@ def monitor_recording(recording: Recording, *, node_poses: Mapping[str, ArrayLik
     """Run :class:`DecalibrationMonitor` over ``recording``'s centroids.
 
     node_poses : default the recording's node poses (its calibration);
-        ValidationError when a node has none.
+        :class:`~mmsnap_graph.errors.MissingStepError` (a
+        CalibrationError) when a node has none.
     noise : default the recording's centroid-noise metadata
         (:func:`recording_noise`), else the paper's resolutions.
     progress : a tqdm bar over the frames on stderr.
@@ -520,8 +521,9 @@ def monitor_recording(recording: Recording, *, node_poses: Mapping[str, ArrayLik
     if node_poses is None:
         missing = [n for n, p in recording.node_poses().items() if p is None]
         if missing:
-            raise ValidationError(f"nodes {missing} have no pose: calibrate the recording "
-                                  f"first or pass node_poses")
+            raise MissingStepError(f"nodes {missing} have no pose: calibrate the recording "
+                                   f"first or pass node_poses", step="calibrate",
+                                   what=f"nodes {missing} have no pose")
         node_poses = recording.node_poses()
     if noise is None:
         noise = recording_noise(recording.metadata) or MeasurementNoise()

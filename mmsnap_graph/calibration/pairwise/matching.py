@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from factors.models import detection_to_local
 
-from ...errors import CalibrationError, ValidationError
+from ...errors import CalibrationError, MissingStepError, ValidationError
 from ...data.recording import NodeData
 from ..._validation import as_float_array, check_finite, check_shape, chi2_gate
 from ..poses import pose_tangent_error
@@ -117,7 +117,8 @@ def local_tracks(node: NodeData, source: str = "auto") -> LocalTracks:
         raise CalibrationError(f"node {node.name} has no tracks")
     det = node.centroids
     if det is None or len(det) == 0:
-        raise CalibrationError(f"node {node.name} has neither tracks nor centroids to calibrate from")
+        raise MissingStepError(f"node {node.name} has neither tracks nor centroids to calibrate "
+                               "from", step="process")
     tid = (np.full(len(det), -1, np.int64) if det.target_id is None else det.target_id)
     for t in np.unique(tid):
         fr = det.frame[tid == t]

@@ -53,7 +53,7 @@ from .timing import align_recording
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import FusedSequence, Status
-from ...errors import CalibrationError, MmsnapError, ValidationError
+from ...errors import CalibrationError, MissingStepError, MmsnapError, ValidationError
 from ..._validation import as_float_array, check_finite
 from .split_check import SPLIT_MESSAGE, split_rows
 
@@ -92,9 +92,10 @@ def recording_poses(
         else:
             pose = recording.nodes[name].pose
             if pose is None:
-                raise CalibrationError(
-                    f"node {name!r} has no pose in the recording; calibrate it or pass calibration poses"
-                )
+                raise MissingStepError(
+                    f"node {name!r} has no pose in the recording; calibrate it or pass "
+                    "calibration poses", step="calibrate",
+                    what=f"node {name!r} has no pose in the recording")
         arr = check_finite(as_float_array(pose, f"pose of {name}"), f"pose of {name}")
         if arr.shape != (3,):
             raise ValidationError(f"pose of {name} must have shape (3,), got {arr.shape}")

@@ -64,9 +64,8 @@ def test_not_identified_sigma_says_why_and_what_is_used():
                      "20 dof needed", ""))})
     text = "\n".join(noise_lines(est))
     assert "range   0.02 m: estimated from 500 residuals, x1.10 for heavy tails" in text
-    assert (f"omega   {fallback.omega_rad:.4g} rad: NOT identified (the data cannot pin it "
-            f"down: 12 usable") in text
-    assert "this fallback value is used instead" in text
+    assert (f"omega   {fallback.omega_rad:.4g} rad: NOT identified, the data cannot pin it "
+            f"down; this fallback value is used instead\n      why: 12 usable") in text
     assert "doppler 0.09 m/s: estimated from 480 residuals, x1.30 for heavy tails" in text
     assert "heavy tails: " in text and "dof: degrees of freedom" in text
     assert "(estimator: network+temporal, pooled)" in text

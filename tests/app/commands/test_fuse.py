@@ -192,3 +192,32 @@ def test_group_detections_and_fuse_go_on_past_degenerate_centroids(recording_b_f
 def test_grid_points_below_five_are_a_usage_error(recording_b_file, capsys):
     assert main(["fuse", str(recording_b_file), "--covariance", "grid", "--grid-points", "4"]) == 2
     assert "--grid-points" in capsys.readouterr().err
+
+
+
+
+def test_fuse_says_what_its_row_counts_mean(tmp_path, capsys):
+    """"fused 614 targets in 600 frames" from one walker: the output says a
+    row is a (frame, target) of the association, how many rows all nodes saw,
+    how many frames hold several targets and why, and the flagged statuses."""
+    import numpy as np
+
+    from mmsnap_graph.app.cli import main
+    from mmsnap_graph.data.results import Status
+    from mmsnap_graph.io import read_fused
+
+    path = tmp_path / "rec.h5"
+    assert main(["simulate", "-c", "C", "-t", "random", "-n", "300", "--seed", "1", "-l",
+                 "centroids", "--known-poses", "-o", str(path), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["fuse", str(path), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    fused = read_fused(path)
+    seen = fused.observed.sum(axis=1)
+    _, per_frame = np.unique(fused.frame, return_counts=True)
+    assert (f"rows: one per (frame, target) of the association; {np.sum(seen == 2)} seen by "
+            f"all 2 nodes, {np.sum(seen < 2)} by fewer") in out
+    assert f"  {np.sum(per_frame > 1)} frames hold more than one target: " in out
+    codes, counts = np.unique(fused.status[fused.status != 0], return_counts=True)
+    for c, n in zip(codes, counts):
+        assert f"{n} {Status(int(c)).name.lower()} ({int(c)})" in out

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from mmsnap_graph.errors import MissingStepError
+
 import argparse
 import json
 
@@ -77,7 +79,7 @@ def test_monitor_clean_recording_and_errors(tmp_path, capsys):
     unknown = tmp_path / "unknown.h5"
     write_recording(unknown, simulate_recording("C", options=CLEAN, levels=("centroids",),
                                                 n_frames=30, seed=8))
-    with pytest.raises(ValidationError, match="no pose"):
+    with pytest.raises(MissingStepError, match="no pose"):  # exit 1, as `mmsnap fuse`
         _run([str(unknown)])
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from scipy.stats import chi2
 
 from factors.models import global_to_local
@@ -15,12 +17,13 @@ from mmsnap_graph.calibration import (
 )
 from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.data.recording import Detections, NodeData, Tracks
-from mmsnap_graph.errors import CalibrationError, ValidationError
+from mmsnap_graph.errors import CalibrationError, MmsnapError, ValidationError
 from mmsnap_graph.sim import CLEAN
 from mmsnap_graph.sim.networks import COMMON_AREAS, CONFIGURATIONS
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS, synthetic_scene
 from mmsnap_graph.sim.simulator import simulate_recording
 
+from _fuzz import FUZZ_40, assert_pd
 from _shared import TRACK_NOISE
 
 # Track-like noise (TRACK_NOISE): a 1-frame lag moves a ~0.5 m/s target by
@@ -305,6 +308,42 @@ def test_thresholds_in_seconds():
         match_tracks(a, b, frame_period_s=0.0)
     with pytest.raises(ValidationError, match="gate_probability"):
         MatchingOptions(gate_probability=1.0)
+
+
+@st.composite
+def track_pairs(draw):
+    """Two nodes' tracks of one walk (b's frame = a's moved by a pose), with
+    noise, a lag, extra tracks and now and then an edge value."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    n = draw(st.integers(0, 60))
+    scale = draw(st.sampled_from([1.0, 1.0, 1e-9, 1e9]))
+    walk = np.cumsum(rng.normal(0, 0.1, (n, 2)), axis=0) * scale + 3.0
+    phi = draw(st.floats(-np.pi, np.pi))
+    c, s = np.cos(phi), np.sin(phi)
+    rot = np.array([[c, -s], [s, c]])
+    shift = np.array([draw(st.floats(-5, 5)), draw(st.floats(-5, 5))])
+    b = (walk - shift) @ rot + rng.normal(0, draw(st.sampled_from([0.0, 0.01, 0.3])), (n, 2))
+    lag = draw(st.integers(-3, 3))
+    ids_a = rng.integers(0, draw(st.integers(1, 3)), n)
+    ids_b = rng.integers(0, draw(st.integers(1, 3)), n)
+    if n and draw(st.booleans()):
+        b[rng.integers(n)] = draw(st.sampled_from([1e300, -1e300, 1e-300]))
+    frames = np.arange(n)
+    return (LocalTracks(frame=frames, points_m=walk, track_id=ids_a),
+            LocalTracks(frame=frames + lag, points_m=b, track_id=ids_b))
+
+
+@FUZZ_40
+@given(track_pairs(), st.sampled_from([None, 0.15, 0.05]))
+def test_match_tracks_raises_only_typed_errors_and_success_is_sound(tracks, period):
+    try:
+        result = match_tracks(*tracks, frame_period_s=period)
+    except MmsnapError:
+        return
+    if result.success:
+        cal = result.calibration
+        assert cal is not None and np.all(np.isfinite(cal.pose)), cal
+        assert_pd(cal.covariance)
 
 
 @pytest.mark.parametrize("max_lag_s,gap", [(1e6, 0), (1e308, 0), (1e12, 10 ** 12)])
