@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import os
 
 import numpy as np
 import pytest
@@ -89,3 +90,25 @@ def test_calibrate_and_store_draws_a_bar_on_request(recording_path, tmp_path, ca
     assert "calibrate" in capsys.readouterr().err
     calibrate_and_store(recording_path, json_path=tmp_path / "b.json", write=False)
     assert capsys.readouterr().err == ""
+
+
+def test_calibrate_keeps_at_most_one_temporary_copy_on_disk(recording_b_file, tmp_path,
+                                                            monkeypatch):
+    rec = tmp_path / "rec.h5"
+    rec.write_bytes(recording_b_file.read_bytes())
+    size = rec.stat().st_size
+    seen = []
+    real_replace = os.replace
+
+    def spy(src, dst, *args, **kwargs):
+        # At the moment a finished temporary replaces its target, every
+        # temporary copy of the recording is on disk.
+        temps = [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+        seen.append((len(temps), sum(p.stat().st_size for p in temps)))
+        return real_replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", spy)
+    assert main(["calibrate", str(rec)]) == 0
+    assert seen, "calibrate wrote no temporary copy"
+    assert max(n for n, _ in seen) == 1
+    assert max(b for _, b in seen) < 2 * size

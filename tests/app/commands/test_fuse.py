@@ -1,6 +1,7 @@
 """``mmsnap fuse``: the /fused group it writes and reads back, the calibration it takes, its errors (the library side: tests/fusion/recording/test_sequence.py)."""
 
 import json
+import dataclasses
 
 import h5py
 import numpy as np
@@ -11,9 +12,14 @@ from mmsnap_graph.data.results import Status
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError, FileFormatError
 from mmsnap_graph.io import read_recording, write_recording
-from mmsnap_graph.fusion.recording.sequence import fuse_recording, recording_poses
+from mmsnap_graph.fusion.recording.sequence import (
+    fuse_recording,
+    recording_poses,
+    group_detections,
+)
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused, write_fused
+from mmsnap_graph.data.recording import Detections
 
 
 @pytest.fixture
@@ -144,6 +150,48 @@ def test_cli_fuse_takes_measurement_sigmas(tmp_path, recordings, capsys):
                                atol=1e-12)
     assert main(["fuse", str(path), "--sigmas", "0.05", "-1", "0.1", "--no-progress"]) == 2
     assert "omega_rad must be finite and > 0" in capsys.readouterr().err
+
+
+def with_centroids(rec, node_index: int, edit) -> object:
+    """``rec`` with node ``node_index``'s centroid columns changed by
+    ``edit(range_m, omega_rad, doppler_mps)`` (in place on copies)."""
+    name = rec.node_names[node_index]
+    c = rec.nodes[name].centroids
+    r, w, v = c.range_m.copy(), c.omega_rad.copy(), c.doppler_mps.copy()
+    edit(r, w, v)
+    d = Detections(frame=c.frame, range_m=r, omega_rad=w, doppler_mps=v, snr_db=c.snr_db,
+                   target_id=c.target_id)
+    return rec.with_node(dataclasses.replace(rec.nodes[name], centroids=d))
+
+
+def test_group_detections_and_fuse_go_on_past_degenerate_centroids(recording_b_file, tmp_path,
+                                                                  capsys):
+    rec = read_recording(recording_b_file)
+
+    def edit(r, w, v):
+        r[[3, 5, 7]] = [0.0, 0.0, 1e-300]
+        w[[3, 5]] = [0.0, np.pi]
+
+    bad = with_centroids(rec, 0, edit)
+    poses = np.array([bad.nodes[n].pose for n in bad.node_names])
+    groups = group_detections(bad, poses)
+    assert np.unique(groups.frame).size == np.unique(np.concatenate(
+        [bad.nodes[n].centroids.frame for n in bad.node_names])).size
+    path = write_recording(tmp_path / "bad.h5", bad)
+    assert main(["fuse", str(path), "--no-progress"]) == 0
+    assert "flagged" in capsys.readouterr().out
+    assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "s.h5"),
+                 "--sigmas", "1e-55", "1e-55", "1e-55"]) == 0
+    capsys.readouterr()
+    assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "t.h5"),
+                 "--sigmas", "1e-300", "1e-300", "1e-300"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "sigmas" in err and len(err.splitlines()) == 1
+
+
+def test_grid_points_below_five_are_a_usage_error(recording_b_file, capsys):
+    assert main(["fuse", str(recording_b_file), "--covariance", "grid", "--grid-points", "4"]) == 2
+    assert "--grid-points" in capsys.readouterr().err
 
 
 

@@ -1,10 +1,16 @@
 """``mmsnap process`` (mmsnap_graph/app/commands/process.py)."""
 
+import dataclasses
+
+
 import pytest
 
 from mmsnap_graph.app.commands.process import HELP_DEFAULTS
 from mmsnap_graph.radar.cfar import CfarConfig
 from mmsnap_graph.tracking.ekf import EkfConfig
+from mmsnap_graph.data.recording import Detections
+from mmsnap_graph.app.cli import main
+from mmsnap_graph.io import read_recording, write_recording
 
 
 def test_the_defaults_quoted_in_the_help_are_the_configs():
@@ -36,6 +42,29 @@ def test_process_says_what_its_counts_mean(tmp_path, capsys):
                f"starts" in out
         assert f"longest {lengths.max()} frames ({lengths.max() * rec.frame_period_s:.1f} s)" \
             in out
+
+
+def with_centroids(rec, node_index: int, edit) -> object:
+    """``rec`` with node ``node_index``'s centroid columns changed by
+    ``edit(range_m, omega_rad, doppler_mps)`` (in place on copies)."""
+    name = rec.node_names[node_index]
+    c = rec.nodes[name].centroids
+    r, w, v = c.range_m.copy(), c.omega_rad.copy(), c.doppler_mps.copy()
+    edit(r, w, v)
+    d = Detections(frame=c.frame, range_m=r, omega_rad=w, doppler_mps=v, snr_db=c.snr_db,
+                   target_id=c.target_id)
+    return rec.with_node(dataclasses.replace(rec.nodes[name], centroids=d))
+
+
+def test_process_on_huge_values_finishes(recording_b_file, tmp_path):
+    def edit(r, w, v):
+        r[9] = 1e300
+        v[11] = -1e300
+
+    path = write_recording(tmp_path / "huge.h5",
+                           with_centroids(read_recording(recording_b_file), 0, edit))
+    assert main(["process", str(path), "--no-progress"]) == 0
+    assert read_recording(path).nodes["S1"].tracks is not None
 
 
 @pytest.mark.slow
