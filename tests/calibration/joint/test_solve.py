@@ -339,7 +339,7 @@ from mmsnap_graph.sim import RealPhysics  # noqa: E402
 # the simulator's near-side reflection (``RealPhysics.reflection_depth_m``:
 # each radar's centroid 0.05 +- 0.015 m nearer to it than the body's centre).
 #
-# Measured (3-node network of tests/test_network_pose_nees.py: S1 and S3
+# Measured (3-node network of tests/calibration/test_network.py: S1 and S3
 # face each other 7 m apart; one random walker, 300 frames at 150 ms; the real
 # physics without clutter, ghosts, split clusters or slow centroid errors, so
 # that only the depth breaks the point-target model; seeds 0-19; joint NEES of
