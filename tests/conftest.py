@@ -89,3 +89,18 @@ def fused_b_ml(recording_b_known_poses):
     """``recording_b_known_poses`` fused in ML mode without a prior."""
     from mmsnap_graph.fusion.recording.sequence import fuse_recording
     return fuse_recording(recording_b_known_poses, mode="ml", prior=None, progress=False)
+
+
+@pytest.fixture(scope="session")
+def recording_b_file(tmp_path_factory):
+    """Path of a small recording file made by the CLI (``mmsnap simulate
+    --model clean -c B -t random -n 40 -l centroids --seed 5 --known-poses``):
+    two nodes at known poses, centroids and the truth. Shared: read it, or
+    copy it before changing it."""
+    from mmsnap_graph.app.cli import main
+
+    path = tmp_path_factory.mktemp("recording_b") / "good.h5"
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "-l",
+                 "centroids", "--seed", "5", "--known-poses", "-o", str(path),
+                 "--no-progress"]) == 0
+    return path

@@ -14,7 +14,9 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+import logging
 
+import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
@@ -64,17 +66,27 @@ def test_help_is_about_as_fast_as_importing_numpy():
 
 # ------------------------------------------------------------- exit codes
 @pytest.fixture(scope="module")
-def files(tmp_path_factory) -> dict[str, Path]:
+def files(recording_b_file, tmp_path_factory) -> dict[str, Path]:
+    """The shared small recording (read only) and damaged copies of it."""
     d = tmp_path_factory.mktemp("exit_codes")
-    good = d / "good.h5"
-    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
-                 "--seed", "5", "--known-poses", "-o", str(good), "--no-progress"]) == 0
+    good = recording_b_file
     data = good.read_bytes()
     out = {"good": good, "dir": d, "missing": d / "missing.h5"}
     out["truncated"] = d / "truncated.h5"
     out["truncated"].write_bytes(data[: len(data) // 2])
     out["not_hdf5"] = d / "not_hdf5.h5"
     out["not_hdf5"].write_bytes(b"not an HDF5 file\n" * 100)
+    out["empty"] = d / "empty.h5"
+    out["empty"].write_bytes(b"")
+    garbage = bytearray(data)
+    garbage[2048:] = np.random.default_rng(1).integers(0, 256, len(data) - 2048,
+                                                       dtype=np.uint8).tobytes()
+    out["garbage_body"] = d / "garbage_body.h5"
+    out["garbage_body"].write_bytes(bytes(garbage))
+    flipped = bytearray(data)
+    flipped[17] ^= 1  # h5py raises RuntimeError (found by fuzzing read_recording)
+    out["bit_flipped"] = d / "bit_flipped.h5"
+    out["bit_flipped"].write_bytes(bytes(flipped))
     out["csv"] = d / "no_range.csv"
     out["csv"].write_text("frame,x,doppler\n0,1,0.1\n1,1,0.1\n")
     out["uart"] = d / "bad_magic.bin"
@@ -331,3 +343,87 @@ def test_json_flags_and_angle_units_mean_the_same_on_every_verb():
                     and verb[-1] in {"calibrate", "monitor", "info", "evaluate"}:
                 assert "radians" in action.help, (verb, names)
     assert {("calibrate",), ("monitor",), ("batch",), ("info",), ("evaluate",)} <= seen
+
+
+# Damaged recordings through the verbs that read one: exit 1 with a one-line
+# error (``mmsnap VERB: error: ...``) naming the file, never a traceback.
+
+
+#: Verbs that read one recording, with the options that keep them quiet.
+VERBS = {
+    "process": ["--no-progress"],
+    "calibrate": [],
+    "fuse": ["--no-progress"],
+    "evaluate": [],
+}
+
+
+def run_verb(verb: str, path: Path, capsys) -> tuple[int, list[str]]:
+    code = main([verb, str(path), *VERBS[verb]])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+@pytest.mark.parametrize("verb", sorted(VERBS))
+@pytest.mark.parametrize("damage", ["truncated", "empty", "not_hdf5", "garbage_body"])
+def test_a_damaged_recording_gives_a_one_line_error(files, capsys, verb, damage):
+    code, err = run_verb(verb, files[damage], capsys)
+    assert code == 1
+    assert len(err) == 1 and err[0].startswith(f"mmsnap {verb}: error: ")
+
+
+@pytest.mark.parametrize("verb", sorted(VERBS))
+def test_a_bit_flipped_recording_gives_a_one_line_error(files, capsys, verb):
+    code, err = run_verb(verb, files["bit_flipped"], capsys)
+    assert code == 1 and len(err) == 1
+
+
+@pytest.mark.parametrize("verb", sorted(VERBS))
+def test_the_error_for_a_damaged_recording_names_the_file(files, capsys, verb):
+    code, err = run_verb(verb, files["garbage_body"], capsys)
+    assert code == 1 and "garbage_body.h5" in err[0]
+
+
+@pytest.mark.parametrize("argv", [
+    ["process", "{good}", "-o", "{dir}", "--no-progress"],
+    ["fuse", "{good}", "-o", "{dir}", "--no-progress"],
+    ["calibrate", "{good}", "--no-write", "--json-out", "{dir}"],
+    ["simulate", "-n", "20", "-l", "centroids", "-o", "{dir}", "--overwrite", "--no-progress"],
+])
+def test_an_output_path_that_is_a_directory_gives_a_one_line_error(files, tmp_path, capsys,
+                                                                    argv):
+    argv = [a.format(good=files["good"], dir=tmp_path) for a in argv]
+    assert main(argv) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("verb", ["noise", "monitor"])
+@pytest.mark.parametrize("damage", ["missing", "truncated", "not_hdf5", "bit_flipped"])
+def test_noise_and_monitor_on_a_bad_file_exit_1_with_one_line_naming_it(files, capsys, verb,
+                                                                         damage):
+    code = main([verb, str(files[damage])])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert len(err) == 1 and err[0].startswith(f"mmsnap {verb}: error: ")
+    assert files[damage].name in err[0]
+
+
+def test_version_and_log_levels(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.startswith("mmsnap ")
+    log = logging.getLogger("mmsnap_graph")
+    assert main(["-q", "process", "/nonexistent/x.h5"]) == 1
+    assert log.level == logging.ERROR
+    assert main(["-vv", "process", "/nonexistent/x.h5"]) == 1
+    assert log.level == logging.DEBUG
+    assert main(["process", "/nonexistent/x.h5"]) == 1  # back to the default level
+    assert log.level == logging.WARNING
+
+
+def test_python_dash_m_runs_the_cli():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "mmsnap_graph", "--version"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.startswith("mmsnap ")

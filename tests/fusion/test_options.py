@@ -11,7 +11,7 @@ from mmsnap_graph.fusion import LevenbergMarquardtSettings
 from mmsnap_graph.fusion.options import (DEFAULT_OPTIONS, FusionOptions, RobustOptions,
                                          robust_options)
 
-from _fusion_fuzz import assert_rejected
+from _fuzz import assert_rejected
 
 
 @pytest.mark.parametrize("kwargs, match", [

@@ -2,6 +2,7 @@
 Monte Carlo), multi-target association, track management, errors."""
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -20,8 +21,10 @@ from mmsnap_graph.tracking.ekf import (
     track_centroids,
     track_initial_state,
     wrap_innovation,
+    frames_to_step,
 )
 from mmsnap_graph.data.radar_config import TABLE_I
+from mmsnap_graph.tracking.central import CentralConfig
 
 from _fuzz import ANY_VALUE, EDGE, FUZZ
 
@@ -399,3 +402,52 @@ def test_ekf_config_raises_only_typed_errors(kwargs):
     except MmsnapError:
         return
     assert np.all(np.isfinite(tracks.state))
+
+
+def test_a_huge_range_or_doppler_does_not_stop_the_tracker():
+    tracker = LocalTracker()
+    for k in range(8):
+        z = np.array([[4.0 + 0.05 * k, 0.2, 0.3], [1e300, 0.1, 0.0], [3.0, -0.5, 1e300]])
+        out = tracker.step(z)
+    assert len(out) == 1 and np.all(np.isfinite(out[0][1]))
+    with pytest.raises(MmsnapError):
+        tracker.step(np.zeros((0, 3)), frame_period_s="0.1")
+
+
+def test_a_huge_frame_gap_is_a_handful_of_steps():
+    k = np.arange(30)
+    frame = np.concatenate([k, k + 10**12])
+    r = np.concatenate([4 + 0.05 * k, 4 + 0.05 * k])
+    det = Detections(frame=frame, range_m=r, omega_rad=np.full(60, 0.2),
+                     doppler_mps=np.full(60, 0.3))
+    cfg = EkfConfig()
+    steps = frames_to_step(det.frame, cfg)
+    assert steps.size == 60 + max(cfg.max_misses_frames, cfg.confirm_window_frames)
+    t0 = time.perf_counter()
+    tracks = track_centroids(det, cfg)
+    assert time.perf_counter() - t0 < 5.0
+    assert tracks.frame.max() == 29 + 10**12 and np.all(np.isfinite(tracks.state))
+
+
+def test_stepping_the_frames_present_matches_stepping_every_frame():
+    rng = np.random.default_rng(4)
+    present = np.sort(rng.choice(200, 120, replace=False))
+    frame = np.repeat(present, 2)
+    n = frame.size
+    det = Detections(frame=frame, range_m=3 + 0.01 * frame + rng.normal(0, 0.03, n),
+                     omega_rad=np.tile([0.3, -0.6], n // 2) + rng.normal(0, 0.05, n),
+                     doppler_mps=rng.normal(0.5, 0.1, n))
+    every = track_centroids(det, frames=np.arange(present.min(), present.max() + 1))
+    default = track_centroids(det)
+    np.testing.assert_array_equal(default.frame, every.frame)
+    np.testing.assert_array_equal(default.track_id, every.track_id)
+    np.testing.assert_allclose(default.state, every.state)
+
+
+@pytest.mark.parametrize("config", [EkfConfig, CentralConfig])
+@pytest.mark.parametrize("kwargs", [{"frame_period_s": "0.15"}, {"sigma_a_mps2": True},
+                                    {"max_misses": 2.5}, {"gate_probability": None},
+                                    {"max_misses": "5"}])
+def test_configs_reject_values_of_the_wrong_type(config, kwargs):
+    with pytest.raises(ConfigurationError, match=next(iter(kwargs))):
+        config(**kwargs)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import os
 
 import numpy as np
 import pytest
@@ -63,9 +64,8 @@ def test_not_identified_sigma_says_why_and_what_is_used():
                      "20 dof needed", ""))})
     text = "\n".join(noise_lines(est))
     assert "range   0.02 m: estimated from 500 residuals, x1.10 for heavy tails" in text
-    assert (f"omega   {fallback.omega_rad:.4g} rad: NOT identified (the data cannot pin it "
-            f"down: 12 usable") in text
-    assert "this fallback value is used instead" in text
+    assert (f"omega   {fallback.omega_rad:.4g} rad: NOT identified, the data cannot pin it "
+            f"down; this fallback value is used instead\n      why: 12 usable") in text
     assert "doppler 0.09 m/s: estimated from 480 residuals, x1.30 for heavy tails" in text
     assert "heavy tails: " in text and "dof: degrees of freedom" in text
     assert "(estimator: network+temporal, pooled)" in text
@@ -90,3 +90,25 @@ def test_calibrate_and_store_draws_a_bar_on_request(recording_path, tmp_path, ca
     assert "calibrate" in capsys.readouterr().err
     calibrate_and_store(recording_path, json_path=tmp_path / "b.json", write=False)
     assert capsys.readouterr().err == ""
+
+
+def test_calibrate_keeps_at_most_one_temporary_copy_on_disk(recording_b_file, tmp_path,
+                                                            monkeypatch):
+    rec = tmp_path / "rec.h5"
+    rec.write_bytes(recording_b_file.read_bytes())
+    size = rec.stat().st_size
+    seen = []
+    real_replace = os.replace
+
+    def spy(src, dst, *args, **kwargs):
+        # At the moment a finished temporary replaces its target, every
+        # temporary copy of the recording is on disk.
+        temps = [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+        seen.append((len(temps), sum(p.stat().st_size for p in temps)))
+        return real_replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", spy)
+    assert main(["calibrate", str(rec)]) == 0
+    assert seen, "calibrate wrote no temporary copy"
+    assert max(n for n, _ in seen) == 1
+    assert max(b for _, b in seen) < 2 * size

@@ -39,3 +39,38 @@ def test_demo_on_a_damaged_sample_exits_1_naming_it(sample, tmp_path_factory, ca
     if code == 0:  # a flip that hit nothing the demo reads
         return
     one_line_data_error(code, err, "config_B_straight.h5")
+
+
+def test_demo_refuses_a_sample_that_is_a_directory(tmp_path, capsys):
+    (tmp_path / "config_B_straight.h5").mkdir()
+    assert main(["demo", "--data", str(tmp_path), "-c", "B", "-n", "20", "--no-figures",
+                 "--out", str(tmp_path / "out"), "--no-progress"]) == 1
+    assert "config_B_straight.h5" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("frames, strict, holds, code", [
+    (600, False, True, 0), (600, False, False, 1), (60, False, False, 0), (60, True, False, 1)])
+def test_demo_exits_1_when_a_paper_check_does_not_hold(monkeypatch, tmp_path, capsys, frames,
+                                                       strict, holds, code):
+    """The demo's own steps are replaced by stubs; only the exit code is tested."""
+    import types
+
+    import mmsnap_graph.app.demo as demo
+    import mmsnap_graph.app.report as report
+    from mmsnap_graph.app.report import Check
+
+    table = types.SimpleNamespace(text=lambda: "table")
+    result = types.SimpleNamespace(cube_stretches=[], failures=[], seconds={})
+    monkeypatch.setattr(demo, "run_demo", lambda *a, **k: result)
+    for name in ("table_ii", "table_poses", "table_iii_track_fusion", "table_iii_truth"):
+        monkeypatch.setattr(report, name, lambda *a, **k: table)
+    monkeypatch.setattr(report, "levels_text", lambda *a, **k: "levels")
+    monkeypatch.setattr(report, "write_json", lambda *a, **k: None)
+    monkeypatch.setattr(report, "write_report", lambda *a, **k: tmp_path / "report.md")
+    monkeypatch.setattr(report, "qualitative_checks",
+                        lambda r: [Check(claim="a claim", holds=holds, detail="")])
+    argv = ["demo", "--simulate", "-n", str(frames), "--no-figures", "--out", str(tmp_path),
+            "--no-progress"] + (["--strict"] if strict else [])
+    assert main(argv) == code
+    if not holds:
+        assert "a claim" in capsys.readouterr().err

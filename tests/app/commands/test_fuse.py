@@ -1,6 +1,7 @@
 """``mmsnap fuse``: the /fused group it writes and reads back, the calibration it takes, its errors (the library side: tests/fusion/recording/test_sequence.py)."""
 
 import json
+import dataclasses
 
 import h5py
 import numpy as np
@@ -11,9 +12,14 @@ from mmsnap_graph.data.results import Status
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError, FileFormatError
 from mmsnap_graph.io import read_recording, write_recording
-from mmsnap_graph.fusion.recording.sequence import fuse_recording, recording_poses
+from mmsnap_graph.fusion.recording.sequence import (
+    fuse_recording,
+    recording_poses,
+    group_detections,
+)
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused, write_fused
+from mmsnap_graph.data.recording import Detections
 
 
 @pytest.fixture
@@ -177,3 +183,74 @@ def test_implausible_sigmas_name_the_flag_and_the_unit(capsys, verb, sigmas, nam
     assert main([verb, "rec.h5", "--sigmas", *sigmas]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"--sigmas: {name}" in err
+
+
+def with_centroids(rec, node_index: int, edit) -> object:
+    """``rec`` with node ``node_index``'s centroid columns changed by
+    ``edit(range_m, omega_rad, doppler_mps)`` (in place on copies)."""
+    name = rec.node_names[node_index]
+    c = rec.nodes[name].centroids
+    r, w, v = c.range_m.copy(), c.omega_rad.copy(), c.doppler_mps.copy()
+    edit(r, w, v)
+    d = Detections(frame=c.frame, range_m=r, omega_rad=w, doppler_mps=v, snr_db=c.snr_db,
+                   target_id=c.target_id)
+    return rec.with_node(dataclasses.replace(rec.nodes[name], centroids=d))
+
+
+def test_group_detections_and_fuse_go_on_past_degenerate_centroids(recording_b_file, tmp_path,
+                                                                  capsys):
+    rec = read_recording(recording_b_file)
+
+    def edit(r, w, v):
+        r[[3, 5, 7]] = [0.0, 0.0, 1e-300]
+        w[[3, 5]] = [0.0, np.pi]
+
+    bad = with_centroids(rec, 0, edit)
+    poses = np.array([bad.nodes[n].pose for n in bad.node_names])
+    groups = group_detections(bad, poses)
+    assert np.unique(groups.frame).size == np.unique(np.concatenate(
+        [bad.nodes[n].centroids.frame for n in bad.node_names])).size
+    path = write_recording(tmp_path / "bad.h5", bad)
+    assert main(["fuse", str(path), "--no-progress"]) == 0
+    assert "flagged" in capsys.readouterr().out
+    assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "s.h5"),
+                 "--sigmas", "1e-55", "1e-55", "1e-55", "--max-flagged", "1"]) == 0
+    capsys.readouterr()
+    assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "t.h5"),
+                 "--sigmas", "1e-300", "1e-300", "1e-300"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "sigmas" in err and len(err.splitlines()) == 1
+
+
+def test_grid_points_below_five_are_a_usage_error(recording_b_file, capsys):
+    assert main(["fuse", str(recording_b_file), "--covariance", "grid", "--grid-points", "4"]) == 2
+    assert "--grid-points" in capsys.readouterr().err
+
+
+
+
+def test_fuse_says_what_its_row_counts_mean(tmp_path, capsys):
+    """"fused 614 targets in 600 frames" from one walker: the output says a
+    row is a (frame, target) of the association, how many rows all nodes saw,
+    how many frames hold several targets and why, and the flagged statuses."""
+    import numpy as np
+
+    from mmsnap_graph.app.cli import main
+    from mmsnap_graph.data.results import Status
+    from mmsnap_graph.io import read_fused
+
+    path = tmp_path / "rec.h5"
+    assert main(["simulate", "-c", "C", "-t", "random", "-n", "300", "--seed", "1", "-l",
+                 "centroids", "--known-poses", "-o", str(path), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["fuse", str(path), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    fused = read_fused(path)
+    seen = fused.observed.sum(axis=1)
+    _, per_frame = np.unique(fused.frame, return_counts=True)
+    assert (f"rows: one per (frame, target) of the association; {np.sum(seen == 2)} seen by "
+            f"all 2 nodes, {np.sum(seen < 2)} by fewer") in out
+    assert f"  {np.sum(per_frame > 1)} frames hold more than one target: " in out
+    codes, counts = np.unique(fused.status[fused.status != 0], return_counts=True)
+    for c, n in zip(codes, counts):
+        assert f"{n} {Status(int(c)).name.lower()} ({int(c)})" in out

@@ -15,11 +15,6 @@ from mmsnap_graph.calibration.monitor.decalibration import (
     monitor_recording,
     recording_measurements,
 )
-from mmsnap_graph.calibration.monitor.stats import (
-    compose_pose,
-    frame_contributions,
-    recalibrate_pose,
-)
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
@@ -75,31 +70,6 @@ def test_bumped_recording_moves_only_that_node_from_the_bump_frame():
         simulate_bumped_recording("C", physics=None, node="S2", bump_time_s=100.0, n_frames=100)
     with pytest.raises(ValidationError, match="node"):
         simulate_bumped_recording("C", physics=None, node="S9", n_frames=100)
-
-
-# ------------------------------------------------------------------ statistics
-def test_contributions_and_gauss_newton_recover_a_noise_free_pose_error():
-    rng = np.random.default_rng(0)
-    states = np.column_stack([rng.uniform(-1.5, 1.5, 60), rng.uniform(2.5, 4.5, 60),
-                              rng.normal(0, 1, 60), rng.normal(0, 1, 60)])
-    covs = np.tile(np.diag([1e-4, 1e-4, 1e-2, 1e-2]), (60, 1, 1))
-    assumed = np.array([0.0, 7.0, np.pi])
-    for delta in (np.array([1e-4, -2e-4, 3e-5]), np.array([0.1, 0.0, 0.0]),
-                  np.array([0.0, 0.0, np.deg2rad(2.0)])):
-        true_pose = compose_pose(assumed, delta)
-        z, _ = measurement_model(states, true_pose)
-        fc = frame_contributions(assumed, states, covs, z, NOISE, huber_k=None)
-        est = np.linalg.solve(fc.a.sum(0), fc.b.sum(0))
-        if np.max(np.abs(delta)) < 1e-3:                 # first order: the linear estimate
-            np.testing.assert_allclose(est, delta, rtol=0.02, atol=1e-7)
-        fit = recalibrate_pose(assumed, states, covs, z, NOISE)
-        assert fit.success
-        np.testing.assert_allclose(fit.pose, true_pose, atol=1e-7)
-        assert np.all(np.linalg.eigvalsh(fit.covariance) > 0)
-    # a standing target cannot fix the pose: success=False, no exception
-    still = np.tile(states[:1], (20, 1))
-    z, _ = measurement_model(still, assumed)
-    assert not recalibrate_pose(assumed, still, covs[:20], z, NOISE).success
 
 
 # ------------------------------------------------------------------ targets

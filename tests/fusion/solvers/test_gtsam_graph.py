@@ -33,8 +33,8 @@ from mmsnap_graph.fusion.problem import (
 )
 from mmsnap_graph.fusion.solvers.gtsam_graph import build_frame_graph, fuse_frame
 
-from _fusion_fuzz import (FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames, edge_frames,
-                          finite)
+from _fuzz import (FUSION_FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames,
+                   edge_frames, finite)
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_A, POSES_B, POSES_BC, POSES_C
 
 TRUTH_A = np.array([2.0, 5.0, 0.6, -0.4])
@@ -629,7 +629,7 @@ def test_stop_away_from_a_minimum_is_flagged(monkeypatch):
     assert_allclose(res.state, res.initial_state)
 
 
-@FUZZ
+@FUSION_FUZZ
 @given(consistent_frames(), PRIORS)
 def test_fuse_frame_on_radar_like_frames_is_sound(frame, prior):
     poses, z, observed, noise = frame
@@ -640,7 +640,7 @@ def test_fuse_frame_on_radar_like_frames_is_sound(frame, prior):
     assert_sound(r.success, r.state, r.covariance)
 
 
-@FUZZ
+@FUSION_FUZZ
 @given(edge_frames(), PRIORS)
 def test_fuse_frame_on_edge_values_raises_only_typed_errors(frame, prior):
     poses, z, noise = frame
@@ -651,7 +651,7 @@ def test_fuse_frame_on_edge_values_raises_only_typed_errors(frame, prior):
     assert_sound(r.success, r.state, r.covariance)
 
 
-@FUZZ
+@FUSION_FUZZ
 @given(edge_frames(sigmas=st.one_of(finite(1e-300, 1e-150), finite(1e150, 1e300))), PRIORS)
 def test_fuse_frame_with_extreme_sigmas_raises_only_typed_errors(frame, prior):
     poses, z, noise = frame
@@ -662,7 +662,7 @@ def test_fuse_frame_with_extreme_sigmas_raises_only_typed_errors(frame, prior):
     assert_sound(r.success, r.state, r.covariance)
 
 
-@FUZZ
+@FUSION_FUZZ
 @given(consistent_frames(), HUGE_DOPPLER, PRIORS)
 def test_fuse_frame_with_a_huge_doppler_is_sound(frame, doppler, prior):
     poses, z, observed, noise = frame

@@ -13,8 +13,8 @@ from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings, problem
 from mmsnap_graph.fusion.solvers import gtsam_graph as oneshot, vectorized as batch
 
-from _fusion_fuzz import (FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames, edge_frames,
-                          node_poses)
+from _fuzz import (FUSION_FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames,
+                   edge_frames, node_poses)
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_B, POSES_C
 
 # Configuration B: orthogonal lines of sight around (0.5, 4.5).
@@ -218,7 +218,7 @@ def test_no_frames_gives_empty_results_of_the_right_shapes():
     assert res.whitened_residuals.shape == (0, 2, 3) and len(res) == 0
 
 
-@FUZZ
+@FUSION_FUZZ
 @given(consistent_frames(), PRIORS)
 def test_fuse_batch_on_radar_like_frames_is_sound(frame, prior):
     poses, z, observed, noise = frame
@@ -229,7 +229,7 @@ def test_fuse_batch_on_radar_like_frames_is_sound(frame, prior):
     assert_sound(r.success, r.state, r.covariance)
 
 
-@FUZZ
+@FUSION_FUZZ
 @given(node_poses(2, 3), st.sampled_from([(-1.0, 0.0), (0.0, 0.1), (5.0, 4.0), (5.0, -3.5)]))
 def test_fuse_batch_rejects_or_flags_out_of_range_measurements(poses, bad):
     z = np.tile([5.0, 0.2, 0.5], (len(poses), 1))
@@ -241,7 +241,7 @@ def test_fuse_batch_rejects_or_flags_out_of_range_measurements(poses, bad):
     assert not r.success[0], f"range {bad[0]}, omega {bad[1]} fused with success=True"
 
 
-@FUZZ
+@FUSION_FUZZ
 @given(edge_frames(), PRIORS)
 def test_fuse_batch_on_edge_values_is_sound(frame, prior):
     poses, z, noise = frame
@@ -252,7 +252,7 @@ def test_fuse_batch_on_edge_values_is_sound(frame, prior):
     assert_sound(r.success, r.state, r.covariance)
 
 
-@FUZZ
+@FUSION_FUZZ
 @given(consistent_frames(), HUGE_DOPPLER, PRIORS)
 def test_fuse_batch_with_a_huge_doppler_is_sound(frame, doppler, prior):
     poses, z, observed, noise = frame
