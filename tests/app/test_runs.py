@@ -2,6 +2,9 @@
 command that fuses (fuse, monitor, replay, the batch's fuse step)."""
 
 import json
+from pathlib import Path
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -109,3 +112,38 @@ def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated, tm
     frame0 = next(f for f, u in expected if len(u))
     _, t0, d0 = next(x for x in recording_frames(aligned, fill_frames=fill) if x[0] == frame0)
     assert not np.allclose(plain.push(t0, d0).covariance, first.covariance)
+
+
+def mmsnap(*argv: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "mmsnap_graph", *argv],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def simulated(path: Path, n_frames: int) -> Path:
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(n_frames), "-l",
+                 "centroids", "--seed", "2", "-o", str(path), "--no-progress"]) == 0
+    return path
+
+
+@pytest.mark.slow
+def test_process_and_calibrate_at_once_keep_both_updates(tmp_path):
+    """Before: each rewrote the file from the copy it read at its start; the
+    one finishing last silently dropped the other's update (on main c862145
+    with 2000 frames: /calibration written, the node poses gone)."""
+    recording = simulated(tmp_path / "rec.h5", 2000)
+    before = read_recording(recording)
+    assert all(before.nodes[n].tracks is None for n in before.node_names)
+    procs = [mmsnap("process", str(recording), "--centroids-only", "--no-progress"),
+             mmsnap("calibrate", str(recording), "--method", "pose_graph", "--source",
+                    "centroids")]
+    outs = [p.communicate(timeout=600) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    after = read_recording(recording)
+    cal = read_calibration(recording)
+    for name in after.node_names:
+        assert after.nodes[name].tracks is not None, f"{name}: process's tracks were lost"
+        if name in cal.poses:
+            np.testing.assert_allclose(after.nodes[name].pose, cal.poses[name],
+                                       err_msg=f"{name}: calibrate's pose was lost")
+    assert len(cal.poses) >= 2
+    assert not list(recording.parent.glob(".rec.h5.*")), "lock or temporary files left"
