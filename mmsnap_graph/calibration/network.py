@@ -74,6 +74,10 @@ class RecordingCalibration:
         ``-lag_frames * frame period``.
     time_offset_variances : name -> its variance (s^2; NaN where not
         estimated, 0 for the reference).
+    range_offset_m, range_offset_variance : the joint graph's range offset
+        (reflection depth, m) and its variance (m^2) when it estimated one
+        (``JointOptions.range_offset_prior_m``); NaN otherwise. ``mmsnap
+        fuse`` adds it to every centroid range.
     """
 
     reference: str
@@ -93,6 +97,8 @@ class RecordingCalibration:
     noise: NoiseEstimate | None = None
     time_offset_s: Mapping[str, float] = field(default_factory=dict)
     time_offset_variances: Mapping[str, float] = field(default_factory=dict)
+    range_offset_m: float = float("nan")
+    range_offset_variance: float = float("nan")
 
 
 def _joint_detections(rec: Recording, names, lags) -> dict[str, Detections] | None:
@@ -299,6 +305,7 @@ def calibrate_recording(
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
     result_method, refined, notes = "pose_graph", None, [pg.message]
+    notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in pg.edges if e.lag_note]
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)
@@ -322,7 +329,10 @@ def calibrate_recording(
         lag_frames=lags, unreachable=pg.unreachable, edges=pg.edges,
         method=result_method, source=used_source, success=bool(success),
         message="; ".join(notes), failures=failures, pose_graph=pg, joint=refined,
-        noise=noise_est, time_offset_s=offsets, time_offset_variances=variances)
+        noise=noise_est, time_offset_s=offsets, time_offset_variances=variances,
+        range_offset_m=refined.range_offset_m if result_method == "joint" else float("nan"),
+        range_offset_variance=(refined.range_offset_variance if result_method == "joint"
+                               else float("nan")))
 
 
 def _no_identical_nodes(recording: Recording, names: list[str]) -> None:

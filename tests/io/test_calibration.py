@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import h5py
@@ -195,6 +196,25 @@ def test_calibration_json_nested_too_deeply(tmp_path):
     path.write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(CalibrationError, match="nested too deeply"):
         read_calibration_json(path)
+
+
+def test_the_range_offset_round_trips(tmp_path, rec3):
+    """JSON and the HDF5 group keep the range offset and its variance; a file
+    without them reads NaN; a bad value names the field."""
+    cal = dataclasses.replace(_calibration(), range_offset_m=0.084, range_offset_variance=0.001)
+    back = read_calibration_json(write_calibration_json(tmp_path / "cal.json", cal))
+    assert back.range_offset_m == 0.084 and back.range_offset_variance == 0.001
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec3)
+    write_calibration(path, rec3, cal)
+    assert read_calibration(path).range_offset_m == 0.084
+    assert np.isnan(read_calibration_json(write_calibration_json(
+        tmp_path / "none.json", _calibration())).range_offset_m)
+    data = calibration_to_json(cal)
+    with pytest.raises(CalibrationError, match="range_offset_m must lie within"):
+        read_calibration_json({**data, "range_offset_m": 8.4})
+    with pytest.raises(CalibrationError, match="range_offset_m must be a number"):
+        read_calibration_json({**data, "range_offset_m": "0.08"})
 
 
 def test_calibration_json_seeded_mutations_raise_only_calibration_errors():

@@ -92,6 +92,15 @@ def register(subparsers) -> None:
     p.add_argument("--no-time-offsets", action="store_true",
                    help="whole-frame lags only: do not estimate each node's clock offset "
                         "(a fraction of a frame) in the joint graph")
+    p.add_argument("--range-offset", default=None, metavar="MEAN_M,SIGMA_M",
+                   help="estimate a range offset common to every node, the body's reflection "
+                        "depth (each radar's centroid nearer to it than the body's centre), "
+                        "with this prior, e.g. 0.10,0.05; `mmsnap fuse` then adds it to every "
+                        "range (default: none)")
+    p.add_argument("--covariance", choices=["long_run", "model"], default="long_run",
+                   help="pose covariance: long_run (default) widens the joint graph's "
+                        "marginals where the frames' errors are correlated in time or the "
+                        "model is not exact; model keeps the marginals")
     p.add_argument("--json-out", default=None, metavar="PATH",
                    help="write the calibration JSON here (default: "
                         "<recording>.calibration.json; angles in radians)")
@@ -171,11 +180,17 @@ def format_table(cal) -> str:
         lines.append(f"{n:<8}{x:9.3f}{y:9.3f}{np.degrees(phi):10.2f}{sd[0]:9.3f}{sd[1]:9.3f}"
                      f"{np.degrees(sd[2]):10.3f}{cal.lag_frames.get(n, 0):5d}{tau:11.1f}"
                      f"{s_tau:7.1f}")
+    depth = float(getattr(cal, "range_offset_m", float("nan")))
+    if np.isfinite(depth):
+        sd = float(np.sqrt(getattr(cal, "range_offset_variance", float("nan"))))
+        lines.append(f"range offset (reflection depth): {depth:.3f} +- {sd:.3f} m "
+                     f"(added to every range by `mmsnap fuse`)")
     if cal.edges:
         lines.append("pairwise closed form (track RMSE, paper eq. 14):")
         for e in cal.edges:
             lines.append(f"  {e.node_a}-{e.node_b}: RMSE {e.rmse_m:.3f} m over {e.n_frames} "
-                         f"frames, lag {e.lag_frames} frames")
+                         f"frames, lag {e.lag_frames} frames"
+                         + (f" ({e.lag_note})" if getattr(e, "lag_note", "") else ""))
     for k, v in cal.failures.items():
         lines.append(f"  {k}: {v}")
     if cal.noise is not None:
@@ -231,6 +246,8 @@ def run(args: argparse.Namespace) -> int:
             time_offsets=not args.no_time_offsets)
     except ValidationError as exc:
         raise ValidationError(f"--sigma-a: {exc}") from None
+    joint = dataclasses.replace(joint, covariance=args.covariance,
+                                range_offset_prior_m=_range_offset_prior(args.range_offset))
     json_path = check_output_path(args.json_out if args.json_out else
                                   calibration_json_path(args.recording))
     if args.output is not None and not args.no_write:
@@ -255,3 +272,19 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_write:
         say(f"wrote {written[1]}: node poses, /calibration and /noise")
     return 0 if cal.success else 1
+
+
+def _range_offset_prior(text: str | None):
+    """``--range-offset MEAN_M,SIGMA_M`` as a pair (None when not given)."""
+    if text is None:
+        return None
+    try:
+        mean, sigma = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValidationError(f"--range-offset must be MEAN_M,SIGMA_M (e.g. 0.10,0.05), got "
+                              f"{text!r}") from None
+    if not (np.isfinite(mean) and abs(mean) <= 1.0 and np.isfinite(sigma) and sigma > 0):
+        raise ValidationError(f"--range-offset {text!r}: the mean must be metres within +-1 m "
+                              f"and the sigma > 0 m (e.g. 0.10,0.05; centimetres given as "
+                              f"metres?)")
+    return mean, sigma

@@ -49,7 +49,7 @@ from .rows import FusedRows
 from ..robust import RESIDUAL_GATE_PROBABILITY
 from ..options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_options, robust_options
 from ..solvers.settings import check_solver
-from .timing import align_recording
+from .timing import align_recording, offset_ranges
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import FusedSequence, Status
@@ -427,6 +427,21 @@ def _screen_rows(out: FusedRows, groups, recording, poses, noise, prior, pose_co
     out.flag(split, Status.RESIDUAL_TEST_FAILED, SPLIT_MESSAGE, keep_covariance=True)
 
 
+def _calibrated_centroids(recording, time_offset_s, range_offset_m, options):
+    """The centroids on the reference clock and with the range offset
+    added (the calibration's), as :func:`fuse_recording` fuses them."""
+    if time_offset_s:
+        if options.source != "centroids":
+            raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
+        recording = align_recording(recording, time_offset_s)
+    if range_offset_m is not None:
+        if options.source != "centroids":
+            raise ValidationError("range_offset_m moves the centroids' ranges: use "
+                                  "source='centroids'")
+        recording = offset_ranges(recording, range_offset_m)
+    return recording
+
+
 def fuse_recording(
     recording: Recording,
     *,
@@ -439,6 +454,7 @@ def fuse_recording(
     robust: RobustOptions | Literal["gate", "huber", "cauchy"] | None = None,
     options: FusionOptions = DEFAULT_OPTIONS,
     progress: bool | None = None,
+    range_offset_m: float | None = None,
 ) -> FusedSequence:
     """Fuse every target in every frame of ``recording``.
 
@@ -470,6 +486,12 @@ def fuse_recording(
         reference clock first (:func:`mmsnap_graph.fusion.recording.timing.align_recording`:
         whole frames, then the range by Doppler times the rest). A node left
         out keeps its clock.
+    range_offset_m : float, optional
+        The calibration's range offset (``RecordingCalibration.range_offset_m``,
+        an extended target's reflection depth): added to every centroid's
+        range first (:func:`~mmsnap_graph.fusion.recording.timing.offset_ranges`),
+        so that the fused state is the body's centre. Its uncertainty is not
+        in the fused covariances.
     robust : RobustOptions, "gate", "huber", "cauchy" or None
         Robust one-shot fusion (:mod:`mmsnap_graph.fusion.robust`; default
         None): ``"gate"`` leaves out a node whose residual fails the
@@ -493,10 +515,7 @@ def fuse_recording(
     progress : show a tqdm bar (default: when stderr is a terminal).
     """
     prior = _check_options(recording, mode, options, prior)
-    if time_offset_s:
-        if options.source != "centroids":
-            raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
-        recording = align_recording(recording, time_offset_s)
+    recording = _calibrated_centroids(recording, time_offset_s, range_offset_m, options)
     noise, pose_cov = _node_options(recording, noise, pose_covariances, options.covariance)
     robust = robust_options(robust)
     motion_check = _motion_option(options.motion_check, robust)
