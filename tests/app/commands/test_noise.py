@@ -131,7 +131,7 @@ def test_calibrate_no_write_leaves_the_recording_without_noise(tmp_path, capsys,
     copy.write_bytes(small.read_bytes())
     assert main(["calibrate", str(copy), "--no-write", "--json-out", str(tmp_path / "c.json")]) == 0
     text = capsys.readouterr().out
-    assert "measurement noise per node (from the data)" in text
+    assert "measurement noise per node, estimated from the data" in text
     assert read_noise(copy) is None
     assert main(["calibrate", str(copy), "--json-out", str(tmp_path / "c.json"), "--overwrite"]) == 0
     assert read_noise(copy) is not None
