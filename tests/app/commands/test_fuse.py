@@ -2,6 +2,7 @@
 
 import json
 import dataclasses
+import shutil
 
 import h5py
 import numpy as np
@@ -254,3 +255,48 @@ def test_fuse_says_what_its_row_counts_mean(tmp_path, capsys):
     codes, counts = np.unique(fused.status[fused.status != 0], return_counts=True)
     for c, n in zip(codes, counts):
         assert f"{n} {Status(int(c)).name.lower()} ({int(c)})" in out
+
+
+# ``mmsnap fuse`` takes the calibration's pose covariances and clock offsets by
+# default, and options turn them off.
+
+
+@pytest.fixture()
+def calibrated(calibrated_c_file, tmp_path):
+    """A copy of the shared calibrated recording and its calibration JSON
+    (fuse writes into the recording)."""
+    for name in ("rec.h5", "rec.calibration.json"):
+        shutil.copy(calibrated_c_file.with_name(name), tmp_path / name)
+    return tmp_path / "rec.h5"
+
+
+def test_default_fuse_includes_the_pose_covariances_and_offsets(calibrated, capsys):
+    capsys.readouterr()
+    assert main(["fuse", str(calibrated), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "pose covariances of S2 included" in text and "clock offsets applied: S2" in text
+    with_poses = read_fused(calibrated)
+    assert main(["fuse", str(calibrated), "--no-progress", "--no-pose-covariance"]) == 0
+    assert "poses exact" in capsys.readouterr().out
+    exact = read_fused(calibrated)
+    # Same estimates; the calibration's uncertainty only widens the covariance.
+    np.testing.assert_array_equal(exact.state, with_poses.state)
+    ok = exact.success & with_poses.success
+    grow = np.linalg.eigvalsh(with_poses.covariance[ok] - exact.covariance[ok])
+    assert np.all(grow > -1e-12) and np.median(grow[:, -1]) > 0
+    assert main(["fuse", str(calibrated), "--no-progress", "--no-time-offsets"]) == 0
+    assert "clocks as recorded" in capsys.readouterr().out
+    assert not np.array_equal(read_fused(calibrated).state, with_poses.state)
+
+
+def test_a_calibration_json_gives_poses_and_covariances(calibrated, capsys):
+    json_path = calibrated.with_name("rec.calibration.json")
+    assert json_path.exists()
+    capsys.readouterr()
+    out = calibrated.with_name("copy.h5")
+    assert main(["fuse", str(calibrated), "--calibration", str(json_path), "--no-progress",
+                 "--no-time-offsets", "-o", str(out)]) == 0
+    assert "pose covariances of S2 included" in capsys.readouterr().out
+    assert main(["fuse", str(calibrated), "--covariance", "grid", "--grid-points", "5",
+                 "--no-progress", "-o", str(out), "--overwrite"]) == 0
+    assert "pose covariances need --covariance laplace" in capsys.readouterr().out
