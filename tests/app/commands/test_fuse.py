@@ -153,6 +153,39 @@ def test_cli_fuse_takes_measurement_sigmas(tmp_path, recordings, capsys):
     assert "omega_rad must be finite and > 0" in capsys.readouterr().err
 
 
+
+
+def test_a_run_flagging_most_rows_exits_1_and_says_why(tmp_path, capsys):
+    # Sigmas far below the data's noise: most rows fuse into flags (room
+    # checks aside), which was exit 0 whatever the share.
+    from mmsnap_graph.app.cli import main
+
+    rec = tmp_path / "rec.h5"
+    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
+                 "--seed", "5", "--known-poses", "-o", str(rec), "--no-progress"]) == 0
+    tiny = ["--sigmas", "0.001", "0.001", "0.001", "--no-progress"]
+    capsys.readouterr()
+    code = main(["fuse", str(rec), *tiny, "--max-flagged", "0.5"])  # 80 % flagged here
+    err = capsys.readouterr().err
+    assert code == 1, err
+    assert "fused rows" in err and "more than --max-flagged 0.5" in err
+    assert main(["fuse", str(rec), *tiny, "--max-flagged", "1"]) == 0
+    assert main(["fuse", str(rec), *tiny]) == 0  # the default allows up to 90 %
+    assert main(["fuse", str(rec), "--no-progress"]) == 0  # a clean run flags fewer
+
+
+@pytest.mark.parametrize("sigmas,name", [(["0.05", "5", "0.1"], "omega_rad=5 is more than"),
+                                         (["35", "0.1", "0.1"], "range_m=35 is more than"),
+                                         (["0.05", "0.1", "0"], "doppler_mps must be")])
+@pytest.mark.parametrize("verb", ["fuse", "monitor", "calibrate"])
+def test_implausible_sigmas_name_the_flag_and_the_unit(capsys, verb, sigmas, name):
+    from mmsnap_graph.app.cli import main
+
+    assert main([verb, "rec.h5", "--sigmas", *sigmas]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--sigmas: {name}" in err
+
+
 def with_centroids(rec, node_index: int, edit) -> object:
     """``rec`` with node ``node_index``'s centroid columns changed by
     ``edit(range_m, omega_rad, doppler_mps)`` (in place on copies)."""
@@ -182,7 +215,7 @@ def test_group_detections_and_fuse_go_on_past_degenerate_centroids(recording_b_f
     assert main(["fuse", str(path), "--no-progress"]) == 0
     assert "flagged" in capsys.readouterr().out
     assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "s.h5"),
-                 "--sigmas", "1e-55", "1e-55", "1e-55"]) == 0
+                 "--sigmas", "1e-55", "1e-55", "1e-55", "--max-flagged", "1"]) == 0
     capsys.readouterr()
     assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "t.h5"),
                  "--sigmas", "1e-300", "1e-300", "1e-300"]) == 2
