@@ -77,7 +77,8 @@ def register(subparsers) -> None:
                             f"{getattr(MatchingOptions(), name):g})")
     p.add_argument("--max-lag", type=int, default=None, metavar="FRAMES",
                    help="the lag window in frames (deprecated: use --max-lag-s)")
-    p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
+    p.add_argument("--sigmas", type=float, nargs=3,
+                   metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
                    default=None, help="OMEGA_RAD is the sigma of omega = pi sin(theta), a phase in "
                                       "radians, not an angle; centroid noise for the joint graph (default: "
                                       "estimated from the data; the /noise group is "

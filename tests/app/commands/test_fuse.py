@@ -2,6 +2,7 @@
 
 import json
 import dataclasses
+import shutil
 
 import h5py
 import numpy as np
@@ -152,6 +153,39 @@ def test_cli_fuse_takes_measurement_sigmas(tmp_path, recordings, capsys):
     assert "omega_rad must be finite and > 0" in capsys.readouterr().err
 
 
+
+
+def test_a_run_flagging_most_rows_exits_1_and_says_why(tmp_path, capsys):
+    # Sigmas far below the data's noise: most rows fuse into flags (room
+    # checks aside), which was exit 0 whatever the share.
+    from mmsnap_graph.app.cli import main
+
+    rec = tmp_path / "rec.h5"
+    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
+                 "--seed", "5", "--known-poses", "-o", str(rec), "--no-progress"]) == 0
+    tiny = ["--sigmas", "0.001", "0.001", "0.001", "--no-progress"]
+    capsys.readouterr()
+    code = main(["fuse", str(rec), *tiny, "--max-flagged", "0.5"])  # 80 % flagged here
+    err = capsys.readouterr().err
+    assert code == 1, err
+    assert "fused rows" in err and "more than --max-flagged 0.5" in err
+    assert main(["fuse", str(rec), *tiny, "--max-flagged", "1"]) == 0
+    assert main(["fuse", str(rec), *tiny]) == 0  # the default allows up to 90 %
+    assert main(["fuse", str(rec), "--no-progress"]) == 0  # a clean run flags fewer
+
+
+@pytest.mark.parametrize("sigmas,name", [(["0.05", "5", "0.1"], "omega_rad=5 is more than"),
+                                         (["35", "0.1", "0.1"], "range_m=35 is more than"),
+                                         (["0.05", "0.1", "0"], "doppler_mps must be")])
+@pytest.mark.parametrize("verb", ["fuse", "monitor", "calibrate"])
+def test_implausible_sigmas_name_the_flag_and_the_unit(capsys, verb, sigmas, name):
+    from mmsnap_graph.app.cli import main
+
+    assert main([verb, "rec.h5", "--sigmas", *sigmas]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--sigmas: {name}" in err
+
+
 def with_centroids(rec, node_index: int, edit) -> object:
     """``rec`` with node ``node_index``'s centroid columns changed by
     ``edit(range_m, omega_rad, doppler_mps)`` (in place on copies)."""
@@ -181,7 +215,7 @@ def test_group_detections_and_fuse_go_on_past_degenerate_centroids(recording_b_f
     assert main(["fuse", str(path), "--no-progress"]) == 0
     assert "flagged" in capsys.readouterr().out
     assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "s.h5"),
-                 "--sigmas", "1e-55", "1e-55", "1e-55"]) == 0
+                 "--sigmas", "1e-55", "1e-55", "1e-55", "--max-flagged", "1"]) == 0
     capsys.readouterr()
     assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "t.h5"),
                  "--sigmas", "1e-300", "1e-300", "1e-300"]) == 2
@@ -221,3 +255,48 @@ def test_fuse_says_what_its_row_counts_mean(tmp_path, capsys):
     codes, counts = np.unique(fused.status[fused.status != 0], return_counts=True)
     for c, n in zip(codes, counts):
         assert f"{n} {Status(int(c)).name.lower()} ({int(c)})" in out
+
+
+# ``mmsnap fuse`` takes the calibration's pose covariances and clock offsets by
+# default, and options turn them off.
+
+
+@pytest.fixture()
+def calibrated(calibrated_c_file, tmp_path):
+    """A copy of the shared calibrated recording and its calibration JSON
+    (fuse writes into the recording)."""
+    for name in ("rec.h5", "rec.calibration.json"):
+        shutil.copy(calibrated_c_file.with_name(name), tmp_path / name)
+    return tmp_path / "rec.h5"
+
+
+def test_default_fuse_includes_the_pose_covariances_and_offsets(calibrated, capsys):
+    capsys.readouterr()
+    assert main(["fuse", str(calibrated), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "pose covariances of S2 included" in text and "clock offsets applied: S2" in text
+    with_poses = read_fused(calibrated)
+    assert main(["fuse", str(calibrated), "--no-progress", "--no-pose-covariance"]) == 0
+    assert "poses exact" in capsys.readouterr().out
+    exact = read_fused(calibrated)
+    # Same estimates; the calibration's uncertainty only widens the covariance.
+    np.testing.assert_array_equal(exact.state, with_poses.state)
+    ok = exact.success & with_poses.success
+    grow = np.linalg.eigvalsh(with_poses.covariance[ok] - exact.covariance[ok])
+    assert np.all(grow > -1e-12) and np.median(grow[:, -1]) > 0
+    assert main(["fuse", str(calibrated), "--no-progress", "--no-time-offsets"]) == 0
+    assert "clocks as recorded" in capsys.readouterr().out
+    assert not np.array_equal(read_fused(calibrated).state, with_poses.state)
+
+
+def test_a_calibration_json_gives_poses_and_covariances(calibrated, capsys):
+    json_path = calibrated.with_name("rec.calibration.json")
+    assert json_path.exists()
+    capsys.readouterr()
+    out = calibrated.with_name("copy.h5")
+    assert main(["fuse", str(calibrated), "--calibration", str(json_path), "--no-progress",
+                 "--no-time-offsets", "-o", str(out)]) == 0
+    assert "pose covariances of S2 included" in capsys.readouterr().out
+    assert main(["fuse", str(calibrated), "--covariance", "grid", "--grid-points", "5",
+                 "--no-progress", "-o", str(out), "--overwrite"]) == 0
+    assert "pose covariances need --covariance laplace" in capsys.readouterr().out
