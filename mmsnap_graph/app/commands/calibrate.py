@@ -128,8 +128,8 @@ def noise_lines(noise) -> list[str]:
     engineer reads: one sigma a line with its unit, where it came from, the
     heavy-tail factor, and for a sigma the data cannot pin down, why and the
     value used instead."""
-    lines = ["measurement noise per node, estimated from the data (1-sigma; stored as /noise, "
-             "which `mmsnap fuse` uses):",
+    lines = ["measurement noise per node, estimated from the data (1-sigma; `mmsnap fuse` "
+             "uses it once stored as /noise):",
              "  omega = pi sin(theta) is the phase step between receive antennas (rad), not "
              "the angle theta",
              "  estimators: network = residuals between nodes at the calibrated poses; "
