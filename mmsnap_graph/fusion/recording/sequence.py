@@ -54,7 +54,7 @@ from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import FusedSequence, Status
 from ...errors import CalibrationError, MissingStepError, MmsnapError, ValidationError
-from ..._validation import as_float_array, check_finite
+from ..._validation import as_float_array, check_finite, check_pose
 from .split_check import SPLIT_MESSAGE, split_rows
 
 __all__ = [
@@ -96,10 +96,7 @@ def recording_poses(
                     f"node {name!r} has no pose in the recording; calibrate it or pass "
                     "calibration poses", step="calibrate",
                     what=f"node {name!r} has no pose in the recording")
-        arr = check_finite(as_float_array(pose, f"pose of {name}"), f"pose of {name}")
-        if arr.shape != (3,):
-            raise ValidationError(f"pose of {name} must have shape (3,), got {arr.shape}")
-        out.append(arr)
+        out.append(check_pose(pose, f"pose of {name}"))
     return np.stack(out)
 
 
