@@ -127,6 +127,10 @@ class FusionOptions:
     source : ``"centroids"`` or ``"point_cloud"``.
     block_rows : rows fused per call of the vectorized solver.
     motion_check : True, False or None (on with a ``robust`` option).
+    merge_body_m : a node's centroids of one frame closer than this (m) are
+        one body seen as several clusters, merged before the association
+        (:func:`~mmsnap_graph.fusion.recording.regroup.merge_body_detections`;
+        docs/ROBUST.md); None: off.
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS
@@ -141,6 +145,7 @@ class FusionOptions:
     source: Literal["centroids", "point_cloud"] = "centroids"
     block_rows: int = 65536
     motion_check: bool | None = None
+    merge_body_m: float | None = 0.5
 
     def __post_init__(self) -> None:
         if not isinstance(self.lm, LevenbergMarquardtSettings):
@@ -160,6 +165,8 @@ class FusionOptions:
         if self.motion_check is not None and not isinstance(self.motion_check, (bool, np.bool_)):
             raise ValidationError(
                 f"motion_check must be True, False or None, got {self.motion_check!r}")
+        if self.merge_body_m is not None:
+            object.__setattr__(self, "merge_body_m", _positive(self.merge_body_m, "merge_body_m"))
 
 
 #: The default options.

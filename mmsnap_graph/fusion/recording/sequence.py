@@ -56,6 +56,7 @@ from ...data.results import FusedSequence, Status
 from ...errors import CalibrationError, MmsnapError, ValidationError
 from ..._validation import as_float_array, check_finite
 from .split_check import SPLIT_MESSAGE, split_rows
+from .regroup import best_subset_groups, merge_body_detections
 
 __all__ = [
     "RECORDING_SOLVERS",
@@ -202,13 +203,15 @@ def _group_rows(index: _FrameIndex, meas, poses, noise, gate_probability):
     # The other frames one by one (identical results where both apply).
     for fi in np.flatnonzero(~joint_ok):
         rows_n = [index.rows(fi, n) for n in range(n_nodes)]
-        per_node = [meas[n][r] if r.size else np.zeros((0, 3)) for n, r in enumerate(rows_n)]
-        assoc = associate_frame(per_node, poses, noise, gate_probability=gate_probability)
-        g = len(assoc)
-        idx = np.full((g, n_nodes), -1, dtype=np.int64)
-        for n in range(n_nodes):
-            m = assoc.members[:, n] >= 0
-            idx[m, n] = rows_n[n][assoc.members[m, n]]
+        idx = _singles_regrouped(rows_n, meas, poses, noise, gate)
+        if idx is None:
+            per_node = [meas[n][r] if r.size else np.zeros((0, 3)) for n, r in enumerate(rows_n)]
+            assoc = associate_frame(per_node, poses, noise, gate_probability=gate_probability)
+            idx = np.full((len(assoc), n_nodes), -1, dtype=np.int64)
+            for n in range(n_nodes):
+                m = assoc.members[:, n] >= 0
+                idx[m, n] = rows_n[n][assoc.members[m, n]]
+        g = idx.shape[0]
         frame_l.append(np.full(g, index.frames[fi]))
         target_l.append(np.arange(g, dtype=np.int64))
         index_l.append(idx)
@@ -217,6 +220,26 @@ def _group_rows(index: _FrameIndex, meas, poses, noise, gate_probability):
     rows = np.concatenate(index_l)
     srt = np.lexsort((target, frame))
     return frame[srt], target[srt], rows[srt]
+
+
+def _singles_regrouped(rows_n, meas, poses, noise, gate) -> NDArray | None:
+    """``(G, N)`` detection rows of a frame whose nodes have one detection
+    each, grouped by :func:`~.regroup.best_subset_groups` (order-independent:
+    the largest consistent subset first); None for other frames."""
+    if any(r.size > 1 for r in rows_n):
+        return None
+    z = np.full((len(rows_n), 3), np.nan)
+    for n, r in enumerate(rows_n):
+        if r.size:
+            z[n] = meas[n][r[0]]
+    groups = best_subset_groups(z, poses, noise, gate)
+    if groups is None:
+        return None
+    idx = np.full((len(groups), len(rows_n)), -1, dtype=np.int64)
+    for g, members in enumerate(sorted(groups)):
+        for n in members:
+            idx[g, n] = rows_n[n][0]
+    return idx
 
 
 def _measurements_and_labels(dets, meas, rows):
@@ -244,12 +267,20 @@ def group_detections(
     *,
     gate_probability: float = 0.999,
     source: Literal["centroids", "point_cloud"] = "centroids",
+    merge_body_m: float | None = None,
 ) -> DetectionGroups:
     """Group every frame's detections into targets (see
     :mod:`mmsnap_graph.fusion.association`; ``noise`` sets the gates: one
     :class:`MeasurementNoise`, one per node in the recording's node order, or a
     mapping by node name holding every node).
     Returns K groups sorted by frame then target.
+
+    ``merge_body_m`` (metres; None: off): a node's centroids of one frame
+    closer than this are one body split into clusters, merged first
+    (:func:`~.regroup.merge_body_detections`; a merged group's
+    ``detection_index`` is its first centroid's row). Frames where every
+    node has one detection are grouped largest consistent subset first
+    (:func:`~.regroup.best_subset_groups`).
 
     Frames where every node has at most one detection and all of them fall in
     one gate are grouped in a vectorized pass; the others go through
@@ -262,9 +293,21 @@ def group_detections(
     if all(d is None or len(d) == 0 for d in dets):
         raise ValidationError(f"no node of the recording has {source}; nothing to fuse")
     meas = [None if d is None else d.measurements for d in dets]
+    kept = [None if d is None else np.arange(len(d)) for d in dets]
+    if merge_body_m is not None and source == "centroids":
+        for n, d in enumerate(dets):
+            if d is not None and len(d):
+                keep, merged = merge_body_detections(d.frame, meas[n], noise[n],
+                                                     merge_body_m)
+                kept[n] = np.flatnonzero(keep)
+                dets[n], meas[n] = d.select(kept[n]), merged[kept[n]]
     index = _frame_index([np.zeros(0, np.int64) if d is None else d.frame for d in dets])
     frame, target, rows = _group_rows(index, meas, poses, noise, gate_probability)
     z, label = _measurements_and_labels(dets, meas, rows)
+    for n, k in enumerate(kept):  # back to the recording's detection rows
+        if k is not None:
+            has = rows[:, n] >= 0
+            rows[has, n] = k[rows[has, n]]
     return DetectionGroups(frame=frame, target=target, label=label, detection_index=rows,
                            measurements=z)
 
@@ -503,7 +546,7 @@ def fuse_recording(
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     poses = recording_poses(recording, node_poses)
     groups = group_detections(recording, poses, noise, gate_probability=options.gate_probability,
-                              source=options.source)
+                              source=options.source, merge_body_m=options.merge_body_m)
     obs = groups.detection_index >= 0
     z = groups.measurements
     out = FusedRows(groups.frame.size, obs.shape[1])
