@@ -131,6 +131,9 @@ class FusionOptions:
         one body seen as several clusters, merged before the association
         (:func:`~mmsnap_graph.fusion.recording.regroup.merge_body_detections`;
         docs/ROBUST.md); None: off.
+    coverage_check : with the motion check, flag a row that a node whose
+        field of view covers it never sees in the frames around
+        (:mod:`~mmsnap_graph.fusion.recording.coverage`: a multipath image).
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS
@@ -145,7 +148,8 @@ class FusionOptions:
     source: Literal["centroids", "point_cloud"] = "centroids"
     block_rows: int = 65536
     motion_check: bool | None = None
-    merge_body_m: float | None = 0.5
+    merge_body_m: float | None = 0.6   # regroup.DEFAULT_MERGE_BODY_M
+    coverage_check: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.lm, LevenbergMarquardtSettings):
@@ -165,6 +169,9 @@ class FusionOptions:
         if self.motion_check is not None and not isinstance(self.motion_check, (bool, np.bool_)):
             raise ValidationError(
                 f"motion_check must be True, False or None, got {self.motion_check!r}")
+        if not isinstance(self.coverage_check, (bool, np.bool_)):
+            raise ValidationError(
+                f"coverage_check must be True or False, got {self.coverage_check!r}")
         if self.merge_body_m is not None:
             object.__setattr__(self, "merge_body_m", _positive(self.merge_body_m, "merge_body_m"))
 

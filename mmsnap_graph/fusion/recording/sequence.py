@@ -56,7 +56,9 @@ from ...data.results import FusedSequence, Status
 from ...errors import CalibrationError, MmsnapError, ValidationError
 from ..._validation import as_float_array, check_finite
 from .split_check import SPLIT_MESSAGE, split_rows
-from .regroup import best_subset_groups, merge_body_detections
+from .regroup import merge_body_detections
+from .coverage import uncovered_rows
+from .room import DEFAULT_BODY_M
 
 __all__ = [
     "RECORDING_SOLVERS",
@@ -203,15 +205,13 @@ def _group_rows(index: _FrameIndex, meas, poses, noise, gate_probability):
     # The other frames one by one (identical results where both apply).
     for fi in np.flatnonzero(~joint_ok):
         rows_n = [index.rows(fi, n) for n in range(n_nodes)]
-        idx = _singles_regrouped(rows_n, meas, poses, noise, gate)
-        if idx is None:
-            per_node = [meas[n][r] if r.size else np.zeros((0, 3)) for n, r in enumerate(rows_n)]
-            assoc = associate_frame(per_node, poses, noise, gate_probability=gate_probability)
-            idx = np.full((len(assoc), n_nodes), -1, dtype=np.int64)
-            for n in range(n_nodes):
-                m = assoc.members[:, n] >= 0
-                idx[m, n] = rows_n[n][assoc.members[m, n]]
-        g = idx.shape[0]
+        per_node = [meas[n][r] if r.size else np.zeros((0, 3)) for n, r in enumerate(rows_n)]
+        assoc = associate_frame(per_node, poses, noise, gate_probability=gate_probability)
+        g = len(assoc)
+        idx = np.full((g, n_nodes), -1, dtype=np.int64)
+        for n in range(n_nodes):
+            m = assoc.members[:, n] >= 0
+            idx[m, n] = rows_n[n][assoc.members[m, n]]
         frame_l.append(np.full(g, index.frames[fi]))
         target_l.append(np.arange(g, dtype=np.int64))
         index_l.append(idx)
@@ -220,26 +220,6 @@ def _group_rows(index: _FrameIndex, meas, poses, noise, gate_probability):
     rows = np.concatenate(index_l)
     srt = np.lexsort((target, frame))
     return frame[srt], target[srt], rows[srt]
-
-
-def _singles_regrouped(rows_n, meas, poses, noise, gate) -> NDArray | None:
-    """``(G, N)`` detection rows of a frame whose nodes have one detection
-    each, grouped by :func:`~.regroup.best_subset_groups` (order-independent:
-    the largest consistent subset first); None for other frames."""
-    if any(r.size > 1 for r in rows_n):
-        return None
-    z = np.full((len(rows_n), 3), np.nan)
-    for n, r in enumerate(rows_n):
-        if r.size:
-            z[n] = meas[n][r[0]]
-    groups = best_subset_groups(z, poses, noise, gate)
-    if groups is None:
-        return None
-    idx = np.full((len(groups), len(rows_n)), -1, dtype=np.int64)
-    for g, members in enumerate(sorted(groups)):
-        for n in members:
-            idx[g, n] = rows_n[n][0]
-    return idx
 
 
 def _measurements_and_labels(dets, meas, rows):
@@ -278,9 +258,7 @@ def group_detections(
     ``merge_body_m`` (metres; None: off): a node's centroids of one frame
     closer than this are one body split into clusters, merged first
     (:func:`~.regroup.merge_body_detections`; a merged group's
-    ``detection_index`` is its first centroid's row). Frames where every
-    node has one detection are grouped largest consistent subset first
-    (:func:`~.regroup.best_subset_groups`).
+    ``detection_index`` is its first centroid's row).
 
     Frames where every node has at most one detection and all of them fall in
     one gate are grouped in a vectorized pass; the others go through
@@ -297,8 +275,7 @@ def group_detections(
     if merge_body_m is not None and source == "centroids":
         for n, d in enumerate(dets):
             if d is not None and len(d):
-                keep, merged = merge_body_detections(d.frame, meas[n], noise[n],
-                                                     merge_body_m)
+                keep, merged = merge_body_detections(d.frame, meas[n], merge_body_m)
                 kept[n] = np.flatnonzero(keep)
                 dets[n], meas[n] = d.select(kept[n]), merged[kept[n]]
     index = _frame_index([np.zeros(0, np.int64) if d is None else d.frame for d in dets])
@@ -467,6 +444,23 @@ def _screen_rows(out: FusedRows, groups, recording, poses, noise, prior, pose_co
                        keep_sole=bool(motion_check))
     # The estimate and its covariance stay for whoever wants them, untrusted.
     out.flag(split, Status.RESIDUAL_TEST_FAILED, SPLIT_MESSAGE, keep_covariance=True)
+    if motion_check and options.coverage_check:
+        _check_coverage(out, groups, recording, poses)
+
+
+def _check_coverage(out: FusedRows, groups, recording, poses) -> None:
+    """The coverage check (:mod:`.coverage`): flag the rows a node that
+    covers them never sees."""
+    obs = groups.detection_index >= 0
+    kept = obs & ~out.rejected
+    flag, node = uncovered_rows(groups.frame, out.state, out.status == Status.OK, kept, obs,
+                                groups.measurements[:, :, 0], poses,
+                                frame_period_s=recording.frame_period_s, body_m=DEFAULT_BODY_M)
+    for r in np.flatnonzero(flag):
+        out.flag(r, Status.MOTION_INCONSISTENT,
+                 f"coverage check: node {recording.node_names[node[r]]} looks at this place and "
+                 "sees nothing there in the frames around (a multipath image or a ghost)",
+                 rejected=obs[r])
 
 
 def fuse_recording(
