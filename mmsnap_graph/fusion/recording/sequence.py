@@ -458,8 +458,8 @@ def _check_coverage(out: FusedRows, groups, recording, poses) -> None:
                                 frame_period_s=recording.frame_period_s, body_m=DEFAULT_BODY_M)
     for r in np.flatnonzero(flag):
         out.flag(r, Status.MOTION_INCONSISTENT,
-                 f"coverage check: node {recording.node_names[node[r]]} looks at this place and "
-                 "sees nothing there in the frames around (a multipath image or a ghost)",
+                 f"motion check: node {recording.node_names[node[r]]} covers this place and "
+                 "does not see the target in the frames around (a multipath image or a ghost)",
                  rejected=obs[r])
 
 
