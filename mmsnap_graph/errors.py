@@ -13,6 +13,7 @@ __all__ = [
     "ConfigurationError",
     "FileFormatError",
     "CalibrationError",
+    "MissingStepError",
 ]
 
 
@@ -41,3 +42,15 @@ class FileFormatError(MmsnapError, ValueError):
 class CalibrationError(MmsnapError, ValueError):
     """Calibration input cannot determine a pose (too few common frames, no
     common target, a standing target)."""
+
+
+class MissingStepError(CalibrationError):
+    """The recording lacks what an earlier step makes: tracks or centroids
+    (``mmsnap process``), node poses (``mmsnap calibrate``). ``step`` names
+    that command and ``what`` says what is missing without the library's
+    advice, so the command line can say which command to run."""
+
+    def __init__(self, message: str, *, step: str, what: str | None = None) -> None:
+        super().__init__(message)
+        self.step = step
+        self.what = message if what is None else what

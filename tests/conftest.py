@@ -16,7 +16,7 @@ import pytest
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import CLEAN, SimulationOptions
 
-from _shared import NETWORK_3_OPEN
+from _shared import NETWORK_3_OPEN, POSES_BC
 
 
 @pytest.fixture(scope="session")
@@ -58,3 +58,49 @@ def point_cloud_recording_3():
     return simulate_recording(NETWORK_3_OPEN, "random",
                               SimulationOptions(physics=None, n_targets=2, frame_period_s=0.05),
                               levels=("point_cloud",), n_frames=120, seed=4)
+
+
+@pytest.fixture(scope="session")
+def recording_bc_known_poses():
+    """The three nodes ``_shared.POSES_BC`` (S1, S2, S3), one random walker, 40
+    frames of centroids, poses known, no radar physics (seed 9)."""
+    network = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
+    return simulate_recording(network, "random", SimulationOptions(physics=None, known_poses=True),
+                              levels=("centroids",), n_frames=40, seed=9)
+
+
+@pytest.fixture(scope="session")
+def recording_b_known_poses():
+    """Configuration B, one random walker, 60 frames of centroids, poses
+    known, no radar physics (seed 5)."""
+    return simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
+                              levels=("centroids",), n_frames=60, seed=5)
+
+
+@pytest.fixture(scope="session")
+def fused_b_map(recording_b_known_poses):
+    """``recording_b_known_poses`` fused with the default MAP mode."""
+    from mmsnap_graph.fusion.recording.sequence import fuse_recording
+    return fuse_recording(recording_b_known_poses, progress=False)
+
+
+@pytest.fixture(scope="session")
+def fused_b_ml(recording_b_known_poses):
+    """``recording_b_known_poses`` fused in ML mode without a prior."""
+    from mmsnap_graph.fusion.recording.sequence import fuse_recording
+    return fuse_recording(recording_b_known_poses, mode="ml", prior=None, progress=False)
+
+
+@pytest.fixture(scope="session")
+def recording_b_file(tmp_path_factory):
+    """Path of a small recording file made by the CLI (``mmsnap simulate
+    --model clean -c B -t random -n 40 -l centroids --seed 5 --known-poses``):
+    two nodes at known poses, centroids and the truth. Shared: read it, or
+    copy it before changing it."""
+    from mmsnap_graph.app.cli import main
+
+    path = tmp_path_factory.mktemp("recording_b") / "good.h5"
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "-l",
+                 "centroids", "--seed", "5", "--known-poses", "-o", str(path),
+                 "--no-progress"]) == 0
+    return path

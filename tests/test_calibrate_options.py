@@ -21,7 +21,7 @@ from mmsnap_graph.calibration import MatchingOptions
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.sim import SimulationOptions
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 
 
 @pytest.fixture(scope="module")
@@ -57,14 +57,14 @@ def _error_line(err: str) -> str:
 def test_options_reach_calibrate_recording(recording_c_random, rec_path, tmp_path, capsys):
     js = tmp_path / "c.json"
     too_long = _duration_s(recording_c_random) + 1.0
-    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json-out", js,
                         "--method", "pose_graph", "--min-common-s", too_long)
     assert code == 1 and f"min_common_s={too_long:g} s" in err
-    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json-out", js,
                         "--method", "pose_graph", "--source", "centroids",
                         "--inlier-gate-m", 1e-4, "--min-spread-m", 0.3)
     assert code == 1 and "inlier_gate_m=0.0001 m" in err and "min_spread_m=0.3 m" in err
-    code, out, _ = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+    code, out, _ = _cli(capsys, "calibrate", rec_path, "--no-write", "--json-out", js,
                         "--method", "pose_graph", "--min-common-s", 0.0)
     assert code == 0 and "ok: " in out
 
@@ -75,10 +75,10 @@ def test_config_file_reaches_calibrate_recording_and_options_win(recording_c_ran
     too_long = _duration_s(recording_c_random) + 1.0
     cfg = tmp_path / "cal.toml"
     cfg.write_text(f"[matching]\nmin_common_s = {too_long}\nmax_lag_s = 0.2\n")
-    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json-out", js,
                         "--method", "pose_graph", "--config", cfg)
     assert code == 1 and f"min_common_s={too_long:g} s" in err and "max_lag_s=0.2 s" in err
-    code, out, _ = _cli(capsys, "calibrate", rec_path, "--no-write", "--json", js,
+    code, out, _ = _cli(capsys, "calibrate", rec_path, "--no-write", "--json-out", js,
                         "--method", "pose_graph", "--config", cfg, "--min-common-s", 0.5)
     assert code == 0 and "ok: " in out
 
@@ -113,7 +113,7 @@ def test_show_config_prints_the_matching_table_and_reads_back(tmp_path, capsys):
 ])
 def test_bad_options_exit_2_with_one_line_naming_the_option(rec_path, tmp_path, capsys, argv,
                                                             option):
-    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json",
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json-out",
                         tmp_path / "c.json", *argv)
     assert code == 2 and option in _error_line(err)
 
@@ -129,7 +129,7 @@ def test_bad_files_exit_2_naming_the_file_table_and_key(rec_path, tmp_path, caps
                                                         where):
     cfg = tmp_path / "bad.toml"
     cfg.write_text(text)
-    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json",
+    code, _, err = _cli(capsys, "calibrate", rec_path, "--no-write", "--json-out",
                         tmp_path / "c.json", "--config", cfg)
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert str(cfg) in err and where in err, err

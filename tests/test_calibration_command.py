@@ -72,13 +72,13 @@ def test_no_write_and_output_copy(rec_c, tmp_path):
     path = tmp_path / "rec.h5"
     write_recording(path, rec_c)
     js = tmp_path / "cal.json"
-    assert main(["calibrate", str(path), "--no-write", "--json", str(js),
+    assert main(["calibrate", str(path), "--no-write", "--json-out", str(js),
                  "--method", "pose_graph"]) == 0
     assert js.exists()
     assert read_recording(path).nodes["S2"].pose is None
     copy = tmp_path / "copy.h5"
     assert main(["calibrate", str(path), "-o", str(copy), "--method", "pose_graph",
-                 "--json", str(js), "--overwrite"]) == 0
+                 "--json-out", str(js), "--overwrite"]) == 0
     assert read_recording(path).nodes["S2"].pose is None
     assert read_recording(copy).nodes["S2"].pose is not None
 

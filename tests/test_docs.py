@@ -6,11 +6,20 @@ import importlib
 import importlib.util
 import re
 from pathlib import Path
+import shlex
+import shutil
 
 import pytest
+import numpy as np
 
 from mmsnap_graph.io.calibration import CALIBRATION_LAYOUT
 from mmsnap_graph.io.fused import FUSED_LAYOUT
+from mmsnap_graph.data.radar_config import OPTIONAL_FIELD_DEFAULTS
+from mmsnap_graph.app.cli import main
+from mmsnap_graph.io import read_recording, read_fused
+
+from _shared import TI_DATA
+from ti_samples import FAST_TARGET
 
 FORMAT_MD = Path(__file__).resolve().parents[1] / "docs" / "FORMAT.md"
 
@@ -188,3 +197,192 @@ def test_conventions_body_to_global_covariance_is_right():
     got = namespace["body_to_global_covariance"](pose, cov_body)
     np.testing.assert_allclose(got, expected, atol=1e-9)
     assert not np.allclose(got, cov_body)  # the rotation matters at this angle
+
+
+# ------------------------------------------------- TI imports in the docs
+#
+# docs/FORMAT.md documents what TI imports write: every optional RadarConfig
+# attribute the HDF5 writer may add and every /metadata key of `mmsnap import`;
+# docs/TI.md's readers are in mmsnap_graph.io.
+
+
+FORMAT_TEXT = (ROOT / "docs" / "FORMAT.md").read_text()
+
+
+def _documented_names() -> set[str]:
+    return set(re.findall(r"^\| `([^`]+)`", FORMAT_TEXT, flags=re.M)) | {
+        name for row in re.findall(r"^\| (`[^|]+`)(?:, `[^|]+`)* \|", FORMAT_TEXT, flags=re.M)
+        for name in re.findall(r"`([^`]+)`", row)}
+
+
+def test_every_optional_radar_attribute_is_documented():
+    names = _documented_names()
+    missing = sorted(set(OPTIONAL_FIELD_DEFAULTS) - names)
+    assert not missing, missing
+
+
+def test_modules_the_page_names_exist():
+    for path in re.findall(r"`(mmsnap_graph/[\w/]+\.py)`", FORMAT_TEXT):
+        assert (ROOT / path).is_file(), path
+
+
+def test_every_metadata_key_of_the_imports_is_documented(tmp_path):
+    out = tmp_path / "t.h5"
+    assert main(["import", "table", "--table", str(TI_DATA / "points_sensor_frame.csv"),
+                 "--frame-period", "0.05", "--mount", "S1=0.8,5", "--mount", "S2=1.2,15",
+                 "--accumulate", "2", "-o", str(out)]) == 0
+    keys = set(read_recording(out).metadata)
+    out2 = tmp_path / "d.h5"
+    assert main(["import", "dca1000", "--cfg", str(TI_DATA / "dca1000_fast.cfg"), "--board",
+                 "AWR1843BOOST", "--node", f"S1={TI_DATA / 'dca1000_fast.bin'}", "-o",
+                 str(out2)]) == 0
+    keys |= set(read_recording(out2).metadata)
+    out3 = tmp_path / "a.h5"
+    assert main(["import", "dca1000", "--cfg", str(TI_DATA / "dca1000_small.cfg"), "--board",
+                 "AWR1843BOOST", "--sub-frame", "1", "--node",
+                 f"S1={TI_DATA / 'dca1000_small.bin'}", "-o", str(out3)]) == 0
+    advanced = read_recording(out3).metadata
+    assert advanced["sub_frame"] == 1                      # which sub-frame it is
+    keys |= set(advanced)
+    names = _documented_names()
+    generic = {k.replace("S1_", "<node>_").replace("S2_", "<node>_") for k in keys}
+    missing = sorted(generic - names)
+    assert not missing, missing
+
+
+def test_the_python_names_of_docs_ti_are_in_mmsnap_graph_io():
+    """docs/TI.md says its readers are in ``mmsnap_graph.io``; before, only
+    the DCA1000 reader was (the TI .cfg, UART and table readers had to be
+    imported from private-looking submodules)."""
+    import mmsnap_graph.io as io
+    text = (ROOT / "docs" / "TI.md").read_text()
+    called = set(re.findall(r"`(read_\w+|parse_\w+|recording_from_\w+)\(", text))
+    named = {"TiConfig", "BoardLayout", "PointCloud3D", "Mounting"} & set(
+        re.findall(r"`(\w+)`", text))
+    assert called >= {"read_ti_cfg", "read_dca1000_sub_frame", "read_point_tables"}
+    missing = sorted(n for n in called | named if not hasattr(io, n))
+    assert not missing, missing
+    assert set(io.__all__) >= called | named
+
+
+# ------------------------------------------------- docs/TI.md walkthrough
+#
+# docs/TI.md's walkthrough with the samples in data/ti runs as written, with CLI
+# commands only: every ``mmsnap`` command of its blocks exits 0, in a scratch
+# directory holding a copy of ``data/ti``, and the calibrated and fused recordings
+# are what the page says.
+
+
+TI_MD = ROOT / "docs" / "TI.md"
+
+
+#: S2's true pose in the samples (tests/ti_samples.py: configuration C).
+S2_POSE = np.array([0.0, 7.0, np.pi])
+
+
+def walkthrough_blocks() -> list[list[list[str]]]:
+    """The ``mmsnap`` commands of each fenced block of the walkthrough section."""
+    text = TI_MD.read_text()
+    section = text.split("## Walkthrough with the samples", 1)[1].split("\n## ", 1)[0]
+    blocks = []
+    for body in re.findall(r"```bash\n(.*?)```", section, flags=re.S):
+        joined = body.replace("\\\n", " ")
+        commands = [shlex.split(line)[1:] for line in joined.splitlines()
+                    if line.startswith("mmsnap ")]
+        blocks.append(commands)
+    return blocks
+
+
+BLOCKS = walkthrough_blocks()
+
+
+def test_the_walkthrough_has_every_kind_of_sample():
+    firsts = [block[0][:2] for block in BLOCKS]
+    assert ["import", "table"] in firsts and ["import", "ti-uart"] in firsts
+    assert ["import", "dca1000"] in firsts
+    outputs = [block[0][block[0].index("-o") + 1] for block in BLOCKS]
+    assert "fast.h5" in outputs                           # the target beyond +-v_max
+    verbs = [cmd[0] for block in BLOCKS for cmd in block]
+    assert {"process", "calibrate", "fuse"} <= set(verbs)
+
+
+@pytest.fixture()
+def scratch(tmp_path, monkeypatch):
+    shutil.copytree(TI_DATA, tmp_path / "data" / "ti")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+@pytest.mark.parametrize("block", BLOCKS, ids=lambda b: " ".join(b[0][:2]))
+def test_walkthrough_block_runs_and_gives_what_the_page_says(block, scratch, capsys):
+    printed = ""
+    for argv in block:
+        code = main(argv)
+        captured = capsys.readouterr()
+        assert code == 0, (argv, captured.err)
+        printed += captured.out
+    out = Path(block[0][block[0].index("-o") + 1])
+    if any(argv[0] == "calibrate" for argv in block):   # the pose the page quotes
+        quoted = re.search(r"`mmsnap calibrate` prints S2's pose: \(([-0-9.]+), ([-0-9.]+)\) "
+                           r"m, ([-0-9.]+) degrees", TI_MD.read_text())
+        row = next(line.split() for line in printed.splitlines() if line.startswith("S2 "))
+        assert row[1:4] == list(quoted.groups()), (row, quoted.groups())
+    rec = read_recording(out)
+    if out.name == "raw.h5":                # three frames of one node: a point cloud
+        assert len(rec.nodes["S1"].point_cloud) == 8
+        assert len(rec.nodes["S1"].centroids) == 2
+        return
+    if out.name == "fast.h5":
+        _assert_fast_target(rec.nodes["S1"].point_cloud, dealiased=True)
+        return
+    pose = rec.nodes["S2"].pose
+    # "within 1 cm and 0.1 degree of the truth"
+    assert np.hypot(*(pose[:2] - S2_POSE[:2])) < 0.01
+    assert abs(np.angle(np.exp(1j * (pose[2] - S2_POSE[2])))) < np.deg2rad(0.1)
+    fused = read_fused(out)
+    assert len(np.unique(fused.frame)) == 100 and np.all(np.isfinite(fused.state))
+
+
+def _assert_fast_target(cloud, *, dealiased: bool):
+    """"-8.49 m/s and 0.927 rad (true 0.928)"; aliased "+4.33 m/s" and the
+    angle "off by 0.40 rad"."""
+    _, azimuth, speed = FAST_TARGET
+    assert cloud.frame.tolist() == [0, 1, 2]
+    omega = np.pi * np.sin(azimuth)
+    if dealiased:
+        np.testing.assert_allclose(cloud.doppler_mps, speed, atol=0.02)
+        np.testing.assert_allclose(cloud.omega_rad, omega, atol=0.005)
+    else:
+        np.testing.assert_allclose(cloud.doppler_mps, 4.33, atol=0.02)
+        np.testing.assert_allclose(omega - cloud.omega_rad, 0.40, atol=0.01)
+
+
+def test_the_fast_target_stays_aliased_without_dealiasing(scratch):
+    """The doc's comparison: the same capture processed with doppler_wraps = 0."""
+    (scratch / "nowrap.toml").write_text("[chain]\ndoppler_wraps = 0\n")
+    assert main(["import", "dca1000", "--cfg", "data/ti/dca1000_fast.cfg", "--board",
+                 "AWR1843BOOST", "--node", "S1=data/ti/dca1000_fast.bin", "-o", "f.h5"]) == 0
+    assert main(["process", "f.h5", "--config", "nowrap.toml"]) == 0
+    _assert_fast_target(read_recording("f.h5").nodes["S1"].point_cloud, dealiased=False)
+
+
+def test_the_stone_soup_block_runs_and_prints_what_the_page_says(scratch, capsys):
+    """The page's Stone Soup tracker (after ``pip install ".[stonesoup]"``)
+    on the CSV walkthrough's ``table.h5``."""
+    pytest.importorskip("stonesoup")
+    text = TI_MD.read_text()
+    section = text.split("## Handing the fused states to a tracker (Stone Soup)", 1)[1]
+    section = section.split("\n## ", 1)[0]
+    assert 'pip install ".[stonesoup]"' in section
+    (code,) = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    for argv in BLOCKS[0]:
+        assert main(argv) == 0
+    capsys.readouterr()
+    exec(compile(code, "TI.md", "exec"), {"__name__": "__main__"})
+    out = capsys.readouterr().out
+    n, x, y = re.search(r"It prints (\d+) track states \(the last at x ([-0-9.]+) m, "
+                        r"y ([-0-9.]+) m\)", section).groups()
+    one_shot, tracked = re.search(r"median x\s+sigma of ([0-9.]+) cm one-shot against "
+                                  r"([0-9.]+) cm tracked", section).groups()
+    assert f"{n} track states; last: x {x} m, y {y} m" in out, out
+    assert f"x sigma: one-shot {one_shot} cm, tracked {tracked} cm" in out, out

@@ -131,6 +131,6 @@ def test_an_output_folder_is_refused_before_any_work(recording, tmp_path):
         with atomic_path(tmp_path):
             pass
     for argv in (["process", str(recording), "-o", str(tmp_path)],
-                 ["calibrate", str(recording), "--no-write", "--json", str(tmp_path)],
+                 ["calibrate", str(recording), "--no-write", "--json-out", str(tmp_path)],
                  ["fuse", str(recording), "-o", str(tmp_path)]):
         assert main(argv) == 2

@@ -317,12 +317,6 @@ PACKAGES = ("mmsnap_graph", "factors")
 #: Private names of the package that tests still use, (test file, name) -> why.
 #: No public function computes the same thing; remove an entry when one does.
 PRIVATE_USES_ALLOWED: dict[tuple[str, str], str] = {
-    ("fusion/solvers/test_vectorized.py", "_evaluate"):
-        "white-box check of the batch solver's Newton term: the whitened Jacobian and cost",
-    ("fusion/solvers/test_vectorized.py", "_normal_equations"):
-        "white-box check of the batch solver's Newton term: the Gauss-Newton information",
-    ("fusion/solvers/test_vectorized.py", "_residual_curvature"):
-        "white-box check of the batch solver's Newton term against a finite-difference Hessian",
     ("fusion/solvers/test_gtsam_graph.py", "_model_scalar"):
         "fault injection: monkeypatching the factor callback's kernel makes it raise inside GTSAM",
 }

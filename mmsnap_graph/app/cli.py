@@ -44,6 +44,7 @@ from ..errors import (
     ConfigurationError,
     FileFormatError,
     GeometryError,
+    MissingStepError,
     MmsnapError,
     ValidationError,
 )
@@ -59,6 +60,10 @@ EXIT_USAGE = 2
 #: The reader of standard output went away (``mmsnap replay ... | head``):
 #: no message, the shell's code for a write to a closed pipe (128 + SIGPIPE).
 EXIT_BROKEN_PIPE = 141
+
+#: The option giving node poses in place of the recording's, per command.
+STEP_OPTIONS = {"fuse": "--calibration", "replay": "--calibration", "noise": "--calibration",
+                "evaluate": "--calibration", "monitor": "--poses"}
 
 #: Errors of the data (an input file, an estimation): exit 1.
 DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError)
@@ -138,6 +143,12 @@ def _data_error_text(exc: BaseException, args: argparse.Namespace) -> str:
     """The one-line message of a data error, prefixed with the input file
     when there is exactly one and the message does not name it."""
     text = _one_line(exc)
+    recording = getattr(args, "recording", None)
+    if isinstance(exc, MissingStepError) and exc.step != args.command and recording:
+        # Say which command makes what is missing (and the option doing without it).
+        text = f"{_one_line(exc.what)}: run `mmsnap {exc.step} {recording}` first"
+        if exc.step == "calibrate" and args.command in STEP_OPTIONS:
+            text += f" (or give {STEP_OPTIONS[args.command]} CALIBRATION_JSON)"
     files = input_files(args)
     if files and not any(f in text or Path(f).name in text for f in files):
         text = f"{files[0]}: {text}"

@@ -58,6 +58,8 @@ class StoredCalibration:
         calibrated pose, or None (poses taken as exact).
     time_offset_s : name -> the node's clock offset (node time + offset =
         reference time), or None (clocks as recorded).
+    range_offset_m : the calibration's range offset (reflection depth, m),
+        added to every centroid range before fusion; None: none.
     noise : one :class:`~mmsnap_graph.data.noise.MeasurementNoise`, or one
         per node (name -> noise), or None when neither ``--sigmas`` nor a
         ``/noise`` group gave one (the caller's default applies).
@@ -69,6 +71,7 @@ class StoredCalibration:
     time_offset_s: Mapping[str, float] | None = None
     noise: Any = None
     text: tuple[str, ...] = field(default_factory=tuple)
+    range_offset_m: float | None = None
 
     def fuse_options(self) -> dict[str, Any]:
         """Keyword arguments of ``fuse_recording`` / ``fuse_file`` (only
@@ -80,6 +83,8 @@ class StoredCalibration:
             out["pose_covariances"] = dict(self.pose_covariances)
         if self.time_offset_s:
             out["time_offset_s"] = dict(self.time_offset_s)
+        if self.range_offset_m is not None:
+            out["range_offset_m"] = float(self.range_offset_m)
         if self.noise is not None:
             out["noise"] = self.noise
         return out
@@ -164,11 +169,15 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     else:
         offsets = {}
         parts.append("clocks as recorded")
+    depth = float(getattr(cal, "range_offset_m", float("nan")))
+    if np.isfinite(depth):
+        parts.append(f"range offset (reflection depth) {depth:.3f} m added to every range")
     text.append("; ".join(parts))
     poses = ({n: np.asarray(p, dtype=float) for n, p in cal.poses.items()}
              if calibration_json else None)
     return StoredCalibration(node_poses=poses, pose_covariances=used_covs,
-                             time_offset_s=offsets or None, noise=noise, text=tuple(text))
+                             time_offset_s=offsets or None, noise=noise, text=tuple(text),
+                             range_offset_m=depth if np.isfinite(depth) else None)
 
 
 def paper_noise():
@@ -191,7 +200,7 @@ def calibrate_and_store(path: str | os.PathLike,
                         options: Mapping[str, Any] | Callable[[Any], Mapping] | None = None, *,
                         output: str | os.PathLike | None = None,
                         json_path: str | os.PathLike | None = None,
-                        write: bool = True, on_result=None):
+                        write: bool = True, on_result=None, progress: bool = False):
     """Calibrate the recording at ``path`` and store the result.
 
     options : keyword arguments of
@@ -205,6 +214,7 @@ def calibrate_and_store(path: str | os.PathLike,
         recording (False: the JSON only).
     on_result : called with the calibration before anything is written
         (``mmsnap calibrate`` prints it).
+    progress : a tqdm bar over the steps (read, calibrate, write) on stderr.
     The recording is locked from the read to the last write. Returns
     ``(calibration, files written)``.
     """
@@ -213,13 +223,21 @@ def calibrate_and_store(path: str | os.PathLike,
     from ..io import read_recording
     from ..io.calibration import write_calibration, write_calibration_json
     from ..io.noise import write_noise
+    from tqdm import tqdm
 
     json_path = Path(json_path) if json_path else calibration_json_path(output or path)
     written: list[Path] = []
-    with recording_lock(path):
+    bar = tqdm(total=3, desc="calibrate: reading", unit="step", disable=not progress,
+               leave=False)
+    with bar, recording_lock(path):
         rec = read_recording(path, load_cubes=False)
         kwargs = options(rec) if callable(options) else dict(options or {})
+        bar.set_description("calibrate: matching, pose graph, joint graph, noise")
+        bar.update()
         cal = calibrate_recording(rec, **kwargs)
+        bar.set_description("calibrate: writing")
+        bar.update()
+        bar.clear()
         if on_result is not None:
             on_result(cal)
         written.append(Path(write_calibration_json(json_path, cal)))
@@ -229,6 +247,7 @@ def calibrate_and_store(path: str | os.PathLike,
                 with recording_lock(dst):
                     write_noise(dst, cal.noise)
             written.append(dst)
+        bar.update()
     return cal, written
 
 

@@ -32,7 +32,7 @@ from typing import Literal, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import CalibrationError, ValidationError
+from ..errors import CalibrationError, MissingStepError, ValidationError
 from ..data.noise import MeasurementNoise, NoiseEstimate
 from ..data.recording import Detections, Recording
 from .joint.options import JointOptions
@@ -74,6 +74,10 @@ class RecordingCalibration:
         ``-lag_frames * frame period``.
     time_offset_variances : name -> its variance (s^2; NaN where not
         estimated, 0 for the reference).
+    range_offset_m, range_offset_variance : the joint graph's range offset
+        (reflection depth, m) and its variance (m^2) when it estimated one
+        (``JointOptions.range_offset_prior_m``); NaN otherwise. ``mmsnap
+        fuse`` adds it to every centroid range.
     """
 
     reference: str
@@ -93,6 +97,8 @@ class RecordingCalibration:
     noise: NoiseEstimate | None = None
     time_offset_s: Mapping[str, float] = field(default_factory=dict)
     time_offset_variances: Mapping[str, float] = field(default_factory=dict)
+    range_offset_m: float = float("nan")
+    range_offset_variance: float = float("nan")
 
 
 def _joint_detections(rec: Recording, names, lags) -> dict[str, Detections] | None:
@@ -129,9 +135,9 @@ def describe_noise(noise: MeasurementNoise, estimate: NoiseEstimate) -> str:
     """``noise`` (pooled from ``estimate``) component by component, each
     said to be estimated or not identified (then the fallback's value)."""
     parts = []
-    for i, comp in enumerate(("range", "omega", "doppler")):
+    for i, (comp, unit) in enumerate((("range", "m"), ("omega", "rad"), ("doppler", "m/s"))):
         ident = any(e.identified[i] for e in estimate.nodes.values())
-        parts.append(f"{comp} {noise.sigmas[i]:.3g} "
+        parts.append(f"{comp} {noise.sigmas[i]:.3g} {unit} "
                      + ("estimated" if ident else "NOT identified (fallback)"))
     return ", ".join(parts)
 
@@ -203,13 +209,20 @@ def _pose_graph_step(recording, names, source, matching: MatchingOptions):
     ref = names[0]
     tracks: dict[str, LocalTracks] = {}
     failures: dict[str, str] = {}
+    steps: dict[str, str] = {}
     for n in names:
         try:
             tracks[n] = local_tracks(recording.nodes[n], source)
         except CalibrationError as exc:
             failures[n] = str(exc)
+            if isinstance(exc, MissingStepError):
+                steps[n] = exc
     if ref not in tracks:
-        raise CalibrationError(f"reference node {ref}: {failures[ref]}")
+        text = f"reference node {ref}: {failures[ref]}"
+        if ref in steps:
+            raise MissingStepError(text, step=steps[ref].step,
+                                   what=f"reference node {ref}: {steps[ref].what}")
+        raise CalibrationError(text)
     edges, pair_fail = pairwise_edges(tracks, frame_period_s=recording.frame_period_s,
                                       options=matching)
     failures.update(pair_fail)
@@ -229,7 +242,26 @@ def calibrate_recording(
     matching: MatchingOptions | None = None,
     joint: JointOptions = RECORDING_JOINT_OPTIONS,
 ) -> RecordingCalibration:
-    """Calibrate every node of ``recording`` (module doc).
+    """Calibrate every node of ``recording``: each node's pose in the first
+    node's (the reference's) frame, with its covariance, frame lag and clock
+    offset (module doc).
+
+    What must exist first: at least two nodes, each with EKF tracks (``mmsnap
+    process`` makes them from centroids or point clouds) or centroids (one
+    per frame, or labelled with ``target_id`` when several people walk), and
+    a target that both nodes of a pair see moving for ``matching.min_common_s``
+    seconds. Poses stored on the nodes are not used (they are what this
+    estimates).
+
+    Returns a :class:`RecordingCalibration`: ``poses`` and ``covariances``
+    (Pose2 body tangent, ``(x_m, y_m, phi_rad)``) of every calibrated node,
+    ``lag_frames`` and ``time_offset_s`` per node, ``unreachable`` nodes,
+    the pairwise ``edges``, ``method`` (``"joint"`` or ``"pose_graph"``),
+    ``source``, ``success`` and ``message`` (why a step failed or what it
+    could not identify), ``noise`` (every node's sigmas estimated from the
+    data at the calibrated poses), and the step results ``pose_graph`` and
+    ``joint``. :func:`mmsnap_graph.io.calibration.write_calibration` stores it
+    as the recording's ``/calibration`` group (``mmsnap calibrate``).
 
     source : the local positions to match: EKF tracks when present
         (``"auto"``), ``"tracks"`` or ``"centroids"``.
@@ -273,6 +305,7 @@ def calibrate_recording(
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
     result_method, refined, notes = "pose_graph", None, [pg.message]
+    notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in pg.edges if e.lag_note]
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)
@@ -296,7 +329,10 @@ def calibrate_recording(
         lag_frames=lags, unreachable=pg.unreachable, edges=pg.edges,
         method=result_method, source=used_source, success=bool(success),
         message="; ".join(notes), failures=failures, pose_graph=pg, joint=refined,
-        noise=noise_est, time_offset_s=offsets, time_offset_variances=variances)
+        noise=noise_est, time_offset_s=offsets, time_offset_variances=variances,
+        range_offset_m=refined.range_offset_m if result_method == "joint" else float("nan"),
+        range_offset_variance=(refined.range_offset_variance if result_method == "joint"
+                               else float("nan")))
 
 
 def _no_identical_nodes(recording: Recording, names: list[str]) -> None:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, Mapping
@@ -117,7 +118,36 @@ def calibration_to_json(cal: RecordingCalibration) -> dict[str, Any]:
                    "n_frames": int(e.n_frames), "lag_frames": int(e.lag_frames)}
                   for e in cal.edges],
         "failures": dict(cal.failures),
+        **_range_offset_json(cal),
     }
+
+
+def _range_offset_json(cal) -> dict[str, Any]:
+    """``range_offset_m`` and ``range_offset_variance_m2`` when estimated."""
+    d = float(getattr(cal, "range_offset_m", float("nan")))
+    if not np.isfinite(d):
+        return {}
+    return {"range_offset_m": d,
+            "range_offset_variance_m2": _jsonable(getattr(cal, "range_offset_variance",
+                                                          float("nan")))}
+
+
+def _json_range_offset(data: Mapping, where: str) -> dict[str, float]:
+    """The range offset fields of a calibration JSON (NaN when absent)."""
+    out = {}
+    for key, field_name in (("range_offset_m", "range_offset_m"),
+                            ("range_offset_variance_m2", "range_offset_variance")):
+        value = data.get(key)
+        if value is None:
+            out[field_name] = float("nan")
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise CalibrationError(f"{where}: {key} must be a number, got {value!r}")
+        out[field_name] = float(value)
+    if np.isfinite(out["range_offset_m"]) and abs(out["range_offset_m"]) > 1.0:
+        raise CalibrationError(f"{where}: range_offset_m must lie within +-1 m, got "
+                               f"{out['range_offset_m']!r}")
+    return out
 
 
 def _timing(cal) -> tuple[dict[str, float], dict[str, float]]:
@@ -183,7 +213,8 @@ def _json_int(where: str, field: str, value: Any) -> int:
     float that is one, within +-2^31."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise CalibrationError(f"{where}: {field}={value!r} must be an integer")
-    if not (np.isfinite(value) and value == int(value) and abs(value) <= 2 ** 31):
+    whole = isinstance(value, int) or (math.isfinite(value) and value == int(value))
+    if not (whole and abs(value) <= 2 ** 31):
         raise CalibrationError(f"{where}: {field}={value!r} must be an integer within +-2^31")
     return int(value)
 
@@ -266,7 +297,8 @@ def calibration_from_json(data: Mapping, *, where: str = "calibration") -> Recor
             edges=tuple(_json_edge(where, i, e) for i, e in enumerate(edges)),
             method=str(data.get("method", "")), source=str(data.get("source", "")),
             success=bool(data.get("success", True)), message=str(data.get("message", "")),
-            failures={str(k): str(v) for k, v in failures.items()}),
+            failures={str(k): str(v) for k, v in failures.items()},
+            **_json_range_offset(data, where)),
             *_json_timing(data, where)))
     except MmsnapError as exc:
         if isinstance(exc, CalibrationError):
@@ -434,7 +466,8 @@ def _read_group(g: h5py.Group, where: str) -> RecordingCalibration:
         unreachable=tuple(n for i, n in enumerate(names) if not ok[i]),
         edges=_read_edges(g, where), method=str(attrs["method"]), source=str(attrs["source"]),
         success=bool(attrs["success"]), message=str(attrs["message"]),
-        failures={str(k): str(v) for k, v in dict(extra.get("failures", {})).items()}),
+        failures={str(k): str(v) for k, v in dict(extra.get("failures", {})).items()},
+        **_json_range_offset(extra, where)),
         offsets, variances))
 
 

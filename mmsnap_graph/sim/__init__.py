@@ -8,23 +8,23 @@
 - :mod:`.cube`: raw ADC cube synthesis (FMCW TDM-MIMO);
 - :mod:`.simulator`: :func:`simulate_recording`, the whole recording, with
   :class:`SimulationOptions` (:mod:`.options`);
-- :mod:`.physics`: what real TI point clouds of people do
-  (:class:`RealPhysics`, on by default; :data:`CLEAN` switches it off);
-- :mod:`.ghosts`: centroid ghost generators for robustness tests;
+- :mod:`.real`: what real TI point clouds of people do: :mod:`.real.physics`
+  (:class:`RealPhysics`, on by default; :data:`CLEAN` switches it off),
+  :mod:`.real.sparse` (sparse clouds of real demos, :func:`sparse_clouds`)
+  and :mod:`.real.ghosts` (centroid ghost generators for robustness tests);
 - :mod:`.scenes`: small calibration scenes (tracks of one target seen by
   several nodes) for tests and benchmarks;
 - :mod:`.clocks`: scenes whose nodes sample at their own clock offsets
   (:func:`timed_scene`, :func:`scene_recording`);
 - :mod:`.turns`: walks with instant turns (:func:`turning_walk`);
 - :mod:`.bump`: a recording in which a node is moved part-way
-  (:func:`simulate_bumped_recording`);
-- :mod:`.sparse`: sparse point clouds of real demos (:func:`sparse_clouds`).
+  (:func:`simulate_bumped_recording`).
 """
 
 from .body import HumanBody, body_scatterers
 from .networks import CONFIGURATIONS, COMMON_AREAS, Area, common_area, network_poses
 from .options import CLEAN, DEFAULT_LEVELS, SimulationOptions
-from .physics import RealPhysics
+from .real.physics import RealPhysics
 from .simulator import (
     LEVELS,
     CENTROID_NOISE,
@@ -44,7 +44,7 @@ from .trajectories import make_trajectory, random_walk, straight_line
 from .clocks import scene_recording, timed_scene
 from .turns import turning_walk
 from .bump import simulate_bumped_recording
-from .sparse import empty_frame_mask, sparse_clouds
+from .real.sparse import empty_frame_mask, sparse_clouds
 
 __all__ = [
     "CONFIGURATIONS",

@@ -1,4 +1,4 @@
-"""Calibration scenes with node clock offsets (issue 12): each node measures
+"""Calibration scenes with node clock offsets: each node measures
 the target at its own frame times, late or early against the reference by a
 fraction of a frame or more.
 

@@ -15,7 +15,7 @@ from ..data.radar_config import TABLE_I, RadarConfig
 from ..errors import ConfigurationError, ValidationError
 from .body import HumanBody
 from .networks import DEFAULT_FOV_RAD, DEFAULT_MAX_RANGE_M, DEFAULT_MIN_RANGE_M
-from .physics import RealPhysics
+from .real.physics import RealPhysics
 
 __all__ = ["LEVELS", "DEFAULT_LEVELS", "CENTROID_NOISE", "PointCloudModel", "CubeModel",
            "SimulationOptions", "CLEAN"]
@@ -134,7 +134,7 @@ class SimulationOptions:
     """How to simulate (what to simulate, levels, length and seed, are
     arguments of :func:`~mmsnap_graph.sim.simulate_recording`).
 
-    physics : :class:`~mmsnap_graph.sim.physics.RealPhysics` (default: the
+    physics : :class:`~mmsnap_graph.sim.real.physics.RealPhysics` (default: the
         knobs measured on real TI recordings) applied to the centroid and
         point-cloud levels; None: the clean model (a point target with
         independent Gaussian centroid errors and a whole body in every

@@ -52,7 +52,7 @@ from .networks import (
 )
 from .options import (CENTROID_NOISE, CLEAN, DEFAULT_LEVELS, LEVELS, CubeModel, PointCloudModel,
                       SimulationOptions)
-from .physics import (PhysicsContext, body_shift, person_depths, physical_centroids,
+from .real.physics import (PhysicsContext, body_shift, person_depths, physical_centroids,
                       physical_point_cloud, room_box, self_occluded, static_reflectors)
 from .trajectories import DEFAULT_N_FRAMES, TRAJECTORY_KINDS, make_trajectory
 

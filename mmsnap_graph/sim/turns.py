@@ -2,7 +2,7 @@
 waypoints, the heading changing within no time at each waypoint (the velocity
 jumps). The hardest case for a constant-velocity motion model: at every turn
 the velocity changes by up to twice the speed between two frames, which the
-model's white acceleration explains badly (issue 12, "sharp turns").
+model's white acceleration explains badly.
 
 :func:`turning_walk` returns a callable ``states_at(times_s) -> (..., 4)``
 (exact at any time, for clock-offset simulations, :mod:`.clocks`) and

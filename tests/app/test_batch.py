@@ -234,7 +234,7 @@ def test_cli_batch_flags_the_corrupt_recording_and_exits_1(sources, tmp_path):
     summary = tmp_path / "summary.json"
     proc = subprocess.run(
         [sys.executable, "-m", "mmsnap_graph.app.cli", "batch", str(work / "*.h5"),
-         "--workers", "2", "--steps", "process,calibrate", "--summary-json", str(summary)],
+         "--workers", "2", "--steps", "process,calibrate", "--json-out", str(summary)],
         capture_output=True, text=True, timeout=600)
     assert proc.returncode == 1, proc.stderr
     out = proc.stdout
@@ -259,3 +259,22 @@ def test_the_preload_hook_loads_what_the_steps_run():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split("\n")
     assert out[:2] == ["[False, False, False]", "[True, True, True]"]
+
+
+@pytest.mark.slow
+def test_cli_batch_json_prints_the_summaries_alone(sources, tmp_path):
+    """``--json`` prints the JSON on stdout (the words go to stderr), as on
+    every verb; ``--json-out`` writes the same to a file."""
+    work = tmp_path / "in"
+    work.mkdir()
+    shutil.copy(sources / GOOD[0], work / GOOD[0])
+    out_json = tmp_path / "summary.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "mmsnap_graph.app.cli", "batch", str(work / GOOD[0]),
+         "--workers", "1", "--steps", "process", "--json", "--json-out", str(out_json)],
+        capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    rows = json.loads(proc.stdout)
+    assert rows == json.loads(out_json.read_text())
+    assert [r["success"] for r in rows] == [True]
+    assert "cluster started in " in proc.stderr and f"wrote {out_json}" in proc.stderr

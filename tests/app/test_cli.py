@@ -14,11 +14,16 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+import logging
 
+import numpy as np
 import pytest
+from numpy.testing import assert_array_equal
 
 from mmsnap_graph.app import report
 from mmsnap_graph.app.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, main
+from mmsnap_graph.io import read_recording
+from mmsnap_graph.sim import simulate_recording
 
 from _shared import ROOT
 
@@ -61,17 +66,27 @@ def test_help_is_about_as_fast_as_importing_numpy():
 
 # ------------------------------------------------------------- exit codes
 @pytest.fixture(scope="module")
-def files(tmp_path_factory) -> dict[str, Path]:
+def files(recording_b_file, tmp_path_factory) -> dict[str, Path]:
+    """The shared small recording (read only) and damaged copies of it."""
     d = tmp_path_factory.mktemp("exit_codes")
-    good = d / "good.h5"
-    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
-                 "--seed", "5", "--known-poses", "-o", str(good), "--no-progress"]) == 0
+    good = recording_b_file
     data = good.read_bytes()
     out = {"good": good, "dir": d, "missing": d / "missing.h5"}
     out["truncated"] = d / "truncated.h5"
     out["truncated"].write_bytes(data[: len(data) // 2])
     out["not_hdf5"] = d / "not_hdf5.h5"
     out["not_hdf5"].write_bytes(b"not an HDF5 file\n" * 100)
+    out["empty"] = d / "empty.h5"
+    out["empty"].write_bytes(b"")
+    garbage = bytearray(data)
+    garbage[2048:] = np.random.default_rng(1).integers(0, 256, len(data) - 2048,
+                                                       dtype=np.uint8).tobytes()
+    out["garbage_body"] = d / "garbage_body.h5"
+    out["garbage_body"].write_bytes(bytes(garbage))
+    flipped = bytearray(data)
+    flipped[17] ^= 1  # h5py raises RuntimeError (found by fuzzing read_recording)
+    out["bit_flipped"] = d / "bit_flipped.h5"
+    out["bit_flipped"].write_bytes(bytes(flipped))
     out["csv"] = d / "no_range.csv"
     out["csv"].write_text("frame,x,doppler\n0,1,0.1\n1,1,0.1\n")
     out["uart"] = d / "bad_magic.bin"
@@ -109,7 +124,7 @@ def test_a_bad_input_recording_exits_1_naming_the_file(files, capsys, verb, dama
     (["fuse", "{good}", "--gate", "1.5", "--no-progress"], "gate"),
     (["fuse", "{good}", "-o", "{dir}/no/such/folder.h5"], "does not exist"),
     (["calibrate", "{good}", "--max-lag", "-1"], "--max-lag"),
-    (["calibrate", "{good}", "--json", "{dir}"], "--json"),
+    (["calibrate", "{good}", "--json-out", "{dir}"], "--json-out"),
     (["simulate", "-n", "20", "--frame-period", "-1", "-o", "{dir}/s.h5"], "frame_period"),
     (["simulate", "-n", "20", "-o", "{good}"], "--overwrite"),
     (["replay", "{good}", "--speed", "0"], "--speed"),
@@ -220,3 +235,195 @@ def test_batch_exits_1_when_a_recording_fails(files, tmp_path, capsys, monkeypat
     out = capsys.readouterr().out
     assert code == EXIT_FAILURE
     assert "1 of 2 recording(s) ok, 1 failed" in out and "b.h5" in out
+
+
+@pytest.fixture(scope="module")
+def unprocessed(tmp_path_factory):
+    """A recording of point clouds only (no centroids, tracks or poses)."""
+    import h5py
+
+    path = tmp_path_factory.mktemp("steps") / "raw.h5"
+    assert main(["simulate", "-c", "B", "-n", "30", "-l", "centroids,point_cloud", "--seed", "1",
+                 "-o", str(path), "--no-progress"]) == 0
+    with h5py.File(path, "r+") as f:
+        for name in f["nodes"]:
+            del f["nodes"][name]["centroids"]
+    return path
+
+
+@pytest.mark.parametrize("argv,step,option", [
+    (["calibrate", "{rec}", "--no-write", "--json-out", "{tmp}/c.json"], "process", None),
+    (["fuse", "{rec}", "--no-progress"], "calibrate", "--calibration"),
+    (["replay", "{rec}", "--summary"], "calibrate", "--calibration"),
+    (["monitor", "{rec}"], "calibrate", "--poses"),
+])
+def test_a_missing_step_names_the_command_to_run_with_one_exit_code(unprocessed, tmp_path,
+                                                                   capsys, argv, step, option):
+    if step == "calibrate":  # the nodes have centroids but no pose
+        rec = tmp_path / "rec.h5"
+        assert main(["simulate", "-c", "B", "-n", "30", "-l", "centroids", "-o", str(rec),
+                     "--no-progress"]) == 0
+    else:
+        rec = unprocessed
+    capsys.readouterr()
+    code = main([a.format(rec=rec, tmp=tmp_path) for a in argv])
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if "error:" in line]
+    assert code == 1 and len(err) == 1
+    assert f"run `mmsnap {step} {rec}` first" in err[0]
+    assert "node_poses" not in err[0]
+    if option:
+        assert f"or give {option} CALIBRATION_JSON" in err[0]
+
+
+@pytest.mark.slow
+def test_python_dash_m_runs_the_command_line(tmp_path):
+    """``python -m mmsnap_graph`` is the ``mmsnap`` command."""
+    import os
+    import subprocess
+    import sys
+
+    root = ROOT
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(root)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    help_ = subprocess.run([sys.executable, "-m", "mmsnap_graph", "--help"], capture_output=True,
+                           text=True, env=env, cwd=tmp_path, timeout=120)
+    assert help_.returncode == 0, help_.stderr
+    for command in ("process", "simulate", "calibrate", "fuse", "demo", "evaluate"):
+        assert command in help_.stdout
+    out = tmp_path / "a.h5"
+    run = subprocess.run([sys.executable, "-m", "mmsnap_graph", "simulate", "-c", "A", "-n", "20",
+                          "-s", "5", "-l", "centroids", "-o", str(out), "--no-progress"],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert run.returncode == 0, run.stderr
+    rec = read_recording(out)
+    ref = simulate_recording("A", "straight", n_frames=20, seed=5, levels=("centroids",))
+    assert_array_equal(rec.truth.state, ref.truth.state)
+    # Errors come back as the command's exit status 2, not a traceback.
+    bad = subprocess.run([sys.executable, "-m", "mmsnap_graph", "demo", "--frames", "5",
+                          "-o", str(tmp_path / "x")], capture_output=True, text=True, env=env,
+                         cwd=tmp_path, timeout=120)
+    assert bad.returncode == 2 and "--frames must be >= 20" in bad.stderr
+
+
+def _all_parsers(parser, prefix=()):
+    """(verb path, parser) of the CLI's every (sub)command."""
+    import argparse
+
+    yield prefix, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _all_parsers(sub, prefix + (name,))
+
+
+def test_json_flags_and_angle_units_mean_the_same_on_every_verb():
+    """``--json`` prints JSON to stdout (a flag) and ``--json-out PATH``
+    writes it, on every verb; an option that takes or prints an angle says its
+    unit: headings in degrees on the command line, radians in files."""
+    from mmsnap_graph.app.cli import build_parser
+
+    seen = set()
+    for verb, parser in _all_parsers(build_parser()):
+        for action in parser._actions:
+            names = set(action.option_strings)
+            json_names = {n for n in names if "json" in n}
+            assert json_names <= {"--json", "--json-out"}, (verb, names)
+            if "--json" in names:
+                assert action.nargs == 0 and "print" in action.help, verb
+                seen.add(verb)
+            if "--json-out" in names:
+                assert action.nargs is None and action.metavar == "PATH", verb
+            metavar = " ".join(action.metavar) if isinstance(action.metavar, tuple) \
+                else str(action.metavar or "")
+            if "PHI" in metavar:
+                assert "degrees" in action.help, (verb, names)
+            if "OMEGA" in metavar:
+                assert "radians, not an angle" in action.help, (verb, names)
+            if action.help and "JSON" in action.help and "print" in action.help \
+                    and verb[-1] in {"calibrate", "monitor", "info", "evaluate"}:
+                assert "radians" in action.help, (verb, names)
+    assert {("calibrate",), ("monitor",), ("batch",), ("info",), ("evaluate",)} <= seen
+
+
+# Damaged recordings through the verbs that read one: exit 1 with a one-line
+# error (``mmsnap VERB: error: ...``) naming the file, never a traceback.
+
+
+#: Verbs that read one recording, with the options that keep them quiet.
+VERBS = {
+    "process": ["--no-progress"],
+    "calibrate": [],
+    "fuse": ["--no-progress"],
+    "evaluate": [],
+}
+
+
+def run_verb(verb: str, path: Path, capsys) -> tuple[int, list[str]]:
+    code = main([verb, str(path), *VERBS[verb]])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+@pytest.mark.parametrize("verb", sorted(VERBS))
+@pytest.mark.parametrize("damage", ["truncated", "empty", "not_hdf5", "garbage_body"])
+def test_a_damaged_recording_gives_a_one_line_error(files, capsys, verb, damage):
+    code, err = run_verb(verb, files[damage], capsys)
+    assert code == 1
+    assert len(err) == 1 and err[0].startswith(f"mmsnap {verb}: error: ")
+
+
+@pytest.mark.parametrize("verb", sorted(VERBS))
+def test_a_bit_flipped_recording_gives_a_one_line_error(files, capsys, verb):
+    code, err = run_verb(verb, files["bit_flipped"], capsys)
+    assert code == 1 and len(err) == 1
+
+
+@pytest.mark.parametrize("verb", sorted(VERBS))
+def test_the_error_for_a_damaged_recording_names_the_file(files, capsys, verb):
+    code, err = run_verb(verb, files["garbage_body"], capsys)
+    assert code == 1 and "garbage_body.h5" in err[0]
+
+
+@pytest.mark.parametrize("argv", [
+    ["process", "{good}", "-o", "{dir}", "--no-progress"],
+    ["fuse", "{good}", "-o", "{dir}", "--no-progress"],
+    ["calibrate", "{good}", "--no-write", "--json-out", "{dir}"],
+    ["simulate", "-n", "20", "-l", "centroids", "-o", "{dir}", "--overwrite", "--no-progress"],
+])
+def test_an_output_path_that_is_a_directory_gives_a_one_line_error(files, tmp_path, capsys,
+                                                                    argv):
+    argv = [a.format(good=files["good"], dir=tmp_path) for a in argv]
+    assert main(argv) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("verb", ["noise", "monitor"])
+@pytest.mark.parametrize("damage", ["missing", "truncated", "not_hdf5", "bit_flipped"])
+def test_noise_and_monitor_on_a_bad_file_exit_1_with_one_line_naming_it(files, capsys, verb,
+                                                                         damage):
+    code = main([verb, str(files[damage])])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert len(err) == 1 and err[0].startswith(f"mmsnap {verb}: error: ")
+    assert files[damage].name in err[0]
+
+
+def test_version_and_log_levels(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.startswith("mmsnap ")
+    log = logging.getLogger("mmsnap_graph")
+    assert main(["-q", "process", "/nonexistent/x.h5"]) == 1
+    assert log.level == logging.ERROR
+    assert main(["-vv", "process", "/nonexistent/x.h5"]) == 1
+    assert log.level == logging.DEBUG
+    assert main(["process", "/nonexistent/x.h5"]) == 1  # back to the default level
+    assert log.level == logging.WARNING
+
+
+def test_python_dash_m_runs_the_cli():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "mmsnap_graph", "--version"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.startswith("mmsnap ")

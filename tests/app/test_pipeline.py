@@ -12,16 +12,15 @@ from mmsnap_graph.app.pipeline import (
     track_node,
     track_recording,
 )
-from mmsnap_graph.app.pipeline import SPARSE_POINTS_PER_FRAME
-from mmsnap_graph.app.pipeline import sparse_cluster_config
+from mmsnap_graph.app.pipeline import SPARSE_POINTS_PER_FRAME, sparse_cluster_config
 from mmsnap_graph.data.radar_config import TABLE_I
 from mmsnap_graph.data.recording import NodeData, Recording
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.radar.chain import ChainConfig
-from mmsnap_graph.sim import network_poses
+from mmsnap_graph.sim import network_poses, CLEAN, simulate_recording
 from mmsnap_graph.sim.body import body_scatterers
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cubes
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 
 POSES = network_poses("C")
 N_FRAMES = 16
@@ -187,3 +186,23 @@ def test_sparse_node_gets_a_centroid_in_most_non_empty_frames(point_cloud_record
     assert np.unique(auto.centroids.frame).size > 0.9 * full
     assert np.unique(off.centroids.frame).size < 0.5 * full     # DBSCAN's 3-point minimum
     assert "sparse cloud" in rep.message
+
+
+def test_process_node_wraps_the_ekf_doppler_at_the_chains_unambiguous_speed(monkeypatch):
+    """The pipeline hands the chain's unambiguous speed to the EKF (issue 14):
+    without it the EKF never wrapped its Doppler innovation."""
+    from mmsnap_graph.app import pipeline
+    from mmsnap_graph.radar.chain import unambiguous_speed_mps
+
+    seen = {}
+
+    def spy(centroids, config, **kw):
+        seen["wrap"] = config.doppler_wrap_mps
+        return real(centroids, config, **kw)
+
+    real = pipeline.track_centroids
+    monkeypatch.setattr(pipeline, "track_centroids", spy)
+    rec = simulate_recording("B", "straight", CLEAN, levels=("cube",), n_frames=2, seed=2)
+    node = rec.nodes["S1"]
+    pipeline.process_node(node, rec.frame_period_s)
+    assert seen["wrap"] == unambiguous_speed_mps(node.radar)

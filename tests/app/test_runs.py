@@ -57,7 +57,7 @@ def test_monitor_uses_the_stored_noise_poses_and_clocks(calibrated, tmp_path, ca
     simulator's) and the clocks as recorded, whatever `calibrate` stored."""
     capsys.readouterr()
     out = tmp_path / "monitor.json"
-    assert main(["monitor", str(calibrated), "--json", str(out)]) == 0
+    assert main(["monitor", str(calibrated), "--json-out", str(out)]) == 0
     text = capsys.readouterr().out
     pooled = read_noise(calibrated).pooled()
     assert "sigmas from /noise" in text and "clock offsets applied: S2" in text

@@ -21,7 +21,7 @@ from mmsnap_graph.evaluation.pose_bound import (
 from mmsnap_graph.data.recording import Detections, Truth
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import sparse_clouds
+from mmsnap_graph.sim.real.sparse import sparse_clouds
 from mmsnap_graph.sim import SimulationOptions
 
 NETWORK = {"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi), "S3": (4.0, 0.0, np.pi / 6)}

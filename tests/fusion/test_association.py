@@ -5,7 +5,8 @@ import pytest
 
 from factors.models import detection_to_global, measurement_model
 from mmsnap_graph.fusion.association import associate_frame, detection_position_covariance, gate_threshold
-from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.errors import ValidationError, MmsnapError
+from mmsnap_graph.data.noise import MeasurementNoise
 
 from _shared import PAPER_NOISE, PAPER_SIGMAS, POSES_A, POSES_B, POSES_BC, TRACK_NOISE
 
@@ -122,3 +123,29 @@ def test_gate_threshold_is_chi_square_two_dof():
 def test_invalid_input_raises(args, kwargs, match):
     with pytest.raises(ValidationError, match=match):
         associate_frame(*args, **kwargs)
+
+
+POSES = np.array([[0.0, 0.0, 0.0], [6.0, 0.0, np.pi / 2]])
+
+
+@pytest.mark.parametrize("bad", [(0.0, 0.0), (0.0, np.pi), (0.0, -np.pi), (1e-300, 0.3),
+                                 (1e-9, 0.1)])
+def test_a_degenerate_detection_gets_a_group_of_its_own(bad):
+    z0 = np.array([[bad[0], bad[1], 0.1], [4.0, 0.2, 0.1]])
+    z1 = np.array([[4.5, -0.4, 0.2]])
+    assoc = associate_frame([z0, z1], POSES)
+    degenerate = [g for g in range(len(assoc)) if assoc.members[g, 0] == 0]
+    assert len(degenerate) == 1 and np.all(assoc.members[degenerate[0], 1:] == -1)
+    assert np.all(np.isfinite(assoc.position_m))
+
+
+def test_tiny_sigmas_do_not_stop_the_association():
+    # The smallest sigmas fusion accepts (fusion.problem.SIGMA_MIN = 1e-60).
+    noise = MeasurementNoise(range_m=1e-55, omega_rad=1e-55, doppler_mps=1e-55)
+    assoc = associate_frame([np.array([[4.0, 0.2, 0.1]]), np.array([[4.5, -0.4, 0.2]])],
+                            POSES, noise)
+    assert len(assoc) == 2  # each alone: no usable position weight to gate with
+    # Sigmas below that are refused up front with a typed error (no LinAlgError).
+    with pytest.raises(MmsnapError, match="sigmas"):
+        associate_frame([np.array([[4.0, 0.2, 0.1]]), np.array([[4.5, -0.4, 0.2]])], POSES,
+                        MeasurementNoise(range_m=1e-300, omega_rad=1e-300, doppler_mps=1e-300))

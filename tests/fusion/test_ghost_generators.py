@@ -1,5 +1,5 @@
 """Robust fusion against ghost models it was not written with
-(:mod:`mmsnap_graph.sim.ghosts`): 3-node networks, 10% and 20% of each node's
+(:mod:`mmsnap_graph.sim.real.ghosts`): 3-node networks, 10% and 20% of each node's
 centroids corrupted, fused as ``mmsnap fuse`` does by default (a node's
 centroids of one body merged, ``robust="gate"`` with the motion check and its
 coverage check, then one target per body,
@@ -23,7 +23,7 @@ from _shared import POSES_BC
 from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, RoomBounds, screen_room
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
-from mmsnap_graph.sim.ghosts import ghost_centroids
+from mmsnap_graph.sim.real.ghosts import ghost_centroids
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
 
 NETWORK = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}

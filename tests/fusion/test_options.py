@@ -7,7 +7,11 @@ import dataclasses
 import pytest
 
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.fusion.options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, robust_options
+from mmsnap_graph.fusion import LevenbergMarquardtSettings
+from mmsnap_graph.fusion.options import (DEFAULT_OPTIONS, FusionOptions, RobustOptions,
+                                         robust_options)
+
+from _fuzz import assert_rejected
 
 
 @pytest.mark.parametrize("kwargs, match", [
@@ -41,3 +45,13 @@ def test_a_kernel_name_is_shorthand_for_its_defaults():
     huber = robust_options("huber")
     assert huber.kernel_pair == ("huber", 1.345) and huber.threshold == pytest.approx(16.266, abs=1e-3)
     assert robust_options(huber) is huber
+
+
+@pytest.mark.parametrize("make, kwargs", [
+    (FusionOptions, {"chunk_size": "8"}), (FusionOptions, {"newton_after": 2.5}),
+    (FusionOptions, {"step_tolerance": True}), (FusionOptions, {"lm": {"max_iterations": 5}}),
+    (LevenbergMarquardtSettings, {"max_iterations": 2.5}),
+    (LevenbergMarquardtSettings, {"max_iterations": True}),
+    (LevenbergMarquardtSettings, {"lambda_initial": float("nan")})])
+def test_fusion_options_reject_scalars_of_the_wrong_type(make, kwargs):
+    assert_rejected(make, **kwargs)

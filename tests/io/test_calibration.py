@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import h5py
@@ -195,3 +196,56 @@ def test_calibration_json_nested_too_deeply(tmp_path):
     path.write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(CalibrationError, match="nested too deeply"):
         read_calibration_json(path)
+
+
+def test_the_range_offset_round_trips(tmp_path, rec3):
+    """JSON and the HDF5 group keep the range offset and its variance; a file
+    without them reads NaN; a bad value names the field."""
+    cal = dataclasses.replace(_calibration(), range_offset_m=0.084, range_offset_variance=0.001)
+    back = read_calibration_json(write_calibration_json(tmp_path / "cal.json", cal))
+    assert back.range_offset_m == 0.084 and back.range_offset_variance == 0.001
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec3)
+    write_calibration(path, rec3, cal)
+    assert read_calibration(path).range_offset_m == 0.084
+    assert np.isnan(read_calibration_json(write_calibration_json(
+        tmp_path / "none.json", _calibration())).range_offset_m)
+    data = calibration_to_json(cal)
+    with pytest.raises(CalibrationError, match="range_offset_m must lie within"):
+        read_calibration_json({**data, "range_offset_m": 8.4})
+    with pytest.raises(CalibrationError, match="range_offset_m must be a number"):
+        read_calibration_json({**data, "range_offset_m": "0.08"})
+
+
+def test_calibration_json_seeded_mutations_raise_only_calibration_errors():
+    """Every leaf and container of a calibration JSON replaced by odd values
+    (seeded): a calibration or a CalibrationError, never another exception."""
+    import copy
+    from mmsnap_graph.errors import CalibrationError
+    from mmsnap_graph.io.calibration import read_calibration_json
+
+    def paths(obj, path=()):
+        yield path
+        items = obj.items() if isinstance(obj, dict) else enumerate(obj) \
+            if isinstance(obj, list) else ()
+        for key, value in items:
+            yield from paths(value, path + (key,))
+
+    odd = [None, True, "x", 1e400, -1e400, float("nan"), 10 ** 30, [], {}, [1, 2], {"a": 1},
+           2.5, -7, ""]
+    rng = np.random.default_rng(3)
+    all_paths = [p for p in paths(_GOOD_JSON) if p]
+    read, refused = 0, 0
+    for _ in range(400):
+        data = copy.deepcopy(_GOOD_JSON)
+        path = all_paths[int(rng.integers(len(all_paths)))]
+        obj = data
+        for key in path[:-1]:
+            obj = obj[key]
+        obj[path[-1]] = odd[int(rng.integers(len(odd)))]
+        try:
+            read_calibration_json(data)
+            read += 1
+        except CalibrationError:
+            refused += 1
+    assert refused > 200 and read > 10, (read, refused)

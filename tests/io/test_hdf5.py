@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+import dataclasses
+import itertools
 
 import h5py
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
+from hypothesis import HealthCheck, given, settings, strategies as st
 
 from mmsnap_graph import (
     Detections,
@@ -18,6 +21,7 @@ from mmsnap_graph import (
     Recording,
     Tracks,
     Truth,
+    MmsnapError,
 )
 from mmsnap_graph.io import (
     FORMAT_NAME,
@@ -27,6 +31,9 @@ from mmsnap_graph.io import (
     update_recording,
     write_recording,
 )
+from mmsnap_graph.sim import CLEAN, simulate_recording
+from mmsnap_graph.data.radar_config import TABLE_I
+from mmsnap_graph.app.cli import main
 
 SMALL_RADAR = RadarConfig(n_samples=16, n_loops=4, chirp_period_s=20e-6)
 
@@ -341,4 +348,98 @@ def test_int16_cube_storage_round_trips_counts(tmp_path):
         del f["nodes/S1/cube/adc"]
         f["nodes/S1/cube/adc"] = np.zeros((2, *SMALL_RADAR.cube_shape, 2), dtype=np.int32)
     with pytest.raises(FileFormatError, match="stored as ADC counts must be int16"):
+        read_recording(path)
+
+
+def test_ti_radar_fields_round_trip(tmp_path):
+    radar = dataclasses.replace(TABLE_I, adc_start_s=6e-6, rx_elevation_half_wl=(0.0, 0.0, 0.0, 0.0),
+                                tx_channels=(0, 2, 1), wavelength_reference="band_centre")
+    rec = simulate_recording("B", "straight", CLEAN, levels=("centroids",), n_frames=5, seed=1)
+    nodes = {n: dataclasses.replace(d, radar=radar) for n, d in rec.nodes.items()}
+    rec = dataclasses.replace(rec, nodes=nodes)
+    path = write_recording(tmp_path / "ti.h5", rec)
+    back = read_recording(path).nodes["S1"].radar
+    assert back == radar
+    assert back.wavelength_m == radar.wavelength_m != TABLE_I.wavelength_m
+    np.testing.assert_array_equal(back.tx_channels, (0, 2, 1))
+
+
+# Fuzzing: ``read_recording`` on a damaged file raises only the project's errors
+# (a FileFormatError naming what is wrong), never an h5py or numpy exception.
+
+
+FUZZ = settings(max_examples=80, deadline=None, derandomize=True, database=None,
+                report_multiple_bugs=False, suppress_health_check=[HealthCheck.too_slow])
+
+
+_names = itertools.count()
+
+
+class Source(tuple):
+    """(bytes of the file, folder for damaged copies), with a short repr."""
+
+    def __repr__(self) -> str:
+        return f"<recording of {len(self[0])} bytes>"
+
+
+@pytest.fixture(scope="module")
+def recording_bytes(tmp_path_factory) -> Source:
+    """A small valid recording (2 nodes, 40 frames, centroids and point
+    clouds), and a folder for the damaged copies."""
+    d = tmp_path_factory.mktemp("fuzz_io")
+    path = d / "good.h5"
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", "40", "--seed", "3",
+                 "-o", str(path), "--no-progress"]) == 0
+    read_recording(path)  # the undamaged file reads
+    return Source((path.read_bytes(), d))
+
+
+def read_damaged(data: bytes, folder: Path) -> None:
+    """Write ``data`` to a fresh file and read it; a project error is fine."""
+    path = folder / f"damaged_{next(_names)}.h5"
+    path.write_bytes(data)
+    try:
+        read_recording(path)
+    except MmsnapError:
+        pass
+    finally:
+        path.unlink()
+
+
+@FUZZ
+@given(st.floats(0.0, 0.999))
+def test_a_truncated_file_raises_only_typed_errors(recording_bytes, keep_fraction):
+    data, folder = recording_bytes
+    read_damaged(data[:int(len(data) * keep_fraction)], folder)
+
+
+@FUZZ
+@given(st.integers(0, 2**32 - 1))
+def test_a_file_whose_body_is_garbage_raises_only_typed_errors(recording_bytes, seed):
+    data, folder = recording_bytes
+    rng = np.random.default_rng(seed)
+    start = int(rng.integers(0, 512))
+    garbage = rng.integers(0, 256, len(data) - start, dtype=np.uint8).tobytes()
+    read_damaged(data[:start] + garbage, folder)
+
+
+@FUZZ
+@given(st.lists(st.tuples(st.integers(0, 2**31), st.integers(0, 7)), min_size=1, max_size=16))
+def test_a_bit_flipped_file_raises_only_typed_errors(recording_bytes, flips):
+    data, folder = recording_bytes
+    damaged = bytearray(data)
+    for position, bit in flips:
+        damaged[position % len(damaged)] ^= 1 << bit
+    read_damaged(bytes(damaged), folder)
+
+
+def test_uint64_frames_beyond_int64_are_a_format_error(recording_b_file, tmp_path):
+    path = tmp_path / "u64.h5"
+    path.write_bytes(recording_b_file.read_bytes())
+    with h5py.File(path, "r+") as f:
+        g = f["nodes/S1/centroids"]
+        n = g["frame"].shape[0]
+        del g["frame"]
+        g.create_dataset("frame", data=np.arange(n, dtype=np.uint64) + np.uint64(2**63))
+    with pytest.raises(FileFormatError, match="frame"):
         read_recording(path)

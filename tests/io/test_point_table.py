@@ -10,9 +10,12 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
+import pandas as pd
 
-from mmsnap_graph.errors import FileFormatError, ValidationError
+from mmsnap_graph.errors import FileFormatError, ValidationError, MmsnapError
 from mmsnap_graph.io.point_table import read_point_table, read_point_tables
+from factors.projection import spherical_to_cartesian
 
 from _shared import ROOT, TI_DATA
 
@@ -243,3 +246,153 @@ def test_points_beyond_any_radar_are_errors(tmp_path, column, value):
                                               rf"\+-10+; point 1 \(line 3\) holds "
                                               + re.escape(repr(float(value)))):
         read_point_tables(_csv(tmp_path, rows))
+
+
+# Bad values name the line of the file (or the row of a data frame), past
+# comments and blank lines; missing columns also name the log's usual names.
+
+
+def _csv_lines(tmp_path, lines, name="log.csv"):
+    path = tmp_path / name
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _replace_cell(line: str, column: int, value: str) -> str:
+    cells = line.split(",")
+    cells[column] = value
+    return ",".join(cells)
+
+
+def test_a_non_numeric_value_names_its_line(tmp_path):
+    lines = list(SENSOR_LINES[:30])
+    lines[11] = _replace_cell(lines[11], 1, "x!")                  # frame of line 12
+    with pytest.raises(FileFormatError, match=r"log.csv: column frame must be numeric; "
+                                              r"line 12 holds 'x!'"):
+        read_point_tables(_csv_lines(tmp_path, lines))
+
+
+def test_an_empty_value_of_another_node_names_its_line_past_comments(tmp_path):
+    header, rows = SENSOR_LINES[0], SENSOR_LINES[1:]
+    s2 = [r for r in rows if r.startswith("S2,")][:5]
+    s1 = [r for r in rows if r.startswith("S1,")][:5]
+    s2[3] = _replace_cell(s2[3], 3, "")                           # x of the 4th S2 point
+    lines = ["# logged by a script", header, *s1, "", *s2]
+    # line 1 comment, 2 header, 3-7 S1, 8 blank, 9-13 S2: the 4th S2 row is line 12
+    with pytest.raises(FileFormatError, match=r"column x_m must be finite; point 3 "
+                                              r"\(line 12\) holds nan"):
+        read_point_tables(_csv_lines(tmp_path, lines))
+
+
+def test_a_dataframe_names_the_row(tmp_path):
+    import pandas as pd
+    df = pd.read_csv(TI_DATA / "points_sensor_frame.csv").head(20)
+    df["frame"] = df["frame"].astype(float)
+    df.loc[7, "frame"] = 2.5
+    with pytest.raises(FileFormatError, match=r"frame must hold integers; row 7 holds 2.5"):
+        read_point_tables(df)
+
+
+def test_missing_columns_also_name_the_logs_usual_names(tmp_path):
+    lines = [",".join(c for c in line.split(",")[:6]) for line in SENSOR_LINES[:5]]  # no doppler
+    with pytest.raises(FileFormatError, match=r"need \['doppler_mps'\] \(or doppler\)"):
+        read_point_tables(_csv_lines(tmp_path, lines))
+
+
+def _table(seed=0, n=40):
+    rng = np.random.default_rng(seed)
+    frame = np.sort(rng.integers(0, 10, n))
+    return pd.DataFrame({"frame": frame, "x": rng.uniform(-3, 3, n), "y": rng.uniform(1, 6, n),
+                         "z": rng.uniform(-1, 1, n), "doppler": rng.uniform(-1, 1, n),
+                         "snr": rng.uniform(5, 25, n), "time_s": 1000 + frame * 0.05})
+
+
+@pytest.mark.parametrize("kind", ["frame", "csv", "npy", "npz"])
+def test_cartesian_round_trip(kind, tmp_path):
+    df = _table()
+    if kind == "frame":
+        src = df
+    elif kind == "csv":
+        src = tmp_path / "points.csv"
+        df.to_csv(src, index=False)
+    elif kind == "npy":
+        src = tmp_path / "points.npy"
+        np.save(src, df.to_records(index=False))
+    else:
+        src = tmp_path / "points.npz"
+        np.savez(src, **{c: df[c].to_numpy() for c in df.columns})
+    cloud = read_point_table(src)
+    np.testing.assert_array_equal(cloud.frame, df["frame"])
+    np.testing.assert_allclose(cloud.points_xyz, df[["x", "y", "z"]].to_numpy(), rtol=1e-15)
+    np.testing.assert_allclose(cloud.doppler_mps, df["doppler"], rtol=1e-15)
+    np.testing.assert_allclose(cloud.snr_db, df["snr"], rtol=1e-15)
+    np.testing.assert_allclose(cloud.time_s, df["time_s"], rtol=1e-15)
+
+
+def test_spherical_in_degrees_and_renamed_columns():
+    rng = np.random.default_rng(1)
+    r, az, el = rng.uniform(1, 5, 10), rng.uniform(-60, 60, 10), rng.uniform(-20, 20, 10)
+    df = pd.DataFrame({"Timestamp": np.repeat([1.0e3, 1.05e3], 5), "Range": r, "Azimuth": az,
+                       "Elevation": el, "Dop": rng.uniform(-1, 1, 10)})
+    cloud = read_point_table(df, degrees=True, columns={"Dop": "doppler_mps"}, time_unit="ms",
+                             frame_period_s=0.05)
+    expected = spherical_to_cartesian(r, np.deg2rad(az), np.deg2rad(el))
+    np.testing.assert_allclose(cloud.points_xyz, expected, atol=1e-12)
+    assert cloud.frame.tolist() == [0] * 5 + [1] * 5
+    assert cloud.snr_db is None
+
+
+def test_frames_from_time_stamps_keep_gaps():
+    df = pd.DataFrame({"time": [0.0, 0.05, 0.20, 0.20], "x": 0, "y": 1, "z": 0, "doppler": 0})
+    assert read_point_table(df, frame_period_s=0.05).frame.tolist() == [0, 1, 4, 4]
+    assert read_point_table(df).frame.tolist() == [0, 1, 2, 2]
+
+
+def test_node_column_splits_the_table():
+    df = _table()
+    df["node"] = np.where(np.arange(len(df)) % 2, "S2", "S1")
+    clouds = read_point_tables(df)
+    assert list(clouds) == ["S1", "S2"]
+    assert len(clouds["S1"]) + len(clouds["S2"]) == len(df)
+    with pytest.raises(FileFormatError, match="holds 2 nodes"):
+        read_point_table(df)
+
+
+def test_missing_columns_name_them_and_the_file(tmp_path):
+    path = tmp_path / "log.csv"
+    _table().drop(columns=["z", "doppler"]).to_csv(path, index=False)
+    with pytest.raises(FileFormatError, match=r"log.csv: missing columns: Cartesian points "
+                                              r"need \['z_m', 'doppler_mps'\]"):
+        read_point_table(path)
+    with pytest.raises(FileFormatError, match=r"missing spherical columns"):
+        read_point_table(_table(), coordinates="spherical")
+    with pytest.raises(FileFormatError, match="a frame number .* or a time stamp"):
+        read_point_table(_table().drop(columns=["frame", "time_s"]))
+
+
+def test_other_errors(tmp_path):
+    with pytest.raises(FileFormatError, match="does not exist"):
+        read_point_table(tmp_path / "none.csv")
+    with pytest.raises(FileFormatError, match="no column names"):
+        read_point_table(np.zeros((3, 5)))
+    with pytest.raises(ValidationError, match="coordinates="):
+        read_point_table(_table(), coordinates="polar")
+    df = _table()
+    df.loc[3, "x"] = np.nan
+    with pytest.raises(FileFormatError, match=r"x_m must be finite; point 3"):
+        read_point_table(df)
+    df = _table()
+    df["frame"] = df["frame"] + 0.5
+    with pytest.raises(FileFormatError, match="frame must hold integers"):
+        read_point_table(df)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.text(alphabet="0123456789.,-xyzabc\n", max_size=30), max_size=6))
+def test_csv_reader_raises_only_project_errors(tmp_path_factory, lines):
+    path = tmp_path_factory.mktemp("h") / "t.csv"
+    path.write_text("frame,x,y,z,doppler\n" + "\n".join(lines))
+    try:
+        read_point_table(path)
+    except MmsnapError:
+        pass

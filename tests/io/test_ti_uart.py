@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from mmsnap_graph.app.cli import main
-from mmsnap_graph.errors import FileFormatError
+from mmsnap_graph.errors import FileFormatError, MmsnapError, ValidationError
 from mmsnap_graph.io import read_recording
-from mmsnap_graph.io.ti_uart import parse_ti_uart
-from ti_encode import encode_oob_frame
+from mmsnap_graph.io.ti_uart import parse_ti_uart, MAGIC_WORD, read_ti_uart
+from ti_encode import encode_oob_frame, encode_tracking_frame
 
 
 def _packet(number, x=0.5, n=2):
@@ -130,3 +131,154 @@ def test_a_pipe_or_folder_is_named_not_read(tmp_path):
             read(tmp_path)
         with pytest.raises(FileFormatError, match=rf"{kind} .*gone.bin does not exist"):
             read(tmp_path / "gone.bin")
+
+
+def test_seeded_sequences_never_merge_frames():
+    """Seeded logs with repeats, restarts, flipped bits and non-finite points:
+    the frames kept always increase (nothing merged into an earlier frame), or
+    the log is refused naming a byte offset."""
+    rng = np.random.default_rng(11)
+    refused = kept_logs = 0
+    for _ in range(150):
+        numbers = list(range(1, 31))
+        for _ in range(int(rng.integers(1, 4))):
+            k = int(rng.integers(0, len(numbers)))
+            kind = int(rng.integers(0, 4))
+            if kind == 0:
+                numbers.insert(k, numbers[k])                      # a repeat
+            elif kind == 1:
+                numbers[k:] = [n - numbers[k] + 1 for n in numbers[k:]]   # a restart
+            elif kind == 2:
+                numbers[k] += 2 ** int(rng.integers(10, 31))        # a flipped bit
+        numbers = [n % 2 ** 32 for n in numbers]                   # uint32 on the wire
+        bad_x = set(rng.choice(len(numbers), 2, replace=False).tolist())
+        data = b"".join(_packet(n, x=np.nan if i in bad_x else 0.01 * i)
+                        for i, n in enumerate(numbers))
+        try:
+            log = parse_ti_uart(data)
+        except FileFormatError as exc:
+            assert "split the log at byte" in str(exc) or "no readable" in str(exc)
+            refused += 1
+            continue
+        kept_logs += 1
+        assert np.all(np.diff(log.frame_numbers) > 0)
+        assert np.all(np.isfinite(log.points.x_m))
+    assert refused > 10 and kept_logs > 10, (refused, kept_logs)
+
+
+def _frames(seed=0, n_frames=6):
+    """Simulated clouds: frame number -> (xyz (n, 3), doppler, snr, noise)."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for f in range(1, n_frames + 1):
+        n = int(rng.integers(0, 5)) if f != 3 else 0          # frame 3 is empty
+        xyz = rng.uniform([-3, 0.5, -1], [3, 8, 1.5], size=(n, 3))
+        out[f] = (xyz, rng.uniform(-1, 1, n), np.round(rng.uniform(5, 30, n), 1),
+                  np.round(rng.uniform(40, 60, n), 1))
+    return out
+
+
+def _stream(frames):
+    return b"".join(encode_oob_frame(f, *v) for f, v in frames.items())
+
+
+def test_round_trip_points_and_side_info():
+    frames = _frames()
+    log = parse_ti_uart(_stream(frames), frame_period_s=0.05)
+    assert log.bad == ()
+    assert log.frame_numbers.tolist() == list(frames)
+    cloud = log.points
+    for f, (xyz, dop, snr, noise) in frames.items():
+        rows = cloud.frame == f
+        np.testing.assert_allclose(cloud.points_xyz[rows], xyz, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(cloud.doppler_mps[rows], dop, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(cloud.snr_db[rows], snr, atol=1e-9)
+        np.testing.assert_allclose(cloud.noise_db[rows], noise, atol=1e-9)
+        np.testing.assert_allclose(cloud.time_s[rows], f * 0.05)
+
+
+def test_points_without_side_info_have_nan_snr():
+    xyz = np.array([[0.5, 2.0, 0.1]])
+    log = parse_ti_uart(encode_oob_frame(7, xyz, [0.3]) + encode_oob_frame(8, xyz, [0.2]))
+    assert np.isnan(log.points.snr_db).all() and log.frame_numbers.tolist() == [7, 8]
+
+
+def test_corrupted_stream_keeps_good_frames_and_reports_bad_ones():
+    frames = _frames(1, 8)
+    packets = [encode_oob_frame(f, *v) for f, v in frames.items()]
+    offsets = np.cumsum([0] + [len(p) for p in packets])
+    packets[2] = packets[2][:30]                                    # cut inside the header
+    bad_magic = bytearray(packets[4])
+    bad_magic[0] = 0xFF                                             # wrong magic word
+    packets[4] = bytes(bad_magic)
+    broken = bytearray(packets[6])
+    broken[40 + 4:40 + 8] = (10_000).to_bytes(4, "little")         # TLV length too long
+    packets[6] = bytes(broken)
+    data = b"garbage" + b"".join(packets) + packets[0][:50]          # truncated tail
+    log = parse_ti_uart(data)
+    assert log.frame_numbers.tolist() == [1, 2, 4, 6, 8]
+    assert log.n_packets == 8                      # 9 magic words minus the damaged one
+    reasons = [(b.index, b.reason.split(" ")[0]) for b in log.bad]
+    assert reasons[0] == (-1, "7")                                  # 7 garbage bytes
+    assert any("cut short" in b.reason for b in log.bad)
+    assert any("without a magic word" in b.reason for b in log.bad)
+    assert any("runs past the packet end" in b.reason for b in log.bad)
+    assert any("truncated" in b.reason for b in log.bad)
+    tlv_bad = next(b for b in log.bad if "runs past" in b.reason)
+    # The byte offset of the broken packet, after the garbage and the cut one.
+    expected = 7 + offsets[6] - (len(encode_oob_frame(3, *frames[3])) - 30)
+    assert tlv_bad.byte_offset == expected
+
+
+def test_point_count_mismatch_is_a_bad_frame():
+    p = bytearray(encode_oob_frame(1, [[0, 1, 0]], [0.1]))
+    p[8 + 20:8 + 24] = (5).to_bytes(4, "little")                   # numDetectedObj
+    good = encode_oob_frame(2, [[0, 1, 0]], [0.1])
+    log = parse_ti_uart(bytes(p) + good)
+    assert log.frame_numbers.tolist() == [2]
+    assert "announces 5 detected points" in log.bad[0].reason and log.bad[0].index == 0
+
+
+def test_tracking_demo_spherical_points():
+    rng = np.random.default_rng(3)
+    r = rng.uniform(1, 6, 10)
+    az = rng.uniform(-1, 1, 10)
+    el = rng.uniform(-0.5, 0.5, 10)
+    v = rng.uniform(-2, 2, 10)
+    data = encode_tracking_frame(11, r, az, el, v) + encode_tracking_frame(12, r[:3], az[:3],
+                                                                           el[:3], v[:3])
+    log = parse_ti_uart(data, demo="tracking")
+    assert log.frame_numbers.tolist() == [11, 12]
+    rows = log.points.frame == 11
+    xyz = log.points.points_xyz[rows]
+    # Quantisation: 0.25 mm range, 0.01 rad angles.
+    np.testing.assert_allclose(np.linalg.norm(xyz, axis=1), r, atol=2e-4)
+    np.testing.assert_allclose(np.arctan2(xyz[:, 0], xyz[:, 1]), az, atol=0.0051)
+    np.testing.assert_allclose(log.points.doppler_mps[rows], v, atol=0.0013)
+    np.testing.assert_allclose(log.points.snr_db[rows], 20.0, atol=1e-3)
+
+
+def test_errors(tmp_path):
+    with pytest.raises(FileFormatError, match="no readable oob frame"):
+        parse_ti_uart(b"\x00" * 100)
+    with pytest.raises(FileFormatError, match="no readable oob frame"):
+        parse_ti_uart(MAGIC_WORD + b"\x00" * 10)
+    with pytest.raises(ValidationError, match="demo='xyz'"):
+        parse_ti_uart(b"", demo="xyz")
+    with pytest.raises(FileFormatError, match="does not exist"):
+        read_ti_uart(tmp_path / "none.bin")
+    path = tmp_path / "log.bin"
+    path.write_bytes(_stream(_frames()))
+    assert len(read_ti_uart(path).frame_numbers) == 6
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=400), st.integers(0, 2000), st.sampled_from(["oob", "tracking"]))
+def test_reader_raises_only_project_errors(noise, cut, demo):
+    data = _stream(_frames(2, 3)) + noise
+    data = data[:cut] + MAGIC_WORD + noise + data[cut:]
+    try:
+        log = parse_ti_uart(data, demo=demo)
+    except MmsnapError:
+        return
+    assert len(log.points) == len(log.points.frame)

@@ -1,6 +1,8 @@
 """Per-node signal chain: FFTs, TDM correction, OS-CFAR, point clouds, torso
 clustering, degenerate frames and configuration errors."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -18,6 +20,9 @@ from mmsnap_graph.radar.chain import (
     detect_frame,
     point_cloud_of_cube,
     process_cubes,
+    doppler_near_limit,
+    unambiguous_speed_mps,
+    DEFAULT_MIN_RANGE_M,
 )
 from mmsnap_graph.radar.cluster import ClusterConfig, cluster_labels, torso_centroids
 from mmsnap_graph.data.radar_config import TABLE_I
@@ -31,6 +36,7 @@ from mmsnap_graph.radar.spectrum import (
 )
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cube, synthesize_cubes
+from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
 
 from _shared import SMALL_RADAR
 
@@ -410,3 +416,189 @@ def test_cluster_labels_and_edge_cases():
     assert len(cen) == 1 and cen.doppler_mps[0] == pytest.approx(1.0, abs=0.01)
     assert cen.range_m[0] == pytest.approx(5.03, abs=0.01)
     assert cen.target_id[0] == -1
+
+
+def test_cells_chain_matches_the_whole_map_cfar_on_a_32_loop_cube():
+    config = dataclasses.replace(TABLE_I, n_loops=32)
+    rng = np.random.default_rng(6)
+    p = np.array([[1.0, 3.0], [-2.0, 6.0], [0.5, 8.0], [2.5, 4.5]])
+    v = np.array([[0.0, 1.0], [0.5, -1.0], [-0.3, 0.7], [0.2, -2.0]])
+    amp = scatterer_amplitude(config, 0.3, np.hypot(p[:, 0], p[:, 1]))
+    cube = synthesize_cube(config, p, v, amp, rng=rng, noise_std=1.0)
+    a, _ = point_cloud_of_cube(cube, config, ChainConfig(cfar_method="cells"))
+    b, _ = point_cloud_of_cube(cube, config, ChainConfig(cfar_method="full"))
+    assert len(a[0]) >= 4
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(np.sort(x), np.sort(y))
+
+
+@pytest.mark.parametrize("cfar", [CfarConfig(guard_cells=(0, 1), train_cells=(0, 3)),
+                                  CfarConfig(guard_cells=(2, 0), train_cells=(8, 0))])
+def test_cells_chain_with_a_one_axis_footprint_matches_the_whole_map_cfar(cfar):
+    # Half-size 0 on one axis: the local-maximum test pads that axis itself.
+    config = dataclasses.replace(TABLE_I, n_loops=32)
+    rng = np.random.default_rng(9)
+    p = np.array([[1.0, 3.0], [-2.0, 6.0], [0.5, 8.0]])
+    v = np.array([[0.0, 1.0], [0.5, -1.0], [-0.3, 0.7]])
+    amp = scatterer_amplitude(config, 0.3, np.hypot(p[:, 0], p[:, 1]))
+    cube = synthesize_cube(config, p, v, amp, rng=rng, noise_std=1.0)
+    a, _ = point_cloud_of_cube(cube, config, ChainConfig(cfar=cfar, cfar_method="cells"))
+    b, _ = point_cloud_of_cube(cube, config, ChainConfig(cfar=cfar, cfar_method="full"))
+    assert len(a[0]) >= 3
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(np.sort(x), np.sort(y))
+
+
+# TDM-MIMO Doppler de-aliasing: a target faster than the unambiguous speed keeps
+# its Doppler, its angle and its heading through the chain and the EKF.
+
+
+#: Table I chirps at 20 fps (so that a 6-9 m/s target stays in view for a second).
+FAST = dataclasses.replace(TABLE_I, frame_period_s=0.05)
+
+
+def _fast_targets(n, seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        r, th, vr = rng.uniform(3, 9), rng.uniform(-0.8, 0.8), -rng.uniform(6.0, 9.0)
+        p = np.array([[r * np.sin(th), r * np.cos(th)]])
+        cube = synthesize_cube(FAST, p, vr * p / r, scatterer_amplitude(FAST, 1.0, r), rng=rng)
+        yield cube, np.pi * np.sin(th), vr
+
+
+def _strongest(cube, chain):
+    (r, w, v, s), _ = point_cloud_of_cube(cube, FAST, chain)
+    j = int(np.argmax(s))
+    return w[j], v[j]
+
+
+def test_fast_target_doppler_and_angle_recovered():
+    assert FAST.max_doppler_mps == pytest.approx(5.479, abs=1e-3)
+    err_w = {0: [], 1: []}
+    err_v = {0: [], 1: []}
+    for cube, omega, vr in _fast_targets(20, seed=3):
+        for k in (0, 1):
+            w, v = _strongest(cube, ChainConfig(doppler_wraps=k))
+            err_w[k].append(abs(w - omega))
+            err_v[k].append(abs(v - vr))
+    # Without de-aliasing: Doppler off by 2 v_max, angle off by ~0.4 rad
+    # (the TDM correction uses the aliased speed; issue 14 measured 0.40 rad).
+    assert np.median(err_v[0]) == pytest.approx(2 * FAST.max_doppler_mps, abs=0.05)
+    assert np.median(err_w[0]) > 0.3
+    # With it: Doppler within 5 cm/s, angle back to the slow-target accuracy.
+    assert np.max(err_v[1]) < 0.05
+    assert np.median(err_w[1]) < 0.02 and np.max(err_w[1]) < 0.06
+
+
+def test_slow_targets_are_not_wrapped():
+    rng = np.random.default_rng(11)
+    for _ in range(15):
+        r, th, vr = rng.uniform(3, 9), rng.uniform(-0.8, 0.8), rng.uniform(-4.5, 4.5)
+        p = np.array([[r * np.sin(th), r * np.cos(th)]])
+        cube = synthesize_cube(FAST, p, vr * p / r, scatterer_amplitude(FAST, 0.5, r), rng=rng)
+        _, v = _strongest(cube, ChainConfig())
+        assert abs(v - vr) < 0.05
+
+
+def test_near_limit_flag_and_unambiguous_speed():
+    chain = ChainConfig(doppler_wraps=1, near_limit_fraction=0.9)
+    u = unambiguous_speed_mps(TABLE_I, chain)
+    assert u == pytest.approx(3 * TABLE_I.max_doppler_mps)
+    assert unambiguous_speed_mps(TABLE_I, ChainConfig(doppler_wraps=0)) == pytest.approx(
+        TABLE_I.max_doppler_mps)
+    flags = doppler_near_limit(np.array([0.0, 0.89 * u, -0.95 * u, 1.2 * u]), TABLE_I, chain)
+    np.testing.assert_array_equal(flags, [False, False, True, True])
+
+
+@pytest.mark.parametrize("kwargs", [{"doppler_wraps": -1}, {"doppler_wraps": 1.5},
+                                    {"doppler_wraps": True}, {"near_limit_fraction": 0.0},
+                                    {"dealias_min_snr_db": float("nan")}])
+def test_dealias_options_are_checked(kwargs):
+    with pytest.raises(ConfigurationError, match=next(iter(kwargs))):
+        ChainConfig(**kwargs)
+
+
+def _approach(n_frames=20, seed=4):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames) * FAST.frame_period_s
+    u = np.array([np.sin(0.3), np.cos(0.3)])
+    speed = -6.5                                   # approaching, beyond +-5.48 m/s
+    pos = [((10.0 + speed * ti) * u)[None, :] for ti in t]
+    vel = [(speed * u)[None, :] for _ in t]
+    amp = [scatterer_amplitude(FAST, 5.0, np.hypot(*p[0]))[None] for p in pos]
+    return synthesize_cubes(FAST, pos, vel, amp, rng=rng), speed
+
+
+def test_approaching_target_is_tracked_as_approaching():
+    cubes, speed = _approach()
+    chain = ChainConfig(cluster=ClusterConfig(point_targets=True))
+    res = process_cubes(cubes, FAST, chain)
+    assert len(res.centroids) >= 18
+    np.testing.assert_allclose(res.centroids.doppler_mps, speed, atol=0.1)
+    assert res.doppler_near_limit.shape == (len(res.point_cloud),)
+    ekf = EkfConfig(frame_period_s=FAST.frame_period_s,
+                    doppler_wrap_mps=unambiguous_speed_mps(FAST, chain))
+    tracks = track_centroids(res.centroids, ekf)
+    assert tracks.track_ids.size == 1
+    x = tracks.state
+    radial = np.sum(x[:, :2] * x[:, 2:], axis=1) / np.hypot(x[:, 0], x[:, 1])
+    np.testing.assert_allclose(radial, speed, atol=0.3)
+    # Without de-aliasing the same target reads as receding.
+    off = process_cubes(cubes, FAST, ChainConfig(doppler_wraps=0,
+                                                 cluster=ClusterConfig(point_targets=True)))
+    assert np.all(off.centroids.doppler_mps > 0)
+
+
+# Point targets and near-field leakage.
+
+
+def _reflector_cubes(n=12, seed=2, extra=None):
+    """A corner reflector (10 m^2) walked slowly away at 6 m, 20 degrees off broadside;
+    ``extra``: more scatterers ``(position (2,), velocity (2,), rcs)`` per frame."""
+    rng = np.random.default_rng(seed)
+    u = np.array([np.sin(0.35), np.cos(0.35)])
+    pos, vel, amp = [], [], []
+    for f in range(n):
+        p = [(6.0 + 0.5 * f * TABLE_I.frame_period_s) * u]
+        v = [0.5 * u]
+        rcs = [10.0]
+        for q, w, s in (extra or []):
+            p.append(np.asarray(q, float))
+            v.append(np.asarray(w, float))
+            rcs.append(s)
+        p = np.array(p)
+        pos.append(p)
+        vel.append(np.array(v))
+        amp.append(scatterer_amplitude(TABLE_I, np.array(rcs), np.hypot(p[:, 0], p[:, 1])))
+    return synthesize_cubes(TABLE_I, pos, vel, amp, rng=rng), u
+
+
+def test_isolated_reflector_is_a_centroid_in_point_target_mode():
+    cubes, u = _reflector_cubes()
+    people = process_cubes(cubes, TABLE_I)
+    points = process_cubes(cubes, TABLE_I, ChainConfig(cluster=ClusterConfig(point_targets=True)))
+    # DBSCAN's three-point minimum drops the lone peak (issue 14: 32 of 101 frames) ...
+    assert len(people.centroids) < len(cubes) // 2
+    # ... the point-target mode gives it a centroid in every frame.
+    assert np.unique(points.centroids.frame).size == len(cubes)
+    t = np.arange(len(cubes)) * TABLE_I.frame_period_s
+    first = np.array([np.flatnonzero(points.centroids.frame == f)[0] for f in range(len(cubes))])
+    np.testing.assert_allclose(points.centroids.range_m[first], 6.0 + 0.5 * t, atol=0.03)
+    np.testing.assert_allclose(points.centroids.omega_rad[first], np.pi * u[0], atol=0.05)
+    np.testing.assert_allclose(points.centroids.doppler_mps[first], 0.5, atol=0.05)
+
+
+def test_default_min_range_clears_near_field_residue():
+    """A near-field residue (leakage through the radome that moves with the
+    radar's own vibration, so clutter removal leaves it) at 0.72-0.78 m."""
+    residue = [((0.02, 0.75), (0.0, 0.15), 1.0), ((-0.03, 0.72), (0.0, -0.1), 1.0)]
+    cubes, _ = _reflector_cubes(n=8, seed=5, extra=residue)
+    cfg = ClusterConfig(point_targets=True)
+    old = process_cubes(cubes, TABLE_I, ChainConfig(min_range_m=0.3, cluster=cfg))
+    new = process_cubes(cubes, TABLE_I, ChainConfig(cluster=cfg))
+    assert DEFAULT_MIN_RANGE_M == ChainConfig().min_range_m == 0.9
+    near_old = old.centroids.range_m < 0.85
+    assert np.unique(old.centroids.frame[near_old]).size == len(cubes)  # false centroids
+    assert new.point_cloud.range_m.min() >= 0.9 - TABLE_I.range_resolution_m
+    assert np.all(new.centroids.range_m > 5.0)
+    assert np.unique(new.centroids.frame).size == len(cubes)

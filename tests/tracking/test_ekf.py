@@ -2,14 +2,16 @@
 Monte Carlo), multi-target association, track management, errors."""
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from factors.models import detection_to_local, measurement_model
 from factors.motion import cv_process_noise, cv_transition
 from mmsnap_graph.data.recording import Detections
-from mmsnap_graph.errors import ConfigurationError, ValidationError
+from mmsnap_graph.errors import ConfigurationError, ValidationError, MmsnapError
 from mmsnap_graph.evaluation import chi2_mean_interval, nees
 from mmsnap_graph.tracking.ekf import (
     EkfConfig,
@@ -18,7 +20,13 @@ from mmsnap_graph.tracking.ekf import (
     ekf_update,
     track_centroids,
     track_initial_state,
+    wrap_innovation,
+    frames_to_step,
 )
+from mmsnap_graph.data.radar_config import TABLE_I
+from mmsnap_graph.tracking.central import CentralConfig
+
+from _fuzz import ANY_VALUE, EDGE, FUZZ
 
 
 def test_ekf_predict_is_the_cv_model():
@@ -302,3 +310,144 @@ def test_frame_counts_follow_the_frame_period():
 def test_time_thresholds_are_checked(kwargs):
     with pytest.raises(ConfigurationError, match=next(iter(kwargs))):
         EkfConfig(**kwargs)
+
+
+#: Table I chirps at 20 fps (so that a 6-9 m/s target stays in view for a second).
+FAST = dataclasses.replace(TABLE_I, frame_period_s=0.05)
+
+
+def test_ekf_wraps_the_doppler_innovation():
+    u = FAST.max_doppler_mps
+    nu = wrap_innovation(np.array([[0.0, 0.0, 2 * u - 0.1], [0.0, 7.0, -2 * u + 0.2]]), u)
+    np.testing.assert_allclose(nu[:, 2], [-0.1, 0.2], atol=1e-12)
+    np.testing.assert_allclose(nu[:, 1], [0.0, 7.0 - 2 * np.pi])
+    # A track approaching at 6.5 m/s, an aliased measurement (+4.46 m/s).
+    x = np.array([0.0, 8.0, 0.0, -6.5])
+    p = np.diag([0.01, 0.01, 0.1, 0.1])
+    z = np.array([8.0, 0.0, -6.5 + 2 * u])
+    r = np.diag([0.05, 0.1, 0.2]) ** 2
+    x_wrap, _, d2_wrap = ekf_update(x, p, z, r, doppler_wrap_mps=u)
+    x_raw, _, d2_raw = ekf_update(x, p, z, r)
+    assert x_wrap[3] == pytest.approx(-6.5, abs=1e-6) and d2_wrap < 1e-9
+    assert x_raw[3] > -3.0 and d2_raw > 100
+    with pytest.raises(ConfigurationError, match="doppler_wrap_mps"):
+        EkfConfig(doppler_wrap_mps=0.0)
+
+
+# Fuzzing: only the project's errors; a track that comes out holds finite
+# numbers and a positive-definite covariance.
+
+
+def assert_tracks_sound(out) -> None:
+    for track_id, x, p in out:
+        assert isinstance(int(track_id), int)
+        assert np.all(np.isfinite(x)) and np.all(np.isfinite(p)), (x, p)
+        np.testing.assert_allclose(p, p.T, rtol=1e-9, atol=1e-12)
+        assert np.linalg.eigvalsh(p).min() > 0, p
+
+
+rows = st.lists(st.tuples(EDGE, EDGE, EDGE), min_size=0, max_size=4)
+
+
+@settings(FUZZ, max_examples=25)
+@given(frames=st.lists(rows, min_size=1, max_size=12),
+       period=st.one_of(st.none(), st.floats(1e-3, 1.0), EDGE))
+def test_local_tracker_steps_raise_only_typed_errors(frames, period):
+    tracker = LocalTracker()
+    for z in frames:
+        z = np.array(z, dtype=float).reshape(-1, 3)
+        try:
+            out = tracker.step(z, frame_period_s=period)
+        except MmsnapError:
+            continue
+        assert_tracks_sound(out)
+
+
+@settings(FUZZ, max_examples=15)
+@given(start=st.lists(st.tuples(st.floats(0.5, 10), st.floats(-2.5, 2.5), st.floats(-3, 3)),
+                      min_size=1, max_size=3),
+       jitter=st.floats(0.0, 0.5), bad=st.tuples(EDGE, EDGE, EDGE))
+def test_local_tracker_on_confirmed_tracks_and_one_odd_row_is_sound(start, jitter, bad):
+    tracker = LocalTracker()
+    rng = np.random.default_rng(0)
+    base = np.array(start)
+    for k in range(8):
+        z = base + jitter * rng.normal(size=base.shape) * [0.05, 0.05, 0.1]
+        z[:, 1] = np.clip(z[:, 1], -np.pi, np.pi)
+        z[:, 0] = np.abs(z[:, 0])
+        if k == 5:
+            z = np.vstack([z, bad])
+        try:
+            out = tracker.step(z)
+        except MmsnapError:
+            continue
+        assert_tracks_sound(out)
+
+
+@settings(FUZZ, max_examples=25)
+@given(kwargs=st.dictionaries(st.sampled_from(["frame_period_s", "sigma_a_mps2", "gate_probability",
+                                               "confirm_hits", "confirm_window_s", "max_coast_s",
+                                               "max_misses", "confirm_window",
+                                               "doppler_wrap_mps", "measurement_std"]),
+                              ANY_VALUE, min_size=1, max_size=2))
+def test_ekf_config_raises_only_typed_errors(kwargs):
+    try:
+        cfg = EkfConfig(**kwargs)
+    except MmsnapError:
+        return
+    det = Detections(frame=np.arange(6), range_m=np.linspace(3, 3.3, 6),
+                     omega_rad=np.full(6, 0.2), doppler_mps=np.full(6, 0.4))
+    try:
+        tracks = track_centroids(det, cfg)
+    except MmsnapError:
+        return
+    assert np.all(np.isfinite(tracks.state))
+
+
+def test_a_huge_range_or_doppler_does_not_stop_the_tracker():
+    tracker = LocalTracker()
+    for k in range(8):
+        z = np.array([[4.0 + 0.05 * k, 0.2, 0.3], [1e300, 0.1, 0.0], [3.0, -0.5, 1e300]])
+        out = tracker.step(z)
+    assert len(out) == 1 and np.all(np.isfinite(out[0][1]))
+    with pytest.raises(MmsnapError):
+        tracker.step(np.zeros((0, 3)), frame_period_s="0.1")
+
+
+def test_a_huge_frame_gap_is_a_handful_of_steps():
+    k = np.arange(30)
+    frame = np.concatenate([k, k + 10**12])
+    r = np.concatenate([4 + 0.05 * k, 4 + 0.05 * k])
+    det = Detections(frame=frame, range_m=r, omega_rad=np.full(60, 0.2),
+                     doppler_mps=np.full(60, 0.3))
+    cfg = EkfConfig()
+    steps = frames_to_step(det.frame, cfg)
+    assert steps.size == 60 + max(cfg.max_misses_frames, cfg.confirm_window_frames)
+    t0 = time.perf_counter()
+    tracks = track_centroids(det, cfg)
+    assert time.perf_counter() - t0 < 5.0
+    assert tracks.frame.max() == 29 + 10**12 and np.all(np.isfinite(tracks.state))
+
+
+def test_stepping_the_frames_present_matches_stepping_every_frame():
+    rng = np.random.default_rng(4)
+    present = np.sort(rng.choice(200, 120, replace=False))
+    frame = np.repeat(present, 2)
+    n = frame.size
+    det = Detections(frame=frame, range_m=3 + 0.01 * frame + rng.normal(0, 0.03, n),
+                     omega_rad=np.tile([0.3, -0.6], n // 2) + rng.normal(0, 0.05, n),
+                     doppler_mps=rng.normal(0.5, 0.1, n))
+    every = track_centroids(det, frames=np.arange(present.min(), present.max() + 1))
+    default = track_centroids(det)
+    np.testing.assert_array_equal(default.frame, every.frame)
+    np.testing.assert_array_equal(default.track_id, every.track_id)
+    np.testing.assert_allclose(default.state, every.state)
+
+
+@pytest.mark.parametrize("config", [EkfConfig, CentralConfig])
+@pytest.mark.parametrize("kwargs", [{"frame_period_s": "0.15"}, {"sigma_a_mps2": True},
+                                    {"max_misses": 2.5}, {"gate_probability": None},
+                                    {"max_misses": "5"}])
+def test_configs_reject_values_of_the_wrong_type(config, kwargs):
+    with pytest.raises(ConfigurationError, match=next(iter(kwargs))):
+        config(**kwargs)

@@ -53,8 +53,11 @@ def register(subparsers) -> None:
     p.add_argument("--mode", choices=["map", "ml"], default="map",
                    help="fuse: MAP with the paper's prior, or maximum likelihood "
                         "(default %(default)s)")
-    p.add_argument("--summary-json", default=None, metavar="PATH",
+    p.add_argument("--json-out", default=None, metavar="PATH",
                    help="also write the per-recording summaries as JSON here")
+    p.add_argument("--json", action="store_true",
+                   help="print the per-recording summaries as JSON to stdout instead of the "
+                        "table")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(p)
     p.set_defaults(func=run)
@@ -125,8 +128,8 @@ def _check_args(args: argparse.Namespace) -> tuple[tuple[str, ...], list[str]]:
         raise ValidationError(f"--workers must be >= 1, got {args.workers}")
     if args.workers is not None and args.scheduler is not None:
         raise ValidationError("--workers sizes the local cluster; omit it with --scheduler")
-    if args.summary_json is not None and os.path.isdir(args.summary_json):
-        raise ValidationError(f"--summary-json {args.summary_json} is a directory")
+    if args.json_out is not None and os.path.isdir(args.json_out):
+        raise ValidationError(f"--json-out {args.json_out} is a directory")
     return steps, expand_patterns(args.patterns)
 
 
@@ -164,16 +167,21 @@ def run(args: argparse.Namespace) -> int:
         summaries = run_many(paths, steps, client=client, output_dir=args.output_dir,
                              options=options, progress=progress)
         run_s = time.perf_counter() - t1
-    print(format_summary(summaries))
-    print(f"cluster started in {start_s:.1f} s ({ready}); recordings ran in {run_s:.1f} s")
-    if args.summary_json:
+    # With --json, stdout holds the JSON alone; the words go to stderr.
+    say = (lambda text: print(text, file=sys.stderr)) if args.json else print
+    if args.json:
+        print(json.dumps([s.to_json() for s in summaries], indent=2))
+    else:
+        print(format_summary(summaries))
+    say(f"cluster started in {start_s:.1f} s ({ready}); recordings ran in {run_s:.1f} s")
+    if args.json_out:
         try:
-            with atomic_path(args.summary_json) as tmp:
+            with atomic_path(args.json_out) as tmp:
                 tmp.write_text(json.dumps([s.to_json() for s in summaries], indent=2) + "\n")
         except (OSError, MmsnapError) as exc:
-            print(f"mmsnap batch: error: cannot write {args.summary_json}: "
+            print(f"mmsnap batch: error: cannot write {args.json_out}: "
                   f"{getattr(exc, 'strerror', None) or exc}",
                   file=sys.stderr)
             return 1
-        print(f"wrote {args.summary_json}")
+        say(f"wrote {args.json_out}")
     return 0 if all(s.success for s in summaries) else 1

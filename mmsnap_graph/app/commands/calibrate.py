@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -51,7 +52,7 @@ def register(subparsers) -> None:
         description="Estimate every node's pose in S1's frame from the tracks (or centroids) of "
                     "a target seen by several nodes: pairwise closed form (paper eqs. 11-14) "
                     "with frame-lag search, pose graph, joint refinement on the raw centroid "
-                    "measurements. Writes JSON and updates the recording's node poses and "
+                    "measurements. Prints the poses with headings in degrees; writes JSON (radians) and updates the recording's node poses and "
                     "/calibration group.")
     p.add_argument("recording", nargs="?", default=None,
                    help="HDF5 recording (docs/FORMAT.md); not needed with --show-config")
@@ -77,7 +78,8 @@ def register(subparsers) -> None:
     p.add_argument("--max-lag", type=int, default=None, metavar="FRAMES",
                    help="the lag window in frames (deprecated: use --max-lag-s)")
     p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
-                   default=None, help="centroid noise for the joint graph (default: "
+                   default=None, help="OMEGA_RAD is the sigma of omega = pi sin(theta), a phase in "
+                                      "radians, not an angle; centroid noise for the joint graph (default: "
                                       "estimated from the data; the /noise group is "
                                       "estimated from the data either way)")
     p.add_argument("--robust", choices=["cauchy", "huber", "none"], default="cauchy",
@@ -90,19 +92,81 @@ def register(subparsers) -> None:
     p.add_argument("--no-time-offsets", action="store_true",
                    help="whole-frame lags only: do not estimate each node's clock offset "
                         "(a fraction of a frame) in the joint graph")
-    p.add_argument("--json", default=None,
-                   help="calibration JSON path (default: <recording>.calibration.json)")
+    p.add_argument("--range-offset", default=None, metavar="MEAN_M,SIGMA_M",
+                   help="estimate a range offset common to every node, the body's reflection "
+                        "depth (each radar's centroid nearer to it than the body's centre), "
+                        "with this prior, e.g. 0.10,0.05; `mmsnap fuse` then adds it to every "
+                        "range (default: none)")
+    p.add_argument("--covariance", choices=["long_run", "model"], default="long_run",
+                   help="pose covariance: long_run (default) widens the joint graph's "
+                        "marginals where the frames' errors are correlated in time or the "
+                        "model is not exact; model keeps the marginals")
+    p.add_argument("--json-out", default=None, metavar="PATH",
+                   help="write the calibration JSON here (default: "
+                        "<recording>.calibration.json; angles in radians)")
+    p.add_argument("--json", action="store_true",
+                   help="print the calibration JSON to stdout instead of the table (angles in "
+                        "radians, as in the file); the JSON file is written either way")
     p.add_argument("-o", "--output", default=None,
                    help="write a copy of the recording here instead of updating it")
     p.add_argument("--no-write", action="store_true",
                    help="do not touch the recording (JSON only)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (the bar, over the steps, is drawn on stderr when it is "
+                        "a terminal)")
     add_overwrite(p)
     p.set_defaults(func=run)
 
 
+#: Units of the three noise components, in MeasurementNoise order.
+_NOISE_UNITS = (("range", "m"), ("omega", "rad"), ("doppler", "m/s"))
+
+
+def noise_lines(noise) -> list[str]:
+    """A :class:`~mmsnap_graph.data.noise.NoiseEstimate` as lines a radar
+    engineer reads: one sigma a line with its unit, where it came from, the
+    heavy-tail factor, and for a sigma the data cannot pin down, why and the
+    value used instead."""
+    lines = ["measurement noise per node, estimated from the data (1-sigma; stored as /noise, "
+             "which `mmsnap fuse` uses):",
+             "  omega = pi sin(theta) is the phase step between receive antennas (rad), not "
+             "the angle theta",
+             "  estimators: network = residuals between nodes at the calibrated poses; "
+             "temporal = differences along each node's own centroid sequence"]
+    tails_said = dof_said = False
+    for name, e in noise.nodes.items():
+        method, _, tails = e.method.partition(", tails x")
+        factors = tails.split("/") if tails else []
+        lines.append(f"  {name} (estimator: {method}):")
+        for i, (comp, unit) in enumerate(_NOISE_UNITS):
+            value = f"{comp:<8}{e.noise.sigmas[i]:.4g} {unit}"
+            if e.identified[i]:
+                text = f"    {value}: estimated from {e.n_residuals[i]} residuals"
+                if len(factors) == 3 and factors[i] != "1.00":
+                    text += f", x{factors[i]} for heavy tails"
+                    tails_said = True
+            else:
+                text = (f"    {value}: NOT identified, the data cannot pin it down; this "
+                        f"fallback value is used instead\n      why: {e.reasons[i]}")
+                dof_said = dof_said or "dof" in e.reasons[i]
+            lines.append(text)
+    if tails_said:
+        lines.append("  heavy tails: the residuals hold more large values (multipath, a limb "
+                     "taken for the torso) than a Gaussian of the core spread; the sigma is "
+                     "raised by this factor so that its variance matches them all")
+    if dof_said:
+        lines.append("  dof: degrees of freedom, the independent residuals left after the fit "
+                     "(how much data the sigma rests on)")
+    return lines
+
+
 def format_table(cal) -> str:
-    """The calibration as a text table, angles and their sigmas in degrees."""
-    lines = [f"reference {cal.reference}; method {cal.method}; source {cal.source}",
+    """The calibration as text, one fact a line: the poses with their
+    1-sigma uncertainties (angles in degrees), the clock offsets, the
+    pairwise fits, the noise (:func:`noise_lines`) and the outcome."""
+    lines = [f"reference {cal.reference} (at 0, 0, 0); method {cal.method}; source {cal.source}",
+             "poses in the reference's frame: x, y in metres, heading phi (the array axis) in "
+             "degrees; s*: 1-sigma; lag: whole frames; offset: clock offset to the reference",
              f"{'node':<8}{'x_m':>9}{'y_m':>9}{'phi_deg':>10}{'sx_m':>9}{'sy_m':>9}"
              f"{'sphi_deg':>10}{'lag':>5}{'offset_ms':>11}{'s_ms':>7}"]
     for n in cal.node_names:
@@ -116,17 +180,24 @@ def format_table(cal) -> str:
         lines.append(f"{n:<8}{x:9.3f}{y:9.3f}{np.degrees(phi):10.2f}{sd[0]:9.3f}{sd[1]:9.3f}"
                      f"{np.degrees(sd[2]):10.3f}{cal.lag_frames.get(n, 0):5d}{tau:11.1f}"
                      f"{s_tau:7.1f}")
+    depth = float(getattr(cal, "range_offset_m", float("nan")))
+    if np.isfinite(depth):
+        sd = float(np.sqrt(getattr(cal, "range_offset_variance", float("nan"))))
+        lines.append(f"range offset (reflection depth): {depth:.3f} +- {sd:.3f} m "
+                     f"(added to every range by `mmsnap fuse`)")
     if cal.edges:
         lines.append("pairwise closed form (track RMSE, paper eq. 14):")
         for e in cal.edges:
             lines.append(f"  {e.node_a}-{e.node_b}: RMSE {e.rmse_m:.3f} m over {e.n_frames} "
-                         f"frames, lag {e.lag_frames}")
+                         f"frames, lag {e.lag_frames} frames"
+                         + (f" ({e.lag_note})" if getattr(e, "lag_note", "") else ""))
     for k, v in cal.failures.items():
         lines.append(f"  {k}: {v}")
     if cal.noise is not None:
-        lines.append("measurement noise per node (from the data):")
-        lines.extend("  " + line for line in cal.noise.summary().splitlines())
-    lines.append(("ok: " if cal.success else "INCOMPLETE: ") + cal.message)
+        lines.extend(noise_lines(cal.noise))
+    facts = [part.strip() for part in cal.message.split("; ") if part.strip()] or [""]
+    lines.append(("ok: " if cal.success else "INCOMPLETE: ") + facts[0])
+    lines.extend("  " + fact for fact in facts[1:])
     return "\n".join(lines)
 
 
@@ -175,7 +246,10 @@ def run(args: argparse.Namespace) -> int:
             time_offsets=not args.no_time_offsets)
     except ValidationError as exc:
         raise ValidationError(f"--sigma-a: {exc}") from None
-    json_path = check_output_path(args.json if args.json else calibration_json_path(args.recording))
+    joint = dataclasses.replace(joint, covariance=args.covariance,
+                                range_offset_prior_m=_range_offset_prior(args.range_offset))
+    json_path = check_output_path(args.json_out if args.json_out else
+                                  calibration_json_path(args.recording))
     if args.output is not None and not args.no_write:
         check_output_path(args.output)
 
@@ -186,10 +260,31 @@ def run(args: argparse.Namespace) -> int:
         return dict(source=args.source, method=args.method, noise=noise, matching=lagged,
                     joint=joint)
 
+    # With --json, stdout holds the calibration JSON alone; the words go to stderr.
+    say = (lambda text: print(text, file=sys.stderr)) if args.json else print
     cal, written = calibrate_and_store(args.recording, options, output=args.output,
                                        json_path=json_path, write=not args.no_write,
-                                       on_result=lambda c: print(format_table(c)))
-    print(f"wrote {written[0]}")
+                                       on_result=lambda c: say(format_table(c)),
+                                       progress=not args.no_progress and sys.stderr.isatty())
+    if args.json:
+        sys.stdout.write(Path(written[0]).read_text(encoding="utf-8"))
+    say(f"wrote {written[0]}")
     if not args.no_write:
-        print(f"wrote {written[1]}: node poses, /calibration and /noise")
+        say(f"wrote {written[1]}: node poses, /calibration and /noise")
     return 0 if cal.success else 1
+
+
+def _range_offset_prior(text: str | None):
+    """``--range-offset MEAN_M,SIGMA_M`` as a pair (None when not given)."""
+    if text is None:
+        return None
+    try:
+        mean, sigma = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValidationError(f"--range-offset must be MEAN_M,SIGMA_M (e.g. 0.10,0.05), got "
+                              f"{text!r}") from None
+    if not (np.isfinite(mean) and abs(mean) <= 1.0 and np.isfinite(sigma) and sigma > 0):
+        raise ValidationError(f"--range-offset {text!r}: the mean must be metres within +-1 m "
+                              f"and the sigma > 0 m (e.g. 0.10,0.05; centimetres given as "
+                              f"metres?)")
+    return mean, sigma

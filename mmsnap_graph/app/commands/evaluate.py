@@ -36,7 +36,8 @@ def register(subparsers) -> None:
                    help="a surveyed node pose (repeat; degrees) to score the calibrated poses "
                         "against, in place of /truth's; a recording without /truth (a real "
                         "capture) then gets pose errors alone")
-    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.add_argument("--json", action="store_true",
+                   help="print the metrics as JSON (angles in radians, as in the files)")
     p.add_argument("--check", action="store_true",
                    help="exit with status 1 when a consistency check fails (the fused states' "
                         "mean NEES outside its 95%% chi-square interval)")

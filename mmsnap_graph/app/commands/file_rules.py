@@ -1,7 +1,7 @@
 """The one rule of every verb's input and output files, checked before a
 command runs (so nothing is touched when it refuses):
 
-- an output file (``-o``, ``--json PATH``, ``--summary-json``) must lie in
+- an output file (``-o``, ``--json-out PATH``) must lie in
   an existing folder and not be a folder;
 - an output that resolves to one of the command's input files (the same
   file through another name, a symlink or a hard link) is refused: writing
@@ -30,9 +30,9 @@ __all__ = ["OUTPUT_FILE_OPTIONS", "add_overwrite", "input_paths", "check_files",
 
 #: Per command, the options naming an output file.
 OUTPUT_FILE_OPTIONS: dict[str, tuple[str, ...]] = {
-    "process": ("output",), "fuse": ("output",), "calibrate": ("json", "output"),
+    "process": ("output",), "fuse": ("output",), "calibrate": ("json_out", "output"),
     "simulate": ("output",), "replay": ("output",), "import": ("output",),
-    "noise": ("output",), "monitor": ("json",), "batch": ("summary_json",),
+    "noise": ("output",), "monitor": ("json_out",), "batch": ("json_out",),
     "export": ("output",),
 }
 

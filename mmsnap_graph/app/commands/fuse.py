@@ -17,6 +17,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+import numpy as np
+
 from mmsnap_graph._atomic import check_output_path, recording_lock
 from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.app.runs import DEFAULT_ROBUST, fuse_stored, paper_noise, stored_calibration
@@ -43,7 +45,8 @@ def register(subparsers) -> None:
                         "covariance (slow) (default %(default)s)")
     p.add_argument("--sigmas", nargs=3, type=float, default=None,
                    metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
-                   help="measurement noise sigmas of every node (default: each node's "
+                   help="measurement noise sigmas of every node (OMEGA_RAD: of omega = pi sin(theta), a "
+                        "phase in radians, not an angle; default: each node's "
                         "sigmas in the recording's /noise group, estimated from the data by "
                         "`mmsnap calibrate` or `mmsnap noise`; without it the paper's "
                         "resolutions 0.035 m, pi/4 rad, 0.1807 m/s)")
@@ -168,6 +171,35 @@ def calibration_for(args, path, node_names):
     return cal.with_default_noise(*paper_noise())
 
 
+def rows_text(path) -> str:
+    """What the row counts of ``path``'s ``/fused`` mean: a row is one
+    (frame, target) pair of the association, so a frame where the nodes'
+    detections lie farther apart than its gate holds several targets, each
+    seen by fewer nodes; and the flagged rows by status."""
+    import h5py
+
+    from mmsnap_graph.data.results import Status
+    from mmsnap_graph.io.fused import FUSED_GROUP
+    from mmsnap_graph.io.guard import read_guard
+
+    with read_guard(path), h5py.File(path, "r") as f:
+        g = f[FUSED_GROUP]
+        frame, observed, status = g["frame"][:], g["observed"][:], g["status"][:]
+        n_nodes = observed.shape[1] if observed.ndim == 2 else 0
+    n_seen = observed.sum(axis=1) if observed.ndim == 2 else np.zeros(frame.size, int)
+    _, per_frame = np.unique(frame, return_counts=True)
+    lines = [f"  rows: one per (frame, target) of the association; {int(np.sum(n_seen == n_nodes))} "
+             f"seen by all {n_nodes} nodes, {int(np.sum(n_seen < n_nodes))} by fewer",
+             f"  {int(np.sum(per_frame > 1))} frames hold more than one target: detections "
+             f"farther apart than the association gate stay separate targets (a second person, "
+             f"clutter, a ghost, or one person placed apart by the nodes)"]
+    codes, counts = np.unique(status[status != 0], return_counts=True)
+    if codes.size:
+        lines.append("  flagged by status: " + ", ".join(
+            f"{n} {Status(int(c)).name.lower()} ({int(c)})" for c, n in zip(codes, counts)))
+    return "\n".join(lines)
+
+
 def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.chunks import open_detection_windows
 
@@ -204,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
           f"{args.solver}, robust {args.robust}{motion_text(args)}): {n_ok} succeeded, "
           f"{fused.n_rows - n_ok} "
           f"flagged; wrote {path}:/fused", file=sys.stdout)
+    print(rows_text(path), file=sys.stdout)
     if fused.room.outside or fused.room.duplicate:
         print(f"room checks flagged {fused.room.outside} target(s) outside the bounds and "
               f"{fused.room.duplicate} duplicate(s) of a body", file=sys.stdout)

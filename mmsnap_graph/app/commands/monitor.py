@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 import numpy as np
 
@@ -30,12 +31,14 @@ def register(subparsers) -> None:
         description="Compare each node's detections with the target fused from the other "
                     "nodes, frame by frame; a persistent pose error (a bumped radar) raises a "
                     "chi-square statistic over 3-20 s windows. Reports the change points and "
-                    "the node's new pose with its covariance.")
+                    "the node's new pose with its covariance. Angles are printed in degrees; the JSON "
+                    "holds radians, as the files do.")
     p.add_argument("recording", help="HDF5 recording with node poses (run mmsnap calibrate)")
     p.add_argument("--poses", default=None, metavar="CALIBRATION_JSON",
                    help="node poses from this calibration JSON instead of the recording's")
     p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
-                   default=None, help="centroid noise of every node (default: the recording's "
+                   default=None, help="OMEGA_RAD is the sigma of omega = pi sin(theta), a phase in "
+                                      "radians, not an angle; centroid noise of every node (default: the recording's "
                                       "/noise group pooled over the nodes, stored by `mmsnap "
                                       "calibrate`; else the centroid_*_std metadata; else the "
                                       "paper's resolutions)")
@@ -45,7 +48,14 @@ def register(subparsers) -> None:
     p.add_argument("--recalibration-s", type=float, default=15.0,
                    help="seconds of data after a change used to re-calibrate (default "
                         "%(default)s)")
-    p.add_argument("--json", default=None, help="also write the result as JSON to this path")
+    p.add_argument("--json-out", default=None, metavar="PATH",
+                   help="also write the result as JSON to this path (angles in radians)")
+    p.add_argument("--json", action="store_true",
+                   help="print the result as JSON to stdout instead of the text (angles in "
+                        "radians)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (the bar, over frames, is drawn on stderr when it is "
+                        "a terminal)")
     add_overwrite(p)
     p.set_defaults(func=run)
 
@@ -102,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.fusion.recording.timing import align_recording
     from mmsnap_graph.io import read_recording
 
-    json_path = check_output_path(args.json) if args.json else None
+    json_path = check_output_path(args.json_out) if args.json_out else None
     rec = read_recording(args.recording, load_cubes=False)
     cal = stored_calibration(args.recording, rec.node_names, calibration_json=args.poses,
                              sigmas=args.sigmas, per_node_noise=False)
@@ -110,17 +120,20 @@ def run(args: argparse.Namespace) -> int:
         text = ("no /noise group (run `mmsnap calibrate` or `mmsnap noise`): the recording's "
                 "centroid noise metadata, else the paper's sigmas")
         cal = cal.with_default_noise(None, text)
-    print("\n".join(cal.text))
+    say = (lambda text: print(text, file=sys.stderr)) if args.json else print
+    say("\n".join(cal.text))
     if cal.time_offset_s:  # the centroids on the reference clock, as `mmsnap fuse` fuses them
         rec = align_recording(rec, cal.time_offset_s)
     threshold = DEFAULT_THRESHOLD if args.threshold is None else args.threshold
     result = monitor_recording(rec, node_poses=cal.node_poses,
                                node_covariances=cal.pose_covariances,
                                noise=cal.noise, threshold=threshold,
-                               recalibration_s=args.recalibration_s)
-    print(format_result(result))
+                               recalibration_s=args.recalibration_s,
+                               progress=not args.no_progress and sys.stderr.isatty())
+    # With --json, stdout holds the JSON alone; the words go to stderr.
+    print(json.dumps(result_json(result), indent=2) if args.json else format_result(result))
     if json_path is not None:
         with atomic_path(json_path) as tmp:
             tmp.write_text(json.dumps(result_json(result), indent=2) + "\n", encoding="utf-8")
-        print(f"wrote {json_path}")
+        say(f"wrote {json_path}")
     return 1 if any(not r.success for r in result.recalibrations) else 0

@@ -7,6 +7,8 @@ import argparse
 import dataclasses
 import sys
 
+import numpy as np
+
 from mmsnap_graph._atomic import check_output_path
 from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import ConfigurationError, ValidationError
@@ -91,6 +93,32 @@ def effective_config(args: argparse.Namespace):
                          sparse=sparse, scene=scene)
 
 
+def counts_text(node, frame_period_s: float) -> str:
+    """What a node's centroid and track counts mean, in words: centroids are
+    the clusters kept per frame (a person, or clutter and ghosts the scene
+    filters let through); tracks are the EKF's confirmed track ids, a new id
+    each time a track is lost (no centroid in its gate for ``max_coast_s``)
+    and restarted, so one walker can make many tracks one after another."""
+    lines = []
+    cents, tracks = node.centroids, node.tracks
+    if cents is not None and len(cents):
+        frames, per_frame = np.unique(cents.frame, return_counts=True)
+        lines.append(f"  centroids: {len(cents)} clusters in {frames.size} frames (one a frame "
+                     f"is one person; at most {per_frame.max()} in a frame, "
+                     f"{int(np.sum(per_frame > 1))} frames with more: clutter, ghosts or "
+                     f"several people)")
+    if tracks is not None and tracks.frame.size:
+        ids, lengths = np.unique(tracks.track_id, return_counts=True)
+        t_frames, alive = np.unique(tracks.frame, return_counts=True)
+        longest = int(lengths.max())
+        lines.append(f"  tracks: {ids.size} confirmed EKF track ids (a lost track ends and a "
+                     f"new id starts: one walker gives several, one after another)")
+        lines.append(f"  tracks alive in {t_frames.size} frames, at most {alive.max()} at once; "
+                     f"longest {longest} frames ({longest * frame_period_s:.1f} s), median "
+                     f"{int(np.median(lengths))} frames")
+    return "\n".join(lines) if lines else "  no centroids, no tracks"
+
+
 def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.app.config_file import process_config_to_toml
 
@@ -110,9 +138,15 @@ def run(args: argparse.Namespace) -> int:
                                  centroids_only=args.centroids_only, progress=progress,
                                  ekf_noise="data" if cfg.ekf_noise_from_data else "config",
                                  sparse=cfg.sparse, scene=cfg.scene)
+    from mmsnap_graph.io import read_recording
+
+    rec = read_recording(path, load_cubes=False)
     for rep in reports.values():
         print(f"{rep.name}: {rep.level}: {rep.n_points} points, {rep.n_centroids} centroids, "
               f"{rep.n_tracks} tracks ({rep.message})")
+        node = rec.nodes.get(rep.name)
+        if node is not None:
+            print(counts_text(node, rec.frame_period_s))
     print(f"wrote {path}")
     # Flagged frames are reported above; failing is for nothing processed.
     return 0 if any(rep.level != "none" for rep in reports.values()) else 1

@@ -24,7 +24,8 @@ def register(subparsers) -> None:
     p.add_argument("-c", "--configuration", choices=["A", "B", "C"], default="C",
                    help="network configuration (default %(default)s); ignored with --node")
     p.add_argument("--node", action="append", type=named_pose, metavar="NAME=X,Y,PHI_DEG",
-                   help="a node pose (repeat; the first is the reference S1), e.g. S1=0,0,0")
+                   help="a node pose: x, y in metres, heading PHI in degrees (stored in radians); repeat, "
+                        "the first is the reference S1, e.g. S1=0,0,0")
     p.add_argument("-t", "--trajectory", choices=["straight", "random"], default="straight",
                    help="target trajectory (default %(default)s)")
     p.add_argument("-l", "--levels", default="centroids,point_cloud",

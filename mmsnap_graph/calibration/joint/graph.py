@@ -80,6 +80,20 @@ class JointGraph:
         self.state_key = [gtsam.symbol("v", k) for k in range(self.f)]
         #: name -> -lag * frame period (s): the offset the frames already remove.
         self.lag_offsets = {n: 0.0 for n in active}
+        #: The range offset (m) added to every measured range so far (the
+        #: estimated reflection depth: the graph's factors then see ranges
+        #: of the body's centre).
+        self.range_offset_m = 0.0
+        #: (steps, converged) of each numpy pre-solve run.
+        self.presolve_steps: list[tuple[int, bool]] = []
+        self.frame_period_s: float | None = None
+
+    def shift_ranges(self, offset_m: float) -> None:
+        """Add ``offset_m`` to every measured range (an estimated range
+        offset, :attr:`range_offset_m` keeps the total)."""
+        if offset_m:
+            self.meas = {n: z + np.array([offset_m, 0.0, 0.0]) for n, z in self.meas.items()}
+            self.range_offset_m += float(offset_m)
 
     def _measurement(self, n, k, z, noise):
         if n == self.ref:
@@ -362,8 +376,9 @@ def run_message(active, f, outliers, iterations, notes, unobservable, unreachabl
     if unreachable:
         notes.append(f"no common frames linking {', '.join(unreachable)} to {ref}")
     n_out = sum(int(o.sum()) for o in outliers.values())
+    solver = iterations if isinstance(iterations, str) else f"{iterations} LM iterations"
     msg = (f"joint calibration of {len(active)} nodes on {f} frames, {n_out} outlier "
-           f"detection(s), {iterations} LM iterations")
+           f"detection(s), {solver}")
     if notes:
         msg += "; " + "; ".join(notes)
     return msg

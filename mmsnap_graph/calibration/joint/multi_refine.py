@@ -162,7 +162,10 @@ def refine_associated(recording: Recording, names, poses, covariances, lag_frame
         if not out.joint.success or moved < ROUND_TOLERANCE:
             break
         poses = {**poses, **{n: out.joint.poses[n] for n in out.joint.poses}}
-        covariances = {n: out.joint.covariances[n] for n in out.joint.poses}
+        # The association gates take the graph's own marginals: the long-run
+        # widening covers errors that last seconds, not a frame's misfit.
+        marg = out.joint.model_covariances or out.joint.covariances
+        covariances = {n: marg[n] for n in out.joint.poses}
         if learn_gates:
             given = dataclasses.replace(given, noise=_association_noise(out.noise))
     return best

@@ -19,6 +19,7 @@ from factors.robust import ROBUST_K_DEFAULT
 from ...errors import ValidationError
 from ..._validation import check_count, check_positive, check_probability, frozen_vector
 from ..pairwise.closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
+from .covariance import DEFAULT_BANDWIDTH_S
 
 __all__ = ["DEFAULT_ROBUST_K", "DEFAULT_MOTION_ROBUST_K", "JointOptions"]
 
@@ -80,6 +81,19 @@ class JointOptions:
         False: LM from the closed form (slower, same optimum).
     state_covariances : also return each frame's state marginal (slow for
         long sequences; NaN otherwise).
+    range_offset_prior_m : ``(mean, sigma)`` in metres: estimate a range
+        offset ``d`` common to every node, the reflection depth of an
+        extended target (each radar's centroid sits ``d`` nearer to it than
+        the body's centre: range ``|p - p_i| - d``), with this Gaussian
+        prior; its uncertainty enters the pose covariances
+        (docs/CALIBRATION.md, "Extended targets"). None (default): no offset.
+    covariance : ``"long_run"`` (default): the pose covariance widened to
+        the long-run (Newey-West) covariance of the frames' influences where
+        that exceeds the model's beyond its sampling noise (errors correlated
+        in time, model error: :mod:`.covariance`); ``"model"``: the
+        marginals of the graph alone. The long-run covariance needs
+        ``frame_period_s`` (else the model's is kept).
+    covariance_bandwidth_s : the Bartlett bandwidth (s) of ``"long_run"``.
 
     A bad value raises :class:`~mmsnap_graph.errors.ValidationError` naming
     the field.
@@ -102,6 +116,9 @@ class JointOptions:
     max_iterations: int = 50
     presolve: bool = True
     state_covariances: bool = False
+    range_offset_prior_m: tuple[float, float] | None = None
+    covariance: Literal["long_run", "model"] = "long_run"
+    covariance_bandwidth_s: float = DEFAULT_BANDWIDTH_S
 
     def __post_init__(self) -> None:
         for name in ("robust", "motion_robust"):
@@ -125,6 +142,19 @@ class JointOptions:
         object.__setattr__(self, "state_prior_sigmas", tuple(float(v) for v in prior))
         object.__setattr__(self, "gate_probability",
                            check_probability(self.gate_probability, "gate_probability"))
+        if self.range_offset_prior_m is not None:
+            mean, sigma = frozen_vector(self.range_offset_prior_m, "range_offset_prior_m", 2)
+            if not (np.isfinite(mean) and abs(mean) <= 1.0):
+                raise ValidationError(f"range_offset_prior_m mean must be finite metres within "
+                                      f"+-1 m, got {mean!r}")
+            check_positive(sigma, "range_offset_prior_m sigma")
+            object.__setattr__(self, "range_offset_prior_m", (float(mean), float(sigma)))
+        if self.covariance not in ("long_run", "model"):
+            raise ValidationError(f"covariance={self.covariance!r} must be 'long_run' or "
+                                  f"'model'")
+        object.__setattr__(self, "covariance_bandwidth_s",
+                           float(check_positive(self.covariance_bandwidth_s,
+                                                "covariance_bandwidth_s")))
 
     @property
     def kernel_k(self) -> float | None:

@@ -33,10 +33,16 @@ import scipy.linalg as la
 from factors.models import measurement_model, measurement_model_pose, residual
 from factors.motion import cv_process_noise_continuous
 
+from ...errors import ValidationError
 from ...fusion.solvers.settings import LM_SETTINGS
 from ..poses import pose_array, to_pose2
 
-__all__ = ["PresolveProblem", "presolve", "normal_equations", "cv_information", "kernel_weight", "robust_cost",
+#: The key of the range offset (metres) in the pre-solve's ``offsets``
+#: (not a node name: node names are strings).
+RANGE_OFFSET = ("range offset",)
+
+__all__ = ["PresolveProblem", "RANGE_OFFSET", "presolve", "normal_equations", "pose_influences",
+           "cv_information", "kernel_weight", "robust_cost",
            "shifted_states", "motion_norms"]
 
 
@@ -148,7 +154,7 @@ class _Problem:
     """
 
     def __init__(self, measurements, names, reference, sigmas, prior_sigmas, robust, k, use,
-                 motion, n_frames, timed=()):
+                 motion, n_frames, timed=(), range_offset=None):
         self.meas = measurements
         self.names = list(names)
         self.ref = reference
@@ -166,6 +172,13 @@ class _Problem:
                                  + ([p0 + self.timed.index(n)] if n in self.timed else []))
                      for i, n in enumerate(self.others)}
         self.dim = self.s0 + p0 + len(self.timed)
+        # The range offset (module doc), when estimated: one more unknown
+        # after the clock offsets, with its prior (mean, sigma) in metres.
+        self.range_prior = None if range_offset is None else tuple(map(float, range_offset))
+        self.dcol = None
+        if self.range_prior is not None:
+            self.dcol = self.dim - self.s0
+            self.dim += 1
         self.use = ({n: np.isfinite(measurements[n][:, 0]) for n in self.names} if use is None
                     else use)
         self.prior_w = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
@@ -180,11 +193,21 @@ class _Problem:
             # Optional kernel on the motion factors' whitened norm (sharp turns).
             self.motion_robust, self.motion_k = (motion[3], motion[4]) if len(motion) > 3 else (None, 1.0)
 
+    def range_offset(self, offsets) -> float:
+        """The range offset (m) in ``offsets`` (0 when not estimated)."""
+        if self.dcol is None or offsets is None:
+            return 0.0
+        return float(offsets.get(RANGE_OFFSET, 0.0))
+
     def cost(self, poses, states, offsets=None) -> float:
         c = 0.5 * np.sum(self.prior_w * states**2)
+        d = self.range_offset(offsets)
+        if self.dcol is not None:
+            c += 0.5 * ((d - self.range_prior[0]) / self.range_prior[1]) ** 2
         for n in self.names:
             ok = self.use[n]
             h, _ = measurement_model(shifted_states(states[ok], _offset(offsets, n)), poses[n])
+            h[:, 0] -= d
             c += robust_cost(np.linalg.norm(residual(h, self.meas[n][ok]) / self.sigmas, axis=1),
                              self.robust, self.k)
         if self.mi is not None:
@@ -198,10 +221,12 @@ class _Problem:
         p = self.dim - self.s0
         hpp = np.zeros((p, p))
         sig = self.sigmas
+        d = self.range_offset(offsets)
         for n in self.names:
             ok = self.use[n]
             tau = _offset(offsets, n)
             h, jp, js = measurement_model_pose(poses[n], shifted_states(states[ok], tau))
+            h[:, 0] -= d
             e = residual(h, self.meas[n][ok]) / sig
             w = kernel_weight(np.linalg.norm(e, axis=1), self.robust, self.k)
             js = js / sig[:, None]
@@ -214,6 +239,8 @@ class _Problem:
             jsw = np.swapaxes(js, 1, 2) * w[:, None, None]  # (K, 4, 3), matmul: no einsum loops
             hss[ok] += jsw @ js
             gs[ok] += (np.swapaxes(js, 1, 2) @ ew[:, :, None])[:, :, 0]
+            if self.dcol is not None:
+                self._range_offset_blocks(n, ok, jp, jsw, ew, w, hpp, g, bmat)
             if n != self.ref:
                 cols = self.cols[n]
                 jp = jp / sig[:, None]
@@ -224,6 +251,23 @@ class _Problem:
                 bmat[rows[:, None, None], np.arange(4)[None, :, None],
                      cols[None, None, :]] += jsw @ jp  # (K, 4, q)
         return hpp
+
+    def _range_offset_blocks(self, n, ok, jp, jsw, ew, w, hpp, g, bmat):
+        """Add node ``n``'s terms of the range offset (every node's range
+        is ``|p - p_i| - d``: whitened Jacobian ``-1 / sigma_range`` on the
+        range row): its diagonal, gradient, coupling with the states and
+        with the node's pose (and clock offset)."""
+        dc, sr = self.dcol, self.sigmas[0]
+        hpp[dc, dc] += np.sum(w) / sr**2
+        g[self.s0 + dc] -= np.sum(ew[:, 0]) / sr
+        rows = np.flatnonzero(ok)
+        bmat[rows, :, dc] -= jsw[:, :, 0] / sr
+        if n != self.ref:
+            cols = self.cols[n]
+            jpw = jp / self.sigmas[:, None]  # whitened (K, 3, q)
+            cross = -np.sum(jpw[:, 0, :] * w[:, None], axis=0) / sr
+            hpp[cols, dc] += cross
+            hpp[dc, cols] += cross
 
     def motion_norms(self, states) -> NDArray:
         """(G,) whitened norms ``sqrt(e^T Lambda e)`` of the CV factors."""
@@ -254,11 +298,70 @@ class _Problem:
         gs = states * self.prior_w
         bmat = np.zeros((self.f, 4, self.dim - self.s0))
         hpp = self._measurement_blocks(poses, states, offsets, hss, gs, g, bmat)
+        if self.dcol is not None:  # the range offset's prior
+            mean, sigma = self.range_prior
+            hpp[self.dcol, self.dcol] += 1.0 / sigma**2
+            g[self.s0 + self.dcol] += (self.range_offset(offsets) - mean) / sigma**2
         off = (self._motion_blocks(states, hss, gs) if self.mi is not None
                else np.zeros((0, 4, 4)))
         g[:self.s0] = gs.ravel()
         mi = self.mi if self.mi is not None else np.zeros(0, dtype=int)
         return _Blocks(hss=hss, off=off, mi=mi, bmat=bmat, hpp=hpp, g=g)
+
+    def influences(self, poses, states, offsets=None) -> tuple[NDArray, NDArray]:
+        """Each frame's influence on the pose block at a solution and the
+        model's covariance of that block (:func:`pose_influences`)."""
+        blk = self.blocks(poses, states, offsets)
+        s0, p = self.s0, self.dim - self.s0
+        chol = la.cholesky_banded(_state_band(blk.hss, blk.off, blk.mi, np.zeros(s0)),
+                                  lower=True)
+        bm = blk.bmat.reshape(s0, p)
+        y = la.cho_solve_banded((chol, True), bm, check_finite=False)  # H_ss^-1 H_sp
+        schur = blk.hpp - bm.T @ y
+        cov = la.inv(0.5 * (schur + schur.T))
+        yk = y.reshape(self.f, 4, p)
+        psi = self._frame_pose_gradients(poses, states, offsets)
+        gs = blk.g[:s0].reshape(self.f, 4).copy()
+        if self.mi is not None:
+            # The motion factor k -> k+1 belongs to frame k: its gradient at
+            # state k + 1 leaves frame k + 1's share and joins frame k's.
+            mi = self.mi
+            e = states[mi + 1] - (self.fm @ states[mi][:, :, None])[:, :, 0]
+            le = (self.lam_cv @ e[:, :, None])[:, :, 0]
+            ga = -(np.swapaxes(self.fm, 1, 2) @ le[:, :, None])[:, :, 0]
+            np.subtract.at(gs, mi, ga)
+            np.subtract.at(gs, mi + 1, le)
+            psi[mi] -= (np.einsum("kip,ki->kp", yk[mi], ga)
+                        + np.einsum("kip,ki->kp", yk[mi + 1], le))
+        psi -= np.einsum("kip,ki->kp", yk, gs)
+        if self.dcol is not None:  # the prior's share of the gradient, spread evenly
+            d = self.range_offset(offsets)
+            psi[:, self.dcol] += (d - self.range_prior[0]) / self.range_prior[1] ** 2 / self.f
+        return psi @ cov, cov
+
+    def _frame_pose_gradients(self, poses, states, offsets) -> NDArray:
+        """(F, P) each frame's measurement gradient with respect to the pose
+        block (Gaussian: the final pass has no kernel)."""
+        psi = np.zeros((self.f, self.dim - self.s0))
+        sig = self.sigmas
+        d = self.range_offset(offsets)
+        for n in self.names:
+            ok = self.use[n]
+            tau = _offset(offsets, n)
+            h, jp, js = measurement_model_pose(poses[n], shifted_states(states[ok], tau))
+            h[:, 0] -= d
+            e = residual(h, self.meas[n][ok]) / sig
+            rows = np.flatnonzero(ok)
+            if self.dcol is not None:
+                psi[rows, self.dcol] -= e[:, 0] / sig[0]
+            if n == self.ref:
+                continue
+            if n in self.timed:
+                jt = (js / sig[:, None])[:, :, :2] @ states[ok, 2:, None]
+                jp = np.concatenate([jp, jt * sig[:, None]], axis=2)
+            jp = jp / sig[:, None]
+            psi[np.ix_(rows, self.cols[n])] += np.einsum("kri,kr->ki", jp, e)
+        return psi
 
     def system(self, poses, states, offsets=None) -> tuple[sp.csc_matrix, NDArray]:
         """Gauss-Newton Hessian (sparse) and gradient at ``(poses, states, offsets)``."""
@@ -287,6 +390,9 @@ class _Problem:
         new_offsets = None if offsets is None else dict(offsets)
         for n in self.timed:
             new_offsets[n] = float(offsets[n] + delta[self.s0 + self.cols[n][3]])
+        if self.dcol is not None:
+            new_offsets[RANGE_OFFSET] = self.range_offset(offsets) + float(
+                delta[self.s0 + self.dcol])
         return new, states + delta[:self.s0].reshape(self.f, 4), new_offsets
 
 
@@ -345,18 +451,45 @@ class PresolveProblem:
     k: float = 1.0
     use: Mapping[str, NDArray] | None = field(default=None)
     motion: tuple | None = None
+    range_offset: tuple[float, float] | None = None
 
 
 def _problem(problem: PresolveProblem, poses, states, offsets=None):
     poses = {n: np.asarray(p, dtype=float).copy() for n, p in poses.items()}
     states = np.array(states, dtype=float)
     q = problem
+    given = {} if offsets is None else dict(offsets)
+    timed = tuple(n for n in given if n != RANGE_OFFSET)
     prob = _Problem(q.measurements, q.names, q.reference, np.asarray(q.sigmas, dtype=float),
                     q.prior_sigmas, q.robust, q.k, q.use, q.motion, states.shape[0],
-                    timed=() if offsets is None else tuple(offsets))
-    if offsets is not None:
-        offsets = {n: float(offsets.get(n, 0.0)) for n in q.names}
+                    timed=timed, range_offset=q.range_offset)
+    if offsets is not None and (timed or q.range_offset is None):
+        offsets = {n: float(given.get(n, 0.0)) for n in q.names}
+    elif q.range_offset is not None:
+        offsets = {}
+    if q.range_offset is not None:
+        offsets[RANGE_OFFSET] = float(given.get(RANGE_OFFSET, q.range_offset[0]))
     return prob, poses, states, offsets
+
+
+def pose_influences(problem: PresolveProblem, poses: Mapping[str, NDArray], states: NDArray,
+                    *, offsets: Mapping | None = None) -> tuple[NDArray, NDArray]:
+    """Each frame's influence on the pose block at a solution of the
+    (Gaussian) graph, ``(F, P)``, and the model's covariance of that block
+    ``S^-1`` (``S`` the Schur complement onto it), in the block's order: the
+    non-reference poses (body tangent), the clock offsets of the nodes in
+    ``offsets``, the range offset when ``problem.range_offset`` is set.
+
+    Frame ``k``'s score with the states eliminated is ``psi_k = g_p[k] -
+    Y_k^T g_s[k]`` (``Y = H_ss^-1 H_sp``; ``g_p[k]``, ``g_s[k]`` the
+    gradients of frame ``k``'s measurement and prior factors and of its
+    outgoing motion factor); its influence is ``S^-1 psi_k``: the influences
+    sum to zero at the optimum, and their summed outer products equal ``S^-1``
+    on the average when the model holds (:mod:`.covariance`)."""
+    if problem.robust is not None:
+        raise ValidationError("pose_influences needs the Gaussian graph (robust=None)")
+    prob, poses, states, offsets = _problem(problem, poses, states, offsets)
+    return prob.influences(poses, states, offsets)
 
 
 def normal_equations(problem: PresolveProblem, poses: Mapping[str, NDArray], states: NDArray,
@@ -408,7 +541,7 @@ def presolve(problem: PresolveProblem, poses: Mapping[str, NDArray], states: NDA
     :func:`shifted_states`) it returns ``(poses, states, offsets)``. A
     ``report`` dict receives ``initial_cost``, ``cost`` (GTSAM's error of the
     same graph), ``steps`` and ``converged``."""
-    timed = offsets is not None
+    timed = offsets is not None or problem.range_offset is not None
     prob, poses, states, offsets = _problem(problem, poses, states, offsets)
     lam, nu = LM_SETTINGS.lambda_initial, LM_SETTINGS.lambda_factor
     cost = initial_cost = prob.cost(poses, states, offsets)

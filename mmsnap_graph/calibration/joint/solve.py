@@ -53,7 +53,8 @@ from .graph import (
     run_message,
 )
 from .options import JointOptions
-from .presolve import PresolveProblem, motion_norms
+from .covariance import BlockCovariance, bandwidth_frames, block_covariance
+from .presolve import RANGE_OFFSET, PresolveProblem, motion_norms
 from .presolve import presolve as numpy_presolve
 from .robust_start import starting_poses, starting_states
 
@@ -85,6 +86,13 @@ class JointCalibration:
         ``joint_order`` with their cross-covariances (the poses share the
         target's states, so a network's pose errors are correlated); None
         when the marginals failed.
+    range_offset_m, range_offset_variance : the estimated range offset
+        (reflection depth, m) and its variance (m^2) with
+        ``JointOptions.range_offset_prior_m``; NaN without.
+    model_covariances : the graph's marginals (``covariances`` holds the
+        reported ones: with the range offset marginalized and, with
+        ``JointOptions.covariance="long_run"``, widened where the data show
+        correlated errors or model error).
     lag_frames : name -> the whole-frame lag of the final solve: the
         ``lag_frames`` given, or one frame from it for a node whose clock
         offset came out more than :data:`LAG_RECENTRE_FRACTION` of a frame
@@ -112,6 +120,9 @@ class JointCalibration:
     joint_covariance: NDArray | None = None
     joint_order: tuple[str, ...] = ()
     lag_frames: Mapping[str, int] = field(default_factory=dict)
+    range_offset_m: float = float("nan")
+    range_offset_variance: float = float("nan")
+    model_covariances: Mapping[str, NDArray] = field(default_factory=dict)
 
 
 def _detections_table(dets: Mapping[str, Detections]):
@@ -288,15 +299,28 @@ def _presolve(graph, start, sig, options: JointOptions, *, kernel: bool, motion,
     under the options' robust kernel when ``kernel``; returns ``(poses,
     states, offsets)``."""
     poses, states, offsets = start
-    problem = PresolveProblem(
+    problem = _problem(graph, sig, options, kernel=kernel, motion=motion, use=use)
+    given = dict(offsets) if graph.timed else None
+    if problem.range_offset is not None:  # the offset beyond the shift applied so far
+        given = {**(given or {}), RANGE_OFFSET: 0.0}
+    out = numpy_presolve(problem, poses, states, offsets=given, report=report)
+    if problem.range_offset is not None:
+        graph.shift_ranges(out[2].pop(RANGE_OFFSET))
+    return out if graph.timed else (out[0], out[1], offsets)
+
+
+def _problem(graph, sig, options: JointOptions, *, kernel: bool, motion, use=None
+             ) -> PresolveProblem:
+    """The graph as the numpy pre-solve sees it; the range offset's prior
+    is on the offset beyond the shift already applied to the ranges."""
+    prior = options.range_offset_prior_m
+    return PresolveProblem(
         measurements=graph.meas, names=graph.active, reference=graph.ref, sigmas=sig,
         prior_sigmas=np.asarray(options.state_prior_sigmas), use=use,
         robust=options.robust if kernel else None,
         k=options.kernel_k if kernel and options.robust is not None else 1.0,
-        motion=None if motion is None else motion.as_tuple())
-    out = numpy_presolve(problem, poses, states, offsets=offsets if graph.timed else None,
-                         report=report)
-    return out if graph.timed else (out[0], out[1], offsets)
+        motion=None if motion is None else motion.as_tuple(),
+        range_offset=None if prior is None else (prior[0] - graph.range_offset_m, prior[1]))
 
 
 def _robust_pass(graph, start, sig, options: JointOptions, params):
@@ -310,6 +334,7 @@ def _robust_pass(graph, start, sig, options: JointOptions, params):
     if options.presolve:
         start = _presolve(graph, start, sig, options, kernel=True, motion=graph.motion,
                           report=report)
+        graph.presolve_steps.append((report["steps"], report["converged"]))
         if report["converged"]:
             return (*start, 0, report["initial_cost"])
     fg = graph.build(measurement_noise(sig, options.robust, options.kernel_k), has)
@@ -360,14 +385,18 @@ def _solve(graph, start, x0, sig, options: JointOptions):
         raise _Breakdown(f"every detection of {', '.join(starved)} is an outlier: no pose "
                          f"left to estimate")
     motion, n_turns = _final_motion(graph, states, robust, turn_frames, gate_probability)
-    if (robust is not None or n_turns) and options.presolve:
+    if (robust is not None or n_turns or options.range_offset_prior_m is not None) \
+            and options.presolve:
+        report: dict = {}
         poses, states, offsets = _presolve(graph, (poses, states, offsets), sig, options,
-                                           kernel=False, motion=motion, use=inl)
+                                           kernel=False, motion=motion, use=inl, report=report)
+        graph.presolve_steps.append((report["steps"], report["converged"]))
     fg = graph.build(measurement_noise(sig), inl, motion)
     result, more, final_error, linear = _refine(fg, graph.values(poses, states, offsets),
                                                 params, options.presolve, graph.ordering())
     return fg, result, dict(outliers=outliers, iterations=iterations + more, turns=n_turns,
-                            initial_error=initial_error, final_error=final_error, linear=linear)
+                            initial_error=initial_error, final_error=final_error, linear=linear,
+                            use=inl, motion=motion)
 
 
 def joint_calibration(
@@ -476,6 +505,7 @@ def _setup(inputs: _Inputs, options: JointOptions):
                        timed=active if options.time_offsets else ())
     period = float(inputs.frame_period_s or 0.0)
     graph.lag_offsets = {n: -inputs.lag_frames.get(n, 0) * period for n in active}
+    graph.frame_period_s = inputs.frame_period_s
     return frames, init, x0, unreachable, graph
 
 
@@ -491,7 +521,20 @@ def _estimate(graph, frames, init, x0, unreachable, sig,
         options.max_pose_condition, run["linear"])
     if run["turns"]:
         notes = [f"{run['turns']} sharp turn(s) left out of the motion factors"] + notes
-    msg = run_message(active, frames.size, run["outliers"], run["iterations"], notes,
+    block = None
+    if not unobservable and joint_cov is not None:
+        block = _block_covariance(graph, (poses, states, offsets), sig, options, run, frames)
+        if isinstance(block, str):
+            notes.append(block)
+            block = None
+    if block is not None:
+        covs, variances, joint_cov = _from_block(block, graph, covs, variances)
+        notes.append(block.describe())
+    if options.range_offset_prior_m is not None:
+        sd = np.sqrt(block.variance(("range",))) if block is not None else float("nan")
+        notes.append("range offset (reflection depth) {:.3f} +- {:.3f} m (prior {:.2f} +- "
+                     "{:.2f} m)".format(graph.range_offset_m, sd, *options.range_offset_prior_m))
+    msg = run_message(active, frames.size, run["outliers"], _solver_note(graph, run), notes,
                       unobservable, unreachable, ref)
     return JointCalibration(
         reference=ref, poses=poses, covariances=covs,
@@ -502,7 +545,58 @@ def _estimate(graph, frames, init, x0, unreachable, sig,
         unobservable=unobservable, unreachable=tuple(unreachable),
         time_offset_s={n: graph.lag_offsets[n] + offsets[n] for n in active},
         time_offset_variances=variances, turns=run["turns"], joint_covariance=joint_cov,
-        joint_order=tuple(n for n in active if n != ref) if joint_cov is not None else ())
+        joint_order=tuple(n for n in active if n != ref) if joint_cov is not None else (),
+        range_offset_m=(graph.range_offset_m if options.range_offset_prior_m is not None
+                        else float("nan")),
+        range_offset_variance=(block.variance(("range",)) if block is not None
+                               else float("nan")),
+        model_covariances=(_from_block(dataclasses.replace(block, covariance=block.model),
+                                       graph, covs, variances)[0] if block is not None
+                           else dict(covs)))
+
+
+def _solver_note(graph, run) -> str:
+    """How the solve converged, in words: the numpy pre-solve does the
+    work; GTSAM's Gauss-Newton steps (one when the pre-solve converged)
+    confirm its optimum."""
+    steps = graph.presolve_steps
+    gn = f"{run['iterations']} GTSAM Gauss-Newton/LM step(s)"
+    if not steps:
+        return gn
+    done = all(c for _, c in steps)
+    return (f"numpy pre-solve {'+'.join(str(n) for n, _ in steps)} step(s) "
+            f"({'converged' if done else 'NOT converged: GTSAM continued'}), then {gn}"
+            + (" confirming its optimum" if done else ""))
+
+
+def _block_covariance(graph, point, sig, options: JointOptions, run, frames):
+    """The pose block's covariance (:mod:`.covariance`) of the final
+    Gaussian pass, or a note saying why the graph's marginals are kept."""
+    long_run = options.covariance == "long_run" and graph.frame_period_s is not None
+    if options.range_offset_prior_m is None and not long_run:
+        return None
+    poses, states, offsets = point
+    problem = _problem(graph, sig, options, kernel=False, motion=run["motion"], use=run["use"])
+    given = {n: offsets[n] for n in graph.timed}
+    if problem.range_offset is not None:
+        given[RANGE_OFFSET] = 0.0
+    bandwidth = (bandwidth_frames(options.covariance_bandwidth_s, graph.frame_period_s)
+                 if long_run else None)
+    try:
+        return block_covariance(problem, poses, states, given or None, frames,
+                                bandwidth=bandwidth, timed=graph.timed)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        return f"covariance: the graph's marginals (the long-run covariance failed: {exc})"
+
+
+def _from_block(block: BlockCovariance, graph, covs, variances):
+    """Marginals, offset variances and the joint pose covariance from a
+    :class:`BlockCovariance`."""
+    others = [n for n in graph.active if n != graph.ref]
+    covs = {**covs, **{n: block.node(n) for n in others}}
+    variances = {**variances, **{n: block.variance(("offset", n)) for n in graph.timed}}
+    p = 3 * len(others)
+    return covs, variances, block.covariance[:p, :p].copy()
 
 
 def _broken_down(graph, frames, init, x0, unreachable, exc) -> JointCalibration:

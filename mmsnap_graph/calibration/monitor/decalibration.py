@@ -31,10 +31,11 @@ from typing import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from tqdm import tqdm
 
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
-from ...errors import ValidationError
+from ...errors import MissingStepError, ValidationError
 from ...fusion.solvers.vectorized import fuse_batch
 from ..._validation import as_float_array, check_count, check_finite, chi2_gate
 from .stats import (
@@ -54,6 +55,8 @@ __all__ = ["DEFAULT_THRESHOLD", "DEFAULT_WINDOWS_S", "DEFAULT_POSE_SIGMAS", "Cha
 DEFAULT_THRESHOLD = chi2_gate(1.0 - 1e-7, 3)
 #: Window lengths of the change test, seconds of frames with an observation.
 DEFAULT_WINDOWS_S = (3.0, 6.0, 12.0, 20.0)
+#: Frames per update_frames call of monitor_recording (the progress bar's step).
+_PROGRESS_BLOCK = 100
 #: Pose sigmas ``(x_m, y_m, phi_rad)`` assumed for a calibration given without
 #: covariance (the reference then learns the pose error from the data).
 DEFAULT_POSE_SIGMAS = (0.1, 0.1, np.deg2rad(2.0))
@@ -500,13 +503,16 @@ def recording_measurements(recording: Recording) -> tuple[NDArray, NDArray]:
 
 def monitor_recording(recording: Recording, *, node_poses: Mapping[str, ArrayLike] | None = None,
                       node_covariances: Mapping[str, ArrayLike] | None = None,
-                      noise: MeasurementNoise | None = None, **options) -> MonitorResult:
+                      noise: MeasurementNoise | None = None, progress: bool = False,
+                      **options) -> MonitorResult:
     """Run :class:`DecalibrationMonitor` over ``recording``'s centroids.
 
     node_poses : default the recording's node poses (its calibration);
-        ValidationError when a node has none.
+        :class:`~mmsnap_graph.errors.MissingStepError` (a
+        CalibrationError) when a node has none.
     noise : default the recording's centroid-noise metadata
         (:func:`recording_noise`), else the paper's resolutions.
+    progress : a tqdm bar over the frames on stderr.
     options : the monitor's (``threshold``, ``windows_s``, ...);
         ``frame_period_s`` is the recording's.
     """
@@ -515,8 +521,9 @@ def monitor_recording(recording: Recording, *, node_poses: Mapping[str, ArrayLik
     if node_poses is None:
         missing = [n for n, p in recording.node_poses().items() if p is None]
         if missing:
-            raise ValidationError(f"nodes {missing} have no pose: calibrate the recording "
-                                  f"first or pass node_poses")
+            raise MissingStepError(f"nodes {missing} have no pose: calibrate the recording "
+                                   f"first or pass node_poses", step="calibrate",
+                                   what=f"nodes {missing} have no pose")
         node_poses = recording.node_poses()
     if noise is None:
         noise = recording_noise(recording.metadata) or MeasurementNoise()
@@ -524,7 +531,15 @@ def monitor_recording(recording: Recording, *, node_poses: Mapping[str, ArrayLik
                                frame_period_s=recording.frame_period_s, **options)
     frames, z = recording_measurements(recording)
     initial = mon.poses
-    updates = mon.update_frames(z, frames * recording.frame_period_s) if frames.size else []
+    times = frames * recording.frame_period_s
+    updates = []
+    # In blocks of frames, for the bar: update_frames gives the same results
+    # whatever the blocks (it equals update() frame by frame).
+    with tqdm(total=frames.size, desc="monitor", unit="frame", disable=not progress) as bar:
+        for a in range(0, frames.size, _PROGRESS_BLOCK):
+            b = min(a + _PROGRESS_BLOCK, frames.size)
+            updates.extend(mon.update_frames(z[a:b], times[a:b]))
+            bar.update(b - a)
     stats = np.full((frames.size, len(mon.node_names)), np.nan)
     for k, u in enumerate(updates):
         for name, t in u.statistics.items():

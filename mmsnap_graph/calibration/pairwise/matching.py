@@ -38,11 +38,12 @@ from numpy.typing import NDArray
 
 from factors.models import detection_to_local
 
-from ...errors import CalibrationError, ValidationError
+from ...errors import CalibrationError, MissingStepError, ValidationError
 from ...data.recording import NodeData
 from ..._validation import as_float_array, check_finite, check_shape, chi2_gate
 from ..poses import pose_tangent_error
 from .closed_form import PairwiseCalibration, closed_form_calibration, closed_form_pose
+from .effective_samples import autocorrelation_factor
 from .matching_options import MatchingOptions
 
 __all__ = ["LocalTracks", "TrackCandidate", "TrackMatching", "match_tracks", "local_tracks"]
@@ -117,7 +118,8 @@ def local_tracks(node: NodeData, source: str = "auto") -> LocalTracks:
         raise CalibrationError(f"node {node.name} has no tracks")
     det = node.centroids
     if det is None or len(det) == 0:
-        raise CalibrationError(f"node {node.name} has neither tracks nor centroids to calibrate from")
+        raise MissingStepError(f"node {node.name} has neither tracks nor centroids to calibrate "
+                               "from", step="process")
     tid = (np.full(len(det), -1, np.int64) if det.target_id is None else det.target_id)
     for t in np.unique(tid):
         fr = det.frame[tid == t]
@@ -151,6 +153,8 @@ class TrackMatching:
     pairs : accepted ``(track_a, track_b)`` pairs.
     lag_frames : node b's frame ``k + lag`` matches node a's frame ``k``.
     candidates : every scored hypothesis.
+    lag_note : how the data decided a nonzero lag (kept: its evidence; not
+        determined: lag 0 kept), empty when lag 0 won outright.
     """
 
     calibration: PairwiseCalibration | None
@@ -159,11 +163,44 @@ class TrackMatching:
     candidates: tuple[TrackCandidate, ...]
     success: bool
     message: str
+    lag_note: str = ""
 
 
 def _common(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
     _, ia, ib = np.intersect1d(fa, fb - lag, assume_unique=True, return_indices=True)
     return ia, ib
+
+
+#: Frame pairs compared at a time when the lags are found from the frame
+#: differences (bounds the memory of a sparse frame span).
+_DIFF_BLOCK = 1 << 22
+
+
+def _overlapping_lags(ta, tb, max_lag_frames: int, need: int) -> list[int]:
+    """The lags within ``+-max_lag_frames`` at which at least ``need`` frames
+    of a's tracks meet frames of b's: a lag window wider than the
+    recording costs no more than the recording (``max_lag_s=1e6`` on 200
+    frames searches at most 400 lags, not 13 million)."""
+    fa = np.unique(np.concatenate([f for f, _, _ in ta.values()]))
+    fb = np.unique(np.concatenate([f for f, _, _ in tb.values()]))
+    if not fa.size or not fb.size:
+        return []
+    lo = max(-int(max_lag_frames), int(fb[0]) - int(fa[-1]))
+    hi = min(int(max_lag_frames), int(fb[-1]) - int(fa[0]))
+    if lo > hi:
+        return []
+    if hi - lo + 1 <= 4 * (fa.size + fb.size):  # dense frames: every lag in the window
+        return list(range(lo, hi + 1))
+    # sparse frames (gaps): only the differences that occur, counted block by block
+    counts: dict[int, int] = {}
+    step = max(1, _DIFF_BLOCK // fb.size)
+    for i in range(0, fa.size, step):
+        with np.errstate(over="ignore"):  # a wrapped difference joins no frame: harmless
+            d = fb[None, :] - fa[i:i + step, None]
+        d = d[(d >= lo) & (d <= hi)]
+        for lag, n in zip(*np.unique(d, return_counts=True)):
+            counts[int(lag)] = counts.get(int(lag), 0) + int(n)
+    return sorted(lag for lag, n in counts.items() if n >= need)
 
 
 def _join(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
@@ -272,18 +309,76 @@ def _fit_lags(cands, lags, pool) -> dict[int, tuple[NDArray, NDArray, NDArray, f
         if not at_lag:
             continue
         best = max(at_lag, key=lambda c: (c.support, -c.rmse_m))
-        pose = best.pose
-        ia, ib = pool.support(pose, lag)
-        for _ in range(2):
-            if ia.size < 3:
-                break
-            pose, _ = closed_form_pose(pool.za[ia], pool.zb[ib])
-            ia, ib = pool.support(pose, lag)
-        if ia.size < 3:
-            continue
-        pose, j = closed_form_pose(pool.za[ia], pool.zb[ib])
-        fits[lag] = (pose, ia, ib, float(np.sqrt(j / ia.size)))
+        fit = _refit(pool, best.pose, lag)
+        if fit is not None:
+            fits[lag] = fit
     return fits
+
+
+def _refit(pool, pose, lag):
+    """``pose`` refitted (twice) on the row pairs it supports at ``lag``:
+    ``(pose, rows a, rows b, inlier RMSE)``, or None below 3 rows."""
+    ia, ib = pool.support(pose, lag)
+    for _ in range(2):
+        if ia.size < 3:
+            return None
+        pose, _ = closed_form_pose(pool.za[ia], pool.zb[ib])
+        ia, ib = pool.support(pose, lag)
+    if ia.size < 3:
+        return None
+    pose, j = closed_form_pose(pool.za[ia], pool.zb[ib])
+    return pose, ia, ib, float(np.sqrt(j / ia.size))
+
+
+#: A nonzero lag is kept only when its fit beats lag 0's on the same track
+#: pairs by at least this many standard errors (module doc).
+LAG_EVIDENCE_Z = 3.0
+
+
+def _same_track_rows(pool, pairs, lag) -> dict[tuple[int, int], int]:
+    """(row of a, track of b) -> row of b at ``lag``, for the track pairs
+    ``pairs`` ((n, 2) ids)."""
+    ja, jb = pool.joins[lag]
+    ids = np.stack([pool.ida[ja], pool.idb[jb]], axis=1)
+    sel = (ids[:, None, :] == pairs[None]).all(-1).any(1)
+    return {(int(a), int(pool.idb[b])): int(b) for a, b in zip(ja[sel], jb[sel])}
+
+
+def lag_evidence(pool, fits, lag) -> tuple[float, NDArray | None]:
+    """How strongly the data prefer ``lag`` to lag 0 (module doc): on the
+    frames of the track pairs that ``lag``'s fit aligns, each lag's pose is
+    fitted on the same rows of node a (paired with node b's frame ``k`` and
+    ``k + lag``); the per-frame differences of their squared residuals
+    (clipped at the gate) give ``z = mean / standard error``, the standard
+    error corrected for their autocorrelation
+    (:func:`autocorrelation_factor`). Returns ``(z, lag 0's pose on those
+    rows)``; ``z`` NaN when fewer than 8 frames pair at both lags."""
+    _, ia, ib, _ = fits[lag]
+    pairs = np.unique(np.stack([pool.ida[ia], pool.idb[ib]], axis=1), axis=0)
+    at0, atl = _same_track_rows(pool, pairs, 0), _same_track_rows(pool, pairs, lag)
+    keys = sorted(set(at0) & set(atl))
+    if len(keys) < 8:
+        return float("nan"), None
+    ra = np.array([k[0] for k in keys])
+    rb0, rbl = np.array([at0[k] for k in keys]), np.array([atl[k] for k in keys])
+    za, gate2 = pool.za[ra], pool.gate ** 2
+    keep = np.ones(ra.size, dtype=bool)
+    for _ in range(3):  # both poses on the rows either aligns within the gate
+        p0, _ = closed_form_pose(za[keep], pool.zb[rb0][keep])
+        pl, _ = closed_form_pose(za[keep], pool.zb[rbl][keep])
+        with np.errstate(over="ignore", invalid="ignore"):  # a wild point: inf, clipped
+            e0 = np.sum(_misalignment(p0, za, pool.zb[rb0]) ** 2, axis=1)
+            el = np.sum(_misalignment(pl, za, pool.zb[rbl]) ** 2, axis=1)
+        keep = (e0 < gate2) | (el < gate2)
+        if keep.sum() < 8:
+            return float("nan"), None
+    d = (np.minimum(e0, gate2) - np.minimum(el, gate2))[keep]
+    frames = pool.fa[ra][keep]
+    order = np.argsort(frames, kind="stable")
+    tau = autocorrelation_factor((d - d.mean())[order, None], frames[order])
+    se = float(np.std(d, ddof=1)) * np.sqrt(tau / d.size)
+    z = float(d.mean() / se) if se > 0 else (float("inf") if d.mean() > 0 else 0.0)
+    return z, p0
 
 
 def _choose_lag(fits, lag_min_improvement) -> int:
@@ -401,9 +496,9 @@ def match_tracks(
     min_spread_m, max_rmse_m = o.min_spread_m, o.max_rmse_m
     inlier_gate_m, gate_probability = o.inlier_gate_m, o.gate_probability
     ta, tb = tracks_a.split_rows(), tracks_b.split_rows()
-    lags = range(-int(max_lag_frames), int(max_lag_frames) + 1)
     if not ta or not tb:
         return _failed(f"no pair of tracks: node a has {len(ta)} track(s), node b {len(tb)}")
+    lags = _overlapping_lags(ta, tb, max_lag_frames, max(min_common_frames, 3))
     pool = _Pool(ta, tb, lags, inlier_gate_m, gate_probability)
     cands = _candidates(ta, tb, lags, pool, min_common_frames, min_spread_m)
     if not cands:
@@ -418,6 +513,7 @@ def match_tracks(
         return _failed(f"no pose aligns 3 frames within {gate}; the "
                        f"best track RMSE is {best.rmse_m:.3g} m", cands)
     lag = _choose_lag(fits, o.lag_min_improvement)
+    lag, fits, note = _supported_lag(pool, fits, lag)
     _, ia, ib, rmse = fits[lag]
     if rmse > max_rmse_m:
         return _failed(f"no pair of tracks matches: the best track RMSE {rmse:.3g} m "
@@ -430,4 +526,25 @@ def match_tracks(
     matched = _matched(pool, lag, ia, ib, cands, o.covariance, min_common_frames, min_spread_m,
                        o.autocorrelation)
     cal = _widened(matched.calibration, lag, fits, ambiguous)
-    return replace(matched, calibration=cal, message=cal.message)
+    if note:
+        cal = replace(cal, message=f"{cal.message}; {note}")
+    return replace(matched, calibration=cal, message=cal.message, lag_note=note)
+
+
+def _supported_lag(pool, fits, lag):
+    """``(lag, fits, note)``: a nonzero ``lag`` that the data do not
+    determine (:func:`lag_evidence` below :data:`LAG_EVIDENCE_Z`) becomes 0,
+    refitted from the lag's own track pairs (a lag-0 fit of other tracks may
+    sit in another basin), and the note says so."""
+    if lag == 0:
+        return lag, fits, ""
+    z, pose0 = lag_evidence(pool, fits, lag)
+    if z >= LAG_EVIDENCE_Z:
+        return lag, fits, f"lag {lag} frames determined by the data (z = {z:.1f})"
+    refit = None if pose0 is None else _refit(pool, pose0, 0)
+    if refit is None:
+        return lag, fits, (f"lag {lag} frames NOT tested against lag 0 (too few frames at "
+                           f"both lags): kept")
+    what = "too few frames to tell" if not np.isfinite(z) else f"z = {z:.1f} < {LAG_EVIDENCE_Z:g}"
+    return 0, {**fits, 0: refit}, (f"lag {lag} frames not determined by the data ({what} "
+                                   f"against lag 0 on the same tracks): lag 0 kept")

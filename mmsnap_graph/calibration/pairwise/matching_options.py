@@ -41,6 +41,8 @@ MATCHING_UNITS: dict[str, str] = {
     "lag_min_improvement": ">= 0", "lag_ambiguity": ">= 0",
 }
 _CHOICES = {"covariance": ("residual", "sandwich"), "autocorrelation": ("auto", "none")}
+#: Largest frame count the thresholds in seconds turn into.
+_MAX_FRAMES = 2.0 ** 62
 
 
 def _in_range(name: str, v: float) -> bool:
@@ -117,8 +119,10 @@ class MatchingOptions:
                 and math.isfinite(frame_period_s) and frame_period_s > 0):
             raise ValidationError(f"frame_period_s must be finite and > 0, got "
                                   f"{frame_period_s!r}")
-        lag = int(np.round(self.max_lag_s / frame_period_s))
-        common = max(int(np.ceil(self.min_common_s / frame_period_s - 1e-9)),
+        # Clipped: 1e308 s in frames is no longer a finite integer (the lag
+        # search is bounded by the recording's frames anyway).
+        lag = int(min(np.round(self.max_lag_s / frame_period_s), _MAX_FRAMES))
+        common = max(int(min(np.ceil(self.min_common_s / frame_period_s - 1e-9), _MAX_FRAMES)),
                      DEFAULT_MIN_COMMON_FRAMES)
         return lag, common
 

@@ -23,6 +23,7 @@ correlation); the between-factor graph then only gives the starting poses.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Literal, Mapping, Sequence
@@ -57,6 +58,7 @@ class PoseEdge:
 
     pose : (3,); covariance : (3, 3) in the body tangent of ``pose``;
     rmse_m, n_frames, lag_frames : from the pairwise estimate (informative).
+    lag_note : how the data decided a nonzero lag (:class:`TrackMatching`).
     frames, points_a_m, points_b_m : optional (K,) a's frame numbers and the
         (K, 2) matched points in a's and b's frames (b's frame ``k + lag``);
         with them the network is solved from the points (module doc).
@@ -72,6 +74,7 @@ class PoseEdge:
     frames: NDArray | None = None
     points_a_m: NDArray | None = None
     points_b_m: NDArray | None = None
+    lag_note: str = ""
 
     def __post_init__(self) -> None:
         if self.node_a == self.node_b:
@@ -338,7 +341,8 @@ def pairwise_edges(
     for a, b in pairs:
         m = match_tracks(tracks[a], tracks[b], frame_period_s=frame_period_s, options=options)
         if m.success:
-            edges.append(PoseEdge.from_pairwise(a, b, m.calibration))
+            edges.append(dataclasses.replace(PoseEdge.from_pairwise(a, b, m.calibration),
+                                             lag_note=m.lag_note))
         else:
             failures[f"{a}-{b}"] = m.message
     return edges, failures

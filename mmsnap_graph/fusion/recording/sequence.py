@@ -49,11 +49,11 @@ from .rows import FusedRows
 from ..robust import RESIDUAL_GATE_PROBABILITY
 from ..options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_options, robust_options
 from ..solvers.settings import check_solver
-from .timing import align_recording
+from .timing import align_recording, offset_ranges
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import FusedSequence, Status
-from ...errors import CalibrationError, MmsnapError, ValidationError
+from ...errors import CalibrationError, MissingStepError, MmsnapError, ValidationError
 from ..._validation import as_float_array, check_finite
 from .split_check import SPLIT_MESSAGE, split_rows
 from .regroup import merge_body_detections
@@ -95,9 +95,10 @@ def recording_poses(
         else:
             pose = recording.nodes[name].pose
             if pose is None:
-                raise CalibrationError(
-                    f"node {name!r} has no pose in the recording; calibrate it or pass calibration poses"
-                )
+                raise MissingStepError(
+                    f"node {name!r} has no pose in the recording; calibrate it or pass "
+                    "calibration poses", step="calibrate",
+                    what=f"node {name!r} has no pose in the recording")
         arr = check_finite(as_float_array(pose, f"pose of {name}"), f"pose of {name}")
         if arr.shape != (3,):
             raise ValidationError(f"pose of {name} must have shape (3,), got {arr.shape}")
@@ -463,6 +464,21 @@ def _check_coverage(out: FusedRows, groups, recording, poses) -> None:
                  rejected=obs[r])
 
 
+def _calibrated_centroids(recording, time_offset_s, range_offset_m, options):
+    """The centroids on the reference clock and with the range offset
+    added (the calibration's), as :func:`fuse_recording` fuses them."""
+    if time_offset_s:
+        if options.source != "centroids":
+            raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
+        recording = align_recording(recording, time_offset_s)
+    if range_offset_m is not None:
+        if options.source != "centroids":
+            raise ValidationError("range_offset_m moves the centroids' ranges: use "
+                                  "source='centroids'")
+        recording = offset_ranges(recording, range_offset_m)
+    return recording
+
+
 def fuse_recording(
     recording: Recording,
     *,
@@ -475,6 +491,7 @@ def fuse_recording(
     robust: RobustOptions | Literal["gate", "huber", "cauchy"] | None = None,
     options: FusionOptions = DEFAULT_OPTIONS,
     progress: bool | None = None,
+    range_offset_m: float | None = None,
 ) -> FusedSequence:
     """Fuse every target in every frame of ``recording``.
 
@@ -506,6 +523,12 @@ def fuse_recording(
         reference clock first (:func:`mmsnap_graph.fusion.recording.timing.align_recording`:
         whole frames, then the range by Doppler times the rest). A node left
         out keeps its clock.
+    range_offset_m : float, optional
+        The calibration's range offset (``RecordingCalibration.range_offset_m``,
+        an extended target's reflection depth): added to every centroid's
+        range first (:func:`~mmsnap_graph.fusion.recording.timing.offset_ranges`),
+        so that the fused state is the body's centre. Its uncertainty is not
+        in the fused covariances.
     robust : RobustOptions, "gate", "huber", "cauchy" or None
         Robust one-shot fusion (:mod:`mmsnap_graph.fusion.robust`; default
         None): ``"gate"`` leaves out a node whose residual fails the
@@ -529,10 +552,7 @@ def fuse_recording(
     progress : show a tqdm bar (default: when stderr is a terminal).
     """
     prior = _check_options(recording, mode, options, prior)
-    if time_offset_s:
-        if options.source != "centroids":
-            raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
-        recording = align_recording(recording, time_offset_s)
+    recording = _calibrated_centroids(recording, time_offset_s, range_offset_m, options)
     noise, pose_cov = _node_options(recording, noise, pose_covariances, options.covariance)
     robust = robust_options(robust)
     motion_check = _motion_option(options.motion_check, robust)

@@ -38,7 +38,7 @@ from ...data.recording import Detections, Recording
 from ...errors import ValidationError
 from ..._validation import check_positive
 
-__all__ = ["split_offset", "align_detections", "align_recording"]
+__all__ = ["split_offset", "align_detections", "align_recording", "offset_ranges"]
 
 
 def split_offset(time_offset_s: float, frame_period_s: float) -> tuple[int, float]:
@@ -109,4 +109,24 @@ def align_recording(recording: Recording, time_offset_s: Mapping[str, float], *,
         nodes[name] = dataclasses.replace(
             node, centroids=align_detections(node.centroids, float(tau),
                                              recording.frame_period_s, method=method))
+    return dataclasses.replace(recording, nodes=nodes)
+
+
+def offset_ranges(recording: Recording, range_offset_m: float) -> Recording:
+    """The recording with ``range_offset_m`` added to every centroid's range:
+    the calibration's range offset (an extended target's reflection depth,
+    docs/CALIBRATION.md, "Extended targets"): each radar's centroid sits that
+    much nearer to it than the body's centre, ``range ~ |p - p_i| - d``, so
+    the centroid's range plus ``d`` is the centre's."""
+    if not isinstance(recording, Recording):
+        raise ValidationError(f"recording must be a Recording, got {type(recording).__name__}")
+    d = float(range_offset_m)
+    if not np.isfinite(d) or abs(d) > 1.0:
+        raise ValidationError(f"range_offset_m must be finite metres within +-1 m, got "
+                              f"{range_offset_m!r}")
+    if d == 0.0:
+        return recording
+    nodes = {n: (node if node.centroids is None else dataclasses.replace(
+        node, centroids=dataclasses.replace(node.centroids, range_m=node.centroids.range_m + d)))
+        for n, node in recording.nodes.items()}
     return dataclasses.replace(recording, nodes=nodes)

@@ -57,13 +57,7 @@ from ..problem import (
     validate_frames,
     velocity_degeneracy,
 )
-from .vectorized_lm import (
-    SolverParams,
-    evaluate,
-    levenberg_marquardt,
-    normal_equations,
-    residual_curvature,
-)
+from .vectorized_lm import SolverParams, evaluate, levenberg_marquardt
 from ..options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_options, robust_options
 from ..robust import kernel_weight_and_loss, node_d2, residual_test_fails
 
@@ -89,8 +83,6 @@ _STAGE1_ITERATIONS = 8
 
 _DIAG = np.arange(4)
 
-# The solver's steps under their former names here (tests check the Hessian with them).
-_evaluate, _normal_equations, _residual_curvature = evaluate, normal_equations, residual_curvature
 
 
 def fuse_batch(

@@ -9,9 +9,11 @@ import json
 
 import numpy as np
 import pytest
+import h5py
 
 from mmsnap_graph.app.cli import main
-from mmsnap_graph.io import read_recording
+from mmsnap_graph.io import read_recording, write_fused
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
 
 
 @pytest.fixture(scope="module")
@@ -64,3 +66,17 @@ def test_surveyed_poses_replace_the_truths_on_a_simulation(tmp_path, capsys):
     m = json.loads(capsys.readouterr().out)
     assert m["poses"]["S2"]["position_error_m"] == pytest.approx(0.1, abs=1e-9)
     assert m["n_truth_rows"] > 0 and m["fused"] is None     # the trajectory is kept
+
+
+def test_evaluate_on_a_fused_group_of_unequal_lengths_names_the_file(recording_b_file, tmp_path,
+                                                                    capsys):
+    rec = read_recording(recording_b_file)
+    path = tmp_path / "f.h5"
+    write_fused(recording_b_file, fuse_recording(rec, progress=False), output=path)
+    with h5py.File(path, "r+") as f:
+        data = f["fused/x_m"][()]
+        del f["fused/x_m"]
+        f["fused/x_m"] = data[:-3]
+    assert main(["evaluate", str(path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and "x_m" in err[0]

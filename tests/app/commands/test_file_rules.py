@@ -36,9 +36,9 @@ def rec(good, tmp_path) -> Path:
 #: Each verb's option naming a side output (JSON), with what the verb needs besides.
 SIDE_OUTPUTS = {
     "replay": ["replay", "{rec}", "--summary", "-o", "{out}"],
-    "monitor": ["monitor", "{rec}", "--json", "{out}"],
-    "batch": ["batch", "{rec}", "--summary-json", "{out}", "--no-progress"],
-    "calibrate": ["calibrate", "{rec}", "--json", "{out}"],
+    "monitor": ["monitor", "{rec}", "--json-out", "{out}"],
+    "batch": ["batch", "{rec}", "--json-out", "{out}", "--no-progress"],
+    "calibrate": ["calibrate", "{rec}", "--json-out", "{out}"],
 }
 #: Each verb's -o (a copy of the recording, or JSON lines for replay).
 COPY_OUTPUTS = {
@@ -47,8 +47,8 @@ COPY_OUTPUTS = {
     "fuse": ["fuse", "{rec}", "-o", "{out}", "--no-progress"],
     "noise": ["noise", "{rec}", "-o", "{out}"],
     "replay": ["replay", "{rec}", "--summary", "-o", "{out}"],
-    "monitor": ["monitor", "{rec}", "--json", "{out}"],
-    "batch": ["batch", "{rec}", "--summary-json", "{out}", "--no-progress"],
+    "monitor": ["monitor", "{rec}", "--json-out", "{out}"],
+    "batch": ["batch", "{rec}", "--json-out", "{out}", "--no-progress"],
 }
 
 

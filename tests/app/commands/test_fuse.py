@@ -1,96 +1,31 @@
-"""Fusing a whole recording (mmsnap_graph.fusion.recording.sequence) and ``mmsnap fuse``."""
+"""``mmsnap fuse``: the /fused group it writes and reads back, the calibration it takes, its errors (the library side: tests/fusion/recording/test_sequence.py)."""
 
 import json
+import dataclasses
 
 import h5py
 import numpy as np
 import pytest
 
-from mmsnap_graph.fusion import FusionOptions
-from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
+from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.app.cli import main
-from mmsnap_graph.errors import CalibrationError, FileFormatError, ValidationError
-from mmsnap_graph.evaluation import state_errors
+from mmsnap_graph.errors import CalibrationError, FileFormatError
 from mmsnap_graph.io import read_recording, write_recording
-from mmsnap_graph.fusion.solvers.gtsam_graph import fuse_frame
-from mmsnap_graph.fusion.recording.sequence import fuse_recording, recording_poses
+from mmsnap_graph.fusion.recording.sequence import (
+    fuse_recording,
+    recording_poses,
+    group_detections,
+)
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused, write_fused
-from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim import SimulationOptions
+from mmsnap_graph.data.recording import Detections
 
 
 @pytest.fixture
 def recordings(two_target_recordings):
     """Two walking targets, 10 % missed centroids, per configuration (conftest)."""
     return two_target_recordings
-
-
-@pytest.mark.parametrize("net", ["A", "B"])
-@pytest.mark.parametrize("mode", ["map", "ml"])
-def test_batch_and_gtsam_agree_on_every_frame(recordings, net, mode):
-    rec = recordings[net]
-    fb = fuse_recording(rec, mode=mode, options=FusionOptions(solver="vectorized"))
-    fg = fuse_recording(rec, mode=mode, options=FusionOptions(solver="gtsam"))
-    np.testing.assert_array_equal(fb.frame, fg.frame)
-    np.testing.assert_array_equal(fb.success, fg.success)
-    # Both solvers report the same Status codes (carried by the results).
-    np.testing.assert_array_equal(fb.status, fg.status)
-    ok = fb.success
-    np.testing.assert_allclose(fb.state[ok], fg.state[ok], atol=1e-6)
-    np.testing.assert_allclose(fb.covariance[ok], fg.covariance[ok], atol=1e-6)
-    # Frames seen by one node only: fused with what there is (MAP), or
-    # flagged (ML, 3 measurements for 4 unknowns).
-    single = fb.observed.sum(axis=1) == 1
-    assert single.any()
-    assert fb.success[single].all() if mode == "map" else not fb.success[single].any()
-
-
-def test_configuration_c_batch_at_least_as_converged_as_gtsam(recordings):
-    """Near the line through both radars GTSAM's LM stops in a flat valley a
-    few 1e-6 short of the minimum; the batch solver's cost is never higher."""
-    rec = recordings["C"]
-    fb = fuse_recording(rec, options=FusionOptions(solver="vectorized"))
-    fg = fuse_recording(rec, options=FusionOptions(solver="gtsam"))
-    np.testing.assert_array_equal(fb.success, fg.success)
-    ok = fb.success
-    assert np.all(fb.final_cost[ok] <= fg.final_cost[ok] + 1e-12 * np.maximum(1, fg.final_cost[ok]))
-    close = np.all(np.abs(fb.state - fg.state) <= 1e-6, axis=1)
-    assert close[ok].mean() > 0.9
-    np.testing.assert_allclose(fb.state[ok], fg.state[ok], atol=1e-4)
-
-
-def test_targets_are_recovered_with_their_labels(recordings):
-    rec = recordings["B"]
-    fused = fuse_recording(rec)
-    assert set(np.unique(fused.label)) <= {-1, 0, 1}
-    assert (fused.label >= 0).mean() > 0.9
-    for label in (0, 1):
-        rows = fused.rows_of_label(label)
-        rows = rows[fused.success[rows]]
-        _, truth = rec.truth.target(label)
-        err = state_errors(fused.state[rows], truth[fused.frame[rows]])
-        # Paper Table III, configuration B: 0.14-0.17 m and 0.27-0.34 m/s.
-        assert err.position_rmse_m < 0.3 and err.velocity_rmse_mps < 0.6
-
-
-def test_grid_covariance_matches_fuse_frame(recordings):
-    rec = recordings["B"]
-    fused = fuse_recording(rec, options=FusionOptions(covariance="grid", grid_points_per_axis=7))
-    rows = np.flatnonzero(fused.success)[:4]
-    obs = fused.observed
-    for i in rows:
-        z = np.zeros((2, 3))
-        for n, name in enumerate(fused.node_names):
-            if obs[i, n]:
-                z[n] = rec.nodes[name].centroids.measurements[fused.detection_index[i, n]]
-        ref = fuse_frame(fused.node_poses,
-                         z,
-                         observed=obs[i],
-                         options=FusionOptions(covariance="grid", grid_points_per_axis=7))
-        np.testing.assert_allclose(fused.covariance[i], ref.grid_covariance, rtol=1e-4, atol=1e-7)
-        np.testing.assert_allclose(fused.laplace_covariance[i], ref.covariance, atol=1e-6)
 
 
 def test_write_and_read_fused_round_trip(recordings, tmp_path):
@@ -183,29 +118,6 @@ def test_missing_calibration_file_and_poses(tmp_path, recordings):
         fuse_recording(bare)
 
 
-@pytest.mark.parametrize(
-    "kwargs, match",
-    [
-        (dict(mode="bayes"), "mode must be 'map' or 'ml'"),
-        (dict(options=dict(covariance="exact")), "covariance must be 'laplace', 'grid', 'both'"),
-        (dict(options=dict(covariance="both")), "options.covariance must be 'laplace' or 'grid'"),
-        (dict(options=dict(solver="scipy")), "solver must be 'gtsam' or 'vectorized' or 'scalar'"),
-        (dict(options=dict(solver="batch")), "'batch' is now called 'vectorized'"),
-        (dict(options=dict(solver="scalar")), "options.solver must be 'vectorized' or 'gtsam'"),
-        (dict(options=dict(source="cube")), "source must be 'centroids', 'point_cloud'"),
-        (dict(mode="ml", prior=GaussianPrior(mean=[0, 0, 0, 0])), "mode='ml' takes no prior"),
-        (dict(options=dict(block_rows=0)), "block_rows=0 must be an integer >= 1"),
-        (dict(options=dict(source="point_cloud")), "no node of the recording has point_cloud"),
-        (dict(options="laplace"), "options must be a FusionOptions, got str"),
-    ],
-)
-def test_fuse_recording_invalid_arguments(recordings, kwargs, match):
-    with pytest.raises(ValidationError, match=match):
-        if isinstance(kwargs.get("options"), dict):
-            kwargs = dict(kwargs, options=FusionOptions(**kwargs["options"]))
-        fuse_recording(recordings["A"], **kwargs)
-
-
 def test_cli_fuse_writes_the_fused_group(tmp_path, recordings, capsys):
     rec = recordings["B"]
     path = write_recording(tmp_path / "rec.h5", rec)
@@ -240,36 +152,72 @@ def test_cli_fuse_takes_measurement_sigmas(tmp_path, recordings, capsys):
     assert "omega_rad must be finite and > 0" in capsys.readouterr().err
 
 
-def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
-    """The fast path of group_detections (one detection per node, one gate)
-    gives what associate_frame gives frame by frame."""
-    from mmsnap_graph.fusion.association import associate_frame
-    from mmsnap_graph.fusion.recording.sequence import group_detections
+def with_centroids(rec, node_index: int, edit) -> object:
+    """``rec`` with node ``node_index``'s centroid columns changed by
+    ``edit(range_m, omega_rad, doppler_mps)`` (in place on copies)."""
+    name = rec.node_names[node_index]
+    c = rec.nodes[name].centroids
+    r, w, v = c.range_m.copy(), c.omega_rad.copy(), c.doppler_mps.copy()
+    edit(r, w, v)
+    d = Detections(frame=c.frame, range_m=r, omega_rad=w, doppler_mps=v, snr_db=c.snr_db,
+                   target_id=c.target_id)
+    return rec.with_node(dataclasses.replace(rec.nodes[name], centroids=d))
 
-    rec = simulate_recording("A", "random",
-                             SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.2),
-                             levels=("centroids",), n_frames=80, seed=2)
-    import dataclasses
 
-    from mmsnap_graph.data.recording import Detections
+def test_group_detections_and_fuse_go_on_past_degenerate_centroids(recording_b_file, tmp_path,
+                                                                  capsys):
+    rec = read_recording(recording_b_file)
 
-    # A false alarm far from the target in frame 5 (S2): that frame takes the
-    # per-frame path, the others the vectorized one.
-    c2 = rec.nodes["S2"].centroids
-    extra = Detections(frame=np.append(c2.frame, 5), range_m=np.append(c2.range_m, 9.0),
-                       omega_rad=np.append(c2.omega_rad, 2.5), doppler_mps=np.append(c2.doppler_mps, 0.0))
-    rec = rec.with_node(dataclasses.replace(rec.nodes["S2"], centroids=extra))
-    poses = recording_poses(rec)
-    groups = group_detections(rec, poses, MeasurementNoise())
-    assert np.count_nonzero(groups.frame == 5) == 2
-    cents = [rec.nodes[n].centroids for n in rec.node_names]
-    rows = []
-    for f in np.unique(np.concatenate([c.frame for c in cents])):
-        idx = [np.flatnonzero(c.frame == f) for c in cents]
-        a = associate_frame([c.measurements[i] for c, i in zip(cents, idx)], poses, MeasurementNoise())
-        for g, members in enumerate(a.members):
-            rows.append((f, g, *[idx[n][m] if m >= 0 else -1 for n, m in enumerate(members)]))
-    expected = np.array(rows)
-    np.testing.assert_array_equal(groups.frame, expected[:, 0])
-    np.testing.assert_array_equal(groups.target, expected[:, 1])
-    np.testing.assert_array_equal(groups.detection_index, expected[:, 2:])
+    def edit(r, w, v):
+        r[[3, 5, 7]] = [0.0, 0.0, 1e-300]
+        w[[3, 5]] = [0.0, np.pi]
+
+    bad = with_centroids(rec, 0, edit)
+    poses = np.array([bad.nodes[n].pose for n in bad.node_names])
+    groups = group_detections(bad, poses)
+    assert np.unique(groups.frame).size == np.unique(np.concatenate(
+        [bad.nodes[n].centroids.frame for n in bad.node_names])).size
+    path = write_recording(tmp_path / "bad.h5", bad)
+    assert main(["fuse", str(path), "--no-progress"]) == 0
+    assert "flagged" in capsys.readouterr().out
+    assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "s.h5"),
+                 "--sigmas", "1e-55", "1e-55", "1e-55"]) == 0
+    capsys.readouterr()
+    assert main(["fuse", str(recording_b_file), "--no-progress", "-o", str(tmp_path / "t.h5"),
+                 "--sigmas", "1e-300", "1e-300", "1e-300"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "sigmas" in err and len(err.splitlines()) == 1
+
+
+def test_grid_points_below_five_are_a_usage_error(recording_b_file, capsys):
+    assert main(["fuse", str(recording_b_file), "--covariance", "grid", "--grid-points", "4"]) == 2
+    assert "--grid-points" in capsys.readouterr().err
+
+
+
+
+def test_fuse_says_what_its_row_counts_mean(tmp_path, capsys):
+    """"fused 614 targets in 600 frames" from one walker: the output says a
+    row is a (frame, target) of the association, how many rows all nodes saw,
+    how many frames hold several targets and why, and the flagged statuses."""
+    import numpy as np
+
+    from mmsnap_graph.app.cli import main
+    from mmsnap_graph.data.results import Status
+    from mmsnap_graph.io import read_fused
+
+    path = tmp_path / "rec.h5"
+    assert main(["simulate", "-c", "C", "-t", "random", "-n", "300", "--seed", "1", "-l",
+                 "centroids", "--known-poses", "-o", str(path), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["fuse", str(path), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    fused = read_fused(path)
+    seen = fused.observed.sum(axis=1)
+    _, per_frame = np.unique(fused.frame, return_counts=True)
+    assert (f"rows: one per (frame, target) of the association; {np.sum(seen == 2)} seen by "
+            f"all 2 nodes, {np.sum(seen < 2)} by fewer") in out
+    assert f"  {np.sum(per_frame > 1)} frames hold more than one target: " in out
+    codes, counts = np.unique(fused.status[fused.status != 0], return_counts=True)
+    for c, n in zip(codes, counts):
+        assert f"{n} {Status(int(c)).name.lower()} ({int(c)})" in out

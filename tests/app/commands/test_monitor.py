@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from mmsnap_graph.errors import MissingStepError
+
 import argparse
 import json
 
@@ -40,7 +42,7 @@ def bumped_path(tmp_path_factory):
 def test_monitor_reports_the_change_and_the_new_pose(bumped_path, tmp_path, capsys):
     path, rec = bumped_path
     out_json = tmp_path / "monitor.json"
-    assert _run([str(path), "--json", str(out_json)]) == 0
+    assert _run([str(path), "--json-out", str(out_json)]) == 0
     out = capsys.readouterr().out
     assert "change: S2 moved at t=" in out and "S2 new pose from frames" in out
     data = json.loads(out_json.read_text())
@@ -77,5 +79,18 @@ def test_monitor_clean_recording_and_errors(tmp_path, capsys):
     unknown = tmp_path / "unknown.h5"
     write_recording(unknown, simulate_recording("C", options=CLEAN, levels=("centroids",),
                                                 n_frames=30, seed=8))
-    with pytest.raises(ValidationError, match="no pose"):
+    with pytest.raises(MissingStepError, match="no pose"):  # exit 1, as `mmsnap fuse`
         _run([str(unknown)])
+
+
+def test_monitor_json_prints_the_result_alone(bumped_path, tmp_path, capsys):
+    """``--json`` prints (stdout holds the JSON alone, the words go to
+    stderr); ``--json-out`` writes the same to a file, as on every verb."""
+    path, _ = bumped_path
+    out_json = tmp_path / "m.json"
+    assert _run([str(path), "--json", "--json-out", str(out_json), "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    printed = json.loads(captured.out)
+    assert printed == json.loads(out_json.read_text())
+    assert printed["changes"][0]["node"] == "S2"
+    assert f"wrote {out_json}" in captured.err and "change: S2" not in captured.out

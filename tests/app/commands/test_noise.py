@@ -129,9 +129,9 @@ def test_noise_command_and_sigmas_override(tmp_path, capsys, small):
 def test_calibrate_no_write_leaves_the_recording_without_noise(tmp_path, capsys, small):
     copy = tmp_path / "c.h5"
     copy.write_bytes(small.read_bytes())
-    assert main(["calibrate", str(copy), "--no-write", "--json", str(tmp_path / "c.json")]) == 0
+    assert main(["calibrate", str(copy), "--no-write", "--json-out", str(tmp_path / "c.json")]) == 0
     text = capsys.readouterr().out
     assert "measurement noise per node (from the data)" in text
     assert read_noise(copy) is None
-    assert main(["calibrate", str(copy), "--json", str(tmp_path / "c.json"), "--overwrite"]) == 0
+    assert main(["calibrate", str(copy), "--json-out", str(tmp_path / "c.json"), "--overwrite"]) == 0
     assert read_noise(copy) is not None

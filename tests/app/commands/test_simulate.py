@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from numpy.testing import assert_array_equal
+from numpy.testing import assert_array_equal, assert_allclose
+import pytest
 
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.commands.simulate import cube_megabytes, simulation_options
@@ -48,3 +49,37 @@ def test_cube_level_warns_of_its_size_before_writing(tmp_path, capsys):
     assert abs(mb - 2 * 2 * 512 * 60 * 12 * 8 / 1e6) < 1e-9
     assert f"2 nodes x 2 frames = {mb:,.0f} MB" in err
     assert read_recording(out).nodes["S1"].cube.shape[0] == 2
+
+
+def test_simulate_command_writes_the_library_result(tmp_path, capsys):
+    out = tmp_path / "b.h5"
+    rc = main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-s", "3", "-l",
+               "centroids,point_cloud,cube", "--cube-frames", "2", "-o", str(out),
+               "--no-progress"])
+    assert rc == 0
+    assert "wrote" in capsys.readouterr().out
+    rec = read_recording(out)
+    # The command's default is the real physics.
+    ref = simulate_recording("B", "random", SimulationOptions(cube_frames=2),
+                             levels=("centroids", "point_cloud", "cube"), n_frames=40, seed=3)
+    assert_array_equal(rec.truth.state, ref.truth.state)
+    assert_array_equal(rec.nodes["S2"].point_cloud.range_m, ref.nodes["S2"].point_cloud.range_m)
+    assert_array_equal(rec.nodes["S1"].cube, ref.nodes["S1"].cube)
+    assert rec.nodes["S1"].pose is None
+    # No scratch files left next to the output.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.h5"]
+
+
+def test_simulate_command_custom_nodes_and_errors(tmp_path, capsys):
+    out = tmp_path / "n.h5"
+    assert main(["simulate", "--node", "S1=0,0,0", "--node", "S2=6,0,0", "--node", "S3=3,8,180",
+                 "-l", "centroids", "-n", "10", "--known-poses", "-o", str(out)]) == 0
+    rec = read_recording(out)
+    assert rec.node_names == ["S1", "S2", "S3"]
+    assert_allclose(rec.nodes["S3"].pose, [3, 8, np.pi])
+    assert main(["simulate", "-o", str(out), "-n", "5"]) == 2
+    assert "exists; pass --overwrite" in capsys.readouterr().err
+    assert main(["simulate", "-o", str(tmp_path / "x.h5"), "-l", "cubes", "-n", "5"]) == 2
+    assert "levels=" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["simulate", "--node", "S1=0,0", "-o", str(tmp_path / "y.h5")])

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from mmsnap_graph.errors import MissingStepError
+
 import numpy as np
 import pytest
 
@@ -12,11 +14,6 @@ from mmsnap_graph.calibration.monitor.decalibration import (
     DecalibrationMonitor,
     monitor_recording,
     recording_measurements,
-)
-from mmsnap_graph.calibration.monitor.stats import (
-    compose_pose,
-    frame_contributions,
-    recalibrate_pose,
 )
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
@@ -73,31 +70,6 @@ def test_bumped_recording_moves_only_that_node_from_the_bump_frame():
         simulate_bumped_recording("C", physics=None, node="S2", bump_time_s=100.0, n_frames=100)
     with pytest.raises(ValidationError, match="node"):
         simulate_bumped_recording("C", physics=None, node="S9", n_frames=100)
-
-
-# ------------------------------------------------------------------ statistics
-def test_contributions_and_gauss_newton_recover_a_noise_free_pose_error():
-    rng = np.random.default_rng(0)
-    states = np.column_stack([rng.uniform(-1.5, 1.5, 60), rng.uniform(2.5, 4.5, 60),
-                              rng.normal(0, 1, 60), rng.normal(0, 1, 60)])
-    covs = np.tile(np.diag([1e-4, 1e-4, 1e-2, 1e-2]), (60, 1, 1))
-    assumed = np.array([0.0, 7.0, np.pi])
-    for delta in (np.array([1e-4, -2e-4, 3e-5]), np.array([0.1, 0.0, 0.0]),
-                  np.array([0.0, 0.0, np.deg2rad(2.0)])):
-        true_pose = compose_pose(assumed, delta)
-        z, _ = measurement_model(states, true_pose)
-        fc = frame_contributions(assumed, states, covs, z, NOISE, huber_k=None)
-        est = np.linalg.solve(fc.a.sum(0), fc.b.sum(0))
-        if np.max(np.abs(delta)) < 1e-3:                 # first order: the linear estimate
-            np.testing.assert_allclose(est, delta, rtol=0.02, atol=1e-7)
-        fit = recalibrate_pose(assumed, states, covs, z, NOISE)
-        assert fit.success
-        np.testing.assert_allclose(fit.pose, true_pose, atol=1e-7)
-        assert np.all(np.linalg.eigvalsh(fit.covariance) > 0)
-    # a standing target cannot fix the pose: success=False, no exception
-    still = np.tile(states[:1], (20, 1))
-    z, _ = measurement_model(still, assumed)
-    assert not recalibrate_pose(assumed, still, covs[:20], z, NOISE).success
 
 
 # ------------------------------------------------------------------ targets
@@ -200,8 +172,9 @@ def test_monitor_validates_its_inputs():
     up = mon.update({"S1": (3.5, 0.0, 0.0), "S2": None})        # S2 unseen: not tested
     assert up.frame == 0 and np.isnan(up.statistics["S2"]) and up.change is None
     rec = simulate_recording("C", options=CLEAN, levels=("centroids",), n_frames=20, seed=1)  # poses unknown
-    with pytest.raises(ValidationError, match="no pose"):
+    with pytest.raises(MissingStepError, match="no pose") as info:  # a data error, as in fusion
         monitor_recording(rec)
+    assert info.value.step == "calibrate"
 
 
 @pytest.mark.slow
@@ -216,6 +189,28 @@ def test_configuration_a_bump_along_the_baseline_detected_within_20_s():
     res = monitor_recording(rec)
     assert [c.node for c in res.changes] == ["S2"]
     assert res.changes[0].detection_time_s - rec.metadata["bump_time_s"] <= 20.0
+
+
+def test_monitor_recording_in_blocks_with_a_bar_equals_one_batch_run(capsys):
+    """The progress bar steps update_frames over blocks of frames: the change
+    points, statistics and poses are those of one call over every frame."""
+    rec = simulate_bumped_recording("C", "random", physics=None, node="S2", bump=(0.25, 0.0, 0.05),
+                                    bump_time_s=15.0, n_frames=260, seed=5)
+    tight = {"S2": np.diag([0.01, 0.01, 0.003]) ** 2}
+    result = monitor_recording(rec, node_poses=rec.truth.node_poses, noise=NOISE,
+                               node_covariances=tight, recalibration_s=6.0, progress=True)
+    assert "monitor" in capsys.readouterr().err  # the bar, on stderr
+    _, z = recording_measurements(rec)
+    batch = DecalibrationMonitor(rec.truth.node_poses, noise=NOISE, node_covariances=tight,
+                                 recalibration_s=6.0, frame_period_s=rec.frame_period_s)
+    ups = batch.update_frames(z, np.arange(len(z)) * rec.frame_period_s)
+    assert result.changes and [(c.node, c.frame) for c in result.changes] == \
+        [(c.node, c.frame) for c in batch.changes]
+    np.testing.assert_allclose(result.statistics[:, 1], [u.statistics["S2"] for u in ups],
+                               rtol=1e-8)
+    np.testing.assert_allclose(result.poses["S2"], batch.poses["S2"], rtol=1e-8)
+    monitor_recording(rec, node_poses=rec.truth.node_poses, noise=NOISE)
+    assert capsys.readouterr().err == ""
 
 
 @pytest.mark.parametrize("kw", [dict(windows_s=[1e308]), dict(windows_s=[3.0, 1e9]),

@@ -22,8 +22,6 @@ from factors.models import predict_measurements
 from mmsnap_graph.calibration.noise.tails import with_tails
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from mmsnap_graph.data.recording import Detections
-from mmsnap_graph.data.results import Status
-from mmsnap_graph.fusion.recording.split_check import split_rows, split_singles
 from mmsnap_graph.sim.networks import network_poses
 from mmsnap_graph.sim.scenes import target_trajectory
 
@@ -54,26 +52,6 @@ def test_readme_tour_passes_the_nees_check(tmp_path):
     assert lo <= nz["mean"] <= hi, nz                       # measured 3.90 in (3.77, 4.23)
     assert nz["n"] >= 560                                   # measured 586 of 614 rows
     assert metrics["fused"]["position_rmse_m"] < 0.04        # measured 0.032 m
-
-
-# ------------------------------------------------------------------ split rows
-def test_split_singles_are_the_one_node_groups_of_a_split_frame():
-    frame = np.array([0, 1, 1, 2, 2, 3, 3, 3])
-    idx = np.array([[0, 0],      # frame 0: one target, both nodes
-                    [1, -1],     # frame 1: split, one detection each -> both flagged
-                    [-1, 1],
-                    [2, 2],      # frame 2: a pair and a second detection of S1 alone
-                    [3, -1],     #   (S1 has two detections: two targets, not flagged)
-                    [4, -1],     # frame 3: S1 two detections, S2 one: not flagged
-                    [5, -1],
-                    [-1, 3]])
-    assert split_singles(frame, idx).tolist() == [False, True, True, False, False,
-                                                  False, False, False]
-    status = np.zeros(frame.size, np.int8)
-    status[2] = Status.SINGULAR
-    marked = split_rows(frame, idx, status)
-    assert marked.tolist() == [False, True] + [False] * 6   # a failed row keeps its status
-    assert not split_singles(np.zeros(0, int), np.zeros((0, 2), int)).any()
 
 
 # ------------------------------------------------------------------ tails

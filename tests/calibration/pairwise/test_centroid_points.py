@@ -6,8 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from factors.models import detection_to_local
-from factors.models import measurement_model
+from factors.models import detection_to_local, measurement_model
 from mmsnap_graph.calibration import LocalTracks
 from mmsnap_graph.calibration.pairwise.centroid_points import debias_centroid_tracks
 from mmsnap_graph.data.noise import MeasurementNoise

@@ -47,13 +47,11 @@ from mmsnap_graph.calibration import (
     pose_graph_calibration,
     to_pose2,
 )
-from mmsnap_graph.calibration import MatchingOptions
-from mmsnap_graph.calibration import local_tracks
+from mmsnap_graph.calibration import MatchingOptions, local_tracks
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim.scenes import synthetic_scene
 
-from _shared import NETWORK_3
-from _shared import NETWORK_BCA, TRACK_NOISE
+from _shared import NETWORK_3, NETWORK_BCA, TRACK_NOISE
 
 #: S1 and the S2 of configurations B, C and A.
 TRUE_POSES = NETWORK_BCA

@@ -11,25 +11,30 @@ import math
 import gtsam
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 from scipy import stats
 from scipy.optimize import least_squares
 
 import mmsnap_graph.fusion.solvers.gtsam_graph as oneshot
 from factors.models import measurement_model, residual, wrap_angle
-from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
-from mmsnap_graph.fusion.bounds import bayesian_bound, cramer_rao_bound, fisher_information
-from mmsnap_graph.errors import GeometryError, ValidationError
+from mmsnap_graph import MmsnapError
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
 from mmsnap_graph.data.results import DEGENERACY_THRESHOLD, FusionResult, Status
-from mmsnap_graph.fusion.solvers.gtsam_graph import build_frame_graph, fuse_frame
+from mmsnap_graph.errors import GeometryError, ValidationError
+from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
+from mmsnap_graph.fusion.bounds import bayesian_bound, cramer_rao_bound
 from mmsnap_graph.fusion.problem import (
     frame_initial_state,
     initial_state,
     initial_states,
     velocity_degeneracy,
 )
+from mmsnap_graph.fusion.solvers.gtsam_graph import build_frame_graph, fuse_frame
 
+from _fuzz import (FUSION_FUZZ, HUGE_DOPPLER, PRIORS, assert_sound, consistent_frames,
+                   edge_frames, finite)
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_A, POSES_B, POSES_BC, POSES_C
 
 TRUTH_A = np.array([2.0, 5.0, 0.6, -0.4])
@@ -451,34 +456,6 @@ def test_build_frame_graph_can_be_extended():
 # Bounds
 
 
-def test_bounds_order_and_singularity():
-    crb = cramer_rao_bound(TRUTH_B, POSES_B, PAPER_NOISE)
-    bb = bayesian_bound(TRUTH_B, POSES_B, PAPER_NOISE, PAPER_PRIOR)
-    # the prior only adds information: CRB - BB is positive semidefinite
-    assert np.linalg.eigvalsh(crb - bb).min() > -1e-15
-    assert_allclose(np.linalg.inv(bb), fisher_information(TRUTH_B, POSES_B, PAPER_NOISE) + PAPER_PRIOR.information, rtol=1e-9)
-    # on the line through C's radars vx does not enter any measurement
-    info = fisher_information(TRUTH_C, POSES_C, PAPER_NOISE)
-    assert_allclose(info[2], 0.0, atol=1e-12)
-    with pytest.raises(GeometryError, match="Fisher information is singular"):
-        cramer_rao_bound(TRUTH_C, POSES_C, PAPER_NOISE)
-    bb_c = bayesian_bound(TRUTH_C, POSES_C, PAPER_NOISE, PAPER_PRIOR)
-    assert bb_c[2, 2] == pytest.approx(3.5**2, rel=1e-9)  # vx: the prior alone
-    # a missing node removes its information
-    assert_allclose(fisher_information(TRUTH_B, POSES_B, PAPER_NOISE, np.array([True, False])), fisher_information(TRUTH_B, POSES_B[:1], PAPER_NOISE))
-
-
-def test_bounds_reject_bad_input():
-    with pytest.raises(GeometryError, match=r"state position \[5.0, 5.0\] is at observed node 1's position"):
-        cramer_rao_bound([5.0, 5.0, 0, 0], POSES_B, PAPER_NOISE)
-    with pytest.raises(ValidationError, match=r"state must have shape \(4,\)"):
-        bayesian_bound([1.0, 2.0], POSES_B, PAPER_NOISE, PAPER_PRIOR)
-    with pytest.raises(ValidationError, match="prior must be a GaussianPrior"):
-        bayesian_bound(TRUTH_B, POSES_B, PAPER_NOISE, None)
-    with pytest.raises(ValidationError, match=r"node_poses must have shape \(N, 3\)"):
-        fisher_information(TRUTH_B, [1.0, 2.0, 3.0], PAPER_NOISE)
-
-
 # ---------------------------------------------------------------------------
 # Monte Carlo: accuracy and consistency in benign geometry (configuration B)
 
@@ -597,54 +574,6 @@ def test_grid_covariance_in_degenerate_geometry_reports_both():
     assert np.argmax(np.diag(res.covariance)) == 2
 
 
-def test_grid_posterior_validates_its_layout():
-    from mmsnap_graph.fusion.grid import grid_posterior
-
-    z = exact(POSES_B, TRUTH_B)
-    with pytest.raises(ValidationError, match="points_per_axis must be odd and >= 5, got 4"):
-        grid_posterior(TRUTH_B, POSES_B, z, scale_covariance=np.eye(4), points_per_axis=4)
-    with pytest.raises(ValidationError, match="scale_covariance must be positive definite"):
-        grid_posterior(TRUTH_B, POSES_B, z, scale_covariance=-np.eye(4))
-    with pytest.raises(ValidationError, match="half_width_sigmas must be finite and > 0"):
-        grid_posterior(TRUTH_B, POSES_B, z, scale_covariance=np.eye(4), half_width_sigmas=0)
-
-
-def test_grid_posterior_of_a_linear_gaussian_is_exact():
-    """A grid laid along the exact covariance of a Gaussian posterior
-    returns it: a prior-only posterior (no node observed)."""
-    from mmsnap_graph.fusion.grid import grid_posterior
-
-    prior = GaussianPrior(mean=[1.0, 2.0, 0.3, -0.1], sigmas=[0.5, 1.5, 2.0, 0.7])
-    grid = grid_posterior(
-        prior.mean, POSES_B, np.full((2, 3), np.nan), observed=np.zeros(2, bool),
-        prior=prior, scale_covariance=np.diag(prior.sigmas**2) * 1.3, points_per_axis=15,
-    )
-    assert_allclose(grid.mean, prior.mean, atol=1e-9)
-    assert_allclose(grid.covariance, np.diag(prior.sigmas**2), rtol=1e-4, atol=1e-12)
-    assert grid.edge_density < 1e-4 and grid.message == ""
-
-
-def test_grid_posterior_widens_and_reports_truncation():
-    """A grid laid out far too narrow is widened (doubling its half-width),
-    and when it still cuts the posterior off, the result says so."""
-    from mmsnap_graph.fusion.grid import grid_posterior
-
-    prior = GaussianPrior(mean=[0.0, 0.0, 0.0, 0.0], sigmas=[1.0, 1.0, 1.0, 1.0])
-    kw = dict(observed=np.zeros(2, bool), prior=prior, points_per_axis=9)
-    z = np.full((2, 3), np.nan)
-    # Laplace-like scale 4x too small: +-5 "sigmas" is +-1.25 true sigmas;
-    # two doublings reach +-5 true sigmas.
-    widened = grid_posterior(prior.mean, POSES_B, z, scale_covariance=np.eye(4) / 16, **kw)
-    assert widened.half_width_sigmas == 20.0 and widened.message == ""
-    assert_allclose(widened.covariance, np.eye(4), rtol=0.02, atol=1e-3)
-    # No widening allowed: truncated, and flagged.
-    cut = grid_posterior(prior.mean, POSES_B, z, scale_covariance=np.eye(4) / 16, max_widenings=0, **kw)
-    assert "grid posterior truncated" in cut.message
-    assert cut.edge_density > 0.1
-    assert cut.half_width_sigmas == 5.0
-    assert np.all(np.diag(cut.covariance) < 0.6)  # the truncated grid underestimates
-
-
 def test_grid_covariance_of_a_failed_frame_is_nan():
     z = exact(POSES_B, TRUTH_B)
     res = fuse_frame(POSES_B[:1], z[:1], prior=None, options=FusionOptions(covariance="both"))
@@ -698,3 +627,48 @@ def test_stop_away_from_a_minimum_is_flagged(monkeypatch):
     assert not res.success
     assert "stopped away from a minimum (squared Newton decrement" in res.message
     assert_allclose(res.state, res.initial_state)
+
+
+@FUSION_FUZZ
+@given(consistent_frames(), PRIORS)
+def test_fuse_frame_on_radar_like_frames_is_sound(frame, prior):
+    poses, z, observed, noise = frame
+    try:
+        r = fuse_frame(poses, z, observed=observed, noise=noise, prior=prior)
+    except MmsnapError:
+        return
+    assert_sound(r.success, r.state, r.covariance)
+
+
+@FUSION_FUZZ
+@given(edge_frames(), PRIORS)
+def test_fuse_frame_on_edge_values_raises_only_typed_errors(frame, prior):
+    poses, z, noise = frame
+    try:
+        r = fuse_frame(poses, z, noise=noise, prior=prior)
+    except MmsnapError:
+        return
+    assert_sound(r.success, r.state, r.covariance)
+
+
+@FUSION_FUZZ
+@given(edge_frames(sigmas=st.one_of(finite(1e-300, 1e-150), finite(1e150, 1e300))), PRIORS)
+def test_fuse_frame_with_extreme_sigmas_raises_only_typed_errors(frame, prior):
+    poses, z, noise = frame
+    try:
+        r = fuse_frame(poses, z, noise=noise, prior=prior)
+    except MmsnapError:
+        return
+    assert_sound(r.success, r.state, r.covariance)
+
+
+@FUSION_FUZZ
+@given(consistent_frames(), HUGE_DOPPLER, PRIORS)
+def test_fuse_frame_with_a_huge_doppler_is_sound(frame, doppler, prior):
+    poses, z, observed, noise = frame
+    z[:, 2] = doppler
+    try:
+        r = fuse_frame(poses, z, noise=noise, prior=prior)
+    except MmsnapError:
+        return
+    assert_sound(r.success, r.state, r.covariance)

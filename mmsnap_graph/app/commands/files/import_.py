@@ -33,7 +33,8 @@ def _band(text: str) -> tuple[float, float]:
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3), default=[],
-                   metavar="NAME=X,Y,PHI_DEG", help="a known (surveyed) node pose; repeat")
+                   metavar="NAME=X,Y,PHI_DEG", help="a known (surveyed) node pose: x, y in metres, heading PHI in degrees "
+                        "(stored in radians); repeat")
     p.add_argument("-o", "--output", required=True, help="output HDF5 recording")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
@@ -46,7 +47,7 @@ def _points_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--room-pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3),
                    default=[], metavar="NAME=X,Y,PHI_DEG",
                    help="the points of this node are in a room frame made with this nominal "
-                        "mounting pose (with --mount's height and tilt); they are taken back "
+                        "mounting pose (heading PHI in degrees) (with --mount's height and tilt); they are taken back "
                         "to the sensor frame")
     p.add_argument("--height-band", type=_band, default=None,
                    metavar="LOW_M,HIGH_M",
@@ -106,7 +107,7 @@ def register(subparsers) -> None:
     t.add_argument("--table", default=None,
                    help="one table holding every node (a node column)")
     t.add_argument("--coordinates", choices=["auto", "cartesian", "spherical"], default="auto")
-    t.add_argument("--degrees", action="store_true", help="angles are in degrees")
+    t.add_argument("--degrees", action="store_true", help="the table's angle columns are in degrees (default: radians)")
     t.add_argument("--time-unit", choices=["s", "ms", "us"], default="s",
                    help="unit of the time-stamp column (default %(default)s)")
     t.add_argument("--columns", action="append", type=named_values("COLUMN", None), default=[],

@@ -8,7 +8,7 @@ import pytest
 
 from factors.models import measurement_model
 from mmsnap_graph.sim import CLEAN, RealPhysics, SimulationOptions, simulate_recording
-from mmsnap_graph.sim.physics import correlated_errors, mirror_through_walls
+from mmsnap_graph.sim.real.physics import correlated_errors, mirror_through_walls
 
 N = 1500
 

@@ -26,8 +26,8 @@ from numpy.typing import ArrayLike
 
 from factors.models import global_to_local, local_to_global, measurement_model, wrap_angle
 
-from ..data.recording import Detections, Recording
-from ..errors import ValidationError
+from ...data.recording import Detections, Recording
+from ...errors import ValidationError
 from .physics import mirror_through_walls
 
 __all__ = ["GHOST_KINDS", "ghost_centroids"]

@@ -1,4 +1,4 @@
-"""The ghost generators of :mod:`mmsnap_graph.sim.ghosts`."""
+"""The ghost generators of :mod:`mmsnap_graph.sim.real.ghosts`."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from factors.models import measurement_model
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import CLEAN, simulate_recording
-from mmsnap_graph.sim.ghosts import GHOST_KINDS, ghost_centroids
+from mmsnap_graph.sim.real.ghosts import GHOST_KINDS, ghost_centroids
 
 
 @pytest.fixture(scope="module")

@@ -31,9 +31,9 @@ from numpy.typing import NDArray
 
 from factors.models import global_to_local, local_to_global, measurement_model, wrap_angle
 
-from .._validation import check_count
-from ..data.recording import Detections
-from ..errors import ValidationError
+from ..._validation import check_count
+from ...data.recording import Detections
+from ...errors import ValidationError
 from .sparse import empty_frame_mask
 
 __all__ = ["RealPhysics", "room_box", "person_depths", "correlated_errors", "mirror_through_walls",

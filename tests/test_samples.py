@@ -12,8 +12,10 @@ from numpy.testing import assert_allclose, assert_array_equal
 from factors.models import measurement_model, wrap_angle
 from mmsnap_graph.io import read_recording
 from mmsnap_graph.sim import CENTROID_NOISE, network_poses
+from mmsnap_graph.io.ti_uart import parse_ti_uart
 
-from _shared import DATA
+from _shared import DATA, TI_DATA
+from ti_samples import main as make_samples, write_fast_sample
 
 SAMPLES = sorted(DATA.glob("*.h5"))
 
@@ -65,3 +67,45 @@ def test_make_samples_regenerates_the_committed_files(tmp_path):
             if a.nodes[name].cube is not None:
                 # Float32 sums may round to a neighbouring ADC count on another BLAS.
                 assert np.max(np.abs(a.nodes[name].cube - b.nodes[name].cube)) <= 1.5
+
+
+def _csv_numbers(path):
+    lines = path.read_text().splitlines()
+    cells = [line.split(",") for line in lines[1:]]
+    return lines[0], [c[0] for c in cells], np.array([c[1:] for c in cells], dtype=float)
+
+
+def test_samples_are_what_the_script_makes(tmp_path):
+    """The script makes the committed samples again, to their quantisation: the
+    simulator's floats may differ in the last bit between NumPy/SciPy builds,
+    which moves an int16 ADC count by one LSB or a CSV's sixth decimal by one."""
+    make_samples(tmp_path)
+    for name in ("dca1000_small.cfg", "dca1000_fast.cfg", "dca1000_fast.mmwave.json"):
+        assert (tmp_path / name).read_text() == (TI_DATA / name).read_text(), name
+    for name in ("dca1000_small.bin", "dca1000_fast.bin"):
+        made = np.frombuffer((tmp_path / name).read_bytes(), dtype="<i2").astype(int)
+        kept = np.frombuffer((TI_DATA / name).read_bytes(), dtype="<i2").astype(int)
+        assert made.shape == kept.shape, name
+        assert np.max(np.abs(made - kept)) <= 1, name          # one ADC count
+        assert np.mean(made != kept) < 1e-3, name
+    for name in ("points_sensor_frame.csv", "points_room_frame.csv"):
+        head, nodes, values = _csv_numbers(tmp_path / name)
+        head0, nodes0, values0 = _csv_numbers(TI_DATA / name)
+        assert (head, nodes) == (head0, nodes0), name
+        assert values.shape == values0.shape, name
+        # the sixth decimal (relative for the 1.7e9 s time stamps)
+        assert np.all(np.abs(values - values0) <= 1.5e-6 * np.maximum(1.0, np.abs(values0))), name
+    for name in ("oob_uart_S1.bin", "oob_uart_S2.bin"):
+        made = parse_ti_uart((tmp_path / name).read_bytes())
+        kept = parse_ti_uart((TI_DATA / name).read_bytes())
+        assert len((tmp_path / name).read_bytes()) == len((TI_DATA / name).read_bytes()), name
+        assert made.points.frame.tolist() == kept.points.frame.tolist(), name
+        np.testing.assert_allclose(made.points.points_xyz, kept.points.points_xyz, rtol=1e-6,
+                                   atol=1e-6, err_msg=name)    # float32 on the wire
+        np.testing.assert_allclose(made.points.snr_db, kept.points.snr_db, atol=0.11)
+
+
+def test_the_fast_sample_is_what_the_script_makes(tmp_path):
+    write_fast_sample(tmp_path)
+    for name in ("dca1000_fast.cfg", "dca1000_fast.bin"):
+        assert (tmp_path / name).read_bytes() == (TI_DATA / name).read_bytes(), name

@@ -1,5 +1,5 @@
 """Sparse point clouds at 20 fps with two people (issue 14, Build 7):
-sim.sparse thins the simulator's clouds to the issue's shape (2-3 moving
+sim.real.sparse thins the simulator's clouds to the issue's shape (2-3 moving
 points per radar per frame, a quarter of the frames empty in bursts), and
 the whole default path -- chain clustering, EKF tracks, pose graph, the
 joint graph on several people (calibration.joint.multi_refine) -- is measured
@@ -14,7 +14,7 @@ from mmsnap_graph.app.pipeline import process_recording
 from mmsnap_graph.calibration import calibrate_recording, pose_tangent_error
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
-from mmsnap_graph.sim.sparse import empty_frame_mask, sparse_clouds
+from mmsnap_graph.sim.real.sparse import empty_frame_mask, sparse_clouds
 from mmsnap_graph.sim import SimulationOptions
 
 #: Three nodes (as in test_multi_target_calibration): S1 and S2 face each

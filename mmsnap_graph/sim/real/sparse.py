@@ -1,4 +1,4 @@
-"""Sparse point clouds like those of TI's out-of-box demo (issue 14, Build 7).
+"""Sparse point clouds like those of TI's out-of-box demo.
 
 Real demo point clouds of people walking, projected to the 2D plane, hold
 only about 2-3 moving points per radar per frame, and a radar sees nothing at
@@ -19,8 +19,8 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
-from ..data.recording import Recording
-from ..errors import ValidationError
+from ...data.recording import Recording
+from ...errors import ValidationError
 
 __all__ = ["sparse_clouds", "empty_frame_mask"]
 

@@ -1,0 +1,215 @@
+"""The joint graph's pose covariance when errors are correlated in time
+(``calibration.joint.covariance`` and ``presolve.pose_influences``).
+
+Measured (3-node network of tests/test_network_pose_nees.py, one random
+walker, 300 frames at 150 ms, the real physics without clutter, ghosts,
+split clusters or reflection depth, so that only the AR(1) centroid errors
+(0.045 m, 0.7 s, and the fast part's 0.04 s) break the model; joint NEES of
+the two poses, chi-square(6), seeds 0-19, band of the mean 4.58-7.61): the
+graph's marginals 12.87, the long-run covariance (2 s Bartlett bandwidth)
+8.86: better, not in the band (a strict xfail).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from factors.models import measurement_model
+from mmsnap_graph.calibration import calibrate_recording, joint_calibration, pose_tangent_error
+from mmsnap_graph.calibration.joint.covariance import (
+    bandwidth_frames,
+    long_run_covariance,
+    robust_covariance,
+)
+from mmsnap_graph.calibration.joint.options import JointOptions
+from mmsnap_graph.calibration.joint.presolve import (
+    RANGE_OFFSET,
+    PresolveProblem,
+    normal_equations,
+    pose_influences,
+    presolve,
+)
+from mmsnap_graph.calibration.network import RECORDING_JOINT_OPTIONS
+from mmsnap_graph.data.noise import MeasurementNoise
+from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.sim.options import SimulationOptions
+from mmsnap_graph.sim import RealPhysics
+
+NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
+SIGMAS = np.array([0.03, 0.05, 0.1])
+#: The real physics with only the centroid errors' correlation in time left
+#: (no clutter, ghosts, split clusters, false alarms or reflection depth).
+CORRELATED_ONLY = RealPhysics(static_centroids_per_frame=0, ghost_probability=0,
+                              split_probability=0, false_alarm_fraction=0.0,
+                              reflection_depth_m=0.0, reflection_depth_std_m=0.0)
+
+
+def _ar1(rng, n, rho, p=2):
+    x = np.zeros((n, p))
+    e = rng.normal(size=(n, p))
+    for t in range(1, n):
+        x[t] = rho * x[t - 1] + e[t]
+    return x
+
+
+def test_long_run_covariance_of_white_and_ar1_series():
+    """Sums of T unit-variance draws: T for white noise; T (1 + rho) / (1 -
+    rho) for AR(1) with a bandwidth well beyond its memory (Bartlett's bias
+    ~ 1 / bandwidth)."""
+    rng = np.random.default_rng(0)
+    n = 40000
+    white = rng.normal(size=(n, 2))
+    lr = long_run_covariance(white, np.arange(n), 20)
+    np.testing.assert_allclose(np.diag(lr) / n, 1.0, rtol=0.1)  # sd 2.6%
+    rho = 0.8
+    x = _ar1(rng, n, rho) * np.sqrt(1 - rho**2)  # unit variance
+    lr = long_run_covariance(x, np.arange(n), 120)
+    np.testing.assert_allclose(np.diag(lr) / n, (1 + rho) / (1 - rho), rtol=0.2)  # sd 6%, bias -7%
+    gamma0 = np.diag(x.T @ x) / n
+    assert np.all(np.diag(lr) / n > 5 * gamma0)
+    with pytest.raises(ValidationError, match="strictly increasing"):
+        long_run_covariance(white[:3], np.array([0, 2, 2]), 1)
+    with pytest.raises(ValidationError, match="bandwidth"):
+        long_run_covariance(white[:3], np.arange(3), -1)
+    assert bandwidth_frames(2.0, 0.05) == 40 and bandwidth_frames(2.0, 0.15) == 14
+    assert bandwidth_frames(2.0, None) == 1
+
+
+def test_robust_covariance_keeps_the_model_within_its_noise_and_widens_beyond():
+    model = np.diag([4.0, 1.0, 0.25])
+    same, f = robust_covariance(model, 1.05 * model, n_frames=300, bandwidth=13)
+    np.testing.assert_allclose(same, model)
+    assert np.all(f == 1.0)
+    wide = model.copy()
+    wide[0, 0] *= 9.0  # the first direction's errors last: 9x the variance
+    out, f = robust_covariance(model, wide, n_frames=300, bandwidth=13)
+    np.testing.assert_allclose(np.diag(out), [36.0, 1.0, 0.25], rtol=1e-9)
+    assert f[0] == pytest.approx(9.0) and np.all(f[1:] == 1.0)
+    assert np.all(np.linalg.eigvalsh(out - model) > -1e-12)
+
+
+def _scene(seed=0, n=60, depth=0.07):
+    """Three nodes seeing a target on a smooth walk; every range ``depth``
+    short (a reflection depth)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.15
+    states = np.column_stack([1.5 * np.sin(0.3 * t), 3.5 + np.cos(0.4 * t),
+                              0.45 * np.cos(0.3 * t), -0.4 * np.sin(0.4 * t)])
+    poses = {"S1": np.zeros(3), "S2": np.array([4.0, 4.0, np.pi / 2]),
+             "S3": np.array([0.5, 7.5, np.pi])}
+    meas = {}
+    for name, pose in poses.items():
+        h, _ = measurement_model(states, pose)
+        h[:, 0] -= depth
+        meas[name] = h + rng.normal(0.0, SIGMAS, (n, 3))
+    return poses, states, meas
+
+
+@pytest.mark.parametrize("timed", [False, True])
+def test_influences_sum_to_zero_and_the_model_is_the_inverse_hessian(timed):
+    poses, states, meas = _scene()
+    motion = (np.arange(59), np.full(59, 0.15), 2.0)
+    problem = PresolveProblem(measurements=meas, names=list(poses), reference="S1",
+                              sigmas=SIGMAS, prior_sigmas=np.array([1e3, 1e3, 3.5, 3.5]),
+                              motion=motion, range_offset=(0.1, 0.05))
+    start = {RANGE_OFFSET: 0.1, **({"S2": 0.0, "S3": 0.0} if timed else {})}
+    p, s, o = presolve(problem, poses, states, offsets=start, tol=1e-14, max_steps=200)
+    infl, cov = pose_influences(problem, p, s, offsets=o)
+    assert infl.shape == (60, 6 + 2 * timed + 1)
+    assert np.max(np.abs(infl.sum(0))) < 1e-3 * np.sqrt(np.max(np.diag(cov)))  # to the solve's tolerance
+    hess, _ = normal_equations(problem, p, s, offsets=o)
+    dense = np.linalg.inv(hess.toarray())[240:, 240:]
+    np.testing.assert_allclose(cov, dense, rtol=1e-8, atol=1e-14)
+    with pytest.raises(ValidationError, match="Gaussian"):
+        pose_influences(dataclasses.replace(problem, robust="cauchy"), p, s, offsets=o)
+
+
+def _sim(seed, physics):
+    return simulate_recording(NET, "random", SimulationOptions(physics=physics),
+                              levels=("centroids",), n_frames=300, seed=seed)
+
+
+def test_reported_marginals_and_message():
+    """``covariance="model"`` reports the graph's marginals, equal to the
+    long-run result's ``model_covariances``; the long-run covariance is
+    never below them; the message says how the solve converged."""
+    phys = CORRELATED_ONLY
+    rec = _sim(0, phys)
+    model = calibrate_recording(rec, joint=dataclasses.replace(RECORDING_JOINT_OPTIONS,
+                                                               covariance="model"))
+    long_run = calibrate_recording(rec)
+    for n in ("S2", "S3"):
+        np.testing.assert_allclose(model.covariances[n], model.joint.model_covariances[n])
+        np.testing.assert_allclose(long_run.joint.model_covariances[n], model.covariances[n],
+                                   rtol=1e-4, atol=1e-12)  # numpy Schur vs GTSAM
+        assert np.all(np.linalg.eigvalsh(long_run.covariances[n] - model.covariances[n])
+                      > -1e-12)
+    assert "numpy pre-solve" in long_run.message and "converged" in long_run.message
+    assert "GTSAM" in long_run.message and "covariance:" in long_run.message
+
+
+@functools.lru_cache(maxsize=1)
+def _correlated_nees() -> dict[str, float]:
+    """Mean joint NEES of the marginals and of the long-run covariance,
+    seeds 0-19 (module doc)."""
+    nees = {"model": [], "long_run": []}
+    for seed in range(20):
+        rec = _sim(seed, CORRELATED_ONLY)
+        for kind in nees:
+            cal = calibrate_recording(rec, joint=dataclasses.replace(RECORDING_JOINT_OPTIONS,
+                                                                     covariance=kind))
+            e = np.concatenate([pose_tangent_error(cal.poses[n], rec.truth.node_poses[n])
+                                for n in cal.joint.joint_order])
+            nees[kind].append(float(e @ np.linalg.solve(cal.joint.joint_covariance, e)))
+    return {k: float(np.mean(v)) for k, v in nees.items()}
+
+
+BAND = tuple(chi2.ppf([0.025, 0.975], 6 * 20) / 20)
+
+
+@pytest.mark.slow
+def test_correlated_errors_long_run_covariance_lowers_the_nees():
+    """Module doc: the marginals' NEES is above the band; the long-run
+    covariance takes at least a quarter of it off (12.9 -> 8.9 measured)."""
+    means = _correlated_nees()
+    assert means["model"] > BAND[1]
+    assert means["long_run"] < 0.75 * means["model"]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="long-run NEES 8.86 above the band (4.58, 7.61), seeds "
+                                       "0-19 (marginals 12.87)")
+def test_correlated_errors_long_run_nees_in_band():
+    means = _correlated_nees()
+    assert BAND[0] < means["long_run"] < BAND[1]
+
+
+def test_joint_options_check_the_new_fields():
+    with pytest.raises(ValidationError, match="covariance="):
+        JointOptions(covariance="sandwich")
+    with pytest.raises(ValidationError, match="covariance_bandwidth_s"):
+        JointOptions(covariance_bandwidth_s=0.0)
+    with pytest.raises(ValidationError, match="range_offset_prior_m"):
+        JointOptions(range_offset_prior_m=(0.1,))
+    with pytest.raises(ValidationError, match="range_offset_prior_m sigma"):
+        JointOptions(range_offset_prior_m=(0.1, 0.0))
+    with pytest.raises(ValidationError, match="within"):
+        JointOptions(range_offset_prior_m=(10.0, 0.05))
+    assert JointOptions(range_offset_prior_m=[0.1, 0.05]).range_offset_prior_m == (0.1, 0.05)
+
+
+def test_joint_calibration_without_a_frame_period_keeps_the_marginals():
+    poses, states, meas = _scene(1, depth=0.0)
+    frames = np.arange(60)
+    dets = {n: (frames, m) for n, m in meas.items()}
+    noise = MeasurementNoise(range_m=0.03, omega_rad=0.05, doppler_mps=0.1)
+    res = joint_calibration(dets, noise=noise, initial_poses=poses)
+    assert res.success, res.message
+    for n in ("S2", "S3"):
+        np.testing.assert_allclose(res.covariances[n], res.model_covariances[n])

@@ -1,0 +1,63 @@
+"""Each frame's least-squares target state at known poses
+(mmsnap_graph.calibration.noise.frame_states) against a different solver:
+the vectorized one-shot fusion (``fuse_batch``) with the same weights and
+prior."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factors.models import predict_measurements
+from mmsnap_graph import MeasurementNoise, fuse_batch
+from mmsnap_graph.calibration.noise.frame_states import solve_frame_states
+from mmsnap_graph.fusion import FusionOptions
+
+from _shared import POSES_BC
+
+NOISE = MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.10)
+PRIOR_SIGMAS = np.array([30.0, 30.0, 10.0, 10.0])
+
+
+def _frames(seed, n_frames=30):
+    rng = np.random.default_rng(seed)
+    states = np.column_stack([rng.uniform(0.5, 3.5, n_frames), rng.uniform(2.0, 5.0, n_frames),
+                              rng.normal(0.0, 0.8, (n_frames, 2))])
+    z = np.stack([predict_measurements(states, p) for p in POSES_BC], axis=1)
+    return states, z + rng.normal(size=z.shape) * NOISE.sigmas
+
+
+def test_states_are_the_prior_free_estimate_of_fuse_batch():
+    """The Gauss-Newton steps use the prior's information but not its
+    gradient, so the prior damps the steps and the fixed point is the
+    prior-free (ML) estimate: ``fuse_batch(prior=None)``'s state (1e-7 m);
+    the covariance returned is ``(J^T W J + prior_w)^-1`` at that state
+    (1e-6 of sigma_i sigma_j)."""
+    _, z = _frames(0)
+    w = np.broadcast_to(1.0 / NOISE.sigmas**2, z.shape)
+    prior_w = 1.0 / PRIOR_SIGMAS**2
+    x, e, jac, cov = solve_frame_states(z, POSES_BC, w, prior_w, iterations=12)
+    ref = fuse_batch(POSES_BC, z, noise=NOISE, prior=None,
+                     options=FusionOptions(step_tolerance=1e-14))
+    assert ref.success.all()
+    np.testing.assert_allclose(x, ref.state, atol=1e-7)
+    expected = np.linalg.inv(np.linalg.inv(ref.covariance) + np.diag(prior_w))
+    sig = np.sqrt(np.einsum("fii->fi", expected))
+    scale = sig[:, :, None] * sig[:, None, :]
+    np.testing.assert_allclose(cov / scale, expected / scale, atol=1e-6)
+    # the residuals and Jacobians are those at the solution: J^T W e vanishes
+    grad = np.einsum("fnri,fnr,fnr->fi", jac, w, e)
+    assert np.max(np.abs(grad * sig)) < 1e-6
+
+
+def test_an_unseen_node_is_left_out_and_its_residuals_are_nan():
+    """Frames that S3 does not see (NaN) give the state of the S1-S2 solve."""
+    _, z = _frames(1, 12)
+    w = np.broadcast_to(1.0 / NOISE.sigmas**2, z.shape).copy()
+    z_miss = z.copy()
+    z_miss[::2, 2] = np.nan
+    w[::2, 2] = 0.0
+    x, e, _, _ = solve_frame_states(z_miss, POSES_BC, w, 1.0 / PRIOR_SIGMAS**2, iterations=12)
+    assert np.all(np.isnan(e[::2, 2])) and np.all(np.isfinite(e[1::2]))
+    two, _, _, _ = solve_frame_states(z[::2, :2], POSES_BC[:2], w[::2, :2],
+                                      1.0 / PRIOR_SIGMAS**2, iterations=12)
+    np.testing.assert_allclose(x[::2], two, atol=1e-9)
