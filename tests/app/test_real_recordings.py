@@ -171,8 +171,7 @@ HALVES_XFAIL: dict = {}
 NO_BOUNDS_XFAIL = {
     "multiple_tracking": "90.8% of fused rows inside the room without --bounds (target 95%)",
     "fall_detection": "93.8% of fused rows inside the room without --bounds (target 95%)"}
-IN_FRONT_XFAIL = {
-    "fall_detection": "94.6% of fused rows inside the room with --in-front (target 95%)"}
+IN_FRONT_XFAIL: dict = {}
 INSIDE_XFAIL: dict = {}
 COUNT_XFAIL: dict = {}
 
