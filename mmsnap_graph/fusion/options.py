@@ -127,10 +127,11 @@ class FusionOptions:
     source : ``"centroids"`` or ``"point_cloud"``.
     block_rows : rows fused per call of the vectorized solver.
     motion_check : True, False or None (on with a ``robust`` option).
-    merge_body_m : a node's centroids of one frame closer than this (m) are
+    body_merge : True, False or None (on with a ``robust`` option): a
+        node's centroids of one frame closer than ``merge_body_m`` (m) are
         one body seen as several clusters, merged before the association
         (:func:`~mmsnap_graph.fusion.recording.regroup.merge_body_detections`;
-        docs/ROBUST.md); None: off.
+        docs/ROBUST.md).
     coverage_check : with the motion check, flag a row that a node whose
         field of view covers it never sees in the frames around
         (:mod:`~mmsnap_graph.fusion.recording.coverage`: a multipath image).
@@ -148,7 +149,8 @@ class FusionOptions:
     source: Literal["centroids", "point_cloud"] = "centroids"
     block_rows: int = 65536
     motion_check: bool | None = None
-    merge_body_m: float | None = 0.6   # regroup.DEFAULT_MERGE_BODY_M
+    body_merge: bool | None = None
+    merge_body_m: float = 0.6   # regroup.DEFAULT_MERGE_BODY_M
     coverage_check: bool = True
 
     def __post_init__(self) -> None:
@@ -172,8 +174,10 @@ class FusionOptions:
         if not isinstance(self.coverage_check, (bool, np.bool_)):
             raise ValidationError(
                 f"coverage_check must be True or False, got {self.coverage_check!r}")
-        if self.merge_body_m is not None:
-            object.__setattr__(self, "merge_body_m", _positive(self.merge_body_m, "merge_body_m"))
+        if self.body_merge is not None and not isinstance(self.body_merge, (bool, np.bool_)):
+            raise ValidationError(
+                f"body_merge must be True, False or None, got {self.body_merge!r}")
+        object.__setattr__(self, "merge_body_m", _positive(self.merge_body_m, "merge_body_m"))
 
 
 #: The default options.

@@ -226,7 +226,8 @@ def run(args: argparse.Namespace) -> int:
                                grid_points_per_axis=args.grid_points,
                                motion_check=args.robust != "none" and not args.no_motion_check,
                                coverage_check=not args.no_coverage_check,
-                               merge_body_m=None if args.no_body_merge else DEFAULT_MERGE_BODY_M)
+                               body_merge=False if args.no_body_merge else None,
+                               merge_body_m=DEFAULT_MERGE_BODY_M)
         options = dict(mode=args.mode, robust=None if args.robust == "none" else args.robust,
                        options=fusion, **room)
         fused, _ = fuse_stored(args.recording, options, output=args.output, calibration=cal,

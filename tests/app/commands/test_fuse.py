@@ -242,7 +242,7 @@ def test_cli_fuse_merges_one_body_and_checks_coverage_unless_told(tmp_path):
     sig = ["--sigmas", "0.05", "0.08", "0.1", "--no-progress"]
     for flags, opts in (([], FusionOptions()),
                         (["--no-body-merge", "--no-coverage-check"],
-                         FusionOptions(merge_body_m=None, coverage_check=False))):
+                         FusionOptions(body_merge=False, coverage_check=False))):
         assert main(["fuse", str(path), *sig, *flags, "--overwrite"]) == 0
         fused = read_fused(path)
         ref = screen_room(fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", options=opts,

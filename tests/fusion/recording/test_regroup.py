@@ -47,7 +47,7 @@ def test_a_split_body_fuses_as_the_whole_one(fraction):
     clean = fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", progress=False)
     merged = fuse_recording(split, noise=CENTROID_NOISE, robust="gate", progress=False)
     raw = fuse_recording(split, noise=CENTROID_NOISE, robust="gate", progress=False,
-                         options=FusionOptions(merge_body_m=None))
+                         options=FusionOptions(body_merge=False))
     np.testing.assert_array_equal(merged.frame, clean.frame)
     np.testing.assert_allclose(merged.state[merged.success], clean.state[clean.success],
                                atol=1e-6)
@@ -56,10 +56,26 @@ def test_a_split_body_fuses_as_the_whole_one(fraction):
     assert np.sqrt(np.mean(np.sum(err ** 2, 1))) > 1.2 * np.sqrt(np.mean(np.sum(err0 ** 2, 1)))
 
 
-def test_merge_body_m_is_validated():
+def test_merge_body_m_and_body_merge_are_validated():
     from mmsnap_graph.errors import ValidationError
 
-    for bad in (0, -0.5, float("nan"), True, "0.5"):
+    for bad in (0, -0.5, float("nan"), True, "0.5", None):
         with pytest.raises(ValidationError, match="merge_body_m"):
             FusionOptions(merge_body_m=bad)
-    assert dataclasses.replace(FusionOptions(), merge_body_m=None).merge_body_m is None
+    for bad in (1, "yes"):
+        with pytest.raises(ValidationError, match="body_merge"):
+            FusionOptions(body_merge=bad)
+    assert dataclasses.replace(FusionOptions(), merge_body_m=0.4).merge_body_m == 0.4
+
+
+def test_plain_fusion_does_not_merge_unless_told():
+    """Without a robust option (the library's default) nothing is merged."""
+    net = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
+    rec = simulate_recording(net, "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=60, seed=4)
+    split = ghost_centroids(rec, "split", 0.3, seed=5)
+    plain = fuse_recording(split, noise=CENTROID_NOISE, progress=False)
+    told = fuse_recording(split, noise=CENTROID_NOISE, progress=False,
+                          options=FusionOptions(body_merge=True))
+    assert len(told) == len(fuse_recording(rec, noise=CENTROID_NOISE, progress=False))
+    assert len(plain) > len(told)

@@ -66,9 +66,7 @@ def _stream_all(rec, solver, **kwargs):
 
 @pytest.mark.parametrize("solver", ["gtsam", "vectorized"])
 def test_stream_gives_the_fused_states_and_tracks_of_the_batch_path(recording, solver):
-    # The stream fuses each node's centroids as they come (no merge of one body's).
-    fused = fuse_recording(recording, progress=False,
-                           options=FusionOptions(solver=solver, merge_body_m=None))
+    fused = fuse_recording(recording, progress=False, options=FusionOptions(solver=solver))
     tracks = track_fused(fused)
     _, updates = _stream_all(recording, solver)
     assert all(u.ok for _, u in updates)
