@@ -2,11 +2,14 @@
 
 import os
 import stat
+import subprocess
+import sys
+import time
 
 import pytest
 
 from mmsnap_graph import FileFormatError
-from mmsnap_graph._atomic import atomic_path
+from mmsnap_graph._atomic import atomic_path, recording_lock, remove_stale_temporaries
 
 
 def test_success_replaces_file_with_umask_permissions(tmp_path):
@@ -78,3 +81,39 @@ def test_every_name_of_a_file_takes_the_same_lock(tmp_path):
         holder.wait()
     with recording_lock(link, timeout_s=5):  # a killed holder's lock is free again
         pass
+
+
+def test_the_lock_is_reentrant_and_times_out_naming_the_file(tmp_path):
+    path = tmp_path / "x.h5"
+    with recording_lock(path):
+        with recording_lock(path):  # the same process: no deadlock
+            pass
+        other = subprocess.run(
+            [sys.executable, "-c",
+             "from mmsnap_graph._atomic import recording_lock\n"
+             f"with recording_lock({str(path)!r}, timeout_s=0.3): pass\n"],
+            capture_output=True, text=True, timeout=120)
+        assert other.returncode != 0 and "x.h5 is locked" in other.stderr
+    assert not (tmp_path / ".x.h5.lock").exists()
+
+
+def test_stale_temporaries_of_killed_writers_are_removed(tmp_path):
+    """Before: `.name.*.tmp` files of a kill -9 stayed forever."""
+    target = tmp_path / "out.json"
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    host = __import__("mmsnap_graph._atomic", fromlist=["x"])._HOST
+    mine = tmp_path / f".out.json.{os.getpid()}@{host}.live.tmp"
+    killed = tmp_path / f".out.json.{dead.pid}@{host}.dead.tmp"
+    old = tmp_path / ".out.json.abc123.tmp"  # the old naming, two days old
+    other = tmp_path / ".other.json.99999999@x.y.tmp"
+    for p in (mine, killed, old, other):
+        p.write_text("partial")
+    two_days = time.time() - 2 * 86400
+    os.utime(old, (two_days, two_days))
+    with atomic_path(target) as tmp:
+        tmp.write_text("{}")
+    assert target.read_text() == "{}"
+    assert mine.exists() and other.exists()
+    assert not killed.exists() and not old.exists()
+    assert remove_stale_temporaries(target) == []

@@ -24,6 +24,8 @@ from mmsnap_graph.app import report
 from mmsnap_graph.app.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, main
 from mmsnap_graph.io import read_recording
 from mmsnap_graph.sim import simulate_recording
+from mmsnap_graph.errors import FileFormatError
+from mmsnap_graph._atomic import atomic_path
 
 from _shared import ROOT
 
@@ -427,3 +429,13 @@ def test_python_dash_m_runs_the_cli():
     out = subprocess.run([sys.executable, "-m", "mmsnap_graph", "--version"],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.startswith("mmsnap ")
+
+
+def test_an_output_folder_is_refused_before_any_work(recording_b_file, tmp_path):
+    with pytest.raises(FileFormatError, match="is a directory"):
+        with atomic_path(tmp_path):
+            pass
+    for argv in (["process", str(recording_b_file), "-o", str(tmp_path)],
+                 ["calibrate", str(recording_b_file), "--no-write", "--json-out", str(tmp_path)],
+                 ["fuse", str(recording_b_file), "-o", str(tmp_path)]):
+        assert main(argv) == 2

@@ -163,3 +163,19 @@ def test_evaluate_command_errors(tmp_path, capsys, recording_c_straight):
     write_recording(path, dataclasses.replace(rec, truth=None))
     assert main(["evaluate", str(path)]) == 1  # a data error, not a usage error
     assert "no truth" in capsys.readouterr().err
+
+
+def test_surveyed_poses_alone_give_pose_errors_and_no_state_scores(surveyed_recording):
+    moved = {"S1": np.zeros(3),
+             "S2": surveyed_recording.truth.node_poses["S2"] + [0.1, -0.2, 0.03]}
+    fused = fuse_recording(surveyed_recording, progress=False)
+    m = evaluate_recording(surveyed_recording, fused=fused, node_poses=moved)
+    s2 = m["poses"]["S2"]
+    assert s2["position_error_m"] == pytest.approx(np.hypot(0.1, 0.2))
+    assert s2["heading_error_rad"] == pytest.approx(0.03)
+    assert s2["path_error_m"] is None                 # no walking path to map
+    assert m["poses"]["S1"]["position_error_m"] == pytest.approx(0.0, abs=1e-12)
+    # No fake state scores: nothing to compare the fused rows and tracks with.
+    assert m["fused"] is None and all(v is None for v in m["tracks"].values())
+    assert m["n_truth_rows"] == 0 and m["failed_checks"] == []
+    assert any("no trajectory" in n for n in m["notes"])

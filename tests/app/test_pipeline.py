@@ -1,7 +1,13 @@
 """The chain on in-memory recordings and on HDF5 files (``mmsnap process``)."""
 
+from pathlib import Path
+import subprocess
+import sys
+import time
+
 import numpy as np
 import pytest
+import h5py
 
 from factors.models import global_to_local
 from mmsnap_graph.app.cli import main
@@ -206,3 +212,48 @@ def test_process_node_wraps_the_ekf_doppler_at_the_chains_unambiguous_speed(monk
     node = rec.nodes["S1"]
     pipeline.process_node(node, rec.frame_period_s)
     assert seen["wrap"] == unambiguous_speed_mps(node.radar)
+
+
+def mmsnap(*argv: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "mmsnap_graph", *argv],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def simulated(path: Path, n_frames: int) -> Path:
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(n_frames), "-l",
+                 "centroids", "--seed", "2", "-o", str(path), "--no-progress"]) == 0
+    return path
+
+
+@pytest.fixture()
+def recording(tmp_path) -> Path:
+    return simulated(tmp_path / "rec.h5", 300)
+
+
+def test_a_second_writer_waits_for_the_lock(recording):
+    """A process holding the lock makes `mmsnap process` wait, not interleave."""
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys, time; from mmsnap_graph._atomic import recording_lock\n"
+         f"with recording_lock({str(recording)!r}):\n"
+         "    print('locked', flush=True); time.sleep(3)\n"],
+        stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "locked"
+    t0 = time.monotonic()
+    proc = mmsnap("process", str(recording), "--centroids-only", "--no-progress")
+    out, err = proc.communicate(timeout=600)
+    holder.wait(timeout=60)
+    assert proc.returncode == 0, err
+    assert time.monotonic() - t0 > 1.5  # it waited for the holder
+    with h5py.File(recording, "r") as f:
+        assert "tracks" in f["nodes/S1"]
+
+
+def test_a_killed_write_leaves_a_temporary_that_the_next_write_removes(recording):
+    code = ("import os\nfrom mmsnap_graph._atomic import atomic_path\n"
+            f"with atomic_path({str(recording)!r}) as tmp:\n"
+            "    tmp.write_bytes(b'x' * 1000)\n    os._exit(9)\n")
+    assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == 9
+    assert len(list(recording.parent.glob(".rec.h5.*.tmp"))) == 1
+    assert main(["process", str(recording), "--centroids-only", "--no-progress"]) == 0
+    assert not list(recording.parent.glob(".rec.h5.*.tmp"))

@@ -2,6 +2,9 @@
 command that fuses (fuse, monitor, replay, the batch's fuse step)."""
 
 import json
+from pathlib import Path
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -17,58 +20,45 @@ from mmsnap_graph.io.calibration import read_calibration
 from mmsnap_graph.io.noise import read_noise
 
 
-@pytest.fixture(scope="module")
-def calibrated(tmp_path_factory):
-    """Configuration C, 300 frames, calibrated: node poses, /calibration with
-    pose covariances and a clock offset of S2, /noise from the data."""
-    path = tmp_path_factory.mktemp("runs") / "rec.h5"
-    # The clean model: its clocks give S2 an offset for calibrate to find.
-    assert main(["simulate", "-c", "C", "-l", "centroids", "-n", "300", "-s", "2",
-                 "--model", "clean", "-o", str(path)]) == 0
-    assert main(["process", str(path), "--centroids-only", "--no-progress"]) == 0
-    assert main(["calibrate", str(path)]) == 0
-    return path
-
-
-def test_stored_calibration_reads_every_part(calibrated):
-    rec = read_recording(calibrated, load_cubes=False)
-    cal = read_calibration(calibrated)
-    noise = read_noise(calibrated)
-    stored = stored_calibration(calibrated, rec.node_names)
+def test_stored_calibration_reads_every_part(calibrated_c_file):
+    rec = read_recording(calibrated_c_file, load_cubes=False)
+    cal = read_calibration(calibrated_c_file)
+    noise = read_noise(calibrated_c_file)
+    stored = stored_calibration(calibrated_c_file, rec.node_names)
     assert stored.node_poses is None  # the recording's own poses
     assert set(stored.pose_covariances) == {"S2"}
     np.testing.assert_array_equal(stored.pose_covariances["S2"], cal.covariances["S2"])
     assert stored.time_offset_s == {"S2": pytest.approx(cal.time_offset_s["S2"])}
     assert stored.noise == {n: noise.nodes[n].noise for n in rec.node_names}
-    pooled = stored_calibration(calibrated, rec.node_names, per_node_noise=False).noise
+    pooled = stored_calibration(calibrated_c_file, rec.node_names, per_node_noise=False).noise
     assert pooled == noise.pooled()
-    given = stored_calibration(calibrated, rec.node_names, sigmas=(0.1, 0.2, 0.3),
+    given = stored_calibration(calibrated_c_file, rec.node_names, sigmas=(0.1, 0.2, 0.3),
                                pose_covariances=False, time_offsets=False)
     assert given.noise == MeasurementNoise(range_m=0.1, omega_rad=0.2, doppler_mps=0.3)
     assert given.pose_covariances is None and given.time_offset_s is None
     assert given.text[1] == "poses exact; clocks as recorded"
-    json_path = calibrated.with_name("rec.calibration.json")
-    from_json = stored_calibration(calibrated, rec.node_names, calibration_json=json_path)
+    json_path = calibrated_c_file.with_name("rec.calibration.json")
+    from_json = stored_calibration(calibrated_c_file, rec.node_names, calibration_json=json_path)
     assert set(from_json.node_poses) == set(rec.node_names)
 
 
-def test_monitor_uses_the_stored_noise_poses_and_clocks(calibrated, tmp_path, capsys):
+def test_monitor_uses_the_stored_noise_poses_and_clocks(calibrated_c_file, tmp_path, capsys):
     """Before: the monitor ran with the recording's metadata sigmas (the
     simulator's) and the clocks as recorded, whatever `calibrate` stored."""
     capsys.readouterr()
     out = tmp_path / "monitor.json"
-    assert main(["monitor", str(calibrated), "--json-out", str(out)]) == 0
+    assert main(["monitor", str(calibrated_c_file), "--json-out", str(out)]) == 0
     text = capsys.readouterr().out
-    pooled = read_noise(calibrated).pooled()
+    pooled = read_noise(calibrated_c_file).pooled()
     assert "sigmas from /noise" in text and "clock offsets applied: S2" in text
     assert f"noise (range {pooled.range_m:g} m, omega {pooled.omega_rad:g} rad)" in text
-    rec = read_recording(calibrated, load_cubes=False)
+    rec = read_recording(calibrated_c_file, load_cubes=False)
     meta = rec.metadata
     assert not np.isclose(pooled.omega_rad, float(meta.get("centroid_omega_std", np.nan)))
     # The same run by hand from the stored parts.
     from mmsnap_graph.calibration.monitor.decalibration import DEFAULT_THRESHOLD, monitor_recording
 
-    cal = read_calibration(calibrated)
+    cal = read_calibration(calibrated_c_file)
     expected = monitor_recording(align_recording(rec, dict(cal.time_offset_s)),
                                  node_covariances={"S2": cal.covariances["S2"]},
                                  noise=pooled, threshold=DEFAULT_THRESHOLD,
@@ -84,14 +74,15 @@ def _replay_rows(path, tmp_path, *extra):
     return [json.loads(line) for line in out.read_text().splitlines()]
 
 
-def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated, tmp_path, capsys):
+def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated_c_file, tmp_path,
+                                                                  capsys):
     """Before: replay fused with the paper's sigmas, exact poses and the
     clocks as recorded. Now it equals a FrameStream given the stored parts."""
-    rows = _replay_rows(calibrated, tmp_path)
+    rows = _replay_rows(calibrated_c_file, tmp_path)
     assert "clock offsets applied: S2" in capsys.readouterr().err
-    rec = read_recording(calibrated, load_cubes=False)
-    cal = read_calibration(calibrated)
-    noise = read_noise(calibrated)
+    rec = read_recording(calibrated_c_file, load_cubes=False)
+    cal = read_calibration(calibrated_c_file)
+    noise = read_noise(calibrated_c_file)
     aligned = align_recording(rec, dict(cal.time_offset_s))
     stream = FrameStream(rec.node_names, recording_poses(rec), prior=GaussianPrior(),
                          noise={n: noise.nodes[n].noise for n in rec.node_names},
@@ -109,3 +100,38 @@ def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated, tm
     frame0 = next(f for f, u in expected if len(u))
     _, t0, d0 = next(x for x in recording_frames(aligned, fill_frames=fill) if x[0] == frame0)
     assert not np.allclose(plain.push(t0, d0).covariance, first.covariance)
+
+
+def mmsnap(*argv: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "mmsnap_graph", *argv],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def simulated(path: Path, n_frames: int) -> Path:
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(n_frames), "-l",
+                 "centroids", "--seed", "2", "-o", str(path), "--no-progress"]) == 0
+    return path
+
+
+@pytest.mark.slow
+def test_process_and_calibrate_at_once_keep_both_updates(tmp_path):
+    """Before: each rewrote the file from the copy it read at its start; the
+    one finishing last silently dropped the other's update (on main c862145
+    with 2000 frames: /calibration written, the node poses gone)."""
+    recording = simulated(tmp_path / "rec.h5", 2000)
+    before = read_recording(recording)
+    assert all(before.nodes[n].tracks is None for n in before.node_names)
+    procs = [mmsnap("process", str(recording), "--centroids-only", "--no-progress"),
+             mmsnap("calibrate", str(recording), "--method", "pose_graph", "--source",
+                    "centroids")]
+    outs = [p.communicate(timeout=600) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    after = read_recording(recording)
+    cal = read_calibration(recording)
+    for name in after.node_names:
+        assert after.nodes[name].tracks is not None, f"{name}: process's tracks were lost"
+        if name in cal.poses:
+            np.testing.assert_allclose(after.nodes[name].pose, cal.poses[name],
+                                       err_msg=f"{name}: calibrate's pose was lost")
+    assert len(cal.poses) >= 2
+    assert not list(recording.parent.glob(".rec.h5.*")), "lock or temporary files left"

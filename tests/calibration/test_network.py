@@ -28,8 +28,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from factors.models import global_to_local
 from mmsnap_graph.app.pipeline import process_recording, track_recording
 from mmsnap_graph.calibration import MatchingOptions, calibrate_recording, pose_tangent_error
+from mmsnap_graph.data.recording import NodeData, Recording, Tracks
 from mmsnap_graph.errors import CalibrationError, ValidationError
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.real.sparse import sparse_clouds
@@ -229,3 +231,41 @@ def test_bad_thresholds_name_the_field_and_value(recording_c_random, kwargs, fie
     with pytest.raises(ValidationError,
                        match=rf"^{field} must be .*got {re.escape(repr(kwargs[field]))}"):
         calibrate_recording(recording_c_random, matching=MatchingOptions(**kwargs))
+
+
+def test_lag_is_found_and_used(recording_c_random):
+    cal = calibrate_recording(_shift(recording_c_random, "S2", 1))
+    assert cal.lag_frames == {"S1": 0, "S2": 1}
+    assert cal.method == "joint"
+    err = pose_tangent_error(cal.poses["S2"], recording_c_random.truth.node_poses["S2"])
+    assert np.hypot(err[0], err[1]) < 0.1
+
+
+def test_tracks_are_preferred_and_joint_needs_centroids(recording_c_random):
+    """Tracks (here: the truth in each local frame plus 5 cm noise) are used
+    when present; without centroids the joint step is skipped, or raises when
+    required."""
+    rng = np.random.default_rng(0)
+    fr, st = recording_c_random.truth.target(0)
+    nodes = {}
+    for n in ("S1", "S2"):
+        local = global_to_local(st[:, :2], recording_c_random.truth.node_poses[n]) + rng.normal(
+            size=(fr.size, 2)) * 0.05
+        state = np.column_stack([local, np.zeros((fr.size, 2))])
+        nodes[n] = NodeData(name=n, tracks=Tracks(frame=fr, track_id=np.full(fr.size, 4),
+                                                  state=state,
+                                                  covariance=np.tile(np.eye(4), (fr.size, 1, 1))))
+    rec = Recording(frame_period_s=recording_c_random.frame_period_s, nodes=nodes)
+    cal = calibrate_recording(rec)
+    assert cal.source == "tracks" and cal.method == "pose_graph"
+    assert "joint refinement skipped" in cal.message
+    err = pose_tangent_error(cal.poses["S2"], recording_c_random.truth.node_poses["S2"])
+    assert np.hypot(err[0], err[1]) < 0.05
+    with pytest.raises(CalibrationError, match="needs centroids of a common target"):
+        calibrate_recording(rec, method="joint")
+
+
+def _shift(rec, name, lag):
+    node = rec.nodes[name]
+    c = dataclasses.replace(node.centroids, frame=node.centroids.frame + lag)
+    return rec.with_node(dataclasses.replace(node, centroids=c))

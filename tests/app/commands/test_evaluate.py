@@ -12,7 +12,7 @@ import pytest
 import h5py
 
 from mmsnap_graph.app.cli import main
-from mmsnap_graph.io import read_recording, write_fused
+from mmsnap_graph.io import read_recording, write_fused, write_recording
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 
 
@@ -80,3 +80,19 @@ def test_evaluate_on_a_fused_group_of_unequal_lengths_names_the_file(recording_b
     assert main(["evaluate", str(path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(path) in err[0] and "x_m" in err[0]
+
+
+def test_evaluate_command_on_surveyed_poses(surveyed_recording, tmp_path, capsys):
+    path = tmp_path / "surveyed.h5"
+    write_recording(path, surveyed_recording)
+    write_fused(path, fuse_recording(surveyed_recording, progress=False))
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"reference": "S1", "nodes": {
+        "S1": {"pose": [0, 0, 0]}, "S2": {"pose": [5.0, 5.1, float(np.pi / 2)]}}}))
+    assert main(["evaluate", str(path), "--calibration", str(cal), "--check"]) == 0
+    text = capsys.readouterr().out
+    assert "no trajectory" in text and "n/a" in text
+    assert main(["evaluate", str(path), "--calibration", str(cal), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["poses"]["S2"]["position_error_m"] == pytest.approx(0.1)
+    assert data["poses"]["S2"]["path_error_m"] is None and data["fused"] is None

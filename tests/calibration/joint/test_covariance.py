@@ -1,7 +1,7 @@
 """The joint graph's pose covariance when errors are correlated in time
 (``calibration.joint.covariance`` and ``presolve.pose_influences``).
 
-Measured (3-node network of tests/test_network_pose_nees.py, one random
+Measured (3-node network of tests/calibration/test_network.py, one random
 walker, 300 frames at 150 ms, the real physics without clutter, ghosts,
 split clusters or reflection depth, so that only the AR(1) centroid errors
 (0.045 m, 0.7 s, and the fast part's 0.04 s) break the model; joint NEES of
