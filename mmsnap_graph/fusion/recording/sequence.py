@@ -378,6 +378,12 @@ def _fuse_gtsam_rows(out: FusedRows, poses, z, obs, noise, prior, options, bar, 
         bar.update(1)
 
 
+def _merge_option(options, robust) -> float | None:
+    """The width of one body to merge a node's centroids within (None: off)."""
+    merge = robust is not None if options.body_merge is None else bool(options.body_merge)
+    return options.merge_body_m if merge else None
+
+
 def _motion_option(motion_check, robust) -> bool:
     """``motion_check`` (validated by FusionOptions); None: on with a ``robust`` option."""
     if motion_check is None:
@@ -548,12 +554,7 @@ def fuse_recording(
         (:mod:`~mmsnap_graph.fusion.recording.motion_check`, docs/ROBUST.md):
         refit it without the nodes that disagree, or flag it (a ghost, an
         ambiguous frame); None (the default): on with a ``robust`` option.
-        ``body_merge`` / ``merge_body_m``: a node's centroids of one frame
-        closer than this are one body, merged before the association
-        (:mod:`~mmsnap_graph.fusion.recording.regroup`; None: on with a
-        ``robust`` option); ``coverage_check``: with the motion check, flag a
-        row that a node covering its place does not see
-        (:mod:`~mmsnap_graph.fusion.recording.coverage`).
+        ``body_merge``, ``merge_body_m``, ``coverage_check``: docs/ROBUST.md.
         ``lm`` and the vectorized solver's settings as in ``fuse_batch``.
     progress : show a tqdm bar (default: when stderr is a terminal).
     """
@@ -565,10 +566,8 @@ def fuse_recording(
     if progress is not None and not isinstance(progress, (bool, np.bool_)):
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     poses = recording_poses(recording, node_poses)
-    merge = robust is not None if options.body_merge is None else bool(options.body_merge)
     groups = group_detections(recording, poses, noise, gate_probability=options.gate_probability,
-                              source=options.source,
-                              merge_body_m=options.merge_body_m if merge else None)
+                              source=options.source, merge_body_m=_merge_option(options, robust))
     obs = groups.detection_index >= 0
     z = groups.measurements
     out = FusedRows(groups.frame.size, obs.shape[1])
