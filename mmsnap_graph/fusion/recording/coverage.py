@@ -55,17 +55,18 @@ def _covering(xy: NDArray, poses: NDArray, reach: NDArray) -> NDArray:
         & (r >= COVERAGE_MIN_RANGE_M) & (r <= reach)
 
 
-def uncovered_rows(frame: NDArray, state: NDArray, ok: NDArray, kept: NDArray,
-                   observed: NDArray, ranges: NDArray, poses: NDArray, *,
+def uncovered_rows(frame: NDArray, state: NDArray, ok: NDArray, observed: NDArray,
+                   ranges: NDArray, poses: NDArray, *,
                    frame_period_s: float, body_m: float) -> tuple[NDArray, NDArray]:
     """``(flag (K,), node (K,))``: the successful rows (``ok``) a covering
     node never sees (module doc), and the first such node (-1: none).
 
-    frame : (K,) int, sorted; state : (K, 4); kept, observed : (K, N) bool,
-    the nodes a row keeps and those it was grouped with; ranges : (K, N) the
+    frame : (K,) int, sorted; state : (K, 4); observed : (K, N) bool, the
+    nodes whose detections a row was grouped with (kept or left out by the
+    gate: either way the node saw something there); ranges : (K, N) the
     rows' measured ranges (any value where not observed); poses : (N, 3).
     """
-    k, n = kept.shape
+    k, n = observed.shape
     flag = np.zeros(k, dtype=bool)
     first = np.full(k, -1, dtype=np.int64)
     if k == 0 or n < 2 or not ok.any():
@@ -73,7 +74,7 @@ def uncovered_rows(frame: NDArray, state: NDArray, ok: NDArray, kept: NDArray,
     reach = np.array([ranges[observed[:, i], i].max() if observed[:, i].any() else 0.0
                       for i in range(n)])
     cover = _covering(state[:, :2], poses, reach)
-    cand = np.flatnonzero(ok & np.any(cover & ~kept, axis=1))
+    cand = np.flatnonzero(ok & np.any(cover & ~observed, axis=1))
     w = MOTION_WINDOW_FRAMES
     for r in cand:
         lo, hi = np.searchsorted(frame, [frame[r] - w, frame[r] + w + 1])
@@ -84,7 +85,9 @@ def uncovered_rows(frame: NDArray, state: NDArray, ok: NDArray, kept: NDArray,
         same = ok[near] & (np.hypot(*(state[near, :2] - carried).T) < body_m)
         same[near == r] = True
         rows = near[same]
-        seen = np.array([np.unique(frame[rows[kept[rows, i]]]).size for i in range(n)])
+        # A node's detection grouped with the target (kept or left out by the
+        # gate) is a sighting: it looked and saw something there.
+        seen = np.array([np.unique(frame[rows[observed[rows, i]]]).size for i in range(n)])
         missing = cover[r] & active & (seen < COVERAGE_MIN_FRAMES)
         if missing.any():
             flag[r] = True

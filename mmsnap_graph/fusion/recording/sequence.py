@@ -459,8 +459,7 @@ def _check_coverage(out: FusedRows, groups, recording, poses) -> None:
     """The coverage check (:mod:`.coverage`): flag the rows a node that
     covers them never sees."""
     obs = groups.detection_index >= 0
-    kept = obs & ~out.rejected
-    flag, node = uncovered_rows(groups.frame, out.state, out.status == Status.OK, kept, obs,
+    flag, node = uncovered_rows(groups.frame, out.state, out.status == Status.OK, obs,
                                 groups.measurements[:, :, 0], poses,
                                 frame_period_s=recording.frame_period_s, body_m=DEFAULT_BODY_M)
     for r in np.flatnonzero(flag):

@@ -35,7 +35,7 @@ def test_a_target_a_covering_node_never_sees_is_flagged():
     # S1's boresight: no other node covers it.
     frame, state, kept, ranges = _rows([(1.0, 3.0), (2.0, 4.5), (7.0, 3.0)],
                                        [(0, 1), (1,), (0,)])
-    flag, node = uncovered_rows(frame, state, np.ones(frame.size, bool), kept, kept, ranges,
+    flag, node = uncovered_rows(frame, state, np.ones(frame.size, bool), kept, ranges,
                                 POSES, frame_period_s=0.1, body_m=0.5)
     np.testing.assert_array_equal(flag.reshape(7, 3), [[False, True, False]] * 7)
     assert np.all(node.reshape(7, 3)[:, 1] == 0)
@@ -43,7 +43,7 @@ def test_a_target_a_covering_node_never_sees_is_flagged():
     # target that S1 misses now and then.
     kept2 = kept.copy()
     kept2[[4, 10, 16], 0] = True
-    flag, _ = uncovered_rows(frame, state, np.ones(frame.size, bool), kept2, kept2, ranges,
+    flag, _ = uncovered_rows(frame, state, np.ones(frame.size, bool), kept2, ranges,
                              POSES, frame_period_s=0.1, body_m=0.5)
     assert not flag.any()
 
