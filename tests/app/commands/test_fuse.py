@@ -90,14 +90,12 @@ def test_cli_fuse_takes_measurement_sigmas(tmp_path, recordings, capsys):
 
 
 
-def test_a_run_flagging_most_rows_exits_1_and_says_why(tmp_path, capsys):
+def test_a_run_flagging_most_rows_exits_1_and_says_why(recording_b_real_file, tmp_path, capsys):
     # Sigmas far below the data's noise: most rows fuse into flags (room
     # checks aside), which was exit 0 whatever the share.
     from mmsnap_graph.app.cli import main
 
-    rec = tmp_path / "rec.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
-                 "--seed", "5", "--known-poses", "-o", str(rec), "--no-progress"]) == 0
+    rec = shutil.copy(recording_b_real_file, tmp_path / "rec.h5")
     tiny = ["--sigmas", "0.001", "0.001", "0.001", "--no-progress"]
     capsys.readouterr()
     code = main(["fuse", str(rec), *tiny, "--max-flagged", "0.5"])  # 80 % flagged here
