@@ -130,6 +130,14 @@ class FusionOptions:
     source : ``"centroids"`` or ``"point_cloud"``.
     block_rows : rows fused per call of the vectorized solver.
     motion_check : True, False or None (on with a ``robust`` option).
+    body_merge : True, False or None (on with a ``robust`` option): a
+        node's centroids of one frame closer than ``merge_body_m`` (m) are
+        one body seen as several clusters, merged before the association
+        (:func:`~mmsnap_graph.fusion.recording.regroup.merge_body_detections`;
+        docs/ROBUST.md).
+    coverage_check : with the motion check, flag a row that a node whose
+        field of view covers it never sees in the frames around
+        (:mod:`~mmsnap_graph.fusion.recording.coverage`: a multipath image).
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS
@@ -144,6 +152,9 @@ class FusionOptions:
     source: Literal["centroids", "point_cloud"] = "centroids"
     block_rows: int = 65536
     motion_check: bool | None = None
+    body_merge: bool | None = None
+    merge_body_m: float = 0.6   # regroup.DEFAULT_MERGE_BODY_M
+    coverage_check: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.lm, LevenbergMarquardtSettings):
@@ -163,6 +174,13 @@ class FusionOptions:
         if self.motion_check is not None and not isinstance(self.motion_check, (bool, np.bool_)):
             raise ValidationError(
                 f"motion_check must be True, False or None, got {self.motion_check!r}")
+        if not isinstance(self.coverage_check, (bool, np.bool_)):
+            raise ValidationError(
+                f"coverage_check must be True or False, got {self.coverage_check!r}")
+        if self.body_merge is not None and not isinstance(self.body_merge, (bool, np.bool_)):
+            raise ValidationError(
+                f"body_merge must be True, False or None, got {self.body_merge!r}")
+        object.__setattr__(self, "merge_body_m", _positive(self.merge_body_m, "merge_body_m"))
 
 
 #: The default options.

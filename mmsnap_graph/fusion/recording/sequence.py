@@ -58,6 +58,9 @@ from ...data.results import FusedSequence, Status
 from ...errors import CalibrationError, MissingStepError, MmsnapError, ValidationError
 from ..._validation import as_float_array, check_finite
 from .split_check import SPLIT_MESSAGE, split_rows
+from .regroup import merge_body_detections
+from .coverage import uncovered_rows
+from .room import DEFAULT_BODY_M
 
 __all__ = [
     "RECORDING_SOLVERS",
@@ -247,12 +250,18 @@ def group_detections(
     *,
     gate_probability: float = 0.999,
     source: Literal["centroids", "point_cloud"] = "centroids",
+    merge_body_m: float | None = None,
 ) -> DetectionGroups:
     """Group every frame's detections into targets (see
     :mod:`mmsnap_graph.fusion.association`; ``noise`` sets the gates: one
     :class:`MeasurementNoise`, one per node in the recording's node order, or a
     mapping by node name holding every node).
     Returns K groups sorted by frame then target.
+
+    ``merge_body_m`` (metres; None: off): a node's centroids of one frame
+    closer than this are one body split into clusters, merged first
+    (:func:`~.regroup.merge_body_detections`; a merged group's
+    ``detection_index`` is its first centroid's row).
 
     Frames where every node has at most one detection and all of them fall in
     one gate are grouped in a vectorized pass; the others go through
@@ -265,9 +274,20 @@ def group_detections(
     if all(d is None or len(d) == 0 for d in dets):
         raise ValidationError(f"no node of the recording has {source}; nothing to fuse")
     meas = [None if d is None else d.measurements for d in dets]
+    kept = [None if d is None else np.arange(len(d)) for d in dets]
+    if merge_body_m is not None and source == "centroids":
+        for n, d in enumerate(dets):
+            if d is not None and len(d):
+                keep, merged = merge_body_detections(d.frame, meas[n], merge_body_m)
+                kept[n] = np.flatnonzero(keep)
+                dets[n], meas[n] = d.select(kept[n]), merged[kept[n]]
     index = _frame_index([np.zeros(0, np.int64) if d is None else d.frame for d in dets])
     frame, target, rows = _group_rows(index, meas, poses, noise, gate_probability)
     z, label = _measurements_and_labels(dets, meas, rows)
+    for n, k in enumerate(kept):  # back to the recording's detection rows
+        if k is not None:
+            has = rows[:, n] >= 0
+            rows[has, n] = k[rows[has, n]]
     return DetectionGroups(frame=frame, target=target, label=label, detection_index=rows,
                            measurements=z)
 
@@ -360,6 +380,12 @@ def _fuse_gtsam_rows(out: FusedRows, poses, z, obs, noise, prior, options, bar, 
         bar.update(1)
 
 
+def _merge_option(options, robust) -> float | None:
+    """The width of one body to merge a node's centroids within (None: off)."""
+    merge = robust is not None if options.body_merge is None else bool(options.body_merge)
+    return options.merge_body_m if merge else None
+
+
 def _motion_option(motion_check, robust) -> bool:
     """``motion_check`` (validated by FusionOptions); None: on with a ``robust`` option."""
     if motion_check is None:
@@ -427,6 +453,22 @@ def _screen_rows(out: FusedRows, groups, recording, poses, noise, prior, pose_co
                        keep_sole=bool(motion_check))
     # The estimate and its covariance stay for whoever wants them, untrusted.
     out.flag(split, Status.RESIDUAL_TEST_FAILED, SPLIT_MESSAGE, keep_covariance=True)
+    if motion_check and options.coverage_check:
+        _check_coverage(out, groups, recording, poses)
+
+
+def _check_coverage(out: FusedRows, groups, recording, poses) -> None:
+    """The coverage check (:mod:`.coverage`): flag the rows a node that
+    covers them never sees."""
+    obs = groups.detection_index >= 0
+    flag, node = uncovered_rows(groups.frame, out.state, out.status == Status.OK, obs,
+                                groups.measurements[:, :, 0], poses,
+                                frame_period_s=recording.frame_period_s, body_m=DEFAULT_BODY_M)
+    for r in np.flatnonzero(flag):
+        out.flag(r, Status.MOTION_INCONSISTENT,
+                 f"motion check: node {recording.node_names[node[r]]} covers this place and "
+                 "does not see the target in the frames around (a multipath image or a ghost)",
+                 rejected=obs[r])
 
 
 def _calibrated_centroids(recording, time_offset_s, range_offset_m, options):
@@ -510,6 +552,7 @@ def fuse_recording(
         (:mod:`~mmsnap_graph.fusion.recording.motion_check`, docs/ROBUST.md):
         refit it without the nodes that disagree, or flag it (a ghost, an
         ambiguous frame); None (the default): on with a ``robust`` option.
+        ``body_merge``, ``merge_body_m``, ``coverage_check``: docs/ROBUST.md.
         ``lm`` and the vectorized solver's settings as in ``fuse_batch``.
     progress : show a tqdm bar (default: when stderr is a terminal).
     """
@@ -526,7 +569,7 @@ def fuse_recording(
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     poses = recording_poses(recording, cal.node_poses)
     groups = group_detections(recording, poses, noise, gate_probability=options.gate_probability,
-                              source=options.source)
+                              source=options.source, merge_body_m=_merge_option(options, robust))
     obs = groups.detection_index >= 0
     z = groups.measurements
     out = FusedRows(groups.frame.size, obs.shape[1])
