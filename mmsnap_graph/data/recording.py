@@ -14,6 +14,7 @@ the recording says otherwise).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -291,7 +292,10 @@ class Recording:
                 f"{nodes}{truth}{meta})")
 
     def __post_init__(self) -> None:
-        fp = float(self.frame_period_s)
+        try:
+            fp = math.nan if isinstance(self.frame_period_s, bool) else float(self.frame_period_s)
+        except (TypeError, ValueError):
+            fp = math.nan
         if not (np.isfinite(fp) and fp > 0):
             raise ValidationError(f"frame_period_s must be finite and > 0, got {self.frame_period_s!r}")
         object.__setattr__(self, "frame_period_s", fp)

@@ -53,3 +53,18 @@ def surveyed_recording():
     truth = Truth(frame=np.zeros(0, np.int64), target_id=np.zeros(0, np.int64),
                   state=np.zeros((0, 4)), node_poses=rec.truth.node_poses)
     return dataclasses.replace(rec, truth=truth)
+
+
+@pytest.fixture(scope="session")
+def fused_b_file(tmp_path_factory):
+    """Path of a recording made by the CLI: configuration B, 120 frames of
+    centroids (clean model, seed 2), calibrated and fused. Shared: read it,
+    or copy it before changing it."""
+    from mmsnap_graph.app.cli import main
+
+    path = tmp_path_factory.mktemp("fused_b") / "rec.h5"
+    assert main(["simulate", "-c", "B", "-t", "random", "-l", "centroids", "--model", "clean",
+                 "-n", "120", "--seed", "2", "-o", str(path)]) == 0
+    assert main(["calibrate", str(path)]) == 0
+    assert main(["fuse", str(path)]) == 0
+    return path

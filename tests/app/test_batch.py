@@ -204,28 +204,6 @@ def test_missing_file_is_a_failed_recording_not_an_exception(tmp_path):
     assert not s.success and s.error.startswith("fuse: ") and "nope.h5" in s.error
 
 
-@pytest.mark.parametrize("argv, match", [
-    (["--steps", "fuse,process"], "--steps"),
-    (["--steps", "fly"], "--steps"),
-    (["--workers", "0"], "--workers must be >= 1"),
-    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "omit it with --scheduler"),
-])
-def test_cli_usage_errors_exit_2_with_one_line(sources, capsys, argv, match):
-    assert main(["batch", str(sources / "*.h5"), *argv]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("mmsnap batch: error: ") and match in err[0]
-
-
-def test_cli_no_match_and_bad_int(tmp_path, capsys):
-    assert main(["batch", str(tmp_path / "*.h5")]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "no recording matches" in err[0]
-    with pytest.raises(SystemExit) as exc:
-        main(["batch", "x.h5", "--workers", "two"])
-    assert exc.value.code == 2
-    assert "invalid int value: 'two'" in capsys.readouterr().err.strip().splitlines()[-1]
-
-
 @pytest.mark.slow
 def test_cli_batch_flags_the_corrupt_recording_and_exits_1(sources, tmp_path):
     """The real command line, local Dask cluster of 2 workers."""

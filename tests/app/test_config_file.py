@@ -11,6 +11,7 @@ from mmsnap_graph.app.config_file import (
     process_config_from_mapping,
     process_config_to_toml,
     read_process_config,
+    read_matching_config,
 )
 from mmsnap_graph.errors import ConfigurationError
 from mmsnap_graph.radar.cfar import CfarConfig
@@ -18,6 +19,9 @@ from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.radar.cluster import ClusterConfig
 from mmsnap_graph.tracking.ekf import EkfConfig
 from mmsnap_graph.sim import CLEAN
+from mmsnap_graph.calibration import MatchingOptions
+
+from _cli import run_cli
 
 
 def _show(capsys, *argv) -> str:
@@ -135,3 +139,22 @@ def read_process_config_text(text, tmp_path):
     path = tmp_path / "shown.toml"
     path.write_text(text)
     return read_process_config(path)
+
+
+def test_process_and_calibrate_share_one_file(tmp_path, capsys):
+    cfg = tmp_path / "both.toml"
+    cfg.write_text("[chain]\nmin_range_m = 0.5\n[chain.cluster]\nsparse = true\n"
+                   "[ekf]\nmax_coast_s = 0.4\n[matching]\nmin_common_s = 1.5\n")
+    proc = read_process_config(cfg)
+    assert proc.chain.min_range_m == 0.5 and proc.sparse is True and proc.ekf.max_coast_s == 0.4
+    assert read_matching_config(cfg) == MatchingOptions(min_common_s=1.5)
+    # Both --show-config outputs in one file read back to the same settings.
+    _, text_p, _ = run_cli(capsys, "process", "--show-config", "--config", cfg)
+    _, text_c, _ = run_cli(capsys, "calibrate", "--show-config", "--config", cfg)
+    both = tmp_path / "again.toml"
+    both.write_text(text_p + "\n" + text_c)
+    assert read_process_config(both) == proc
+    assert read_matching_config(both) == MatchingOptions(min_common_s=1.5)
+    # A bad [matching] is calibrate's business: process ignores the table.
+    cfg.write_text("[matching]\nmin_common_s = -1\n")
+    assert read_process_config(cfg) == ProcessConfig()

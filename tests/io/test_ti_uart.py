@@ -116,23 +116,6 @@ def test_one_log_imported_as_two_nodes_is_refused(tmp_path, capsys):
     assert main(args) == 0
 
 
-def test_a_pipe_or_folder_is_named_not_read(tmp_path):
-    import os
-    from mmsnap_graph.io.point_table import read_point_tables
-    from mmsnap_graph.io.ti_cfg import read_ti_cfg
-    from mmsnap_graph.io.ti_uart import read_ti_uart
-    fifo = tmp_path / "pipe.bin"
-    os.mkfifo(fifo)
-    for read, kind in ((read_ti_uart, "UART log"), (read_point_tables, "point table"),
-                       (lambda p: read_ti_cfg(p, board="AWR1843BOOST"), "configuration file")):
-        with pytest.raises(FileFormatError, match=rf"{kind} .*pipe.bin is not a regular file"):
-            read(fifo)
-        with pytest.raises(FileFormatError, match=rf"{kind} .* is a folder"):
-            read(tmp_path)
-        with pytest.raises(FileFormatError, match=rf"{kind} .*gone.bin does not exist"):
-            read(tmp_path / "gone.bin")
-
-
 def test_seeded_sequences_never_merge_frames():
     """Seeded logs with repeats, restarts, flipped bits and non-finite points:
     the frames kept always increase (nothing merged into an earlier frame), or

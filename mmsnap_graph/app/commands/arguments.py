@@ -8,7 +8,9 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["named_values", "named_pose", "solver_choice"]
+from mmsnap_graph.errors import ValidationError
+
+__all__ = ["named_values", "named_pose", "solver_choice", "check_sigmas", "SIGMA_LIMITS"]
 
 
 def named_values(kind: str, n_values: int | None) -> Callable[[str], tuple[str, object]]:
@@ -52,3 +54,26 @@ def solver_choice(allowed: tuple[str, ...]) -> Callable[[str], str]:
             raise argparse.ArgumentTypeError(str(exc)) from None
     parse.__name__ = "solver"
     return parse
+
+
+#: Largest plausible measurement sigma of each component of ``--sigmas``, and
+#: the unit mistake a larger value most likely is. The spatial frequency
+#: omega = pi sin(theta) lies within +-pi, so its sigma cannot exceed pi.
+SIGMA_LIMITS = (
+    ("range_m", 10.0, "metres: centimetres or millimetres typed?"),
+    ("omega_rad", float(np.pi), "radians of the spatial frequency omega = pi sin(theta), "
+                                "within +-pi: degrees typed?"),
+    ("doppler_mps", 50.0, "m/s: km/h or cm/s typed?"),
+)
+
+
+def check_sigmas(values) -> None:
+    """``--sigmas RANGE_M OMEGA_RAD DOPPLER_MPS``: three finite sigmas > 0,
+    each within :data:`SIGMA_LIMITS`; else :class:`ValidationError` naming
+    the flag, the component and the likely unit mistake."""
+    for value, (name, limit, unit) in zip(values, SIGMA_LIMITS):
+        if not (np.isfinite(value) and value > 0):
+            raise ValidationError(f"--sigmas: {name} must be finite and > 0, got {value!r}")
+        if value > limit:
+            raise ValidationError(f"--sigmas: {name}={value:g} is more than {limit:.4g}, the "
+                                  f"largest plausible sigma, in {unit}")

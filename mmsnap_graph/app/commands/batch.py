@@ -26,6 +26,12 @@ from mmsnap_graph.errors import MmsnapError, ValidationError
 CONNECT_TIMEOUT_S = 10
 
 
+def max_workers() -> int:
+    """The most worker processes of a local cluster: 4 per CPU (each is a
+    Python process of a few hundred MB; more only queue for the CPUs)."""
+    return 4 * (os.cpu_count() or 1)
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "batch",
@@ -124,8 +130,9 @@ def _check_args(args: argparse.Namespace) -> tuple[tuple[str, ...], list[str]]:
             or list(steps) != sorted(steps, key=STEPS.index):
         raise ValidationError(f"--steps must list some of {','.join(STEPS)} in that order, "
                               f"got {args.steps!r}")
-    if args.workers is not None and args.workers < 1:
-        raise ValidationError(f"--workers must be >= 1, got {args.workers}")
+    if args.workers is not None and not 1 <= args.workers <= max_workers():
+        raise ValidationError(f"--workers must be between 1 and {max_workers()} (4 worker "
+                              f"processes per CPU of this machine), got {args.workers}")
     if args.workers is not None and args.scheduler is not None:
         raise ValidationError("--workers sizes the local cluster; omit it with --scheduler")
     if args.json_out is not None and os.path.isdir(args.json_out):

@@ -77,7 +77,8 @@ def register(subparsers) -> None:
                             f"{getattr(MatchingOptions(), name):g})")
     p.add_argument("--max-lag", type=int, default=None, metavar="FRAMES",
                    help="the lag window in frames (deprecated: use --max-lag-s)")
-    p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
+    p.add_argument("--sigmas", type=float, nargs=3,
+                   metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
                    default=None, help="OMEGA_RAD is the sigma of omega = pi sin(theta), a phase in "
                                       "radians, not an angle; centroid noise for the joint graph (default: "
                                       "estimated from the data; the /noise group is "
@@ -127,8 +128,8 @@ def noise_lines(noise) -> list[str]:
     engineer reads: one sigma a line with its unit, where it came from, the
     heavy-tail factor, and for a sigma the data cannot pin down, why and the
     value used instead."""
-    lines = ["measurement noise per node, estimated from the data (1-sigma; stored as /noise, "
-             "which `mmsnap fuse` uses):",
+    lines = ["measurement noise per node, estimated from the data (1-sigma; `mmsnap fuse` "
+             "uses it once stored as /noise):",
              "  omega = pi sin(theta) is the phase step between receive antennas (rad), not "
              "the angle theta",
              "  estimators: network = residuals between nodes at the calibrated poses; "

@@ -24,6 +24,7 @@ import stat
 from typing import Iterator
 
 from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph.app.commands.arguments import check_sigmas
 from mmsnap_graph.errors import FileFormatError, ValidationError
 
 __all__ = ["OUTPUT_FILE_OPTIONS", "add_overwrite", "input_paths", "check_files", "same_file"]
@@ -99,7 +100,10 @@ def _is_written(args: argparse.Namespace, name: str) -> bool:
 def check_files(args: argparse.Namespace) -> None:
     """Apply the module's rule to the parsed command line ``args`` (its
     ``command`` names the verb). Raises :class:`ValidationError` naming the
-    output option, or :class:`FileFormatError` naming an input file."""
+    output option (or ``--sigmas``, checked here for every verb), or
+    :class:`FileFormatError` naming an input file."""
+    if getattr(args, "sigmas", None) is not None:
+        check_sigmas(args.sigmas)
     inputs = input_paths(args)
     for path in inputs:
         _check_input(path)

@@ -27,6 +27,23 @@ from mmsnap_graph.errors import ValidationError
 from .arguments import solver_choice
 
 
+#: Fraction of flagged rows above which ``mmsnap fuse`` exits 1: nearly
+#: every row (clean simulated recordings flag well under half of theirs).
+#: Rows the room checks flag (``--bounds``, ``--in-front``, the body check)
+#: are what the user asked for and do not count.
+DEFAULT_MAX_FLAGGED = 0.9
+
+
+def _fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be a fraction in [0, 1], got {text!r}")
+    return value
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "fuse",
@@ -92,6 +109,11 @@ def register(subparsers) -> None:
     p.add_argument("--no-body-check", action="store_true",
                    help="keep fused targets of a frame closer than a body's width (default: "
                         "the one seen by fewer nodes is flagged, status 12)")
+    p.add_argument("--max-flagged", type=_fraction, default=DEFAULT_MAX_FLAGGED,
+                   metavar="FRACTION",
+                   help="exit 1 when more than this fraction of the fused rows are flagged "
+                        "(the rows are written either way; 1 never fails; default "
+                        "%(default)s)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(p)
     p.set_defaults(func=run)
@@ -229,4 +251,19 @@ def run(args: argparse.Namespace) -> int:
     if fused.room.outside or fused.room.duplicate:
         print(f"room checks flagged {fused.room.outside} target(s) outside the bounds and "
               f"{fused.room.duplicate} duplicate(s) of a body", file=sys.stdout)
+    room = fused.room.outside + fused.room.duplicate
+    return flagged_exit(fused.n_rows - room, n_ok, args.max_flagged)
+
+
+def flagged_exit(n_rows: int, n_ok: int, max_flagged: float) -> int:
+    """Exit 1, saying why, when more than ``max_flagged`` of the rows are
+    flagged (a wrong pose, a unit mistake in the calibration or sigmas
+    fuses "successfully" into flags); else 0."""
+    flagged = n_rows - n_ok
+    if n_rows and flagged > max_flagged * n_rows:
+        print(f"mmsnap fuse: error: {flagged} of {n_rows} fused rows ({flagged / n_rows:.0%}) are "
+              f"flagged, more than --max-flagged {max_flagged:g}: check the node poses (a "
+              f"calibration in degrees?) and the sigmas; the rows are written with their "
+              f"flags", file=sys.stderr)
+        return 1
     return 0

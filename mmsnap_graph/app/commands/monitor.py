@@ -36,7 +36,8 @@ def register(subparsers) -> None:
     p.add_argument("recording", help="HDF5 recording with node poses (run mmsnap calibrate)")
     p.add_argument("--poses", default=None, metavar="CALIBRATION_JSON",
                    help="node poses from this calibration JSON instead of the recording's")
-    p.add_argument("--sigmas", type=float, nargs=3, metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
+    p.add_argument("--sigmas", type=float, nargs=3,
+                   metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
                    default=None, help="OMEGA_RAD is the sigma of omega = pi sin(theta), a phase in "
                                       "radians, not an angle; centroid noise of every node (default: the recording's "
                                       "/noise group pooled over the nodes, stored by `mmsnap "

@@ -58,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.calibration import load_calibration_poses
     from mmsnap_graph.io.noise import write_noise
 
+    from .calibrate import noise_lines
+
     if args.output is not None and not args.no_write:
         check_output_path(args.output)
     poses = load_calibration_poses(args.calibration) if args.calibration else None
@@ -65,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         rec = read_recording(args.recording, load_cubes=False)
         est = estimate_noise(rec, poses=poses, lag_frames=_lags(args.recording),
                              method=args.method)
-        print(est.summary())
+        print("\n".join(noise_lines(est)))  # as `mmsnap calibrate` prints it
         print(est.message)
         if not args.no_write:
             path = write_noise(args.recording, est, output=args.output)

@@ -89,7 +89,8 @@ def single_target_track(tracks: Tracks) -> SingleTrack:
 def node_chain(recording: Recording, *, cluster: ClusterConfig | None = None,
                ekf: EkfConfig | None = None) -> Recording:
     """Point cloud -> torso centroids (DBSCAN) -> local EKF tracks, per node
-    (:func:`mmsnap_graph.app.pipeline.cluster_node`).
+    (:func:`mmsnap_graph.app.pipeline.cluster_node`, without the scene
+    filters of real clouds).
 
     ekf : default the demo's EKF (:data:`DEMO_EKF_MEASUREMENT_STD`,
     :data:`DEMO_EKF_SIGMA_A_MPS2`).
@@ -104,9 +105,11 @@ def node_chain(recording: Recording, *, cluster: ClusterConfig | None = None,
     for name, node in recording.nodes.items():
         if node.point_cloud is not None:
             # The demo's EKF sigmas as given (the paper's protocol, the
-            # README's tables), not the ones the data would give.
+            # README's tables), not the ones the data would give; no scene
+            # filters: the paper's simulated clouds have no static scene or
+            # multipath for them to remove, only torso points they could drop.
             new, _ = cluster_node(node, recording.frame_period_s, config=config, ekf=ekf,
-                                  ekf_noise="config")
+                                  ekf_noise="config", scene=None)
         elif node.centroids is not None:
             new, _ = track_node(node, recording.frame_period_s, ekf=ekf, ekf_noise="config")
         else:

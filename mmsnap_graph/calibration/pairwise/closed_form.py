@@ -292,6 +292,14 @@ def closed_form_calibration(
         raise ValidationError(f"covariance={covariance!r} must be 'residual' or 'sandwich'")
     if autocorrelation not in ("auto", "none"):
         raise ValidationError(f"autocorrelation={autocorrelation!r} must be 'auto' or 'none'")
+    try:
+        bad = isinstance(min_common_frames, bool) or not (float(min_common_frames) >= 0
+                                                          and np.isfinite(min_common_frames))
+    except (TypeError, ValueError):
+        bad = True
+    if bad:
+        raise ValidationError(f"min_common_frames must be a finite count >= 0, got "
+                              f"{min_common_frames!r}")
     a, b = _validate_tracks(points_a_m, points_b_m)
     k = a.shape[0]
     if k < max(int(min_common_frames), 3):

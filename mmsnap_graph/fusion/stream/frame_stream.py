@@ -63,6 +63,11 @@ __all__ = ["StreamUpdate", "FrameStream", "recording_frames"]
 
 # Failures of one frame's association, fusion or tracker step (numerical ones,
 # e.g. a singular covariance of a degenerate detection) that flag the frame.
+#: Largest step (s) between the time stamps of two good frames: a stamp
+#: further ahead is taken as a bad stamp (1e308, milliseconds as seconds)
+#: and its frame rejected, not as the stream's new time.
+MAX_TIME_JUMP_S = 86400.0
+
 _FRAME_FAILURES = (MmsnapError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError,
                    OverflowError, ValueError)
 
@@ -246,6 +251,12 @@ class FrameStream:
         if self._last_time_s is not None and not t > self._last_time_s:
             return t, None, (f"time stamp {t!r} s is not after the previous frame's "
                              f"{self._last_time_s!r} s")
+        if self._last_time_s is not None and t - self._last_time_s > MAX_TIME_JUMP_S:
+            # Taking it would reject every later frame as "not after" it.
+            return t, None, (f"time stamp {t!r} s jumps {t - self._last_time_s:.3g} s past the "
+                             f"previous frame's {self._last_time_s!r} s (more than "
+                             f"{MAX_TIME_JUMP_S:g} s: milliseconds given as seconds?); "
+                             "frame rejected, the stream's clock is unchanged")
         n_nodes = len(self.node_names)
         per_node: list = [None] * n_nodes
         if isinstance(detections, Mapping):

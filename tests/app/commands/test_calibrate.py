@@ -7,15 +7,22 @@ from __future__ import annotations
 import json
 import re
 import os
+import dataclasses
 
 import numpy as np
 import pytest
+import h5py
 
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.commands.calibrate import noise_lines
 from mmsnap_graph.app.runs import calibrate_and_store
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
-from mmsnap_graph.io import write_recording
+from mmsnap_graph.io import write_recording, read_recording
+from mmsnap_graph.data.recording import Recording
+from mmsnap_graph.calibration import pose_tangent_error, MatchingOptions
+from mmsnap_graph.app.config_file import matching_config_to_toml, read_matching_config
+
+from _cli import error_line, run_cli
 
 #: A value with its unit, as the summary prints every sigma.
 _SIGMA = re.compile(r"^\s+(range|omega|doppler)\s+[0-9.e+-]+ (m|rad|m/s):")
@@ -112,3 +119,175 @@ def test_calibrate_keeps_at_most_one_temporary_copy_on_disk(recording_b_file, tm
     assert seen, "calibrate wrote no temporary copy"
     assert max(n for n, _ in seen) == 1
     assert max(b for _, b in seen) < 2 * size
+
+
+# What ``mmsnap calibrate`` writes: the JSON, the node poses and the /calibration
+# group; --no-write, -o; an unreachable node; a single node.
+
+
+def test_calibrate_command_writes_json_poses_and_group(recording_c_random, tmp_path, capsys):
+    path = tmp_path / "rec.h5"
+    write_recording(path, recording_c_random)
+    assert main(["calibrate", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "phi_deg" in out and "method joint" in out
+    truth = recording_c_random.truth.node_poses["S2"]
+    data = json.loads((tmp_path / "rec.calibration.json").read_text())
+    assert data["reference"] == "S1" and data["unreachable"] == []
+    assert data["nodes"]["S1"]["pose"] == [0.0, 0.0, 0.0]
+    s2 = data["nodes"]["S2"]
+    assert np.array(s2["covariance"]).shape == (3, 3)
+    err = pose_tangent_error(s2["pose"], truth)
+    assert np.hypot(err[0], err[1]) < 0.1 and abs(err[2]) < np.radians(1.0)
+    # printed in degrees: S2 faces S1, phi ~ +-180
+    row = next(line for line in out.splitlines() if line.startswith("S2"))
+    assert abs(abs(float(row.split()[3])) - 180.0) < 1.0
+    back = read_recording(path)
+    np.testing.assert_allclose(back.nodes["S2"].pose, s2["pose"])
+    np.testing.assert_allclose(back.nodes["S1"].pose, np.zeros(3))
+    assert len(back.nodes["S2"].centroids) == len(recording_c_random.nodes["S2"].centroids)
+    with h5py.File(path, "r") as f:
+        g = f["calibration"]
+        assert g.attrs["reference"] == "S1" and g.attrs["method"] == "joint"
+        assert list(g["node_name"].asstr()[()]) == ["S1", "S2"]
+        np.testing.assert_allclose(g["pose"][1], s2["pose"])
+        assert g["covariance"].shape == (2, 3, 3)
+        assert g["edges/rmse_m"].shape == (1,) and 0 < g["edges/rmse_m"][0] < 0.5
+        assert json.loads(g.attrs["json"])["nodes"]["S2"]["pose"] == s2["pose"]
+    # a second run replaces the group
+    assert main(["calibrate", str(path), "--method", "pose_graph"]) == 0
+    with h5py.File(path, "r") as f:
+        assert f["calibration"].attrs["method"] == "pose_graph"
+
+
+def test_no_write_and_output_copy(recording_c_random, tmp_path):
+    path = tmp_path / "rec.h5"
+    write_recording(path, recording_c_random)
+    js = tmp_path / "cal.json"
+    assert main(["calibrate", str(path), "--no-write", "--json-out", str(js),
+                 "--method", "pose_graph"]) == 0
+    assert js.exists()
+    assert read_recording(path).nodes["S2"].pose is None
+    copy = tmp_path / "copy.h5"
+    assert main(["calibrate", str(path), "-o", str(copy), "--method", "pose_graph",
+                 "--json-out", str(js), "--overwrite"]) == 0
+    assert read_recording(path).nodes["S2"].pose is None
+    assert read_recording(copy).nodes["S2"].pose is not None
+
+
+def test_unreachable_node_is_reported(recording_c_random, tmp_path, capsys):
+    s3 = dataclasses.replace(recording_c_random.nodes["S2"], name="S3")
+    s3 = dataclasses.replace(s3, centroids=dataclasses.replace(
+        s3.centroids, frame=s3.centroids.frame + 5000))
+    rec = recording_c_random.with_node(s3)
+    path = tmp_path / "rec3.h5"
+    write_recording(path, rec)
+    assert main(["calibrate", str(path), "--method", "pose_graph"]) == 1
+    out = capsys.readouterr().out
+    assert "not calibrated (no path to S1)" in out and "INCOMPLETE" in out
+    data = json.loads((tmp_path / "rec3.calibration.json").read_text())
+    assert data["unreachable"] == ["S3"] and "S3" not in data["nodes"]
+    assert read_recording(path).nodes["S3"].pose is None
+    with h5py.File(path, "r") as f:
+        assert list(f["calibration/calibrated"][()]) == [True, True, False]
+        assert np.all(np.isnan(f["calibration/pose"][2]))
+
+
+def test_single_node_is_a_clean_cli_error(recording_c_random, tmp_path, capsys):
+    rec = Recording(frame_period_s=recording_c_random.frame_period_s,
+                    nodes={"S1": recording_c_random.nodes["S1"]})
+    path = tmp_path / "one.h5"
+    write_recording(path, rec)
+    assert main(["calibrate", str(path)]) == 1
+    assert "at least two nodes" in capsys.readouterr().err
+
+
+# Every track-matching threshold settable from the ``mmsnap calibrate`` options and
+# the ``[matching]`` table of ``--config`` (their effect through
+# ``calibrate_recording``: tests/calibration/test_network.py).
+
+
+def _duration_s(rec) -> float:
+    frames = np.concatenate([n.centroids.frame for n in rec.nodes.values()])
+    return float(np.ptp(frames) + 1) * rec.frame_period_s
+
+
+def test_options_reach_calibrate_recording(recording_c_random, recording_path, tmp_path, capsys):
+    js = tmp_path / "c.json"
+    too_long = _duration_s(recording_c_random) + 1.0
+    code, _, err = run_cli(capsys, "calibrate", recording_path, "--no-write", "--json-out", js,
+                        "--method", "pose_graph", "--min-common-s", too_long)
+    assert code == 1 and f"min_common_s={too_long:g} s" in err
+    code, _, err = run_cli(capsys, "calibrate", recording_path, "--no-write", "--json-out", js,
+                        "--method", "pose_graph", "--source", "centroids",
+                        "--inlier-gate-m", 1e-4, "--min-spread-m", 0.3)
+    assert code == 1 and "inlier_gate_m=0.0001 m" in err and "min_spread_m=0.3 m" in err
+    code, out, _ = run_cli(capsys, "calibrate", recording_path, "--no-write", "--json-out", js,
+                        "--method", "pose_graph", "--min-common-s", 0.0)
+    assert code == 0 and "ok: " in out
+
+
+def test_config_file_reaches_calibrate_recording_and_options_win(recording_c_random, recording_path,
+                                                                  tmp_path, capsys):
+    js = tmp_path / "c.json"
+    too_long = _duration_s(recording_c_random) + 1.0
+    cfg = tmp_path / "cal.toml"
+    cfg.write_text(f"[matching]\nmin_common_s = {too_long}\nmax_lag_s = 0.2\n")
+    code, _, err = run_cli(capsys, "calibrate", recording_path, "--no-write", "--json-out", js,
+                        "--method", "pose_graph", "--config", cfg)
+    assert code == 1 and f"min_common_s={too_long:g} s" in err and "max_lag_s=0.2 s" in err
+    code, out, _ = run_cli(capsys, "calibrate", recording_path, "--no-write", "--json-out", js,
+                        "--method", "pose_graph", "--config", cfg, "--min-common-s", 0.5)
+    assert code == 0 and "ok: " in out
+
+
+def test_show_config_prints_the_matching_table_and_reads_back(tmp_path, capsys):
+    code, text, _ = run_cli(capsys, "calibrate", "--show-config")
+    assert code == 0 and "[matching]" in text
+    for name in ("max_lag_s = 0.3", "min_common_s = 0.5", "min_spread_m = 0.2",
+                 "max_rmse_m = 1.0", "inlier_gate_m = 0.5", "gate_probability = 0.997"):
+        assert name in text
+    path = tmp_path / "m.toml"
+    path.write_text(text)
+    assert read_matching_config(path) == MatchingOptions()
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[matching]\nmin_common_s = 2\ninlier_gate_m = 0.3\n")
+    code, text, _ = run_cli(capsys, "calibrate", "--show-config", "--config", cfg,
+                         "--inlier-gate-m", "0.25", "--max-rmse", "0.8")
+    assert code == 0
+    assert "min_common_s = 2.0" in text and "inlier_gate_m = 0.25" in text \
+        and "max_rmse_m = 0.8" in text
+    assert matching_config_to_toml(read_matching_config(cfg)).count("[matching]") == 1
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["--min-common-s", "-1"], "--min-common-s"),
+    (["--min-spread-m", "nan"], "--min-spread-m"),
+    (["--inlier-gate-m", "0"], "--inlier-gate-m"),
+    (["--gate-probability", "1.5"], "--gate-probability"),
+    (["--max-lag-s", "-0.5"], "--max-lag-s"),
+    (["--max-rmse", "-1"], "--max-rmse-m"),
+    (["--min-common-s", "soon"], "--min-common-s"),
+])
+def test_bad_options_exit_2_with_one_line_naming_the_option(recording_path, tmp_path, capsys, argv,
+                                                            option):
+    code, _, err = run_cli(capsys, "calibrate", recording_path, "--no-write", "--json-out",
+                        tmp_path / "c.json", *argv)
+    assert code == 2 and option in error_line(err)
+
+
+@pytest.mark.parametrize("text, where", [
+    ("[matching]\nmin_common_s = -1\n", "matching"),
+    ("[matching]\nmin_comon_s = 1\n", "matching.min_comon_s"),
+    ("[matching]\ngate_probability = \"high\"\n", "matching.gate_probability"),
+    ("[tracker]\nx = 1\n", "tracker"),
+    ("[matching]\nmin_common_s = \n", "line 2"),
+])
+def test_bad_files_exit_2_naming_the_file_table_and_key(recording_path, tmp_path, capsys, text,
+                                                        where):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(text)
+    code, _, err = run_cli(capsys, "calibrate", recording_path, "--no-write", "--json-out",
+                        tmp_path / "c.json", "--config", cfg)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert str(cfg) in err and where in err, err

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 
 import h5py
 import numpy as np
@@ -109,6 +110,9 @@ def test_noise_command_and_sigmas_override(tmp_path, capsys, small):
     assert _noise_cli([str(small), "-o", str(copy)]) == 0
     text = capsys.readouterr().out
     assert "6 of 6 node sigmas identified" in text
+    # printed as `mmsnap calibrate` prints it: one sigma a line, with its unit
+    assert len(re.findall(r"^    (range   [0-9.]+ m|omega   [0-9.]+ rad|doppler [0-9.]+ m/s): "
+                          r"estimated from \d+ residuals", text, flags=re.M)) == 6, text
     assert read_noise(small) is None                            # -o left the input alone
     est = read_noise(copy)
     assert est.method == "network+temporal"

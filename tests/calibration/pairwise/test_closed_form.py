@@ -289,3 +289,13 @@ def test_negative_point_covariances_are_rejected(tracks, variance_m2):
     result = calibrate(points_a, points_b, point_covariances=covs, min_spread_m=0.0)
     if result is not None:
         assert_sound(result)
+
+
+@pytest.mark.parametrize("count", [float("nan"), float("inf"), -1, "x", None, True])
+def test_a_bad_min_common_frames_is_a_validation_error(count):
+    from mmsnap_graph.calibration.pairwise.closed_form import closed_form_calibration
+    from mmsnap_graph.errors import ValidationError
+
+    z = np.random.default_rng(0).normal(size=(20, 2))
+    with pytest.raises(ValidationError, match="min_common_frames"):
+        closed_form_calibration(z, z, min_common_frames=count)

@@ -364,3 +364,18 @@ def test_live_tracks_keep_a_positive_definite_covariance_after_a_long_gap(gap_s)
     update = stream.push(0.30 + gap_s, {})
     for cov in update.track_covariance:
         assert_pd(cov)
+
+
+@pytest.mark.parametrize("bad_time", ["1e308", "ms"])
+def test_a_far_future_stamp_rejects_its_frame_only(recording, bad_time):
+    stream = FrameStream(recording.node_names, _poses(recording), solver="vectorized")
+    frames = list(recording_frames(recording))[:40]
+    updates = []
+    for i, (_, t, d) in enumerate(frames):
+        if i == 20:  # one stamp far ahead: 1e308 s, or milliseconds given as seconds
+            u = stream.push(1e308 if bad_time == "1e308" else t * 1e3 + 1e5, d)
+            assert not u.ok and "jumps" in u.message and "frame rejected" in u.message
+            continue
+        updates.append(stream.push(t, d))
+    assert all(u.ok for u in updates), [u.message for u in updates if not u.ok][:3]
+    assert stream.bad_frames == 1

@@ -1,0 +1,41 @@
+"""``mmsnap batch`` (mmsnap_graph/app/commands/batch.py): its usage errors (the runs
+themselves: tests/app/test_batch.py)."""
+
+from __future__ import annotations
+
+import pytest
+
+from mmsnap_graph.app.cli import main
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--steps", "fuse,process"], "--steps"),
+    (["--steps", "fly"], "--steps"),
+    (["--workers", "0"], "--workers must be between 1 and"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "omit it with --scheduler"),
+])
+def test_cli_usage_errors_exit_2_with_one_line(recording_b_file, capsys, argv, match):
+    assert main(["batch", str(recording_b_file.parent / "*.h5"), *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("mmsnap batch: error: ") and match in err[0]
+
+
+def test_cli_no_match_and_bad_int(tmp_path, capsys):
+    assert main(["batch", str(tmp_path / "*.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no recording matches" in err[0]
+    with pytest.raises(SystemExit) as exc:
+        main(["batch", "x.h5", "--workers", "two"])
+    assert exc.value.code == 2
+    assert "invalid int value: 'two'" in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize("workers", ["1000000", "0", "-3"])
+def test_a_worker_count_beyond_the_machine_is_a_usage_error(tmp_path, capsys, workers):
+    from mmsnap_graph.app.cli import main
+
+    rec = tmp_path / "rec.h5"
+    rec.write_bytes(b"")  # never opened: the option is refused first
+    assert main(["batch", str(rec), "--workers", workers, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--workers must be between 1 and" in err and err.count("\n") == 1

@@ -1,0 +1,68 @@
+"""The /fused group (mmsnap_graph.io.fused): written, read back, replaced, and its errors."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from mmsnap_graph.errors import FileFormatError
+from mmsnap_graph.data.results import Status
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.io.fused import read_fused, write_fused
+from mmsnap_graph.io import read_recording, write_recording
+
+
+@pytest.fixture
+def recordings(two_target_recordings):
+    """Two walking targets, 10 % missed centroids, per configuration (conftest)."""
+    return two_target_recordings
+
+
+def test_write_and_read_fused_round_trip(recordings, tmp_path):
+    rec = recordings["A"]
+    path = write_recording(tmp_path / "rec.h5", rec)
+    fused = fuse_recording(rec, mode="ml")
+    write_fused(path, fused)
+    back = read_fused(path)
+    for name in ("frame", "target", "label", "detection_index", "observed", "success", "status",
+                 "iterations"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(fused, name))
+    for name in ("state", "covariance", "laplace_covariance", "final_cost", "degeneracy", "node_poses"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(fused, name))
+    assert back.mode == "ml" and back.prior_mean is None and list(back.message) == list(fused.message)
+    # ML frames seen by one node are singular: code 2 of the file contract.
+    assert set(np.unique(back.status)) <= {Status.OK, Status.SINGULAR}
+    assert (back.status == Status.SINGULAR).any()
+    with h5py.File(path, "r") as f:
+        codes = json.loads(f["fused"].attrs["status_messages"])
+    assert sorted(int(c) for c in codes) == [0, 1, 2, 3, 4, 5, 9, 10, 11, 12]
+    # The recording itself is intact, and a second write replaces /fused.
+    assert read_recording(path).node_names == rec.node_names
+    write_fused(path, fuse_recording(rec))
+    assert read_fused(path).mode == "map"
+
+
+def test_write_fused_to_a_new_file_leaves_the_original(recordings, tmp_path):
+    path = write_recording(tmp_path / "rec.h5", recordings["A"])
+    out = write_fused(path, fuse_recording(recordings["A"]), output=tmp_path / "out.h5")
+    with h5py.File(path, "r") as f:
+        assert "fused" not in f
+    assert len(read_fused(out)) > 0
+
+
+def test_fused_errors(tmp_path, recordings):
+    with pytest.raises(FileFormatError, match="does not exist"):
+        read_fused(tmp_path / "nope.h5")
+    path = write_recording(tmp_path / "rec.h5", recordings["A"])
+    with pytest.raises(FileFormatError, match="has no /fused group"):
+        read_fused(path)
+    write_fused(path, fuse_recording(recordings["A"]))
+    with h5py.File(path, "r+") as f:
+        del f["fused/covariance"]
+    with pytest.raises(FileFormatError, match="/fused/covariance is missing"):
+        read_fused(path)
+    with pytest.raises(FileFormatError, match="does not exist"):
+        write_fused(tmp_path / "nope.h5", fuse_recording(recordings["A"]))

@@ -1,0 +1,90 @@
+"""The /noise group (mmsnap_graph.io.noise): what the writer puts in the file,
+read back with h5py against docs/FORMAT.md's layout; the reader's errors; the
+noise ``mmsnap fuse`` takes from it. (Estimating the noise:
+tests/calibration/noise/test_estimate.py.)"""
+
+from __future__ import annotations
+
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+
+from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
+from mmsnap_graph.errors import FileFormatError
+from mmsnap_graph.io.noise import NOISE_GROUP, noise_for_fusion, read_noise, write_noise
+
+FALLBACK = MeasurementNoise(range_m=0.04, omega_rad=0.7, doppler_mps=0.2)
+
+
+def _estimate() -> NoiseEstimate:
+    """S1 identifies every component; S2 only the range (the others are the fallback's)."""
+    s1 = NodeNoiseEstimate(noise=MeasurementNoise(range_m=0.03, omega_rad=0.05, doppler_mps=0.15),
+                           identified=(True, True, True), n_residuals=(300, 300, 100),
+                           method="network+temporal")
+    s2 = NodeNoiseEstimate(noise=MeasurementNoise(range_m=0.06, omega_rad=0.7, doppler_mps=0.2),
+                           identified=(True, False, False), n_residuals=(100, 0, 0),
+                           method="temporal", reasons=("", "too few frames", "no motion"))
+    return NoiseEstimate(nodes={"S1": s1, "S2": s2}, fallback=FALLBACK, method="test",
+                         message="hand-made")
+
+
+@pytest.fixture()
+def path(recording_b_file, tmp_path):
+    """A copy of the shared two-node recording (S1, S2), without /noise."""
+    return shutil.copy(recording_b_file, tmp_path / "rec.h5")
+
+
+def test_the_group_holds_the_layouts_fields_and_reads_back_equal(path):
+    est = _estimate()
+    assert read_noise(path) is None
+    assert write_noise(path, est) == path
+    with h5py.File(path, "r") as f:
+        g = f[NOISE_GROUP]
+        assert g.attrs["format_version"] == "1.0" and g.attrs["method"] == "test"
+        np.testing.assert_array_equal(g.attrs["fallback_sigmas"], [0.04, 0.7, 0.2])
+        assert list(g["node_name"].asstr()[()]) == ["S1", "S2"]
+        np.testing.assert_array_equal(g["sigmas"][()], [[0.03, 0.05, 0.15], [0.06, 0.7, 0.2]])
+        np.testing.assert_array_equal(g["identified"][()], [[1, 1, 1], [1, 0, 0]])
+        assert g["n_residuals"].dtype == np.int64
+        np.testing.assert_array_equal(g["n_residuals"][()], [[300, 300, 100], [100, 0, 0]])
+        assert list(g["reason"].asstr()[()][1]) == ["", "too few frames", "no motion"]
+    assert read_noise(path) == est
+    # A second write replaces the group; output= writes a copy and leaves the file.
+    other = NoiseEstimate(nodes={"S1": est.nodes["S2"], "S2": est.nodes["S1"]}, method="again")
+    copy = write_noise(path, other, output=path.with_name("copy.h5"))
+    assert read_noise(copy) == other and read_noise(path) == est
+
+
+@pytest.mark.parametrize("damage, match", [
+    (lambda g: g.attrs.__delitem__("fallback_sigmas"), "attribute 'fallback_sigmas' is missing"),
+    (lambda g: g.__delitem__("identified"), "/identified is missing"),
+    (lambda g: (g.__delitem__("sigmas"), g.create_dataset("sigmas", data=np.ones((2, 2)))),
+     r"/sigmas must have shape \(2, 3\), got \(2, 2\)"),
+    (lambda g: g["sigmas"].__setitem__((0, 1), -1.0), "is inconsistent"),
+])
+def test_a_damaged_group_is_a_format_error_naming_the_field(path, damage, match):
+    write_noise(path, _estimate())
+    with h5py.File(path, "r+") as f:
+        damage(f[NOISE_GROUP])
+    with pytest.raises(FileFormatError, match=match) as err:
+        read_noise(path)
+    assert str(path) in str(err.value)
+
+
+def test_noise_for_fusion_per_node_pooled_or_the_papers(path):
+    noise, text = noise_for_fusion(path, ["S1", "S2"])
+    assert noise == MeasurementNoise() and "no /noise group" in text
+    est = _estimate()
+    write_noise(path, est)
+    per_node, text = noise_for_fusion(path, ["S1", "S2"])
+    assert per_node == {"S1": est.nodes["S1"].noise, "S2": est.nodes["S2"].noise}
+    assert text.startswith("sigmas from /noise:")
+    pooled, _ = noise_for_fusion(path, ["S1", "S2"], per_node=False)
+    # by hand: residual-count weighted RMS per component; the omega and Doppler
+    # of S2 have no residuals, so S1's alone count there
+    expected = [np.sqrt((300 * 0.03**2 + 100 * 0.06**2) / 400), 0.05, 0.15]
+    np.testing.assert_allclose(pooled.sigmas, expected, rtol=1e-12)
+    with pytest.raises(FileFormatError, match=r"has no sigmas for nodes \['S3'\]"):
+        noise_for_fusion(path, ["S1", "S3"])
