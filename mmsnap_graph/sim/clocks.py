@@ -28,7 +28,7 @@ from .._validation import check_count
 from ..errors import GeometryError, ValidationError
 from .scenes import SCENE_NOISE, SyntheticScene, target_trajectory
 from .networks import Area
-from .trajectories import random_walk
+from .trajectories import RandomWalkOptions, random_walk
 from .turns import turning_walk
 
 __all__ = ["trajectory_function", "timed_scene", "scene_recording", "offset_recording"]
@@ -58,7 +58,8 @@ def trajectory_function(kind: Literal["random", "straight", "walk", "turns"], ce
     if kind == "walk":
         area = Area(x_min_m=center[0] - extent_m, x_max_m=center[0] + extent_m,
                     y_min_m=center[1] - extent_m, y_max_m=center[1] + extent_m)
-        fine = random_walk(area, n_frames=n, frame_period_s=dt, rng=rng, substeps=1)
+        fine = random_walk(area, n_frames=n, frame_period_s=dt, rng=rng,
+                           options=RandomWalkOptions(substeps=1))
     else:
         fine = target_trajectory(n, center, frame_period_s=dt, kind=kind, extent_m=extent_m,
                                  rng=rng)
