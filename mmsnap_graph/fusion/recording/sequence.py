@@ -11,7 +11,8 @@ and a message), never raised.
 Two solvers give the same answers (the tests compare them):
 ``"vectorized"`` (:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`, vectorized over frames)
 and ``"gtsam"`` (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`, one factor graph per
-frame); with ``pose_covariances`` their covariances differ by a few percent
+frame); with pose covariances (:class:`~mmsnap_graph.fusion.options.NetworkCalibration`)
+their covariances differ by a few percent
 (docs/CONVENTIONS.md, "Calibration-aware fusion").
 
 The result can be stored in the recording's HDF5 file as a ``/fused`` group
@@ -47,7 +48,8 @@ from ..problem import (
 from .motion_check import apply_motion_check
 from .rows import FusedRows
 from ..robust import RESIDUAL_GATE_PROBABILITY
-from ..options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_options, robust_options
+from ..options import (DEFAULT_OPTIONS, FusionOptions, NetworkCalibration, RobustOptions,
+                       check_options, robust_options)
 from ..solvers.settings import check_solver
 from .timing import align_recording, offset_ranges
 from ...data.noise import GaussianPrior, MeasurementNoise
@@ -474,11 +476,12 @@ def _calibrated_centroids(recording, time_offset_s, range_offset_m, options):
     added (the calibration's), as :func:`fuse_recording` fuses them."""
     if time_offset_s:
         if options.source != "centroids":
-            raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
+            raise ValidationError("calibration.time_offset_s aligns the centroids: use "
+                                  "source='centroids'")
         recording = align_recording(recording, time_offset_s)
     if range_offset_m is not None:
         if options.source != "centroids":
-            raise ValidationError("range_offset_m moves the centroids' ranges: use "
+            raise ValidationError("calibration.range_offset_m moves the centroids' ranges: use "
                                   "source='centroids'")
         recording = offset_ranges(recording, range_offset_m)
     return recording
@@ -487,16 +490,13 @@ def _calibrated_centroids(recording, time_offset_s, range_offset_m, options):
 def fuse_recording(
     recording: Recording,
     *,
-    node_poses: Mapping[str, ArrayLike] | None = None,
+    calibration: NetworkCalibration | None = None,
     mode: Literal["map", "ml"] = "map",
     noise: MeasurementNoise | Mapping[str, MeasurementNoise] = MeasurementNoise(),
     prior: GaussianPrior | None = _PAPER_PRIOR,
-    pose_covariances: Mapping[str, ArrayLike] | None = None,
-    time_offset_s: Mapping[str, float] | None = None,
     robust: RobustOptions | Literal["gate", "huber", "cauchy"] | None = None,
     options: FusionOptions = DEFAULT_OPTIONS,
     progress: bool | None = None,
-    range_offset_m: float | None = None,
 ) -> FusedSequence:
     """Fuse every target in every frame of ``recording``.
 
@@ -504,36 +504,35 @@ def fuse_recording(
     ----------
     recording : Recording
         Its nodes' ``centroids`` (or ``point_cloud``) are fused.
-    node_poses : mapping name -> (3,), optional
-        Calibrated poses (:func:`load_calibration_poses`); default: the poses
-        stored in the recording.
+    calibration : NetworkCalibration, optional
+        The network's calibration (:class:`~mmsnap_graph.fusion.options.NetworkCalibration`;
+        None: the poses stored in the recording, nothing else), its parts:
+        ``node_poses`` (e.g. :func:`load_calibration_poses`) replace the
+        recording's poses. ``pose_covariances``: calibration-aware fusion
+        (docs/CONVENTIONS.md, "Calibration-aware fusion"): each node pose's
+        covariance in the Pose2 body tangent (the calibration's marginals);
+        a node left out (or all NaN / all zero) has an exact pose. The
+        estimates do not change; ``covariance`` and ``laplace_covariance``
+        include the poses'
+        (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
+        :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`). Needs
+        ``options.covariance="laplace"``. ``time_offset_s``: each node's
+        clock offset (node time + offset = reference time): the centroids are
+        brought to the reference clock first
+        (:func:`mmsnap_graph.fusion.recording.timing.align_recording`: whole
+        frames, then the range by Doppler times the rest); a node left out
+        keeps its clock. ``range_offset_m``: the calibration's range offset
+        (``RecordingCalibration.range_offset_m``, an extended target's
+        reflection depth), added to every centroid's range first
+        (:func:`~mmsnap_graph.fusion.recording.timing.offset_ranges`), so
+        that the fused state is the body's centre; its uncertainty is not in
+        the fused covariances.
     mode : ``"map"`` (Bayesian, with ``prior``) or ``"ml"`` (no prior: pass
         ``prior=None`` or leave the default).
     noise : MeasurementNoise (every node; default the paper's) or a mapping
         ``{node name: MeasurementNoise}`` holding every fused node (per-node
         noise, docs/CONVENTIONS.md); used by the association and the fusion.
     prior : GaussianPrior for MAP, default the paper's.
-    pose_covariances : mapping name -> (3, 3), optional
-        Calibration-aware fusion (docs/CONVENTIONS.md,
-        "Calibration-aware fusion"): each node pose's covariance in the Pose2
-        body tangent (the calibration's marginals); a node left out (or all
-        NaN / all zero) has an exact pose. The estimates do not change;
-        ``covariance`` and ``laplace_covariance`` include the poses'
-        (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
-        :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`). Needs
-        ``options.covariance="laplace"``.
-    time_offset_s : mapping name -> seconds, optional
-        Each node's clock offset (node time + offset = reference time; the
-        calibration's ``time_offset_s``): the centroids are brought to the
-        reference clock first (:func:`mmsnap_graph.fusion.recording.timing.align_recording`:
-        whole frames, then the range by Doppler times the rest). A node left
-        out keeps its clock.
-    range_offset_m : float, optional
-        The calibration's range offset (``RecordingCalibration.range_offset_m``,
-        an extended target's reflection depth): added to every centroid's
-        range first (:func:`~mmsnap_graph.fusion.recording.timing.offset_ranges`),
-        so that the fused state is the body's centre. Its uncertainty is not
-        in the fused covariances.
     robust : RobustOptions, "gate", "huber", "cauchy" or None
         Robust one-shot fusion (:mod:`mmsnap_graph.fusion.robust`; default
         None): ``"gate"`` leaves out a node whose residual fails the
@@ -557,14 +556,18 @@ def fuse_recording(
         ``lm`` and the vectorized solver's settings as in ``fuse_batch``.
     progress : show a tqdm bar (default: when stderr is a terminal).
     """
+    cal = NetworkCalibration() if calibration is None else calibration
+    if not isinstance(cal, NetworkCalibration):
+        raise ValidationError(f"calibration must be a NetworkCalibration, got "
+                              f"{type(cal).__name__}")
     prior = _check_options(recording, mode, options, prior)
-    recording = _calibrated_centroids(recording, time_offset_s, range_offset_m, options)
-    noise, pose_cov = _node_options(recording, noise, pose_covariances, options.covariance)
+    recording = _calibrated_centroids(recording, cal.time_offset_s, cal.range_offset_m, options)
+    noise, pose_cov = _node_options(recording, noise, cal.pose_covariances, options.covariance)
     robust = robust_options(robust)
     motion_check = _motion_option(options.motion_check, robust)
     if progress is not None and not isinstance(progress, (bool, np.bool_)):
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
-    poses = recording_poses(recording, node_poses)
+    poses = recording_poses(recording, cal.node_poses)
     groups = group_detections(recording, poses, noise, gate_probability=options.gate_probability,
                               source=options.source, merge_body_m=_merge_option(options, robust))
     obs = groups.detection_index >= 0

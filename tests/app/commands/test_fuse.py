@@ -12,6 +12,7 @@ from mmsnap_graph.data.results import Status
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError
 from mmsnap_graph.io import read_recording, write_recording
+from mmsnap_graph.fusion.options import NetworkCalibration
 from mmsnap_graph.fusion.recording.sequence import (
     fuse_recording,
     recording_poses,
@@ -37,7 +38,7 @@ def test_calibration_json_and_pose_sources(tmp_path, recordings):
     poses = load_calibration_poses(path)
     np.testing.assert_array_equal(recording_poses(rec, poses)[1], [0.1, 6.9, np.pi - 0.02])
     np.testing.assert_array_equal(recording_poses(rec), np.stack([rec.nodes[n].pose for n in rec.node_names]))
-    fused = fuse_recording(rec, node_poses=poses)
+    fused = fuse_recording(rec, calibration=NetworkCalibration(node_poses=poses))
     np.testing.assert_array_equal(fused.node_poses[1], [0.1, 6.9, np.pi - 0.02])
 
 
