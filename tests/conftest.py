@@ -104,3 +104,16 @@ def recording_b_file(tmp_path_factory):
                  "centroids", "--seed", "5", "--known-poses", "-o", str(path),
                  "--no-progress"]) == 0
     return path
+
+
+@pytest.fixture(scope="session")
+def recording_b_real_file(tmp_path_factory):
+    """As :func:`recording_b_file` with the simulator's default, real physics
+    (``mmsnap simulate -c B -t random -n 40 -l centroids --seed 5
+    --known-poses``). Shared: read it, or copy it before changing it."""
+    from mmsnap_graph.app.cli import main
+
+    path = tmp_path_factory.mktemp("recording_b_real") / "rec.h5"
+    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
+                 "--seed", "5", "--known-poses", "-o", str(path), "--no-progress"]) == 0
+    return path

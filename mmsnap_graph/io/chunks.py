@@ -1,5 +1,5 @@
-"""Long recordings a window of frames at a time (issue 13: fusing 1 hour of
-10 nodes stays under 500 MB).
+"""Long recordings a window of frames at a time, so that fusing an hour of
+ten nodes stays under 500 MB.
 
 - :func:`open_detection_windows` reads a recording file's header (format,
   frame period, node order and poses) and, per node, only the ``frame``

@@ -1,5 +1,5 @@
 """Turning what h5py and numpy raise on a damaged file into the project's
-:class:`~mmsnap_graph.errors.FileFormatError` naming the file (issue 13: bit
+:class:`~mmsnap_graph.errors.FileFormatError` naming the file (bit
 flips give ``RuntimeError``, ``ValueError``, ``KeyError``, ... besides
 ``OSError``). Used by every reader of :mod:`mmsnap_graph.io`."""
 

@@ -60,7 +60,7 @@ __all__ = [
 ]
 
 #: Measurements beyond these (m, m/s) are not physical for a radar: a tracker
-#: step ignores them (issue 13: a range of 1e300 overflowed the EKF).
+#: step ignores them (a range of 1e300 would overflow the EKF).
 MAX_RANGE_M = 1e5
 MAX_SPEED_MPS = 1e4
 #: Bounds of the configuration: beyond them a value is a unit or typing
@@ -435,7 +435,7 @@ def frames_to_step(frames: ArrayLike, config: EkfConfig | None = None) -> NDArra
     frames of each gap (prediction-only steps: coasting tracks report and
     then die there, exactly as when stepping every frame of the gap). After
     that no track is alive, so the rest of the gap needs no step: a gap of
-    10^12 frames costs a handful of steps, not 10^12 (issue 13).
+    10^12 frames costs a handful of steps, not 10^12.
     Returns a sorted int64 array."""
     cfg = EkfConfig() if config is None else config
     present = np.unique(np.asarray(frames, dtype=np.int64))

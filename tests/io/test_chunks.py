@@ -19,11 +19,9 @@ BIG = 2 ** 63 - 100
 
 
 @pytest.fixture(scope="module")
-def base(tmp_path_factory):
-    path = tmp_path_factory.mktemp("chunks") / "base.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
-                 "--seed", "5", "--known-poses", "-o", str(path), "--no-progress"]) == 0
-    return path
+def base(recording_b_real_file):
+    """The shared small recording (read only: the tests edit copies)."""
+    return recording_b_real_file
 
 
 def _edited(base, tmp_path, frames=None, period=None):

@@ -17,12 +17,9 @@ from mmsnap_graph.app.cli import main
 
 
 @pytest.fixture(scope="module")
-def good(tmp_path_factory) -> Path:
-    """A small recording with known poses (and truth)."""
-    path = tmp_path_factory.mktemp("files") / "rec.h5"
-    assert main(["simulate", "-c", "B", "-t", "random", "-n", "40", "-l", "centroids",
-                 "--seed", "5", "--known-poses", "-o", str(path), "--no-progress"]) == 0
-    return path
+def good(recording_b_real_file) -> Path:
+    """A small recording with known poses (and truth): the shared one, read only."""
+    return recording_b_real_file
 
 
 @pytest.fixture()
