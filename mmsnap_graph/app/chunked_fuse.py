@@ -23,12 +23,11 @@ from pathlib import Path
 from typing import Mapping
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from .._validation import check_count
 from ..errors import ValidationError
 from ..fusion.recording.motion_check import MOTION_CONTEXT_FRAMES
-from ..fusion.options import DEFAULT_OPTIONS, FusionOptions
+from ..fusion.options import DEFAULT_OPTIONS, FusionOptions, NetworkCalibration
 from ..fusion.recording.room import RoomReport, screen_room
 from ..fusion.recording.sequence import fuse_recording
 from ..fusion.recording.timing import split_offset
@@ -99,14 +98,16 @@ def _own_rows(fused, start: int, stop: int):
 
 
 def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = None,
-              node_poses: Mapping[str, ArrayLike] | None = None,
+              calibration: NetworkCalibration | None = None,
               window_frames: int = DEFAULT_WINDOW_FRAMES, progress: bool | None = None,
               **options) -> ChunkedFuseSummary:
     """Fuse every target in every frame of the recording file at ``path``
     window by window and store the ``/fused`` group (in ``path``, or in a
     copy of it at ``output``), atomically.
 
-    node_poses : calibrated poses (default: the file's).
+    calibration : the network's calibration (a
+        :class:`~mmsnap_graph.fusion.options.NetworkCalibration`: poses,
+        their covariances, clock and range offsets; default: the file's poses).
     window_frames : frames read and fused at a time.
     progress : a tqdm bar over frames (default: when stderr is a terminal).
     options : keyword arguments of
@@ -131,6 +132,10 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     room = dict(bounds=options.pop("bounds", None), static_bounds=options.pop("static_bounds", None),
                 in_front=options.pop("in_front", False), body_m=options.pop("body_m", None))
     flagged = RoomReport()
+    calibration = NetworkCalibration() if calibration is None else calibration
+    if not isinstance(calibration, NetworkCalibration):
+        raise ValidationError(f"calibration must be a NetworkCalibration, got "
+                              f"{type(calibration).__name__}")
     fusion = options.get("options", DEFAULT_OPTIONS)
     if not isinstance(fusion, FusionOptions):
         raise ValidationError(f"options must be a FusionOptions, got {type(fusion).__name__}")
@@ -140,11 +145,12 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     # read shifted the same way, so that a window holds the same reference
     # frames for every node.
     shifts = {str(n): split_offset(float(t), windows.frame_period_s)[0]
-              for n, t in dict(options.get("time_offset_s") or {}).items()}
+              for n, t in dict(calibration.time_offset_s or {}).items()}
     margin = max((abs(m) for m in shifts.values()), default=0)
     spans = list(windows.windows(int(window_frames), margin))
     if not spans:  # no detection at all: fuse_recording says so (ValidationError)
-        fuse_recording(windows.read(0, 0)[0], node_poses=node_poses, progress=False, **options)
+        fuse_recording(windows.read(0, 0)[0], calibration=calibration, progress=False,
+                       **options)
     n_frames = n_windows = 0
     with fused_writer(path, output=output) as writer, \
             _progress(len(spans), progress) as bar:
@@ -156,7 +162,7 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
             bar.update(1)
             if not any(r.size for r in rows.values()):
                 continue  # a gap: no node has a detection in these frames
-            fused = fuse_recording(rec, node_poses=node_poses, progress=False, **options)
+            fused = fuse_recording(rec, calibration=calibration, progress=False, **options)
             fused = _own_rows(fused, start, stop)
             if len(fused) == 0:
                 continue  # detections in the context frames only

@@ -25,9 +25,12 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..fusion.options import NetworkCalibration
 
 __all__ = [
     "DEFAULT_ROBUST",
@@ -73,18 +76,22 @@ class StoredCalibration:
     text: tuple[str, ...] = field(default_factory=tuple)
     range_offset_m: float | None = None
 
+    def network_calibration(self) -> NetworkCalibration:
+        """The parts fusion takes, as one
+        :class:`~mmsnap_graph.fusion.options.NetworkCalibration` (empty
+        mappings as None)."""
+        from ..fusion.options import NetworkCalibration
+
+        return NetworkCalibration(
+            node_poses=None if self.node_poses is None else dict(self.node_poses),
+            pose_covariances=dict(self.pose_covariances) if self.pose_covariances else None,
+            time_offset_s=dict(self.time_offset_s) if self.time_offset_s else None,
+            range_offset_m=None if self.range_offset_m is None else float(self.range_offset_m))
+
     def fuse_options(self) -> dict[str, Any]:
-        """Keyword arguments of ``fuse_recording`` / ``fuse_file`` (only
-        those that are set)."""
-        out: dict[str, Any] = {}
-        if self.node_poses is not None:
-            out["node_poses"] = dict(self.node_poses)
-        if self.pose_covariances:
-            out["pose_covariances"] = dict(self.pose_covariances)
-        if self.time_offset_s:
-            out["time_offset_s"] = dict(self.time_offset_s)
-        if self.range_offset_m is not None:
-            out["range_offset_m"] = float(self.range_offset_m)
+        """Keyword arguments of ``fuse_recording`` / ``fuse_file``:
+        ``calibration`` (:meth:`network_calibration`) and ``noise`` when set."""
+        out: dict[str, Any] = {"calibration": self.network_calibration()}
         if self.noise is not None:
             out["noise"] = self.noise
         return out

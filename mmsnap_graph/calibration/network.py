@@ -33,8 +33,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import CalibrationError, MissingStepError, ValidationError
-from ..data.noise import MeasurementNoise, NoiseEstimate
-from ..data.recording import Detections, Recording
+from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
+from ..data.recording import Detections, NodeData, Recording
 from .joint.options import JointOptions
 from .joint.solve import JointCalibration, joint_calibration
 from .pairwise.matching import LocalTracks, local_tracks
@@ -155,10 +155,12 @@ def _joint_noise(recording, pg, dets) -> tuple[MeasurementNoise, str]:
 
 
 def _refine(recording, pg, reachable, method, noise, options: JointOptions, notes):
-    """The joint step: its result (None when skipped)."""
+    """The joint step: its result (None when skipped) and, with several
+    centroids per frame, the associated detections it ran on (else None)."""
     dets = _joint_detections(recording, reachable, pg.lag_frames)
     if dets is None:
-        return _refine_multi(recording, pg, reachable, method, noise, options, notes)
+        out = _refine_multi(recording, pg, reachable, method, noise, options, notes)
+        return (None, None) if out is None else (out.joint, out.detections)
     if noise is None:
         noise, note = _joint_noise(recording, pg, dets)
         notes.append(note)
@@ -167,7 +169,7 @@ def _refine(recording, pg, reachable, method, noise, options: JointOptions, note
                               frame_period_s=recording.frame_period_s,
                               lag_frames={n: int(pg.lag_frames.get(n, 0)) for n in reachable})
     notes.append(joint.message)
-    return joint
+    return joint, None
 
 
 def _refine_multi(recording, pg, reachable, method, noise, options, notes):
@@ -201,7 +203,7 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
     notes.append(out.joint.message)
     if options.time_offsets:
         notes.append("clock offsets: whole-frame lags only with several centroids per frame")
-    return out.joint
+    return out
 
 
 def _pose_graph_step(recording, names, source, matching: MatchingOptions):
@@ -258,9 +260,8 @@ def calibrate_recording(
     ``lag_frames`` and ``time_offset_s`` per node, ``unreachable`` nodes,
     the pairwise ``edges``, ``method`` (``"joint"`` or ``"pose_graph"``),
     ``source``, ``success`` and ``message`` (why a step failed or what it
-    could not identify), ``noise`` (every node's sigmas estimated from the
-    data at the calibrated poses), and the step results ``pose_graph`` and
-    ``joint``. :func:`mmsnap_graph.io.calibration.write_calibration` stores it
+    could not identify), ``noise`` (every node's sigmas from the data), and
+    the step results ``pose_graph`` and ``joint``. :func:`mmsnap_graph.io.calibration.write_calibration` stores it
     as the recording's ``/calibration`` group (``mmsnap calibrate``).
 
     source : the local positions to match: EKF tracks when present
@@ -273,8 +274,8 @@ def calibrate_recording(
         sequence pooled over the nodes (module doc); the recording's
         metadata sigmas are not used. Wrong sigmas cost accuracy: the
         joint graph weighs range against spatial frequency by them.
-        Whatever the joint graph used, the result's ``noise`` is every
-        node's estimate from the data at the calibrated poses.
+        The result's ``noise``: every node's estimate at the calibrated
+        poses (from the associated centroids with several per frame).
     matching : the track matching's thresholds in seconds and metres
         (:class:`MatchingOptions`; None: its defaults): lags up to
         ``max_lag_s`` (whole frames of the recording's period) are searched,
@@ -304,23 +305,24 @@ def calibrate_recording(
     _no_identical_nodes(recording, names)
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
-    result_method, refined, notes = "pose_graph", None, [pg.message]
+    result_method, refined, associated, notes = "pose_graph", None, None, [pg.message]
     notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in pg.edges if e.lag_note]
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)
-        refined = _refine(recording, pg, reachable, method, noise, options, notes)
+        refined, associated = _refine(recording, pg, reachable, method, noise, options, notes)
         if refined is not None and (refined.success or method == "joint"):
             poses = {n: refined.poses[n] for n in reachable}
             covs = {n: refined.covariances[n] for n in reachable}
             result_method = "joint"
         elif refined is not None:
             notes.append("kept the pose-graph poses")
+            associated = None
     success = pg.success and (refined is None or refined.success or result_method == "pose_graph")
     lags = dict(pg.lag_frames)
     if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
         lags.update({n: int(v) for n, v in refined.lag_frames.items() if n in lags})
-    noise_est = estimate_noise(recording, poses=poses, lag_frames=lags)
+    noise_est = _noise_estimate(recording, poses, lags, associated)
     notes.append(noise_est.message)
     offsets, variances = _clock_offsets(recording, names, pg, refined if result_method == "joint"
                                         else None)
@@ -333,6 +335,47 @@ def calibrate_recording(
         range_offset_m=refined.range_offset_m if result_method == "joint" else float("nan"),
         range_offset_variance=(refined.range_offset_variance if result_method == "joint"
                                else float("nan")))
+
+
+def _noise_estimate(recording: Recording, poses, lags, associated) -> NoiseEstimate:
+    """Every node's noise at the calibrated poses, from its centroids where
+    each node has one per frame; with several per frame (two people,
+    clutter, split clusters) also from the centroids the joint graph
+    associated across nodes (``associated``: one per node and virtual
+    frame, on the reference clock), whose cross-node residuals are of one
+    target by construction: per node and component the associated
+    estimate when it is identified, else the recording's when that is
+    (:func:`_merged_noise`)."""
+    own = estimate_noise(recording, poses=poses, lag_frames=lags)
+    if associated is None:
+        return own
+    nodes = {n: NodeData(name=n, centroids=associated.get(n)) for n in recording.node_names}
+    assoc = estimate_noise(Recording(frame_period_s=recording.frame_period_s, nodes=nodes),
+                           poses=poses)
+    return _merged_noise(assoc, own)
+
+
+def _merged_noise(assoc: NoiseEstimate, own: NoiseEstimate) -> NoiseEstimate:
+    """Per node and component, ``assoc``'s sigma when identified, else
+    ``own``'s when identified, else ``assoc``'s fallback."""
+    nodes, n_id = {}, 0
+    for name, a in assoc.nodes.items():
+        o = own.nodes.get(name, a)
+        pick = [a if a.identified[i] or not o.identified[i] else o for i in range(3)]
+        sig = [pick[i].noise.sigmas[i] for i in range(3)]
+        methods = sorted({("associated " if pick[i] is a else "own ") + pick[i].method
+                          for i in range(3) if pick[i].identified[i]})
+        nodes[name] = NodeNoiseEstimate(
+            noise=MeasurementNoise(range_m=sig[0], omega_rad=sig[1], doppler_mps=sig[2]),
+            identified=tuple(pick[i].identified[i] for i in range(3)),
+            n_residuals=tuple(pick[i].n_residuals[i] for i in range(3)),
+            method="; ".join(methods) or a.method,
+            reasons=tuple(pick[i].reasons[i] for i in range(3)))
+        n_id += sum(nodes[name].identified)
+    msg = (f"noise from the data ({assoc.method}): {n_id} of {3 * len(nodes)} node sigmas "
+           f"identified (the centroids associated across nodes, else each node's own "
+           f"single-centroid frames)")
+    return NoiseEstimate(nodes=nodes, fallback=assoc.fallback, method=assoc.method, message=msg)
 
 
 def _no_identical_nodes(recording: Recording, names: list[str]) -> None:

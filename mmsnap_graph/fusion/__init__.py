@@ -3,7 +3,8 @@ measurements of a target from several nodes -> its state and covariance.
 
 The package is laid out by stage:
 
-- :mod:`.options`: :class:`FusionOptions` and :class:`RobustOptions`, taken
+- :mod:`.options`: :class:`FusionOptions`, :class:`RobustOptions` and
+  :class:`NetworkCalibration` (poses, covariances, clock and range offsets), taken
   by every entry point;
 - the one-frame problem, shared by every solver (no GTSAM):
   :mod:`.problem` (validation, initial states), :mod:`.degeneracy` (the
@@ -42,6 +43,7 @@ _LAZY = {
     # the options and the solvers' contract
     "FusionOptions": "options",
     "RobustOptions": "options",
+    "NetworkCalibration": "options",
     "DEFAULT_OPTIONS": "options",
     "robust_options": "options",
     "SOLVERS": "solvers.settings",

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import combinations
 from typing import Sequence
 
 import numpy as np
@@ -40,6 +41,7 @@ __all__ = [
     "detection_information",
     "MIN_VARIANCE_M2",
     "MAX_CONDITION",
+    "MAX_SUBSET_NODES",
 ]
 
 # Cost of a forbidden pair in the assignment (beyond any gated cost).
@@ -126,6 +128,10 @@ class FrameAssociation:
 #: 1e-300 m or sigmas of 1e-300 give a singular one (numpy would raise LinAlgError).
 MIN_VARIANCE_M2 = 1e-100
 MAX_CONDITION = 1e12
+#: A frame of one detection per node that the nodes taken in order split is
+#: regrouped order-independently (:func:`_best_subsets`) up to this many
+#: detections (the subsets grow as 2^N).
+MAX_SUBSET_NODES = 10
 
 
 def detection_information(covariance_m2: NDArray) -> tuple[NDArray, NDArray]:
@@ -251,6 +257,58 @@ def _associate_singles(counts, pos_all, cov_all, info_all, gate) -> FrameAssocia
                             covariance_m2=cov_g)
 
 
+def _scatter(pos: NDArray, info: NDArray) -> tuple[NDArray, float]:
+    """``(leave-one-out squared distances (k,), scatter)`` of a subset of
+    detections: each member's distance to the others' fused position (their
+    covariances summed), and ``sum (p_i - mean)' I_i (p_i - mean)``."""
+    total = info.sum(axis=0)
+    eta = np.einsum("kij,kj->ki", info, pos)
+    mean = _inv_2x2(total) @ eta.sum(axis=0)
+    d = pos - mean
+    scatter = float(np.einsum("ki,kij,kj->", d, info, d))
+    rest = total[None] - info
+    m = np.einsum("kij,kj->ki", _inv_2x2(rest), eta.sum(axis=0)[None] - eta)
+    return _mahalanobis2_2x2(pos - m, _inv_2x2(rest) + _inv_2x2(info)), scatter
+
+
+def _best_subsets(counts, pos, info, gate) -> FrameAssociation:
+    """:func:`associate_frame` of a frame with one detection per node at
+    most that the nodes taken in order split: order-independent instead.
+    Taken in order, a ghost of the first node may take the second node's
+    detection and leave the third's, which agrees with the second, on its
+    own. The group is the largest subset of detections whose every member is
+    within the gate of the others' fused position, of least scatter among
+    those of its size; the rest are grouped alike."""
+    nodes = np.flatnonzero(np.asarray(counts) > 0)
+    left = list(range(nodes.size))
+    members: list[list[int]] = []
+    while left:
+        best: tuple[list[int], float] | None = None
+        for size in range(len(left), 1, -1):
+            for sub in combinations(left, size):
+                idx = list(sub)
+                loo, scatter = _scatter(pos[idx], info[idx])
+                if np.all(loo <= gate) and (best is None or scatter < best[1]):
+                    best = (idx, scatter)
+            if best is not None:
+                break
+        chosen = best[0] if best is not None else [left[0]]
+        row = [-1] * len(counts)
+        for i in chosen:
+            row[nodes[i]] = 0
+        members.append(row)
+        left = [i for i in left if i not in chosen]
+    members.sort(key=lambda r: [n for n, k in enumerate(r) if k >= 0][0])
+    m = np.asarray(members, dtype=np.int64)
+    used = (m >= 0)[:, nodes]                                   # (G, K) detections per group
+    info_g = np.einsum("gk,kij->gij", used, info)
+    eta_g = np.einsum("gk,kij,kj->gi", used, info, pos)
+    cov_g = _inv_2x2(info_g)
+    cov_g = 0.5 * (cov_g + np.swapaxes(cov_g, -1, -2))
+    return FrameAssociation(members=m, position_m=np.einsum("gij,gj->gi", cov_g, eta_g),
+                            covariance_m2=cov_g)
+
+
 def group_distance2(group: Sequence[float], px: float, py: float,
                     sa: float, sb: float, sc: float, sd: float) -> float:
     """Squared Mahalanobis distance between a group's fused position and a
@@ -336,7 +394,10 @@ def associate_frame(
                                       for n, z in enumerate(zs)])
     info_all, ok_all = detection_information(cov_all)
     if max(counts) == 1 and bool(np.all(ok_all)):  # one regular detection per node at most
-        return _associate_singles(counts, pos_all, cov_all, info_all, gate)
+        out = _associate_singles(counts, pos_all, cov_all, info_all, gate)
+        if len(out) > 1 and len(counts) - counts.count(0) <= MAX_SUBSET_NODES:
+            out = _best_subsets(counts, pos_all, info_all, gate)
+        return out
     start = 0
     for n, k_n in enumerate(counts):
         if k_n == 0:

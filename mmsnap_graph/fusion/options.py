@@ -1,6 +1,7 @@
 """The options of one-shot fusion, validated once: :class:`RobustOptions`
-(the robust fit) and :class:`FusionOptions` (how to solve and what to
-return), taken by :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`,
+(the robust fit), :class:`FusionOptions` (how to solve and what to
+return) and :class:`NetworkCalibration` (the network's calibration: poses,
+their covariances, clock offsets, range offset), taken by :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`,
 :func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
 :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording` and
 :class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream`. GTSAM-free.
@@ -10,16 +11,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from types import MappingProxyType
+from typing import Literal, Mapping
 
 import numpy as np
 
-from .._validation import check_count, check_probability
+from .._validation import as_float_array, check_count, check_finite, check_probability
 from ..errors import ValidationError
 from .robust import RESIDUAL_GATE_PROBABILITY, check_robust, check_robust_k, residual_gate_threshold
 from .solvers.settings import LM_SETTINGS, SOLVERS, LevenbergMarquardtSettings, check_solver
 
-__all__ = ["RobustOptions", "FusionOptions", "DEFAULT_OPTIONS", "robust_options"]
+__all__ = ["RobustOptions", "FusionOptions", "DEFAULT_OPTIONS", "robust_options",
+           "NetworkCalibration"]
 
 
 def _positive(value: object, name: str) -> float:
@@ -127,6 +130,14 @@ class FusionOptions:
     source : ``"centroids"`` or ``"point_cloud"``.
     block_rows : rows fused per call of the vectorized solver.
     motion_check : True, False or None (on with a ``robust`` option).
+    body_merge : True, False or None (on with a ``robust`` option): a
+        node's centroids of one frame closer than ``merge_body_m`` (m) are
+        one body seen as several clusters, merged before the association
+        (:func:`~mmsnap_graph.fusion.recording.regroup.merge_body_detections`;
+        docs/ROBUST.md).
+    coverage_check : with the motion check, flag a row that a node whose
+        field of view covers it never sees in the frames around
+        (:mod:`~mmsnap_graph.fusion.recording.coverage`: a multipath image).
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS
@@ -141,6 +152,9 @@ class FusionOptions:
     source: Literal["centroids", "point_cloud"] = "centroids"
     block_rows: int = 65536
     motion_check: bool | None = None
+    body_merge: bool | None = None
+    merge_body_m: float = 0.6   # regroup.DEFAULT_MERGE_BODY_M
+    coverage_check: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.lm, LevenbergMarquardtSettings):
@@ -160,6 +174,13 @@ class FusionOptions:
         if self.motion_check is not None and not isinstance(self.motion_check, (bool, np.bool_)):
             raise ValidationError(
                 f"motion_check must be True, False or None, got {self.motion_check!r}")
+        if not isinstance(self.coverage_check, (bool, np.bool_)):
+            raise ValidationError(
+                f"coverage_check must be True or False, got {self.coverage_check!r}")
+        if self.body_merge is not None and not isinstance(self.body_merge, (bool, np.bool_)):
+            raise ValidationError(
+                f"body_merge must be True, False or None, got {self.body_merge!r}")
+        object.__setattr__(self, "merge_body_m", _positive(self.merge_body_m, "merge_body_m"))
 
 
 #: The default options.
@@ -171,3 +192,69 @@ def check_options(options: object) -> FusionOptions:
     if not isinstance(options, FusionOptions):
         raise ValidationError(f"options must be a FusionOptions, got {type(options).__name__}")
     return options
+
+
+def _by_node(value: object, field: str, what: str) -> Mapping | None:
+    """``value`` as a read-only ``{node name: value}`` copy (None stays None)."""
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise ValidationError(f"NetworkCalibration.{field} must be a mapping node name -> "
+                              f"{what}, got {type(value).__name__}")
+    return MappingProxyType(dict(value))
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class NetworkCalibration:
+    """What a calibration of the network gives fusion (every part optional).
+
+    node_poses : name -> ``(x_m, y_m, phi_rad)`` (None: the poses stored in
+        the recording).
+    pose_covariances : name -> (3, 3) covariance of the pose in the Pose2
+        body tangent (calibration-aware fusion, docs/CONVENTIONS.md); a node
+        left out has an exact pose (None: every pose exact).
+    time_offset_s : name -> the node's clock offset in seconds (node time +
+        offset = reference time); a node left out keeps its clock.
+    range_offset_m : the range offset (reflection depth, metres) added to
+        every centroid range before fusion (None: none).
+
+    Each mapping is copied, read-only; poses and offsets are checked here
+    (shape, finite), the covariances against the recording's nodes by
+    :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording`.
+    """
+
+    node_poses: Mapping[str, np.ndarray] | None = None
+    pose_covariances: Mapping[str, np.ndarray] | None = None
+    time_offset_s: Mapping[str, float] | None = None
+    range_offset_m: float | None = None
+
+    def __post_init__(self) -> None:
+        poses = _by_node(self.node_poses, "node_poses", "(x_m, y_m, phi_rad)")
+        if poses is not None:
+            checked = {}
+            for name, pose in poses.items():
+                arr = check_finite(as_float_array(pose, f"pose of {name}"), f"pose of {name}")
+                if arr.shape != (3,):
+                    raise ValidationError(f"pose of {name} must have shape (3,), got {arr.shape}")
+                arr = arr.copy()
+                arr.flags.writeable = False
+                checked[name] = arr
+            poses = MappingProxyType(checked)
+        object.__setattr__(self, "node_poses", poses)
+        object.__setattr__(self, "pose_covariances", _by_node(
+            self.pose_covariances, "pose_covariances", "(3, 3) covariance"))
+        offsets = _by_node(self.time_offset_s, "time_offset_s", "seconds")
+        if offsets is not None:
+            for name, tau in offsets.items():
+                if isinstance(tau, (bool, np.bool_)) or not isinstance(
+                        tau, (int, float, np.integer, np.floating)) or not math.isfinite(tau):
+                    raise ValidationError(f"NetworkCalibration.time_offset_s[{name!r}]={tau!r} "
+                                          "must be a finite number of seconds")
+        object.__setattr__(self, "time_offset_s", offsets)
+        if self.range_offset_m is not None:
+            d = self.range_offset_m
+            if isinstance(d, (bool, np.bool_)) or not isinstance(
+                    d, (int, float, np.integer, np.floating)) or not (math.isfinite(d)
+                                                                     and abs(d) <= 1.0):
+                raise ValidationError(f"NetworkCalibration.range_offset_m={d!r} must be finite "
+                                      "metres within +-1 m (millimetres given?)")

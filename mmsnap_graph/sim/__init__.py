@@ -40,7 +40,7 @@ from .scenes import (
     synthetic_scene,
     target_trajectory,
 )
-from .trajectories import make_trajectory, random_walk, straight_line
+from .trajectories import RandomWalkOptions, make_trajectory, random_walk, straight_line
 from .clocks import scene_recording, timed_scene
 from .turns import turning_walk
 from .bump import simulate_bumped_recording
@@ -54,6 +54,7 @@ __all__ = [
     "network_poses",
     "make_trajectory",
     "random_walk",
+    "RandomWalkOptions",
     "straight_line",
     "HumanBody",
     "body_scatterers",

@@ -101,7 +101,7 @@ def simulate_bumped_recording(
     opt = SimulationOptions(frame_period_s=frame_period_s, known_poses=known_poses, **options)
     states = simulate_targets(network, trajectory, n_targets=opt.n_targets, n_frames=n_frames,
                               frame_period_s=frame_period_s, seed=seed,
-                              **dict(opt.trajectory_options or {}))
+                              walk=opt.trajectory_options)
     opt = dataclasses.replace(opt, n_targets=1, trajectory_options=None)
     common = dict(levels=("centroids",), n_frames=n_frames, seed=seed)
     before = simulate_recording(poses, states, opt, **common)

@@ -13,6 +13,7 @@ path of :func:`~mmsnap_graph.sim.turns.turning_walk`).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, Literal, Mapping
 
 import numpy as np
@@ -23,13 +24,14 @@ from factors.models import detection_to_local, global_to_local, measurement_mode
 
 from ..data.noise import MeasurementNoise
 from ..data.recording import Detections, NodeData, Recording, Truth
+from .._validation import check_count
 from ..errors import GeometryError, ValidationError
 from .scenes import SCENE_NOISE, SyntheticScene, target_trajectory
 from .networks import Area
-from .trajectories import random_walk
+from .trajectories import RandomWalkOptions, random_walk
 from .turns import turning_walk
 
-__all__ = ["trajectory_function", "timed_scene", "scene_recording"]
+__all__ = ["trajectory_function", "timed_scene", "scene_recording", "offset_recording"]
 
 
 def trajectory_function(kind: Literal["random", "straight", "walk", "turns"], center_m: ArrayLike,
@@ -56,7 +58,8 @@ def trajectory_function(kind: Literal["random", "straight", "walk", "turns"], ce
     if kind == "walk":
         area = Area(x_min_m=center[0] - extent_m, x_max_m=center[0] + extent_m,
                     y_min_m=center[1] - extent_m, y_max_m=center[1] + extent_m)
-        fine = random_walk(area, n_frames=n, frame_period_s=dt, rng=rng, substeps=1)
+        fine = random_walk(area, n_frames=n, frame_period_s=dt, rng=rng,
+                           options=RandomWalkOptions(substeps=1))
     else:
         fine = target_trajectory(n, center, frame_period_s=dt, kind=kind, extent_m=extent_m,
                                  rng=rng)
@@ -149,3 +152,70 @@ def scene_recording(scene: SyntheticScene) -> Recording:
                 "centroid_doppler_std_mps": scene.noise.doppler_mps}
     return Recording(frame_period_s=scene.frame_period_s, nodes=nodes, truth=truth,
                      metadata=metadata)
+
+
+def _picked(frame: NDArray, shift: int, oversample: int, n_frames: int) -> tuple[NDArray, NDArray]:
+    """Rows of the fine frames ``shift + k * oversample`` (k < n_frames) and their ``k``."""
+    rel = np.asarray(frame) - shift
+    rows = np.flatnonzero((rel >= 0) & (rel % oversample == 0) & (rel // oversample < n_frames))
+    return rows, rel[rows] // oversample
+
+
+def _node_frames(det: Detections, shift: int, oversample: int, n_frames: int) -> Detections:
+    rows, k = _picked(det.frame, shift, oversample, n_frames)
+    return Detections(frame=k, range_m=det.range_m[rows], omega_rad=det.omega_rad[rows],
+                      doppler_mps=det.doppler_mps[rows],
+                      snr_db=None if det.snr_db is None else det.snr_db[rows],
+                      target_id=None if det.target_id is None else det.target_id[rows])
+
+
+def offset_recording(network, trajectory: str = "straight", options=None, *,
+                     time_offsets_s: Mapping[str, float], n_frames: int = 600, seed: int = 0,
+                     oversample: int = 10) -> Recording:
+    """The simulator's centroids (:func:`~mmsnap_graph.sim.simulate_recording`,
+    any model: the real physics by default, :data:`~mmsnap_graph.sim.CLEAN`)
+    with node clock offsets: the scene is simulated at ``oversample`` times
+    the frame rate, and each node keeps every ``oversample``-th fine frame
+    from its own start, ``round(tau / (T / oversample))`` fine frames after
+    the reference's (so the offsets are exact to ``T / (2 oversample)``).
+
+    Convention as :func:`timed_scene`: node frame ``k`` is taken at the
+    reference time ``k T + tau``. The truth is at the reference frames.
+    ``n_frames`` frames of period ``T`` (``options.frame_period_s``, else the
+    radar's); offsets up to 2 s.
+    """
+    from .options import SimulationOptions
+    from .simulator import simulate_recording
+
+    opt = SimulationOptions() if options is None else options
+    if not isinstance(opt, SimulationOptions):
+        raise ValidationError(f"options must be a SimulationOptions, got {type(opt).__name__}")
+    check_count(n_frames, "n_frames")
+    check_count(oversample, "oversample")
+    period = opt.radar.frame_period_s if opt.frame_period_s is None else opt.frame_period_s
+    fine = period / oversample
+    pad = int(np.ceil(2.0 / fine))
+    shifts = {}
+    for name, tau in time_offsets_s.items():
+        tau = float(tau)
+        if not (np.isfinite(tau) and abs(tau) <= 2.0):
+            raise ValidationError(f"time_offsets_s[{name!r}]={tau!r} must be finite seconds "
+                                  "within +-2 s (milliseconds given?)")
+        shifts[name] = pad + int(round(tau / fine))
+    rec = simulate_recording(network, trajectory,
+                             dataclasses.replace(opt, frame_period_s=fine),
+                             levels=("centroids",), n_frames=(n_frames - 1) * oversample + 2 * pad + 1,
+                             seed=seed)
+    unknown = set(shifts) - set(rec.node_names)
+    if unknown:
+        raise ValidationError(f"time_offsets_s names unknown nodes {sorted(unknown)}")
+    nodes = {name: dataclasses.replace(node, centroids=_node_frames(
+        node.centroids, shifts.get(name, pad), oversample, n_frames))
+        for name, node in rec.nodes.items()}
+    rows, k = _picked(rec.truth.frame, pad, oversample, n_frames)
+    truth = Truth(frame=k, target_id=rec.truth.target_id[rows], state=rec.truth.state[rows],
+                  node_poses=rec.truth.node_poses)
+    metadata = {**rec.metadata, "generator": "mmsnap_graph.sim.clocks.offset_recording",
+                "time_offsets_s": np.array([(shifts.get(n, pad) - pad) * fine
+                                            for n in rec.node_names])}
+    return Recording(frame_period_s=period, nodes=nodes, truth=truth, metadata=metadata)

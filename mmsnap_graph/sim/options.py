@@ -5,7 +5,7 @@ and ``mmsnap simulate`` both build."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -14,6 +14,7 @@ from ..data.noise import MeasurementNoise
 from ..data.radar_config import TABLE_I, RadarConfig
 from ..errors import ConfigurationError, ValidationError
 from .body import HumanBody
+from .trajectories import RandomWalkOptions
 from .networks import DEFAULT_FOV_RAD, DEFAULT_MAX_RANGE_M, DEFAULT_MIN_RANGE_M
 from .real.physics import RealPhysics
 
@@ -152,7 +153,9 @@ class SimulationOptions:
         first N, or a sequence of frame numbers.
     known_poses : store each node's true pose as its ``pose`` (else None;
         the true poses are always in ``truth.node_poses``).
-    trajectory_options : keyword arguments of the trajectory kind.
+    trajectory_options : how the ``"random"`` trajectory walks (a
+        :class:`~mmsnap_graph.sim.trajectories.RandomWalkOptions`; None = its
+        defaults; not for the ``"straight"`` kind).
     """
 
     physics: RealPhysics | None = RealPhysics()
@@ -169,7 +172,7 @@ class SimulationOptions:
     body: HumanBody = HumanBody()
     cube_frames: Any = None
     known_poses: bool = False
-    trajectory_options: Mapping | None = None
+    trajectory_options: RandomWalkOptions | None = None
 
     def __post_init__(self) -> None:
         for name, cls in (("physics", RealPhysics), ("radar", RadarConfig),
@@ -198,8 +201,11 @@ class SimulationOptions:
                                   "must be in [0, 1)")
         if self.cube_frames is not None and np.ndim(self.cube_frames) == 1:
             object.__setattr__(self, "cube_frames", tuple(int(v) for v in self.cube_frames))
-        if self.trajectory_options is not None and not isinstance(self.trajectory_options, Mapping):
-            raise ValidationError("SimulationOptions.trajectory_options must be a mapping")
+        if (self.trajectory_options is not None
+                and not isinstance(self.trajectory_options, RandomWalkOptions)):
+            raise ValidationError("SimulationOptions.trajectory_options must be a "
+                                  "RandomWalkOptions or None, got "
+                                  f"{type(self.trajectory_options).__name__}")
 
     @property
     def clean(self) -> bool:

@@ -54,7 +54,7 @@ from .options import (CENTROID_NOISE, CLEAN, DEFAULT_LEVELS, LEVELS, CubeModel, 
                       SimulationOptions)
 from .real.physics import (PhysicsContext, body_shift, person_depths, physical_centroids,
                       physical_point_cloud, room_box, self_occluded, static_reflectors)
-from .trajectories import DEFAULT_N_FRAMES, TRAJECTORY_KINDS, make_trajectory
+from .trajectories import DEFAULT_N_FRAMES, TRAJECTORY_KINDS, RandomWalkOptions, make_trajectory
 
 __all__ = ["LEVELS", "DEFAULT_LEVELS", "CENTROID_NOISE", "PointCloudModel", "CubeModel",
            "SimulationOptions", "CLEAN", "simulate_recording", "simulate_targets"]
@@ -71,7 +71,7 @@ def _stream(seed: int, purpose: int, index: int = 0) -> np.random.Generator:
 def simulate_targets(network: str | Mapping[str, ArrayLike], trajectory: str | ArrayLike = "straight",
                      *, n_targets: int = 1, n_frames: int = DEFAULT_N_FRAMES,
                      frame_period_s: float = TABLE_I.frame_period_s, seed: int = 0,
-                     **trajectory_options) -> NDArray:
+                     walk: RandomWalkOptions | None = None, **straight_options) -> NDArray:
     """Torso states ``(n_targets, F, 4)`` of the targets, global frame.
 
     ``trajectory`` is a kind (``"straight"``, ``"random"``; each target gets
@@ -86,7 +86,8 @@ def simulate_targets(network: str | Mapping[str, ArrayLike], trajectory: str | A
         area = common_area(network)
         return np.stack([make_trajectory(trajectory, area, n_frames=n_frames,
                                          frame_period_s=frame_period_s,
-                                         rng=_stream(seed, _TRAJECTORY, t), **trajectory_options)
+                                         rng=_stream(seed, _TRAJECTORY, t), walk=walk,
+                                         **straight_options)
                          for t in range(int(n_targets))])
     states = check_finite(as_float_array(trajectory, "trajectory"), "trajectory")
     if states.ndim == 2:
@@ -427,7 +428,7 @@ def simulate_recording(
     poses = network_poses(network)
     states = simulate_targets(network, trajectory, n_targets=opt.n_targets, n_frames=n_frames,
                               frame_period_s=frame_period_s, seed=seed,
-                              **dict(opt.trajectory_options or {}))
+                              walk=opt.trajectory_options)
     n_t, n_f, _ = states.shape
     limits = dict(fov_rad=float(opt.fov_rad), max_range_m=float(opt.max_range_m),
                   min_range_m=float(opt.min_range_m))

@@ -10,12 +10,13 @@ velocity is the derivative of the position, and sampled at the frames.
   area (the paper's straight-line trajectory), cruising at ``speed_mps``,
   turning around with a bounded deceleration at each end.
 - ``"random"``: a random walk: heading and speed are smooth random processes
-  (speed kept in ``[min_speed_mps, max_speed_mps]``), steered back towards the
+  (:class:`RandomWalkOptions`; speed kept in ``[min_speed_mps, max_speed_mps]``), steered back towards the
   area's centre near its edges, so the target stays inside the area.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -26,6 +27,7 @@ from .._validation import as_float_array, check_count, check_finite
 from .networks import Area
 
 __all__ = ["DEFAULT_N_FRAMES", "DEFAULT_FRAME_PERIOD_S", "straight_line", "random_walk",
+           "RandomWalkOptions",
            "make_trajectory", "TRAJECTORY_KINDS"]
 
 DEFAULT_N_FRAMES = 600
@@ -103,30 +105,68 @@ def straight_line(area: Area, *, n_frames: int = DEFAULT_N_FRAMES,
     return np.concatenate([xy, vxy], axis=1)
 
 
+@dataclass(frozen=True, kw_only=True)
+class RandomWalkOptions:
+    """How the ``"random"`` walker moves (frozen; validated once).
+
+    Heading: its rate of turn is an Ornstein-Uhlenbeck process (standard
+    deviation ``turn_rate_std_rad_per_s``, time constant ``turn_tau_s``).
+    Speed: Ornstein-Uhlenbeck around ``mean_speed_mps`` with time constant
+    ``speed_tau_s``, clipped to ``[min_speed_mps, max_speed_mps]``. The walker
+    keeps ``margin_m`` from the area's edges; the motion is integrated on
+    ``substeps`` fine steps per frame.
+    """
+
+    mean_speed_mps: float = 1.0
+    min_speed_mps: float = 0.5
+    max_speed_mps: float = 1.5
+    turn_rate_std_rad_per_s: float = 0.6
+    turn_tau_s: float = 1.0
+    speed_tau_s: float = 3.0
+    margin_m: float = 0.3
+    substeps: int = 10
+
+    def __post_init__(self) -> None:
+        if not (0 < self.min_speed_mps <= self.mean_speed_mps <= self.max_speed_mps <= 3.0):
+            raise ValidationError(
+                "RandomWalkOptions speeds must satisfy 0 < min_speed_mps="
+                f"{self.min_speed_mps!r} <= mean_speed_mps={self.mean_speed_mps!r} <= "
+                f"max_speed_mps={self.max_speed_mps!r} <= 3 (m/s)")
+        for name in ("turn_tau_s", "speed_tau_s"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValidationError(f"RandomWalkOptions.{name}={v!r} must be finite and > 0 "
+                                      "(seconds)")
+        if not (np.isfinite(self.turn_rate_std_rad_per_s) and self.turn_rate_std_rad_per_s >= 0):
+            raise ValidationError("RandomWalkOptions.turn_rate_std_rad_per_s="
+                                  f"{self.turn_rate_std_rad_per_s!r} must be finite and >= 0")
+        if not (np.isfinite(self.margin_m) and self.margin_m >= 0):
+            raise ValidationError(f"RandomWalkOptions.margin_m={self.margin_m!r} must be finite "
+                                  "and >= 0 (metres)")
+        check_count(self.substeps, "RandomWalkOptions.substeps")
+
+
 def random_walk(area: Area, *, n_frames: int = DEFAULT_N_FRAMES,
                 frame_period_s: float = DEFAULT_FRAME_PERIOD_S,
                 rng: np.random.Generator | None = None, seed: int | None = None,
-                mean_speed_mps: float = 1.0, min_speed_mps: float = 0.5,
-                max_speed_mps: float = 1.5, turn_rate_std_rad_per_s: float = 0.6,
-                turn_tau_s: float = 1.0,
-                speed_tau_s: float = 3.0, margin_m: float = 0.3,
-                substeps: int = 10) -> NDArray:
-    """A smooth random walk inside ``area`` (shrunk by ``margin_m``).
+                options: RandomWalkOptions | None = None) -> NDArray:
+    """A smooth random walk inside ``area`` (shrunk by ``options.margin_m``).
 
-    Heading: its rate of turn is an Ornstein-Uhlenbeck process (standard
-    deviation ``turn_rate_std_rad_per_s``, time constant ``turn_tau_s``), so
-    the path is smooth; a steering term turns the walker toward the area
-    centre (at up to 3 rad/s) when the point one second ahead leaves the inner
-    box. Speed: Ornstein-Uhlenbeck around
-    ``mean_speed_mps`` with time constant ``speed_tau_s``, clipped to
-    ``[min_speed_mps, max_speed_mps]``. Seeded by ``rng`` or ``seed``.
-    Returns states ``(n_frames, 4)``.
+    The heading's rate of turn and the speed are Ornstein-Uhlenbeck processes
+    (:class:`RandomWalkOptions`, defaults if ``options`` is None), so the path
+    is smooth; a steering term turns the walker toward the area centre (at up
+    to 3 rad/s) when the point one second ahead leaves the inner box. Seeded
+    by ``rng`` or ``seed``. Returns states ``(n_frames, 4)``.
     """
+    opt = RandomWalkOptions() if options is None else options
+    if not isinstance(opt, RandomWalkOptions):
+        raise ValidationError(f"options must be a RandomWalkOptions, got {type(opt).__name__}")
+    substeps, margin_m = opt.substeps, opt.margin_m
+    mean_speed_mps, min_speed_mps, max_speed_mps = (opt.mean_speed_mps, opt.min_speed_mps,
+                                                    opt.max_speed_mps)
+    turn_tau_s, speed_tau_s = opt.turn_tau_s, opt.speed_tau_s
+    turn_rate_std_rad_per_s = opt.turn_rate_std_rad_per_s
     _check_common(n_frames, frame_period_s, substeps)
-    if not (0 < min_speed_mps <= mean_speed_mps <= max_speed_mps <= 3.0):
-        raise ValidationError(
-            f"speeds must satisfy 0 < min_speed_mps={min_speed_mps!r} <= mean_speed_mps="
-            f"{mean_speed_mps!r} <= max_speed_mps={max_speed_mps!r} <= 3")
     if np.any(area.size_m <= 2 * margin_m + 0.2):
         raise ValidationError(f"area {area} is too small for margin_m={margin_m}")
     if rng is None:
@@ -170,14 +210,24 @@ def make_trajectory(kind: Literal["straight", "random"], area: Area, *,
                     n_frames: int = DEFAULT_N_FRAMES,
                     frame_period_s: float = DEFAULT_FRAME_PERIOD_S,
                     rng: np.random.Generator | None = None, seed: int | None = None,
-                    **options) -> NDArray:
-    """Dispatch on ``kind`` (``"straight"`` or ``"random"``); states ``(F, 4)``."""
+                    walk: RandomWalkOptions | None = None, **straight_options) -> NDArray:
+    """Dispatch on ``kind`` (``"straight"`` or ``"random"``); states ``(F, 4)``.
+
+    ``walk`` tunes the ``"random"`` kind; ``straight_options`` are the
+    keywords of :func:`straight_line`.
+    """
     if rng is None:
         rng = np.random.default_rng(seed)
     if kind == "straight":
+        if walk is not None:
+            raise ValidationError("RandomWalkOptions tune trajectory kind 'random', not "
+                                  "'straight'")
         return straight_line(area, n_frames=n_frames, frame_period_s=frame_period_s,
-                             rng=rng, **options)
+                             rng=rng, **straight_options)
     if kind == "random":
+        if straight_options:
+            raise ValidationError(f"trajectory kind 'random' takes a RandomWalkOptions, not "
+                                  f"keywords {sorted(straight_options)}")
         return random_walk(area, n_frames=n_frames, frame_period_s=frame_period_s,
-                           rng=rng, **options)
+                           rng=rng, options=walk)
     raise ValidationError(f"trajectory kind={kind!r} must be one of {TRAJECTORY_KINDS}")

@@ -15,6 +15,7 @@ from mmsnap_graph.app.cli import main
 from mmsnap_graph.data.recording import Detections, Recording
 from mmsnap_graph.errors import FileFormatError, ValidationError
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.fusion.options import NetworkCalibration
 from mmsnap_graph.io import read_fused, read_recording, write_recording
 from mmsnap_graph.io.chunks import open_detection_windows
 
@@ -177,6 +178,11 @@ def test_window_frames_must_be_a_positive_integer(good, window):
         fuse_file(good, window_frames=window)
 
 
+def test_the_calibration_is_one_network_calibration(good):
+    with pytest.raises(ValidationError, match="calibration must be a NetworkCalibration"):
+        fuse_file(good, calibration={"time_offset_s": {"S2": 0.1}}, progress=False)
+
+
 def test_the_cli_writes_what_fuse_file_writes(good, tmp_path, capsys):
     """The CLI's default is the robust gate with the motion check, then one
     target per body (fusion.recording.room)."""
@@ -195,10 +201,11 @@ def test_clock_offsets_read_each_node_shifted(good, tmp_path, window):
     frames: any window size gives fuse_recording's rows (S2 2.4 frames
     late, S1 on the reference clock)."""
     offsets = {"S2": -2.4 * 0.15}
-    ref = fuse_recording(read_recording(good), progress=False, time_offset_s=offsets)
+    ref = fuse_recording(read_recording(good), progress=False,
+                         calibration=NetworkCalibration(time_offset_s=offsets))
     out = tmp_path / "off.h5"
     summary = fuse_file(good, output=out, window_frames=window, progress=False,
-                        time_offset_s=offsets)
+                        calibration=NetworkCalibration(time_offset_s=offsets))
     got = read_fused(out)
     assert summary.n_rows == len(ref)
     for k in EXACT:

@@ -149,3 +149,23 @@ def test_tiny_sigmas_do_not_stop_the_association():
     with pytest.raises(MmsnapError, match="sigmas"):
         associate_frame([np.array([[4.0, 0.2, 0.1]]), np.array([[4.5, -0.4, 0.2]])], POSES,
                         MeasurementNoise(range_m=1e-300, omega_rad=1e-300, doppler_mps=1e-300))
+
+
+def test_a_ghost_of_the_first_node_does_not_take_the_others_group():
+    """Taken in node order, a ghost of S1 inside the gate of S2's detection
+    took S2 and left S3 (which agrees with S2) alone; the frame is grouped
+    largest consistent subset first, whatever the node order."""
+    from mmsnap_graph.sim.simulator import CENTROID_NOISE
+
+    poses = np.asarray(POSES_BC)
+    truth = np.array([1.0, 3.5, 0.5, 0.2])
+    z = [measurement_model(truth[None], p)[0][0] for p in poses]
+    ghost = np.array([3.956, 0.614, 0.33])          # S1's centroid replaced
+    for order in ([0, 1, 2], [2, 1, 0], [1, 0, 2]):
+        meas = [ghost[None], z[1][None], z[2][None]]
+        a = associate_frame([meas[i] for i in order], poses[order], CENTROID_NOISE)
+        groups = sorted(sorted(order[n] for n in np.flatnonzero(m >= 0)) for m in a.members)
+        assert groups == [[0], [1, 2]], (order, a.members)
+    a = associate_frame([ghost[None], z[1][None], z[2][None]], poses, CENTROID_NOISE)
+    true_group = int(np.flatnonzero(a.members[:, 1] >= 0)[0])
+    np.testing.assert_allclose(a.position_m[true_group], truth[:2], atol=1e-9)

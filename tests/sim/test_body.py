@@ -9,7 +9,7 @@ import pytest
 from mmsnap_graph.sim.body import ARM, HumanBody, LEG, TORSO, body_scatterers
 from mmsnap_graph.sim.networks import COMMON_AREAS
 from mmsnap_graph import ValidationError
-from mmsnap_graph.sim.trajectories import random_walk
+from mmsnap_graph.sim.trajectories import RandomWalkOptions, random_walk
 
 
 def test_body_torso_centroid_and_limb_doppler_spread():
@@ -37,7 +37,8 @@ def test_body_torso_centroid_and_limb_doppler_spread():
 
 
 def test_body_velocities_are_derivatives_of_positions():
-    s = random_walk(COMMON_AREAS["B"], frame_period_s=0.002, n_frames=3000, seed=1, substeps=1)
+    s = random_walk(COMMON_AREAS["B"], frame_period_s=0.002, n_frames=3000, seed=1,
+                    options=RandomWalkOptions(substeps=1))
     b = body_scatterers(s, 0.002)
     fd = (b.positions_m[2:] - b.positions_m[:-2]) / 0.004
     assert np.abs(fd - b.velocities_mps[1:-1]).max() < 0.05

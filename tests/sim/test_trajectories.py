@@ -8,7 +8,9 @@ import pytest
 
 from mmsnap_graph.sim.networks import COMMON_AREAS
 from mmsnap_graph import ValidationError
-from mmsnap_graph.sim.trajectories import make_trajectory, random_walk, straight_line
+from mmsnap_graph.sim import SimulationOptions
+from mmsnap_graph.sim.trajectories import (RandomWalkOptions, make_trajectory, random_walk,
+                                           straight_line)
 
 
 def _check_walk(states, area, frame_period_s):
@@ -50,3 +52,29 @@ def test_straight_line_paces_back_and_forth():
         make_trajectory("zigzag", area)
     with pytest.raises(ValidationError, match="n_frames=0"):
         random_walk(area, n_frames=0)
+
+
+def test_random_walk_options_are_validated_once_with_units():
+    with pytest.raises(ValidationError, match="max_speed_mps=5"):
+        RandomWalkOptions(max_speed_mps=5)
+    with pytest.raises(ValidationError, match="turn_tau_s=0"):
+        RandomWalkOptions(turn_tau_s=0)
+    with pytest.raises(ValidationError, match="substeps"):
+        RandomWalkOptions(substeps=0)
+    with pytest.raises(ValidationError, match="RandomWalkOptions"):
+        random_walk(COMMON_AREAS["B"], options={"substeps": 1})
+
+
+def test_random_walk_options_tune_the_walk():
+    area = COMMON_AREAS["B"]
+    slow = random_walk(area, seed=3, options=RandomWalkOptions(
+        mean_speed_mps=0.6, min_speed_mps=0.5, max_speed_mps=0.7))
+    speed = np.hypot(slow[:, 2], slow[:, 3])
+    assert 0.5 - 1e-9 <= speed.min() and speed.max() <= 0.7 + 1e-9
+    # Through the dispatcher and the simulator's options, the same object.
+    assert_allclose(make_trajectory("random", area, seed=3, walk=RandomWalkOptions()),
+                    random_walk(area, seed=3))
+    with pytest.raises(ValidationError, match="'straight'"):
+        make_trajectory("straight", area, walk=RandomWalkOptions())
+    with pytest.raises(ValidationError, match="RandomWalkOptions"):
+        SimulationOptions(trajectory_options={"substeps": 1})

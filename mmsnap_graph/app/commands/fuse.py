@@ -106,6 +106,14 @@ def register(subparsers) -> None:
     p.add_argument("--in-front", action="store_true",
                    help="the radars hang on the room's walls, facing in: a fused target behind "
                         "any radar is outside the room and flagged (status 11)")
+    p.add_argument("--no-body-merge", action="store_true",
+                   help="fuse each of a node's centroids of a frame closer than a body's width "
+                        "(0.6 m) on its own (default: merged into one, as one body split into "
+                        "clusters)")
+    p.add_argument("--no-coverage-check", action="store_true",
+                   help="with the motion check: keep a target that a radar whose field of view "
+                        "covers it does not see in the frames around (default: flagged, "
+                        "status 10: a multipath image; docs/ROBUST.md)")
     p.add_argument("--no-body-check", action="store_true",
                    help="keep fused targets of a frame closer than a body's width (default: "
                         "the one seen by fewer nodes is flagged, status 12)")
@@ -233,11 +241,15 @@ def run(args: argparse.Namespace) -> int:
             print(line, file=sys.stdout)
         print("; ".join(room_text), file=sys.stdout)
         from mmsnap_graph.fusion.options import FusionOptions
+        from mmsnap_graph.fusion.recording.regroup import DEFAULT_MERGE_BODY_M
 
         fusion = FusionOptions(covariance=args.covariance, solver=args.solver,
                                source=args.source, gate_probability=args.gate,
                                grid_points_per_axis=args.grid_points,
-                               motion_check=args.robust != "none" and not args.no_motion_check)
+                               motion_check=args.robust != "none" and not args.no_motion_check,
+                               coverage_check=not args.no_coverage_check,
+                               body_merge=False if args.no_body_merge else None,
+                               merge_body_m=DEFAULT_MERGE_BODY_M)
         options = dict(mode=args.mode, robust=None if args.robust == "none" else args.robust,
                        options=fusion, **room)
         fused, _ = fuse_stored(args.recording, options, output=args.output, calibration=cal,

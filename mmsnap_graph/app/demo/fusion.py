@@ -15,6 +15,7 @@ from ...data.recording import Recording
 from ...errors import ValidationError
 from ...fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD
 from ...data.results import FusedSequence
+from ...fusion.options import NetworkCalibration
 from ...fusion.recording.sequence import fuse_recording
 from ...tracking.central import CentralConfig, track_fused
 from ...tracking.track_fusion import fuse_tracks, transform_tracks
@@ -35,7 +36,8 @@ __all__ = [
 def _fuse(recording: Recording, node_poses: Mapping[str, NDArray], mode: str) -> FusedSequence:
     """One-shot fusion of every frame of a run: ``mode`` "map" (the paper's
     prior) or "ml"."""
-    return fuse_recording(recording, node_poses=dict(node_poses), mode=mode, progress=False)
+    return fuse_recording(recording, calibration=NetworkCalibration(node_poses=dict(node_poses)),
+                          mode=mode, progress=False)
 
 
 def one_row_per_frame(fused: FusedSequence, n_nodes: int) -> NDArray:

@@ -11,7 +11,8 @@ and a message), never raised.
 Two solvers give the same answers (the tests compare them):
 ``"vectorized"`` (:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`, vectorized over frames)
 and ``"gtsam"`` (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`, one factor graph per
-frame); with ``pose_covariances`` their covariances differ by a few percent
+frame); with pose covariances (:class:`~mmsnap_graph.fusion.options.NetworkCalibration`)
+their covariances differ by a few percent
 (docs/CONVENTIONS.md, "Calibration-aware fusion").
 
 The result can be stored in the recording's HDF5 file as a ``/fused`` group
@@ -47,7 +48,8 @@ from ..problem import (
 from .motion_check import apply_motion_check
 from .rows import FusedRows
 from ..robust import RESIDUAL_GATE_PROBABILITY
-from ..options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_options, robust_options
+from ..options import (DEFAULT_OPTIONS, FusionOptions, NetworkCalibration, RobustOptions,
+                       check_options, robust_options)
 from ..solvers.settings import check_solver
 from .timing import align_recording, offset_ranges
 from ...data.noise import GaussianPrior, MeasurementNoise
@@ -56,6 +58,9 @@ from ...data.results import FusedSequence, Status
 from ...errors import CalibrationError, MissingStepError, MmsnapError, ValidationError
 from ..._validation import as_float_array, check_finite
 from .split_check import SPLIT_MESSAGE, split_rows
+from .regroup import merge_body_detections
+from .coverage import uncovered_rows
+from .room import DEFAULT_BODY_M
 
 __all__ = [
     "RECORDING_SOLVERS",
@@ -245,12 +250,18 @@ def group_detections(
     *,
     gate_probability: float = 0.999,
     source: Literal["centroids", "point_cloud"] = "centroids",
+    merge_body_m: float | None = None,
 ) -> DetectionGroups:
     """Group every frame's detections into targets (see
     :mod:`mmsnap_graph.fusion.association`; ``noise`` sets the gates: one
     :class:`MeasurementNoise`, one per node in the recording's node order, or a
     mapping by node name holding every node).
     Returns K groups sorted by frame then target.
+
+    ``merge_body_m`` (metres; None: off): a node's centroids of one frame
+    closer than this are one body split into clusters, merged first
+    (:func:`~.regroup.merge_body_detections`; a merged group's
+    ``detection_index`` is its first centroid's row).
 
     Frames where every node has at most one detection and all of them fall in
     one gate are grouped in a vectorized pass; the others go through
@@ -263,9 +274,20 @@ def group_detections(
     if all(d is None or len(d) == 0 for d in dets):
         raise ValidationError(f"no node of the recording has {source}; nothing to fuse")
     meas = [None if d is None else d.measurements for d in dets]
+    kept = [None if d is None else np.arange(len(d)) for d in dets]
+    if merge_body_m is not None and source == "centroids":
+        for n, d in enumerate(dets):
+            if d is not None and len(d):
+                keep, merged = merge_body_detections(d.frame, meas[n], merge_body_m)
+                kept[n] = np.flatnonzero(keep)
+                dets[n], meas[n] = d.select(kept[n]), merged[kept[n]]
     index = _frame_index([np.zeros(0, np.int64) if d is None else d.frame for d in dets])
     frame, target, rows = _group_rows(index, meas, poses, noise, gate_probability)
     z, label = _measurements_and_labels(dets, meas, rows)
+    for n, k in enumerate(kept):  # back to the recording's detection rows
+        if k is not None:
+            has = rows[:, n] >= 0
+            rows[has, n] = k[rows[has, n]]
     return DetectionGroups(frame=frame, target=target, label=label, detection_index=rows,
                            measurements=z)
 
@@ -358,6 +380,12 @@ def _fuse_gtsam_rows(out: FusedRows, poses, z, obs, noise, prior, options, bar, 
         bar.update(1)
 
 
+def _merge_option(options, robust) -> float | None:
+    """The width of one body to merge a node's centroids within (None: off)."""
+    merge = robust is not None if options.body_merge is None else bool(options.body_merge)
+    return options.merge_body_m if merge else None
+
+
 def _motion_option(motion_check, robust) -> bool:
     """``motion_check`` (validated by FusionOptions); None: on with a ``robust`` option."""
     if motion_check is None:
@@ -425,6 +453,22 @@ def _screen_rows(out: FusedRows, groups, recording, poses, noise, prior, pose_co
                        keep_sole=bool(motion_check))
     # The estimate and its covariance stay for whoever wants them, untrusted.
     out.flag(split, Status.RESIDUAL_TEST_FAILED, SPLIT_MESSAGE, keep_covariance=True)
+    if motion_check and options.coverage_check:
+        _check_coverage(out, groups, recording, poses)
+
+
+def _check_coverage(out: FusedRows, groups, recording, poses) -> None:
+    """The coverage check (:mod:`.coverage`): flag the rows a node that
+    covers them never sees."""
+    obs = groups.detection_index >= 0
+    flag, node = uncovered_rows(groups.frame, out.state, out.status == Status.OK, obs,
+                                groups.measurements[:, :, 0], poses,
+                                frame_period_s=recording.frame_period_s, body_m=DEFAULT_BODY_M)
+    for r in np.flatnonzero(flag):
+        out.flag(r, Status.MOTION_INCONSISTENT,
+                 f"motion check: node {recording.node_names[node[r]]} covers this place and "
+                 "does not see the target in the frames around (a multipath image or a ghost)",
+                 rejected=obs[r])
 
 
 def _calibrated_centroids(recording, time_offset_s, range_offset_m, options):
@@ -432,11 +476,12 @@ def _calibrated_centroids(recording, time_offset_s, range_offset_m, options):
     added (the calibration's), as :func:`fuse_recording` fuses them."""
     if time_offset_s:
         if options.source != "centroids":
-            raise ValidationError("time_offset_s aligns the centroids: use source='centroids'")
+            raise ValidationError("calibration.time_offset_s aligns the centroids: use "
+                                  "source='centroids'")
         recording = align_recording(recording, time_offset_s)
     if range_offset_m is not None:
         if options.source != "centroids":
-            raise ValidationError("range_offset_m moves the centroids' ranges: use "
+            raise ValidationError("calibration.range_offset_m moves the centroids' ranges: use "
                                   "source='centroids'")
         recording = offset_ranges(recording, range_offset_m)
     return recording
@@ -445,16 +490,13 @@ def _calibrated_centroids(recording, time_offset_s, range_offset_m, options):
 def fuse_recording(
     recording: Recording,
     *,
-    node_poses: Mapping[str, ArrayLike] | None = None,
+    calibration: NetworkCalibration | None = None,
     mode: Literal["map", "ml"] = "map",
     noise: MeasurementNoise | Mapping[str, MeasurementNoise] = MeasurementNoise(),
     prior: GaussianPrior | None = _PAPER_PRIOR,
-    pose_covariances: Mapping[str, ArrayLike] | None = None,
-    time_offset_s: Mapping[str, float] | None = None,
     robust: RobustOptions | Literal["gate", "huber", "cauchy"] | None = None,
     options: FusionOptions = DEFAULT_OPTIONS,
     progress: bool | None = None,
-    range_offset_m: float | None = None,
 ) -> FusedSequence:
     """Fuse every target in every frame of ``recording``.
 
@@ -462,36 +504,35 @@ def fuse_recording(
     ----------
     recording : Recording
         Its nodes' ``centroids`` (or ``point_cloud``) are fused.
-    node_poses : mapping name -> (3,), optional
-        Calibrated poses (:func:`load_calibration_poses`); default: the poses
-        stored in the recording.
+    calibration : NetworkCalibration, optional
+        The network's calibration (:class:`~mmsnap_graph.fusion.options.NetworkCalibration`;
+        None: the poses stored in the recording, nothing else), its parts:
+        ``node_poses`` (e.g. :func:`load_calibration_poses`) replace the
+        recording's poses. ``pose_covariances``: calibration-aware fusion
+        (docs/CONVENTIONS.md, "Calibration-aware fusion"): each node pose's
+        covariance in the Pose2 body tangent (the calibration's marginals);
+        a node left out (or all NaN / all zero) has an exact pose. The
+        estimates do not change; ``covariance`` and ``laplace_covariance``
+        include the poses'
+        (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
+        :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`). Needs
+        ``options.covariance="laplace"``. ``time_offset_s``: each node's
+        clock offset (node time + offset = reference time): the centroids are
+        brought to the reference clock first
+        (:func:`mmsnap_graph.fusion.recording.timing.align_recording`: whole
+        frames, then the range by Doppler times the rest); a node left out
+        keeps its clock. ``range_offset_m``: the calibration's range offset
+        (``RecordingCalibration.range_offset_m``, an extended target's
+        reflection depth), added to every centroid's range first
+        (:func:`~mmsnap_graph.fusion.recording.timing.offset_ranges`), so
+        that the fused state is the body's centre; its uncertainty is not in
+        the fused covariances.
     mode : ``"map"`` (Bayesian, with ``prior``) or ``"ml"`` (no prior: pass
         ``prior=None`` or leave the default).
     noise : MeasurementNoise (every node; default the paper's) or a mapping
         ``{node name: MeasurementNoise}`` holding every fused node (per-node
         noise, docs/CONVENTIONS.md); used by the association and the fusion.
     prior : GaussianPrior for MAP, default the paper's.
-    pose_covariances : mapping name -> (3, 3), optional
-        Calibration-aware fusion (docs/CONVENTIONS.md,
-        "Calibration-aware fusion"): each node pose's covariance in the Pose2
-        body tangent (the calibration's marginals); a node left out (or all
-        NaN / all zero) has an exact pose. The estimates do not change;
-        ``covariance`` and ``laplace_covariance`` include the poses'
-        (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
-        :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`). Needs
-        ``options.covariance="laplace"``.
-    time_offset_s : mapping name -> seconds, optional
-        Each node's clock offset (node time + offset = reference time; the
-        calibration's ``time_offset_s``): the centroids are brought to the
-        reference clock first (:func:`mmsnap_graph.fusion.recording.timing.align_recording`:
-        whole frames, then the range by Doppler times the rest). A node left
-        out keeps its clock.
-    range_offset_m : float, optional
-        The calibration's range offset (``RecordingCalibration.range_offset_m``,
-        an extended target's reflection depth): added to every centroid's
-        range first (:func:`~mmsnap_graph.fusion.recording.timing.offset_ranges`),
-        so that the fused state is the body's centre. Its uncertainty is not
-        in the fused covariances.
     robust : RobustOptions, "gate", "huber", "cauchy" or None
         Robust one-shot fusion (:mod:`mmsnap_graph.fusion.robust`; default
         None): ``"gate"`` leaves out a node whose residual fails the
@@ -511,19 +552,24 @@ def fuse_recording(
         (:mod:`~mmsnap_graph.fusion.recording.motion_check`, docs/ROBUST.md):
         refit it without the nodes that disagree, or flag it (a ghost, an
         ambiguous frame); None (the default): on with a ``robust`` option.
+        ``body_merge``, ``merge_body_m``, ``coverage_check``: docs/ROBUST.md.
         ``lm`` and the vectorized solver's settings as in ``fuse_batch``.
     progress : show a tqdm bar (default: when stderr is a terminal).
     """
+    cal = NetworkCalibration() if calibration is None else calibration
+    if not isinstance(cal, NetworkCalibration):
+        raise ValidationError(f"calibration must be a NetworkCalibration, got "
+                              f"{type(cal).__name__}")
     prior = _check_options(recording, mode, options, prior)
-    recording = _calibrated_centroids(recording, time_offset_s, range_offset_m, options)
-    noise, pose_cov = _node_options(recording, noise, pose_covariances, options.covariance)
+    recording = _calibrated_centroids(recording, cal.time_offset_s, cal.range_offset_m, options)
+    noise, pose_cov = _node_options(recording, noise, cal.pose_covariances, options.covariance)
     robust = robust_options(robust)
     motion_check = _motion_option(options.motion_check, robust)
     if progress is not None and not isinstance(progress, (bool, np.bool_)):
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
-    poses = recording_poses(recording, node_poses)
+    poses = recording_poses(recording, cal.node_poses)
     groups = group_detections(recording, poses, noise, gate_probability=options.gate_probability,
-                              source=options.source)
+                              source=options.source, merge_body_m=_merge_option(options, robust))
     obs = groups.detection_index >= 0
     z = groups.measurements
     out = FusedRows(groups.frame.size, obs.shape[1])

@@ -74,8 +74,9 @@ class StreamAssociator:
                                gate_probability=self.gate_probability).members
 
     def _singles(self, rows) -> NDArray | None:
-        """The members when every node has at most one detection; None when a
-        detection's covariance is degenerate (``associate_frame`` decides)."""
+        """The members when every node has at most one detection and all fall
+        in one group; None when they do not or a detection's covariance is
+        degenerate (``associate_frame`` decides)."""
         n_nodes = len(rows)
         dets = []
         for n, r in enumerate(rows):
@@ -102,6 +103,8 @@ class StreamAssociator:
             a, b, c, d, e0, e1 = groups[best]
             groups[best] = [a + ia, b + ib, c + ic, d + id_,
                             e0 + ia * px + ib * py, e1 + ic * px + id_ * py]
+        if len(members) > 1:  # split: associate_frame regroups it order-independently
+            return None
         return np.array(members, dtype=np.int64)
 
 

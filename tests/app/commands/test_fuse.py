@@ -12,6 +12,7 @@ from mmsnap_graph.data.results import Status
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import CalibrationError
 from mmsnap_graph.io import read_recording, write_recording
+from mmsnap_graph.fusion.options import NetworkCalibration
 from mmsnap_graph.fusion.recording.sequence import (
     fuse_recording,
     recording_poses,
@@ -37,7 +38,7 @@ def test_calibration_json_and_pose_sources(tmp_path, recordings):
     poses = load_calibration_poses(path)
     np.testing.assert_array_equal(recording_poses(rec, poses)[1], [0.1, 6.9, np.pi - 0.02])
     np.testing.assert_array_equal(recording_poses(rec), np.stack([rec.nodes[n].pose for n in rec.node_names]))
-    fused = fuse_recording(rec, node_poses=poses)
+    fused = fuse_recording(rec, calibration=NetworkCalibration(node_poses=poses))
     np.testing.assert_array_equal(fused.node_poses[1], [0.1, 6.9, np.pi - 0.02])
 
 
@@ -188,6 +189,36 @@ def test_fuse_says_what_its_row_counts_mean(tmp_path, capsys):
     codes, counts = np.unique(fused.status[fused.status != 0], return_counts=True)
     for c, n in zip(codes, counts):
         assert f"{n} {Status(int(c)).name.lower()} ({int(c)})" in out
+
+
+def test_cli_fuse_merges_one_body_and_checks_coverage_unless_told(tmp_path):
+    """``mmsnap fuse`` merges a node's centroids of one body and runs the
+    coverage check; ``--no-body-merge`` and ``--no-coverage-check`` give the
+    library's rows without them."""
+    from _shared import POSES_BC
+    from mmsnap_graph.fusion.options import FusionOptions
+    from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, screen_room
+    from mmsnap_graph.sim import SimulationOptions, simulate_recording
+    from mmsnap_graph.sim.real.ghosts import ghost_centroids
+    from mmsnap_graph.sim.simulator import CENTROID_NOISE
+
+    net = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
+    rec = simulate_recording(net, "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=120, seed=2)
+    rec = ghost_centroids(ghost_centroids(rec, "split", 0.2, seed=3), "mirror", 0.2, seed=4)
+    path = write_recording(tmp_path / "rec.h5", rec)
+    sig = ["--sigmas", "0.05", "0.08", "0.1", "--no-progress"]
+    for flags, opts in (([], FusionOptions()),
+                        (["--no-body-merge", "--no-coverage-check"],
+                         FusionOptions(body_merge=False, coverage_check=False))):
+        assert main(["fuse", str(path), *sig, *flags, "--overwrite"]) == 0
+        fused = read_fused(path)
+        ref = screen_room(fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", options=opts,
+                                         progress=False), body_m=DEFAULT_BODY_M)[0]
+        np.testing.assert_array_equal(fused.frame, ref.frame)
+        np.testing.assert_array_equal(fused.status, ref.status)
+    # The split halves are rows of their own without the merge.
+    assert len(fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", progress=False)) < len(ref)
 
 
 # ``mmsnap fuse`` takes the calibration's pose covariances and clock offsets by

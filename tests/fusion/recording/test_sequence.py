@@ -14,7 +14,7 @@ from mmsnap_graph.evaluation import state_errors
 from mmsnap_graph.fusion.recording.sequence import recording_poses
 from mmsnap_graph.fusion.solvers.gtsam_graph import fuse_frame
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.fusion import FusionOptions
+from mmsnap_graph.fusion import FusionOptions, NetworkCalibration
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, network_poses, simulate_recording
 from mmsnap_graph.sim.clocks import scene_recording, timed_scene
@@ -35,21 +35,25 @@ def test_the_offsets_lower_the_fused_error_and_a_zero_offset_changes_nothing():
     scene = timed_scene(poses, time_offsets_s={"S1": 0.0, "S2": tau}, n_frames=300,
                         kind="walk", rng=np.random.default_rng(4))
     rec = scene_recording(scene)
-    plain = fuse_recording(rec, node_poses=poses)
-    aligned = fuse_recording(rec, node_poses=poses, time_offset_s={"S2": tau})
+    plain = fuse_recording(rec, calibration=NetworkCalibration(node_poses=poses))
+    aligned = fuse_recording(rec, calibration=NetworkCalibration(
+        node_poses=poses, time_offset_s={"S2": tau}))
     assert _rmse(rec, aligned) < 0.8 * _rmse(rec, plain)
-    zero = fuse_recording(rec, node_poses=poses, time_offset_s={"S2": 0.0})
+    zero = fuse_recording(rec, calibration=NetworkCalibration(
+        node_poses=poses, time_offset_s={"S2": 0.0}))
     np.testing.assert_array_equal(zero.state, plain.state)
     with pytest.raises(ValidationError, match="S9"):
-        fuse_recording(rec, node_poses=poses, time_offset_s={"S9": 0.1})
+        fuse_recording(rec, calibration=NetworkCalibration(
+            node_poses=poses, time_offset_s={"S9": 0.1}))
 
 
 def test_fuse_recording_passes_pose_covariances_by_name(recording_bc_known_poses):
     by_name = {"S2": POSE_COV[1], "S3": POSE_COV[2]}  # S1 left out: exact
     plain = fuse_recording(recording_bc_known_poses)
-    fb = fuse_recording(recording_bc_known_poses, pose_covariances=by_name)
+    fb = fuse_recording(recording_bc_known_poses,
+                        calibration=NetworkCalibration(pose_covariances=by_name))
     fg = fuse_recording(recording_bc_known_poses,
-                        pose_covariances=by_name,
+                        calibration=NetworkCalibration(pose_covariances=by_name),
                         options=FusionOptions(solver="gtsam"))
     ok = plain.success
     assert ok.mean() > 0.9
@@ -61,9 +65,10 @@ def test_fuse_recording_passes_pose_covariances_by_name(recording_bc_known_poses
     assert gap.max() < GTSAM_BATCH_TOLERANCE
     with pytest.raises(ValidationError,
                        match=r"pose_covariances\['S2'\] must be positive definite"):
-        fuse_recording(recording_bc_known_poses, pose_covariances={"S2": -np.eye(3)})
+        fuse_recording(recording_bc_known_poses,
+                       calibration=NetworkCalibration(pose_covariances={"S2": -np.eye(3)}))
     with pytest.raises(ValidationError, match="must be a mapping"):
-        fuse_recording(recording_bc_known_poses, pose_covariances=POSE_COV)
+        NetworkCalibration(pose_covariances=POSE_COV)
 
 
 def _jtwj(fused, i):
@@ -260,3 +265,14 @@ def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
     np.testing.assert_array_equal(groups.frame, expected[:, 0])
     np.testing.assert_array_equal(groups.target, expected[:, 1])
     np.testing.assert_array_equal(groups.detection_index, expected[:, 2:])
+
+
+def test_fuse_recording_takes_the_calibration_as_one_object(recording_bc_known_poses):
+    rec = recording_bc_known_poses
+    with pytest.raises(ValidationError, match="calibration must be a NetworkCalibration, got dict"):
+        fuse_recording(rec, calibration={"node_poses": rec.truth.node_poses})
+    with pytest.raises(TypeError, match="node_poses"):
+        fuse_recording(rec, node_poses=rec.truth.node_poses)
+    moved = {n: np.asarray(p) + [0.2, 0.0, 0.0] for n, p in rec.truth.node_poses.items()}
+    fused = fuse_recording(rec, calibration=NetworkCalibration(node_poses=moved))
+    np.testing.assert_array_equal(fused.node_poses, np.stack([moved[n] for n in rec.node_names]))

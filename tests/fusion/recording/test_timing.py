@@ -51,6 +51,7 @@ from mmsnap_graph.io.calibration import (
 from mmsnap_graph.fusion.recording.timing import align_detections, align_recording, split_offset
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.fusion.options import NetworkCalibration
 from mmsnap_graph.sim.clocks import scene_recording, timed_scene, trajectory_function
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
 from mmsnap_graph.sim import CLEAN
@@ -371,7 +372,8 @@ def test_end_to_end_calibrate_then_fuse_on_the_reference_clock():
     assert abs(err) < 4 * np.sqrt(res.time_offset_variances["S2"]), err
 
     def fused_rmse(recording):
-        fs = fuse_recording(recording, node_poses=res.poses, noise=NOISE)
+        fs = fuse_recording(recording, calibration=NetworkCalibration(node_poses=res.poses),
+                            noise=NOISE)
         keep = fs.observed.all(axis=1) & fs.success & (fs.frame >= 0) & (fs.frame < 600)
         d = fs.state[keep, :2] - scene.truth[fs.frame[keep], :2]
         return np.sqrt(np.mean(np.sum(d**2, axis=1)))
@@ -415,10 +417,11 @@ def test_the_range_offset_moves_fused_bodies_to_their_centre():
                         - np.linalg.norm(true - pose[:2], axis=1))
         return float(np.median(errs))
 
-    plain = fuse_recording(rec, node_poses=rec.truth.node_poses, noise=MeasurementNoise(
-        range_m=0.09, omega_rad=0.08, doppler_mps=0.1))
-    with_offset = fuse_recording(rec, node_poses=rec.truth.node_poses, noise=MeasurementNoise(
-        range_m=0.09, omega_rad=0.08, doppler_mps=0.1), range_offset_m=0.05)
+    noise = MeasurementNoise(range_m=0.09, omega_rad=0.08, doppler_mps=0.1)
+    plain = fuse_recording(rec, calibration=NetworkCalibration(node_poses=rec.truth.node_poses),
+                           noise=noise)
+    with_offset = fuse_recording(rec, calibration=NetworkCalibration(
+        node_poses=rec.truth.node_poses, range_offset_m=0.05), noise=noise)
     before, after = mean_range_error(plain), mean_range_error(with_offset)
     assert before < -0.015  # measured -0.022 m
     assert abs(after) < abs(before) / 3  # measured -0.006 m

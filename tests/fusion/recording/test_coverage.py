@@ -1,0 +1,68 @@
+"""The coverage check (:mod:`mmsnap_graph.fusion.recording.coverage`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from _shared import POSES_BC
+from mmsnap_graph.data.results import Status
+from mmsnap_graph.fusion.options import FusionOptions
+from mmsnap_graph.fusion.recording.coverage import uncovered_rows
+from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from mmsnap_graph.sim import SimulationOptions, simulate_recording
+from mmsnap_graph.sim.real.ghosts import ghost_centroids
+from mmsnap_graph.sim.simulator import CENTROID_NOISE
+
+POSES = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])   # S1 faces +y, S2 faces -x
+
+
+def _rows(places, kept_nodes, n_frames=7):
+    """Rows of ``n_frames`` frames: one per place, still, kept by its nodes."""
+    frame, state, kept = [], [], []
+    for f in range(n_frames):
+        for (x, y), nodes in zip(places, kept_nodes):
+            frame.append(f)
+            state.append([x, y, 0.0, 0.0])
+            kept.append([n in nodes for n in range(2)])
+    kept = np.array(kept)
+    ranges = np.hypot(*(np.array(state)[:, None, :2] - POSES[None, :, :2]).transpose(2, 0, 1))
+    return np.array(frame), np.array(state), kept, ranges
+
+
+def test_a_target_a_covering_node_never_sees_is_flagged():
+    # A walker both nodes see; an image at (2, 4.5), which S1 covers (24 deg,
+    # 4.9 m) and never sees; an image at (7, 3), behind S2 and 67 deg off
+    # S1's boresight: no other node covers it.
+    frame, state, kept, ranges = _rows([(1.0, 3.0), (2.0, 4.5), (7.0, 3.0)],
+                                       [(0, 1), (1,), (0,)])
+    flag, node = uncovered_rows(frame, state, np.ones(frame.size, bool), kept, ranges,
+                                POSES, frame_period_s=0.1, body_m=0.5)
+    np.testing.assert_array_equal(flag.reshape(7, 3), [[False, True, False]] * 7)
+    assert np.all(node.reshape(7, 3)[:, 1] == 0)
+    # Seen by S1 in frames 1, 3 and 5 (two in every row's seven frames): a
+    # target that S1 misses now and then.
+    kept2 = kept.copy()
+    kept2[[4, 10, 16], 0] = True
+    flag, _ = uncovered_rows(frame, state, np.ones(frame.size, bool), kept2, ranges,
+                             POSES, frame_period_s=0.1, body_m=0.5)
+    assert not flag.any()
+
+
+def test_mirror_images_that_another_radar_covers_are_flagged_in_a_recording():
+    net = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
+    rec = simulate_recording(net, "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=300, seed=10)
+    ghosts = ghost_centroids(rec, "mirror", 0.2, seed=110)
+
+    def far_rows(options):
+        fused = fuse_recording(ghosts, noise=CENTROID_NOISE, robust="gate", progress=False,
+                               options=options)
+        err = np.hypot(*(fused.state[:, :2] - rec.truth.state[fused.frame, :2]).T)
+        return fused, int(np.sum(fused.success & (err > 0.5)))
+
+    fused, far = far_rows(FusionOptions())
+    _, far_off = far_rows(FusionOptions(coverage_check=False))
+    assert far < far_off / 2, (far, far_off)
+    msg = [m for m, s in zip(fused.message, fused.status) if "covers this place" in m]
+    assert msg and all(s == Status.MOTION_INCONSISTENT for m, s in zip(fused.message, fused.status)
+                       if "covers this place" in m)
