@@ -1,11 +1,11 @@
-"""The boxes of TI people-tracking ``.cfg`` files (io.ti_cfg.read_boundary_boxes)."""
+"""The boxes of TI people-tracking ``.cfg`` files (io.ti.cfg.read_boundary_boxes)."""
 
 from __future__ import annotations
 
 import pytest
 
 from mmsnap_graph.errors import ConfigurationError, FileFormatError
-from mmsnap_graph.io.ti_cfg import read_boundary_boxes
+from mmsnap_graph.io.ti.cfg import read_boundary_boxes
 
 
 def test_boxes_of_the_3d_and_2d_people_tracking_demos(tmp_path):

@@ -1,4 +1,4 @@
-"""TI mmWave SDK .cfg parsing into RadarConfig (mmsnap_graph.io.ti_cfg)."""
+"""TI mmWave SDK .cfg parsing into RadarConfig (mmsnap_graph.io.ti.cfg)."""
 
 
 import copy
@@ -13,7 +13,7 @@ from mmsnap_graph.data.radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarCon
 from mmsnap_graph.errors import ConfigurationError, FileFormatError, MmsnapError
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.io import read_recording
-from mmsnap_graph.io.ti_cfg import (BOARD_PRESETS, BoardLayout, parse_ti_cfg, read_ti_cfg)
+from mmsnap_graph.io.ti.cfg import (BOARD_PRESETS, BoardLayout, parse_ti_cfg, read_ti_cfg)
 from ti_samples import DCA_CFG, FAST_CFG, studio_json
 
 from _shared import TI_DATA as DATA
