@@ -46,10 +46,10 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from ..data.radar_config import RadarConfig, TiProfile
-from ..errors import ConfigurationError, FileFormatError
+from ...data.radar_config import RadarConfig, TiProfile
+from ...errors import ConfigurationError, FileFormatError
 from .inputs import require_file
-from .ti_cfg_fields import cfg_fields
+from .cfg_fields import cfg_fields
 
 __all__ = ["BoardLayout", "BOARD_PRESETS", "TiConfig", "parse_ti_cfg", "read_ti_cfg",
            "read_boundary_boxes", "BOUNDARY_COMMANDS",
