@@ -46,6 +46,12 @@ __all__ = ["PoseEdge", "PoseGraphCalibration", "pose_graph_calibration", "pairwi
 #: Sigma of the prior that anchors the reference node (m and rad): small
 #: enough to be a constraint, large enough to keep the Cholesky well scaled.
 ANCHOR_SIGMA = 1e-6
+#: Smallest edge sigma the graph uses (m and rad; added in quadrature): a
+#: noise-free pair fits exactly and its closed-form covariance is rounding's
+#: (sigma ~1e-14), which GTSAM cannot factor next to the anchor ("indeterminate
+#: linear system": no poses at all where the exact poses are the answer). A
+#: micrometre is far below any radar's resolution.
+EDGE_SIGMA_FLOOR = 1e-6
 #: The between-factor graph gives the joint covariance of all non-reference
 #: poses up to this many of them (beyond, the marginals only: the joint
 #: marginal of a large graph costs more than the solve).
@@ -208,7 +214,8 @@ def _solve_edges(ref, reachable, init, used, max_iterations):
                                      gtsam.noiseModel.Isotropic.Sigma(3, ANCHOR_SIGMA)))
     for e in used:
         graph.add(gtsam.BetweenFactorPose2(key[e.node_a], key[e.node_b], to_pose2(e.pose),
-                                           gtsam.noiseModel.Gaussian.Covariance(e.covariance)))
+                                           gtsam.noiseModel.Gaussian.Covariance(
+                                               e.covariance + EDGE_SIGMA_FLOOR ** 2 * np.eye(3))))
     values = gtsam.Values()
     for n in reachable:
         values.insert(key[n], init[n])
