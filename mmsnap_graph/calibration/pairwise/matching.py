@@ -155,6 +155,9 @@ class TrackMatching:
     candidates : every scored hypothesis.
     lag_note : how the data decided a nonzero lag (kept: its evidence; not
         determined: lag 0 kept), empty when lag 0 won outright.
+    lag_ambiguous : other lags fit about as well with poses more than 3 sigma
+        away (a walk along a circle): the lag is not determined and the
+        calibration's covariance was widened by their spread.
     """
 
     calibration: PairwiseCalibration | None
@@ -164,6 +167,7 @@ class TrackMatching:
     success: bool
     message: str
     lag_note: str = ""
+    lag_ambiguous: bool = False
 
 
 def _common(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
@@ -526,9 +530,11 @@ def match_tracks(
     matched = _matched(pool, lag, ia, ib, cands, o.covariance, min_common_frames, min_spread_m,
                        o.autocorrelation)
     cal = _widened(matched.calibration, lag, fits, ambiguous)
+    widened = cal is not matched.calibration
     if note:
         cal = replace(cal, message=f"{cal.message}; {note}")
-    return replace(matched, calibration=cal, message=cal.message, lag_note=note)
+    return replace(matched, calibration=cal, message=cal.message, lag_note=note,
+                   lag_ambiguous=widened)
 
 
 def _supported_lag(pool, fits, lag):

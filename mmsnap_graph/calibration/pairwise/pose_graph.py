@@ -65,6 +65,8 @@ class PoseEdge:
     pose : (3,); covariance : (3, 3) in the body tangent of ``pose``;
     rmse_m, n_frames, lag_frames : from the pairwise estimate (informative).
     lag_note : how the data decided a nonzero lag (:class:`TrackMatching`).
+    lag_ambiguous : the lag is not determined and ``covariance`` covers the
+        poses of the competing lags (:class:`TrackMatching`).
     frames, points_a_m, points_b_m : optional (K,) a's frame numbers and the
         (K, 2) matched points in a's and b's frames (b's frame ``k + lag``);
         with them the network is solved from the points (module doc).
@@ -81,6 +83,7 @@ class PoseEdge:
     points_a_m: NDArray | None = None
     points_b_m: NDArray | None = None
     lag_note: str = ""
+    lag_ambiguous: bool = False
 
     def __post_init__(self) -> None:
         if self.node_a == self.node_b:
@@ -349,7 +352,8 @@ def pairwise_edges(
         m = match_tracks(tracks[a], tracks[b], frame_period_s=frame_period_s, options=options)
         if m.success:
             edges.append(dataclasses.replace(PoseEdge.from_pairwise(a, b, m.calibration),
-                                             lag_note=m.lag_note))
+                                             lag_note=m.lag_note,
+                                             lag_ambiguous=m.lag_ambiguous))
         else:
             failures[f"{a}-{b}"] = m.message
     return edges, failures
