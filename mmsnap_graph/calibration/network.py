@@ -306,7 +306,6 @@ def calibrate_recording(
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
     result_method, refined, associated, notes = "pose_graph", None, None, [pg.message]
-    notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in pg.edges if e.lag_note]
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)
@@ -339,10 +338,12 @@ def calibrate_recording(
 
 
 def _cover_ambiguous_lags(edges, covs, notes) -> dict:
-    """Covariances at least an ambiguous-lag edge's (PSD maximum) for its
-    nodes: the refinement fits one lag and its covariance is that lag's
-    alone (a walk along a circle: 0.8 m off with a 0.08 m sigma), while the
-    edge's covers the poses of every lag that fits about as well."""
+    """The edges' lag notes added to ``notes``, and covariances at least an
+    ambiguous-lag edge's (PSD maximum) for its nodes: the refinement fits one
+    lag and its covariance is that lag's alone (a walk along a circle: 0.8 m
+    off with a 0.08 m sigma), while the edge's covers the poses of every lag
+    that fits about as well."""
+    notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in edges if e.lag_note]
     out = dict(covs)
     for e in edges:
         if not e.lag_ambiguous:
