@@ -94,6 +94,24 @@ def int_array(value: ArrayLike, name: str) -> NDArray:
     return arr.astype(np.int64)
 
 
+def check_pose(value: ArrayLike, name: str) -> NDArray:
+    """``value`` as a finite (3,) pose ``(x_m, y_m, phi_rad)``; a heading
+    beyond 2 pi in magnitude is taken for degrees (the most common unit
+    mistake: 180 degrees read as 180 rad still "fits"), a ValidationError
+    naming ``name``."""
+    pose = check_finite(check_shape(as_float_array(value, name), (3,), name), name)
+    check_heading(float(pose[2]), name)
+    return pose
+
+
+def check_heading(phi: float, name: str) -> float:
+    """``phi`` when ``|phi| <= 2 pi``; else a ValidationError saying radians."""
+    if abs(phi) > 2.0 * math.pi + 1e-9:
+        raise ValidationError(f"{name}: heading phi={phi:g} is beyond 2 pi: headings are in "
+                              f"radians (if {phi:g} is degrees, give {math.radians(phi):.6g})")
+    return phi
+
+
 def check_count(value: object, name: str, minimum: int = 1, maximum: int | None = None, *,
                 error: type[MmsnapError] = ValidationError) -> int:
     """``value`` as an int in ``[minimum, maximum]``: a Python or numpy

@@ -120,6 +120,18 @@ def test_no_machine_paths_or_outside_references(rel):
     assert not hits, hits
 
 
+_TEST_PATH = re.compile(r"tests/[\w/]+\.py")
+
+
+@pytest.mark.parametrize("rel", ["README.md", *sorted(p.relative_to(ROOT).as_posix()
+                                                      for p in ROOT.glob("docs/*.md"))])
+def test_test_files_the_docs_cite_exist(rel):
+    """A page that says "tests/x.py shows it" names a file that is there (the
+    tests mirror the packages, so a moved module moves its tests)."""
+    cited = set(_TEST_PATH.findall((ROOT / rel).read_text()))
+    assert not sorted(c for c in cited if not (ROOT / c).is_file())
+
+
 def test_outside_reference_pattern_catches_what_it_should():
     for bad in ("see /work/shared/x", "`/work/venv/bin/python b.py`", "in /tmp/x.h5",
                 "(shared/design/MATH.md)", "design/STYLE.md", "/home/me/repo"):

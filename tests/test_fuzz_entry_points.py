@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from mmsnap_graph.errors import MmsnapError
 from mmsnap_graph.io import read_dca1000_bin
-from mmsnap_graph.io.ti_cfg import read_ti_cfg
+from mmsnap_graph.io.ti.cfg import read_ti_cfg
 from mmsnap_graph.radar.chain import ChainConfig, point_cloud_of_cube
 
 from _fuzz import FUZZ_40

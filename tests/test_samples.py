@@ -12,7 +12,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from factors.models import measurement_model, wrap_angle
 from mmsnap_graph.io import read_recording
 from mmsnap_graph.sim import CENTROID_NOISE, network_poses
-from mmsnap_graph.io.ti_uart import parse_ti_uart
+from mmsnap_graph.io.ti.uart import parse_ti_uart
 
 from _shared import DATA, TI_DATA
 from ti_samples import main as make_samples, write_fast_sample

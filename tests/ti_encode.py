@@ -1,6 +1,6 @@
-"""Test-only encoder of TI demo UART streams (the inverse of io.ti_uart).
+"""Test-only encoder of TI demo UART streams (the inverse of io.ti.uart).
 
-Writes the byte layout documented in :mod:`mmsnap_graph.io.ti_uart` from
+Writes the byte layout documented in :mod:`mmsnap_graph.io.ti.uart` from
 point arrays, so that reader tests start from known points.
 """
 

@@ -116,7 +116,7 @@ def dca_sample_cubes(n_frames=3, seed=1):
     the zero-Doppler bin, which static clutter removal empties: with only 8
     loops, the straight walk's first frames (|Doppler| < 0.1 m/s) left
     ``mmsnap process`` no point at all."""
-    from mmsnap_graph.io.ti_cfg import parse_ti_cfg
+    from mmsnap_graph.io.ti.cfg import parse_ti_cfg
     ti = parse_ti_cfg(DCA_CFG, board="AWR1843BOOST")
     cubes = []
     for cfg in ti.configs:
@@ -129,7 +129,7 @@ def dca_sample_cubes(n_frames=3, seed=1):
 
 def write_dca_sample(out_dir: Path) -> None:
     from mmsnap_graph.io import write_dca1000_bin
-    from mmsnap_graph.io.dca1000 import frame_bytes
+    from mmsnap_graph.io.ti.dca1000 import frame_bytes
     (out_dir / "dca1000_small.cfg").write_text(DCA_CFG)
     ti, cubes = dca_sample_cubes()
     frames = []
@@ -169,7 +169,7 @@ FAST_TARGET = (4.0, 0.3, -8.5)
 
 def fast_sample_cubes(n_frames=3, seed=0):
     """Node S1's cubes of the fast target (int16 counts as complex)."""
-    from mmsnap_graph.io.ti_cfg import parse_ti_cfg
+    from mmsnap_graph.io.ti.cfg import parse_ti_cfg
     from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cube
     cfg = parse_ti_cfg(FAST_CFG, board="AWR1843BOOST").configs[0]
     rng = np.random.default_rng(seed)

@@ -87,9 +87,12 @@ class ProcessConfig:
     scene: SceneConfig = field(default_factory=SceneConfig)
 
 
-def _coerce(where: str, default: Any, value: Any) -> Any:
+def _coerce(where: str, default: Any, value: Any, annotation: Any = None) -> Any:
     """``value`` in the type of the field's default (TOML arrays become tuples,
-    integers are accepted for floats); a clear error otherwise."""
+    integers are accepted for floats; an unset default's type is its
+    annotation's); a clear error otherwise."""
+    if default is None and str(annotation).startswith(("float", "int")):
+        default = 0.0 if str(annotation).startswith("float") else 0
     if isinstance(value, dict):
         raise ConfigurationError(f"{where}: unknown table (expected a value)")
     if isinstance(default, tuple) or isinstance(value, list):
@@ -112,6 +115,9 @@ def _build(cls, table: Mapping[str, Any], where: str, *, nested=None, forbidden=
     """An instance of the dataclass ``cls`` from a TOML table: unknown keys and
     values the class rejects are errors naming ``where.key``."""
     nested = nested or {}
+    if not isinstance(table, Mapping):
+        name = where.rsplit(": ", 1)[-1]
+        raise ConfigurationError(f"{where} must be a table [{name}], got {table!r}")
     names = {f.name: f for f in dataclasses.fields(cls)}
     kwargs: dict[str, Any] = {}
     for key, value in table.items():
@@ -128,7 +134,7 @@ def _build(cls, table: Mapping[str, Any], where: str, *, nested=None, forbidden=
                                      f"{', '.join(sorted(set(names) - set(forbidden)))})")
         f = names[key]
         default = f.default_factory() if f.default is dataclasses.MISSING else f.default
-        kwargs[key] = _coerce(here, default, value)
+        kwargs[key] = _coerce(here, default, value, f.type)
     try:
         return cls(**kwargs)
     except (ConfigurationError, ValidationError) as exc:
@@ -172,10 +178,7 @@ def process_config_from_mapping(data: Mapping[str, Any], *, where: str = "config
     ekf_table = data.get("ekf", {})
     ekf = _build(EkfConfig, ekf_table, f"{where}: ekf", forbidden=_EKF_FROM_RECORDING)
     from_data = not (isinstance(ekf_table, Mapping) and "measurement_std" in ekf_table)
-    scene_table = data.get("scene", {})
-    if not isinstance(scene_table, Mapping):
-        raise ConfigurationError(f"{where}: scene must be a table [scene]")
-    scene = _build(SceneConfig, scene_table, f"{where}: scene")
+    scene = _build(SceneConfig, data.get("scene", {}), f"{where}: scene")
     return ProcessConfig(chain=chain, ekf=ekf, ekf_noise_from_data=from_data, sparse=sparse,
                          scene=scene)
 
@@ -187,10 +190,7 @@ def matching_config_from_mapping(data: Mapping[str, Any], *, where: str = "confi
     ``matching``; ``chain``, ``ekf`` are ``mmsnap process``'s and are
     ignored)."""
     _check_tables(data, where)
-    table = data.get("matching", {})
-    if not isinstance(table, Mapping):
-        raise ConfigurationError(f"{where}: matching must be a table [matching]")
-    return _build(MatchingOptions, table, f"{where}: matching")
+    return _build(MatchingOptions, data.get("matching", {}), f"{where}: matching")
 
 
 def _read_toml(path: str | os.PathLike) -> tuple[dict[str, Any], str]:

@@ -151,8 +151,9 @@ def sparse_cluster_config(point_cloud: Detections, config: ChainConfig,
     :data:`SPARSE_POINTS_PER_FRAME` points; True / False: always / never.
     Returns the configuration and whether it was changed."""
     if sparse is None:
-        counts = np.bincount(point_cloud.frame) if len(point_cloud) else np.zeros(0, np.int64)
-        counts = counts[counts > 0]
+        # Counts of the frames present (a frame number of 2^31, one flipped
+        # bit, made a bincount over the span ask for 16 GiB).
+        counts = np.unique(point_cloud.frame, return_counts=True)[1]
         sparse = bool(counts.size) and float(np.median(counts)) < SPARSE_POINTS_PER_FRAME
     if not sparse or config.cluster.min_samples == 1:
         return config, False

@@ -9,7 +9,7 @@ radar configuration, and the result types of the estimators.
   :class:`BatchResult`, :class:`FusedSequence`.
 """
 
-from .radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarConfig
+from .radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarConfig, TiProfile
 from .recording import Detections, NodeData, Recording, Tracks, Truth
 from .results import DEGENERACY_THRESHOLD, BatchResult, FusedSequence, FusionResult, Status
 
@@ -17,6 +17,7 @@ __all__ = [
     "SPEED_OF_LIGHT_MPS",
     "TABLE_I",
     "RadarConfig",
+    "TiProfile",
     "Detections",
     "NodeData",
     "Recording",

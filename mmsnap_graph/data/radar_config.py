@@ -33,7 +33,7 @@ from .._validation import check_count
 from ..errors import ConfigurationError
 
 __all__ = ["SPEED_OF_LIGHT_MPS", "WAVELENGTH_REFERENCES", "OPTIONAL_FIELD_DEFAULTS", "RadarConfig",
-           "TABLE_I"]
+           "TiProfile", "TABLE_I"]
 
 #: Where ``RadarConfig.wavelength_m`` is taken: the chirp's start frequency
 #: (the paper's convention, the default) or the centre of the sampled band.
@@ -54,6 +54,47 @@ SPEED_OF_LIGHT_MPS = 299_792_458.0
 
 def _tuple(x) -> tuple:
     return tuple(float(v) for v in x)
+
+
+@dataclass(frozen=True, kw_only=True)
+class TiProfile:
+    """One chirp profile and frame in TI's terms (frozen; checked once).
+
+    From ``profileCfg``: ``start_freq_hz``, ``idle_s``, ``adc_start_s``,
+    ``ramp_end_s``, ``slope_hz_per_s``, ``n_samples``, ``sample_rate_hz``;
+    from ``frameCfg``: ``n_loops``, ``frame_period_s``; from ``adcCfg`` /
+    ``adcbufCfg``: ``complex_adc``. SI units (the ``.cfg`` file's GHz, us,
+    MHz/us and ksps converted). The sampled band must end before the ramp:
+    ``adc_start_s + n_samples / sample_rate_hz <= ramp_end_s``.
+    :meth:`RadarConfig.from_ti_profile` puts it on an antenna layout.
+    """
+
+    start_freq_hz: float
+    idle_s: float
+    adc_start_s: float
+    ramp_end_s: float
+    slope_hz_per_s: float
+    n_samples: int
+    sample_rate_hz: float
+    n_loops: int
+    frame_period_s: float
+    complex_adc: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("idle_s", "adc_start_s", "ramp_end_s", "sample_rate_hz"):
+            v = getattr(self, name)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(
+                    v, (int, float, np.integer, np.floating)) or not np.isfinite(v) or v < 0:
+                raise ConfigurationError(f"{name}={v!r} must be a finite number >= 0")
+        if not self.sample_rate_hz > 0:
+            raise ConfigurationError(f"sample_rate_hz={self.sample_rate_hz!r} must be > 0")
+        check_count(self.n_samples, "n_samples", error=ConfigurationError)
+        sampled_s = self.adc_start_s + self.n_samples / self.sample_rate_hz
+        if sampled_s > self.ramp_end_s * (1 + 1e-9):
+            raise ConfigurationError(
+                f"adc_start_s={self.adc_start_s!r} + n_samples={self.n_samples} / "
+                f"sample_rate_hz={self.sample_rate_hz!r} = {sampled_s!r} s ends after "
+                f"ramp_end_s={self.ramp_end_s!r}")
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -168,29 +209,25 @@ class RadarConfig:
                                      f"be one of {WAVELENGTH_REFERENCES}")
 
     @classmethod
-    def from_ti_profile(cls, *, start_freq_hz: float, idle_s: float, adc_start_s: float,
-                        ramp_end_s: float, slope_hz_per_s: float, n_samples: int,
-                        sample_rate_hz: float, n_loops: int, frame_period_s: float,
-                        tx_azimuth_half_wl, tx_elevation_half_wl, rx_azimuth_half_wl,
-                        rx_elevation_half_wl=(), tx_channels=(),
-                        complex_adc: bool = True) -> "RadarConfig":
-        """A configuration in TI's terms (``profileCfg``): the chirp period is
-        ``idle_s + ramp_end_s``, the sampled band must end before the ramp
-        (``adc_start_s + n_samples / sample_rate_hz <= ramp_end_s``) and the
-        wavelength is taken at the centre of the sampled band (docs/TI.md)."""
-        sampled_s = adc_start_s + n_samples / sample_rate_hz
-        if sampled_s > ramp_end_s * (1 + 1e-9):
-            raise ConfigurationError(
-                f"adc_start_s={adc_start_s!r} + n_samples={n_samples} / sample_rate_hz="
-                f"{sample_rate_hz!r} = {sampled_s!r} s ends after ramp_end_s={ramp_end_s!r}")
-        return cls(carrier_hz=start_freq_hz, sample_rate_hz=sample_rate_hz,
-                   n_samples=int(n_samples), slope_hz_per_s=slope_hz_per_s,
-                   chirp_period_s=idle_s + ramp_end_s, n_loops=int(n_loops),
-                   frame_period_s=frame_period_s, tx_azimuth_half_wl=tx_azimuth_half_wl,
+    def from_ti_profile(cls, profile: TiProfile, *, tx_azimuth_half_wl, tx_elevation_half_wl,
+                        rx_azimuth_half_wl, rx_elevation_half_wl=(),
+                        tx_channels=()) -> "RadarConfig":
+        """A configuration in TI's terms: the chirp and frame of ``profile``
+        (:class:`TiProfile`, ``profileCfg`` / ``frameCfg`` / ``adcCfg``) on
+        the antennas given here. The chirp period is ``idle_s + ramp_end_s``
+        and the wavelength is taken at the centre of the sampled band
+        (docs/TI.md)."""
+        if not isinstance(profile, TiProfile):
+            raise ConfigurationError(f"profile must be a TiProfile, got {type(profile).__name__}")
+        p = profile
+        return cls(carrier_hz=p.start_freq_hz, sample_rate_hz=p.sample_rate_hz,
+                   n_samples=int(p.n_samples), slope_hz_per_s=p.slope_hz_per_s,
+                   chirp_period_s=p.idle_s + p.ramp_end_s, n_loops=int(p.n_loops),
+                   frame_period_s=p.frame_period_s, tx_azimuth_half_wl=tx_azimuth_half_wl,
                    tx_elevation_half_wl=tx_elevation_half_wl,
                    rx_azimuth_half_wl=rx_azimuth_half_wl,
                    rx_elevation_half_wl=rx_elevation_half_wl, tx_channels=tx_channels,
-                   adc_start_s=adc_start_s, complex_adc=complex_adc,
+                   adc_start_s=p.adc_start_s, complex_adc=p.complex_adc,
                    wavelength_reference="band_centre")
 
     # ---- sizes -------------------------------------------------------------

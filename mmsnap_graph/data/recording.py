@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ValidationError
 from .radar_config import RadarConfig
-from .._validation import as_float_array, check_finite, int_array
+from .._validation import as_float_array, check_finite, check_pose, int_array
 
 __all__ = ["Detections", "Tracks", "NodeData", "Truth", "Recording"]
 
@@ -205,11 +205,7 @@ class NodeData:
             raise ValidationError(f"node name must be a non-empty string without '/', "
                                   f"got {self.name!r}")
         if self.pose is not None:
-            pose = check_finite(as_float_array(self.pose, f"nodes[{self.name}].pose"),
-                                f"nodes[{self.name}].pose")
-            if pose.shape != (3,):
-                raise ValidationError(f"nodes[{self.name}].pose must have shape (3,), "
-                                      f"got {pose.shape}")
+            pose = check_pose(self.pose, f"nodes[{self.name}].pose")
             object.__setattr__(self, "pose", pose)
         if self.cube is not None:
             cube = np.asarray(self.cube)
@@ -256,12 +252,7 @@ class Truth:
             raise ValidationError(f"truth.state must have shape ({n}, 4), got {state.shape}")
         poses = {}
         for name, pose in dict(self.node_poses).items():
-            p = check_finite(as_float_array(pose, f"truth.node_poses[{name}]"),
-                             f"truth.node_poses[{name}]")
-            if p.shape != (3,):
-                raise ValidationError(f"truth.node_poses[{name}] must have shape (3,), "
-                                      f"got {p.shape}")
-            poses[str(name)] = p
+            poses[str(name)] = check_pose(pose, f"truth.node_poses[{name}]")
         object.__setattr__(self, "frame", frame)
         object.__setattr__(self, "target_id", tid)
         object.__setattr__(self, "state", state)

@@ -129,9 +129,10 @@ class FrameAssociation:
 MIN_VARIANCE_M2 = 1e-100
 MAX_CONDITION = 1e12
 #: A frame of one detection per node that the nodes taken in order split is
-#: regrouped order-independently (:func:`_best_subsets`) up to this many
-#: detections (the subsets grow as 2^N).
-MAX_SUBSET_NODES = 10
+#: regrouped order-independently (:func:`_best_subsets`): every subset is
+#: tried up to this many detections (the subsets grow as 2^N); with more,
+#: the detection farthest from the others' is dropped until the rest agree.
+MAX_SUBSET_NODES = 5
 
 
 def detection_information(covariance_m2: NDArray) -> tuple[NDArray, NDArray]:
@@ -271,6 +272,36 @@ def _scatter(pos: NDArray, info: NDArray) -> tuple[NDArray, float]:
     return _mahalanobis2_2x2(pos - m, _inv_2x2(rest) + _inv_2x2(info)), scatter
 
 
+def _largest_subset(left: list[int], pos, info, gate) -> list[int]:
+    """Of the detections ``left``, the largest subset whose every member is
+    within the gate of the others' fused position, of least scatter among
+    those of its size (every subset tried)."""
+    best: tuple[list[int], float] | None = None
+    for size in range(len(left), 1, -1):
+        for sub in combinations(left, size):
+            idx = list(sub)
+            loo, scatter = _scatter(pos[idx], info[idx])
+            if np.all(loo <= gate) and (best is None or scatter < best[1]):
+                best = (idx, scatter)
+        if best is not None:
+            return best[0]
+    return [left[0]]
+
+
+def _drop_worst(left: list[int], pos, info, gate) -> list[int]:
+    """Of the detections ``left`` (more than :data:`MAX_SUBSET_NODES`), the
+    subset left once the member farthest from the others' fused position is
+    dropped, again and again, until every member is within the gate."""
+    cur = list(left)
+    while len(cur) > 1:
+        loo, _ = _scatter(pos[cur], info[cur])
+        loo = np.nan_to_num(loo, nan=np.inf)
+        if np.all(loo <= gate):
+            return cur
+        cur.pop(int(np.argmax(loo)))
+    return cur
+
+
 def _best_subsets(counts, pos, info, gate) -> FrameAssociation:
     """:func:`associate_frame` of a frame with one detection per node at
     most that the nodes taken in order split: order-independent instead.
@@ -278,21 +309,14 @@ def _best_subsets(counts, pos, info, gate) -> FrameAssociation:
     detection and leave the third's, which agrees with the second, on its
     own. The group is the largest subset of detections whose every member is
     within the gate of the others' fused position, of least scatter among
-    those of its size; the rest are grouped alike."""
+    those of its size (:func:`_largest_subset`; :func:`_drop_worst` for
+    more than :data:`MAX_SUBSET_NODES`); the rest are grouped alike."""
     nodes = np.flatnonzero(np.asarray(counts) > 0)
     left = list(range(nodes.size))
     members: list[list[int]] = []
     while left:
-        best: tuple[list[int], float] | None = None
-        for size in range(len(left), 1, -1):
-            for sub in combinations(left, size):
-                idx = list(sub)
-                loo, scatter = _scatter(pos[idx], info[idx])
-                if np.all(loo <= gate) and (best is None or scatter < best[1]):
-                    best = (idx, scatter)
-            if best is not None:
-                break
-        chosen = best[0] if best is not None else [left[0]]
+        chosen = (_largest_subset(left, pos, info, gate) if len(left) <= MAX_SUBSET_NODES
+                  else _drop_worst(left, pos, info, gate))
         row = [-1] * len(counts)
         for i in chosen:
             row[nodes[i]] = 0
@@ -395,7 +419,7 @@ def associate_frame(
     info_all, ok_all = detection_information(cov_all)
     if max(counts) == 1 and bool(np.all(ok_all)):  # one regular detection per node at most
         out = _associate_singles(counts, pos_all, cov_all, info_all, gate)
-        if len(out) > 1 and len(counts) - counts.count(0) <= MAX_SUBSET_NODES:
+        if len(out) > 1:
             out = _best_subsets(counts, pos_all, info_all, gate)
         return out
     start = 0

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from factors.models import MEASUREMENT_NAMES, detection_to_global, detection_to_local_scalar
 
 from ..errors import GeometryError, ValidationError
-from .._validation import as_float_array, check_finite, frozen_vector
+from .._validation import as_float_array, check_finite, check_heading, frozen_vector
 from ..data.noise import GaussianPrior, MeasurementNoise
 from .degeneracy import condition_2x2, velocity_degeneracy
 
@@ -193,6 +193,9 @@ def check_poses(node_poses: ArrayLike) -> NDArray:
         raise ValidationError("node_poses must hold at least one node, got shape (0, 3)")
     if not _all_finite(poses):
         check_finite(poses, "node_poses")
+    if np.abs(poses[:, 2]).max() > 2.0 * np.pi + 1e-9:
+        i = int(np.argmax(np.abs(poses[:, 2])))
+        check_heading(float(poses[i, 2]), f"node_poses[{i}]")
     return poses
 
 

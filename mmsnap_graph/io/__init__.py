@@ -5,14 +5,14 @@
 - :func:`write_fused`, :func:`read_fused`: the ``/fused`` group of one-shot estimates;
 - :func:`read_dca1000_bin`, :func:`read_dca1000_sub_frame`: TI DCA1000 /
   mmWave Studio raw ADC ``.bin`` captures;
-- TI data (docs/TI.md): :func:`read_ti_cfg` (mmWave SDK ``.cfg`` / mmWave
+- TI data (docs/TI.md, :mod:`.ti`): :func:`read_ti_cfg` (mmWave SDK ``.cfg`` / mmWave
   Studio JSON -> one ``RadarConfig`` per sub-frame), :func:`read_ti_uart`
   (UART TLV logs), :func:`read_point_tables` (CSV / ``.npy`` / DataFrame
   point logs), :func:`recording_from_point_clouds` (3D points of mounted,
   tilted radars -> a recording).
 """
 
-from .dca1000 import (
+from .ti.dca1000 import (
     frame_bytes,
     iter_dca1000_frames,
     read_dca1000_bin,
@@ -31,11 +31,11 @@ from .hdf5 import (
     update_recording,
     write_recording,
 )
-from .point_cloud import Mounting, PointCloud3D, recording_from_point_clouds
-from .point_table import read_point_table, read_point_tables
-from .ti_cfg import (BOARD_PRESETS, BoardLayout, TiConfig, parse_ti_cfg, read_boundary_boxes,
+from .ti.point_cloud import Mounting, PointCloud3D, recording_from_point_clouds
+from .ti.point_table import read_point_table, read_point_tables
+from .ti.cfg import (BOARD_PRESETS, BoardLayout, TiConfig, parse_ti_cfg, read_boundary_boxes,
                      read_ti_cfg)
-from .ti_uart import BadFrame, UartLog, parse_ti_uart, read_ti_uart
+from .ti.uart import BadFrame, UartLog, parse_ti_uart, read_ti_uart
 
 __all__ = [
     "FORMAT_NAME",

@@ -100,7 +100,19 @@ def _start_time(fused: FusedSequence, start_time: dt.datetime | None) -> dt.date
             raise ValidationError(f"start_time must be a datetime.datetime, got {start_time!r}")
         return start_time
     origin = 0.0 if fused.time_origin_s is None else float(fused.time_origin_s)
-    return EPOCH + dt.timedelta(seconds=origin)
+    return _shifted(EPOCH, origin, "time_origin_s (Unix seconds)")
+
+
+def _shifted(t0: dt.datetime, seconds: float, what: str) -> dt.datetime:
+    """``t0 + seconds`` as a datetime; a NaN, infinite or out-of-calendar
+    value (beyond year 9999) is a ValidationError naming ``what``."""
+    try:
+        if not np.isfinite(seconds):
+            raise OverflowError
+        return t0 + dt.timedelta(seconds=float(seconds))
+    except OverflowError:
+        raise ValidationError(f"{what}={seconds!r} from {t0.isoformat()} is not a time a "
+                              f"datetime holds (finite, years 1-9999)") from None
 
 
 def fused_detections(
@@ -155,16 +167,18 @@ def fused_detections(
     state, cov = to_stonesoup_order(state, cov)
     t0 = _start_time(fused, start_time)
     frames, first = np.unique(np.asarray(fused.frame), return_index=True)
+    stamps = {i: _shifted(t0, float(time_s[i]), f"time_s[{i}]")
+              for i in sorted(set(rows.tolist()) | set(first.tolist()))}
     first_row = dict(zip(frames.tolist(), first.tolist()))
     scans = {f: set() for f in frames.tolist()}
     for j, i in enumerate(rows):
         model = LinearGaussian(ndim_state=4, mapping=(0, 1, 2, 3),
                                noise_covar=CovarianceMatrix(cov[j]))
-        stamp = t0 + dt.timedelta(seconds=float(time_s[i]))
+        stamp = stamps[i]
         scans[int(fused.frame[i])].add(Detection(
             StateVector(state[j]), timestamp=stamp, measurement_model=model,
             metadata={"frame": int(fused.frame[i]), "target": int(fused.target[i]),
                       "label": int(fused.label[i]), "row": int(i)}))
-    out = [(t0 + dt.timedelta(seconds=float(time_s[first_row[f]])), scans[f]) for f in scans]
+    out = [(stamps[first_row[f]], scans[f]) for f in scans]
     out.sort(key=lambda scan: scan[0])
     return out

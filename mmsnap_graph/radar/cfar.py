@@ -46,6 +46,12 @@ __all__ = ["CfarConfig", "os_cfar_alpha", "os_cfar_noise_scale", "footprint", "p
            "os_cfar_2d", "os_cfar_cells", "os_cfar_detections", "ALPHA_BRACKET"]
 
 
+#: Guard or training half-width bound (cells): a TI radar has at most a few
+#: thousand range bins and chirps, and the window's footprint grows as its
+#: square (10^6 cells asked for terabytes).
+MAX_CELLS = 1024
+
+
 @dataclass(frozen=True, kw_only=True, slots=True)
 class CfarConfig:
     """OS-CFAR parameters.
@@ -65,9 +71,9 @@ class CfarConfig:
         for name in ("guard_cells", "train_cells"):
             raw = getattr(self, name)
             if isinstance(raw, (str, bytes)) or not hasattr(raw, "__len__") or len(raw) != 2 \
-                    or not all(_is_int(v) and v >= 0 for v in raw):
-                raise ConfigurationError(f"{name}={raw!r} must be two non-negative integers "
-                                         f"(range, Doppler)")
+                    or not all(_is_int(v) and 0 <= v <= MAX_CELLS for v in raw):
+                raise ConfigurationError(f"{name}={raw!r} must be two integers in "
+                                         f"[0, {MAX_CELLS}] (range, Doppler)")
             object.__setattr__(self, name, tuple(int(v) for v in raw))
         if sum(self.train_cells) == 0:
             raise ConfigurationError("train_cells=(0, 0) leaves no training cells")

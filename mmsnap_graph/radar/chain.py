@@ -98,6 +98,15 @@ __all__ = [
 DEFAULT_MIN_RANGE_M = 0.9
 
 
+#: Bounds of the chain's configuration. A TI radar has at most 12 virtual
+#: antennas (more angle bins than 4096 resolve nothing and a 10^8 FFT asks for
+#: gigabytes per frame); no mmWave radar sees beyond 10 km; 400 dB exceeds
+#: any float's dynamic range (10^40).
+MAX_ANGLE_FFT_SIZE = 4096
+MAX_CHAIN_RANGE_M = 1e4
+MAX_DB = 400.0
+
+
 @dataclass(frozen=True, kw_only=True, slots=True)
 class ChainConfig:
     """Signal-chain parameters (the radar's own parameters are a RadarConfig).
@@ -153,10 +162,15 @@ class ChainConfig:
 
     def __post_init__(self) -> None:
         for name in ("range_window", "doppler_window", "angle_window"):
-            window(getattr(self, name), 8)  # raises ConfigurationError on an unknown name
-        check_count(self.angle_fft_size, "angle_fft_size", 8, error=ConfigurationError)
-        if not (np.isfinite(self.min_range_m) and self.min_range_m >= 0):
-            raise ConfigurationError(f"min_range_m={self.min_range_m!r} must be >= 0")
+            try:
+                window(getattr(self, name), 8)
+            except ConfigurationError as exc:
+                raise ConfigurationError(f"{name}: {exc}") from None
+        check_count(self.angle_fft_size, "angle_fft_size", 8, MAX_ANGLE_FFT_SIZE,
+                    error=ConfigurationError)
+        if not (np.isfinite(self.min_range_m) and 0 <= self.min_range_m <= MAX_CHAIN_RANGE_M):
+            raise ConfigurationError(f"min_range_m={self.min_range_m!r} must be in "
+                                     f"[0, {MAX_CHAIN_RANGE_M:g}] (metres)")
         if self.max_range_m is not None and not self.max_range_m > self.min_range_m:
             raise ConfigurationError(f"max_range_m={self.max_range_m!r} must exceed "
                                      f"min_range_m={self.min_range_m!r}")
@@ -175,10 +189,12 @@ class ChainConfig:
                                      f"{type(self.cluster).__name__}")
         if self.cfar_method not in ("cells", "full"):
             raise ConfigurationError(f"cfar_method={self.cfar_method!r} must be 'cells' or 'full'")
-        if not (np.isfinite(self.dynamic_range_db) and self.dynamic_range_db > 0):
-            raise ConfigurationError(f"dynamic_range_db={self.dynamic_range_db!r} must be > 0")
-        if not (np.isfinite(self.prescreen_db) and self.prescreen_db >= 0):
-            raise ConfigurationError(f"prescreen_db={self.prescreen_db!r} must be >= 0")
+        if not (np.isfinite(self.dynamic_range_db) and 0 < self.dynamic_range_db <= MAX_DB):
+            raise ConfigurationError(f"dynamic_range_db={self.dynamic_range_db!r} must be in "
+                                     f"(0, {MAX_DB:g}] dB")
+        if not (np.isfinite(self.prescreen_db) and 0 <= self.prescreen_db <= MAX_DB):
+            raise ConfigurationError(f"prescreen_db={self.prescreen_db!r} must be in "
+                                     f"[0, {MAX_DB:g}] dB")
         if self.adc_full_scale is not None and not self.adc_full_scale > 0:
             raise ConfigurationError(f"adc_full_scale={self.adc_full_scale!r} must be > 0")
         if not 0 <= self.max_saturated_fraction <= 1:

@@ -48,6 +48,15 @@ __all__ = ["SceneConfig", "SceneReport", "static_scene_mask", "merge_close_centr
            "ghost_mask", "existence_mask", "filter_points", "filter_centroids"]
 
 
+#: Physical ranges of the thresholds (m, s, m/s, sin): a 1e308 s window or a
+#: 1e-300 m cell is an infinite number of windows or cells.
+_BOUNDS = {"zero_doppler_mps": (0.0, 1e4), "cell_m": (1e-3, 1e3), "window_s": (1e-3, 3600.0),
+           "body_m": (0.0, 1e3), "bearing_sin": (0.0, 2.0), "behind_m": (0.0, 1e4),
+           "ghost_doppler_mps": (0.0, 1e4), "existence_window_s": (0.0, 3600.0),
+           "max_speed_mps": (0.0, 1e4)}
+_MAX_FRAMES = 1_000_000
+
+
 @dataclass(frozen=True, kw_only=True, slots=True)
 class SceneConfig:
     """Switches and thresholds of the scene filters (module docstring).
@@ -99,7 +108,12 @@ class SceneConfig:
             raise ConfigurationError(f"min_occupancy={self.min_occupancy!r} is a fraction "
                                      "of the windows, in [0, 1]")
         for name in ("min_windows", "existence_min_frames"):
-            check_count(getattr(self, name), name, 0, error=ConfigurationError)
+            check_count(getattr(self, name), name, 0, _MAX_FRAMES, error=ConfigurationError)
+        for name, (low, high) in _BOUNDS.items():
+            val = getattr(self, name)
+            if not low <= val <= high:
+                raise ConfigurationError(f"{name}={val!r} must be in [{low:g}, {high:g}] "
+                                         f"(beyond, it is not physical: check the unit)")
 
 
 @dataclass(frozen=True, slots=True)

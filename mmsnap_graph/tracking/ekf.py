@@ -63,6 +63,12 @@ __all__ = [
 #: step ignores them (a range of 1e300 would overflow the EKF).
 MAX_RANGE_M = 1e5
 MAX_SPEED_MPS = 1e4
+#: Bounds of the configuration: beyond them a value is a unit or typing
+#: mistake and overflowed the filter (a 1e308 m/s^2 process noise squared is
+#: inf; a 1e308 s window is an infinite frame count).
+MAX_ACCELERATION_MPS2 = 1e3
+MAX_WINDOW_S = 3600.0
+MAX_FRAME_COUNT = 1_000_000
 
 _ZERO_POSE = np.zeros(3)
 
@@ -172,11 +178,28 @@ class EkfConfig:
             v = getattr(self, name)
             if v is None and name != "confirm_hits":
                 continue
-            check_count(v, name, error=ConfigurationError)
+            check_count(v, name, 1, MAX_FRAME_COUNT, error=ConfigurationError)
         for name in ("confirm_window_s", "max_coast_s"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not (np.isfinite(v) and v > 0):
-                raise ConfigurationError(f"{name}={v!r} must be finite and > 0 (seconds)")
+            if isinstance(v, bool) or not (np.isfinite(v) and 0 < v <= MAX_WINDOW_S):
+                raise ConfigurationError(f"{name}={v!r} must be in (0, {MAX_WINDOW_S:g}] "
+                                         f"(seconds)")
+        self._check_physical()
+
+    def _check_physical(self) -> None:
+        """Upper bounds of the physical values (m, m/s, m/s^2, rad)."""
+        bounds = {"sigma_a_mps2": MAX_ACCELERATION_MPS2,
+                  "init_tangential_speed_std_mps": MAX_SPEED_MPS,
+                  "doppler_wrap_mps": MAX_SPEED_MPS}
+        for name, bound in bounds.items():
+            v = getattr(self, name)
+            if v is not None and v > bound:
+                raise ConfigurationError(f"{name}={v!r} must be <= {bound:g} (a larger value "
+                                         f"is not physical; check the unit)")
+        for name, v, bound in zip(("range_m", "omega_rad", "doppler_mps"), self.measurement_std,
+                                  (MAX_RANGE_M, np.pi, MAX_SPEED_MPS)):
+            if v > bound:
+                raise ConfigurationError(f"measurement_std {name}={v!r} must be <= {bound:g}")
         if self.doppler_wrap_mps is not None and (
                 isinstance(self.doppler_wrap_mps, bool)
                 or not (np.isfinite(self.doppler_wrap_mps) and self.doppler_wrap_mps > 0)):

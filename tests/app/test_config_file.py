@@ -12,6 +12,7 @@ from mmsnap_graph.app.config_file import (
     process_config_to_toml,
     read_process_config,
     read_matching_config,
+    matching_config_from_mapping,
 )
 from mmsnap_graph.errors import ConfigurationError
 from mmsnap_graph.radar.cfar import CfarConfig
@@ -158,3 +159,103 @@ def test_process_and_calibrate_share_one_file(tmp_path, capsys):
     # A bad [matching] is calibrate's business: process ignores the table.
     cfg.write_text("[matching]\nmin_common_s = -1\n")
     assert read_process_config(cfg) == ProcessConfig()
+
+
+# Hostile files: every value is either rejected with a ConfigurationError
+# naming the key, or one that ``process`` runs with.
+
+
+@pytest.mark.parametrize("data, key", [({"ekf": 5}, "ekf"), ({"chain": "x"}, "chain"),
+                                       ({"scene": [1]}, "scene"), ({"matching": 2.0}, "matching"),
+                                       ({"chain": {"cfar": 1}}, "chain.cfar")])
+def test_a_value_where_a_table_belongs_is_a_configuration_error(data, key):
+    with pytest.raises(ConfigurationError, match=f"{key} must be a table"):
+        if key == "matching":
+            matching_config_from_mapping(data)
+        else:
+            process_config_from_mapping(data)
+
+
+@pytest.mark.parametrize("table, key, value", [
+    ("ekf", "sigma_a_mps2", 1e308), ("ekf", "init_tangential_speed_std_mps", 1e308),
+    ("ekf", "confirm_window_s", 1e308), ("ekf", "max_coast_s", 1e308),
+    ("ekf", "max_misses", 2 ** 62), ("ekf", "confirm_window", 2 ** 62),
+    ("ekf", "measurement_std", [1e308, 0.1, 0.1]), ("chain", "min_range_m", 1e308),
+    ("chain", "angle_fft_size", 10 ** 8), ("chain.cfar", "guard_cells", [10 ** 6, 10 ** 6]),
+    ("chain.cfar", "train_cells", [8, 10 ** 6]), ("chain", "dynamic_range_db", 1e308),
+    ("scene", "window_s", 1e308), ("scene", "existence_window_s", 2 ** 62),
+    ("scene", "cell_m", 1e-300), ("scene", "min_windows", 2 ** 62),
+])
+def test_values_beyond_the_physical_ranges_name_the_key(table, key, value):
+    # Each of these was accepted and then overflowed or asked for terabytes
+    # in ``process`` (or the radar-cube chain).
+    parts = table.split(".")
+    data = {parts[0]: {parts[1]: {key: value}} if len(parts) > 1 else {key: value}}
+    with pytest.raises(ConfigurationError, match=key):
+        process_config_from_mapping(data)
+
+
+_ODD = [1e308, -1, float("nan"), 0, 2 ** 62, 1e-300, "x", 10 ** 9, -1e308, True]
+
+
+def _toml(value) -> str:
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    return "nan" if value != value else repr(value)
+
+
+def _mutations():
+    """(table, key, value) for every key of every table and every odd value."""
+    cfg = ProcessConfig()
+    tables = {"chain": cfg.chain, "chain.cfar": cfg.chain.cfar,
+              "chain.cluster": cfg.chain.cluster, "ekf": cfg.ekf, "scene": cfg.scene}
+    for table, obj in tables.items():
+        for f in dataclasses.fields(obj):
+            if f.name in ("cfar", "cluster", "frame_period_s"):
+                continue
+            default = getattr(obj, f.name)
+            for v in _ODD:
+                n = len(default) if isinstance(default, tuple) else 0
+                yield table, f.name, [v] * n if n else v
+
+
+@pytest.fixture(scope="module")
+def small_cloud(tmp_path_factory):
+    from mmsnap_graph import io
+    from mmsnap_graph.sim import SimulationOptions, simulate_recording
+    rec = simulate_recording({"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, np.pi)}, "random",
+                             SimulationOptions(physics=None, n_targets=1, frame_period_s=0.05),
+                             levels=("point_cloud",), n_frames=40, seed=4)
+    path = tmp_path_factory.mktemp("fuzz") / "cloud.h5"
+    io.write_recording(path, rec)
+    return path
+
+
+def test_toml_mutations_are_rejected_or_processed(small_cloud, tmp_path, capsys):
+    import time
+    accepted = []
+    for table, key, value in _mutations():
+        text = f"[{table}]\n{key} = {_toml(value)}\n"
+        path = tmp_path / "m.toml"
+        path.write_text(text)
+        try:
+            read_process_config(path)
+        except ConfigurationError as exc:
+            assert key in str(exc), (text, exc)
+            continue
+        accepted.append(text)
+    # Run ``process`` on a seeded sample of the accepted files: a clean exit
+    # code each, within a time bound (no traceback: run_cli lets one through).
+    rng = np.random.default_rng(21)
+    for i in rng.choice(len(accepted), size=min(8, len(accepted)), replace=False):
+        (tmp_path / "a.toml").write_text(accepted[i])
+        out = tmp_path / f"out{i}.h5"
+        start = time.perf_counter()
+        code, _, err = run_cli(capsys, "process", small_cloud, "-o", out, "--no-progress",
+                               "--config", tmp_path / "a.toml")
+        assert code in (0, 1), (accepted[i], err)
+        assert time.perf_counter() - start < 10, accepted[i]

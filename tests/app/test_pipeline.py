@@ -257,3 +257,23 @@ def test_a_killed_write_leaves_a_temporary_that_the_next_write_removes(recording
     assert len(list(recording.parent.glob(".rec.h5.*.tmp"))) == 1
     assert main(["process", str(recording), "--centroids-only", "--no-progress"]) == 0
     assert not list(recording.parent.glob(".rec.h5.*.tmp"))
+
+
+@pytest.mark.parametrize("far", [2 ** 31, 2 ** 62])
+def test_a_far_frame_number_does_not_size_the_sparse_check(far):
+    # One flipped header bit puts a frame at 2^31: counting points per frame
+    # over the frame span asked for 16 GiB (2^62: for exabytes).
+    import tracemalloc
+    from mmsnap_graph.app.pipeline import sparse_cluster_config
+    from mmsnap_graph.data.recording import Detections
+    from mmsnap_graph.radar.chain import ChainConfig
+    frame = np.array([0, 0, 1, 1, 2, 2, far, far])
+    cloud = Detections(frame=frame, range_m=np.full(8, 3.0), omega_rad=np.zeros(8),
+                       doppler_mps=np.zeros(8))
+    tracemalloc.start()
+    try:
+        _, sparse = sparse_cluster_config(cloud, ChainConfig())
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert sparse and peak < 10e6

@@ -326,7 +326,7 @@ def test_destack_recovers_each_frame_of_a_ten_frame_stack():
 
 
 def test_tables_hold_float16_values_and_read_as_point_tables():
-    from mmsnap_graph.io.point_table import read_point_table
+    from mmsnap_graph.io.ti.point_table import read_point_table
     for real in RECORDINGS.values():
         for node in ("S1", "S2"):
             cloud = read_point_table(REAL / f"{real.stem}_{node}.csv")

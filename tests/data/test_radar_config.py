@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmsnap_graph.data.radar_config import TABLE_I, RadarConfig
+from mmsnap_graph.data.radar_config import TABLE_I, RadarConfig, TiProfile
 from mmsnap_graph.errors import ConfigurationError
 
 C = 299_792_458.0
@@ -66,3 +66,32 @@ def test_dict_round_trip_and_unknown_fields():
     assert RadarConfig.from_dict(TABLE_I.to_dict()) == TABLE_I
     with pytest.raises(ConfigurationError, match="unknown radar configuration fields"):
         RadarConfig.from_dict({**d, "gain_db": 3})
+
+
+_PROFILE = dict(start_freq_hz=77e9, idle_s=7e-6, adc_start_s=6e-6, ramp_end_s=60e-6,
+                slope_hz_per_s=60e12, n_samples=256, sample_rate_hz=5e6, n_loops=32,
+                frame_period_s=0.1)
+_ANTENNAS = dict(tx_azimuth_half_wl=[0, 4], tx_elevation_half_wl=[0, 0],
+                 rx_azimuth_half_wl=[0, 1, 2, 3])
+
+
+def test_a_ti_profile_on_an_antenna_layout():
+    cfg = RadarConfig.from_ti_profile(TiProfile(**_PROFILE, complex_adc=False), **_ANTENNAS)
+    assert cfg.chirp_period_s == pytest.approx(67e-6)
+    assert cfg.wavelength_reference == "band_centre" and cfg.complex_adc is False
+    centre = 77e9 + 60e12 * (6e-6 + 256 / (2 * 5e6))
+    assert cfg.wavelength_m == pytest.approx(299_792_458.0 / centre, rel=1e-12)
+    with pytest.raises(ConfigurationError, match="profile must be a TiProfile, got dict"):
+        RadarConfig.from_ti_profile(_PROFILE, **_ANTENNAS)
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"n_samples": 512}, r"n_samples=512 .* s ends after ramp_end_s=6e-05"),
+    ({"sample_rate_hz": 0.0}, "sample_rate_hz=0.0 must be > 0"),
+    ({"idle_s": -1e-6}, "idle_s=-1e-06 must be a finite number >= 0"),
+    ({"adc_start_s": float("nan")}, "adc_start_s=nan"),
+    ({"n_samples": 256.0}, "n_samples=256.0 must be an integer"),
+])
+def test_a_ti_profile_is_checked_once(change, match):
+    with pytest.raises(ConfigurationError, match=match):
+        TiProfile(**{**_PROFILE, **change})

@@ -9,7 +9,7 @@ from factors.projection import (cartesian_to_spherical, level_to_sensor, project
                                 room_to_sensor, sensor_to_level, sensor_to_room,
                                 spherical_to_cartesian)
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.io.point_cloud import (Mounting, PointCloud3D, cloud_to_detections,
+from mmsnap_graph.io.ti.point_cloud import (Mounting, PointCloud3D, cloud_to_detections,
                                          recording_from_point_clouds)
 
 
@@ -145,7 +145,7 @@ def _cloud(frames_points):
 
 
 def test_destack_keeps_each_point_where_it_first_appears():
-    from mmsnap_graph.io.point_cloud import destack_frames
+    from mmsnap_graph.io.ti.point_cloud import destack_frames
     a, b, c, d = ([1, 2, 0, 0.1], [2, 3, 0, 0.2], [3, 4, 0, 0.3], [4, 5, 0, 0.4])
     stacked = _cloud({0: [a], 1: [b, a], 2: [c, b], 3: [c], 4: [d]})   # stacks of 2
     out = destack_frames(stacked)
@@ -157,7 +157,7 @@ def test_destack_keeps_each_point_where_it_first_appears():
 
 
 def test_accumulate_merges_the_last_k_frames():
-    from mmsnap_graph.io.point_cloud import accumulate_frames
+    from mmsnap_graph.io.ti.point_cloud import accumulate_frames
     a, b, c = ([1, 2, 0, 0.1], [2, 3, 0, 0.2], [3, 4, 0, 0.3])
     out = accumulate_frames(_cloud({0: [a], 1: [b], 2: [c]}), 2)
     assert out.frame.tolist() == [0, 1, 1, 2, 2]

@@ -169,3 +169,19 @@ def test_a_ghost_of_the_first_node_does_not_take_the_others_group():
     a = associate_frame([ghost[None], z[1][None], z[2][None]], poses, CENTROID_NOISE)
     true_group = int(np.flatnonzero(a.members[:, 1] >= 0)[0])
     np.testing.assert_allclose(a.position_m[true_group], truth[:2], atol=1e-9)
+
+
+def test_a_ghost_among_many_nodes_is_dropped_not_followed():
+    """Seven nodes on a circle facing its centre (more than
+    MAX_SUBSET_NODES: the farthest detection is dropped until the rest
+    agree): S1's ghost took S2 and left the other five on their own."""
+    from mmsnap_graph.sim.simulator import CENTROID_NOISE
+
+    ang = np.arange(7) * 2 * np.pi / 7
+    poses = np.column_stack([6 * np.sin(ang), -6 * np.cos(ang), ang])
+    truth = np.array([0.3, 0.2, 0.5, 0.2])
+    z = [measurement_model(truth[None], p)[0][0][None] for p in poses]
+    ghost = np.array([[6.6431, 0.185, 0.2239]])
+    a = associate_frame([ghost] + z[1:], poses, CENTROID_NOISE)
+    groups = sorted(sorted(np.flatnonzero(m >= 0).tolist()) for m in a.members)
+    assert groups == [[0], [1, 2, 3, 4, 5, 6]], groups

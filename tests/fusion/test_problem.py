@@ -265,3 +265,25 @@ def test_frame_stream_takes_per_node_noise(recording_3, solver):
         assert update.ok and update.state.shape == (1, 4)
         ref = fuse_frame(POSES_BC, z[k], noise=NOISES)
         np.testing.assert_allclose(update.state[0], ref.state, atol=1e-6)
+
+
+def test_a_heading_in_degrees_is_a_validation_error_saying_radians():
+    # phi = 180 (degrees) "fits" as 180 rad = 0.5 rad mod 2 pi: it gave
+    # success=True. Every pose entry point now refuses |phi| > 2 pi.
+    from mmsnap_graph.calibration.monitor.decalibration import DecalibrationMonitor
+    from mmsnap_graph.data.recording import NodeData
+    from mmsnap_graph.calibration import joint_calibration
+    poses = np.array(POSES_BC, dtype=float)
+    z = predict_measurements(np.array([2.0, 0.3, 3.0, -0.2]), poses)
+    poses[1, 2] = 180.0
+    with pytest.raises(ValidationError, match=r"node_poses\[1\].*radians"):
+        fuse_frame(poses, z)
+    with pytest.raises(ValidationError, match="radians"):
+        NodeData(name="S2", pose=(0.0, 7.0, 180.0))
+    with pytest.raises(ValidationError, match=r"node_poses\[S2\].*radians"):
+        DecalibrationMonitor({"S1": (0.0, 0.0, 0.0), "S2": (0.0, 7.0, -270.0)})
+    frames = np.arange(5)
+    with pytest.raises(ValidationError, match=r"initial_poses\['S2'\].*radians"):
+        joint_calibration({"S1": (frames, np.ones((5, 3))), "S2": (frames, np.ones((5, 3)))},
+                          initial_poses={"S2": (0.0, 7.0, 180.0)})
+    NodeData(name="S2", pose=(0.0, 7.0, -2 * np.pi))  # one turn is still radians

@@ -159,3 +159,29 @@ def test_fused_detections_errors(fused_file, monkeypatch):
     monkeypatch.setitem(sys.modules, "stonesoup.models.measurement.linear", None)
     with pytest.raises(MmsnapError, match=r"\[stonesoup\]"):
         fused_detections(fused)
+
+
+@pytest.mark.parametrize("change", [
+    {"time_origin_s": float("nan")}, {"time_origin_s": float("inf")},
+    {"time_origin_s": 1e300}, {"time_origin_s": 253402300799.0},  # 9999-12-31T23:59:59
+    {"time_s": "nan"}, {"time_s": "inf"}, {"frame_period_s": 1e300},
+])
+def test_times_a_datetime_cannot_hold_are_validation_errors(fused_file, change):
+    # read_fused accepts these; the hand-over converts every stamp to a
+    # datetime and says which value is out of the calendar.
+    _, fused = fused_file
+    kwargs = {}
+    if change.get("time_s") is not None:
+        t = np.array(fused.time_s, dtype=float)
+        t[5] = float(change["time_s"])
+        fused = dataclasses.replace(fused, time_s=t)
+    elif "frame_period_s" in change:
+        kwargs = change
+    else:
+        fused = dataclasses.replace(fused, **change)
+    with pytest.raises(ValidationError, match="time_origin_s|time_s"):
+        fused_detections(fused, **kwargs)
+    if change.get("time_s") is None and "frame_period_s" not in change:
+        return
+    with pytest.raises(ValidationError, match="time_s"):
+        fused_detections(fused, start_time=dt.datetime.max - dt.timedelta(seconds=1), **kwargs)

@@ -115,6 +115,9 @@ def _client(args: argparse.Namespace, n_recordings: int):
         return local_client(workers)
     from distributed import Client  # optional extra: mmsnap_graph[dask]
 
+    from mmsnap_graph.app.scheduler_probe import check_scheduler
+
+    check_scheduler(args.scheduler, CONNECT_TIMEOUT_S)
     try:
         return Client(args.scheduler, timeout=CONNECT_TIMEOUT_S)
     except (OSError, TimeoutError, ValueError) as exc:

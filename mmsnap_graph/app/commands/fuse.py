@@ -142,7 +142,7 @@ def room_options(args) -> tuple[dict, list[str]]:
     """``fuse_file`` room-frame options from ``--bounds`` / ``--bounds-cfg`` /
     ``--no-body-check``, and what they are in words."""
     from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, RoomBounds
-    from mmsnap_graph.io.ti_cfg import read_boundary_boxes
+    from mmsnap_graph.io.ti.cfg import read_boundary_boxes
 
     opts: dict = {"body_m": None if args.no_body_check else DEFAULT_BODY_M}
     text = ["no body check" if args.no_body_check else f"one target per {DEFAULT_BODY_M:g} m"]

@@ -42,7 +42,7 @@ from factors.gtsam_factors import measurement_noise
 from ...errors import CalibrationError, MmsnapError, ValidationError
 from ...data.noise import MeasurementNoise
 from ...data.recording import Detections
-from ..._validation import as_float_array, check_finite, check_positive, check_shape
+from ..._validation import as_float_array, check_finite, check_pose, check_positive, check_shape
 from .graph import (
     JointGraph,
     assess,
@@ -231,9 +231,7 @@ def _start_poses(meas_f, names, ref, initial_poses, min_common_frames, min_sprea
                 continue
             if n not in initial_poses:
                 raise ValidationError(f"initial_poses has no pose for node {n!r}")
-            init[n] = check_finite(check_shape(as_float_array(initial_poses[n],
-                                                              f"initial_poses[{n!r}]"), (3,),
-                                               f"initial_poses[{n!r}]"), f"initial_poses[{n!r}]")
+            init[n] = check_pose(initial_poses[n], f"initial_poses[{n!r}]")
         unreachable = ()
     init[ref] = np.zeros(3)
     return init, unreachable

@@ -37,7 +37,7 @@ from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...errors import MissingStepError, ValidationError
 from ...fusion.solvers.vectorized import fuse_batch
-from ..._validation import as_float_array, check_count, check_finite, chi2_gate
+from ..._validation import as_float_array, check_count, check_finite, check_pose, chi2_gate
 from .stats import (
     frame_contributions,
     recalibrate_pose,
@@ -170,10 +170,7 @@ def _check_poses(node_poses) -> dict[str, NDArray]:
                               f"got {node_poses!r}")
     out = {}
     for name, pose in node_poses.items():
-        p = check_finite(as_float_array(pose, f"node_poses[{name}]"), f"node_poses[{name}]")
-        if p.shape != (3,):
-            raise ValidationError(f"node_poses[{name}] must have shape (3,), got {p.shape}")
-        out[str(name)] = p.copy()
+        out[str(name)] = check_pose(pose, f"node_poses[{name}]").copy()
     return out
 
 

@@ -56,7 +56,7 @@ from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import FusedSequence, Status
 from ...errors import CalibrationError, MissingStepError, MmsnapError, ValidationError
-from ..._validation import as_float_array, check_finite
+from ..._validation import as_float_array, check_finite, check_pose
 from .split_check import SPLIT_MESSAGE, split_rows
 from .regroup import merge_body_detections
 from .coverage import uncovered_rows
@@ -101,10 +101,7 @@ def recording_poses(
                     f"node {name!r} has no pose in the recording; calibrate it or pass "
                     "calibration poses", step="calibrate",
                     what=f"node {name!r} has no pose in the recording")
-        arr = check_finite(as_float_array(pose, f"pose of {name}"), f"pose of {name}")
-        if arr.shape != (3,):
-            raise ValidationError(f"pose of {name} must have shape (3,), got {arr.shape}")
-        out.append(arr)
+        out.append(check_pose(pose, f"pose of {name}"))
     return np.stack(out)
 
 

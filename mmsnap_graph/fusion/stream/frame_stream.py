@@ -27,6 +27,20 @@ frame, three counters and the tracker's live tracks (each deleted after
 ``max_misses`` frames without an estimate). Nothing grows with the number of
 frames.
 
+Detections per node per frame are capped (``max_detections_per_node``,
+default :data:`MAX_DETECTIONS_PER_NODE`): the grouping's assignment grows
+as K^2.4 with K detections per node (1,000: 1.5 s; 5,000: 74 s), so a node's
+rows beyond the cap, in the order given, are left out of that frame, counted
+in ``StreamUpdate.dropped_detections`` and named in its message.
+
+A clock restart (a source whose time goes back, e.g. a radar rebooted) does
+not lock the stream: a stamp not after the last good frame's, or more than
+:data:`MAX_TIME_JUMP_S` past it, is rejected; when
+:data:`CLOCK_RESTART_FRAMES` such frames in a row have stamps that advance
+among themselves (each step at most ``MAX_TIME_JUMP_S``), the source's clock
+is taken to have restarted: the stream starts over from the last of them (its
+tracks end, ``clock_restarts`` counts it, the message says so) and fuses it.
+
 A bad frame (a time stamp that is not finite or not after the previous one,
 an unknown node, a detection array of the wrong shape, non-finite values, a
 negative range or ``|omega| > pi``) is flagged (``ok`` False, a message) and
@@ -57,7 +71,8 @@ from ...data.recording import Recording
 from ...data.results import Status
 from ...errors import MmsnapError, ValidationError
 from ...tracking.central import CentralConfig, CentralTracker
-from ..._validation import as_float_array, check_count, check_finite, check_probability
+from ..._validation import (as_float_array, check_count, check_finite, check_heading,
+                            check_probability)
 
 __all__ = ["StreamUpdate", "FrameStream", "recording_frames"]
 
@@ -67,6 +82,12 @@ __all__ = ["StreamUpdate", "FrameStream", "recording_frames"]
 #: further ahead is taken as a bad stamp (1e308, milliseconds as seconds)
 #: and its frame rejected, not as the stream's new time.
 MAX_TIME_JUMP_S = 86400.0
+#: Consecutive rejected frames with self-consistent stamps that restart the
+#: stream's clock (module docstring).
+CLOCK_RESTART_FRAMES = 3
+#: Default cap on one node's detections in one frame (about 0.25 s of
+#: grouping on 2 nodes at the cap; module docstring).
+MAX_DETECTIONS_PER_NODE = 256
 
 _FRAME_FAILURES = (MmsnapError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError,
                    OverflowError, ValueError)
@@ -90,6 +111,7 @@ class StreamUpdate:
     track_id, track_state, track_covariance : (T,), (T, 4), (T, 4, 4) the live
         tracks after this frame's update (unchanged by a bad frame).
     latency_s : wall-clock time spent in :meth:`FrameStream.push`.
+    dropped_detections : rows left out by the cap ``max_detections_per_node``.
     """
 
     index: int
@@ -105,6 +127,7 @@ class StreamUpdate:
     track_state: NDArray
     track_covariance: NDArray
     latency_s: float
+    dropped_detections: int = 0
 
     @property
     def success(self) -> NDArray:
@@ -145,6 +168,10 @@ class FrameStream:
         Calibration-aware fusion (docs/CONVENTIONS.md): each pose's covariance
         in the Pose2 body tangent (all NaN, all zero or a node left out of the
         mapping: an exact pose); the fused covariances include them.
+    max_detections_per_node : int
+        Rows of one node kept per frame (default
+        :data:`MAX_DETECTIONS_PER_NODE`, at most 4096); the rest are dropped
+        and counted (module docstring).
 
     Example
     -------
@@ -158,13 +185,18 @@ class FrameStream:
                  solver: Literal["scalar", "gtsam", "vectorized"] = "scalar",
                  gate_probability: float = 0.999,
                  tracker: CentralConfig | None = None,
-                 pose_covariances: ArrayLike | Mapping[str, ArrayLike] | None = None) -> None:
+                 pose_covariances: ArrayLike | Mapping[str, ArrayLike] | None = None,
+                 max_detections_per_node: int = MAX_DETECTIONS_PER_NODE) -> None:
         names = tuple(node_names)
         if not names or not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
             raise ValidationError(f"node_names must be distinct strings, got {node_names!r}")
         poses = check_finite(as_float_array(node_poses, "node_poses"), "node_poses")
         if poses.shape != (len(names), 3):
             raise ValidationError(f"node_poses must have shape ({len(names)}, 3), got {poses.shape}")
+        for i in range(len(names)):
+            check_heading(float(poses[i, 2]), f"node_poses[{i}]")
+        self.max_detections_per_node = check_count(max_detections_per_node,
+                                                   "max_detections_per_node", 1, 4096)
         check_solver(solver)
         if tracker is not None and not isinstance(tracker, CentralConfig):
             raise ValidationError(f"tracker must be a CentralConfig, got {type(tracker).__name__}")
@@ -182,10 +214,13 @@ class FrameStream:
         self._associator = StreamAssociator(poses, noises, p)
         self.gate_probability = p
         self._index = {name: i for i, name in enumerate(names)}
-        self._tracker = CentralTracker(
+        self._new_tracker = lambda: CentralTracker(
             tracker, prior_mean=None if prior is None else prior.mean,
             prior_sigmas=None if prior is None else prior.sigmas)
+        self._tracker = self._new_tracker()
         self._last_time_s: float | None = None
+        self._rejected_times: list[float] = []
+        self.clock_restarts = 0
         self.frames = 0
         self.bad_frames = 0
         self.failed_groups = 0
@@ -214,9 +249,15 @@ class FrameStream:
         index = self.frames
         self.frames += 1
         t, per_node, problem = self._validate(time_s, detections)
+        note = ""
+        if problem is not None and per_node is not None and self._clock_restarted(t):
+            note, problem = f"{problem}; the source's clock restarted: the stream starts over", None
         if problem is not None:
             self.bad_frames += 1
             return self._update(index, t, False, problem, None, start)
+        self._rejected_times.clear()
+        per_node, dropped, cap_note = self._capped(per_node)
+        note = "; ".join(x for x in (note, cap_note) if x)
         dt = None if self._last_time_s is None else t - self._last_time_s
         self._last_time_s = t
         try:
@@ -225,11 +266,42 @@ class FrameStream:
         except _FRAME_FAILURES as exc:
             self._step_tracker(np.zeros((0, 4)), np.zeros((0, 4, 4)), dt)
             return self._update(index, t, False, f"fusion failed: {type(exc).__name__}: {exc}",
-                                None, start)
+                                None, start, dropped)
         ok = fused[2] == Status.OK
         self.failed_groups += int(np.count_nonzero(~ok))
         problem = self._step_tracker(fused[0][ok], fused[1][ok], dt)
-        return self._update(index, t, problem is None, problem or "", fused, start)
+        message = "; ".join(x for x in (problem, note) if x)
+        return self._update(index, t, problem is None, message, fused, start, dropped)
+
+    def _clock_restarted(self, t: float) -> bool:
+        """Whether the frame at ``t``, rejected for its stamp alone, is the
+        :data:`CLOCK_RESTART_FRAMES`-th in a row of advancing stamps: then
+        the stream starts over (tracks ended, clock unset)."""
+        prev = self._rejected_times[-1] if self._rejected_times else None
+        if prev is not None and prev < t <= prev + MAX_TIME_JUMP_S:
+            self._rejected_times.append(t)
+        else:
+            self._rejected_times[:] = [t]
+        if len(self._rejected_times) < CLOCK_RESTART_FRAMES:
+            return False
+        self._rejected_times.clear()
+        self._tracker = self._new_tracker()
+        self._last_time_s = None
+        self.clock_restarts += 1
+        return True
+
+    def _capped(self, per_node):
+        """``per_node`` with each node's rows cut at ``max_detections_per_node``,
+        the number dropped and a note naming the nodes."""
+        cap = self.max_detections_per_node
+        over = [(i, len(z)) for i, z in enumerate(per_node) if len(z) > cap]
+        if not over:
+            return per_node, 0, ""
+        dropped = sum(k - cap for _, k in over)
+        names = ", ".join(f"{self.node_names[i]} ({k})" for i, k in over)
+        per_node = [z[:cap] for z in per_node]
+        return per_node, dropped, (f"{dropped} detection(s) beyond max_detections_per_node={cap} "
+                                   f"left out: {names}")
 
     def _step_tracker(self, states, covariances, dt) -> str | None:
         """One tracker step; a numerical failure is returned as a message."""
@@ -241,22 +313,30 @@ class FrameStream:
 
     # ------------------------------------------------------------------
     def _validate(self, time_s, detections):
-        """``(time, per-node (K_n, 3) arrays, problem message or None)``."""
+        """``(time, per-node (K_n, 3) arrays, problem message or None)``; the
+        arrays are given (not None) with a problem when the frame's time
+        stamp alone is out of order (a clock restart may follow)."""
         try:
             t = float(time_s)
         except (TypeError, ValueError):
             return math.nan, None, f"time stamp {time_s!r} is not a number"
         if not math.isfinite(t):
             return t, None, f"time stamp {time_s!r} is not finite"
-        if self._last_time_s is not None and not t > self._last_time_s:
-            return t, None, (f"time stamp {t!r} s is not after the previous frame's "
-                             f"{self._last_time_s!r} s")
-        if self._last_time_s is not None and t - self._last_time_s > MAX_TIME_JUMP_S:
+        t, per_node, problem = self._validate_rows(t, detections)
+        if problem is not None or self._last_time_s is None:
+            return t, per_node, problem
+        if not t > self._last_time_s:
+            return t, per_node, (f"time stamp {t!r} s is not after the previous frame's "
+                                 f"{self._last_time_s!r} s")
+        if t - self._last_time_s > MAX_TIME_JUMP_S:
             # Taking it would reject every later frame as "not after" it.
-            return t, None, (f"time stamp {t!r} s jumps {t - self._last_time_s:.3g} s past the "
-                             f"previous frame's {self._last_time_s!r} s (more than "
-                             f"{MAX_TIME_JUMP_S:g} s: milliseconds given as seconds?); "
-                             "frame rejected, the stream's clock is unchanged")
+            return t, per_node, (f"time stamp {t!r} s jumps {t - self._last_time_s:.3g} s past "
+                                 f"the previous frame's {self._last_time_s!r} s (more than "
+                                 f"{MAX_TIME_JUMP_S:g} s: milliseconds given as seconds?); "
+                                 "frame rejected, the stream's clock is unchanged")
+        return t, per_node, None
+
+    def _validate_rows(self, t, detections):
         n_nodes = len(self.node_names)
         per_node: list = [None] * n_nodes
         if isinstance(detections, Mapping):
@@ -322,7 +402,7 @@ class FrameStream:
             state[i], cov[i], status[i], degeneracy[i] = r.state, r.covariance, r.status, r.degeneracy
         return state, cov, status, degeneracy
 
-    def _update(self, index, t, ok, message, fused, start) -> StreamUpdate:
+    def _update(self, index, t, ok, message, fused, start, dropped=0) -> StreamUpdate:
         track_id, track_state, track_cov = self._tracker.track_arrays()
         n_nodes = len(self.node_names)
         if fused is None:
@@ -333,7 +413,7 @@ class FrameStream:
             index=index, time_s=t, ok=ok, message=message,
             state=state, covariance=cov, status=status, members=members, degeneracy=degeneracy,
             track_id=track_id, track_state=track_state, track_covariance=track_cov,
-            latency_s=time.perf_counter() - start,
+            latency_s=time.perf_counter() - start, dropped_detections=dropped,
         )
 
 

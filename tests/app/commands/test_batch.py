@@ -39,3 +39,75 @@ def test_a_worker_count_beyond_the_machine_is_a_usage_error(tmp_path, capsys, wo
     assert main(["batch", str(rec), "--workers", workers, "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "--workers must be between 1 and" in err and err.count("\n") == 1
+
+
+class _Service:
+    """A real TCP service on 127.0.0.1: it accepts, then sends ``banner``
+    (None: never says a word) and holds the connection until stopped."""
+
+    def __init__(self, banner: bytes | None):
+        import socket
+        import threading
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self.banner, self.conns, self.stop = banner, [], threading.Event()
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self):
+        self.sock.settimeout(0.1)
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                continue
+            self.conns.append(conn)
+            if self.banner is not None:
+                conn.sendall(self.banner)
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(5)
+        for c in self.conns:
+            c.close()
+        self.sock.close()
+
+
+@pytest.mark.parametrize("banner, match", [
+    (None, "no Dask scheduler answered within 1 s"),
+    (b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n", "not a Dask scheduler"),
+    (b"SSH-2.0-OpenSSH_9.6\r\n", "not a Dask scheduler"),
+    (b"", None),  # a port nothing listens on any more: handled below
+])
+def test_a_scheduler_address_that_is_not_dask_fails_fast(tmp_path, capsys, monkeypatch,
+                                                          banner, match):
+    import time
+    from mmsnap_graph.app.commands import batch
+
+    monkeypatch.setattr(batch, "CONNECT_TIMEOUT_S", 1.0)
+    rec = tmp_path / "rec.h5"
+    rec.write_bytes(b"")
+    service = _Service(banner)
+    if banner == b"":
+        service.close()  # a closed port: connection refused
+        match = "cannot connect"
+    try:
+        start = time.monotonic()
+        code = main(["batch", str(rec), "--scheduler", f"tcp://127.0.0.1:{service.port}",
+                     "--no-progress"])
+        elapsed = time.monotonic() - start
+    finally:
+        service.close()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and match in err[0], err
+    assert elapsed < 5.0
+
+
+@pytest.mark.parametrize("address", ["tls://127.0.0.1:8786", "ucx://127.0.0.1:8786",
+                                     "tcp://127.0.0.1", "tcp://127.0.0.1:99999", "inproc://x"])
+def test_scheduler_addresses_of_other_schemes_are_usage_errors(tmp_path, capsys, address):
+    rec = tmp_path / "rec.h5"
+    rec.write_bytes(b"")
+    assert main(["batch", str(rec), "--scheduler", address, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--scheduler" in err[0], err

@@ -587,7 +587,9 @@ def test_many_nodes_use_the_vectorized_checks():
     rng = np.random.default_rng(41)
     angles = rng.uniform(0, 2 * np.pi, 20)
     # nodes on a 6 m circle around the target, each facing it
-    poses = np.column_stack([TRUTH_B[0] + 6 * np.cos(angles), TRUTH_B[1] + 6 * np.sin(angles), angles - np.pi / 2 + np.pi])
+    heading = np.angle(np.exp(1j * (angles + np.pi / 2)))    # radians in [-pi, pi)
+    poses = np.column_stack([TRUTH_B[0] + 6 * np.cos(angles), TRUTH_B[1] + 6 * np.sin(angles),
+                             heading])
     z = simulate(poses, TRUTH_B, 1, seed=42)[0]
     res = fuse_frame(poses, z)
     assert res.success and res.n_observed == 20

@@ -379,3 +379,60 @@ def test_a_far_future_stamp_rejects_its_frame_only(recording, bad_time):
         updates.append(stream.push(t, d))
     assert all(u.ok for u in updates), [u.message for u in updates if not u.ok][:3]
     assert stream.bad_frames == 1
+
+
+def test_detections_beyond_the_cap_are_dropped_and_counted_and_push_stays_fast():
+    # The grouping grows as K^2.4 with K detections per node (1,000 per node
+    # took 1.5 s, 5,000 took 74 s); rows beyond max_detections_per_node are
+    # left out of the frame, counted and named.
+    from mmsnap_graph.fusion.stream.frame_stream import MAX_DETECTIONS_PER_NODE
+    rng = np.random.default_rng(5)
+
+    def rows(k):
+        return np.column_stack([rng.uniform(1, 6, k), rng.uniform(-2, 2, k), rng.normal(0, 1, k)])
+
+    stream = FrameStream(NAMES[:2], POSES[:2])
+    start = time.perf_counter()
+    update = stream.push(0.15, {"S1": rows(5000), "S2": rows(10)})
+    assert time.perf_counter() - start < 3.0
+    assert update.ok and update.dropped_detections == 5000 - MAX_DETECTIONS_PER_NODE
+    assert "max_detections_per_node=256" in update.message and "S1 (5000)" in update.message
+    assert update.members[:, 0].max() < MAX_DETECTIONS_PER_NODE
+    small = FrameStream(NAMES[:2], POSES[:2], max_detections_per_node=2)
+    u = small.push(0.15, {"S1": rows(3), "S2": rows(2)})
+    assert u.dropped_detections == 1 and u.members[:, 0].max() <= 1
+    assert small.push(0.30, {"S1": rows(2)}).dropped_detections == 0
+    for bad in (0, 5000, 2.5, "x"):
+        with pytest.raises(ValidationError, match="max_detections_per_node"):
+            FrameStream(NAMES[:2], POSES[:2], max_detections_per_node=bad)
+
+
+@pytest.mark.parametrize("restart_at", [0.0, 50.0])
+def test_a_clock_restart_does_not_lock_the_stream(recording, restart_at):
+    # A source's time goes back (a radar rebooted): every later frame was
+    # "not after the previous frame's" stamp, for good. After
+    # CLOCK_RESTART_FRAMES rejected frames whose stamps advance, the stream
+    # starts over.
+    from mmsnap_graph.fusion.stream.frame_stream import CLOCK_RESTART_FRAMES
+    stream = FrameStream(recording.node_names, _poses(recording), solver="vectorized")
+    frames = list(recording_frames(recording))[:60]
+    for _, t, d in frames[:30]:
+        assert stream.push(t + 100.0, d).ok
+    later = [stream.push(restart_at + t, d) for _, t, d in frames[30:]]
+    rejected = [u for u in later if not u.ok]
+    assert len(rejected) == CLOCK_RESTART_FRAMES - 1
+    assert all("not after" in u.message for u in rejected)
+    assert "clock restarted" in later[CLOCK_RESTART_FRAMES - 1].message
+    assert all(u.ok for u in later[CLOCK_RESTART_FRAMES - 1:])
+    assert stream.clock_restarts == 1 and stream.bad_frames == CLOCK_RESTART_FRAMES - 1
+    assert later[-1].track_id.size > 0
+
+
+def test_scattered_bad_stamps_do_not_restart_the_clock(recording):
+    stream = FrameStream(recording.node_names, _poses(recording), solver="vectorized")
+    frames = list(recording_frames(recording))[:40]
+    for i, (_, t, d) in enumerate(frames):
+        bad = i in (10, 20, 30)  # one stale stamp at a time, good frames between
+        u = stream.push(0.01 if bad else t + 1.0, d)
+        assert u.ok is not bad
+    assert stream.clock_restarts == 0 and stream.bad_frames == 3

@@ -145,7 +145,7 @@ def _write(args, recording) -> int:
 
 def _read_cfg(args, **options):
     """The ``.cfg`` of ``--cfg``; unknown commands skipped are listed on stderr."""
-    from mmsnap_graph.io.ti_cfg import read_ti_cfg
+    from mmsnap_graph.io.ti.cfg import read_ti_cfg
     ti = read_ti_cfg(args.cfg, ignore_unknown=args.ignore_unknown_commands, **options)
     if ti.unknown:
         print(f"{args.cfg}: ignored unknown commands {', '.join(ti.unknown)}", file=sys.stderr)
@@ -153,7 +153,7 @@ def _read_cfg(args, **options):
 
 
 def run_dca1000(args: argparse.Namespace) -> int:
-    from mmsnap_graph.io.dca1000 import recording_from_dca1000
+    from mmsnap_graph.io.ti.dca1000 import recording_from_dca1000
     ti = _read_cfg(args, board=args.board)
     if ti.advanced and args.sub_frame is None:
         raise ValidationError(f"{args.cfg} is an advanced frame of {ti.n_sub_frames} "
@@ -181,7 +181,7 @@ MIN_FRAME_PERIOD_S = 1e-4
 
 def _check_point_options(args) -> None:
     """Usage errors (exit 2) of the point-cloud imports' numeric options."""
-    from mmsnap_graph.io.point_cloud import MAX_MOUNT_HEIGHT_M
+    from mmsnap_graph.io.ti.point_cloud import MAX_MOUNT_HEIGHT_M
     if args.accumulate < 1:
         raise ValidationError(f"--accumulate: n_frames={args.accumulate} must be an integer >= 1")
     period = args.frame_period
@@ -213,7 +213,7 @@ def _timing(args):
     _check_point_options(args)
     ti = None
     if args.cfg is not None:
-        from mmsnap_graph.io.ti_cfg import BoardLayout
+        from mmsnap_graph.io.ti.cfg import BoardLayout
         ti = _read_cfg(args, layout=BoardLayout(**_TIMING_ONLY))
     period = args.frame_period if args.frame_period is not None else (
         ti.configs[0].frame_period_s if ti is not None else None)
@@ -223,7 +223,7 @@ def _timing(args):
 
 
 def _mountings(args, names, ti) -> dict:
-    from mmsnap_graph.io.point_cloud import Mounting
+    from mmsnap_graph.io.ti.point_cloud import Mounting
     mounts = dict(args.mount)
     rooms = dict(args.room_pose)
     unknown = sorted((set(mounts) | set(rooms)) - set(names))
@@ -245,7 +245,7 @@ def _mountings(args, names, ti) -> dict:
 
 def _check_period(args, clouds, period) -> None:
     """The frame period agrees with each cloud's time stamps (usage error)."""
-    from mmsnap_graph.io.point_cloud import check_frame_period
+    from mmsnap_graph.io.ti.point_cloud import check_frame_period
     option = "--frame-period" if args.frame_period is not None else f"the frame period of " \
                                                                      f"--cfg {args.cfg}"
     for name, cloud in clouds.items():
@@ -256,7 +256,7 @@ def _check_period(args, clouds, period) -> None:
 
 
 def _points_recording(args, clouds, ti, period, metadata):
-    from mmsnap_graph.io.point_cloud import (accumulate_frames, destack_frames,
+    from mmsnap_graph.io.ti.point_cloud import (accumulate_frames, destack_frames,
                                              recording_from_point_clouds)
     _check_period(args, clouds, period)
     if args.destack:
@@ -276,7 +276,7 @@ def _points_recording(args, clouds, ti, period, metadata):
 
 
 def run_uart(args: argparse.Namespace) -> int:
-    from mmsnap_graph.io.ti_uart import read_ti_uart
+    from mmsnap_graph.io.ti.uart import read_ti_uart
     period, ti = _timing(args)
     clouds = {}
     for name, paths in _grouped(args.node).items():
@@ -293,7 +293,7 @@ def run_uart(args: argparse.Namespace) -> int:
 
 
 def run_table(args: argparse.Namespace) -> int:
-    from mmsnap_graph.io.point_table import read_point_tables
+    from mmsnap_graph.io.ti.point_table import read_point_tables
     if bool(args.node) == bool(args.table):
         raise ValidationError("give either --node NAME=TABLE (repeat) or --table FILE")
     period, ti = _timing(args)

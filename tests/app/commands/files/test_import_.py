@@ -13,8 +13,8 @@ from mmsnap_graph.app.cli import main
 from mmsnap_graph.io import read_recording, write_dca1000_bin, read_fused, write_recording
 from mmsnap_graph.sim import CLEAN
 from mmsnap_graph.data.radar_config import RadarConfig
-from mmsnap_graph.io.dca1000 import frame_bytes
-from mmsnap_graph.io.ti_cfg import parse_ti_cfg
+from mmsnap_graph.io.ti.dca1000 import frame_bytes
+from mmsnap_graph.io.ti.cfg import parse_ti_cfg
 from mmsnap_graph.app.evaluation import evaluate_recording
 
 from _shared import TI_DATA

@@ -1,4 +1,4 @@
-"""Import of DCA1000 / mmWave Studio raw captures (layout: mmsnap_graph.io.dca1000)."""
+"""Import of DCA1000 / mmWave Studio raw captures (layout: mmsnap_graph.io.ti.dca1000)."""
 
 from __future__ import annotations
 
@@ -168,7 +168,7 @@ def _advanced_capture(n_frames):
 
 
 def test_sub_frame_selection_by_offset_and_stride(tmp_path):
-    from mmsnap_graph.io.dca1000 import read_dca1000_sub_frame, sub_frame_layout
+    from mmsnap_graph.io.ti.dca1000 import read_dca1000_sub_frame, sub_frame_layout
     configs = [SUB_A, SUB_A, SUB_B]
     offset, stride = sub_frame_layout(configs, 2)
     assert (offset, stride) == (2 * frame_bytes(SUB_A), 2 * frame_bytes(SUB_A) + frame_bytes(CFG))
@@ -190,7 +190,7 @@ def test_sub_frame_selection_by_offset_and_stride(tmp_path):
 
 
 def test_sub_frame_errors_are_never_silent(tmp_path):
-    from mmsnap_graph.io.dca1000 import read_dca1000_sub_frame
+    from mmsnap_graph.io.ti.dca1000 import read_dca1000_sub_frame
     configs = [SUB_A, SUB_A, SUB_B]
     parts = _advanced_capture(3)
     path = tmp_path / "adv.bin"

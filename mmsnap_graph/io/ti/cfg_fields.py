@@ -1,5 +1,5 @@
 """The arguments of the TI ``.cfg`` waveform commands: names, integer or not,
-and ranges (used by :mod:`mmsnap_graph.io.ti_cfg` to check every number)."""
+and ranges (used by :mod:`mmsnap_graph.io.ti.cfg` to check every number)."""
 
 from __future__ import annotations
 

@@ -50,7 +50,7 @@ from typing import Iterator, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import FileFormatError, ValidationError
+from ...errors import FileFormatError, ValidationError
 from .inputs import require_file
 from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 

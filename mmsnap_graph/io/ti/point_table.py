@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.projection import spherical_to_cartesian
-from ..errors import FileFormatError, ValidationError
+from ...errors import FileFormatError, ValidationError
 from .inputs import require_file
 from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 

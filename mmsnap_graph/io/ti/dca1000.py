@@ -41,11 +41,11 @@ from typing import Iterator, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._validation import check_count
-from .._atomic import atomic_path
-from ..errors import ConfigurationError, FileFormatError, ValidationError
-from ..data.radar_config import RadarConfig
-from ..data.recording import NodeData, Recording
+from ..._validation import check_count
+from ..._atomic import atomic_path
+from ...errors import ConfigurationError, FileFormatError, ValidationError
+from ...data.radar_config import RadarConfig
+from ...data.recording import NodeData, Recording
 from .inputs import require_file
 
 __all__ = ["MAX_LVDS_RECEIVERS", "frame_bytes", "read_dca1000_bin", "iter_dca1000_frames",

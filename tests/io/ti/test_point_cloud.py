@@ -1,4 +1,4 @@
-"""Mounting and point-cloud checks (mmsnap_graph.io.point_cloud)."""
+"""Mounting and point-cloud checks (mmsnap_graph.io.ti.point_cloud)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.io.point_cloud import (Mounting, PointCloud3D, accumulate_frames,
+from mmsnap_graph.io.ti.point_cloud import (Mounting, PointCloud3D, accumulate_frames,
                                          check_frame_period)
 
 

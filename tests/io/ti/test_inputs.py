@@ -1,4 +1,4 @@
-"""The importers' input files (mmsnap_graph.io.inputs): a regular file or a link to
+"""The importers' input files (mmsnap_graph.io.ti.inputs): a regular file or a link to
 one is read; a missing path, a folder or a pipe is an error naming what it is
 (reading a pipe would wait for ever)."""
 
@@ -7,14 +7,14 @@ from __future__ import annotations
 import pytest
 
 from mmsnap_graph.errors import FileFormatError
-from mmsnap_graph.io.ti_uart import read_ti_uart
+from mmsnap_graph.io.ti.uart import read_ti_uart
 
 
 def test_a_pipe_or_folder_is_named_not_read(tmp_path):
     import os
-    from mmsnap_graph.io.point_table import read_point_tables
-    from mmsnap_graph.io.ti_cfg import read_ti_cfg
-    from mmsnap_graph.io.ti_uart import read_ti_uart
+    from mmsnap_graph.io.ti.point_table import read_point_tables
+    from mmsnap_graph.io.ti.cfg import read_ti_cfg
+    from mmsnap_graph.io.ti.uart import read_ti_uart
     fifo = tmp_path / "pipe.bin"
     os.mkfifo(fifo)
     for read, kind in ((read_ti_uart, "UART log"), (read_point_tables, "point table"),
@@ -30,7 +30,7 @@ def test_a_pipe_or_folder_is_named_not_read(tmp_path):
 def test_require_file_passes_files_and_links_to_them_and_names_the_rest(tmp_path):
     import os
 
-    from mmsnap_graph.io.inputs import require_file
+    from mmsnap_graph.io.ti.inputs import require_file
 
     f = tmp_path / "log.bin"
     f.write_bytes(b"x")

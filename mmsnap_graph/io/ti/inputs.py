@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import FileFormatError
+from ...errors import FileFormatError
 
 __all__ = ["require_file"]
 

@@ -46,10 +46,10 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from ..data.radar_config import RadarConfig
-from ..errors import ConfigurationError, FileFormatError
+from ...data.radar_config import RadarConfig, TiProfile
+from ...errors import ConfigurationError, FileFormatError
 from .inputs import require_file
-from .ti_cfg_fields import cfg_fields
+from .cfg_fields import cfg_fields
 
 __all__ = ["BoardLayout", "BOARD_PRESETS", "TiConfig", "parse_ti_cfg", "read_ti_cfg",
            "read_boundary_boxes", "BOUNDARY_COMMANDS",
@@ -328,16 +328,19 @@ def _frame_config(cmds: _Commands, table: dict, where: _Line, first: int, n_chir
     p = prof.args
     rx = _rx_channels(cmds, layout)
     try:
-        return RadarConfig.from_ti_profile(
+        profile = TiProfile(
             start_freq_hz=p[1] * 1e9, idle_s=p[2] * 1e-6, adc_start_s=p[3] * 1e-6,
             ramp_end_s=p[4] * 1e-6, slope_hz_per_s=p[7] * 1e12, n_samples=int(p[9]),
             sample_rate_hz=p[10] * 1e3, n_loops=n_loops, frame_period_s=frame_period_s,
+            complex_adc=_complex_adc(cmds, sub_frame))
+        return RadarConfig.from_ti_profile(
+            profile,
             tx_azimuth_half_wl=[layout.tx_azimuth_half_wl[t] for t in txs],
             tx_elevation_half_wl=[layout.tx_elevation_half_wl[t] for t in txs],
             rx_azimuth_half_wl=[layout.rx_azimuth_half_wl[r] for r in rx],
             rx_elevation_half_wl=([layout.rx_elevation_half_wl[r] for r in rx]
                                   if layout.rx_elevation_half_wl else ()),
-            tx_channels=txs, complex_adc=_complex_adc(cmds, sub_frame))
+            tx_channels=txs)
     except ConfigurationError as exc:
         raise cmds.error(prof, f"profileCfg {int(p[0])} with {where.command} (line "
                                f"{where.number}): {exc}") from None

@@ -1,4 +1,4 @@
-"""Point tables (mmsnap_graph.io.point_table): CSV without pandas, malformed
+"""Point tables (mmsnap_graph.io.ti.point_table): CSV without pandas, malformed
 columns as typed errors, frame numbers and time stamps that fit."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from hypothesis import given, settings, strategies as st
 import pandas as pd
 
 from mmsnap_graph.errors import FileFormatError, ValidationError, MmsnapError
-from mmsnap_graph.io.point_table import read_point_table, read_point_tables
+from mmsnap_graph.io.ti.point_table import read_point_table, read_point_tables
 from factors.projection import spherical_to_cartesian
 
 from _shared import ROOT, TI_DATA
@@ -38,7 +38,7 @@ def test_csv_is_read_without_pandas(tmp_path):
     the sample CSV is still read, through the library and the CLI."""
     code = (
         "import sys; sys.modules['pandas'] = None\n"
-        "from mmsnap_graph.io.point_table import read_point_tables\n"
+        "from mmsnap_graph.io.ti.point_table import read_point_tables\n"
         f"clouds = read_point_tables({str(TI_DATA / 'points_sensor_frame.csv')!r})\n"
         "print(sorted(clouds), sum(len(c) for c in clouds.values()))\n"
         "from mmsnap_graph.app.cli import main\n"
@@ -207,7 +207,7 @@ def test_seeded_mutations_of_the_sample_raise_only_project_errors(tmp_path):
     missing cells, duplicated headers), each read and turned into a recording:
     a project error or a recording, never another exception."""
     from mmsnap_graph.errors import MmsnapError
-    from mmsnap_graph.io.point_cloud import recording_from_point_clouds
+    from mmsnap_graph.io.ti.point_cloud import recording_from_point_clouds
     lines = SENSOR_LINES[:120]
     odd = ["", "nan", "inf", "-inf", "1e308", "-1e308", "18446744073709551615", "x", "1e-300",
            "2.5", " ", "0x10", "1e30"]

@@ -1,4 +1,4 @@
-"""The arguments of the TI ``.cfg`` waveform commands (mmsnap_graph.io.ti_cfg_fields),
+"""The arguments of the TI ``.cfg`` waveform commands (mmsnap_graph.io.ti.cfg_fields),
 against the mmWave SDK user guide's command list and the radar's hardware
 limits; and the limits as the ``.cfg`` parser applies them, at their edges."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import pytest
 
 from mmsnap_graph.errors import ConfigurationError
-from mmsnap_graph.io.ti_cfg import parse_ti_cfg
-from mmsnap_graph.io.ti_cfg_fields import cfg_fields
+from mmsnap_graph.io.ti.cfg import parse_ti_cfg
+from mmsnap_graph.io.ti.cfg_fields import cfg_fields
 
 from _shared import TI_DATA
 

@@ -1,4 +1,4 @@
-"""UART logs (mmsnap_graph.io.ti_uart): repeated and backward frame numbers,
+"""UART logs (mmsnap_graph.io.ti.uart): repeated and backward frame numbers,
 non-finite points (encoded by tests/ti_encode.py)."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import FileFormatError, MmsnapError, ValidationError
 from mmsnap_graph.io import read_recording
-from mmsnap_graph.io.ti_uart import parse_ti_uart, MAGIC_WORD, read_ti_uart
+from mmsnap_graph.io.ti.uart import parse_ti_uart, MAGIC_WORD, read_ti_uart
 from ti_encode import encode_oob_frame, encode_tracking_frame
 
 

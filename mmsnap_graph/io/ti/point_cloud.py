@@ -17,9 +17,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.projection import project_to_plane, room_to_sensor
-from .._validation import as_float_array, check_count, int_array
-from ..data.recording import Detections, NodeData, Recording
-from ..errors import ValidationError
+from ..._validation import as_float_array, check_count, int_array
+from ...data.recording import Detections, NodeData, Recording
+from ...errors import ValidationError
 
 __all__ = ["PointCloud3D", "Mounting", "cloud_to_detections", "recording_from_point_clouds",
            "destack_frames", "accumulate_frames", "check_frame_period"]
