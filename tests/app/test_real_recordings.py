@@ -167,7 +167,7 @@ POSE_XFAIL = {"multiple_tracking": "S2 heading -3.76 deg from the tape (0.046 m)
 # Halves, compared in the reference frame: with the joint graph's marginals
 # (`mmsnap calibrate --covariance model`) (1.9, 2.3, 1.8) sigma (multiple
 # tracking) and (1.5, 8.2, 6.3) (fall detection); with the default long-run
-# covariance (0.9, 0.9, 0.9) and (1.0, 2.9, 2.3).
+# covariance (0.5, 0.5, 0.5) and (0.8, 2.6, 2.0).
 HALVES_XFAIL: dict = {}
 NO_BOUNDS_XFAIL = {
     "multiple_tracking": "91.1% of fused rows inside the room without --bounds (target 95%)",

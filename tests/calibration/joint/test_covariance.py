@@ -6,8 +6,15 @@ walker, 300 frames at 150 ms, the real physics without clutter, ghosts,
 split clusters or reflection depth, so that only the AR(1) centroid errors
 (0.045 m, 0.7 s, and the fast part's 0.04 s) break the model; joint NEES of
 the two poses, chi-square(6), seeds 0-19, band of the mean 4.58-7.61): the
-graph's marginals 12.87, the long-run covariance (2 s Bartlett bandwidth)
-8.86: better, not in the band (a strict xfail).
+graph's marginals 12.87; the long-run covariance (2 s Bartlett bandwidth)
+widened per direction beyond two standard errors 8.86, although at the mean
+reported covariance the NEES was 6.62 (bias part 0.11): each recording's
+covariance is estimated from its own 300 frames (about 32 degrees of
+freedom), and the inverse of a noisy covariance is too large on the
+average. A 6 s bandwidth gave 9.49, no threshold 8.28, AR(1)-prewhitened
+influences 8.82. Now (the whole block's test, then the long-run estimate
+times ``nu / (nu - P - 1)``): 6.64; the clean model's network NEES on the
+same 300-frame scenes, seeds 0-29, 5.40 -> 5.84 (band 4.80-7.37).
 """
 
 from __future__ import annotations
@@ -86,11 +93,19 @@ def test_robust_covariance_keeps_the_model_within_its_noise_and_widens_beyond():
     same, f = robust_covariance(model, 1.05 * model, n_frames=300, bandwidth=13)
     np.testing.assert_allclose(same, model)
     assert np.all(f == 1.0)
+    # One direction 1.5x: beyond one Bartlett estimate's two standard errors
+    # (1.48x) but the block's mean (1.17x) within its noise (1.28x): kept.
+    one = model.copy()
+    one[0, 0] *= 1.5
+    kept, f = robust_covariance(model, one, n_frames=300, bandwidth=13)
+    np.testing.assert_allclose(kept, model)
     wide = model.copy()
     wide[0, 0] *= 9.0  # the first direction's errors last: 9x the variance
     out, f = robust_covariance(model, wide, n_frames=300, bandwidth=13)
-    np.testing.assert_allclose(np.diag(out), [36.0, 1.0, 0.25], rtol=1e-9)
-    assert f[0] == pytest.approx(9.0) and np.all(f[1:] == 1.0)
+    nu = 3 * 300 / (2 * 13)
+    c = nu / (nu - 3 - 1)  # the small-sample factor of nu degrees of freedom
+    np.testing.assert_allclose(np.diag(out), [36.0 * c, c, 0.25 * c], rtol=1e-9)
+    assert f[0] == pytest.approx(9.0 * c) and np.allclose(f[1:], c)
     assert np.all(np.linalg.eigvalsh(out - model) > -1e-12)
 
 
@@ -176,16 +191,15 @@ BAND = tuple(chi2.ppf([0.025, 0.975], 6 * 20) / 20)
 @pytest.mark.slow
 def test_correlated_errors_long_run_covariance_lowers_the_nees():
     """Module doc: the marginals' NEES is above the band; the long-run
-    covariance takes at least a quarter of it off (12.9 -> 8.9 measured)."""
+    covariance takes at least a quarter of it off (12.9 -> 6.6 measured)."""
     means = _correlated_nees()
     assert means["model"] > BAND[1]
     assert means["long_run"] < 0.75 * means["model"]
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="long-run NEES 8.86 above the band (4.58, 7.61), seeds "
-                                       "0-19 (marginals 12.87)")
 def test_correlated_errors_long_run_nees_in_band():
+    """Module doc: 6.64 (was 8.86 with the per-direction widening)."""
     means = _correlated_nees()
     assert BAND[0] < means["long_run"] < BAND[1]
 
