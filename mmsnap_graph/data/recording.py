@@ -25,7 +25,13 @@ from ..errors import ValidationError
 from .radar_config import RadarConfig
 from .._validation import as_float_array, check_finite, check_pose, int_array
 
-__all__ = ["Detections", "Tracks", "NodeData", "Truth", "Recording"]
+__all__ = ["Detections", "Tracks", "NodeData", "Truth", "Recording", "MIN_FRAME_PERIOD_S",
+           "MAX_FRAME_PERIOD_S"]
+
+#: A recording's frame period bounds (s): a radar frame holds at least one
+#: chirp (tens of microseconds), and a frame an hour apart is no tracking.
+MIN_FRAME_PERIOD_S = 1e-6
+MAX_FRAME_PERIOD_S = 3600.0
 
 
 
@@ -289,6 +295,9 @@ class Recording:
             fp = math.nan
         if not (np.isfinite(fp) and fp > 0):
             raise ValidationError(f"frame_period_s must be finite and > 0, got {self.frame_period_s!r}")
+        if not MIN_FRAME_PERIOD_S <= fp <= MAX_FRAME_PERIOD_S:
+            raise ValidationError(f"frame_period_s={fp!r} must be in [{MIN_FRAME_PERIOD_S:g}, "
+                                  f"{MAX_FRAME_PERIOD_S:g}] s (a unit mistake?)")
         object.__setattr__(self, "frame_period_s", fp)
         nodes = dict(self.nodes)
         if not nodes:

@@ -33,7 +33,8 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from ..data.recording import Detections, NodeData, Recording
+from ..data.recording import (MAX_FRAME_PERIOD_S, MIN_FRAME_PERIOD_S, Detections, NodeData,
+                              Recording)
 from ..data.results import FusedSequence
 from ..errors import FileFormatError, MmsnapError
 from .fused import FUSED_GROUP, write_fused
@@ -64,9 +65,11 @@ def _check_format(f: h5py.File, path: Path) -> None:
 
 def _frame_period(f: h5py.File, path: Path) -> float:
     value = np.asarray(f.attrs.get("frame_period_s", np.nan))
-    if value.shape != () or value.dtype.kind not in "iuf" or not np.isfinite(value) or value <= 0:
-        raise FileFormatError(f"{path}: / attribute 'frame_period_s' must be a finite number "
-                              f"> 0, got {value!r}")
+    if value.shape != () or value.dtype.kind not in "iuf" or not np.isfinite(value) \
+            or not MIN_FRAME_PERIOD_S <= value <= MAX_FRAME_PERIOD_S:
+        raise FileFormatError(f"{path}: / attribute 'frame_period_s' must be a number in "
+                              f"[{MIN_FRAME_PERIOD_S:g}, {MAX_FRAME_PERIOD_S:g}] s, got "
+                              f"{value.tolist()!r}")
     return float(value)
 
 

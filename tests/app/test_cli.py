@@ -439,3 +439,46 @@ def test_an_output_folder_is_refused_before_any_work(recording_b_file, tmp_path)
                  ["calibrate", str(recording_b_file), "--no-write", "--json-out", str(tmp_path)],
                  ["fuse", str(recording_b_file), "-o", str(tmp_path)]):
         assert main(argv) == 2
+
+
+# Every verb's numeric options with odd values: a typed, one-line error
+# (exit 1 or 2) or a clean run, each within a time bound; never a traceback.
+_ODD_VALUES = ["1e308", "-1", "nan", "0", "1000000000", "x", "1e-300", "inf"]
+_FUZZED_VERBS = ("process", "calibrate", "fuse", "monitor", "replay", "evaluate",
+                 "batch")
+
+
+def _numeric_options(verb: str) -> list:
+    import argparse as _argparse
+    from mmsnap_graph.app.cli import build_parser
+    sub = next(a for a in build_parser()._actions if isinstance(a, _argparse._SubParsersAction))
+    out = []
+    for a in sub.choices[verb]._actions:
+        if (a.option_strings and a.nargs != 0 and not a.choices and a.type is not None
+                and a.dest not in ("output", "json_out", "config", "help")):
+            out.append((a.option_strings[-1], a.nargs if isinstance(a.nargs, int) else 1))
+    return out
+
+
+@pytest.mark.parametrize("verb", _FUZZED_VERBS)
+def test_odd_option_values_give_a_clean_exit(verb, recording_b_file, tmp_path, capsys):
+    import shutil
+    import time as _time
+    rng = np.random.default_rng(sum(map(ord, verb)))
+    cases = [(opt, n, v) for opt, n in _numeric_options(verb) for v in _ODD_VALUES]
+    assert cases, verb
+    for i in rng.choice(len(cases), size=min(16, len(cases)), replace=False):
+        opt, n, value = cases[i]
+        work = tmp_path / f"w{i}.h5"
+        shutil.copy(recording_b_file, work)
+        argv = [verb, str(work), opt, *[value] * n]
+        if verb in ("process", "fuse", "noise", "replay", "calibrate"):
+            argv += ["-o", str(tmp_path / f"out{i}.h5")]
+        start = _time.monotonic()
+        try:
+            code = main(argv + (["--no-progress"] if verb != "replay" else []))
+        except SystemExit as exc:  # argparse: a value of the wrong type
+            code = exc.code
+        capsys.readouterr()
+        assert code in (0, 1, 2), (argv, code)
+        assert _time.monotonic() - start < 15, argv

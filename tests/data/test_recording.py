@@ -68,3 +68,28 @@ def test_a_bad_frame_period_is_a_validation_error(period):
 
     with pytest.raises(ValidationError, match="frame_period_s must be finite and > 0"):
         Recording(frame_period_s=period, nodes={})
+
+
+@pytest.mark.parametrize("period", [1e-300, 1e-12, 1e-7, 1e5])
+def test_a_frame_period_beyond_a_radar_s_is_a_validation_error(period):
+    # A 1e-300 s period made process overflow (OverflowError in the scene
+    # filters' time windows): a unit mistake, refused where the recording is
+    # built or read.
+    with pytest.raises(ValidationError, match=r"frame_period_s=.*must be in \[1e-06, 3600\]"):
+        Recording(frame_period_s=period, nodes={})
+
+
+def test_process_and_calibrate_refuse_a_file_with_a_tiny_frame_period(tmp_path, capsys):
+    import h5py
+    from mmsnap_graph.app.cli import main
+    from mmsnap_graph.io import write_recording
+    from mmsnap_graph.sim import CLEAN, simulate_recording
+    rec = simulate_recording("B", "random", CLEAN, levels=("centroids",), n_frames=20, seed=1)
+    path = tmp_path / "rec.h5"
+    write_recording(path, rec)
+    with h5py.File(path, "r+") as f:
+        f.attrs["frame_period_s"] = 1e-300
+    for verb in (["process", str(path), "-o", str(tmp_path / "out.h5")],
+                 ["calibrate", str(path), "--no-write"]):
+        assert main([*verb, "--no-progress"]) in (1, 2)  # a clean error, no traceback
+        assert "frame_period_s=1e-300 must be in" in capsys.readouterr().err

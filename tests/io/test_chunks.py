@@ -43,8 +43,22 @@ CASES = {
     "gap 1e12": dict(frames=lambda fr: np.where(fr >= 20, fr + 10 ** 12, fr)),
     "near int64 max": dict(frames=lambda fr: fr + BIG),
     "both ends of int64": dict(frames=lambda fr: np.where(fr >= 20, fr + BIG, fr - 2 ** 62)),
-    "tiny frame period": dict(frames=lambda fr: fr, period=1e-300),
 }
+
+
+def test_a_tiny_frame_period_is_refused_quickly(base, tmp_path, capsys):
+    # 1e-300 s is a unit mistake (below a radar's chirp): refused where the
+    # recording is read, in well under a second, not fused over a huge span.
+    from mmsnap_graph.errors import MmsnapError
+    path = _edited(base, tmp_path, frames=lambda fr: fr, period=1e-300)
+    t0 = time.monotonic()
+    with pytest.raises(MmsnapError, match="frame_period_s"):
+        list(open_detection_windows(path).windows(2000, margin=3))
+    assert main(["fuse", str(path), "--no-progress"]) in (1, 2)
+    assert "frame_period_s' must be a number in [1e-06, 3600] s, got 1e-300" \
+        in capsys.readouterr().err
+    assert time.monotonic() - t0 < 5
+    assert [p.name for p in tmp_path.iterdir()] == ["rec.h5"]  # no lock or temporary left
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
