@@ -306,7 +306,6 @@ def calibrate_recording(
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
     result_method, refined, associated, notes = "pose_graph", None, None, [pg.message]
-    notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in pg.edges if e.lag_note]
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)
@@ -318,6 +317,7 @@ def calibrate_recording(
         elif refined is not None:
             notes.append("kept the pose-graph poses")
             associated = None
+    covs = _cover_ambiguous_lags(pg.edges, covs, notes)
     success = pg.success and (refined is None or refined.success or result_method == "pose_graph")
     lags = dict(pg.lag_frames)
     if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
@@ -335,6 +335,26 @@ def calibrate_recording(
         range_offset_m=refined.range_offset_m if result_method == "joint" else float("nan"),
         range_offset_variance=(refined.range_offset_variance if result_method == "joint"
                                else float("nan")))
+
+
+def _cover_ambiguous_lags(edges, covs, notes) -> dict:
+    """The edges' lag notes added to ``notes``, and covariances at least an
+    ambiguous-lag edge's (PSD maximum) for its nodes: the refinement fits one
+    lag and its covariance is that lag's alone (a walk along a circle: 0.8 m
+    off with a 0.08 m sigma), while the edge's covers the poses of every lag
+    that fits about as well."""
+    notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in edges if e.lag_note]
+    out = dict(covs)
+    for e in edges:
+        if not e.lag_ambiguous:
+            continue
+        notes.append(f"{e.node_a}-{e.node_b}: lag not determined (other lags fit about as well "
+                     f"with other poses): the covariance covers their spread")
+        for n in (e.node_a, e.node_b):
+            if n in out and np.any(out[n]):
+                gap_val, gap_vec = np.linalg.eigh(e.covariance - out[n])
+                out[n] = out[n] + (gap_vec * np.maximum(gap_val, 0.0)) @ gap_vec.T
+    return out
 
 
 def _noise_estimate(recording: Recording, poses, lags, associated) -> NoiseEstimate:

@@ -90,6 +90,8 @@ def starting_poses(measurements: Mapping[str, NDArray], names: Sequence[str], re
                                + "; ".join(f"{k}: {v}" for k, v in failures.items()))
     pg = pose_graph_calibration([reference] + [n for n in names if n != reference], edges,
                                 failures=failures)
+    if not pg.success:  # no poses at all: a typed error, not a missing key later
+        raise CalibrationError(f"the closed-form starting poses: {pg.message.strip()}")
     return dict(pg.poses), pg.unreachable
 
 

@@ -155,6 +155,14 @@ class TrackMatching:
     candidates : every scored hypothesis.
     lag_note : how the data decided a nonzero lag (kept: its evidence; not
         determined: lag 0 kept), empty when lag 0 won outright.
+    lag_ambiguous : the walk has a symmetry that no model can break: every
+        lag within 2 frames of the chosen one, on both sides, fits within
+        :data:`SYMMETRY_RMSE_RATIO` of its RMSE (a walk along a circle: a time
+        shift is a turn about its centre), with poses more than 3 sigma away;
+        the lag is not determined and the covariance was widened by their
+        spread. (Next-frame lags alone fitting about as well is the flat bottom
+        of the RMSE that the joint refinement's Doppler resolves: random walks
+        show it with lags 2 frames away 13-33% worse.)
     """
 
     calibration: PairwiseCalibration | None
@@ -164,6 +172,7 @@ class TrackMatching:
     success: bool
     message: str
     lag_note: str = ""
+    lag_ambiguous: bool = False
 
 
 def _common(fa: NDArray, fb: NDArray, lag: int) -> tuple[NDArray, NDArray]:
@@ -394,6 +403,21 @@ def _choose_lag(fits, lag_min_improvement) -> int:
     return lag
 
 
+#: Lags up to 2 frames away on both sides within this ratio of the chosen
+#: lag's RMSE: a symmetry of the walk (:attr:`TrackMatching.lag_ambiguous`).
+SYMMETRY_RMSE_RATIO = 1.05
+
+
+def _symmetric(fits, lag) -> bool:
+    """Every lag within 2 frames of ``lag``, on both sides, fits about as
+    well: the RMSE is flat, not the bottom of a valley (time-correlated
+    errors flatten one side of a random walk's, never both)."""
+    n, r = fits[lag][1].size, fits[lag][3]
+    near = [lag + d for d in (-2, -1, 1, 2)]
+    return all(L in fits and fits[L][1].size >= 0.95 * n
+               and fits[L][3] <= SYMMETRY_RMSE_RATIO * r for L in near)
+
+
 def _ambiguous_lags(fits, lag, lag_ambiguity) -> list[int]:
     """The other lags that explain about as many frames (95%) with an inlier
     RMSE within ``lag_ambiguity`` of the chosen lag's: the data do not tell
@@ -526,9 +550,11 @@ def match_tracks(
     matched = _matched(pool, lag, ia, ib, cands, o.covariance, min_common_frames, min_spread_m,
                        o.autocorrelation)
     cal = _widened(matched.calibration, lag, fits, ambiguous)
+    widened = cal is not matched.calibration and _symmetric(fits, lag)
     if note:
         cal = replace(cal, message=f"{cal.message}; {note}")
-    return replace(matched, calibration=cal, message=cal.message, lag_note=note)
+    return replace(matched, calibration=cal, message=cal.message, lag_note=note,
+                   lag_ambiguous=widened)
 
 
 def _supported_lag(pool, fits, lag):

@@ -46,6 +46,12 @@ __all__ = ["PoseEdge", "PoseGraphCalibration", "pose_graph_calibration", "pairwi
 #: Sigma of the prior that anchors the reference node (m and rad): small
 #: enough to be a constraint, large enough to keep the Cholesky well scaled.
 ANCHOR_SIGMA = 1e-6
+#: Smallest edge sigma the graph uses (m and rad; added in quadrature): a
+#: noise-free pair fits exactly and its closed-form covariance is rounding's
+#: (sigma ~1e-14), which GTSAM cannot factor next to the anchor ("indeterminate
+#: linear system": no poses at all where the exact poses are the answer). A
+#: micrometre is far below any radar's resolution.
+EDGE_SIGMA_FLOOR = 1e-6
 #: The between-factor graph gives the joint covariance of all non-reference
 #: poses up to this many of them (beyond, the marginals only: the joint
 #: marginal of a large graph costs more than the solve).
@@ -59,6 +65,8 @@ class PoseEdge:
     pose : (3,); covariance : (3, 3) in the body tangent of ``pose``;
     rmse_m, n_frames, lag_frames : from the pairwise estimate (informative).
     lag_note : how the data decided a nonzero lag (:class:`TrackMatching`).
+    lag_ambiguous : the lag is not determined and ``covariance`` covers the
+        poses of the competing lags (:class:`TrackMatching`).
     frames, points_a_m, points_b_m : optional (K,) a's frame numbers and the
         (K, 2) matched points in a's and b's frames (b's frame ``k + lag``);
         with them the network is solved from the points (module doc).
@@ -75,6 +83,7 @@ class PoseEdge:
     points_a_m: NDArray | None = None
     points_b_m: NDArray | None = None
     lag_note: str = ""
+    lag_ambiguous: bool = False
 
     def __post_init__(self) -> None:
         if self.node_a == self.node_b:
@@ -208,7 +217,8 @@ def _solve_edges(ref, reachable, init, used, max_iterations):
                                      gtsam.noiseModel.Isotropic.Sigma(3, ANCHOR_SIGMA)))
     for e in used:
         graph.add(gtsam.BetweenFactorPose2(key[e.node_a], key[e.node_b], to_pose2(e.pose),
-                                           gtsam.noiseModel.Gaussian.Covariance(e.covariance)))
+                                           gtsam.noiseModel.Gaussian.Covariance(
+                                               e.covariance + EDGE_SIGMA_FLOOR ** 2 * np.eye(3))))
     values = gtsam.Values()
     for n in reachable:
         values.insert(key[n], init[n])
@@ -342,7 +352,8 @@ def pairwise_edges(
         m = match_tracks(tracks[a], tracks[b], frame_period_s=frame_period_s, options=options)
         if m.success:
             edges.append(dataclasses.replace(PoseEdge.from_pairwise(a, b, m.calibration),
-                                             lag_note=m.lag_note))
+                                             lag_note=m.lag_note,
+                                             lag_ambiguous=m.lag_ambiguous))
         else:
             failures[f"{a}-{b}"] = m.message
     return edges, failures

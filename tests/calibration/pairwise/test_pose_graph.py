@@ -275,3 +275,32 @@ def test_two_nodes_points_solve_is_the_closed_form():
     assert pg.method == "points" and pg.success
     np.testing.assert_allclose(pg.poses["S2"], cf.pose, atol=1e-9)
     np.testing.assert_allclose(pg.covariances["S2"], cf.covariance * 300 / 297, rtol=1e-6)
+
+
+def _noise_free_circle():
+    from factors.models import predict_measurements
+    poses = {"S1": np.zeros(3), "S2": np.array([0.0, 7.0, np.pi])}
+    t = np.arange(200) * 0.15
+    x = np.column_stack([2 + 1.5 * np.cos(0.3 * t), 3.5 + 1.5 * np.sin(0.3 * t),
+                         -0.45 * np.sin(0.3 * t), 0.45 * np.cos(0.3 * t)])
+    return poses, {n: predict_measurements(x, p) for n, p in poses.items()}
+
+
+def test_noise_free_tracks_give_the_exact_poses_not_an_indeterminate_system():
+    # A perfect fit's closed-form covariance is rounding's (sigma ~1e-14):
+    # GTSAM stopped with "Indeterminate linear system" and no poses, and
+    # joint_calibration then raised KeyError. Edges are floored at 1 um.
+    from factors.models import detection_to_local
+    from mmsnap_graph.calibration import closed_form_calibration, joint_calibration
+    truth, z = _noise_free_circle()
+    local = {n: detection_to_local(z[n][:, 0], z[n][:, 1]) for n in truth}
+    cal = closed_form_calibration(local["S1"], local["S2"])
+    for method in ("edges", "points"):
+        pg = pose_graph_calibration(["S1", "S2"], [PoseEdge.from_pairwise("S1", "S2", cal)],
+                                    method=method)
+        assert pg.success, pg.message
+        np.testing.assert_allclose(pg.poses["S2"], truth["S2"], atol=1e-6)
+        assert np.all(np.linalg.eigvalsh(pg.covariances["S2"]) > 0)
+    joint = joint_calibration({n: (np.arange(200), z[n]) for n in truth}, frame_period_s=0.15)
+    assert joint.success, joint.message
+    assert np.hypot(*(joint.poses["S2"][:2] - truth["S2"][:2])) < 0.02
