@@ -336,3 +336,40 @@ def test_tables_hold_float16_values_and_read_as_point_tables():
             assert cloud.snr_db is not None and np.all(np.isfinite(cloud.snr_db))
             np.testing.assert_allclose(cloud.time_s, 0.05 * cloud.frame, atol=1e-9)
     assert (REAL / "LICENSE").read_text().startswith("MIT License")
+
+
+# ---------------------------------------------------------------- the simulator's real model
+# The same CLI path on the simulator's real model (docs/SIMULATOR.md, "Fused
+# consistency on the real model"), with the TRUE node poses, so that only the
+# measurement model is on trial.
+REAL_MODEL_NEES = (
+    "real model, B random 600 frames seed 1, simulate/process/calibrate, fuse at the true "
+    "poses: NEES 5.27 of 4 (95% band 3.77-4.24), position part 2.98 of 2, velocity 2.31 of 2. "
+    "Causes measured: the point-cloud centroids sit 0.06-0.07 m short in range (the body's "
+    "near side) with a 0.08-0.12 m range sigma, a bias the fused covariance does not carry; "
+    "the centroid Doppler errors are heavy-tailed (std 0.31 m/s, robust 0.13 m/s) against "
+    "an estimated 0.25 m/s")
+
+
+@pytest.mark.xfail(strict=True, reason=REAL_MODEL_NEES)
+def test_fused_states_consistent_on_the_simulated_real_model(tmp_path):
+    from mmsnap_graph.evaluation.metrics import nees_check, truth_reference
+    from mmsnap_graph.io import read_recording
+
+    rec_path = tmp_path / "r.h5"
+    run(["simulate", "-c", "B", "-t", "random", "-n", "600", "--seed", "1", "-o", str(rec_path)])
+    run(["process", str(rec_path)])
+    run(["calibrate", str(rec_path)])
+    truth = read_recording(rec_path, load_cubes=False).truth
+    true_json = tmp_path / "true.json"
+    true_json.write_text(json.dumps({"nodes": {n: {"pose": [float(v) for v in p]}
+                                               for n, p in truth.node_poses.items()}}))
+    run(["fuse", str(rec_path), "--no-progress", "--calibration", str(true_json)])
+    fused = read_fused(rec_path)
+    ok = np.asarray(fused.success, dtype=bool)
+    ref, _ = truth_reference(fused.frame[ok], fused.state[ok, :2], truth.frame,
+                             truth.target_id, truth.state)
+    check = nees_check(fused.state[ok] - ref, np.asarray(fused.covariance)[ok])
+    print(f"real model, true poses: mean NEES {check.mean:.2f} over {check.n} rows, "
+          f"95% band {check.interval}")
+    assert check.passed, (check.mean, check.interval)

@@ -428,7 +428,7 @@ def estimate_noise(
            if method != "network" else {})
     parts = _temporal_parts(tmp)
     net_poses = _poses_for(recording, names, poses) if method != "temporal" else None
-    parts.update(_network_parts(dets, net_poses, tmp, fallback, method))
+    parts.update(_network_parts(dets, net_poses, tmp, fallback, method, min_dof))
     if pool:
         _pool(parts, min_dof)
     nodes = {n: _node_estimate(parts.get(n), tmp.get(n), len(names), fallback, min_dof)
@@ -448,7 +448,7 @@ def _temporal_parts(tmp) -> dict:
             for n, (s, c) in tmp.items()}
 
 
-def _network_parts(dets, poses, tmp, fallback, method) -> dict:
+def _network_parts(dets, poses, tmp, fallback, method, min_dof=MIN_DOF) -> dict:
     """The network estimator (with the temporal estimates combined in, unless
     ``method="network"``) of the nodes with a pose; {} without poses."""
     if poses is None:
@@ -463,7 +463,7 @@ def _network_parts(dets, poses, tmp, fallback, method) -> dict:
     t_dof = t_cnt / KAPPA_4
     if method == "auto":
         t_sig, t_dof, t_cnt = _with_motion_doppler({n: dets[n] for n in names}, poses, t_sig,
-                                                   t_dof, t_cnt, init)
+                                                   t_dof, t_cnt, init, min_dof)
     sig, dof, counts = network_noise(
         {n: dets[n] for n in names}, poses,
         initial=MeasurementNoise(range_m=init[0], omega_rad=init[1], doppler_mps=init[2]),
@@ -473,11 +473,17 @@ def _network_parts(dets, poses, tmp, fallback, method) -> dict:
             for j, n in enumerate(names)}
 
 
-def _with_motion_doppler(dets, poses, t_sig, t_dof, t_cnt, init):
+def _with_motion_doppler(dets, poses, t_sig, t_dof, t_cnt, init, min_dof=MIN_DOF):
     """The nodes' temporal Doppler estimates replaced by
     :func:`~.motion.motion_doppler_noise` (the target's motion fitted
-    jointly across the nodes, at each frame's least-squares state); the
-    others kept. Returns new ``(t_sig, t_dof, t_cnt)``."""
+    jointly across the nodes, at each frame's least-squares state) where
+    that estimate is identified (``min_dof``) or carries more dof than the
+    temporal one; the others kept. A motion estimate with a handful of dof
+    (a body's micro-Doppler makes its Doppler rough from frame to frame, so
+    few rows pass its gate) must not throw away a temporal estimate of ~80
+    dof: the fusion would fall back to the paper's sigma, half the real
+    one, and its velocity covariance would be too small.
+    Returns new ``(t_sig, t_dof, t_cnt)``."""
     names = list(dets)
     frames, z = _frame_table(dets, names)
     if frames.size == 0:
@@ -488,7 +494,8 @@ def _with_motion_doppler(dets, poses, t_sig, t_dof, t_cnt, init):
     sig, dof, counts = motion_doppler_noise(dets, poses, states, frames,
                                             initial=np.full(len(names), init[2]))
     t_sig, t_dof, t_cnt = t_sig.copy(), t_dof.copy(), t_cnt.copy()
-    t_sig[:, 2], t_dof[:, 2], t_cnt[:, 2] = sig, dof, counts
+    use = np.isfinite(sig) & (sig > 0) & ((dof >= min_dof) | (dof >= t_dof[:, 2]))
+    t_sig[use, 2], t_dof[use, 2], t_cnt[use, 2] = sig[use], dof[use], counts[use]
     return t_sig, t_dof, t_cnt
 
 
