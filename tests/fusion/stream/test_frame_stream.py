@@ -436,3 +436,21 @@ def test_scattered_bad_stamps_do_not_restart_the_clock(recording):
         u = stream.push(0.01 if bad else t + 1.0, d)
         assert u.ok is not bad
     assert stream.clock_restarts == 0 and stream.bad_frames == 3
+
+
+def test_no_sequence_of_stamps_locks_the_stream():
+    # Seeded mutations of the time stamps (back, far ahead, NaN, repeats):
+    # whatever came before, a source that then sends advancing stamps is
+    # fused again within CLOCK_RESTART_FRAMES frames.
+    from mmsnap_graph.fusion.stream.frame_stream import CLOCK_RESTART_FRAMES
+    rng = np.random.default_rng(21)
+    det = {"S1": [[3.0, 0.2, 0.1]], "S2": [[4.0, -0.3, 0.2]]}
+    for _ in range(40):
+        stream = FrameStream(NAMES[:2], POSES[:2])
+        t = 0.0
+        for _ in range(int(rng.integers(1, 12))):
+            t = float(rng.choice([t + 0.15, t - 50.0, t + 1e6, np.nan, t, -1e300, 1e308]))
+            stream.push(t, det)
+        start = float(rng.uniform(-1e4, 1e4))
+        oks = [stream.push(start + 0.15 * k, det).ok for k in range(CLOCK_RESTART_FRAMES + 3)]
+        assert all(oks[CLOCK_RESTART_FRAMES - 1:]), oks
