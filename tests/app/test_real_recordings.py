@@ -170,9 +170,14 @@ POSE_XFAIL = {"multiple_tracking": "S2 heading -3.76 deg from the tape (0.046 m)
 # covariance (0.5, 0.5, 0.5) and (0.8, 2.6, 2.0).
 HALVES_XFAIL: dict = {}
 NO_BOUNDS_XFAIL = {
-    "multiple_tracking": "91.1% of fused rows inside the room without --bounds (target 95%)",
-    "fall_detection": "94.7% of fused rows inside the room without --bounds (target 95%)"}
-IN_FRONT_XFAIL: dict = {}
+    "multiple_tracking": "90.1% of fused rows inside the room without --bounds (target 95%): "
+                         "rows seen by one radar 0.4-1.4 m beyond a side wall",
+    "fall_detection": "93.7% of fused rows inside the room without --bounds (target 95%): "
+                      "rows seen by one radar 0.4-1.4 m beyond a side wall"}
+IN_FRONT_XFAIL = {
+    "fall_detection": "94.4% of fused rows inside the room with --in-front (target 95%): a "
+                      "two-radar network has no third radar to witness a mirror image (the "
+                      "coverage check needs three nodes); --bounds gives 100%"}
 INSIDE_XFAIL: dict = {}
 COUNT_XFAIL: dict = {}
 

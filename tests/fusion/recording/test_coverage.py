@@ -14,6 +14,9 @@ from mmsnap_graph.sim.real.ghosts import ghost_centroids
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
 
 POSES = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])   # S1 faces +y, S2 faces -x
+#: The check needs a third node: S3 far away, facing away from the room (it
+#: covers none of the places below).
+POSES3 = np.vstack([POSES, [-20.0, -20.0, np.pi]])
 
 
 def _rows(places, kept_nodes, n_frames=7):
@@ -23,9 +26,9 @@ def _rows(places, kept_nodes, n_frames=7):
         for (x, y), nodes in zip(places, kept_nodes):
             frame.append(f)
             state.append([x, y, 0.0, 0.0])
-            kept.append([n in nodes for n in range(2)])
+            kept.append([n in nodes for n in range(3)])
     kept = np.array(kept)
-    ranges = np.hypot(*(np.array(state)[:, None, :2] - POSES[None, :, :2]).transpose(2, 0, 1))
+    ranges = np.hypot(*(np.array(state)[:, None, :2] - POSES3[None, :, :2]).transpose(2, 0, 1))
     return np.array(frame), np.array(state), kept, ranges
 
 
@@ -36,7 +39,7 @@ def test_a_target_a_covering_node_never_sees_is_flagged():
     frame, state, kept, ranges = _rows([(1.0, 3.0), (2.0, 4.5), (7.0, 3.0)],
                                        [(0, 1), (1,), (0,)])
     flag, node = uncovered_rows(frame, state, np.ones(frame.size, bool), kept, ranges,
-                                POSES, frame_period_s=0.1, body_m=0.5)
+                                POSES3, frame_period_s=0.1, body_m=0.5)
     np.testing.assert_array_equal(flag.reshape(7, 3), [[False, True, False]] * 7)
     assert np.all(node.reshape(7, 3)[:, 1] == 0)
     # Seen by S1 in frames 1, 3 and 5 (two in every row's seven frames): a
@@ -44,8 +47,17 @@ def test_a_target_a_covering_node_never_sees_is_flagged():
     kept2 = kept.copy()
     kept2[[4, 10, 16], 0] = True
     flag, _ = uncovered_rows(frame, state, np.ones(frame.size, bool), kept2, ranges,
-                             POSES, frame_period_s=0.1, body_m=0.5)
+                             POSES3, frame_period_s=0.1, body_m=0.5)
     assert not flag.any()
+
+
+def test_two_nodes_are_not_checked():
+    # With two nodes the other is the only witness, and a sparse cloud's
+    # misses would flag a real walker: the check needs three.
+    frame, state, kept, ranges = _rows([(1.0, 3.0), (2.0, 4.5)], [(0, 1), (1,)])
+    flag, node = uncovered_rows(frame, state, np.ones(frame.size, bool), kept[:, :2],
+                                ranges[:, :2], POSES, frame_period_s=0.1, body_m=0.5)
+    assert not flag.any() and np.all(node == -1)
 
 
 def test_mirror_images_that_another_radar_covers_are_flagged_in_a_recording():
