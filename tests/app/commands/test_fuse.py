@@ -20,7 +20,7 @@ from mmsnap_graph.fusion.recording.sequence import (
 )
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused
-from mmsnap_graph.data.recording import Detections
+from _cli import with_centroids
 
 
 @pytest.fixture
@@ -118,18 +118,6 @@ def test_implausible_sigmas_name_the_flag_and_the_unit(capsys, verb, sigmas, nam
     assert main([verb, "rec.h5", "--sigmas", *sigmas]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"--sigmas: {name}" in err
-
-
-def with_centroids(rec, node_index: int, edit) -> object:
-    """``rec`` with node ``node_index``'s centroid columns changed by
-    ``edit(range_m, omega_rad, doppler_mps)`` (in place on copies)."""
-    name = rec.node_names[node_index]
-    c = rec.nodes[name].centroids
-    r, w, v = c.range_m.copy(), c.omega_rad.copy(), c.doppler_mps.copy()
-    edit(r, w, v)
-    d = Detections(frame=c.frame, range_m=r, omega_rad=w, doppler_mps=v, snr_db=c.snr_db,
-                   target_id=c.target_id)
-    return rec.with_node(dataclasses.replace(rec.nodes[name], centroids=d))
 
 
 def test_group_detections_and_fuse_go_on_past_degenerate_centroids(recording_b_file, tmp_path,

@@ -1,6 +1,5 @@
 """``mmsnap process`` (mmsnap_graph/app/commands/process.py)."""
 
-import dataclasses
 import re
 
 
@@ -16,7 +15,7 @@ from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.real.sparse import sparse_clouds
 
-from _cli import error_line, run_cli
+from _cli import error_line, run_cli, with_centroids
 
 
 def test_the_defaults_quoted_in_the_help_are_the_configs():
@@ -48,18 +47,6 @@ def test_process_says_what_its_counts_mean(tmp_path, capsys):
                f"starts" in out
         assert f"longest {lengths.max()} frames ({lengths.max() * rec.frame_period_s:.1f} s)" \
             in out
-
-
-def with_centroids(rec, node_index: int, edit) -> object:
-    """``rec`` with node ``node_index``'s centroid columns changed by
-    ``edit(range_m, omega_rad, doppler_mps)`` (in place on copies)."""
-    name = rec.node_names[node_index]
-    c = rec.nodes[name].centroids
-    r, w, v = c.range_m.copy(), c.omega_rad.copy(), c.doppler_mps.copy()
-    edit(r, w, v)
-    d = Detections(frame=c.frame, range_m=r, omega_rad=w, doppler_mps=v, snr_db=c.snr_db,
-                   target_id=c.target_id)
-    return rec.with_node(dataclasses.replace(rec.nodes[name], centroids=d))
 
 
 def test_process_on_huge_values_finishes(recording_b_file, tmp_path):

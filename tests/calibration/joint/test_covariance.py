@@ -26,7 +26,6 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from factors.models import measurement_model
 from mmsnap_graph.calibration import calibrate_recording, joint_calibration, pose_tangent_error
 from mmsnap_graph.calibration.joint.covariance import (
     bandwidth_frames,
@@ -47,6 +46,7 @@ from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.options import SimulationOptions
 from mmsnap_graph.sim import RealPhysics
+from _scenes import depth_scene
 
 NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
 SIGMAS = np.array([0.03, 0.05, 0.1])
@@ -112,18 +112,7 @@ def test_robust_covariance_keeps_the_model_within_its_noise_and_widens_beyond():
 def _scene(seed=0, n=60, depth=0.07):
     """Three nodes seeing a target on a smooth walk; every range ``depth``
     short (a reflection depth)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * 0.15
-    states = np.column_stack([1.5 * np.sin(0.3 * t), 3.5 + np.cos(0.4 * t),
-                              0.45 * np.cos(0.3 * t), -0.4 * np.sin(0.4 * t)])
-    poses = {"S1": np.zeros(3), "S2": np.array([4.0, 4.0, np.pi / 2]),
-             "S3": np.array([0.5, 7.5, np.pi])}
-    meas = {}
-    for name, pose in poses.items():
-        h, _ = measurement_model(states, pose)
-        h[:, 0] -= depth
-        meas[name] = h + rng.normal(0.0, SIGMAS, (n, 3))
-    return poses, states, meas
+    return depth_scene(SIGMAS, seed, n, depth)
 
 
 @pytest.mark.parametrize("timed", [False, True])

@@ -126,25 +126,14 @@ def test_robust_cost_of_huge_residuals_is_finite_or_inf_without_error():
 
 # The range offset unknown (PresolveProblem.range_offset): gradient, Hessian, recovery.
 
-from factors.models import measurement_model  # noqa: E402
 from mmsnap_graph.calibration.joint.presolve import RANGE_OFFSET, _problem, presolve  # noqa: E402
+from _scenes import depth_scene  # noqa: E402
 
 RO_SIGMAS = np.array([0.03, 0.05, 0.1])
 
 
 def _offset_scene(seed=0, n=60, depth=0.07):
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * 0.15
-    states = np.column_stack([1.5 * np.sin(0.3 * t), 3.5 + np.cos(0.4 * t),
-                              0.45 * np.cos(0.3 * t), -0.4 * np.sin(0.4 * t)])
-    poses = {"S1": np.zeros(3), "S2": np.array([4.0, 4.0, np.pi / 2]),
-             "S3": np.array([0.5, 7.5, np.pi])}
-    meas = {}
-    for name, pose in poses.items():
-        h, _ = measurement_model(states, pose)
-        h[:, 0] -= depth
-        meas[name] = h + rng.normal(0.0, RO_SIGMAS, (n, 3))
-    return poses, states, meas
+    return depth_scene(RO_SIGMAS, seed, n, depth)
 
 
 def _ro_problem(meas, names, prior=(0.1, 0.05)):
