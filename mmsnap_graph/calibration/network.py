@@ -39,7 +39,7 @@ from .joint.options import JointOptions
 from .joint.solve import JointCalibration, joint_calibration
 from .pairwise.matching import LocalTracks, local_tracks
 from .pairwise.matching_options import MatchingOptions
-from .joint.multi_refine import refine_associated
+from .joint.multi_refine import refine_associated, with_clock_offsets
 from .noise.estimate import estimate_noise
 from .joint.residual_noise import residual_noise
 from .pairwise.pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
@@ -200,9 +200,10 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
     notes.append(f"several centroids per frame: {out.association.n_targets} target tracks, "
                  f"{out.association.n_groups} (frame, target) states; sigmas from the "
                  f"residuals: {describe_sigmas(out.noise)}")
-    notes.append(out.joint.message)
     if options.time_offsets:
-        notes.append("clock offsets: whole-frame lags only with several centroids per frame")
+        out, note = with_clock_offsets(out, recording.frame_period_s, options)
+        notes.append(note)
+    notes.append(out.joint.message)
     return out
 
 
