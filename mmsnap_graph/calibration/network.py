@@ -178,11 +178,14 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
     association and joint solve (:func:`~mmsnap_graph.calibration.joint.multi_refine.refine_associated`),
     the noise learned from the joint graph's residuals unless given.
 
-    No sub-frame clock offsets here: on the simulator's two-person scenes
-    (true offsets zero) the joint graph on the associated centroids found
-    7.5 +- 3.3 and 19.7 +- 4.0 ms and moved the poses by 35-85 mm (14 and
-    1.6 mm without); on sparse clouds 16 +- 9 and 25 +- 11 ms, 52-128 mm
-    (7 and 4 mm without)."""
+    The rounds solve in whole-frame lags; the clock offsets beyond them
+    (``options.time_offsets``) come from one more solve on the associated
+    centroids, kept only when the data support them
+    (:func:`~mmsnap_graph.calibration.joint.multi_refine.with_clock_offsets`):
+    estimated in the rounds, they found 7.5 +- 3.3 and 19.7 +- 4.0 ms on
+    two-person scenes with true offsets zero and moved the poses by 35-85
+    mm, and gave the synchronised real recordings fractions of -1.3 to -1.9
+    frames (docs/CALIBRATION.md, "Clock offsets")."""
     try:
         out = refine_associated(recording, reachable, pg.poses, pg.covariances, pg.lag_frames,
                                 noise=noise,
@@ -287,8 +290,8 @@ def calibrate_recording(
         :data:`RECORDING_JOINT_OPTIONS`). Clock offsets (``time_offsets``, a
         fraction of a frame beyond the whole-frame lag of the track
         matching; docs/CALIBRATION.md, "Clock offsets") need the motion
-        factors, and are not estimated with several centroids per frame
-        (they biased the poses there: :func:`_refine_multi`).
+        factors; with several centroids per frame they are kept only when
+        the data support them (:func:`_refine_multi`).
     Raises :class:`CalibrationError` when no node pair can be matched.
     """
     if method not in ("auto", "joint", "pose_graph"):

@@ -211,6 +211,20 @@ def test_reference_frame_rotates_the_body_tangent():
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("stem", RECORDINGS)
+def test_synchronised_radars_get_no_clock_lag(runs, stem):
+    """Two radars recorded by one PC: no whole-frame lag and no clock offset
+    beyond 10 ms, whole and in halves (the fractions the joint graph finds
+    on the associated centroids, -1.9 to +0.35 frames, are not supported by
+    the data and 0 is kept: docs/CALIBRATION.md, "Clock offsets")."""
+    cals = [runs.full(stem)[0]] + runs.half_calibrations(stem)
+    got = [(c["nodes"]["S2"]["lag_frames"], c["nodes"]["S2"]["time_offset_s"]) for c in cals]
+    print(f"{stem}: S2 lag (frames), clock offset (ms), whole / first half / second half: "
+          + ", ".join(f"{lag}, {1e3 * off:+.1f}" for lag, off in got))
+    assert all(lag == 0 and abs(off) <= 0.010 for lag, off in got)
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("stem", _cases(HALVES_XFAIL))
 def test_halves_agree_within_their_reported_covariance(runs, stem):
     a, b = (np.asarray(c["nodes"]["S2"]["pose"]) for c in runs.half_calibrations(stem))

@@ -247,12 +247,16 @@ def with_clock_offsets(refined: MultiTargetRefinement, frame_period_s: float,
     joint = refined.joint
     if refined.detections is None or not joint.success:
         return refined, "clock offsets: whole-frame lags (no successful joint solve to start from)"
-    timed = joint_calibration(
-        refined.detections, dataclasses.replace(options, time_offsets=True, recentre_lags=False),
-        noise=refined.noise, reference=joint.reference,
-        initial_poses={n: joint.poses[n] for n in refined.detections if n in joint.poses},
-        frame_period_s=frame_period_s,
-        lag_frames={n: int(joint.lag_frames.get(n, 0)) for n in refined.detections})
+    timed_options = dataclasses.replace(options, time_offsets=True, recentre_lags=False)
+    data = dict(noise=refined.noise, reference=joint.reference,
+                initial_poses={n: joint.poses[n] for n in refined.detections if n in joint.poses},
+                frame_period_s=frame_period_s,
+                lag_frames={n: int(joint.lag_frames.get(n, 0)) for n in refined.detections})
+    timed = joint_calibration(refined.detections, timed_options, **data)
+    if not timed.success and timed_options.robust is not None:
+        # As in the rounds: an indeterminate robust pass, Gaussian factors.
+        timed = joint_calibration(refined.detections,
+                                  dataclasses.replace(timed_options, robust=None), **data)
     evidence = _offset_evidence(timed, frame_period_s) if timed.success else {}
     text = ", ".join(f"{n} {f:+.2f} frame (z {z:.1f})" for n, (f, z) in evidence.items())
     if not timed.success:
