@@ -51,7 +51,7 @@ def test_monitor_uses_the_stored_noise_poses_and_clocks(calibrated_c_file, tmp_p
     text = capsys.readouterr().out
     pooled = read_noise(calibrated_c_file).pooled()
     assert "sigmas from /noise" in text and "clock offsets applied: S2" in text
-    assert f"noise (range {pooled.range_m:g} m, omega {pooled.omega_rad:g} rad)" in text
+    assert f"noise range {pooled.range_m:.3g} m, omega {pooled.omega_rad:.3g} rad" in text
     rec = read_recording(calibrated_c_file, load_cubes=False)
     meta = rec.metadata
     assert not np.isclose(pooled.omega_rad, float(meta.get("centroid_omega_std", np.nan)))
