@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from factors.projection import spherical_to_cartesian
 from ...errors import FileFormatError, ValidationError
+from .csv_columns import plain_csv_columns
 from .inputs import require_file
 from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
@@ -55,7 +56,9 @@ _MAX_TIME_S = 1e12
 
 
 def _read_csv(path: Path) -> dict[str, NDArray]:
-    """A CSV file -> name -> column, with the standard library (no pandas).
+    """A CSV file -> name -> column, without pandas: a plain table by
+    :func:`~.csv_columns.plain_csv_columns`, any other with the standard
+    library's rules below.
 
     Blank lines and lines starting with ``#`` are skipped, spaces around a
     cell are dropped; a column whose every non-empty cell is a number is a
@@ -65,6 +68,15 @@ def _read_csv(path: Path) -> dict[str, NDArray]:
         text = path.read_text(encoding="utf-8-sig")
     except (UnicodeDecodeError, OSError) as exc:
         raise FileFormatError(f"{path}: not a readable CSV table ({exc})") from None
+    plain = plain_csv_columns(text)            # the common case, parsed by NumPy
+    if plain is not None:
+        _no_duplicates(list(plain), str(path))
+        return plain
+    return _general_csv(text, path)
+
+
+def _general_csv(text: str, path: Path) -> dict[str, NDArray]:
+    """:func:`_read_csv` of any text, with the rules of its docstring."""
     kept = [(k, line) for k, line in enumerate(text.splitlines(), start=1)
             if line.strip() and not line.lstrip().startswith("#")]
     lines = [line for _, line in kept]
