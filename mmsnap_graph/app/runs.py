@@ -176,15 +176,47 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     else:
         offsets = {}
         parts.append("clocks as recorded")
+    poses = ({n: np.asarray(p, dtype=float) for n, p in cal.poses.items()}
+             if calibration_json else None)
     depth = float(getattr(cal, "range_offset_m", float("nan")))
     if np.isfinite(depth):
         parts.append(f"range offset (reflection depth) {depth:.3f} m added to every range")
+    elif poses is not None:
+        depth = _range_offset_at(path, poses, noise, cal, parts)
     text.append("; ".join(parts))
-    poses = ({n: np.asarray(p, dtype=float) for n, p in cal.poses.items()}
-             if calibration_json else None)
     return StoredCalibration(node_poses=poses, pose_covariances=used_covs,
                              time_offset_s=offsets or None, noise=noise, text=tuple(text),
                              range_offset_m=depth if np.isfinite(depth) else None)
+
+
+def _range_offset_at(path, poses, noise, cal, parts) -> float:
+    """The range offset the data identify at poses given from outside the
+    recording (a calibration JSON without one): a body's reflection depth
+    that the calibrated poses would have taken in, but fixed poses leave in
+    the residuals (:func:`~mmsnap_graph.calibration.noise.depth.range_offset_at_poses`).
+    NaN (and why, in ``parts``) where it is not identified."""
+    from ..calibration.noise.depth import range_offset_at_poses
+    from ..io import read_recording
+
+    own = _read_calibration(path, None)
+    if own is not None and _same_poses(own.poses, poses):
+        return float("nan")        # the calibration's own poses: they took the depth in
+    rec = read_recording(path, load_cubes=False)
+    if noise is None:
+        noise = paper_noise()[0]
+    est = range_offset_at_poses(rec, poses, noise=noise,
+                                lag_frames=getattr(cal, "lag_frames", None))
+    if not est.identified:
+        parts.append(est.message + "; none added")
+        return float("nan")
+    parts.append(f"the calibration gives no range offset: {est.message}, added to every range")
+    return est.offset_m
+
+
+def _same_poses(a, b, tol: float = 1e-6) -> bool:
+    return set(a) == set(b) and all(
+        np.allclose(np.asarray(a[n], float), np.asarray(b[n], float), atol=tol, rtol=0.0)
+        for n in a)
 
 
 def paper_noise():

@@ -79,7 +79,7 @@ from ..._validation import chi2_gate
 from ...data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ...data.recording import Detections, Recording
 from ...errors import ValidationError
-from .frame_states import solve_frame_states
+from .frame_states import frame_table as _frame_table, solve_frame_states
 from .motion import motion_doppler_noise
 from .tails import with_tails
 
@@ -230,25 +230,6 @@ def temporal_noise(detections: Detections, *, order: int = TEMPORAL_ORDER,
 
 
 # ------------------------------------------------------------------ network
-def _frame_table(detections: Mapping[str, Detections], names) -> tuple[NDArray, NDArray]:
-    """Measurements ``(F, N, 3)`` (NaN = not seen) of the frames that at
-    least two nodes see with exactly one centroid each."""
-    single = {}
-    for n in names:
-        det = detections[n]
-        frames, counts = np.unique(det.frame, return_counts=True)
-        single[n] = frames[counts == 1]
-    all_frames = np.unique(np.concatenate([single[n] for n in names]))
-    seen = np.array([np.isin(all_frames, single[n]) for n in names]).T
-    frames = all_frames[seen.sum(axis=1) >= 2]
-    z = np.full((frames.size, len(names), 3), np.nan)
-    for j, n in enumerate(names):
-        det = detections[n]
-        rows = np.isin(det.frame, frames) & np.isin(det.frame, single[n])
-        z[np.searchsorted(frames, det.frame[rows]), j] = det.measurements[rows]
-    return frames, z
-
-
 def _frame_information(z, p, theta, keep, prior_w):
     """Residuals, REML score and information of one round at variances
     ``theta (N, 3)``: per frame ``R = W - W J C J^T W`` (``C`` the state's
