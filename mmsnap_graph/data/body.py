@@ -45,8 +45,8 @@ CENTROID_MERGE_RADIUS_M = 0.6
 #: ``data/real/darksz`` (tests/app/test_real_recordings.py, multiple tracking
 #: / fall detection), nothing clearly gains: S2 0.045 m / 0.058 m from the
 #: tape against 0.046 m / 0.059 m; fused rows inside the room without a box
-#: 90.7% / 93.7% against 90.1% / 93.7%; at most two people in 92.9% / 99.8%
-#: of frames against 91.6% / 99.8%; the halves' difference unchanged (y
+#: 96.6% / 100.0% against 96.8% / 99.9%; at most two people in 98.4% / 100%
+#: of frames against 97.8% / 100%; the halves' difference unchanged (y
 #: +0.123 m / -0.186 m against +0.143 m / -0.184 m) while their reported
 #: sigmas widen (S2's x sigma of the whole multiple-tracking recording
 #: 0.30 m -> 0.45 m). So it stays at the width.
