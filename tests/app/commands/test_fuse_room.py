@@ -1,5 +1,5 @@
-"""``mmsnap fuse --bounds / --bounds-cfg / --no-body-check / --no-learned-walls``: the room-frame
-checks of fused rows from the command line."""
+"""``mmsnap fuse --bounds / --bounds-cfg / --no-body-check / --no-learned-walls``:
+the room-frame checks of fused rows from the command line."""
 
 from __future__ import annotations
 
