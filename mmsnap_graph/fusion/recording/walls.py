@@ -177,18 +177,26 @@ def _near(props: NDArray, ang: float, off: float, scale: float = 1.0) -> NDArray
 def _best_line(props: NDArray) -> tuple[int, NDArray]:
     """(distinct frames, mask of the proposals) of the best-supported line:
     proposals binned by angle and offset, each bin's neighbourhood
-    (+-tolerance) counted in distinct frames."""
-    a = np.floor(props[:, 2] / _BIN_RAD).astype(np.int64)
-    o = np.floor(props[:, 3] / _BIN_M).astype(np.int64)
+    (+-tolerance, two bins each way) counted in distinct frames."""
     n_a = int(np.ceil(2 * np.pi / _BIN_RAD))
-    best, best_mask = 0, None
-    for ca, co in {(int(x), int(y)) for x, y in zip(a, o)}:
-        da = np.abs((a - ca + n_a // 2) % n_a - n_a // 2)
-        mask = (da <= 2) & (np.abs(o - co) <= 2)
-        count = np.unique(props[mask, 5]).size
-        if count > best:
-            best, best_mask = count, mask
-    return best, best_mask
+    a = np.floor(props[:, 2] / _BIN_RAD).astype(np.int64) % n_a
+    o = np.floor(props[:, 3] / _BIN_M).astype(np.int64)
+    o -= o.min() - 2
+    n_o = int(o.max()) + 3
+    frames, f = np.unique(props[:, 5], return_inverse=True)
+    n_f = frames.size
+    # Every (bin, frame) a proposal lends to each bin of its neighbourhood,
+    # counted once: the distinct frames of each bin's neighbourhood.
+    base = np.unique((a * n_o + o) * n_f + f.ravel())
+    ba, rest = np.divmod(base, n_o * n_f)
+    bo, bf = np.divmod(rest, n_f)
+    keys = np.concatenate([(((ba + da) % n_a) * n_o + bo + do) * n_f + bf
+                           for da in range(-2, 3) for do in range(-2, 3)])
+    bins, counts = np.unique(np.unique(keys) // n_f, return_counts=True)
+    best = int(np.argmax(counts))
+    ca, co = divmod(int(bins[best]), n_o)
+    da = np.abs((a - ca + n_a // 2) % n_a - n_a // 2)
+    return int(counts[best]), (da <= 2) & (np.abs(o - co) <= 2)
 
 
 def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray, seen: NDArray,
