@@ -5,14 +5,13 @@ general reader's rules are needed, and lighter in memory."""
 from __future__ import annotations
 
 import tracemalloc
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mmsnap_graph.io.ti import csv_columns
 from mmsnap_graph.io.ti.csv_columns import plain_csv_columns
-from mmsnap_graph.io.ti.point_table import _general_csv, read_point_tables
+from mmsnap_graph.io.ti.point_table import csv_text_columns, read_point_tables
 
 from _shared import DATA, ROOT
 
@@ -55,7 +54,7 @@ def test_the_fast_path_equals_the_general_reader_bit_for_bit(seed, monkeypatch):
     text = _random_table(np.random.default_rng(seed), 1500)
     fast = plain_csv_columns(text)
     assert fast is not None
-    general = _general_csv(text, Path("table.csv"))
+    general = csv_text_columns(text, "table.csv", fast=False)
     assert list(fast) == list(general) == ["node", "a", "frame", "b", "c"]
     for name in general:
         assert _same(fast[name], general[name]), name
@@ -93,7 +92,7 @@ def test_the_shipped_logs_take_the_fast_path():
         text = path.read_text(encoding="utf-8-sig")
         fast = plain_csv_columns(text)
         assert fast is not None, path
-        general = _general_csv(text, path)
+        general = csv_text_columns(text, path, fast=False)
         assert all(_same(fast[k], general[k]) for k in general), path
 
 
