@@ -175,7 +175,7 @@ POSE_XFAIL = {"multiple_tracking": (
 # covariance (0.5, 0.5, 0.5) and (0.8, 2.6, 2.0).
 HALVES_XFAIL: dict = {}
 # Without a room box, the walls learned from the multipath images flag what a
-# radar sees through a wall: 96.8% / 99.9% of fused rows inside the room
+# radar sees through a wall: 96.3% / 100% of fused rows inside the room
 # (90.1% / 93.7% without them, `mmsnap fuse --no-learned-walls`), 0 / 17 rows
 # inside the room flagged; with --in-front 96.9% / 100% (96.6% / 94.4%).
 NO_BOUNDS_XFAIL: dict = {}

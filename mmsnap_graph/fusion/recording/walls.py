@@ -12,7 +12,8 @@ away. Two images are common (docs/TI.md, "Static scene and ghosts"):
   |P - S|) u``, ``u`` the unit vector from S to G.
 
 A node's image G of a person is a fused row seen by fewer nodes than a row P
-of its frame (the person), farther from the node than P, whose radial speed
+of its frame (the person, walking: at least :data:`WALL_MOVING_MPS`),
+farther from the node than P, whose radial speed
 (its Doppler) is the one its kind predicts from P's velocity mirrored through
 the wall (within :data:`WALL_DOPPLER_SIGMAS` of both rows' velocity
 covariances): a second person walking on their own rarely is. Every such pair
@@ -41,7 +42,8 @@ from numpy.typing import NDArray
 
 __all__ = ["LearnedWall", "learn_walls", "beyond_learned_walls", "WALL_MIN_FRAMES",
            "WALL_ANGLE_TOL_RAD", "WALL_OFFSET_TOL_M", "WALL_DOPPLER_SIGMAS",
-           "WALL_DOPPLER_FLOOR_MPS", "WALL_MARGIN_M", "WALL_EXTENT_M", "WALL_MAX_CROSSING"]
+           "WALL_DOPPLER_FLOOR_MPS", "WALL_MOVING_MPS", "WALL_MARGIN_M", "WALL_EXTENT_M",
+           "WALL_MAX_CROSSING"]
 
 #: Distinct frames whose images must propose one wall (0.5 s at 20 fps): a
 #: wall is there all the time; two people are rarely in mirror positions.
@@ -61,6 +63,9 @@ WALL_DOPPLER_SIGMAS = 3.0
 #: ... and this floor (m/s): about a TI Doppler bin (0.12 m/s at 77 GHz with
 #: the out-of-box chirps).
 WALL_DOPPLER_FLOOR_MPS = 0.15
+#: The person must walk (m/s): the images of someone standing still have no
+#: Doppler to tell them from static clutter.
+WALL_MOVING_MPS = 0.2
 #: Fraction of the rows seen by two or more nodes that may stand behind a
 #: wall (not explained as its images): a misassociated row now and then.
 WALL_MAX_CROSSING = 0.005
@@ -145,7 +150,8 @@ def _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m):
         if people.size == 0 or images.size == 0:
             continue
         g, p = (a.ravel() for a in np.meshgrid(images, people, indexing="ij"))
-        keep = (g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
+        keep = ((g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
+                & (np.hypot(*state[p, 2:].T) >= WALL_MOVING_MPS))
         for s in range(poses.shape[0]):
             node = poses[s, :2]
             gs, ps = g[keep & seen[g, s]], p[keep & seen[g, s]]

@@ -100,6 +100,17 @@ def test_too_few_frames_teach_no_wall():
     assert len(walls_of(scene(mirror, every=N_FRAMES // WALL_MIN_FRAMES))) == 1
 
 
+def test_a_person_standing_still_teaches_no_wall():
+    # Static clutter behind someone standing: the same radial speed (0) as
+    # his image would have, in every frame.
+    rows = [(f, 0.3, 2.0, 0.0, 0.0, 2) for f in range(N_FRAMES)]
+    rows += [(f, 0.3, 5.2, 0.0, 0.0, 1) for f in range(N_FRAMES)]
+    r = np.array(sorted(rows, key=lambda x: x[0]), dtype=float)
+    still = fused_rows(r[:, 0].astype(int), r[:, 1:3], velocity=r[:, 3:5],
+                       nodes=r[:, 5].astype(int))
+    assert walls_of(still) == []
+
+
 def test_a_person_both_nodes_see_behind_the_line_vetoes_the_wall():
     behind = [(f, 0.5, WALL_Y + 0.8, 0.0, 0.0, 2) for f in range(N_FRAMES, N_FRAMES + 3)]
     rows = scene(mirror, extra=behind)
