@@ -163,14 +163,19 @@ def _cases(xfails: dict) -> list:
 # Measured on these tables; the targets are the asserts. Before the scene
 # filters and room checks: 72.4% / 59.1% of fused rows inside the room, <= 2
 # people in 6.7% / 54.2% of frames (multiple tracking / fall detection).
-POSE_XFAIL = {"multiple_tracking": "S2 heading -3.76 deg from the tape (0.046 m); tape 3 deg"}
+POSE_XFAIL = {"multiple_tracking": (
+    "S2 heading -3.76 deg from the tape (0.046 m); tape 3 deg. The data do not fix it better: "
+    "the halves give -4.47 and -0.04 deg, one person's tracks -9.0 to +9.1 deg; the simulator's "
+    "real model in this geometry scatters 2.1 deg (12 seeds, bias +1.3 deg), and an angle bias "
+    "of the radar (no Rx phase compensation in its cfg) is calibrated as heading "
+    "(docs/CALIBRATION.md, \"A node's heading on real recordings\")")}
 # Halves, compared in the reference frame: with the joint graph's marginals
 # (`mmsnap calibrate --covariance model`) (1.9, 2.3, 1.8) sigma (multiple
 # tracking) and (1.5, 8.2, 6.3) (fall detection); with the default long-run
 # covariance (0.5, 0.5, 0.5) and (0.8, 2.6, 2.0).
 HALVES_XFAIL: dict = {}
 # Without a room box, the walls learned from the multipath images flag what a
-# radar sees through a wall: 96.8% / 99.9% of fused rows inside the room
+# radar sees through a wall: 96.3% / 100% of fused rows inside the room
 # (90.1% / 93.7% without them, `mmsnap fuse --no-learned-walls`), 0 / 17 rows
 # inside the room flagged; with --in-front 96.9% / 100% (96.6% / 94.4%).
 NO_BOUNDS_XFAIL: dict = {}
