@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 
-from mmsnap_graph.app.cli import main
-from mmsnap_graph.data.recording import Detections
+import re
 
-__all__ = ["run_cli", "error_line", "with_centroids"]
+from mmsnap_graph.app.cli import main
+from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
+from mmsnap_graph.data.recording import Detections
+from mmsnap_graph.io.noise import write_noise
+
+__all__ = ["run_cli", "error_line", "with_centroids", "store_partial_noise", "noise_block"]
 
 
 def run_cli(capsys, *argv):
@@ -38,3 +42,41 @@ def with_centroids(rec, node_index: int, edit) -> object:
     d = Detections(frame=c.frame, range_m=r, omega_rad=w, doppler_mps=v, snr_db=c.snr_db,
                    target_id=c.target_id)
     return rec.with_node(dataclasses.replace(rec.nodes[name], centroids=d))
+
+
+#: A reason as the noise estimator writes it: long, with asides and a second clause.
+LONG_REASON = ("two nodes' Dopplers fix each frame's velocity exactly (no cross-node check); "
+               "31 usable differences of its own centroid sequence (10.3 dof); 30 dof needed")
+
+
+def store_partial_noise(path) -> NoiseEstimate:
+    """Write a /noise group into the two-node recording at ``path``: S1
+    identifies every sigma, S2 only the range (its Doppler with
+    :data:`LONG_REASON`)."""
+    s1 = NodeNoiseEstimate(noise=MeasurementNoise(range_m=0.05, omega_rad=0.08, doppler_mps=0.1),
+                           identified=(True,) * 3, n_residuals=(398, 399, 397),
+                           method="network+temporal")
+    s2 = NodeNoiseEstimate(noise=MeasurementNoise(range_m=0.06), identified=(True, False, False),
+                           n_residuals=(398, 0, 0), method="network+temporal",
+                           reasons=("", "no node poses for a cross-node check", LONG_REASON))
+    est = NoiseEstimate(nodes={"S1": s1, "S2": s2}, method="network+temporal")
+    write_noise(path, est)
+    return est
+
+
+def noise_block(out: str) -> list[str]:
+    """The printed /noise block of ``store_partial_noise``'s estimate, checked:
+    a header, one short line per node with every sigma and its unit, the
+    unidentified ones marked, then their reasons, short, one line each."""
+    lines = out.splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.startswith("sigmas from /noise"))
+    block = lines[start:start + 5]
+    assert "* = not identified" in block[0], block
+    assert all(len(ln) <= 100 for ln in block), block
+    assert re.match(r"  S1  range 0\.05 m +omega 0\.08 rad +Doppler 0\.1 m/s +"
+                    r"estimated from 397-399 residuals$", block[1]), block
+    assert re.match(r"  S2  range 0\.06 m +omega 0\.785 rad\* +Doppler 0\.181 m/s\* +"
+                    r"not identified: omega \(a\), Doppler \(b\)$", block[2]), block
+    assert block[3:] == ["  (a) no node poses for a cross-node check",
+                         "  (b) two nodes' Dopplers fix each frame's velocity exactly"], block
+    return block

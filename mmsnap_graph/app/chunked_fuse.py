@@ -119,7 +119,8 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
         :func:`~mmsnap_graph.fusion.recording.room.screen_room`:
         ``bounds``, ``static_bounds``, ``in_front`` and ``body_m`` (each
         None or False, the default: off; ``mmsnap fuse`` checks one target per
-        :data:`~mmsnap_graph.fusion.recording.room.DEFAULT_BODY_M`).
+        :data:`~mmsnap_graph.fusion.recording.room.DEFAULT_BODY_M`), and
+        ``walls`` (the learned walls, default on; learned in each window).
 
     Returns a :class:`ChunkedFuseSummary`. Raises what ``fuse_recording``
     raises for bad options, and :class:`~mmsnap_graph.errors.FileFormatError`
@@ -130,7 +131,8 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     if "progress" in options or "recording" in options:
         raise ValidationError("fuse_file takes the file, not a recording; progress is its own")
     room = dict(bounds=options.pop("bounds", None), static_bounds=options.pop("static_bounds", None),
-                in_front=options.pop("in_front", False), body_m=options.pop("body_m", None))
+                in_front=options.pop("in_front", False), walls=options.pop("walls", True),
+                body_m=options.pop("body_m", None))
     flagged = RoomReport()
     calibration = NetworkCalibration() if calibration is None else calibration
     if not isinstance(calibration, NetworkCalibration):

@@ -13,6 +13,7 @@ pass as another group).
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import h5py
@@ -24,7 +25,7 @@ from .guard import H5_ERRORS, edited_copy, open_for_reading
 from .versions import check_format_version
 
 __all__ = ["NOISE_GROUP", "NOISE_LAYOUT", "write_noise", "read_noise", "fill_noise_group",
-           "noise_for_fusion"]
+           "noise_for_fusion", "noise_lines"]
 
 #: Name of the HDF5 group written by :func:`write_noise`.
 NOISE_GROUP = "noise"
@@ -167,9 +168,65 @@ def noise_for_fusion(path: str | os.PathLike, node_names, *, per_node: bool = Tr
     if missing:
         raise FileFormatError(f"{path}:/{NOISE_GROUP} has no sigmas for nodes {missing}; "
                               f"rerun `mmsnap noise`")
-    text = "sigmas from /noise:\n  " + est.summary().replace("\n", "\n  ")
+    text = "\n".join(noise_lines(est))
     if per_node:
         return {n: est.nodes[n].noise for n in node_names}, text
     pooled = est.pooled()
-    return pooled, (text + "\n  (one noise for every node: "
-                    + ", ".join(f"{v:.4g}" for v in pooled.sigmas) + ")")
+    return pooled, text + "\n  one noise for every node (pooled): " + "  ".join(_sigmas_text(pooled.sigmas))
+
+
+_UNITS = (("range", "m"), ("omega", "rad"), ("Doppler", "m/s"))
+_REASON_CHARS = 90
+
+
+def _sigmas_text(sigmas, marks=("", "", "")) -> list[str]:
+    return [f"{name} {v:.3g} {unit}{mark}" for (name, unit), v, mark in zip(_UNITS, sigmas, marks)]
+
+
+def _short_reason(reason: str) -> str:
+    """The first clause of a stored reason, without its asides, cut to a line
+    (the whole reason stays in the file's ``/noise/reason``)."""
+    text = re.sub(r"\s*\([^)]*\)", "", reason.split(";")[0]).strip() or "no reason stored"
+    if len(text) > _REASON_CHARS:
+        text = text[:_REASON_CHARS - 3].rsplit(" ", 1)[0] + "..."
+    return text
+
+
+def _status(e: NodeNoiseEstimate, method: bool, notes: dict[str, str]) -> str:
+    """Estimated from how many residuals, or which sigma is not identified
+    with a note letter (a), (b), ... per distinct reason, added to ``notes``."""
+    how = f" [{e.method}]" if method else ""
+    if all(e.identified):
+        lo, hi = min(e.n_residuals), max(e.n_residuals)
+        return f"estimated from {lo if lo == hi else f'{lo}-{hi}'} residuals{how}"
+    names: dict[str, list[str]] = {}
+    for (name, _), ident, reason in zip(_UNITS, e.identified, e.reasons):
+        if not ident:
+            key = notes.setdefault(_short_reason(reason), "abcdefghijklmnopqrstuvwxyz"[len(notes)
+                                                                                      % 26])
+            names.setdefault(key, []).append(name)
+    if len(names) == 1 and not any(e.identified):
+        return f"none identified ({next(iter(names))}){how}"
+    return ("not identified: " + ", ".join(f"{', '.join(n)} ({k})" for k, n in names.items())
+            + how)
+
+
+def noise_lines(estimate: NoiseEstimate) -> list[str]:
+    """``estimate`` as ``mmsnap fuse``, ``monitor`` and ``replay`` print it: a
+    header; one short line per node with its three 1-sigmas and their units
+    in aligned columns, a ``*`` on each the data do not identify (the
+    fallback's value is used there), and the residual count behind the
+    estimates or a note letter per sigma not identified; then one line per
+    distinct reason, ``(a) ...``."""
+    methods = {e.method for e in estimate.nodes.values()}
+    shared = f", estimator {methods.pop()}" if len(methods) == 1 else ""
+    lines = [f"sigmas from /noise (1-sigma{shared}; * = not identified: the fallback's):"]
+    rows = {name: [name] + _sigmas_text(e.noise.sigmas, ["" if ok else "*" for ok in e.identified])
+            for name, e in estimate.nodes.items()}
+    widths = [max(len(r[i]) for r in rows.values()) for i in range(4)]
+    notes: dict[str, str] = {}
+    for name, e in estimate.nodes.items():
+        cells = "  ".join(c.ljust(w) for c, w in zip(rows[name], widths))
+        lines.append(f"  {cells}  {_status(e, not shared, notes)}")
+    lines += [f"  ({key}) {reason}" for reason, key in notes.items()]
+    return lines

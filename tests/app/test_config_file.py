@@ -1,6 +1,8 @@
 """``mmsnap process --config FILE`` (TOML) and ``--show-config`` (issue 14, item 4)."""
 
 import dataclasses
+import re
+import tomllib
 
 import numpy as np
 import pytest
@@ -13,8 +15,9 @@ from mmsnap_graph.app.config_file import (
     read_process_config,
     read_matching_config,
     matching_config_from_mapping,
+    matching_config_to_toml,
 )
-from mmsnap_graph.errors import ConfigurationError
+from mmsnap_graph.errors import ConfigurationError, ValidationError
 from mmsnap_graph.radar.cfar import CfarConfig
 from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.radar.cluster import ClusterConfig
@@ -23,6 +26,7 @@ from mmsnap_graph.sim import CLEAN
 from mmsnap_graph.calibration import MatchingOptions
 
 from _cli import run_cli
+from _shared import ROOT
 
 
 def _show(capsys, *argv) -> str:
@@ -259,3 +263,150 @@ def test_toml_mutations_are_rejected_or_processed(small_cloud, tmp_path, capsys)
                                "--config", tmp_path / "a.toml")
         assert code in (0, 1), (accepted[i], err)
         assert time.perf_counter() - start < 10, accepted[i]
+
+
+# The table of keys, units and accepted values in docs/TI.md, tried on the code.
+
+_TABLES = ("chain", "chain.cfar", "chain.cluster", "ekf", "scene", "matching")
+_INTERVAL = re.compile(r"([\[(])\s*([-+0-9.e]+|pi|[a-z_]+)\s*,\s*([-+0-9.e]+|pi)\s*([\])])")
+
+
+def _doc_tables() -> dict[str, dict[str, dict[str, str]]]:
+    """table -> key -> {default, unit, accepted}, from the docs/TI.md tables
+    announced by a line starting with **`[table]`**."""
+    lines = (ROOT / "docs" / "TI.md").read_text().splitlines()
+    out: dict[str, dict[str, dict[str, str]]] = {}
+    for i, line in enumerate(lines):
+        m = re.match(r"\*\*`\[([a-z.]+)\]`\*\*", line)
+        if not m:
+            continue
+        header = [c.strip() for c in lines[i + 2].strip("|").split("|")]
+        assert header[:4] == ["key", "default", "unit", "accepted"], (m[1], header)
+        rows = {}
+        for row in lines[i + 4:]:
+            if not row.startswith("|"):
+                break
+            cells = [c.strip() for c in row.strip("|").split("|")]
+            rows[cells[0].strip("`")] = dict(zip(header[1:4], cells[1:4]))
+        assert m[1] not in out, f"two tables for [{m[1]}]"
+        out[m[1]] = rows
+    return out
+
+
+#: Keys whose bound is another key's default.
+_OTHERS = {"min_range_m": ChainConfig().min_range_m, "confirm_hits": EkfConfig().confirm_hits}
+
+
+def _number(text: str) -> float:
+    return np.pi if text == "pi" else _OTHERS[text] if text in _OTHERS else float(text)
+
+
+def _bound_probes(accepted: str, integer: bool) -> list[tuple[object, bool]]:
+    """(value, accepted?) pairs at each bound of ``accepted``, just inside and
+    just outside, and a NaN (always rejected)."""
+    rule = accepted.split(";")[0].strip()
+    if rule == "finite":
+        return [(0.0, True), (-1e6, True), (float("nan"), False), (float("inf"), False)]
+    m = re.fullmatch(r"(integer )?(>=?) (\S+)", rule)
+    if m:
+        lo = _number(m[3])
+        interval = ("[" if m[2] == ">=" else "(", lo, np.inf, ")")
+    else:
+        m = _INTERVAL.search(rule)
+        assert m, f"cannot read {accepted!r}"
+        interval = (m[1], _number(m[2]), _number(m[3]), m[4])
+    left, lo, hi, right = interval
+    step = 1 if integer else max(abs(lo), abs(hi) if np.isfinite(hi) else 0.0, 1.0) * 1e-9
+    probes = [(lo, left == "["), (lo - step, False), (lo + step, True)]
+    if np.isfinite(hi):
+        probes += [(hi, right == "]"), (hi + step, False), (hi - step, True)]
+    if integer:
+        probes = [(int(v), ok) for v, ok in probes] + [(float(lo) + 0.5, False)]
+    else:
+        probes.append((float("nan"), False))
+    return probes
+
+
+def _probes(accepted: str, default) -> list[tuple[object, bool]]:
+    """Values a key with ``default`` (its TOML value) must accept or reject."""
+    if accepted in ("true or false",):
+        return [(True, True), (False, True), ("yes", False), (1, False)]
+    choices = re.findall(r'"([a-z]+)"', accepted)
+    if choices and re.fullmatch(r'("[a-z]+"(, | or )?)+((true|false)(, | or )?)*', accepted):
+        extra = [(v, True) for v in (True, False) if str(v).lower() in accepted]
+        return [(c, True) for c in choices] + extra + [("nonsense", False)]
+    if accepted == "window name":
+        return [("hann", True), ("blackman", True), ("no-such-window", False)]
+    if isinstance(default, list) or re.match(r"\d+ (values|integers) in", accepted):
+        intervals = _INTERVAL.findall(accepted)
+        n = int(accepted.split()[0])
+        base = list(default) if isinstance(default, list) else [1e-3] * n
+        integer = "integers" in accepted
+        out = []
+        for k in range(n):
+            lo_hi = intervals[k] if len(intervals) == n else intervals[0]
+            for v, ok in _bound_probes("".join((lo_hi[0], lo_hi[1], ", ", lo_hi[2], lo_hi[3])),
+                                       integer):
+                out.append((base[:k] + [v] + base[k + 1:], ok))
+        return out
+    return None
+
+
+def _configure(table: str, key: str, value):
+    parts = table.split(".")
+    data = {parts[0]: {parts[1]: {key: value}} if len(parts) > 1 else {key: value}}
+    if table == "matching":
+        return matching_config_from_mapping(data)
+    return process_config_from_mapping(data)
+
+
+def _defaults() -> dict[str, dict[str, object]]:
+    """table -> key -> default as the TOML files print it ("unset" if none)."""
+    out = {}
+    for text in (process_config_to_toml(ProcessConfig()), matching_config_to_toml(
+            MatchingOptions())):
+        table = None
+        for line in text.splitlines():
+            if line.startswith("["):
+                table = line.strip("[]")
+                out[table] = {}
+            elif table and "=" in line:
+                key, value = (p.strip() for p in line.lstrip("# ").split("=", 1))
+                unset = line.startswith("#")
+                out[table][key] = "unset" if unset else value.split("  #")[0].strip()
+    return out
+
+
+def test_the_docs_table_of_keys_lists_every_key_with_its_default():
+    doc, code = _doc_tables(), _defaults()
+    assert set(doc) == set(_TABLES)
+    for table in _TABLES:
+        assert list(doc[table]) == list(code[table]), table
+        for key, row in doc[table].items():
+            assert row["default"].replace(" ", "") == code[table][key].replace(" ", ""), \
+                (table, key, row["default"], code[table][key])
+            assert row["unit"], (table, key)
+
+
+@pytest.mark.parametrize("table", _TABLES)
+def test_the_docs_accepted_values_are_what_the_code_accepts(table):
+    """Each bound of docs/TI.md's table, just inside and just outside, through
+    the TOML route: a rejected value is a ConfigurationError (ValidationError
+    for [matching]) naming the key. Before: the page listed no ranges."""
+    doc = _doc_tables()[table]
+    tried = 0
+    for key, row in doc.items():
+        default = tomllib.loads(f"v = {_defaults()[table][key]}")["v"] \
+            if row["default"] != "unset" else None
+        integer = row["accepted"].startswith("integer")
+        probes = _probes(row["accepted"], default)
+        if probes is None:
+            probes = _bound_probes(row["accepted"], integer)
+        for value, ok in probes:
+            tried += 1
+            if ok:
+                _configure(table, key, value)
+                continue
+            with pytest.raises((ConfigurationError, ValidationError), match=re.escape(key)):
+                _configure(table, key, value)
+    assert tried >= 3 * len(doc)

@@ -13,7 +13,9 @@ import pytest
 
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from mmsnap_graph.errors import FileFormatError
-from mmsnap_graph.io.noise import NOISE_GROUP, noise_for_fusion, read_noise, write_noise
+from mmsnap_graph.io.noise import (NOISE_GROUP, noise_for_fusion, noise_lines, read_noise,
+                                   write_noise)
+from _cli import noise_block, store_partial_noise
 
 FALLBACK = MeasurementNoise(range_m=0.04, omega_rad=0.7, doppler_mps=0.2)
 
@@ -80,7 +82,7 @@ def test_noise_for_fusion_per_node_pooled_or_the_papers(path):
     write_noise(path, est)
     per_node, text = noise_for_fusion(path, ["S1", "S2"])
     assert per_node == {"S1": est.nodes["S1"].noise, "S2": est.nodes["S2"].noise}
-    assert text.startswith("sigmas from /noise:")
+    assert text.startswith("sigmas from /noise (")
     pooled, _ = noise_for_fusion(path, ["S1", "S2"], per_node=False)
     # by hand: residual-count weighted RMS per component; the omega and Doppler
     # of S2 have no residuals, so S1's alone count there
@@ -88,3 +90,31 @@ def test_noise_for_fusion_per_node_pooled_or_the_papers(path):
     np.testing.assert_allclose(pooled.sigmas, expected, rtol=1e-12)
     with pytest.raises(FileFormatError, match=r"has no sigmas for nodes \['S3'\]"):
         noise_for_fusion(path, ["S1", "S3"])
+
+
+def test_the_printed_noise_is_one_short_line_per_node_with_units_and_reasons(path):
+    """Before: one line per node of ~150-250 characters, the whole stored
+    reason (with its asides and second clause) inlined for each component."""
+    est = store_partial_noise(path)
+    _, text = noise_for_fusion(path, ["S1", "S2"])
+    assert text.splitlines() == noise_block(text) == noise_lines(est)
+    # two nodes with different estimators: each line names its own
+    est = NoiseEstimate(nodes={"S1": est.nodes["S1"], "S2": _estimate().nodes["S2"]})
+    lines = noise_lines(est)
+    assert lines[0].startswith("sigmas from /noise (1-sigma;")
+    assert lines[1].endswith("estimated from 397-399 residuals [network+temporal]")
+    assert lines[2].endswith("not identified: omega (a), Doppler (b) [temporal]")
+    assert lines[3:] == ["  (a) too few frames", "  (b) no motion"]
+    # nothing identified on two nodes, for one reason: one note, cut to a line
+    why = ("cross-node residuals and the Doppler differences with the target's motion fitted "
+           "across the nodes carry 0.3 dof; 12 usable differences")
+    none = NodeNoiseEstimate(noise=MeasurementNoise(), identified=(False,) * 3,
+                             n_residuals=(0, 0, 0), method="none", reasons=(why,) * 3)
+    lines = noise_lines(NoiseEstimate(nodes={"S1": none, "S2": none}))
+    assert len(lines) == 4 and all(len(ln) <= 100 for ln in lines), lines
+    assert lines[1].endswith("none identified (a)") and lines[2].endswith("none identified (a)")
+    assert lines[3].startswith("  (a) cross-node residuals and") and lines[3].endswith("...")
+    # pooled for single-noise estimators: one more line, with units
+    _, text = noise_for_fusion(path, ["S1", "S2"], per_node=False)
+    assert text.splitlines()[-1] == ("  one noise for every node (pooled): "
+                                     "range 0.0552 m  omega 0.08 rad  Doppler 0.1 m/s")

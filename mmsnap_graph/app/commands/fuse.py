@@ -22,6 +22,7 @@ import numpy as np
 from mmsnap_graph._atomic import check_output_path, recording_lock
 from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.app.runs import DEFAULT_ROBUST, fuse_stored, paper_noise, stored_calibration
+from mmsnap_graph.data.body import CENTROID_MERGE_RADIUS_M
 from mmsnap_graph.errors import ValidationError
 
 from .arguments import solver_choice
@@ -106,10 +107,14 @@ def register(subparsers) -> None:
     p.add_argument("--in-front", action="store_true",
                    help="the radars hang on the room's walls, facing in: a fused target behind "
                         "any radar is outside the room and flagged (status 11)")
+    p.add_argument("--no-learned-walls", action="store_true",
+                   help="keep fused targets beyond the walls learned from the radars' multipath "
+                        "images (default: flagged, status 11, when no --bounds is given; "
+                        "docs/ROBUST.md 'Learned walls')")
     p.add_argument("--no-body-merge", action="store_true",
-                   help="fuse each of a node's centroids of a frame closer than a body's width "
-                        "(0.6 m) on its own (default: merged into one, as one body split into "
-                        "clusters)")
+                   help="fuse each of a node's centroids of a frame closer than the merge "
+                        f"radius ({CENTROID_MERGE_RADIUS_M:g} m) on its own (default: merged "
+                        "into one, as one body split into clusters)")
     p.add_argument("--no-coverage-check", action="store_true",
                    help="with the motion check: keep a target that a radar whose field of view "
                         "covers it does not see in the frames around (default: flagged, "
@@ -166,6 +171,9 @@ def room_options(args) -> tuple[dict, list[str]]:
     if args.in_front:
         opts["in_front"] = True
         text.append("targets in front of every radar")
+    opts["walls"] = not args.no_learned_walls and "bounds" not in opts
+    if opts["walls"]:
+        text.append("walls learned from multipath images")
     if "bounds" in opts:
         text.append(f"room bounds {opts['bounds'].text()}")
     if "static_bounds" in opts:
@@ -260,9 +268,13 @@ def run(args: argparse.Namespace) -> int:
           f"{fused.n_rows - n_ok} "
           f"flagged; wrote {path}:/fused", file=sys.stdout)
     print(rows_text(path), file=sys.stdout)
+    for wall in fused.room.walls:
+        print(f"  learned wall of {wall}", file=sys.stdout)
     if fused.room.outside or fused.room.duplicate:
-        print(f"room checks flagged {fused.room.outside} target(s) outside the bounds and "
-              f"{fused.room.duplicate} duplicate(s) of a body", file=sys.stdout)
+        beyond = (f" ({fused.room.beyond_wall} beyond a learned wall)"
+                  if fused.room.beyond_wall else "")
+        print(f"room checks flagged {fused.room.outside} target(s) outside the bounds{beyond} "
+              f"and {fused.room.duplicate} duplicate(s) of a body", file=sys.stdout)
     room = fused.room.outside + fused.room.duplicate
     return flagged_exit(fused.n_rows - room, n_ok, args.max_flagged)
 

@@ -70,8 +70,8 @@ def _pose_text(pose, cov) -> str:
 def format_result(result) -> str:
     """Change points and re-calibrations as text (angles in degrees)."""
     lines = [f"nodes {', '.join(result.node_names)}; {result.frame.size} frames; threshold "
-             f"{result.threshold:.1f}; noise (range {result.noise.range_m:g} m, omega "
-             f"{result.noise.omega_rad:g} rad)"]
+             f"{result.threshold:.1f}; noise range {result.noise.range_m:.3g} m, omega "
+             f"{result.noise.omega_rad:.3g} rad"]
     if not result.changes:
         lines.append("no change detected")
     for c in result.changes:

@@ -4,12 +4,16 @@ from the data")."""
 
 from __future__ import annotations
 
+from typing import Mapping
+
 import numpy as np
 from numpy.typing import NDArray
 
 from factors.models import detection_to_global, measurement_model, residual
 
-__all__ = ["solve_frame_states"]
+from ...data.recording import Detections
+
+__all__ = ["solve_frame_states", "frame_table"]
 
 
 def solve_frame_states(z: NDArray, poses: NDArray, w: NDArray, prior_w: NDArray,
@@ -41,3 +45,22 @@ def solve_frame_states(z: NDArray, poses: NDArray, w: NDArray, prior_w: NDArray,
     e = np.where(seen[..., None], residual(h, zz), np.nan)
     info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + prior
     return x, e, jac, np.linalg.inv(info)
+
+
+def frame_table(detections: Mapping[str, Detections], names) -> tuple[NDArray, NDArray]:
+    """Measurements ``(F, N, 3)`` (NaN = not seen) of the frames that at
+    least two nodes see with exactly one centroid each."""
+    single = {}
+    for n in names:
+        det = detections[n]
+        frames, counts = np.unique(det.frame, return_counts=True)
+        single[n] = frames[counts == 1]
+    all_frames = np.unique(np.concatenate([single[n] for n in names]))
+    seen = np.array([np.isin(all_frames, single[n]) for n in names]).T
+    frames = all_frames[seen.sum(axis=1) >= 2]
+    z = np.full((frames.size, len(names), 3), np.nan)
+    for j, n in enumerate(names):
+        det = detections[n]
+        rows = np.isin(det.frame, frames) & np.isin(det.frame, single[n])
+        z[np.searchsorted(frames, det.frame[rows]), j] = det.measurements[rows]
+    return frames, z

@@ -14,6 +14,10 @@ reference frame), after the robust gate and the motion check:
 - **static bounds** (optional, TI's ``staticBoundaryBox``): a row slower than
   :data:`STILL_MPS` outside this box is flagged the same way (a target may
   stand still only inside it).
+- **learned walls** (on by default, ``walls``; without ``bounds``, whose box
+  are the walls): a row beyond a wall that the nodes' multipath images
+  taught (:mod:`.walls`) is flagged the same way: a radar cannot see a
+  person through a wall.
 - **one target per body**: two successful rows of a frame whose distance is
   consistent with one body are one person seen twice (a split body, or a
   node's centroid not associated with the other node's): with ``d`` their
@@ -28,7 +32,7 @@ reference frame), after the robust gate and the motion check:
   :attr:`~mmsnap_graph.data.results.Status.DUPLICATE`. Two people closer
   than that are one target for this check.
 
-:func:`screen_room` applies both to a :class:`FusedSequence` and says what it
+:func:`screen_room` applies them to a :class:`FusedSequence` and says what it
 flagged.
 """
 
@@ -40,13 +44,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ...data.body import BODY_WIDTH_M
 from ...data.results import FusedSequence, Status
 from ...errors import ValidationError
+from .walls import beyond_learned_walls, learn_walls
 
 __all__ = ["RoomBounds", "RoomReport", "screen_room", "DEFAULT_BODY_M", "STILL_MPS"]
 
-#: A body's width (m): fused people closer than this in one frame are one.
-DEFAULT_BODY_M = 0.5
+#: A body's width (m): fused people closer than this in one frame are one
+#: (:data:`~mmsnap_graph.data.body.BODY_WIDTH_M` says why it is not a merge radius).
+DEFAULT_BODY_M = BODY_WIDTH_M
 #: Two rows are one body within this chi-square(2) quantile (99%).
 BODY_CHI2 = 9.21
 #: A fused target slower than this (m/s) stands still (``static_bounds``).
@@ -84,13 +91,19 @@ class RoomBounds:
 
 @dataclass(frozen=True, slots=True)
 class RoomReport:
-    """Rows flagged by :func:`screen_room`: outside the bounds, duplicates."""
+    """Rows flagged by :func:`screen_room`: outside the bounds (all
+    ``OUTSIDE_BOUNDS`` rows), of which ``beyond_wall`` behind a learned wall,
+    duplicates; ``walls``: the learned walls in words."""
 
     outside: int = 0
     duplicate: int = 0
+    beyond_wall: int = 0
+    walls: tuple = ()
 
     def __add__(self, other: "RoomReport") -> "RoomReport":
-        return RoomReport(self.outside + other.outside, self.duplicate + other.duplicate)
+        walls = self.walls + tuple(w for w in other.walls if w not in self.walls)
+        return RoomReport(self.outside + other.outside, self.duplicate + other.duplicate,
+                          self.beyond_wall + other.beyond_wall, walls)
 
 
 def _duplicates(fused: FusedSequence, ok: NDArray, body_m: float) -> NDArray:
@@ -137,12 +150,33 @@ def _behind(fused: FusedSequence) -> tuple[NDArray, NDArray]:
     return back.any(axis=1), np.argmax(back, axis=1)
 
 
+def _learned_walls(fused: FusedSequence, success: NDArray, body_m: float):
+    """The learned-walls check (:mod:`.walls`): flags, wall index, walls."""
+    status = np.asarray(fused.status)
+    observed = np.asarray(fused.observed, dtype=bool)
+    rejected = np.zeros_like(observed) if fused.rejected is None else np.asarray(
+        fused.rejected, dtype=bool)
+    # A row the gate or the motion check flagged is still what a node saw
+    # (an image, often): it may teach a wall, with every node it was grouped with.
+    seen = np.where(success[:, None], observed & ~rejected, observed)
+    state = np.asarray(fused.state, dtype=float)
+    image_ok = np.all(np.isfinite(state), axis=1) & np.isin(
+        status, (Status.OK, Status.RESIDUAL_TEST_FAILED, Status.MOTION_INCONSISTENT))
+    poses = np.asarray(fused.node_poses, dtype=float)
+    walls = learn_walls(np.asarray(fused.frame), state, np.asarray(fused.covariance), success,
+                        seen, poses, body_m=body_m, image_ok=image_ok | success)
+    flag, which = beyond_learned_walls(state, success, seen, poses, walls)
+    return flag, which, walls
+
+
 def screen_room(fused: FusedSequence, *, bounds: RoomBounds | None = None,
                 static_bounds: RoomBounds | None = None, in_front: bool = False,
+                walls: bool = True,
                 body_m: float | None = DEFAULT_BODY_M) -> tuple[FusedSequence, RoomReport]:
     """Flag the successful rows outside ``bounds`` (None: no bounds), the
     still rows outside ``static_bounds``, the rows behind a node
-    (``in_front``) and the duplicates of one body (``body_m``; None: off).
+    (``in_front``), the rows beyond a wall learned from the multipath images
+    (``walls``) and the duplicates of one body (``body_m``; None: off).
     Returns the rows with their ``success``, ``status`` and ``message``
     updated, and the counts."""
     if body_m is not None and not (np.isfinite(body_m) and body_m > 0):
@@ -175,6 +209,16 @@ def screen_room(fused: FusedSequence, *, bounds: RoomBounds | None = None,
                           f"({static_bounds.text()})")
         success &= ~still
         outside |= still
+    beyond, learned = np.zeros(len(fused), dtype=bool), []
+    if walls and bounds is None:
+        beyond, which, learned = _learned_walls(fused, success, DEFAULT_BODY_M)
+        status[beyond] = Status.OUTSIDE_BOUNDS
+        for k in np.flatnonzero(beyond):
+            message[k] = ("beyond a wall learned from multipath images ("
+                          f"{learned[which[k]].text(fused.node_names)}): outside the room")
+        success &= ~beyond
+        outside |= beyond
+    wall_text = tuple(w.text(fused.node_names) for w in learned)
     dup = np.zeros(len(fused), dtype=bool)
     if body_m is not None:
         dup = _duplicates(fused, success, float(body_m))
@@ -183,7 +227,7 @@ def screen_room(fused: FusedSequence, *, bounds: RoomBounds | None = None,
                         "frame")
         success &= ~dup
     if not (outside.any() or dup.any()):
-        return fused, RoomReport()
+        return fused, RoomReport(walls=wall_text)
     out = dataclasses.replace(fused, success=success, status=status.astype(
         np.asarray(fused.status).dtype), message=message)
-    return out, RoomReport(int(outside.sum()), int(dup.sum()))
+    return out, RoomReport(int(outside.sum()), int(dup.sum()), int(beyond.sum()), wall_text)

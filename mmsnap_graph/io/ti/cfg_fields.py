@@ -3,7 +3,7 @@ and ranges (used by :mod:`mmsnap_graph.io.ti.cfg` to check every number)."""
 
 from __future__ import annotations
 
-__all__ = ["cfg_fields"]
+__all__ = ["cfg_fields", "cfg_fields_table"]
 
 #: Per command, each argument's name, whether it is an integer, and its range
 #: (TI's hardware limits, mmWave SDK user guide and the radar interface
@@ -59,3 +59,34 @@ def cfg_fields(command: str, n_args: int) -> tuple:
     if command == "sensorPosition":
         return _SENSOR[n_args]
     return _FIELDS[command]
+
+
+#: TI's unit of each bounded argument (the ``.cfg`` is in TI's units, not SI).
+_UNITS = {"startFreq": "GHz", "idleTime": "us", "adcStartTime": "us", "rampEndTime": "us",
+          "freqSlopeConst": "MHz/us", "txStartTime": "us", "numAdcSamples": "samples",
+          "digOutSampleRate": "ksps", "framePeriodicity": "ms", "burstPeriodicity": "ms",
+          "subFramePeriodicity": "ms", "height": "m", "azimuthTilt": "deg",
+          "elevationTilt": "deg", "numLoops": "loops", "numFrames": "frames (0: endless)",
+          "numOfChirps": "chirps", "numOfBurst": "bursts", "numOfBurstLoops": "loops"}
+
+
+def _span(integer: bool, low: float, high: float, unit: str | None) -> str:
+    text = f"{low:g}..{high:g}" if integer else f"[{low:g}, {high:g}]"
+    return text + (f" {unit}" if unit else "")
+
+
+def cfg_fields_table() -> str:
+    """The bounded arguments of each command as a Markdown table, for
+    docs/TI.md (the tests check that it is quoted there): one row per
+    command, ``name range unit``; a whole number's range as ``low..high``, a
+    real one's as ``[low, high]``. Arguments not listed take any finite
+    number."""
+    commands = [(c, f) for c, f in _FIELDS.items()]
+    commands += [("adcbufCfg", _ADCBUF), ("sensorPosition", _SENSOR[5])]
+    rows = ["| command | bounded arguments (TI's units; whole numbers as low..high) |",
+            "|---------|------------------------------------------------------------|"]
+    for command, fields in commands:
+        spans = [f"`{name}` {_span(integer, low, high, _UNITS.get(name))}"
+                 for name, integer, low, high in fields if low is not None]
+        rows.append(f"| `{command}` | {'; '.join(spans)} |")
+    return "\n".join(rows) + "\n"

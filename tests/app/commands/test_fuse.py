@@ -20,7 +20,7 @@ from mmsnap_graph.fusion.recording.sequence import (
 )
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused
-from _cli import with_centroids
+from _cli import noise_block, store_partial_noise, with_centroids
 
 
 @pytest.fixture
@@ -252,3 +252,10 @@ def test_a_calibration_json_gives_poses_and_covariances(calibrated, capsys):
     assert main(["fuse", str(calibrated), "--covariance", "grid", "--grid-points", "5",
                  "--no-progress", "-o", str(out), "--overwrite"]) == 0
     assert "pose covariances need --covariance laplace" in capsys.readouterr().out
+
+
+def test_fuse_prints_the_stored_noise_one_short_line_per_node(recording_b_file, tmp_path, capsys):
+    path = shutil.copy(recording_b_file, tmp_path / "rec.h5")
+    store_partial_noise(path)
+    assert main(["fuse", str(path), "--no-progress"]) == 0
+    noise_block(capsys.readouterr().out)

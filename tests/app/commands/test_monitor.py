@@ -7,6 +7,7 @@ from mmsnap_graph.errors import MissingStepError
 
 import argparse
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from mmsnap_graph.io import write_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.bump import simulate_bumped_recording
 from mmsnap_graph.sim import CLEAN, SimulationOptions
+from _cli import noise_block, store_partial_noise
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -94,3 +96,14 @@ def test_monitor_json_prints_the_result_alone(bumped_path, tmp_path, capsys):
     assert printed == json.loads(out_json.read_text())
     assert printed["changes"][0]["node"] == "S2"
     assert f"wrote {out_json}" in captured.err and "change: S2" not in captured.out
+
+
+def test_monitor_prints_the_stored_noise_one_short_line_per_node(recording_b_file, tmp_path,
+                                                                 capsys):
+    path = shutil.copy(recording_b_file, tmp_path / "rec.h5")
+    store_partial_noise(path)
+    assert _run([str(path)]) == 0
+    out = capsys.readouterr().out
+    block = noise_block(out)
+    pooled = out.splitlines()[out.splitlines().index(block[-1]) + 1]
+    assert pooled == "  one noise for every node (pooled): range 0.0552 m  omega 0.08 rad  Doppler 0.1 m/s"

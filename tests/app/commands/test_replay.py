@@ -3,12 +3,14 @@ closes the pipe (``| head``) ends the run quietly."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 
 import pytest
 
 from mmsnap_graph.app.cli import EXIT_BROKEN_PIPE, main
+from _cli import noise_block, store_partial_noise
 
 
 @pytest.fixture(scope="module")
@@ -34,3 +36,11 @@ def test_a_closed_pipe_ends_the_replay_quietly(rec):
     assert proc.wait(timeout=60) == EXIT_BROKEN_PIPE
     err = proc.stderr.read().decode()
     assert "error" not in err and "Broken pipe" not in err and "Traceback" not in err, err
+
+
+def test_replay_prints_the_stored_noise_one_short_line_per_node(recording_b_file, tmp_path,
+                                                                capsys):
+    path = shutil.copy(recording_b_file, tmp_path / "rec.h5")
+    store_partial_noise(path)
+    assert main(["replay", str(path), "--summary"]) == 0
+    noise_block(capsys.readouterr().err)  # the frames go to stdout

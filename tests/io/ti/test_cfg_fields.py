@@ -8,9 +8,9 @@ import pytest
 
 from mmsnap_graph.errors import ConfigurationError
 from mmsnap_graph.io.ti.cfg import parse_ti_cfg
-from mmsnap_graph.io.ti.cfg_fields import cfg_fields
+from mmsnap_graph.io.ti.cfg_fields import cfg_fields, cfg_fields_table
 
-from _shared import TI_DATA
+from _shared import ROOT, TI_DATA
 
 #: The SDK user guide's argument lists, in order (the names the errors use).
 SDK_ARGUMENTS = {
@@ -86,3 +86,18 @@ def test_the_parser_accepts_a_limit_and_names_the_field_just_past_it():
         parse_ti_cfg(_fast_cfg("256"), board="AWR1843BOOST")
     with pytest.raises(ConfigurationError, match=r"numLoops=2.5 must be an integer"):
         parse_ti_cfg(_fast_cfg("2.5"), board="AWR1843BOOST")
+
+
+def test_the_docs_quote_the_bounds_the_reader_checks():
+    """docs/TI.md lists each bounded .cfg argument with its range and unit,
+    as the reader's own table (before: only a few examples in prose)."""
+    table = cfg_fields_table()
+    assert table in (ROOT / "docs" / "TI.md").read_text()
+    assert "| `frameCfg` | `chirpStartIdx` 0..511; `chirpEndIdx` 0..511; `numLoops` 1..255 loops;" \
+        in table
+    for command, n_args in [(c, len(a)) for c, a in SDK_ARGUMENTS.items()] + [
+            ("subFrameCfg", 10), ("advFrameCfg", 5), ("adcbufCfg", 5), ("sensorPosition", 5)]:
+        for name, integer, low, high in cfg_fields(command, n_args):
+            if low is not None:
+                span = f"{low:g}..{high:g}" if integer else f"[{low:g}, {high:g}]"
+                assert f"`{name}` {span}" in table, (command, name)

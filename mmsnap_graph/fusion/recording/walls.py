@@ -1,0 +1,306 @@
+"""Walls learned from multipath images (docs/ROBUST.md, "Learned walls"):
+a radar cannot see a person through a wall.
+
+A radar sees a person P directly and, via a flat wall, an image of P farther
+away. Two images are common (docs/TI.md, "Static scene and ghosts"):
+
+- the **mirror image** M of P through the wall (the path radar -> wall -> P
+  -> wall -> radar): the wall is the perpendicular bisector of P and M;
+- the **one-bounce image** (radar -> P -> wall -> radar): at the mean of the
+  two paths, ``(|P - S| + |M - S|) / 2`` from the radar S, along the bearing
+  of M. From such an image G the mirror image is ``M = S + (2 |G - S| -
+  |P - S|) u``, ``u`` the unit vector from S to G.
+
+A node's image G of a person is a fused row seen by fewer nodes than a row P
+of its frame (the person, walking: at least :data:`WALL_MOVING_MPS`),
+farther from the node than P, whose radial speed
+(its Doppler) is the one its kind predicts from P's velocity mirrored through
+the wall (within :data:`WALL_DOPPLER_SIGMAS` of both rows' velocity
+covariances): a second person walking on their own rarely is. Every such pair
+proposes its wall line (one per image kind); a wall is a line proposed in at
+least :data:`WALL_MIN_FRAMES` distinct frames (within
+:data:`WALL_ANGLE_TOL_RAD` and :data:`WALL_OFFSET_TOL_M`), with the node on
+its room side, and behind which (almost) no person seen by two or more nodes
+ever stands: at most :data:`WALL_MAX_CROSSING` of those rows, not counting the
+images it explains. Of two walls that explain the same images (one per
+kind), the one proposed in more frames is kept.
+
+:func:`beyond_learned_walls` flags the successful rows that lie more than
+:data:`WALL_MARGIN_M` beyond a wall of every node that sees them, where the
+line from the node to the row crosses the wall within
+:data:`WALL_EXTENT_M` of the images that taught it (a bearing where no image
+was seen flags nothing). A recording without multipath images (or with too
+few) learns no wall and flags nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ...errors import ValidationError
+
+__all__ = ["LearnedWall", "learn_walls", "beyond_learned_walls", "WALL_MIN_FRAMES",
+           "WALL_ANGLE_TOL_RAD", "WALL_OFFSET_TOL_M", "WALL_DOPPLER_SIGMAS",
+           "WALL_DOPPLER_FLOOR_MPS", "WALL_MOVING_MPS", "WALL_MARGIN_M", "WALL_EXTENT_M",
+           "WALL_MAX_CROSSING"]
+
+#: Distinct frames whose images must propose one wall (0.5 s at 20 fps): a
+#: wall is there all the time; two people are rarely in mirror positions.
+WALL_MIN_FRAMES = 10
+#: Proposals within this angle (of the wall's normal) ...
+WALL_ANGLE_TOL_RAD = float(np.deg2rad(10.0))
+#: ... and this offset (m) are one wall (a centroid's scatter, 0.1-0.2 m).
+WALL_OFFSET_TOL_M = 0.3
+#: A row is flagged this far beyond the wall (m): half a body, so that a
+#: person standing at the wall is never behind it.
+WALL_MARGIN_M = 0.25
+#: A wall reaches this far (m) beyond the images that taught it, along it.
+WALL_EXTENT_M = 1.0
+#: An image's radial speed must be its kind's prediction within this many
+#: sigmas (of both rows' velocity covariances) ...
+WALL_DOPPLER_SIGMAS = 3.0
+#: ... and this floor (m/s): about a TI Doppler bin (0.12 m/s at 77 GHz with
+#: the out-of-box chirps).
+WALL_DOPPLER_FLOOR_MPS = 0.15
+#: The person must walk (m/s): the images of someone standing still have no
+#: Doppler to tell them from static clutter.
+WALL_MOVING_MPS = 0.2
+#: Fraction of the rows seen by two or more nodes that may stand behind a
+#: wall (not explained as its images): a misassociated row now and then.
+WALL_MAX_CROSSING = 0.005
+
+_BIN_RAD = WALL_ANGLE_TOL_RAD / 2
+_BIN_M = WALL_OFFSET_TOL_M / 2
+
+
+@dataclass(frozen=True, slots=True)
+class LearnedWall:
+    """One node's wall: the points ``x`` with ``normal . x = offset_m`` (the
+    normal points out of the room, away from the node), known along the wall
+    (``tangent . x``, tangent = normal turned +90 deg) between ``along_m``
+    (min, max) of its images; ``frames`` that proposed it; ``images`` rows it
+    explains."""
+
+    node: int
+    normal_rad: float
+    offset_m: float
+    along_m: tuple[float, float]
+    frames: int
+    images: int
+
+    @property
+    def normal(self) -> NDArray:
+        return np.array([np.cos(self.normal_rad), np.sin(self.normal_rad)])
+
+    def text(self, node_names) -> str:
+        n = self.normal
+        return (f"{node_names[self.node]}: {n[0]:+.2f} x {n[1]:+.2f} y = {self.offset_m:.2f} m "
+                f"({self.frames} frames)")
+
+
+def _line(p: NDArray, m: NDArray) -> tuple[NDArray, NDArray]:
+    """Bisectors of P (K, 2) and M (K, 2): normal angle (from P to M), offset."""
+    d = m - p
+    n = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return np.arctan2(n[:, 1], n[:, 0]), np.einsum("ij,ij->i", n, (p + m) / 2)
+
+
+def _crossing(node: NDArray, xy: NDArray, n: NDArray, offset: NDArray) -> NDArray:
+    """(K,) where the line of sight from ``node`` to ``xy`` (K, 2) crosses the
+    lines ``n . x = offset`` (n (K, 2) or (2,)), as a position along them
+    (tangent = n turned +90 deg); inf where it does not reach them."""
+    n = np.broadcast_to(n, xy.shape)
+    toward = np.einsum("ij,ij->i", n, xy - node)
+    lam = np.divide(offset - n @ node, toward, out=np.full(len(xy), np.inf),
+                    where=toward > 0)
+    reach = np.isfinite(lam)
+    at = node + np.where(reach, lam, 0.0)[:, None] * (xy - node)
+    return np.where(reach, -n[:, 1] * at[:, 0] + n[:, 0] * at[:, 1], np.inf)
+
+
+def _speeds_agree(u_g, u_p, n, state, cov, gs, ps, one_bounce: bool) -> NDArray:
+    """(K,) the image's radial speed (its Doppler, seen from the node: unit
+    vectors ``u_g``, ``u_p`` to the image and the person) is the one its
+    kind predicts from the person's velocity mirrored through the wall
+    (normal ``n``): ``u_g . R v_P`` for the mirror image, the mean of
+    ``u_p . v_P`` and that for the one-bounce image; within
+    :data:`WALL_DOPPLER_SIGMAS` of both rows' velocity covariances (and
+    :data:`WALL_DOPPLER_FLOOR_MPS`)."""
+    v_g, v_p = state[gs, 2:], state[ps, 2:]
+    # R v = v - 2 (n . v) n, and R is its own transpose.
+    r_u = u_g - 2 * np.einsum("ij,ij->i", n, u_g)[:, None] * n
+    grad = (r_u + u_p) / 2 if one_bounce else r_u
+    predicted = np.einsum("ij,ij->i", grad, v_p)
+    var = (np.einsum("ij,ijk,ik->i", u_g, cov[gs, 2:, 2:], u_g)
+           + np.einsum("ij,ijk,ik->i", grad, cov[ps, 2:, 2:], grad) + WALL_DOPPLER_FLOOR_MPS ** 2)
+    miss = np.einsum("ij,ij->i", u_g, v_g) - predicted
+    return miss ** 2 <= WALL_DOPPLER_SIGMAS ** 2 * var
+
+
+def _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m):
+    """Wall proposals: (row of the image, node, normal angle, offset, along, frame)."""
+    xy = state[:, :2]
+    n_seen = seen.sum(axis=1)
+    out = []
+    order = np.argsort(frame, kind="stable")
+    bounds = np.flatnonzero(np.diff(frame[order])) + 1
+    for rows in np.split(order, bounds):
+        people, images = rows[ok[rows]], rows[image_ok[rows]]
+        if people.size == 0 or images.size == 0:
+            continue
+        g, p = (a.ravel() for a in np.meshgrid(images, people, indexing="ij"))
+        keep = ((g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
+                & (np.hypot(*state[p, 2:].T) >= WALL_MOVING_MPS))
+        for s in range(poses.shape[0]):
+            node = poses[s, :2]
+            gs, ps = g[keep & seen[g, s]], p[keep & seen[g, s]]
+            r_g, r_p = np.hypot(*(xy[gs] - node).T), np.hypot(*(xy[ps] - node).T)
+            far = r_p < r_g
+            gs, ps, r_g, r_p = gs[far], ps[far], r_g[far], r_p[far]
+            if gs.size == 0:
+                continue
+            u_g, u_p = (xy[gs] - node) / r_g[:, None], (xy[ps] - node) / r_p[:, None]
+            for one_bounce in (False, True):
+                m = node + ((2 * r_g - r_p) / r_g)[:, None] * (xy[gs] - node) if one_bounce \
+                    else xy[gs]
+                ang, off = _line(xy[ps], m)
+                n = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+                k = ((n @ node < off) & (np.einsum("ij,ij->i", n, u_g) > 0)
+                     & _speeds_agree(u_g, u_p, n, state, cov, gs, ps, one_bounce))
+                along = _crossing(node, xy[gs], n, off)
+                out.append(np.stack([gs[k], np.full(k.sum(), s), ang[k], off[k], along[k],
+                                     frame[gs[k]]], axis=1))
+    return np.concatenate(out) if out else np.zeros((0, 6))
+
+
+def _near(props: NDArray, ang: float, off: float, scale: float = 1.0) -> NDArray:
+    da = np.abs((props[:, 2] - ang + np.pi) % (2 * np.pi) - np.pi)
+    return (da <= scale * WALL_ANGLE_TOL_RAD) & (np.abs(props[:, 3] - off)
+                                                 <= scale * WALL_OFFSET_TOL_M)
+
+
+def _best_line(props: NDArray) -> tuple[int, NDArray]:
+    """(distinct frames, mask of the proposals) of the best-supported line:
+    proposals binned by angle and offset, each bin's neighbourhood
+    (+-tolerance, two bins each way) counted in distinct frames."""
+    n_a = int(np.ceil(2 * np.pi / _BIN_RAD))
+    a = np.floor(props[:, 2] / _BIN_RAD).astype(np.int64) % n_a
+    o = np.floor(props[:, 3] / _BIN_M).astype(np.int64)
+    o -= o.min() - 2
+    n_o = int(o.max()) + 3
+    frames, f = np.unique(props[:, 5], return_inverse=True)
+    n_f = frames.size
+    # Every (bin, frame) a proposal lends to each bin of its neighbourhood,
+    # counted once: the distinct frames of each bin's neighbourhood.
+    base = np.unique((a * n_o + o) * n_f + f.ravel())
+    ba, rest = np.divmod(base, n_o * n_f)
+    bo, bf = np.divmod(rest, n_f)
+    keys = np.concatenate([(((ba + da) % n_a) * n_o + bo + do) * n_f + bf
+                           for da in range(-2, 3) for do in range(-2, 3)])
+    bins, counts = np.unique(np.unique(keys) // n_f, return_counts=True)
+    best = int(np.argmax(counts))
+    ca, co = divmod(int(bins[best]), n_o)
+    da = np.abs((a - ca + n_a // 2) % n_a - n_a // 2)
+    return int(counts[best]), (da <= 2) & (np.abs(o - co) <= 2)
+
+
+def _checked(frame, state, covariance, ok, seen, poses):
+    """The arrays of :func:`learn_walls`, their shapes checked."""
+    frame = np.asarray(frame)
+    state = np.asarray(state, dtype=float)
+    cov = np.nan_to_num(np.asarray(covariance, dtype=float), nan=0.0)
+    ok, seen = np.asarray(ok, dtype=bool), np.asarray(seen, dtype=bool)
+    poses = np.asarray(poses, dtype=float)
+    k = frame.shape[0] if frame.ndim == 1 else -1
+    n = poses.shape[0] if poses.ndim == 2 and poses.shape[1] == 3 else -1
+    for name, arr, shape in (("frame", frame, (k,)), ("state", state, (k, 4)),
+                             ("covariance", cov, (k, 4, 4)), ("ok", ok, (k,)),
+                             ("seen", seen, (k, n)), ("poses", poses, (n, 3))):
+        if k < 0 or n < 0 or arr.shape != shape:
+            raise ValidationError(f"learned walls: {name} has shape {arr.shape}; frame (K,), "
+                                  "state (K, 4), covariance (K, 4, 4), ok (K,), seen (K, N) "
+                                  "and poses (N, 3) are needed")
+    return frame, state, cov, ok, seen, poses
+
+
+def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray, seen: NDArray,
+                poses: NDArray, *, body_m: float,
+                image_ok: NDArray | None = None) -> list[LearnedWall]:
+    """The walls of each node (module doc).
+
+    frame : (K,) int; state : (K, 4); covariance : (K, 4, 4) (NaN: unknown,
+    taken as 0: the Doppler floor alone); ok : (K,) bool, the successful rows
+    (the people, and the rows a wall must not stand in front of); seen :
+    (K, N) bool, the nodes each row was fused from; poses : (N, 3);
+    image_ok : (K,) bool, the rows that may be images (default ``ok``; rows
+    the motion check flagged are images too).
+    """
+    frame, state, cov, ok, seen, poses = _checked(frame, state, covariance, ok, seen, poses)
+    if not (np.isfinite(body_m) and body_m > 0):
+        raise ValidationError(f"body_m={body_m!r} must be finite and > 0 (m)")
+    image_ok = ok if image_ok is None else np.asarray(image_ok, dtype=bool).reshape(ok.shape)
+    xy = state[:, :2]
+    props = _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m)
+    confirmed = ok & (seen.sum(axis=1) >= 2)
+    walls: list[LearnedWall] = []
+    for s in range(poses.shape[0]):
+        mine, found = props[props[:, 1] == s], []
+        while len(mine):
+            count, mask = _best_line(mine)
+            if count < WALL_MIN_FRAMES:
+                break
+            ang = float(np.angle(np.mean(np.exp(1j * mine[mask, 2]))))
+            off = float(np.median(mine[mask, 3]))
+            near = _near(mine, ang, off)
+            explained = np.zeros(len(ok), dtype=bool)
+            explained[mine[near, 0].astype(np.int64)] = True
+            n = np.array([np.cos(ang), np.sin(ang)])
+            crossing = confirmed & ~explained & (xy @ n > off)
+            if crossing.sum() <= WALL_MAX_CROSSING * confirmed.sum():
+                along = mine[near, 4]
+                found.append((LearnedWall(node=s, normal_rad=ang, offset_m=off,
+                                          along_m=(float(along.min()), float(along.max())),
+                                          frames=count, images=int(explained.sum())),
+                              explained, off - float(n @ poses[s, :2])))
+            mine = mine[~(_near(mine, ang, off, 2.0) | mask)]
+        walls += _one_per_image(found)
+    return walls
+
+
+def _one_per_image(found: list) -> list[LearnedWall]:
+    """The walls of one node, without those whose images (half or more)
+    another wall explains better: each image proposes one wall per image
+    kind, and the kind the data support (more frames; on a tie the farther
+    wall, which flags less) is the wall."""
+    keep = []
+    for wall, images, dist in found:
+        if not any(np.sum(images & other) >= 0.5 * images.sum()
+                   and (w.frames, d) > (wall.frames, dist)
+                   for w, other, d in found if w is not wall):
+            keep.append(wall)
+    return keep
+
+
+def beyond_learned_walls(state: NDArray, ok: NDArray, seen: NDArray, poses: NDArray,
+                         walls: list[LearnedWall]) -> tuple[NDArray, NDArray]:
+    """``(flag (K,), wall (K,))``: the successful rows beyond a wall of every
+    node that sees them (module doc), and the index in ``walls`` of the
+    first such wall (-1: none)."""
+    xy = np.asarray(state, dtype=float)[:, :2]
+    k, n_nodes = seen.shape
+    behind = np.zeros((k, n_nodes), dtype=bool)
+    first = np.full((k, n_nodes), -1, dtype=np.int64)
+    for i, w in enumerate(walls):
+        n, node = w.normal, poses[w.node, :2]
+        depth = xy @ n - w.offset_m
+        cross = _crossing(node, xy, n, np.full(k, w.offset_m))
+        hit = ((depth > WALL_MARGIN_M) & (cross >= w.along_m[0] - WALL_EXTENT_M)
+               & (cross <= w.along_m[1] + WALL_EXTENT_M))
+        first[hit & ~behind[:, w.node], w.node] = i
+        behind[:, w.node] |= hit
+    flag = ok & seen.any(axis=1) & np.all(behind | ~seen, axis=1)
+    wall = np.where(flag, np.max(np.where(seen, first, -1), axis=1), -1)
+    return flag, wall
