@@ -40,6 +40,7 @@ __all__ = [
     "calibration_json_path",
     "calibrate_and_store",
     "fuse_stored",
+    "range_offset_for_poses",
 ]
 
 #: Robust one-shot fusion used unless asked otherwise (``mmsnap fuse --robust
@@ -182,35 +183,47 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     if np.isfinite(depth):
         parts.append(f"range offset (reflection depth) {depth:.3f} m added to every range")
     elif poses is not None:
-        depth = _range_offset_at(path, poses, noise, cal, parts)
+        depth, said = range_offset_for_poses(path, cal, noise)
+        parts += [said] if said else []
+        if said and sigmas is None and noise is not None:
+            parts.append(f"the /noise sigmas are those of the last `mmsnap calibrate` or "
+                         f"`mmsnap noise`: `mmsnap noise {Path(path).name} --calibration "
+                         f"{Path(calibration_json).name}` estimates them at these poses")
     text.append("; ".join(parts))
     return StoredCalibration(node_poses=poses, pose_covariances=used_covs,
                              time_offset_s=offsets or None, noise=noise, text=tuple(text),
                              range_offset_m=depth if np.isfinite(depth) else None)
 
 
-def _range_offset_at(path, poses, noise, cal, parts) -> float:
-    """The range offset the data identify at poses given from outside the
-    recording (a calibration JSON without one): a body's reflection depth
-    that the calibrated poses would have taken in, but fixed poses leave in
-    the residuals (:func:`~mmsnap_graph.calibration.noise.depth.range_offset_at_poses`).
-    NaN (and why, in ``parts``) where it is not identified."""
+def range_offset_for_poses(path: str | os.PathLike, calibration, noise, *,
+                           recording=None) -> tuple[float, str]:
+    """The range offset (reflection depth, m) to add to every centroid range
+    of the recording at ``path`` when fusing at ``calibration``'s poses
+    (a calibration JSON, read), and what it is in words ("" when nothing is
+    to say): the calibration's own when it has one; none at the recording's
+    own calibrated poses (they took any depth in); else the one the
+    cross-node residuals identify at those fixed poses
+    (:func:`~mmsnap_graph.calibration.noise.depth.range_offset_at_poses`,
+    weighted by ``noise``: one :class:`MeasurementNoise`, one per node, or
+    None for the paper's), NaN where it is not identified.
+    ``recording``: the recording already read (else read here)."""
     from ..calibration.noise.depth import range_offset_at_poses
     from ..io import read_recording
 
+    depth = float(getattr(calibration, "range_offset_m", float("nan")))
+    if np.isfinite(depth):
+        return depth, f"range offset (reflection depth) {depth:.3f} m added to every range"
     own = _read_calibration(path, None)
-    if own is not None and _same_poses(own.poses, poses):
-        return float("nan")        # the calibration's own poses: they took the depth in
-    rec = read_recording(path, load_cubes=False)
-    if noise is None:
-        noise = paper_noise()[0]
-    est = range_offset_at_poses(rec, poses, noise=noise,
-                                lag_frames=getattr(cal, "lag_frames", None))
+    if own is not None and _same_poses(own.poses, calibration.poses):
+        return float("nan"), ""
+    rec = recording if recording is not None else read_recording(path, load_cubes=False)
+    est = range_offset_at_poses(rec, calibration.poses,
+                                noise=paper_noise()[0] if noise is None else noise,
+                                lag_frames=getattr(calibration, "lag_frames", None))
     if not est.identified:
-        parts.append(est.message + "; none added")
-        return float("nan")
-    parts.append(f"the calibration gives no range offset: {est.message}, added to every range")
-    return est.offset_m
+        return float("nan"), est.message + "; none added"
+    return est.offset_m, (f"the calibration gives no range offset: {est.message}, added to "
+                          f"every range")
 
 
 def _same_poses(a, b, tol: float = 1e-6) -> bool:

@@ -6,7 +6,9 @@ radar configuration, and the result types of the estimators.
 - :mod:`.radar_config`: :class:`RadarConfig` (the paper's Table I by default);
 - :mod:`.noise`: :class:`MeasurementNoise`, :class:`GaussianPrior`;
 - :mod:`.results`: :class:`Status` (the one status enum), :class:`FusionResult`,
-  :class:`BatchResult`, :class:`FusedSequence`.
+  :class:`BatchResult`, :class:`FusedSequence`;
+- :mod:`.body`: a person's size as the filters use it (a width, and the merge
+  radii of centroids).
 """
 
 from .radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarConfig, TiProfile

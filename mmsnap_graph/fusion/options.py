@@ -16,6 +16,7 @@ from typing import Literal, Mapping
 
 import numpy as np
 
+from ..data.body import CENTROID_MERGE_RADIUS_M
 from .._validation import as_float_array, check_count, check_finite, check_probability
 from ..errors import ValidationError
 from .robust import RESIDUAL_GATE_PROBABILITY, check_robust, check_robust_k, residual_gate_threshold
@@ -153,7 +154,7 @@ class FusionOptions:
     block_rows: int = 65536
     motion_check: bool | None = None
     body_merge: bool | None = None
-    merge_body_m: float = 0.6   # regroup.DEFAULT_MERGE_BODY_M
+    merge_body_m: float = CENTROID_MERGE_RADIUS_M
     coverage_check: bool = True
 
     def __post_init__(self) -> None:

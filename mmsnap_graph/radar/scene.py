@@ -18,7 +18,7 @@ says what it dropped:
    stands still elsewhere keeps theirs. A person who stands in one place for
    a large part of the recording becomes background (as in TI's tracker).
 2. :func:`merge_close_centroids` (centroids): an extent prior: centroids of one
-   frame closer than ``body_m`` (a body's width) are one body, merged into
+   frame closer than ``body_m`` (a merge radius) are one body, merged into
    their SNR-weighted mean.
 3. :func:`ghost_mask` (centroids): a multipath ghost is a weaker centroid
    further along the same bearing (``|sin theta_a - sin theta_b| <=
@@ -42,6 +42,7 @@ from factors.models import detection_to_local
 
 from .._validation import check_count
 from ..data.recording import Detections
+from ..data.body import SCENE_MERGE_RADIUS_M
 from ..errors import ConfigurationError
 
 __all__ = ["SceneConfig", "SceneReport", "static_scene_mask", "merge_close_centroids",
@@ -66,7 +67,9 @@ class SceneConfig:
     cell_m : background map cell (m). window_s : occupancy window (s).
     min_occupancy : fraction of windows a background cell is occupied in.
     min_windows : and at least this many windows.
-    body_m : a body's width (m): centroids closer are one body.
+    body_m : merge radius (m): a node's centroids of one frame closer than
+        this are one body (default
+        :data:`~mmsnap_graph.data.body.SCENE_MERGE_RADIUS_M`, which says why).
     bearing_sin : same bearing, in sin(azimuth). behind_m : a ghost is at least
     this much further (m). ghost_doppler_mps : and its Doppler this close (m/s).
     existence_window_s : half-width of the existence window (s).
@@ -83,7 +86,7 @@ class SceneConfig:
     window_s: float = 1.0
     min_occupancy: float = 0.2
     min_windows: int = 3
-    body_m: float = 0.5
+    body_m: float = SCENE_MERGE_RADIUS_M
     bearing_sin: float = 0.1
     behind_m: float = 0.3
     ghost_doppler_mps: float = 0.3

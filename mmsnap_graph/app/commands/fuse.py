@@ -22,6 +22,7 @@ import numpy as np
 from mmsnap_graph._atomic import check_output_path, recording_lock
 from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.app.runs import DEFAULT_ROBUST, fuse_stored, paper_noise, stored_calibration
+from mmsnap_graph.data.body import CENTROID_MERGE_RADIUS_M
 from mmsnap_graph.errors import ValidationError
 
 from .arguments import solver_choice
@@ -111,9 +112,9 @@ def register(subparsers) -> None:
                         "images (default: flagged, status 11, when no --bounds is given; "
                         "docs/ROBUST.md 'Learned walls')")
     p.add_argument("--no-body-merge", action="store_true",
-                   help="fuse each of a node's centroids of a frame closer than a body's width "
-                        "(0.6 m) on its own (default: merged into one, as one body split into "
-                        "clusters)")
+                   help="fuse each of a node's centroids of a frame closer than the merge "
+                        f"radius ({CENTROID_MERGE_RADIUS_M:g} m) on its own (default: merged "
+                        "into one, as one body split into clusters)")
     p.add_argument("--no-coverage-check", action="store_true",
                    help="with the motion check: keep a target that a radar whose field of view "
                         "covers it does not see in the frames around (default: flagged, "

@@ -6,7 +6,11 @@ The estimator is :func:`mmsnap_graph.calibration.noise.estimate.estimate_noise`:
 cross-node residuals at the node poses (those stored in the recording, or a
 calibration JSON) combined with each node's own centroid sequence; with no
 poses, the centroid sequences alone. Each component is printed as estimated,
-or as not identified with the value used instead and why.
+or as not identified with the value used instead and why. At the poses of a
+calibration JSON that are not the recording's own calibrated ones, the range
+offset (a body's reflection depth) that ``mmsnap fuse --calibration`` adds
+there is taken out of the ranges first, so that it is not counted twice (as
+an offset and as range noise).
 """
 
 from __future__ import annotations
@@ -52,8 +56,27 @@ def _lags(path) -> dict[str, int] | None:
     return dict(read_calibration(path).lag_frames) if has else None
 
 
+def _depth(args, rec, est) -> float:
+    """The range offset `mmsnap fuse --calibration` adds at the JSON's
+    poses (said), so that the noise is estimated on the ranges it fuses:
+    a depth left in would be counted twice, as an offset and as noise."""
+    from mmsnap_graph.app.runs import range_offset_for_poses
+    from mmsnap_graph.io.calibration import read_calibration_json
+
+    cal = read_calibration_json(args.calibration)
+    depth, said = range_offset_for_poses(args.recording, cal,
+                                         {n: e.noise for n, e in est.nodes.items()},
+                                         recording=rec)
+    if said:
+        print(said)
+    return depth
+
+
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from mmsnap_graph.calibration.noise.estimate import estimate_noise
+    from mmsnap_graph.fusion.recording.timing import offset_ranges
     from mmsnap_graph.io import read_recording
     from mmsnap_graph.io.calibration import load_calibration_poses
     from mmsnap_graph.io.noise import write_noise
@@ -65,8 +88,13 @@ def run(args: argparse.Namespace) -> int:
     poses = load_calibration_poses(args.calibration) if args.calibration else None
     with recording_lock(args.recording):
         rec = read_recording(args.recording, load_cubes=False)
-        est = estimate_noise(rec, poses=poses, lag_frames=_lags(args.recording),
-                             method=args.method)
+        lags = _lags(args.recording)
+        est = estimate_noise(rec, poses=poses, lag_frames=lags, method=args.method)
+        if poses is not None:   # the range offset `mmsnap fuse` adds at these poses
+            depth = _depth(args, rec, est)
+            if np.isfinite(depth):
+                est = estimate_noise(offset_ranges(rec, depth), poses=poses, lag_frames=lags,
+                                     method=args.method)
         print("\n".join(noise_lines(est)))  # as `mmsnap calibrate` prints it
         print(est.message)
         if not args.no_write:

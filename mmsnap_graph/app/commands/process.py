@@ -11,6 +11,7 @@ import numpy as np
 
 from mmsnap_graph._atomic import check_output_path
 from mmsnap_graph.app.commands.file_rules import add_overwrite
+from mmsnap_graph.data.body import SCENE_MERGE_RADIUS_M
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 
 #: Defaults quoted in the help: ``CfarConfig().pfa`` and
@@ -57,8 +58,9 @@ def register(subparsers) -> None:
                         "(default: dropped where a background map learned over the recording "
                         "finds them; docs/TI.md)")
     p.add_argument("--no-body-merge", action="store_true",
-                   help="stored point clouds: do not merge centroids of a frame closer than a "
-                        "body's width (0.5 m)")
+                   help="stored point clouds: do not merge a node's centroids of a frame "
+                        f"closer than the merge radius ([scene] body_m, default "
+                        f"{SCENE_MERGE_RADIUS_M:g} m)")
     p.add_argument("--no-ghost-filter", action="store_true",
                    help="stored point clouds: keep multipath ghosts (a weaker centroid further "
                         "along the same bearing with a consistent Doppler)")

@@ -5,6 +5,10 @@
 - :mod:`.tails`: the second moment of heavy-tailed centroid noise;
 - :mod:`.motion`: the Doppler sigmas with the target's motion estimated
   jointly;
+- :mod:`.sequences`: each node's single-target sequences and the ghosts
+  in them;
+- :mod:`.depth`: the range offset (a body's reflection depth) at fixed
+  node poses;
 - :mod:`.frame_states`: each frame's least-squares target state at known
   poses (the estimators' inner solve).
 

@@ -30,9 +30,8 @@ from numpy.typing import NDArray
 from ...data.noise import MeasurementNoise
 from ...data.recording import Detections, Recording
 from ...errors import ValidationError
-from .estimate import ghost_rows
-from .frame_states import frame_table
-from .frame_states import solve_frame_states
+from .frame_states import frame_table, solve_frame_states
+from .sequences import ghost_rows
 
 __all__ = ["RangeOffsetEstimate", "range_offset_at_poses", "GATE_K", "MAX_SIGMA_M", "MIN_FRAMES"]
 

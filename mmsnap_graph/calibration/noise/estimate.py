@@ -81,6 +81,8 @@ from ...data.recording import Detections, Recording
 from ...errors import ValidationError
 from .frame_states import frame_table as _frame_table, solve_frame_states
 from .motion import motion_doppler_noise
+from .sequences import GHOST_K, ghost_rows
+from .sequences import single_target_sequences as _sequences
 from .tails import with_tails
 
 __all__ = ["estimate_noise", "network_noise", "temporal_noise", "TEMPORAL_ORDER", "KAPPA_4",
@@ -103,9 +105,6 @@ _WEAK_DOF = 1e-3
 MIN_DOF = 25.0
 #: Residuals beyond this many robust sigmas are ghosts (trimmed).
 TRIM_K = 3.0
-#: Threshold (robust sigmas) and reach (frames on either side) of :func:`ghost_rows`.
-GHOST_K = 5.0
-GHOST_REACH = 3
 #: Significance level of the homogeneity test that pools the nodes' estimates.
 POOL_LEVEL = 0.05
 
@@ -150,52 +149,6 @@ def trimmed_scale(e: NDArray, denom: NDArray | None = None, *, k: float = TRIM_K
 def _difference_weights(order: int) -> NDArray:
     c = np.array([(-1) ** (order - j) * math.comb(order, j) for j in range(order + 1)], float)
     return c / np.sqrt(np.sum(c**2))
-
-
-def _sequences(det: Detections) -> list[NDArray]:
-    """Row indices of each single-target sequence of ``det``, by frame: per
-    ``target_id`` when the rows are labelled, else the frames with exactly
-    one centroid."""
-    order = np.argsort(det.frame, kind="stable")
-    labels = det.target_id
-    if labels is not None and np.any(labels >= 0):
-        groups = [order[labels[order] == t] for t in np.unique(labels[labels >= 0])]
-    else:
-        groups = [order]
-    out = []
-    for rows in groups:
-        frames, counts = np.unique(det.frame[rows], return_counts=True)
-        single = np.isin(det.frame[rows], frames[counts == 1])
-        out.append(rows[single])
-    return out
-
-
-def ghost_rows(detections: Detections, *, k: float = GHOST_K) -> NDArray:
-    """(K,) bool: centroids of ``detections`` that are ghosts in their own
-    single-target sequence: some component further than ``k`` robust sigmas
-    from the median of five predictions from its neighbours (the means of the
-    1st, 2nd and 3rd neighbours on either side, and the two one-sided linear
-    extrapolations), which a ghost among the neighbours cannot move much.
-    The first and last three rows of a sequence, and rows outside a
-    single-target sequence, are not flagged (the trimmed scale of
-    :func:`temporal_noise` takes care of what slips through)."""
-    flag = np.zeros(len(detections), bool)
-    for rows in _sequences(detections):
-        if rows.size < 2 * GHOST_REACH + 1:
-            continue
-        z = detections.measurements[rows]
-        z[:, 1] = np.unwrap(z[:, 1])
-        c = slice(GHOST_REACH, z.shape[0] - GHOST_REACH)
-
-        def at(offset):
-            return z[GHOST_REACH + offset: z.shape[0] - GHOST_REACH + offset]
-
-        pred = np.stack([(at(-1) + at(1)) / 2, (at(-2) + at(2)) / 2, (at(-3) + at(3)) / 2,
-                         2 * at(-1) - at(-2), 2 * at(1) - at(2)])
-        dev = z[c] - np.median(pred, axis=0)
-        scale = 1.4826 * np.median(np.abs(dev), axis=0)
-        flag[rows[c]] = np.any(np.abs(dev) > k * np.maximum(scale, 1e-12), axis=1)
-    return flag
 
 
 def temporal_noise(detections: Detections, *, order: int = TEMPORAL_ORDER,

@@ -3,7 +3,7 @@
 
 A radar often sees one person as two or more clusters (torso and arm, the
 two sides of the body). A node's centroids of one frame closer than a
-body's width (in the node's own Cartesian frame) are one body: they are
+merge radius (in the node's own Cartesian frame) are one body: they are
 replaced by their mean position and mean Doppler before the association, so
 that no half of a body enters a fused row on its own and biases it. Two
 people closer than that to each other become one detection of that node.
@@ -16,13 +16,14 @@ from itertools import combinations
 import numpy as np
 from numpy.typing import NDArray
 
+from ...data.body import CENTROID_MERGE_RADIUS_M
+
 
 __all__ = ["merge_body_detections", "DEFAULT_MERGE_BODY_M"]
 
-#: A body's width with the arms (m): a node's centroids of one frame closer
-#: than this are one body (split clusters of one person are 0.3-0.6 m apart,
-#: docs/SIMULATOR.md).
-DEFAULT_MERGE_BODY_M = 0.6
+#: The merge radius (m): a node's centroids of one frame closer than this are
+#: one body (:data:`~mmsnap_graph.data.body.CENTROID_MERGE_RADIUS_M` says why).
+DEFAULT_MERGE_BODY_M = CENTROID_MERGE_RADIUS_M
 
 
 def _local_xy(z: NDArray) -> NDArray:

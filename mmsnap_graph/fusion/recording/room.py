@@ -44,14 +44,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ...data.body import BODY_WIDTH_M
 from ...data.results import FusedSequence, Status
 from ...errors import ValidationError
 from .walls import beyond_learned_walls, learn_walls
 
 __all__ = ["RoomBounds", "RoomReport", "screen_room", "DEFAULT_BODY_M", "STILL_MPS"]
 
-#: A body's width (m): fused people closer than this in one frame are one.
-DEFAULT_BODY_M = 0.5
+#: A body's width (m): fused people closer than this in one frame are one
+#: (:data:`~mmsnap_graph.data.body.BODY_WIDTH_M` says why it is not a merge radius).
+DEFAULT_BODY_M = BODY_WIDTH_M
 #: Two rows are one body within this chi-square(2) quantile (99%).
 BODY_CHI2 = 9.21
 #: A fused target slower than this (m/s) stands still (``static_bounds``).

@@ -12,7 +12,8 @@ away. Two images are common (docs/TI.md, "Static scene and ghosts"):
   |P - S|) u``, ``u`` the unit vector from S to G.
 
 A node's image G of a person is a fused row seen by fewer nodes than a row P
-of its frame (the person), farther from the node than P, whose radial speed
+of its frame (the person, walking: at least :data:`WALL_MOVING_MPS`),
+farther from the node than P, whose radial speed
 (its Doppler) is the one its kind predicts from P's velocity mirrored through
 the wall (within :data:`WALL_DOPPLER_SIGMAS` of both rows' velocity
 covariances): a second person walking on their own rarely is. Every such pair
@@ -39,9 +40,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ...errors import ValidationError
+
 __all__ = ["LearnedWall", "learn_walls", "beyond_learned_walls", "WALL_MIN_FRAMES",
            "WALL_ANGLE_TOL_RAD", "WALL_OFFSET_TOL_M", "WALL_DOPPLER_SIGMAS",
-           "WALL_DOPPLER_FLOOR_MPS", "WALL_MARGIN_M", "WALL_EXTENT_M", "WALL_MAX_CROSSING"]
+           "WALL_DOPPLER_FLOOR_MPS", "WALL_MOVING_MPS", "WALL_MARGIN_M", "WALL_EXTENT_M",
+           "WALL_MAX_CROSSING"]
 
 #: Distinct frames whose images must propose one wall (0.5 s at 20 fps): a
 #: wall is there all the time; two people are rarely in mirror positions.
@@ -61,6 +65,9 @@ WALL_DOPPLER_SIGMAS = 3.0
 #: ... and this floor (m/s): about a TI Doppler bin (0.12 m/s at 77 GHz with
 #: the out-of-box chirps).
 WALL_DOPPLER_FLOOR_MPS = 0.15
+#: The person must walk (m/s): the images of someone standing still have no
+#: Doppler to tell them from static clutter.
+WALL_MOVING_MPS = 0.2
 #: Fraction of the rows seen by two or more nodes that may stand behind a
 #: wall (not explained as its images): a misassociated row now and then.
 WALL_MAX_CROSSING = 0.005
@@ -145,7 +152,8 @@ def _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m):
         if people.size == 0 or images.size == 0:
             continue
         g, p = (a.ravel() for a in np.meshgrid(images, people, indexing="ij"))
-        keep = (g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
+        keep = ((g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
+                & (np.hypot(*state[p, 2:].T) >= WALL_MOVING_MPS))
         for s in range(poses.shape[0]):
             node = poses[s, :2]
             gs, ps = g[keep & seen[g, s]], p[keep & seen[g, s]]
@@ -177,18 +185,45 @@ def _near(props: NDArray, ang: float, off: float, scale: float = 1.0) -> NDArray
 def _best_line(props: NDArray) -> tuple[int, NDArray]:
     """(distinct frames, mask of the proposals) of the best-supported line:
     proposals binned by angle and offset, each bin's neighbourhood
-    (+-tolerance) counted in distinct frames."""
-    a = np.floor(props[:, 2] / _BIN_RAD).astype(np.int64)
-    o = np.floor(props[:, 3] / _BIN_M).astype(np.int64)
+    (+-tolerance, two bins each way) counted in distinct frames."""
     n_a = int(np.ceil(2 * np.pi / _BIN_RAD))
-    best, best_mask = 0, None
-    for ca, co in {(int(x), int(y)) for x, y in zip(a, o)}:
-        da = np.abs((a - ca + n_a // 2) % n_a - n_a // 2)
-        mask = (da <= 2) & (np.abs(o - co) <= 2)
-        count = np.unique(props[mask, 5]).size
-        if count > best:
-            best, best_mask = count, mask
-    return best, best_mask
+    a = np.floor(props[:, 2] / _BIN_RAD).astype(np.int64) % n_a
+    o = np.floor(props[:, 3] / _BIN_M).astype(np.int64)
+    o -= o.min() - 2
+    n_o = int(o.max()) + 3
+    frames, f = np.unique(props[:, 5], return_inverse=True)
+    n_f = frames.size
+    # Every (bin, frame) a proposal lends to each bin of its neighbourhood,
+    # counted once: the distinct frames of each bin's neighbourhood.
+    base = np.unique((a * n_o + o) * n_f + f.ravel())
+    ba, rest = np.divmod(base, n_o * n_f)
+    bo, bf = np.divmod(rest, n_f)
+    keys = np.concatenate([(((ba + da) % n_a) * n_o + bo + do) * n_f + bf
+                           for da in range(-2, 3) for do in range(-2, 3)])
+    bins, counts = np.unique(np.unique(keys) // n_f, return_counts=True)
+    best = int(np.argmax(counts))
+    ca, co = divmod(int(bins[best]), n_o)
+    da = np.abs((a - ca + n_a // 2) % n_a - n_a // 2)
+    return int(counts[best]), (da <= 2) & (np.abs(o - co) <= 2)
+
+
+def _checked(frame, state, covariance, ok, seen, poses):
+    """The arrays of :func:`learn_walls`, their shapes checked."""
+    frame = np.asarray(frame)
+    state = np.asarray(state, dtype=float)
+    cov = np.nan_to_num(np.asarray(covariance, dtype=float), nan=0.0)
+    ok, seen = np.asarray(ok, dtype=bool), np.asarray(seen, dtype=bool)
+    poses = np.asarray(poses, dtype=float)
+    k = frame.shape[0] if frame.ndim == 1 else -1
+    n = poses.shape[0] if poses.ndim == 2 and poses.shape[1] == 3 else -1
+    for name, arr, shape in (("frame", frame, (k,)), ("state", state, (k, 4)),
+                             ("covariance", cov, (k, 4, 4)), ("ok", ok, (k,)),
+                             ("seen", seen, (k, n)), ("poses", poses, (n, 3))):
+        if k < 0 or n < 0 or arr.shape != shape:
+            raise ValidationError(f"learned walls: {name} has shape {arr.shape}; frame (K,), "
+                                  "state (K, 4), covariance (K, 4, 4), ok (K,), seen (K, N) "
+                                  "and poses (N, 3) are needed")
+    return frame, state, cov, ok, seen, poses
 
 
 def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray, seen: NDArray,
@@ -203,11 +238,12 @@ def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray
     image_ok : (K,) bool, the rows that may be images (default ``ok``; rows
     the motion check flagged are images too).
     """
-    state = np.asarray(state, dtype=float)
-    cov = np.nan_to_num(np.asarray(covariance, dtype=float), nan=0.0)
+    frame, state, cov, ok, seen, poses = _checked(frame, state, covariance, ok, seen, poses)
+    if not (np.isfinite(body_m) and body_m > 0):
+        raise ValidationError(f"body_m={body_m!r} must be finite and > 0 (m)")
+    image_ok = ok if image_ok is None else np.asarray(image_ok, dtype=bool).reshape(ok.shape)
     xy = state[:, :2]
-    image_ok = ok if image_ok is None else image_ok
-    props = _proposals(np.asarray(frame), state, cov, ok, image_ok, seen, poses, body_m)
+    props = _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m)
     confirmed = ok & (seen.sum(axis=1) >= 2)
     walls: list[LearnedWall] = []
     for s in range(poses.shape[0]):

@@ -61,21 +61,23 @@ def _decimals(chunk: NDArray, starts: NDArray, ends: NDArray) -> tuple[NDArray, 
     n, length = starts.size, ends - starts
     width = int(min(length.max(initial=1), MAX_WIDTH))
     lead = width - length                         # empty columns before each field
-    mantissa, n_digits = np.zeros(n), np.zeros(n, np.int64)
-    decimals, n_dots = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    n_minus, bad = np.zeros(n, np.int64), (length > width) | (length == 0)
+    mantissa = np.zeros(n)
+    n_digits, n_dots, n_minus = (np.zeros(n, np.int8) for _ in range(3))
+    point = np.full(n, width - 1, np.int8)        # the decimal point's column (none: the last)
+    bad = (length > width) | (length == 0)
     for k in range(width):
         code = chunk.take(ends - (width - k), mode="clip") - 48      # uint8: wraps below "0"
         inside = lead <= k
         digit, dot = (code < 10) & inside, (code == (_DOT - 48) % 256) & inside
         minus = (code == (_MINUS - 48) % 256) & inside
         bad |= (inside & ~(digit | dot | minus)) | (minus & (lead != k))
-        decimals += digit & (n_dots > 0)
         n_digits += digit
         n_dots += dot
         n_minus += minus
+        point[dot] = k
         # Exact while below 2^53 (checked after); rounding is monotone above.
         mantissa = np.where(digit, mantissa * 10.0 + code, mantissa)
+    decimals = (width - 1 - point.astype(np.int64))     # digits after the point
     bad |= (n_digits == 0) | (n_dots > 1) | (n_minus > 1) | (mantissa >= _EXACT_MANTISSA) \
         | (decimals > 22)
     value = mantissa / _POW10[np.minimum(decimals, 22)]

@@ -31,7 +31,8 @@ from .csv_columns import plain_csv_columns
 from .inputs import require_file
 from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
-__all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "read_point_table", "read_point_tables"]
+__all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "read_point_table", "read_point_tables",
+           "csv_text_columns"]
 
 CARTESIAN_COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
 SPHERICAL_COLUMNS = ("range_m", "azimuth_rad", "elevation_rad", "doppler_mps")
@@ -56,27 +57,29 @@ _MAX_TIME_S = 1e12
 
 
 def _read_csv(path: Path) -> dict[str, NDArray]:
-    """A CSV file -> name -> column, without pandas: a plain table by
-    :func:`~.csv_columns.plain_csv_columns`, any other with the standard
-    library's rules below.
-
-    Blank lines and lines starting with ``#`` are skipped, spaces around a
-    cell are dropped; a column whose every non-empty cell is a number is a
-    float column (an empty cell is NaN), any other a column of strings (the
-    errors that follow then name the line of a bad cell)."""
+    """A CSV file -> name -> column (:func:`csv_text_columns`)."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (UnicodeDecodeError, OSError) as exc:
         raise FileFormatError(f"{path}: not a readable CSV table ({exc})") from None
-    plain = plain_csv_columns(text)            # the common case, parsed by NumPy
+    return csv_text_columns(text, path)
+
+
+def csv_text_columns(text: str, name: str | os.PathLike = "CSV table", *,
+                     fast: bool = True) -> dict[str, NDArray]:
+    """The text of a CSV point table -> name -> column, without pandas, as
+    :func:`read_point_tables` reads a CSV file (``name`` names it in errors).
+
+    Blank lines and lines starting with ``#`` are skipped, spaces around a
+    cell are dropped; a column whose every non-empty cell is a number is a
+    float column (an empty cell is NaN), any other a column of strings (the
+    errors that follow then name the line of a bad cell). A plain table is
+    parsed by :func:`~.csv_columns.plain_csv_columns` with the same result
+    (``fast=False``: never, for comparison)."""
+    plain = plain_csv_columns(text) if fast else None    # the common case, parsed by NumPy
     if plain is not None:
-        _no_duplicates(list(plain), str(path))
+        _no_duplicates(list(plain), str(name))
         return plain
-    return _general_csv(text, path)
-
-
-def _general_csv(text: str, path: Path) -> dict[str, NDArray]:
-    """:func:`_read_csv` of any text, with the rules of its docstring."""
     kept = [(k, line) for k, line in enumerate(text.splitlines(), start=1)
             if line.strip() and not line.lstrip().startswith("#")]
     lines = [line for _, line in kept]
@@ -86,17 +89,17 @@ def _general_csv(text: str, path: Path) -> dict[str, NDArray]:
         rows = (list(csv.reader(lines, skipinitialspace=True)) if '"' in text
                 else [line.split(",") for line in lines])
     except csv.Error as exc:
-        raise FileFormatError(f"{path}: not a readable CSV table ({exc})") from None
+        raise FileFormatError(f"{name}: not a readable CSV table ({exc})") from None
     if not rows:
-        raise FileFormatError(f"{path}: not a readable CSV table (no header line)")
+        raise FileFormatError(f"{name}: not a readable CSV table (no header line)")
     header = [c.strip() for c in rows[0]]
-    _no_duplicates(header, str(path))
+    _no_duplicates(header, str(name))
     if set(map(len, rows)) != {len(header)}:
         k = next(k for k, row in enumerate(rows) if len(row) != len(header))
-        raise FileFormatError(f"{path}: line {kept[k][0]} has {len(rows[k])} cells, the header "
+        raise FileFormatError(f"{name}: line {kept[k][0]} has {len(rows[k])} cells, the header "
                               f"(line {kept[0][0]}) names {len(header)} columns")
     cells = list(zip(*rows[1:])) or [()] * len(header)
-    return {name: _csv_column(values) for name, values in zip(header, cells)}
+    return {column: _csv_column(values) for column, values in zip(header, cells)}
 
 
 def _csv_column(cells: tuple) -> NDArray:

@@ -1,5 +1,5 @@
-"""``mmsnap fuse --bounds / --bounds-cfg / --no-body-check``: the room-frame
-checks of fused rows from the command line."""
+"""``mmsnap fuse --bounds / --bounds-cfg / --no-body-check / --no-learned-walls``:
+the room-frame checks of fused rows from the command line."""
 
 from __future__ import annotations
 
@@ -98,3 +98,40 @@ def test_a_cfg_without_boxes_is_an_error(recording, tmp_path, capsys):
     cfg.write_text("sensorStop\nframeCfg 0 2 16 0 50 1 0\n")
     assert _fuse(recording, tmp_path, "--bounds-cfg", str(cfg))[0] == 2
     assert "no boundaryBox" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def mirrored(tmp_path_factory):
+    """Three nodes, one walker, known poses, 20% of each node's centroids
+    with a mirror image through a wall of the room (clean model)."""
+    from _shared import POSES_BC
+    from mmsnap_graph.io import write_recording
+    from mmsnap_graph.sim import SimulationOptions, simulate_recording
+    from mmsnap_graph.sim.real.ghosts import ghost_centroids
+
+    rec = simulate_recording({"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]},
+                             "random", SimulationOptions(physics=None, known_poses=True),
+                             levels=("centroids",), n_frames=300, seed=10)
+    path = tmp_path_factory.mktemp("walls") / "mirror.h5"
+    write_recording(path, ghost_centroids(rec, "mirror", 0.2, seed=110))
+    return path, rec.truth
+
+
+def test_learned_walls_flag_the_mirror_images(mirrored, tmp_path, capsys):
+    path, truth = mirrored
+    sigmas = ["--sigmas", "0.05", "0.08", "0.1"]
+    assert _fuse(path, tmp_path, *sigmas)[0] == 0
+    text = capsys.readouterr().out
+    fused = read_fused(tmp_path / "fused.h5")
+    walled = fused.status == Status.OUTSIDE_BOUNDS
+    err = np.hypot(*(fused.state[:, :2] - truth.state[fused.frame, :2]).T)
+    assert "walls learned from multipath images" in text and "learned wall of S" in text
+    assert f"({int(walled.sum())} beyond a learned wall)" in text
+    assert walled.any() and np.all(err[walled] > 1.0)           # images, never the walker
+    assert np.all(err[fused.success] < 0.5)
+    # The switch, and a room box, which replaces the learned walls.
+    for extra in (["--no-learned-walls"], ["--bounds=-50,50,-50,50"]):
+        assert _fuse(path, tmp_path, *sigmas, *extra)[0] == 0
+        text = capsys.readouterr().out
+        assert "learned wall" not in text and "walls learned" not in text
+        assert not np.any(read_fused(tmp_path / "fused.h5").status == Status.OUTSIDE_BOUNDS)

@@ -139,3 +139,31 @@ def test_calibrate_no_write_leaves_the_recording_without_noise(tmp_path, capsys,
     assert read_noise(copy) is None
     assert main(["calibrate", str(copy), "--json-out", str(tmp_path / "c.json"), "--overwrite"]) == 0
     assert read_noise(copy) is not None
+
+
+def test_noise_at_fixed_poses_takes_the_range_offset_out_first(calibrated_c_file, tmp_path,
+                                                               capsys):
+    """Before: at the poses of a calibration JSON, centroids 0.08 m short in
+    range (a body's near side) made the range sigma about 0.08 m, while
+    `mmsnap fuse --calibration` adds the offset it finds there: the depth
+    counted twice. Now the noise is estimated on the ranges fuse fuses."""
+    from mmsnap_graph.io import read_recording, write_recording
+
+    from _cli import with_centroids
+
+    rec = read_recording(calibrated_c_file, load_cubes=False)
+    true_json = tmp_path / "true.json"
+    true_json.write_text(json.dumps({"nodes": {n: {"pose": [float(v) for v in p]}
+                                               for n, p in rec.truth.node_poses.items()}}))
+    plain = write_recording(tmp_path / "plain.h5", rec)
+    for i in range(len(rec.node_names)):
+        rec = with_centroids(rec, i, lambda r, w, v: r.__isub__(0.08))
+    short = write_recording(tmp_path / "short.h5", rec)
+    sig = {}
+    for path in (plain, short):
+        capsys.readouterr()
+        assert main(["noise", str(path), "--calibration", str(true_json)]) == 0
+        sig[path] = np.array([e.noise.range_m for e in read_noise(path).nodes.values()])
+    found = re.search(r"range offset at these poses ([+-][0-9.]+)", capsys.readouterr().out)
+    assert found and abs(float(found.group(1)) - 0.08) < 0.015, found
+    np.testing.assert_allclose(sig[short], sig[plain], rtol=0.1)
