@@ -213,6 +213,20 @@ def test_reference_frame_rotates_the_body_tangent():
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("stem", RECORDINGS)
+def test_synchronised_radars_get_no_clock_lag(runs, stem):
+    """Two radars recorded by one PC: no whole-frame lag and no clock offset
+    beyond 10 ms, whole and in halves (the fractions the joint graph finds
+    on the associated centroids, -1.9 to +0.35 frames, are not supported by
+    the data and 0 is kept: docs/CALIBRATION.md, "Clock offsets")."""
+    cals = [runs.full(stem)[0]] + runs.half_calibrations(stem)
+    got = [(c["nodes"]["S2"]["lag_frames"], c["nodes"]["S2"]["time_offset_s"]) for c in cals]
+    print(f"{stem}: S2 lag (frames), clock offset (ms), whole / first half / second half: "
+          + ", ".join(f"{lag}, {1e3 * off:+.1f}" for lag, off in got))
+    assert all(lag == 0 and abs(off) <= 0.010 for lag, off in got)
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("stem", _cases(HALVES_XFAIL))
 def test_halves_agree_within_their_reported_covariance(runs, stem):
     a, b = (np.asarray(c["nodes"]["S2"]["pose"]) for c in runs.half_calibrations(stem))
@@ -361,9 +375,9 @@ def test_tables_hold_float16_values_and_read_as_point_tables():
 # 4.15 of 4 at the true poses (position part 2.51, velocity 1.65), was 5.44
 # (3.07, 2.39) before the range offset was estimated at poses given from
 # outside and the Doppler sigma counted its heavy tails on sparse clouds.
-# Seeds 0 and 2 give 3.32 and 3.59: below the band (conservative), their
-# one-node rows (28-33 %) take the cross-range velocity from the paper's
-# 3.5 m/s prior.
+# Seeds 0 and 2-5 give 3.53 (below the band: conservative), 3.78, 3.89, 4.16
+# and 3.85; the one-node rows (28-33 %) take the cross-range velocity from
+# the paper's 3.5 m/s prior, which keeps their NEES near 3.
 def test_fused_states_consistent_on_the_simulated_real_model(tmp_path):
     from mmsnap_graph.evaluation.metrics import nees_check, truth_reference
     from mmsnap_graph.io import read_recording
