@@ -165,14 +165,15 @@ def _cases(xfails: dict) -> list:
 # people in 6.7% / 54.2% of frames (multiple tracking / fall detection).
 POSE_XFAIL = {"multiple_tracking": (
     "S2 heading -3.76 deg from the tape (0.046 m); tape 3 deg. The data do not fix it better: "
-    "the halves give -4.47 and -0.04 deg, one person's tracks -9.0 to +9.1 deg; the simulator's "
-    "real model in this geometry scatters 2.1 deg (12 seeds, bias +1.3 deg), and an angle bias "
-    "of the radar (no Rx phase compensation in its cfg) is calibrated as heading "
+    "the halves give -4.47 and -0.04 deg, one person's tracks -9.0 to +9.1 deg (the simulator's "
+    "real model in this geometry: +0.99 +- 0.74 deg over 12 seeds, halves 1.0-1.6 deg apart), "
+    "and an angle bias of the radar (no Rx phase compensation in its cfg) is calibrated as "
+    "heading at no cost in the fit "
     "(docs/CALIBRATION.md, \"A node's heading on real recordings\")")}
 # Halves, compared in the reference frame: with the joint graph's marginals
-# (`mmsnap calibrate --covariance model`) (1.9, 2.3, 1.8) sigma (multiple
+# (`mmsnap calibrate --covariance model`) (0.7, 1.0, 1.2) sigma (multiple
 # tracking) and (1.5, 8.2, 6.3) (fall detection); with the default long-run
-# covariance (0.5, 0.5, 0.5) and (0.8, 2.6, 2.0).
+# covariance (0.7, 0.7, 0.7) and (0.8, 2.6, 2.0).
 HALVES_XFAIL: dict = {}
 # Without a room box, the walls learned from the multipath images flag what a
 # radar sees through a wall: 96.3% / 100% of fused rows inside the room
