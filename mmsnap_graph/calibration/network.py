@@ -41,6 +41,8 @@ from .pairwise.matching import LocalTracks, local_tracks
 from .pairwise.matching_options import MatchingOptions
 from .joint.multi_refine import refine_associated, with_clock_offsets
 from .noise.estimate import estimate_noise
+from .lag_support import unrejected_lag_spread
+from .pairwise.matching import LAG_EVIDENCE_Z
 from .joint.residual_noise import residual_noise
 from .pairwise.pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 
@@ -156,11 +158,13 @@ def _joint_noise(recording, pg, dets) -> tuple[MeasurementNoise, str]:
 
 def _refine(recording, pg, reachable, method, noise, options: JointOptions, notes):
     """The joint step: its result (None when skipped) and, with several
-    centroids per frame, the associated detections it ran on (else None)."""
+    centroids per frame, the associated detections it ran on and the clock
+    offsets of the solve with time offsets (else None, None)."""
     dets = _joint_detections(recording, reachable, pg.lag_frames)
     if dets is None:
         out = _refine_multi(recording, pg, reachable, method, noise, options, notes)
-        return (None, None) if out is None else (out.joint, out.detections)
+        return (None, None, None) if out is None else (out.joint, out.detections,
+                                                       out.clock_offsets)
     if noise is None:
         noise, note = _joint_noise(recording, pg, dets)
         notes.append(note)
@@ -169,7 +173,7 @@ def _refine(recording, pg, reachable, method, noise, options: JointOptions, note
                               frame_period_s=recording.frame_period_s,
                               lag_frames={n: int(pg.lag_frames.get(n, 0)) for n in reachable})
     notes.append(joint.message)
-    return joint, None
+    return joint, None, None
 
 
 def _refine_multi(recording, pg, reachable, method, noise, options, notes):
@@ -310,10 +314,12 @@ def calibrate_recording(
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
     result_method, refined, associated, notes = "pose_graph", None, None, [pg.message]
+    clock = None
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)
-        refined, associated = _refine(recording, pg, reachable, method, noise, options, notes)
+        refined, associated, clock = _refine(recording, pg, reachable, method, noise, options,
+                                             notes)
         if refined is not None and (refined.success or method == "joint"):
             poses = {n: refined.poses[n] for n in reachable}
             covs = {n: refined.covariances[n] for n in reachable}
@@ -321,7 +327,13 @@ def calibrate_recording(
         elif refined is not None:
             notes.append("kept the pose-graph poses")
             associated = None
-    covs = _cover_ambiguous_lags(pg.edges, covs, notes)
+    used = None
+    if result_method == "joint":  # the centroids the joint graph was fitted on
+        used = associated if associated is not None else _joint_detections(
+            recording, reachable, pg.lag_frames)
+    covs = _cover_ambiguous_lags(pg.edges, covs, notes, used, clock,
+                                 matching.frame_counts(recording.frame_period_s)[0],
+                                 matching.inlier_gate_m)
     success = pg.success and (refined is None or refined.success or result_method == "pose_graph")
     lags = dict(pg.lag_frames)
     if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
@@ -341,16 +353,46 @@ def calibrate_recording(
                                else float("nan")))
 
 
-def _cover_ambiguous_lags(edges, covs, notes) -> dict:
-    """The edges' lag notes added to ``notes``, and covariances at least an
-    ambiguous-lag edge's (PSD maximum) for its nodes: the refinement fits one
-    lag and its covariance is that lag's alone (a walk along a circle: 0.8 m
-    off with a 0.08 m sigma), while the edge's covers the poses of every lag
-    that fits about as well."""
+def _cover_ambiguous_lags(edges, covs, notes, used=None, clock=None, window=0,
+                          gate_m=0.5) -> dict:
+    """The edges' lag notes added to ``notes``, and the covariances of the
+    nodes of an ambiguous-lag edge widened to cover the poses of the lags
+    the final model cannot reject: the refinement fits one lag and its
+    covariance is that lag's alone (a walk along a circle: 0.8 m off with a
+    0.08 m sigma).
+
+    With the centroids the joint graph was fitted on (``used``, node ->
+    detections on the reference clock), each shift within ``window``
+    frames is tested on them (:func:`~mmsnap_graph.calibration.lag_support.unrejected_lag_spread`)
+    and so is it against the joint graph's clock offset (``clock``: node ->
+    (fraction, sigma) in frames, from the solve with time offsets, kept or
+    not): a shift ``LAG_EVIDENCE_Z`` of its sigmas from the fraction is
+    rejected. Node b's covariance grows by the spread of the shifts that
+    neither rejects:
+    the track matching's own spread covers fits of other track pairs and of
+    smoothed tracks (two walkers at 50 ms frames: 10-38 deg of heading
+    sigma where the errors were 1-2 deg). Without them (the pose graph's
+    result) the edge's widened covariance is a PSD lower bound of both
+    nodes'."""
     notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in edges if e.lag_note]
     out = dict(covs)
     for e in edges:
         if not e.lag_ambiguous:
+            continue
+        a, b = e.node_a, e.node_b
+        if used is not None and a in used and b in used and b in out and np.any(out[b]):
+            shifts = [k for k in range(-int(window), int(window) + 1) if k]
+            frac, sd = (clock or {}).get(b, (0.0, float("nan")))
+            timed_out = [k for k in shifts if abs(k - frac) >= LAG_EVIDENCE_Z * sd]
+            extra, kept, rejected = unrejected_lag_spread(
+                used[a], used[b], [k for k in shifts if k not in timed_out], gate_m, out[b])
+            rejected = sorted(rejected + timed_out)
+            out[b] = out[b] + extra
+            notes.append(f"{a}-{b}: lag not determined by the track matching; the joint "
+                         f"graph's clock offset ({frac:+.2f} +- {sd:.2f} frames) or its "
+                         f"centroids reject the shifts {rejected} frames (z >= "
+                         f"{LAG_EVIDENCE_Z:g}); the covariance covers the poses of "
+                         f"{kept if kept else 'none'}")
             continue
         notes.append(f"{e.node_a}-{e.node_b}: lag not determined (other lags fit about as well "
                      f"with other poses): the covariance covers their spread")

@@ -68,13 +68,18 @@ class MultiTargetRefinement:
     """Result of :func:`refine_multi`: the joint graph's result (its frames
     are virtual frames), the mapping back to ``(frame, target)``, the
     association and the measurement noise used; detections: the
-    associated detections the joint graph ran on (virtual frames)."""
+    associated detections the joint graph ran on (virtual frames);
+    clock_offsets: per node the clock offset of the solve with time offsets
+    (:func:`with_clock_offsets`, kept or not) as ``(fraction of a frame
+    beyond the whole-frame lag, its sigma in frames)``, None when it did not
+    run: which whole-frame lags the joint graph can reject."""
 
     joint: JointCalibration
     mapping: TargetMapping
     association: TargetAssociation
     noise: MeasurementNoise
     detections: Mapping | None = None
+    clock_offsets: Mapping | None = None
 
 
 def _recorded_noise(metadata) -> MeasurementNoise | None:
@@ -294,10 +299,15 @@ def with_clock_offsets(refined: MultiTargetRefinement, recording: Recording,
     text = ", ".join(f"{n} {f:+.2f} frame (z {z:.1f})" for n, (f, z) in evidence.items())
     if not timed.success:
         return refined, f"clock offsets: whole-frame lags (the timed solve failed: {timed.message})"
+    period = recording.frame_period_s
+    refined = dataclasses.replace(refined, clock_offsets={
+        n: (f, float(np.sqrt(timed.time_offset_variances.get(n, np.nan))) / period)
+        for n, (f, _) in evidence.items()})
     if any(abs(f) > 0.5 for f, _ in evidence.values()):
         return refined, (f"clock offsets: whole-frame lags kept (a fraction beyond half a frame "
                          f"contradicts the lag search: {text})")
     if not any(z >= OFFSET_EVIDENCE_Z for _, z in evidence.values()):
         return refined, (f"clock offsets: whole-frame lags kept (no fraction determined by the "
                          f"data, z < {OFFSET_EVIDENCE_Z:g}: {text})")
-    return dataclasses.replace(refined, joint=timed), f"clock offsets beyond the lags: {text}"
+    return (dataclasses.replace(refined, joint=timed),
+            f"clock offsets beyond the lags: {text}")
