@@ -289,7 +289,8 @@ def calibrate_recording(
         ``max_lag_s`` (whole frames of the recording's period) are searched,
         a track pair must share ``min_common_s`` of a target that moves
         ``min_spread_m`` in each node, a match whose track RMSE exceeds
-        ``max_rmse_m`` is rejected.
+        ``max_rmse_m`` is rejected. Lags that the joint graph's clock
+        offsets dispute give way to lag 0 (:func:`_disputed_lags`).
     joint : the joint graph's options (default
         :data:`RECORDING_JOINT_OPTIONS`). Clock offsets (``time_offsets``, a
         fraction of a frame beyond the whole-frame lag of the track
@@ -298,28 +299,20 @@ def calibrate_recording(
         the data support them (:func:`_refine_multi`).
     Raises :class:`CalibrationError` when no node pair can be matched.
     """
-    if method not in ("auto", "joint", "pose_graph"):
-        raise ValidationError(f"method={method!r} must be 'auto', 'joint' or 'pose_graph'")
-    if noise is not None and not isinstance(noise, MeasurementNoise):
-        raise ValidationError(f"noise must be a MeasurementNoise or None, got {noise!r}")
-    matching = MatchingOptions() if matching is None else matching
-    if not isinstance(matching, MatchingOptions):
-        raise ValidationError(f"matching must be a MatchingOptions or None, got {matching!r}")
-    if not isinstance(joint, JointOptions):
-        raise ValidationError(f"joint must be a JointOptions, got {joint!r}")
-    names = list(recording.node_names)
-    if len(names) < 2:
-        raise CalibrationError(f"a calibration needs at least two nodes, got {names!r}")
-    _no_identical_nodes(recording, names)
+    matching = _checked_options(method, noise, matching, joint)
+    names = _checked_nodes(recording)
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     poses, covs = dict(pg.poses), dict(pg.covariances)
-    result_method, refined, associated, notes = "pose_graph", None, None, [pg.message]
-    clock = None
+    result_method, refined, associated, clock, notes = "pose_graph", None, None, None, [pg.message]
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)
         refined, associated, clock = _refine(recording, pg, reachable, method, noise, options,
                                              notes)
+        again = _at_lag_zero_if_disputed(recording, pg.lag_frames, clock, matching, dict(
+            source=source, method=method, noise=noise, joint=joint))
+        if again is not None:
+            return again
         if refined is not None and (refined.success or method == "joint"):
             poses = {n: refined.poses[n] for n in reachable}
             covs = {n: refined.covariances[n] for n in reachable}
@@ -327,13 +320,11 @@ def calibrate_recording(
         elif refined is not None:
             notes.append("kept the pose-graph poses")
             associated = None
-    used = None
-    if result_method == "joint":  # the centroids the joint graph was fitted on
-        used = associated if associated is not None else _joint_detections(
-            recording, reachable, pg.lag_frames)
-    covs = _cover_ambiguous_lags(pg.edges, covs, notes, used, clock,
-                                 matching.frame_counts(recording.frame_period_s)[0],
-                                 matching.inlier_gate_m)
+    used = None if result_method != "joint" else (  # the centroids the joint graph fitted
+        associated if associated is not None else _joint_detections(recording, reachable,
+                                                                     pg.lag_frames))
+    covs = _cover_ambiguous_lags(pg.edges, covs, notes, used, clock, matching,
+                                 recording.frame_period_s)
     success = pg.success and (refined is None or refined.success or result_method == "pose_graph")
     lags = dict(pg.lag_frames)
     if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
@@ -353,8 +344,64 @@ def calibrate_recording(
                                else float("nan")))
 
 
-def _cover_ambiguous_lags(edges, covs, notes, used=None, clock=None, window=0,
-                          gate_m=0.5) -> dict:
+def _checked_nodes(recording: Recording) -> list[str]:
+    """The node names: at least two, none a copy of another."""
+    names = list(recording.node_names)
+    if len(names) < 2:
+        raise CalibrationError(f"a calibration needs at least two nodes, got {names!r}")
+    _no_identical_nodes(recording, names)
+    return names
+
+
+def _checked_options(method, noise, matching, joint) -> MatchingOptions:
+    """The arguments of :func:`calibrate_recording` validated; the matching
+    options (None: the defaults)."""
+    if method not in ("auto", "joint", "pose_graph"):
+        raise ValidationError(f"method={method!r} must be 'auto', 'joint' or 'pose_graph'")
+    if noise is not None and not isinstance(noise, MeasurementNoise):
+        raise ValidationError(f"noise must be a MeasurementNoise or None, got {noise!r}")
+    matching = MatchingOptions() if matching is None else matching
+    if not isinstance(matching, MatchingOptions):
+        raise ValidationError(f"matching must be a MatchingOptions or None, got {matching!r}")
+    if not isinstance(joint, JointOptions):
+        raise ValidationError(f"joint must be a JointOptions, got {joint!r}")
+    return matching
+
+
+def _at_lag_zero_if_disputed(recording, lags, clock, matching, kwargs):
+    """The calibration again with lag 0 only (the nodes' own sync) when the
+    joint graph disputes the track matching's lags (:func:`_disputed_lags`),
+    else None."""
+    disputed = _disputed_lags(lags, clock)
+    if not disputed or matching.max_lag_s <= 0:
+        return None
+    again = calibrate_recording(recording, matching=dataclasses.replace(matching, max_lag_s=0.0),
+                                **kwargs)
+    return dataclasses.replace(again, message=f"{disputed}: lag 0 kept; {again.message}")
+
+
+def _disputed_lags(lags, clock) -> str:
+    """Why the whole-frame lags of the track matching are not determined,
+    or "" when they are: every nonzero lag's node has a clock offset from
+    the joint graph's solve with time offsets (``clock``: node ->
+    (fraction, sigma) in frames beyond the lag) more than half a frame and
+    :data:`LAG_EVIDENCE_Z` sigmas from it. The tracks then prefer a lag
+    that the centroids the joint graph associated do not (two walkers at
+    right angles, synchronised: lag -6 from the tracks, the joint graph
+    2.1 +- 0.3 frames nearer zero, the heading 16.8 deg off)."""
+    lagged = {n: int(v) for n, v in lags.items() if int(v) != 0}
+    if not lagged or clock is None:
+        return ""
+    off = {n: clock.get(n, (0.0, float("nan"))) for n in lagged}
+    if not all(abs(f) > 0.5 and abs(f) >= LAG_EVIDENCE_Z * sd for f, sd in off.values()):
+        return ""
+    return ("the track matching's lags not determined by the data (the joint graph's clock "
+            "offsets contradict them: " + ", ".join(
+                f"{n} lag {lagged[n]} frames, {f:+.2f} +- {sd:.2f} frames beyond it"
+                for n, (f, sd) in off.items()) + ")")
+
+
+def _cover_ambiguous_lags(edges, covs, notes, used, clock, matching, period) -> dict:
     """The edges' lag notes added to ``notes``, and the covariances of the
     nodes of an ambiguous-lag edge widened to cover the poses of the lags
     the final model cannot reject: the refinement fits one lag and its
@@ -362,14 +409,15 @@ def _cover_ambiguous_lags(edges, covs, notes, used=None, clock=None, window=0,
     0.08 m sigma).
 
     With the centroids the joint graph was fitted on (``used``, node ->
-    detections on the reference clock), each shift within ``window``
-    frames is tested on them (:func:`~mmsnap_graph.calibration.lag_support.unrejected_lag_spread`)
-    and so is it against the joint graph's clock offset (``clock``: node ->
+    detections on the reference clock), each shift within the matching's
+    window (frames at ``period``) is tested on them with the matching's
+    inlier gate (:func:`~mmsnap_graph.calibration.lag_support.unrejected_lag_spread`),
+    and against the joint graph's clock offset (``clock``: node ->
     (fraction, sigma) in frames, from the solve with time offsets, kept or
-    not): a shift ``LAG_EVIDENCE_Z`` of its sigmas from the fraction is
+    not): a shift ``LAG_EVIDENCE_Z`` of its sigmas from the offset is
     rejected. Node b's covariance grows by the spread of the shifts that
-    neither rejects:
-    the track matching's own spread covers fits of other track pairs and of
+    neither rejects: the track matching's own spread covers fits of other
+    track pairs and of
     smoothed tracks (two walkers at 50 ms frames: 10-38 deg of heading
     sigma where the errors were 1-2 deg). Without them (the pose graph's
     result) the edge's widened covariance is a PSD lower bound of both
@@ -381,11 +429,15 @@ def _cover_ambiguous_lags(edges, covs, notes, used=None, clock=None, window=0,
             continue
         a, b = e.node_a, e.node_b
         if used is not None and a in used and b in used and b in out and np.any(out[b]):
-            shifts = [k for k in range(-int(window), int(window) + 1) if k]
+            window = matching.frame_counts(period)[0]
+            shifts = [k for k in range(-window, window + 1) if k]
+            # A shift of k frames (node b's frame k + L paired with a's k) is
+            # a clock offset of -k frames beyond the lag L.
             frac, sd = (clock or {}).get(b, (0.0, float("nan")))
-            timed_out = [k for k in shifts if abs(k - frac) >= LAG_EVIDENCE_Z * sd]
+            timed_out = [k for k in shifts if abs(k + frac) >= LAG_EVIDENCE_Z * sd]
             extra, kept, rejected = unrejected_lag_spread(
-                used[a], used[b], [k for k in shifts if k not in timed_out], gate_m, out[b])
+                used[a], used[b], [k for k in shifts if k not in timed_out],
+                matching.inlier_gate_m, out[b])
             rejected = sorted(rejected + timed_out)
             out[b] = out[b] + extra
             notes.append(f"{a}-{b}: lag not determined by the track matching; the joint "
