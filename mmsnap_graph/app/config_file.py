@@ -79,7 +79,8 @@ class ProcessConfig:
     #: the file sets ``[ekf] measurement_std``).
     ekf_noise_from_data: bool = True
     #: Clustering of stored point clouds with ``min_samples=1``: None (auto:
-    #: when the median non-empty frame holds fewer than 6 points), True, False
+    #: when the median non-empty frame holds fewer than 6 points after the
+    #: scene filters), True, False
     #: (:func:`mmsnap_graph.app.pipeline.sparse_cluster_config`).
     sparse: bool | None = None
     #: The scene filters of stored point clouds (static scene, one cluster per

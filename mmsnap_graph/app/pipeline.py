@@ -6,7 +6,8 @@ cube -> point cloud -> torso centroids (:mod:`.chain`) -> local EKF tracks
   (else its point cloud, else its centroids);
 - :func:`cluster_node`: from a point cloud (torso DBSCAN, then the EKF), for
   recordings stored at the point-cloud level; a *sparse* cloud (fewer than
-  :data:`SPARSE_POINTS_PER_FRAME` points in its median non-empty frame, as
+  :data:`SPARSE_POINTS_PER_FRAME` points in its median non-empty frame once
+  the scene filters have dropped the static scene, as
   TI's out-of-box demo gives: 2-3 points per person) is clustered with
   ``min_samples=1`` (:func:`sparse_cluster_config`): the torso DBSCAN's
   three-point minimum would drop most of it (measured: 94 centroids in 600
@@ -179,13 +180,17 @@ def cluster_node(
     the stored point cloud is kept whole."""
     if node.point_cloud is None:
         raise ValidationError(f"nodes[{node.name}] has no point cloud to cluster")
-    config, thinned = sparse_cluster_config(node.point_cloud,
-                                            ChainConfig() if config is None else config, sparse)
     radar = TABLE_I if node.radar is None else node.radar
     scene = SceneConfig(static=False, merge=False, ghosts=False,
                         existence=False) if scene is None else scene
     report = SceneReport()
     points = filter_points(node.point_cloud, frame_period_s, scene, report)
+    # Sparse or not by the points that are clustered: a wall's zero-Doppler
+    # points, which the static-scene filter drops, say nothing about how many
+    # points a person gives (the first half of the two-person recording: S2's
+    # median frame 6 points with them, 3 without).
+    config, thinned = sparse_cluster_config(points, ChainConfig() if config is None else config,
+                                            sparse)
     cents = torso_centroids(points, config.cluster,
                             doppler_resolution_mps=radar.doppler_resolution_mps)
     cents = filter_centroids(cents, frame_period_s, scene, report)

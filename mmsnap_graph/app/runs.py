@@ -185,6 +185,10 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     elif poses is not None:
         depth, said = range_offset_for_poses(path, cal, noise)
         parts += [said] if said else []
+        if said and sigmas is None and noise is not None:
+            parts.append(f"the /noise sigmas are those of the last `mmsnap calibrate` or "
+                         f"`mmsnap noise`: `mmsnap noise {Path(path).name} --calibration "
+                         f"{Path(calibration_json).name}` estimates them at these poses")
     text.append("; ".join(parts))
     return StoredCalibration(node_poses=poses, pose_covariances=used_covs,
                              time_offset_s=offsets or None, noise=noise, text=tuple(text),

@@ -39,7 +39,7 @@ from .joint.options import JointOptions
 from .joint.solve import JointCalibration, joint_calibration
 from .pairwise.matching import LocalTracks, local_tracks
 from .pairwise.matching_options import MatchingOptions
-from .joint.multi_refine import refine_associated
+from .joint.multi_refine import refine_associated, with_clock_offsets
 from .noise.estimate import estimate_noise
 from .joint.residual_noise import residual_noise
 from .pairwise.pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
@@ -178,11 +178,14 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
     association and joint solve (:func:`~mmsnap_graph.calibration.joint.multi_refine.refine_associated`),
     the noise learned from the joint graph's residuals unless given.
 
-    No sub-frame clock offsets here: on the simulator's two-person scenes
-    (true offsets zero) the joint graph on the associated centroids found
-    7.5 +- 3.3 and 19.7 +- 4.0 ms and moved the poses by 35-85 mm (14 and
-    1.6 mm without); on sparse clouds 16 +- 9 and 25 +- 11 ms, 52-128 mm
-    (7 and 4 mm without)."""
+    The rounds solve in whole-frame lags; the clock offsets beyond them
+    (``options.time_offsets``) come from one more solve on the associated
+    centroids, kept only when the data support them
+    (:func:`~mmsnap_graph.calibration.joint.multi_refine.with_clock_offsets`):
+    estimated in the rounds, they found 7.5 +- 3.3 and 19.7 +- 4.0 ms on
+    two-person scenes with true offsets zero and moved the poses by 35-85
+    mm, and gave the synchronised real recordings fractions of -1.3 to -1.9
+    frames (docs/CALIBRATION.md, "Clock offsets")."""
     try:
         out = refine_associated(recording, reachable, pg.poses, pg.covariances, pg.lag_frames,
                                 noise=noise,
@@ -200,9 +203,10 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
     notes.append(f"several centroids per frame: {out.association.n_targets} target tracks, "
                  f"{out.association.n_groups} (frame, target) states; sigmas from the "
                  f"residuals: {describe_sigmas(out.noise)}")
-    notes.append(out.joint.message)
     if options.time_offsets:
-        notes.append("clock offsets: whole-frame lags only with several centroids per frame")
+        out, note = with_clock_offsets(out, recording.frame_period_s, options)
+        notes.append(note)
+    notes.append(out.joint.message)
     return out
 
 
@@ -286,8 +290,8 @@ def calibrate_recording(
         :data:`RECORDING_JOINT_OPTIONS`). Clock offsets (``time_offsets``, a
         fraction of a frame beyond the whole-frame lag of the track
         matching; docs/CALIBRATION.md, "Clock offsets") need the motion
-        factors, and are not estimated with several centroids per frame
-        (they biased the poses there: :func:`_refine_multi`).
+        factors; with several centroids per frame they are kept only when
+        the data support them (:func:`_refine_multi`).
     Raises :class:`CalibrationError` when no node pair can be matched.
     """
     if method not in ("auto", "joint", "pose_graph"):

@@ -1,5 +1,6 @@
 """The chain on in-memory recordings and on HDF5 files (``mmsnap process``)."""
 
+import dataclasses
 from pathlib import Path
 import subprocess
 import sys
@@ -20,7 +21,7 @@ from mmsnap_graph.app.pipeline import (
 )
 from mmsnap_graph.app.pipeline import SPARSE_POINTS_PER_FRAME, sparse_cluster_config
 from mmsnap_graph.data.radar_config import TABLE_I
-from mmsnap_graph.data.recording import NodeData, Recording
+from mmsnap_graph.data.recording import Detections, NodeData, Recording
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.radar.chain import ChainConfig
 from mmsnap_graph.sim import network_poses, CLEAN, simulate_recording
@@ -192,6 +193,31 @@ def test_sparse_node_gets_a_centroid_in_most_non_empty_frames(point_cloud_record
     assert np.unique(auto.centroids.frame).size > 0.9 * full
     assert np.unique(off.centroids.frame).size < 0.5 * full     # DBSCAN's 3-point minimum
     assert "sparse cloud" in rep.message
+
+
+def test_a_static_scene_does_not_make_a_sparse_cloud_dense(point_cloud_recording_3):
+    """Whether a cloud is sparse is decided on the points that are clustered:
+    a wall's zero-Doppler points (six per frame here, at fixed places), which
+    the static-scene filter drops, would otherwise lift the median frame above
+    :data:`SPARSE_POINTS_PER_FRAME` and DBSCAN's 3-point minimum would lose the
+    walkers' 2-3 points (the first half of the two-person recording: S2's
+    median frame 6 points with its walls, 3 without)."""
+    node = sparse_clouds(point_cloud_recording_3, seed=4).nodes["S2"]
+    pc = node.point_cloud
+    frames = np.unique(pc.frame)
+    wall = np.linspace(-1.2, 1.2, 6)                      # omega of six fixed reflectors
+    n = frames.size * wall.size
+    walled = Detections(
+        frame=np.concatenate([pc.frame, np.repeat(frames, wall.size)]),
+        range_m=np.concatenate([pc.range_m, np.full(n, 6.5)]),
+        omega_rad=np.concatenate([pc.omega_rad, np.tile(wall, frames.size)]),
+        doppler_mps=np.concatenate([pc.doppler_mps, np.zeros(n)]))
+    counts = np.unique(walled.frame, return_counts=True)[1]
+    assert np.median(counts) >= SPARSE_POINTS_PER_FRAME
+    out, rep = cluster_node(dataclasses.replace(node, point_cloud=walled),
+                            point_cloud_recording_3.frame_period_s)
+    assert "sparse cloud" in rep.message and "static-scene points" in rep.message
+    assert np.unique(out.centroids.frame).size > 0.9 * frames.size
 
 
 def test_process_node_wraps_the_ekf_doppler_at_the_chains_unambiguous_speed(monkeypatch):

@@ -160,6 +160,7 @@ def test_a_json_of_fixed_poses_brings_the_range_offset_the_data_identify(calibra
                                                for n, p in poses.items()}}))
     stored = stored_calibration(calibrated_c_file, rec.node_names, calibration_json=true_json)
     assert stored.range_offset_m is None or abs(stored.range_offset_m) < 0.02
+    assert "`mmsnap noise rec.h5 --calibration true.json` estimates them" in stored.text[1]
     stored = stored_calibration(path, rec.node_names, calibration_json=true_json)
     assert stored.range_offset_m == pytest.approx(0.08, abs=0.02)
     assert "range offset at these poses +0.0" in stored.text[1]

@@ -50,7 +50,8 @@ def register(subparsers) -> None:
     p.add_argument("--sparse", choices=["auto", "on", "off"], default=None,
                    help="cluster stored point clouds as sparse (DBSCAN min_samples=1: a "
                         "person's 2-3 points are a centroid): when the median non-empty frame "
-                        "holds fewer than 6 points (auto), always (on) or never (off); "
+                        "holds fewer than 6 points after the scene filters (auto), always (on) "
+                        "or never (off); "
                         "overrides the file's [chain.cluster] sparse (default auto)")
     p.add_argument("--no-static-scene", action="store_true",
                    help="stored point clouds: keep zero-Doppler points of the static scene "

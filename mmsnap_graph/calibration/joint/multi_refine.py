@@ -39,12 +39,17 @@ from ..pairwise.pose_graph import PoseGraphCalibration
 from ..poses import pose_tangent_error
 from .residual_noise import residual_noise
 
-__all__ = ["MultiTargetRefinement", "refine_multi", "refine_associated", "DEFAULT_ROUNDS"]
+__all__ = ["MultiTargetRefinement", "refine_multi", "refine_associated", "with_clock_offsets",
+           "DEFAULT_ROUNDS", "OFFSET_EVIDENCE_Z"]
 
 #: Rounds of association and joint solve (module doc).
 DEFAULT_ROUNDS = 3
 #: The rounds stop when no pose moved by more than this (m, and rad).
 ROUND_TOLERANCE = 1e-3
+#: A node's clock offset beyond its whole-frame lag is kept when it lies
+#: this many of its reported sigmas from zero (:func:`with_clock_offsets`).
+OFFSET_EVIDENCE_Z = 3.0
+
 #: The joint graph's options of :func:`refine_multi` by default: as
 #: :func:`~mmsnap_graph.calibration.calibrate_recording`'s, whole-frame lags
 #: only.
@@ -214,3 +219,52 @@ def refine_multi(
                                f"{pose_graph.reference}, have centroids associated with a "
                                f"target seen by another node")
     return out
+
+
+def _offset_evidence(joint: JointCalibration, period: float) -> dict[str, tuple[float, float]]:
+    """name -> (fraction of a frame beyond the whole-frame lag, its z)."""
+    out = {}
+    for n, off in joint.time_offset_s.items():
+        if n == joint.reference:
+            continue
+        frac = (off + joint.lag_frames.get(n, 0) * period) / period
+        sd = np.sqrt(joint.time_offset_variances.get(n, np.nan)) / period
+        out[n] = (float(frac), float(abs(frac) / sd) if sd > 0 else float("nan"))
+    return out
+
+
+def with_clock_offsets(refined: MultiTargetRefinement, frame_period_s: float,
+                       options: JointOptions) -> tuple[MultiTargetRefinement, str]:
+    """The clock offsets beyond the whole-frame lags on the associated
+    centroids of ``refined`` (a whole-frame solve of :func:`refine_associated`):
+    one joint solve with ``time_offsets`` on the same detections, noise and
+    lags (no lag re-centring), started from its poses. It is kept when the
+    data support it: every node's fraction within half a frame of its lag
+    (the track matching's lag beat its neighbours; beyond that the
+    first-order model ``F(tau) x`` does not hold) and at least one node's
+    :data:`OFFSET_EVIDENCE_Z` of its sigmas from zero; else ``refined``
+    (offsets at the whole frames). Returns ``(refinement, note)``."""
+    joint = refined.joint
+    if refined.detections is None or not joint.success:
+        return refined, "clock offsets: whole-frame lags (no successful joint solve to start from)"
+    timed_options = dataclasses.replace(options, time_offsets=True, recentre_lags=False)
+    data = dict(noise=refined.noise, reference=joint.reference,
+                initial_poses={n: joint.poses[n] for n in refined.detections if n in joint.poses},
+                frame_period_s=frame_period_s,
+                lag_frames={n: int(joint.lag_frames.get(n, 0)) for n in refined.detections})
+    timed = joint_calibration(refined.detections, timed_options, **data)
+    if not timed.success and timed_options.robust is not None:
+        # As in the rounds: an indeterminate robust pass, Gaussian factors.
+        timed = joint_calibration(refined.detections,
+                                  dataclasses.replace(timed_options, robust=None), **data)
+    evidence = _offset_evidence(timed, frame_period_s) if timed.success else {}
+    text = ", ".join(f"{n} {f:+.2f} frame (z {z:.1f})" for n, (f, z) in evidence.items())
+    if not timed.success:
+        return refined, f"clock offsets: whole-frame lags (the timed solve failed: {timed.message})"
+    if any(abs(f) > 0.5 for f, _ in evidence.values()):
+        return refined, (f"clock offsets: whole-frame lags kept (a fraction beyond half a frame "
+                         f"contradicts the lag search: {text})")
+    if not any(z >= OFFSET_EVIDENCE_Z for _, z in evidence.values()):
+        return refined, (f"clock offsets: whole-frame lags kept (no fraction determined by the "
+                         f"data, z < {OFFSET_EVIDENCE_Z:g}: {text})")
+    return dataclasses.replace(refined, joint=timed), f"clock offsets beyond the lags: {text}"

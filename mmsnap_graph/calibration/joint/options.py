@@ -61,6 +61,13 @@ class JointOptions:
     time_offsets : estimate each non-reference node's clock offset jointly
         with the poses (docs/CALIBRATION.md, "Clock offsets"); the node's
         detection at frame ``k`` is of the state ``F(tau) x_k``.
+    recentre_lags : with ``time_offsets``, solve again with a node's
+        whole-frame lag moved one frame when its offset lies more than a
+        quarter of a frame beyond it (docs/CALIBRATION.md, "Clock offsets").
+        False: the lags given are kept and only the fraction is estimated
+        (the several-centroid path: a move there is not checked against
+        lag 0 on the same data, and gave synchronised real radars a 1-frame
+        lag).
     state_prior_sigmas : (4,) sigmas of the zero-mean state prior (m, m,
         m/s, m/s).
     gate_probability : the probability of keeping a consistent detection:
@@ -107,6 +114,7 @@ class JointOptions:
     motion_robust: Literal["huber", "cauchy"] | None = None
     motion_robust_k: float = DEFAULT_MOTION_ROBUST_K
     time_offsets: bool = False
+    recentre_lags: bool = True
     state_prior_sigmas: tuple[float, float, float, float] = (1e3, 1e3, 3.5, 3.5)
     gate_probability: float = 0.999
     min_common_frames: int = DEFAULT_MIN_COMMON_FRAMES
@@ -135,7 +143,7 @@ class JointOptions:
         object.__setattr__(self, "min_spread_m", float(self.min_spread_m))
         for name in ("max_motion_gap_frames", "min_common_frames", "max_iterations"):
             object.__setattr__(self, name, check_count(getattr(self, name), name))
-        for name in ("motion", "time_offsets", "presolve", "state_covariances"):
+        for name in ("motion", "time_offsets", "recentre_lags", "presolve", "state_covariances"):
             object.__setattr__(self, name, _flag(getattr(self, name), name))
         prior = check_positive(frozen_vector(self.state_prior_sigmas, "state_prior_sigmas", 4),
                                "state_prior_sigmas")

@@ -433,7 +433,8 @@ def joint_calibration(
     inputs = _inputs(detections, reference, initial_poses, noise, frame_period_s, lag_frames,
                      options)
     result = _calibrate_once(inputs, options)
-    if options.time_offsets and inputs.frame_period_s is not None and result.success:
+    if (options.time_offsets and options.recentre_lags and inputs.frame_period_s is not None
+            and result.success):
         result = _recentred_lags(result, inputs, options)
     return result
 

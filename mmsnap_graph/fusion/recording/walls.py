@@ -40,6 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ...errors import ValidationError
+
 __all__ = ["LearnedWall", "learn_walls", "beyond_learned_walls", "WALL_MIN_FRAMES",
            "WALL_ANGLE_TOL_RAD", "WALL_OFFSET_TOL_M", "WALL_DOPPLER_SIGMAS",
            "WALL_DOPPLER_FLOOR_MPS", "WALL_MOVING_MPS", "WALL_MARGIN_M", "WALL_EXTENT_M",
@@ -205,6 +207,25 @@ def _best_line(props: NDArray) -> tuple[int, NDArray]:
     return int(counts[best]), (da <= 2) & (np.abs(o - co) <= 2)
 
 
+def _checked(frame, state, covariance, ok, seen, poses):
+    """The arrays of :func:`learn_walls`, their shapes checked."""
+    frame = np.asarray(frame)
+    state = np.asarray(state, dtype=float)
+    cov = np.nan_to_num(np.asarray(covariance, dtype=float), nan=0.0)
+    ok, seen = np.asarray(ok, dtype=bool), np.asarray(seen, dtype=bool)
+    poses = np.asarray(poses, dtype=float)
+    k = frame.shape[0] if frame.ndim == 1 else -1
+    n = poses.shape[0] if poses.ndim == 2 and poses.shape[1] == 3 else -1
+    for name, arr, shape in (("frame", frame, (k,)), ("state", state, (k, 4)),
+                             ("covariance", cov, (k, 4, 4)), ("ok", ok, (k,)),
+                             ("seen", seen, (k, n)), ("poses", poses, (n, 3))):
+        if k < 0 or n < 0 or arr.shape != shape:
+            raise ValidationError(f"learned walls: {name} has shape {arr.shape}; frame (K,), "
+                                  "state (K, 4), covariance (K, 4, 4), ok (K,), seen (K, N) "
+                                  "and poses (N, 3) are needed")
+    return frame, state, cov, ok, seen, poses
+
+
 def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray, seen: NDArray,
                 poses: NDArray, *, body_m: float,
                 image_ok: NDArray | None = None) -> list[LearnedWall]:
@@ -217,11 +238,12 @@ def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray
     image_ok : (K,) bool, the rows that may be images (default ``ok``; rows
     the motion check flagged are images too).
     """
-    state = np.asarray(state, dtype=float)
-    cov = np.nan_to_num(np.asarray(covariance, dtype=float), nan=0.0)
+    frame, state, cov, ok, seen, poses = _checked(frame, state, covariance, ok, seen, poses)
+    if not (np.isfinite(body_m) and body_m > 0):
+        raise ValidationError(f"body_m={body_m!r} must be finite and > 0 (m)")
+    image_ok = ok if image_ok is None else np.asarray(image_ok, dtype=bool).reshape(ok.shape)
     xy = state[:, :2]
-    image_ok = ok if image_ok is None else image_ok
-    props = _proposals(np.asarray(frame), state, cov, ok, image_ok, seen, poses, body_m)
+    props = _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m)
     confirmed = ok & (seen.sum(axis=1) >= 2)
     walls: list[LearnedWall] = []
     for s in range(poses.shape[0]):

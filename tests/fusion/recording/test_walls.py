@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from mmsnap_graph.data.results import Status
+from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.recording.room import RoomBounds, screen_room
 from mmsnap_graph.fusion.recording.walls import (WALL_MARGIN_M, WALL_MIN_FRAMES,
                                                   beyond_learned_walls, learn_walls)
@@ -84,6 +85,17 @@ def test_mirror_images_are_flagged_and_the_walker_kept():
     assert screen_room(rows, walls=False, body_m=None)[1].beyond_wall == 0
     box = RoomBounds(x_min=-2.0, x_max=1.6, y_min=0.0, y_max=5.0)
     assert screen_room(rows, bounds=box, body_m=None)[1].beyond_wall == 0
+
+
+def test_learn_walls_checks_its_arrays():
+    rows = scene(mirror)
+    seen = np.asarray(rows.observed)
+    with pytest.raises(ValidationError, match=r"seen has shape \(80, 3\)"):
+        learn_walls(rows.frame, rows.state, rows.covariance, rows.success,
+                    np.c_[seen, seen[:, :1]], rows.node_poses, body_m=0.5)
+    with pytest.raises(ValidationError, match="body_m=0.0"):
+        learn_walls(rows.frame, rows.state, rows.covariance, rows.success, seen,
+                    rows.node_poses, body_m=0.0)
 
 
 def test_without_images_no_wall_is_learned():
