@@ -95,7 +95,7 @@ def test_tracks_and_centroids_network_nees_in_band(three_node_recording):
 @pytest.mark.slow
 def test_tracks_only_network_nees_in_band(three_node_recording):
     """EKF tracks only (no centroids: the pose graph is reported), seeds
-    0-11: mean joint NEES 7.86 in the band (4.20, 8.11), per seed 0.5-14.2.
+    0-11: mean joint NEES 6.86 in the band (4.20, 8.11), per seed 2.5-11.8.
     It was 32.2 (seeds 2 and 8: 76 and 85, lags one frame off) while the EKF
     lost the walker at most turns: dozens of short tracks, each with its
     settling bias (module doc of tests/calibration/pairwise/test_pose_graph.py)."""
@@ -341,14 +341,17 @@ def test_real_physics_keeps_a_supported_whole_frame_lag_and_finds_the_fraction()
     frames early, 600 frames: the 1-frame lag beats lag 0 on the same tracks
     (z 5.4-7.6 on seeds 0-1) and is kept; the fraction beyond it is
     estimated on the associated centroids and kept (its z well above 3):
-    -195.6 ms for -195 ms (seed 0). With whole frames only it was -150 ms."""
+    -0.30 to -0.31 frame (-195.6 ms for -195 ms on seed 0; -0.31 frame with
+    the tracks that keep each walker on one id). With whole frames only it
+    was -150 ms."""
     from mmsnap_graph.sim.clocks import offset_recording
     rec = offset_recording("B", "straight", SimulationOptions(),
                            time_offsets_s={"S2": -1.3 * _T}, n_frames=600, seed=0)
     cal = calibrate_recording(process_recording(rec)[0])
     assert cal.pose_graph.lag_frames["S2"] == 1 and cal.lag_frames["S2"] == 1
     assert "lag 1 frames determined by the data" in cal.message
-    assert "clock offsets beyond the lags: S2 -0.30 frame" in cal.message, cal.message
+    assert re.search(r"clock offsets beyond the lags: S2 -0\.3[01] frame", cal.message), \
+        cal.message
     assert abs(cal.time_offset_s["S2"] + 1.3 * _T) < 0.010
 
 

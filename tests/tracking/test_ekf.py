@@ -469,15 +469,16 @@ def _processed_walk(model: str, seed: int):
 @pytest.mark.parametrize("model, seed", [("clean", 1), ("clean", 2), ("real", 1), ("real", 2)])
 def test_a_simulated_walker_keeps_few_track_ids(model, seed):
     """600 frames (90 s) of one random walk, configuration C: the walker kept
-    1-10 ids per node over seeds 1-6 (clean and real model; seed 1: 3 and 8,
-    1 and 5), against 32 and 41, 22 and 15 (seed 1) with a gate and process noise that a turn left behind and a
+    1-7 ids per node over seeds 1-6 (clean and real model; seed 1: 2 and 5,
+    1 and 2), against 32 and 41, 22 and 15 (seed 1) with a gate and process noise that a turn left behind and a
     tentative track that could take the walker's centroid from its confirmed
-    track. Tolerance 10 per node; coasting overlaps of two ids in at most 40 frames."""
+    track. Tolerance 8 per node; a coasting id beside its successor in at most
+    40 frames (measured up to 37)."""
     rec = _processed_walk(model, seed)
     for name, node in rec.nodes.items():
         ids = node.tracks.track_ids.size
         _, count = np.unique(node.tracks.frame, return_counts=True)
-        assert 1 <= ids <= 10, f"{model} seed {seed} {name}: {ids} track ids"
+        assert 1 <= ids <= 8, f"{model} seed {seed} {name}: {ids} track ids"
         assert np.sum(count > 1) <= 40, f"{name}: two tracks at once in {np.sum(count > 1)} frames"
 
 

@@ -237,7 +237,7 @@ def test_shared_detections_are_counted_once():
 def test_tracks_pose_nees_no_longer_off_by_two_orders(three_node_recording):
     """EKF tracks, seeds 0-5 (matching in seconds, chi-square gate): the
     points solve with the autocorrelation correction gives a mean joint NEES
-    of 9.4 (per seed 3.3-14.2), without the correction 36.5 (the old pose
+    of 7.9 (per seed 3.4-11.8), without the correction 23.3 (the old pose
     graph: 171). With an EKF that lost the walker at most turns (dozens of
     short tracks, each settling: the bias of the module doc) they were 32
     (per seed 19-76) and 183. Bounds: 20 (about 3x the chi-square(6) mean)
