@@ -40,7 +40,7 @@ def test_offset_solve_leaves_out_a_nodes_centroid_with_a_close_rival():
     SPLIT_RADIUS_M in the frame (a split body) is left out of the clock
     offset solve; a rival 1.4 m away (another person) is not a reason."""
     from mmsnap_graph.calibration.joint.multi_refine import (
-        SPLIT_RADIUS_M, MultiTargetRefinement, _unambiguous)
+        SPLIT_RADIUS_M, MultiTargetRefinement, unambiguous_detections)
     from mmsnap_graph.calibration.joint.multi_target import TargetAssociation
     from mmsnap_graph.data.noise import MeasurementNoise
     from mmsnap_graph.data.recording import Detections, NodeData, Recording
@@ -60,7 +60,7 @@ def test_offset_solve_leaves_out_a_nodes_centroid_with_a_close_rival():
                                     noise=MeasurementNoise(), detections=used)
     rec = Recording(frame_period_s=0.1, nodes={n: NodeData(name=n, centroids=raw[n])
                                                for n in raw})
-    out = _unambiguous(rec, refined)
+    out = unambiguous_detections(rec, refined)
     assert SPLIT_RADIUS_M > 0.1
     assert out["S1"].frame.tolist() == [1]
     assert out["S2"].frame.tolist() == [0, 1]
