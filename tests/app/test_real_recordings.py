@@ -166,7 +166,7 @@ def _cases(xfails: dict) -> list:
 POSE_XFAIL = {"multiple_tracking": (
     "S2 heading -3.76 deg from the tape (0.046 m); tape 3 deg. The data do not fix it better: "
     "the halves give -4.47 and -0.04 deg, one person's tracks -9.0 to +9.1 deg (the simulator's "
-    "real model in this geometry: +0.99 +- 0.74 deg over 12 seeds, halves 1.0-1.6 deg apart), "
+    "real model in this geometry: +1.06 +- 0.77 deg on 11 of 12 seeds, halves 0.8-1.5 deg apart), "
     "and an angle bias of the radar (no Rx phase compensation in its cfg) is calibrated as "
     "heading at no cost in the fit "
     "(docs/CALIBRATION.md, \"A node's heading on real recordings\")")}

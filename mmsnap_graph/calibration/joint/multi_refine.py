@@ -240,7 +240,7 @@ def _offset_evidence(joint: JointCalibration, period: float) -> dict[str, tuple[
     return out
 
 
-def _unambiguous(recording: Recording, refined: MultiTargetRefinement) -> dict:
+def unambiguous_detections(recording: Recording, refined: MultiTargetRefinement) -> dict:
     """The associated detections of ``refined`` without those whose node
     has another centroid within :data:`SPLIT_RADIUS_M` in the same frame
     (a split body or two people close together: the association kept the
@@ -270,7 +270,7 @@ def with_clock_offsets(refined: MultiTargetRefinement, recording: Recording,
     centroids of ``refined`` (a whole-frame solve of :func:`refine_associated`):
     one joint solve with ``time_offsets`` on the same detections but those
     of a node with another centroid within :data:`SPLIT_RADIUS_M` in the
-    frame (:func:`_unambiguous`), the same noise and lags (no lag
+    frame (:func:`unambiguous_detections`), the same noise and lags (no lag
     re-centring), started from its poses. It is kept when the
     data support it: every node's fraction within half a frame of its lag
     (the track matching's lag beat its neighbours; beyond that the
@@ -285,7 +285,7 @@ def with_clock_offsets(refined: MultiTargetRefinement, recording: Recording,
                 initial_poses={n: joint.poses[n] for n in refined.detections if n in joint.poses},
                 frame_period_s=recording.frame_period_s,
                 lag_frames={n: int(joint.lag_frames.get(n, 0)) for n in refined.detections})
-    dets = _unambiguous(recording, refined)
+    dets = unambiguous_detections(recording, refined)
     timed = joint_calibration(dets, timed_options, **data)
     if not timed.success and timed_options.robust is not None:
         # As in the rounds: an indeterminate robust pass, Gaussian factors.
