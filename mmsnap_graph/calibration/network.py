@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from ..errors import CalibrationError, MissingStepError, ValidationError
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..data.recording import Detections, NodeData, Recording
-from .joint.options import REFLECTION_DEPTH_RMS_M, JointOptions
+from .joint.options import JointOptions
 from .joint.solve import JointCalibration, joint_calibration
 from .pairwise.matching import LocalTracks, local_tracks
 from .pairwise.matching_options import MatchingOptions
@@ -53,8 +53,7 @@ __all__ = ["RecordingCalibration", "RECORDING_JOINT_OPTIONS", "calibrate_recordi
 #: white-acceleration sigma that covers a walking person's accelerations (on
 #: the simulator's walks 0.5 m/s^2 biased the poses by up to 9 cm, 2-5 m/s^2
 #: did not), and each node's clock offset.
-RECORDING_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True,
-                                       range_offset_rms_m=REFLECTION_DEPTH_RMS_M)
+RECORDING_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

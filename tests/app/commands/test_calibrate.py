@@ -268,6 +268,8 @@ def test_show_config_prints_the_matching_table_and_reads_back(tmp_path, capsys):
     (["--max-lag-s", "-0.5"], "--max-lag-s"),
     (["--max-rmse", "-1"], "--max-rmse-m"),
     (["--min-common-s", "soon"], "--min-common-s"),
+    (["--range-offset-rms", "11.2"], "--range-offset-rms"),
+    (["--range-offset-rms", "-0.1"], "--range-offset-rms"),
 ])
 def test_bad_options_exit_2_with_one_line_naming_the_option(recording_path, tmp_path, capsys, argv,
                                                             option):

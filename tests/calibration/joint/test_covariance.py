@@ -34,7 +34,7 @@ from mmsnap_graph.calibration.joint.covariance import (
     range_offset_response,
     robust_covariance,
 )
-from mmsnap_graph.calibration.joint.options import JointOptions
+from mmsnap_graph.calibration.joint.options import REFLECTION_DEPTH_RMS_M, JointOptions
 from mmsnap_graph.calibration.joint.presolve import (
     RANGE_OFFSET,
     PresolveProblem,
@@ -244,7 +244,8 @@ def test_joint_options_check_the_new_fields():
         JointOptions(range_offset_rms_m=0.0)
     with pytest.raises(ValidationError, match="centimetres"):
         JointOptions(range_offset_rms_m=11.2)
-    assert RECORDING_JOINT_OPTIONS.range_offset_rms_m == pytest.approx(0.1118, abs=1e-4)
+    assert RECORDING_JOINT_OPTIONS.range_offset_rms_m is None  # a point target: not considered
+    assert REFLECTION_DEPTH_RMS_M == pytest.approx(0.1118, abs=1e-4)
 
 
 def test_joint_calibration_without_a_frame_period_keeps_the_marginals():
