@@ -236,8 +236,7 @@ def run(args: argparse.Namespace) -> int:
     if args.recording is None:
         raise ValidationError("mmsnap calibrate: a recording is required (unless --show-config)")
     # Here: `mmsnap --help` does not import GTSAM or h5py.
-    from mmsnap_graph.calibration import RECORDING_JOINT_OPTIONS
-    from mmsnap_graph.calibration.joint.options import REFLECTION_DEPTH_RMS_M
+    from mmsnap_graph.calibration import PEOPLE_JOINT_OPTIONS
     from mmsnap_graph.data.noise import MeasurementNoise
 
     if args.max_lag is not None and args.max_lag < 0:
@@ -248,14 +247,13 @@ def run(args: argparse.Namespace) -> int:
         noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
     try:
         joint = dataclasses.replace(
-            RECORDING_JOINT_OPTIONS, robust=None if args.robust == "none" else args.robust,
+            PEOPLE_JOINT_OPTIONS, robust=None if args.robust == "none" else args.robust,
             motion=not args.no_motion, sigma_a_mps2=args.sigma_a,
             time_offsets=not args.no_time_offsets)
     except ValidationError as exc:
         raise ValidationError(f"--sigma-a: {exc}") from None
     prior = _range_offset_prior(args.range_offset)
-    # People are extended targets: by default their reflection depth is in the pose covariance.
-    rms = REFLECTION_DEPTH_RMS_M if args.range_offset_rms is None else args.range_offset_rms
+    rms = joint.range_offset_rms_m if args.range_offset_rms is None else args.range_offset_rms
     try:
         joint = dataclasses.replace(joint, covariance=args.covariance, range_offset_prior_m=prior,
                                     range_offset_rms_m=rms if rms else None)

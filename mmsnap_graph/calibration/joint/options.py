@@ -106,8 +106,9 @@ class JointOptions:
         J^T``, ``J`` the poses' response to every range lengthened alike (a *considered* parameter: where the
         geometry cannot tell the depth from the poses it shows in their
         covariance instead of hiding as a bias; docs/CALIBRATION.md). None
-        (default): not considered (a point target); ``mmsnap calibrate``,
-        for recordings of people, uses :data:`REFLECTION_DEPTH_RMS_M`.
+        (default): not considered (a point target); ``PEOPLE_JOINT_OPTIONS``
+        (``mmsnap calibrate``, ``mmsnap batch``) uses
+        :data:`REFLECTION_DEPTH_RMS_M`.
     covariance : ``"long_run"`` (default): the pose covariance widened to
         the long-run (Newey-West) covariance of the frames' influences where
         that exceeds the model's beyond its sampling noise (errors correlated
