@@ -23,6 +23,18 @@ only), and prints, per radar (S1 = "Ori" at (0, 0) facing +y, S2 = "Side" at
 - the slow part: the two radars' smoothed centroids of one person drift
   apart and back (standard deviation about their mean offset, and the lag
   at which its autocorrelation falls below 1/e), over frames both see;
+- multipath images of a walker (``images``): each radar's moving points in
+  the height band beyond a wall of the room box, attributed to the tracked
+  person (walking at 0.2 m/s or more, with points of that radar in that
+  frame) whose mirror image M through that wall, or one-bounce image B (at
+  ``(|P - S| + |M - S|) / 2`` from the radar S along M's bearing), lies
+  within 1 m: the share of such person-frames with an image point, the
+  image points per frame when there is one (and the person's own), the
+  image's SNR minus the person's (dB, same frame), how far beyond the wall
+  (10/50/90th percentiles), which geometry fits (distances to M and B, the
+  range residual to each), and how the image frames come: runs of
+  consecutive frames, and episodes (image frames less than 0.5 s apart);
+  points only within 4 m of their radar, as the recorder cut them;
 - the reflection depth: the two radars' smoothed centroids of the same
   person differ by ``-d1 u1 + d2 u2`` (``u_i`` the unit line of sight from
   radar i to the person) when each radar sees the body's near side ``d_i``
@@ -213,6 +225,93 @@ def simulated_frames(seed: int, n_frames: int = 635, n_people: int = 2) -> dict:
     return out
 
 
+def _runs(on: np.ndarray, gap: int = 1) -> np.ndarray:
+    """Lengths (first to last frame) of the runs of ``on`` frames, frames
+    fewer than ``gap`` apart joined."""
+    idx = np.flatnonzero(on)
+    if idx.size == 0:
+        return np.zeros(0, int)
+    cut = np.flatnonzero(np.diff(idx) > gap)
+    first, last = idx[np.r_[0, cut + 1]], idx[np.r_[cut, idx.size - 1]]
+    return last - first + 1
+
+
+def _image_points(fr, p, radar_xy, room, tracks, vel):
+    """(frame, person, G (2), wall, depth, snr, distance to M, to B, range
+    residual to M, to B) of the moving points beyond a wall attributed to a
+    walking person (module doc)."""
+    depth = np.stack([room[0] - p[:, 0], p[:, 0] - room[1], room[2] - p[:, 1], p[:, 1] - room[3]], 1)
+    out = []
+    for k in np.flatnonzero(depth.max(1) > 0):
+        f, g, w = fr[k], p[k, :2], int(np.argmax(depth[k]))
+        best = None
+        for i in range(tracks.shape[0]):
+            pp = tracks[i, f]
+            if not np.isfinite(pp[0]) or np.hypot(*vel[i, f]) < 0.2:
+                continue
+            m = pp.copy()
+            m[w // 2] = 2 * room[w] - pp[w // 2]
+            r_p, r_m, r_g = (np.linalg.norm(q - radar_xy) for q in (pp, m, g))
+            b = radar_xy + (r_p + r_m) / 2 * (m - radar_xy) / r_m
+            row = [f, i, *g, w, depth[k].max(), p[k, 4] / 10, np.linalg.norm(g - m),
+                   np.linalg.norm(g - b), r_g - r_m, r_g - (r_p + r_m) / 2]
+            if best is None or min(row[7:9]) < min(best[7:9]):
+                best = row
+        if best is not None and min(best[7:9]) < 1.0:
+            out.append(best)
+    return np.array(out).reshape(-1, 11)
+
+
+def measure_images(fr, p, radar_xy, room, tracks, n_f: int) -> dict:
+    """Multipath images of the walkers seen by one radar (module doc); ``fr``,
+    ``p`` its moving points in the height band within 4 m."""
+    vel = np.full_like(tracks, np.nan)
+    for i in range(tracks.shape[0]):
+        ok = np.flatnonzero(np.isfinite(tracks[i, :, 0]))
+        if ok.size > 11:
+            for a in range(2):
+                vel[i, ok, a] = savgol_filter(tracks[i, ok, a], 11, 2, deriv=1) / FRAME_S
+    img = _image_points(fr, p, radar_xy, room, tracks, vel)
+    own_n, own_snr, walking = np.zeros((tracks.shape[0], n_f)), {}, np.zeros((tracks.shape[0], n_f), bool)
+    for i in range(tracks.shape[0]):
+        for f in range(n_f):
+            if not np.isfinite(tracks[i, f, 0]) or not np.hypot(*vel[i, f]) >= 0.2:
+                continue
+            sel = (fr == f) & (np.linalg.norm(p[:, :2] - tracks[i, f], axis=1) < 0.6)
+            if sel.any():
+                walking[i, f] = True
+                own_n[i, f] = sel.sum()
+                own_snr[(i, f)] = float(np.median(p[sel, 4]) / 10)
+    keep = np.array([walking[int(r[1]), int(r[0])] for r in img], bool).reshape(-1)
+    img = img[keep]
+    on = np.zeros((tracks.shape[0], n_f), bool)
+    on[img[:, 1].astype(int), img[:, 0].astype(int)] = True
+    pairs = {(int(i), int(f)) for f, i in img[:, :2]}
+    counts = [np.sum((img[:, 0] == f) & (img[:, 1] == i)) for i, f in pairs]
+    d_snr = [r[6] - own_snr[(int(r[1]), int(r[0]))] for r in img]
+    runs = np.concatenate([_runs(on[i]) for i in range(on.shape[0])])
+    episodes = np.concatenate([_runs(on[i], gap=10) for i in range(on.shape[0])])
+    med = lambda a: float(np.median(a)) if len(a) else None  # noqa: E731
+    return {
+        "walking_frames_seen": int(walking.sum()),
+        "image_point_count": int(len(img)),
+        "frame_share_with_image": float(on.sum() / max(walking.sum(), 1)),
+        "image_points_per_image_frame": float(np.mean(counts)) if counts else None,
+        "person_points_per_walking_frame": float(own_n[walking].mean()) if walking.any() else None,
+        "snr_image_minus_person_db_median": med(d_snr),
+        "depth_beyond_wall_m_p10_p50_p90": (np.percentile(img[:, 5], [10, 50, 90]).tolist()
+                                            if len(img) else None),
+        "walls_xmin_xmax_ymin_ymax": np.bincount(img[:, 4].astype(int), minlength=4).tolist(),
+        "distance_to_mirror_one_bounce_m_median": [med(img[:, 7]), med(img[:, 8])],
+        "range_residual_to_mirror_one_bounce_m_median": [med(img[:, 9]), med(img[:, 10])],
+        "mirror_closer_share": float(np.mean(img[:, 7] < img[:, 8])) if len(img) else None,
+        "run_frames_mean_max": [float(runs.mean()), int(runs.max())] if runs.size else None,
+        "episodes": int(episodes.size),
+        "episode_frames_mean": float(episodes.mean()) if episodes.size else None,
+        "image_frames_per_episode": float(on.sum() / max(episodes.size, 1)),
+    }
+
+
 def measure_frames(frames_by_radar: dict, xlim, ylim, n_people: int, rng) -> dict:
     """The figures of the module doc from new points per frame and radar."""
     n_f = len(frames_by_radar["S1"])
@@ -242,6 +341,12 @@ def measure_frames(frames_by_radar: dict, xlim, ylim, n_people: int, rng) -> dic
     both_fr = np.concatenate([clouds[n][0][moving[n]] for n in RADARS])
     both_p = np.concatenate([clouds[n][1][moving[n]] for n in RADARS])
     tracks = _people_tracks(both_p, both_fr, n_f, n_people)
+    room = np.array([xlim[0], xlim[1], ylim[0], ylim[1]])
+    for name, (_, radar_xy) in RADARS.items():
+        fr, p = clouds[name]
+        sel = ((p[:, 3] != 0) & (p[:, 2] >= BAND_M[0]) & (p[:, 2] <= BAND_M[1])
+               & (np.linalg.norm(p[:, :2] - radar_xy, axis=1) <= 4.0))
+        res["radars"][name]["images"] = measure_images(fr[sel], p[sel], radar_xy, room, tracks, n_f)
     smooth = {}
     for name, (_, radar_xy) in RADARS.items():
         fr, p = clouds[name][0][moving[name]], clouds[name][1][moving[name]]

@@ -13,7 +13,7 @@ prints the effective file with every default)::
     point_targets = true
     sparse = "auto"    # stored point clouds: min_samples=1 (true), never (false)
     [ekf]              # tracking.ekf.EkfConfig (thresholds in seconds)
-    sigma_a_mps2 = 1.0
+    sigma_a_mps2 = 3.0
     [scene]            # radar.scene.SceneConfig: filters of stored point clouds
     min_occupancy = 0.2
     [matching]         # mmsnap calibrate: track matching, seconds and metres

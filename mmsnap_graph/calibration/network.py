@@ -209,7 +209,7 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
                  f"{out.association.n_groups} (frame, target) states; sigmas from the "
                  f"residuals: {describe_sigmas(out.noise)}")
     if options.time_offsets:
-        out, note = with_clock_offsets(out, recording.frame_period_s, options)
+        out, note = with_clock_offsets(out, recording, options)
         notes.append(note)
     notes.append(out.joint.message)
     return out

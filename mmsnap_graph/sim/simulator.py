@@ -60,7 +60,7 @@ __all__ = ["LEVELS", "DEFAULT_LEVELS", "CENTROID_NOISE", "PointCloudModel", "Cub
            "SimulationOptions", "CLEAN", "simulate_recording", "simulate_targets"]
 
 # Stream identifiers for the derived random generators.
-_TRAJECTORY, _BODY, _CENTROIDS, _POINT_CLOUD, _CUBE, _CLUTTER, _PHYSICS, _PEOPLE = range(8)
+_TRAJECTORY, _BODY, _CENTROIDS, _POINT_CLOUD, _CUBE, _CLUTTER, _PHYSICS, _PEOPLE, _IMAGES = range(9)
 
 
 def _stream(seed: int, purpose: int, index: int = 0) -> np.random.Generator:
@@ -293,7 +293,8 @@ def _physics_context(setup: _Setup, i: int, pose: NDArray, torso_snr) -> Physics
         reflectors=static_reflectors(pose, setup.room, ph.n_static_reflectors, in_view, rng),
         in_view=in_view, snr_db=lambda tid, frame: torso_snr[tid, frame],
         threshold_db=setup.options.point_cloud_model.threshold_db,
-        doppler_std_mps=setup.options.centroid_noise.doppler_mps)
+        doppler_std_mps=setup.options.centroid_noise.doppler_mps, states=setup.states,
+        image_rng=_stream(setup.seed, _IMAGES, i))
 
 
 def _physical_bodies(setup: _Setup, pose: NDArray, ctx: PhysicsContext):

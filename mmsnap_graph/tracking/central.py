@@ -90,9 +90,10 @@ class CentralConfig:
     """Central Kalman filter parameters.
 
     frame_period_s : T between frames.
-    sigma_a_mps2 : white-acceleration std per axis. Default 1.0 m/s^2, as the
-        per-node EKF (:class:`~mmsnap_graph.tracking.ekf.EkfConfig` says why
-        the paper's 0.2 is too stiff for a person turning in a small area).
+    sigma_a_mps2 : white-acceleration std per axis. Default 1.0 m/s^2: the
+        paper's 0.2 is too stiff for a person turning in a small area
+        (:class:`~mmsnap_graph.tracking.ekf.EkfConfig` says why; the per-node
+        EKF, fed single centroids, uses 3.0).
     gate_probability : chi-square gate (2 dof, position) for association.
     max_misses : consecutive frames without an estimate that end a track;
         more than ``(max_misses + 1) * frame_period_s`` seconds without one

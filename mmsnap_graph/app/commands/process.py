@@ -18,7 +18,7 @@ from mmsnap_graph.errors import ConfigurationError, ValidationError
 #: ``EkfConfig().sigma_a_mps2``, written out so that building the parser
 #: (``mmsnap --help``) does not import the signal chain, SciPy and
 #: scikit-learn (a test keeps them equal).
-HELP_DEFAULTS = {"pfa": 1e-6, "sigma_a_mps2": 1.0}
+HELP_DEFAULTS = {"pfa": 1e-6, "sigma_a_mps2": 3.0}
 
 
 def register(subparsers) -> None:

@@ -43,8 +43,8 @@ range lengthened alike; ``block_covariance(..., range_offset_rms=s)`` adds
 ``s^2 J J^T`` to the reported covariance (a *considered* parameter, the
 Schmidt "consider" covariance: the poses are not moved). Measured on the
 simulator's real model (docs/CALIBRATION.md, "The calibrated pose on the
-simulator's real model"): S2's pose NEES 54.8-175.8 (mean 109.0, 3 dof,
-seeds 0-5) without, mean 4.9 with ``s = 0.112`` m.
+simulator's real model"): S2's pose NEES 53.8-177.2 (mean 107.7, 3 dof,
+seeds 0-5) without, mean 5.30 with ``s = 0.112`` m.
 """
 
 from __future__ import annotations

@@ -22,6 +22,8 @@ from typing import Mapping
 
 import numpy as np
 
+from factors.models import detection_to_local
+
 from ..._validation import check_count
 from ...data.noise import MeasurementNoise
 from ...data.recording import Recording
@@ -49,6 +51,11 @@ ROUND_TOLERANCE = 1e-3
 #: A node's clock offset beyond its whole-frame lag is kept when it lies
 #: this many of its reported sigmas from zero (:func:`with_clock_offsets`).
 OFFSET_EVIDENCE_Z = 3.0
+
+#: Two centroids of one node in one frame closer than this (m) may be the
+#: halves of one split body (the simulator's real model splits them 0.3-0.6
+#: m apart); :func:`with_clock_offsets` leaves such frames of the node out.
+SPLIT_RADIUS_M = 0.7
 
 #: The joint graph's options of :func:`refine_multi` by default: as
 #: :func:`~mmsnap_graph.calibration.calibrate_recording`'s, whole-frame lags
@@ -233,12 +240,38 @@ def _offset_evidence(joint: JointCalibration, period: float) -> dict[str, tuple[
     return out
 
 
-def with_clock_offsets(refined: MultiTargetRefinement, frame_period_s: float,
+def unambiguous_detections(recording: Recording, refined: MultiTargetRefinement) -> dict:
+    """The associated detections of ``refined`` without those whose node
+    has another centroid within :data:`SPLIT_RADIUS_M` in the same frame
+    (a split body or two people close together: the association kept the
+    one nearer the other nodes' centroids, on the reference's whole-frame
+    clock, which pulls a node's clock offset toward the whole frame)."""
+    out = {}
+    for n, det in refined.detections.items():
+        raw = recording.nodes[n].centroids
+        rows = np.flatnonzero(refined.association.target[n] >= 0)
+        xy = detection_to_local(raw.range_m, raw.omega_rad)
+        order = np.argsort(raw.frame, kind="stable")
+        start = np.searchsorted(raw.frame[order], raw.frame[rows], side="left")
+        stop = np.searchsorted(raw.frame[order], raw.frame[rows], side="right")
+        keep = np.ones(rows.size, bool)
+        for i, (r, a, b) in enumerate(zip(rows, start, stop)):
+            same = order[a:b]
+            same = same[same != r]
+            if same.size and np.min(np.linalg.norm(xy[same] - xy[r], axis=1)) < SPLIT_RADIUS_M:
+                keep[i] = False
+        out[n] = det.select(np.flatnonzero(keep))
+    return out
+
+
+def with_clock_offsets(refined: MultiTargetRefinement, recording: Recording,
                        options: JointOptions) -> tuple[MultiTargetRefinement, str]:
     """The clock offsets beyond the whole-frame lags on the associated
     centroids of ``refined`` (a whole-frame solve of :func:`refine_associated`):
-    one joint solve with ``time_offsets`` on the same detections, noise and
-    lags (no lag re-centring), started from its poses. It is kept when the
+    one joint solve with ``time_offsets`` on the same detections but those
+    of a node with another centroid within :data:`SPLIT_RADIUS_M` in the
+    frame (:func:`unambiguous_detections`), the same noise and lags (no lag
+    re-centring), started from its poses. It is kept when the
     data support it: every node's fraction within half a frame of its lag
     (the track matching's lag beat its neighbours; beyond that the
     first-order model ``F(tau) x`` does not hold) and at least one node's
@@ -250,14 +283,14 @@ def with_clock_offsets(refined: MultiTargetRefinement, frame_period_s: float,
     timed_options = dataclasses.replace(options, time_offsets=True, recentre_lags=False)
     data = dict(noise=refined.noise, reference=joint.reference,
                 initial_poses={n: joint.poses[n] for n in refined.detections if n in joint.poses},
-                frame_period_s=frame_period_s,
+                frame_period_s=recording.frame_period_s,
                 lag_frames={n: int(joint.lag_frames.get(n, 0)) for n in refined.detections})
-    timed = joint_calibration(refined.detections, timed_options, **data)
+    dets = unambiguous_detections(recording, refined)
+    timed = joint_calibration(dets, timed_options, **data)
     if not timed.success and timed_options.robust is not None:
         # As in the rounds: an indeterminate robust pass, Gaussian factors.
-        timed = joint_calibration(refined.detections,
-                                  dataclasses.replace(timed_options, robust=None), **data)
-    evidence = _offset_evidence(timed, frame_period_s) if timed.success else {}
+        timed = joint_calibration(dets, dataclasses.replace(timed_options, robust=None), **data)
+    evidence = _offset_evidence(timed, recording.frame_period_s) if timed.success else {}
     text = ", ".join(f"{n} {f:+.2f} frame (z {z:.1f})" for n, (f, z) in evidence.items())
     if not timed.success:
         return refined, f"clock offsets: whole-frame lags (the timed solve failed: {timed.message})"

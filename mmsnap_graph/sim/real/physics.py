@@ -15,7 +15,10 @@ levels:
   change slowly), in the radar's range / cross-range directions;
 - **static scene**: zero-Doppler points from walls and furniture (clutter
   removal off, as in TI's out-of-box configurations), at fixed places;
-- **multipath ghosts**: mirror images of a person through a wall of the room;
+- **multipath ghosts**: mirror images of a person through a wall of the room
+  (single centroid rows or points), and at the point-cloud level **body
+  images**: a weaker copy of a body's points via a wall, in episodes of
+  frames, at the one-bounce (or mirror) path length with its Doppler;
 - **split clusters**: one body seen as two clusters;
 - **sparse clouds and misses**: a few points per person and frame;
 - **quantised values**: local x, y and Doppler rounded to float16, as TI's
@@ -37,7 +40,8 @@ from ...errors import ValidationError
 from .sparse import empty_frame_mask
 
 __all__ = ["RealPhysics", "room_box", "person_depths", "correlated_errors", "mirror_through_walls",
-           "static_reflectors", "quantize_float16", "physical_centroids", "physical_point_cloud"]
+           "static_reflectors", "quantize_float16", "physical_centroids", "physical_point_cloud",
+           "body_images"]
 
 
 def _check(name: str, value: float, *, lo: float = 0.0, hi: float = np.inf,
@@ -72,8 +76,21 @@ class RealPhysics:
     split_probability : a person's detection split into two clusters
         ``split_distance_m`` apart (range of a uniform draw); in point clouds
         the splits come in bursts of ``split_frames`` frames on average.
-    ghost_probability : a person's detection mirrored through a wall of the
-        room (a multipath image), per row or point.
+    ghost_probability : centroid level: a person's row mirrored through a
+        wall of the room (a multipath image).
+    image_fraction, image_episode_frames : point clouds: the share of a
+        person's frames, per node, in a multipath episode (a two-state
+        Markov chain; episodes last ``image_episode_frames`` on average),
+        in which the body's points are seen again via one wall of the room
+        (chosen per episode among the walls whose image the node sees);
+        0 = no body images.
+    image_point_probability : in an episode, each of the body's points
+        (after thinning) is copied into the image with this probability.
+    image_snr_drop_db : the image's SNR below its body point's.
+    image_mirror_share : share of episodes at the mirror image's geometry
+        (radar -> wall -> person -> wall -> radar); the others at the
+        one-bounce path (radar -> person -> wall -> radar: half the two
+        paths' sum, along the mirror image's bearing).
     static_points_per_frame : Poisson mean of zero-Doppler scene points per
         node and frame (point clouds); ``static_centroids_per_frame`` the same
         for static clusters at the centroid level; ``n_static_reflectors``
@@ -98,6 +115,11 @@ class RealPhysics:
     split_distance_m: tuple[float, float] = (0.3, 0.6)
     split_frames: float = 10.0
     ghost_probability: float = 0.03
+    image_fraction: float = 0.45
+    image_episode_frames: float = 10.0
+    image_point_probability: float = 0.2
+    image_snr_drop_db: float = 12.0
+    image_mirror_share: float = 0.15
     static_points_per_frame: float = 2.5
     static_centroids_per_frame: float = 1.0
     n_static_reflectors: int = 6
@@ -127,6 +149,11 @@ class RealPhysics:
             raise ValidationError(f"RealPhysics.split_distance_m={self.split_distance_m!r} must "
                                   "be (low, high) metres with 0 < low <= high <= 5")
         _check("ghost_probability", self.ghost_probability, hi=1.0)
+        _check("image_fraction", self.image_fraction, hi=0.9)
+        _check("image_episode_frames", self.image_episode_frames, lo=1.0, hi=1e4)
+        _check("image_point_probability", self.image_point_probability, hi=1.0)
+        _check("image_snr_drop_db", self.image_snr_drop_db, hi=100.0)
+        _check("image_mirror_share", self.image_mirror_share, hi=1.0)
         _check("static_points_per_frame", self.static_points_per_frame, hi=1000.0)
         _check("static_centroids_per_frame", self.static_centroids_per_frame, hi=1000.0)
         check_count(self.n_static_reflectors, "RealPhysics.n_static_reflectors")
@@ -247,6 +274,87 @@ def _ghost_rows(xy, vel, room, pose, in_view, rng):
     return ims[wall, k][ok], vs[wall, k][ok], ok
 
 
+def _one_wall(xy: NDArray, vel: NDArray, room: NDArray, wall: NDArray) -> tuple[NDArray, NDArray]:
+    """Mirror images of points (K, 2) and velocities through ``wall`` (K,)
+    (0-3: x_min, x_max, y_min, y_max)."""
+    k, axis = np.arange(len(xy)), wall // 2
+    m, v = xy.copy(), vel.copy()
+    m[k, axis] = 2 * room[wall] - xy[k, axis]
+    v[k, axis] = -vel[k, axis]
+    return m, v
+
+
+def _image_xy(xy: NDArray, m: NDArray, node_xy: NDArray, mirror: NDArray) -> NDArray:
+    """Where the node sees the image of ``xy`` whose mirror image is ``m``:
+    ``m`` itself, or (one bounce) half the two paths' sum along ``m``'s bearing."""
+    r_p = np.linalg.norm(xy - node_xy, axis=1)
+    d = m - node_xy
+    r_m = np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+    one = node_xy + ((r_p + r_m) / 2 / r_m)[:, None] * d
+    return np.where(mirror[:, None], m, one)
+
+
+def _episode_walls(centre: NDArray, starts: NDArray, pose: NDArray, ctx) -> NDArray:
+    """(E,) the wall of each episode: a random one of those whose image of
+    the body's centre (at the episode's start) the node sees, among the
+    walls along its boresight; -1: none."""
+    c = centre[starts]
+    ims, _ = mirror_through_walls(c, np.zeros_like(c), ctx.room)             # (4, E, 2)
+    seen = np.stack([ctx.in_view(_image_xy(c, ims[w], pose[:2], np.zeros(len(c), bool)), pose)
+                     for w in range(4)]) if len(c) else np.zeros((4, 0), bool)
+    # Side walls only (along the boresight, within 45 deg), as on the real
+    # recordings: a wall facing the radar puts its image further along the
+    # person's own bearing, where the chain takes it for the body.
+    boresight = local_to_global(np.array([[0.0, 1.0]]), pose)[0] - pose[:2]
+    side = np.abs(boresight[[0, 0, 1, 1]]) < np.sqrt(0.5)
+    seen &= side[:, None]
+    score = np.where(seen, ctx.image_rng.random(seen.shape), -1.0)
+    wall = np.argmax(score, axis=0)
+    return np.where(seen[wall, np.arange(len(c))], wall, -1)
+
+
+def body_images(xy: NDArray, frame: NDArray, tid: NDArray, dop: NDArray, snr: NDArray,
+                pose: NDArray, n_frames: int, ctx) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Multipath images of the bodies in one node's point cloud: ``(xy (G, 2),
+    frame, doppler, snr)``.
+
+    Per person, episodes of frames (:func:`empty_frame_mask` with
+    ``image_fraction`` and ``image_episode_frames``) in which each of the
+    body's points (``xy`` global, ``tid`` >= 0) is copied with probability
+    ``image_point_probability`` through the episode's wall: at the one-bounce
+    path (or, in ``image_mirror_share`` of the episodes, the mirror image),
+    with the Doppler of that path (the point's own plus the change the path
+    makes to the body centre's: all of it for the mirror image, half of it
+    for one bounce) and ``image_snr_drop_db`` less SNR. Images the node does
+    not see are dropped.
+    """
+    ph, rng = ctx.physics, ctx.image_rng
+    out = [(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))]
+    if ph.image_fraction <= 0 or ctx.states is None:
+        return out[0]
+    for t in np.unique(tid[tid >= 0]):
+        on = empty_frame_mask(n_frames, ph.image_fraction, ph.image_episode_frames, rng)
+        first = on & ~np.r_[False, on[:-1]]
+        episode = np.cumsum(first) - 1
+        centre, vel = ctx.states[t, :, :2], ctx.states[t, :, 2:]
+        wall = _episode_walls(centre, np.flatnonzero(first), pose, ctx)
+        mirror = rng.random(wall.size) < ph.image_mirror_share
+        rows = np.flatnonzero((tid == t) & on[frame])
+        rows = rows[rng.random(rows.size) < ph.image_point_probability]
+        rows = rows[wall[episode[frame[rows]]] >= 0]
+        f, e = frame[rows], episode[frame[rows]]
+        w, mir = wall[e], mirror[e]
+        m, _ = _one_wall(xy[rows], np.zeros((rows.size, 2)), ctx.room, w)
+        img = _image_xy(xy[rows], m, pose[:2], mir)
+        mc, mv = _one_wall(centre[f], vel[f], ctx.room, w)
+        d_p = _measure(centre[f], vel[f], pose)[..., 2]
+        d_m = _measure(mc, mv, pose)[..., 2]
+        d = dop[rows] + np.where(mir, 1.0, 0.5) * (d_m - d_p)
+        seen = ctx.in_view(img, pose) if rows.size else np.zeros(0, bool)
+        out.append((img[seen], f[seen], d[seen], snr[rows][seen] - ph.image_snr_drop_db))
+    return tuple(np.concatenate(c) for c in zip(*out))
+
+
 def physical_centroids(states: NDArray, pose: NDArray, depths: NDArray, ctx) -> Detections:
     """Centroid level with the real physics (module doc) for one node.
 
@@ -320,7 +428,7 @@ def body_shift(n_frames: int, centre_xy: NDArray, node_xy: NDArray, ctx) -> NDAr
 
 
 def physical_point_cloud(det: Detections, pose: NDArray, n_frames: int, ctx) -> Detections:
-    """Thin, split, mirror and add the static scene to one node's point cloud
+    """Thin, split, add body images and the static scene to one node's point cloud
     (the detector's points of the bodies, already self-occluded and shifted)."""
     ph, rng = ctx.physics, ctx.rng
     person = det.target_id >= 0
@@ -355,24 +463,22 @@ def physical_point_cloud(det: Detections, pose: NDArray, n_frames: int, ctx) -> 
             rows = np.flatnonzero((frame == f) & (tid == t))
             b = start[f]
             xy[rows[: rows.size // 2]] += dist[b] * np.array([np.cos(ang[b]), np.sin(ang[b])])
-    # Multipath: mirror a person's point through a wall (its Doppler: the image's).
-    g = np.flatnonzero((tid >= 0) & (rng.random(tid.size) < ph.ghost_probability))
-    vel_dir = np.zeros((g.size, 2))
-    gxy, _, ok = _ghost_rows(xy[g], vel_dir, ctx.room, pose, ctx.in_view, rng)
     # Static scene points: zero Doppler, at the node's reflectors.
     refl = ctx.reflectors
     n_s = rng.poisson(ph.static_points_per_frame, n_frames) if refl.size else np.zeros(n_frames, int)
     s_frame = np.repeat(np.arange(n_frames), n_s)
     s_xy = (refl[rng.integers(0, max(len(refl), 1), s_frame.size)]
             + 0.03 * rng.standard_normal((s_frame.size, 2)))
-    all_xy = np.concatenate([xy, gxy, s_xy])
+    # Multipath: a weaker copy of a body's points via a wall, in episodes.
+    i_xy, i_frame, i_dop, i_snr = body_images(xy, frame, tid, dop, snr, pose, n_frames, ctx)
+    all_xy = np.concatenate([xy, s_xy, i_xy])
     loc = global_to_local(all_xy, pose)
     r = np.hypot(loc[:, 0], loc[:, 1])
     omega = np.pi * loc[:, 0] / np.maximum(r, 1e-9)
-    frames = np.concatenate([frame, frame[g][ok], s_frame])
-    dops = np.concatenate([dop, dop[g][ok], np.zeros(s_frame.size)])
-    snrs = np.concatenate([snr, snr[g][ok] - 6.0, ctx.threshold_db + rng.exponential(3.0, s_frame.size)])
-    tids = np.concatenate([tid, np.full(int(ok.sum()) + s_frame.size, -1)])
+    frames = np.concatenate([frame, s_frame, i_frame])
+    dops = np.concatenate([dop, np.zeros(s_frame.size), i_dop])
+    snrs = np.concatenate([snr, ctx.threshold_db + rng.exponential(3.0, s_frame.size), i_snr])
+    tids = np.concatenate([tid, np.full(s_frame.size + i_frame.size, -1)])
     order = np.argsort(frames, kind="stable")
     out = Detections(frame=frames[order], range_m=r[order], omega_rad=wrap_angle(omega[order]),
                      doppler_mps=dops[order], snr_db=snrs[order], target_id=tids[order])
@@ -392,3 +498,5 @@ class PhysicsContext:
     snr_db: object
     threshold_db: float
     doppler_std_mps: float
+    states: NDArray | None = None
+    image_rng: np.random.Generator | None = None

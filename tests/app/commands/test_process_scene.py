@@ -75,12 +75,13 @@ def test_each_switch_turns_one_filter_off(imported, tmp_path, capsys, flag, word
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 def test_one_simulated_walker_is_one_target(tmp_path, capsys, seed):
-    """The simulator's real physics (static scene, mirror images through the
+    """The simulator's real physics (static scene, body images through the
     walls, split clusters, sparse clouds) in the geometry of the real
     recordings, one walker, 30 s, known poses: with the filters (and the
-    body check) two or more fused targets in at most 2% of the frames (0.0%
-    on seeds 1 and 2; 90.8% and 86.0% with every filter and the
-    body check off), and the walker unseen in 7.0% and 7.7% of them."""
+    body check and the learned walls) two or more fused targets in at most
+    2% of the frames (1.0% and 2.0% on seeds 1 and 2, the real one-walker
+    recording 1.0%; 0.0% and 0.0% before the body images), and the walker
+    unseen in 6.7% and 7.7% of them."""
     from mmsnap_graph.io.fused import read_fused
 
     path = tmp_path / "sim.h5"
