@@ -173,7 +173,7 @@ POSE_XFAIL = {"multiple_tracking": (
 # Halves, compared in the reference frame: with the joint graph's marginals
 # (`mmsnap calibrate --covariance model`) (0.7, 1.0, 1.2) sigma (multiple
 # tracking) and (1.5, 8.2, 6.3) (fall detection); with the default long-run
-# covariance (1.2, 0.8, 0.8) and (0.8, 2.6, 2.0).
+# covariance (0.4, 0.6, 0.8) and (0.1, 1.4, 1.5).
 HALVES_XFAIL: dict = {}
 # Without a room box, the walls learned from the multipath images flag what a
 # radar sees through a wall: 96.3% / 100% of fused rows inside the room
