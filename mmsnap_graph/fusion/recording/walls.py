@@ -22,8 +22,13 @@ least :data:`WALL_MIN_FRAMES` distinct frames (within
 :data:`WALL_ANGLE_TOL_RAD` and :data:`WALL_OFFSET_TOL_M`), with the node on
 its room side, and behind which (almost) no person seen by two or more nodes
 ever stands: at most :data:`WALL_MAX_CROSSING` of those rows, not counting the
-images it explains. Of two walls that explain the same images (one per
-kind), the one proposed in more frames is kept.
+images it explains. A room's wall is common to its nodes: a line that the
+images of two or more nodes propose together in at least
+:data:`WALL_MIN_FRAMES` frames (with the same crossing test) is a wall of
+each of them too (two radars facing each other see a side wall's images in
+different frames, too few for either alone). Of two walls of a node that
+explain the same images (one per kind, or its own and the common one), the
+one proposed in more frames is kept.
 
 :func:`beyond_learned_walls` flags the successful rows that lie more than
 :data:`WALL_MARGIN_M` beyond a wall of every node that sees them, where the
