@@ -63,6 +63,7 @@ _LAZY = {
     "match_tracks": "pairwise.matching",
     "RecordingCalibration": "network",
     "RECORDING_JOINT_OPTIONS": "network",
+    "PEOPLE_JOINT_OPTIONS": "network",
     "calibrate_recording": "network",
     "residual_noise": "network",
     "PoseEdge": "pairwise.pose_graph",

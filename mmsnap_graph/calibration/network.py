@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from ..errors import CalibrationError, MissingStepError, ValidationError
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..data.recording import Detections, NodeData, Recording
-from .joint.options import JointOptions
+from .joint.options import REFLECTION_DEPTH_RMS_M, JointOptions
 from .joint.solve import JointCalibration, joint_calibration
 from .pairwise.matching import LocalTracks, local_tracks
 from .pairwise.matching_options import MatchingOptions
@@ -44,7 +44,7 @@ from .noise.estimate import estimate_noise
 from .joint.residual_noise import residual_noise
 from .pairwise.pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
 
-__all__ = ["RecordingCalibration", "RECORDING_JOINT_OPTIONS", "calibrate_recording",
+__all__ = ["RecordingCalibration", "RECORDING_JOINT_OPTIONS", "PEOPLE_JOINT_OPTIONS", "calibrate_recording",
            "residual_noise", "describe_noise"]
 
 #: The joint graph's options of :func:`calibrate_recording` by default:
@@ -54,6 +54,11 @@ __all__ = ["RecordingCalibration", "RECORDING_JOINT_OPTIONS", "calibrate_recordi
 #: the simulator's walks 0.5 m/s^2 biased the poses by up to 9 cm, 2-5 m/s^2
 #: did not), and each node's clock offset.
 RECORDING_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True)
+#: The same for recordings of people (``mmsnap calibrate``, ``mmsnap batch``):
+#: their reflection depth, not estimated, considered in the pose covariance
+#: (``JointOptions.range_offset_rms_m``; docs/CALIBRATION.md).
+PEOPLE_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True,
+                                    range_offset_rms_m=REFLECTION_DEPTH_RMS_M)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -98,6 +98,11 @@ def register(subparsers) -> None:
                         "depth (each radar's centroid nearer to it than the body's centre), "
                         "with this prior, e.g. 0.10,0.05; `mmsnap fuse` then adds it to every "
                         "range (default: none)")
+    p.add_argument("--range-offset-rms", type=float, default=None, metavar="METRES",
+                   help="without --range-offset: the root mean square of the body's reflection "
+                        "depth that the poses may have taken in, added to their covariance "
+                        "along the direction it moves them (default 0.112 m: 0.10 +- 0.05 m; "
+                        "0: not added)")
     p.add_argument("--covariance", choices=["long_run", "model"], default="long_run",
                    help="pose covariance: long_run (default) widens the joint graph's "
                         "marginals where the frames' errors are correlated in time or the "
@@ -231,7 +236,7 @@ def run(args: argparse.Namespace) -> int:
     if args.recording is None:
         raise ValidationError("mmsnap calibrate: a recording is required (unless --show-config)")
     # Here: `mmsnap --help` does not import GTSAM or h5py.
-    from mmsnap_graph.calibration import RECORDING_JOINT_OPTIONS
+    from mmsnap_graph.calibration import PEOPLE_JOINT_OPTIONS
     from mmsnap_graph.data.noise import MeasurementNoise
 
     if args.max_lag is not None and args.max_lag < 0:
@@ -242,13 +247,18 @@ def run(args: argparse.Namespace) -> int:
         noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
     try:
         joint = dataclasses.replace(
-            RECORDING_JOINT_OPTIONS, robust=None if args.robust == "none" else args.robust,
+            PEOPLE_JOINT_OPTIONS, robust=None if args.robust == "none" else args.robust,
             motion=not args.no_motion, sigma_a_mps2=args.sigma_a,
             time_offsets=not args.no_time_offsets)
     except ValidationError as exc:
         raise ValidationError(f"--sigma-a: {exc}") from None
-    joint = dataclasses.replace(joint, covariance=args.covariance,
-                                range_offset_prior_m=_range_offset_prior(args.range_offset))
+    prior = _range_offset_prior(args.range_offset)
+    rms = joint.range_offset_rms_m if args.range_offset_rms is None else args.range_offset_rms
+    try:
+        joint = dataclasses.replace(joint, covariance=args.covariance, range_offset_prior_m=prior,
+                                    range_offset_rms_m=rms if rms else None)
+    except ValidationError as exc:
+        raise ValidationError(f"--range-offset-rms: {exc}") from None
     json_path = check_output_path(args.json_out if args.json_out else
                                   calibration_json_path(args.recording))
     if args.output is not None and not args.no_write:

@@ -21,7 +21,7 @@ from ..._validation import check_count, check_positive, check_probability, froze
 from ..pairwise.closed_form import DEFAULT_MIN_COMMON_FRAMES, DEFAULT_MIN_SPREAD_M
 from .covariance import DEFAULT_BANDWIDTH_S
 
-__all__ = ["DEFAULT_ROBUST_K", "DEFAULT_MOTION_ROBUST_K", "JointOptions"]
+__all__ = ["DEFAULT_ROBUST_K", "DEFAULT_MOTION_ROBUST_K", "REFLECTION_DEPTH_RMS_M", "JointOptions"]
 
 #: Default width of the robust kernels on the whitened 3-vector norm (GTSAM's
 #: mEstimator ``k``): Huber 1.345, Cauchy 2.5; the project's one table,
@@ -31,6 +31,11 @@ DEFAULT_ROBUST_K = ROBUST_K_DEFAULT
 #: 4-vector norm (a Gaussian acceleration's norm is about 2; a sharp turn's
 #: is 5-20): see docs/CALIBRATION.md, "Sharp turns".
 DEFAULT_MOTION_ROBUST_K = 3.0
+
+#: Root mean square of a walking person's reflection depth (the centroid
+#: nearer to each radar than the body's centre): the physical prior 0.10 +-
+#: 0.05 m, sqrt(0.10^2 + 0.05^2) (docs/CALIBRATION.md, "Extended targets").
+REFLECTION_DEPTH_RMS_M = float(np.hypot(0.10, 0.05))
 
 _KERNELS = (None, "huber", "cauchy")
 
@@ -94,6 +99,16 @@ class JointOptions:
         the body's centre: range ``|p - p_i| - d``), with this Gaussian
         prior; its uncertainty enters the pose covariances
         (docs/CALIBRATION.md, "Extended targets"). None (default): no offset.
+    range_offset_rms_m : when the range offset is not estimated
+        (``range_offset_prior_m`` None), the root mean square (m) of the
+        reflection depth it leaves in the data: the poses are not moved, but
+        their long-run covariance (``covariance="long_run"``) adds ``J s^2
+        J^T``, ``J`` the poses' response to every range lengthened alike (a *considered* parameter: where the
+        geometry cannot tell the depth from the poses it shows in their
+        covariance instead of hiding as a bias; docs/CALIBRATION.md). None
+        (default): not considered (a point target); ``PEOPLE_JOINT_OPTIONS``
+        (``mmsnap calibrate``, ``mmsnap batch``) uses
+        :data:`REFLECTION_DEPTH_RMS_M`.
     covariance : ``"long_run"`` (default): the pose covariance widened to
         the long-run (Newey-West) covariance of the frames' influences where
         that exceeds the model's beyond its sampling noise (errors correlated
@@ -125,6 +140,7 @@ class JointOptions:
     presolve: bool = True
     state_covariances: bool = False
     range_offset_prior_m: tuple[float, float] | None = None
+    range_offset_rms_m: float | None = None
     covariance: Literal["long_run", "model"] = "long_run"
     covariance_bandwidth_s: float = DEFAULT_BANDWIDTH_S
 
@@ -157,6 +173,12 @@ class JointOptions:
                                       f"+-1 m, got {mean!r}")
             check_positive(sigma, "range_offset_prior_m sigma")
             object.__setattr__(self, "range_offset_prior_m", (float(mean), float(sigma)))
+        if self.range_offset_rms_m is not None:
+            rms = float(check_positive(self.range_offset_rms_m, "range_offset_rms_m"))
+            if rms > 1.0:
+                raise ValidationError(f"range_offset_rms_m must be metres up to 1 m (a body's "
+                                      f"reflection depth), got {rms!r}; centimetres?")
+            object.__setattr__(self, "range_offset_rms_m", rms)
         if self.covariance not in ("long_run", "model"):
             raise ValidationError(f"covariance={self.covariance!r} must be 'long_run' or "
                                   f"'model'")

@@ -583,7 +583,8 @@ def _block_covariance(graph, point, sig, options: JointOptions, run, frames):
                  if long_run else None)
     try:
         return block_covariance(problem, poses, states, given or None, frames,
-                                bandwidth=bandwidth, timed=graph.timed)
+                                bandwidth=bandwidth, timed=graph.timed,
+                                range_offset_rms=options.range_offset_rms_m)
     except (np.linalg.LinAlgError, ValueError) as exc:
         return f"covariance: the graph's marginals (the long-run covariance failed: {exc})"
 

@@ -4,10 +4,13 @@ printing and ``--json-out`` writing, the progress bar."""
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 import os
 import dataclasses
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -268,6 +271,8 @@ def test_show_config_prints_the_matching_table_and_reads_back(tmp_path, capsys):
     (["--max-lag-s", "-0.5"], "--max-lag-s"),
     (["--max-rmse", "-1"], "--max-rmse-m"),
     (["--min-common-s", "soon"], "--min-common-s"),
+    (["--range-offset-rms", "11.2"], "--range-offset-rms"),
+    (["--range-offset-rms", "-0.1"], "--range-offset-rms"),
 ])
 def test_bad_options_exit_2_with_one_line_naming_the_option(recording_path, tmp_path, capsys, argv,
                                                             option):
@@ -293,42 +298,58 @@ def test_bad_files_exit_2_naming_the_file_table_and_key(recording_path, tmp_path
     assert str(cfg) in err and where in err, err
 
 
-# Measured (docs/CALIBRATION.md, "Pose covariance on the simulator's real
-# model"; seeds 0, 1, 3): S2 lands (-0.067, -0.226 m, -2.10 deg), (-0.062,
-# -0.259, -2.24), (-0.097, -0.069, -0.03) from its true pose with sigmas of
-# about (0.05 m, 0.014 m, 0.65 deg): pose NEES 370.4, 400.0, 97.7 (mean 289.4
-# of 3). About (-0.07 m, -0.09 m) of it is the near-side reflection: every
-# centroid's range 0.07 m longer takes it out (the cause is not ghosts or
-# clutter: keeping only the centroids within 0.5 m of the truth changes
-# nothing). The rest, a rotation of S2 about the area (y -0.14 / -0.17 m,
-# -1.9 / -2.0 deg on seeds 0 and 1), scatters over the seeds five times wider
-# than the reported y sigma: S2's omega errors change with range (-0.017 and
-# -0.012 rad per metre), and that slope alone rotates S2 so; every part of the
-# walking area agrees on it, so the long-run covariance (2, 6 or 20 s) does
-# not see it. `--range-offset 0.10,0.05` puts the offset at 0.015-0.026 +-
-# 0.033 m and the NEES at 35, 102, 108.
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the real model's near-side reflection (along the baseline) and "
-                   "its range-dependent angle errors (a rotation of S2) are not in the reported "
-                   "pose covariance (pose NEES 95-400 of 3)")
-def test_pose_nees_in_band_on_the_simulated_real_model(tmp_path):
+
+@functools.lru_cache(maxsize=None)
+def _real_model_s2(seed: int, tmp: str) -> tuple:
+    """S2's pose error (body tangent) and reported covariance through
+    ``simulate`` (the real model, network B) -> ``process`` -> ``calibrate``."""
+    path = Path(tmp) / f"r{seed}.h5"
+    assert main(["simulate", "-c", "B", "-t", "random", "-n", "600", "--seed", str(seed),
+                 "-o", str(path)]) == 0
+    assert main(["process", str(path)]) == 0
+    out = Path(tmp) / f"r{seed}.json"
+    assert main(["calibrate", str(path), "--json-out", str(out)]) == 0
+    node = json.loads(out.read_text())["nodes"]["S2"]
+    true = read_recording(path, load_cubes=False).truth.node_poses["S2"]
+    return pose_tangent_error(node["pose"], true), np.asarray(node["covariance"])
+
+
+@pytest.fixture(scope="module")
+def real_model_dir(tmp_path_factory):
+    return str(tmp_path_factory.mktemp("real_model"))
+
+
+def _pose_nees(seeds, tmp):
     from mmsnap_graph.evaluation.metrics import nees_check
 
-    errors, covariances = [], []
-    for seed in (0, 1, 3):
-        path = tmp_path / f"r{seed}.h5"
-        assert main(["simulate", "-c", "B", "-t", "random", "-n", "600", "--seed", str(seed),
-                     "-o", str(path)]) == 0
-        assert main(["process", str(path)]) == 0
-        out = tmp_path / f"r{seed}.json"
-        assert main(["calibrate", str(path), "--json-out", str(out)]) == 0
-        node = json.loads(out.read_text())["nodes"]["S2"]
-        true = read_recording(path, load_cubes=False).truth.node_poses["S2"]
-        e = np.asarray(node["pose"]) - np.asarray(true)
-        e[2] = (e[2] + np.pi) % (2 * np.pi) - np.pi
-        errors.append(e)
-        covariances.append(np.asarray(node["covariance"]))
-    check = nees_check(np.array(errors), np.array(covariances))
-    print(f"S2 pose errors {np.round(errors, 3).tolist()}; mean pose NEES {check.mean:.1f}, "
-          f"band {check.interval}")
-    assert check.passed, (check.mean, check.interval)
+    runs = [_real_model_s2(s, tmp) for s in seeds]
+    errors = np.array([e for e, _ in runs])
+    check = nees_check(errors, np.array([c for _, c in runs]))
+    print(f"S2 pose errors (body tangent) {np.round(errors, 3).tolist()}; mean pose NEES "
+          f"{check.mean:.2f}, band {check.interval}")
+    return errors, check
+
+
+# Measured (docs/CALIBRATION.md, "The calibrated pose on the simulator's real
+# model"; S2's pose error in its body tangent): the centroids sit 0.06-0.075 m
+# short in range (the body's near side) and S2 takes it in, 0.07-0.26 m in its
+# x_b (its array axis, the reference frame's y) with its heading. Seeds 0-5:
+# with the long-run covariance alone (`--range-offset-rms 0`) the pose NEES
+# was 70.0, 116.4, 159.0, 177.2, 69.8, 53.8 (mean 107.7 of 3); with the
+# reflection depth considered (0.112 m rms) 7.4, 13.9, 0.9, 3.7, 2.8, 3.1
+# (mean 5.30: the band 1.37-5.25 narrowly missed; seeds 6-11: 4.68).
+@pytest.mark.slow
+def test_pose_nees_on_the_simulated_real_model_carries_the_reflection_depth(real_model_dir):
+    errors, check = _pose_nees(range(6), real_model_dir)
+    assert check.interval[0] < check.mean < 6.0, check   # 107.7 without the depth's term
+    # The simulator still puts the near side in S2's pose (else this proves nothing).
+    assert np.mean(errors[:, 0]) < -0.08
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="pose NEES 4.99 over seeds 0-11 against the band 1.78-4.54: "
+                   "seeds 1 and 8 (13.9, 14.7) keep a heading error of about 2 deg beyond the "
+                   "reflection depth's term (docs/CALIBRATION.md)")
+def test_pose_nees_in_band_on_the_simulated_real_model(real_model_dir):
+    _, check = _pose_nees(range(12), real_model_dir)
+    assert check.passed, check

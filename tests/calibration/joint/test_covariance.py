@@ -29,10 +29,12 @@ from scipy.stats import chi2
 from mmsnap_graph.calibration import calibrate_recording, joint_calibration, pose_tangent_error
 from mmsnap_graph.calibration.joint.covariance import (
     bandwidth_frames,
+    block_covariance,
     long_run_covariance,
+    range_offset_response,
     robust_covariance,
 )
-from mmsnap_graph.calibration.joint.options import JointOptions
+from mmsnap_graph.calibration.joint.options import REFLECTION_DEPTH_RMS_M, JointOptions
 from mmsnap_graph.calibration.joint.presolve import (
     RANGE_OFFSET,
     PresolveProblem,
@@ -134,6 +136,39 @@ def test_influences_sum_to_zero_and_the_model_is_the_inverse_hessian(timed):
         pose_influences(dataclasses.replace(problem, robust="cauchy"), p, s, offsets=o)
 
 
+def test_range_offset_response_is_the_poses_move_when_every_range_lengthens():
+    """The considered reflection depth's direction: the poses' response to
+    every range lengthened by 0.02 m (solved again) is ``0.02 J`` to the
+    solve's linearisation; the long-run covariance adds ``s^2 J J^T``, and
+    nothing when the graph estimates the offset itself."""
+    poses, states, meas = _scene()
+    motion = (np.arange(59), np.full(59, 0.15), 2.0)
+    problem = PresolveProblem(measurements=meas, names=list(poses), reference="S1",
+                              sigmas=SIGMAS, prior_sigmas=np.array([1e3, 1e3, 3.5, 3.5]),
+                              motion=motion)
+    p, s = presolve(problem, poses, states, tol=1e-14, max_steps=200)
+    j = range_offset_response(problem, p, s, None)
+    longer = {n: m + np.array([0.02, 0.0, 0.0]) for n, m in meas.items()}
+    p2, _ = presolve(dataclasses.replace(problem, measurements=longer), p, s, tol=1e-14,
+                        max_steps=200)
+    moved = np.concatenate([pose_tangent_error(p2[n], p[n]) for n in ("S2", "S3")])
+    np.testing.assert_allclose(moved, 0.02 * j, rtol=0.02, atol=1e-5)
+    assert np.linalg.norm(j[:2]) > 0.5  # a range offset moves the poses (about 1 m per m)
+    frames = np.arange(60)
+    plain = block_covariance(problem, p, s, None, frames, bandwidth=3, timed=())
+    depth = block_covariance(problem, p, s, None, frames, bandwidth=3, timed=(),
+                             range_offset_rms=0.1)
+    np.testing.assert_allclose(depth.covariance - plain.covariance, 0.01 * np.outer(j, j),
+                               rtol=1e-9, atol=1e-15)
+    assert "reflection depth of 0.100 m rms" in depth.describe()
+    estimated = dataclasses.replace(problem, range_offset=(0.1, 0.05))
+    p3, s3, o3 = presolve(estimated, poses, states, offsets={RANGE_OFFSET: 0.1}, tol=1e-14,
+                          max_steps=200)
+    kept = block_covariance(estimated, p3, s3, o3, frames, bandwidth=3, timed=(),
+                            range_offset_rms=0.1)
+    assert kept.range_offset_rms == 0.0 and "reflection depth" not in kept.describe()
+
+
 def _sim(seed, physics):
     return simulate_recording(NET, "random", SimulationOptions(physics=physics),
                               levels=("centroids",), n_frames=300, seed=seed)
@@ -205,6 +240,12 @@ def test_joint_options_check_the_new_fields():
     with pytest.raises(ValidationError, match="within"):
         JointOptions(range_offset_prior_m=(10.0, 0.05))
     assert JointOptions(range_offset_prior_m=[0.1, 0.05]).range_offset_prior_m == (0.1, 0.05)
+    with pytest.raises(ValidationError, match="range_offset_rms_m must be > 0"):
+        JointOptions(range_offset_rms_m=0.0)
+    with pytest.raises(ValidationError, match="centimetres"):
+        JointOptions(range_offset_rms_m=11.2)
+    assert RECORDING_JOINT_OPTIONS.range_offset_rms_m is None  # a point target: not considered
+    assert REFLECTION_DEPTH_RMS_M == pytest.approx(0.1118, abs=1e-4)
 
 
 def test_joint_calibration_without_a_frame_period_keeps_the_marginals():
