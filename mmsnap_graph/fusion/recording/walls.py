@@ -22,8 +22,13 @@ least :data:`WALL_MIN_FRAMES` distinct frames (within
 :data:`WALL_ANGLE_TOL_RAD` and :data:`WALL_OFFSET_TOL_M`), with the node on
 its room side, and behind which (almost) no person seen by two or more nodes
 ever stands: at most :data:`WALL_MAX_CROSSING` of those rows, not counting the
-images it explains. Of two walls that explain the same images (one per
-kind), the one proposed in more frames is kept.
+images it explains. A room's wall is common to its nodes: a line that the
+images of two or more nodes propose together in at least
+:data:`WALL_MIN_FRAMES` frames (with the same crossing test) is a wall of
+each of them too (two radars facing each other see a side wall's images in
+different frames, too few for either alone). Of two walls of a node that
+explain the same images (one per kind, or its own and the common one), the
+one proposed in more frames is kept.
 
 :func:`beyond_learned_walls` flags the successful rows that lie more than
 :data:`WALL_MARGIN_M` beyond a wall of every node that sees them, where the
@@ -245,43 +250,71 @@ def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray
     xy = state[:, :2]
     props = _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m)
     confirmed = ok & (seen.sum(axis=1) >= 2)
+    # The room's walls are common to its nodes: two radars facing each other
+    # see a side wall's images in different frames, too few for either alone.
+    # A line that the images of two or more nodes propose together is a wall
+    # of each of them, beside the lines each node's images propose alone.
+    pooled = [line for line in _lines(props, xy, confirmed, poses)
+              if np.unique(line.props[:, 1]).size >= 2]
     walls: list[LearnedWall] = []
     for s in range(poses.shape[0]):
-        mine, found = props[props[:, 1] == s], []
-        while len(mine):
-            count, mask = _best_line(mine)
-            if count < WALL_MIN_FRAMES:
-                break
-            ang = float(np.angle(np.mean(np.exp(1j * mine[mask, 2]))))
-            off = float(np.median(mine[mask, 3]))
-            near = _near(mine, ang, off)
-            explained = np.zeros(len(ok), dtype=bool)
-            explained[mine[near, 0].astype(np.int64)] = True
-            n = np.array([np.cos(ang), np.sin(ang)])
-            crossing = confirmed & ~explained & (xy @ n > off)
-            if crossing.sum() <= WALL_MAX_CROSSING * confirmed.sum():
-                along = mine[near, 4]
-                found.append((LearnedWall(node=s, normal_rad=ang, offset_m=off,
-                                          along_m=(float(along.min()), float(along.max())),
-                                          frames=count, images=int(explained.sum())),
-                              explained, off - float(n @ poses[s, :2])))
-            mine = mine[~(_near(mine, ang, off, 2.0) | mask)]
-        walls += _one_per_image(found)
+        mine = _lines(props[props[:, 1] == s], xy, confirmed, poses)
+        for line in _one_per_image(mine + [p for p in pooled if np.any(p.props[:, 1] == s)]):
+            along = line.props[:, 4]
+            walls.append(LearnedWall(node=s, normal_rad=line.ang, offset_m=line.off,
+                                     along_m=(float(along.min()), float(along.max())),
+                                     frames=line.frames,
+                                     images=int(np.unique(line.props[line.props[:, 1] == s,
+                                                                     0]).size)))
     return walls
 
 
-def _one_per_image(found: list) -> list[LearnedWall]:
-    """The walls of one node, without those whose images (half or more)
-    another wall explains better: each image proposes one wall per image
-    kind, and the kind the data support (more frames; on a tie the farther
-    wall, which flags less) is the wall."""
-    keep = []
-    for wall, images, dist in found:
-        if not any(np.sum(images & other) >= 0.5 * images.sum()
-                   and (w.frames, d) > (wall.frames, dist)
-                   for w, other, d in found if w is not wall):
-            keep.append(wall)
-    return keep
+def _lines(props: NDArray, xy: NDArray, confirmed: NDArray, poses: NDArray) -> list[_Line]:
+    """The lines that ``props`` propose in at least :data:`WALL_MIN_FRAMES`
+    distinct frames, best supported first, behind which at most
+    :data:`WALL_MAX_CROSSING` of the ``confirmed`` rows stand (not counting
+    the images each explains)."""
+    found = []
+    while len(props):
+        count, mask = _best_line(props)
+        if count < WALL_MIN_FRAMES:
+            break
+        ang = float(np.angle(np.mean(np.exp(1j * props[mask, 2]))))
+        off = float(np.median(props[mask, 3]))
+        near = _near(props, ang, off)
+        explained = np.zeros(len(xy), dtype=bool)
+        explained[props[near, 0].astype(np.int64)] = True
+        n = np.array([np.cos(ang), np.sin(ang)])
+        crossing = confirmed & ~explained & (xy @ n > off)
+        if crossing.sum() <= WALL_MAX_CROSSING * confirmed.sum():
+            nodes = np.unique(props[near, 1]).astype(np.int64)
+            found.append(_Line(ang, off, props[near], count, explained,
+                               off - float(np.max(poses[nodes, :2] @ n))))
+        props = props[~(_near(props, ang, off, 2.0) | mask)]
+    return found
+
+
+@dataclass(frozen=True, slots=True)
+class _Line:
+    """A line proposed in ``frames`` distinct frames: its proposals, the rows
+    it explains, and its distance from the nearest node that proposed it."""
+
+    ang: float
+    off: float
+    props: NDArray
+    frames: int
+    images: NDArray
+    dist: float
+
+
+def _one_per_image(found: list[_Line]) -> list[_Line]:
+    """The lines without those whose images (half or more) another line
+    explains better: each image proposes one line per image kind, and the
+    kind the data support (more frames; on a tie the farther line, which
+    flags less) is the wall."""
+    return [a for a in found
+            if not any(np.sum(a.images & b.images) >= 0.5 * a.images.sum()
+                       and (b.frames, b.dist) > (a.frames, a.dist) for b in found if b is not a)]
 
 
 def beyond_learned_walls(state: NDArray, ok: NDArray, seen: NDArray, poses: NDArray,
