@@ -259,8 +259,9 @@ def calibrate_and_store(path: str | os.PathLike,
         :func:`~mmsnap_graph.calibration.calibrate_recording`, or a function
         of the recording read that returns them (an option that depends on
         the recording, e.g. a lag window in frames); ``joint`` defaults to
-        ``PEOPLE_JOINT_OPTIONS`` (a person's reflection depth considered in
-        the pose covariance).
+        :func:`~mmsnap_graph.calibration.joint_options_for` the recording
+        (a person's reflection depth considered in the pose covariance,
+        unless the recording declares point targets).
     output : write a copy of the recording here (default: update ``path``).
     json_path : the calibration JSON (default :func:`calibration_json_path`
         of the recording written).
@@ -273,7 +274,7 @@ def calibrate_and_store(path: str | os.PathLike,
     ``(calibration, files written)``.
     """
     from .._atomic import recording_lock
-    from ..calibration import PEOPLE_JOINT_OPTIONS, calibrate_recording
+    from ..calibration import calibrate_recording, joint_options_for
     from ..io import read_recording
     from ..io.calibration import write_calibration, write_calibration_json
     from ..io.noise import write_noise
@@ -286,7 +287,7 @@ def calibrate_and_store(path: str | os.PathLike,
     with bar, recording_lock(path):
         rec = read_recording(path, load_cubes=False)
         kwargs = options(rec) if callable(options) else dict(options or {})
-        kwargs.setdefault("joint", PEOPLE_JOINT_OPTIONS)
+        kwargs.setdefault("joint", joint_options_for(rec))
         bar.set_description("calibrate: matching, pose graph, joint graph, noise")
         bar.update()
         cal = calibrate_recording(rec, **kwargs)

@@ -64,6 +64,7 @@ _LAZY = {
     "RecordingCalibration": "network",
     "RECORDING_JOINT_OPTIONS": "network",
     "PEOPLE_JOINT_OPTIONS": "network",
+    "joint_options_for": "network",
     "calibrate_recording": "network",
     "residual_noise": "network",
     "PoseEdge": "pairwise.pose_graph",

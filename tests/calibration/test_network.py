@@ -483,3 +483,23 @@ def test_an_ambiguous_lag_widens_only_by_the_lags_the_joint_graph_cannot_reject(
     # S2's boresight (the bodies' near side: docs/CALIBRATION.md, "Extended
     # targets"), which no lag explains.
     assert abs(err[2]) < 3 * np.sqrt(cal.covariances["S2"][2, 2])
+
+
+def test_the_reflection_depth_is_considered_unless_the_recording_declares_point_targets():
+    """``mmsnap calibrate``'s default: people (real data, the simulator's real
+    model) get the reflection depth's term; the clean model's point targets
+    do not (with it the README's clean tour fused at NEES 3.09, band
+    (3.77, 4.23))."""
+    from mmsnap_graph.calibration import (PEOPLE_JOINT_OPTIONS, RECORDING_JOINT_OPTIONS,
+                                          joint_options_for)
+    from mmsnap_graph.data.recording import NodeData, Recording
+
+    def rec(metadata):
+        return Recording(frame_period_s=0.05, nodes={"S1": NodeData(name="S1")},
+                         metadata=metadata)
+
+    assert joint_options_for(rec({"model": "clean"})) == RECORDING_JOINT_OPTIONS
+    assert RECORDING_JOINT_OPTIONS.range_offset_rms_m is None
+    for meta in ({"model": "real"}, {}, {"source": "import table"}):
+        assert joint_options_for(rec(meta)) == PEOPLE_JOINT_OPTIONS
+    assert PEOPLE_JOINT_OPTIONS.range_offset_rms_m > 0.05

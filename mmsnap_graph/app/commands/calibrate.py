@@ -102,7 +102,8 @@ def register(subparsers) -> None:
                    help="without --range-offset: the root mean square of the body's reflection "
                         "depth that the poses may have taken in, added to their covariance "
                         "along the direction it moves them (default 0.112 m: 0.10 +- 0.05 m; "
-                        "0: not added)")
+                        "not added where the recording declares point targets, the "
+                        "simulator's clean model; 0: not added)")
     p.add_argument("--covariance", choices=["long_run", "model"], default="long_run",
                    help="pose covariance: long_run (default) widens the joint graph's "
                         "marginals where the frames' errors are correlated in time or the "
@@ -236,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
     if args.recording is None:
         raise ValidationError("mmsnap calibrate: a recording is required (unless --show-config)")
     # Here: `mmsnap --help` does not import GTSAM or h5py.
-    from mmsnap_graph.calibration import PEOPLE_JOINT_OPTIONS
+    from mmsnap_graph.calibration import PEOPLE_JOINT_OPTIONS, joint_options_for
     from mmsnap_graph.data.noise import MeasurementNoise
 
     if args.max_lag is not None and args.max_lag < 0:
@@ -245,20 +246,26 @@ def run(args: argparse.Namespace) -> int:
     if args.sigmas is not None:
         r, w, v = args.sigmas
         noise = MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v)
-    try:
-        joint = dataclasses.replace(
-            PEOPLE_JOINT_OPTIONS, robust=None if args.robust == "none" else args.robust,
-            motion=not args.no_motion, sigma_a_mps2=args.sigma_a,
-            time_offsets=not args.no_time_offsets)
-    except ValidationError as exc:
-        raise ValidationError(f"--sigma-a: {exc}") from None
     prior = _range_offset_prior(args.range_offset)
-    rms = joint.range_offset_rms_m if args.range_offset_rms is None else args.range_offset_rms
-    try:
-        joint = dataclasses.replace(joint, covariance=args.covariance, range_offset_prior_m=prior,
-                                    range_offset_rms_m=rms if rms else None)
-    except ValidationError as exc:
-        raise ValidationError(f"--range-offset-rms: {exc}") from None
+
+    def joint_options(base):
+        """``base`` (the recording's default) with this command's flags."""
+        try:
+            joint = dataclasses.replace(
+                base, robust=None if args.robust == "none" else args.robust,
+                motion=not args.no_motion, sigma_a_mps2=args.sigma_a,
+                time_offsets=not args.no_time_offsets)
+        except ValidationError as exc:
+            raise ValidationError(f"--sigma-a: {exc}") from None
+        rms = joint.range_offset_rms_m if args.range_offset_rms is None else args.range_offset_rms
+        try:
+            return dataclasses.replace(joint, covariance=args.covariance,
+                                       range_offset_prior_m=prior,
+                                       range_offset_rms_m=rms if rms else None)
+        except ValidationError as exc:
+            raise ValidationError(f"--range-offset-rms: {exc}") from None
+
+    joint_options(PEOPLE_JOINT_OPTIONS)          # the flags checked before anything is read
     json_path = check_output_path(args.json_out if args.json_out else
                                   calibration_json_path(args.recording))
     if args.output is not None and not args.no_write:
@@ -269,7 +276,7 @@ def run(args: argparse.Namespace) -> int:
         if args.max_lag is not None:  # the lag window in frames of this recording
             lagged = dataclasses.replace(matching, max_lag_s=args.max_lag * rec.frame_period_s)
         return dict(source=args.source, method=args.method, noise=noise, matching=lagged,
-                    joint=joint)
+                    joint=joint_options(joint_options_for(rec)))
 
     # With --json, stdout holds the calibration JSON alone; the words go to stderr.
     say = (lambda text: print(text, file=sys.stderr)) if args.json else print
