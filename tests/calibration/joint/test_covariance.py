@@ -31,6 +31,7 @@ from mmsnap_graph.calibration.joint.covariance import (
     bandwidth_frames,
     block_covariance,
     long_run_covariance,
+    NODE_DEPTH_SHARE,
     range_offset_response,
     robust_covariance,
 )
@@ -158,8 +159,12 @@ def test_range_offset_response_is_the_poses_move_when_every_range_lengthens():
     plain = block_covariance(problem, p, s, None, frames, bandwidth=3, timed=())
     depth = block_covariance(problem, p, s, None, frames, bandwidth=3, timed=(),
                              range_offset_rms=0.1)
-    np.testing.assert_allclose(depth.covariance - plain.covariance, 0.01 * np.outer(j, j),
-                               rtol=1e-9, atol=1e-15)
+    own = {n: range_offset_response(problem, p, s, None, node=n) for n in poses}
+    np.testing.assert_allclose(sum(own.values()), j, rtol=1e-6, atol=1e-9)  # linear in the ranges
+    assert np.linalg.norm(own["S2"] - j) > 0.1      # the nodes' own depths move the poses apart
+    q = NODE_DEPTH_SHARE
+    want = 0.01 * ((1 - q) * np.outer(j, j) + q * sum(np.outer(v, v) for v in own.values()))
+    np.testing.assert_allclose(depth.covariance - plain.covariance, want, rtol=1e-9, atol=1e-15)
     assert "reflection depth of 0.100 m rms" in depth.describe()
     estimated = dataclasses.replace(problem, range_offset=(0.1, 0.05))
     p3, s3, o3 = presolve(estimated, poses, states, offsets={RANGE_OFFSET: 0.1}, tol=1e-14,
