@@ -4,47 +4,14 @@ real Dask scheduler."""
 
 from __future__ import annotations
 
-import socket
 import struct
-import threading
 import time
 
 import pytest
 
+from _services import TcpService
 from mmsnap_graph.app.scheduler_probe import MAX_HANDSHAKE_BYTES, check_scheduler
 from mmsnap_graph.errors import ValidationError
-
-
-class _Speaker:
-    """Accepts one connection and sends ``banner`` (None: says nothing)."""
-
-    def __init__(self, banner: bytes | None):
-        self.sock = socket.create_server(("127.0.0.1", 0))
-        self.address = f"tcp://127.0.0.1:{self.sock.getsockname()[1]}"
-        self.banner, self.conns, self.stop = banner, [], threading.Event()
-        self.thread = threading.Thread(target=self._serve, daemon=True)
-        self.thread.start()
-
-    def _serve(self):
-        self.sock.settimeout(0.1)
-        while not self.stop.is_set():
-            try:
-                conn, _ = self.sock.accept()
-            except OSError:
-                continue
-            self.conns.append(conn)
-            if self.banner is not None:
-                conn.sendall(self.banner)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.stop.set()
-        self.thread.join(5)
-        for c in self.conns:
-            c.close()
-        self.sock.close()
 
 
 def test_a_real_dask_scheduler_is_accepted():
@@ -57,7 +24,7 @@ def test_a_real_dask_scheduler_is_accepted():
 
 
 def test_a_plausible_handshake_length_is_accepted():
-    with _Speaker(struct.pack("<Q", 120) + b"x" * 120) as svc:
+    with TcpService(struct.pack("<Q", 120) + b"x" * 120) as svc:
         assert check_scheduler(svc.address, 2.0) == svc.address
 
 
@@ -67,14 +34,14 @@ def test_a_plausible_handshake_length_is_accepted():
     (struct.pack("<Q", 0), "not a Dask scheduler"),
 ])
 def test_another_protocol_is_refused_naming_what_it_sent(banner, match):
-    with _Speaker(banner) as svc:
+    with TcpService(banner) as svc:
         with pytest.raises(ValidationError, match=match) as info:
             check_scheduler(svc.address, 2.0)
         assert "--scheduler" in str(info.value)
 
 
 def test_a_silent_service_is_refused_within_the_time_limit():
-    with _Speaker(None) as svc:
+    with TcpService(None) as svc:
         start = time.monotonic()
         with pytest.raises(ValidationError, match="no Dask scheduler answered within 0.5 s"):
             check_scheduler(svc.address, 0.5)
@@ -82,7 +49,7 @@ def test_a_silent_service_is_refused_within_the_time_limit():
 
 
 def test_a_closed_port_says_it_cannot_connect():
-    with _Speaker(None) as svc:
+    with TcpService(None) as svc:
         address = svc.address
     with pytest.raises(ValidationError, match="cannot connect"):
         check_scheduler(address, 1.0)

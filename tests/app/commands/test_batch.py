@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from _services import TcpService
 from mmsnap_graph.app.cli import main
 
 
@@ -41,38 +42,6 @@ def test_a_worker_count_beyond_the_machine_is_a_usage_error(tmp_path, capsys, wo
     assert "--workers must be between 1 and" in err and err.count("\n") == 1
 
 
-class _Service:
-    """A real TCP service on 127.0.0.1: it accepts, then sends ``banner``
-    (None: never says a word) and holds the connection until stopped."""
-
-    def __init__(self, banner: bytes | None):
-        import socket
-        import threading
-        self.sock = socket.create_server(("127.0.0.1", 0))
-        self.port = self.sock.getsockname()[1]
-        self.banner, self.conns, self.stop = banner, [], threading.Event()
-        self.thread = threading.Thread(target=self._serve, daemon=True)
-        self.thread.start()
-
-    def _serve(self):
-        self.sock.settimeout(0.1)
-        while not self.stop.is_set():
-            try:
-                conn, _ = self.sock.accept()
-            except OSError:
-                continue
-            self.conns.append(conn)
-            if self.banner is not None:
-                conn.sendall(self.banner)
-
-    def close(self):
-        self.stop.set()
-        self.thread.join(5)
-        for c in self.conns:
-            c.close()
-        self.sock.close()
-
-
 @pytest.mark.parametrize("banner, match", [
     (None, "no Dask scheduler answered within 1 s"),
     (b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n", "not a Dask scheduler"),
@@ -87,7 +56,7 @@ def test_a_scheduler_address_that_is_not_dask_fails_fast(tmp_path, capsys, monke
     monkeypatch.setattr(batch, "CONNECT_TIMEOUT_S", 1.0)
     rec = tmp_path / "rec.h5"
     rec.write_bytes(b"")
-    service = _Service(banner)
+    service = TcpService(banner)
     if banner == b"":
         service.close()  # a closed port: connection refused
         match = "cannot connect"
