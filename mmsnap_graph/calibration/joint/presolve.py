@@ -214,6 +214,16 @@ class _Problem:
             c += robust_cost(self.motion_norms(states), self.motion_robust, self.motion_k)
         return c
 
+    def _node_residuals(self, n, poses, states, offsets, d):
+        """Node ``n``'s rows in use, clock offset, whitened residuals (K, 3)
+        and the model's pose and state Jacobians at ``(poses, states,
+        offsets)`` with every range shortened by the range offset ``d``."""
+        ok = self.use[n]
+        tau = _offset(offsets, n)
+        h, jp, js = measurement_model_pose(poses[n], shifted_states(states[ok], tau))
+        h[:, 0] -= d
+        return ok, tau, residual(h, self.meas[n][ok]) / self.sigmas, jp, js
+
     def _measurement_blocks(self, poses, states, offsets, hss, gs, g, bmat):
         """Add the measurement factors' blocks: the states' (``hss``, ``gs``),
         the pose-state coupling ``bmat`` (F, 4, P); returns the pose block
@@ -223,11 +233,7 @@ class _Problem:
         sig = self.sigmas
         d = self.range_offset(offsets)
         for n in self.names:
-            ok = self.use[n]
-            tau = _offset(offsets, n)
-            h, jp, js = measurement_model_pose(poses[n], shifted_states(states[ok], tau))
-            h[:, 0] -= d
-            e = residual(h, self.meas[n][ok]) / sig
+            ok, tau, e, jp, js = self._node_residuals(n, poses, states, offsets, d)
             w = kernel_weight(np.linalg.norm(e, axis=1), self.robust, self.k)
             js = js / sig[:, None]
             if n in self.timed:  # d h / d tau = J[:, :2] v; d h / d x = J F(tau)
@@ -346,11 +352,7 @@ class _Problem:
         sig = self.sigmas
         d = self.range_offset(offsets)
         for n in self.names:
-            ok = self.use[n]
-            tau = _offset(offsets, n)
-            h, jp, js = measurement_model_pose(poses[n], shifted_states(states[ok], tau))
-            h[:, 0] -= d
-            e = residual(h, self.meas[n][ok]) / sig
+            ok, _, e, jp, js = self._node_residuals(n, poses, states, offsets, d)
             rows = np.flatnonzero(ok)
             if self.dcol is not None:
                 psi[rows, self.dcol] -= e[:, 0] / sig[0]
