@@ -58,6 +58,17 @@ def assert_sound(success, state, covariance) -> None:
         assert np.linalg.eigvalsh(cov[i]).min() > 0, f"success with covariance {cov[i]}"
 
 
+
+def sound_or_typed_error(call) -> None:
+    """``call()`` (a fusion returning ``success``, ``state``, ``covariance``)
+    either raises a project error or returns a sound result
+    (:func:`assert_sound`); any other exception propagates."""
+    try:
+        r = call()
+    except MmsnapError:
+        return
+    assert_sound(r.success, r.state, r.covariance)
+
 @st.composite
 def node_poses(draw, n_min: int = 1, n_max: int = 4):
     n = draw(st.integers(n_min, n_max))

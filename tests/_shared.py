@@ -71,3 +71,17 @@ TRACK_NOISE = MeasurementNoise(range_m=0.035, omega_rad=0.05, doppler_mps=0.18)
 #: A small radar (256 samples x 128 loops, 2 TX) for fast signal-chain tests.
 SMALL_RADAR = RadarConfig(n_samples=256, n_loops=128, tx_azimuth_half_wl=(0.0, 4.0),
                           tx_elevation_half_wl=(0.0, 0.0), frame_period_s=0.1)
+
+
+def csv_lines(tmp_path, lines, name="log.csv") -> Path:
+    """``lines`` written as a CSV file ``name`` in ``tmp_path``."""
+    path = tmp_path / name
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def replace_cell(line: str, column: int, value: str) -> str:
+    """A CSV line with its ``column``-th cell replaced by ``value``."""
+    cells = line.split(",")
+    cells[column] = value
+    return ",".join(cells)

@@ -17,7 +17,7 @@ from mmsnap_graph.errors import FileFormatError, ValidationError, MmsnapError
 from mmsnap_graph.io.ti.point_table import read_point_table, read_point_tables
 from factors.projection import spherical_to_cartesian
 
-from _shared import ROOT, TI_DATA
+from _shared import ROOT, TI_DATA, csv_lines, replace_cell
 
 HEADER = "node,frame,time_s,x,y,z,doppler,snr"
 SENSOR_LINES = (TI_DATA / "points_sensor_frame.csv").read_text().splitlines()
@@ -252,36 +252,24 @@ def test_points_beyond_any_radar_are_errors(tmp_path, column, value):
 # comments and blank lines; missing columns also name the log's usual names.
 
 
-def _csv_lines(tmp_path, lines, name="log.csv"):
-    path = tmp_path / name
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-def _replace_cell(line: str, column: int, value: str) -> str:
-    cells = line.split(",")
-    cells[column] = value
-    return ",".join(cells)
-
-
 def test_a_non_numeric_value_names_its_line(tmp_path):
     lines = list(SENSOR_LINES[:30])
-    lines[11] = _replace_cell(lines[11], 1, "x!")                  # frame of line 12
+    lines[11] = replace_cell(lines[11], 1, "x!")                  # frame of line 12
     with pytest.raises(FileFormatError, match=r"log.csv: column frame must be numeric; "
                                               r"line 12 holds 'x!'"):
-        read_point_tables(_csv_lines(tmp_path, lines))
+        read_point_tables(csv_lines(tmp_path, lines))
 
 
 def test_an_empty_value_of_another_node_names_its_line_past_comments(tmp_path):
     header, rows = SENSOR_LINES[0], SENSOR_LINES[1:]
     s2 = [r for r in rows if r.startswith("S2,")][:5]
     s1 = [r for r in rows if r.startswith("S1,")][:5]
-    s2[3] = _replace_cell(s2[3], 3, "")                           # x of the 4th S2 point
+    s2[3] = replace_cell(s2[3], 3, "")                           # x of the 4th S2 point
     lines = ["# logged by a script", header, *s1, "", *s2]
     # line 1 comment, 2 header, 3-7 S1, 8 blank, 9-13 S2: the 4th S2 row is line 12
     with pytest.raises(FileFormatError, match=r"column x_m must be finite; point 3 "
                                               r"\(line 12\) holds nan"):
-        read_point_tables(_csv_lines(tmp_path, lines))
+        read_point_tables(csv_lines(tmp_path, lines))
 
 
 def test_a_dataframe_names_the_row(tmp_path):
@@ -296,7 +284,7 @@ def test_a_dataframe_names_the_row(tmp_path):
 def test_missing_columns_also_name_the_logs_usual_names(tmp_path):
     lines = [",".join(c for c in line.split(",")[:6]) for line in SENSOR_LINES[:5]]  # no doppler
     with pytest.raises(FileFormatError, match=r"need \['doppler_mps'\] \(or doppler\)"):
-        read_point_tables(_csv_lines(tmp_path, lines))
+        read_point_tables(csv_lines(tmp_path, lines))
 
 
 def _table(seed=0, n=40):

@@ -17,7 +17,7 @@ from mmsnap_graph.io.ti.dca1000 import frame_bytes
 from mmsnap_graph.io.ti.cfg import parse_ti_cfg
 from mmsnap_graph.app.evaluation import evaluate_recording
 
-from _shared import TI_DATA
+from _shared import TI_DATA, csv_lines, replace_cell
 from _fuzz import CLI_FUZZ, one_line_data_error
 from ti_samples import (
     MOUNTS,
@@ -243,22 +243,10 @@ def test_import_of_a_table_with_missing_columns_exits_0_or_1(tmp_path_factory, c
 SENSOR_LINES = (TI_DATA / "points_sensor_frame.csv").read_text().splitlines()
 
 
-def _csv_lines(tmp_path, lines, name="log.csv"):
-    path = tmp_path / name
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-def _replace_cell(line: str, column: int, value: str) -> str:
-    cells = line.split(",")
-    cells[column] = value
-    return ",".join(cells)
-
-
 def test_the_cli_reports_the_line_in_one_line(tmp_path, capsys):
     lines = list(SENSOR_LINES[:30])
-    lines[20] = _replace_cell(lines[20], 6, "fast")               # doppler of line 21
-    path = _csv_lines(tmp_path, lines, "bad.csv")
+    lines[20] = replace_cell(lines[20], 6, "fast")               # doppler of line 21
+    path = csv_lines(tmp_path, lines, "bad.csv")
     assert main(["import", "table", "--table", str(path), "--frame-period", "0.05", "-o",
                  str(tmp_path / "out.h5")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
