@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
@@ -80,3 +82,17 @@ def noise_block(out: str) -> list[str]:
     assert block[3:] == ["  (a) no node poses for a cross-node check",
                          "  (b) two nodes' Dopplers fix each frame's velocity exactly"], block
     return block
+
+
+def mmsnap(*argv: str) -> subprocess.Popen:
+    """``python -m mmsnap_graph ARGV`` started in a child process (text pipes)."""
+    return subprocess.Popen([sys.executable, "-m", "mmsnap_graph", *argv],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def simulated(path: Path, n_frames: int) -> Path:
+    """A clean-model network B random walk of ``n_frames`` centroid frames
+    (seed 2) written to ``path``."""
+    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(n_frames),
+                 "-l", "centroids", "--seed", "2", "-o", str(path), "--no-progress"]) == 0
+    return path

@@ -11,6 +11,7 @@ import pytest
 import h5py
 
 from factors.models import global_to_local
+from _cli import mmsnap, simulated
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.pipeline import (
     cluster_node,
@@ -238,17 +239,6 @@ def test_process_node_wraps_the_ekf_doppler_at_the_chains_unambiguous_speed(monk
     node = rec.nodes["S1"]
     pipeline.process_node(node, rec.frame_period_s)
     assert seen["wrap"] == unambiguous_speed_mps(node.radar)
-
-
-def mmsnap(*argv: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "mmsnap_graph", *argv],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def simulated(path: Path, n_frames: int) -> Path:
-    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(n_frames), "-l",
-                 "centroids", "--seed", "2", "-o", str(path), "--no-progress"]) == 0
-    return path
 
 
 @pytest.fixture()

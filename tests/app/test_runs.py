@@ -2,13 +2,11 @@
 command that fuses (fuse, monitor, replay, the batch's fuse step)."""
 
 import json
-from pathlib import Path
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from _cli import mmsnap, simulated
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.runs import stored_calibration
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
@@ -100,17 +98,6 @@ def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated_c_f
     frame0 = next(f for f, u in expected if len(u))
     _, t0, d0 = next(x for x in recording_frames(aligned, fill_frames=fill) if x[0] == frame0)
     assert not np.allclose(plain.push(t0, d0).covariance, first.covariance)
-
-
-def mmsnap(*argv: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "mmsnap_graph", *argv],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def simulated(path: Path, n_frames: int) -> Path:
-    assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(n_frames), "-l",
-                 "centroids", "--seed", "2", "-o", str(path), "--no-progress"]) == 0
-    return path
 
 
 @pytest.mark.slow
