@@ -55,7 +55,7 @@ except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
 __all__ = ["atomic_path", "check_output_path", "file_kind", "recording_lock",
-           "remove_stale_temporaries", "STALE_TMP_AGE_S", "LOCK_TIMEOUT_S"]
+           "refuse_existing", "remove_stale_temporaries", "STALE_TMP_AGE_S", "LOCK_TIMEOUT_S"]
 
 #: A temporary file of a writer on another host (or of unknown origin) older
 #: than this (s) is taken as left by a killed writer and removed.
@@ -120,6 +120,14 @@ def check_output_path(path: str | os.PathLike) -> Path:
     if not folder.is_dir():
         raise FileFormatError(f"cannot write {path}: folder {folder} does not exist")
     return path
+
+
+def refuse_existing(path: str | os.PathLike, *, overwrite: bool) -> None:
+    """The rule of every file written: an existing ``path`` is replaced only
+    with ``overwrite`` (the command line's ``--overwrite``); else
+    :class:`FileFormatError` naming it."""
+    if not overwrite and os.path.lexists(path):
+        raise FileFormatError(f"{path} exists; pass --overwrite (overwrite=True) to replace it")
 
 
 def _pid_alive(pid: int) -> bool:

@@ -208,3 +208,38 @@ def test_a_planted_lock_fifo_is_refused_without_blocking(tmp_path):
     with pytest.raises(FileFormatError, match="lock file .* is a FIFO, not a regular file"):
         with recording_lock(rec, timeout_s=1):
             pass
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs and device nodes")
+def test_the_library_writers_refuse_a_device_a_fifo_and_links_to_them(tmp_path,
+                                                                      recording_b_file):
+    """The writers outside the command line's options (an HDF5 recording, a
+    DCA1000 capture, a figure) go through atomic_path too: each refused,
+    nothing replaced."""
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    from mmsnap_graph.app.plots import save
+    from mmsnap_graph.io import read_recording, write_recording
+    from mmsnap_graph.io.ti.cfg import read_ti_cfg
+    from mmsnap_graph.io.ti.dca1000 import write_dca1000_bin
+
+    from _shared import TI_DATA
+
+    config = read_ti_cfg(TI_DATA / "dca1000_small.cfg", board="AWR1843BOOST").configs[0]
+    rec = read_recording(recording_b_file)
+    writers = {
+        "recording": lambda p: write_recording(p, rec, overwrite=True),
+        "capture": lambda p: write_dca1000_bin(p, np.zeros((1, *config.cube_shape)), config),
+        "figure": lambda p: save(Figure(figsize=(1, 1)), p),
+    }
+    made = _special_files(tmp_path / "scratch")
+    made.pop("directory")
+    before = {name: _identity(p) for name, p in made.items()}
+    for writer in writers.values():
+        for path in made.values():
+            with pytest.raises(FileFormatError, match="not a regular file"):
+                writer(path)
+    assert {name: _identity(p) for name, p in made.items()} == before
+    assert sorted(p.name for p in (tmp_path / "scratch").iterdir()) == sorted(
+        [p.name for p in made.values()] + ["dir"])

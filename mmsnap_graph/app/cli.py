@@ -18,8 +18,9 @@ Exit codes (:data:`EXIT_OK`, :data:`EXIT_FAILURE`, :data:`EXIT_USAGE`):
 - 2 usage: a bad option (argparse) or option value
   (:data:`USAGE_ERRORS`: a :class:`~mmsnap_graph.errors.ValidationError` or
   :class:`~mmsnap_graph.errors.ConfigurationError` raised for an option),
-  including an output path that is a folder, lies in a missing folder, is
-  one of the command's input files, or exists without ``--overwrite``
+  including an output path that is a folder, a device node, a FIFO or a
+  socket, lies in a missing folder, is one of the command's input files, or
+  exists without ``--overwrite``
   (checked before the command runs: :mod:`mmsnap_graph.app.commands.file_rules`);
 - 141 standard output was closed by its reader (``mmsnap replay ... | head``);
   nothing is printed.
