@@ -99,9 +99,10 @@ def register(subparsers) -> None:
     u = sub.add_parser("ti-uart", help="binary logs of a TI demo's data UART (TLV frames)")
     u.add_argument("--node", action="append", type=named_values("LOG.bin", None), required=True,
                    metavar="NAME=LOG.bin", help="a node's UART log (repeat per node)")
-    u.add_argument("--demo", choices=["oob", "tracking"], default="oob",
-                   help="out-of-box demo (TLVs 1, 7) or 3D people tracking (TLV 1020) "
-                        "(default %(default)s)")
+    u.add_argument("--demo", choices=["auto", "oob", "tracking", "counting"], default="auto",
+                   help="the demo the board ran: detected from the bytes (auto, the default), "
+                        "out-of-box (TLVs 1, 7), 3D People Tracking (TLV 1020) or the legacy "
+                        "3D People Counting (48-byte header, TLV 6)")
     _points_options(u)
     _common(u)
     u.set_defaults(func=run_uart)
@@ -307,17 +308,22 @@ def _points_recording(args, clouds, ti, period, metadata):
 def run_uart(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.ti.uart import read_ti_uart
     period, ti = _timing(args)
-    clouds = {}
+    clouds, demos = {}, set()
     for name, paths in _grouped(args.node).items():
         if len(paths) != 1:
             raise ValidationError(f"--node {name} is given {len(paths)} times; one log per node")
-        log = read_ti_uart(paths[0], demo=args.demo)
+        n_sub = None if ti is None else (ti.n_sub_frames if ti.advanced else 1)
+        log = read_ti_uart(paths[0], demo=args.demo, n_sub_frames=n_sub)
         for bad in log.bad[:10]:
             print(f"{name}: skipped {bad}", file=sys.stderr)
         if len(log.bad) > 10:
             print(f"{name}: ... {len(log.bad) - 10} more bad packets", file=sys.stderr)
+        if log.missing_frames:
+            print(f"{name}: {log.missing_frames} frame number(s) missing between the first and "
+                  "the last (frames the board did not send or the log lost)", file=sys.stderr)
         clouds[name] = log.points
-    rec = _points_recording(args, clouds, ti, period, {"source": f"ti-uart-{args.demo}"})
+        demos.add(log.demo)
+    rec = _points_recording(args, clouds, ti, period, {"source": "ti-uart-" + "+".join(sorted(demos))})
     return _write(args, rec)
 
 
