@@ -26,7 +26,9 @@ Exit codes (:data:`EXIT_OK`, :data:`EXIT_FAILURE`, :data:`EXIT_USAGE`):
   nothing is printed.
 
 Errors are one line on stderr, ``mmsnap VERB: error: ...``; an error of an
-input file names the file. ``-v``/``-q`` set the level of the
+input file names the file. Input that is probably a mistake but may be meant
+(:class:`~mmsnap_graph.errors.MmsnapWarning`) is one line ``mmsnap VERB:
+warning: ...``, and the command goes on. ``-v``/``-q`` set the level of the
 ``mmsnap_graph`` logger (warnings by default).
 """
 
@@ -37,6 +39,7 @@ import importlib
 import logging
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from .commands.file_rules import check_files
@@ -47,6 +50,7 @@ from ..errors import (
     GeometryError,
     MissingStepError,
     MmsnapError,
+    MmsnapWarning,
     ValidationError,
 )
 
@@ -174,6 +178,21 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     configure_logging(args.verbose, args.quiet)
     prefix = f"mmsnap {args.command}: error:"
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", MmsnapWarning)
+        default_show = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if not issubclass(category, MmsnapWarning):
+                return default_show(message, category, filename, lineno, file, line)
+            print(f"mmsnap {args.command}: warning: {_one_line(message)}", file=sys.stderr)
+
+        warnings.showwarning = show
+        return _run(args, prefix)
+
+
+def _run(args: argparse.Namespace, prefix: str) -> int:
+    """``args.func(args)``, its errors as one line and an exit code."""
     try:
         check_files(args)
         return int(args.func(args) or 0)
