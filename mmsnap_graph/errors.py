@@ -15,6 +15,7 @@ __all__ = [
     "CalibrationError",
     "MissingStepError",
     "DeviceError",
+    "MmsnapWarning",
 ]
 
 
@@ -61,3 +62,11 @@ class DeviceError(MmsnapError, ValueError):
     """A board or its serial port does not answer as it should: a port that
     cannot be opened or found, a CLI reply that is not the board's, a data
     port that stays silent."""
+
+
+class MmsnapWarning(UserWarning):
+    """Input that is probably a mistake but may be meant (radians given where
+    degrees are asked, angles all within a degree or two): issued with
+    :func:`warnings.warn`; ``mmsnap`` prints it as ``mmsnap VERB: warning: ...``
+    and goes on. ``warnings.simplefilter("error", MmsnapWarning)`` makes each
+    an error."""
