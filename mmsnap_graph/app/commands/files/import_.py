@@ -18,15 +18,11 @@ from ..arguments import named_values
 
 
 
-<<<<<<< HEAD
-def height_band(text: str) -> tuple[float, float]:
-=======
 #: ``--time-unit`` choices, each 1000 times finer than the one before.
 TIME_UNITS = ("s", "ms", "us", "ns")
 
 
-def _band(text: str) -> tuple[float, float]:
->>>>>>> main
+def height_band(text: str) -> tuple[float, float]:
     try:
         low, high = (float(v) for v in text.split(","))
     except ValueError:
