@@ -22,6 +22,7 @@ import re
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -111,7 +112,9 @@ def _clean_copy(dest: Path) -> Path:
 
 def _run(lang: str, body: str, cwd: Path, env: dict, page: str) -> None:
     argv = ["bash", "-euo", "pipefail", "-c", body] if lang == "bash" else ["python", "-c", body]
+    start = time.perf_counter()
     done = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=1200)
+    print(f"{time.perf_counter() - start:6.1f} s  {page}: {body.splitlines()[0][:70]}")
     assert done.returncode == 0, (f"{page} block failed (exit {done.returncode}):\n{body}\n"
                                   f"stdout: {done.stdout[-3000:]}\nstderr: {done.stderr[-3000:]}")
 
@@ -120,7 +123,9 @@ def _run(lang: str, body: str, cwd: Path, env: dict, page: str) -> None:
 def test_readme_and_ti_page_run_as_written_after_pip_install(tmp_path):
     repo = _clean_copy(tmp_path / "repo")
     venv = tmp_path / "venv"
+    start = time.perf_counter()
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    print(f"{time.perf_counter() - start:6.1f} s  python -m venv")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     env["PATH"] = f"{venv / 'bin'}{os.pathsep}{env['PATH']}"
     env["VIRTUAL_ENV"] = str(venv)
