@@ -14,6 +14,7 @@ __all__ = [
     "FileFormatError",
     "CalibrationError",
     "MissingStepError",
+    "MmsnapWarning",
 ]
 
 
@@ -54,3 +55,11 @@ class MissingStepError(CalibrationError):
         super().__init__(message)
         self.step = step
         self.what = message if what is None else what
+
+
+class MmsnapWarning(UserWarning):
+    """Input that is probably a mistake but may be meant (radians given where
+    degrees are asked, angles all within a degree or two): issued with
+    :func:`warnings.warn`; ``mmsnap`` prints it as ``mmsnap VERB: warning: ...``
+    and goes on. ``warnings.simplefilter("error", MmsnapWarning)`` makes each
+    an error."""

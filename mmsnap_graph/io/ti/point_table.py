@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import os
+import warnings
 import zipfile
 from pathlib import Path
 from typing import Any, Literal, Mapping
@@ -26,13 +27,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.projection import spherical_to_cartesian
-from ...errors import FileFormatError, ValidationError
+from ...errors import FileFormatError, MmsnapWarning, ValidationError
 from .csv_columns import plain_csv_columns
 from .inputs import require_file
 from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
-__all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "read_point_table", "read_point_tables",
-           "csv_text_columns"]
+__all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "SNR_UNITS", "read_point_table",
+           "read_point_tables", "csv_text_columns"]
 
 CARTESIAN_COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
 SPHERICAL_COLUMNS = ("range_m", "azimuth_rad", "elevation_rad", "doppler_mps")
@@ -48,12 +49,21 @@ _ALIASES = {
     "snr_db": ("snr_db", "snr"), "noise_db": ("noise_db", "noise"),
     "node": ("node", "sensor", "radar"),
 }
-_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: Per column, the largest magnitude a radar point can have (a corrupted cell).
 _LIMITS = {"x_m": MAX_COORDINATE_M, "y_m": MAX_COORDINATE_M, "z_m": MAX_COORDINATE_M,
            "range_m": MAX_COORDINATE_M, "doppler_mps": MAX_SPEED_MPS}
 #: Time stamps beyond this (about 31,700 years) are not a clock (a bad cell).
 _MAX_TIME_S = 1e12
+#: The SNR column's units: dB, TI's side-info steps of 0.1 dB (the mmWave
+#: SDK's TLV 7 and its example parser's CSV), or a linear power ratio (the
+#: people-tracking demos' point cloud).
+SNR_UNITS = ("db", "0.1db", "linear")
+#: No TI radar reports SNRs this high in dB (the real recordings in
+#: data/real/darksz: median 15-20 dB, at most 51 dB): a median or largest
+#: value beyond these is an SNR in another unit.
+MAX_MEDIAN_SNR_DB = 60.0
+MAX_SNR_DB = 120.0
 
 
 def _read_csv(path: Path) -> dict[str, NDArray]:
@@ -344,8 +354,50 @@ def _node_names(column: NDArray, name: str, where: "_Rows") -> NDArray:
     return text
 
 
+def _angles(get, degrees: bool, name: str, rows: NDArray, where: _Rows) -> tuple[NDArray, NDArray]:
+    """The azimuth and elevation columns in radians: a value beyond +-pi read
+    as radians is an error naming ``degrees``; with ``degrees``, angles that
+    all lie within +-pi/2 degrees (a radar sees tens of degrees) warn."""
+    az, el = get("azimuth_rad"), get("elevation_rad")
+    if not degrees:
+        for key, values in (("azimuth_rad", az), ("elevation_rad", el)):
+            if values.size and np.max(np.abs(values)) > np.pi:
+                j = int(np.argmax(np.abs(values)))
+                raise FileFormatError(
+                    f"{name}: column {key} holds {float(values[j])!r} at {where(rows[j])}, "
+                    "beyond +-pi: not an angle in radians; degrees? (degrees=True, mmsnap "
+                    "import table --degrees)")
+        return az, el
+    if az.size >= 10 and max(np.max(np.abs(az)), np.max(np.abs(el))) <= np.pi / 2:
+        warnings.warn(f"{name}: every azimuth and elevation lies within +-{np.pi / 2:.4g} "
+                      "degrees, read as degrees (degrees=True, --degrees): radians? a radar "
+                      "sees tens of degrees", MmsnapWarning, stacklevel=4)
+    return np.deg2rad(az), np.deg2rad(el)
+
+
+def _snr(values: NDArray, unit: str, name: str) -> NDArray:
+    """The SNR column in dB from ``unit``; values beyond any radar's SNR in
+    dB are an error naming the units it may be in."""
+    if unit == "0.1db":
+        values = values * 0.1
+    elif unit == "linear":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            values = np.where(values > 0, 10.0 * np.log10(values), np.nan)
+    finite = values[np.isfinite(values)]
+    if finite.size and (np.median(finite) > MAX_MEDIAN_SNR_DB or finite.max() > MAX_SNR_DB):
+        raise FileFormatError(
+            f"{name}: column snr holds SNRs up to {finite.max():.6g} dB (median "
+            f"{np.median(finite):.6g} dB) read as snr_unit={unit!r}, beyond any radar's "
+            f"(TI's boards: a median below {MAX_MEDIAN_SNR_DB:g} dB, at most about "
+            f"{MAX_SNR_DB:g} dB); TI's side info counts steps of 0.1 dB (snr_unit='0.1db', "
+            "mmsnap import table --snr-unit 0.1db), the people-tracking demos a linear ratio "
+            "(--snr-unit linear)")
+    return values
+
+
 def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, degrees: bool,
-           time_unit: str, frame_period_s: float | None, where: _Rows) -> PointCloud3D:
+           time_unit: str, snr_unit: str, frame_period_s: float | None,
+           where: _Rows) -> PointCloud3D:
     get = lambda k: _checked(_float(cols, k, name, where)[rows], k, rows, name, where)
     time = get("time_s") * _TIME_UNITS[time_unit] if "time_s" in cols else None
     if time is not None and time.size and np.max(np.abs(time)) > _MAX_TIME_S:
@@ -360,10 +412,13 @@ def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, degrees: bool,
     if kind == "cartesian":
         x, y, z = get("x_m"), get("y_m"), get("z_m")
     else:
-        scale = np.pi / 180.0 if degrees else 1.0
-        x, y, z = spherical_to_cartesian(get("range_m"), get("azimuth_rad") * scale,
-                                         get("elevation_rad") * scale).T
+        x, y, z = spherical_to_cartesian(get("range_m"),
+                                         *_angles(get, degrees, name, rows, where)).T
     opt = {k: get(k) for k in ("snr_db", "noise_db") if k in cols}
+    if "snr_db" in opt:
+        opt["snr_db"] = _snr(opt["snr_db"], snr_unit, name)
+    if "noise_db" in opt and snr_unit == "0.1db":     # the same side info
+        opt["noise_db"] = opt["noise_db"] * 0.1
     try:
         return PointCloud3D(frame=frame, x_m=x, y_m=y, z_m=z, doppler_mps=get("doppler_mps"),
                             time_s=time, **opt)
@@ -374,14 +429,19 @@ def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, degrees: bool,
 def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
                                                            "spherical"] = "auto",
                       columns: Mapping[str, str] | None = None, degrees: bool = False,
-                      time_unit: Literal["s", "ms", "us"] = "s",
+                      time_unit: Literal["s", "ms", "us", "ns"] = "s",
                       frame_period_s: float | None = None,
-                      default_node: str = "S1") -> dict[str, PointCloud3D]:
+                      default_node: str = "S1",
+                      snr_unit: Literal["db", "0.1db", "linear"] = "db"
+                      ) -> dict[str, PointCloud3D]:
     """Read a point table (module docstring) into node name -> cloud.
 
     coordinates : which columns to use (``"auto"``: Cartesian if present,
     else spherical). columns : renames, e.g. ``{"Doppler": "doppler_mps"}``.
-    degrees : angles are in degrees. time_unit : of the time-stamp column.
+    degrees : angles are in degrees (an angle beyond +-pi without it is an
+    error; with it, angles all within +-pi/2 warn). time_unit : of the
+    time-stamp column. snr_unit : of the SNR column (:data:`SNR_UNITS`; SNRs
+    beyond any radar's in dB are an error).
     frame_period_s : numbers frames from time stamps as ``round((t - t0) /
     frame_period_s)`` when there is no frame column (else the distinct time
     stamps are numbered in order). default_node : the node of a table
@@ -395,6 +455,8 @@ def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
                               "'spherical'")
     if time_unit not in _TIME_UNITS:
         raise ValidationError(f"time_unit={time_unit!r} must be one of {sorted(_TIME_UNITS)}")
+    if snr_unit not in SNR_UNITS:
+        raise ValidationError(f"snr_unit={snr_unit!r} must be one of {list(SNR_UNITS)}")
     if frame_period_s is not None and not (isinstance(frame_period_s, (int, float))
                                            and np.isfinite(frame_period_s)
                                            and frame_period_s > 0):
@@ -408,7 +470,7 @@ def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
                               f"stamp (time_s) is needed (columns present: {present})")
     kind = _kind(cols, coordinates, name, present)
     n = len(next(iter(raw.values())))
-    opts = dict(name=name, degrees=degrees, time_unit=time_unit,
+    opts = dict(name=name, degrees=degrees, time_unit=time_unit, snr_unit=snr_unit,
                 frame_period_s=frame_period_s, where=_Rows(source))
     if "node" not in cols:
         return {default_node: _cloud(cols, np.arange(n), kind, **opts)}

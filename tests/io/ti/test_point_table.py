@@ -384,3 +384,47 @@ def test_csv_reader_raises_only_project_errors(tmp_path_factory, lines):
         read_point_table(path)
     except MmsnapError:
         pass
+
+
+def _spherical(az, el, **extra):
+    n = len(az)
+    return pd.DataFrame({"frame": np.arange(n) // 2, "range": np.linspace(1, 4, n),
+                         "azimuth": az, "elevation": el, "doppler": 0.1, **extra})
+
+
+def test_spherical_degrees_read_as_radians_are_an_error():
+    rng = np.random.default_rng(3)
+    az, el = rng.uniform(-60, 60, 20), rng.uniform(-15, 15, 20)
+    with pytest.raises(FileFormatError, match=r"column azimuth_rad holds -?\d.* at row \d+, beyond "
+                                              r"\+-pi: not an angle in radians; degrees\? "
+                                              r"\(degrees=True, mmsnap import table --degrees\)"):
+        read_point_table(_spherical(az, el))
+    cloud = read_point_table(_spherical(az, el), degrees=True)
+    np.testing.assert_allclose(cloud.points_xyz, spherical_to_cartesian(
+        np.linspace(1, 4, 20), np.deg2rad(az), np.deg2rad(el)), atol=1e-12)
+
+
+def test_radians_read_as_degrees_warn():
+    from mmsnap_graph.errors import MmsnapWarning
+    rng = np.random.default_rng(4)
+    az, el = rng.uniform(-1.0, 1.0, 20), rng.uniform(-0.3, 0.3, 20)      # radians
+    with pytest.warns(MmsnapWarning, match=r"every azimuth and elevation lies within \+-1.571 "
+                                           r"degrees, read as degrees"):
+        read_point_table(_spherical(az, el), degrees=True)
+    read_point_table(_spherical(az, el))                                  # no warning
+
+
+@pytest.mark.parametrize("unit, scale", [("0.1db", lambda s: 10 * s),
+                                         ("linear", lambda s: 10 ** (s / 10))])
+def test_snr_in_another_unit_is_named_and_read(unit, scale):
+    df = _table()                                 # SNRs of 5-25 dB
+    written = df.assign(snr=scale(df["snr"]))
+    if unit == "0.1db":
+        with pytest.raises(FileFormatError, match=r"column snr holds SNRs up to 2\d\d\.\d+ dB .*"
+                                                  r"snr_unit='0.1db', mmsnap import table "
+                                                  r"--snr-unit 0.1db"):
+            read_point_table(written)
+    np.testing.assert_allclose(read_point_table(written, snr_unit=unit).snr_db, df["snr"],
+                               rtol=1e-12)
+    with pytest.raises(ValidationError, match="snr_unit='dbm' must be one of"):
+        read_point_table(df, snr_unit="dbm")

@@ -17,7 +17,7 @@ from mmsnap_graph.io.ti.dca1000 import frame_bytes
 from mmsnap_graph.io.ti.cfg import parse_ti_cfg
 from mmsnap_graph.app.evaluation import evaluate_recording
 
-from _shared import TI_DATA, csv_lines, replace_cell
+from _shared import DATA, TI_DATA, csv_lines, replace_cell
 from _fuzz import CLI_FUZZ, one_line_data_error
 from ti_samples import (
     MOUNTS,
@@ -29,6 +29,24 @@ from ti_samples import (
 )
 
 SENSOR_CSV = TI_DATA / "points_sensor_frame.csv"
+#: The real recordings' point tables (data/real/darksz/README.md: room frame, 20 fps).
+REAL = DATA / "real" / "darksz"
+#: How data/real/darksz/README.md imports the multiple-tracking recording.
+REAL_MOUNTING = ("--frame-period", "0.05", "--mount", "S1=0.8,0", "--mount", "S2=1.1,0",
+                 "--height-band", "0.2,2.0")
+
+
+def _real_table(tmp_path, node="S1", change=None, header=None, name=None):
+    """A real table (multiple tracking) with ``change(cells)`` applied to each
+    row (the columns frame, time_s, x_m, y_m, z_m, doppler_mps, snr_db) and
+    ``header`` in place of its header line."""
+    lines = (REAL / f"multiple_tracking_{node}.csv").read_text().splitlines()
+    rows = [line.split(",") for line in lines[1:]]
+    if change is not None:
+        rows = [change(cells) for cells in rows]
+    path = tmp_path / (name or f"{node}.csv")
+    path.write_text("\n".join([header or lines[0]] + [",".join(r) for r in rows]) + "\n")
+    return path
 
 
 def _import_table(tmp_path, *extra, table=SENSOR_CSV):
@@ -85,6 +103,69 @@ def test_period_merging_stamps_of_a_table_without_frames(tmp_path, capsys):
     assert "--frame-period=1 s merges distinct time stamps 0.05 s apart" in \
         capsys.readouterr().err
     assert _import_table(tmp_path, "--frame-period", "0.05", table=path) == 0
+
+
+def test_real_stamps_in_milliseconds_name_the_time_unit(tmp_path, capsys):
+    """Relative stamps in ms without a frame column were read as seconds:
+    frames 0-643000 (32150 s), then no centroid; now a unit error."""
+    to_ms = lambda c: [str(int(c[0]) * 50)] + c[2:]       # time in ms, no frame column
+    paths = [_real_table(tmp_path, node, to_ms, header="time,x,y,z,doppler,snr")
+             for node in ("S1", "S2")]
+    argv = ["import", "table", "--node", f"S1={paths[0]}", "--node", f"S2={paths[1]}",
+            *REAL_MOUNTING, "--room-pose", "S1=0,0,0", "--room-pose", "S2=1.7,1.65,90",
+            "-o", str(tmp_path / "ms.h5")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "a median 1000 frames" in err and "give --time-unit ms" in err
+    assert main(argv + ["--time-unit", "ms"]) == 0
+    assert "S2: 3346 points in 642 frames" in capsys.readouterr().out
+
+
+def _real_spherical_degrees(tmp_path, node, room_pose_deg, height_m):
+    """A real table taken back to its sensor frame, as TI's spherical points
+    (range, azimuth, elevation) in degrees."""
+    from factors.projection import cartesian_to_spherical, room_to_sensor
+    table = np.genfromtxt(REAL / f"multiple_tracking_{node}.csv", delimiter=",", names=True)
+    pose = [room_pose_deg[0], room_pose_deg[1], np.deg2rad(room_pose_deg[2])]
+    xyz = room_to_sensor(np.column_stack([table["x_m"], table["y_m"], table["z_m"]]), pose,
+                         height_m, 0.0)
+    r, az, el = cartesian_to_spherical(xyz)
+    rows = [f"{int(f)},{a:.6f},{b:.4f},{c:.4f},{v}" for f, a, b, c, v in
+            zip(table["frame"], r, np.degrees(az), np.degrees(el), table["doppler_mps"])]
+    path = tmp_path / f"spherical_{node}.csv"
+    path.write_text("\n".join(["frame,range,azimuth,elevation,doppler", *rows]) + "\n")
+    return path
+
+
+def test_real_spherical_angles_in_degrees_need_the_flag(tmp_path, capsys):
+    """Degrees read as radians were accepted (calibrate then failed about target
+    ids); an angle beyond +-pi is now an error naming --degrees."""
+    s1 = _real_spherical_degrees(tmp_path, "S1", (0, 0, 0), 0.8)
+    s2 = _real_spherical_degrees(tmp_path, "S2", (1.7, 1.65, 90), 1.1)
+    argv = ["import", "table", "--node", f"S1={s1}", "--node", f"S2={s2}", *REAL_MOUNTING,
+            "-o", str(tmp_path / "sph.h5")]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "beyond +-pi: not an angle in radians; degrees?" in err and "--degrees" in err
+    assert main(argv + ["--degrees"]) == 0
+    out, err = capsys.readouterr()
+    assert "S2: 3346 points in 642 frames" in out and "warning" not in err
+
+
+def test_real_snr_in_tenths_of_a_db_is_named(tmp_path, capsys):
+    """TI's side info counts 0.1 dB: read as dB, SNRs of 112-512 'dB' were kept
+    without a word; now an error naming --snr-unit."""
+    tenths = lambda c: c[:6] + [f"{float(c[6]) * 10:.0f}"]
+    path = _real_table(tmp_path, "S1", tenths)
+    argv = ["import", "table", "--node", f"S1={path}", "--frame-period", "0.05", "-o",
+            str(tmp_path / "snr.h5")]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "column snr holds SNRs up to 512 dB (median 182 dB)" in err
+    assert "--snr-unit 0.1db" in err
+    assert main(argv + ["--snr-unit", "0.1db"]) == 0
+    snr = read_recording(tmp_path / "snr.h5").nodes["S1"].point_cloud.snr_db
+    assert 11 <= np.nanmin(snr) and np.nanmax(snr) <= 52
 
 
 def test_huge_time_stamp_is_a_clear_error(tmp_path, capsys):
