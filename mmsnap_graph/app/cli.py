@@ -46,6 +46,7 @@ from .commands.file_rules import check_files
 from ..errors import (
     CalibrationError,
     ConfigurationError,
+    DeviceError,
     FileFormatError,
     GeometryError,
     MissingStepError,
@@ -57,7 +58,7 @@ from ..errors import (
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
 COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate",
                        "files.import_", "batch", "replay", "monitor", "noise", "files.info",
-                       "files.export"]
+                       "files.export", "boards.record"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -71,7 +72,7 @@ STEP_OPTIONS = {"fuse": "--calibration", "replay": "--calibration", "noise": "--
                 "evaluate": "--calibration", "monitor": "--poses"}
 
 #: Errors of the data (an input file, an estimation): exit 1.
-DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError)
+DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError, DeviceError)
 #: Errors of an option value: exit 2.
 USAGE_ERRORS = (ValidationError, ConfigurationError)
 

@@ -40,7 +40,7 @@ OUTPUT_FILE_OPTIONS: dict[str, tuple[str, ...]] = {
     "process": ("output",), "fuse": ("output",), "calibrate": ("json_out", "output"),
     "simulate": ("output",), "replay": ("output",), "import": ("output",),
     "noise": ("output",), "monitor": ("json_out",), "batch": ("json_out",),
-    "export": ("output",),
+    "export": ("output",), "record": ("output",), "live": ("output", "record"),
 }
 
 #: Options that are glob patterns of input files (``mmsnap batch``).
