@@ -16,7 +16,8 @@ reached by each command's own form (``--json``, ``mmsnap export`` without
 ``-o``), not by ``/dev/stdout``. A symlink to a regular file is followed: the
 file it names is replaced, the link stays.
 
-Temporary files are named ``.<name>.<pid>@<host>.<random>.tmp``. A writer
+Temporary files are named ``.<name>.<pid>@<host>.<random>.tmp``, and so are
+the scratch folders of long writes (:func:`scratch_folder`). A writer
 killed with ``kill -9`` cannot remove its own; the next write of the same
 file removes the stale ones (:func:`remove_stale_temporaries`): those of a
 process of this host that no longer runs, and any older than
@@ -39,6 +40,7 @@ import errno
 import logging
 import os
 import re
+import shutil
 import socket
 import stat
 import tempfile
@@ -55,7 +57,7 @@ except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
 __all__ = ["atomic_path", "check_output_path", "file_kind", "recording_lock",
-           "refuse_existing", "remove_stale_temporaries", "STALE_TMP_AGE_S", "LOCK_TIMEOUT_S"]
+           "refuse_existing", "remove_stale_temporaries", "scratch_folder", "STALE_TMP_AGE_S", "LOCK_TIMEOUT_S"]
 
 #: A temporary file of a writer on another host (or of unknown origin) older
 #: than this (s) is taken as left by a killed writer and removed.
@@ -142,9 +144,9 @@ def _pid_alive(pid: int) -> bool:
 
 def remove_stale_temporaries(path: str | os.PathLike, *,
                              max_age_s: float = STALE_TMP_AGE_S) -> list[Path]:
-    """Remove the temporary files a killed writer of ``path`` left beside it
-    (module docstring); returns the paths removed. Files of a live writer
-    are kept."""
+    """Remove the temporary files and scratch folders (:func:`scratch_folder`)
+    a killed writer of ``path`` left beside it (module docstring); returns
+    the paths removed. Those of a live writer are kept."""
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
     removed = []
@@ -152,16 +154,36 @@ def remove_stale_temporaries(path: str | os.PathLike, *,
     for tmp in folder.glob(f".{glob_escape(path.name)}.*.tmp"):
         owner = _TMP_OWNER.search(tmp.name)
         try:
-            age = now - tmp.stat().st_mtime
+            age = now - tmp.lstat().st_mtime
         except FileNotFoundError:
             continue
         dead = owner is not None and owner.group(2) == _HOST and not _pid_alive(int(owner.group(1)))
         if dead or age > max_age_s:
-            with contextlib.suppress(FileNotFoundError, IsADirectoryError, PermissionError):
-                tmp.unlink()
+            with contextlib.suppress(FileNotFoundError, PermissionError):
+                if tmp.is_dir() and not tmp.is_symlink():
+                    shutil.rmtree(tmp)
+                else:
+                    tmp.unlink()
                 removed.append(tmp)
                 _log.info("removed %s, left by an interrupted write", tmp)
     return removed
+
+
+@contextlib.contextmanager
+def scratch_folder(path: str | os.PathLike) -> Iterator[Path]:
+    """A scratch folder for the writer of ``path``, beside it (not in
+    ``$TMPDIR``), named as its temporary files are: removed when the block
+    ends, and, when a ``kill -9`` left it, by the next write of ``path``
+    (:func:`remove_stale_temporaries`)."""
+    path = Path(os.path.realpath(path))
+    folder = path.parent
+    remove_stale_temporaries(path)
+    scratch = tempfile.mkdtemp(prefix=f".{path.name}.{os.getpid()}@{_HOST}.", suffix=".tmp",
+                               dir=folder)
+    try:
+        yield Path(scratch)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def glob_escape(name: str) -> str:

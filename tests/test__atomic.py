@@ -243,3 +243,25 @@ def test_the_library_writers_refuse_a_device_a_fifo_and_links_to_them(tmp_path,
     assert {name: _identity(p) for name, p in made.items()} == before
     assert sorted(p.name for p in (tmp_path / "scratch").iterdir()) == sorted(
         [p.name for p in made.values()] + ["dir"])
+
+
+def test_scratch_folders_of_killed_writers_are_removed_by_the_next_write(tmp_path):
+    """Before: a scratch folder a kill -9 left beside the output (mmsnap
+    simulate's memory-mapped cubes: gigabytes) stayed for ever; only files
+    were removed."""
+    from mmsnap_graph._atomic import _HOST, scratch_folder
+
+    target = tmp_path / "sim.h5"
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    left = tmp_path / f".sim.h5.{dead.pid}@{_HOST}.abc.tmp"
+    (left / "inner").mkdir(parents=True)
+    (left / "inner" / "cube_S1.c64").write_bytes(b"\0" * 64)
+    with scratch_folder(target) as scratch:
+        assert scratch.parent == tmp_path and scratch.name.startswith(".sim.h5.")
+        assert not left.exists()
+        (scratch / "cube").write_bytes(b"x")
+        with atomic_path(target) as tmp:  # the writer's own scratch is kept meanwhile
+            tmp.write_bytes(b"h5")
+        assert scratch.is_dir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.h5"]
