@@ -14,6 +14,7 @@ __all__ = [
     "FileFormatError",
     "CalibrationError",
     "MissingStepError",
+    "DeviceError",
     "MmsnapWarning",
 ]
 
@@ -55,6 +56,12 @@ class MissingStepError(CalibrationError):
         super().__init__(message)
         self.step = step
         self.what = message if what is None else what
+
+
+class DeviceError(MmsnapError, ValueError):
+    """A board or its serial port does not answer as it should: a port that
+    cannot be opened or found, a CLI reply that is not the board's, a data
+    port that stays silent."""
 
 
 class MmsnapWarning(UserWarning):

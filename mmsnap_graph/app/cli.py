@@ -18,8 +18,9 @@ Exit codes (:data:`EXIT_OK`, :data:`EXIT_FAILURE`, :data:`EXIT_USAGE`):
 - 2 usage: a bad option (argparse) or option value
   (:data:`USAGE_ERRORS`: a :class:`~mmsnap_graph.errors.ValidationError` or
   :class:`~mmsnap_graph.errors.ConfigurationError` raised for an option),
-  including an output path that is a folder, lies in a missing folder, is
-  one of the command's input files, or exists without ``--overwrite``
+  including an output path that is a folder, a device node, a FIFO or a
+  socket, lies in a missing folder, is one of the command's input files, or
+  exists without ``--overwrite``
   (checked before the command runs: :mod:`mmsnap_graph.app.commands.file_rules`);
 - 141 standard output was closed by its reader (``mmsnap replay ... | head``);
   nothing is printed.
@@ -45,6 +46,7 @@ from .commands.file_rules import check_files
 from ..errors import (
     CalibrationError,
     ConfigurationError,
+    DeviceError,
     FileFormatError,
     GeometryError,
     MissingStepError,
@@ -56,7 +58,7 @@ from ..errors import (
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
 COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate",
                        "files.import_", "batch", "replay", "monitor", "noise", "files.info",
-                       "files.export"]
+                       "files.export", "boards.record"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -70,7 +72,7 @@ STEP_OPTIONS = {"fuse": "--calibration", "replay": "--calibration", "noise": "--
                 "evaluate": "--calibration", "monitor": "--poses"}
 
 #: Errors of the data (an input file, an estimation): exit 1.
-DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError)
+DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError, DeviceError)
 #: Errors of an option value: exit 2.
 USAGE_ERRORS = (ValidationError, ConfigurationError)
 

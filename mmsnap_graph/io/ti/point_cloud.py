@@ -382,12 +382,16 @@ def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_per
                                 mounting: Mounting | Mapping[str, Mounting] = Mounting(),
                                 height_band_m: tuple[float, float] | None = None,
                                 poses: Mapping[str, ArrayLike] | None = None,
-                                metadata: Mapping[str, Any] | None = None) -> Recording:
+                                metadata: Mapping[str, Any] | None = None,
+                                common_frames: bool = False) -> Recording:
     """A :class:`Recording` with a point-cloud level per node.
 
     clouds : node name -> its cloud, in node order (first = S1).
     mounting : one :class:`Mounting` for all nodes or one per node.
     poses : known 2D node poses (e.g. surveyed), if any.
+    common_frames : the clouds' frame numbers are already on one clock, counted
+    from the recording's start (live boards stamped by the host,
+    :mod:`.serial.timing`): kept as they are.
     """
     if not clouds:
         raise ValidationError("clouds must name at least one node")
@@ -395,7 +399,10 @@ def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_per
     if not (np.isfinite(fp) and fp > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
     _no_twins(clouds)
-    aligned, md = _frame_offsets(clouds, fp)
+    if common_frames:
+        aligned, md = dict(clouds), {"frame_clock": "host"}
+    else:
+        aligned, md = _frame_offsets(clouds, fp)
     nodes = {}
     for name, cloud in aligned.items():
         mount = mounting[name] if isinstance(mounting, Mapping) else mounting

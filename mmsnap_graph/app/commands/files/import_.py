@@ -16,17 +16,13 @@ from mmsnap_graph.errors import ValidationError
 
 from ..arguments import named_values
 
-#: A layout for reading only the timing of a ``.cfg`` (point-cloud imports):
-#: every transmitter at the same place, so any Tx subset forms a valid array.
-_TIMING_ONLY = dict(name="timing only", tx_azimuth_half_wl=(0.0,) * 16,
-                    tx_elevation_half_wl=(0.0,) * 16, rx_azimuth_half_wl=tuple(range(8)))
 
 
 #: ``--time-unit`` choices, each 1000 times finer than the one before.
 TIME_UNITS = ("s", "ms", "us", "ns")
 
 
-def _band(text: str) -> tuple[float, float]:
+def height_band(text: str) -> tuple[float, float]:
     try:
         low, high = (float(v) for v in text.split(","))
     except ValueError:
@@ -53,7 +49,7 @@ def _points_options(p: argparse.ArgumentParser) -> None:
                    help="the points of this node are in a room frame made with this nominal "
                         "mounting pose (heading PHI in degrees) (with --mount's height and tilt); they are taken back "
                         "to the sensor frame")
-    p.add_argument("--height-band", type=_band, default=None,
+    p.add_argument("--height-band", type=height_band, default=None,
                    metavar="LOW_M,HIGH_M",
                    help="keep points between these heights above the floor (drops floor and "
                         "ceiling points)")
@@ -256,8 +252,8 @@ def _timing(args):
     _check_point_options(args)
     ti = None
     if args.cfg is not None:
-        from mmsnap_graph.io.ti.cfg import BoardLayout
-        ti = _read_cfg(args, layout=BoardLayout(**_TIMING_ONLY))
+        from mmsnap_graph.io.ti.cfg import TIMING_ONLY_LAYOUT
+        ti = _read_cfg(args, layout=TIMING_ONLY_LAYOUT)
     period = args.frame_period if args.frame_period is not None else (
         ti.configs[0].frame_period_s if ti is not None else None)
     if period is None:
