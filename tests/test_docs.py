@@ -313,7 +313,10 @@ def test_the_walkthrough_has_every_kind_of_sample():
     assert ["import", "table"] in firsts and ["import", "ti-uart"] in firsts
     assert ["import", "dca1000"] in firsts
     outputs = [block[0][block[0].index("-o") + 1] for block in BLOCKS]
-    assert "fast.h5" in outputs                           # the target beyond +-v_max
+    assert "ti_walk/fast.h5" in outputs                   # the target beyond +-v_max
+    # every block writes into the scratch folder and can run again
+    assert all(o.startswith("ti_walk/") for o in outputs)
+    assert all("--overwrite" in block[0] for block in BLOCKS)
     verbs = [cmd[0] for block in BLOCKS for cmd in block]
     assert {"process", "calibrate", "fuse"} <= set(verbs)
 
@@ -321,6 +324,7 @@ def test_the_walkthrough_has_every_kind_of_sample():
 @pytest.fixture()
 def scratch(tmp_path, monkeypatch):
     shutil.copytree(TI_DATA, tmp_path / "data" / "ti")
+    (tmp_path / "ti_walk").mkdir()              # the blocks' `mkdir -p ti_walk`
     monkeypatch.chdir(tmp_path)
     return tmp_path
 
@@ -379,18 +383,17 @@ def test_the_fast_target_stays_aliased_without_dealiasing(scratch):
 
 
 def test_the_stone_soup_block_runs_and_prints_what_the_page_says(scratch, capsys):
-    """The page's Stone Soup tracker (after ``pip install ".[stonesoup]"``)
-    on the CSV walkthrough's ``table.h5``."""
+    """The Stone Soup how-to's tracker (after ``pip install -e ".[stonesoup]"``)
+    on the CSV walkthrough's ``ti_walk/table.h5``."""
     pytest.importorskip("stonesoup")
-    text = TI_MD.read_text()
-    section = text.split("## Handing the fused states to a tracker (Stone Soup)", 1)[1]
-    section = section.split("\n## ", 1)[0]
-    assert 'pip install ".[stonesoup]"' in section
+    section = (ROOT / "docs" / "how-to" / "stonesoup.md").read_text()
+    assert 'pip install -e ".[stonesoup]"' in section
     (code,) = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    assert 'read_fused("ti_walk/table.h5")' in code
     for argv in BLOCKS[0]:
         assert main(argv) == 0
     capsys.readouterr()
-    exec(compile(code, "TI.md", "exec"), {"__name__": "__main__"})
+    exec(compile(code, "stonesoup.md", "exec"), {"__name__": "__main__"})
     out = capsys.readouterr().out
     n, x, y = re.search(r"It prints (\d+) track states \(the last at x ([-0-9.]+) m, "
                         r"y ([-0-9.]+) m\)", section).groups()

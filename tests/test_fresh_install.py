@@ -1,13 +1,18 @@
-"""README.md and docs/TI.md as a new user meets them: a fresh virtual
-environment, ``pip install .`` from a clean copy of the repository (the
-README's first command, as written), then every ``bash`` and ``python`` block
-of both pages, as written, in order.
+"""README.md and the documentation site as a new user meets them: a fresh
+virtual environment, ``pip install .`` from a clean copy of the repository
+(the README's first command, as written), then every ``bash`` and ``python``
+block of the README and of every page of the site, as written, in the site's
+order (``mkdocs.yml``'s nav: a how-to may use the file a tutorial made).
 
 Fenced blocks without a language (templates naming a user's own files,
 formulas, output) are not run; a page's runnable blocks are fenced ``bash`` or
-``python``. The README's test command (this suite) is not run from inside it.
-Slow: it installs the package and its dependencies (from pip's cache when
-there is one) and runs the demo and the tour.
+``python``. The README's test command (this suite) is not run from inside it,
+and a block already run word for word (the set-up commands, repeated on the
+getting-started page) is not run again. The blocks write only into scratch
+folders that git ignores, and every output file is written with
+``--overwrite`` so that a block runs again. Slow: it installs the package and
+its dependencies (from pip's cache when there is one) and runs the demo and
+the tours.
 """
 
 from __future__ import annotations
@@ -17,13 +22,33 @@ import re
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from _shared import ROOT
 
-PAGES = ("README.md", "docs/TI.md")
+import yaml
+
+#: The folders the blocks may create in the repository's root (git ignores them).
+SCRATCH = {"tour", "sim", "ti_walk", "mmsnap_demo_out"}
+
+
+def _nav_pages(node) -> list[str]:
+    if isinstance(node, str):
+        return [node]
+    if isinstance(node, list):
+        return [f for item in node for f in _nav_pages(item)]
+    if isinstance(node, dict):
+        return [f for value in node.values() for f in _nav_pages(value)]
+    return []
+
+
+def pages(root: Path = ROOT) -> list[str]:
+    """README.md, then every hand-written page of the site in nav order."""
+    nav = _nav_pages(yaml.safe_load((root / "mkdocs.yml").read_text())["nav"])
+    return ["README.md"] + [f"docs/{p}" for p in nav if (root / "docs" / p).is_file()]
 
 
 def runnable_blocks(text: str) -> list[tuple[str, str]]:
@@ -38,6 +63,38 @@ def test_runnable_blocks_are_found():
     assert blocks == [("bash", "mmsnap demo\n"), ("python", "import numpy\n")]
     assert any("pip install ." in body for _, body in runnable_blocks((ROOT / "README.md")
                                                                       .read_text()))
+
+
+def test_every_page_of_the_site_is_run():
+    found = pages()
+    assert found[0] == "README.md" and "docs/TI.md" in found
+    assert "docs/tutorials/real-recordings.md" in found and len(found) >= 15
+
+
+_OUTPUT = re.compile(r"(?:^|\s)(?:-o|--output|--out|--json-out)\s+(\S+)")
+
+
+def _commands(body: str) -> list[str]:
+    return [line for line in body.replace("\\\n", " ").splitlines()
+            if line.strip().startswith("mmsnap ")]
+
+
+@pytest.mark.parametrize("page", pages())
+def test_blocks_write_into_scratch_folders_and_can_run_again(page):
+    """Each ``mmsnap`` command that writes a file names it inside a scratch
+    folder git ignores, with ``--overwrite`` (a second run of the block would
+    otherwise stop); no block writes into ``data/``."""
+    ignored = (ROOT / ".gitignore").read_text().split()
+    for lang, body in runnable_blocks((ROOT / page).read_text()):
+        if lang != "bash":
+            continue
+        for command in _commands(body):
+            for out in _OUTPUT.findall(command):
+                folder = out.split("/")[0]
+                assert "/" in out and folder in SCRATCH, (page, command)
+                assert f"/{folder}/" in ignored, f"{folder}/ is not in .gitignore"
+                if "demo" not in command.split()[:2]:
+                    assert "--overwrite" in command, (page, command)
 
 
 def _clean_copy(dest: Path) -> Path:
@@ -55,7 +112,9 @@ def _clean_copy(dest: Path) -> Path:
 
 def _run(lang: str, body: str, cwd: Path, env: dict, page: str) -> None:
     argv = ["bash", "-euo", "pipefail", "-c", body] if lang == "bash" else ["python", "-c", body]
+    start = time.perf_counter()
     done = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=1200)
+    print(f"{time.perf_counter() - start:6.1f} s  {page}: {body.splitlines()[0][:70]}")
     assert done.returncode == 0, (f"{page} block failed (exit {done.returncode}):\n{body}\n"
                                   f"stdout: {done.stdout[-3000:]}\nstderr: {done.stderr[-3000:]}")
 
@@ -64,16 +123,22 @@ def _run(lang: str, body: str, cwd: Path, env: dict, page: str) -> None:
 def test_readme_and_ti_page_run_as_written_after_pip_install(tmp_path):
     repo = _clean_copy(tmp_path / "repo")
     venv = tmp_path / "venv"
+    start = time.perf_counter()
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    print(f"{time.perf_counter() - start:6.1f} s  python -m venv")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     env["PATH"] = f"{venv / 'bin'}{os.pathsep}{env['PATH']}"
     env["VIRTUAL_ENV"] = str(venv)
     env["MPLBACKEND"] = "Agg"
-    ran = 0
-    for page in PAGES:
+    before = {p.name for p in repo.iterdir()}
+    ran, seen = 0, set()
+    for page in pages(repo):
         for lang, body in runnable_blocks((repo / page).read_text()):
-            if "pytest" in body:
+            if "pytest" in body or body in seen:
                 continue
+            seen.add(body)
             _run(lang, body, repo, env, page)
             ran += 1
-    assert ran >= 5
+    assert ran >= 20
+    left = {p.name for p in repo.iterdir()} - before
+    assert left <= SCRATCH, f"blocks left files in the repository's root: {sorted(left - SCRATCH)}"

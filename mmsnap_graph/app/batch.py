@@ -383,10 +383,17 @@ def run_many(
         (default: refuse them all, before anything runs, as every command
         does without ``--overwrite``).
 
-    Returns one :class:`RecordingSummary` per path, in the order of
-    ``paths``. A recording that fails, even by killing its worker, is
-    reported with ``success=False`` and its error; the others finish.
-    Raises :class:`ValidationError` for bad arguments only.
+    Returns
+    -------
+    list of RecordingSummary
+        One per path, in the order of ``paths``. A recording that fails,
+        even by killing its worker, is reported with ``success=False`` and
+        its error; the others finish.
+
+    Raises
+    ------
+    ValidationError
+        For bad arguments only.
     """
     steps = _check_steps(steps)
     paths, outputs = _check_paths(paths, output_dir)

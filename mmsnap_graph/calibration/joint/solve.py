@@ -427,7 +427,9 @@ def joint_calibration(
         :class:`~mmsnap_graph.calibration.PoseGraphCalibration`): the offset
         starts at ``-lag * frame_period_s``, part of ``time_offset_s``.
 
-    Returns a :class:`JointCalibration`.
+    Returns
+    -------
+    JointCalibration
     """
     options = JointOptions() if options is None else options
     inputs = _inputs(detections, reference, initial_poses, noise, frame_period_s, lag_frames,
