@@ -169,7 +169,7 @@ POSE_XFAIL = {"multiple_tracking": (
     "real model in this geometry: +1.06 +- 0.77 deg on 11 of 12 seeds, halves 0.8-1.5 deg apart), "
     "and an angle bias of the radar (no Rx phase compensation in its cfg) is calibrated as "
     "heading at no cost in the fit "
-    "(docs/CALIBRATION.md, \"A node's heading on real recordings\")")}
+    "(docs/validation/calibration.md, \"A node's heading on real recordings\")")}
 # Halves, compared in the reference frame: with the joint graph's marginals
 # (`mmsnap calibrate --covariance model`) (0.7, 1.0, 1.2) sigma (multiple
 # tracking) and (1.5, 8.2, 6.3) (fall detection); with the default long-run
