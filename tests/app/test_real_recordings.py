@@ -390,10 +390,10 @@ def test_tables_hold_float16_values_and_read_as_point_tables():
 
 
 # ---------------------------------------------------------------- the simulator's real model
-# The same CLI path on the simulator's real model (docs/SIMULATOR.md, "Fused
+# The same CLI path on the simulator's real model (docs/validation/simulator.md, "Fused
 # consistency on the real model"), with the TRUE node poses, so that only the
 # measurement model is on trial.
-# Measured (docs/SIMULATOR.md, "Fused consistency on the real model"): NEES
+# Measured (docs/validation/simulator.md, "Fused consistency on the real model"): NEES
 # 4.15 of 4 at the true poses (position part 2.51, velocity 1.65), was 5.44
 # (3.07, 2.39) before the range offset was estimated at poses given from
 # outside and the Doppler sigma counted its heavy tails on sparse clouds.
