@@ -102,7 +102,7 @@ def register(subparsers) -> None:
     _points_options(u)
     _common(u)
     u.set_defaults(func=run_uart)
-    t = sub.add_parser("table", help="CSV / .npy / .npz point logs")
+    t = sub.add_parser("table", help="CSV / .npy / .npz point logs, TI visualizer replay JSON")
     t.add_argument("--node", action="append", type=named_values("TABLE", None), default=[],
                    metavar="NAME=TABLE", help="a node's table (repeat per node)")
     t.add_argument("--table", default=None,
@@ -111,22 +111,52 @@ def register(subparsers) -> None:
     t.add_argument("--degrees", action="store_true",
                    help="the table's angle columns are in degrees (default: radians; an angle "
                         "beyond +-pi without --degrees is an error)")
-    t.add_argument("--snr-unit", choices=["db", "0.1db", "linear"], default="db",
-                   help="unit of the SNR column: dB (default), TI's side-info steps of 0.1 dB "
+    t.add_argument("--snr-unit", choices=["db", "0.1db", "linear"], default=None,
+                   help="unit of the SNR column when its header does not say: dB (default), "
+                        "TI's side-info steps of 0.1 dB "
                         "(the mmWave SDK demos' TLV 7), or a linear power ratio (the people-"
                         "tracking demos); SNRs beyond any radar's in dB are an error")
     t.add_argument("--time-unit", choices=TIME_UNITS, default="s",
                    help="unit of the time-stamp column (default %(default)s); stamps that "
                         "disagree with the frame period by a factor of 1000 are an error "
                         "naming the unit they look like")
-    t.add_argument("--columns", action="append", type=named_values("COLUMN", None), default=[],
-                   metavar="HEADER=COLUMN",
+    t.add_argument("--columns", action="append", type=_columns_value, default=[],
+                   metavar="HEADER=COLUMN|PRESET",
                    help="read the table's column HEADER as COLUMN (x, y, z, doppler, frame, "
                         "time_s, range, azimuth, elevation, snr, noise, node), e.g. "
-                        "--columns 'X [m]=x' --columns 'Velocity [m/s]=doppler'; repeat")
+                        "--columns 'Velocity=doppler'; repeat. Or the header set of a TI tool: "
+                        "visualizer (the Industrial / Applications Visualizer: frameNum, "
+                        "timestamp in ms, X, Y, Z, Doppler, SNR, Noise, Track index), "
+                        "sdk-script (mmw_demo_example_script.py's CSV, SNR in 0.1 dB; "
+                        "recognised without this option). A unit in a header is read "
+                        "(X (m), Azimuth (deg), Timestamp (ms)); cells may be separated by "
+                        "commas, semicolons or tabs; the visualizer's replay JSON is read as "
+                        "a table")
     _points_options(t)
     _common(t)
     t.set_defaults(func=run_table)
+
+
+def _columns_value(text: str):
+    """``--columns``: ``HEADER=COLUMN`` -> (header, column), or a preset name."""
+    from mmsnap_graph.io.ti.headers import PRESETS, preset_names
+    if "=" not in text:
+        if text not in PRESETS:
+            raise argparse.ArgumentTypeError(f"{text!r} must look like HEADER=COLUMN or be a "
+                                             f"preset of TI's tools: {preset_names()}")
+        return text
+    return named_values("COLUMN", None)(text)
+
+
+def _columns_option(args):
+    """``read_point_tables(columns=)`` from the ``--columns`` given: a mapping,
+    a preset name, or None."""
+    presets = [c for c in args.columns if isinstance(c, str)]
+    pairs = [c for c in args.columns if not isinstance(c, str)]
+    if presets and (pairs or len(presets) > 1):
+        raise ValidationError(f"--columns {presets[0]}: a preset names every column; give it "
+                              "alone (or HEADER=COLUMN renames without it)")
+    return presets[0] if presets else (dict(pairs) or None)
 
 
 def _poses(args) -> dict:
@@ -329,8 +359,7 @@ def run_table(args: argparse.Namespace) -> int:
         raise ValidationError("give either --node NAME=TABLE (repeat) or --table FILE")
     period, ti = _timing(args)
     opts = dict(coordinates=args.coordinates, degrees=args.degrees, time_unit=args.time_unit,
-                snr_unit=args.snr_unit, frame_period_s=period,
-                columns=dict(args.columns) or None)
+                snr_unit=args.snr_unit, frame_period_s=period, columns=_columns_option(args))
     if args.table:
         clouds = read_point_tables(args.table, **opts)
     else:

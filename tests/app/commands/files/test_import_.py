@@ -168,6 +168,76 @@ def test_real_snr_in_tenths_of_a_db_is_named(tmp_path, capsys):
     assert 11 <= np.nanmin(snr) and np.nanmax(snr) <= 52
 
 
+def _real_in_format(tmp_path, node, kind):
+    """The real table of ``node`` as a TI tool or a spreadsheet writes it."""
+    import json
+    rows = [line.split(",") for line in
+            (REAL / f"multiple_tracking_{node}.csv").read_text().splitlines()[1:]]
+    stamp = lambda cells: f"{1.7e12 + 50 * int(cells[0]):.1f}"        # the host's ms clock
+    if kind == "replay":
+        frames: dict = {}
+        for c in rows:
+            frames.setdefault(int(c[0]), []).append([float(v) for v in c[2:7]] + [60.0, 255])
+        data = [{"frameData": {"frameNum": k, "pointCloud": frames.get(k, [])},
+                 "timestamp": 1.7e12 + 50.0 * k} for k in range(max(frames) + 1)]
+        path = tmp_path / f"replay_{node}.json"
+        path.write_text(json.dumps({"cfg": [], "demo": "SDK Out of Box Demo", "data": data}))
+        return path
+    header, sep, cells = {
+        "units": ("Frame Number,Timestamp (ms),X (m),Y (m),Z (m),Doppler (m/s),SNR (dB),"
+                  "Noise (dB)", ",", lambda c: [c[0], stamp(c), *c[2:], "60.0"]),
+        "visualizer": ("frameNum,timestamp,X,Y,Z,Doppler,SNR,Noise,Track index", ",",
+                       lambda c: [c[0], stamp(c), *c[2:], "60.0", "255"]),
+        "tsv": ("frame\ttime_s\tx_m\ty_m\tz_m\tdoppler_mps\tsnr_db", "\t", lambda c: c),
+        "semicolon": ("frame;time_s;x_m;y_m;z_m;doppler_mps;snr_db", ";",
+                      lambda c: [v.replace(".", ",") for v in c]),
+    }[kind]
+    path = tmp_path / f"{kind}_{node}.csv"
+    path.write_text("\n".join([header] + [sep.join(cells(c)) for c in rows]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("kind, extra", [("units", []), ("replay", []),
+                                         ("visualizer", ["--columns", "visualizer"]),
+                                         ("tsv", []), ("semicolon", [])])
+def test_real_tables_in_ti_tools_formats(tmp_path, capsys, kind, extra):
+    """A visualizer's CSV ("X (m)", "Doppler (m/s)") failed with 'missing
+    columns'; its replay JSON, a TSV or a semicolon CSV with a garbled message.
+    Each now imports the real recording's points exactly."""
+    paths = {node: _real_in_format(tmp_path, node, kind) for node in ("S1", "S2")}
+    room = ["--room-pose", "S1=0,0,0", "--room-pose", "S2=1.7,1.65,90"]
+    base = ["import", "table", *REAL_MOUNTING, *room, "--overwrite"]
+    assert main(base + ["--node", f"S1={REAL / 'multiple_tracking_S1.csv'}", "--node",
+                        f"S2={REAL / 'multiple_tracking_S2.csv'}", "-o",
+                        str(tmp_path / "ref.h5")]) == 0
+    assert main(base + ["--node", f"S1={paths['S1']}", "--node", f"S2={paths['S2']}", *extra,
+                        "-o", str(tmp_path / "o.h5")]) == 0
+    assert "S2: 3346 points in 642 frames" in capsys.readouterr().out
+    ref, got = read_recording(tmp_path / "ref.h5"), read_recording(tmp_path / "o.h5")
+    for node in ("S1", "S2"):
+        a, b = ref.nodes[node].point_cloud, got.nodes[node].point_cloud
+        np.testing.assert_array_equal(a.frame, b.frame)
+        np.testing.assert_array_equal(a.range_m, b.range_m)
+        np.testing.assert_array_equal(a.omega_rad, b.omega_rad)
+        np.testing.assert_array_equal(a.snr_db, b.snr_db)
+
+
+def test_a_visualizer_table_without_the_preset_names_it(tmp_path, capsys):
+    path = _real_in_format(tmp_path, "S1", "visualizer")
+    assert main(["import", "table", "--node", f"S1={path}", "--frame-period", "0.05",
+                 "-o", str(tmp_path / "o.h5")]) == 1
+    err = capsys.readouterr().err
+    assert "--time-unit ms, or --columns visualizer" in err
+    with pytest.raises(SystemExit):
+        main(["import", "table", "--node", f"S1={path}", "--columns", "visualiser",
+              "--frame-period", "0.05", "-o", str(tmp_path / "o.h5")])
+    assert "must look like HEADER=COLUMN or be a preset of TI's tools: ['sdk-script', " \
+           "'visualizer']" in capsys.readouterr().err
+    assert main(["import", "table", "--node", f"S1={path}", "--columns", "visualizer",
+                 "--columns", "X=x", "--frame-period", "0.05", "-o", str(tmp_path / "o.h5")]) == 2
+    assert "a preset names every column; give it alone" in capsys.readouterr().err
+
+
 def test_huge_time_stamp_is_a_clear_error(tmp_path, capsys):
     def huge(header, cells):
         if cells[header.index("frame")] == "7":
@@ -193,11 +263,15 @@ def test_gui_headers_with_a_columns_mapping(tmp_path, capsys):
     path.write_text("\n".join(["Frame,X [m],Y [m],Z [m],Velocity [m/s]", *rows]) + "\n")
     args = ["import", "table", "--node", f"S1={path}", "--frame-period", "0.05", "-o",
             str(tmp_path / "gui.h5")]
-    assert main(args) == 1
-    assert "missing columns" in capsys.readouterr().err
-    assert main(args + ["--columns", "X [m]=x", "--columns", "Y [m]=y", "--columns", "Z [m]=z",
-                        "--columns", "Velocity [m/s]=doppler"]) == 0
+    assert main(args) == 0                       # the units in the headers are read
     assert len(read_recording(tmp_path / "gui.h5").nodes["S1"].point_cloud) == 60
+    assert main(args + ["--overwrite", "--columns", "X [m]=x", "--columns", "Y [m]=y",
+                        "--columns", "Z [m]=z", "--columns", "Velocity [m/s]=doppler"]) == 0
+    assert len(read_recording(tmp_path / "gui.h5").nodes["S1"].point_cloud) == 60
+    path.write_text(path.read_text().replace("Velocity [m/s]", "Speed [m/s]"))
+    assert main(args + ["--overwrite"]) == 1
+    err = capsys.readouterr().err
+    assert "missing columns" in err and "'Speed [m/s]'" in err and "--columns 'HEADER=x'" in err
 
 
 def test_unknown_cfg_command_names_the_flag(tmp_path, capsys):
