@@ -68,9 +68,11 @@ def test_sections_cited_by_the_code_exist():
 _CITATION = re.compile(r'docs/([\w/]+\.md)[,;:]?\s+(?:section\s+)?\\?"([^"\\]+)\\?"')
 
 
-#: Pages cited by code that landed before its page; the lead removes an entry
-#: once the page is on main.
-_PENDING_PAGES = {"LIVE.md": "the live-boards work adds docs/LIVE.md"}
+#: Sections cited by code that landed before its page has them (the live-boards
+#: work's docs/LIVE.md); the lead removes an entry once the section is on main
+#: (the test fails while an entry is no longer missing).
+_PENDING = {("LIVE.md", "mmsnap live"), ("LIVE.md", "What record sends"),
+            ("LIVE.md", "The data port")}
 
 
 def test_sections_cited_on_any_page_exist():
@@ -83,8 +85,7 @@ def test_sections_cited_on_any_page_exist():
                  *ROOT.glob("tests/**/*.py"), *ROOT.glob("docs/**/*.md"), ROOT / "README.md"]:
         text = re.sub(r"\s+#\s+", " ", re.sub(r"\s+", " ", path.read_text()))
         for m in _CITATION.finditer(text):
-            if len(m.group(2).strip()) >= 3 and m.group(1) not in _PENDING_PAGES \
-                    and path.name != "test_docs.py":
+            if len(m.group(2).strip()) >= 3 and path.name != "test_docs.py":
                 cited.add((path.relative_to(ROOT).as_posix(), m.group(1), m.group(2)))
     assert len(cited) >= 20
 
@@ -102,7 +103,8 @@ def test_sections_cited_on_any_page_exist():
                    for label in labels)
 
     missing = sorted(c for c in cited if not found(c[1], c[2]))
-    assert not missing, missing
+    assert not [c for c in missing if c[1:] not in _PENDING], missing
+    assert _PENDING <= {c[1:] for c in missing}, "a pending section is there now: drop it"
 
 
 def _dotted_names(text: str) -> set[str]:

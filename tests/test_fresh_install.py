@@ -51,16 +51,23 @@ def pages(root: Path = ROOT) -> list[str]:
     return ["README.md"] + [f"docs/{p}" for p in nav if (root / "docs" / p).is_file()]
 
 
+#: The first line of a block that talks to radar boards: not run here.
+NEEDS_HARDWARE = "# needs hardware"
+
+
 def runnable_blocks(text: str) -> list[tuple[str, str]]:
-    """``(language, body)`` of each ``bash`` or ``python`` fenced block."""
+    """``(language, body)`` of each ``bash`` or ``python`` fenced block, but
+    those that open with :data:`NEEDS_HARDWARE` (docs/LIVE.md's)."""
     return [(m.group(1), m.group(2))
-            for m in re.finditer(r"^```(bash|python)\n(.*?)^```", text, flags=re.S | re.M)]
+            for m in re.finditer(r"^```(bash|python)\n(.*?)^```", text, flags=re.S | re.M)
+            if not m.group(2).startswith(NEEDS_HARDWARE)]
 
 
 def test_runnable_blocks_are_found():
     blocks = runnable_blocks("a\n```bash\nmmsnap demo\n```\n```\nnot run\n```\n"
                              "```python\nimport numpy\n```\n")
     assert blocks == [("bash", "mmsnap demo\n"), ("python", "import numpy\n")]
+    assert runnable_blocks("```bash\n# needs hardware\nmmsnap record\n```\n") == []
     assert any("pip install ." in body for _, body in runnable_blocks((ROOT / "README.md")
                                                                       .read_text()))
 
