@@ -192,3 +192,26 @@ def damage(packets: list[bytes], seed: int = 0) -> tuple[list[bytes], set[int]]:
         else:
             out.append(p)
     return out, lost
+
+
+#: Generous bounds for a loaded 2-core machine (s).
+TIMEOUT_S = 90.0
+
+
+def pending_bytes(board) -> int:
+    """Bytes of the board's data port not yet read by the program under test."""
+    import fcntl
+    import termios
+    slave = os.open(board.data_port, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        return int.from_bytes(fcntl.ioctl(slave, termios.FIONREAD, b"\0" * 4), "little")
+    finally:
+        os.close(slave)
+
+
+def wait_for(condition, what: str, timeout_s: float = TIMEOUT_S) -> None:
+    """Poll ``condition()`` until true (an assertion error after ``timeout_s``)."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)

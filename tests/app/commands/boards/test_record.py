@@ -5,13 +5,9 @@ Ctrl-C; the CLI errors a board can give; boards that only stream."""
 
 from __future__ import annotations
 
-import fcntl
-import os
 import signal
 import subprocess
 import sys
-import termios
-import time
 
 import numpy as np
 import pytest
@@ -19,29 +15,11 @@ import pytest
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.io import read_recording
 
-from _boards import EmulatedBoard, board_packets, damage
+from _boards import TIMEOUT_S, EmulatedBoard, board_packets, damage, pending_bytes, wait_for
 from _shared import ROOT, TI_DATA
 
 CFG = str(TI_DATA / "iwr1843_oob.cfg")
 N = 40
-#: Generous bounds for a loaded 2-core machine (s).
-TIMEOUT_S = 90.0
-
-
-def _pending(board) -> int:
-    """Bytes of the board's data port not yet read by the program under test."""
-    slave = os.open(board.data_port, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
-    try:
-        return int.from_bytes(fcntl.ioctl(slave, termios.FIONREAD, b"\0" * 4), "little")
-    finally:
-        os.close(slave)
-
-
-def _wait(condition, what):
-    deadline = time.monotonic() + TIMEOUT_S
-    while not condition():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.02)
 
 
 @pytest.mark.slow
@@ -63,10 +41,10 @@ def test_four_boards_on_one_clock_until_ctrl_c(tmp_path):
                             text=True)
     try:
         for b in boards.values():
-            _wait(lambda: b.done.is_set() or proc.poll() is not None, "the boards to play")
+            wait_for(lambda: b.done.is_set() or proc.poll() is not None, "the boards to play")
         assert proc.poll() is None, proc.communicate()
         for b in boards.values():
-            _wait(lambda: _pending(b) == 0, "the recorder to read every byte")
+            wait_for(lambda: pending_bytes(b) == 0, "the recorder to read every byte")
         proc.send_signal(signal.SIGINT)
         stdout, stderr = proc.communicate(timeout=TIMEOUT_S)
     finally:
