@@ -350,7 +350,7 @@ def _pose_nees(seeds, tmp):
     return errors, check
 
 
-# Measured (docs/CALIBRATION.md, "The calibrated pose on the simulator's real
+# Measured (docs/validation/calibration.md, "The calibrated pose on the simulator's real
 # model"; S2's pose error in its body tangent): the centroids sit 0.06-0.075 m
 # short in range (the body's near side) and S2 takes it in, 0.07-0.26 m in its
 # x_b (its array axis, the reference frame's y) with its heading. Seeds 0-5:
