@@ -306,8 +306,10 @@ def _progress(total: int, desc: str, progress: bool | None):
 RECORDING_SOLVERS = ("vectorized", "gtsam")
 
 
-def _check_options(recording, mode, options, prior):
+def _check_options(recording, mode, options, prior, progress):
     """Validate :func:`fuse_recording`'s options; return the prior to use."""
+    if progress is not None and not isinstance(progress, (bool, np.bool_)):
+        raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     if mode not in ("map", "ml"):
         raise ValidationError(f"mode must be 'map' or 'ml', got {mode!r}")
     options = check_options(options)
@@ -570,14 +572,12 @@ def fuse_recording(
     if not isinstance(cal, NetworkCalibration):
         raise ValidationError(f"calibration must be a NetworkCalibration, got "
                               f"{type(cal).__name__}")
-    prior = _check_options(recording, mode, options, prior)
+    prior = _check_options(recording, mode, options, prior, progress)
     options = replace(options, coverage_reach_m=_coverage_reach(recording, options))
     recording = _calibrated_centroids(recording, cal.time_offset_s, cal.range_offset_m, options)
     noise, pose_cov = _node_options(recording, noise, cal.pose_covariances, options.covariance)
     robust = robust_options(robust)
     motion_check = _motion_option(options.motion_check, robust)
-    if progress is not None and not isinstance(progress, (bool, np.bool_)):
-        raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     poses = recording_poses(recording, cal.node_poses)
     groups = group_detections(recording, poses, noise, gate_probability=options.gate_probability,
                               source=options.source, merge_body_m=_merge_option(options, robust))
