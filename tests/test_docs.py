@@ -58,7 +58,7 @@ def test_sections_cited_by_the_code_exist():
     headings = _headings(CONVENTIONS_MD.read_text())
     cited = set()
     for path in [*ROOT.glob("factors/**/*.py"), *ROOT.glob("mmsnap_graph/**/*.py"),
-                 *ROOT.glob("docs/*.md"), ROOT / "README.md"]:
+                 *ROOT.glob("docs/**/*.md"), ROOT / "README.md"]:
         for m in re.finditer(r'CONVENTIONS\.md,\s+"([^"]+)"', path.read_text()):
             cited.add((path.relative_to(ROOT).as_posix(), m.group(1)))
     missing = sorted(c for c in cited if c[1] not in headings)
@@ -144,7 +144,8 @@ _KNOWN: dict[str, str] = {}
 
 
 def _doc_files():
-    files = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted(ROOT.glob("docs/*.md")),
+    files = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted(ROOT.glob("docs/**/*.md")),
+             *sorted(ROOT.glob("docs/**/*.py")),
              *sorted(ROOT.glob("notebooks/*.ipynb")), *sorted(ROOT.glob("benchmarks/*.py")),
              *sorted(ROOT.glob("tools/*.py")), *sorted(ROOT.glob("factors/**/*.py")),
              *sorted(ROOT.glob("mmsnap_graph/**/*.py"))]
@@ -166,7 +167,7 @@ _TEST_PATH = re.compile(r"tests/[\w/]+\.py")
 
 
 @pytest.mark.parametrize("rel", ["README.md", *sorted(p.relative_to(ROOT).as_posix()
-                                                      for p in ROOT.glob("docs/*.md"))])
+                                                      for p in ROOT.glob("docs/**/*.md"))])
 def test_test_files_the_docs_cite_exist(rel):
     """A page that says "tests/x.py shows it" names a file that is there (the
     tests mirror the packages, so a moved module moves its tests)."""
