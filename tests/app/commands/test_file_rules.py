@@ -185,6 +185,13 @@ EVERY_WRITER = {
     "batch --json-out": (["batch", "{rec}", "--json-out", "{out}", "--no-progress"], "out"),
     "demo --out": (["demo", "--simulate", "-c", "B", "-t", "straight", "-n", "20",
                     "--no-figures", "--out", "{out}"], "out"),
+    # the boards' verbs: refused before any port is opened (none named exists)
+    "record -o": (["record", "--board", "S1=usb:NO_SUCH_BOARD", "--duration", "1",
+                   "-o", "{out}"], "out"),
+    "live -o": (["live", "--calibration", "{rec}", "--board", "S1=usb:NO_SUCH_BOARD",
+                 "--duration", "1", "-o", "{out}"], "out"),
+    "live --record": (["live", "--calibration", "{rec}", "--board", "S1=usb:NO_SUCH_BOARD",
+                       "--duration", "1", "--record", "{out}"], "out"),
 }
 
 
