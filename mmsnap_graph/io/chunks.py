@@ -284,6 +284,10 @@ def open_detection_windows(path: str | os.PathLike, *, source: str = "centroids"
 # ----------------------------------------------------------------------------
 # writing /fused window by window
 # ----------------------------------------------------------------------------
+#: Fill values of the datasets a window may lack (others: 0, False, "").
+_FILL = {"track_id": -1}
+
+
 class FusedWriter:
     """Appends :class:`FusedSequence` windows to a ``/fused`` group being
     written (use :func:`fused_writer`).
@@ -327,7 +331,8 @@ class FusedWriter:
                     tail = ds.shape[1:]
                     g.create_dataset(name, shape=(lo, *tail), maxshape=(None, *tail),
                                      dtype=ds.dtype, chunks=(WRITE_CHUNK_ROWS, *tail),
-                                     compression="gzip", compression_opts=1)
+                                     compression="gzip", compression_opts=1,
+                                     fillvalue=_FILL.get(name))
                 out = g[name]
                 out.resize(lo + k, axis=0)
                 if k:
