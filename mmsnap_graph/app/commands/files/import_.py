@@ -175,8 +175,25 @@ def _grouped(pairs) -> dict[str, list[str]]:
     return out
 
 
+def _nominal(args) -> dict:
+    """The metadata of the nominal poses given (``--pose`` over
+    ``--room-pose``), which ``mmsnap calibrate`` compares its poses with."""
+    from mmsnap_graph.evaluation.nominal import nominal_metadata
+    given = {name: (pose, "room_pose") for name, pose in getattr(args, "room_pose", [])}
+    given.update({name: (pose, "pose") for name, pose in args.pose})
+    out = {}
+    for name, ((x, y, phi_deg), source) in given.items():
+        out.update(nominal_metadata(name, [x, y, np.deg2rad(phi_deg)], source))
+    return out
+
+
 def _write(args, recording) -> int:
+    import dataclasses
+
     from mmsnap_graph.io import write_recording
+    nominal = _nominal(args)
+    if nominal:
+        recording = dataclasses.replace(recording, metadata={**recording.metadata, **nominal})
     path = write_recording(args.output, recording, overwrite=args.overwrite)
     for name, node in recording.nodes.items():
         level = node.point_cloud if node.point_cloud is not None else None

@@ -268,6 +268,24 @@ def test_real_room_frame_with_a_room_pose_for_one_node_warns(tmp_path, capsys):
         capsys.readouterr().err
 
 
+def test_the_nominal_poses_given_are_stored(tmp_path):
+    """--room-pose and --pose are what `mmsnap calibrate` compares its poses
+    with (--pose wins where both are given)."""
+    from mmsnap_graph.evaluation.nominal import nominal_poses
+    out = tmp_path / "o.h5"
+    assert _import_table(tmp_path, "--frame-period", "0.05", "--mount", "S1=0.8,5", "--mount",
+                         "S2=1.2,15", "--pose", "S2=0.1,6.9,179") == 0
+    nominal = nominal_poses(read_recording(out).metadata)
+    assert list(nominal) == ["S2"] and nominal["S2"].source == "pose"
+    np.testing.assert_allclose(nominal["S2"].pose, [0.1, 6.9, np.deg2rad(179)])
+    room = TI_DATA / "points_room_frame.csv"
+    assert _import_table(tmp_path, "--frame-period", "0.05", "--mount", "S1=0.8,5", "--mount",
+                         "S2=1.2,15", "--room-pose", "S1=0,0,0", "--room-pose", "S2=0,7,180",
+                         "--pose", "S1=0,0,0", table=room) == 0
+    nominal = nominal_poses(read_recording(out).metadata)
+    assert {n: p.source for n, p in nominal.items()} == {"S1": "pose", "S2": "room_pose"}
+
+
 def test_huge_time_stamp_is_a_clear_error(tmp_path, capsys):
     def huge(header, cells):
         if cells[header.index("frame")] == "7":
