@@ -137,8 +137,8 @@ def _step_calibrate(src: Path, dst: Path | None, options: Mapping) -> StepOutcom
     return counts, [written[1], written[0]], failed
 
 
-def _step_fuse(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
-    fused, _ = fuse_stored(src, options, output=dst, progress=False)
+def _step_fuse(src: Path, dst: Path | None, config) -> StepOutcome:
+    fused, _ = fuse_stored(src, config, output=dst, progress=False)
     counts = {"n_fused": fused.n_rows, "n_flagged": fused.n_rows - fused.n_success,
               "n_frames": fused.n_frames}
     return counts, [Path(fused.path)], None
@@ -147,7 +147,7 @@ def _step_fuse(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
 _STEP_FUNCTIONS = {"process": _step_process, "calibrate": _step_calibrate, "fuse": _step_fuse}
 
 #: Keywords a step sets itself (not accepted in its options).
-_STEP_OWN = {"process": {"output", "progress"}, "calibrate": set(), "fuse": {"progress"}}
+_STEP_OWN = {"process": {"output", "progress"}, "calibrate": set()}
 
 
 def _step_target(step: str) -> Callable:
@@ -156,13 +156,9 @@ def _step_target(step: str) -> Callable:
         from .pipeline import process_file
 
         return process_file
-    if step == "calibrate":
-        from ..calibration import calibrate_recording
+    from ..calibration import calibrate_recording
 
-        return calibrate_recording
-    from ..fusion.recording.sequence import fuse_recording
-
-    return fuse_recording
+    return calibrate_recording
 
 
 def _error_line(step: str, exc: BaseException) -> str:
@@ -176,14 +172,17 @@ def run_recording(
     *,
     output: str | os.PathLike | None = None,
     options: Mapping[str, Mapping[str, Any]] | None = None,
+    fusion=None,
     blas_threads: int | None = 1,
 ) -> RecordingSummary:
     """Run ``steps`` on one recording; never raises for a bad recording.
 
     output : write the result here (the first writing step copies the
         recording; later steps update the copy); default: update ``path``.
-    options : per step, keyword arguments of its library function
-        (``options["fuse"] = {"mode": "ml"}``; see :func:`run_many`).
+    options : per step ``process`` and ``calibrate``, keyword arguments of
+        its library function (see :func:`run_many`).
+    fusion : the ``fuse`` step's
+        :class:`~mmsnap_graph.fusion.config.FusionConfig` (None: the default).
     blas_threads : cap of the BLAS / OpenMP thread pools while it runs
         (None: leave them).
     The first step that raises or does not succeed stops the recording; its
@@ -204,7 +203,8 @@ def run_recording(
         for step in steps:
             t0 = time.perf_counter()
             try:
-                c, written, failed = _STEP_FUNCTIONS[step](src, dst, options.get(step, {}))
+                arg = fusion if step == "fuse" else options.get(step, {})
+                c, written, failed = _STEP_FUNCTIONS[step](src, dst, arg)
             except Exception as exc:  # noqa: BLE001 -- one recording must not stop the batch
                 error = _error_line(step, exc)
                 if not isinstance(exc, MmsnapError):
@@ -249,9 +249,13 @@ def _check_steps(steps: Sequence[str] | str) -> tuple[str, ...]:
 
 
 def _check_options(steps: tuple[str, ...], options: Mapping | None) -> dict[str, dict]:
-    """Each step's options must be keywords of its library function."""
+    """Each step's options must be keywords of its library function (the
+    ``fuse`` step takes a FusionConfig, ``fusion=``)."""
     options = dict(options or {})
     for step, opts in options.items():
+        if step == "fuse":
+            raise ValidationError("the fuse step takes one FusionConfig: pass fusion=, not "
+                                  "options['fuse']")
         if step not in steps:
             raise ValidationError(f"options given for step {step!r}, which is not in steps "
                                   f"{','.join(steps)}")
@@ -325,6 +329,7 @@ def run_many(
     client=None,
     output_dir: str | os.PathLike | None = None,
     options: Mapping[str, Mapping[str, Any]] | None = None,
+    fusion=None,
     blas_threads: int | None = 1,
     progress: bool = False,
     on_result: Callable[[RecordingSummary], None] | None = None,
@@ -342,10 +347,11 @@ def run_many(
         the recordings in place, as the commands do).
     options : per step, keyword arguments of the step's library function:
         ``process`` -> ``process_file`` (e.g. ``centroids_only``, ``ekf``),
-        ``calibrate`` -> ``calibrate_recording`` (e.g. ``matching``, ``joint``),
-        ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``noise``,
-        ``options=FusionOptions(solver="gtsam")``).
+        ``calibrate`` -> ``calibrate_recording`` (e.g. ``matching``, ``joint``).
         They are pickled to the workers: plain values and frozen configs.
+    fusion : the ``fuse`` step's
+        :class:`~mmsnap_graph.fusion.config.FusionConfig` (None:
+        :data:`~mmsnap_graph.fusion.config.DEFAULT_CONFIG`, as ``mmsnap fuse``).
     blas_threads : BLAS / OpenMP threads per worker (None: leave them).
     progress : a tqdm bar over recordings on stderr; on_result : called
         with each summary as it arrives (in completion order).
@@ -358,13 +364,19 @@ def run_many(
     steps = _check_steps(steps)
     paths, outputs = _check_paths(paths, output_dir)
     options = _check_options(steps, options)
+    if fusion is not None:
+        from ..fusion.config import FusionConfig
+
+        if not isinstance(fusion, FusionConfig):
+            raise ValidationError(f"fusion must be a FusionConfig, got {type(fusion).__name__}")
     if executor is not None and client is not None:
         raise ValidationError("give an executor or a client, not both")
     if blas_threads is not None:
         check_count(blas_threads, "blas_threads")
     if output_dir is not None:
         Path(output_dir).mkdir(parents=True, exist_ok=True)
-    args = [((p, steps), {"output": o, "options": options, "blas_threads": blas_threads})
+    args = [((p, steps), {"output": o, "options": options, "fusion": fusion,
+                          "blas_threads": blas_threads})
             for p, o in zip(paths, outputs)]
     results: list[RecordingSummary | None] = [None] * len(paths)
     pool = client if client is not None else executor

@@ -16,7 +16,6 @@ from typing import Literal, Mapping
 
 import numpy as np
 
-from ..data.body import CENTROID_MERGE_RADIUS_M
 from .._validation import as_float_array, check_count, check_finite, check_probability
 from ..errors import ValidationError
 from .robust import RESIDUAL_GATE_PROBABILITY, check_robust, check_robust_k, residual_gate_threshold
@@ -123,22 +122,12 @@ class FusionOptions:
         term (Newton's quadratic convergence near a weakly observed minimum).
     chunk_size : frames solved together in the first stage.
 
-    A recording (``fuse_recording``):
+    A recording (``fuse_recording``; the rest of a recording's fusion is
+    :class:`~mmsnap_graph.fusion.config.FusionConfig`'s):
 
     solver : ``"vectorized"`` (the default) or ``"gtsam"``
         (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
-    gate_probability : the association gate.
-    source : ``"centroids"`` or ``"point_cloud"``.
     block_rows : rows fused per call of the vectorized solver.
-    motion_check : True, False or None (on with a ``robust`` option).
-    body_merge : True, False or None (on with a ``robust`` option): a
-        node's centroids of one frame closer than ``merge_body_m`` (m) are
-        one body seen as several clusters, merged before the association
-        (:func:`~mmsnap_graph.fusion.recording.regroup.merge_body_detections`;
-        docs/ROBUST.md).
-    coverage_check : with the motion check, flag a row that a node whose
-        field of view covers it never sees in the frames around
-        (:mod:`~mmsnap_graph.fusion.recording.coverage`: a multipath image).
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS
@@ -149,19 +138,12 @@ class FusionOptions:
     newton_after: int = 10
     chunk_size: int = 8192
     solver: Literal["gtsam", "vectorized", "scalar"] = "vectorized"
-    gate_probability: float = 0.999
-    source: Literal["centroids", "point_cloud"] = "centroids"
     block_rows: int = 65536
-    motion_check: bool | None = None
-    body_merge: bool | None = None
-    merge_body_m: float = CENTROID_MERGE_RADIUS_M
-    coverage_check: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.lm, LevenbergMarquardtSettings):
             raise ValidationError(f"lm must be a LevenbergMarquardtSettings, got {self.lm!r}")
-        for name, value, choices in (("covariance", self.covariance, ("laplace", "grid", "both")),
-                                     ("source", self.source, ("centroids", "point_cloud"))):
+        for name, value, choices in (("covariance", self.covariance, ("laplace", "grid", "both")),):
             if value not in choices:
                 raise ValidationError(
                     f"{name} must be {', '.join(map(repr, choices))}, got {value!r}")
@@ -170,18 +152,6 @@ class FusionOptions:
             object.__setattr__(self, name, check_count(getattr(self, name), name))
         for name in ("grid_half_width_sigmas", "step_tolerance"):
             object.__setattr__(self, name, _positive(getattr(self, name), name))
-        object.__setattr__(self, "gate_probability",
-                           check_probability(self.gate_probability, "gate_probability"))
-        if self.motion_check is not None and not isinstance(self.motion_check, (bool, np.bool_)):
-            raise ValidationError(
-                f"motion_check must be True, False or None, got {self.motion_check!r}")
-        if not isinstance(self.coverage_check, (bool, np.bool_)):
-            raise ValidationError(
-                f"coverage_check must be True or False, got {self.coverage_check!r}")
-        if self.body_merge is not None and not isinstance(self.body_merge, (bool, np.bool_)):
-            raise ValidationError(
-                f"body_merge must be True, False or None, got {self.body_merge!r}")
-        object.__setattr__(self, "merge_body_m", _positive(self.merge_body_m, "merge_body_m"))
 
 
 #: The default options.
