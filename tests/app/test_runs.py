@@ -16,6 +16,7 @@ from mmsnap_graph.fusion.recording.timing import align_recording
 from mmsnap_graph.io import read_recording
 from mmsnap_graph.io.calibration import read_calibration
 from mmsnap_graph.io.noise import read_noise
+from _fusion import stream_config
 
 
 def test_stored_calibration_reads_every_part(calibrated_c_file):
@@ -82,9 +83,7 @@ def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated_c_f
     cal = read_calibration(calibrated_c_file)
     noise = read_noise(calibrated_c_file)
     aligned = align_recording(rec, dict(cal.time_offset_s))
-    stream = FrameStream(rec.node_names, recording_poses(rec), prior=GaussianPrior(),
-                         noise={n: noise.nodes[n].noise for n in rec.node_names},
-                         pose_covariances={"S2": cal.covariances["S2"]})
+    stream = FrameStream(rec.node_names, recording_poses(rec), config=stream_config(prior=GaussianPrior()), noise={n: noise.nodes[n].noise for n in rec.node_names}, pose_covariances={"S2": cal.covariances["S2"]})
     fill = stream.tracker_config.max_misses
     expected = [(f, stream.push(t, d)) for f, t, d in recording_frames(aligned, fill_frames=fill)]
     assert [r["frame"] for r in rows] == [f for f, _ in expected]
@@ -93,7 +92,7 @@ def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated_c_f
         np.testing.assert_allclose(np.asarray(r["covariance"]).reshape(-1, 4, 4), u.covariance,
                                    rtol=1e-9, atol=1e-15)
     # Each stored part changes the answer (so the comparison can fail).
-    plain = FrameStream(rec.node_names, recording_poses(rec), prior=GaussianPrior())
+    plain = FrameStream(rec.node_names, recording_poses(rec), config=stream_config(prior=GaussianPrior()))
     first = next(u for _, u in expected if len(u))
     frame0 = next(f for f, u in expected if len(u))
     _, t0, d0 = next(x for x in recording_frames(aligned, fill_frames=fill) if x[0] == frame0)

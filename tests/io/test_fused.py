@@ -13,6 +13,7 @@ from mmsnap_graph.data.results import Status
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.io import read_recording, write_recording
+from _fusion import config
 
 
 @pytest.fixture
@@ -24,7 +25,7 @@ def recordings(two_target_recordings):
 def test_write_and_read_fused_round_trip(recordings, tmp_path):
     rec = recordings["A"]
     path = write_recording(tmp_path / "rec.h5", rec)
-    fused = fuse_recording(rec, mode="ml")
+    fused = fuse_recording(rec, config(mode="ml"))
     write_fused(path, fused)
     back = read_fused(path)
     for name in ("frame", "target", "label", "detection_index", "observed", "success", "status",
@@ -41,13 +42,13 @@ def test_write_and_read_fused_round_trip(recordings, tmp_path):
     assert sorted(int(c) for c in codes) == [0, 1, 2, 3, 4, 5, 9, 10, 11, 12]
     # The recording itself is intact, and a second write replaces /fused.
     assert read_recording(path).node_names == rec.node_names
-    write_fused(path, fuse_recording(rec))
+    write_fused(path, fuse_recording(rec, config()))
     assert read_fused(path).mode == "map"
 
 
 def test_write_fused_to_a_new_file_leaves_the_original(recordings, tmp_path):
     path = write_recording(tmp_path / "rec.h5", recordings["A"])
-    out = write_fused(path, fuse_recording(recordings["A"]), output=tmp_path / "out.h5")
+    out = write_fused(path, fuse_recording(recordings["A"], config()), output=tmp_path / "out.h5")
     with h5py.File(path, "r") as f:
         assert "fused" not in f
     assert len(read_fused(out)) > 0
@@ -59,10 +60,10 @@ def test_fused_errors(tmp_path, recordings):
     path = write_recording(tmp_path / "rec.h5", recordings["A"])
     with pytest.raises(FileFormatError, match="has no /fused group"):
         read_fused(path)
-    write_fused(path, fuse_recording(recordings["A"]))
+    write_fused(path, fuse_recording(recordings["A"], config()))
     with h5py.File(path, "r+") as f:
         del f["fused/covariance"]
     with pytest.raises(FileFormatError, match="/fused/covariance is missing"):
         read_fused(path)
     with pytest.raises(FileFormatError, match="does not exist"):
-        write_fused(tmp_path / "nope.h5", fuse_recording(recordings["A"]))
+        write_fused(tmp_path / "nope.h5", fuse_recording(recordings["A"], config()))

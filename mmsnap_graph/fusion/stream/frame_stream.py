@@ -336,7 +336,11 @@ class FrameStream:
         (rounded; always after the previous frame's)."""
         if self._first_time_s is None:
             self._first_time_s = t
-        k = int(round((t - self._first_time_s) / self.frame_period_s))
+        k = (t - self._first_time_s) / self.frame_period_s
+        if not (math.isfinite(k) and abs(k) < 2.0 ** 52):
+            # Stamps that far apart share no check: number anew from this one.
+            self._first_time_s, self._last_frame, k = t, None, 0.0
+        k = int(round(k))
         if self._last_frame is not None and k <= self._last_frame:
             k = self._last_frame + 1
         self._last_frame = k
@@ -399,6 +403,7 @@ class FrameStream:
         self._rejected_times.clear()
         self._tracker = self._new_tracker()
         self._last_time_s = None
+        self._first_time_s = None
         self.clock_restarts += 1
         return True
 

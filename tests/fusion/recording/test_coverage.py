@@ -12,6 +12,7 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.real.ghosts import ghost_centroids
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
+from _fusion import config
 
 POSES = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])   # S1 faces +y, S2 faces -x
 #: The check needs a third node: S3 far away, facing away from the room (it
@@ -66,14 +67,13 @@ def test_mirror_images_that_another_radar_covers_are_flagged_in_a_recording():
                              levels=("centroids",), n_frames=300, seed=10)
     ghosts = ghost_centroids(rec, "mirror", 0.2, seed=110)
 
-    def far_rows(options):
-        fused = fuse_recording(ghosts, noise=CENTROID_NOISE, robust="gate", progress=False,
-                               options=options)
+    def far_rows(**settings):
+        fused = fuse_recording(ghosts, config(robust="gate", **settings), noise=CENTROID_NOISE, progress=False)
         err = np.hypot(*(fused.state[:, :2] - rec.truth.state[fused.frame, :2]).T)
         return fused, int(np.sum(fused.success & (err > 0.5)))
 
-    fused, far = far_rows(FusionOptions())
-    _, far_off = far_rows(FusionOptions(coverage_check=False))
+    fused, far = far_rows()
+    _, far_off = far_rows(coverage_check=False)
     assert far < far_off / 2, (far, far_off)
     msg = [m for m, s in zip(fused.message, fused.status) if "covers this place" in m]
     assert msg and all(s == Status.MOTION_INCONSISTENT for m, s in zip(fused.message, fused.status)

@@ -55,6 +55,7 @@ from mmsnap_graph.fusion.options import NetworkCalibration
 from mmsnap_graph.sim.clocks import scene_recording, timed_scene, trajectory_function
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
 from mmsnap_graph.sim import CLEAN
+from _fusion import config
 
 T = 0.15
 #: The simulator's centroid noise (sim.simulator.CENTROID_NOISE).
@@ -372,8 +373,7 @@ def test_end_to_end_calibrate_then_fuse_on_the_reference_clock():
     assert abs(err) < 4 * np.sqrt(res.time_offset_variances["S2"]), err
 
     def fused_rmse(recording):
-        fs = fuse_recording(recording, calibration=NetworkCalibration(node_poses=res.poses),
-                            noise=NOISE)
+        fs = fuse_recording(recording, config(), calibration=NetworkCalibration(node_poses=res.poses), noise=NOISE)
         keep = fs.observed.all(axis=1) & fs.success & (fs.frame >= 0) & (fs.frame < 600)
         d = fs.state[keep, :2] - scene.truth[fs.frame[keep], :2]
         return np.sqrt(np.mean(np.sum(d**2, axis=1)))
@@ -418,9 +418,8 @@ def test_the_range_offset_moves_fused_bodies_to_their_centre():
         return float(np.median(errs))
 
     noise = MeasurementNoise(range_m=0.09, omega_rad=0.08, doppler_mps=0.1)
-    plain = fuse_recording(rec, calibration=NetworkCalibration(node_poses=rec.truth.node_poses),
-                           noise=noise)
-    with_offset = fuse_recording(rec, calibration=NetworkCalibration(
+    plain = fuse_recording(rec, config(), calibration=NetworkCalibration(node_poses=rec.truth.node_poses), noise=noise)
+    with_offset = fuse_recording(rec, config(), calibration=NetworkCalibration(
         node_poses=rec.truth.node_poses, range_offset_m=0.05), noise=noise)
     before, after = mean_range_error(plain), mean_range_error(with_offset)
     assert before < -0.015  # measured -0.022 m
