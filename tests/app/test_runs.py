@@ -82,8 +82,16 @@ def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated_c_f
     rec = read_recording(calibrated_c_file, load_cubes=False)
     cal = read_calibration(calibrated_c_file)
     noise = read_noise(calibrated_c_file)
-    aligned = align_recording(rec, dict(cal.time_offset_s))
-    stream = FrameStream(rec.node_names, recording_poses(rec), config=stream_config(prior=GaussianPrior()), noise={n: noise.nodes[n].noise for n in rec.node_names}, pose_covariances={"S2": cal.covariances["S2"]})
+    from mmsnap_graph.fusion.options import NetworkCalibration
+    from mmsnap_graph.fusion.recording.sequence import calibrated_recording
+    from mmsnap_graph.fusion.stream.frame_stream import STREAM_CONFIG
+
+    depth = float(cal.range_offset_m)
+    aligned = calibrated_recording(rec, NetworkCalibration(
+        time_offset_s=dict(cal.time_offset_s), range_offset_m=depth if np.isfinite(depth) else None))
+    stream = FrameStream(rec.node_names, recording_poses(rec), config=STREAM_CONFIG,
+                         noise={n: noise.nodes[n].noise for n in rec.node_names},
+                         pose_covariances={"S2": cal.covariances["S2"]})
     fill = stream.tracker_config.max_misses
     expected = [(f, stream.push(t, d)) for f, t, d in recording_frames(aligned, fill_frames=fill)]
     assert [r["frame"] for r in rows] == [f for f, _ in expected]
