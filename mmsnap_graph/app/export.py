@@ -7,6 +7,12 @@ Columns carry their units in their names, as in the HDF5 format
 fused row's covariance is given as its four standard deviations and the
 position correlation (``rho_xy``); the full 4 x 4 matrix is in the
 ``covariance`` column of JSON lines (row-major), which keeps every digit.
+
+A CSV text cell that starts with ``=``, ``+``, ``-``, ``@``, a tab or a
+carriage return (a node named ``+SUM(1)`` or ``=cmd|...``) is written with a
+leading ``'``, so that a spreadsheet shows it as text instead of running it as
+a formula (:func:`csv_cell`); numbers are written as they are (``-1.5``
+stays a number). JSON lines keep every string as it is.
 """
 
 from __future__ import annotations
@@ -20,7 +26,9 @@ from typing import Any, Iterable
 
 import numpy as np
 
-__all__ = ["TABLES", "FORMATS", "fused_rows", "calibration_rows", "write_table"]
+from ..errors import ValidationError
+
+__all__ = ["TABLES", "FORMATS", "fused_rows", "calibration_rows", "write_table", "csv_cell"]
 
 #: What can be exported, and in which formats.
 TABLES = ("fused", "calibration")
@@ -84,18 +92,41 @@ def calibration_rows(path: str | os.PathLike) -> Iterable[dict[str, Any]]:
                "covariance": [_num(v) for v in cov.ravel()]}
 
 
+#: First characters that make a spreadsheet read a cell as a formula.
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_cell(value: Any) -> Any:
+    """A CSV cell: ``""`` for a missing number, a text that a spreadsheet
+    would run as a formula (it starts with one of :data:`FORMULA_STARTS`)
+    behind a ``'``, anything else as it is."""
+    if value is None:
+        return ""
+    if isinstance(value, str) and value.startswith(FORMULA_STARTS):
+        return "'" + value
+    return value
+
+
 def write_table(rows: Iterable[dict[str, Any]], columns: tuple[str, ...], fmt: str) -> str:
-    """The rows as text: CSV with ``columns`` (an empty cell for a missing
-    number) or JSON lines with every key (``null`` for a missing number)."""
+    """The rows as text: CSV with ``columns`` (cells by :func:`csv_cell`: an
+    empty cell for a missing number, a formula-like text behind a ``'``) or
+    JSON lines with every key (``null`` for a missing number)."""
     out = io.StringIO()
     if fmt == "csv":
         writer = csv.DictWriter(out, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
+        # The csv module quotes a field holding the line terminator, "\n", but
+        # not a bare "\r", which readers take as a line break: such a row is
+        # written with every field quoted.
+        quoted = csv.DictWriter(out, fieldnames=columns, extrasaction="ignore",
+                                lineterminator="\n", quoting=csv.QUOTE_ALL)
         writer.writeheader()
         for row in rows:
-            writer.writerow({k: "" if row[k] is None else row[k] for k in columns})
+            cells = {k: csv_cell(row[k]) for k in columns}
+            carriage = any(isinstance(v, str) and "\r" in v for v in cells.values())
+            (quoted if carriage else writer).writerow(cells)
     elif fmt == "jsonl":
         for row in rows:
             out.write(json.dumps(row, allow_nan=False) + "\n")
     else:
-        raise ValueError(f"format must be one of {FORMATS}, got {fmt!r}")
+        raise ValidationError(f"format must be one of {FORMATS}, got {fmt!r}")
     return out.getvalue()

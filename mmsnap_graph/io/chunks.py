@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Mapping
@@ -33,6 +32,7 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
+from .._atomic import scratch_folder
 from ..data.recording import (MAX_FRAME_PERIOD_S, MIN_FRAME_PERIOD_S, Detections, NodeData,
                               Recording)
 from ..data.results import FusedSequence
@@ -352,5 +352,5 @@ def fused_writer(path: str | os.PathLike, *, output: str | os.PathLike | None = 
     throughout (:func:`mmsnap_graph._atomic.recording_lock`).
     """
     with edited_copy(path, output) as f, \
-            tempfile.TemporaryDirectory(prefix="mmsnap_fused_") as scratch:
+            scratch_folder(path if output is None else output) as scratch:  # not $TMPDIR
         yield FusedWriter(replace_group(f, FUSED_GROUP, path), Path(scratch), Path(path))

@@ -482,3 +482,18 @@ def test_odd_option_values_give_a_clean_exit(verb, recording_b_file, tmp_path, c
         capsys.readouterr()
         assert code in (0, 1, 2), (argv, code)
         assert _time.monotonic() - start < 15, argv
+
+
+def test_a_warning_is_one_line_and_the_command_goes_on(tmp_path, capsys):
+    """A spherical table in radians imported with --degrees: every angle within
+    +-1.6 degrees warns as ``mmsnap import: warning: ...`` and the import goes on."""
+    rows = [f"{k // 2},{1 + 0.1 * k:.2f},{0.02 * (k - 10):.3f},{0.01 * (k % 5):.3f},0.2"
+            for k in range(20)]
+    path = tmp_path / "radians.csv"
+    path.write_text("\n".join(["frame,range,azimuth,elevation,doppler", *rows]) + "\n")
+    code = main(["import", "table", "--node", f"S1={path}", "--degrees", "--frame-period", "0.05",
+                 "-o", str(tmp_path / "o.h5")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 0
+    assert len(err) == 1 and err[0].startswith("mmsnap import: warning: ")
+    assert "every azimuth and elevation lies within" in err[0]

@@ -48,3 +48,18 @@ def test_calibration_csv_has_degrees_and_sigmas(fused_b_file, capsys):
     s2 = rows["S2"]
     assert float(s2["phi_deg"]) == pytest.approx(np.degrees(cal.poses["S2"][2]))
     assert float(s2["sigma_x_m"]) == pytest.approx(np.sqrt(cal.covariances["S2"][0, 0]))
+
+
+def test_csv_cells_a_spreadsheet_would_run_are_neutralised():
+    """Before: node names such as `+SUM(1)` or `=cmd|...` went out as they
+    are, and a spreadsheet ran them as formulas."""
+    from mmsnap_graph.app.export import write_table
+
+    names = ["=cmd|' /C calc'!A0", "+SUM(1)", "-2+3", "@SUM(A1)", "\tx", "\rx", "S1", "a=b"]
+    rows = [{"node": n, "x_m": -1.5, "calibrated": True} for n in names]
+    text = write_table(rows, ("node", "x_m", "calibrated"), "csv")
+    back = list(csv.DictReader(io.StringIO(text, newline="")))
+    assert [r["node"] for r in back] == ["'" + n for n in names[:6]] + ["S1", "a=b"]
+    assert all(r["x_m"] == "-1.5" for r in back)  # a negative number stays a number
+    lines = write_table(rows, ("node", "x_m"), "jsonl").splitlines()
+    assert [json.loads(ln)["node"] for ln in lines] == names  # JSON keeps the text

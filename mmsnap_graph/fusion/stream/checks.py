@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ...data.results import FusedSequence
-from ..config import FusionConfig, LearnedWalls
+from ..config import DuplicateCheck, FusionConfig, LearnedWalls, RoomCheck
 from ..recording.pipeline import (FusionNetwork, check_rows, fused_sequence, screen_rows,
                                   solve_groups)
 from ..recording.room import learn_room_walls
@@ -80,6 +80,9 @@ class StreamPipeline:
         self._held: deque[SolvedFrame] = deque()
         walls = config.check(LearnedWalls)
         self._walls_cfg = walls
+        # No check in the reference frame: a frame's rows need no FusedSequence.
+        self._screens = any(config.check(k) is not None
+                            for k in (RoomCheck, LearnedWalls, DuplicateCheck))
         self._history: deque[FusedSequence] = deque()
         self._walls: list = []
         self._since_learned = 0
@@ -93,9 +96,14 @@ class StreamPipeline:
             self._held.append(solved)
         return solved
 
-    def decide(self, frame: int) -> FusedSequence:
-        """The rows of ``frame`` after every check, from the frames held."""
+    def decide(self, frame: int) -> FusedSequence | FusedRows:
+        """The rows of ``frame`` after every check, from the frames held: a
+        :class:`FusedSequence`, or its :class:`FusedRows` alone when no check
+        in the reference frame runs (the same state, covariance, status,
+        degeneracy and rejected nodes)."""
         ctx = self.config.context_frames
+        if ctx == 0 and not self._screens:
+            return self._decide_alone(frame)
         while self._held and self._held[0].frame < frame - ctx:
             self._held.popleft()
         held = [h for h in self._held if h.frame <= frame + self.delay_frames]
@@ -116,6 +124,17 @@ class StreamPipeline:
         for name in FusedRows.__slots__:
             setattr(own, name, getattr(rows, name)[sl])
         return self._sequence(frame, members[sl], own, z[sl])
+
+    def _decide_alone(self, frame: int) -> FusedRows:
+        """The rows of ``frame`` when every check is of the frame alone."""
+        while self._held and self._held[0].frame < frame:
+            self._held.popleft()
+        if not self._held or self._held[0].frame != frame:
+            return FusedRows(0, len(self.net.node_names))
+        h = self._held.popleft()
+        check_rows(h.rows, np.full(h.members.shape[0], frame, np.int64), h.members, h.z,
+                   self.net, self.config)
+        return h.rows
 
     def _sequence(self, frame, members, rows: FusedRows, z) -> FusedSequence:
         g = members.shape[0]

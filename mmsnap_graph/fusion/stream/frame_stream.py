@@ -11,7 +11,7 @@ one-shot fusion of each group), and what
 :meth:`~mmsnap_graph.tracking.central.CentralTracker.step` with the frame's
 successful estimates; a MAP estimate has its prior removed by the tracker).
 
-It is built for latency (docs/STREAMING.md, "Latency"): the grouping is
+It is built for latency (docs/validation/speed.md, "Latency"): the grouping is
 :class:`~mmsnap_graph.fusion.stream.association.StreamAssociator` (the
 decisions of ``associate_frame`` in plain floats for up to four detections
 per node, ``associate_frame`` itself otherwise); the default solver
@@ -380,7 +380,7 @@ class FrameStream:
                 self._step_tracker(np.zeros((0, 4)), np.zeros((0, 4, 4)), dt)
                 done.append(self._update(index, t, False, problem, None, start, dropped))
                 continue
-            ok = np.asarray(seq.success, dtype=bool)
+            ok = np.asarray(seq.status == Status.OK, dtype=bool)
             self.failed_groups += int(np.count_nonzero(~ok))
             problem = self._step_tracker(seq.state[ok], seq.covariance[ok], dt)
             message = "; ".join(x for x in (problem, note) if x)

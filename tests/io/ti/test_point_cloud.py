@@ -7,7 +7,7 @@ import pytest
 
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.io.ti.point_cloud import (Mounting, PointCloud3D, accumulate_frames,
-                                         check_frame_period)
+                                            check_frame_period, stamp_unit_factor)
 
 
 def test_a_height_in_centimetres_is_named():
@@ -38,3 +38,25 @@ def test_accumulated_stamps_move_with_their_frame():
     np.testing.assert_allclose(cloud.time_s - 10.0, 0.1 * cloud.frame)
     with pytest.raises(ValidationError, match="would make"):
         accumulate_frames(_cloud(frames, 10.0 + 0.1 * frames), 10 ** 8)
+
+
+def test_stamps_in_milliseconds_without_frame_numbers_are_a_unit_error():
+    """Frames numbered from stamps in ms read as s lie 1000 frames apart
+    (a real table gave frames 0-643000 and processed to no centroid)."""
+    frames = np.repeat(np.arange(50), 3)
+    stamps_ms = 50.0 * frames                        # 20 fps, in milliseconds
+    as_seconds = _cloud(np.round(stamps_ms / 0.05).astype(int), stamps_ms)
+    assert stamp_unit_factor(as_seconds, 0.05) == 1e3
+    problem = check_frame_period(as_seconds, 0.05)
+    assert "a median 1000 frames" in problem and "a factor of 1000" in problem
+    right = _cloud(frames, stamps_ms * 1e-3)
+    assert stamp_unit_factor(right, 0.05) is None and check_frame_period(right, 0.05) is None
+    # A frame column: the stamps advance 1000 periods per frame, or a thousandth.
+    assert stamp_unit_factor(_cloud(frames, stamps_ms), 0.05) == 1e3
+    assert stamp_unit_factor(_cloud(frames, stamps_ms * 1e-6), 0.05) == 1e-3
+    # Stamps in s read as ms: one stamp per frame, all merged into frame 0.
+    merged = _cloud(np.zeros(frames.size, int), stamps_ms * 1e-6)
+    assert stamp_unit_factor(merged, 0.05) == 1e-3
+    assert "a factor of 0.001" in check_frame_period(merged, 0.05)
+    # A sparse but real log (a person every other frame) is no unit error.
+    assert stamp_unit_factor(_cloud(2 * frames, 0.1 * frames), 0.05) is None
