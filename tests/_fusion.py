@@ -27,7 +27,7 @@ _SOLVE = {"lm", "covariance", "grid_points_per_axis", "grid_half_width_sigmas",
 
 def config(*, mode: str = "map", prior=PAPER_PRIOR, robust=None, options=None,
            motion_check=None, body_merge=None, merge_body_m=CENTROID_MERGE_RADIUS_M,
-           coverage_check=True, gate_probability=0.999, source="centroids", split_check=True,
+           coverage_check=True, coverage_reach_m=None, gate_probability=0.999, source="centroids", split_check=True,
            bounds=None, static_bounds=None, in_front=False, walls=False, body_m=None,
            **solve) -> FusionConfig:
     """The FusionConfig of these settings (module docstring); ``solve``:
@@ -44,7 +44,7 @@ def config(*, mode: str = "map", prior=PAPER_PRIOR, robust=None, options=None,
     if motion:
         checks.append(MotionCheck())
         if coverage_check:
-            checks.append(CoverageCheck())
+            checks.append(CoverageCheck(reach_m=coverage_reach_m))
     if bounds is not None or static_bounds is not None or in_front:
         checks.append(RoomCheck(bounds=bounds, static_bounds=static_bounds, in_front=in_front))
     if walls and bounds is None:

@@ -28,13 +28,14 @@ import numpy as np
 from .._validation import check_count
 from ..errors import ValidationError
 from ..data.noise import MeasurementNoise
-from ..fusion.config import DEFAULT_CONFIG, FusionConfig
+from ..fusion.config import DEFAULT_CONFIG, CoverageCheck, FusionConfig
 from ..fusion.options import NetworkCalibration
 from ..fusion.recording.pipeline import screen_rows
 from ..fusion.recording.room import RoomReport
 from ..fusion.recording.sequence import check_calibration, fuse_recording_rows
 from ..fusion.recording.timing import split_offset
 from ..io.chunks import open_detection_windows, fused_writer
+from ..tracking.person_ids import PersonIds
 
 __all__ = ["DEFAULT_WINDOW_FRAMES", "ChunkedFuseSummary", "fuse_file"]
 
@@ -82,7 +83,8 @@ def _global_rows(fused, rows: Mapping[str, np.ndarray], names):
 #: The per-row fields of a FusedSequence (those a window keeps of its context).
 _ROW_FIELDS = ("frame", "target", "label", "detection_index", "observed", "state", "covariance",
                "laplace_covariance", "success", "status", "message", "iterations", "final_cost",
-               "degeneracy", "rejected", "time_s", "information", "information_vector")
+               "degeneracy", "rejected", "time_s", "information", "information_vector",
+               "track_id")
 
 
 def _own_rows(fused, start: int, stop: int):
@@ -128,6 +130,10 @@ def fuse_file(path: str | os.PathLike, config: FusionConfig = DEFAULT_CONFIG, *,
         raise ValidationError(f"config must be a FusionConfig, got {type(config).__name__}")
     calibration = check_calibration(calibration)
     windows = open_detection_windows(path, source=config.association.source)
+    if config.check(CoverageCheck) is not None:
+        # How far each node looks, over the whole file (a window alone would
+        # judge it by its own frames and differ from the whole recording's).
+        config = config.with_coverage_reach(windows.reach_m())
     # Clock offsets move each node's frames by its own whole-frame shift
     # before fusion (fusion.recording.timing.align_recording): each node's window is
     # read shifted the same way, so that a window holds the same reference
@@ -143,6 +149,7 @@ def fuse_file(path: str | os.PathLike, config: FusionConfig = DEFAULT_CONFIG, *,
     flagged = RoomReport()
     n_frames = n_windows = 0
     context = config.context_frames  # the checks' look-around
+    person_ids = PersonIds()
     with fused_writer(path, output=output) as writer, \
             _progress(len(spans), progress) as bar:
         for start, stop in spans:
@@ -155,6 +162,7 @@ def fuse_file(path: str | os.PathLike, config: FusionConfig = DEFAULT_CONFIG, *,
                 continue  # detections in the context frames only
             fused, report = screen_rows(fused, config)
             flagged = flagged + report
+            fused = person_ids.assign(fused)  # one tracker over the windows, after the screens
             writer.append(_global_rows(fused, rows, rec.node_names))
             n_frames += int(np.unique(fused.frame).size)
             n_windows += 1

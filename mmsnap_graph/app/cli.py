@@ -176,7 +176,9 @@ def _silence_stdout() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run ``mmsnap`` with ``argv``; the exit code (module docstring)."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    with warnings.catch_warnings(record=True) as parsing:   # an option's value (degrees)
+        warnings.simplefilter("always", MmsnapWarning)
+        args = parser.parse_args(argv)
     configure_logging(args.verbose, args.quiet)
     prefix = f"mmsnap {args.command}: error:"
     with warnings.catch_warnings():
@@ -189,6 +191,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"mmsnap {args.command}: warning: {_one_line(message)}", file=sys.stderr)
 
         warnings.showwarning = show
+        for w in parsing:
+            show(w.message, w.category, w.filename, w.lineno)
         return _run(args, prefix)
 
 

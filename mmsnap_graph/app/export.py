@@ -3,7 +3,10 @@
 ``/calibration``, as CSV or JSON lines.
 
 Columns carry their units in their names, as in the HDF5 format
-(docs/FORMAT.md); angles are radians, with a ``_deg`` twin for people. A
+(docs/FORMAT.md); angles are radians, with a ``_deg`` twin for people.
+``track_id`` is a fused row's person id (the central tracker's,
+docs/FORMAT.md "Person ids"; -1 for a row not fused; empty for a file fused
+before person ids). A
 fused row's covariance is given as its four standard deviations and the
 position correlation (``rho_xy``); the full 4 x 4 matrix is in the
 ``covariance`` column of JSON lines (row-major), which keeps every digit.
@@ -34,7 +37,7 @@ __all__ = ["TABLES", "FORMATS", "fused_rows", "calibration_rows", "write_table",
 TABLES = ("fused", "calibration")
 FORMATS = ("csv", "jsonl")
 
-FUSED_COLUMNS = ("frame", "time_s", "target", "label", "x_m", "y_m", "vx_mps", "vy_mps",
+FUSED_COLUMNS = ("frame", "time_s", "target", "label", "track_id", "x_m", "y_m", "vx_mps", "vy_mps",
                  "sigma_x_m", "sigma_y_m", "sigma_vx_mps", "sigma_vy_mps", "rho_xy",
                  "success", "status", "message", "nodes")
 CALIBRATION_COLUMNS = ("node", "calibrated", "x_m", "y_m", "phi_rad", "phi_deg",
@@ -55,6 +58,7 @@ def fused_rows(path: str | os.PathLike) -> Iterable[dict[str, Any]]:
     fused = read_fused(path)
     names = list(fused.node_names)
     time_s = fused.time_s if fused.time_s is not None else np.full(len(fused.frame), np.nan)
+    track_id = fused.track_id  # None: a file fused before person ids (an empty column)
     for k in range(len(fused.frame)):
         cov = np.asarray(fused.covariance[k], float)
         sig = np.sqrt(np.clip(np.diagonal(cov), 0, None))
@@ -62,6 +66,7 @@ def fused_rows(path: str | os.PathLike) -> Iterable[dict[str, Any]]:
         x = fused.state[k]
         yield {"frame": int(fused.frame[k]), "time_s": _num(time_s[k]),
                "target": int(fused.target[k]), "label": int(fused.label[k]),
+               "track_id": None if track_id is None else int(track_id[k]),
                "x_m": _num(x[0]), "y_m": _num(x[1]), "vx_mps": _num(x[2]), "vy_mps": _num(x[3]),
                "sigma_x_m": _num(sig[0]), "sigma_y_m": _num(sig[1]),
                "sigma_vx_mps": _num(sig[2]), "sigma_vy_mps": _num(sig[3]), "rho_xy": _num(rho),

@@ -32,7 +32,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal
+from types import MappingProxyType
+from typing import ClassVar, Literal, Mapping
 
 import numpy as np
 
@@ -107,13 +108,47 @@ class SplitCheck:
     look_frames: ClassVar[int] = 0
 
 
+def _reach(value: object) -> Mapping[str, float] | None:
+    """``CoverageCheck.reach_m`` as a read-only ``{name: metres}``."""
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise ValidationError("CoverageCheck.reach_m must be a mapping node name -> metres, got "
+                              f"{type(value).__name__}")
+    out = {}
+    for name, reach in value.items():
+        if isinstance(reach, (bool, np.bool_)) or not isinstance(
+                reach, (int, float, np.integer, np.floating)) or not (math.isfinite(reach)
+                                                                     and reach >= 0):
+            raise ValidationError(f"CoverageCheck.reach_m[{name!r}]={reach!r} must be a finite "
+                                  "number of metres >= 0")
+        out[str(name)] = float(reach)
+    return MappingProxyType(out)
+
+
 @dataclass(frozen=True, kw_only=True, slots=True)
 class CoverageCheck:
     """Flag a row that a node whose field of view covers it never sees in
     the frames around (:mod:`~mmsnap_graph.fusion.recording.coverage`: a
-    multipath image). Runs on the rows the motion check left; needs it."""
+    multipath image). Runs on the rows the motion check left; needs it.
 
+    reach_m : node name -> how far the node looks (m). A node left out (or
+        None, the default): the farthest of its detections the driver has
+        (:func:`~mmsnap_graph.fusion.recording.coverage.detection_reach_m`):
+        the whole recording in memory (before the calibration's offsets), the
+        whole file for the windowed driver (so that each window is judged as
+        the whole recording), the detections so far for a stream.
+    """
+
+    reach_m: Mapping[str, float] | None = None
     look_frames: ClassVar[int] = MOTION_WINDOW_FRAMES
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "reach_m", _reach(self.reach_m))
+
+    def with_reach(self, reach_m: Mapping[str, float]) -> "CoverageCheck":
+        """This check with ``reach_m`` for the nodes it does not give."""
+        return CoverageCheck(reach_m={**dict(reach_m), **dict(self.reach_m or {})})
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -259,6 +294,16 @@ class FusionConfig:
     def check(self, kind: type):
         """The component of type ``kind`` in :attr:`checks`, or None."""
         return next((c for c in self.checks if isinstance(c, kind)), None)
+
+    def with_coverage_reach(self, reach_m: Mapping[str, float]) -> "FusionConfig":
+        """This configuration with the coverage check's reach filled in from
+        ``reach_m`` (the nodes it does not give); unchanged without the check."""
+        cov = self.check(CoverageCheck)
+        if cov is None:
+            return self
+        checks = tuple(cov.with_reach(reach_m) if c is cov else c for c in self.checks)
+        return FusionConfig(solve=self.solve, prior=self.prior, robust=self.robust,
+                            association=self.association, checks=checks)
 
     @property
     def context_frames(self) -> int:

@@ -9,9 +9,11 @@ import h5py
 import numpy as np
 import pytest
 
+from _scenes import small_room_image
 from mmsnap_graph.app import chunked_fuse
 from mmsnap_graph.app.chunked_fuse import fuse_file
 from mmsnap_graph.app.cli import main
+from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections, Recording
 from mmsnap_graph.errors import FileFormatError, ValidationError
 from mmsnap_graph.fusion.recording.sequence import fuse_recording, fuse_recording_rows
@@ -20,7 +22,8 @@ from mmsnap_graph.io import read_fused, read_recording, write_recording
 from mmsnap_graph.io.chunks import open_detection_windows
 from _fusion import config
 
-EXACT = ("frame", "target", "label", "detection_index", "observed", "success", "status")
+EXACT = ("frame", "target", "label", "detection_index", "observed", "success", "status",
+         "track_id")
 CLOSE = ("state", "covariance", "laplace_covariance", "degeneracy", "information",
          "information_vector", "time_s")
 
@@ -186,10 +189,13 @@ def test_the_calibration_is_one_network_calibration(good):
 
 def test_the_cli_writes_what_fuse_file_writes(good, tmp_path, capsys):
     """The CLI's default is the robust gate with the motion check, then one
-    target per body (fusion.recording.room)."""
+    target per body (fusion.recording.room), then the person ids of the rows
+    left (the tracker is the last step)."""
     from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, screen_room
-    reference = screen_room(fuse_recording(read_recording(good), config(robust="gate"), progress=False),
-                            body_m=DEFAULT_BODY_M)[0]
+    from mmsnap_graph.tracking.person_ids import assign_person_ids
+    reference = assign_person_ids(screen_room(
+        fuse_recording(read_recording(good), config(robust="gate"), progress=False),
+        body_m=DEFAULT_BODY_M)[0])
     out = tmp_path / "cli.h5"
     assert main(["fuse", str(good), "-o", str(out), "--no-progress"]) == 0
     assert f"fused {len(reference)} targets" in capsys.readouterr().out
@@ -214,3 +220,21 @@ def test_clock_offsets_read_each_node_shifted(good, tmp_path, window):
     for k in ("state", "covariance", "time_s"):
         np.testing.assert_allclose(getattr(got, k), getattr(ref, k), rtol=0, atol=1e-7,
                                    err_msg=k)
+
+
+@pytest.mark.parametrize("window", [7, 100_000])
+def test_the_coverage_check_judges_each_window_by_the_whole_file(tmp_path, window):
+    # A node's reach is the farthest of all its detections in the file (the
+    # point cloud's static reflector here), not of the window's own centroids.
+    rec, _, image = small_room_image()
+    path = tmp_path / "room.h5"
+    write_recording(path, rec)
+    noise = MeasurementNoise(range_m=0.02, omega_rad=0.01, doppler_mps=0.05)
+    ref = fuse_recording(read_recording(path), config(robust="gate"), noise=noise,
+                         progress=False)
+    fuse_file(path, config(robust="gate"), output=tmp_path / "out.h5", window_frames=window,
+              progress=False, noise=noise)
+    got = read_fused(tmp_path / "out.h5")
+    assert_same(got, ref)
+    at_image = np.hypot(*(got.state[:, :2] - image[got.frame, :2]).T) < 0.5
+    assert at_image.sum() == 40 and not got.success[at_image].any()

@@ -118,3 +118,22 @@ def test_the_scratch_of_a_killed_fuse_is_beside_the_output_and_removed_next_time
     with fused_writer(rec):
         pass
     assert sorted(p.name for p in work.iterdir()) == ["rec.h5"]
+
+
+def test_a_window_without_person_ids_reads_as_no_person(base, fused_b_map, tmp_path):
+    """A window appended without ``track_id`` before one with it: its rows
+    read -1 (no person), not 0 (the first person's id)."""
+    import dataclasses
+
+    from mmsnap_graph.io.chunks import fused_writer
+
+    path = tmp_path / "rec.h5"
+    shutil.copy(base, path)
+    assert (fused_b_map.track_id == 0).any()
+    with fused_writer(path) as writer:
+        writer.append(dataclasses.replace(fused_b_map, track_id=None))
+        writer.append(fused_b_map)
+    back = read_fused(path).track_id
+    n = len(fused_b_map)
+    np.testing.assert_array_equal(back[:n], -1)
+    np.testing.assert_array_equal(back[n:], fused_b_map.track_id)

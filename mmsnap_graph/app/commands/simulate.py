@@ -10,7 +10,7 @@ import sys
 from mmsnap_graph._atomic import check_output_path, scratch_folder
 from mmsnap_graph.errors import ValidationError
 
-from .arguments import named_pose
+from .arguments import HEADING_HELP, named_pose
 
 
 def register(subparsers) -> None:
@@ -23,8 +23,8 @@ def register(subparsers) -> None:
     p.add_argument("-c", "--configuration", choices=["A", "B", "C"], default="C",
                    help="network configuration (default %(default)s); ignored with --node")
     p.add_argument("--node", action="append", type=named_pose, metavar="NAME=X,Y,PHI_DEG",
-                   help="a node pose: x, y in metres, heading PHI in degrees (stored in radians); repeat, "
-                        "the first is the reference S1, e.g. S1=0,0,0")
+                   help="a node pose: x, y in metres; repeat, the first is the reference "
+                        f"S1, e.g. S1=0,0,0. {HEADING_HELP}, stored in radians")
     p.add_argument("-t", "--trajectory", choices=["straight", "random"], default="straight",
                    help="target trajectory (default %(default)s)")
     p.add_argument("-l", "--levels", default="centroids,point_cloud",

@@ -157,10 +157,17 @@ def _check_motion(out: FusedRows, frame, z, obs, net, config) -> None:
                     message=out.message[i] if r.success else r.message)
 
 
-def _check_coverage(out: FusedRows, frame, z, obs, net) -> None:
+def _check_coverage(out: FusedRows, frame, z, obs, net, check: CoverageCheck,
+                    reach_m) -> None:
+    given = dict(check.reach_m or {})
+    if reach_m is None and len(given) < len(net.node_names):
+        reach = None  # the farthest of the rows' own ranges
+    else:
+        reach = np.array([given[n] if n in given else reach_m[i]
+                          for i, n in enumerate(net.node_names)], dtype=float)
     flag, node = uncovered_rows(frame, out.state, out.status == Status.OK, obs, z[:, :, 0],
                                 net.poses, frame_period_s=net.frame_period_s,
-                                body_m=DEFAULT_BODY_M)
+                                body_m=DEFAULT_BODY_M, reach_m=reach)
     for r in np.flatnonzero(flag):
         out.flag(r, Status.MOTION_INCONSISTENT,
                  f"motion check: node {net.node_names[node[r]]} covers this place and "
@@ -169,12 +176,14 @@ def _check_coverage(out: FusedRows, frame, z, obs, net) -> None:
 
 
 def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDArray,
-               net: FusionNetwork, config: FusionConfig) -> None:
+               net: FusionNetwork, config: FusionConfig, *, reach_m=None) -> None:
     """The checks on the solved rows, in place: the motion check
     (docs/ROBUST.md), then the one-node rows of frames the association split
     (after the motion check, the only row of a frame it kept stays), then the
     coverage check. ``frame`` (K,) sorted, ``detection_index`` (K, N), ``z``
-    (K, N, 3): the groups of the rows."""
+    (K, N, 3): the groups of the rows; ``reach_m`` (N,): each node's reach
+    where the coverage check gives none (None: the farthest of the rows'
+    ranges)."""
     obs = detection_index >= 0
     motion = config.check(MotionCheck) is not None
     if motion:
@@ -183,8 +192,9 @@ def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDAr
         split = split_rows(frame, detection_index, out.status, keep_sole=motion)
         # The estimate and its covariance stay for whoever wants them, untrusted.
         out.flag(split, Status.RESIDUAL_TEST_FAILED, SPLIT_MESSAGE, keep_covariance=True)
-    if config.check(CoverageCheck) is not None:
-        _check_coverage(out, frame, z, obs, net)
+    coverage = config.check(CoverageCheck)
+    if coverage is not None:
+        _check_coverage(out, frame, z, obs, net, coverage, reach_m)
 
 
 def grid_covariances(out: FusedRows, z, kept, net, config, progress) -> NDArray:

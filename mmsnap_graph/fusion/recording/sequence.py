@@ -40,6 +40,7 @@ from ..problem import check_node_noise, check_pose_covariances
 from ..options import NetworkCalibration
 from ..solvers.settings import check_solver
 from .pipeline import FusionNetwork, fuse_rows, screen_rows
+from .coverage import detection_reach_m
 from .regroup import merge_body_detections
 from .room import RoomReport
 from .timing import align_recording, offset_ranges
@@ -48,6 +49,7 @@ from ...data.recording import Recording
 from ...data.results import FusedSequence
 from ...errors import CalibrationError, MissingStepError, ValidationError
 from ..._validation import check_pose
+from ...tracking.person_ids import assign_person_ids
 
 __all__ = [
     "RECORDING_SOLVERS",
@@ -351,6 +353,10 @@ def fuse_recording_rows(
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     cal = check_calibration(calibration)
     assoc = config.association
+    # How far each node looks, from its detections before the offsets move
+    # them (as a file's reader takes them).
+    config = config.with_coverage_reach({n: detection_reach_m(recording.nodes[n])
+                                         for n in recording.node_names})
     recording = calibrated_recording(recording, cal, assoc.source)
     net = recording_network(recording, cal, noise, config)
     groups = group_detections(recording, net.poses, net.noise,
@@ -371,8 +377,9 @@ def fuse_recording_report(
 ) -> tuple[FusedSequence, RoomReport]:
     """:func:`fuse_recording`, and what its room checks flagged (a
     :class:`~.room.RoomReport`: counts and the learned walls)."""
-    return screen_rows(fuse_recording_rows(recording, config, calibration=calibration,
-                                           noise=noise, progress=progress), config)
+    fused, report = screen_rows(fuse_recording_rows(recording, config, calibration=calibration,
+                                                    noise=noise, progress=progress), config)
+    return assign_person_ids(fused), report
 
 
 def fuse_recording(
@@ -424,6 +431,8 @@ def fuse_recording(
         ``{node name: MeasurementNoise}`` holding every fused node (per-node
         noise, docs/CONVENTIONS.md); used by the association and the fusion.
     progress : show a tqdm bar (default: when stderr is a terminal).
+    The rows' ``track_id``: :func:`~mmsnap_graph.tracking.person_ids.assign_person_ids`
+    (the tracker, the pipeline's last stage, after every check).
     """
     return fuse_recording_report(recording, config, calibration=calibration, noise=noise,
                                  progress=progress)[0]

@@ -83,9 +83,19 @@ class StreamPipeline:
         # No check in the reference frame: a frame's rows need no FusedSequence.
         self._screens = any(config.check(k) is not None
                             for k in (RoomCheck, LearnedWalls, DuplicateCheck))
+        # The coverage check's reach of each node: its farthest detection so far.
+        self.reach_m = np.zeros(len(net.node_names))
         self._history: deque[FusedSequence] = deque()
         self._walls: list = []
         self._since_learned = 0
+
+    def see(self, per_node) -> None:
+        """A frame's detections (N arrays (K_n, 3)), for each node's reach."""
+        for i, d in enumerate(per_node):
+            if len(d):
+                far = float(np.max(d[:, 0]))
+                if far > self.reach_m[i]:
+                    self.reach_m[i] = far
 
     def solve(self, frame: int, members: NDArray, z: NDArray) -> SolvedFrame:
         """Solve one frame's groups and hold them for the checks."""
@@ -117,7 +127,7 @@ class StreamPipeline:
         frames = np.repeat([h.frame for h in held], sizes)
         members = np.concatenate([h.members for h in held])
         z = np.concatenate([h.z for h in held])
-        check_rows(rows, frames, members, z, self.net, self.config)
+        check_rows(rows, frames, members, z, self.net, self.config, reach_m=self.reach_m)
         lo = int(np.sum(sizes[:mine[0]]))
         sl = slice(lo, lo + sizes[mine[0]])
         own = FusedRows(sizes[mine[0]], n_nodes)
@@ -133,7 +143,7 @@ class StreamPipeline:
             return FusedRows(0, len(self.net.node_names))
         h = self._held.popleft()
         check_rows(h.rows, np.full(h.members.shape[0], frame, np.int64), h.members, h.z,
-                   self.net, self.config)
+                   self.net, self.config, reach_m=self.reach_m)
         return h.rows
 
     def _sequence(self, frame, members, rows: FusedRows, z) -> FusedSequence:

@@ -315,6 +315,7 @@ class FrameStream:
         note = "; ".join(x for x in (note, cap_note) if x)
         self._last_time_s = t
         frame = self._frame_number(t)
+        self._pipeline.see(per_node)
         try:
             per_node, kept = self._calibrated(per_node)
             members = self._associator.members(per_node)

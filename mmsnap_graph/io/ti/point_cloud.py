@@ -10,6 +10,7 @@ makes a :class:`Recording` with a point-cloud level per node.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -19,10 +20,11 @@ from numpy.typing import ArrayLike, NDArray
 from factors.projection import project_to_plane, room_to_sensor
 from ..._validation import as_float_array, check_count, int_array
 from ...data.recording import Detections, NodeData, Recording
-from ...errors import ValidationError
+from ...errors import MmsnapWarning, ValidationError
 
 __all__ = ["PointCloud3D", "Mounting", "cloud_to_detections", "recording_from_point_clouds",
-           "destack_frames", "accumulate_frames", "check_frame_period", "stamp_unit_factor"]
+           "destack_frames", "accumulate_frames", "check_frame_period", "stamp_unit_factor",
+           "beside_fraction"]
 
 _COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
 #: Limits of a radar point (no mmWave radar sees beyond a few hundred metres
@@ -378,6 +380,79 @@ def _no_twins(clouds: Mapping[str, PointCloud3D]) -> None:
         seen[key] = name
 
 
+#: A radar sees in front of it (TI's boards: about +-60 degrees of azimuth
+#: from the boresight): points beyond this azimuth in the sensor frame...
+BESIDE_AZIMUTH_RAD = float(np.deg2rad(75.0))
+#: ... are at most this fraction of a node's points (the real recordings:
+#: 0.6%; a room pose 90 degrees off puts 55-86% there, 180 degrees 100%).
+MAX_BESIDE_FRACTION = 0.25
+#: Fewer points than this are not judged.
+_MIN_VIEW_POINTS = 50
+
+
+def beside_fraction(points_xyz: NDArray) -> float:
+    """The fraction of sensor-frame points ``(K, 3)`` beyond
+    :data:`BESIDE_AZIMUTH_RAD` of the boresight (the sensor's y axis), behind
+    the radar included."""
+    if not len(points_xyz):
+        return 0.0
+    azimuth = np.arctan2(points_xyz[:, 0], points_xyz[:, 1])
+    return float(np.mean(np.abs(azimuth) > BESIDE_AZIMUTH_RAD))
+
+
+def _view_problem(name: str, cloud: PointCloud3D, mount: Mounting) -> str | None:
+    """Why a node's points do not lie in front of it once in its sensor
+    frame (a room pose with the boresight's heading, or in radians), or None."""
+    xyz = cloud.points_xyz
+    if len(xyz) < _MIN_VIEW_POINTS:
+        return None
+    to_sensor = lambda pose: (room_to_sensor(xyz, pose, mount.height_m, mount.tilt_rad)
+                              if pose is not None else xyz)
+    beside = beside_fraction(to_sensor(mount.room_pose))
+    if beside <= MAX_BESIDE_FRACTION:
+        return None
+    text = (f"node {name}: {100 * beside:.0f}% of its {len(xyz)} points lie more than "
+            f"{np.degrees(BESIDE_AZIMUTH_RAD):.0f} deg from the boresight (beside or behind the "
+            "radar) in its sensor frame")
+    if mount.room_pose is None:
+        return text + ("; a radar sees only in front of it (TI's sensor frame: x along the "
+                       "antenna array, y along the boresight; points in a room frame need the "
+                       "node's nominal pose, --room-pose)")
+    x, y, phi = mount.room_pose
+    candidates = {}
+    if abs(phi) <= np.deg2rad(2 * np.pi):          # radians typed where degrees are asked
+        candidates[f"heading {np.degrees(np.degrees(phi)):.4g} deg (the {np.degrees(phi):.4g} "
+                   "given, read as radians)"] = float(np.degrees(phi))
+    wrapped = lambda a: (a + np.pi) % (2 * np.pi) - np.pi
+    candidates.update({f"heading {np.degrees(wrapped(phi + d)):.4g} deg": phi + d
+                       for d in (np.pi / 2, -np.pi / 2, np.pi)})
+    fits = {k: beside_fraction(to_sensor((x, y, v))) for k, v in candidates.items()}
+    best = next((k for k, f in fits.items() if f <= MAX_BESIDE_FRACTION / 5),
+                min(fits, key=fits.get))
+    hint = (f"; {best} puts {100 * (1 - fits[best]):.1f}% in front"
+            if fits[best] <= MAX_BESIDE_FRACTION else "")
+    return (f"{text} once taken back with its room pose (x {x:g} m, y {y:g} m, heading "
+            f"{np.degrees(phi):.4g} deg; --room-pose); a radar sees only in front of it: the "
+            f"heading is the direction of the antenna array axis, the boresight heading + 90 "
+            f"deg{hint}")
+
+
+def _check_views(clouds: Mapping[str, PointCloud3D], mounts: Mapping[str, Mounting]) -> None:
+    """Each node's points in front of it (:func:`_view_problem`, an error);
+    a room pose for some nodes but not all warns."""
+    for name, cloud in clouds.items():
+        problem = _view_problem(name, cloud, mounts[name])
+        if problem:
+            raise ValidationError(problem)
+    rooms = sorted(name for name, m in mounts.items() if m.room_pose is not None)
+    if rooms and len(rooms) < len(mounts):
+        others = sorted(set(mounts) - set(rooms))
+        warnings.warn(f"nodes {rooms} have a room pose, {others} not: the points of {others} are "
+                      "taken as in their sensor frames; a logger that writes a room frame "
+                      "writes it for every radar (a missing --room-pose?)", MmsnapWarning,
+                      stacklevel=3)
+
+
 def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_period_s: float,
                                 mounting: Mounting | Mapping[str, Mounting] = Mounting(),
                                 height_band_m: tuple[float, float] | None = None,
@@ -399,13 +474,16 @@ def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_per
     if not (np.isfinite(fp) and fp > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
     _no_twins(clouds)
+    mounts = {name: mounting[name] if isinstance(mounting, Mapping) else mounting
+              for name in clouds}
+    _check_views(clouds, mounts)
     if common_frames:
         aligned, md = dict(clouds), {"frame_clock": "host"}
     else:
         aligned, md = _frame_offsets(clouds, fp)
     nodes = {}
     for name, cloud in aligned.items():
-        mount = mounting[name] if isinstance(mounting, Mapping) else mounting
+        mount = mounts[name]
         det = cloud_to_detections(cloud, mount, height_band_m=height_band_m)
         pose = None if poses is None or name not in poses else poses[name]
         nodes[name] = NodeData(name=name, pose=pose, point_cloud=det)

@@ -14,7 +14,7 @@ import numpy as np
 
 from mmsnap_graph.errors import ValidationError
 
-from ..arguments import named_values
+from ..arguments import HEADING_HELP, named_values
 
 
 
@@ -32,23 +32,28 @@ def height_band(text: str) -> tuple[float, float]:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3), default=[],
-                   metavar="NAME=X,Y,PHI_DEG", help="a known (surveyed) node pose: x, y in metres, heading PHI in degrees "
-                        "(stored in radians); repeat")
+    p.add_argument("--pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3, (2,)),
+                   default=[], metavar="NAME=X,Y,PHI_DEG",
+                   help="a known (surveyed) node pose: x, y in metres; repeat. "
+                        f"{HEADING_HELP}, stored in radians. `mmsnap calibrate` reports a "
+                        "calibrated pose far from it")
     p.add_argument("-o", "--output", required=True, help="output HDF5 recording")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
 
 def _points_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--mount", action="append", type=named_values("HEIGHT_M,TILT_DEG", 2), default=[],
-                   metavar="NAME=HEIGHT_M,TILT_DEG",
-                   help="mounting height above the floor and down tilt of a node (repeat; "
-                        "default: the .cfg's sensorPosition, else 0, 0)")
-    p.add_argument("--room-pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3),
+    p.add_argument("--mount", action="append", type=named_values("HEIGHT_M,TILT_DEG", 2, (1,)),
+                   default=[], metavar="NAME=HEIGHT_M,TILT_DEG",
+                   help="mounting height above the floor in metres and down tilt in degrees "
+                        "(> 0 looks down) of a node (repeat; default: the .cfg's "
+                        "sensorPosition, else 0, 0)")
+    p.add_argument("--room-pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3, (2,)),
                    default=[], metavar="NAME=X,Y,PHI_DEG",
                    help="the points of this node are in a room frame made with this nominal "
-                        "mounting pose (heading PHI in degrees) (with --mount's height and tilt); they are taken back "
-                        "to the sensor frame")
+                        "mounting pose, x, y in metres (with --mount's height and tilt); they "
+                        f"are taken back to the sensor frame, where they must lie in front of "
+                        f"the radar. {HEADING_HELP}. Give it for every node of a room-frame "
+                        "log; `mmsnap calibrate` reports a calibrated pose far from it")
     p.add_argument("--height-band", type=height_band, default=None,
                    metavar="LOW_M,HIGH_M",
                    help="keep points between these heights above the floor (drops floor and "

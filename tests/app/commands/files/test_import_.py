@@ -238,6 +238,36 @@ def test_a_visualizer_table_without_the_preset_names_it(tmp_path, capsys):
     assert "a preset names every column; give it alone" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("heading, words", [
+    ("180", "heading 180 deg; --room-pose); a radar sees only in front of it: the heading is "
+            "the direction of the antenna array axis, the boresight heading + 90 deg; heading "
+            "90 deg puts 99.9% in front"),
+    ("1.5708", "heading 90 deg (the 1.571 given, read as radians) puts 99.9% in front"),
+])
+def test_real_room_pose_with_the_boresight_or_in_radians(tmp_path, capsys, heading, words):
+    """The boresight heading (180) given where the array axis's (90) is meant
+    ended in 'no pair of nodes shares a matched track'; radians (1.5708)
+    calibrated S2 at -0.28 deg against a nominal 90, reported 'ok'. Both put
+    S2's points beside the radar: an error saying which heading fits."""
+    argv = ["import", "table", "--node", f"S1={REAL / 'multiple_tracking_S1.csv'}", "--node",
+            f"S2={REAL / 'multiple_tracking_S2.csv'}", *REAL_MOUNTING, "--room-pose", "S1=0,0,0",
+            "--room-pose", f"S2=1.7,1.65,{heading}", "-o", str(tmp_path / "o.h5")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "node S2: " in err and words in err
+    assert ("looks like radians" in err) == (heading == "1.5708")
+
+
+def test_real_room_frame_with_a_room_pose_for_one_node_warns(tmp_path, capsys):
+    """A forgotten --room-pose S2 gave a pose with 7 cm sigma and no word."""
+    argv = ["import", "table", "--node", f"S1={REAL / 'multiple_tracking_S1.csv'}", "--node",
+            f"S2={REAL / 'multiple_tracking_S2.csv'}", *REAL_MOUNTING, "--room-pose", "S1=0,0,0",
+            "-o", str(tmp_path / "o.h5")]
+    assert main(argv) == 0
+    assert "mmsnap import: warning: nodes ['S1'] have a room pose, ['S2'] not" in \
+        capsys.readouterr().err
+
+
 def test_huge_time_stamp_is_a_clear_error(tmp_path, capsys):
     def huge(header, cells):
         if cells[header.index("frame")] == "7":
