@@ -118,7 +118,9 @@ def run(args: argparse.Namespace) -> int:
         fused, _ = fuse_stored(args.recording, config, output=args.output, calibration=cal,
                                progress=False if args.no_progress else None)
     n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
-    print(f"fused {fused.n_rows} targets in {frames} frames: {n_ok} succeeded, "
+    robust = "none" if config.robust is None else config.robust.kernel
+    print(f"fused {fused.n_rows} targets in {frames} frames ({config.mode}, "
+          f"{config.solve.covariance}, {config.solve.solver}, robust {robust}): {n_ok} succeeded, "
           f"{fused.n_rows - n_ok} flagged; wrote {path}:/fused", file=sys.stdout)
     print(rows_text(path), file=sys.stdout)
     for wall in fused.room.walls:
