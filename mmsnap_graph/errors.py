@@ -14,6 +14,8 @@ __all__ = [
     "FileFormatError",
     "CalibrationError",
     "MissingStepError",
+    "DeviceError",
+    "MmsnapWarning",
 ]
 
 
@@ -54,3 +56,17 @@ class MissingStepError(CalibrationError):
         super().__init__(message)
         self.step = step
         self.what = message if what is None else what
+
+
+class DeviceError(MmsnapError, ValueError):
+    """A board or its serial port does not answer as it should: a port that
+    cannot be opened or found, a CLI reply that is not the board's, a data
+    port that stays silent."""
+
+
+class MmsnapWarning(UserWarning):
+    """Input that is probably a mistake but may be meant (radians given where
+    degrees are asked, angles all within a degree or two): issued with
+    :func:`warnings.warn`; ``mmsnap`` prints it as ``mmsnap VERB: warning: ...``
+    and goes on. ``warnings.simplefilter("error", MmsnapWarning)`` makes each
+    an error."""

@@ -16,7 +16,7 @@ from mmsnap_graph import GaussianPrior, MeasurementNoise, MmsnapError
 
 __all__ = ["FUZZ", "CLI_FUZZ", "EDGE", "ANY_VALUE", "one_line_data_error", "FUSION_FUZZ", "FUZZ_40",
            "finite", "assert_sound", "assert_pd", "assert_rejected", "node_poses",
-           "consistent_frames", "edge_frames", "PRIORS", "HUGE_DOPPLER"]
+           "consistent_frames", "edge_frames", "PRIORS", "HUGE_DOPPLER", "SUB_FRAME_VALUES"]
 
 FUZZ = settings(max_examples=40, deadline=None, derandomize=True, database=None,
                 report_multiple_bugs=False,
@@ -123,6 +123,11 @@ def assert_rejected(fn, **kwargs) -> None:
 
 
 HUGE_DOPPLER = st.sampled_from([1e16, -3e16, 1e100, -1e300])
+
+#: Values a corrupted UART sub-frame field can hold (uint32): the other
+#: sub-frames of TI's advanced frame, beyond its four, and any bit pattern.
+SUB_FRAME_VALUES = st.one_of(st.integers(0, 3), st.sampled_from([4, 255, 2**16, 2**31, 2**32 - 1]),
+                             st.integers(0, 2**32 - 1))
 
 
 #: The entry-point fuzz tests' settings: 40 derandomized examples, sized for CI.

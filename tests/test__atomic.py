@@ -117,3 +117,151 @@ def test_stale_temporaries_of_killed_writers_are_removed(tmp_path):
     assert mine.exists() and other.exists()
     assert not killed.exists() and not old.exists()
     assert remove_stale_temporaries(target) == []
+
+
+def _special_files(folder):
+    """A device node (the numbers of /dev/null, made here), a FIFO, a symlink
+    to each and a folder, all in ``folder``: never the machine's own /dev."""
+    folder.mkdir()
+    made = {}
+    try:
+        os.mknod(folder / "null", stat.S_IFCHR | 0o600, os.makedev(1, 3))
+        made["device"] = folder / "null"
+    except PermissionError:  # not root: no device node to test with
+        pass
+    os.mkfifo(folder / "fifo")
+    made["fifo"] = folder / "fifo"
+    for name, target in list(made.items()):
+        (folder / f"link_{name}").symlink_to(target)
+        made[f"link to {name}"] = folder / f"link_{name}"
+    (folder / "dir").mkdir()
+    made["directory"] = folder / "dir"
+    return made
+
+
+def _identity(path):
+    st = os.lstat(path)
+    return st.st_ino, st.st_mode, st.st_rdev
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs and device nodes")
+def test_a_device_node_a_fifo_a_link_to_them_or_a_folder_is_never_replaced(tmp_path):
+    """Before: os.replace put the temporary file over a device node or a
+    FIFO (as root, `-o /dev/null` replaced the machine's /dev/null)."""
+    from mmsnap_graph._atomic import check_output_path
+
+    made = _special_files(tmp_path / "scratch")
+    before = {name: _identity(p) for name, p in made.items()}
+    kinds = {"device": "a character device", "fifo": "a FIFO"}
+    for name, path in made.items():
+        with pytest.raises(FileFormatError, match="directory" if name == "directory" else
+                           kinds[name.rsplit(" ", 1)[-1]] + ", not a regular file") as info:
+            with atomic_path(path) as tmp:
+                tmp.write_text("written")
+        assert str(path) in str(info.value)
+        if name.startswith("link"):
+            assert "symbolic link to" in str(info.value)
+        with pytest.raises(FileFormatError, match=str(path)):
+            check_output_path(path)
+        with pytest.raises(FileFormatError, match=f"cannot lock {os.path.realpath(path)}"):
+            with recording_lock(path):
+                pass
+    assert {name: _identity(p) for name, p in made.items()} == before
+    assert sorted(p.name for p in (tmp_path / "scratch").iterdir()) == sorted(
+        p.name for p in made.values())  # no temporary file, no lock file left
+
+
+def test_a_file_swapped_for_a_fifo_during_the_write_is_kept(tmp_path):
+    dst = tmp_path / "out.json"
+    with pytest.raises(FileFormatError, match="became a FIFO while it was written"):
+        with atomic_path(dst) as tmp:
+            tmp.write_text("{}")
+            os.mkfifo(dst)
+    assert stat.S_ISFIFO(os.lstat(dst).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
+
+
+def test_a_planted_lock_symlink_is_refused_not_followed(tmp_path):
+    """Before: the lock's open(lock, "a+") followed a planted `.rec.h5.lock`
+    symlink and created the file it names."""
+    rec = tmp_path / "rec.h5"
+    rec.write_bytes(b"x")
+    victim = tmp_path / "elsewhere" / "victim"
+    victim.parent.mkdir()
+    (tmp_path / ".rec.h5.lock").symlink_to(victim)
+    with pytest.raises(FileFormatError, match=r"lock file .*\.rec\.h5\.lock is a symbolic link"):
+        with recording_lock(rec, timeout_s=1):
+            pass
+    assert not victim.exists()
+    victim.write_text("precious")  # an existing target is not truncated either
+    with pytest.raises(FileFormatError, match="symbolic link"):
+        with recording_lock(rec, timeout_s=1):
+            pass
+    assert victim.read_text() == "precious"
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs")
+def test_a_planted_lock_fifo_is_refused_without_blocking(tmp_path):
+    rec = tmp_path / "rec.h5"
+    rec.write_bytes(b"x")
+    os.mkfifo(tmp_path / ".rec.h5.lock")
+    with pytest.raises(FileFormatError, match="lock file .* is a FIFO, not a regular file"):
+        with recording_lock(rec, timeout_s=1):
+            pass
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs and device nodes")
+def test_the_library_writers_refuse_a_device_a_fifo_and_links_to_them(tmp_path,
+                                                                      recording_b_file):
+    """The writers outside the command line's options (an HDF5 recording, a
+    DCA1000 capture, a figure) go through atomic_path too: each refused,
+    nothing replaced."""
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    from mmsnap_graph.app.plots import save
+    from mmsnap_graph.io import read_recording, write_recording
+    from mmsnap_graph.io.ti.cfg import read_ti_cfg
+    from mmsnap_graph.io.ti.dca1000 import write_dca1000_bin
+
+    from _shared import TI_DATA
+
+    config = read_ti_cfg(TI_DATA / "dca1000_small.cfg", board="AWR1843BOOST").configs[0]
+    rec = read_recording(recording_b_file)
+    writers = {
+        "recording": lambda p: write_recording(p, rec, overwrite=True),
+        "capture": lambda p: write_dca1000_bin(p, np.zeros((1, *config.cube_shape)), config),
+        "figure": lambda p: save(Figure(figsize=(1, 1)), p),
+    }
+    made = _special_files(tmp_path / "scratch")
+    made.pop("directory")
+    before = {name: _identity(p) for name, p in made.items()}
+    for writer in writers.values():
+        for path in made.values():
+            with pytest.raises(FileFormatError, match="not a regular file"):
+                writer(path)
+    assert {name: _identity(p) for name, p in made.items()} == before
+    assert sorted(p.name for p in (tmp_path / "scratch").iterdir()) == sorted(
+        [p.name for p in made.values()] + ["dir"])
+
+
+def test_scratch_folders_of_killed_writers_are_removed_by_the_next_write(tmp_path):
+    """Before: a scratch folder a kill -9 left beside the output (mmsnap
+    simulate's memory-mapped cubes: gigabytes) stayed for ever; only files
+    were removed."""
+    from mmsnap_graph._atomic import _HOST, scratch_folder
+
+    target = tmp_path / "sim.h5"
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    left = tmp_path / f".sim.h5.{dead.pid}@{_HOST}.abc.tmp"
+    (left / "inner").mkdir(parents=True)
+    (left / "inner" / "cube_S1.c64").write_bytes(b"\0" * 64)
+    with scratch_folder(target) as scratch:
+        assert scratch.parent == tmp_path and scratch.name.startswith(".sim.h5.")
+        assert not left.exists()
+        (scratch / "cube").write_bytes(b"x")
+        with atomic_path(target) as tmp:  # the writer's own scratch is kept meanwhile
+            tmp.write_bytes(b"h5")
+        assert scratch.is_dir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.h5"]

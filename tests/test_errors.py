@@ -11,7 +11,8 @@ from mmsnap_graph import errors
 from mmsnap_graph.data.recording import Detections
 
 
-@pytest.mark.parametrize("name", [n for n in errors.__all__ if n != "MmsnapError"])
+@pytest.mark.parametrize("name", [n for n in errors.__all__
+                                  if n not in ("MmsnapError", "MmsnapWarning")])
 def test_every_error_is_an_mmsnap_error_and_a_value_error(name):
     cls = getattr(errors, name)
     assert issubclass(cls, errors.MmsnapError)
@@ -41,3 +42,11 @@ def test_a_bad_argument_is_caught_by_except_value_error():
         Detections(frame=[0, 1], range_m=[1.0, np.nan], omega_rad=[0.0, 0.1],
                    doppler_mps=[0.0, 0.1])
     assert isinstance(info.value, errors.ValidationError)
+
+
+def test_the_warning_is_a_user_warning_not_an_error():
+    assert issubclass(errors.MmsnapWarning, UserWarning)
+    assert not issubclass(errors.MmsnapWarning, errors.MmsnapError)
+    with pytest.warns(errors.MmsnapWarning, match="radians"):
+        import warnings
+        warnings.warn("radians?", errors.MmsnapWarning)

@@ -40,7 +40,8 @@ from ..errors import MmsnapError, ValidationError
 from .runs import calibrate_and_store, calibration_json_path, fuse_stored
 
 __all__ = ["STEPS", "WORKER_ENVIRONMENT", "RecordingSummary", "run_recording", "run_many",
-           "local_client", "load_library", "dask_setup", "calibration_json_path"]
+           "local_client", "load_library", "dask_setup", "calibration_json_path",
+           "refuse_existing_outputs"]
 
 #: The pipeline steps, in the order they run.
 STEPS: tuple[str, ...] = ("process", "calibrate", "fuse")
@@ -117,7 +118,8 @@ def _peak_rss_mb() -> float:
 StepOutcome = tuple[dict[str, int], list[Path], str | None]
 
 
-def _step_process(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
+def _step_process(src: Path, dst: Path | None, options: Mapping,
+                 overwrite: bool) -> StepOutcome:
     from .pipeline import process_file  # here: workers import the library, not the parser
 
     path, reports = process_file(src, output=dst, progress=False, **options)
@@ -130,14 +132,16 @@ def _step_process(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
     return counts, [Path(path)], failed
 
 
-def _step_calibrate(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
-    cal, written = calibrate_and_store(src, options, output=dst)
+def _step_calibrate(src: Path, dst: Path | None, options: Mapping,
+                   overwrite: bool) -> StepOutcome:
+    cal, written = calibrate_and_store(src, options, output=dst, overwrite=overwrite)
     counts = {"n_nodes": len(cal.node_names), "n_calibrated": len(cal.poses)}
     failed = None if cal.success else f"calibration incomplete: {cal.message}"
     return counts, [written[1], written[0]], failed
 
 
-def _step_fuse(src: Path, dst: Path | None, options: Mapping) -> StepOutcome:
+def _step_fuse(src: Path, dst: Path | None, options: Mapping,
+              overwrite: bool) -> StepOutcome:
     fused, _ = fuse_stored(src, options, output=dst, progress=False)
     counts = {"n_fused": fused.n_rows, "n_flagged": fused.n_rows - fused.n_success,
               "n_frames": fused.n_frames}
@@ -177,6 +181,7 @@ def run_recording(
     output: str | os.PathLike | None = None,
     options: Mapping[str, Mapping[str, Any]] | None = None,
     blas_threads: int | None = 1,
+    overwrite: bool = False,
 ) -> RecordingSummary:
     """Run ``steps`` on one recording; never raises for a bad recording.
 
@@ -186,6 +191,8 @@ def run_recording(
         (``options["fuse"] = {"mode": "ml"}``; see :func:`run_many`).
     blas_threads : cap of the BLAS / OpenMP thread pools while it runs
         (None: leave them).
+    overwrite : replace an existing calibration JSON (else the calibrate
+        step fails naming it).
     The first step that raises or does not succeed stops the recording; its
     summary holds the error line (``success=False``).
     """
@@ -204,7 +211,8 @@ def run_recording(
         for step in steps:
             t0 = time.perf_counter()
             try:
-                c, written, failed = _STEP_FUNCTIONS[step](src, dst, options.get(step, {}))
+                c, written, failed = _STEP_FUNCTIONS[step](src, dst, options.get(step, {}),
+                                                           overwrite)
             except Exception as exc:  # noqa: BLE001 -- one recording must not stop the batch
                 error = _error_line(step, exc)
                 if not isinstance(exc, MmsnapError):
@@ -291,6 +299,26 @@ def _check_paths(paths, output_dir) -> tuple[list[str], list[str | None]]:
     return paths, outputs
 
 
+def refuse_existing_outputs(paths: Sequence[str | os.PathLike], steps: Sequence[str] | str,
+                            output_dir: str | os.PathLike | None = None) -> None:
+    """The rule of :func:`run_many` without ``overwrite``, checked before
+    anything runs: :class:`ValidationError` naming the first existing file
+    the run would replace besides a recording (its copy in ``output_dir``,
+    its calibration JSON)."""
+    steps = _check_steps(steps)
+    paths, outputs = _check_paths(paths, output_dir)
+    for path, output in zip(paths, outputs):
+        copy = None if output is None or os.path.realpath(output) == os.path.realpath(path) \
+            else output
+        replaced = [copy] if copy is not None else []
+        if "calibrate" in steps:
+            replaced.append(calibration_json_path(copy or path))
+        for file in replaced:
+            if os.path.lexists(file):
+                raise ValidationError(f"{file} exists (of recording {path}); pass --overwrite "
+                                      "(overwrite=True) to replace it")
+
+
 def _failed_summary(path: str, steps: tuple[str, ...], exc: BaseException) -> RecordingSummary:
     """A recording whose worker did not return (it died, or the task was lost)."""
     return RecordingSummary(path=path, success=False, steps=steps,
@@ -328,6 +356,7 @@ def run_many(
     blas_threads: int | None = 1,
     progress: bool = False,
     on_result: Callable[[RecordingSummary], None] | None = None,
+    overwrite: bool = False,
 ) -> list[RecordingSummary]:
     """Run ``steps`` on every recording, one task per recording.
 
@@ -349,23 +378,36 @@ def run_many(
     blas_threads : BLAS / OpenMP threads per worker (None: leave them).
     progress : a tqdm bar over recordings on stderr; on_result : called
         with each summary as it arrives (in completion order).
+    overwrite : replace the existing files a run writes besides the
+        recordings: the copies in ``output_dir`` and the calibration JSONs
+        (default: refuse them all, before anything runs, as every command
+        does without ``--overwrite``).
 
-    Returns one :class:`RecordingSummary` per path, in the order of
-    ``paths``. A recording that fails, even by killing its worker, is
-    reported with ``success=False`` and its error; the others finish.
-    Raises :class:`ValidationError` for bad arguments only.
+    Returns
+    -------
+    list of RecordingSummary
+        One per path, in the order of ``paths``. A recording that fails,
+        even by killing its worker, is reported with ``success=False`` and
+        its error; the others finish.
+
+    Raises
+    ------
+    ValidationError
+        For bad arguments only.
     """
     steps = _check_steps(steps)
     paths, outputs = _check_paths(paths, output_dir)
     options = _check_options(steps, options)
+    if not overwrite:
+        refuse_existing_outputs(paths, steps, output_dir)
     if executor is not None and client is not None:
         raise ValidationError("give an executor or a client, not both")
     if blas_threads is not None:
         check_count(blas_threads, "blas_threads")
     if output_dir is not None:
         Path(output_dir).mkdir(parents=True, exist_ok=True)
-    args = [((p, steps), {"output": o, "options": options, "blas_threads": blas_threads})
-            for p, o in zip(paths, outputs)]
+    args = [((p, steps), {"output": o, "options": options, "blas_threads": blas_threads,
+                          "overwrite": overwrite}) for p, o in zip(paths, outputs)]
     results: list[RecordingSummary | None] = [None] * len(paths)
     pool = client if client is not None else executor
     with _progress_bar(len(paths), progress) as bar:

@@ -32,6 +32,7 @@ from ..fusion.recording.room import RoomReport, screen_room
 from ..fusion.recording.sequence import fuse_recording
 from ..fusion.recording.timing import split_offset
 from ..io.chunks import open_detection_windows, fused_writer
+from ..tracking.person_ids import PersonIds
 
 __all__ = ["DEFAULT_WINDOW_FRAMES", "ChunkedFuseSummary", "fuse_file"]
 
@@ -85,7 +86,8 @@ def _global_rows(fused, rows: Mapping[str, np.ndarray], names):
 #: The per-row fields of a FusedSequence (those a window keeps of its context).
 _ROW_FIELDS = ("frame", "target", "label", "detection_index", "observed", "state", "covariance",
                "laplace_covariance", "success", "status", "message", "iterations", "final_cost",
-               "degeneracy", "rejected", "time_s", "information", "information_vector")
+               "degeneracy", "rejected", "time_s", "information", "information_vector",
+               "track_id")
 
 
 def _own_rows(fused, start: int, stop: int):
@@ -154,6 +156,7 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
         fuse_recording(windows.read(0, 0)[0], calibration=calibration, progress=False,
                        **options)
     n_frames = n_windows = 0
+    person_ids = PersonIds()
     with fused_writer(path, output=output) as writer, \
             _progress(len(spans), progress) as bar:
         # Context frames around each window when rows are checked against
@@ -170,6 +173,7 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
                 continue  # detections in the context frames only
             fused, report = screen_room(fused, **room)
             flagged = flagged + report
+            fused = person_ids.assign(fused)  # one tracker over the windows, after the screens
             writer.append(_global_rows(fused, rows, rec.node_names))
             n_frames += int(np.unique(fused.frame).size)
             n_windows += 1

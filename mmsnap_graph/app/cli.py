@@ -18,14 +18,17 @@ Exit codes (:data:`EXIT_OK`, :data:`EXIT_FAILURE`, :data:`EXIT_USAGE`):
 - 2 usage: a bad option (argparse) or option value
   (:data:`USAGE_ERRORS`: a :class:`~mmsnap_graph.errors.ValidationError` or
   :class:`~mmsnap_graph.errors.ConfigurationError` raised for an option),
-  including an output path that is a folder, lies in a missing folder, is
-  one of the command's input files, or exists without ``--overwrite``
+  including an output path that is a folder, a device node, a FIFO or a
+  socket, lies in a missing folder, is one of the command's input files, or
+  exists without ``--overwrite``
   (checked before the command runs: :mod:`mmsnap_graph.app.commands.file_rules`);
 - 141 standard output was closed by its reader (``mmsnap replay ... | head``);
   nothing is printed.
 
 Errors are one line on stderr, ``mmsnap VERB: error: ...``; an error of an
-input file names the file. ``-v``/``-q`` set the level of the
+input file names the file. Input that is probably a mistake but may be meant
+(:class:`~mmsnap_graph.errors.MmsnapWarning`) is one line ``mmsnap VERB:
+warning: ...``, and the command goes on. ``-v``/``-q`` set the level of the
 ``mmsnap_graph`` logger (warnings by default).
 """
 
@@ -36,23 +39,26 @@ import importlib
 import logging
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from .commands.file_rules import check_files
 from ..errors import (
     CalibrationError,
     ConfigurationError,
+    DeviceError,
     FileFormatError,
     GeometryError,
     MissingStepError,
     MmsnapError,
+    MmsnapWarning,
     ValidationError,
 )
 
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
 COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate",
                        "files.import_", "batch", "replay", "monitor", "noise", "files.info",
-                       "files.export"]
+                       "files.export", "boards.record", "boards.live"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -66,7 +72,7 @@ STEP_OPTIONS = {"fuse": "--calibration", "replay": "--calibration", "noise": "--
                 "evaluate": "--calibration", "monitor": "--poses"}
 
 #: Errors of the data (an input file, an estimation): exit 1.
-DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError)
+DATA_ERRORS = (FileFormatError, CalibrationError, GeometryError, DeviceError)
 #: Errors of an option value: exit 2.
 USAGE_ERRORS = (ValidationError, ConfigurationError)
 
@@ -170,9 +176,28 @@ def _silence_stdout() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run ``mmsnap`` with ``argv``; the exit code (module docstring)."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    with warnings.catch_warnings(record=True) as parsing:   # an option's value (degrees)
+        warnings.simplefilter("always", MmsnapWarning)
+        args = parser.parse_args(argv)
     configure_logging(args.verbose, args.quiet)
     prefix = f"mmsnap {args.command}: error:"
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", MmsnapWarning)
+        default_show = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if not issubclass(category, MmsnapWarning):
+                return default_show(message, category, filename, lineno, file, line)
+            print(f"mmsnap {args.command}: warning: {_one_line(message)}", file=sys.stderr)
+
+        warnings.showwarning = show
+        for w in parsing:
+            show(w.message, w.category, w.filename, w.lineno)
+        return _run(args, prefix)
+
+
+def _run(args: argparse.Namespace, prefix: str) -> int:
+    """``args.func(args)``, its errors as one line and an exit code."""
     try:
         check_files(args)
         return int(args.func(args) or 0)

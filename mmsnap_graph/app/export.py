@@ -3,10 +3,19 @@
 ``/calibration``, as CSV or JSON lines.
 
 Columns carry their units in their names, as in the HDF5 format
-(docs/FORMAT.md); angles are radians, with a ``_deg`` twin for people. A
+(docs/FORMAT.md); angles are radians, with a ``_deg`` twin for people.
+``track_id`` is a fused row's person id (the central tracker's,
+docs/FORMAT.md "Person ids"; -1 for a row not fused; empty for a file fused
+before person ids). A
 fused row's covariance is given as its four standard deviations and the
 position correlation (``rho_xy``); the full 4 x 4 matrix is in the
 ``covariance`` column of JSON lines (row-major), which keeps every digit.
+
+A CSV text cell that starts with ``=``, ``+``, ``-``, ``@``, a tab or a
+carriage return (a node named ``+SUM(1)`` or ``=cmd|...``) is written with a
+leading ``'``, so that a spreadsheet shows it as text instead of running it as
+a formula (:func:`csv_cell`); numbers are written as they are (``-1.5``
+stays a number). JSON lines keep every string as it is.
 """
 
 from __future__ import annotations
@@ -20,13 +29,15 @@ from typing import Any, Iterable
 
 import numpy as np
 
-__all__ = ["TABLES", "FORMATS", "fused_rows", "calibration_rows", "write_table"]
+from ..errors import ValidationError
+
+__all__ = ["TABLES", "FORMATS", "fused_rows", "calibration_rows", "write_table", "csv_cell"]
 
 #: What can be exported, and in which formats.
 TABLES = ("fused", "calibration")
 FORMATS = ("csv", "jsonl")
 
-FUSED_COLUMNS = ("frame", "time_s", "target", "label", "x_m", "y_m", "vx_mps", "vy_mps",
+FUSED_COLUMNS = ("frame", "time_s", "target", "label", "track_id", "x_m", "y_m", "vx_mps", "vy_mps",
                  "sigma_x_m", "sigma_y_m", "sigma_vx_mps", "sigma_vy_mps", "rho_xy",
                  "success", "status", "message", "nodes")
 CALIBRATION_COLUMNS = ("node", "calibrated", "x_m", "y_m", "phi_rad", "phi_deg",
@@ -47,6 +58,7 @@ def fused_rows(path: str | os.PathLike) -> Iterable[dict[str, Any]]:
     fused = read_fused(path)
     names = list(fused.node_names)
     time_s = fused.time_s if fused.time_s is not None else np.full(len(fused.frame), np.nan)
+    track_id = fused.track_id  # None: a file fused before person ids (an empty column)
     for k in range(len(fused.frame)):
         cov = np.asarray(fused.covariance[k], float)
         sig = np.sqrt(np.clip(np.diagonal(cov), 0, None))
@@ -54,6 +66,7 @@ def fused_rows(path: str | os.PathLike) -> Iterable[dict[str, Any]]:
         x = fused.state[k]
         yield {"frame": int(fused.frame[k]), "time_s": _num(time_s[k]),
                "target": int(fused.target[k]), "label": int(fused.label[k]),
+               "track_id": None if track_id is None else int(track_id[k]),
                "x_m": _num(x[0]), "y_m": _num(x[1]), "vx_mps": _num(x[2]), "vy_mps": _num(x[3]),
                "sigma_x_m": _num(sig[0]), "sigma_y_m": _num(sig[1]),
                "sigma_vx_mps": _num(sig[2]), "sigma_vy_mps": _num(sig[3]), "rho_xy": _num(rho),
@@ -84,18 +97,41 @@ def calibration_rows(path: str | os.PathLike) -> Iterable[dict[str, Any]]:
                "covariance": [_num(v) for v in cov.ravel()]}
 
 
+#: First characters that make a spreadsheet read a cell as a formula.
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_cell(value: Any) -> Any:
+    """A CSV cell: ``""`` for a missing number, a text that a spreadsheet
+    would run as a formula (it starts with one of :data:`FORMULA_STARTS`)
+    behind a ``'``, anything else as it is."""
+    if value is None:
+        return ""
+    if isinstance(value, str) and value.startswith(FORMULA_STARTS):
+        return "'" + value
+    return value
+
+
 def write_table(rows: Iterable[dict[str, Any]], columns: tuple[str, ...], fmt: str) -> str:
-    """The rows as text: CSV with ``columns`` (an empty cell for a missing
-    number) or JSON lines with every key (``null`` for a missing number)."""
+    """The rows as text: CSV with ``columns`` (cells by :func:`csv_cell`: an
+    empty cell for a missing number, a formula-like text behind a ``'``) or
+    JSON lines with every key (``null`` for a missing number)."""
     out = io.StringIO()
     if fmt == "csv":
         writer = csv.DictWriter(out, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
+        # The csv module quotes a field holding the line terminator, "\n", but
+        # not a bare "\r", which readers take as a line break: such a row is
+        # written with every field quoted.
+        quoted = csv.DictWriter(out, fieldnames=columns, extrasaction="ignore",
+                                lineterminator="\n", quoting=csv.QUOTE_ALL)
         writer.writeheader()
         for row in rows:
-            writer.writerow({k: "" if row[k] is None else row[k] for k in columns})
+            cells = {k: csv_cell(row[k]) for k in columns}
+            carriage = any(isinstance(v, str) and "\r" in v for v in cells.values())
+            (quoted if carriage else writer).writerow(cells)
     elif fmt == "jsonl":
         for row in rows:
             out.write(json.dumps(row, allow_nan=False) + "\n")
     else:
-        raise ValueError(f"format must be one of {FORMATS}, got {fmt!r}")
+        raise ValidationError(f"format must be one of {FORMATS}, got {fmt!r}")
     return out.getvalue()

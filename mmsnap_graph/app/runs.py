@@ -252,7 +252,8 @@ def calibrate_and_store(path: str | os.PathLike,
                         options: Mapping[str, Any] | Callable[[Any], Mapping] | None = None, *,
                         output: str | os.PathLike | None = None,
                         json_path: str | os.PathLike | None = None,
-                        write: bool = True, on_result=None, progress: bool = False):
+                        write: bool = True, on_result=None, progress: bool = False,
+                        overwrite: bool = False):
     """Calibrate the recording at ``path`` and store the result.
 
     options : keyword arguments of
@@ -270,10 +271,14 @@ def calibrate_and_store(path: str | os.PathLike,
     on_result : called with the calibration before anything is written
         (``mmsnap calibrate`` prints it).
     progress : a tqdm bar over the steps (read, calibrate, write) on stderr.
+    overwrite : replace an existing calibration JSON (default: refuse it,
+        :class:`~mmsnap_graph.errors.FileFormatError` before anything is
+        read; a hand-edited file is never lost silently). The recording
+        itself is updated in place either way.
     The recording is locked from the read to the last write. Returns
     ``(calibration, files written)``.
     """
-    from .._atomic import recording_lock
+    from .._atomic import recording_lock, refuse_existing
     from ..calibration import calibrate_recording, joint_options_for
     from ..io import read_recording
     from ..io.calibration import write_calibration, write_calibration_json
@@ -281,6 +286,7 @@ def calibrate_and_store(path: str | os.PathLike,
     from tqdm import tqdm
 
     json_path = Path(json_path) if json_path else calibration_json_path(output or path)
+    refuse_existing(json_path, overwrite=overwrite)
     written: list[Path] = []
     bar = tqdm(total=3, desc="calibrate: reading", unit="step", disable=not progress,
                leave=False)

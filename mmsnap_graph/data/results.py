@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import ValidationError
+
 __all__ = ["Status", "DEGENERACY_THRESHOLD", "FusionResult", "BatchResult", "FusedSequence",
            "measurement_information"]
 
@@ -283,6 +285,11 @@ class FusedSequence:
     information form of each row (:func:`measurement_information`): what the
     measurements alone say about the state, for a tracker that brings its own
     prior. Computed from ``laplace_covariance`` when not given.
+    track_id : (K,) int64 or None, the person id of each row: the central
+    tracker's track that the row updated or started
+    (:class:`mmsnap_graph.tracking.person_ids.PersonIds`); -1 for a row that
+    was not fused successfully. None: not tracked (files of format 1.1 and
+    older).
     """
 
     node_names: tuple
@@ -315,8 +322,16 @@ class FusedSequence:
     time_origin_s: float | None = None
     information: NDArray | None = None
     information_vector: NDArray | None = None
+    track_id: NDArray | None = None
 
     def __post_init__(self) -> None:
+        if self.track_id is not None:
+            tid = np.asarray(self.track_id)
+            if tid.shape != np.shape(self.frame) or not np.issubdtype(tid.dtype, np.integer):
+                raise ValidationError(f"track_id must be an integer array of shape "
+                                      f"{np.shape(self.frame)} like frame, got {tid.dtype} "
+                                      f"{tid.shape}")
+            object.__setattr__(self, "track_id", tid.astype(np.int64, copy=False))
         if self.rejected is None:
             object.__setattr__(self, "rejected", _no_rejection(np.shape(self.observed)))
         if self.frame_period_s is not None:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Mapping
@@ -33,6 +32,7 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
+from .._atomic import scratch_folder
 from ..data.recording import (MAX_FRAME_PERIOD_S, MIN_FRAME_PERIOD_S, Detections, NodeData,
                               Recording)
 from ..data.results import FusedSequence
@@ -284,6 +284,10 @@ def open_detection_windows(path: str | os.PathLike, *, source: str = "centroids"
 # ----------------------------------------------------------------------------
 # writing /fused window by window
 # ----------------------------------------------------------------------------
+#: Fill values of the datasets a window may lack (others: 0, False, "").
+_FILL = {"track_id": -1}
+
+
 class FusedWriter:
     """Appends :class:`FusedSequence` windows to a ``/fused`` group being
     written (use :func:`fused_writer`).
@@ -327,7 +331,8 @@ class FusedWriter:
                     tail = ds.shape[1:]
                     g.create_dataset(name, shape=(lo, *tail), maxshape=(None, *tail),
                                      dtype=ds.dtype, chunks=(WRITE_CHUNK_ROWS, *tail),
-                                     compression="gzip", compression_opts=1)
+                                     compression="gzip", compression_opts=1,
+                                     fillvalue=_FILL.get(name))
                 out = g[name]
                 out.resize(lo + k, axis=0)
                 if k:
@@ -352,5 +357,5 @@ def fused_writer(path: str | os.PathLike, *, output: str | os.PathLike | None = 
     throughout (:func:`mmsnap_graph._atomic.recording_lock`).
     """
     with edited_copy(path, output) as f, \
-            tempfile.TemporaryDirectory(prefix="mmsnap_fused_") as scratch:
+            scratch_folder(path if output is None else output) as scratch:  # not $TMPDIR
         yield FusedWriter(replace_group(f, FUSED_GROUP, path), Path(scratch), Path(path))

@@ -26,11 +26,12 @@ __all__ = ["FUSED_GROUP", "FUSED_LAYOUT", "FUSED_STATUSES", "write_fused", "read
 
 #: Name of the HDF5 group written by :func:`write_fused`.
 FUSED_GROUP = "fused"
-_FUSED_VERSION = "1.1"
+_FUSED_VERSION = "1.2"
 
 #: The ``/fused`` group, for docs/FORMAT.md (the tests check that it is quoted there). K rows = one per fused target per frame.
 FUSED_LAYOUT = """\
-/fused                 attrs: format_version = "1.1" (1.0: without time_s and information),
+/fused                 attrs: format_version = "1.2" (1.1: without track_id;
+                              1.0: without time_s and information),
                               mode = "map" | "ml",
                               covariance_method = "laplace" | "grid",
                               solver = "vectorized" | "gtsam",
@@ -45,6 +46,9 @@ FUSED_LAYOUT = """\
     time_s             (K,) float64   seconds since the recording's start (frame * frame_period_s)
     target             (K,) int64     index of the target within its frame (association order)
     label              (K,) int64     the centroids' target_id when all members agree, else -1
+    track_id           (K,) int64     person id: the central tracker's track that the row updated
+                                      or started (docs/FORMAT.md, "Person ids"); -1 = the row was
+                                      not fused successfully (optional; absent = not tracked)
     detection_index    (K, N) int64   row of each node's centroids used, -1 = node did not see it
     observed           (K, N) bool    detection_index >= 0
     x_m, y_m, vx_mps, vy_mps (K,) float64   fused state, global frame (S1's)
@@ -111,6 +115,8 @@ def _fill_group(g, fused: FusedSequence) -> None:
         put("time_s", fused.time_s, np.float64)
     put("target", fused.target, np.int64)
     put("label", fused.label, np.int64)
+    if fused.track_id is not None:
+        put("track_id", fused.track_id, np.int64)
     put("detection_index", fused.detection_index, np.int64)
     put("observed", fused.observed, bool)
     for i, name in enumerate(_STATE_NAMES):
@@ -261,6 +267,7 @@ def _read_fields(g: h5py.Group, p: Path) -> dict:
         time_origin_s=_optional_float(attr("time_origin_s", required=False)),
         information=ds("information") if "information" in g else None,
         information_vector=ds("information_vector") if "information_vector" in g else None,
+        track_id=ds("track_id") if "track_id" in g else None,
     )
 
 
@@ -276,7 +283,7 @@ def _check_lengths(fields: dict, p: Path) -> None:
             "observed": (k, n), "state": (k, 4), "covariance": (k, 4, 4),
             "laplace_covariance": (k, 4, 4), "success": (k,), "status": (k,), "message": (k,),
             "iterations": (k,), "final_cost": (k,), "degeneracy": (k,), "time_s": (k,),
-            "information": (k, 4, 4), "information_vector": (k, 4)}
+            "information": (k, 4, 4), "information_vector": (k, 4), "track_id": (k,)}
     for name, shape in want.items():
         if fields[name] is None:  # optional (format 1.0)
             continue

@@ -1,6 +1,7 @@
 """Target tracking: the per-node EKF (local frame, :mod:`.ekf`), the central
-tracker over one-shot estimates (:mod:`.central`) and the paper's track-level
-fusion benchmark (:mod:`.track_fusion`).
+tracker over one-shot estimates (:mod:`.central`), the person ids it gives
+fused rows (:mod:`.person_ids`) and the paper's track-level fusion benchmark
+(:mod:`.track_fusion`).
 
 The central tracker and track fusion load on first use, so the per-node
 signal chain (which uses the EKF) does not import GTSAM. The motion model
@@ -21,6 +22,8 @@ _LAZY = {
     "CentralTracker": "central",
     "FixedLagTracker": "central",
     "track_fused": "central",
+    "PersonIds": "person_ids",
+    "assign_person_ids": "person_ids",
     "transform_tracks": "track_fusion",
     "covariance_intersection": "track_fusion",
     "TrackFusion": "track_fusion",

@@ -236,7 +236,9 @@ class CentralTracker:
     """Constant-velocity Kalman filter over one-shot estimates, several targets.
 
     ``step(states, covariances, frame_period_s)`` advances one frame and returns the
-    live tracks ``[(track_id, x (4,), P (4, 4)), ...]`` after the update.
+    live tracks ``[(track_id, x (4,), P (4, 4)), ...]`` after the update;
+    :attr:`estimate_ids` then holds, for each estimate of the step, the id of
+    the track it updated or started (the person id of that estimate).
     The 4x4 algebra of a step is done in plain floats (a few tracks and
     estimates per frame: numpy's per-call cost would be most of the step).
     """
@@ -250,6 +252,8 @@ class CentralTracker:
         self.prior_sigmas = None if prior_sigmas is None else np.asarray(prior_sigmas, dtype=float)
         self._tracks: list[_Track] = []
         self._next_id = 0
+        #: (M,) int64, the track id each estimate of the last step went to.
+        self.estimate_ids = np.zeros(0, dtype=np.int64)
         self._gate = _gate_2dof(self.config.gate_probability)
         self._motion: tuple | None = None  # (period, Q as 16 floats) of the last step
         # The prior removed from MAP estimates (mean, information diagonal), or None.
@@ -277,6 +281,7 @@ class CentralTracker:
         (default ``config.frame_period_s``).
         """
         cfg = self.config
+        self.estimate_ids = np.zeros(0, dtype=np.int64)  # until this step succeeds
         z, r = _check_estimates(states, covariances)
         t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
         if self._motion is None or self._motion[0] != t:  # frames mostly share one period
@@ -293,10 +298,12 @@ class CentralTracker:
         zl, rl = z.tolist(), r.reshape(-1, 16).tolist()
         assigned = self._associate(zl, rl)
         hit = [False] * len(self._tracks)
+        ids = [-1] * len(zl)
         for j, i in enumerate(assigned):
             if i < 0:
                 continue
             tr = self._tracks[i]
+            ids[j] = tr.track_id
             lam_z, eta_z = _measurement_information(zl[j], _symmetric(rl[j]), *(
                 self._prior if self._prior is not None else (None, None)))
             info_pred = _inverse_floats(tr.p)
@@ -314,7 +321,9 @@ class CentralTracker:
             p0 = _symmetric(rl[j])
             p0[10], p0[15] = max(p0[10], v_floor), max(p0[15], v_floor)
             self._tracks.append(_Track(track_id=self._next_id, x=list(zl[j]), p=p0))
+            ids[j] = self._next_id
             self._next_id += 1
+        self.estimate_ids = np.array(ids, dtype=np.int64)
         return self.tracks
 
     def _associate(self, zl, rl) -> list[int]:

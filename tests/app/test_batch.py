@@ -256,3 +256,27 @@ def test_cli_batch_json_prints_the_summaries_alone(sources, tmp_path):
     assert rows == json.loads(out_json.read_text())
     assert [r["success"] for r in rows] == [True]
     assert "cluster started in " in proc.stderr and f"wrote {out_json}" in proc.stderr
+
+
+def test_existing_outputs_are_replaced_only_with_overwrite(sources, tmp_path, capsys):
+    """Before: a second run silently replaced the calibration JSONs (a
+    hand-edited one too) and the copies in output_dir."""
+    rec = tmp_path / GOOD[0]
+    shutil.copyfile(sources / GOOD[0], rec)
+    sidecar = calibration_json_path(rec)
+    sidecar.write_text("hand-edited\n")
+    before = rec.read_bytes()
+    with pytest.raises(ValidationError, match=f"{sidecar} exists .*pass --overwrite"):
+        run_many([rec], ["calibrate"])
+    assert main(["batch", str(rec), "--steps", "calibrate", "--no-progress"]) == 2
+    assert "exists" in capsys.readouterr().err
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / GOOD[0]).write_text("an earlier result\n")
+    with pytest.raises(ValidationError, match=f"{out / GOOD[0]} exists"):
+        run_many([rec], ["fuse"], output_dir=out)
+    assert sidecar.read_text() == "hand-edited\n" and rec.read_bytes() == before
+    assert (out / GOOD[0]).read_text() == "an earlier result\n"
+    (s,) = run_many([rec], ["calibrate"], overwrite=True)
+    assert s.success, s.error
+    assert json.loads(sidecar.read_text())["nodes"]

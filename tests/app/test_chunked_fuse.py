@@ -19,7 +19,8 @@ from mmsnap_graph.fusion.options import NetworkCalibration
 from mmsnap_graph.io import read_fused, read_recording, write_recording
 from mmsnap_graph.io.chunks import open_detection_windows
 
-EXACT = ("frame", "target", "label", "detection_index", "observed", "success", "status")
+EXACT = ("frame", "target", "label", "detection_index", "observed", "success", "status",
+         "track_id")
 CLOSE = ("state", "covariance", "laplace_covariance", "degeneracy", "information",
          "information_vector", "time_s")
 
@@ -185,10 +186,13 @@ def test_the_calibration_is_one_network_calibration(good):
 
 def test_the_cli_writes_what_fuse_file_writes(good, tmp_path, capsys):
     """The CLI's default is the robust gate with the motion check, then one
-    target per body (fusion.recording.room)."""
+    target per body (fusion.recording.room), then the person ids of the rows
+    left (the tracker is the last step)."""
     from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, screen_room
-    reference = screen_room(fuse_recording(read_recording(good), progress=False, robust="gate"),
-                            body_m=DEFAULT_BODY_M)[0]
+    from mmsnap_graph.tracking.person_ids import assign_person_ids
+    reference = assign_person_ids(screen_room(
+        fuse_recording(read_recording(good), progress=False, robust="gate"),
+        body_m=DEFAULT_BODY_M)[0])
     out = tmp_path / "cli.h5"
     assert main(["fuse", str(good), "-o", str(out), "--no-progress"]) == 0
     assert f"fused {len(reference)} targets" in capsys.readouterr().out

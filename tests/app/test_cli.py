@@ -482,3 +482,46 @@ def test_odd_option_values_give_a_clean_exit(verb, recording_b_file, tmp_path, c
         capsys.readouterr()
         assert code in (0, 1, 2), (argv, code)
         assert _time.monotonic() - start < 15, argv
+
+
+def test_a_warning_is_one_line_and_the_command_goes_on(tmp_path, capsys):
+    """A spherical table in radians imported with --degrees: every angle within
+    +-1.6 degrees warns as ``mmsnap import: warning: ...`` and the import goes on."""
+    rows = [f"{k // 2},{1 + 0.1 * k:.2f},{0.02 * (k - 10):.3f},{0.01 * (k % 5):.3f},0.2"
+            for k in range(20)]
+    path = tmp_path / "radians.csv"
+    path.write_text("\n".join(["frame,range,azimuth,elevation,doppler", *rows]) + "\n")
+    code = main(["import", "table", "--node", f"S1={path}", "--degrees", "--frame-period", "0.05",
+                 "-o", str(tmp_path / "o.h5")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 0
+    assert len(err) == 1 and err[0].startswith("mmsnap import: warning: ")
+    assert "every azimuth and elevation lies within" in err[0]
+
+
+def test_every_pose_option_states_the_heading_convention():
+    """Nothing said that a heading is the array axis's, the boresight heading +
+    90 deg (the boresight given as --room-pose S2=1.7,1.65,180 ended in 'no
+    pair of nodes shares a matched track')."""
+    import argparse as ap
+
+    from mmsnap_graph.app.cli import build_parser
+
+    found = []
+
+    def walk(parser, path):
+        for action in parser._actions:
+            if isinstance(action, ap._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, path + [name])
+            elif "PHI" in str(action.metavar or ""):
+                found.append((" ".join(path), action.option_strings[0], action.help or ""))
+
+    walk(build_parser(), ["mmsnap"])
+    assert {(p, o) for p, o, _ in found} >= {
+        ("mmsnap import table", "--room-pose"), ("mmsnap import table", "--pose"),
+        ("mmsnap import ti-uart", "--room-pose"), ("mmsnap import dca1000", "--pose"),
+        ("mmsnap simulate", "--node"), ("mmsnap evaluate", "--surveyed")}
+    for path, option, text in found:
+        assert "direction of the antenna array axis" in text, (path, option)
+        assert "boresight, PHI + 90 deg" in text, (path, option)

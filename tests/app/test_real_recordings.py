@@ -169,7 +169,7 @@ POSE_XFAIL = {"multiple_tracking": (
     "real model in this geometry: +1.06 +- 0.77 deg on 11 of 12 seeds, halves 0.8-1.5 deg apart), "
     "and an angle bias of the radar (no Rx phase compensation in its cfg) is calibrated as "
     "heading at no cost in the fit "
-    "(docs/CALIBRATION.md, \"A node's heading on real recordings\")")}
+    "(docs/validation/calibration.md, \"A node's heading on real recordings\")")}
 # Halves, compared in the reference frame: with the joint graph's marginals
 # (`mmsnap calibrate --covariance model`) (0.7, 1.0, 1.2) sigma (multiple
 # tracking) and (1.5, 8.2, 6.3) (fall detection); with the default long-run
@@ -393,10 +393,10 @@ def test_tables_hold_float16_values_and_read_as_point_tables():
 
 
 # ---------------------------------------------------------------- the simulator's real model
-# The same CLI path on the simulator's real model (docs/SIMULATOR.md, "Fused
+# The same CLI path on the simulator's real model (docs/validation/simulator.md, "Fused
 # consistency on the real model"), with the TRUE node poses, so that only the
 # measurement model is on trial.
-# Measured (docs/SIMULATOR.md, "Fused consistency on the real model"): NEES
+# Measured (docs/validation/simulator.md, "Fused consistency on the real model"): NEES
 # 4.15 of 4 at the true poses (position part 2.51, velocity 1.65), was 5.44
 # (3.07, 2.39) before the range offset was estimated at poses given from
 # outside and the Doppler sigma counted its heavy tails on sparse clouds.

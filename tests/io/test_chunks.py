@@ -87,3 +87,53 @@ def test_fuse_of_a_sparse_frame_span_is_quick(base, tmp_path, capsys, case):
     fused = read_fused(path)
     assert len(fused) > 0 and np.unique(fused.frame).size == 40
     assert [p.name for p in tmp_path.iterdir()] == ["rec.h5"]  # no lock or temporary left
+
+
+def test_the_scratch_of_a_killed_fuse_is_beside_the_output_and_removed_next_time(base,
+                                                                                  tmp_path):
+    """Before: `kill -9` of a fuse left `$TMPDIR/mmsnap_fused_*` folders that
+    nothing removed. Now the scratch is beside the output, named as the
+    writers' temporary files, and the next write of that file removes it."""
+    import os
+    import subprocess
+    import sys
+
+    from mmsnap_graph.io.chunks import fused_writer
+
+    work = tmp_path / "work"
+    work.mkdir()
+    rec = work / "rec.h5"
+    shutil.copy(base, rec)
+    tmpdir = tmp_path / "tmpdir"
+    tmpdir.mkdir()
+    code = ("import os, signal, sys\nfrom mmsnap_graph.io.chunks import fused_writer\n"
+            "with fused_writer(sys.argv[1]) as w:\n"
+            "    os.kill(os.getpid(), signal.SIGKILL)\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(rec)], capture_output=True,
+                          env={**os.environ, "TMPDIR": str(tmpdir)}, timeout=120)
+    assert proc.returncode == -9, proc.stderr
+    assert list(tmpdir.iterdir()) == []
+    left = sorted(p.name for p in work.iterdir() if p.name != "rec.h5")
+    assert any(p.is_dir() for p in work.iterdir() if p.name.endswith(".tmp")), left
+    with fused_writer(rec):
+        pass
+    assert sorted(p.name for p in work.iterdir()) == ["rec.h5"]
+
+
+def test_a_window_without_person_ids_reads_as_no_person(base, fused_b_map, tmp_path):
+    """A window appended without ``track_id`` before one with it: its rows
+    read -1 (no person), not 0 (the first person's id)."""
+    import dataclasses
+
+    from mmsnap_graph.io.chunks import fused_writer
+
+    path = tmp_path / "rec.h5"
+    shutil.copy(base, path)
+    assert (fused_b_map.track_id == 0).any()
+    with fused_writer(path) as writer:
+        writer.append(dataclasses.replace(fused_b_map, track_id=None))
+        writer.append(fused_b_map)
+    back = read_fused(path).track_id
+    n = len(fused_b_map)
+    np.testing.assert_array_equal(back[:n], -1)
+    np.testing.assert_array_equal(back[n:], fused_b_map.track_id)

@@ -28,7 +28,7 @@ def test_write_and_read_fused_round_trip(recordings, tmp_path):
     write_fused(path, fused)
     back = read_fused(path)
     for name in ("frame", "target", "label", "detection_index", "observed", "success", "status",
-                 "iterations"):
+                 "iterations", "track_id"):
         np.testing.assert_array_equal(getattr(back, name), getattr(fused, name))
     for name in ("state", "covariance", "laplace_covariance", "final_cost", "degeneracy", "node_poses"):
         np.testing.assert_array_equal(getattr(back, name), getattr(fused, name))
@@ -66,3 +66,26 @@ def test_fused_errors(tmp_path, recordings):
         read_fused(path)
     with pytest.raises(FileFormatError, match="does not exist"):
         write_fused(tmp_path / "nope.h5", fuse_recording(recordings["A"]))
+
+
+def test_a_file_without_person_ids_reads_with_none(recordings, tmp_path):
+    """Format 1.1 had no ``track_id``: such a file reads, with ``track_id`` None."""
+    path = write_recording(tmp_path / "rec.h5", recordings["B"])
+    fused = fuse_recording(recordings["B"])
+    assert fused.track_id is not None and (fused.track_id >= 0).any()
+    write_fused(path, fused)
+    with h5py.File(path, "a") as f:
+        del f["fused/track_id"]
+        f["fused"].attrs["format_version"] = "1.1"
+    back = read_fused(path)
+    assert back.track_id is None and len(back) == len(fused)
+
+
+def test_person_ids_of_the_wrong_shape_are_a_format_error(recordings, tmp_path):
+    path = write_recording(tmp_path / "rec.h5", recordings["B"])
+    write_fused(path, fuse_recording(recordings["B"]))
+    with h5py.File(path, "a") as f:
+        del f["fused/track_id"]
+        f["fused/track_id"] = np.zeros(3, dtype=np.int64)
+    with pytest.raises(FileFormatError, match=r"track_id has shape \(3,\)"):
+        read_fused(path)

@@ -4,19 +4,42 @@ node name and its numbers, e.g. a pose ``S2=0,7,180``)."""
 from __future__ import annotations
 
 import argparse
+import warnings
 from typing import Callable
 
 import numpy as np
 
-from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.errors import MmsnapWarning, ValidationError
 
-__all__ = ["named_values", "named_pose", "solver_choice", "check_sigmas", "SIGMA_LIMITS"]
+__all__ = ["named_values", "named_pose", "solver_choice", "check_sigmas", "SIGMA_LIMITS",
+           "HEADING_HELP", "looks_like_radians"]
 
 
-def named_values(kind: str, n_values: int | None) -> Callable[[str], tuple[str, object]]:
+#: The heading convention, stated by every option that takes a node pose.
+HEADING_HELP = ("PHI is the heading in degrees: the direction of the antenna array axis (TI's "
+                "x axis, along the board); the radar looks along its boresight, PHI + 90 deg "
+                "(docs/CONVENTIONS.md)")
+
+
+def looks_like_radians(value: float, text: str) -> bool:
+    """Whether a value typed where degrees are asked looks like radians: not
+    zero, not whole, within +-2 pi, and written with three decimals or more
+    (``1.5708``) or within 0.01 of a multiple of pi/12 (``3.14``, ``0.785``)."""
+    if value == 0 or float(value).is_integer() or abs(value) > 2 * np.pi + 0.01:
+        return False
+    mantissa = text.strip().lower().split("e")[0]
+    decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
+    round_angle = np.min(np.abs(abs(value) - np.pi / 12 * np.arange(1, 25))) < 0.01
+    return decimals >= 3 or bool(round_angle)
+
+
+def named_values(kind: str, n_values: int | None,
+                 degrees: tuple[int, ...] = ()) -> Callable[[str], tuple[str, object]]:
     """argparse type for ``NAME=V1,V2,...`` with ``n_values`` numbers ->
     ``(name, [floats])``; ``n_values`` None: one string value -> ``(name,
-    str)``. ``kind`` names the values in the error (``X_M,Y_M,PHI_DEG``)."""
+    str)``. ``kind`` names the values in the error (``X_M,Y_M,PHI_DEG``).
+    ``degrees`` : the indices of values in degrees; one that looks like
+    radians (:func:`looks_like_radians`) warns (:class:`MmsnapWarning`)."""
     def parse(text: str):
         name, sep, rest = text.partition("=")
         if not sep or not name or not rest:
@@ -29,6 +52,12 @@ def named_values(kind: str, n_values: int | None) -> Callable[[str], tuple[str, 
             values = []
         if len(values) != n_values:
             raise argparse.ArgumentTypeError(f"{text!r} must look like NAME={kind}")
+        names = kind.split(" ")[0].split(",")
+        for k in degrees:
+            if looks_like_radians(values[k], rest.split(",")[k]):
+                warnings.warn(f"{text!r}: {names[k]}={values[k]:g} looks like radians "
+                              f"({values[k]:g} rad = {np.degrees(values[k]):.4g} deg); this "
+                              "option takes degrees", MmsnapWarning, stacklevel=2)
         return name, values
     return parse
 
@@ -36,7 +65,8 @@ def named_values(kind: str, n_values: int | None) -> Callable[[str], tuple[str, 
 def named_pose(text: str) -> tuple[str, list[float]]:
     """argparse type for a node pose ``NAME=X_M,Y_M,PHI_DEG`` -> ``(name,
     [x_m, y_m, phi_rad])`` (degrees on the command line, radians inside)."""
-    name, (x, y, phi_deg) = named_values("X_M,Y_M,PHI_DEG (e.g. S2=0,7,180)", 3)(text)
+    name, (x, y, phi_deg) = named_values("X_M,Y_M,PHI_DEG (e.g. S2=0,7,180)", 3,
+                                         degrees=(2,))(text)
     return name, [x, y, float(np.deg2rad(phi_deg))]
 
 
@@ -45,7 +75,7 @@ def solver_choice(allowed: tuple[str, ...]) -> Callable[[str], str]:
     :data:`mmsnap_graph.fusion.solvers.settings.SOLVERS`); a former name
     (``batch``, ``numpy``) is refused naming the one that replaced it."""
     def parse(text: str) -> str:
-        from mmsnap_graph.errors import ValidationError
+        from mmsnap_graph.errors import MmsnapWarning, ValidationError
         from mmsnap_graph.fusion.solvers.settings import check_solver
 
         try:

@@ -65,7 +65,9 @@ def register(subparsers) -> None:
                    help="print the per-recording summaries as JSON to stdout instead of the "
                         "table")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_overwrite(p)
+    add_overwrite(p, "replace existing output files: --json-out, the copies in --output-dir "
+                     "and each recording's calibration JSON (default: refuse them, before "
+                     "anything runs)")
     p.set_defaults(func=run)
 
 
@@ -160,9 +162,11 @@ def _ready(client, args) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph.app.batch import run_many
+    from mmsnap_graph.app.batch import refuse_existing_outputs, run_many
 
     steps, paths = _check_args(args)
+    if not args.overwrite:  # before the cluster starts
+        refuse_existing_outputs(paths, steps, args.output_dir)
     options = {}
     if "process" in steps and args.centroids_only:
         options["process"] = {"centroids_only": True}
@@ -175,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         start_s = time.perf_counter() - t0
         t1 = time.perf_counter()
         summaries = run_many(paths, steps, client=client, output_dir=args.output_dir,
-                             options=options, progress=progress)
+                             options=options, progress=progress, overwrite=args.overwrite)
         run_s = time.perf_counter() - t1
     # With --json, stdout holds the JSON alone; the words go to stderr.
     say = (lambda text: print(text, file=sys.stderr)) if args.json else print

@@ -110,7 +110,8 @@ def register(subparsers) -> None:
                         "model is not exact; model keeps the marginals")
     p.add_argument("--json-out", default=None, metavar="PATH",
                    help="write the calibration JSON here (default: "
-                        "<recording>.calibration.json; angles in radians)")
+                        "<recording>.calibration.json; angles in radians); an existing file, "
+                        "the default one included, is replaced only with --overwrite")
     p.add_argument("--json", action="store_true",
                    help="print the calibration JSON to stdout instead of the table (angles in "
                         "radians, as in the file); the JSON file is written either way")
@@ -445,7 +446,8 @@ def run(args: argparse.Namespace) -> int:
     cal, written = calibrate_and_store(args.recording, options, output=args.output,
                                        json_path=json_path, write=not args.no_write,
                                        on_result=lambda c: say(format_table(c)),
-                                       progress=not args.no_progress and sys.stderr.isatty())
+                                       progress=not args.no_progress and sys.stderr.isatty(),
+                                       overwrite=args.overwrite)
     if args.json:
         sys.stdout.write(Path(written[0]).read_text(encoding="utf-8"))
     say(f"wrote {written[0]}")

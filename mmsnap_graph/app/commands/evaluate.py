@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from .arguments import named_pose
+from .arguments import HEADING_HELP, named_pose
 
 
 def register(subparsers) -> None:
@@ -33,9 +33,9 @@ def register(subparsers) -> None:
                         "tracks (default: the poses stored on the nodes)")
     p.add_argument("--surveyed", action="append", type=named_pose, default=[],
                    metavar="NAME=X,Y,PHI_DEG",
-                   help="a surveyed node pose (repeat; degrees) to score the calibrated poses "
-                        "against, in place of /truth's; a recording without /truth (a real "
-                        "capture) then gets pose errors alone")
+                   help="a surveyed node pose, x, y in metres (repeat) to score the "
+                        "calibrated poses against, in place of /truth's; a recording without "
+                        f"/truth (a real capture) then gets pose errors alone. {HEADING_HELP}")
     p.add_argument("--json", action="store_true",
                    help="print the metrics as JSON (angles in radians, as in the files)")
     p.add_argument("--check", action="store_true",

@@ -6,7 +6,12 @@ command runs (so nothing is touched when it refuses):
 - an output that resolves to one of the command's input files (the same
   file through another name, a symlink or a hard link) is refused: writing
   it would destroy the input;
-- an existing output is replaced only with ``--overwrite``;
+- an existing output is replaced only with ``--overwrite``, the files a
+  verb writes beside its recording included (``mmsnap calibrate``'s
+  ``REC.calibration.json``);
+- an output that is (or, through a symlink, names) a device node, a FIFO
+  or a socket is refused: writers replace regular files only
+  (:mod:`mmsnap_graph._atomic`);
 - an input file that exists but is not a regular file (a FIFO, a device, a
   socket) is refused: reading it would block for ever.
 
@@ -27,14 +32,15 @@ from mmsnap_graph._atomic import check_output_path
 from mmsnap_graph.app.commands.arguments import check_sigmas
 from mmsnap_graph.errors import FileFormatError, ValidationError
 
-__all__ = ["OUTPUT_FILE_OPTIONS", "add_overwrite", "input_paths", "check_files", "same_file"]
+__all__ = ["OUTPUT_FILE_OPTIONS", "add_overwrite", "input_paths", "check_files", "same_file",
+           "written_files"]
 
 #: Per command, the options naming an output file.
 OUTPUT_FILE_OPTIONS: dict[str, tuple[str, ...]] = {
     "process": ("output",), "fuse": ("output",), "calibrate": ("json_out", "output"),
     "simulate": ("output",), "replay": ("output",), "import": ("output",),
     "noise": ("output",), "monitor": ("json_out",), "batch": ("json_out",),
-    "export": ("output",),
+    "export": ("output",), "record": ("output",), "live": ("output", "record"),
 }
 
 #: Options that are glob patterns of input files (``mmsnap batch``).
@@ -43,10 +49,10 @@ _PATTERN_OPTIONS = ("patterns",)
 _NOT_INPUTS = ("command", "func", "output_dir", "out")
 
 
-def add_overwrite(parser: argparse.ArgumentParser) -> None:
+def add_overwrite(parser: argparse.ArgumentParser, help: str | None = None) -> None:
     """The ``--overwrite`` flag every verb writing a named file has."""
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace an existing output file (default: refuse)")
+                        help=help or "replace an existing output file (default: refuse)")
 
 
 def _strings(value) -> Iterator[str]:
@@ -97,6 +103,25 @@ def _is_written(args: argparse.Namespace, name: str) -> bool:
     return not (name == "output" and getattr(args, "no_write", False))
 
 
+def written_files(args: argparse.Namespace) -> Iterator[tuple[str, str]]:
+    """``(option, path)`` of every file the parsed command line writes
+    besides its recording: the output options of :data:`OUTPUT_FILE_OPTIONS`
+    that this run writes, and ``mmsnap calibrate``'s calibration JSON beside
+    the recording when no ``--json-out`` names it."""
+    for name in OUTPUT_FILE_OPTIONS.get(args.command, ()):
+        value = getattr(args, name, None)
+        if value is None or not isinstance(value, (str, os.PathLike)) \
+                or not _is_written(args, name):
+            continue
+        yield "--" + name.replace("_", "-"), os.fspath(value)
+    recording = getattr(args, "recording", None)
+    if args.command == "calibrate" and not getattr(args, "json_out", None) \
+            and isinstance(recording, (str, os.PathLike)) and not getattr(args, "show_config", 0):
+        from mmsnap_graph.app.runs import calibration_json_path
+
+        yield "the calibration JSON (--json-out)", os.fspath(calibration_json_path(recording))
+
+
 def check_files(args: argparse.Namespace) -> None:
     """Apply the module's rule to the parsed command line ``args`` (its
     ``command`` names the verb). Raises :class:`ValidationError` naming the
@@ -107,12 +132,7 @@ def check_files(args: argparse.Namespace) -> None:
     inputs = input_paths(args)
     for path in inputs:
         _check_input(path)
-    for name in OUTPUT_FILE_OPTIONS.get(args.command, ()):
-        value = getattr(args, name, None)
-        if value is None or not isinstance(value, (str, os.PathLike)) \
-                or not _is_written(args, name):
-            continue
-        option = "--" + name.replace("_", "-")
+    for option, value in written_files(args):
         try:
             check_output_path(value)
         except FileFormatError as exc:
@@ -122,10 +142,9 @@ def check_files(args: argparse.Namespace) -> None:
         for path in inputs:
             if same_file(value, path):
                 hint = (" (omit it to update the recording in place)"
-                        if name == "output" and args.command in ("process", "calibrate", "fuse",
-                                                                 "noise") else "")
+                        if option == "--output" and args.command in ("process", "calibrate",
+                                                                     "fuse", "noise") else "")
                 raise ValidationError(f"{option} {value} is the input file {path}: writing it "
                                       f"would destroy the input; give another path{hint}")
         if not getattr(args, "overwrite", False):
             raise ValidationError(f"{option}: {value} exists; pass --overwrite to replace it")
-

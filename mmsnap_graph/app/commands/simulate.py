@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import shutil
-import sys
+import contextlib
 import math
-import tempfile
+import sys
 
-from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph._atomic import check_output_path, scratch_folder
 from mmsnap_graph.errors import ValidationError
 
-from .arguments import named_pose
+from .arguments import HEADING_HELP, named_pose
 
 
 def register(subparsers) -> None:
@@ -24,8 +23,8 @@ def register(subparsers) -> None:
     p.add_argument("-c", "--configuration", choices=["A", "B", "C"], default="C",
                    help="network configuration (default %(default)s); ignored with --node")
     p.add_argument("--node", action="append", type=named_pose, metavar="NAME=X,Y,PHI_DEG",
-                   help="a node pose: x, y in metres, heading PHI in degrees (stored in radians); repeat, "
-                        "the first is the reference S1, e.g. S1=0,0,0")
+                   help="a node pose: x, y in metres; repeat, the first is the reference "
+                        f"S1, e.g. S1=0,0,0. {HEADING_HELP}, stored in radians")
     p.add_argument("-t", "--trajectory", choices=["straight", "random"], default="straight",
                    help="target trajectory (default %(default)s)")
     p.add_argument("-l", "--levels", default="centroids,point_cloud",
@@ -86,8 +85,12 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not args.overwrite:
         raise ValidationError(f"{out} exists; pass --overwrite to replace it")
     progress = not args.no_progress and sys.stderr.isatty()
-    tmpdir = bar = None
-    try:
+    bar = None
+    # Cubes of long recordings go to memory-mapped scratch files next to the
+    # output (2 nodes x 600 frames of Table I cubes are 3.5 GB), in a folder
+    # that the next write of the output removes if a kill -9 left it.
+    with contextlib.ExitStack() as stack:
+        tmpdir = stack.enter_context(scratch_folder(out)) if "cube" in levels else None
         if "cube" in levels:
             n_nodes = len(network_poses(network))
             mb = cube_megabytes(options, n_nodes, args.frames)
@@ -95,22 +98,16 @@ def run(args: argparse.Namespace) -> int:
             print(f"raw ADC cubes: {n_nodes} nodes x {n_cube:.0f} frames = {mb:,.0f} MB "
                   f"to synthesize and write (gzip makes the file smaller; --cube-frames N "
                   f"limits them)", file=sys.stderr)
-            # Cubes of long recordings go to memory-mapped scratch files next to
-            # the output (2 nodes x 600 frames of Table I cubes are 3.5 GB).
-            tmpdir = tempfile.mkdtemp(prefix=".mmsnap_cubes_", dir=out.parent if str(out.parent) else ".")
         rec = simulate_recording(network, args.trajectory, options, levels=levels,
                                  n_frames=args.frames, seed=args.seed, progress=progress,
                                  cube_memmap_dir=tmpdir)
         if progress and "cube" in levels:
             total = sum(node.cube.shape[0] for node in rec.nodes.values())
             bar = tqdm(total=total, unit="frame", desc="writing raw ADC cubes")
+        if bar is not None:
+            stack.callback(bar.close)
         write_recording(out, rec, overwrite=args.overwrite,
                         progress=None if bar is None else bar.update)
-    finally:
-        if bar is not None:
-            bar.close()
-        if tmpdir is not None:
-            shutil.rmtree(tmpdir, ignore_errors=True)
     for name, node in rec.nodes.items():
         parts = []
         for level, noun in (("centroids", "centroids"), ("point_cloud", "points")):

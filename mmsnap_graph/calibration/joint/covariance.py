@@ -48,7 +48,7 @@ mean square, ``q s^2`` its variance). ``block_covariance(...,
 range_offset_rms=s)`` adds ``s^2 ((1 - q) J J^T + q sum_n J_n J_n^T)`` to
 the reported covariance (*considered* parameters, the Schmidt "consider"
 covariance: the poses are not moved). Measured on the simulator's real
-model (docs/CALIBRATION.md, "The calibrated pose on the simulator's real
+model (docs/validation/calibration.md, "The calibrated pose on the simulator's real
 model"): S2's pose NEES 53.8-177.2 (mean 107.7, 3 dof, seeds 0-5) without,
 mean 4.99 over seeds 0-11 with one common depth of ``s = 0.112`` m, 3.04
 with the nodes' own parts.

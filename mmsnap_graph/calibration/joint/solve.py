@@ -289,7 +289,7 @@ _NUMERICAL_ERRORS = (_Breakdown, RuntimeError, ValueError, IndexError, Arithmeti
 def _refine(fg, values, params, presolved, order, rel_tol=1e-5):
     """GTSAM's final refinement: from a pre-solved point, Gauss-Newton steps
     by GTSAM's own elimination (a GTSAM LM iteration costs several times the
-    elimination here, measured: docs/CALIBRATION.md, "Speed at scale"); a
+    elimination here, measured: docs/validation/calibration.md, "Speed at scale"); a
     step whose linearized decrease is at most ``rel_tol`` of the error is
     taken as converged (no further evaluation of the graph); a step that
     does not lower the error hands over to GTSAM's LM, which also runs when
@@ -455,7 +455,9 @@ def joint_calibration(
         :class:`~mmsnap_graph.data.calibration.RecordingCalibration`): the offset
         starts at ``-lag * frame_period_s``, part of ``time_offset_s``.
 
-    Returns a :class:`JointCalibration`.
+    Returns
+    -------
+    JointCalibration
     """
     options = JointOptions() if options is None else options
     inputs = _inputs(detections, reference, initial_poses, noise, frame_period_s, lag_frames,

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from ...data.noise import MeasurementNoise
 from ...data.recording import Detections, Recording
 from ...errors import ValidationError
-from .frame_states import frame_table, solve_frame_states
+from .frame_states import frame_table, solve_frame_states, without_unsolved
 from .sequences import ghost_rows
 
 __all__ = ["RangeOffsetEstimate", "range_offset_at_poses", "GATE_K", "MAX_SIGMA_M", "MIN_FRAMES"]
@@ -77,6 +77,7 @@ def _round(z, p, w, d):
     zz = z.copy()
     zz[..., 0] += d
     _, e, jac, cov = solve_frame_states(zz, p, w, np.full(4, 1e-6))
+    w, jac, cov = without_unsolved(w, jac, cov)
     f, n = z.shape[:2]
     wf = w.reshape(f, 3 * n)
     wj = wf[..., None] * jac.reshape(f, 3 * n, 4)

@@ -79,7 +79,7 @@ from ..._validation import chi2_gate
 from ...data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ...data.recording import Detections, Recording
 from ...errors import ValidationError
-from .frame_states import frame_table as _frame_table, solve_frame_states
+from .frame_states import frame_table as _frame_table, solve_frame_states, without_unsolved
 from .motion import motion_doppler_noise
 from .sequences import GHOST_K, ghost_rows
 from .sequences import single_target_sequences as _sequences
@@ -151,6 +151,11 @@ def _difference_weights(order: int) -> NDArray:
     return c / np.sqrt(np.sum(c**2))
 
 
+#: A difference within this fraction of its values' size is a difference of
+#: repeated values (zero up to rounding).
+_REPEAT_RTOL = 1e-12
+
+
 def temporal_noise(detections: Detections, *, order: int = TEMPORAL_ORDER,
                    k: float = TRIM_K, remove_ghosts: bool = True) -> tuple[NDArray, NDArray]:
     """Each component's sigma from ``order``-th differences of one node's own
@@ -158,13 +163,15 @@ def temporal_noise(detections: Detections, *, order: int = TEMPORAL_ORDER,
     ``(sigmas (3,), counts (3,))``, NaN and 0 where there is no run of
     ``order + 1`` frames. The spatial frequency is unwrapped along each run.
     ``remove_ghosts``: the :func:`ghost_rows` leave first (a gap each: one
-    ghost would otherwise spoil ``order + 1`` differences)."""
+    ghost would otherwise spoil ``order + 1`` differences). A component
+    whose values mostly repeat (more than half its differences zero: values
+    rounded coarsely) is not identified, NaN and 0."""
     if not isinstance(detections, Detections):
         raise ValidationError(f"detections must be Detections, got {type(detections).__name__}")
     if remove_ghosts:
         detections = detections.select(~ghost_rows(detections))
     w = _difference_weights(order)
-    parts = []
+    parts, zeros = [], []
     for rows in _sequences(detections):
         frames = detections.frame[rows]
         breaks = np.nonzero(np.diff(frames) != 1)[0] + 1
@@ -175,11 +182,21 @@ def temporal_noise(detections: Detections, *, order: int = TEMPORAL_ORDER,
             z[:, 1] = np.unwrap(z[:, 1])
             windows = np.lib.stride_tricks.sliding_window_view(z, order + 1, axis=0)
             parts.append(windows @ w)                       # (runs - order, 3)
+            # a difference of repeated values is zero up to rounding
+            zeros.append(np.abs(parts[-1]) <= _REPEAT_RTOL * np.max(np.abs(z), axis=0))
     if not parts:
         return np.full(3, np.nan), np.zeros(3, np.int64)
     e = np.concatenate(parts)
     fits = [trimmed_scale(e[:, c], k=k) for c in range(3)]
-    return np.array([f[0] for f in fits]), np.array([f[1] for f in fits], np.int64)
+    sig = np.array([f[0] for f in fits])
+    counts = np.array([f[1] for f in fits], np.int64)
+    # Mostly repeated values (a logger rounding ranges to whole metres): the
+    # trimmed scale of the differences collapses on the zeros to ~1e-16, a
+    # sigma the data do not have. Not identified (the cross-node residuals,
+    # which see the rounding, can still identify it).
+    repeated = np.mean(np.concatenate(zeros), axis=0) > 0.5
+    sig[repeated], counts[repeated] = np.nan, 0
+    return sig, counts
 
 
 # ------------------------------------------------------------------ network
@@ -191,6 +208,7 @@ def _frame_information(z, p, theta, keep, prior_w):
     f, n, _ = z.shape
     w = np.where(keep, 1.0 / theta[None], 0.0)
     _, e, jac, cov = solve_frame_states(z, p, w, prior_w)
+    w, jac, cov = without_unsolved(w, jac, cov)
     wf = w.reshape(f, 3 * n)
     wj = wf[..., None] * jac.reshape(f, 3 * n, 4)
     r = -np.einsum("fia,fab,fjb->fij", wj, cov, wj)

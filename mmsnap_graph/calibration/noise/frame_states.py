@@ -13,7 +13,35 @@ from factors.models import detection_to_global, measurement_model, residual
 
 from ...data.recording import Detections
 
-__all__ = ["solve_frame_states", "frame_table"]
+__all__ = ["solve_frame_states", "frame_table", "without_unsolved"]
+
+#: A frame's information whose smallest eigenvalue is below this fraction of
+#: its largest is numerically singular (float64 keeps ~16 digits; a solve
+#: there returns noise or raises): the frame is not solved.
+_RCOND = 1e-13
+
+
+def _solve(info: NDArray, rhs: NDArray) -> tuple[NDArray, NDArray]:
+    """``info^-1 rhs`` per frame and the frames solved ``(F,)``: NaN where
+    the information is not finite or numerically singular (a coordinate
+    whose weight dwarfs the others', e.g. ranges rounded to whole metres
+    whose differences give a sigma of 1e-16 m), never a ``LinAlgError``."""
+    finite = np.all(np.isfinite(info), axis=(1, 2))
+    lam = np.linalg.eigvalsh(np.where(finite[:, None, None], info, np.eye(info.shape[-1])))
+    ok = finite & (lam[:, 0] > _RCOND * np.abs(lam[:, -1]))
+    out = np.full(rhs.shape, np.nan)
+    if np.any(ok):
+        out[ok] = np.linalg.solve(info[ok], rhs[ok])
+    return out, ok
+
+
+def without_unsolved(w: NDArray, jac: NDArray, cov: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """The weights, Jacobians and covariances of :func:`solve_frame_states`
+    with the frames it could not solve (NaN covariance) left out: weight 0,
+    Jacobian and covariance 0, so that sums over frames skip them."""
+    ok = np.all(np.isfinite(cov), axis=(1, 2))
+    return (np.where(ok[:, None, None], w, 0.0), np.where(ok[:, None, None, None], jac, 0.0),
+            np.where(ok[:, None, None], cov, 0.0))
 
 
 def solve_frame_states(z: NDArray, poses: NDArray, w: NDArray, prior_w: NDArray,
@@ -25,7 +53,9 @@ def solve_frame_states(z: NDArray, poses: NDArray, w: NDArray, prior_w: NDArray,
     prior_w : (4,) information of a zero-mean prior on the state (a weak one
     keeps an unobserved velocity direction in place). Starts at the first
     observing node's detection. Returns states (F, 4), residuals (F, N, 3)
-    (NaN where unseen), Jacobians (F, N, 3, 4) and covariances (F, 4, 4).
+    (NaN where unseen), Jacobians (F, N, 3, 4) and covariances (F, 4, 4);
+    a frame whose information is numerically singular has NaN state,
+    residuals and covariance (:func:`without_unsolved` leaves it out).
     """
     f = z.shape[0]
     seen = np.isfinite(z[..., 0])
@@ -40,11 +70,14 @@ def solve_frame_states(z: NDArray, poses: NDArray, w: NDArray, prior_w: NDArray,
         e = np.where(seen[..., None], residual(h, zz), 0.0)
         info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + prior
         grad = np.einsum("fnri,fnr,fnr->fi", jac, w, e)
-        x = x - np.linalg.solve(info, grad[..., None])[..., 0]
+        x = x - _solve(info, grad[..., None])[0][..., 0]
     h, jac = measurement_model(x[:, None, :], poses[None])
     e = np.where(seen[..., None], residual(h, zz), np.nan)
     info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + prior
-    return x, e, jac, np.linalg.inv(info)
+    cov, ok = _solve(info, np.broadcast_to(np.eye(4), info.shape))
+    x[~ok] = np.nan
+    e[~ok] = np.nan
+    return x, e, jac, cov
 
 
 def frame_table(detections: Mapping[str, Detections], names) -> tuple[NDArray, NDArray]:

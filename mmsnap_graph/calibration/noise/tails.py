@@ -146,8 +146,9 @@ def _frame_chi2(z: NDArray, poses: NDArray, sig: NDArray, iterations: int = 8) -
     nodes that see it (Gauss-Newton from the first node's detection; a weak
     prior keeps an unobserved velocity direction in place)."""
     w = np.where(np.isfinite(z[..., :1]), 1.0 / sig[None] ** 2, 0.0)
-    e = solve_frame_states(z, poses, w, np.full(4, 1e-6), iterations)[1]
-    return np.nansum(w * e**2, axis=(1, 2))
+    x, e = solve_frame_states(z, poses, w, np.full(4, 1e-6), iterations)[:2]
+    chi2 = np.nansum(w * e**2, axis=(1, 2))
+    return np.where(np.isfinite(x[:, 0]), chi2, np.nan)  # an unsolved frame is not consistent
 
 
 def consistent_rows(detections: Mapping[str, Detections], poses: Mapping[str, NDArray],

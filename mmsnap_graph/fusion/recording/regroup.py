@@ -1,5 +1,5 @@
 """One cluster per body before a recording's association (docs/ROBUST.md,
-"One cluster per body"): :func:`merge_body_detections`.
+"One centroid per body"): :func:`merge_body_detections`.
 
 A radar often sees one person as two or more clusters (torso and arm, the
 two sides of the body). A node's centroids of one frame closer than a

@@ -61,6 +61,7 @@ from .split_check import SPLIT_MESSAGE, split_rows
 from .regroup import merge_body_detections
 from .coverage import uncovered_rows
 from .room import DEFAULT_BODY_M
+from ...tracking.person_ids import assign_person_ids
 
 __all__ = [
     "RECORDING_SOLVERS",
@@ -552,6 +553,7 @@ def fuse_recording(
         ``body_merge``, ``merge_body_m``, ``coverage_check``: docs/ROBUST.md.
         ``lm`` and the vectorized solver's settings as in ``fuse_batch``.
     progress : show a tqdm bar (default: when stderr is a terminal).
+    The rows' ``track_id``: :func:`~mmsnap_graph.tracking.person_ids.assign_person_ids`.
     """
     cal = NetworkCalibration() if calibration is None else calibration
     if not isinstance(cal, NetworkCalibration):
@@ -581,8 +583,8 @@ def fuse_recording(
         kept = obs & ~out.rejected if (gate or motion_check) else obs
         chosen = _grid_covariances(out, poses, z, kept, noise, prior, options.grid_points_per_axis,
                                    progress)
-    return _sequence(recording, poses, groups, out, chosen, mode=mode, options=options,
-                     noise=noise, prior=prior, robust=robust)
+    return assign_person_ids(_sequence(recording, poses, groups, out, chosen, mode=mode,
+                                       options=options, noise=noise, prior=prior, robust=robust))
 
 
 def _sequence(recording, poses, groups, out, chosen, *, mode, options, noise, prior,

@@ -11,7 +11,7 @@ one-shot fusion of each group), and what
 :meth:`~mmsnap_graph.tracking.central.CentralTracker.step` with the frame's
 successful estimates; a MAP estimate has its prior removed by the tracker).
 
-It is built for latency (docs/STREAMING.md, "Latency"): the grouping is
+It is built for latency (docs/validation/speed.md, "Latency"): the grouping is
 :class:`~mmsnap_graph.fusion.stream.association.StreamAssociator` (the
 decisions of ``associate_frame`` in plain floats for up to four detections
 per node, ``associate_frame`` itself otherwise); the default solver

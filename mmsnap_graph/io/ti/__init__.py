@@ -5,7 +5,8 @@ project's records.
   ``RadarConfig`` per sub-frame (:func:`read_ti_cfg`), board layouts, the
   room's boundary boxes; :mod:`.cfg_fields`: each command's arguments and
   their hardware limits;
-- :mod:`.uart`: out-of-box and tracking-demo UART TLV logs (:func:`read_ti_uart`);
+- :mod:`.uart`: logs of a demo's data UART (:func:`read_ti_uart`), read by the
+  parser of live boards, :mod:`.serial` (docs/LIVE.md);
 - :mod:`.dca1000`: DCA1000 / mmWave Studio raw ADC ``.bin`` captures;
 - :mod:`.point_table`: point logs as CSV, ``.npy``/``.npz`` or a DataFrame
   (:func:`read_point_tables`);

@@ -51,7 +51,7 @@ from ...errors import ConfigurationError, FileFormatError
 from .inputs import require_file
 from .cfg_fields import cfg_fields
 
-__all__ = ["BoardLayout", "BOARD_PRESETS", "TiConfig", "parse_ti_cfg", "read_ti_cfg",
+__all__ = ["BoardLayout", "BOARD_PRESETS", "TIMING_ONLY_LAYOUT", "TiConfig", "parse_ti_cfg", "read_ti_cfg",
            "read_boundary_boxes", "BOUNDARY_COMMANDS",
            "board_layout", "studio_json_to_cfg", "read_studio_json"]
 
@@ -96,6 +96,10 @@ BOARD_PRESETS: dict[str, BoardLayout] = {
                               rx_elevation_half_wl=(0, 1, 0, 1)),
 }
 BOARD_PRESETS["IWR1843BOOST"] = BOARD_PRESETS["AWR1843BOOST"]
+
+#: A layout for reading a ``.cfg``'s timing only (point clouds): any Tx subset is valid.
+TIMING_ONLY_LAYOUT = BoardLayout(name="timing only", tx_azimuth_half_wl=(0.0,) * 16,
+                                 tx_elevation_half_wl=(0.0,) * 16, rx_azimuth_half_wl=range(8))
 
 #: Commands that do not change the waveform (processing, monitoring, tracker
 #: and GUI settings of the SDK demos); they are accepted and ignored.

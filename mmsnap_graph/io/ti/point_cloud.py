@@ -10,6 +10,7 @@ makes a :class:`Recording` with a point-cloud level per node.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -19,10 +20,11 @@ from numpy.typing import ArrayLike, NDArray
 from factors.projection import project_to_plane, room_to_sensor
 from ..._validation import as_float_array, check_count, int_array
 from ...data.recording import Detections, NodeData, Recording
-from ...errors import ValidationError
+from ...errors import MmsnapWarning, ValidationError
 
 __all__ = ["PointCloud3D", "Mounting", "cloud_to_detections", "recording_from_point_clouds",
-           "destack_frames", "accumulate_frames", "check_frame_period"]
+           "destack_frames", "accumulate_frames", "check_frame_period", "stamp_unit_factor",
+           "beside_fraction"]
 
 _COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
 #: Limits of a radar point (no mmWave radar sees beyond a few hundred metres
@@ -242,6 +244,53 @@ def _stamp_frames(clouds: Mapping[str, PointCloud3D], frame_period_s: float,
     return out
 
 
+#: Frames that hold points lying a median of this many frame numbers apart or
+#: more: no radar log is that sparse (one frame in 100); the time stamps were
+#: read in a unit coarser than theirs (milliseconds as seconds: 1000 apart).
+SPARSE_GAP_FRAMES = 100
+#: The unit factors a time stamp can be off by (s, ms, us, ns).
+_UNIT_FACTORS = (1e-9, 1e-6, 1e-3, 1e3, 1e6, 1e9)
+
+
+def _stamp_rate(cloud: PointCloud3D) -> tuple[NDArray, float | None]:
+    """The distinct frames and the median seconds per frame number of the
+    stamps (None with fewer than 3 frames)."""
+    frames, inverse, count = np.unique(cloud.frame, return_inverse=True, return_counts=True)
+    if frames.size < 3:
+        return frames, None
+    stamps = np.bincount(inverse, weights=cloud.time_s - float(cloud.time_s.min())) / count
+    return frames, float(np.median(np.diff(stamps) / np.diff(frames)))
+
+
+def stamp_unit_factor(cloud: PointCloud3D, frame_period_s: float) -> float | None:
+    """The power of 1000 by which the cloud's time stamps are off their frame
+    period, or None when they agree (or no power of 1000 explains it).
+
+    1000 (stamps in milliseconds read as seconds): the stamps advance
+    ``1000 x frame_period_s`` per frame number (a frame column, a UART
+    header), or the frames numbered from them lie a median of about 1000
+    frame numbers apart (no frame column). 0.001 the other way round: the
+    stamps advance a thousandth of the period per frame number, or distinct
+    stamps of several points each (one per radar frame) lie a thousandth of
+    the period apart. Dividing the stamps by the factor makes them agree."""
+    if cloud.time_s is None or len(cloud) == 0:
+        return None
+    near = lambda ratio, factors: next(
+        (f for f in factors if abs(np.log10(ratio / f)) < 0.5), None) if ratio > 0 else None
+    frames, rate = _stamp_rate(cloud)
+    if rate is not None and abs(rate / frame_period_s - 1.0) > PERIOD_TOLERANCE:
+        return next((f for f in _UNIT_FACTORS
+                     if abs(rate / frame_period_s / f - 1) < PERIOD_TOLERANCE), None)
+    if rate is not None and np.median(np.diff(frames)) >= SPARSE_GAP_FRAMES:
+        return near(float(np.median(np.diff(frames))), [f for f in _UNIT_FACTORS if f > 1])
+    values, counts = np.unique(cloud.time_s, return_counts=True)
+    if values.size >= 3 and np.median(counts) >= 2:
+        step = float(np.median(np.diff(values))) / frame_period_s
+        if step <= 1.0 / SPARSE_GAP_FRAMES:
+            return near(step, [f for f in _UNIT_FACTORS if f < 1])
+    return None
+
+
 def check_frame_period(cloud: PointCloud3D, frame_period_s: float, *, node: str = "S1",
                        option: str = "frame_period_s") -> str | None:
     """Why ``frame_period_s`` disagrees with the cloud's time stamps, or None.
@@ -256,22 +305,24 @@ def check_frame_period(cloud: PointCloud3D, frame_period_s: float, *, node: str 
     """
     if cloud.time_s is None or len(cloud) == 0:
         return None
-    frames, inverse, count = np.unique(cloud.frame, return_inverse=True, return_counts=True)
     t_min = float(cloud.time_s.min())
-    stamps = np.bincount(inverse, weights=cloud.time_s - t_min) / count    # mean per frame
-    if frames.size >= 3:
-        rate = np.median(np.diff(stamps) / np.diff(frames))
-        if abs(rate / frame_period_s - 1.0) > PERIOD_TOLERANCE:
-            distinct = np.unique(cloud.time_s).size
-            coarse = (f"; the stamps hold only {distinct} distinct values for {frames.size} "
-                      "frames: coarser than a frame" if distinct < frames.size else "")
-            ratio = rate / frame_period_s
-            unit = next((f"; a factor of {f:g}: a unit mistake in the time stamps or the "
-                         "frame period?" for f in (1e-6, 1e-3, 1e3, 1e6)
-                         if abs(ratio / f - 1) < PERIOD_TOLERANCE), "")
-            return (f"node {node}: {option}={frame_period_s:g} s disagrees with the time stamps, "
-                    f"which advance {rate:.6g} s per frame number (median of {frames.size - 1} "
-                    f"frame steps){coarse}{unit}")
+    frames, rate = _stamp_rate(cloud)
+    factor = stamp_unit_factor(cloud, frame_period_s)
+    unit = (f"; a factor of {factor:g}: a unit mistake in the time stamps or the frame period?"
+            if factor is not None else "")
+    if rate is not None and abs(rate / frame_period_s - 1.0) > PERIOD_TOLERANCE:
+        distinct = np.unique(cloud.time_s).size
+        coarse = (f"; the stamps hold only {distinct} distinct values for {frames.size} "
+                  "frames: coarser than a frame" if distinct < frames.size else "")
+        return (f"node {node}: {option}={frame_period_s:g} s disagrees with the time stamps, "
+                f"which advance {rate:.6g} s per frame number (median of {frames.size - 1} "
+                f"frame steps){coarse}{unit}")
+    if rate is not None and np.median(np.diff(frames)) >= SPARSE_GAP_FRAMES:
+        gap = float(np.median(np.diff(frames)))
+        return (f"node {node}: the time stamps put the frames that hold points a median "
+                f"{gap:g} frames of {option}={frame_period_s:g} s apart ({gap * frame_period_s:.6g}"
+                f" s; {frames.size} frames spread over {frames[-1] - frames[0] + 1} frame "
+                f"numbers): no log is that sparse{unit}")
     values, counts = np.unique(cloud.time_s, return_counts=True)
     if values.size >= 3 and np.median(counts) >= 2:
         with np.errstate(over="ignore", invalid="ignore"):
@@ -281,7 +332,7 @@ def check_frame_period(cloud: PointCloud3D, frame_period_s: float, *, node: str 
             step = float(np.median(np.diff(values)))
             return (f"node {node}: {option}={frame_period_s:g} s merges distinct time stamps "
                     f"{step:.6g} s apart into one frame ({values.size} stamps of several points "
-                    f"each fall into {per_frame.size} frames)")
+                    f"each fall into {per_frame.size} frames){unit}")
     return None
 
 
@@ -329,16 +380,93 @@ def _no_twins(clouds: Mapping[str, PointCloud3D]) -> None:
         seen[key] = name
 
 
+#: A radar sees in front of it (TI's boards: about +-60 degrees of azimuth
+#: from the boresight): points beyond this azimuth in the sensor frame...
+BESIDE_AZIMUTH_RAD = float(np.deg2rad(75.0))
+#: ... are at most this fraction of a node's points (the real recordings:
+#: 0.6%; a room pose 90 degrees off puts 55-86% there, 180 degrees 100%).
+MAX_BESIDE_FRACTION = 0.25
+#: Fewer points than this are not judged.
+_MIN_VIEW_POINTS = 50
+
+
+def beside_fraction(points_xyz: NDArray) -> float:
+    """The fraction of sensor-frame points ``(K, 3)`` beyond
+    :data:`BESIDE_AZIMUTH_RAD` of the boresight (the sensor's y axis), behind
+    the radar included."""
+    if not len(points_xyz):
+        return 0.0
+    azimuth = np.arctan2(points_xyz[:, 0], points_xyz[:, 1])
+    return float(np.mean(np.abs(azimuth) > BESIDE_AZIMUTH_RAD))
+
+
+def _view_problem(name: str, cloud: PointCloud3D, mount: Mounting) -> str | None:
+    """Why a node's points do not lie in front of it once in its sensor
+    frame (a room pose with the boresight's heading, or in radians), or None."""
+    xyz = cloud.points_xyz
+    if len(xyz) < _MIN_VIEW_POINTS:
+        return None
+    to_sensor = lambda pose: (room_to_sensor(xyz, pose, mount.height_m, mount.tilt_rad)
+                              if pose is not None else xyz)
+    beside = beside_fraction(to_sensor(mount.room_pose))
+    if beside <= MAX_BESIDE_FRACTION:
+        return None
+    text = (f"node {name}: {100 * beside:.0f}% of its {len(xyz)} points lie more than "
+            f"{np.degrees(BESIDE_AZIMUTH_RAD):.0f} deg from the boresight (beside or behind the "
+            "radar) in its sensor frame")
+    if mount.room_pose is None:
+        return text + ("; a radar sees only in front of it (TI's sensor frame: x along the "
+                       "antenna array, y along the boresight; points in a room frame need the "
+                       "node's nominal pose, --room-pose)")
+    x, y, phi = mount.room_pose
+    candidates = {}
+    if abs(phi) <= np.deg2rad(2 * np.pi):          # radians typed where degrees are asked
+        candidates[f"heading {np.degrees(np.degrees(phi)):.4g} deg (the {np.degrees(phi):.4g} "
+                   "given, read as radians)"] = float(np.degrees(phi))
+    wrapped = lambda a: (a + np.pi) % (2 * np.pi) - np.pi
+    candidates.update({f"heading {np.degrees(wrapped(phi + d)):.4g} deg": phi + d
+                       for d in (np.pi / 2, -np.pi / 2, np.pi)})
+    fits = {k: beside_fraction(to_sensor((x, y, v))) for k, v in candidates.items()}
+    best = next((k for k, f in fits.items() if f <= MAX_BESIDE_FRACTION / 5),
+                min(fits, key=fits.get))
+    hint = (f"; {best} puts {100 * (1 - fits[best]):.1f}% in front"
+            if fits[best] <= MAX_BESIDE_FRACTION else "")
+    return (f"{text} once taken back with its room pose (x {x:g} m, y {y:g} m, heading "
+            f"{np.degrees(phi):.4g} deg; --room-pose); a radar sees only in front of it: the "
+            f"heading is the direction of the antenna array axis, the boresight heading + 90 "
+            f"deg{hint}")
+
+
+def _check_views(clouds: Mapping[str, PointCloud3D], mounts: Mapping[str, Mounting]) -> None:
+    """Each node's points in front of it (:func:`_view_problem`, an error);
+    a room pose for some nodes but not all warns."""
+    for name, cloud in clouds.items():
+        problem = _view_problem(name, cloud, mounts[name])
+        if problem:
+            raise ValidationError(problem)
+    rooms = sorted(name for name, m in mounts.items() if m.room_pose is not None)
+    if rooms and len(rooms) < len(mounts):
+        others = sorted(set(mounts) - set(rooms))
+        warnings.warn(f"nodes {rooms} have a room pose, {others} not: the points of {others} are "
+                      "taken as in their sensor frames; a logger that writes a room frame "
+                      "writes it for every radar (a missing --room-pose?)", MmsnapWarning,
+                      stacklevel=3)
+
+
 def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_period_s: float,
                                 mounting: Mounting | Mapping[str, Mounting] = Mounting(),
                                 height_band_m: tuple[float, float] | None = None,
                                 poses: Mapping[str, ArrayLike] | None = None,
-                                metadata: Mapping[str, Any] | None = None) -> Recording:
+                                metadata: Mapping[str, Any] | None = None,
+                                common_frames: bool = False) -> Recording:
     """A :class:`Recording` with a point-cloud level per node.
 
     clouds : node name -> its cloud, in node order (first = S1).
     mounting : one :class:`Mounting` for all nodes or one per node.
     poses : known 2D node poses (e.g. surveyed), if any.
+    common_frames : the clouds' frame numbers are already on one clock, counted
+    from the recording's start (live boards stamped by the host,
+    :mod:`.serial.timing`): kept as they are.
     """
     if not clouds:
         raise ValidationError("clouds must name at least one node")
@@ -346,10 +474,16 @@ def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_per
     if not (np.isfinite(fp) and fp > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be finite and > 0")
     _no_twins(clouds)
-    aligned, md = _frame_offsets(clouds, fp)
+    mounts = {name: mounting[name] if isinstance(mounting, Mapping) else mounting
+              for name in clouds}
+    _check_views(clouds, mounts)
+    if common_frames:
+        aligned, md = dict(clouds), {"frame_clock": "host"}
+    else:
+        aligned, md = _frame_offsets(clouds, fp)
     nodes = {}
     for name, cloud in aligned.items():
-        mount = mounting[name] if isinstance(mounting, Mapping) else mounting
+        mount = mounts[name]
         det = cloud_to_detections(cloud, mount, height_band_m=height_band_m)
         pose = None if poses is None or name not in poses else poses[name]
         nodes[name] = NodeData(name=name, pose=pose, point_cloud=det)

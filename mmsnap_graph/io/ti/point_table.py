@@ -12,12 +12,19 @@ aliases below (a ``columns=`` mapping renames others):
   ``elevation``/``el``; TI's convention, see ``factors.projection``);
 - optional: ``snr_db`` (``snr``), ``noise_db`` (``noise``), and ``node``
   (``sensor``, ``radar``) when one table holds several radars.
+
+A unit written in a header is read (``X (m)``, ``Azimuth [deg]``,
+``Timestamp (ms)``, ``SNR (0.1 dB)``; :mod:`.headers`), as are the header
+sets of TI's tools (``columns="visualizer"``, ``"sdk-script"``). A CSV file's
+cells may be separated by commas, semicolons (with decimal commas) or tabs;
+a replay file of TI's visualizer (JSON, :mod:`.replay`) is read as a table.
 """
 
 from __future__ import annotations
 
 import csv
 import os
+import warnings
 import zipfile
 from pathlib import Path
 from typing import Any, Literal, Mapping
@@ -26,43 +33,77 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.projection import spherical_to_cartesian
-from ...errors import FileFormatError, ValidationError
+from ...errors import FileFormatError, MmsnapWarning, ValidationError
 from .csv_columns import plain_csv_columns
+from .headers import (PRESETS, QUANTITY, detect_preset, header_unit, preset_names,
+                      suggest_preset, unit_factor)
 from .inputs import require_file
+from .replay import is_replay, replay_columns
 from .point_cloud import MAX_COORDINATE_M, MAX_SPEED_MPS, PointCloud3D
 
-__all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "read_point_table", "read_point_tables",
-           "csv_text_columns"]
+__all__ = ["CARTESIAN_COLUMNS", "SPHERICAL_COLUMNS", "SNR_UNITS", "read_point_table",
+           "read_point_tables", "csv_text_columns"]
 
 CARTESIAN_COLUMNS = ("x_m", "y_m", "z_m", "doppler_mps")
 SPHERICAL_COLUMNS = ("range_m", "azimuth_rad", "elevation_rad", "doppler_mps")
 
 _ALIASES = {
-    "frame": ("frame", "frame_number", "framenum", "numframe", "frame_id"),
+    "frame": ("frame", "frame_number", "framenum", "numframe", "frame_id", "frame number",
+              "frame #", "frame#", "frame no", "frame_no"),
     "time_s": ("time_s", "time", "timestamp", "t"),
     "x_m": ("x_m", "x"), "y_m": ("y_m", "y"), "z_m": ("z_m", "z"),
-    "doppler_mps": ("doppler_mps", "doppler", "velocity", "v", "radial_velocity"),
+    "doppler_mps": ("doppler_mps", "doppler", "velocity", "v", "radial_velocity",
+                    "radial velocity"),
     "range_m": ("range_m", "range", "r"),
     "azimuth_rad": ("azimuth_rad", "azimuth", "az"),
     "elevation_rad": ("elevation_rad", "elevation", "el"),
     "snr_db": ("snr_db", "snr"), "noise_db": ("noise_db", "noise"),
     "node": ("node", "sensor", "radar"),
 }
-_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: Per column, the largest magnitude a radar point can have (a corrupted cell).
 _LIMITS = {"x_m": MAX_COORDINATE_M, "y_m": MAX_COORDINATE_M, "z_m": MAX_COORDINATE_M,
            "range_m": MAX_COORDINATE_M, "doppler_mps": MAX_SPEED_MPS}
 #: Time stamps beyond this (about 31,700 years) are not a clock (a bad cell).
 _MAX_TIME_S = 1e12
+#: The SNR column's units: dB, TI's side-info steps of 0.1 dB (the mmWave
+#: SDK's TLV 7 and its example parser's CSV), or a linear power ratio (the
+#: people-tracking demos' point cloud).
+SNR_UNITS = ("db", "0.1db", "linear")
+#: No TI radar reports SNRs this high in dB (the real recordings in
+#: data/real/darksz: median 15-20 dB, at most 51 dB): a median or largest
+#: value beyond these is an SNR in another unit.
+MAX_MEDIAN_SNR_DB = 60.0
+MAX_SNR_DB = 120.0
 
 
-def _read_csv(path: Path) -> dict[str, NDArray]:
-    """A CSV file -> name -> column (:func:`csv_text_columns`)."""
+def _read_text(path: Path) -> dict[str, NDArray]:
+    """A CSV file (:func:`csv_text_columns`) or a replay file of TI's
+    visualizer (JSON, :func:`~.replay.replay_columns`) -> name -> column."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (UnicodeDecodeError, OSError) as exc:
-        raise FileFormatError(f"{path}: not a readable CSV table ({exc})") from None
+        raise FileFormatError(f"{path}: not a readable CSV table ({exc}); a binary log of a "
+                              "demo's data UART is read by mmsnap import ti-uart") from None
+    if path.suffix.lower() == ".json" or is_replay(text):
+        columns, snr_unit = replay_columns(path, text)
+        if snr_unit is not None and "snr" in columns:
+            columns[f"snr ({snr_unit})"] = columns.pop("snr")
+        return columns
     return csv_text_columns(text, path)
+
+
+#: Cell separators a table may use (a spreadsheet of a locale with decimal
+#: commas writes semicolons).
+DELIMITERS = (",", ";", "\t")
+
+
+def _delimiter(lines: list[str]) -> str:
+    """The separator of the header line: the one of :data:`DELIMITERS` it
+    holds most of (a comma when it holds none)."""
+    header = lines[0] if lines else ""
+    counts = [header.count(d) for d in DELIMITERS]
+    return DELIMITERS[int(np.argmax(counts))] if max(counts) else ","
 
 
 def csv_text_columns(text: str, name: str | os.PathLike = "CSV table", *,
@@ -70,12 +111,14 @@ def csv_text_columns(text: str, name: str | os.PathLike = "CSV table", *,
     """The text of a CSV point table -> name -> column, without pandas, as
     :func:`read_point_tables` reads a CSV file (``name`` names it in errors).
 
-    Blank lines and lines starting with ``#`` are skipped, spaces around a
-    cell are dropped; a column whose every non-empty cell is a number is a
-    float column (an empty cell is NaN), any other a column of strings (the
-    errors that follow then name the line of a bad cell). A plain table is
-    parsed by :func:`~.csv_columns.plain_csv_columns` with the same result
-    (``fast=False``: never, for comparison)."""
+    Cells are separated by commas, semicolons or tabs (the one the header
+    line holds most of; with semicolons, a decimal comma is read as a
+    point). Blank lines and lines starting with ``#`` are skipped, spaces
+    around a cell are dropped; a column whose every non-empty cell is a
+    number is a float column (an empty cell is NaN), any other a column of
+    strings (the errors that follow then name the line of a bad cell). A
+    plain comma table is parsed by :func:`~.csv_columns.plain_csv_columns`
+    with the same result (``fast=False``: never, for comparison)."""
     plain = plain_csv_columns(text) if fast else None    # the common case, parsed by NumPy
     if plain is not None:
         _no_duplicates(list(plain), str(name))
@@ -83,11 +126,12 @@ def csv_text_columns(text: str, name: str | os.PathLike = "CSV table", *,
     kept = [(k, line) for k, line in enumerate(text.splitlines(), start=1)
             if line.strip() and not line.lstrip().startswith("#")]
     lines = [line for _, line in kept]
+    sep = _delimiter(lines)
     try:
-        # Without quotes a line is its cells split at the commas (several times
-        # faster than the csv module on large logs).
-        rows = (list(csv.reader(lines, skipinitialspace=True)) if '"' in text
-                else [line.split(",") for line in lines])
+        # Without quotes a line is its cells split at the separators (several
+        # times faster than the csv module on large logs).
+        rows = (list(csv.reader(lines, delimiter=sep, skipinitialspace=True)) if '"' in text
+                else [line.split(sep) for line in lines])
     except csv.Error as exc:
         raise FileFormatError(f"{name}: not a readable CSV table ({exc})") from None
     if not rows:
@@ -97,20 +141,24 @@ def csv_text_columns(text: str, name: str | os.PathLike = "CSV table", *,
     if set(map(len, rows)) != {len(header)}:
         k = next(k for k, row in enumerate(rows) if len(row) != len(header))
         raise FileFormatError(f"{name}: line {kept[k][0]} has {len(rows[k])} cells, the header "
-                              f"(line {kept[0][0]}) names {len(header)} columns")
+                              f"(line {kept[0][0]}) names {len(header)} columns"
+                              + (f" (cells separated by {sep!r})" if sep != "," else ""))
     cells = list(zip(*rows[1:])) or [()] * len(header)
-    return {column: _csv_column(values) for column, values in zip(header, cells)}
+    return {column: _csv_column(values, decimal_comma=sep == ";")
+            for column, values in zip(header, cells)}
 
 
-def _csv_column(cells: tuple) -> NDArray:
-    """Floats when every non-empty cell is a number (empty: NaN), else the
-    cells as strings without surrounding spaces."""
+def _csv_column(cells: tuple, *, decimal_comma: bool = False) -> NDArray:
+    """Floats when every non-empty cell is a number (empty: NaN; with
+    ``decimal_comma``, ``1,5`` is 1.5), else the cells as strings without
+    surrounding spaces."""
     try:
         return np.array(cells, dtype=float)        # NumPy parses the text (fast)
     except ValueError:
         pass
+    number = (lambda c: float(c.replace(",", "."))) if decimal_comma else float
     try:
-        return np.array([float(c) if c.strip() else np.nan for c in cells], dtype=float)
+        return np.array([number(c) if c.strip() else np.nan for c in cells], dtype=float)
     except ValueError:
         return np.char.strip(np.array(cells, dtype=str))
 
@@ -122,7 +170,7 @@ def _as_columns(source: Any, name: str) -> dict[str, NDArray]:
         path = Path(source)
         require_file(path, "point table")
         if path.suffix.lower() not in (".npy", ".npz"):
-            return _read_csv(path)
+            return _read_text(path)
         try:
             arr = np.load(path, allow_pickle=False)
             if isinstance(arr, np.lib.npyio.NpzFile):
@@ -177,11 +225,35 @@ def _checked_columns(raw: dict[str, Any], name: str) -> dict[str, NDArray]:
     return out
 
 
-def _canonical(raw: dict[str, NDArray], columns: Mapping[str, str] | None,
-               name: str) -> dict[str, NDArray]:
-    """The columns under their canonical names (``_ALIASES``), after the
-    ``columns`` renames (matched like the aliases: case and surrounding
-    spaces ignored)."""
+def _target(key: str, base: str, renames: dict, preset) -> tuple[str | None, str | None]:
+    """(canonical column, the preset's unit) of a header: the ``columns``
+    rename, else the preset's column, else the alias of the whole name or of
+    the name without its unit ((None, None): not a column this reader knows)."""
+    if key in renames:
+        return renames[key], None
+    if preset is not None and base in preset.columns:
+        return preset.columns[base]
+    for canon, aliases in _ALIASES.items():
+        if key in aliases or base in aliases:
+            return canon, None
+    return None, None
+
+
+def _canonical(raw: dict[str, NDArray], columns: Mapping[str, str] | str | None,
+               name: str) -> tuple[dict[str, NDArray], dict[str, str]]:
+    """The columns under their canonical names (``_ALIASES``) and the unit of
+    each whose header or the preset gives one (:mod:`.headers`),
+    after the ``columns`` renames (matched like the aliases: case and
+    surrounding spaces ignored) or the preset ``columns`` names."""
+    preset = None
+    if isinstance(columns, str):
+        if columns not in PRESETS:
+            raise ValidationError(f"columns={columns!r} must be a mapping of renames or a preset "
+                                  f"of TI's tools: {preset_names()}")
+        preset, columns = PRESETS[columns], None
+    elif not columns:
+        found = detect_preset(list(raw))
+        preset = PRESETS[found] if found else None
     lower = {k.strip().lower(): k for k in raw}
     renames = {}
     for old, new in dict(columns or {}).items():
@@ -189,24 +261,30 @@ def _canonical(raw: dict[str, NDArray], columns: Mapping[str, str] | None,
         if key not in lower:
             raise FileFormatError(f"{name}: the columns mapping renames {old!r}, which the table "
                                   f"does not have (columns present: {sorted(raw)})")
-        if not any(target in aliases for aliases in _ALIASES.values()):
+        canon = next((c for c, aliases in _ALIASES.items() if target in aliases), None)
+        if canon is None:
             raise FileFormatError(f"{name}: the columns mapping renames {old!r} to {new!r}, "
                                   f"which is not a column name this reader knows "
                                   f"({sorted(_ALIASES)} or their aliases)")
-        renames[key] = target
-    named = {renames.get(k, k): raw[original] for k, original in lower.items()}
-    origin = {renames.get(k, k): original for k, original in lower.items()}
-    _no_duplicates([renames.get(k, k) for k in lower], name)
-    out = {}
-    for canon, aliases in _ALIASES.items():
-        found = [a for a in aliases if a in named]
-        if len(found) > 1:
-            raise FileFormatError(f"{name}: columns {[origin[a] for a in found]} all mean "
+        renames[key] = canon
+    out: dict[str, NDArray] = {}
+    origin: dict[str, str] = {}
+    units: dict[str, str] = {}
+    for key, original in lower.items():
+        base, unit = header_unit(original)
+        canon, preset_unit = _target(key, base, renames, preset)
+        if canon is None:
+            continue
+        if canon in origin:
+            raise FileFormatError(f"{name}: columns {[origin[canon], original]} all mean "
                                   f"{canon}; keep one (or rename the others with a columns "
                                   "mapping, mmsnap import table --columns)")
-        if found:
-            out[canon] = named[found[0]]
-    return out
+        origin[canon], out[canon] = original, raw[original]
+        unit = unit or preset_unit
+        if unit is not None and canon in QUANTITY:
+            unit_factor(canon, unit, original, name)          # a unit of the quantity
+            units[canon] = unit
+    return out, units
 
 
 def _kind(cols: dict, coordinates: str, name: str, present: list[str]) -> str:
@@ -219,12 +297,23 @@ def _kind(cols: dict, coordinates: str, name: str, present: list[str]) -> str:
         cart, sph = have(CARTESIAN_COLUMNS), have(SPHERICAL_COLUMNS)
         raise FileFormatError(f"{name}: missing columns: Cartesian points need {cart} "
                               f"({_short(cart)}), spherical points need {sph} ({_short(sph)}) "
-                              f"(columns present: {present})")
+                              f"(columns present: {present}){columns_hint(present)}")
     required = CARTESIAN_COLUMNS if coordinates == "cartesian" else SPHERICAL_COLUMNS
     if have(required):
         raise FileFormatError(f"{name}: missing {coordinates} columns {have(required)} "
-                              f"({_short(have(required))}) (columns present: {present})")
+                              f"({_short(have(required))}) (columns present: {present})"
+                              f"{columns_hint(present)}")
     return coordinates
+
+
+def columns_hint(present: list[str]) -> str:
+    """How to name a table's columns: a columns mapping, or the preset of
+    the TI tool whose headers the table holds most of."""
+    preset = suggest_preset(present)
+    tool = (f", or columns={preset!r} (--columns {preset}) for the table of "
+            f"{PRESETS[preset].tool}" if preset else "")
+    return (f"; name a column with a columns mapping, e.g. columns={{'HEADER': 'x'}} (mmsnap "
+            f"import table --columns 'HEADER=x', repeat per column){tool}")
 
 
 def _short(canonical: list[str]) -> str:
@@ -344,15 +433,86 @@ def _node_names(column: NDArray, name: str, where: "_Rows") -> NDArray:
     return text
 
 
-def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, degrees: bool,
-           time_unit: str, frame_period_s: float | None, where: _Rows) -> PointCloud3D:
-    get = lambda k: _checked(_float(cols, k, name, where)[rows], k, rows, name, where)
-    time = get("time_s") * _TIME_UNITS[time_unit] if "time_s" in cols else None
+def _units(header: dict[str, str], *, degrees: bool, time_unit: str,
+           snr_unit: str | None, name: str) -> tuple[dict[str, float], str]:
+    """The factor to SI of each column and the SNR column's unit: a unit in
+    the header (or the preset) first, then the options; an option that
+    contradicts the header is an error."""
+    written = header.get("snr_db")
+    scale = {k: unit_factor(k, u, k, name) for k, u in header.items() if k != "snr_db"}
+    if scale.get("noise_db", 1.0) is None:
+        raise FileFormatError(f"{name}: a noise column in linear units is not read (dB)")
+    deg = np.pi / 180
+    for key in ("azimuth_rad", "elevation_rad"):
+        if degrees and scale.get(key, deg) != deg:
+            raise FileFormatError(f"{name}: degrees=True (--degrees), but the header of "
+                                  f"{key} says radians")
+        scale.setdefault(key, deg if degrees else 1.0)
+    if "time_s" in scale and time_unit != "s" and scale["time_s"] != _TIME_UNITS[time_unit]:
+        raise FileFormatError(f"{name}: time_unit={time_unit!r} (--time-unit), but the header "
+                              f"of time_s gives another unit")
+    scale.setdefault("time_s", _TIME_UNITS[time_unit])
+    if written and snr_unit and snr_unit != written:
+        raise FileFormatError(f"{name}: snr_unit={snr_unit!r} (--snr-unit), but the header of "
+                              f"the SNR column says {written}")
+    snr = written or snr_unit or "db"
+    scale.setdefault("noise_db", 0.1 if snr == "0.1db" else 1.0)    # the same side info
+    return scale, snr
+
+
+def _angles(get, scale: dict, name: str, rows: NDArray, where: _Rows) -> tuple[NDArray, NDArray]:
+    """The azimuth and elevation columns in radians: a value beyond +-pi read
+    as radians is an error naming ``degrees``; read as degrees, angles that
+    all lie within +-pi/2 degrees (a radar sees tens of degrees) warn."""
+    az, el = get("azimuth_rad"), get("elevation_rad")
+    for key, values in (("azimuth_rad", az), ("elevation_rad", el)):
+        if scale[key] == 1.0 and values.size and np.max(np.abs(values)) > np.pi:
+            j = int(np.argmax(np.abs(values)))
+            raise FileFormatError(
+                f"{name}: column {key} holds {float(values[j])!r} at {where(rows[j])}, "
+                "beyond +-pi: not an angle in radians; degrees? (degrees=True, mmsnap "
+                "import table --degrees)")
+    degrees = scale["azimuth_rad"] != 1.0 and scale["elevation_rad"] != 1.0
+    if degrees and az.size >= 10 and max(np.max(np.abs(az)), np.max(np.abs(el))) \
+            <= np.deg2rad(np.pi / 2):
+        warnings.warn(f"{name}: every azimuth and elevation lies within +-{np.pi / 2:.4g} "
+                      "degrees, read as degrees (degrees=True, --degrees): radians? a radar "
+                      "sees tens of degrees", MmsnapWarning, stacklevel=4)
+    return az, el
+
+
+def _snr(values: NDArray, unit: str, name: str) -> NDArray:
+    """The SNR column in dB from ``unit``; values beyond any radar's SNR in
+    dB are an error naming the units it may be in."""
+    if unit == "0.1db":
+        values = values * 0.1
+    elif unit == "linear":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            values = np.where(values > 0, 10.0 * np.log10(values), np.nan)
+    finite = values[np.isfinite(values)]
+    if finite.size and (np.median(finite) > MAX_MEDIAN_SNR_DB or finite.max() > MAX_SNR_DB):
+        raise FileFormatError(
+            f"{name}: column snr holds SNRs up to {finite.max():.6g} dB (median "
+            f"{np.median(finite):.6g} dB) read as snr_unit={unit!r}, beyond any radar's "
+            f"(TI's boards: a median below {MAX_MEDIAN_SNR_DB:g} dB, at most about "
+            f"{MAX_SNR_DB:g} dB); TI's side info counts steps of 0.1 dB (snr_unit='0.1db', "
+            "mmsnap import table --snr-unit 0.1db), the people-tracking demos a linear ratio "
+            "(--snr-unit linear)")
+    return values
+
+
+def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, scale: dict, snr_unit: str,
+           frame_period_s: float | None, where: _Rows) -> PointCloud3D:
+    get = lambda k: _checked(_float(cols, k, name, where)[rows] * scale.get(k, 1.0), k, rows,
+                             name, where)
+    time = get("time_s") if "time_s" in cols else None
     if time is not None and time.size and np.max(np.abs(time)) > _MAX_TIME_S:
         j = int(np.argmax(np.abs(time)))
+        ms = (" (milliseconds, as TI's visualizer stamps? time_unit='ms', --time-unit ms, or "
+              "--columns visualizer)" if np.max(np.abs(time)) * 1e-3 <= _MAX_TIME_S else "")
         raise FileFormatError(f"{name}: column time_s holds {float(time[j])!r} s at "
                               f"{where(rows[j])}; time stamps must lie within +-1e12 s "
-                              f"(check --time-unit)")
+                              f"(check --time-unit){ms}")
     if "frame" in cols:
         frame = _frame_column(cols, rows, get, name, where)
     else:
@@ -360,10 +520,11 @@ def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, degrees: bool,
     if kind == "cartesian":
         x, y, z = get("x_m"), get("y_m"), get("z_m")
     else:
-        scale = np.pi / 180.0 if degrees else 1.0
-        x, y, z = spherical_to_cartesian(get("range_m"), get("azimuth_rad") * scale,
-                                         get("elevation_rad") * scale).T
+        x, y, z = spherical_to_cartesian(get("range_m"), *_angles(get, scale, name, rows,
+                                                                    where)).T
     opt = {k: get(k) for k in ("snr_db", "noise_db") if k in cols}
+    if "snr_db" in opt:
+        opt["snr_db"] = _snr(opt["snr_db"], snr_unit, name)
     try:
         return PointCloud3D(frame=frame, x_m=x, y_m=y, z_m=z, doppler_mps=get("doppler_mps"),
                             time_s=time, **opt)
@@ -373,15 +534,25 @@ def _cloud(cols: dict, rows: NDArray, kind: str, *, name: str, degrees: bool,
 
 def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
                                                            "spherical"] = "auto",
-                      columns: Mapping[str, str] | None = None, degrees: bool = False,
-                      time_unit: Literal["s", "ms", "us"] = "s",
+                      columns: Mapping[str, str] | str | None = None, degrees: bool = False,
+                      time_unit: Literal["s", "ms", "us", "ns"] = "s",
                       frame_period_s: float | None = None,
-                      default_node: str = "S1") -> dict[str, PointCloud3D]:
+                      default_node: str = "S1",
+                      snr_unit: Literal["db", "0.1db", "linear"] | None = None
+                      ) -> dict[str, PointCloud3D]:
     """Read a point table (module docstring) into node name -> cloud.
 
     coordinates : which columns to use (``"auto"``: Cartesian if present,
-    else spherical). columns : renames, e.g. ``{"Doppler": "doppler_mps"}``.
-    degrees : angles are in degrees. time_unit : of the time-stamp column.
+    else spherical). columns : renames, e.g. ``{"Doppler": "doppler_mps"}``,
+    or the name of a TI tool's header set (:data:`.headers.PRESETS`; the
+    mmWave SDK example parser's header is recognised without it). A unit
+    written in a header (``X (m)``, ``Azimuth (deg)``, ``Timestamp (ms)``)
+    is read (:mod:`.headers`). The options below apply to the columns whose
+    header gives no unit; one that contradicts a header is an error.
+    degrees : angles are in degrees (an angle beyond +-pi without it is an
+    error; with it, angles all within +-pi/2 warn). time_unit : of the
+    time-stamp column. snr_unit : of the SNR column (:data:`SNR_UNITS`,
+    default dB; SNRs beyond any radar's in dB are an error).
     frame_period_s : numbers frames from time stamps as ``round((t - t0) /
     frame_period_s)`` when there is no frame column (else the distinct time
     stamps are numbered in order). default_node : the node of a table
@@ -395,21 +566,26 @@ def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
                               "'spherical'")
     if time_unit not in _TIME_UNITS:
         raise ValidationError(f"time_unit={time_unit!r} must be one of {sorted(_TIME_UNITS)}")
+    if snr_unit is not None and snr_unit not in SNR_UNITS:
+        raise ValidationError(f"snr_unit={snr_unit!r} must be one of {list(SNR_UNITS)}")
     if frame_period_s is not None and not (isinstance(frame_period_s, (int, float))
                                            and np.isfinite(frame_period_s)
                                            and frame_period_s > 0):
         raise ValidationError(f"frame_period_s={frame_period_s!r} must be a finite number > 0")
     name = str(source) if isinstance(source, (str, os.PathLike)) else "point table"
     raw = _checked_columns(_as_columns(source, name), name)
-    cols = _canonical(raw, columns, name)
+    cols, header_units = _canonical(raw, columns, name)
+    scale, snr = _units(header_units, degrees=degrees, time_unit=time_unit, snr_unit=snr_unit,
+                        name=name)
     present = sorted(raw)
     if "frame" not in cols and "time_s" not in cols:
         raise FileFormatError(f"{name}: missing columns: a frame number (frame) or a time "
-                              f"stamp (time_s) is needed (columns present: {present})")
+                              f"stamp (time_s) is needed (columns present: {present})"
+                              f"{columns_hint(present)}")
     kind = _kind(cols, coordinates, name, present)
     n = len(next(iter(raw.values())))
-    opts = dict(name=name, degrees=degrees, time_unit=time_unit,
-                frame_period_s=frame_period_s, where=_Rows(source))
+    opts = dict(name=name, scale=scale, snr_unit=snr, frame_period_s=frame_period_s,
+                where=_Rows(source))
     if "node" not in cols:
         return {default_node: _cloud(cols, np.arange(n), kind, **opts)}
     nodes = _node_names(cols["node"], name, opts["where"])

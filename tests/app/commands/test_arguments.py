@@ -12,11 +12,12 @@ import pytest
 from mmsnap_graph.app.commands.arguments import (
     SIGMA_LIMITS,
     check_sigmas,
+    looks_like_radians,
     named_pose,
     named_values,
     solver_choice,
 )
-from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.errors import MmsnapWarning, ValidationError
 
 
 def test_named_values_splits_the_name_and_the_numbers():
@@ -71,3 +72,31 @@ def test_check_sigmas_accepts_plausible_values_up_to_each_limit():
 def test_check_sigmas_names_the_component_and_the_likely_unit_mistake(values, match):
     with pytest.raises(ValidationError, match=match):
         check_sigmas(values)
+
+
+@pytest.mark.parametrize("text, radians", [
+    ("1.5708", True), ("3.14", True), ("-1.571", True), ("0.785", True), ("6.28", True),
+    ("0.087", True), ("0.26", True), ("90", False), ("180", False), ("0", False), ("5", False),
+    ("1.5", False), ("2.5", False), ("-45", False), ("12.5", False), ("7.854", False),
+])
+def test_radians_where_degrees_are_asked(text, radians):
+    assert looks_like_radians(float(text), text) is radians
+
+
+def test_a_heading_in_radians_warns_and_is_kept():
+    """--room-pose S2=1.7,1.65,1.5708 was read as 1.57 degrees without a word
+    (the real recording then calibrated S2 at -0.28 deg, 'ok')."""
+    with pytest.warns(MmsnapWarning, match=r"'S2=1.7,1.65,1.5708': PHI_DEG=1.5708 looks like "
+                                           r"radians \(1.5708 rad = 90 deg\); this option "
+                                           r"takes degrees"):
+        assert named_values("X_M,Y_M,PHI_DEG", 3, (2,))("S2=1.7,1.65,1.5708") == \
+            ("S2", [1.7, 1.65, 1.5708])
+    with pytest.warns(MmsnapWarning, match="PHI_DEG=3.1416 looks like radians"):
+        named_pose("S2=0,7,3.1416")
+    with pytest.warns(MmsnapWarning, match="TILT_DEG=0.087 looks like radians"):
+        named_values("HEIGHT_M,TILT_DEG", 2, (1,))("S1=0.8,0.087")
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MmsnapWarning)
+        named_pose("S2=1.7,1.65,90")
+        named_values("X_M,Y_M,PHI_DEG", 3, (2,))("S2=1.571,1.65,90")   # metres are not checked

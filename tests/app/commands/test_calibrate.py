@@ -157,10 +157,30 @@ def test_calibrate_command_writes_json_poses_and_group(recording_c_random, tmp_p
         assert g["covariance"].shape == (2, 3, 3)
         assert g["edges/rmse_m"].shape == (1,) and 0 < g["edges/rmse_m"][0] < 0.5
         assert json.loads(g.attrs["json"])["nodes"]["S2"]["pose"] == s2["pose"]
-    # a second run replaces the group
-    assert main(["calibrate", str(path), "--method", "pose_graph"]) == 0
+    # a second run replaces the group (and, with --overwrite, the JSON)
+    assert main(["calibrate", str(path), "--method", "pose_graph", "--overwrite"]) == 0
     with h5py.File(path, "r") as f:
         assert f["calibration"].attrs["method"] == "pose_graph"
+
+
+@pytest.mark.parametrize("extra", [[], ["--no-write"]])
+def test_an_existing_calibration_json_is_replaced_only_with_overwrite(recording_c_random,
+                                                                      tmp_path, capsys, extra):
+    """Before: `mmsnap calibrate REC` (and --no-write) silently replaced a
+    hand-edited REC.calibration.json, while --json-out refused the same
+    path without --overwrite."""
+    path = tmp_path / "rec.h5"
+    write_recording(path, recording_c_random)
+    sidecar = tmp_path / "rec.calibration.json"
+    sidecar.write_text('{"edited": "by hand"}\n')
+    before = path.read_bytes()
+    argv = ["calibrate", str(path), "--method", "pose_graph", *extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{sidecar} exists; pass --overwrite to replace it" in err, err
+    assert sidecar.read_text() == '{"edited": "by hand"}\n' and path.read_bytes() == before
+    assert main(argv + ["--overwrite"]) == 0
+    assert json.loads(sidecar.read_text())["nodes"]["S2"]["pose"]
 
 
 def test_no_write_and_output_copy(recording_c_random, tmp_path):
@@ -330,7 +350,7 @@ def _pose_nees(seeds, tmp):
     return errors, check
 
 
-# Measured (docs/CALIBRATION.md, "The calibrated pose on the simulator's real
+# Measured (docs/validation/calibration.md, "The calibrated pose on the simulator's real
 # model"; S2's pose error in its body tangent): the centroids sit 0.06-0.075 m
 # short in range (the body's near side) and S2 takes it in, 0.07-0.26 m in its
 # x_b (its array axis, the reference frame's y) with its heading. Seeds 0-5:

@@ -161,3 +161,115 @@ def test_an_update_through_a_symlink_keeps_the_link(rec, tmp_path, capsys):
     assert link.is_symlink() and link.resolve() == rec.resolve()
     assert rec.read_bytes() != before  # the target got its /fused group
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link.h5", "rec.h5"]
+
+
+#: Every verb's written files, as (argv template, name of the written file):
+#: ``{out}`` is the file written, ``{rec}`` a recording (``{fused}`` one with
+#: /fused), ``{csv}`` a point table.
+EVERY_WRITER = {
+    "export": (["export", "{fused}", "fused", "-o", "{out}"], "out"),
+    "simulate": (["simulate", "-c", "B", "-n", "20", "-l", "centroids", "--seed", "3",
+                  "-o", "{out}", "--no-progress"], "out"),
+    "fuse -o": (["fuse", "{rec}", "-o", "{out}", "--no-progress"], "out"),
+    "process -o": (["process", "{rec}", "-o", "{out}", "--no-progress"], "out"),
+    "noise -o": (["noise", "{rec}", "-o", "{out}"], "out"),
+    "replay -o": (["replay", "{rec}", "--summary", "-o", "{out}"], "out"),
+    "import table -o": (["import", "table", "--node", "S1={csv}", "--frame-period", "0.1",
+                         "-o", "{out}"], "out"),
+    "calibrate -o": (["calibrate", "{rec}", "-o", "{out}"], "out"),
+    "calibrate --json-out": (["calibrate", "{rec}", "--json-out", "{out}"], "out"),
+    "calibrate REC.calibration.json": (["calibrate", "{out_rec}"], "out.calibration.json"),
+    "calibrate --no-write REC.calibration.json": (["calibrate", "{out_rec}", "--no-write"],
+                                                  "out.calibration.json"),
+    "monitor --json-out": (["monitor", "{rec}", "--json-out", "{out}"], "out"),
+    "batch --json-out": (["batch", "{rec}", "--json-out", "{out}", "--no-progress"], "out"),
+    "demo --out": (["demo", "--simulate", "-c", "B", "-t", "straight", "-n", "20",
+                    "--no-figures", "--out", "{out}"], "out"),
+    # the boards' verbs: refused before any port is opened (none named exists)
+    "record -o": (["record", "--board", "S1=usb:NO_SUCH_BOARD", "--duration", "1",
+                   "-o", "{out}"], "out"),
+    "live -o": (["live", "--calibration", "{rec}", "--board", "S1=usb:NO_SUCH_BOARD",
+                 "--duration", "1", "-o", "{out}"], "out"),
+    "live --record": (["live", "--calibration", "{rec}", "--board", "S1=usb:NO_SUCH_BOARD",
+                       "--duration", "1", "--record", "{out}"], "out"),
+}
+
+
+def _special_targets(folder: Path, name: str) -> dict[str, Path]:
+    """``folder/<kind>/<name>`` for each kind: a character device (the
+    numbers of /dev/null, made here: never the machine's own /dev), a FIFO,
+    a symlink to each, a directory."""
+    import stat
+
+    made = {}
+    for kind in ("device", "fifo", "link to device", "link to fifo", "directory"):
+        d = folder / kind.replace(" ", "_")
+        d.mkdir(parents=True)
+        made[kind] = d / name
+    try:
+        os.mknod(made["device"], stat.S_IFCHR | 0o600, os.makedev(1, 3))
+    except PermissionError:  # not root: no device node here
+        for kind in ("device", "link to device"):
+            made.pop(kind)
+    os.mkfifo(made["fifo"])
+    for kind in ("device", "fifo"):
+        if kind in made:
+            made[f"link to {kind}"].symlink_to(made[kind])
+    made["directory"].mkdir()
+    return made
+
+
+def _state(folder: Path) -> dict:
+    """Every entry under ``folder``: its inode, type, device numbers and link."""
+    out = {}
+    for p in sorted(folder.rglob("*")):
+        st = os.lstat(p)
+        out[str(p)] = (st.st_ino, st.st_mode, st.st_rdev,
+                       os.readlink(p) if p.is_symlink() else None)
+    return out
+
+
+@pytest.fixture(scope="module")
+def fused(good, tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("fused") / "rec.h5"
+    path.write_bytes(good.read_bytes())
+    assert main(["fuse", str(path), "--no-progress"]) == 0
+    return path
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs and device nodes")
+def test_no_writer_replaces_a_device_a_fifo_a_link_to_them_or_a_folder(
+        good, fused, tmp_path, capsys):
+    """Every verb's every written file aimed at a device node, a FIFO, a
+    symlink to each and a directory, all made in a scratch folder, with and
+    without --overwrite: each is refused (exit 2, naming the path and what it
+    is) and none is replaced, nothing left beside it. Before: each was
+    renamed over (the error without --overwrite even advised it)."""
+    csv = tmp_path / "points.csv"
+    csv.write_text("frame,x,y,doppler\n" + "".join(f"{k},0.5,{2 + 0.05 * k},0.1\n"
+                                                    for k in range(20)))
+    refused = 0
+    for verb, (template, name) in EVERY_WRITER.items():
+        folder = tmp_path / verb.replace(" ", "_").replace("-", "")
+        targets = _special_targets(folder, name)
+        if verb.startswith("demo"):
+            targets.pop("directory")  # its output is a folder
+        for kind, target in targets.items():
+            out_rec = target.with_name("out.h5")
+            if "{out_rec}" in template:
+                out_rec.write_bytes(good.read_bytes())
+            before = _state(folder)
+            for extra in ([], ["--overwrite"]):
+                if verb.startswith("demo") and extra:
+                    continue
+                argv = _argv(template, rec=good, fused=fused, csv=csv, out=target,
+                             out_rec=out_rec) + extra
+                code = main(argv)
+                err = capsys.readouterr().err
+                what = ("directory" if kind == "directory" else
+                        "a character device" if kind.endswith("device") else "a FIFO")
+                assert code == 2, (verb, kind, extra, err)
+                assert str(target) in err and what in err, (verb, kind, extra, err)
+                assert _state(folder) == before, (verb, kind, extra)
+                refused += 1
+    assert refused >= 9 * len(EVERY_WRITER)

@@ -415,8 +415,8 @@ def test_an_angle_bias_of_a_node_is_calibrated_as_its_heading():
     ``c / pi`` rad, and the fit hardly notices: in the two-person recording's
     geometry (S2 at right angles to S1, 300 frames, one walker, moderate
     noise) 0.1 rad of omega turns S2 by 6 of its heading sigmas and raises
-    the cost by less than one chi-square unit (docs/CALIBRATION.md, "A
-    node's heading on real recordings")."""
+    the cost by less than one chi-square unit (docs/validation/calibration.md,
+    "A node's heading on real recordings")."""
     rng = np.random.default_rng(0)
     n = 300
     t = np.arange(n) * 0.05

@@ -318,3 +318,30 @@ def test_doppler_of_real_point_clouds_is_estimated_not_the_fallback():
     for name, node in est.nodes.items():
         assert node.identified[2], (name, node.reasons[2])
         assert 0.2 <= node.noise.doppler_mps <= 0.45, (name, node.noise.doppler_mps)
+
+
+def _rounded_ranges(rec, step_m=1.0):
+    """``rec`` with every node's centroid ranges rounded to ``step_m`` (a
+    coarse logger)."""
+    for name in rec.node_names:
+        c = rec.nodes[name].centroids
+        rounded = dataclasses.replace(c, range_m=np.round(c.range_m / step_m) * step_m)
+        rec = rec.with_node(dataclasses.replace(rec.nodes[name], centroids=rounded))
+    return rec
+
+
+def test_ranges_rounded_to_whole_metres_are_not_identified_and_do_not_crash(rec2):
+    """Before: the differences of repeated ranges gave a temporal sigma of
+    ~1e-16 m, whose weight made the frames' solve singular: LinAlgError out
+    of estimate_noise (`mmsnap noise`, `mmsnap calibrate`)."""
+    rec = _rounded_ranges(rec2)
+    sig, counts = temporal_noise(rec.nodes["S1"].centroids)
+    assert np.isnan(sig[0]) and counts[0] == 0
+    assert np.all(np.isfinite(sig[1:])) and np.all(counts[1:] > 100)  # omega, Doppler kept
+    poses = {n: rec.nodes[n].pose for n in rec.node_names}
+    est = estimate_noise(rec, poses=poses)
+    for node in est.nodes.values():
+        assert node.noise.range_m >= 0.035 - 1e-12  # the rounding's 0.29 m or the fallback
+    # ranges on a fine grid (1 mm: most differences not zero) keep their estimate
+    fine = temporal_noise(_rounded_ranges(rec2, 1e-3).nodes["S1"].centroids)[0]
+    np.testing.assert_allclose(fine[0], TRUE.range_m, rtol=0.15)

@@ -61,3 +61,25 @@ def test_an_unseen_node_is_left_out_and_its_residuals_are_nan():
     two, _, _, _ = solve_frame_states(z[::2, :2], POSES_BC[:2], w[::2, :2],
                                       1.0 / PRIOR_SIGMAS**2, iterations=12)
     np.testing.assert_allclose(x[::2], two, atol=1e-9)
+
+
+def test_a_numerically_singular_frame_is_left_unsolved_not_raised():
+    """Before: one frame whose range weight dwarfs the others' (a range sigma
+    of 1e-16 m from ranges rounded to whole metres) raised LinAlgError out of
+    `mmsnap calibrate` and `mmsnap noise`. Now that frame is NaN and the
+    others are solved as before."""
+    from mmsnap_graph.calibration.noise.frame_states import without_unsolved
+
+    _, z = _frames(1, n_frames=6)
+    w = np.array(np.broadcast_to(1.0 / NOISE.sigmas**2, z.shape))
+    prior_w = 1.0 / PRIOR_SIGMAS**2
+    ref = solve_frame_states(z, POSES_BC, w, prior_w)
+    w[2, :, 0] = 1e32
+    x, e, jac, cov = solve_frame_states(z, POSES_BC, w, prior_w)
+    assert np.all(np.isnan(x[2])) and np.all(np.isnan(e[2])) and np.all(np.isnan(cov[2]))
+    others = np.arange(6) != 2
+    np.testing.assert_allclose(x[others], ref[0][others], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(cov[others], ref[3][others], rtol=1e-12, atol=0)
+    w2, jac2, cov2 = without_unsolved(w, jac, cov)
+    assert np.all(w2[2] == 0) and np.all(jac2[2] == 0) and np.all(cov2[2] == 0)
+    assert np.array_equal(w2[others], w[others]) and np.array_equal(cov2[others], cov[others])

@@ -384,3 +384,113 @@ def test_csv_reader_raises_only_project_errors(tmp_path_factory, lines):
         read_point_table(path)
     except MmsnapError:
         pass
+
+
+def _spherical(az, el, **extra):
+    n = len(az)
+    return pd.DataFrame({"frame": np.arange(n) // 2, "range": np.linspace(1, 4, n),
+                         "azimuth": az, "elevation": el, "doppler": 0.1, **extra})
+
+
+def test_spherical_degrees_read_as_radians_are_an_error():
+    rng = np.random.default_rng(3)
+    az, el = rng.uniform(-60, 60, 20), rng.uniform(-15, 15, 20)
+    with pytest.raises(FileFormatError, match=r"column azimuth_rad holds -?\d.* at row \d+, beyond "
+                                              r"\+-pi: not an angle in radians; degrees\? "
+                                              r"\(degrees=True, mmsnap import table --degrees\)"):
+        read_point_table(_spherical(az, el))
+    cloud = read_point_table(_spherical(az, el), degrees=True)
+    np.testing.assert_allclose(cloud.points_xyz, spherical_to_cartesian(
+        np.linspace(1, 4, 20), np.deg2rad(az), np.deg2rad(el)), atol=1e-12)
+
+
+def test_radians_read_as_degrees_warn():
+    from mmsnap_graph.errors import MmsnapWarning
+    rng = np.random.default_rng(4)
+    az, el = rng.uniform(-1.0, 1.0, 20), rng.uniform(-0.3, 0.3, 20)      # radians
+    with pytest.warns(MmsnapWarning, match=r"every azimuth and elevation lies within \+-1.571 "
+                                           r"degrees, read as degrees"):
+        read_point_table(_spherical(az, el), degrees=True)
+    read_point_table(_spherical(az, el))                                  # no warning
+
+
+@pytest.mark.parametrize("unit, scale", [("0.1db", lambda s: 10 * s),
+                                         ("linear", lambda s: 10 ** (s / 10))])
+def test_snr_in_another_unit_is_named_and_read(unit, scale):
+    df = _table()                                 # SNRs of 5-25 dB
+    written = df.assign(snr=scale(df["snr"]))
+    if unit == "0.1db":
+        with pytest.raises(FileFormatError, match=r"column snr holds SNRs up to 2\d\d\.\d+ dB .*"
+                                                  r"snr_unit='0.1db', mmsnap import table "
+                                                  r"--snr-unit 0.1db"):
+            read_point_table(written)
+    np.testing.assert_allclose(read_point_table(written, snr_unit=unit).snr_db, df["snr"],
+                               rtol=1e-12)
+    with pytest.raises(ValidationError, match="snr_unit='dbm' must be one of"):
+        read_point_table(df, snr_unit="dbm")
+
+
+def test_units_in_the_headers_are_read(tmp_path):
+    """A visualizer-style header ("X (m)", "Doppler (m/s)") failed with
+    'missing columns' and no hint; its units are now read."""
+    path = _csv(tmp_path, [f"{k},{1000 + 50 * k},{0.5 + k},2.0,0.1,30,-0.3,21.5"
+                           for k in range(4)],
+                header="Frame Number,Timestamp (ms),X (cm),Y (m),Z (m),Azimuth (deg),"
+                       "Doppler (m/s),SNR (dB)")
+    cloud = read_point_table(path)
+    np.testing.assert_allclose(cloud.x_m, [0.005, 0.015, 0.025, 0.035])
+    np.testing.assert_allclose(cloud.time_s, 1.0 + 0.05 * np.arange(4))
+    np.testing.assert_array_equal(cloud.doppler_mps, [-0.3] * 4)
+    sph = _csv(tmp_path, [f"{k},{1 + k},30,-5,0.2" for k in range(4)], name="s.csv",
+               header="frame,Range (m),Azimuth (deg),Elevation (deg),Doppler (m/s)")
+    np.testing.assert_allclose(read_point_table(sph).points_xyz, spherical_to_cartesian(
+        1.0 + np.arange(4), np.deg2rad(30), np.deg2rad(-5)), atol=1e-12)
+    with pytest.raises(FileFormatError, match=r"time_unit='us' \(--time-unit\), but the "
+                                              r"header of time_s gives another unit"):
+        read_point_table(path, time_unit="us")
+    with pytest.raises(FileFormatError, match=r"column 'X \(ft\)' is in 'ft'"):
+        read_point_table(_csv(tmp_path, ["0,1,2,0,0"], header="frame,X (ft),y,z,v", name="f.csv"))
+
+
+def test_the_sdk_scripts_csv_reads_its_snr_in_tenths_of_a_db(tmp_path):
+    """mmw_demo_example_script.py writes frame,DetObj#,x,y,z,v,snr,noise with
+    the SNR and noise in TI's 0.1 dB steps."""
+    path = _csv(tmp_path, [f"{k // 2},{k % 2},0.5,2.0,0.1,-0.3,215,550" for k in range(6)],
+                header="frame,DetObj#,x,y,z,v,snr,noise")
+    cloud = read_point_table(path)
+    np.testing.assert_allclose(cloud.snr_db, [21.5] * 6)
+    np.testing.assert_allclose(cloud.noise_db, [55.0] * 6)
+    with pytest.raises(FileFormatError, match=r"snr_unit='db' \(--snr-unit\), but the header"):
+        read_point_table(path, snr_unit="db")
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_semicolons_and_tabs_separate_cells(tmp_path, sep):
+    """A TSV or a semicolon CSV (decimal commas) gave a garbled message."""
+    lines = [line.split(",") for line in SENSOR_LINES[:40]]
+    cell = (lambda c: c.replace(".", ",")) if sep == ";" else (lambda c: c)
+    path = tmp_path / "log.txt"
+    path.write_text("\n".join(sep.join(cell(c) for c in row) for row in lines) + "\n")
+    mine = read_point_tables(path)
+    theirs = read_point_tables(csv_lines(tmp_path, SENSOR_LINES[:40]))
+    for node in theirs:
+        np.testing.assert_array_equal(mine[node].points_xyz, theirs[node].points_xyz)
+        np.testing.assert_array_equal(mine[node].snr_db, theirs[node].snr_db)
+
+
+def test_missing_columns_list_those_found_and_suggest_columns(tmp_path):
+    path = _csv(tmp_path, ["0,1700000000000,0.5,2.0,0.1,-0.3"],
+                header="frameNum,timestamp,X,Y,Z,Velocity (m/s) radial")
+    with pytest.raises(FileFormatError) as info:
+        read_point_table(path)
+    text = str(info.value)
+    assert "(columns present: ['Velocity (m/s) radial', 'X', 'Y', 'Z', 'frameNum', " \
+           "'timestamp'])" in text
+    assert "--columns 'HEADER=x'" in text and "--columns visualizer" in text
+    cloud = read_point_table(path, columns={"Velocity (m/s) radial": "doppler"},
+                             time_unit="ms")
+    assert cloud.time_s.tolist() == [1.7e9]
+    with pytest.raises(ValidationError, match=r"columns='vis' must be a mapping of renames or "
+                                              r"a preset of TI's tools: \['sdk-script', "
+                                              r"'visualizer'\]"):
+        read_point_table(path, columns="vis")

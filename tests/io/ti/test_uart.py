@@ -11,7 +11,7 @@ from mmsnap_graph.app.cli import main
 from mmsnap_graph.errors import FileFormatError, MmsnapError, ValidationError
 from mmsnap_graph.io import read_recording
 from mmsnap_graph.io.ti.uart import parse_ti_uart, MAGIC_WORD, read_ti_uart
-from ti_encode import encode_oob_frame, encode_tracking_frame
+from ti_encode import encode_counting_frame, encode_oob_frame, encode_tracking_frame
 
 
 def _packet(number, x=0.5, n=2):
@@ -222,6 +222,20 @@ def test_point_count_mismatch_is_a_bad_frame():
     assert "announces 5 detected points" in log.bad[0].reason and log.bad[0].index == 0
 
 
+@pytest.mark.parametrize("encode, demo", [(encode_tracking_frame, "tracking"),
+                                          (encode_counting_frame, "counting")])
+def test_people_demos_detected_from_the_bytes(encode, demo):
+    """The current 3D People Tracking demo (40-byte header, TLV 1020) and the
+    legacy People Counting demo (48-byte header, TLV 6): the reader expected
+    a 48-byte header with TLV 1020, which no firmware sends."""
+    rng = np.random.default_rng(4)
+    data = b"".join(encode(k, rng.uniform(1, 6, 5), rng.uniform(-1, 1, 5), np.zeros(5),
+                           np.zeros(5)) for k in range(20, 26))
+    log = parse_ti_uart(data)
+    assert log.demo == demo and log.bad == () and log.frame_numbers.tolist() == list(range(20, 26))
+    assert len(parse_ti_uart(data, demo=demo).points) == 30
+
+
 def test_tracking_demo_spherical_points():
     rng = np.random.default_rng(3)
     r = rng.uniform(1, 6, 10)
@@ -242,10 +256,10 @@ def test_tracking_demo_spherical_points():
 
 
 def test_errors(tmp_path):
-    with pytest.raises(FileFormatError, match="no readable oob frame"):
+    with pytest.raises(FileFormatError, match="no readable frame"):
         parse_ti_uart(b"\x00" * 100)
     with pytest.raises(FileFormatError, match="no readable oob frame"):
-        parse_ti_uart(MAGIC_WORD + b"\x00" * 10)
+        parse_ti_uart(MAGIC_WORD + b"\x00" * 10, demo="oob")
     with pytest.raises(ValidationError, match="demo='xyz'"):
         parse_ti_uart(b"", demo="xyz")
     with pytest.raises(FileFormatError, match="does not exist"):
@@ -265,3 +279,59 @@ def test_reader_raises_only_project_errors(noise, cut, demo):
     except MmsnapError:
         return
     assert len(log.points) == len(log.points.frame)
+
+
+def _frames19(n_frames=10):
+    """Packets of frames 1..n, 19 points each (distinct per frame)."""
+    rng = np.random.default_rng(19)
+    out = []
+    for k in range(1, n_frames + 1):
+        xyz = rng.uniform([-3, 0.5, -1], [3, 8, 1.5], size=(19, 3))
+        out.append(encode_oob_frame(k, xyz, rng.uniform(-1, 1, 19), np.full(19, 20.0),
+                                    np.full(19, 40.0)))
+    return out
+
+
+def _with_sub_frame(packet: bytes, sub_frame: int) -> bytes:
+    p = bytearray(packet)
+    p[36:40] = sub_frame.to_bytes(4, "little")                      # subFrameNumber
+    return bytes(p)
+
+
+@pytest.mark.parametrize("n_sub_frames", [None, 1])
+@pytest.mark.parametrize("sub_frame", [1, 3, 7, 2 ** 31])
+def test_a_corrupted_sub_frame_field_is_a_bad_packet_not_merged(n_sub_frames, sub_frame):
+    """Frame 5's packet sent twice, the copy's sub-frame field corrupted: it
+    was merged into frame 5 (38 points instead of 19, nothing reported)."""
+    packets = _frames19()
+    data = b"".join(packets[:5]) + _with_sub_frame(packets[4], sub_frame) + b"".join(packets[5:])
+    log = parse_ti_uart(data, n_sub_frames=n_sub_frames)
+    assert np.bincount(log.points.frame).tolist()[1:] == [19] * 10
+    (bad,) = log.bad
+    assert bad.index == 5 and bad.byte_offset == len(b"".join(packets[:5]))
+    assert f"sub-frame {sub_frame}" in bad.reason and "corrupted header" in bad.reason
+
+
+def test_cli_with_cfg_reports_a_sub_frame_the_cfg_cannot_have(tmp_path, capsys):
+    packets = _frames19(20)
+    path = tmp_path / "log.bin"
+    path.write_bytes(b"".join(packets[:5]) + _with_sub_frame(packets[4], 1)
+                     + b"".join(packets[5:]))
+    from _shared import TI_DATA
+    assert main(["import", "ti-uart", "--node", f"S1={path}", "--cfg",
+                 str(TI_DATA / "iwr1843_oob.cfg"), "-o", str(tmp_path / "u.h5")]) == 0
+    err = capsys.readouterr().err
+    assert "S1: skipped packet 5 (frame 5) at byte" in err
+    assert "sub-frame 1: the configuration has 1 sub-frame(s)" in err
+    assert len(read_recording(tmp_path / "u.h5").nodes["S1"].point_cloud) <= 20 * 19
+
+
+def test_advanced_frames_keep_their_sub_frames_and_refuse_others():
+    xyz = np.array([[0.5, 2.0, 0.0]])
+    data = b"".join(encode_oob_frame(f, xyz, [0.1], sub_frame=s) for f in range(1, 6)
+                    for s in (0, 1))
+    data += encode_oob_frame(6, xyz, [0.1], sub_frame=2)
+    log = parse_ti_uart(data, n_sub_frames=2)
+    assert log.sub_frame.tolist() == [0, 1] * 5
+    assert "the configuration has 2 sub-frame(s), numbered 0 to 1" in log.bad[0].reason
+    assert parse_ti_uart(data).bad[0].reason.startswith("sub-frame 2, which only 1 of")

@@ -21,7 +21,10 @@ def register(subparsers) -> None:
         description="Write a recording's fused states (/fused, from `mmsnap fuse`) or node "
                     "poses (/calibration, from `mmsnap calibrate`) as a table. Columns carry "
                     "their units (x_m, vx_mps, phi_rad, phi_deg, ...); angles are radians with "
-                    "a phi_deg twin; JSON lines add each row's full covariance.")
+                    "a phi_deg twin; track_id is a fused row's person id (the central "
+                    "tracker's track; -1 for a row not fused); JSON lines add each row's full covariance. A CSV text cell "
+                    "starting with =, +, -, @, tab or CR is written behind a ' so that "
+                    "spreadsheets do not run it as a formula.")
     p.add_argument("recording", help="HDF5 recording (docs/FORMAT.md)")
     p.add_argument("table", choices=TABLES, help="what to export")
     p.add_argument("--format", choices=FORMATS, default=None,

@@ -14,15 +14,15 @@ import numpy as np
 
 from mmsnap_graph.errors import ValidationError
 
-from ..arguments import named_values
-
-#: A layout for reading only the timing of a ``.cfg`` (point-cloud imports):
-#: every transmitter at the same place, so any Tx subset forms a valid array.
-_TIMING_ONLY = dict(name="timing only", tx_azimuth_half_wl=(0.0,) * 16,
-                    tx_elevation_half_wl=(0.0,) * 16, rx_azimuth_half_wl=tuple(range(8)))
+from ..arguments import HEADING_HELP, named_values
 
 
-def _band(text: str) -> tuple[float, float]:
+
+#: ``--time-unit`` choices, each 1000 times finer than the one before.
+TIME_UNITS = ("s", "ms", "us", "ns")
+
+
+def height_band(text: str) -> tuple[float, float]:
     try:
         low, high = (float(v) for v in text.split(","))
     except ValueError:
@@ -32,24 +32,29 @@ def _band(text: str) -> tuple[float, float]:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3), default=[],
-                   metavar="NAME=X,Y,PHI_DEG", help="a known (surveyed) node pose: x, y in metres, heading PHI in degrees "
-                        "(stored in radians); repeat")
+    p.add_argument("--pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3, (2,)),
+                   default=[], metavar="NAME=X,Y,PHI_DEG",
+                   help="a known (surveyed) node pose: x, y in metres; repeat. "
+                        f"{HEADING_HELP}, stored in radians. `mmsnap calibrate` reports a "
+                        "calibrated pose far from it")
     p.add_argument("-o", "--output", required=True, help="output HDF5 recording")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
 
 def _points_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--mount", action="append", type=named_values("HEIGHT_M,TILT_DEG", 2), default=[],
-                   metavar="NAME=HEIGHT_M,TILT_DEG",
-                   help="mounting height above the floor and down tilt of a node (repeat; "
-                        "default: the .cfg's sensorPosition, else 0, 0)")
-    p.add_argument("--room-pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3),
+    p.add_argument("--mount", action="append", type=named_values("HEIGHT_M,TILT_DEG", 2, (1,)),
+                   default=[], metavar="NAME=HEIGHT_M,TILT_DEG",
+                   help="mounting height above the floor in metres and down tilt in degrees "
+                        "(> 0 looks down) of a node (repeat; default: the .cfg's "
+                        "sensorPosition, else 0, 0)")
+    p.add_argument("--room-pose", action="append", type=named_values("X_M,Y_M,PHI_DEG", 3, (2,)),
                    default=[], metavar="NAME=X,Y,PHI_DEG",
                    help="the points of this node are in a room frame made with this nominal "
-                        "mounting pose (heading PHI in degrees) (with --mount's height and tilt); they are taken back "
-                        "to the sensor frame")
-    p.add_argument("--height-band", type=_band, default=None,
+                        "mounting pose, x, y in metres (with --mount's height and tilt); they "
+                        f"are taken back to the sensor frame, where they must lie in front of "
+                        f"the radar. {HEADING_HELP}. Give it for every node of a room-frame "
+                        "log; `mmsnap calibrate` reports a calibrated pose far from it")
+    p.add_argument("--height-band", type=height_band, default=None,
                    metavar="LOW_M,HIGH_M",
                    help="keep points between these heights above the floor (drops floor and "
                         "ceiling points)")
@@ -95,29 +100,68 @@ def register(subparsers) -> None:
     u = sub.add_parser("ti-uart", help="binary logs of a TI demo's data UART (TLV frames)")
     u.add_argument("--node", action="append", type=named_values("LOG.bin", None), required=True,
                    metavar="NAME=LOG.bin", help="a node's UART log (repeat per node)")
-    u.add_argument("--demo", choices=["oob", "tracking"], default="oob",
-                   help="out-of-box demo (TLVs 1, 7) or 3D people tracking (TLV 1020) "
-                        "(default %(default)s)")
+    u.add_argument("--demo", choices=["auto", "oob", "tracking", "counting"], default="auto",
+                   help="the demo the board ran: detected from the bytes (auto, the default), "
+                        "out-of-box (TLVs 1, 7), 3D People Tracking (TLV 1020) or the legacy "
+                        "3D People Counting (48-byte header, TLV 6)")
     _points_options(u)
     _common(u)
     u.set_defaults(func=run_uart)
-    t = sub.add_parser("table", help="CSV / .npy / .npz point logs")
+    t = sub.add_parser("table", help="CSV / .npy / .npz point logs, TI visualizer replay JSON")
     t.add_argument("--node", action="append", type=named_values("TABLE", None), default=[],
                    metavar="NAME=TABLE", help="a node's table (repeat per node)")
     t.add_argument("--table", default=None,
                    help="one table holding every node (a node column)")
     t.add_argument("--coordinates", choices=["auto", "cartesian", "spherical"], default="auto")
-    t.add_argument("--degrees", action="store_true", help="the table's angle columns are in degrees (default: radians)")
-    t.add_argument("--time-unit", choices=["s", "ms", "us"], default="s",
-                   help="unit of the time-stamp column (default %(default)s)")
-    t.add_argument("--columns", action="append", type=named_values("COLUMN", None), default=[],
-                   metavar="HEADER=COLUMN",
+    t.add_argument("--degrees", action="store_true",
+                   help="the table's angle columns are in degrees (default: radians; an angle "
+                        "beyond +-pi without --degrees is an error)")
+    t.add_argument("--snr-unit", choices=["db", "0.1db", "linear"], default=None,
+                   help="unit of the SNR column when its header does not say: dB (default), "
+                        "TI's side-info steps of 0.1 dB "
+                        "(the mmWave SDK demos' TLV 7), or a linear power ratio (the people-"
+                        "tracking demos); SNRs beyond any radar's in dB are an error")
+    t.add_argument("--time-unit", choices=TIME_UNITS, default="s",
+                   help="unit of the time-stamp column (default %(default)s); stamps that "
+                        "disagree with the frame period by a factor of 1000 are an error "
+                        "naming the unit they look like")
+    t.add_argument("--columns", action="append", type=_columns_value, default=[],
+                   metavar="HEADER=COLUMN|PRESET",
                    help="read the table's column HEADER as COLUMN (x, y, z, doppler, frame, "
                         "time_s, range, azimuth, elevation, snr, noise, node), e.g. "
-                        "--columns 'X [m]=x' --columns 'Velocity [m/s]=doppler'; repeat")
+                        "--columns 'Velocity=doppler'; repeat. Or the header set of a TI tool: "
+                        "visualizer (the Industrial / Applications Visualizer: frameNum, "
+                        "timestamp in ms, X, Y, Z, Doppler, SNR, Noise, Track index), "
+                        "sdk-script (mmw_demo_example_script.py's CSV, SNR in 0.1 dB; "
+                        "recognised without this option). A unit in a header is read "
+                        "(X (m), Azimuth (deg), Timestamp (ms)); cells may be separated by "
+                        "commas, semicolons or tabs; the visualizer's replay JSON is read as "
+                        "a table")
     _points_options(t)
     _common(t)
     t.set_defaults(func=run_table)
+
+
+def _columns_value(text: str):
+    """``--columns``: ``HEADER=COLUMN`` -> (header, column), or a preset name."""
+    from mmsnap_graph.io.ti.headers import PRESETS, preset_names
+    if "=" not in text:
+        if text not in PRESETS:
+            raise argparse.ArgumentTypeError(f"{text!r} must look like HEADER=COLUMN or be a "
+                                             f"preset of TI's tools: {preset_names()}")
+        return text
+    return named_values("COLUMN", None)(text)
+
+
+def _columns_option(args):
+    """``read_point_tables(columns=)`` from the ``--columns`` given: a mapping,
+    a preset name, or None."""
+    presets = [c for c in args.columns if isinstance(c, str)]
+    pairs = [c for c in args.columns if not isinstance(c, str)]
+    if presets and (pairs or len(presets) > 1):
+        raise ValidationError(f"--columns {presets[0]}: a preset names every column; give it "
+                              "alone (or HEADER=COLUMN renames without it)")
+    return presets[0] if presets else (dict(pairs) or None)
 
 
 def _poses(args) -> dict:
@@ -213,8 +257,8 @@ def _timing(args):
     _check_point_options(args)
     ti = None
     if args.cfg is not None:
-        from mmsnap_graph.io.ti.cfg import BoardLayout
-        ti = _read_cfg(args, layout=BoardLayout(**_TIMING_ONLY))
+        from mmsnap_graph.io.ti.cfg import TIMING_ONLY_LAYOUT
+        ti = _read_cfg(args, layout=TIMING_ONLY_LAYOUT)
     period = args.frame_period if args.frame_period is not None else (
         ti.configs[0].frame_period_s if ti is not None else None)
     if period is None:
@@ -243,6 +287,21 @@ def _mountings(args, names, ti) -> dict:
     return out
 
 
+def _unit_hint(args, cloud, period) -> str:
+    """``--time-unit X`` that makes the table's stamps agree with the frame
+    period (:func:`~mmsnap_graph.io.ti.point_cloud.stamp_unit_factor`), or ''."""
+    from mmsnap_graph.io.ti.point_cloud import stamp_unit_factor
+    unit = getattr(args, "time_unit", None)
+    factor = stamp_unit_factor(cloud, period)
+    if unit not in TIME_UNITS or factor is None:
+        return ""
+    k = TIME_UNITS.index(unit) + int(round(np.log10(factor) / 3))
+    if not 0 <= k < len(TIME_UNITS) or k == TIME_UNITS.index(unit):
+        return ""
+    return (f"; the time stamps look like {TIME_UNITS[k]}, read as {unit}: give --time-unit "
+            f"{TIME_UNITS[k]}")
+
+
 def _check_period(args, clouds, period) -> None:
     """The frame period agrees with each cloud's time stamps (usage error)."""
     from mmsnap_graph.io.ti.point_cloud import check_frame_period
@@ -251,8 +310,10 @@ def _check_period(args, clouds, period) -> None:
     for name, cloud in clouds.items():
         problem = check_frame_period(cloud, period, node=name, option=option)
         if problem:
-            raise ValidationError(f"{problem}; give the log's frame period in seconds with "
-                                  "--frame-period (and the stamps' unit with --time-unit)")
+            hint = _unit_hint(args, cloud, period)
+            raise ValidationError(problem + (hint or "; give the log's frame period in seconds "
+                                             "with --frame-period (and the stamps' unit with "
+                                             "--time-unit)"))
 
 
 def _points_recording(args, clouds, ti, period, metadata):
@@ -278,17 +339,22 @@ def _points_recording(args, clouds, ti, period, metadata):
 def run_uart(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.ti.uart import read_ti_uart
     period, ti = _timing(args)
-    clouds = {}
+    clouds, demos = {}, set()
     for name, paths in _grouped(args.node).items():
         if len(paths) != 1:
             raise ValidationError(f"--node {name} is given {len(paths)} times; one log per node")
-        log = read_ti_uart(paths[0], demo=args.demo)
+        n_sub = None if ti is None else (ti.n_sub_frames if ti.advanced else 1)
+        log = read_ti_uart(paths[0], demo=args.demo, n_sub_frames=n_sub)
         for bad in log.bad[:10]:
             print(f"{name}: skipped {bad}", file=sys.stderr)
         if len(log.bad) > 10:
             print(f"{name}: ... {len(log.bad) - 10} more bad packets", file=sys.stderr)
+        if log.missing_frames:
+            print(f"{name}: {log.missing_frames} frame number(s) missing between the first and "
+                  "the last (frames the board did not send or the log lost)", file=sys.stderr)
         clouds[name] = log.points
-    rec = _points_recording(args, clouds, ti, period, {"source": f"ti-uart-{args.demo}"})
+        demos.add(log.demo)
+    rec = _points_recording(args, clouds, ti, period, {"source": "ti-uart-" + "+".join(sorted(demos))})
     return _write(args, rec)
 
 
@@ -298,7 +364,7 @@ def run_table(args: argparse.Namespace) -> int:
         raise ValidationError("give either --node NAME=TABLE (repeat) or --table FILE")
     period, ti = _timing(args)
     opts = dict(coordinates=args.coordinates, degrees=args.degrees, time_unit=args.time_unit,
-                frame_period_s=period, columns=dict(args.columns) or None)
+                snr_unit=args.snr_unit, frame_period_s=period, columns=_columns_option(args))
     if args.table:
         clouds = read_point_tables(args.table, **opts)
     else:

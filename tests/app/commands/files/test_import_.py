@@ -17,7 +17,7 @@ from mmsnap_graph.io.ti.dca1000 import frame_bytes
 from mmsnap_graph.io.ti.cfg import parse_ti_cfg
 from mmsnap_graph.app.evaluation import evaluate_recording
 
-from _shared import TI_DATA, csv_lines, replace_cell
+from _shared import DATA, TI_DATA, csv_lines, replace_cell
 from _fuzz import CLI_FUZZ, one_line_data_error
 from ti_samples import (
     MOUNTS,
@@ -29,6 +29,24 @@ from ti_samples import (
 )
 
 SENSOR_CSV = TI_DATA / "points_sensor_frame.csv"
+#: The real recordings' point tables (data/real/darksz/README.md: room frame, 20 fps).
+REAL = DATA / "real" / "darksz"
+#: How data/real/darksz/README.md imports the multiple-tracking recording.
+REAL_MOUNTING = ("--frame-period", "0.05", "--mount", "S1=0.8,0", "--mount", "S2=1.1,0",
+                 "--height-band", "0.2,2.0")
+
+
+def _real_table(tmp_path, node="S1", change=None, header=None, name=None):
+    """A real table (multiple tracking) with ``change(cells)`` applied to each
+    row (the columns frame, time_s, x_m, y_m, z_m, doppler_mps, snr_db) and
+    ``header`` in place of its header line."""
+    lines = (REAL / f"multiple_tracking_{node}.csv").read_text().splitlines()
+    rows = [line.split(",") for line in lines[1:]]
+    if change is not None:
+        rows = [change(cells) for cells in rows]
+    path = tmp_path / (name or f"{node}.csv")
+    path.write_text("\n".join([header or lines[0]] + [",".join(r) for r in rows]) + "\n")
+    return path
 
 
 def _import_table(tmp_path, *extra, table=SENSOR_CSV):
@@ -87,6 +105,169 @@ def test_period_merging_stamps_of_a_table_without_frames(tmp_path, capsys):
     assert _import_table(tmp_path, "--frame-period", "0.05", table=path) == 0
 
 
+def test_real_stamps_in_milliseconds_name_the_time_unit(tmp_path, capsys):
+    """Relative stamps in ms without a frame column were read as seconds:
+    frames 0-643000 (32150 s), then no centroid; now a unit error."""
+    to_ms = lambda c: [str(int(c[0]) * 50)] + c[2:]       # time in ms, no frame column
+    paths = [_real_table(tmp_path, node, to_ms, header="time,x,y,z,doppler,snr")
+             for node in ("S1", "S2")]
+    argv = ["import", "table", "--node", f"S1={paths[0]}", "--node", f"S2={paths[1]}",
+            *REAL_MOUNTING, "--room-pose", "S1=0,0,0", "--room-pose", "S2=1.7,1.65,90",
+            "-o", str(tmp_path / "ms.h5")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "a median 1000 frames" in err and "give --time-unit ms" in err
+    assert main(argv + ["--time-unit", "ms"]) == 0
+    assert "S2: 3346 points in 642 frames" in capsys.readouterr().out
+
+
+def _real_spherical_degrees(tmp_path, node, room_pose_deg, height_m):
+    """A real table taken back to its sensor frame, as TI's spherical points
+    (range, azimuth, elevation) in degrees."""
+    from factors.projection import cartesian_to_spherical, room_to_sensor
+    table = np.genfromtxt(REAL / f"multiple_tracking_{node}.csv", delimiter=",", names=True)
+    pose = [room_pose_deg[0], room_pose_deg[1], np.deg2rad(room_pose_deg[2])]
+    xyz = room_to_sensor(np.column_stack([table["x_m"], table["y_m"], table["z_m"]]), pose,
+                         height_m, 0.0)
+    r, az, el = cartesian_to_spherical(xyz)
+    rows = [f"{int(f)},{a:.6f},{b:.4f},{c:.4f},{v}" for f, a, b, c, v in
+            zip(table["frame"], r, np.degrees(az), np.degrees(el), table["doppler_mps"])]
+    path = tmp_path / f"spherical_{node}.csv"
+    path.write_text("\n".join(["frame,range,azimuth,elevation,doppler", *rows]) + "\n")
+    return path
+
+
+def test_real_spherical_angles_in_degrees_need_the_flag(tmp_path, capsys):
+    """Degrees read as radians were accepted (calibrate then failed about target
+    ids); an angle beyond +-pi is now an error naming --degrees."""
+    s1 = _real_spherical_degrees(tmp_path, "S1", (0, 0, 0), 0.8)
+    s2 = _real_spherical_degrees(tmp_path, "S2", (1.7, 1.65, 90), 1.1)
+    argv = ["import", "table", "--node", f"S1={s1}", "--node", f"S2={s2}", *REAL_MOUNTING,
+            "-o", str(tmp_path / "sph.h5")]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "beyond +-pi: not an angle in radians; degrees?" in err and "--degrees" in err
+    assert main(argv + ["--degrees"]) == 0
+    out, err = capsys.readouterr()
+    assert "S2: 3346 points in 642 frames" in out and "warning" not in err
+
+
+def test_real_snr_in_tenths_of_a_db_is_named(tmp_path, capsys):
+    """TI's side info counts 0.1 dB: read as dB, SNRs of 112-512 'dB' were kept
+    without a word; now an error naming --snr-unit."""
+    tenths = lambda c: c[:6] + [f"{float(c[6]) * 10:.0f}"]
+    path = _real_table(tmp_path, "S1", tenths)
+    argv = ["import", "table", "--node", f"S1={path}", "--frame-period", "0.05", "-o",
+            str(tmp_path / "snr.h5")]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "column snr holds SNRs up to 512 dB (median 182 dB)" in err
+    assert "--snr-unit 0.1db" in err
+    assert main(argv + ["--snr-unit", "0.1db"]) == 0
+    snr = read_recording(tmp_path / "snr.h5").nodes["S1"].point_cloud.snr_db
+    assert 11 <= np.nanmin(snr) and np.nanmax(snr) <= 52
+
+
+def _real_in_format(tmp_path, node, kind):
+    """The real table of ``node`` as a TI tool or a spreadsheet writes it."""
+    import json
+    rows = [line.split(",") for line in
+            (REAL / f"multiple_tracking_{node}.csv").read_text().splitlines()[1:]]
+    stamp = lambda cells: f"{1.7e12 + 50 * int(cells[0]):.1f}"        # the host's ms clock
+    if kind == "replay":
+        frames: dict = {}
+        for c in rows:
+            frames.setdefault(int(c[0]), []).append([float(v) for v in c[2:7]] + [60.0, 255])
+        data = [{"frameData": {"frameNum": k, "pointCloud": frames.get(k, [])},
+                 "timestamp": 1.7e12 + 50.0 * k} for k in range(max(frames) + 1)]
+        path = tmp_path / f"replay_{node}.json"
+        path.write_text(json.dumps({"cfg": [], "demo": "SDK Out of Box Demo", "data": data}))
+        return path
+    header, sep, cells = {
+        "units": ("Frame Number,Timestamp (ms),X (m),Y (m),Z (m),Doppler (m/s),SNR (dB),"
+                  "Noise (dB)", ",", lambda c: [c[0], stamp(c), *c[2:], "60.0"]),
+        "visualizer": ("frameNum,timestamp,X,Y,Z,Doppler,SNR,Noise,Track index", ",",
+                       lambda c: [c[0], stamp(c), *c[2:], "60.0", "255"]),
+        "tsv": ("frame\ttime_s\tx_m\ty_m\tz_m\tdoppler_mps\tsnr_db", "\t", lambda c: c),
+        "semicolon": ("frame;time_s;x_m;y_m;z_m;doppler_mps;snr_db", ";",
+                      lambda c: [v.replace(".", ",") for v in c]),
+    }[kind]
+    path = tmp_path / f"{kind}_{node}.csv"
+    path.write_text("\n".join([header] + [sep.join(cells(c)) for c in rows]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("kind, extra", [("units", []), ("replay", []),
+                                         ("visualizer", ["--columns", "visualizer"]),
+                                         ("tsv", []), ("semicolon", [])])
+def test_real_tables_in_ti_tools_formats(tmp_path, capsys, kind, extra):
+    """A visualizer's CSV ("X (m)", "Doppler (m/s)") failed with 'missing
+    columns'; its replay JSON, a TSV or a semicolon CSV with a garbled message.
+    Each now imports the real recording's points exactly."""
+    paths = {node: _real_in_format(tmp_path, node, kind) for node in ("S1", "S2")}
+    room = ["--room-pose", "S1=0,0,0", "--room-pose", "S2=1.7,1.65,90"]
+    base = ["import", "table", *REAL_MOUNTING, *room, "--overwrite"]
+    assert main(base + ["--node", f"S1={REAL / 'multiple_tracking_S1.csv'}", "--node",
+                        f"S2={REAL / 'multiple_tracking_S2.csv'}", "-o",
+                        str(tmp_path / "ref.h5")]) == 0
+    assert main(base + ["--node", f"S1={paths['S1']}", "--node", f"S2={paths['S2']}", *extra,
+                        "-o", str(tmp_path / "o.h5")]) == 0
+    assert "S2: 3346 points in 642 frames" in capsys.readouterr().out
+    ref, got = read_recording(tmp_path / "ref.h5"), read_recording(tmp_path / "o.h5")
+    for node in ("S1", "S2"):
+        a, b = ref.nodes[node].point_cloud, got.nodes[node].point_cloud
+        np.testing.assert_array_equal(a.frame, b.frame)
+        np.testing.assert_array_equal(a.range_m, b.range_m)
+        np.testing.assert_array_equal(a.omega_rad, b.omega_rad)
+        np.testing.assert_array_equal(a.snr_db, b.snr_db)
+
+
+def test_a_visualizer_table_without_the_preset_names_it(tmp_path, capsys):
+    path = _real_in_format(tmp_path, "S1", "visualizer")
+    assert main(["import", "table", "--node", f"S1={path}", "--frame-period", "0.05",
+                 "-o", str(tmp_path / "o.h5")]) == 1
+    err = capsys.readouterr().err
+    assert "--time-unit ms, or --columns visualizer" in err
+    with pytest.raises(SystemExit):
+        main(["import", "table", "--node", f"S1={path}", "--columns", "visualiser",
+              "--frame-period", "0.05", "-o", str(tmp_path / "o.h5")])
+    assert "must look like HEADER=COLUMN or be a preset of TI's tools: ['sdk-script', " \
+           "'visualizer']" in capsys.readouterr().err
+    assert main(["import", "table", "--node", f"S1={path}", "--columns", "visualizer",
+                 "--columns", "X=x", "--frame-period", "0.05", "-o", str(tmp_path / "o.h5")]) == 2
+    assert "a preset names every column; give it alone" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("heading, words", [
+    ("180", "heading 180 deg; --room-pose); a radar sees only in front of it: the heading is "
+            "the direction of the antenna array axis, the boresight heading + 90 deg; heading "
+            "90 deg puts 99.9% in front"),
+    ("1.5708", "heading 90 deg (the 1.571 given, read as radians) puts 99.9% in front"),
+])
+def test_real_room_pose_with_the_boresight_or_in_radians(tmp_path, capsys, heading, words):
+    """The boresight heading (180) given where the array axis's (90) is meant
+    ended in 'no pair of nodes shares a matched track'; radians (1.5708)
+    calibrated S2 at -0.28 deg against a nominal 90, reported 'ok'. Both put
+    S2's points beside the radar: an error saying which heading fits."""
+    argv = ["import", "table", "--node", f"S1={REAL / 'multiple_tracking_S1.csv'}", "--node",
+            f"S2={REAL / 'multiple_tracking_S2.csv'}", *REAL_MOUNTING, "--room-pose", "S1=0,0,0",
+            "--room-pose", f"S2=1.7,1.65,{heading}", "-o", str(tmp_path / "o.h5")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "node S2: " in err and words in err
+    assert ("looks like radians" in err) == (heading == "1.5708")
+
+
+def test_real_room_frame_with_a_room_pose_for_one_node_warns(tmp_path, capsys):
+    """A forgotten --room-pose S2 gave a pose with 7 cm sigma and no word."""
+    argv = ["import", "table", "--node", f"S1={REAL / 'multiple_tracking_S1.csv'}", "--node",
+            f"S2={REAL / 'multiple_tracking_S2.csv'}", *REAL_MOUNTING, "--room-pose", "S1=0,0,0",
+            "-o", str(tmp_path / "o.h5")]
+    assert main(argv) == 0
+    assert "mmsnap import: warning: nodes ['S1'] have a room pose, ['S2'] not" in \
+        capsys.readouterr().err
+
+
 def test_huge_time_stamp_is_a_clear_error(tmp_path, capsys):
     def huge(header, cells):
         if cells[header.index("frame")] == "7":
@@ -112,11 +293,15 @@ def test_gui_headers_with_a_columns_mapping(tmp_path, capsys):
     path.write_text("\n".join(["Frame,X [m],Y [m],Z [m],Velocity [m/s]", *rows]) + "\n")
     args = ["import", "table", "--node", f"S1={path}", "--frame-period", "0.05", "-o",
             str(tmp_path / "gui.h5")]
-    assert main(args) == 1
-    assert "missing columns" in capsys.readouterr().err
-    assert main(args + ["--columns", "X [m]=x", "--columns", "Y [m]=y", "--columns", "Z [m]=z",
-                        "--columns", "Velocity [m/s]=doppler"]) == 0
+    assert main(args) == 0                       # the units in the headers are read
     assert len(read_recording(tmp_path / "gui.h5").nodes["S1"].point_cloud) == 60
+    assert main(args + ["--overwrite", "--columns", "X [m]=x", "--columns", "Y [m]=y",
+                        "--columns", "Z [m]=z", "--columns", "Velocity [m/s]=doppler"]) == 0
+    assert len(read_recording(tmp_path / "gui.h5").nodes["S1"].point_cloud) == 60
+    path.write_text(path.read_text().replace("Velocity [m/s]", "Speed [m/s]"))
+    assert main(args + ["--overwrite"]) == 1
+    err = capsys.readouterr().err
+    assert "missing columns" in err and "'Speed [m/s]'" in err and "--columns 'HEADER=x'" in err
 
 
 def test_unknown_cfg_command_names_the_flag(tmp_path, capsys):

@@ -1,0 +1,170 @@
+"""Live boards -> fused people, frame by frame (docs/LIVE.md, "mmsnap live").
+
+:class:`LiveFusion` takes the boards' frames as :class:`~mmsnap_graph.io.ti.serial.reader.BoardFrame`
+records arrive and groups them by their slot on the common clock (frames of
+different boards within half a frame period of host time share a slot). A
+slot is fused as soon as every active board has given it (or a later slot),
+or when the host clock is :data:`WAIT_FRAMES` frames past it (a board that
+dropped the frame or stopped; a board silent for :data:`INACTIVE_FRAMES`
+frames is no longer waited for).
+
+Each slot goes through the library's one place for each step: each board's
+points projected into its plane with its mounting
+(:func:`~mmsnap_graph.io.ti.point_cloud.cloud_to_detections`), clustered
+into torso centroids (:func:`~mmsnap_graph.radar.cluster.torso_centroids`,
+sparse clouds with ``min_samples=1`` as
+:func:`~mmsnap_graph.app.pipeline.sparse_cluster_config` decides, here on the
+median of the frames seen so far), then the stream's association, one-shot
+fusion and central tracker (:class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream`,
+the driver ``mmsnap replay`` uses). Every fused slot goes to each sink
+(:class:`FusedSink`): a JSON-lines writer, a recorder, a view.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Mapping, Protocol, Sequence
+
+import numpy as np
+
+from ...data.radar_config import TABLE_I
+from ...data.recording import Detections
+from ...io.ti.point_cloud import Mounting, PointCloud3D, cloud_to_detections
+from ...radar.chain import ChainConfig
+from ...radar.cluster import torso_centroids
+from ..pipeline import SPARSE_POINTS_PER_FRAME
+
+__all__ = ["LiveFrame", "FusedSink", "LiveFusion", "WAIT_FRAMES", "INACTIVE_FRAMES"]
+
+#: A slot is fused at the latest this many frame periods after its start.
+WAIT_FRAMES = 1.5
+#: A board silent this many frames is not waited for (until it sends again).
+INACTIVE_FRAMES = 10
+#: Frames whose point counts decide whether the clouds are sparse.
+_SPARSE_HISTORY = 200
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class LiveFrame:
+    """One fused slot: ``frame`` (the slot), ``time_s`` (``frame *
+    frame_period_s``), ``boards`` (the boards it holds), ``points`` (board ->
+    :class:`~mmsnap_graph.data.recording.Detections` in its plane),
+    ``centroids`` (board -> (K, 3) rows), ``update`` (the
+    :class:`~mmsnap_graph.fusion.stream.frame_stream.StreamUpdate`),
+    ``last_byte_s`` (host time of the last board frame's last byte) and
+    ``done_s`` (host time when fused)."""
+
+    frame: int
+    time_s: float
+    boards: tuple
+    points: Mapping
+    centroids: Mapping
+    update: object
+    last_byte_s: float
+    done_s: float
+
+
+class FusedSink(Protocol):
+    """What a consumer of fused slots implements (JSON lines, a recorder, a view)."""
+
+    def write(self, frame: LiveFrame) -> None: ...
+    def close(self) -> None: ...
+
+
+class LiveFusion:
+    """Group, cluster, fuse and track the boards' frames (module docstring).
+
+    names : the boards in the stream's node order; stream : a
+    :class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream` over them;
+    mounting : board -> :class:`~mmsnap_graph.io.ti.point_cloud.Mounting`;
+    frame_period_s, t0_s : the common grid; sinks : the consumers.
+    """
+
+    def __init__(self, names: Sequence[str], stream, *, mounting: Mapping[str, Mounting],
+                 frame_period_s: float, t0_s: float, sinks: Sequence[FusedSink] = (),
+                 height_band_m=None, chain: ChainConfig | None = None) -> None:
+        self.names = tuple(names)
+        self.stream = stream
+        self.mounting = dict(mounting)
+        self.period = float(frame_period_s)
+        self.t0_s = float(t0_s)
+        self.sinks = list(sinks)
+        self.height_band_m = height_band_m
+        self.chain = ChainConfig() if chain is None else chain
+        self._pending: dict[int, dict] = {}        # slot -> board -> BoardFrame
+        self._last_slot = {n: None for n in self.names}
+        self._counts: deque = deque(maxlen=_SPARSE_HISTORY)
+        self.fused = 0
+        self.late = 0                   # board frames for a slot already fused
+        self._next = None               # the lowest slot not yet fused
+
+    # ------------------------------------------------------------------
+    def add(self, frame) -> list[LiveFrame]:
+        """A board's frame; returns the slots this completes, fused."""
+        if self._next is not None and frame.slot < self._next:
+            self.late += 1
+            return []
+        self._pending.setdefault(frame.slot, {})[frame.board] = frame
+        self._last_slot[frame.board] = frame.slot
+        if self._next is None:
+            self._next = frame.slot
+        return self.poll(time.monotonic())
+
+    def poll(self, now_s: float) -> list[LiveFrame]:
+        """Fuse the slots that are complete or whose wait is over."""
+        out = []
+        while self._pending:
+            slot = min(self._pending)
+            waiting = [n for n in self._active(slot) if n not in self._pending[slot]]
+            overdue = now_s > self.t0_s + (slot + WAIT_FRAMES) * self.period
+            if waiting and not overdue:
+                break
+            out.append(self._fuse(slot, self._pending.pop(slot)))
+            self._next = slot + 1
+        return out
+
+    def flush(self) -> list[LiveFrame]:
+        """Fuse everything still pending (the session ended)."""
+        return [self._fuse(s, self._pending.pop(s)) for s in sorted(self._pending)]
+
+    def _active(self, slot: int) -> list[str]:
+        return [n for n, last in self._last_slot.items()
+                if last is not None and last > slot - INACTIVE_FRAMES]
+
+    # ------------------------------------------------------------------
+    def _sparse(self) -> bool:
+        counts = [c for c in self._counts if c > 0]
+        return bool(counts) and float(np.median(counts)) < SPARSE_POINTS_PER_FRAME
+
+    def _centroids(self, det: Detections) -> np.ndarray:
+        cluster = self.chain.cluster
+        if self._sparse() and cluster.min_samples != 1:
+            cluster = dataclasses.replace(cluster, min_samples=1)
+        c = torso_centroids(det, cluster, doppler_resolution_mps=TABLE_I.doppler_resolution_mps)
+        return c.measurements
+
+    def _fuse(self, slot: int, frames: dict) -> LiveFrame:
+        points, centroids = {}, {}
+        for name, f in frames.items():
+            p = f.points
+            cloud = PointCloud3D(frame=np.full(len(p["x"]), slot, dtype=np.int64), x_m=p["x"],
+                                 y_m=p["y"], z_m=p["z"], doppler_mps=p["doppler"],
+                                 snr_db=p["snr"], noise_db=p["noise"])
+            det = cloud_to_detections(cloud, self.mounting[name],
+                                      height_band_m=self.height_band_m)
+            self._counts.append(len(det))
+            points[name] = det
+            centroids[name] = self._centroids(det)
+        time_s = slot * self.period
+        update = self.stream.push(time_s, centroids)
+        self.fused += 1
+        live = LiveFrame(frame=slot, time_s=time_s, boards=tuple(sorted(frames)), points=points,
+                         centroids=centroids, update=update,
+                         last_byte_s=max(f.host_time_s for f in frames.values()),
+                         done_s=time.monotonic())
+        for sink in self.sinks:
+            sink.write(live)
+        return live
