@@ -6,8 +6,9 @@ offending value.
 
 from __future__ import annotations
 
+import json
 import math
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -24,15 +25,40 @@ __all__ = [
     "chi2_gate",
     "frozen_vector",
     "int_array",
+    "parse_json",
+    "short_repr",
 ]
 
 
 def as_float_array(value: ArrayLike, name: str) -> NDArray:
-    """``np.asarray(value, float)`` with a clear error for non-numeric input."""
+    """``np.asarray(value, float)`` with a clear error for non-numeric input
+    (an integer beyond the float range, ``10**400``, included)."""
     try:
         return np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValidationError(f"{name} must be numeric, got {value!r}") from exc
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ValidationError(f"{name} must be numeric (finite floats), got "
+                              f"{short_repr(value)}") from exc
+
+
+def short_repr(value: Any) -> str:
+    """``repr(value)`` cut to 80 characters (a 400-digit number in a message)."""
+    text = repr(value)
+    return text if len(text) <= 80 else text[:60] + f"... ({len(text)} characters)"
+
+
+def _json_integer(text: str) -> int | float:
+    """A JSON integer: a Python int while a float can hold it; beyond (more
+    than 300 digits: ``10**400``) the float of it, ``inf``, which the
+    readers' finiteness checks refuse by name (an int there would raise
+    ``OverflowError`` at the first ``float()``, and Python refuses to parse
+    one of more than 4300 digits)."""
+    return int(text) if len(text) <= 300 else float(text)
+
+
+def parse_json(text: str) -> Any:
+    """``json.loads(text)`` with integers beyond the float range read as
+    ``inf`` (:func:`_json_integer`); the one JSON parser of the readers."""
+    return json.loads(text, parse_int=_json_integer)
 
 
 def check_shape(arr: NDArray, shape: Sequence[int | None], name: str) -> NDArray:

@@ -58,7 +58,7 @@ def test_sections_cited_by_the_code_exist():
     headings = _headings(CONVENTIONS_MD.read_text())
     cited = set()
     for path in [*ROOT.glob("factors/**/*.py"), *ROOT.glob("mmsnap_graph/**/*.py"),
-                 *ROOT.glob("docs/*.md"), ROOT / "README.md"]:
+                 *ROOT.glob("docs/**/*.md"), ROOT / "README.md"]:
         for m in re.finditer(r'CONVENTIONS\.md,\s+"([^"]+)"', path.read_text()):
             cited.add((path.relative_to(ROOT).as_posix(), m.group(1)))
     missing = sorted(c for c in cited if c[1] not in headings)
@@ -144,7 +144,8 @@ _KNOWN: dict[str, str] = {}
 
 
 def _doc_files():
-    files = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted(ROOT.glob("docs/*.md")),
+    files = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted(ROOT.glob("docs/**/*.md")),
+             *sorted(ROOT.glob("docs/**/*.py")),
              *sorted(ROOT.glob("notebooks/*.ipynb")), *sorted(ROOT.glob("benchmarks/*.py")),
              *sorted(ROOT.glob("tools/*.py")), *sorted(ROOT.glob("factors/**/*.py")),
              *sorted(ROOT.glob("mmsnap_graph/**/*.py"))]
@@ -166,7 +167,7 @@ _TEST_PATH = re.compile(r"tests/[\w/]+\.py")
 
 
 @pytest.mark.parametrize("rel", ["README.md", *sorted(p.relative_to(ROOT).as_posix()
-                                                      for p in ROOT.glob("docs/*.md"))])
+                                                      for p in ROOT.glob("docs/**/*.md"))])
 def test_test_files_the_docs_cite_exist(rel):
     """A page that says "tests/x.py shows it" names a file that is there (the
     tests mirror the packages, so a moved module moves its tests)."""
@@ -443,3 +444,58 @@ def test_the_stone_soup_block_runs_and_prints_what_the_page_says(scratch, capsys
                                   r"([0-9.]+) cm tracked", section).groups()
     assert f"{n} track states; last: x {x} m, y {y} m" in out, out
     assert f"x sigma: one-shot {one_shot} cm, tracked {tracked} cm" in out, out
+
+
+# ----------------------------------- the real-recording tour's quoted figures
+#
+# The README and the tutorial on real recordings quote what the tour prints;
+# the tour runs here in-process (the fresh-install test runs it as written
+# but does not read its output), so a change of the chain that moves a
+# quoted figure fails here until the pages say the new one.
+
+REAL_TOUR = ROOT / "docs" / "tutorials" / "real-recordings.md"
+
+#: (page, the words it quotes, a pattern of the tour's output saying the same).
+TOUR_QUOTES = [
+    ("README.md", "puts S2 at (1.738, 1.624) m, 86.24 deg",
+     r"^S2 +1\.738 +1\.624 +86\.24 +0\.166 +0\.097 +1\.931 "),
+    ("README.md", "1-sigma (16.6 cm, 9.7 cm, 1.93 deg)", r"^S2 +1\.738 +1\.624 +86\.24 +0\.166 +0\.097 +1\.931 "),
+    ("README.md", "0.046 m and -3.76 deg off", r"^S2 +0\.046 +-3\.760 "),
+    ("README.md", "900 (frame, target) rows in 512 frames, 657 of them succeeded",
+     r"^fused 900 targets in 512 frames .*: 657 succeeded"),
+    ("docs/tutorials/real-recordings.md", "drops 1,822 of 3,346 points",
+     r"^S2: point_cloud: 3346 points.*dropped 1822 of 3346 static-scene points, 5 of \d+ "
+     r"centroids merged \(one body\), 14 of \d+ multipath ghosts"),
+    ("docs/tutorials/real-recordings.md", "7 confirmed EKF\ntrack ids per node",
+     r"tracks: 7 confirmed EKF track ids"),
+    ("docs/tutorials/real-recordings.md", "900 rows in 512\nframes, of which 657 succeeded",
+     r"^fused 900 targets in 512 frames"),
+    ("docs/tutorials/real-recordings.md", "74 outside the room box",
+     r"flagged by status: 14 residual_test_failed \(9\), 131 motion_inconsistent \(10\), "
+     r"74 outside_bounds \(11\), 24 duplicate \(12\)"),
+    ("docs/tutorials/real-recordings.md", "S2 is 0.046 m and -3.76 degrees off", r"^S2 +0\.046 +-3\.760 "),
+]
+
+
+def _tour_commands() -> list[list[str]]:
+    """The ``mmsnap`` commands of the README's tour (the tutorial's first block)."""
+    body = re.findall(r"```bash\n(.*?)```", REAL_TOUR.read_text(), flags=re.S)[0]
+    assert body in (ROOT / "README.md").read_text(), "the README's tour is the tutorial's"
+    joined = body.replace("\\\n", " ")
+    return [shlex.split(line.split("#")[0])[1:] for line in joined.splitlines()
+            if line.startswith("mmsnap ")]
+
+
+@pytest.mark.slow
+def test_the_tour_prints_what_the_readme_and_the_tutorial_quote(tmp_path, monkeypatch, capsys):
+    shutil.copytree(ROOT / "data" / "real" / "darksz", tmp_path / "data" / "real" / "darksz")
+    (tmp_path / "tour").mkdir()
+    monkeypatch.chdir(tmp_path)
+    printed = ""
+    for argv in _tour_commands():
+        assert main(argv) == 0, argv
+        printed += capsys.readouterr().out
+    for page, quoted, pattern in TOUR_QUOTES:
+        text = (ROOT / page).read_text()
+        assert " ".join(quoted.split()) in " ".join(text.split()), (page, quoted)
+        assert re.search(pattern, printed, flags=re.M), (page, quoted, pattern)

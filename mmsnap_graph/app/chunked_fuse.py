@@ -144,6 +144,11 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     if not isinstance(fusion, FusionOptions):
         raise ValidationError(f"options must be a FusionOptions, got {type(fusion).__name__}")
     windows = open_detection_windows(path, source=fusion.source)
+    if fusion.coverage_check and fusion.coverage_reach_m is None:
+        # How far each node looks, over the whole file (a window alone would
+        # judge it by its own frames and differ from the whole recording's).
+        fusion = dataclasses.replace(fusion, coverage_reach_m=windows.reach_m())
+        options = {**options, "options": fusion}
     # Clock offsets move each node's frames by its own whole-frame shift
     # before fusion (fusion.recording.timing.align_recording): each node's window is
     # read shifted the same way, so that a window holds the same reference

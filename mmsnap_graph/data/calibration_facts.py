@@ -158,8 +158,13 @@ def _coerce(value, tp, where: str):
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise ValidationError(f"{where} must be a number, got {value!r}")
     if tp is float:
-        return float(value)
-    if not float(value).is_integer():
+        try:
+            return float(value)
+        except OverflowError:  # an integer beyond the float range
+            return math.inf if value > 0 else -math.inf
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if not (math.isfinite(value) and float(value).is_integer()):
         raise ValidationError(f"{where} must be an integer, got {value!r}")
     return int(value)
 

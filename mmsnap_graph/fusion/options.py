@@ -139,6 +139,11 @@ class FusionOptions:
     coverage_check : with the motion check, flag a row that a node whose
         field of view covers it never sees in the frames around
         (:mod:`~mmsnap_graph.fusion.recording.coverage`: a multipath image).
+    coverage_reach_m : node name -> how far the node looks (m), for the
+        coverage check; a node left out (or None, the default): the
+        farthest of its detections in the recording fused
+        (:func:`~mmsnap_graph.fusion.recording.coverage.detection_reach_m`).
+        A file fused window by window passes its whole detections' reach.
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS
@@ -156,6 +161,7 @@ class FusionOptions:
     body_merge: bool | None = None
     merge_body_m: float = CENTROID_MERGE_RADIUS_M
     coverage_check: bool = True
+    coverage_reach_m: Mapping[str, float] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.lm, LevenbergMarquardtSettings):
@@ -182,6 +188,25 @@ class FusionOptions:
             raise ValidationError(
                 f"body_merge must be True, False or None, got {self.body_merge!r}")
         object.__setattr__(self, "merge_body_m", _positive(self.merge_body_m, "merge_body_m"))
+        object.__setattr__(self, "coverage_reach_m", _reach(self.coverage_reach_m))
+
+
+def _reach(value: object) -> Mapping[str, float] | None:
+    """``FusionOptions.coverage_reach_m`` as a read-only ``{name: metres}``."""
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise ValidationError("coverage_reach_m must be a mapping node name -> metres, got "
+                              f"{type(value).__name__}")
+    out = {}
+    for name, reach in value.items():
+        if isinstance(reach, (bool, np.bool_)) or not isinstance(
+                reach, (int, float, np.integer, np.floating)) or not (math.isfinite(reach)
+                                                                     and reach >= 0):
+            raise ValidationError(f"coverage_reach_m[{name!r}]={reach!r} must be a finite "
+                                  "number of metres >= 0")
+        out[str(name)] = float(reach)
+    return MappingProxyType(out)
 
 
 #: The default options.

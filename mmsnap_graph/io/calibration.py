@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._atomic import atomic_path
+from .._validation import parse_json, short_repr
 from ..data.calibration import PairwiseCalibration, RecordingCalibration
 from ..data.calibration_facts import FACT_KINDS, CalibrationFact, CalibrationStatus, LagEvidence
 from ..data.calibration_facts import RecordedMessage
@@ -89,12 +90,17 @@ def _jsonable(x) -> Any:
 
 
 def _floats(x) -> NDArray:
-    """The inverse of :func:`_jsonable`: None becomes NaN."""
+    """The inverse of :func:`_jsonable`: None becomes NaN. A value that is
+    no number raises ``TypeError`` or ``ValueError`` (an integer beyond the
+    float range, ``10**400``, too: not ``OverflowError``)."""
     if x is None:
         return np.array(np.nan)
     if isinstance(x, (list, tuple)):
         return np.array([_floats(v) for v in x], dtype=float)
-    return np.array(float(x))
+    try:
+        return np.array(float(x))
+    except OverflowError:
+        raise ValueError(f"{x!s:.40} is beyond the float range") from None
 
 
 def calibration_to_json(cal: RecordingCalibration) -> dict[str, Any]:
@@ -189,7 +195,12 @@ def _json_range_offset(data: Mapping, where: str) -> dict[str, float]:
             continue
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise CalibrationError(f"{where}: {key} must be a number, got {value!r}")
-        out[field_name] = float(value)
+        try:
+            out[field_name] = float(value)
+        except OverflowError:
+            out[field_name] = math.copysign(math.inf, value)
+        if not math.isfinite(out[field_name]):
+            raise CalibrationError(f"{where}: {key} must be finite, got {short_repr(value)}")
     if np.isfinite(out["range_offset_m"]) and abs(out["range_offset_m"]) > 1.0:
         raise CalibrationError(f"{where}: range_offset_m must lie within +-1 m, got "
                                f"{out['range_offset_m']!r}")
@@ -230,11 +241,14 @@ def _json_float(where: str, name: str, entry: Mapping, key: str, default: float)
     try:
         out = float(_floats(value))
     except (TypeError, ValueError) as exc:
-        raise CalibrationError(f"{where}: nodes[{name!r}].{key}={value!r} is not a number") \
-            from exc
+        raise CalibrationError(f"{where}: nodes[{name!r}].{key}={short_repr(value)} is not a "
+                               "number") from exc
     if key == "time_offset_s" and not np.isfinite(out):
         raise CalibrationError(f"{where}: nodes[{name!r}].time_offset_s must be finite, "
-                               f"got {value!r}")
+                               f"got {short_repr(value)}")
+    if key != "time_offset_s" and (np.isinf(out) or out < 0):  # a variance; null: not known
+        raise CalibrationError(f"{where}: nodes[{name!r}].{key} must be finite and >= 0 "
+                               f"(or null), got {short_repr(value)}")
     return out
 
 
@@ -250,9 +264,10 @@ def _node_pose(where: str, name: str, entry: Any) -> NDArray:
     if pose is None:
         raise CalibrationError(f"{where}: nodes[{name!r}] has no 'pose'")
     try:
-        arr = np.asarray(pose, dtype=float)
+        arr = _floats(pose)
     except (TypeError, ValueError) as exc:
-        raise CalibrationError(f"{where}: nodes[{name!r}].pose={pose!r} is not numeric") from exc
+        raise CalibrationError(f"{where}: nodes[{name!r}].pose={short_repr(pose)} is not numeric "
+                               f"({exc})") from exc
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise CalibrationError(f"{where}: nodes[{name!r}].pose must be 3 finite numbers "
                                f"[x_m, y_m, phi_rad], got {pose!r}")
@@ -300,6 +315,9 @@ def _json_covariance(where: str, name: str, entry: Mapping) -> NDArray:
     if arr.shape != (3, 3):
         raise CalibrationError(f"{where}: nodes[{name!r}].covariance must be 3 x 3, "
                                f"got shape {arr.shape}")
+    if np.any(np.isinf(arr)):  # null (NaN) entries mean "not known"; infinity is no variance
+        raise CalibrationError(f"{where}: nodes[{name!r}].covariance must be finite (or null), "
+                               f"got {short_repr(cov)}")
     return arr
 
 
@@ -373,7 +391,7 @@ def _parse_json(source: str | os.PathLike | Mapping) -> tuple[Any, str]:
         return source, "calibration"
     path = Path(source)
     try:
-        return json.loads(path.read_text()), str(path)
+        return parse_json(path.read_text()), str(path)
     except FileNotFoundError as exc:
         raise CalibrationError(f"calibration file {path} does not exist") from exc
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -525,7 +543,7 @@ def _read_group(g: h5py.Group, where: str) -> RecordingCalibration:
         if key not in g.attrs:
             raise FileFormatError(f"{where} attribute {key!r} is missing")
         attrs[key] = g.attrs[key]
-    extra = json.loads(g.attrs["json"]) if "json" in g.attrs else {}
+    extra = parse_json(g.attrs["json"]) if "json" in g.attrs else {}
     if not isinstance(extra, Mapping):
         raise FileFormatError(f"{where} attribute 'json' must hold a JSON object")
     stored = calibration_from_json(extra, where=where).edges if "nodes" in extra else []

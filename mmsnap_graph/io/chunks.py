@@ -10,6 +10,11 @@ ten nodes stays under 500 MB.
   are sorted, as the writers store them) and returns a
   :class:`~mmsnap_graph.data.recording.Recording` of those detections, with
   each node's map from its rows to the file's rows.
+- :meth:`DetectionWindows.reach_m` is how far each node looks: the farthest
+  range of its detections at every level the file holds (the coverage
+  check's reach, the same as
+  :func:`~mmsnap_graph.fusion.recording.coverage.detection_reach_m` of the
+  whole recording).
 - :func:`fused_writer` writes a ``/fused`` group (layout
   :data:`mmsnap_graph.io.fused.FUSED_LAYOUT`) window by window into a copy of
   the file, which replaces the destination only when complete
@@ -47,6 +52,8 @@ _COLUMNS = ("range_m", "omega_rad", "doppler_mps")
 _OPTIONAL = ("snr_db", "target_id")
 #: Rows per HDF5 chunk of the datasets :class:`FusedWriter` grows.
 WRITE_CHUNK_ROWS = 4096
+#: Rows per read of :meth:`DetectionWindows.reach_m` (8 MB of float64).
+_REACH_READ_ROWS = 1 << 20
 
 
 def _text(value) -> str:
@@ -228,6 +235,28 @@ class DetectionWindows:
                         kw[self.source] = self._detections(f, name, rows[name])
                     nodes[name] = NodeData(name=name, pose=self.node_poses[name], **kw)
         return Recording(frame_period_s=self.frame_period_s, nodes=nodes), rows
+
+    def reach_m(self) -> dict[str, float]:
+        """Each node's farthest detection range (m) over its ``point_cloud``
+        and ``centroids`` (0 for a node without any), read a slice at a time."""
+        out = {}
+        with read_guard(self.path):
+            try:
+                f = h5py.File(self.path, "r")
+            except H5_ERRORS as exc:
+                raise FileFormatError(f"{self.path} is not a readable HDF5 file: {exc}") from exc
+            with f:
+                for name in self.node_names:
+                    group, far = f["nodes"][name], 0.0
+                    for level in ("point_cloud", "centroids"):
+                        ds = group[level]["range_m"] if level in group and isinstance(
+                            group[level], h5py.Group) and "range_m" in group[level] else None
+                        for start in range(0, 0 if ds is None else ds.shape[0], _REACH_READ_ROWS):
+                            block = ds[start:start + _REACH_READ_ROWS]
+                            block = block[np.isfinite(block)]
+                            far = max(far, float(block.max(initial=0.0)))
+                    out[name] = far
+        return out
 
     def _detections(self, f: h5py.File, name: str, rows: NDArray) -> Detections:
         level = f["nodes"][name][self.source]

@@ -9,9 +9,11 @@ import h5py
 import numpy as np
 import pytest
 
+from _scenes import small_room_image
 from mmsnap_graph.app import chunked_fuse
 from mmsnap_graph.app.chunked_fuse import fuse_file
 from mmsnap_graph.app.cli import main
+from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections, Recording
 from mmsnap_graph.errors import FileFormatError, ValidationError
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
@@ -219,3 +221,20 @@ def test_clock_offsets_read_each_node_shifted(good, tmp_path, window):
     for k in ("state", "covariance", "time_s"):
         np.testing.assert_allclose(getattr(got, k), getattr(ref, k), rtol=0, atol=1e-7,
                                    err_msg=k)
+
+
+@pytest.mark.parametrize("window", [7, 100_000])
+def test_the_coverage_check_judges_each_window_by_the_whole_file(tmp_path, window):
+    # A node's reach is the farthest of all its detections in the file (the
+    # point cloud's static reflector here), not of the window's own centroids.
+    rec, _, image = small_room_image()
+    path = tmp_path / "room.h5"
+    write_recording(path, rec)
+    kw = dict(noise=MeasurementNoise(range_m=0.02, omega_rad=0.01, doppler_mps=0.05),
+              robust="gate")
+    ref = fuse_recording(read_recording(path), progress=False, **kw)
+    fuse_file(path, output=tmp_path / "out.h5", window_frames=window, progress=False, **kw)
+    got = read_fused(tmp_path / "out.h5")
+    assert_same(got, ref)
+    at_image = np.hypot(*(got.state[:, :2] - image[got.frame, :2]).T) < 0.5
+    assert at_image.sum() == 40 and not got.success[at_image].any()

@@ -101,3 +101,11 @@ def test_lag_evidence_says_which_lag_the_matching_kept():
     kept = {o: LagEvidence(lag_frames=3, outcome=o).kept_lag_frames
             for o in ("determined", "untested", "not_determined", "window_edge")}
     assert kept == {"determined": 3, "untested": 3, "not_determined": 0, "window_edge": 0}
+
+
+def test_an_integer_beyond_the_float_range_is_infinite_not_an_overflow():
+    f = LagNotDetermined(node_a="S1", node_b="S2", tested=True, clock_fraction=10 ** 400)
+    assert f.clock_fraction == math.inf
+    assert LagEvidence(lag_frames=10 ** 30, outcome="determined").lag_frames == 10 ** 30
+    with pytest.raises(ValidationError, match="lag_evidence.lag_frames must be an integer"):
+        LagEvidence(lag_frames=math.inf, outcome="determined")

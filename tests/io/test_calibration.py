@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 
@@ -402,3 +403,37 @@ def test_every_fact_kind_is_documented_in_the_format():
         assert f"| `{kind}` |" in doc, kind
     for s in S:
         assert f"| `{s.label}` | {s.message} |" in doc, s
+
+
+@pytest.mark.parametrize("path, match", [
+    (("nodes", "S2", "pose", 0), r"nodes\['S2'\].pose must be 3 finite numbers"),
+    (("nodes", "S2", "covariance", 0, 0), r"nodes\['S2'\].covariance must be finite"),
+    (("nodes", "S2", "lag_frames"), r"lag_frames=inf must be an integer within"),
+    (("nodes", "S2", "time_offset_s"), r"time_offset_s must be finite"),
+    (("nodes", "S2", "time_offset_variance_s2"), r"time_offset_variance_s2 must be finite"),
+    (("range_offset_m",), "range_offset_m must be finite"),
+    (("range_offset_variance_m2",), "range_offset_variance_m2 must be finite"),
+])
+@pytest.mark.parametrize("digits", [401, 5000])
+def test_a_huge_integer_in_the_file_is_a_calibration_error(tmp_path, path, match, digits):
+    """Before: 10**400 in a calibration JSON raised OverflowError out of
+    fuse, noise, replay --calibration and monitor --poses (and an integer of
+    more than 4300 digits ValueError out of the parser)."""
+    data = copy.deepcopy(_GOOD_JSON)
+    data["nodes"]["S2"].setdefault("time_offset_s", 0.0)
+    data["nodes"]["S2"].setdefault("time_offset_variance_s2", 1e-4)
+    obj = data
+    for key in path[:-1]:
+        obj = obj[key]
+    obj[path[-1]] = "HUGE"
+    text = json.dumps(data).replace('"HUGE"', "1" + "0" * (digits - 1))
+    file = tmp_path / "huge.json"
+    file.write_text(text)
+    with pytest.raises(CalibrationError, match=match) as info:
+        read_calibration_json(file)
+    assert len(str(info.value)) < 300  # the number is not printed in full
+    if path[0] == "nodes" and path[2] == "pose":
+        data_py = copy.deepcopy(data)
+        data_py["nodes"]["S2"]["pose"][0] = 10 ** 400  # a mapping, not a file
+        with pytest.raises(CalibrationError, match="beyond the float range"):
+            read_calibration_json(data_py)

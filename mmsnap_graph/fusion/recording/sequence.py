@@ -59,7 +59,7 @@ from ...errors import CalibrationError, MissingStepError, MmsnapError, Validatio
 from ..._validation import as_float_array, check_finite, check_pose
 from .split_check import SPLIT_MESSAGE, split_rows
 from .regroup import merge_body_detections
-from .coverage import uncovered_rows
+from .coverage import detection_reach_m, uncovered_rows
 from .room import DEFAULT_BODY_M
 from ...tracking.person_ids import assign_person_ids
 
@@ -306,8 +306,10 @@ def _progress(total: int, desc: str, progress: bool | None):
 RECORDING_SOLVERS = ("vectorized", "gtsam")
 
 
-def _check_options(recording, mode, options, prior):
+def _check_options(recording, mode, options, prior, progress):
     """Validate :func:`fuse_recording`'s options; return the prior to use."""
+    if progress is not None and not isinstance(progress, (bool, np.bool_)):
+        raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     if mode not in ("map", "ml"):
         raise ValidationError(f"mode must be 'map' or 'ml', got {mode!r}")
     options = check_options(options)
@@ -452,16 +454,27 @@ def _screen_rows(out: FusedRows, groups, recording, poses, noise, prior, pose_co
     # The estimate and its covariance stay for whoever wants them, untrusted.
     out.flag(split, Status.RESIDUAL_TEST_FAILED, SPLIT_MESSAGE, keep_covariance=True)
     if motion_check and options.coverage_check:
-        _check_coverage(out, groups, recording, poses)
+        reach_m = np.array([options.coverage_reach_m[n] for n in recording.node_names])
+        _check_coverage(out, groups, recording, poses, reach_m)
 
 
-def _check_coverage(out: FusedRows, groups, recording, poses) -> None:
+def _coverage_reach(recording, options) -> dict[str, float]:
+    """How far each node looks: ``options.coverage_reach_m``, else the
+    farthest of its detections in ``recording`` (taken before the clock and
+    range offsets move them, as a file's reader takes them)."""
+    given = options.coverage_reach_m or {}
+    return {n: given[n] if n in given else detection_reach_m(recording.nodes[n])
+            for n in recording.node_names}
+
+
+def _check_coverage(out: FusedRows, groups, recording, poses, reach_m) -> None:
     """The coverage check (:mod:`.coverage`): flag the rows a node that
     covers them never sees."""
     obs = groups.detection_index >= 0
     flag, node = uncovered_rows(groups.frame, out.state, out.status == Status.OK, obs,
                                 groups.measurements[:, :, 0], poses,
-                                frame_period_s=recording.frame_period_s, body_m=DEFAULT_BODY_M)
+                                frame_period_s=recording.frame_period_s, body_m=DEFAULT_BODY_M,
+                                reach_m=reach_m)
     for r in np.flatnonzero(flag):
         out.flag(r, Status.MOTION_INCONSISTENT,
                  f"motion check: node {recording.node_names[node[r]]} covers this place and "
@@ -559,13 +572,12 @@ def fuse_recording(
     if not isinstance(cal, NetworkCalibration):
         raise ValidationError(f"calibration must be a NetworkCalibration, got "
                               f"{type(cal).__name__}")
-    prior = _check_options(recording, mode, options, prior)
+    prior = _check_options(recording, mode, options, prior, progress)
+    options = replace(options, coverage_reach_m=_coverage_reach(recording, options))
     recording = _calibrated_centroids(recording, cal.time_offset_s, cal.range_offset_m, options)
     noise, pose_cov = _node_options(recording, noise, cal.pose_covariances, options.covariance)
     robust = robust_options(robust)
     motion_check = _motion_option(options.motion_check, robust)
-    if progress is not None and not isinstance(progress, (bool, np.bool_)):
-        raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     poses = recording_poses(recording, cal.node_poses)
     groups = group_detections(recording, poses, noise, gate_probability=options.gate_probability,
                               source=options.source, merge_body_m=_merge_option(options, robust))

@@ -36,7 +36,6 @@ commands and parses those (errors then name the JSON field).
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -46,6 +45,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from ..._validation import parse_json
 from ...data.radar_config import RadarConfig, TiProfile
 from ...errors import ConfigurationError, FileFormatError
 from .inputs import require_file
@@ -595,8 +595,8 @@ def read_studio_json(path: str | os.PathLike, *, board: str | BoardLayout | None
     p = Path(path)
     require_file(p, "configuration file")
     try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        data = parse_json(p.read_text(encoding="utf-8"))
+    except ValueError as exc:  # UnicodeDecodeError, json.JSONDecodeError
         raise FileFormatError(f"{p} is not a JSON file: {exc}") from None
     except RecursionError:
         raise FileFormatError(f"{p}: JSON nested too deeply for an mmWave Studio export"

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..._validation import parse_json, short_repr
 from ...errors import FileFormatError
 
 __all__ = ["replay_columns", "is_replay", "POINT_FIELDS"]
@@ -73,14 +74,16 @@ def _points(frame: Any, i: int, name: str) -> tuple[NDArray, Any, Any]:
         raise FileFormatError(f"{where}.frameData.pointCloud must hold rows of at least 4 "
                               f"numbers (x, y, z, doppler), got shape {points.shape}")
     number = data.get("frameNum")
+    # parse_json reads an integer beyond the float range as inf; a whole
+    # number beyond +-2^62 is no frame number (and no int64 column)
     if number is not None and not (isinstance(number, (int, float)) and math.isfinite(number)
-                                   and number == int(number)):
-        raise FileFormatError(f"{where}.frameData.frameNum must be a whole number, got "
-                              f"{number!r}")
+                                   and number == int(number) and abs(number) < 2 ** 62):
+        raise FileFormatError(f"{where}.frameData.frameNum must be a whole number within "
+                              f"+-2^62, got {short_repr(number)}")
     stamp = frame.get("timestamp")
     if stamp is not None and not (isinstance(stamp, (int, float)) and math.isfinite(stamp)):
         raise FileFormatError(f"{where}.timestamp must be a number (milliseconds), got "
-                              f"{stamp!r}")
+                              f"{short_repr(stamp)}")
     return points, number, stamp
 
 
@@ -95,7 +98,7 @@ def replay_columns(path: str | Path, text: str | None = None) -> tuple[dict[str,
     if text is None:
         text = Path(path).read_text(encoding="utf-8-sig")
     try:
-        doc = json.loads(text)
+        doc = parse_json(text)
     except json.JSONDecodeError as exc:
         raise FileFormatError(f"{name}: not a readable JSON file ({exc})") from None
     parts, numbers, stamps = [], [], []

@@ -62,16 +62,19 @@ def test_process_on_huge_values_finishes(recording_b_file, tmp_path):
 
 @pytest.mark.slow
 def test_the_readme_tour_prints_the_counts_the_readme_quotes(tmp_path, capsys, monkeypatch):
-    """README.md's command-line tour: the centroid, track and row counts its
-    text quotes are what process and fuse print."""
+    """The simulated tour (docs/tutorials/simulation.md; it was the README's):
+    the centroid, track and row counts its text quotes are what process and
+    fuse print."""
     import re
     import shlex
 
     from mmsnap_graph.app.cli import main
     from _shared import ROOT
 
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"```bash\n(mmsnap simulate .*?)```", text, flags=re.S).group(1)
+    text = (ROOT / "docs" / "tutorials" / "simulation.md").read_text()
+    block = re.search(r"```bash\n(?:mkdir -p sim\n)(mmsnap simulate .*?)```", text,
+                      flags=re.S).group(1)
+    (tmp_path / "sim").mkdir()                   # the block's `mkdir -p sim`
     monkeypatch.chdir(tmp_path)
     printed = ""
     for line in block.splitlines():

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
-import numpy as np
+import dataclasses
 
+import numpy as np
+import pytest
+
+from _scenes import small_room_image
 from _shared import POSES_BC
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.fusion.options import FusionOptions
-from mmsnap_graph.fusion.recording.coverage import uncovered_rows
+from mmsnap_graph.errors import ValidationError
+from mmsnap_graph.fusion.recording.coverage import detection_reach_m, uncovered_rows
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.real.ghosts import ghost_centroids
@@ -78,3 +83,43 @@ def test_mirror_images_that_another_radar_covers_are_flagged_in_a_recording():
     msg = [m for m, s in zip(fused.message, fused.status) if "covers this place" in m]
     assert msg and all(s == Status.MOTION_INCONSISTENT for m, s in zip(fused.message, fused.status)
                        if "covers this place" in m)
+
+
+def _fused_small_room(recording, options=FusionOptions()):
+    from mmsnap_graph.data.noise import MeasurementNoise
+
+    return fuse_recording(recording, noise=MeasurementNoise(range_m=0.02, omega_rad=0.01, doppler_mps=0.05), robust="gate",
+                          options=options, progress=False)
+
+
+def test_a_node_covers_places_beyond_where_the_walkers_went():
+    # Regression: the reach was the farthest of the node's own rows, 4.3 m
+    # for S1 here, so S2's image 7.6 m away in S1's view was kept, a
+    # confident target 4 m from the walker (a 3-radar room at 20 fps).
+    rec, walker, image = small_room_image()
+    fused = _fused_small_room(rec)
+    at_image = np.hypot(*(fused.state[:, :2] - image[fused.frame, :2]).T) < 0.5
+    at_walker = np.hypot(*(fused.state[:, :2] - walker[fused.frame, :2]).T) < 0.5
+    assert at_image.sum() == 40 and at_walker.sum() == 40
+    assert not fused.success[at_image].any()
+    assert all("node S1 covers this place" in m for m in fused.message[at_image])
+    assert fused.success[at_walker].all()
+    # Told that S1 looks no farther than 5 m, the check leaves the image.
+    near = _fused_small_room(rec, FusionOptions(coverage_reach_m={"S1": 5.0}))
+    assert near.success[at_image].all()
+
+
+def test_the_reach_is_the_farthest_detection_of_every_level():
+    rec, _, _ = small_room_image()
+    s1, s2 = rec.nodes["S1"], rec.nodes["S2"]
+    assert detection_reach_m(s1) == 9.0                       # the static reflector
+    assert detection_reach_m(s2) == pytest.approx(s2.centroids.range_m.max())
+    assert detection_reach_m(dataclasses.replace(s1, centroids=None, point_cloud=None)) == 0.0
+
+
+def test_the_reach_option_is_checked():
+    with pytest.raises(ValidationError, match=r"coverage_reach_m\['S1'\]=-1"):
+        FusionOptions(coverage_reach_m={"S1": -1})
+    with pytest.raises(ValidationError, match="coverage_reach_m must be a mapping"):
+        FusionOptions(coverage_reach_m=[5.0])
+    assert dict(FusionOptions(coverage_reach_m={"S1": 5}).coverage_reach_m) == {"S1": 5.0}

@@ -357,7 +357,8 @@ def _set(path, value):
      ConfigurationError, r"numAdcSamples=nan must be a finite number"),
     (_set(("rlChirps", 1, "rlChirpCfg_t", "chirpStartIdx"), float("inf")), ConfigurationError,
      r"rfConfig.rlChirps\[1\]: chirpCfg startIdx=inf must be a finite number"),
-    (_set(("rlFrameCfg_t", "numLoops"), 10 ** 400), FileFormatError, r"malformed field"),
+    (_set(("rlFrameCfg_t", "numLoops"), 10 ** 400), ConfigurationError,
+     r"numLoops=inf must be a finite number"),  # beyond the float range: read as inf
     (_set(("rlFrameCfg_t", "chirpEndIdx"), 10 ** 7), ConfigurationError,
      r"rfConfig.rlFrameCfg_t: frameCfg chirpEndIdx=10000000.0 must lie in \[0, 511\]"),
     (_set(("rlProfiles",), {"rlProfileCfg_t": {}}), FileFormatError,
@@ -428,3 +429,12 @@ def test_bad_boxes_name_the_file_and_line(tmp_path, line, words):
 def test_a_missing_file_is_a_file_format_error(tmp_path):
     with pytest.raises(FileFormatError, match="cannot read"):
         read_boundary_boxes(tmp_path / "none.cfg")
+
+
+def test_studio_json_with_an_integer_of_5000_digits_names_the_field(tmp_path):
+    """Before: Python's int parser refused it with a bare ValueError (over
+    4300 digits), which escaped as a traceback."""
+    path = _studio_file(tmp_path, _set(("rlFrameCfg_t", "numLoops"), "HUGE"))
+    path.write_text(path.read_text().replace('"HUGE"', "1" + "0" * 4999))
+    with pytest.raises(ConfigurationError, match=r"numLoops=inf must be a finite number"):
+        read_ti_cfg(path, board="AWR1843BOOST")

@@ -76,3 +76,21 @@ def test_a_malformed_replay_file_names_the_field(tmp_path, doc, words):
     path.write_text("{not json")
     with pytest.raises(FileFormatError, match="not a readable JSON file"):
         read_point_tables(path)
+
+
+@pytest.mark.parametrize("where, digits, words", [
+    ("frameNum", 401, "frameNum must be a whole number within"),
+    ("frameNum", 31, "frameNum must be a whole number within"),
+    ("frameNum", 5000, "frameNum must be a whole number within"),
+    ("timestamp", 401, "timestamp must be a number"),
+])
+def test_a_huge_number_in_a_replay_file_names_the_field(tmp_path, where, digits, words):
+    """Before: math.isfinite(10**400) raised OverflowError, an int64 column of
+    10**30 OverflowError, and Python's parser a ValueError beyond 4300 digits."""
+    frame = _frame(7, POINTS)
+    (frame["frameData"] if where == "frameNum" else frame)[where] = "HUGE"
+    path = _replay(tmp_path, [frame, _frame(8, POINTS)])
+    path.write_text(path.read_text().replace('"HUGE"', "1" + "0" * (digits - 1)))
+    with pytest.raises(FileFormatError, match=words) as info:
+        replay_columns(path)
+    assert len(str(info.value)) < 300

@@ -1,8 +1,11 @@
 """``mmsnap import``: TI radar data -> an HDF5 recording (docs/TI.md).
 
-Three sources: ``dca1000`` (raw ADC captures with the ``.cfg`` they were made
-with), ``ti-uart`` (binary logs of a demo's data UART) and ``table`` (CSV /
-``.npy`` / ``.npz`` point logs). Degrees appear only here.
+Four sources: ``dca1000`` (raw ADC captures with the ``.cfg`` they were made
+with), ``ti-uart`` (binary logs of a demo's data UART), ``table`` (CSV /
+``.npy`` / ``.npz`` point logs) and ``rosbag`` (ROS 1 / ROS 2 bags of TI
+drivers' point clouds, docs/how-to/rosbag.md). The point sources share one
+projection and mounting path (:func:`_points_recording`). Degrees appear only
+here.
 """
 
 from __future__ import annotations
@@ -75,7 +78,8 @@ def _points_options(p: argparse.ArgumentParser) -> None:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "import", help="import TI radar data (DCA1000 raw ADC, UART point clouds, tables)",
+        "import", help="import TI radar data (DCA1000 raw ADC, UART point clouds, tables, "
+                       "ROS bags)",
         description="Write an HDF5 recording (docs/FORMAT.md) from TI radar data; "
                     "docs/TI.md says which source needs which option.")
     sub = p.add_subparsers(dest="source", metavar="SOURCE")
@@ -140,6 +144,23 @@ def register(subparsers) -> None:
     _points_options(t)
     _common(t)
     t.set_defaults(func=run_table)
+    b = sub.add_parser("rosbag", help="ROS 1 / ROS 2 bags of TI point clouds (PointCloud2)",
+                       description="Import the sensor_msgs/PointCloud2 topics of a ROS 1 .bag "
+                                   "or a ROS 2 bag folder (sqlite3 or MCAP) written by TI's ROS "
+                                   "drivers (docs/TI.md, 'ROS bags'); needs "
+                                   'pip install "mmsnap_graph[rosbag]".')
+    b.add_argument("bag", help="a ROS 1 .bag file or a ROS 2 bag folder (with metadata.yaml)")
+    b.add_argument("--topic", action="append", type=named_values("NODE", None), required=True,
+                   metavar="TOPIC=NODE",
+                   help="a PointCloud2 topic and the node it is (repeat per radar, in node "
+                        "order), e.g. --topic /ti_mmwave/radar_scan_pcl_0=S1")
+    b.add_argument("--stamps", choices=["auto", "header", "receive"], default="auto",
+                   help="the clouds' time: their header.stamp, the bag's receive time, or auto "
+                        "(the default): the header stamps unless a cloud's is 0, as TI's driver "
+                        "leaves it, then the receive times for every topic")
+    _points_options(b)
+    _common(b)
+    b.set_defaults(func=run_rosbag)
 
 
 def _columns_value(text: str):
@@ -382,4 +403,47 @@ def run_table(args: argparse.Namespace) -> int:
                                       f"with --table {path}")
             clouds[name] = next(iter(several.values()))
     rec = _points_recording(args, clouds, ti, period, {"source": "table"})
+    return _write(args, rec)
+
+
+def _bag_period(args, bag) -> None:
+    """A usage error when the frame period is not given, with the bag's own."""
+    if args.frame_period is None and args.cfg is None:
+        steps = [f"{t.topic} every {t.median_interval_s:.4g} s" for t in bag.topics
+                 if t.median_interval_s is not None]
+        seen = f" (the bag's clouds arrive {', '.join(steps)}, median)" if steps else ""
+        raise ValidationError(f"the frame period is unknown: give --frame-period or --cfg{seen}")
+
+
+def run_rosbag(args: argparse.Namespace) -> int:
+    import warnings
+
+    from mmsnap_graph.errors import MmsnapWarning
+    from mmsnap_graph.io.ti.rosbag import read_rosbag
+    _check_point_options(args)
+    topics = [t for t, _ in args.topic]
+    twice = sorted({t for t in topics if topics.count(t) > 1})
+    if twice:
+        raise ValidationError(f"--topic {twice[0]} is given {topics.count(twice[0])} times; one "
+                              "node per topic")
+    bag = read_rosbag(args.bag, dict(args.topic), stamps=args.stamps)
+    _bag_period(args, bag)
+    period, ti = _timing(args)
+    print(f"{args.bag}: ROS {bag.ros_version} ({bag.storage}); time stamps: "
+          f"{bag.stamps_reason}", file=sys.stderr)
+    no_velocity = []
+    for t in bag.topics:
+        ids = ", ".join(repr(i) for i in t.frame_ids)
+        print(f"{t.node}: {t.topic}: {t.messages} clouds, {t.points} points, frame_id {ids}",
+              file=sys.stderr)
+        if not t.velocity:
+            no_velocity.append(t.node)
+            warnings.warn(f"{t.topic} ({t.node}) has no velocity field (the older radar-lab "
+                          "driver's layout): its Doppler is unknown and imported as 0 m/s, "
+                          "which calibration and fusion take as measured", MmsnapWarning,
+                          stacklevel=2)
+    metadata = {"source": f"rosbag{bag.ros_version}-{bag.storage}", "rosbag_stamps": bag.stamps}
+    if no_velocity:
+        metadata["rosbag_nodes_without_doppler"] = ",".join(no_velocity)
+    rec = _points_recording(args, bag.clouds, ti, period, metadata)
     return _write(args, rec)
