@@ -17,11 +17,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 
 import numpy as np
 
 from mmsnap_graph._atomic import atomic_path, check_output_path
 from mmsnap_graph.app.commands.file_rules import add_overwrite
+from mmsnap_graph.errors import MmsnapWarning
 
 
 def register(subparsers) -> None:
@@ -109,7 +111,7 @@ def result_json(result) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph.app.runs import stored_calibration
+    from mmsnap_graph.app.runs import nominal_texts, stored_calibration
     from mmsnap_graph.calibration.monitor.decalibration import DEFAULT_THRESHOLD, monitor_recording
     from mmsnap_graph.fusion.recording.timing import align_recording
     from mmsnap_graph.io import read_recording
@@ -134,6 +136,8 @@ def run(args: argparse.Namespace) -> int:
                                progress=not args.no_progress and sys.stderr.isatty())
     # With --json, stdout holds the JSON alone; the words go to stderr.
     print(json.dumps(result_json(result), indent=2) if args.json else format_result(result))
+    for text in nominal_texts(rec.metadata, result.poses, reference=rec.node_names[0]):
+        warnings.warn(text, MmsnapWarning, stacklevel=2)
     if json_path is not None:
         with atomic_path(json_path) as tmp:
             tmp.write_text(json.dumps(result_json(result), indent=2) + "\n", encoding="utf-8")
