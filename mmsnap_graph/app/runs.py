@@ -11,7 +11,9 @@ batch`` is the one ``mmsnap calibrate`` and ``mmsnap fuse`` write:
   measurement noise (``--sigmas``, else the ``/noise`` group, else the
   paper's), with what each is in words;
 - :func:`calibrate_and_store`: calibrate a recording file and store the
-  result (calibration JSON, node poses, ``/calibration``, ``/noise``);
+  result (calibration JSON, node poses, ``/calibration``, ``/noise``),
+  warning of poses far from the nominal ones given at import
+  (:func:`nominal_texts`, also ``mmsnap monitor``'s);
 - :func:`fuse_stored`: fuse a recording file window by window with its
   stored calibration and a :class:`~mmsnap_graph.fusion.config.FusionConfig`,
   and write ``/fused``.
@@ -23,6 +25,7 @@ command-line parser imports this module and must stay light.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -30,11 +33,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..errors import MmsnapWarning
+
 if TYPE_CHECKING:
     from ..fusion.config import FusionConfig
     from ..fusion.options import NetworkCalibration
 
 __all__ = [
+    "nominal_texts",
     "StoredCalibration",
     "stored_calibration",
     "paper_noise",
@@ -288,6 +294,8 @@ def calibrate_and_store(path: str | os.PathLike,
         bar.clear()
         if on_result is not None:
             on_result(cal)
+        for text in nominal_texts(rec.metadata, cal.poses, reference=cal.reference):
+            warnings.warn(text, MmsnapWarning, stacklevel=2)
         written.append(Path(write_calibration_json(json_path, cal)))
         if write:
             dst = Path(write_calibration(path, rec, cal, output=output))
@@ -330,3 +338,46 @@ def fuse_stored(path: str | os.PathLike, config: FusionConfig | None = None, *,
                             calibration=calibration.network_calibration(),
                             noise=calibration.noise)
     return summary, calibration
+
+
+_CAUSES = {
+    "boresight": "the headings differ by about 90 deg: was the boresight's direction given? "
+                 "The heading is the direction of the antenna array axis, the boresight "
+                 "heading + 90 deg",
+    "reversed": "the headings differ by about 180 deg: the radar faces the other way from its "
+                "nominal pose",
+    "radians": "the nominal heading is the calibrated one in radians: radians typed where "
+               "degrees are asked?",
+    "room_frame": "it was calibrated at the reference's own place and heading: its points "
+                  "were already in a frame common to both (a room-frame log imported without "
+                  "--room-pose for this node?)",
+    "unknown": "check the nominal pose, the mounting and the recording",
+}
+
+
+def nominal_texts(metadata: Mapping[str, Any], poses: Mapping[str, Any], *,
+                  reference: str) -> list[str]:
+    """The warnings of calibrated ``poses`` far from the nominal poses in a
+    recording's ``metadata``, and of nodes calibrated at one place
+    (:mod:`mmsnap_graph.evaluation.nominal`), worded with the likely cause."""
+    from ..evaluation.nominal import coincident_nodes, nominal_poses, pose_departures
+
+    nominal = nominal_poses(metadata, list(poses))
+    out = []
+    for d in pose_departures(poses, nominal, reference=reference):
+        x, y, phi = d.nominal
+        heading = float(np.degrees(phi)) if np.degrees(phi) > -179.95 else 180.0
+        option = "--room-pose" if d.source == "room_pose" else "--pose"
+        out.append(f"{d.node} was calibrated {d.distance_m:.2f} m and "
+                   f"{np.degrees(d.heading_error_rad):+.1f} deg from its nominal pose ({option}: "
+                   f"x {x:.2f} m, y {y:.2f} m, heading {heading:.1f} deg in "
+                   f"{reference}'s frame): {_CAUSES[d.cause]}")
+    far = {d.node for d in pose_departures(poses, nominal, reference=reference)}
+    for c in coincident_nodes(poses):
+        if {c.node_a, c.node_b} & far:
+            continue                                    # said above
+        out.append(f"{c.node_a} and {c.node_b} were calibrated {c.distance_m:.2f} m and "
+                   f"{np.degrees(c.heading_difference_rad):+.1f} deg apart: two radars at one "
+                   "place looking the same way? Points already in one room frame calibrate to "
+                   "this: import such a log with --room-pose for every node")
+    return out

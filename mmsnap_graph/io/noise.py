@@ -43,6 +43,8 @@ NOISE_LAYOUT = """\
     n_residuals        (N, 3) int64   residuals behind each estimate (0 = not identified)
     method             (N,) str       estimator(s) of each node, e.g. "network+temporal"
     reason             (N, 3) str     why a component is not identified ("" if it is)
+    tail_factor        (N, 3) float64 the factor each sigma was raised by for heavy tails
+                                      (1 = none; optional: 1 when absent)
 """
 
 _STR = h5py.string_dtype(encoding="utf-8")
@@ -67,6 +69,7 @@ def fill_noise_group(f: h5py.File, estimate: NoiseEstimate) -> None:
     g.create_dataset("method", data=np.array([e.method for e in nodes], dtype=object), dtype=_STR)
     g.create_dataset("reason", data=np.array([list(e.reasons) for e in nodes], dtype=object),
                      dtype=_STR)
+    g.create_dataset("tail_factor", data=np.array([e.tail_factors for e in nodes], np.float64))
 
 
 def write_noise(path: str | os.PathLike, estimate: NoiseEstimate, *,
@@ -121,6 +124,8 @@ def _read_group(g: h5py.Group, where: str) -> NoiseEstimate:
     counts = _dataset(g, "n_residuals", where, (n, 3), "num").astype(np.int64)
     methods = _dataset(g, "method", where, (n,), "str")
     reasons = _dataset(g, "reason", where, (n, 3), "str")
+    tails = (_dataset(g, "tail_factor", where, (n, 3), "num").astype(float)
+             if "tail_factor" in g else np.ones((n, 3)))
     fb = np.asarray(g.attrs["fallback_sigmas"], dtype=float)
     if fb.shape != (3,):
         raise FileFormatError(f"{where} attribute fallback_sigmas must have 3 values, got {fb!r}")
@@ -128,7 +133,7 @@ def _read_group(g: h5py.Group, where: str) -> NoiseEstimate:
         nodes = {str(names[i]): NodeNoiseEstimate(
             noise=MeasurementNoise(range_m=sig[i, 0], omega_rad=sig[i, 1], doppler_mps=sig[i, 2]),
             identified=tuple(ident[i]), n_residuals=tuple(counts[i]), method=str(methods[i]),
-            reasons=tuple(reasons[i])) for i in range(n)}
+            reasons=tuple(reasons[i]), tail_factors=tuple(tails[i])) for i in range(n)}
         return NoiseEstimate(
             nodes=nodes, fallback=MeasurementNoise(range_m=fb[0], omega_rad=fb[1],
                                                    doppler_mps=fb[2]),

@@ -171,13 +171,18 @@ class ChainConfig:
         if not (np.isfinite(self.min_range_m) and 0 <= self.min_range_m <= MAX_CHAIN_RANGE_M):
             raise ConfigurationError(f"min_range_m={self.min_range_m!r} must be in "
                                      f"[0, {MAX_CHAIN_RANGE_M:g}] (metres)")
-        if self.max_range_m is not None and not self.max_range_m > self.min_range_m:
+        if self.max_range_m is not None and not (
+                isinstance(self.max_range_m, (int, float)) and not isinstance(self.max_range_m, bool)
+                and self.min_range_m < self.max_range_m <= MAX_CHAIN_RANGE_M):
             raise ConfigurationError(f"max_range_m={self.max_range_m!r} must exceed "
-                                     f"min_range_m={self.min_range_m!r}")
+                                     f"min_range_m={self.min_range_m!r} and be at most "
+                                     f"{MAX_CHAIN_RANGE_M:g} (metres; unset: the radar's "
+                                     "unambiguous range)")
         check_count(self.doppler_wraps, "doppler_wraps", 0, 8, error=ConfigurationError)
-        if isinstance(self.dealias_min_snr_db, bool) or not np.isfinite(self.dealias_min_snr_db):
+        if isinstance(self.dealias_min_snr_db, bool) or not (
+                np.isfinite(self.dealias_min_snr_db) and abs(self.dealias_min_snr_db) <= MAX_DB):
             raise ConfigurationError(f"dealias_min_snr_db={self.dealias_min_snr_db!r} must be a "
-                                     f"finite number (dB)")
+                                     f"finite number within +-{MAX_DB:g} dB")
         if not (isinstance(self.near_limit_fraction, (int, float))
                 and 0 < self.near_limit_fraction <= 1):
             raise ConfigurationError(f"near_limit_fraction={self.near_limit_fraction!r} must be "
@@ -195,8 +200,9 @@ class ChainConfig:
         if not (np.isfinite(self.prescreen_db) and 0 <= self.prescreen_db <= MAX_DB):
             raise ConfigurationError(f"prescreen_db={self.prescreen_db!r} must be in "
                                      f"[0, {MAX_DB:g}] dB")
-        if self.adc_full_scale is not None and not self.adc_full_scale > 0:
-            raise ConfigurationError(f"adc_full_scale={self.adc_full_scale!r} must be > 0")
+        if self.adc_full_scale is not None and not (0 < self.adc_full_scale <= 1e12):
+            raise ConfigurationError(f"adc_full_scale={self.adc_full_scale!r} must be > 0 and at "
+                                     "most 1e12 (ADC counts; unset: no saturation check)")
         if not 0 <= self.max_saturated_fraction <= 1:
             raise ConfigurationError(f"max_saturated_fraction={self.max_saturated_fraction!r} "
                                      f"must be in [0, 1]")

@@ -56,6 +56,10 @@ __all__ = ["ClusterConfig", "torso_centroids", "cluster_labels", "point_target_l
 
 #: Clouds up to this many points use :func:`dbscan_small` (dense, K x K).
 _SMALL_MAX = 1500
+#: The largest value of each positive option: a cluster radius up to the
+#: chain's largest range (m), scales and Doppler cells far beyond any use
+#: (a bound, so that a TOML ``1e308`` is named, not carried into the maths).
+_BOUNDS = {"eps_m": 1e4, "cross_range_scale": 1e6, "torso_doppler_cells": 1e6}
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -85,16 +89,18 @@ class ClusterConfig:
     point_target_snr_db: float = 15.0
 
     def __post_init__(self) -> None:
-        for name in ("eps_m", "cross_range_scale", "torso_doppler_cells"):
+        for name, top in _BOUNDS.items():
             val = getattr(self, name)
-            if not (np.isfinite(val) and val > 0):
-                raise ConfigurationError(f"{name}={val!r} must be finite and > 0")
+            if isinstance(val, bool) or not (np.isfinite(val) and 0 < val <= top):
+                raise ConfigurationError(f"{name}={val!r} must be finite, > 0 and at most "
+                                         f"{top:g}")
         check_count(self.min_samples, "min_samples", error=ConfigurationError)
         if not isinstance(self.point_targets, (bool, np.bool_)):
             raise ConfigurationError(f"point_targets={self.point_targets!r} must be True or False")
-        if isinstance(self.point_target_snr_db, bool) or not np.isfinite(self.point_target_snr_db):
+        if isinstance(self.point_target_snr_db, bool) or not (
+                np.isfinite(self.point_target_snr_db) and abs(self.point_target_snr_db) <= 400):
             raise ConfigurationError(f"point_target_snr_db={self.point_target_snr_db!r} must be "
-                                     f"a finite number (dB)")
+                                     f"a finite number within +-400 dB")
         if self.method not in ("torso", "mean"):
             raise ConfigurationError(f"method={self.method!r} must be 'torso' or 'mean'")
 

@@ -410,3 +410,53 @@ def test_the_docs_accepted_values_are_what_the_code_accepts(table):
             with pytest.raises((ConfigurationError, ValidationError), match=re.escape(key)):
                 _configure(table, key, value)
     assert tried >= 3 * len(doc)
+
+
+def _numeric_keys():
+    """(table path, key, default) of every number (or array of numbers) a
+    ``mmsnap process`` file may set."""
+    from mmsnap_graph.radar.scene import SceneConfig
+
+    tables = {("chain",): ChainConfig, ("chain", "cfar"): CfarConfig,
+              ("chain", "cluster"): ClusterConfig, ("ekf",): EkfConfig, ("scene",): SceneConfig}
+    for path, cls in tables.items():
+        for f in dataclasses.fields(cls):
+            default = f.default_factory() if f.default is dataclasses.MISSING else f.default
+            number = isinstance(default, (int, float)) and not isinstance(default, bool)
+            unset = default is None and str(f.type).startswith(("float", "int"))
+            numbers = isinstance(default, tuple) and all(isinstance(v, (int, float))
+                                                          for v in default)
+            if (number or unset or numbers) and f.name != "frame_period_s":
+                yield path, f.name, default
+
+
+NUMERIC_KEYS = list(_numeric_keys())
+
+
+@pytest.mark.parametrize("value", ["inf", "-inf", "nan", "1e308", "-1e308"])
+def test_every_number_of_the_process_file_is_bounded_and_finite(tmp_path, value):
+    """Before: `[chain] max_range_m = inf` (or 1e308) passed the check and
+    `mmsnap process` crashed with OverflowError in the chain; 1e308 passed for
+    dealias_min_snr_db, adc_full_scale and four clustering options. Every key
+    set to a non-finite or absurd value is a ConfigurationError naming it."""
+    assert len(NUMERIC_KEYS) > 40
+    for path, key, default in NUMERIC_KEYS:
+        text = value if not isinstance(default, tuple) else \
+            "[" + ", ".join([value] * len(default)) + "]"
+        cfg = tmp_path / "bounds.toml"
+        cfg.write_text(f"[{'.'.join(path)}]\n{key} = {text}\n")
+        with pytest.raises(ConfigurationError, match=key) as info:
+            read_process_config(cfg)
+        assert "bounds.toml" in str(info.value), (path, key, value)
+
+
+def test_matching_durations_beyond_any_recording_are_clipped_not_refused(tmp_path):
+    """[matching] (mmsnap calibrate) refuses non-finite values; a huge finite
+    one (1e308 s) is clipped to the recording's frames (MatchingOptions)."""
+    for value in ("inf", "nan"):
+        cfg = tmp_path / "m.toml"
+        cfg.write_text(f"[matching]\nmax_lag_s = {value}\n")
+        with pytest.raises(ConfigurationError, match="max_lag_s"):
+            read_matching_config(cfg)
+    cfg.write_text("[matching]\nmax_lag_s = 1e308\n")
+    assert read_matching_config(cfg).frame_counts(0.05)[0] > 10 ** 6

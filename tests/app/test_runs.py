@@ -170,3 +170,51 @@ def test_a_json_of_fixed_poses_brings_the_range_offset_the_data_identify(calibra
     own = calibrated_c_file.with_name("rec.calibration.json")
     mine = stored_calibration(calibrated_c_file, rec.node_names, calibration_json=own)
     assert mine.range_offset_m is None and "range offset" not in mine.text[1]
+
+
+def test_nominal_texts_word_each_cause():
+    """What `mmsnap calibrate` and `mmsnap monitor` warn of: the real
+    recording's S2 (1.738, 1.624) m, 86.24 deg against nominal poses."""
+    from mmsnap_graph.app.runs import nominal_texts
+    from mmsnap_graph.evaluation.nominal import nominal_metadata
+
+    def texts(s2_deg, pose, source="room_pose"):
+        md = {**nominal_metadata("S1", [0, 0, 0], source),
+              **nominal_metadata("S2", [1.7, 1.65, np.deg2rad(s2_deg)], source)}
+        return nominal_texts(md, {"S1": np.zeros(3), "S2": np.array(pose)}, reference="S1")
+
+    real = [1.738, 1.624, np.deg2rad(86.24)]
+    assert texts(90, real) == []
+    (text,) = texts(180, real, source="pose")
+    assert text.startswith("S2 was calibrated 0.05 m and -93.8 deg from its nominal pose (--pose: "
+                           "x 1.70 m, y 1.65 m, heading 180.0 deg in S1's frame): the headings "
+                           "differ by about 90 deg: was the boresight's direction given? The "
+                           "heading is the direction of the antenna array axis")
+    (text,) = texts(90, [0.245, 0.178, np.deg2rad(5.46)])
+    assert "its points were already in a frame common to both (a room-frame log imported " \
+           "without --room-pose for this node?)" in text
+    (text,) = nominal_texts({}, {"S1": np.zeros(3), "S2": np.array([0.245, 0.178, 0.095])},
+                            reference="S1")
+    assert text.startswith("S1 and S2 were calibrated 0.30 m and +5.4 deg apart: two radars at "
+                           "one place looking the same way?")
+
+
+@pytest.mark.slow
+def test_real_recording_without_room_poses_warns_at_calibrate(tmp_path, capsys):
+    """A room-frame log imported without --room-pose: S2 calibrated at S1's
+    place (0.36 m, -12 deg away) with 6-7 cm sigmas and no word; now a
+    warning naming the likely cause."""
+    from _shared import DATA
+    real = DATA / "real" / "darksz"
+    out = tmp_path / "mt.h5"
+    assert main(["import", "table", "--node", f"S1={real / 'multiple_tracking_S1.csv'}",
+                 "--node", f"S2={real / 'multiple_tracking_S2.csv'}", "--frame-period", "0.05",
+                 "--mount", "S1=0.8,0", "--mount", "S2=1.1,0", "--height-band", "0.2,2.0",
+                 "--pose", "S1=0,0,0", "--pose", "S2=1.7,1.65,90", "-o", str(out)]) == 0
+    assert main(["process", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "mmsnap calibrate: warning: S2 was calibrated 2.62 m and -102.3 deg from its " \
+           "nominal pose (--pose: x 1.70 m, y 1.65 m, heading 90.0 deg in S1's frame): it was " \
+           "calibrated at the reference's own place and heading" in err

@@ -602,3 +602,16 @@ def test_default_min_range_clears_near_field_residue():
     assert new.point_cloud.range_m.min() >= 0.9 - TABLE_I.range_resolution_m
     assert np.all(new.centroids.range_m > 5.0)
     assert np.unique(new.centroids.frame).size == len(cubes)
+
+
+@pytest.mark.parametrize("value", [np.inf, 1e308, 1e5])
+def test_a_max_range_beyond_the_chains_is_refused(value):
+    """Before: max_range_m=inf (or 1e308) was accepted and the range bins'
+    int(floor(max_range_m / resolution)) raised OverflowError in
+    point_cloud_of_cube (`mmsnap process` with `[chain] max_range_m = inf`)."""
+    from mmsnap_graph.errors import ConfigurationError
+    from mmsnap_graph.radar.chain import ChainConfig
+
+    with pytest.raises(ConfigurationError, match=r"max_range_m=.* at most 10000"):
+        ChainConfig(max_range_m=value)
+    assert ChainConfig(max_range_m=1e4).max_range_m == 1e4

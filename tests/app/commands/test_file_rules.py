@@ -165,7 +165,7 @@ def test_an_update_through_a_symlink_keeps_the_link(rec, tmp_path, capsys):
 
 #: Every verb's written files, as (argv template, name of the written file):
 #: ``{out}`` is the file written, ``{rec}`` a recording (``{fused}`` one with
-#: /fused), ``{csv}`` a point table.
+#: /fused), ``{csv}`` a point table, ``{bag}`` a ROS 2 bag of one PointCloud2 topic.
 EVERY_WRITER = {
     "export": (["export", "{fused}", "fused", "-o", "{out}"], "out"),
     "simulate": (["simulate", "-c", "B", "-n", "20", "-l", "centroids", "--seed", "3",
@@ -176,6 +176,8 @@ EVERY_WRITER = {
     "replay -o": (["replay", "{rec}", "--summary", "-o", "{out}"], "out"),
     "import table -o": (["import", "table", "--node", "S1={csv}", "--frame-period", "0.1",
                          "-o", "{out}"], "out"),
+    "import rosbag -o": (["import", "rosbag", "{bag}", "--topic", "/radar=S1", "--frame-period",
+                          "0.1", "-o", "{out}"], "out"),
     "calibrate -o": (["calibrate", "{rec}", "-o", "{out}"], "out"),
     "calibrate --json-out": (["calibrate", "{rec}", "--json-out", "{out}"], "out"),
     "calibrate REC.calibration.json": (["calibrate", "{out_rec}"], "out.calibration.json"),
@@ -248,6 +250,10 @@ def test_no_writer_replaces_a_device_a_fifo_a_link_to_them_or_a_folder(
     csv = tmp_path / "points.csv"
     csv.write_text("frame,x,y,doppler\n" + "".join(f"{k},0.5,{2 + 0.05 * k},0.1\n"
                                                     for k in range(20)))
+    from _rosbags import write_bag
+    bag = write_bag(tmp_path / "bag", {"/radar": [
+        (10**9 + k * 10**8, 10**9 + k * 10**8, [[0.5, 2 + 0.05 * k, 0.0]], [0.1], [20.0])
+        for k in range(20)]}, ros=2)
     refused = 0
     for verb, (template, name) in EVERY_WRITER.items():
         folder = tmp_path / verb.replace(" ", "_").replace("-", "")
@@ -262,7 +268,7 @@ def test_no_writer_replaces_a_device_a_fifo_a_link_to_them_or_a_folder(
             for extra in ([], ["--overwrite"]):
                 if verb.startswith("demo") and extra:
                     continue
-                argv = _argv(template, rec=good, fused=fused, csv=csv, out=target,
+                argv = _argv(template, rec=good, fused=fused, csv=csv, bag=bag, out=target,
                              out_rec=out_rec) + extra
                 code = main(argv)
                 err = capsys.readouterr().err

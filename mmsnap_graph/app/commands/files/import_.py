@@ -1,8 +1,11 @@
 """``mmsnap import``: TI radar data -> an HDF5 recording (docs/TI.md).
 
-Three sources: ``dca1000`` (raw ADC captures with the ``.cfg`` they were made
-with), ``ti-uart`` (binary logs of a demo's data UART) and ``table`` (CSV /
-``.npy`` / ``.npz`` point logs). Degrees appear only here.
+Four sources: ``dca1000`` (raw ADC captures with the ``.cfg`` they were made
+with), ``ti-uart`` (binary logs of a demo's data UART), ``table`` (CSV /
+``.npy`` / ``.npz`` point logs) and ``rosbag`` (ROS 1 / ROS 2 bags of TI
+drivers' point clouds, docs/how-to/rosbag.md). The point sources share one
+projection and mounting path (:func:`_points_recording`). Degrees appear only
+here.
 """
 
 from __future__ import annotations
@@ -59,8 +62,9 @@ def _points_options(p: argparse.ArgumentParser) -> None:
                    help="keep points between these heights above the floor (drops floor and "
                         "ceiling points)")
     p.add_argument("--frame-period", type=float, default=None, metavar="SECONDS",
-                   help="frame period in seconds, e.g. 0.05 for 20 fps (default: from --cfg); "
-                        "checked against the log's time stamps")
+                   help="frame period in seconds, e.g. 0.05 for 20 fps (default: from --cfg, "
+                        "or the .cfg lines of a TI visualizer replay file); checked against "
+                        "the log's time stamps")
     p.add_argument("--cfg", default=None, help="the .cfg the radars ran (for the frame period "
                                                "and sensorPosition)")
     p.add_argument("--ignore-unknown-commands", action="store_true",
@@ -75,7 +79,8 @@ def _points_options(p: argparse.ArgumentParser) -> None:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "import", help="import TI radar data (DCA1000 raw ADC, UART point clouds, tables)",
+        "import", help="import TI radar data (DCA1000 raw ADC, UART point clouds, tables, "
+                       "ROS bags)",
         description="Write an HDF5 recording (docs/FORMAT.md) from TI radar data; "
                     "docs/TI.md says which source needs which option.")
     sub = p.add_subparsers(dest="source", metavar="SOURCE")
@@ -140,6 +145,23 @@ def register(subparsers) -> None:
     _points_options(t)
     _common(t)
     t.set_defaults(func=run_table)
+    b = sub.add_parser("rosbag", help="ROS 1 / ROS 2 bags of TI point clouds (PointCloud2)",
+                       description="Import the sensor_msgs/PointCloud2 topics of a ROS 1 .bag "
+                                   "or a ROS 2 bag folder (sqlite3 or MCAP) written by TI's ROS "
+                                   "drivers (docs/TI.md, 'ROS bags'); needs "
+                                   'pip install "mmsnap_graph[rosbag]".')
+    b.add_argument("bag", help="a ROS 1 .bag file or a ROS 2 bag folder (with metadata.yaml)")
+    b.add_argument("--topic", action="append", type=named_values("NODE", None), required=True,
+                   metavar="TOPIC=NODE",
+                   help="a PointCloud2 topic and the node it is (repeat per radar, in node "
+                        "order), e.g. --topic /ti_mmwave/radar_scan_pcl_0=S1")
+    b.add_argument("--stamps", choices=["auto", "header", "receive"], default="auto",
+                   help="the clouds' time: their header.stamp, the bag's receive time, or auto "
+                        "(the default): the header stamps unless a cloud's is 0, as TI's driver "
+                        "leaves it, then the receive times for every topic")
+    _points_options(b)
+    _common(b)
+    b.set_defaults(func=run_rosbag)
 
 
 def _columns_value(text: str):
@@ -175,8 +197,25 @@ def _grouped(pairs) -> dict[str, list[str]]:
     return out
 
 
+def _nominal(args) -> dict:
+    """The metadata of the nominal poses given (``--pose`` over
+    ``--room-pose``), which ``mmsnap calibrate`` compares its poses with."""
+    from mmsnap_graph.evaluation.nominal import nominal_metadata
+    given = {name: (pose, "room_pose") for name, pose in getattr(args, "room_pose", [])}
+    given.update({name: (pose, "pose") for name, pose in args.pose})
+    out = {}
+    for name, ((x, y, phi_deg), source) in given.items():
+        out.update(nominal_metadata(name, [x, y, np.deg2rad(phi_deg)], source))
+    return out
+
+
 def _write(args, recording) -> int:
+    import dataclasses
+
     from mmsnap_graph.io import write_recording
+    nominal = _nominal(args)
+    if nominal:
+        recording = dataclasses.replace(recording, metadata={**recording.metadata, **nominal})
     path = write_recording(args.output, recording, overwrite=args.overwrite)
     for name, node in recording.nodes.items():
         level = node.point_cloud if node.point_cloud is not None else None
@@ -252,15 +291,28 @@ def _check_point_options(args) -> None:
                                   "degrees and must lie in (-90, 90)")
 
 
-def _timing(args):
-    """(frame period, TiConfig or None) from --frame-period / --cfg."""
+def _timing(args, replays=()):
+    """(frame period, TiConfig or None) from --frame-period / --cfg, else
+    the frame period of the .cfg lines of the first of the ``replays`` (TI
+    visualizer replay files) that holds them (each node's own mounting is
+    not taken from them: --mount)."""
     _check_point_options(args)
     ti = None
+    from mmsnap_graph.io.ti.cfg import TIMING_ONLY_LAYOUT
     if args.cfg is not None:
-        from mmsnap_graph.io.ti.cfg import TIMING_ONLY_LAYOUT
         ti = _read_cfg(args, layout=TIMING_ONLY_LAYOUT)
     period = args.frame_period if args.frame_period is not None else (
         ti.configs[0].frame_period_s if ti is not None else None)
+    if period is None:
+        from mmsnap_graph.io.ti.cfg import parse_ti_cfg
+        from mmsnap_graph.io.ti.replay import replay_cfg_text
+        for path in replays:
+            text = replay_cfg_text(path)
+            if text is not None:
+                period = parse_ti_cfg(text, layout=TIMING_ONLY_LAYOUT, ignore_unknown=True,
+                                      source=f"{path} (its cfg lines)").configs[0].frame_period_s
+                print(f"frame period {period:g} s: the .cfg lines of {path}")
+                break
     if period is None:
         raise ValidationError("the frame period is unknown: give --frame-period or --cfg")
     return period, ti
@@ -362,7 +414,7 @@ def run_table(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.ti.point_table import read_point_tables
     if bool(args.node) == bool(args.table):
         raise ValidationError("give either --node NAME=TABLE (repeat) or --table FILE")
-    period, ti = _timing(args)
+    period, ti = _timing(args, [args.table] if args.table else [p for _, p in args.node])
     opts = dict(coordinates=args.coordinates, degrees=args.degrees, time_unit=args.time_unit,
                 snr_unit=args.snr_unit, frame_period_s=period, columns=_columns_option(args))
     if args.table:
@@ -382,4 +434,47 @@ def run_table(args: argparse.Namespace) -> int:
                                       f"with --table {path}")
             clouds[name] = next(iter(several.values()))
     rec = _points_recording(args, clouds, ti, period, {"source": "table"})
+    return _write(args, rec)
+
+
+def _bag_period(args, bag) -> None:
+    """A usage error when the frame period is not given, with the bag's own."""
+    if args.frame_period is None and args.cfg is None:
+        steps = [f"{t.topic} every {t.median_interval_s:.4g} s" for t in bag.topics
+                 if t.median_interval_s is not None]
+        seen = f" (the bag's clouds arrive {', '.join(steps)}, median)" if steps else ""
+        raise ValidationError(f"the frame period is unknown: give --frame-period or --cfg{seen}")
+
+
+def run_rosbag(args: argparse.Namespace) -> int:
+    import warnings
+
+    from mmsnap_graph.errors import MmsnapWarning
+    from mmsnap_graph.io.ti.rosbag import read_rosbag
+    _check_point_options(args)
+    topics = [t for t, _ in args.topic]
+    twice = sorted({t for t in topics if topics.count(t) > 1})
+    if twice:
+        raise ValidationError(f"--topic {twice[0]} is given {topics.count(twice[0])} times; one "
+                              "node per topic")
+    bag = read_rosbag(args.bag, dict(args.topic), stamps=args.stamps)
+    _bag_period(args, bag)
+    period, ti = _timing(args)
+    print(f"{args.bag}: ROS {bag.ros_version} ({bag.storage}); time stamps: "
+          f"{bag.stamps_reason}", file=sys.stderr)
+    no_velocity = []
+    for t in bag.topics:
+        ids = ", ".join(repr(i) for i in t.frame_ids)
+        print(f"{t.node}: {t.topic}: {t.messages} clouds, {t.points} points, frame_id {ids}",
+              file=sys.stderr)
+        if not t.velocity:
+            no_velocity.append(t.node)
+            warnings.warn(f"{t.topic} ({t.node}) has no velocity field (the older radar-lab "
+                          "driver's layout): its Doppler is unknown and imported as 0 m/s, "
+                          "which calibration and fusion take as measured", MmsnapWarning,
+                          stacklevel=2)
+    metadata = {"source": f"rosbag{bag.ros_version}-{bag.storage}", "rosbag_stamps": bag.stamps}
+    if no_velocity:
+        metadata["rosbag_nodes_without_doppler"] = ",".join(no_velocity)
+    rec = _points_recording(args, bag.clouds, ti, period, metadata)
     return _write(args, rec)

@@ -181,7 +181,8 @@ def _real_in_format(tmp_path, node, kind):
         data = [{"frameData": {"frameNum": k, "pointCloud": frames.get(k, [])},
                  "timestamp": 1.7e12 + 50.0 * k} for k in range(max(frames) + 1)]
         path = tmp_path / f"replay_{node}.json"
-        path.write_text(json.dumps({"cfg": [], "demo": "SDK Out of Box Demo", "data": data}))
+        cfg = [line + "\n" for line in (TI_DATA / "iwr1843_oob.cfg").read_text().splitlines()]
+        path.write_text(json.dumps({"cfg": cfg, "demo": "SDK Out of Box Demo", "data": data}))
         return path
     header, sep, cells = {
         "units": ("Frame Number,Timestamp (ms),X (m),Y (m),Z (m),Doppler (m/s),SNR (dB),"
@@ -220,6 +221,17 @@ def test_real_tables_in_ti_tools_formats(tmp_path, capsys, kind, extra):
         np.testing.assert_array_equal(a.range_m, b.range_m)
         np.testing.assert_array_equal(a.omega_rad, b.omega_rad)
         np.testing.assert_array_equal(a.snr_db, b.snr_db)
+
+
+def test_a_replay_files_cfg_lines_give_the_frame_period(tmp_path, capsys):
+    """The visualizer stores the .cfg it sent: no --frame-period is needed."""
+    paths = [_real_in_format(tmp_path, node, "replay") for node in ("S1", "S2")]
+    assert main(["import", "table", "--node", f"S1={paths[0]}", "--node", f"S2={paths[1]}",
+                 "--mount", "S1=0.8,0", "--mount", "S2=1.1,0", "--room-pose", "S1=0,0,0",
+                 "--room-pose", "S2=1.7,1.65,90", "-o", str(tmp_path / "o.h5")]) == 0
+    out = capsys.readouterr().out
+    assert f"frame period 0.05 s: the .cfg lines of {paths[0]}" in out
+    assert read_recording(tmp_path / "o.h5").frame_period_s == 0.05
 
 
 def test_a_visualizer_table_without_the_preset_names_it(tmp_path, capsys):
@@ -266,6 +278,24 @@ def test_real_room_frame_with_a_room_pose_for_one_node_warns(tmp_path, capsys):
     assert main(argv) == 0
     assert "mmsnap import: warning: nodes ['S1'] have a room pose, ['S2'] not" in \
         capsys.readouterr().err
+
+
+def test_the_nominal_poses_given_are_stored(tmp_path):
+    """--room-pose and --pose are what `mmsnap calibrate` compares its poses
+    with (--pose wins where both are given)."""
+    from mmsnap_graph.evaluation.nominal import nominal_poses
+    out = tmp_path / "o.h5"
+    assert _import_table(tmp_path, "--frame-period", "0.05", "--mount", "S1=0.8,5", "--mount",
+                         "S2=1.2,15", "--pose", "S2=0.1,6.9,179") == 0
+    nominal = nominal_poses(read_recording(out).metadata)
+    assert list(nominal) == ["S2"] and nominal["S2"].source == "pose"
+    np.testing.assert_allclose(nominal["S2"].pose, [0.1, 6.9, np.deg2rad(179)])
+    room = TI_DATA / "points_room_frame.csv"
+    assert _import_table(tmp_path, "--frame-period", "0.05", "--mount", "S1=0.8,5", "--mount",
+                         "S2=1.2,15", "--room-pose", "S1=0,0,0", "--room-pose", "S2=0,7,180",
+                         "--pose", "S1=0,0,0", table=room) == 0
+    nominal = nominal_poses(read_recording(out).metadata)
+    assert {n: p.source for n, p in nominal.items()} == {"S1": "pose", "S2": "room_pose"}
 
 
 def test_huge_time_stamp_is_a_clear_error(tmp_path, capsys):
@@ -736,3 +766,92 @@ def test_import_process_calibrate_fuse_recovers_poses_and_states(kind, scene, di
     assert got["n_success"] >= 0.95 * N_FRAMES
     for key in ("pose_m", "heading_rad", "position_rmse_m", "velocity_rmse_mps"):
         assert got[key] <= 1.2 * direct[key], (key, got[key], direct[key])
+
+
+# ROS bags (tests/_rosbags.py writes them with rosbags' own writers).
+
+
+def _real_bag_messages(recording_name):
+    """The real point tables of ``recording_name`` as a TI driver's bag would
+    hold them: one cloud per table frame at 20 fps (receive times from a
+    Unix time), in ROS axes."""
+    import csv
+
+    t0_ns = 1_717_600_000 * 10**9
+    out = {}
+    for node in ("S1", "S2"):
+        with open(REAL / f"{recording_name}_{node}.csv", newline="") as f:
+            rows = np.array([[float(v) for v in r.values()] for r in csv.DictReader(f)])
+        frames = rows[:, 0].astype(int)
+        out[f"/ti_mmwave/radar_scan_pcl_{node[-1]}"] = [
+            (t0_ns + int(fr) * 50_000_000, 0, rows[frames == fr, 2:5], rows[frames == fr, 5],
+             rows[frames == fr, 6]) for fr in np.unique(frames)]
+    return out
+
+
+@pytest.mark.parametrize("ros, storage", [(1, "bag"), (2, "mcap")])
+def test_real_tables_through_a_ros_bag_import_as_the_tables(tmp_path, capsys, ros, storage):
+    """The real multiple-tracking recording written as a TI driver's bag
+    (header.stamp 0, frame_id empty, ROS axes; its points in the room frame,
+    as the recorder stored them) imports to the points of `import table`."""
+    pytest.importorskip("rosbags")
+    from _rosbags import write_bag
+
+    room = ["--room-pose", "S1=0,0,0", "--room-pose", "S2=1.7,1.65,90"]
+    bag = write_bag(tmp_path / ("mt.bag" if ros == 1 else "mt"),
+                    _real_bag_messages("multiple_tracking"), ros=ros, storage=storage,
+                    zero_stamps=True)
+    assert main(["import", "rosbag", str(bag), "--topic", "/ti_mmwave/radar_scan_pcl_1=S1",
+                 "--topic", "/ti_mmwave/radar_scan_pcl_2=S2", *REAL_MOUNTING, *room, "-o",
+                 str(tmp_path / "bag.h5")]) == 0
+    err = capsys.readouterr().err
+    assert f"ROS {ros} ({storage}); time stamps: the bag's receive times" in err
+    assert "clouds have header.stamp 0" in err and "frame_id ''" in err
+    assert main(["import", "table", "--node", f"S1={REAL / 'multiple_tracking_S1.csv'}",
+                 "--node", f"S2={REAL / 'multiple_tracking_S2.csv'}", *REAL_MOUNTING, *room,
+                 "-o", str(tmp_path / "table.h5")]) == 0
+    got, want = read_recording(tmp_path / "bag.h5"), read_recording(tmp_path / "table.h5")
+    for name in ("S1", "S2"):
+        a, b = got.nodes[name].point_cloud, want.nodes[name].point_cloud
+        assert a.frame.tolist() == b.frame.tolist() and len(a) > 1000
+        for k in ("range_m", "omega_rad", "doppler_mps", "snr_db"):  # float32 in the bag
+            np.testing.assert_allclose(getattr(a, k), getattr(b, k), rtol=1e-6, atol=1e-6)
+    assert got.metadata["source"] == f"rosbag{ros}-{storage}"
+    assert got.metadata["rosbag_stamps"] == "receive"
+    assert got.metadata["time_origin_s"] == pytest.approx(1_717_600_000, abs=1.0)
+
+
+def test_a_rosbag_without_velocity_warns_and_without_a_period_names_the_bags(tmp_path, capsys,
+                                                                             truth):
+    pytest.importorskip("rosbags")
+    from _rosbags import write_bag
+    from ti_samples import lift
+
+    msgs = {}
+    for k, name in enumerate(("S1", "S2")):
+        det = truth.nodes[name].point_cloud
+        xyz, dop = lift(det, *MOUNTS[name], seed=k)
+        msgs[f"/radar_{name}"] = [(10**18 + int(f) * 50_000_000, 10**9 + int(f) * 50_000_000,
+                                   xyz[det.frame == f], dop[det.frame == f],
+                                   det.snr_db[det.frame == f]) for f in np.unique(det.frame)]
+    bag = write_bag(tmp_path / "lab", msgs, ros=2, velocity=False)
+    base = ["import", "rosbag", str(bag), "--topic", "/radar_S1=S1", "--topic", "/radar_S2=S2",
+            "-o", str(tmp_path / "o.h5")]
+    assert main(base) == 2
+    assert ("the frame period is unknown: give --frame-period or --cfg (the bag's clouds arrive "
+            "/radar_S1 every 0.05 s, /radar_S2 every 0.05 s, median)") in capsys.readouterr().err
+    assert main(base + ["--frame-period", "0.05", "--mount", "S1=0.8,5",
+                        "--mount", "S2=1.2,15"]) == 0
+    err = capsys.readouterr().err
+    assert "time stamps: the clouds' header stamps" in err
+    assert ("warning: /radar_S1 (S1) has no velocity field (the older radar-lab driver's "
+            "layout): its Doppler is unknown and imported as 0 m/s") in err
+    rec = read_recording(tmp_path / "o.h5")
+    assert rec.metadata["rosbag_nodes_without_doppler"] == "S1,S2"
+    got = rec.nodes["S1"].point_cloud
+    want = truth.nodes["S1"].point_cloud
+    np.testing.assert_allclose(got.range_m, want.range_m, atol=1e-5)   # float32 in the bag
+    np.testing.assert_allclose(got.omega_rad, want.omega_rad, atol=1e-5)
+    assert np.all(got.doppler_mps == 0.0)
+    assert main(base + ["--frame-period", "0.05", "--topic", "/radar_S1=S3", "--overwrite"]) == 2
+    assert "--topic /radar_S1 is given 2 times" in capsys.readouterr().err
