@@ -175,16 +175,36 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     if np.isfinite(depth):
         parts.append(f"range offset (reflection depth) {depth:.3f} m added to every range")
     elif poses is not None:
-        depth, said = range_offset_for_poses(path, cal, noise)
+        depth, said, here = _stored_range_offset(path, cal)
         parts += [said] if said else []
-        if said and sigmas is None and noise is not None:
+        if said and not here and sigmas is None:
             parts.append(f"the /noise sigmas are those of the last `mmsnap calibrate` or "
                          f"`mmsnap noise`: `mmsnap noise {Path(path).name} --calibration "
-                         f"{Path(calibration_json).name}` estimates them at these poses")
+                         f"{Path(calibration_json).name}` estimates them and the range offset "
+                         "at these poses")
     text.append("; ".join(parts))
     return StoredCalibration(node_poses=poses, pose_covariances=used_covs,
                              time_offset_s=offsets or None, noise=noise, text=tuple(text),
                              range_offset_m=depth if np.isfinite(depth) else None)
+
+
+def _stored_range_offset(path, calibration) -> tuple[float, str, bool]:
+    """The range offset to add when fusing at ``calibration``'s poses (a
+    calibration JSON without one), read, never estimated here (fusion reads
+    no more than a window at a time): none at the recording's own calibrated
+    poses (they took any depth in); else the one ``mmsnap noise
+    --calibration`` stored with the noise at those poses. Returns (offset or
+    NaN, words, whether the stored noise is of these poses)."""
+    from ..io.noise import read_range_offset
+
+    own = _read_calibration(path, None)
+    if own is not None and _same_poses(own.poses, calibration.poses):
+        return float("nan"), "", False
+    stored = read_range_offset(path)
+    if stored is not None and _same_poses(stored.poses, calibration.poses):
+        return stored.offset_m, stored.message, True
+    return float("nan"), ("the calibration gives no range offset and none was estimated at "
+                          "these poses: none added"), False
 
 
 def range_offset_for_poses(path: str | os.PathLike, calibration, noise, *,
