@@ -3,12 +3,16 @@
 - :mod:`.metrics`: RMSE of states on common frames, pose errors, the truth
   row each estimate refers to, and the NEES with its chi-square interval;
 - :mod:`.pose_bound`: what the detections of a simulated recording allow, a
-  Cramer-Rao bound on the node poses (import it from the module).
+  Cramer-Rao bound on the node poses (import it from the module);
+- :mod:`.nominal`: calibrated poses against the nominal poses the user gave
+  (far from them, with the likely cause; two nodes at one place).
 
 Numpy and the data layer only (no GTSAM): the estimators' tests and the
 ``mmsnap evaluate`` command import the same definitions.
 """
 
+from .nominal import CoincidentNodes, NominalPose, PoseDeparture, coincident_nodes, \
+    nominal_poses, pose_departures
 from .metrics import (
     NeesCheck,
     PoseError,
@@ -24,6 +28,12 @@ from .metrics import (
 )
 
 __all__ = [
+    "NominalPose",
+    "PoseDeparture",
+    "CoincidentNodes",
+    "nominal_poses",
+    "pose_departures",
+    "coincident_nodes",
     "StateErrors",
     "PoseError",
     "NeesCheck",

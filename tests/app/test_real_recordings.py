@@ -197,6 +197,25 @@ def test_s2_pose_within_the_tape_measured_mounting(runs, stem):
     assert err_m <= TAPE_M and abs(err_deg) <= TAPE_DEG
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("stem", list(RECORDINGS))
+def test_the_real_poses_are_near_their_room_poses(runs, stem):
+    """The other side of `mmsnap calibrate`'s nominal-pose warnings: the
+    room poses the import stored are the tape's, and the calibrated poses lie
+    near them (no warning)."""
+    from mmsnap_graph.app.runs import nominal_texts
+    from mmsnap_graph.evaluation.nominal import nominal_poses
+    from mmsnap_graph.io import read_recording
+
+    cal = runs.full(stem)[0]
+    metadata = read_recording(runs.base / f"{stem}.h5", load_cubes=False).metadata
+    nominal = nominal_poses(metadata)
+    assert {n: p.source for n, p in nominal.items()} == {"S1": "room_pose", "S2": "room_pose"}
+    np.testing.assert_allclose(nominal["S2"].pose, [1.7, 1.65, np.pi / 2])
+    poses = {n: np.array(e["pose"]) for n, e in cal["nodes"].items()}
+    assert nominal_texts(metadata, poses, reference="S1") == []
+
+
 def reference_frame(pose, covariance):
     """A pose covariance from the body tangent ``(dx_b, dy_b, dphi)`` (the
     calibration JSON's, docs/CONVENTIONS.md) to ``(x, y, phi)`` of the
@@ -261,6 +280,9 @@ def test_every_node_sigma_is_identified(runs, stem):
         # A walking person's centroid: centimetres to decimetres, not metres.
         assert 0.02 < node.noise.range_m < 0.3 and 0.05 < node.noise.omega_rad < 0.5
         assert 0.05 < node.noise.doppler_mps < 0.6
+    # The heavy tails are counted and stored as factors (multiple tracking:
+    # 1.10-2.54), also where the associated and own estimates are merged.
+    assert max(max(node.tail_factors) for node in est.nodes.values()) > 1.05
 
 
 @pytest.mark.slow

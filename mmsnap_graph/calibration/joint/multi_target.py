@@ -348,7 +348,7 @@ def associate_targets(
 
     names : the nodes to associate (each with a pose in ``poses``).
     poses, lag_frames, covariances : the calibration in progress (e.g. a
-        :class:`~mmsnap_graph.calibration.pairwise.pose_graph.PoseGraphCalibration`'s
+        pose graph's :class:`~mmsnap_graph.data.calibration.RecordingCalibration`:
         ``poses``, ``lag_frames`` and ``covariances``; no covariances: the
         floor only).
     options : the gates (:class:`AssociationOptions`; None: its defaults).

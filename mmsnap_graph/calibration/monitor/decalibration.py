@@ -39,6 +39,7 @@ from ...errors import MissingStepError, ValidationError
 from ...fusion.solvers.vectorized import fuse_batch
 from ..._validation import as_float_array, check_count, check_finite, check_pose, chi2_gate
 from .stats import (
+    PoseFit,
     frame_contributions,
     recalibrate_pose,
     suffix_statistics,
@@ -89,19 +90,17 @@ class ChangePoint:
 class Recalibration:
     """``node``'s new pose from the frames ``first_frame..last_frame`` after ``change``.
 
-    pose : (3,) ``(x_m, y_m, phi_rad)``; covariance : (3, 3) body tangent;
-    old_pose : the pose before; success, message: as every estimation."""
+    old_pose : (3,) the pose before; fit : the re-estimated pose
+    (:class:`~mmsnap_graph.calibration.monitor.stats.PoseFit`: ``pose``,
+    ``covariance`` in the body tangent, ``success``, ``message``)."""
 
     node: str
     change: ChangePoint
     old_pose: NDArray
-    pose: NDArray
-    covariance: NDArray
+    fit: PoseFit
     first_frame: int
     last_frame: int
     n_frames: int
-    success: bool
-    message: str
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -426,10 +425,9 @@ class DecalibrationMonitor:
         z = np.array([r[2] for r in st.rows])
         old = self._poses[name].copy()
         fit = recalibrate_pose(old, states, covs, z, self.noise, scale=st.scale)
-        rc = Recalibration(node=name, change=st.change, old_pose=old, pose=fit.pose,
-                           covariance=fit.covariance, first_frame=int(st.frames[0]),
-                           last_frame=int(st.frames[-1]), n_frames=len(st.frames),
-                           success=fit.success, message=fit.message)
+        rc = Recalibration(node=name, change=st.change, old_pose=old, fit=fit,
+                           first_frame=int(st.frames[0]), last_frame=int(st.frames[-1]),
+                           n_frames=len(st.frames))
         if fit.success:
             self._poses[name] = fit.pose.copy()
             st.reset(fit.covariance)

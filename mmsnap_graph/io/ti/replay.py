@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from ..._validation import parse_json, short_repr
 from ...errors import FileFormatError
 
-__all__ = ["replay_columns", "is_replay", "POINT_FIELDS"]
+__all__ = ["replay_columns", "replay_cfg_text", "is_replay", "POINT_FIELDS"]
 
 #: The visualizer's point fields, in the order of a ``pointCloud`` row.
 POINT_FIELDS = ("x (m)", "y (m)", "z (m)", "doppler (m/s)", "snr", "noise (db)", "track index")
@@ -122,3 +122,22 @@ def replay_columns(path: str | Path, text: str | None = None) -> tuple[dict[str,
     if demo:
         snr_unit = "linear" if any(w in demo for w in _LINEAR_SNR_DEMOS) else "db"
     return columns, snr_unit
+
+
+def replay_cfg_text(path: str | Path) -> str | None:
+    """The ``.cfg`` lines a replay file holds (its ``cfg``), as one text, or
+    None for any other file (or a replay file without them)."""
+    p = Path(path)
+    try:
+        with open(p, encoding="utf-8-sig") as f:
+            head = f.read(64)
+            if not (p.suffix.lower() == ".json" or is_replay(head)):
+                return None
+            doc = json.loads(head + f.read())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None                      # the table reader says what is wrong with it
+    lines = doc.get("cfg") if isinstance(doc, dict) else None
+    if not isinstance(lines, list) or not all(isinstance(line, str) for line in lines):
+        return None
+    text = "\n".join(line.rstrip("\n") for line in lines)
+    return text if text.strip() else None

@@ -7,6 +7,7 @@ from mmsnap_graph.errors import MissingStepError
 
 import argparse
 import json
+import re
 import shutil
 
 import numpy as np
@@ -107,3 +108,38 @@ def test_monitor_prints_the_stored_noise_one_short_line_per_node(recording_b_fil
     block = noise_block(out)
     pooled = out.splitlines()[out.splitlines().index(block[-1]) + 1]
     assert pooled == "  one noise for every node (pooled): range 0.0552 m  omega 0.08 rad  Doppler 0.1 m/s"
+
+
+def test_monitor_warns_of_a_pose_far_from_its_nominal_pose(bumped_path, tmp_path, capsys):
+    """S2 of configuration C is at (0, 7) m, heading 180 deg; a nominal
+    heading of 90 (the boresight's of a node at heading 0?) is reported with
+    its likely cause, the true one is not."""
+    import dataclasses
+    import warnings
+
+    from mmsnap_graph.errors import MmsnapWarning
+    from mmsnap_graph.evaluation.nominal import nominal_metadata
+
+    _, rec = bumped_path
+    for s2_deg, expected in ((90.0, 1), (180.0, 0)):
+        md = {**rec.metadata, **nominal_metadata("S1", [0, 0, 0], "pose"),
+              **nominal_metadata("S2", [0, 7, np.deg2rad(s2_deg)], "pose")}
+        path = tmp_path / f"nominal_{s2_deg:.0f}.h5"
+        write_recording(path, dataclasses.replace(rec, metadata=md))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MmsnapWarning)
+            assert _run([str(path), "--poses", str(_true_poses_json(rec, tmp_path))]) == 0
+        texts = [str(w.message) for w in caught if issubclass(w.category, MmsnapWarning)]
+        assert len(texts) == expected, texts
+        if expected:
+            assert re.match(r"S2 was calibrated 0\.\d\d m and \+9\d\.\d deg from its nominal "
+                            r"pose \(--pose: x 0\.00 m, y 7\.00 m, heading 90\.0 deg in S1's "
+                            r"frame\): the headings differ by about 90 deg", texts[0]), texts
+    capsys.readouterr()
+
+
+def _true_poses_json(rec, tmp_path):
+    path = tmp_path / "true.json"
+    path.write_text(json.dumps({"nodes": {n: {"pose": list(map(float, p))}
+                                          for n, p in rec.truth.node_poses.items()}}))
+    return path

@@ -91,12 +91,12 @@ def test_bump_detected_within_20_s_and_recalibrated_within_3_sigma(bump, seed):
     assert 0.0 <= delay <= 20.0
     assert abs(change.time_s - rec.metadata["bump_time_s"]) <= 5.0
     (recal,) = res.recalibrations
-    assert recal.success and recal.node == "S2"
-    err = _tangent_error(recal.pose, _bumped_truth(rec))
-    sd = np.sqrt(np.diag(recal.covariance))
+    assert recal.fit.success and recal.node == "S2"
+    err = _tangent_error(recal.fit.pose, _bumped_truth(rec))
+    sd = np.sqrt(np.diag(recal.fit.covariance))
     assert np.all(np.abs(err) <= 3.0 * sd), (err, sd)
     assert np.all(sd < [0.1, 0.1, np.deg2rad(2.0)])            # informative, not a shrug
-    np.testing.assert_allclose(res.poses["S2"], recal.pose)
+    np.testing.assert_allclose(res.poses["S2"], recal.fit.pose)
 
 
 @pytest.mark.slow
@@ -110,8 +110,8 @@ def test_three_nodes_name_the_node_that_moved(node, bump):
     assert [c.node for c in res.changes] == [node]
     assert res.changes[0].detection_time_s - rec.metadata["bump_time_s"] <= 20.0
     (recal,) = res.recalibrations
-    err = _tangent_error(recal.pose, _bumped_truth(rec))
-    assert np.all(np.abs(err) <= 3.0 * np.sqrt(np.diag(recal.covariance)))
+    err = _tangent_error(recal.fit.pose, _bumped_truth(rec))
+    assert np.all(np.abs(err) <= 3.0 * np.sqrt(np.diag(recal.fit.covariance)))
 
 
 @pytest.mark.slow
@@ -149,7 +149,7 @@ def test_frame_by_frame_updates_equal_the_batch_run():
     np.testing.assert_allclose([u.statistics["S2"] for u in ups],
                                [u.statistics["S2"] for u in ups_batch], rtol=1e-8)
     np.testing.assert_allclose(stream.poses["S2"], batch.poses["S2"], rtol=1e-8)
-    assert batch.recalibrations and batch.recalibrations[0].success
+    assert batch.recalibrations and batch.recalibrations[0].fit.success
 
 
 def test_monitor_validates_its_inputs():

@@ -195,7 +195,7 @@ def test_a_lag_the_data_cannot_show_is_not_reported():
     raw = match_tracks(a, b, frame_period_s=T, options=_lag(1, lag_min_improvement=0.0))
     kept = match_tracks(a, b, frame_period_s=T, options=_lag(1))
     assert raw.lag_frames == 0 and kept.lag_frames == 0
-    assert "not determined by the data" in raw.lag_note and raw.lag_note in raw.message
+    assert raw.lag_evidence.outcome == "not_determined" and raw.lag_evidence.kept_lag_frames == 0
     rm = {c.lag_frames: c.rmse_m for c in kept.candidates}
     by_rmse = min(rm, key=rm.get)
     assert by_rmse != 0 and rm[by_rmse] > 0.95 * rm[0]  # the noise's pick, close to lag 0
@@ -339,7 +339,7 @@ def test_synchronised_radars_get_no_lag():
     a, b = _synchronised_walk(10)
     res = match_tracks(a, b, frame_period_s=0.05)
     assert res.lag_frames == 0
-    assert "lag 5 frames not determined by the data" in res.lag_note
+    assert (res.lag_evidence.lag_frames, res.lag_evidence.outcome) == (5, "not_determined")
 
 
 def test_lag_evidence_keeps_a_lag_the_data_show():
@@ -349,8 +349,7 @@ def test_lag_evidence_keeps_a_lag_the_data_show():
     a, b, _ = _two_target_tracks("C", 2, rng)
     res = match_tracks(a, b, frame_period_s=T, options=_lag(2))
     assert res.lag_frames == 2
-    z = float(res.lag_note.split("z = ")[1].rstrip(")"))
-    assert z > 6, res.lag_note
+    assert res.lag_evidence.outcome == "determined" and res.lag_evidence.z > 6, res.lag_evidence
 
 
 @st.composite

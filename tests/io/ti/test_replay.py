@@ -10,7 +10,7 @@ import pytest
 
 from mmsnap_graph.errors import FileFormatError
 from mmsnap_graph.io.ti.point_table import read_point_tables
-from mmsnap_graph.io.ti.replay import replay_columns
+from mmsnap_graph.io.ti.replay import replay_cfg_text, replay_columns
 
 
 def _replay(tmp_path, data, demo="SDK Out of Box Demo", name="replay_1.json"):
@@ -94,3 +94,15 @@ def test_a_huge_number_in_a_replay_file_names_the_field(tmp_path, where, digits,
     with pytest.raises(FileFormatError, match=words) as info:
         replay_columns(path)
     assert len(str(info.value)) < 300
+
+
+def test_the_cfg_lines_of_a_replay_file(tmp_path):
+    path = _replay(tmp_path, [_frame(0, POINTS)])
+    assert replay_cfg_text(path) == "frameCfg 0 2 32 0 50 1 0"
+    csv = tmp_path / "t.csv"
+    csv.write_text("frame,x,y,z,v\n0,1,2,0,0\n")
+    assert replay_cfg_text(csv) is None
+    (tmp_path / "bad.json").write_text("{")
+    assert replay_cfg_text(tmp_path / "bad.json") is None
+    (tmp_path / "nocfg.json").write_text(json.dumps({"cfg": [1, 2], "data": []}))
+    assert replay_cfg_text(tmp_path / "nocfg.json") is None

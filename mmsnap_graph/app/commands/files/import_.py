@@ -62,8 +62,9 @@ def _points_options(p: argparse.ArgumentParser) -> None:
                    help="keep points between these heights above the floor (drops floor and "
                         "ceiling points)")
     p.add_argument("--frame-period", type=float, default=None, metavar="SECONDS",
-                   help="frame period in seconds, e.g. 0.05 for 20 fps (default: from --cfg); "
-                        "checked against the log's time stamps")
+                   help="frame period in seconds, e.g. 0.05 for 20 fps (default: from --cfg, "
+                        "or the .cfg lines of a TI visualizer replay file); checked against "
+                        "the log's time stamps")
     p.add_argument("--cfg", default=None, help="the .cfg the radars ran (for the frame period "
                                                "and sensorPosition)")
     p.add_argument("--ignore-unknown-commands", action="store_true",
@@ -196,8 +197,25 @@ def _grouped(pairs) -> dict[str, list[str]]:
     return out
 
 
+def _nominal(args) -> dict:
+    """The metadata of the nominal poses given (``--pose`` over
+    ``--room-pose``), which ``mmsnap calibrate`` compares its poses with."""
+    from mmsnap_graph.evaluation.nominal import nominal_metadata
+    given = {name: (pose, "room_pose") for name, pose in getattr(args, "room_pose", [])}
+    given.update({name: (pose, "pose") for name, pose in args.pose})
+    out = {}
+    for name, ((x, y, phi_deg), source) in given.items():
+        out.update(nominal_metadata(name, [x, y, np.deg2rad(phi_deg)], source))
+    return out
+
+
 def _write(args, recording) -> int:
+    import dataclasses
+
     from mmsnap_graph.io import write_recording
+    nominal = _nominal(args)
+    if nominal:
+        recording = dataclasses.replace(recording, metadata={**recording.metadata, **nominal})
     path = write_recording(args.output, recording, overwrite=args.overwrite)
     for name, node in recording.nodes.items():
         level = node.point_cloud if node.point_cloud is not None else None
@@ -273,15 +291,28 @@ def _check_point_options(args) -> None:
                                   "degrees and must lie in (-90, 90)")
 
 
-def _timing(args):
-    """(frame period, TiConfig or None) from --frame-period / --cfg."""
+def _timing(args, replays=()):
+    """(frame period, TiConfig or None) from --frame-period / --cfg, else
+    the frame period of the .cfg lines of the first of the ``replays`` (TI
+    visualizer replay files) that holds them (each node's own mounting is
+    not taken from them: --mount)."""
     _check_point_options(args)
     ti = None
+    from mmsnap_graph.io.ti.cfg import TIMING_ONLY_LAYOUT
     if args.cfg is not None:
-        from mmsnap_graph.io.ti.cfg import TIMING_ONLY_LAYOUT
         ti = _read_cfg(args, layout=TIMING_ONLY_LAYOUT)
     period = args.frame_period if args.frame_period is not None else (
         ti.configs[0].frame_period_s if ti is not None else None)
+    if period is None:
+        from mmsnap_graph.io.ti.cfg import parse_ti_cfg
+        from mmsnap_graph.io.ti.replay import replay_cfg_text
+        for path in replays:
+            text = replay_cfg_text(path)
+            if text is not None:
+                period = parse_ti_cfg(text, layout=TIMING_ONLY_LAYOUT, ignore_unknown=True,
+                                      source=f"{path} (its cfg lines)").configs[0].frame_period_s
+                print(f"frame period {period:g} s: the .cfg lines of {path}")
+                break
     if period is None:
         raise ValidationError("the frame period is unknown: give --frame-period or --cfg")
     return period, ti
@@ -383,7 +414,7 @@ def run_table(args: argparse.Namespace) -> int:
     from mmsnap_graph.io.ti.point_table import read_point_tables
     if bool(args.node) == bool(args.table):
         raise ValidationError("give either --node NAME=TABLE (repeat) or --table FILE")
-    period, ti = _timing(args)
+    period, ti = _timing(args, [args.table] if args.table else [p for _, p in args.node])
     opts = dict(coordinates=args.coordinates, degrees=args.degrees, time_unit=args.time_unit,
                 snr_unit=args.snr_unit, frame_period_s=period, columns=_columns_option(args))
     if args.table:

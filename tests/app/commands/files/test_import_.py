@@ -181,7 +181,8 @@ def _real_in_format(tmp_path, node, kind):
         data = [{"frameData": {"frameNum": k, "pointCloud": frames.get(k, [])},
                  "timestamp": 1.7e12 + 50.0 * k} for k in range(max(frames) + 1)]
         path = tmp_path / f"replay_{node}.json"
-        path.write_text(json.dumps({"cfg": [], "demo": "SDK Out of Box Demo", "data": data}))
+        cfg = [line + "\n" for line in (TI_DATA / "iwr1843_oob.cfg").read_text().splitlines()]
+        path.write_text(json.dumps({"cfg": cfg, "demo": "SDK Out of Box Demo", "data": data}))
         return path
     header, sep, cells = {
         "units": ("Frame Number,Timestamp (ms),X (m),Y (m),Z (m),Doppler (m/s),SNR (dB),"
@@ -220,6 +221,17 @@ def test_real_tables_in_ti_tools_formats(tmp_path, capsys, kind, extra):
         np.testing.assert_array_equal(a.range_m, b.range_m)
         np.testing.assert_array_equal(a.omega_rad, b.omega_rad)
         np.testing.assert_array_equal(a.snr_db, b.snr_db)
+
+
+def test_a_replay_files_cfg_lines_give_the_frame_period(tmp_path, capsys):
+    """The visualizer stores the .cfg it sent: no --frame-period is needed."""
+    paths = [_real_in_format(tmp_path, node, "replay") for node in ("S1", "S2")]
+    assert main(["import", "table", "--node", f"S1={paths[0]}", "--node", f"S2={paths[1]}",
+                 "--mount", "S1=0.8,0", "--mount", "S2=1.1,0", "--room-pose", "S1=0,0,0",
+                 "--room-pose", "S2=1.7,1.65,90", "-o", str(tmp_path / "o.h5")]) == 0
+    out = capsys.readouterr().out
+    assert f"frame period 0.05 s: the .cfg lines of {paths[0]}" in out
+    assert read_recording(tmp_path / "o.h5").frame_period_s == 0.05
 
 
 def test_a_visualizer_table_without_the_preset_names_it(tmp_path, capsys):
@@ -266,6 +278,24 @@ def test_real_room_frame_with_a_room_pose_for_one_node_warns(tmp_path, capsys):
     assert main(argv) == 0
     assert "mmsnap import: warning: nodes ['S1'] have a room pose, ['S2'] not" in \
         capsys.readouterr().err
+
+
+def test_the_nominal_poses_given_are_stored(tmp_path):
+    """--room-pose and --pose are what `mmsnap calibrate` compares its poses
+    with (--pose wins where both are given)."""
+    from mmsnap_graph.evaluation.nominal import nominal_poses
+    out = tmp_path / "o.h5"
+    assert _import_table(tmp_path, "--frame-period", "0.05", "--mount", "S1=0.8,5", "--mount",
+                         "S2=1.2,15", "--pose", "S2=0.1,6.9,179") == 0
+    nominal = nominal_poses(read_recording(out).metadata)
+    assert list(nominal) == ["S2"] and nominal["S2"].source == "pose"
+    np.testing.assert_allclose(nominal["S2"].pose, [0.1, 6.9, np.deg2rad(179)])
+    room = TI_DATA / "points_room_frame.csv"
+    assert _import_table(tmp_path, "--frame-period", "0.05", "--mount", "S1=0.8,5", "--mount",
+                         "S2=1.2,15", "--room-pose", "S1=0,0,0", "--room-pose", "S2=0,7,180",
+                         "--pose", "S1=0,0,0", table=room) == 0
+    nominal = nominal_poses(read_recording(out).metadata)
+    assert {n: p.source for n, p in nominal.items()} == {"S1": "pose", "S2": "room_pose"}
 
 
 def test_huge_time_stamp_is_a_clear_error(tmp_path, capsys):
