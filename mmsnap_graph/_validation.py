@@ -23,6 +23,7 @@ __all__ = [
     "check_probability",
     "check_shape",
     "chi2_gate",
+    "frame_steps",
     "frozen_vector",
     "int_array",
     "parse_json",
@@ -186,3 +187,18 @@ def chi2_gate(gate_probability: float, dof: ArrayLike, *, name: str = "gate_prob
 
     out = chi2.ppf(p, d)
     return float(out) if d.ndim == 0 else out
+
+
+_INT64_MAX = np.uint64(2**63 - 1)
+
+
+def frame_steps(frames: ArrayLike) -> NDArray:
+    """``np.diff`` of int64 frame numbers without wrapping: frames at both
+    ends of int64 are up to ``2^64 - 1`` apart, which ``np.diff`` turns into
+    a negative step; here each step is exact, saturated to +-``2^63 - 1``.
+    frames : (n,) int; returns (n - 1,) int64."""
+    f = np.asarray(frames, dtype=np.int64).ravel()
+    a, b = f[:-1].view(np.uint64), f[1:].view(np.uint64)
+    up = f[1:] >= f[:-1]
+    size = np.minimum(np.where(up, b - a, a - b), _INT64_MAX).astype(np.int64)
+    return np.where(up, size, -size)

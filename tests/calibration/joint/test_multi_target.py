@@ -183,3 +183,33 @@ def test_no_common_target_is_a_calibration_error(three_walkers):
                                      "S3": pg.poses["S3"] + [-20.0, 0.0, 0.0]})
     with pytest.raises(CalibrationError):
         refine_multi(rec, far)
+
+
+def _frames_shifted(rec, shift, from_frame=300):
+    """``rec`` with every centroid frame from ``from_frame`` on moved by ``shift``."""
+    for name in rec.node_names:
+        c = rec.nodes[name].centroids
+        frame = np.where(c.frame >= from_frame, c.frame + np.int64(shift), c.frame)
+        rec = rec.with_node(dataclasses.replace(rec.nodes[name],
+                                                centroids=dataclasses.replace(c, frame=frame)))
+    return rec
+
+
+def test_frame_numbers_spanning_int64_associate_as_a_short_gap_does(three_walkers):
+    """Before: frames 0-299 and then near the int64 maximum made the (target,
+    frame) key's width 2^63 (np.ptp + 1): OverflowError out of `mmsnap
+    calibrate`. A jump of 2^63 - 700 frames breaks the walkers' tracks as a
+    gap of 100 frames does: the same association, the same virtual frames."""
+    rec, pg, _ = three_walkers
+    runs = {}
+    for shift in (100, 2 ** 63 - 1 - 700):
+        out, mapping, assoc = joint_detections_multi(_frames_shifted(rec, shift), rec.node_names,
+                                                     pg.poses, pg.lag_frames)
+        runs[shift] = out, mapping, assoc
+    (a, ma, sa), (b, mb, sb) = runs.values()
+    np.testing.assert_array_equal(ma.virtual_frame, mb.virtual_frame)
+    np.testing.assert_array_equal(ma.target, mb.target)
+    for n in a:
+        np.testing.assert_array_equal(a[n].frame, b[n].frame)
+        np.testing.assert_array_equal(sa.target[n], sb.target[n])
+    assert mb.frame.max() > 2 ** 62 and mb.frame.min() == ma.frame.min()
