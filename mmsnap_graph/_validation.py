@@ -27,6 +27,7 @@ __all__ = [
     "frozen_vector",
     "int_array",
     "parse_json",
+    "positive_scalar",
     "short_repr",
 ]
 
@@ -42,7 +43,11 @@ def as_float_array(value: ArrayLike, name: str) -> NDArray:
 
 
 def short_repr(value: Any) -> str:
-    """``repr(value)`` cut to 80 characters (a 400-digit number in a message)."""
+    """``repr(value)`` for a message: numpy values as the plain numbers and
+    lists they hold (``0.5``, ``[0.0, 0.0]``, not ``np.float64(0.5)`` or
+    ``array([0., 0.])``), cut to 80 characters (a 400-digit number)."""
+    if isinstance(value, (np.ndarray, np.generic)):
+        value = value.tolist()
     text = repr(value)
     return text if len(text) <= 80 else text[:60] + f"... ({len(text)} characters)"
 
@@ -91,6 +96,20 @@ def check_positive(value: ArrayLike, name: str, *, strict: bool = True) -> NDArr
         rel = "> 0" if strict else ">= 0"
         raise ValidationError(f"{name} must be {rel}, got {got!r}")
     return arr
+
+
+def positive_scalar(value: object, name: str) -> float:
+    """``value`` as a float when it is one finite number > 0 (not a bool, a
+    string, a list or an array); else :class:`ValidationError` naming it."""
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, (bool, np.bool_))
+    try:
+        v = float(value) if ok else math.nan
+    except OverflowError:  # an int beyond the float range
+        v = math.inf
+    if not (math.isfinite(v) and v > 0):
+        raise ValidationError(f"{name} must be one finite number > 0, got {short_repr(value)}")
+    return v
 
 
 def frozen_vector(value: ArrayLike, name: str, length: int) -> NDArray:

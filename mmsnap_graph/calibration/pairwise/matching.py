@@ -279,7 +279,12 @@ class _Pool:
         if self.chi2_gate is None:
             inl = np.hypot(r[:, 0], r[:, 1]) < self.gate
         else:
-            inl = _gate_d2(pose, r, ca, cb) < self.chi2_gate
+            d2 = _gate_d2(pose, r, ca, cb)
+            # A row whose covariances are singular (exact tracks: zero) has
+            # no chi-square; the metric gate of tracks without covariances
+            # decides it, not an infinite distance.
+            inl = np.where(np.isinf(d2), np.hypot(r[:, 0], r[:, 1]) < self.gate,
+                           d2 < self.chi2_gate)
         return ia[inl], ib[inl]
 
 

@@ -411,3 +411,28 @@ def test_a_huge_minimum_overlap_is_a_failed_result_not_an_overflow():
     a, b, _ = _two_target_tracks("B", 0, np.random.default_rng(24), n_frames=60)
     res = match_tracks(a, b, frame_period_s=T, options=MatchingOptions(min_common_s=1e308))
     assert not res.success and "shares >=" in res.message
+
+
+def test_exact_tracks_with_zero_covariances_give_the_exact_poses():
+    """Before: noise-free tracks whose covariances are zero had no chi-square
+    (a singular 2 x 2: an infinite distance), so no pose aligned them and the
+    calibration was refused ("no pose aligns 3 frames within the chi-square
+    gate; the best track RMSE is 0 m"). A singular row is gated by the metric
+    gate instead: the exact poses."""
+    from mmsnap_graph.calibration import LocalTracks, pairwise_edges, pose_graph_calibration
+
+    k = np.arange(100)
+    a = np.stack([0.5 + 0.03 * k, 3 + np.sin(k / 8)], axis=1)
+    truth = {"S2": np.array([0.0, 7.0, np.pi]), "S3": np.array([4.0, 1.0, 0.5])}
+    points = {"S1": a}
+    for name, (x, y, phi) in truth.items():
+        rot = np.array([[np.cos(phi), -np.sin(phi)], [np.sin(phi), np.cos(phi)]])
+        points[name] = (a - [x, y]) @ rot
+    tracks = {n: LocalTracks(frame=k, points_m=p, track_id=np.zeros(k.size, int),
+                             covariances=np.zeros((k.size, 2, 2))) for n, p in points.items()}
+    edges, failures = pairwise_edges(tracks, frame_period_s=0.1)
+    assert failures == {} and len(edges) == 3
+    cal = pose_graph_calibration(list(points), edges)
+    assert cal.success
+    for name, pose in truth.items():
+        np.testing.assert_allclose(pose_tangent_error(cal.poses[name], pose), 0, atol=1e-9)
