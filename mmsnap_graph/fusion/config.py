@@ -194,7 +194,7 @@ class LearnedWalls:
     """
 
     look_back_frames: int = 2000
-    relearn_frames: int = 20
+    relearn_frames: int = 100
     look_frames: ClassVar[int] = WHOLE_RECORDING
 
     def __post_init__(self) -> None:

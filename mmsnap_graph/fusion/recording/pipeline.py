@@ -131,7 +131,7 @@ def solve_groups(z: NDArray, observed: NDArray, net: FusionNetwork, config: Fusi
     return out
 
 
-def _check_motion(out: FusedRows, frame, z, obs, net, config) -> None:
+def _check_motion(out: FusedRows, frame, z, obs, net, config, decide=None) -> None:
     """The motion check (hypotheses fitted by ``fuse_batch``; with the GTSAM
     solver the rows it refits are fitted again by ``fuse_frame`` from its
     solution)."""
@@ -145,7 +145,8 @@ def _check_motion(out: FusedRows, frame, z, obs, net, config) -> None:
     done = apply_motion_check(out, frame, obs, obs & valid_rows(z),
                               frame_period_s=net.frame_period_s, refit=refit,
                               node_names=net.node_names,
-                              residual_gate_probability=RESIDUAL_GATE_PROBABILITY)
+                              residual_gate_probability=RESIDUAL_GATE_PROBABILITY,
+                              decide=decide)
     if config.solve.solver == "gtsam" and done.size:
         from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of the vectorized path
 
@@ -176,18 +177,20 @@ def _check_coverage(out: FusedRows, frame, z, obs, net, check: CoverageCheck,
 
 
 def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDArray,
-               net: FusionNetwork, config: FusionConfig, *, reach_m=None) -> None:
+               net: FusionNetwork, config: FusionConfig, *, reach_m=None,
+               decide: NDArray | None = None) -> None:
     """The checks on the solved rows, in place: the motion check
     (docs/ROBUST.md), then the one-node rows of frames the association split
     (after the motion check, the only row of a frame it kept stays), then the
     coverage check. ``frame`` (K,) sorted, ``detection_index`` (K, N), ``z``
     (K, N, 3): the groups of the rows; ``reach_m`` (N,): each node's reach
     where the coverage check gives none (None: the farthest of the rows'
-    ranges)."""
+    ranges); ``decide``: the frames whose rows the motion check decides (None:
+    all; the others are context)."""
     obs = detection_index >= 0
     motion = config.check(MotionCheck) is not None
     if motion:
-        _check_motion(out, frame, z, obs, net, config)
+        _check_motion(out, frame, z, obs, net, config, decide)
     if config.check(SplitCheck) is not None:
         split = split_rows(frame, detection_index, out.status, keep_sole=motion)
         # The estimate and its covariance stay for whoever wants them, untrusted.

@@ -127,7 +127,8 @@ class StreamPipeline:
         frames = np.repeat([h.frame for h in held], sizes)
         members = np.concatenate([h.members for h in held])
         z = np.concatenate([h.z for h in held])
-        check_rows(rows, frames, members, z, self.net, self.config, reach_m=self.reach_m)
+        check_rows(rows, frames, members, z, self.net, self.config, reach_m=self.reach_m,
+                   decide=np.array([frame]))
         lo = int(np.sum(sizes[:mine[0]]))
         sl = slice(lo, lo + sizes[mine[0]])
         own = FusedRows(sizes[mine[0]], n_nodes)
