@@ -28,8 +28,8 @@ import numpy as np
 
 from mmsnap_graph.calibration import JointOptions
 from factors.models import global_to_local, local_to_global
+from mmsnap_graph.data.calibration import PairwiseCalibration
 from mmsnap_graph.calibration import (
-    PoseEdge,
     closed_form_calibration,
     closed_form_pose,
     joint_calibration,
@@ -129,9 +129,9 @@ def bench_pose_graph(quick):
                 if j < n:
                     a, b = names[i], names[j]
                     rel = gtsam.Pose2(*poses[a]).between(gtsam.Pose2(*poses[b]))
-                    edges.append(PoseEdge(node_a=a, node_b=b,
-                                          pose=[rel.x(), rel.y(), rel.theta()],
-                                          covariance=np.diag([1e-3, 1e-3, 1e-4])))
+                    edges.append(PairwiseCalibration(node_a=a, node_b=b,
+                                                     pose=[rel.x(), rel.y(), rel.theta()],
+                                                     covariance=np.diag([1e-3, 1e-3, 1e-4])))
         t = _median_time(lambda: pose_graph_calibration(names, edges), 5)
         print(f"  {n:3d} nodes, {len(edges):3d} edges: {t * 1e3:7.2f} ms")
 

@@ -42,7 +42,10 @@ from mmsnap_graph.sim import SimulationOptions
 FRAME_PERIOD_S = 0.15
 BASE_FRAMES = 2400
 
-#: Runs in a fresh process: argv = path, mode ("import" | "whole" | "chunked"), window, trace.
+#: Runs in a fresh process: argv = path, mode ("import" | "whole" | "chunked" | "cli"),
+#: window, trace. "whole" and "chunked" run the library's per-frame fusion (no robust fit,
+#: the learned walls on in "chunked": what both did by default on 80ec03d); "cli" runs
+#: ``mmsnap fuse REC`` with its defaults (every check).
 CHILD = r"""
 import json, sys, time, tracemalloc
 path, mode, window, trace = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4] == "1"
@@ -52,14 +55,27 @@ from mmsnap_graph.io import read_recording, write_fused
 if trace:
     tracemalloc.start()
 t0 = time.perf_counter()
+try:
+    from mmsnap_graph.fusion.config import PLAIN_CONFIG, LearnedWalls, SplitCheck
+    import dataclasses
+    whole = dict(config=PLAIN_CONFIG)
+    chunked = dict(config=dataclasses.replace(PLAIN_CONFIG, checks=(SplitCheck(), LearnedWalls())))
+except ImportError:  # 80ec03d: the defaults were these
+    whole = chunked = {}
 if mode == "whole":
     rec = read_recording(path, load_cubes=False)
-    fused = fuse_recording(rec, progress=False)
+    fused = fuse_recording(rec, progress=False, **whole)
     write_fused(path, fused)
     rows = len(fused)
 elif mode == "chunked":
     from mmsnap_graph.app.chunked_fuse import fuse_file
-    rows = fuse_file(path, window_frames=window, progress=False).n_rows
+    rows = fuse_file(path, window_frames=window, progress=False, **chunked).n_rows
+elif mode == "cli":
+    from mmsnap_graph.app.cli import main
+    import contextlib, io, re
+    with contextlib.redirect_stdout(io.StringIO()) as out:
+        assert main(["fuse", path, "--no-progress", "--max-flagged", "1"]) == 0
+    rows = int(re.search(r"^fused (\d+) targets", out.getvalue(), re.M).group(1))
 else:
     rows = 0
 wall = time.perf_counter() - t0
@@ -73,7 +89,7 @@ print(json.dumps({"rows": rows, "wall_s": wall, "rss_mb": rss_kib / 1024, "py_mb
 
 def _network() -> dict:
     angles = np.linspace(0.0, 2 * np.pi, 10, endpoint=False)
-    return {f"S{i + 1}": [6 * np.cos(a), 6 * np.sin(a), a + np.pi / 2]
+    return {f"S{i + 1}": [6 * np.cos(a), 6 * np.sin(a), float(np.angle(np.exp(1j * (a + np.pi / 2))))]
             for i, a in enumerate(angles)}
 
 
@@ -110,7 +126,7 @@ def main(argv=None) -> int:
     parser.add_argument("--hours", type=float, nargs="+", default=[0.25, 0.5, 1.0])
     parser.add_argument("--window", type=int, default=2000)
     parser.add_argument("--tracemalloc", action="store_true")
-    parser.add_argument("--paths", nargs="+", choices=["whole", "chunked"],
+    parser.add_argument("--paths", nargs="+", choices=["whole", "chunked", "cli"],
                         default=["whole", "chunked"])
     args = parser.parse_args(argv)
     from mmsnap_graph.sim import simulate_recording
@@ -131,10 +147,10 @@ def main(argv=None) -> int:
             size = path.stat().st_size / 2**20
             res = {m: run_child(path, m, args.window, args.tracemalloc)
                    for m in args.paths}
-            if len(res) == 1:
-                (m, r), = res.items()
-                print(f"{hours:g} h = {n} frames ({size:.0f} MB file, {r['rows']} fused rows): "
-                      f"{m} peak RSS {r['rss_mb']:.0f} MB ({r['wall_s']:.1f} s)")
+            if set(res) != {"whole", "chunked"}:
+                for m, r in res.items():
+                    print(f"{hours:g} h = {n} frames ({size:.0f} MB file, {r['rows']} fused "
+                          f"rows): {m} peak RSS {r['rss_mb']:.0f} MB ({r['wall_s']:.1f} s)")
                 continue
             w, c = res["whole"], res["chunked"]
             py = (f"; Python peak whole {w['py_mb']:.0f} MB, chunked {c['py_mb']:.0f} MB"

@@ -8,8 +8,12 @@ paper's prior and noise (seeded). For each solver (``--solvers``, default
 
 - stream: :class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`, one ``push`` per
   frame (validation, association, one-shot fusion of the frame's groups,
-  central tracker step); the latency of every frame is timed (wall clock and
-  the thread's CPU time) and the median, 95th and 99th percentiles are printed;
+  central tracker step), per-frame fusion with no check (:data:`PLAIN_STREAM`);
+  the latency of every frame is timed (wall clock and the thread's CPU time)
+  and the median, 95th and 99th percentiles are printed;
+- with ``--checks``, the stream of the default configuration too (every check,
+  decided at once from past frames: what ``mmsnap replay`` and ``mmsnap live``
+  run);
 - baseline: :func:`mmsnap_graph.fusion.recording.sequence.fuse_recording` on the whole
   recording plus :func:`mmsnap_graph.tracking.central.track_fused`, the
   total divided by the number of frames (best of ``--repeat``), with the
@@ -40,10 +44,13 @@ import time
 
 import numpy as np
 
+import dataclasses
+
+from mmsnap_graph.fusion.config import PLAIN_CONFIG
 from mmsnap_graph.fusion.solvers.scalar import COVARIANCE_TOLERANCE, STATE_TOLERANCE
 from mmsnap_graph.fusion.options import FusionOptions
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
-from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
+from mmsnap_graph.fusion.stream.frame_stream import STREAM_CONFIG, FrameStream, recording_frames
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import track_fused
 from mmsnap_graph.sim import SimulationOptions
@@ -55,9 +62,17 @@ NETWORK = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi],
 
 #: The whole-recording path each stream solver is compared with.
 BASELINE = {"scalar": "vectorized", "gtsam": "gtsam", "vectorized": "vectorized"}
-#: The stages of a push timed by ``--profile`` (FrameStream's own steps).
-STAGES = {"validate": "_validate", "associate": "members", "fuse": "_fuse",
-          "tracker": "_step_tracker", "update arrays": "_update"}
+#: Per-frame one-shot fusion, no check: the stream's work on 80ec03d.
+PLAIN_STREAM = dataclasses.replace(PLAIN_CONFIG, checks=())
+#: The stages of a push timed by ``--profile``: (owner, method) of FrameStream's steps.
+STAGES = {"validate": ("", "_validate"), "associate": ("_associator", "members"),
+          "fuse": ("_pipeline", "solve"), "checks": ("_pipeline", "decide"),
+          "tracker": ("", "_step_tracker"), "update arrays": ("", "_update")}
+
+
+def _config(solver, checks=False):
+    base = STREAM_CONFIG if checks else PLAIN_STREAM
+    return dataclasses.replace(base, solve=FusionOptions(solver=solver))
 
 
 def _timed(fn, store):
@@ -74,19 +89,20 @@ def _instrument(stream):
     """Time each stage of ``stream``'s pushes (instance attributes shadow the
     methods); returns ``{stage: list of CPU seconds}``."""
     times = {name: [] for name in STAGES}
-    for name, attr in STAGES.items():
-        owner = stream._associator if attr == "members" else stream
+    for name, (part, attr) in STAGES.items():
+        owner = getattr(stream, part) if part else stream
         setattr(owner, attr, _timed(getattr(owner, attr), times[name]))
     return times
 
 
-def _stream_once(rec, poses, solver, profile=False):
+def _stream_once(rec, poses, solver, profile=False, checks=False):
     """Per-frame wall and CPU latencies (s), the fused states and covariances
     of one pass, and the stage times (``--profile``)."""
-    stream = FrameStream(rec.node_names, poses, solver=solver)
+    config = _config(solver, checks)
+    stream = FrameStream(rec.node_names, poses, config=config)
     frames = list(recording_frames(rec, fill_frames=stream.tracker_config.max_misses))
     stream.push(-1.0, frames[0][2])  # warm-up (imports, caches); its own time line
-    stream = FrameStream(rec.node_names, poses, solver=solver)
+    stream = FrameStream(rec.node_names, poses, config=config)
     stages = _instrument(stream) if profile else None
     wall, cpu, states, covs = [], [], [], []
     for _, time_s, detections in frames:
@@ -102,7 +118,8 @@ def _stream_once(rec, poses, solver, profile=False):
 
 def _batch_once(rec, solver):
     w0, c0 = time.perf_counter(), time.thread_time()
-    fused = fuse_recording(rec, progress=False, options=FusionOptions(solver=solver))
+    config = dataclasses.replace(PLAIN_CONFIG, solve=FusionOptions(solver=solver))
+    fused = fuse_recording(rec, config, progress=False)
     track_fused(fused)
     return time.perf_counter() - w0, time.thread_time() - c0, fused
 
@@ -126,7 +143,8 @@ def _run(n_targets, args):
                              SimulationOptions(physics=None, n_targets=n_targets, known_poses=True),
                              levels=("centroids",), n_frames=args.frames, seed=args.seed)
     poses = np.array([NETWORK[n] for n in rec.node_names])
-    reference = (fuse_recording(rec, progress=False, options=FusionOptions(solver="gtsam"))
+    gtsam = dataclasses.replace(PLAIN_CONFIG, solve=FusionOptions(solver="gtsam"))
+    reference = (fuse_recording(rec, gtsam, progress=False)
                  if "scalar" in args.solvers else None)
     medians = {}
     for solver in args.solvers:
@@ -154,6 +172,12 @@ def _run(n_targets, args):
         if stages:
             print("    where a push's CPU time goes (median per push, ms): " + ", ".join(
                 f"{name} {np.median(v) * 1e3:.3f}" for name, v in stages.items()))
+    for solver in args.solvers if args.checks else ():
+        cpu = np.concatenate([_stream_once(rec, poses, solver, checks=True)[1]
+                              for _ in range(args.repeat)]) * 1e3
+        print(f"    with every check (delay 0), solver {solver:5s}: CPU median "
+              f"{np.median(cpu):.3f} ms, p95 {np.percentile(cpu, 95):.3f} ms, p99 "
+              f"{np.percentile(cpu, 99):.3f} ms; / no check {np.median(cpu) / medians[solver]:.2f}x")
     if "scalar" in medians and "gtsam" in medians:
         print(f"    stream scalar / stream gtsam (CPU medians): "
               f"{medians['scalar'] / medians['gtsam']:.2f}x")
@@ -167,6 +191,8 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--solvers", nargs="+", default=["scalar", "gtsam"],
                         choices=["scalar", "gtsam", "vectorized"])
+    parser.add_argument("--checks", action="store_true",
+                        help="also time the stream of the default configuration (every check)")
     parser.add_argument("--profile", action="store_true",
                         help="also time each stage of a push (adds ~1 us per stage)")
     args = parser.parse_args(argv)

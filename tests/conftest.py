@@ -17,6 +17,7 @@ from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import CLEAN, SimulationOptions
 
 from _shared import NETWORK_3_OPEN, POSES_BC
+from _fusion import config
 
 
 @pytest.fixture(scope="session")
@@ -81,14 +82,14 @@ def recording_b_known_poses():
 def fused_b_map(recording_b_known_poses):
     """``recording_b_known_poses`` fused with the default MAP mode."""
     from mmsnap_graph.fusion.recording.sequence import fuse_recording
-    return fuse_recording(recording_b_known_poses, progress=False)
+    return fuse_recording(recording_b_known_poses, config(), progress=False)
 
 
 @pytest.fixture(scope="session")
 def fused_b_ml(recording_b_known_poses):
     """``recording_b_known_poses`` fused in ML mode without a prior."""
     from mmsnap_graph.fusion.recording.sequence import fuse_recording
-    return fuse_recording(recording_b_known_poses, mode="ml", prior=None, progress=False)
+    return fuse_recording(recording_b_known_poses, config(mode="ml", prior=None), progress=False)
 
 
 @pytest.fixture(scope="session")

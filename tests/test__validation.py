@@ -61,3 +61,14 @@ def test_chi2_gate_is_the_keep_quantile():
 def test_chi2_gate_rejects_bad_input(p, dof, match):
     with pytest.raises(ValidationError, match=match):
         chi2_gate(p, dof)
+
+
+def test_frame_steps_are_exact_across_the_ends_of_int64():
+    from mmsnap_graph._validation import frame_steps
+
+    big = np.iinfo(np.int64)
+    f = np.array([big.min, big.min + 3, -1, 5, big.max, 0], dtype=np.int64)
+    assert frame_steps(f).tolist() == [3, 2 ** 63 - 4, 6, big.max - 5, -big.max]
+    assert frame_steps([big.min, big.max]).tolist() == [big.max]  # 2^64 - 1, saturated
+    assert frame_steps([7]).size == 0
+    np.testing.assert_array_equal(frame_steps(np.arange(5) * 3), np.diff(np.arange(5) * 3))

@@ -53,7 +53,7 @@ import numpy as np
 
 from mmsnap_graph.calibration.joint.multi_refine import refine_associated
 from mmsnap_graph.calibration.joint.solve import joint_calibration
-from mmsnap_graph.calibration.network import RECORDING_JOINT_OPTIONS, calibrate_recording
+from mmsnap_graph.calibration.network import POINT_JOINT_OPTIONS, calibrate_recording
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.io import read_recording, write_recording
 
@@ -77,8 +77,8 @@ class Parts:
         self.rec = read_recording(path, load_cubes=False)
         self.node, self.surveyed = node, surveyed
         names = list(self.rec.node_names)
-        pg = calibrate_recording(self.rec, method="pose_graph").pose_graph
-        self.options = dataclasses.replace(RECORDING_JOINT_OPTIONS, time_offsets=False)
+        pg = calibrate_recording(self.rec, method="pose_graph")
+        self.options = dataclasses.replace(POINT_JOINT_OPTIONS, time_offsets=False)
         out = refine_associated(self.rec, names, pg.poses, pg.covariances, pg.lag_frames,
                                 noise=None, options=self.options)
         if out is None:

@@ -140,9 +140,8 @@ def _step_calibrate(src: Path, dst: Path | None, options: Mapping,
     return counts, [written[1], written[0]], failed
 
 
-def _step_fuse(src: Path, dst: Path | None, options: Mapping,
-              overwrite: bool) -> StepOutcome:
-    fused, _ = fuse_stored(src, options, output=dst, progress=False)
+def _step_fuse(src: Path, dst: Path | None, config, overwrite: bool) -> StepOutcome:
+    fused, _ = fuse_stored(src, config, output=dst, progress=False)
     counts = {"n_fused": fused.n_rows, "n_flagged": fused.n_rows - fused.n_success,
               "n_frames": fused.n_frames}
     return counts, [Path(fused.path)], None
@@ -151,7 +150,7 @@ def _step_fuse(src: Path, dst: Path | None, options: Mapping,
 _STEP_FUNCTIONS = {"process": _step_process, "calibrate": _step_calibrate, "fuse": _step_fuse}
 
 #: Keywords a step sets itself (not accepted in its options).
-_STEP_OWN = {"process": {"output", "progress"}, "calibrate": set(), "fuse": {"progress"}}
+_STEP_OWN = {"process": {"output", "progress"}, "calibrate": set()}
 
 
 def _step_target(step: str) -> Callable:
@@ -160,13 +159,9 @@ def _step_target(step: str) -> Callable:
         from .pipeline import process_file
 
         return process_file
-    if step == "calibrate":
-        from ..calibration import calibrate_recording
+    from ..calibration import calibrate_recording
 
-        return calibrate_recording
-    from ..fusion.recording.sequence import fuse_recording
-
-    return fuse_recording
+    return calibrate_recording
 
 
 def _error_line(step: str, exc: BaseException) -> str:
@@ -179,7 +174,7 @@ def run_recording(
     steps: Sequence[str] = STEPS,
     *,
     output: str | os.PathLike | None = None,
-    options: Mapping[str, Mapping[str, Any]] | None = None,
+    options: Mapping[str, Any] | None = None,
     blas_threads: int | None = 1,
     overwrite: bool = False,
 ) -> RecordingSummary:
@@ -187,8 +182,7 @@ def run_recording(
 
     output : write the result here (the first writing step copies the
         recording; later steps update the copy); default: update ``path``.
-    options : per step, keyword arguments of its library function
-        (``options["fuse"] = {"mode": "ml"}``; see :func:`run_many`).
+    options : per step, its options (see :func:`run_many`).
     blas_threads : cap of the BLAS / OpenMP thread pools while it runs
         (None: leave them).
     overwrite : replace an existing calibration JSON (else the calibrate
@@ -211,8 +205,8 @@ def run_recording(
         for step in steps:
             t0 = time.perf_counter()
             try:
-                c, written, failed = _STEP_FUNCTIONS[step](src, dst, options.get(step, {}),
-                                                           overwrite)
+                arg = options.get(step, None if step == "fuse" else {})
+                c, written, failed = _STEP_FUNCTIONS[step](src, dst, arg, overwrite)
             except Exception as exc:  # noqa: BLE001 -- one recording must not stop the batch
                 error = _error_line(step, exc)
                 if not isinstance(exc, MmsnapError):
@@ -257,12 +251,20 @@ def _check_steps(steps: Sequence[str] | str) -> tuple[str, ...]:
 
 
 def _check_options(steps: tuple[str, ...], options: Mapping | None) -> dict[str, dict]:
-    """Each step's options must be keywords of its library function."""
+    """Each step's options must be keywords of its library function (the
+    ``fuse`` step's: one FusionConfig)."""
+    from ..fusion.config import FusionConfig
+
     options = dict(options or {})
     for step, opts in options.items():
         if step not in steps:
             raise ValidationError(f"options given for step {step!r}, which is not in steps "
                                   f"{','.join(steps)}")
+        if step == "fuse":
+            if not isinstance(opts, FusionConfig):
+                raise ValidationError(f"options['fuse'] must be a FusionConfig "
+                                      f"(mmsnap_graph.fusion.config), got {type(opts).__name__}")
+            continue
         if not isinstance(opts, Mapping):
             raise ValidationError(f"options[{step!r}] must be a mapping of keyword arguments, "
                                   f"got {type(opts).__name__}")
@@ -272,7 +274,7 @@ def _check_options(steps: tuple[str, ...], options: Mapping | None) -> dict[str,
             if key not in params or key in _STEP_OWN[step] or key in ("recording", "path"):
                 raise ValidationError(f"options[{step!r}] has {key!r}, which is not an option "
                                       f"of {target.__name__}")
-    return {k: dict(v) for k, v in options.items()}
+    return {k: v if k == "fuse" else dict(v) for k, v in options.items()}
 
 
 def _check_paths(paths, output_dir) -> tuple[list[str], list[str | None]]:
@@ -352,7 +354,7 @@ def run_many(
     executor: Executor | None = None,
     client=None,
     output_dir: str | os.PathLike | None = None,
-    options: Mapping[str, Mapping[str, Any]] | None = None,
+    options: Mapping[str, Any] | None = None,
     blas_threads: int | None = 1,
     progress: bool = False,
     on_result: Callable[[RecordingSummary], None] | None = None,
@@ -369,11 +371,12 @@ def run_many(
         At most one; neither: run here, one recording after the other.
     output_dir : write each result to ``output_dir/<name>`` (default: update
         the recordings in place, as the commands do).
-    options : per step, keyword arguments of the step's library function:
-        ``process`` -> ``process_file`` (e.g. ``centroids_only``, ``ekf``),
-        ``calibrate`` -> ``calibrate_recording`` (e.g. ``matching``, ``joint``),
-        ``fuse`` -> ``fuse_recording`` (e.g. ``mode``, ``noise``,
-        ``options=FusionOptions(solver="gtsam")``).
+    options : per step, its options: keyword arguments of the step's
+        library function, ``process`` -> ``process_file`` (e.g.
+        ``centroids_only``, ``ekf``), ``calibrate`` -> ``calibrate_recording``
+        (e.g. ``matching``, ``joint``); ``fuse``: one
+        :class:`~mmsnap_graph.fusion.config.FusionConfig` (default
+        :data:`~mmsnap_graph.fusion.config.DEFAULT_CONFIG`, as ``mmsnap fuse``).
         They are pickled to the workers: plain values and frozen configs.
     blas_threads : BLAS / OpenMP threads per worker (None: leave them).
     progress : a tqdm bar over recordings on stderr; on_result : called

@@ -17,6 +17,7 @@ frames of context on each side and keeps the rows of its own frames.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,10 +27,12 @@ import numpy as np
 
 from .._validation import check_count
 from ..errors import ValidationError
-from ..fusion.recording.motion_check import MOTION_CONTEXT_FRAMES
-from ..fusion.options import DEFAULT_OPTIONS, FusionOptions, NetworkCalibration
-from ..fusion.recording.room import RoomReport, screen_room
-from ..fusion.recording.sequence import fuse_recording
+from ..data.noise import MeasurementNoise
+from ..fusion.config import DEFAULT_CONFIG, CoverageCheck, FusionConfig
+from ..fusion.options import NetworkCalibration
+from ..fusion.recording.pipeline import screen_rows
+from ..fusion.recording.room import RoomReport
+from ..fusion.recording.sequence import check_calibration, fuse_recording_rows
 from ..fusion.recording.timing import split_offset
 from ..io.chunks import open_detection_windows, fused_writer
 from ..tracking.person_ids import PersonIds
@@ -67,12 +70,6 @@ def _progress(total: int, progress: bool | None):
     return tqdm(total=total, desc="fuse (windows)", unit="window", disable=not show, leave=False)
 
 
-def _motion_checked(options) -> bool:
-    """Whether ``fuse_recording`` runs the motion check with these options."""
-    check = options.get("options", DEFAULT_OPTIONS).motion_check
-    return bool(options.get("robust") is not None if check is None else check)
-
-
 def _global_rows(fused, rows: Mapping[str, np.ndarray], names):
     """``fused`` with its detection indices taken to the file's rows."""
     idx = fused.detection_index.copy()
@@ -99,30 +96,29 @@ def _own_rows(fused, start: int, stop: int):
                                          if getattr(fused, k) is not None})
 
 
-def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = None,
+def fuse_file(path: str | os.PathLike, config: FusionConfig = DEFAULT_CONFIG, *,
+              output: str | os.PathLike | None = None,
               calibration: NetworkCalibration | None = None,
-              window_frames: int = DEFAULT_WINDOW_FRAMES, progress: bool | None = None,
-              **options) -> ChunkedFuseSummary:
+              noise: MeasurementNoise | Mapping[str, MeasurementNoise] = MeasurementNoise(),
+              window_frames: int = DEFAULT_WINDOW_FRAMES,
+              progress: bool | None = None) -> ChunkedFuseSummary:
     """Fuse every target in every frame of the recording file at ``path``
     window by window and store the ``/fused`` group (in ``path``, or in a
-    copy of it at ``output``), atomically.
+    copy of it at ``output``), atomically: the windowed driver of the one
+    pipeline (:mod:`mmsnap_graph.fusion.recording.pipeline`).
 
+    config : the :class:`~mmsnap_graph.fusion.config.FusionConfig` (as
+        :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording`).
     calibration : the network's calibration (a
         :class:`~mmsnap_graph.fusion.options.NetworkCalibration`: poses,
         their covariances, clock and range offsets; default: the file's poses).
-    window_frames : frames read and fused at a time.
-    progress : a tqdm bar over frames (default: when stderr is a terminal).
-    options : keyword arguments of
-        :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording` (``mode``,
-        ``noise``, ``prior``, ``robust``, ``options`` (a
-        :class:`~mmsnap_graph.fusion.options.FusionOptions`: ``covariance``,
-        ``solver``, ``gate_probability``, ``source``, ...), with its defaults; and the
-        room-frame checks of
-        :func:`~mmsnap_graph.fusion.recording.room.screen_room`:
-        ``bounds``, ``static_bounds``, ``in_front`` and ``body_m`` (each
-        None or False, the default: off; ``mmsnap fuse`` checks one target per
-        :data:`~mmsnap_graph.fusion.recording.room.DEFAULT_BODY_M`), and
-        ``walls`` (the learned walls, default on; learned in each window).
+    noise : the measurement noise (one, or a mapping holding every node).
+    window_frames : frames read and fused at a time; each window is read with
+        ``config.context_frames`` frames of context on each side (the
+        checks' look-around) and keeps its own rows, so the rows equal
+        ``fuse_recording``'s, except that the learned walls are learned in
+        each window (its own frames).
+    progress : a tqdm bar over windows (default: when stderr is a terminal).
 
     Returns a :class:`ChunkedFuseSummary`. Raises what ``fuse_recording``
     raises for bad options, and :class:`~mmsnap_graph.errors.FileFormatError`
@@ -130,25 +126,14 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
     left as it was.
     """
     check_count(window_frames, "window_frames")
-    if "progress" in options or "recording" in options:
-        raise ValidationError("fuse_file takes the file, not a recording; progress is its own")
-    room = dict(bounds=options.pop("bounds", None), static_bounds=options.pop("static_bounds", None),
-                in_front=options.pop("in_front", False), walls=options.pop("walls", True),
-                body_m=options.pop("body_m", None))
-    flagged = RoomReport()
-    calibration = NetworkCalibration() if calibration is None else calibration
-    if not isinstance(calibration, NetworkCalibration):
-        raise ValidationError(f"calibration must be a NetworkCalibration, got "
-                              f"{type(calibration).__name__}")
-    fusion = options.get("options", DEFAULT_OPTIONS)
-    if not isinstance(fusion, FusionOptions):
-        raise ValidationError(f"options must be a FusionOptions, got {type(fusion).__name__}")
-    windows = open_detection_windows(path, source=fusion.source)
-    if fusion.coverage_check and fusion.coverage_reach_m is None:
+    if not isinstance(config, FusionConfig):
+        raise ValidationError(f"config must be a FusionConfig, got {type(config).__name__}")
+    calibration = check_calibration(calibration)
+    windows = open_detection_windows(path, source=config.association.source)
+    if config.check(CoverageCheck) is not None:
         # How far each node looks, over the whole file (a window alone would
         # judge it by its own frames and differ from the whole recording's).
-        fusion = dataclasses.replace(fusion, coverage_reach_m=windows.reach_m())
-        options = {**options, "options": fusion}
+        config = config.with_coverage_reach(windows.reach_m())
     # Clock offsets move each node's frames by its own whole-frame shift
     # before fusion (fusion.recording.timing.align_recording): each node's window is
     # read shifted the same way, so that a window holds the same reference
@@ -157,26 +142,25 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
               for n, t in dict(calibration.time_offset_s or {}).items()}
     margin = max((abs(m) for m in shifts.values()), default=0)
     spans = list(windows.windows(int(window_frames), margin))
+    fuse = functools.partial(fuse_recording_rows, config=config, calibration=calibration,
+                             noise=noise, progress=False)
     if not spans:  # no detection at all: fuse_recording says so (ValidationError)
-        fuse_recording(windows.read(0, 0)[0], calibration=calibration, progress=False,
-                       **options)
+        fuse(windows.read(0, 0)[0])
+    flagged = RoomReport()
     n_frames = n_windows = 0
+    context = config.context_frames  # the checks' look-around
     person_ids = PersonIds()
     with fused_writer(path, output=output) as writer, \
             _progress(len(spans), progress) as bar:
-        # Context frames around each window when rows are checked against
-        # their neighbours' motion (the check reaches this far).
-        context = MOTION_CONTEXT_FRAMES if _motion_checked(options) else 0
         for start, stop in spans:
             rec, rows = windows.read(start - context, stop + context, shifts)
             bar.update(1)
             if not any(r.size for r in rows.values()):
                 continue  # a gap: no node has a detection in these frames
-            fused = fuse_recording(rec, calibration=calibration, progress=False, **options)
-            fused = _own_rows(fused, start, stop)
+            fused = _own_rows(fuse(rec), start, stop)
             if len(fused) == 0:
                 continue  # detections in the context frames only
-            fused, report = screen_room(fused, **room)
+            fused, report = screen_rows(fused, config)
             flagged = flagged + report
             fused = person_ids.assign(fused)  # one tracker over the windows, after the screens
             writer.append(_global_rows(fused, rows, rec.node_names))
@@ -184,7 +168,6 @@ def fuse_file(path: str | os.PathLike, *, output: str | os.PathLike | None = Non
             n_windows += 1
     dst = Path(path) if output is None else Path(output)
     return ChunkedFuseSummary(path=dst, n_rows=writer.n_rows, n_success=writer.n_success,
-                              n_frames=n_frames, n_windows=n_windows,
-                              mode=options.get("mode", "map"),
-                              covariance_method=fusion.covariance, solver=fusion.solver,
-                              room=flagged)
+                              n_frames=n_frames, n_windows=n_windows, mode=config.mode,
+                              covariance_method=config.solve.covariance,
+                              solver=config.solve.solver, room=flagged)

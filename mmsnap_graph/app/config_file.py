@@ -19,9 +19,17 @@ prints the effective file with every default)::
     [matching]         # mmsnap calibrate: track matching, seconds and metres
     min_common_s = 0.5
 
+    [fuse]             # mmsnap fuse, batch, replay: their fusion flags' keys
+    robust = "gate"
+    bounds = [-2.0, 1.6, 0.0, 3.6]
+    learned_walls = false
+
 One file may hold every table: ``mmsnap process`` reads ``[chain]``,
-``[chain.*]``, ``[ekf]`` and ``[scene]`` and ignores ``[matching]``; ``mmsnap calibrate``
-reads ``[matching]`` and ignores the others. Any other table is an error.
+``[chain.*]``, ``[ekf]`` and ``[scene]``; ``mmsnap calibrate`` reads
+``[matching]``; ``mmsnap fuse``, ``mmsnap batch`` and ``mmsnap replay`` read
+``[fuse]`` (:data:`FUSE_KEYS`: each flag's name, ``--no-X`` as ``X = false``;
+a flag given wins). Each ignores the others' tables. Any other table is an
+error.
 
 TOML has no null: a key whose default is "unset" (e.g. ``max_range_m``, the
 radar's unambiguous range) is set by giving a value and unset by leaving it
@@ -52,7 +60,8 @@ from ..tracking.ekf import EkfConfig
 
 __all__ = ["ProcessConfig", "read_process_config", "process_config_from_mapping",
            "process_config_to_toml", "read_matching_config",
-           "matching_config_from_mapping", "matching_config_to_toml", "SPARSE_VALUES"]
+           "matching_config_from_mapping", "matching_config_to_toml", "SPARSE_VALUES",
+           "FUSE_KEYS", "fuse_table_from_mapping", "read_fuse_table"]
 
 #: EKF fields the file may not set (the recording gives them).
 _EKF_FROM_RECORDING = ("frame_period_s",)
@@ -61,8 +70,18 @@ _CHAIN_TABLES = {"cfar": CfarConfig, "cluster": ClusterConfig}
 #: Top-level tables: read by ``process`` and by ``calibrate``.
 _PROCESS_TABLES = ("chain", "ekf", "scene")
 _CALIBRATE_TABLES = ("matching",)
+_FUSE_TABLES = ("fuse",)
 _KNOWN_TABLES = ("chain, chain.cfar, chain.cluster, ekf, scene (mmsnap process), matching "
-                 "(mmsnap calibrate)")
+                 "(mmsnap calibrate), fuse (mmsnap fuse, batch, replay)")
+#: The keys of the ``[fuse]`` table and the values each takes (a tuple of
+#: choices, or a type).
+FUSE_KEYS: dict[str, object] = {
+    "mode": ("map", "ml"), "covariance": ("laplace", "grid"),
+    "solver": ("vectorized", "gtsam", "scalar"), "source": ("centroids", "point_cloud"),
+    "robust": ("gate", "huber", "cauchy", "none"), "gate": float, "grid_points": int,
+    "motion_check": bool, "coverage_check": bool, "body_merge": bool, "body_check": bool,
+    "learned_walls": bool, "in_front": bool, "bounds": list, "bounds_cfg": str,
+}
 #: ``[chain.cluster] sparse`` (and ``mmsnap process --sparse``): the TOML or
 #: option value -> ``process_file(sparse=...)``.
 SPARSE_VALUES = {"auto": None, True: True, False: False, "on": True, "off": False}
@@ -147,7 +166,7 @@ def _build(cls, table: Mapping[str, Any], where: str, *, nested=None, forbidden=
 def _check_tables(data: Any, where: str) -> None:
     if not isinstance(data, Mapping):
         raise ConfigurationError(f"{where}: expected a table, got {type(data).__name__}")
-    unknown = set(data) - set(_PROCESS_TABLES) - set(_CALIBRATE_TABLES)
+    unknown = set(data) - set(_PROCESS_TABLES) - set(_CALIBRATE_TABLES) - set(_FUSE_TABLES)
     if unknown:
         raise ConfigurationError(f"{where}: unknown table(s) {sorted(unknown)} "
                                  f"(known: {_KNOWN_TABLES})")
@@ -204,6 +223,47 @@ def _read_toml(path: str | os.PathLike) -> tuple[dict[str, Any], str]:
         return tomllib.loads(text), str(p)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigurationError(f"{p}: not valid TOML: {exc}") from None
+
+
+def fuse_table_from_mapping(data: Mapping[str, Any], *, where: str = "config"
+                            ) -> dict[str, Any]:
+    """The ``[fuse]`` table of a parsed TOML document, checked key by key
+    against :data:`FUSE_KEYS` (``bounds``: four numbers, a tuple)."""
+    _check_tables(data, where)
+    table = data.get("fuse", {})
+    if not isinstance(table, Mapping):
+        raise ConfigurationError(f"{where}: fuse must be a table [fuse], got {table!r}")
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        here = f"{where}: fuse.{key}"
+        kind = FUSE_KEYS.get(key)
+        if kind is None:
+            raise ConfigurationError(f"{here}: unknown option (known: {', '.join(FUSE_KEYS)})")
+        if isinstance(kind, tuple):
+            if value not in kind or isinstance(value, bool):
+                raise ConfigurationError(f"{here} must be one of {', '.join(kind)}, got "
+                                         f"{value!r}")
+        elif kind is float:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigurationError(f"{here} must be a number, got {value!r}")
+            value = float(value)
+        elif kind is list:
+            if not (isinstance(value, list) and len(value) == 4 and all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+                raise ConfigurationError(f"{here} must be [x_min, x_max, y_min, y_max] in "
+                                         f"metres, got {value!r}")
+            value = tuple(float(v) for v in value)
+        elif not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+            raise ConfigurationError(f"{here} must be of type {kind.__name__}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def read_fuse_table(path: str | os.PathLike) -> dict[str, Any]:
+    """Read the ``[fuse]`` table of a ``--config`` TOML file (errors as
+    :func:`read_process_config`)."""
+    data, where = _read_toml(path)
+    return fuse_table_from_mapping(data, where=where)
 
 
 def read_matching_config(path: str | os.PathLike) -> MatchingOptions:

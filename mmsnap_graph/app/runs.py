@@ -15,7 +15,8 @@ batch`` is the one ``mmsnap calibrate`` and ``mmsnap fuse`` write:
   warning of poses far from the nominal ones given at import
   (:func:`nominal_texts`, also ``mmsnap monitor``'s);
 - :func:`fuse_stored`: fuse a recording file window by window with its
-  stored calibration and write ``/fused``.
+  stored calibration and a :class:`~mmsnap_graph.fusion.config.FusionConfig`,
+  and write ``/fused``.
 
 GTSAM, h5py and the estimators are imported inside the functions: the
 command-line parser imports this module and must stay light.
@@ -35,10 +36,10 @@ import numpy as np
 from ..errors import MmsnapWarning
 
 if TYPE_CHECKING:
+    from ..fusion.config import FusionConfig
     from ..fusion.options import NetworkCalibration
 
 __all__ = [
-    "DEFAULT_ROBUST",
     "nominal_texts",
     "StoredCalibration",
     "stored_calibration",
@@ -49,13 +50,6 @@ __all__ = [
     "range_offset_for_poses",
 ]
 
-#: Robust one-shot fusion used unless asked otherwise (``mmsnap fuse --robust
-#: none``): the per-node residual gate. Measured on clean simulated data
-#: (networks A, C and a 3-node one, straight and random walks, 600 frames, 3
-#: seeds each): the gate gave the same position RMSE and NEES as no robust
-#: fusion (to 3 digits); Huber raised the RMSE by 0.5-2 % and lowered the
-#: NEES by 0.05-0.15.
-DEFAULT_ROBUST = "gate"
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -94,14 +88,6 @@ class StoredCalibration:
             pose_covariances=dict(self.pose_covariances) if self.pose_covariances else None,
             time_offset_s=dict(self.time_offset_s) if self.time_offset_s else None,
             range_offset_m=None if self.range_offset_m is None else float(self.range_offset_m))
-
-    def fuse_options(self) -> dict[str, Any]:
-        """Keyword arguments of ``fuse_recording`` / ``fuse_file``:
-        ``calibration`` (:meth:`network_calibration`) and ``noise`` when set."""
-        out: dict[str, Any] = {"calibration": self.network_calibration()}
-        if self.noise is not None:
-            out["noise"] = self.noise
-        return out
 
     def with_default_noise(self, noise, text: str) -> "StoredCalibration":
         """This calibration with ``noise`` (said as ``text``) where it has
@@ -189,16 +175,36 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     if np.isfinite(depth):
         parts.append(f"range offset (reflection depth) {depth:.3f} m added to every range")
     elif poses is not None:
-        depth, said = range_offset_for_poses(path, cal, noise)
+        depth, said, here = _stored_range_offset(path, cal)
         parts += [said] if said else []
-        if said and sigmas is None and noise is not None:
+        if said and not here and sigmas is None:
             parts.append(f"the /noise sigmas are those of the last `mmsnap calibrate` or "
                          f"`mmsnap noise`: `mmsnap noise {Path(path).name} --calibration "
-                         f"{Path(calibration_json).name}` estimates them at these poses")
+                         f"{Path(calibration_json).name}` estimates them and the range offset "
+                         "at these poses")
     text.append("; ".join(parts))
     return StoredCalibration(node_poses=poses, pose_covariances=used_covs,
                              time_offset_s=offsets or None, noise=noise, text=tuple(text),
                              range_offset_m=depth if np.isfinite(depth) else None)
+
+
+def _stored_range_offset(path, calibration) -> tuple[float, str, bool]:
+    """The range offset to add when fusing at ``calibration``'s poses (a
+    calibration JSON without one), read, never estimated here (fusion reads
+    no more than a window at a time): none at the recording's own calibrated
+    poses (they took any depth in); else the one ``mmsnap noise
+    --calibration`` stored with the noise at those poses. Returns (offset or
+    NaN, words, whether the stored noise is of these poses)."""
+    from ..io.noise import read_range_offset
+
+    own = _read_calibration(path, None)
+    if own is not None and _same_poses(own.poses, calibration.poses):
+        return float("nan"), "", False
+    stored = read_range_offset(path)
+    if stored is not None and _same_poses(stored.poses, calibration.poses):
+        return stored.offset_m, stored.message, True
+    return float("nan"), ("the calibration gives no range offset and none was estimated at "
+                          "these poses: none added"), False
 
 
 def range_offset_for_poses(path: str | os.PathLike, calibration, noise, *,
@@ -321,7 +327,7 @@ def calibrate_and_store(path: str | os.PathLike,
     return cal, written
 
 
-def fuse_stored(path: str | os.PathLike, options: Mapping[str, Any] | None = None, *,
+def fuse_stored(path: str | os.PathLike, config: FusionConfig | None = None, *,
                 output: str | os.PathLike | None = None,
                 calibration: StoredCalibration | None = None,
                 progress: bool | None = False):
@@ -329,31 +335,28 @@ def fuse_stored(path: str | os.PathLike, options: Mapping[str, Any] | None = Non
     (:func:`~mmsnap_graph.app.chunked_fuse.fuse_file`) with its stored
     calibration and write ``/fused`` (in ``path``, or a copy at ``output``).
 
-    options : keyword arguments of ``fuse_recording`` (``mode``, ``noise``,
-        ``options``: a :class:`~mmsnap_graph.fusion.options.FusionOptions`,
-        ...); ``robust`` defaults to :data:`DEFAULT_ROBUST`. An option given
-        here wins over the stored calibration's.
+    config : the :class:`~mmsnap_graph.fusion.config.FusionConfig` (default
+        :data:`~mmsnap_graph.fusion.config.DEFAULT_CONFIG`, as ``mmsnap fuse``).
     calibration : what to fuse with (default :func:`stored_calibration` of
         the file, every part used); no noise in it: the paper's.
     The recording is locked from the read to the write. Returns ``(summary,
     calibration used)``.
     """
     from .._atomic import recording_lock
-    from ..fusion.options import DEFAULT_OPTIONS
+    from ..fusion.config import DEFAULT_CONFIG
     from ..io.chunks import open_detection_windows
     from .chunked_fuse import fuse_file
 
-    opts = dict(options or {})
-    fusion = opts.get("options", DEFAULT_OPTIONS)
-    opts.setdefault("robust", DEFAULT_ROBUST)
+    config = DEFAULT_CONFIG if config is None else config
     with recording_lock(path):
         if calibration is None:
-            names = open_detection_windows(path, source=fusion.source).node_names
+            names = open_detection_windows(path, source=config.association.source).node_names
             calibration = stored_calibration(
-                path, names, pose_covariances=fusion.covariance == "laplace")
+                path, names, pose_covariances=config.solve.covariance == "laplace")
         calibration = calibration.with_default_noise(*paper_noise())
-        merged = {**calibration.fuse_options(), **opts}
-        summary = fuse_file(path, output=output, progress=progress, **merged)
+        summary = fuse_file(path, config, output=output, progress=progress,
+                            calibration=calibration.network_calibration(),
+                            noise=calibration.noise)
     return summary, calibration
 
 

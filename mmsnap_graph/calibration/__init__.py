@@ -1,7 +1,7 @@
 """Self-calibration of a radar network (docs/CONVENTIONS.md, "Pairwise self-calibration").
 
 - :func:`closed_form_calibration`: pairwise closed form (paper eqs. 11-14)
-  with a pose covariance;
+  with a pose covariance (a :class:`~mmsnap_graph.data.calibration.PairwiseCalibration`);
 - :func:`match_tracks`: which tracks of two nodes are one target, and the
   frame lag between the nodes;
 - :func:`pose_graph_calibration`: N nodes from pairwise estimates, anchored
@@ -11,8 +11,9 @@
   numpy pre-solve (:mod:`.joint.presolve`) from a robust start (:mod:`.joint.robust_start`);
 - :func:`calibrate_recording`: all of the above on a
   :class:`~mmsnap_graph.data.recording.Recording`, giving a
-  :class:`RecordingCalibration` (stored and read back by
-  :mod:`mmsnap_graph.io.calibration`);
+  :class:`~mmsnap_graph.data.calibration.RecordingCalibration` (stored and
+  read back by :mod:`mmsnap_graph.io.calibration`), with a status and typed
+  facts (:mod:`mmsnap_graph.data.calibration_facts`);
 - :func:`estimate_noise`: each node's measurement noise from the data
   (:mod:`.noise.estimate`);
 - :func:`joint_detections_multi` / :func:`refine_multi`: several people,
@@ -29,7 +30,6 @@ from .._lazy import lazy_getattr
 _LAZY = {
     "DEFAULT_MIN_COMMON_FRAMES": "pairwise.closed_form",
     "DEFAULT_MIN_SPREAD_M": "pairwise.closed_form",
-    "PairwiseCalibration": "pairwise.closed_form",
     "alignment_jacobian": "pairwise.closed_form",
     "closed_form_calibration": "pairwise.closed_form",
     "closed_form_pose": "pairwise.closed_form",
@@ -61,14 +61,12 @@ _LAZY = {
     "TrackMatching": "pairwise.matching",
     "local_tracks": "pairwise.matching",
     "match_tracks": "pairwise.matching",
-    "RecordingCalibration": "network",
-    "RECORDING_JOINT_OPTIONS": "network",
+    "POINT_JOINT_OPTIONS": "network",
     "PEOPLE_JOINT_OPTIONS": "network",
+    "JOINT_OPTIONS_BY_TARGETS": "network",
     "joint_options_for": "network",
     "calibrate_recording": "network",
-    "residual_noise": "network",
-    "PoseEdge": "pairwise.pose_graph",
-    "PoseGraphCalibration": "pairwise.pose_graph",
+    "residual_noise": "joint.residual_noise",
     "pairwise_edges": "pairwise.pose_graph",
     "pose_graph_calibration": "pairwise.pose_graph",
     "pose_array": "poses",

@@ -9,116 +9,84 @@ calibrated node has one centroid per frame, else (several people, clutter,
 sparse clouds) after associating the centroids across nodes, in rounds of
 association and joint solve
 (:func:`~mmsnap_graph.calibration.joint.multi_refine.refine_associated`). The result, a
-:class:`RecordingCalibration`, is stored and read back by
-:mod:`mmsnap_graph.io.calibration` (the ``/calibration`` group and the
-calibration JSON).
+:class:`~mmsnap_graph.data.calibration.RecordingCalibration` with a status
+and the typed facts each step found (:mod:`mmsnap_graph.data.calibration_facts`),
+is stored and read back by :mod:`mmsnap_graph.io.calibration` (the
+``/calibration`` group and the calibration JSON).
 
 The centroid noise comes from the data first
 (:mod:`mmsnap_graph.calibration.noise.estimate`): the one-centroid joint graph
 is weighted by each node's temporal estimate (no poses needed), the
 multi-target one by the noise learned from its residuals; once the poses are
 known every node's noise is estimated again from the cross-node residuals
-and the temporal differences together (:attr:`RecordingCalibration.noise`,
+and the temporal differences together (``RecordingCalibration.noise``,
 stored as ``/noise`` by ``mmsnap calibrate``). A simulator's metadata sigmas
 are not used: a recording's data are what a user has.
+
+The joint graph's default options follow what the recording says its radars
+see (``Recording.targets``, :data:`JOINT_OPTIONS_BY_TARGETS`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
 from typing import Literal, Mapping
 
 import numpy as np
-from numpy.typing import NDArray
 
 from ..errors import CalibrationError, MissingStepError, ValidationError
+from ..data.calibration import RecordingCalibration
+from ..data.calibration_facts import (
+    NOISE_COMPONENTS,
+    CalibrationFact,
+    CalibrationStatus,
+    JointNoise,
+    JointRejected,
+    JointSkipped,
+    LagNotDetermined,
+    LagsDisputed,
+    NoiseNotIdentified,
+    TargetsAssociated,
+)
 from ..data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from ..data.recording import Detections, NodeData, Recording
 from .joint.options import REFLECTION_DEPTH_RMS_M, JointOptions
-from .joint.solve import JointCalibration, joint_calibration
+from .joint.solve import joint_calibration
 from .pairwise.matching import LocalTracks, local_tracks
 from .pairwise.matching_options import MatchingOptions
 from .joint.multi_refine import refine_associated, with_clock_offsets
 from .noise.estimate import estimate_noise
 from .lag_support import unrejected_lag_spread
 from .pairwise.matching import LAG_EVIDENCE_Z
-from .joint.residual_noise import residual_noise
-from .pairwise.pose_graph import PoseEdge, PoseGraphCalibration, pairwise_edges, pose_graph_calibration
+from .pairwise.pose_graph import pairwise_edges, pose_graph_calibration
 
-__all__ = ["RecordingCalibration", "RECORDING_JOINT_OPTIONS", "PEOPLE_JOINT_OPTIONS",
-           "joint_options_for", "calibrate_recording", "residual_noise", "describe_noise"]
+__all__ = ["POINT_JOINT_OPTIONS", "PEOPLE_JOINT_OPTIONS", "JOINT_OPTIONS_BY_TARGETS",
+           "joint_options_for", "calibrate_recording"]
 
-#: The joint graph's options of :func:`calibrate_recording` by default:
-#: constant-velocity factors (they let a ghost stand out from the smooth
-#: track; without them a free per-frame state absorbs part of it) with a
-#: white-acceleration sigma that covers a walking person's accelerations (on
-#: the simulator's walks 0.5 m/s^2 biased the poses by up to 9 cm, 2-5 m/s^2
-#: did not), and each node's clock offset.
-RECORDING_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True)
-#: The same for recordings of people (``mmsnap calibrate``, ``mmsnap batch``):
-#: their reflection depth, not estimated, considered in the pose covariance
-#: (``JointOptions.range_offset_rms_m``; docs/CALIBRATION.md).
-PEOPLE_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True,
-                                    range_offset_rms_m=REFLECTION_DEPTH_RMS_M)
+#: The joint graph's options for point targets (``Recording.targets =
+#: "points"``, the simulator's clean model): constant-velocity factors (they
+#: let a ghost stand out from the smooth track; without them a free per-frame
+#: state absorbs part of it) with a white-acceleration sigma that covers a
+#: walking person's accelerations (on the simulator's walks 0.5 m/s^2 biased
+#: the poses by up to 9 cm, 2-5 m/s^2 did not), and each node's clock offset.
+POINT_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True)
+#: The same for recordings of people (``Recording.targets = "people"``, real
+#: radars): their reflection depth, not estimated, considered in the pose
+#: covariance (``JointOptions.range_offset_rms_m``; docs/CALIBRATION.md).
+PEOPLE_JOINT_OPTIONS = dataclasses.replace(POINT_JOINT_OPTIONS,
+                                           range_offset_rms_m=REFLECTION_DEPTH_RMS_M)
+#: ``Recording.targets`` -> the joint graph's default options. Point targets
+#: leave the reflection depth's term out: every radar sees the whole target,
+#: so its centroids carry no depth and the term would only widen the
+#: covariance (the README's clean tour: fused NEES 3.09 against the band
+#: (3.77, 4.23) with it).
+JOINT_OPTIONS_BY_TARGETS = {"people": PEOPLE_JOINT_OPTIONS, "points": POINT_JOINT_OPTIONS}
 
 
 def joint_options_for(recording: Recording) -> JointOptions:
-    """The joint graph's default options for ``recording`` in ``mmsnap
-    calibrate`` and ``mmsnap batch``: :data:`PEOPLE_JOINT_OPTIONS` (a person's
-    reflection depth considered), unless the recording declares point
-    targets (the simulator's clean model, metadata ``model = "clean"``: every
-    radar sees the whole torso, so its centroids carry no depth and the term
-    would only widen the covariance; measured on the README's clean tour:
-    fused NEES 3.09 against the band (3.77, 4.23) with it)."""
-    if str(recording.metadata.get("model", "")) == "clean":
-        return RECORDING_JOINT_OPTIONS
-    return PEOPLE_JOINT_OPTIONS
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class RecordingCalibration:
-    """Every node's calibrated pose in the reference frame.
-
-    poses, covariances, lag_frames : per calibrated node.
-    unreachable : nodes with no path of matched tracks to the reference.
-    edges : the pairwise closed-form estimates (with track RMSE and lag).
-    method : ``"joint"`` when the joint graph refined the poses, else
-    ``"pose_graph"``. source : ``"tracks"`` or ``"centroids"``.
-    pose_graph, joint : the step results (None when read from a file).
-    noise : every node's noise estimated from the data at the calibrated
-        poses (None when read from a file: see :mod:`mmsnap_graph.io.noise`).
-    time_offset_s : name -> clock offset in seconds (node time + offset =
-        reference time; 0 for the reference): the joint graph's estimate
-        (whole-frame lag and fraction) when it ran with clock offsets, else
-        ``-lag_frames * frame period``.
-    time_offset_variances : name -> its variance (s^2; NaN where not
-        estimated, 0 for the reference).
-    range_offset_m, range_offset_variance : the joint graph's range offset
-        (reflection depth, m) and its variance (m^2) when it estimated one
-        (``JointOptions.range_offset_prior_m``); NaN otherwise. ``mmsnap
-        fuse`` adds it to every centroid range.
-    """
-
-    reference: str
-    node_names: tuple[str, ...]
-    poses: Mapping[str, NDArray]
-    covariances: Mapping[str, NDArray]
-    lag_frames: Mapping[str, int]
-    unreachable: tuple[str, ...]
-    edges: tuple[PoseEdge, ...]
-    method: str
-    source: str
-    success: bool
-    message: str
-    failures: Mapping[str, str] = field(default_factory=dict)
-    pose_graph: PoseGraphCalibration | None = None
-    joint: JointCalibration | None = None
-    noise: NoiseEstimate | None = None
-    time_offset_s: Mapping[str, float] = field(default_factory=dict)
-    time_offset_variances: Mapping[str, float] = field(default_factory=dict)
-    range_offset_m: float = float("nan")
-    range_offset_variance: float = float("nan")
+    """The joint graph's default options for ``recording``: by the target
+    model it declares (:data:`JOINT_OPTIONS_BY_TARGETS`)."""
+    return JOINT_OPTIONS_BY_TARGETS[recording.targets]
 
 
 def _joint_detections(rec: Recording, names, lags) -> dict[str, Detections] | None:
@@ -134,7 +102,7 @@ def _joint_detections(rec: Recording, names, lags) -> dict[str, Detections] | No
     return out
 
 
-def _first_noise(pg: PoseGraphCalibration, dets: Mapping[str, Detections]) -> MeasurementNoise:
+def _first_noise(pg: RecordingCalibration, dets: Mapping[str, Detections]) -> MeasurementNoise:
     """First guess of the centroid noise: the cross-range noise the closed
     form's track RMSE implies (RMSE^2 ~ two nodes' cross-range variances) as
     omega = pi x / r; the paper's range and Doppler sigmas."""
@@ -145,24 +113,7 @@ def _first_noise(pg: PoseGraphCalibration, dets: Mapping[str, Detections]) -> Me
     return dataclasses.replace(paper, omega_rad=omega0)
 
 
-def describe_sigmas(noise: MeasurementNoise) -> str:
-    """``range R m, omega W rad, doppler D m/s``."""
-    return (f"range {noise.range_m:.3g} m, omega {noise.omega_rad:.3g} rad, "
-            f"doppler {noise.doppler_mps:.3g} m/s")
-
-
-def describe_noise(noise: MeasurementNoise, estimate: NoiseEstimate) -> str:
-    """``noise`` (pooled from ``estimate``) component by component, each
-    said to be estimated or not identified (then the fallback's value)."""
-    parts = []
-    for i, (comp, unit) in enumerate((("range", "m"), ("omega", "rad"), ("doppler", "m/s"))):
-        ident = any(e.identified[i] for e in estimate.nodes.values())
-        parts.append(f"{comp} {noise.sigmas[i]:.3g} {unit} "
-                     + ("estimated" if ident else "NOT identified (fallback)"))
-    return ", ".join(parts)
-
-
-def _joint_noise(recording, pg, dets) -> tuple[MeasurementNoise, str]:
+def _joint_noise(recording, pg, dets) -> tuple[MeasurementNoise, JointNoise]:
     """The joint graph's noise before the poses are refined: the nodes'
     temporal estimates pooled (each node's own centroid sequence, no poses
     needed); a component none identifies takes the closed form's track RMSE
@@ -170,31 +121,34 @@ def _joint_noise(recording, pg, dets) -> tuple[MeasurementNoise, str]:
     first = _first_noise(pg, dets)
     est = estimate_noise(recording, lag_frames=pg.lag_frames, method="temporal", fallback=first)
     noise = est.pooled()
-    return noise, "sigmas estimated from residuals for the joint graph: " + \
-        describe_noise(noise, est)
+    identified = tuple(any(e.identified[i] for e in est.nodes.values()) for i in range(3))
+    return noise, JointNoise(sigmas=noise.sigmas, identified=identified, source="temporal")
 
 
-def _refine(recording, pg, reachable, method, noise, options: JointOptions, notes):
+def _refine(recording, pg, reachable, method, noise, options: JointOptions, facts):
     """The joint step: its result (None when skipped) and, with several
     centroids per frame, the associated detections it ran on and the clock
-    offsets of the solve with time offsets (else None, None)."""
+    offsets of the solve with time offsets (else None, None); what it found
+    is added to ``facts``."""
     dets = _joint_detections(recording, reachable, pg.lag_frames)
     if dets is None:
-        out = _refine_multi(recording, pg, reachable, method, noise, options, notes)
+        out = _refine_multi(recording, pg, reachable, method, noise, options, facts)
         return (None, None, None) if out is None else (out.joint, out.detections,
                                                        out.clock_offsets)
     if noise is None:
-        noise, note = _joint_noise(recording, pg, dets)
-        notes.append(note)
+        noise, said = _joint_noise(recording, pg, dets)
+    else:
+        said = JointNoise(sigmas=noise.sigmas, identified=(True,) * 3, source="given")
+    facts.append(said)
     joint = joint_calibration(dets, options, noise=noise,
                               initial_poses={n: pg.poses[n] for n in reachable},
                               frame_period_s=recording.frame_period_s,
                               lag_frames={n: int(pg.lag_frames.get(n, 0)) for n in reachable})
-    notes.append(joint.message)
+    facts.extend(joint.facts)
     return joint, None, None
 
 
-def _refine_multi(recording, pg, reachable, method, noise, options, notes):
+def _refine_multi(recording, pg, reachable, method, noise, options, facts):
     """Several centroids per frame (several people, clutter, sparse clouds):
     associate them across nodes with the calibration in progress, rounds of
     association and joint solve (:func:`~mmsnap_graph.calibration.joint.multi_refine.refine_associated`),
@@ -213,22 +167,24 @@ def _refine_multi(recording, pg, reachable, method, noise, options, notes):
                                 noise=noise,
                                 options=dataclasses.replace(options, time_offsets=False))
     except CalibrationError as exc:  # e.g. no centroids at all (tracks only)
-        out = None
-        notes.append(f"no association across nodes: {exc}")
+        out, why = None, str(exc)
+    else:
+        why = ""
     if out is None:
         if method == "joint":
             raise CalibrationError("the joint calibration needs centroids of a common target "
-                                   "from at least two nodes; none could be associated")
-        notes.append("joint refinement skipped: no centroids of a common target could be "
-                     "associated across nodes")
+                                   "from at least two nodes; none could be associated"
+                                   + (f" ({why})" if why else ""))
+        facts.append(JointSkipped(association_error=why))
         return None
-    notes.append(f"several centroids per frame: {out.association.n_targets} target tracks, "
-                 f"{out.association.n_groups} (frame, target) states; sigmas from the "
-                 f"residuals: {describe_sigmas(out.noise)}")
+    facts.append(TargetsAssociated(n_targets=out.association.n_targets,
+                                   n_states=out.association.n_groups))
+    facts.append(JointNoise(sigmas=out.noise.sigmas, identified=(True,) * 3,
+                            source="residuals" if noise is None else "given"))
     if options.time_offsets:
-        out, note = with_clock_offsets(out, recording, options)
-        notes.append(note)
-    notes.append(out.joint.message)
+        out, tried = with_clock_offsets(out, recording, options)
+        facts.append(tried)
+    facts.extend(out.joint.facts)
     return out
 
 
@@ -268,7 +224,7 @@ def calibrate_recording(
     method: Literal["auto", "joint", "pose_graph"] = "auto",
     noise: MeasurementNoise | None = None,
     matching: MatchingOptions | None = None,
-    joint: JointOptions = RECORDING_JOINT_OPTIONS,
+    joint: JointOptions | None = None,
 ) -> RecordingCalibration:
     """Calibrate every node of ``recording``: each node's pose in the first
     node's (the reference's) frame, with its covariance, frame lag and clock
@@ -281,14 +237,17 @@ def calibrate_recording(
     seconds. Poses stored on the nodes are not used (they are what this
     estimates).
 
-    Returns a :class:`RecordingCalibration`: ``poses`` and ``covariances``
-    (Pose2 body tangent, ``(x_m, y_m, phi_rad)``) of every calibrated node,
-    ``lag_frames`` and ``time_offset_s`` per node, ``unreachable`` nodes,
-    the pairwise ``edges``, ``method`` (``"joint"`` or ``"pose_graph"``),
-    ``source``, ``success`` and ``message`` (why a step failed or what it
-    could not identify), ``noise`` (every node's sigmas from the data), and
-    the step results ``pose_graph`` and ``joint``. :func:`mmsnap_graph.io.calibration.write_calibration` stores it
-    as the recording's ``/calibration`` group (``mmsnap calibrate``).
+    Returns a :class:`~mmsnap_graph.data.calibration.RecordingCalibration`:
+    ``poses`` and ``covariances`` (Pose2 body tangent, ``(x_m, y_m,
+    phi_rad)``) of every calibrated node, their ``joint_covariance``,
+    ``lag_frames`` and ``time_offset_s`` per node, ``unreachable`` nodes, the
+    pairwise ``edges``, ``method`` (``"joint"`` or ``"pose_graph"``),
+    ``source``, ``status`` (why it is not usable, or ``OK``), ``facts``
+    (what each step found or could not determine: lags, noise, covariance
+    method, ...), ``failures`` (nodes and pairs that could not be used) and
+    ``noise`` (every node's sigmas from the data).
+    :func:`mmsnap_graph.io.calibration.write_calibration` stores it as the
+    recording's ``/calibration`` group (``mmsnap calibrate``).
 
     source : the local positions to match: EKF tracks when present
         (``"auto"``), ``"tracks"`` or ``"centroids"``.
@@ -308,58 +267,103 @@ def calibrate_recording(
         a track pair must share ``min_common_s`` of a target that moves
         ``min_spread_m`` in each node, a match whose track RMSE exceeds
         ``max_rmse_m`` is rejected. Lags that the joint graph's clock
-        offsets dispute give way to lag 0 (:func:`_disputed_lags`).
-    joint : the joint graph's options (default
-        :data:`RECORDING_JOINT_OPTIONS`). Clock offsets (``time_offsets``, a
-        fraction of a frame beyond the whole-frame lag of the track
-        matching; docs/CALIBRATION.md, "Clock offsets") need the motion
-        factors; with several centroids per frame they are kept only when
-        the data support them (:func:`_refine_multi`).
+        offsets dispute give way to lag 0 (:func:`_disputed_lags`: the
+        calibration is made once more with lag 0 only, and says so).
+    joint : the joint graph's options (None: :func:`joint_options_for` the
+        recording, by its declared target model). Clock offsets
+        (``time_offsets``, a fraction of a frame beyond the whole-frame lag
+        of the track matching; docs/CALIBRATION.md, "Clock offsets") need
+        the motion factors; with several centroids per frame they are kept
+        only when the data support them (:func:`_refine_multi`).
     Raises :class:`CalibrationError` when no node pair can be matched.
     """
     matching = _checked_options(method, noise, matching, joint)
     names = _checked_nodes(recording)
+    joint = joint_options_for(recording) if joint is None else joint
+    outcome = _calibrate(recording, names, source, method, noise, matching, joint)
+    if not isinstance(outcome, LagsDisputed):
+        return outcome
+    # Once more with lag 0 only (the nodes' own sync): no lag is left to dispute.
+    again = _calibrate(recording, names, source, method, noise,
+                       dataclasses.replace(matching, max_lag_s=0.0), joint)
+    return dataclasses.replace(again, facts=(outcome, *again.facts))
+
+
+def _calibrate(recording, names, source, method, noise, matching: MatchingOptions,
+               joint: JointOptions) -> RecordingCalibration | LagsDisputed:
+    """One pass of :func:`calibrate_recording` with these lag rules: the
+    calibration, or the joint graph's dispute of the track matching's lags
+    (the pass then stops: the lags are searched again)."""
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
+    facts: list[CalibrationFact] = list(pg.facts)
     poses, covs = dict(pg.poses), dict(pg.covariances)
-    result_method, refined, associated, clock, notes = "pose_graph", None, None, None, [pg.message]
+    result_method, refined, associated, clock = "pose_graph", None, None, None
     reachable = [n for n in names if n in poses]
     if method in ("auto", "joint") and len(reachable) >= 2:
         options = dataclasses.replace(joint, time_offsets=joint.time_offsets and joint.motion)
         refined, associated, clock = _refine(recording, pg, reachable, method, noise, options,
-                                             notes)
-        again = _at_lag_zero_if_disputed(recording, pg.lag_frames, clock, matching, dict(
-            source=source, method=method, noise=noise, joint=joint))
-        if again is not None:
-            return again
+                                             facts)
+        disputed = _disputed_lags(pg.lag_frames, clock)
+        if disputed is not None:
+            return disputed
         if refined is not None and (refined.success or method == "joint"):
             poses = {n: refined.poses[n] for n in reachable}
             covs = {n: refined.covariances[n] for n in reachable}
             result_method = "joint"
         elif refined is not None:
-            notes.append("kept the pose-graph poses")
+            facts.append(JointRejected(status=refined.status))
             associated = None
     used = None if result_method != "joint" else (  # the centroids the joint graph fitted
         associated if associated is not None else _joint_detections(recording, reachable,
                                                                      pg.lag_frames))
-    covs = _cover_ambiguous_lags(pg.edges, covs, notes, used, clock, matching,
-                                 recording.frame_period_s)
-    success = pg.success and (refined is None or refined.success or result_method == "pose_graph")
+    facts += [e.lag_evidence for e in pg.edges if e.lag_evidence is not None]
+    widened = _cover_ambiguous_lags(pg.edges, covs, facts, used, clock, matching,
+                                    recording.frame_period_s)
+    status = pg.status
+    if status is CalibrationStatus.OK and result_method == "joint":
+        status = refined.status
     lags = dict(pg.lag_frames)
     if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
         lags.update({n: int(v) for n, v in refined.lag_frames.items() if n in lags})
     noise_est = _noise_estimate(recording, poses, lags, associated)
-    notes.append(noise_est.message)
+    facts += _unidentified(noise_est)
     offsets, variances = _clock_offsets(recording, names, pg, refined if result_method == "joint"
                                         else None)
+    step = refined if result_method == "joint" else pg
     return RecordingCalibration(
-        reference=names[0], node_names=tuple(names), poses=poses, covariances=covs,
+        reference=names[0], node_names=tuple(names), poses=poses, covariances=widened,
         lag_frames=lags, unreachable=pg.unreachable, edges=pg.edges,
-        method=result_method, source=used_source, success=bool(success),
-        message="; ".join(notes), failures=failures, pose_graph=pg, joint=refined,
-        noise=noise_est, time_offset_s=offsets, time_offset_variances=variances,
+        method=result_method, source=used_source, status=status, facts=tuple(facts),
+        failures=failures, noise=noise_est, time_offset_s=offsets,
+        time_offset_variances=variances,
         range_offset_m=refined.range_offset_m if result_method == "joint" else float("nan"),
         range_offset_variance=(refined.range_offset_variance if result_method == "joint"
-                               else float("nan")))
+                               else float("nan")),
+        joint_covariance=_widened_joint(step.joint_covariance, step.joint_order, covs, widened),
+        joint_order=step.joint_order if step.joint_covariance is not None else (),
+        model_covariances={n: step.model_covariances[n] for n in poses
+                           if n in step.model_covariances})
+
+
+def _widened_joint(joint_cov, order, before, after):
+    """The joint pose covariance with each node's widening (``after -
+    before``, the lag cover of :func:`_cover_ambiguous_lags`) added to its
+    diagonal block; None stays None."""
+    if joint_cov is None:
+        return None
+    out = np.array(joint_cov, dtype=float)
+    for i, n in enumerate(order):
+        if n in before and n in after:
+            out[3 * i:3 * i + 3, 3 * i:3 * i + 3] += after[n] - before[n]
+    return out
+
+
+def _unidentified(noise: NoiseEstimate) -> list[NoiseNotIdentified]:
+    """A fact for every node's noise component the data do not identify."""
+    return [NoiseNotIdentified(node=n, component=comp, sigma=e.noise.sigmas[i],
+                               reason=e.reasons[i])
+            for n, e in noise.nodes.items() for i, comp in enumerate(NOISE_COMPONENTS)
+            if not e.identified[i]]
 
 
 def _checked_nodes(recording: Recording) -> list[str]:
@@ -381,26 +385,14 @@ def _checked_options(method, noise, matching, joint) -> MatchingOptions:
     matching = MatchingOptions() if matching is None else matching
     if not isinstance(matching, MatchingOptions):
         raise ValidationError(f"matching must be a MatchingOptions or None, got {matching!r}")
-    if not isinstance(joint, JointOptions):
-        raise ValidationError(f"joint must be a JointOptions, got {joint!r}")
+    if joint is not None and not isinstance(joint, JointOptions):
+        raise ValidationError(f"joint must be a JointOptions or None, got {joint!r}")
     return matching
 
 
-def _at_lag_zero_if_disputed(recording, lags, clock, matching, kwargs):
-    """The calibration again with lag 0 only (the nodes' own sync) when the
-    joint graph disputes the track matching's lags (:func:`_disputed_lags`),
-    else None."""
-    disputed = _disputed_lags(lags, clock)
-    if not disputed or matching.max_lag_s <= 0:
-        return None
-    again = calibrate_recording(recording, matching=dataclasses.replace(matching, max_lag_s=0.0),
-                                **kwargs)
-    return dataclasses.replace(again, message=f"{disputed}: lag 0 kept; {again.message}")
-
-
-def _disputed_lags(lags, clock) -> str:
+def _disputed_lags(lags, clock) -> LagsDisputed | None:
     """Why the whole-frame lags of the track matching are not determined,
-    or "" when they are: every nonzero lag's node has a clock offset from
+    or None when they are: every nonzero lag's node has a clock offset from
     the joint graph's solve with time offsets (``clock``: node ->
     (fraction, sigma) in frames beyond the lag) more than half a frame and
     :data:`LAG_EVIDENCE_Z` sigmas from it. The tracks then prefer a lag
@@ -409,22 +401,21 @@ def _disputed_lags(lags, clock) -> str:
     2.1 +- 0.3 frames nearer zero, the heading 16.8 deg off)."""
     lagged = {n: int(v) for n, v in lags.items() if int(v) != 0}
     if not lagged or clock is None:
-        return ""
+        return None
     off = {n: clock.get(n, (0.0, float("nan"))) for n in lagged}
     if not all(abs(f) > 0.5 and abs(f) >= LAG_EVIDENCE_Z * sd for f, sd in off.values()):
-        return ""
-    return ("the track matching's lags not determined by the data (the joint graph's clock "
-            "offsets contradict them: " + ", ".join(
-                f"{n} lag {lagged[n]} frames, {f:+.2f} +- {sd:.2f} frames beyond it"
-                for n, (f, sd) in off.items()) + ")")
+        return None
+    return LagsDisputed(nodes=tuple(off), lags=tuple(lagged[n] for n in off),
+                        fractions=tuple(f for f, _ in off.values()),
+                        sigmas=tuple(sd for _, sd in off.values()), evidence_z=LAG_EVIDENCE_Z)
 
 
-def _cover_ambiguous_lags(edges, covs, notes, used, clock, matching, period) -> dict:
-    """The edges' lag notes added to ``notes``, and the covariances of the
-    nodes of an ambiguous-lag edge widened to cover the poses of the lags
-    the final model cannot reject: the refinement fits one lag and its
-    covariance is that lag's alone (a walk along a circle: 0.8 m off with a
-    0.08 m sigma).
+def _cover_ambiguous_lags(edges, covs, facts, used, clock, matching, period) -> dict:
+    """The covariances of the nodes of an ambiguous-lag edge widened to
+    cover the poses of the lags the final model cannot reject (a
+    :class:`~mmsnap_graph.data.calibration_facts.LagNotDetermined` added to
+    ``facts`` for each): the refinement fits one lag and its covariance is
+    that lag's alone (a walk along a circle: 0.8 m off with a 0.08 m sigma).
 
     With the centroids the joint graph was fitted on (``used``, node ->
     detections on the reference clock), each shift within the matching's
@@ -440,7 +431,6 @@ def _cover_ambiguous_lags(edges, covs, notes, used, clock, matching, period) -> 
     sigma where the errors were 1-2 deg). Without them (the pose graph's
     result) the edge's widened covariance is a PSD lower bound of both
     nodes'."""
-    notes += [f"{e.node_a}-{e.node_b}: {e.lag_note}" for e in edges if e.lag_note]
     out = dict(covs)
     for e in edges:
         if not e.lag_ambiguous:
@@ -458,14 +448,12 @@ def _cover_ambiguous_lags(edges, covs, notes, used, clock, matching, period) -> 
                 matching.inlier_gate_m, out[b])
             rejected = sorted(rejected + timed_out)
             out[b] = out[b] + extra
-            notes.append(f"{a}-{b}: lag not determined by the track matching; the joint "
-                         f"graph's clock offset ({frac:+.2f} +- {sd:.2f} frames) or its "
-                         f"centroids reject the shifts {rejected} frames (z >= "
-                         f"{LAG_EVIDENCE_Z:g}); the covariance covers the poses of "
-                         f"{kept if kept else 'none'}")
+            facts.append(LagNotDetermined(node_a=a, node_b=b, tested=True,
+                                          kept_shifts=tuple(kept), rejected_shifts=tuple(rejected),
+                                          clock_fraction=frac, clock_sigma=sd,
+                                          evidence_z=LAG_EVIDENCE_Z))
             continue
-        notes.append(f"{e.node_a}-{e.node_b}: lag not determined (other lags fit about as well "
-                     f"with other poses): the covariance covers their spread")
+        facts.append(LagNotDetermined(node_a=a, node_b=b, tested=False))
         for n in (e.node_a, e.node_b):
             if n in out and np.any(out[n]):
                 gap_val, gap_vec = np.linalg.eigh(e.covariance - out[n])
@@ -506,7 +494,8 @@ def _merged_noise(assoc: NoiseEstimate, own: NoiseEstimate) -> NoiseEstimate:
             identified=tuple(pick[i].identified[i] for i in range(3)),
             n_residuals=tuple(pick[i].n_residuals[i] for i in range(3)),
             method="; ".join(methods) or a.method,
-            reasons=tuple(pick[i].reasons[i] for i in range(3)))
+            reasons=tuple(pick[i].reasons[i] for i in range(3)),
+            tail_factors=tuple(pick[i].tail_factors[i] for i in range(3)))
         n_id += sum(nodes[name].identified)
     msg = (f"noise from the data ({assoc.method}): {n_id} of {3 * len(nodes)} node sigmas "
            f"identified (the centroids associated across nodes, else each node's own "

@@ -7,12 +7,17 @@ radar configuration, and the result types of the estimators.
 - :mod:`.noise`: :class:`MeasurementNoise`, :class:`GaussianPrior`;
 - :mod:`.results`: :class:`Status` (the one status enum), :class:`FusionResult`,
   :class:`BatchResult`, :class:`FusedSequence`;
+- :mod:`.calibration`: :class:`PairwiseCalibration`, :class:`RecordingCalibration`
+  (self-calibration's results), with :mod:`.calibration_facts`:
+  :class:`CalibrationStatus` and the typed facts they report;
 - :mod:`.body`: a person's size as the filters use it (a width, and the merge
   radii of centroids).
 """
 
 from .radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarConfig, TiProfile
 from .recording import Detections, NodeData, Recording, Tracks, Truth
+from .calibration import PairwiseCalibration, RecordingCalibration
+from .calibration_facts import CalibrationStatus
 from .results import DEGENERACY_THRESHOLD, BatchResult, FusedSequence, FusionResult, Status
 
 __all__ = [
@@ -30,4 +35,7 @@ __all__ = [
     "FusionResult",
     "BatchResult",
     "FusedSequence",
+    "CalibrationStatus",
+    "PairwiseCalibration",
+    "RecordingCalibration",
 ]

@@ -77,6 +77,9 @@ class NodeNoiseEstimate:
         ``"network+temporal"``; :mod:`mmsnap_graph.calibration.noise.estimate`).
     reasons : (3,) str, why each unidentified component is not (``""`` when
         identified).
+    tail_factors : (3,) float >= 1, the factor each sigma was raised by so
+        that its variance covers the residuals' heavy tails (1.0: none;
+        :mod:`mmsnap_graph.calibration.noise.tails`).
     """
 
     noise: MeasurementNoise
@@ -84,6 +87,7 @@ class NodeNoiseEstimate:
     n_residuals: tuple[int, int, int]
     method: str
     reasons: tuple[str, str, str] = ("", "", "")
+    tail_factors: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
         if not isinstance(self.noise, MeasurementNoise):
@@ -97,6 +101,11 @@ class NodeNoiseEstimate:
         if len(reasons) != 3:
             raise ValidationError(f"reasons must hold 3 strings, got {self.reasons!r}")
         object.__setattr__(self, "reasons", reasons)
+        tails = tuple(float(v) for v in self.tail_factors)
+        if len(tails) != 3 or not all(math.isfinite(v) and v >= 1.0 for v in tails):
+            raise ValidationError(f"tail_factors must be 3 finite factors >= 1, got "
+                                  f"{self.tail_factors!r}")
+        object.__setattr__(self, "tail_factors", tails)
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -26,7 +26,10 @@ from .radar_config import RadarConfig
 from .._validation import as_float_array, check_finite, check_pose, int_array
 
 __all__ = ["Detections", "Tracks", "NodeData", "Truth", "Recording", "MIN_FRAME_PERIOD_S",
-           "MAX_FRAME_PERIOD_S"]
+           "MAX_FRAME_PERIOD_S", "TARGET_MODELS"]
+
+#: ``Recording.targets``: what the radars of a recording see.
+TARGET_MODELS = ("people", "points")
 
 #: A recording's frame period bounds (s): a radar frame holds at least one
 #: chirp (tens of microseconds), and a frame an hour apart is no tracking.
@@ -274,18 +277,29 @@ class Truth:
 @dataclass(frozen=True, kw_only=True, slots=True, repr=False)
 class Recording:
     """A recording: nodes (in order; the first is the reference S1), the frame
-    period, optional truth and free-form metadata (str, int, float values)."""
+    period, optional truth, the target model and free-form metadata (str,
+    int, float values).
+
+    targets : what the radars see, which sets the calibration's defaults
+        (:data:`TARGET_MODELS`): ``"people"`` (bodies whose centroid lies a
+        reflection depth nearer each radar than the body's centre; real
+        recordings, the simulator's real model) or ``"points"`` (point
+        targets, the simulator's clean model). Files that do not declare it
+        are read as ``"people"`` (docs/FORMAT.md).
+    """
 
     frame_period_s: float
     nodes: Mapping[str, NodeData]
     truth: Truth | None = None
     metadata: Mapping[str, Any] = field(default_factory=dict)
+    targets: str = "people"
 
     def __repr__(self) -> str:
         nodes = ",\n  ".join(repr(node) for node in self.nodes.values())
         truth = "" if self.truth is None else f",\n  {self.truth!r}"
         meta = f",\n  metadata keys: {sorted(self.metadata)}" if self.metadata else ""
-        return (f"Recording(frame_period_s={self.frame_period_s:g}, {len(self.nodes)} nodes:\n  "
+        return (f"Recording(frame_period_s={self.frame_period_s:g}, targets {self.targets}, "
+                f"{len(self.nodes)} nodes:\n  "
                 f"{nodes}{truth}{meta})")
 
     def __post_init__(self) -> None:
@@ -307,6 +321,9 @@ class Recording:
                 raise ValidationError(f"nodes[{key!r}] must be a NodeData named {key!r}")
         object.__setattr__(self, "nodes", nodes)
         object.__setattr__(self, "metadata", dict(self.metadata))
+        if self.targets not in TARGET_MODELS:
+            raise ValidationError(f"targets={self.targets!r} must be one of "
+                                  f"{list(TARGET_MODELS)}")
 
     @property
     def node_names(self) -> list[str]:

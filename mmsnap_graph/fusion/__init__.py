@@ -5,7 +5,8 @@ The package is laid out by stage:
 
 - :mod:`.options`: :class:`FusionOptions`, :class:`RobustOptions` and
   :class:`NetworkCalibration` (poses, covariances, clock and range offsets), taken
-  by every entry point;
+  by every entry point; :mod:`.config`: :class:`FusionConfig`, how a recording
+  or a stream is fused (the association, the solve, the checks as components);
 - the one-frame problem, shared by every solver (no GTSAM):
   :mod:`.problem` (validation, initial states), :mod:`.degeneracy` (the
   velocity degeneracy indicator), :mod:`.robust` (kernels and the residual
@@ -46,6 +47,16 @@ _LAZY = {
     "NetworkCalibration": "options",
     "DEFAULT_OPTIONS": "options",
     "robust_options": "options",
+    "FusionConfig": "config",
+    "AssociationOptions": "config",
+    "MotionCheck": "config",
+    "SplitCheck": "config",
+    "CoverageCheck": "config",
+    "RoomCheck": "config",
+    "LearnedWalls": "config",
+    "DuplicateCheck": "config",
+    "DEFAULT_CONFIG": "config",
+    "PLAIN_CONFIG": "config",
     "SOLVERS": "solvers.settings",
     "check_solver": "solvers.settings",
     "LevenbergMarquardtSettings": "solvers.settings",

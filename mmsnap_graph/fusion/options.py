@@ -16,7 +16,6 @@ from typing import Literal, Mapping
 
 import numpy as np
 
-from ..data.body import CENTROID_MERGE_RADIUS_M
 from .._validation import as_float_array, check_count, check_finite, check_probability
 from ..errors import ValidationError
 from .robust import RESIDUAL_GATE_PROBABILITY, check_robust, check_robust_k, residual_gate_threshold
@@ -123,27 +122,12 @@ class FusionOptions:
         term (Newton's quadratic convergence near a weakly observed minimum).
     chunk_size : frames solved together in the first stage.
 
-    A recording (``fuse_recording``):
+    A recording (``fuse_recording``; the rest of a recording's fusion is
+    :class:`~mmsnap_graph.fusion.config.FusionConfig`'s):
 
     solver : ``"vectorized"`` (the default) or ``"gtsam"``
         (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
-    gate_probability : the association gate.
-    source : ``"centroids"`` or ``"point_cloud"``.
     block_rows : rows fused per call of the vectorized solver.
-    motion_check : True, False or None (on with a ``robust`` option).
-    body_merge : True, False or None (on with a ``robust`` option): a
-        node's centroids of one frame closer than ``merge_body_m`` (m) are
-        one body seen as several clusters, merged before the association
-        (:func:`~mmsnap_graph.fusion.recording.regroup.merge_body_detections`;
-        docs/ROBUST.md).
-    coverage_check : with the motion check, flag a row that a node whose
-        field of view covers it never sees in the frames around
-        (:mod:`~mmsnap_graph.fusion.recording.coverage`: a multipath image).
-    coverage_reach_m : node name -> how far the node looks (m), for the
-        coverage check; a node left out (or None, the default): the
-        farthest of its detections in the recording fused
-        (:func:`~mmsnap_graph.fusion.recording.coverage.detection_reach_m`).
-        A file fused window by window passes its whole detections' reach.
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS
@@ -154,20 +138,12 @@ class FusionOptions:
     newton_after: int = 10
     chunk_size: int = 8192
     solver: Literal["gtsam", "vectorized", "scalar"] = "vectorized"
-    gate_probability: float = 0.999
-    source: Literal["centroids", "point_cloud"] = "centroids"
     block_rows: int = 65536
-    motion_check: bool | None = None
-    body_merge: bool | None = None
-    merge_body_m: float = CENTROID_MERGE_RADIUS_M
-    coverage_check: bool = True
-    coverage_reach_m: Mapping[str, float] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.lm, LevenbergMarquardtSettings):
             raise ValidationError(f"lm must be a LevenbergMarquardtSettings, got {self.lm!r}")
-        for name, value, choices in (("covariance", self.covariance, ("laplace", "grid", "both")),
-                                     ("source", self.source, ("centroids", "point_cloud"))):
+        for name, value, choices in (("covariance", self.covariance, ("laplace", "grid", "both")),):
             if value not in choices:
                 raise ValidationError(
                     f"{name} must be {', '.join(map(repr, choices))}, got {value!r}")
@@ -176,37 +152,6 @@ class FusionOptions:
             object.__setattr__(self, name, check_count(getattr(self, name), name))
         for name in ("grid_half_width_sigmas", "step_tolerance"):
             object.__setattr__(self, name, _positive(getattr(self, name), name))
-        object.__setattr__(self, "gate_probability",
-                           check_probability(self.gate_probability, "gate_probability"))
-        if self.motion_check is not None and not isinstance(self.motion_check, (bool, np.bool_)):
-            raise ValidationError(
-                f"motion_check must be True, False or None, got {self.motion_check!r}")
-        if not isinstance(self.coverage_check, (bool, np.bool_)):
-            raise ValidationError(
-                f"coverage_check must be True or False, got {self.coverage_check!r}")
-        if self.body_merge is not None and not isinstance(self.body_merge, (bool, np.bool_)):
-            raise ValidationError(
-                f"body_merge must be True, False or None, got {self.body_merge!r}")
-        object.__setattr__(self, "merge_body_m", _positive(self.merge_body_m, "merge_body_m"))
-        object.__setattr__(self, "coverage_reach_m", _reach(self.coverage_reach_m))
-
-
-def _reach(value: object) -> Mapping[str, float] | None:
-    """``FusionOptions.coverage_reach_m`` as a read-only ``{name: metres}``."""
-    if value is None:
-        return None
-    if not isinstance(value, Mapping):
-        raise ValidationError("coverage_reach_m must be a mapping node name -> metres, got "
-                              f"{type(value).__name__}")
-    out = {}
-    for name, reach in value.items():
-        if isinstance(reach, (bool, np.bool_)) or not isinstance(
-                reach, (int, float, np.integer, np.floating)) or not (math.isfinite(reach)
-                                                                     and reach >= 0):
-            raise ValidationError(f"coverage_reach_m[{name!r}]={reach!r} must be a finite "
-                                  "number of metres >= 0")
-        out[str(name)] = float(reach)
-    return MappingProxyType(out)
 
 
 #: The default options.

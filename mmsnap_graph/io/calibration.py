@@ -7,20 +7,20 @@
   project's calibration JSON, ``{"reference": "S1", "node_names": [...],
   "nodes": {"S1": {"pose": [x_m, y_m, phi_rad], "covariance": [[3x3]],
   "lag_frames": 0, "time_offset_s": 0.0, "time_offset_variance_s2": 0.0}, ...},
-  "unreachable": [...], "method": ..., "source": ..., "success": ...,
-  "message": ..., "edges": [...], "failures": {...}}`` (covariance in the
-  Pose2 body tangent; non-finite numbers are ``null``; files without the
-  clock offsets read as offset 0, variance NaN).
+  "unreachable": [...], "method": ..., "source": ..., "status": "ok",
+  "success": ..., "message": ..., "facts": [{"kind": ..., ...}, ...],
+  "edges": [...], "failures": {...}}`` (covariance in the Pose2 body
+  tangent; non-finite numbers are ``null``; docs/FORMAT.md says what older
+  files without some keys read as).
 
-Both readers return the :class:`~mmsnap_graph.calibration.RecordingCalibration`
-the writers take, without the step results (``pose_graph``, ``joint``), which
-are not stored. :func:`load_calibration_poses` reads only ``name -> pose``
+Both readers return the :class:`~mmsnap_graph.data.calibration.RecordingCalibration`
+the writers take, without what is not stored (the noise estimate, which is
+the ``/noise`` group: :mod:`.noise`; the joint pose covariance; the edges'
+matched points). :func:`load_calibration_poses` reads only ``name -> pose``
 from a JSON that may hold nothing but ``{"nodes": {name: {"pose": [...]}}}``;
 :func:`load_time_offsets` reads only the clock offsets (node time + offset =
 reference time) from either format, for fusion
-(:func:`mmsnap_graph.fusion.recording.timing.align_recording`). The clock offsets are
-written from, and read into, the calibration's ``time_offset_s`` and
-``time_offset_variances`` fields when it has them.
+(:func:`mmsnap_graph.fusion.recording.timing.align_recording`).
 """
 
 from __future__ import annotations
@@ -38,9 +38,11 @@ from numpy.typing import NDArray
 
 from .._atomic import atomic_path
 from .._validation import parse_json, short_repr
-from ..calibration import PoseEdge, RecordingCalibration
+from ..data.calibration import PairwiseCalibration, RecordingCalibration
+from ..data.calibration_facts import FACT_KINDS, CalibrationFact, CalibrationStatus, LagEvidence
+from ..data.calibration_facts import RecordedMessage
 from ..data.recording import Recording
-from ..errors import CalibrationError, FileFormatError, MmsnapError
+from ..errors import CalibrationError, FileFormatError, MmsnapError, ValidationError
 from .guard import H5_ERRORS, open_group
 from .hdf5 import update_recording
 
@@ -53,6 +55,8 @@ __all__ = [
     "read_calibration_json",
     "calibration_to_json",
     "calibration_from_json",
+    "fact_to_json",
+    "fact_from_json",
     "load_calibration_poses",
     "load_time_offsets",
 ]
@@ -60,7 +64,7 @@ __all__ = [
 CALIBRATION_GROUP = "calibration"
 #: Layout of the ``/calibration`` group written by :func:`write_calibration`.
 CALIBRATION_LAYOUT = """\
-/calibration           attrs: reference (str), method (str), source (str),
+/calibration           attrs: reference (str), method (str), source (str), status (str),
                               success (bool), message (str), json (str: the calibration JSON)
     node_name          (N,) str, every node of the recording in order
     calibrated         (N,) bool, False for nodes with no path to the reference
@@ -104,12 +108,12 @@ def calibration_to_json(cal: RecordingCalibration) -> dict[str, Any]:
     nodes = {}
     for n in cal.node_names:
         if n in cal.poses:
-            offsets, variances = _timing(cal)
             nodes[n] = {"pose": _jsonable(cal.poses[n]),
                         "covariance": _jsonable(cal.covariances[n]),
                         "lag_frames": int(cal.lag_frames.get(n, 0)),
-                        "time_offset_s": _jsonable(offsets.get(n, 0.0)),
-                        "time_offset_variance_s2": _jsonable(variances.get(n, np.nan))}
+                        "time_offset_s": _jsonable(cal.time_offset_s.get(n, 0.0)),
+                        "time_offset_variance_s2": _jsonable(
+                            cal.time_offset_variances.get(n, np.nan))}
     return {
         "reference": cal.reference,
         "node_names": list(cal.node_names),
@@ -117,25 +121,67 @@ def calibration_to_json(cal: RecordingCalibration) -> dict[str, Any]:
         "unreachable": list(cal.unreachable),
         "method": cal.method,
         "source": cal.source,
+        "status": cal.status.label,
         "success": bool(cal.success),
         "message": cal.message,
-        "edges": [{"node_a": e.node_a, "node_b": e.node_b, "pose": _jsonable(e.pose),
-                   "covariance": _jsonable(e.covariance), "rmse_m": _jsonable(e.rmse_m),
-                   "n_frames": int(e.n_frames), "lag_frames": int(e.lag_frames)}
-                  for e in cal.edges],
+        "facts": [fact_to_json(f) for f in cal.facts],
+        "edges": [_edge_json(e) for e in cal.edges],
         "failures": dict(cal.failures),
         **_range_offset_json(cal),
     }
 
 
-def _range_offset_json(cal) -> dict[str, Any]:
+def fact_to_json(fact: CalibrationFact) -> dict[str, Any]:
+    """One fact as ``{"kind": ..., <field>: <value>, ...}`` (tuples as lists,
+    a status as its label, non-finite numbers as ``null``)."""
+    return {"kind": fact.kind, **{f.name: _fact_value(getattr(fact, f.name))
+                                  for f in dataclasses.fields(fact)}}
+
+
+def _fact_value(value) -> Any:
+    if isinstance(value, CalibrationStatus):
+        return value.label
+    if isinstance(value, tuple):
+        return [_fact_value(v) for v in value]
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    return value
+
+
+def fact_from_json(data: Any, where: str) -> CalibrationFact:
+    """The fact a :func:`fact_to_json` object holds; CalibrationError naming
+    ``where`` and the bad field."""
+    if not isinstance(data, Mapping) or data.get("kind") not in FACT_KINDS:
+        kind = data.get("kind") if isinstance(data, Mapping) else data
+        raise CalibrationError(f"{where}: kind {kind!r} is not one of {sorted(FACT_KINDS)}")
+    cls = FACT_KINDS[data["kind"]]
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names - {"kind"})
+    if unknown:
+        raise CalibrationError(f"{where}: {data['kind']} has no field(s) {unknown}")
+    try:
+        return cls(**{k: v for k, v in data.items() if k != "kind"})
+    except (TypeError, ValidationError) as exc:
+        raise CalibrationError(f"{where}: {exc}") from None
+
+
+def _edge_json(e: PairwiseCalibration) -> dict[str, Any]:
+    out = {"node_a": e.node_a, "node_b": e.node_b, "pose": _jsonable(e.pose),
+           "covariance": _jsonable(e.covariance), "rmse_m": _jsonable(e.rmse_m),
+           "n_frames": int(e.n_frames), "lag_frames": int(e.lag_frames)}
+    if e.lag_ambiguous:
+        out["lag_ambiguous"] = True
+    if e.lag_evidence is not None:
+        out["lag_evidence"] = fact_to_json(e.lag_evidence)
+    return out
+
+
+def _range_offset_json(cal: RecordingCalibration) -> dict[str, Any]:
     """``range_offset_m`` and ``range_offset_variance_m2`` when estimated."""
-    d = float(getattr(cal, "range_offset_m", float("nan")))
-    if not np.isfinite(d):
+    if not np.isfinite(cal.range_offset_m):
         return {}
-    return {"range_offset_m": d,
-            "range_offset_variance_m2": _jsonable(getattr(cal, "range_offset_variance",
-                                                          float("nan")))}
+    return {"range_offset_m": float(cal.range_offset_m),
+            "range_offset_variance_m2": _jsonable(cal.range_offset_variance)}
 
 
 def _json_range_offset(data: Mapping, where: str) -> dict[str, float]:
@@ -161,23 +207,33 @@ def _json_range_offset(data: Mapping, where: str) -> dict[str, float]:
     return out
 
 
-def _timing(cal) -> tuple[dict[str, float], dict[str, float]]:
-    """The calibration's clock offsets and their variances (empty when the
-    calibration has none)."""
-    return ({str(n): float(v) for n, v in dict(getattr(cal, "time_offset_s", {}) or {}).items()},
-            {str(n): float(v) for n, v in
-             dict(getattr(cal, "time_offset_variances", {}) or {}).items()})
-
-
-def _with_timing(kwargs: dict, offsets: Mapping, variances: Mapping) -> dict:
-    """``kwargs`` of a :class:`RecordingCalibration` with the clock offsets
-    when the class has those fields."""
-    names = {f.name for f in dataclasses.fields(RecordingCalibration)}
-    if "time_offset_s" in names:
-        kwargs["time_offset_s"] = dict(offsets)
-    if "time_offset_variances" in names:
-        kwargs["time_offset_variances"] = dict(variances)
-    return kwargs
+def _outcome(data: Mapping, unreachable, where: str) -> dict[str, Any]:
+    """``status`` and ``facts`` of a calibration JSON. A file written before
+    them holds only ``success`` and ``message``: the status is ``OK`` when it
+    succeeded, else ``NODES_UNREACHABLE`` when it names unreachable nodes,
+    else ``SOLVE_FAILED``; its message is kept as a
+    :class:`~mmsnap_graph.data.calibration_facts.RecordedMessage`."""
+    if not isinstance(data.get("success", True), bool):
+        raise CalibrationError(f"{where}: success must be true or false, got {data['success']!r}")
+    if "status" in data:
+        try:
+            status = CalibrationStatus.from_name(data["status"])
+        except ValidationError as exc:
+            raise CalibrationError(f"{where}: {exc}") from None
+    elif data.get("success", True):
+        status = CalibrationStatus.OK
+    else:
+        status = (CalibrationStatus.NODES_UNREACHABLE if unreachable
+                  else CalibrationStatus.SOLVE_FAILED)
+    if "facts" in data:
+        facts = data["facts"]
+        if not isinstance(facts, list):
+            raise CalibrationError(f"{where}: facts must be a list, got {facts!r}")
+        facts = tuple(fact_from_json(f, f"{where}: facts[{i}]") for i, f in enumerate(facts))
+    else:
+        message = str(data.get("message", ""))
+        facts = (RecordedMessage(text=message),) if message else ()
+    return {"status": status, "facts": facts}
 
 
 def _json_float(where: str, name: str, entry: Mapping, key: str, default: float) -> float:
@@ -265,14 +321,21 @@ def _json_covariance(where: str, name: str, entry: Mapping) -> NDArray:
     return arr
 
 
-def _json_edge(where: str, i: int, e: Any) -> PoseEdge:
+def _json_edge(where: str, i: int, e: Any) -> PairwiseCalibration:
     try:
         at = f"edges[{i}]"
-        return PoseEdge(node_a=str(e["node_a"]), node_b=str(e["node_b"]), pose=_floats(e["pose"]),
-                        covariance=_floats(e["covariance"]),
-                        rmse_m=float(_floats(e.get("rmse_m"))),
-                        n_frames=_json_int(where, f"{at}.n_frames", e.get("n_frames", 0)),
-                        lag_frames=_json_int(where, f"{at}.lag_frames", e.get("lag_frames", 0)))
+        evidence = e.get("lag_evidence")
+        if evidence is not None:
+            evidence = fact_from_json(evidence, f"{where}: {at}.lag_evidence")
+            if not isinstance(evidence, LagEvidence):
+                raise CalibrationError(f"{where}: {at}.lag_evidence must be a lag_evidence "
+                                       f"fact, got {evidence.kind}")
+        return PairwiseCalibration(
+            node_a=str(e["node_a"]), node_b=str(e["node_b"]), pose=_floats(e["pose"]),
+            covariance=_floats(e["covariance"]), rmse_m=float(_floats(e.get("rmse_m"))),
+            n_frames=_json_int(where, f"{at}.n_frames", e.get("n_frames", 0)),
+            lag_frames=_json_int(where, f"{at}.lag_frames", e.get("lag_frames", 0)),
+            lag_evidence=evidence, lag_ambiguous=bool(e.get("lag_ambiguous", False)))
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
         if isinstance(exc, CalibrationError):
             raise
@@ -285,8 +348,9 @@ def calibration_from_json(data: Mapping, *, where: str = "calibration") -> Recor
     Only ``nodes`` with each node's ``pose`` is required; a missing
     ``covariance`` is NaN, ``lag_frames`` and ``time_offset_s`` 0,
     ``time_offset_variance_s2`` NaN, ``reference`` the first node,
-    ``node_names`` the calibrated then the unreachable nodes, ``success``
-    True. Raises :class:`CalibrationError` naming the bad field.
+    ``node_names`` the calibrated then the unreachable nodes, the status
+    ``OK`` (a file without ``status`` and ``facts``: :func:`_outcome`).
+    Raises :class:`CalibrationError` naming the bad field.
     """
     nodes = _json_nodes(data, where)
     poses = {str(n): _node_pose(where, n, e) for n, e in nodes.items()}
@@ -306,18 +370,16 @@ def calibration_from_json(data: Mapping, *, where: str = "calibration") -> Recor
     for key in ("reference", "method", "source", "message"):
         if not isinstance(data.get(key, ""), str):
             raise CalibrationError(f"{where}: {key} must be a string, got {data[key]!r}")
-    if not isinstance(data.get("success", True), bool):
-        raise CalibrationError(f"{where}: success must be true or false, got {data['success']!r}")
     try:
-        return RecordingCalibration(**_with_timing(dict(
+        offsets, variances = _json_timing(data, where)
+        return RecordingCalibration(
             reference=str(data.get("reference", next(iter(poses)))), node_names=names,
             poses=poses, covariances=covs, lag_frames=lags, unreachable=unreachable,
             edges=tuple(_json_edge(where, i, e) for i, e in enumerate(edges)),
             method=str(data.get("method", "")), source=str(data.get("source", "")),
-            success=bool(data.get("success", True)), message=str(data.get("message", "")),
             failures={str(k): str(v) for k, v in failures.items()},
-            **_json_range_offset(data, where)),
-            *_json_timing(data, where)))
+            time_offset_s=offsets, time_offset_variances=variances,
+            **_outcome(data, unreachable, where), **_json_range_offset(data, where))
     except MmsnapError as exc:
         if isinstance(exc, CalibrationError):
             raise
@@ -374,9 +436,9 @@ def _write_nodes(g: h5py.Group, cal: RecordingCalibration) -> None:
     cov = np.full((n, 3, 3), np.nan)
     lag = np.zeros(n, np.int64)
     ok = np.zeros(n, bool)
-    offsets, variances = _timing(cal)
-    tau = np.array([offsets.get(name, 0.0) for name in names], dtype=float)
-    tau_var = np.array([variances.get(name, np.nan) for name in names], dtype=float)
+    tau = np.array([cal.time_offset_s.get(name, 0.0) for name in names], dtype=float)
+    tau_var = np.array([cal.time_offset_variances.get(name, np.nan) for name in names],
+                       dtype=float)
     for i, name in enumerate(names):
         if name in cal.poses:
             pose[i], cov[i], ok[i] = cal.poses[name], cal.covariances[name], True
@@ -408,6 +470,7 @@ def _write_group(f: h5py.File, cal: RecordingCalibration) -> None:
     g.attrs["reference"] = cal.reference
     g.attrs["method"] = cal.method
     g.attrs["source"] = cal.source
+    g.attrs["status"] = cal.status.label
     g.attrs["success"] = bool(cal.success)
     g.attrs["message"] = cal.message
     g.attrs["json"] = json.dumps(calibration_to_json(cal))
@@ -448,17 +511,23 @@ def _member(g: h5py.Group, key: str, where: str) -> NDArray:
     return np.asarray(data)
 
 
-def _read_edges(g: h5py.Group, where: str) -> tuple[PoseEdge, ...]:
+def _read_edges(g: h5py.Group, where: str, stored: list) -> tuple[PairwiseCalibration, ...]:
+    """The edges datasets; ``stored`` the JSON attribute's edges (their
+    lag evidence and ambiguity, which the datasets do not hold)."""
     if "edges" not in g:
         raise FileFormatError(f"{where}/edges is missing")
     e, w = g["edges"], f"{where}/edges"
     cols = {k: _member(e, k, w) for k in ("node_a", "node_b", "pose", "covariance", "rmse_m",
                                           "n_frames", "lag_frames")}
-    return tuple(PoseEdge(node_a=str(cols["node_a"][i]), node_b=str(cols["node_b"][i]),
-                          pose=cols["pose"][i], covariance=cols["covariance"][i],
-                          rmse_m=float(cols["rmse_m"][i]), n_frames=int(cols["n_frames"][i]),
-                          lag_frames=int(cols["lag_frames"][i]))
-                 for i in range(cols["node_a"].size))
+    extra = [{}] * cols["node_a"].size
+    if len(stored) == cols["node_a"].size:
+        extra = [{"lag_evidence": x.lag_evidence, "lag_ambiguous": x.lag_ambiguous}
+                 for x in stored]
+    return tuple(PairwiseCalibration(
+        node_a=str(cols["node_a"][i]), node_b=str(cols["node_b"][i]), pose=cols["pose"][i],
+        covariance=cols["covariance"][i], rmse_m=float(cols["rmse_m"][i]),
+        n_frames=int(cols["n_frames"][i]), lag_frames=int(cols["lag_frames"][i]), **extra[i])
+        for i in range(cols["node_a"].size))
 
 
 def _read_group(g: h5py.Group, where: str) -> RecordingCalibration:
@@ -475,18 +544,24 @@ def _read_group(g: h5py.Group, where: str) -> RecordingCalibration:
             raise FileFormatError(f"{where} attribute {key!r} is missing")
         attrs[key] = g.attrs[key]
     extra = parse_json(g.attrs["json"]) if "json" in g.attrs else {}
+    if not isinstance(extra, Mapping):
+        raise FileFormatError(f"{where} attribute 'json' must hold a JSON object")
+    stored = calibration_from_json(extra, where=where).edges if "nodes" in extra else []
+    unreachable = tuple(n for i, n in enumerate(names) if not ok[i])
+    outcome = {"success": bool(attrs["success"]), "message": str(attrs["message"]),
+               **({"status": str(g.attrs["status"])} if "status" in g.attrs else {}),
+               **{k: extra[k] for k in ("status", "facts") if k in extra}}
     offsets, variances = _group_timing(g, names, where)
-    return RecordingCalibration(**_with_timing(dict(
+    return RecordingCalibration(
         reference=str(attrs["reference"]), node_names=names,
         poses={n: cols["pose"][i].astype(float) for i, n in enumerate(names) if ok[i]},
         covariances={n: cols["covariance"][i].astype(float) for i, n in enumerate(names) if ok[i]},
         lag_frames={n: int(cols["lag_frames"][i]) for i, n in enumerate(names) if ok[i]},
-        unreachable=tuple(n for i, n in enumerate(names) if not ok[i]),
-        edges=_read_edges(g, where), method=str(attrs["method"]), source=str(attrs["source"]),
-        success=bool(attrs["success"]), message=str(attrs["message"]),
+        unreachable=unreachable, edges=_read_edges(g, where, list(stored)),
+        method=str(attrs["method"]), source=str(attrs["source"]),
         failures={str(k): str(v) for k, v in dict(extra.get("failures", {})).items()},
-        **_json_range_offset(extra, where)),
-        offsets, variances))
+        time_offset_s=offsets, time_offset_variances=variances,
+        **_outcome(outcome, unreachable, where), **_json_range_offset(extra, where))
 
 
 def _group_timing(g: h5py.Group, names, where: str):

@@ -3,7 +3,7 @@
 Layout (``FORMAT_NAME`` = ``"mmsnap_graph.recording"``, version 1)::
 
     /                      attrs: format, format_version, frame_period_s,
-                                  node_order (str array)
+                                  node_order (str array), targets ("people" (default) or "points")
     /metadata              attrs: free-form str / int / float values
     /nodes/<name>          attrs: pose = [x_m, y_m, phi_rad]  (optional)
         radar              attrs: the RadarConfig fields      (optional)
@@ -62,7 +62,7 @@ _TRUTH_FIELDS = ("frame", "target_id", "x_m", "y_m", "vx_mps", "vy_mps")
 _INT_FIELDS = {"frame", "target_id", "track_id"}
 _NODE_KNOWN = {"centroids", "point_cloud", "tracks", "cube", "radar"}
 _ROOT_KNOWN = {"nodes", "truth", "metadata"}
-_ROOT_ATTRS = {"format", "format_version", "frame_period_s", "node_order"}
+_ROOT_ATTRS = {"format", "format_version", "frame_period_s", "node_order", "targets"}
 #: Datasets at least this many elements long are chunked and compressed.
 _COMPRESS_MIN = 1024
 _STR = h5py.string_dtype(encoding="utf-8")
@@ -143,6 +143,7 @@ def _write_into(f: h5py.File, rec: Recording, compression: str | None,
     f.attrs["format_version"] = FORMAT_VERSION
     f.attrs["frame_period_s"] = float(rec.frame_period_s)
     f.attrs.create("node_order", np.array(rec.node_names, dtype=object), dtype=_STR)
+    f.attrs["targets"] = rec.targets
     meta = f.create_group("metadata")
     for key, value in rec.metadata.items():
         if isinstance(value, (bool, np.bool_)):
@@ -616,9 +617,10 @@ def read_recording(path: str | os.PathLike, *, load_cubes: bool = True) -> Recor
         nodes = {name: _node(_group(nodes_group, name), name, load_cubes) for name in order}
         truth = _truth(_group(f, "truth")) if _has(f, "truth") else None
         metadata = _metadata(f) if _has(f, "metadata") else {}
+        targets = _attr_str(f, "targets") if "targets" in f.attrs else "people"
     try:
         return Recording(frame_period_s=frame_period_s, nodes=nodes, truth=truth,
-                         metadata=metadata)
+                         metadata=metadata, targets=targets)
     except MmsnapError as exc:
         raise FileFormatError(f"{path}: {exc}") from exc
 

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Mapping
 
 import h5py
 import numpy as np
@@ -25,7 +27,7 @@ from .guard import H5_ERRORS, edited_copy, open_for_reading
 from .versions import check_format_version
 
 __all__ = ["NOISE_GROUP", "NOISE_LAYOUT", "write_noise", "read_noise", "fill_noise_group",
-           "noise_for_fusion", "noise_lines"]
+           "noise_for_fusion", "noise_lines", "RangeOffsetAtPoses", "read_range_offset"]
 
 #: Name of the HDF5 group written by :func:`write_noise`.
 NOISE_GROUP = "noise"
@@ -43,7 +45,17 @@ NOISE_LAYOUT = """\
     n_residuals        (N, 3) int64   residuals behind each estimate (0 = not identified)
     method             (N,) str       estimator(s) of each node, e.g. "network+temporal"
     reason             (N, 3) str     why a component is not identified ("" if it is)
+    tail_factor        (N, 3) float64 the factor each sigma was raised by for heavy tails
+                                      (1 = none; optional: 1 when absent)
+    range_offset       optional, written by `mmsnap noise --calibration JSON`: the range
+                       offset (reflection depth) at the JSON's poses, which `mmsnap fuse
+                       --calibration JSON` adds; attrs: offset_m (float, NaN: not
+                       identified), message (str)
+        poses          (N, 3) float64 the poses it was estimated at, in node_name order
 """
+
+#: The subgroup of ``/noise`` holding a range offset at fixed poses.
+_RANGE_OFFSET = "range_offset"
 
 _STR = h5py.string_dtype(encoding="utf-8")
 
@@ -67,12 +79,41 @@ def fill_noise_group(f: h5py.File, estimate: NoiseEstimate) -> None:
     g.create_dataset("method", data=np.array([e.method for e in nodes], dtype=object), dtype=_STR)
     g.create_dataset("reason", data=np.array([list(e.reasons) for e in nodes], dtype=object),
                      dtype=_STR)
+    g.create_dataset("tail_factor", data=np.array([e.tail_factors for e in nodes], np.float64))
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class RangeOffsetAtPoses:
+    """The range offset (reflection depth, m; NaN: not identified) the data
+    identify at fixed node ``poses`` (name -> (3,)), and what it is in words:
+    stored with the noise estimated at those poses, read by ``mmsnap fuse``."""
+
+    offset_m: float
+    poses: Mapping[str, np.ndarray]
+    message: str = ""
+
+
+def _fill_range_offset(g: h5py.Group, names: list, offset: RangeOffsetAtPoses) -> None:
+    if not isinstance(offset, RangeOffsetAtPoses):
+        raise FileFormatError(f"range_offset must be a RangeOffsetAtPoses, got "
+                              f"{type(offset).__name__}")
+    missing = [n for n in names if n not in offset.poses]
+    if missing:
+        raise FileFormatError(f"range_offset.poses has no pose for nodes {missing}")
+    r = g.create_group(_RANGE_OFFSET)
+    r.attrs["offset_m"] = float(offset.offset_m)
+    r.attrs["message"] = str(offset.message)
+    r.create_dataset("poses", data=np.array([np.asarray(offset.poses[n], np.float64)
+                                             for n in names]))
 
 
 def write_noise(path: str | os.PathLike, estimate: NoiseEstimate, *,
-                output: str | os.PathLike | None = None) -> Path:
+                output: str | os.PathLike | None = None,
+                range_offset: RangeOffsetAtPoses | None = None) -> Path:
     """Store ``estimate`` as the ``/noise`` group of the recording at ``path``
-    (replacing an existing one), or of a copy of it at ``output``.
+    (replacing an existing one), or of a copy of it at ``output``;
+    ``range_offset``: the range offset at the poses the noise was estimated
+    at (:func:`read_range_offset`).
 
     Atomic, under the recording lock: the file is copied to a temporary file
     beside the target, the group written there, and the copy moved over the
@@ -81,6 +122,8 @@ def write_noise(path: str | os.PathLike, estimate: NoiseEstimate, *,
     with edited_copy(path, output) as f:
         try:
             fill_noise_group(f, estimate)
+            if range_offset is not None:
+                _fill_range_offset(f[NOISE_GROUP], list(estimate.nodes), range_offset)
         except H5_ERRORS as exc:
             if isinstance(exc, MmsnapError):
                 raise
@@ -121,6 +164,8 @@ def _read_group(g: h5py.Group, where: str) -> NoiseEstimate:
     counts = _dataset(g, "n_residuals", where, (n, 3), "num").astype(np.int64)
     methods = _dataset(g, "method", where, (n,), "str")
     reasons = _dataset(g, "reason", where, (n, 3), "str")
+    tails = (_dataset(g, "tail_factor", where, (n, 3), "num").astype(float)
+             if "tail_factor" in g else np.ones((n, 3)))
     fb = np.asarray(g.attrs["fallback_sigmas"], dtype=float)
     if fb.shape != (3,):
         raise FileFormatError(f"{where} attribute fallback_sigmas must have 3 values, got {fb!r}")
@@ -128,7 +173,7 @@ def _read_group(g: h5py.Group, where: str) -> NoiseEstimate:
         nodes = {str(names[i]): NodeNoiseEstimate(
             noise=MeasurementNoise(range_m=sig[i, 0], omega_rad=sig[i, 1], doppler_mps=sig[i, 2]),
             identified=tuple(ident[i]), n_residuals=tuple(counts[i]), method=str(methods[i]),
-            reasons=tuple(reasons[i])) for i in range(n)}
+            reasons=tuple(reasons[i]), tail_factors=tuple(tails[i])) for i in range(n)}
         return NoiseEstimate(
             nodes=nodes, fallback=MeasurementNoise(range_m=fb[0], omega_rad=fb[1],
                                                    doppler_mps=fb[2]),
@@ -150,6 +195,28 @@ def read_noise(path: str | os.PathLike) -> NoiseEstimate | None:
         if not isinstance(g, h5py.Group):
             raise FileFormatError(f"{p}:/{NOISE_GROUP} is not a group")
         return _read_group(g, f"{p}:/{NOISE_GROUP}")
+
+
+def read_range_offset(path: str | os.PathLike) -> RangeOffsetAtPoses | None:
+    """The range offset ``mmsnap noise --calibration`` stored with the noise,
+    or None (no ``/noise`` group, or none stored). A damaged one raises
+    :class:`FileFormatError` naming the file and the field."""
+    p = Path(path)
+    where = f"{p}:/{NOISE_GROUP}/{_RANGE_OFFSET}"
+    with open_for_reading(p) as f:
+        if NOISE_GROUP not in f or _RANGE_OFFSET not in f[NOISE_GROUP]:
+            return None
+        g = f[NOISE_GROUP]
+        names = [_text(v) for v in np.ravel(g["node_name"][()])] if "node_name" in g else []
+        r = g[_RANGE_OFFSET]
+        if not isinstance(r, h5py.Group) or "offset_m" not in r.attrs:
+            raise FileFormatError(f"{where} attribute 'offset_m' is missing")
+        poses = _dataset(r, "poses", where, (len(names), 3), "num").astype(float)
+        offset = float(r.attrs["offset_m"])
+        if not (np.isnan(offset) or np.isfinite(offset)) or not np.all(np.isfinite(poses)):
+            raise FileFormatError(f"{where} holds a value that is not finite")
+        message = _text(r.attrs["message"]) if "message" in r.attrs else ""
+    return RangeOffsetAtPoses(offset_m=offset, poses=dict(zip(names, poses)), message=message)
 
 
 def noise_for_fusion(path: str | os.PathLike, node_names, *, per_node: bool = True

@@ -151,7 +151,7 @@ def scene_recording(scene: SyntheticScene) -> Recording:
                 "centroid_omega_std_rad": scene.noise.omega_rad,
                 "centroid_doppler_std_mps": scene.noise.doppler_mps}
     return Recording(frame_period_s=scene.frame_period_s, nodes=nodes, truth=truth,
-                     metadata=metadata)
+                     metadata=metadata, targets="points")
 
 
 def _picked(frame: NDArray, shift: int, oversample: int, n_frames: int) -> tuple[NDArray, NDArray]:
@@ -218,4 +218,5 @@ def offset_recording(network, trajectory: str = "straight", options=None, *,
     metadata = {**rec.metadata, "generator": "mmsnap_graph.sim.clocks.offset_recording",
                 "time_offsets_s": np.array([(shifts.get(n, pad) - pad) * fine
                                             for n in rec.node_names])}
-    return Recording(frame_period_s=period, nodes=nodes, truth=truth, metadata=metadata)
+    return Recording(frame_period_s=period, nodes=nodes, truth=truth, metadata=metadata,
+                     targets=rec.targets)

@@ -453,8 +453,10 @@ def simulate_recording(
             bar.close()
     truth = Truth(frame=np.tile(np.arange(n_f), n_t), target_id=np.repeat(np.arange(n_t), n_f),
                   state=states.reshape(n_t * n_f, 4), node_poses=poses)
+    # The clean model's centroids are point targets; the real model's are bodies.
     return Recording(frame_period_s=frame_period_s, nodes=nodes, truth=truth,
-                     metadata=_metadata(network, trajectory, setup))
+                     metadata=_metadata(network, trajectory, setup),
+                     targets="points" if setup.options.physics is None else "people")
 
 
 def _box_of(states: NDArray):

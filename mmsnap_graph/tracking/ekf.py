@@ -49,7 +49,8 @@ from factors.motion import cv_process_noise, cv_transition
 from ..errors import ConfigurationError, ValidationError
 from ..data.recording import Detections, Tracks
 from .._linalg import symmetrize
-from .._validation import as_float_array, check_count, check_finite, check_positive, chi2_gate
+from .._validation import (as_float_array, check_count, check_finite, check_positive, chi2_gate,
+                           frame_steps)
 
 __all__ = [
     "EkfConfig",
@@ -523,7 +524,7 @@ def frames_to_step(frames: ArrayLike, config: EkfConfig | None = None) -> NDArra
     if present.size < 2:
         return present
     pad = max(cfg.max_misses_frames, cfg.confirm_window_frames)
-    gaps = np.diff(present) - 1
+    gaps = frame_steps(present) - 1  # not np.diff: frames at both ends of int64
     extra = np.minimum(gaps, pad)
     fill = np.repeat(present[:-1], extra) + (np.arange(int(extra.sum())) -
                                              np.repeat(np.cumsum(extra) - extra, extra) + 1)
@@ -556,7 +557,7 @@ def track_centroids(
     if frames.ndim != 1 or (frames.size and not np.issubdtype(frames.dtype, np.integer)):
         raise ValidationError(f"frames must be a 1-D integer array, got {frames.dtype} "
                               f"{frames.shape}")
-    if frames.size > 1 and np.any(np.diff(frames) <= 0):
+    if frames.size > 1 and np.any(frames[1:] <= frames[:-1]):  # no np.diff: int64 may wrap
         raise ValidationError("frames must be strictly increasing")
     tracker = LocalTracker(cfg)
     meas = centroids.measurements
@@ -565,8 +566,9 @@ def track_centroids(
     out_f, out_id, out_x, out_p = [], [], [], []
     prev = None
     for f in frames:
-        lo, hi = np.searchsorted(sorted_frames, [f, f + 1])
-        period = cfg.frame_period_s * (1 if prev is None else int(f - prev))
+        lo = np.searchsorted(sorted_frames, f, side="left")
+        hi = np.searchsorted(sorted_frames, f, side="right")  # not f + 1: f may be int64's last
+        period = cfg.frame_period_s * (1 if prev is None else int(f) - int(prev))
         for tid, x, p in tracker.step(meas[order[lo:hi]], frame_period_s=period):
             out_f.append(int(f))
             out_id.append(tid)

@@ -175,8 +175,9 @@ def test_a_dead_worker_fails_its_recording_only(sources, tmp_path):
     ({"steps": ("track",)}, "subset"),
     ({"steps": ()}, "non-empty"),
     ({"executor": ProcessPoolExecutor, "client": object()}, "not both"),
-    ({"options": {"fuse": {"frobnicate": 1}}}, "frobnicate"),
-    ({"options": {"fuse": {"progress": True}}}, "progress"),
+    ({"options": {"fuse": {"mode": "ml"}}}, "FusionConfig"),
+    ({"options": {"process": {"frobnicate": 1}}}, "frobnicate"),
+    ({"options": {"process": {"progress": True}}}, "progress"),
     ({"options": {"calibrate": {"max_lag_frames": 3}}, "steps": ("fuse",)}, "not in steps"),
     ({"blas_threads": 0}, "blas_threads"),
 ])

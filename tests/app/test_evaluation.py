@@ -18,6 +18,7 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io.fused import write_fused
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions
+from _fusion import config
 
 
 # ----------------------------------------------------------------------------
@@ -83,7 +84,7 @@ def processed(tmp_path_factory):
     rec = simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
                              levels=("centroids",), n_frames=80, seed=4)
     rec, _ = track_recording(rec)
-    fused = fuse_recording(rec, progress=False)
+    fused = fuse_recording(rec, config(), progress=False)
     path = tmp_path_factory.mktemp("ev") / "rec.h5"
     write_recording(path, rec)
     write_fused(path, fused)
@@ -168,7 +169,7 @@ def test_evaluate_command_errors(tmp_path, capsys, recording_c_straight):
 def test_surveyed_poses_alone_give_pose_errors_and_no_state_scores(surveyed_recording):
     moved = {"S1": np.zeros(3),
              "S2": surveyed_recording.truth.node_poses["S2"] + [0.1, -0.2, 0.03]}
-    fused = fuse_recording(surveyed_recording, progress=False)
+    fused = fuse_recording(surveyed_recording, config(), progress=False)
     m = evaluate_recording(surveyed_recording, fused=fused, node_poses=moved)
     s2 = m["poses"]["S2"]
     assert s2["position_error_m"] == pytest.approx(np.hypot(0.1, 0.2))

@@ -280,6 +280,9 @@ def test_every_node_sigma_is_identified(runs, stem):
         # A walking person's centroid: centimetres to decimetres, not metres.
         assert 0.02 < node.noise.range_m < 0.3 and 0.05 < node.noise.omega_rad < 0.5
         assert 0.05 < node.noise.doppler_mps < 0.6
+    # The heavy tails are counted and stored as factors (multiple tracking:
+    # 1.10-2.54), also where the associated and own estimates are merged.
+    assert max(max(node.tail_factors) for node in est.nodes.values()) > 1.05
 
 
 @pytest.mark.slow

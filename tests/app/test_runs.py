@@ -16,6 +16,7 @@ from mmsnap_graph.fusion.recording.timing import align_recording
 from mmsnap_graph.io import read_recording
 from mmsnap_graph.io.calibration import read_calibration
 from mmsnap_graph.io.noise import read_noise
+from _fusion import stream_config
 
 
 def test_stored_calibration_reads_every_part(calibrated_c_file):
@@ -81,8 +82,14 @@ def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated_c_f
     rec = read_recording(calibrated_c_file, load_cubes=False)
     cal = read_calibration(calibrated_c_file)
     noise = read_noise(calibrated_c_file)
-    aligned = align_recording(rec, dict(cal.time_offset_s))
-    stream = FrameStream(rec.node_names, recording_poses(rec), prior=GaussianPrior(),
+    from mmsnap_graph.fusion.options import NetworkCalibration
+    from mmsnap_graph.fusion.recording.sequence import calibrated_recording
+    from mmsnap_graph.fusion.stream.frame_stream import STREAM_CONFIG
+
+    depth = float(cal.range_offset_m)
+    aligned = calibrated_recording(rec, NetworkCalibration(
+        time_offset_s=dict(cal.time_offset_s), range_offset_m=depth if np.isfinite(depth) else None))
+    stream = FrameStream(rec.node_names, recording_poses(rec), config=STREAM_CONFIG,
                          noise={n: noise.nodes[n].noise for n in rec.node_names},
                          pose_covariances={"S2": cal.covariances["S2"]})
     fill = stream.tracker_config.max_misses
@@ -93,7 +100,7 @@ def test_replay_uses_the_stored_noise_pose_covariances_and_clocks(calibrated_c_f
         np.testing.assert_allclose(np.asarray(r["covariance"]).reshape(-1, 4, 4), u.covariance,
                                    rtol=1e-9, atol=1e-15)
     # Each stored part changes the answer (so the comparison can fail).
-    plain = FrameStream(rec.node_names, recording_poses(rec), prior=GaussianPrior())
+    plain = FrameStream(rec.node_names, recording_poses(rec), config=stream_config(prior=GaussianPrior()))
     first = next(u for _, u in expected if len(u))
     frame0 = next(f for f, u in expected if len(u))
     _, t0, d0 = next(x for x in recording_frames(aligned, fill_frames=fill) if x[0] == frame0)
@@ -124,6 +131,28 @@ def test_process_and_calibrate_at_once_keep_both_updates(tmp_path):
     assert not list(recording.parent.glob(".rec.h5.*")), "lock or temporary files left"
 
 
+def test_fuse_reads_the_range_offset_and_runs_no_estimator(calibrated_c_file, tmp_path,
+                                                            monkeypatch, capsys):
+    """Before: `mmsnap fuse --calibration JSON` read the whole recording and
+    ran the range-offset estimator at the JSON's poses (runs.py
+    range_offset_for_poses), against fuse's bounded memory. Now it reads
+    what `mmsnap noise --calibration` stored, or adds none and says so."""
+    from mmsnap_graph.calibration.noise import depth
+
+    rec = read_recording(calibrated_c_file, load_cubes=False)
+    poses = {n: [float(v) + 0.01 for v in p] for n, p in rec.truth.node_poses.items()}
+    cal = tmp_path / "moved.json"
+    cal.write_text(json.dumps({"nodes": {n: {"pose": p} for n, p in poses.items()}}))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("fuse ran the range-offset estimator")
+    monkeypatch.setattr(depth, "range_offset_at_poses", refuse)
+    capsys.readouterr()
+    assert main(["fuse", str(calibrated_c_file), "-o", str(tmp_path / "f.h5"), "--no-progress",
+                 "--calibration", str(cal)]) == 0
+    assert "none was estimated at these poses: none added" in capsys.readouterr().out
+
+
 def test_a_json_of_fixed_poses_brings_the_range_offset_the_data_identify(calibrated_c_file,
                                                                           tmp_path, capsys):
     """Before: fusing at poses given by a JSON without a range offset added
@@ -148,6 +177,12 @@ def test_a_json_of_fixed_poses_brings_the_range_offset_the_data_identify(calibra
     stored = stored_calibration(calibrated_c_file, rec.node_names, calibration_json=true_json)
     assert stored.range_offset_m is None or abs(stored.range_offset_m) < 0.02
     assert "`mmsnap noise rec.h5 --calibration true.json` estimates them" in stored.text[1]
+    # Fusion reads the offset; `mmsnap noise --calibration` estimates it with
+    # the noise at those poses and stores both.
+    stored = stored_calibration(path, rec.node_names, calibration_json=true_json)
+    assert stored.range_offset_m is None and "none added" in stored.text[1]
+    assert "estimates them and the range offset at these poses" in stored.text[1]
+    assert main(["noise", str(path), "--calibration", str(true_json)]) == 0
     stored = stored_calibration(path, rec.node_names, calibration_json=true_json)
     assert stored.range_offset_m == pytest.approx(0.08, abs=0.02)
     assert "range offset at these poses +0.0" in stored.text[1]

@@ -11,7 +11,7 @@ import re
 
 from mmsnap_graph.data import body
 from mmsnap_graph.data.body import BODY_WIDTH_M, CENTROID_MERGE_RADIUS_M, SCENE_MERGE_RADIUS_M
-from mmsnap_graph.fusion.options import FusionOptions
+from mmsnap_graph.fusion.config import AssociationOptions
 from mmsnap_graph.fusion.recording import regroup, room
 from mmsnap_graph.radar.scene import SceneConfig
 
@@ -20,7 +20,7 @@ from _shared import ROOT
 
 def test_each_filter_takes_its_default_from_the_named_constant():
     assert SceneConfig().body_m == SCENE_MERGE_RADIUS_M
-    assert FusionOptions().merge_body_m == CENTROID_MERGE_RADIUS_M
+    assert AssociationOptions().merge_body_m == CENTROID_MERGE_RADIUS_M
     assert regroup.DEFAULT_MERGE_BODY_M == CENTROID_MERGE_RADIUS_M
     assert room.DEFAULT_BODY_M == BODY_WIDTH_M
     assert inspect.signature(room.screen_room).parameters["body_m"].default == BODY_WIDTH_M

@@ -25,6 +25,7 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.real.ghosts import ghost_centroids
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
+from _fusion import config
 
 NETWORK = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
 SEEDS = (10, 11)
@@ -64,7 +65,7 @@ def results():
         runs = [("clean", 0.0, rec)] + [(k, p, ghost_centroids(rec, k, p, seed=seed + 100))
                                         for k, p in dict.fromkeys((k, p) for k, p, _, _ in CASES)]
         for k, p, data in runs:
-            fused = fuse_recording(data, noise=CENTROID_NOISE, robust="gate", progress=False)
+            fused = fuse_recording(data, config(robust="gate"), noise=CENTROID_NOISE, progress=False)
             for bounds in (False, True):
                 screened, _ = screen_room(fused, body_m=DEFAULT_BODY_M,
                                           bounds=room if bounds else None)

@@ -18,12 +18,9 @@ from _fuzz import assert_rejected
 @pytest.mark.parametrize("kwargs, match", [
     ({"covariance": "exact"}, "covariance must be 'laplace', 'grid', 'both'"),
     ({"solver": "batch"}, "'batch' is now called 'vectorized'"),
-    ({"source": "cube"}, "source must be 'centroids', 'point_cloud'"),
     ({"grid_points_per_axis": 0}, "grid_points_per_axis=0 must be an integer >= 1"),
     ({"chunk_size": 8.0}, "chunk_size=8.0 must be an integer, got float"),
     ({"step_tolerance": -1.0}, "step_tolerance must be a positive finite number"),
-    ({"gate_probability": 1.0}, r"gate_probability must be in \(0, 1\)"),
-    ({"motion_check": "yes"}, "motion_check must be True, False or None"),
     ({"lm": {"max_iterations": 3}}, "lm must be a LevenbergMarquardtSettings"),
 ])
 def test_fusion_options_are_validated(kwargs, match):

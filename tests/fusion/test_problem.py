@@ -23,6 +23,7 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording, group_detecti
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions
+from _fusion import config, stream_config
 
 #: Three nodes with sigmas far apart (node 1 has a poor range, node 2 a poor Doppler).
 NOISES = (
@@ -228,15 +229,15 @@ def recording_3():
 
 def test_fuse_recording_takes_a_noise_mapping_with_both_solvers(recording_3):
     by_name = dict(zip(recording_3.node_names, NOISES))
-    fb = fuse_recording(recording_3, noise=by_name, options=FusionOptions(solver="vectorized"))
-    fg = fuse_recording(recording_3, noise=by_name, options=FusionOptions(solver="gtsam"))
+    fb = fuse_recording(recording_3, config(solver="vectorized"), noise=by_name)
+    fg = fuse_recording(recording_3, config(solver="gtsam"), noise=by_name)
     np.testing.assert_array_equal(fb.status, fg.status)
     ok = fb.success
     assert ok.mean() > 0.9
     np.testing.assert_allclose(fb.state[ok], fg.state[ok], atol=1e-6)
     np.testing.assert_allclose(fb.covariance[ok], fg.covariance[ok], rtol=1e-5, atol=1e-10)
     np.testing.assert_array_equal(fb.noise_sigmas, SIGMAS)
-    plain = fuse_recording(recording_3, options=FusionOptions(solver="vectorized"))
+    plain = fuse_recording(recording_3, config(solver="vectorized"))
     assert plain.noise_sigmas.shape == (3,)
     assert np.abs(plain.covariance[ok] - fb.covariance[ok]).max() > 1e-4
     # The grouping used the per-node sigmas (one call, the same groups).
@@ -246,17 +247,15 @@ def test_fuse_recording_takes_a_noise_mapping_with_both_solvers(recording_3):
 
 def test_fuse_recording_names_the_node_without_noise(recording_3):
     with pytest.raises(ValidationError, match="no MeasurementNoise for node 'S3'"):
-        fuse_recording(recording_3, noise={"S1": NOISES[0], "S2": NOISES[1]})
+        fuse_recording(recording_3, config(), noise={"S1": NOISES[0], "S2": NOISES[1]})
     with pytest.raises(ValidationError, match="per-node noise and pose_covariances need"):
-        fuse_recording(recording_3,
-                       noise=dict(zip(recording_3.node_names, NOISES)),
-                       options=FusionOptions(covariance="grid"))
+        fuse_recording(recording_3, config(covariance="grid"), noise=dict(zip(recording_3.node_names, NOISES)))
 
 
 @pytest.mark.parametrize("solver", ["gtsam", "vectorized"])
 def test_frame_stream_takes_per_node_noise(recording_3, solver):
     by_name = dict(zip(recording_3.node_names, NOISES))
-    stream = FrameStream(recording_3.node_names, POSES_BC, noise=by_name, solver=solver)
+    stream = FrameStream(recording_3.node_names, POSES_BC, config=stream_config(solver=solver), noise=by_name)
     assert stream.noise == NOISES
     rng = np.random.default_rng(8)
     states, z, _ = _frames(rng, 5)

@@ -26,6 +26,7 @@ from mmsnap_graph.evaluation import chi2_mean_interval, nees
 from mmsnap_graph.fusion.robust import kernel_weight_and_loss, residual_gate_threshold
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions
+from _fusion import config
 
 POSES = np.array([[0.0, 0.0, np.pi / 4], [6.0, 0.0, 3 * np.pi / 4], [3.0, 7.0, -np.pi / 2]])
 NOISE = MeasurementNoise()
@@ -293,9 +294,9 @@ def test_fuse_recording_takes_the_robust_option_with_both_solvers(robust):
     rec = simulate_recording("A", "random",
                              SimulationOptions(physics=None, n_targets=1, known_poses=True, centroid_p_miss=0.1),
                              levels=("centroids",), n_frames=80, seed=4)
-    plain = fuse_recording(rec, options=FusionOptions(solver="vectorized"))
-    fb = fuse_recording(rec, robust=robust, options=FusionOptions(solver="vectorized"))
-    fg = fuse_recording(rec, robust=robust, options=FusionOptions(solver="gtsam"))
+    plain = fuse_recording(rec, config(solver="vectorized"))
+    fb = fuse_recording(rec, config(robust=robust, solver="vectorized"))
+    fg = fuse_recording(rec, config(robust=robust, solver="gtsam"))
     assert fb.robust == robust and fb.rejected.shape == fb.observed.shape
     np.testing.assert_array_equal(fb.status, fg.status)
     np.testing.assert_array_equal(fb.rejected, fg.rejected)
@@ -319,13 +320,13 @@ def test_fused_group_keeps_the_robust_option_and_the_rejections(tmp_path):
                              levels=("centroids",), n_frames=60, seed=3)
     path = tmp_path / "rec.h5"
     write_recording(path, rec)
-    fused = fuse_recording(rec, robust="gate")
+    fused = fuse_recording(rec, config(robust="gate"))
     fused = dataclasses.replace(fused, rejected=np.eye(len(fused), fused.observed.shape[1],
                                                        dtype=bool))
     write_fused(path, fused)
     back = read_fused(path)
     assert back.robust == "gate"
     np.testing.assert_array_equal(back.rejected, fused.rejected)
-    write_fused(path, fuse_recording(rec))
+    write_fused(path, fuse_recording(rec, config()))
     plain = read_fused(path)
     assert plain.robust is None and not plain.rejected.any()

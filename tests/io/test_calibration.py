@@ -11,12 +11,24 @@ import h5py
 import numpy as np
 import pytest
 
-from mmsnap_graph.calibration import PoseEdge, RecordingCalibration, calibrate_recording
+from mmsnap_graph.calibration import calibrate_recording
+from mmsnap_graph.data.calibration import PairwiseCalibration, RecordingCalibration
+from mmsnap_graph.data.calibration_facts import (
+    CalibrationStatus,
+    ClockOffsetsTried,
+    JointFit,
+    LagEvidence,
+    LagNotDetermined,
+    PoseCovariance,
+    PoseNotObservable,
+    RecordedMessage,
+)
 from mmsnap_graph.errors import CalibrationError, FileFormatError
 from mmsnap_graph.io import read_recording, write_recording
 from mmsnap_graph.io.calibration import (
     CALIBRATION_GROUP,
     calibration_to_json,
+    fact_to_json,
     load_calibration_poses,
     read_calibration,
     read_calibration_json,
@@ -32,10 +44,13 @@ from mmsnap_graph.sim import CLEAN
 def _calibration() -> RecordingCalibration:
     """Three nodes, S3 unreachable; a NaN RMSE and an inf in a covariance."""
     cov = np.diag([1e-4, 2e-4, 3e-6])
-    edge = PoseEdge(node_a="S1", node_b="S2", pose=[0.1, 6.9, 3.1], covariance=cov, rmse_m=0.12,
-                    n_frames=250, lag_frames=1)
-    edge2 = PoseEdge(node_a="S2", node_b="S1", pose=[0.2, 7.0, -3.1], covariance=2 * cov,
-                     rmse_m=float("nan"), n_frames=7, lag_frames=-1)
+    evidence = LagEvidence(node_a="S1", node_b="S2", lag_frames=1, outcome="determined", z=7.5,
+                           evidence_z=3.0, window_frames=2)
+    edge = PairwiseCalibration(node_a="S1", node_b="S2", pose=[0.1, 6.9, 3.1], covariance=cov,
+                               rmse_m=0.12, n_frames=250, lag_frames=1, lag_evidence=evidence)
+    edge2 = PairwiseCalibration(node_a="S2", node_b="S1", pose=[0.2, 7.0, -3.1],
+                                covariance=2 * cov, rmse_m=float("nan"), n_frames=7,
+                                lag_frames=-1, lag_ambiguous=True)
     cov2 = cov.copy()
     cov2[2, 2] = np.inf
     return RecordingCalibration(
@@ -43,13 +58,21 @@ def _calibration() -> RecordingCalibration:
         poses={"S1": np.zeros(3), "S2": np.array([0.1, 6.9, 3.1])},
         covariances={"S1": np.zeros((3, 3)), "S2": cov2}, lag_frames={"S1": 0, "S2": 1},
         unreachable=("S3",), edges=(edge, edge2), method="joint", source="centroids",
-        success=False, message="no path from S3", failures={"S3": "node S3 has no tracks"})
+        status=CalibrationStatus.NODES_UNREACHABLE, failures={"S3": "node S3 has no tracks"},
+        facts=(evidence, JointFit(n_nodes=2, n_frames=250, presolve_steps=(6, 4)),
+               PoseCovariance(method="long_run", bandwidth_frames=14, max_widening=2.5),
+               PoseNotObservable(node="S2", directions=((1.0, 0.0, 0.0),)),
+               ClockOffsetsTried(outcome="solve_failed",
+                                 solve_status=CalibrationStatus.NOT_OBSERVABLE),
+               LagNotDetermined(node_a="S1", node_b="S2", tested=True, kept_shifts=(1,),
+                                rejected_shifts=(-1, 2), clock_fraction=0.3)))
 
 
 def _assert_same(back: RecordingCalibration, cal: RecordingCalibration) -> None:
-    for name in ("reference", "node_names", "unreachable", "method", "source", "success",
-                 "message"):
+    for name in ("reference", "node_names", "unreachable", "method", "source", "status"):
         assert getattr(back, name) == getattr(cal, name), name
+    # The facts come back equal, NaN fields included (compared as their JSON).
+    assert [fact_to_json(f) for f in back.facts] == [fact_to_json(f) for f in cal.facts]
     assert dict(back.failures) == dict(cal.failures)
     assert dict(back.lag_frames) == dict(cal.lag_frames)
     assert set(back.poses) == set(cal.poses) == set(back.covariances)
@@ -63,7 +86,7 @@ def _assert_same(back: RecordingCalibration, cal: RecordingCalibration) -> None:
         np.testing.assert_array_equal(a.pose, b.pose)
         np.testing.assert_array_equal(a.covariance, b.covariance)
         np.testing.assert_array_equal(a.rmse_m, b.rmse_m)
-    assert back.pose_graph is None and back.joint is None
+        assert (a.lag_evidence, a.lag_ambiguous) == (b.lag_evidence, b.lag_ambiguous)
 
 
 @pytest.fixture(scope="module")
@@ -267,6 +290,119 @@ def test_calibration_json_errors(tmp_path, content, match):
     path.write_text(content)
     with pytest.raises(CalibrationError, match=match):
         load_calibration_poses(path)
+
+
+# ---- status and facts --------------------------------------------------------------
+#: The calibration JSON of ``simulate_recording("C", "random", CLEAN,
+#: levels=["centroids"], n_frames=120, seed=5)`` as ``calibration_to_json`` wrote
+#: it before the status and the facts (commit 80ec03d): the message was the record.
+OLD_JSON = {
+    "reference": "S1", "node_names": ["S1", "S2"],
+    "nodes": {"S1": {"pose": [0.0, 0.0, 0.0], "covariance": [[0.0] * 3] * 3, "lag_frames": 0,
+                     "time_offset_s": 0.0, "time_offset_variance_s2": 0.0},
+              "S2": {"pose": [-0.04354198428848501, 7.004682855081914, -3.1248043747757697],
+                     "covariance": [[0.0024572590965529985, -3.214782957393955e-05,
+                                     0.0006400356125753779],
+                                    [-3.214782957393955e-05, 5.6088090869322716e-05,
+                                     -8.692054296034093e-06],
+                                    [0.0006400356125753779, -8.692054296034093e-06,
+                                     0.0001798923958992489]],
+                     "lag_frames": 0, "time_offset_s": -0.0027402522960746976,
+                     "time_offset_variance_s2": 0.000143613296967611}},
+    "unreachable": [], "method": "joint", "source": "centroids", "success": True,
+    "message": "2 node(s) calibrated from 1 edge(s) (joint least squares on the matched "
+               "points); sigmas estimated from residuals for the joint graph: range 0.0555 m "
+               "estimated, omega 0.09 rad estimated, doppler 0.0923 m/s estimated; joint "
+               "calibration of 2 nodes on 120 frames, 0 outlier detection(s), numpy pre-solve "
+               "6+4 step(s) (converged), then 1 GTSAM Gauss-Newton/LM step(s) confirming its "
+               "optimum; covariance: the graph's marginals (the long-run covariance over 14 "
+               "frames is within their sampling noise); noise from the data (network+temporal): "
+               "6 of 6 node sigmas identified",
+    "edges": [{"node_a": "S1", "node_b": "S2",
+               "pose": [-0.04766172603989677, 7.005164381649461, -3.1231074739288758],
+               "covariance": [[0.7718224566924782, -0.014615069709770423, 0.21723976476418883],
+                              [-0.014615069709770423, 0.00037569975815833153,
+                               -0.004114312828202078],
+                              [0.21723976476418883, -0.004114312828202078, 0.0611528937985687]],
+               "rmse_m": 0.15255825787190666, "n_frames": 120, "lag_frames": 0}],
+    "failures": {}}
+
+
+def test_a_file_written_before_the_status_and_facts_still_loads():
+    old = read_calibration_json(OLD_JSON)
+    assert old.success and old.status is CalibrationStatus.OK and old.method == "joint"
+    assert old.facts == (RecordedMessage(text=OLD_JSON["message"]),)
+    np.testing.assert_array_equal(old.poses["S2"], OLD_JSON["nodes"]["S2"]["pose"])
+    assert old.edges[0].lag_evidence is None and not old.edges[0].lag_ambiguous
+    # The same recording calibrated now: the same numbers, now with facts.
+    rec = simulate_recording("C", "random", CLEAN, levels=["centroids"], n_frames=120, seed=5)
+    new = calibration_to_json(calibrate_recording(rec))
+    for key in ("pose", "covariance", "time_offset_s", "time_offset_variance_s2"):
+        np.testing.assert_allclose(new["nodes"]["S2"][key], OLD_JSON["nodes"]["S2"][key],
+                                   rtol=1e-9, atol=1e-15)
+    assert new["status"] == "ok" and [f["kind"] for f in new["facts"]][:3] == [
+        "pose_graph_fit", "joint_noise", "joint_fit"]
+    failed = read_calibration_json({**OLD_JSON, "success": False, "unreachable": ["S3"],
+                                    "node_names": ["S1", "S2", "S3"]})
+    assert failed.status is CalibrationStatus.NODES_UNREACHABLE
+    broken = read_calibration_json({**OLD_JSON, "success": False, "message": ""})
+    assert broken.status is CalibrationStatus.SOLVE_FAILED and broken.facts == ()
+
+
+def test_a_group_written_before_the_status_and_facts_still_loads(tmp_path, rec3):
+    path = tmp_path / "old.h5"
+    write_recording(path, rec3)
+    write_calibration(path, rec3, _calibration())
+    with h5py.File(path, "r+") as f:  # the group as it was written before them
+        g = f[CALIBRATION_GROUP]
+        del g.attrs["status"]
+        data = json.loads(g.attrs["json"])
+        for key in ("status", "facts"):
+            del data[key]
+        for e in data["edges"]:
+            e.pop("lag_evidence", None), e.pop("lag_ambiguous", None)
+        g.attrs["json"] = json.dumps({**data, "message": "no path from S3"})
+        g.attrs["message"] = "no path from S3"
+        g.attrs["success"] = False
+    back = read_calibration(path)
+    assert back.status is CalibrationStatus.NODES_UNREACHABLE and back.unreachable == ("S3",)
+    assert back.facts == (RecordedMessage(text="no path from S3"),)
+    assert back.edges[0].lag_evidence is None
+
+
+@pytest.mark.parametrize("facts, match", [
+    ([{"kind": "guess"}], r"facts\[0\]: kind 'guess' is not one of \["),
+    (["lag not determined"], r"facts\[0\]: kind 'lag not determined' is not one of"),
+    ([{"kind": "joint_rejected", "status": "ok", "why": "x"}],
+     r"facts\[0\]: joint_rejected has no field\(s\) \['why'\]"),
+    ([{"kind": "joint_rejected"}], r"facts\[0\]: .*missing 1 required keyword-only argument"),
+    ([{"kind": "pose_covariance", "method": "guess"}], r"pose_covariance.method='guess'"),
+    ({"kind": "joint_fit"}, r"facts must be a list"),
+])
+def test_bad_facts_are_calibration_errors_naming_them(facts, match):
+    with pytest.raises(CalibrationError, match=match):
+        read_calibration_json({**_GOOD_JSON, "facts": facts})
+
+
+def test_a_bad_status_or_lag_evidence_is_named():
+    with pytest.raises(CalibrationError, match=r"status 'fine' must be one of"):
+        read_calibration_json({**_GOOD_JSON, "status": "fine"})
+    edge = {"node_a": "S1", "node_b": "S2", "pose": [0, 7, 3.1],
+            "covariance": np.eye(3).tolist(), "lag_evidence": {"kind": "joint_skipped"}}
+    with pytest.raises(CalibrationError, match=r"edges\[0\].lag_evidence must be a "
+                                               r"lag_evidence fact, got joint_skipped"):
+        read_calibration_json({**_GOOD_JSON, "edges": [edge]})
+
+
+def test_every_fact_kind_is_documented_in_the_format():
+    from mmsnap_graph.data.calibration_facts import FACT_KINDS, CalibrationStatus as S
+    from _shared import ROOT
+
+    doc = (ROOT / "docs" / "FORMAT.md").read_text()
+    for kind in FACT_KINDS:
+        assert f"| `{kind}` |" in doc, kind
+    for s in S:
+        assert f"| `{s.label}` | {s.message} |" in doc, s
 
 
 @pytest.mark.parametrize("path, match", [

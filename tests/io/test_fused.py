@@ -13,6 +13,7 @@ from mmsnap_graph.data.results import Status
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.io import read_recording, write_recording
+from _fusion import config
 
 
 @pytest.fixture
@@ -24,7 +25,7 @@ def recordings(two_target_recordings):
 def test_write_and_read_fused_round_trip(recordings, tmp_path):
     rec = recordings["A"]
     path = write_recording(tmp_path / "rec.h5", rec)
-    fused = fuse_recording(rec, mode="ml")
+    fused = fuse_recording(rec, config(mode="ml"))
     write_fused(path, fused)
     back = read_fused(path)
     for name in ("frame", "target", "label", "detection_index", "observed", "success", "status",
@@ -41,13 +42,13 @@ def test_write_and_read_fused_round_trip(recordings, tmp_path):
     assert sorted(int(c) for c in codes) == [0, 1, 2, 3, 4, 5, 9, 10, 11, 12]
     # The recording itself is intact, and a second write replaces /fused.
     assert read_recording(path).node_names == rec.node_names
-    write_fused(path, fuse_recording(rec))
+    write_fused(path, fuse_recording(rec, config()))
     assert read_fused(path).mode == "map"
 
 
 def test_write_fused_to_a_new_file_leaves_the_original(recordings, tmp_path):
     path = write_recording(tmp_path / "rec.h5", recordings["A"])
-    out = write_fused(path, fuse_recording(recordings["A"]), output=tmp_path / "out.h5")
+    out = write_fused(path, fuse_recording(recordings["A"], config()), output=tmp_path / "out.h5")
     with h5py.File(path, "r") as f:
         assert "fused" not in f
     assert len(read_fused(out)) > 0
@@ -59,19 +60,19 @@ def test_fused_errors(tmp_path, recordings):
     path = write_recording(tmp_path / "rec.h5", recordings["A"])
     with pytest.raises(FileFormatError, match="has no /fused group"):
         read_fused(path)
-    write_fused(path, fuse_recording(recordings["A"]))
+    write_fused(path, fuse_recording(recordings["A"], config()))
     with h5py.File(path, "r+") as f:
         del f["fused/covariance"]
     with pytest.raises(FileFormatError, match="/fused/covariance is missing"):
         read_fused(path)
     with pytest.raises(FileFormatError, match="does not exist"):
-        write_fused(tmp_path / "nope.h5", fuse_recording(recordings["A"]))
+        write_fused(tmp_path / "nope.h5", fuse_recording(recordings["A"], config()))
 
 
 def test_a_file_without_person_ids_reads_with_none(recordings, tmp_path):
     """Format 1.1 had no ``track_id``: such a file reads, with ``track_id`` None."""
     path = write_recording(tmp_path / "rec.h5", recordings["B"])
-    fused = fuse_recording(recordings["B"])
+    fused = fuse_recording(recordings["B"], config())
     assert fused.track_id is not None and (fused.track_id >= 0).any()
     write_fused(path, fused)
     with h5py.File(path, "a") as f:
@@ -83,7 +84,7 @@ def test_a_file_without_person_ids_reads_with_none(recordings, tmp_path):
 
 def test_person_ids_of_the_wrong_shape_are_a_format_error(recordings, tmp_path):
     path = write_recording(tmp_path / "rec.h5", recordings["B"])
-    write_fused(path, fuse_recording(recordings["B"]))
+    write_fused(path, fuse_recording(recordings["B"], config()))
     with h5py.File(path, "a") as f:
         del f["fused/track_id"]
         f["fused/track_id"] = np.zeros(3, dtype=np.int64)

@@ -127,6 +127,19 @@ def test_round_trip_every_dataset(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["r.h5"]
 
 
+def test_the_target_model_round_trips_and_defaults_to_people(tmp_path):
+    points = dataclasses.replace(_recording(), targets="points")
+    path = write_recording(tmp_path / "r.h5", points)
+    assert read_recording(path).targets == "points"
+    with h5py.File(path, "r+") as f:  # a file that does not declare it
+        del f.attrs["targets"]
+    assert read_recording(path).targets == "people"
+    with h5py.File(path, "r+") as f:
+        f.attrs["targets"] = "cars"
+    with pytest.raises(FileFormatError, match="targets='cars' must be one of"):
+        read_recording(path)
+
+
 def test_large_datasets_are_chunked_and_compressed(tmp_path):
     path = write_recording(tmp_path / "r.h5", _recording())
     with h5py.File(path, "r") as f:

@@ -13,8 +13,8 @@ import pytest
 
 from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEstimate
 from mmsnap_graph.errors import FileFormatError
-from mmsnap_graph.io.noise import (NOISE_GROUP, noise_for_fusion, noise_lines, read_noise,
-                                   write_noise)
+from mmsnap_graph.io.noise import (NOISE_GROUP, RangeOffsetAtPoses, noise_for_fusion,
+                                   noise_lines, read_noise, read_range_offset, write_noise)
 from _cli import noise_block, store_partial_noise
 
 FALLBACK = MeasurementNoise(range_m=0.04, omega_rad=0.7, doppler_mps=0.2)
@@ -57,6 +57,31 @@ def test_the_group_holds_the_layouts_fields_and_reads_back_equal(path):
     other = NoiseEstimate(nodes={"S1": est.nodes["S2"], "S2": est.nodes["S1"]}, method="again")
     copy = write_noise(path, other, output=path.with_name("copy.h5"))
     assert read_noise(copy) == other and read_noise(path) == est
+
+
+def test_a_range_offset_at_fixed_poses_is_stored_with_the_noise(path):
+    poses = {"S1": np.zeros(3), "S2": np.array([0.0, 7.0, np.pi])}
+    assert read_range_offset(path) is None
+    write_noise(path, _estimate(), range_offset=RangeOffsetAtPoses(
+        offset_m=0.081, poses=poses, message="range offset at these poses +0.081 m"))
+    back = read_range_offset(path)
+    assert back.offset_m == 0.081 and back.message.endswith("+0.081 m")
+    np.testing.assert_array_equal(back.poses["S2"], poses["S2"])
+    assert read_noise(path) == _estimate()
+    # Not identified: NaN, read back as NaN; a later noise write without one drops it.
+    write_noise(path, _estimate(), range_offset=RangeOffsetAtPoses(offset_m=float("nan"),
+                                                                   poses=poses))
+    assert np.isnan(read_range_offset(path).offset_m)
+    write_noise(path, _estimate())
+    assert read_range_offset(path) is None
+    with pytest.raises(FileFormatError, match=r"no pose for nodes \['S2'\]"):
+        write_noise(path, _estimate(), range_offset=RangeOffsetAtPoses(
+            offset_m=0.1, poses={"S1": np.zeros(3)}))
+    write_noise(path, _estimate(), range_offset=RangeOffsetAtPoses(offset_m=0.1, poses=poses))
+    with h5py.File(path, "a") as f:
+        del f[NOISE_GROUP]["range_offset/poses"]
+    with pytest.raises(FileFormatError, match="range_offset/poses is missing"):
+        read_range_offset(path)
 
 
 @pytest.mark.parametrize("damage, match", [

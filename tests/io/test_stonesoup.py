@@ -32,6 +32,7 @@ from mmsnap_graph.io.stonesoup import (
 )
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions
+from _fusion import config
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +43,7 @@ def fused_file(tmp_path_factory):
                              levels=("centroids",), n_frames=200, seed=3)
     path = tmp_path_factory.mktemp("ss") / "rec.h5"
     write_recording(path, rec)
-    write_fused(path, fuse_recording(rec, progress=False))
+    write_fused(path, fuse_recording(rec, config(), progress=False))
     return rec, read_fused(path)
 
 
@@ -137,7 +138,7 @@ def test_rows_without_full_information_are_left_out_of_the_prior_free_form():
     rec = simulate_recording("B", "random", SimulationOptions(physics=None, known_poses=True),
                              levels=("centroids",), n_frames=20, seed=1)
     one = dataclasses.replace(rec, nodes={"S1": rec.nodes["S1"]})
-    fused = fuse_recording(one, progress=False)
+    fused = fuse_recording(one, config(), progress=False)
     assert fused.success.sum() > 10
     assert sum(len(d) for _, d in fused_detections(fused, frame_period_s=0.15)) == 0
     assert sum(len(d) for _, d in fused_detections(fused, form="fused", frame_period_s=0.15)) \

@@ -14,6 +14,7 @@ from mmsnap_graph.io.fused import read_fused, write_fused
 from mmsnap_graph.io.noise import read_noise, write_noise
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions
+from _fusion import config
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +22,7 @@ def recording(tmp_path_factory):
     rec = simulate_recording("A", "straight", SimulationOptions(physics=None, known_poses=True),
                              levels=("centroids",), n_frames=10, seed=3)
     path = write_recording(tmp_path_factory.mktemp("v") / "rec.h5", rec)
-    write_fused(path, fuse_recording(rec, progress=False))
+    write_fused(path, fuse_recording(rec, config(), progress=False))
     node = NodeNoiseEstimate(noise=MeasurementNoise(), identified=(1, 1, 1),
                              n_residuals=(10, 10, 10), method="temporal")
     write_noise(path, NoiseEstimate(nodes={n: node for n in rec.nodes},

@@ -20,6 +20,10 @@ def test_defaults_are_real_physics_and_no_cubes():
     node = rec.nodes["S1"]
     assert node.cube is None and node.centroids is not None and node.point_cloud is not None
     assert rec.metadata["model"] == "real"
+    # The target model the calibration's defaults follow: bodies for the real
+    # model, point targets for the clean one.
+    assert rec.targets == "people"
+    assert simulate_recording("C", options=CLEAN, n_frames=5).targets == "points"
 
 
 def test_simulate_recording_takes_at_most_ten_parameters():

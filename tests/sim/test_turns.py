@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from mmsnap_graph.data.calibration_facts import JointFit
 from mmsnap_graph.calibration import JointOptions
 from factors.gtsam_factors import (
     constant_velocity_factor,
@@ -70,8 +71,8 @@ def test_clean_turning_walk_flags_at_most_half_a_percent(seed, sigma_a):
     res = joint_calibration(dets, JointOptions(motion=True, sigma_a_mps2=sigma_a), noise=NOISE,
                             frame_period_s=T)
     flagged = sum(int(o.sum()) for o in res.outliers.values())
-    assert flagged <= 0.005 * 2 * scene.frame.size, (flagged, res.message)
-    assert res.success and res.turns > 0, res.message
+    assert flagged <= 0.005 * 2 * scene.frame.size, (flagged, res.facts)
+    assert res.success and res.turns > 0, res.facts
 
 
 def test_ghosts_in_a_turning_walk_are_still_flagged():
@@ -129,4 +130,5 @@ def test_motion_kernel_option_runs_and_keeps_turns_clean():
     options = JointOptions(motion=True, sigma_a_mps2=1.0, motion_robust="cauchy")
     res = joint_calibration(dets, options, noise=NOISE, frame_period_s=T)
     assert sum(int(o.sum()) for o in res.outliers.values()) <= 6
-    assert res.turns > 0 and "sharp turn" in res.message
+    (fit,) = [f for f in res.facts if isinstance(f, JointFit)]
+    assert res.turns > 0 and fit.turns == res.turns

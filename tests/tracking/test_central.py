@@ -19,6 +19,7 @@ from mmsnap_graph.tracking.central import (
 
 from _shared import POSES_B, POSES_C
 from mmsnap_graph.sim import SimulationOptions
+from _fusion import config
 
 T = 0.15
 SIGMA_A = 0.2
@@ -130,7 +131,7 @@ def test_tracks_two_targets_of_a_simulated_recording():
     rec = simulate_recording("B", "random",
                              SimulationOptions(physics=None, n_targets=2, known_poses=True, centroid_p_miss=0.1),
                              levels=("centroids",), n_frames=120, seed=5)
-    fused = fuse_recording(rec)
+    fused = fuse_recording(rec, config())
     cfg = CentralConfig(frame_period_s=rec.frame_period_s, sigma_a_mps2=2.0, gate_probability=0.999999)
     tracks = track_fused(fused, cfg)
     assert tracks.frame.min() == fused.frame.min() and tracks.frame.max() == fused.frame.max()
@@ -165,7 +166,7 @@ def test_tracks_end_after_misses_and_new_estimates_start_tracks():
 def test_track_fused_without_successful_frames_is_empty():
     rec = simulate_recording("B", "straight", SimulationOptions(physics=None, known_poses=True),
                              levels=("centroids",), n_frames=5, seed=1)
-    fused = fuse_recording(rec)
+    fused = fuse_recording(rec, config())
     import dataclasses
 
     none_ok = dataclasses.replace(fused, success=np.zeros(len(fused), dtype=bool))

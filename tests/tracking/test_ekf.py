@@ -561,3 +561,25 @@ def test_clutter_alone_confirms_no_track_at_20_fps():
     cfg = EkfConfig(frame_period_s=1.0 / fps, measurement_std=(0.05, 0.1, 0.1))
     assert cfg.confirm_hits_frames == 8
     assert track_centroids(cents, cfg).track_ids.size == 0
+
+
+def test_frames_at_both_ends_of_int64_track_as_a_huge_gap_does():
+    """Before: np.diff of frames at both ends of int64 wrapped to a negative
+    gap: `np.repeat` raised ValueError out of `mmsnap process`; the last frame
+    of int64 wrapped `f + 1` in the step loop."""
+    k = np.arange(30)
+    r = np.concatenate([4 + 0.05 * k, 4 + 0.05 * k])
+    big = np.iinfo(np.int64)
+    tracks = {}
+    for first, second in ((0, 10 ** 12), (big.min, big.max - 29)):
+        det = Detections(frame=np.concatenate([k + first, k + second]), range_m=r,
+                         omega_rad=np.full(60, 0.2), doppler_mps=np.full(60, 0.3))
+        steps = frames_to_step(det.frame)
+        assert steps.size == 60 + max(EkfConfig().max_misses_frames,
+                                      EkfConfig().confirm_window_frames)
+        tracks[first] = (track_centroids(det), first, second)
+    (a, a1, a2), (b, b1, b2) = tracks.values()
+    np.testing.assert_array_equal(np.where(b.frame >= 0, b.frame - b2 + a2, b.frame - b1 + a1),
+                                  a.frame)
+    np.testing.assert_array_equal(b.state[:30], a.state[:30])  # before the gap: the same
+    assert b.frame.max() == big.max and np.all(np.isfinite(b.state))

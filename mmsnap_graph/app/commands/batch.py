@@ -22,6 +22,8 @@ from mmsnap_graph._atomic import atomic_path
 from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import MmsnapError, ValidationError
 
+from .arguments import add_fusion_arguments, fusion_config
+
 #: Seconds to wait for a ``--scheduler`` before giving up.
 CONNECT_TIMEOUT_S = 10
 
@@ -46,25 +48,24 @@ def register(subparsers) -> None:
     p.add_argument("--steps", default="process,calibrate,fuse",
                    help="comma-separated steps among process, calibrate, fuse, in that order "
                         "(default %(default)s)")
-    p.add_argument("--workers", type=int, default=None,
-                   help="worker processes of the local cluster (default: the number of CPUs, "
-                        "at most one per recording)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="address of a running dask scheduler, e.g. tcp://host:8786 (the "
-                        "workers must see the recordings at the same paths)")
+    cluster = p.add_mutually_exclusive_group()
+    cluster.add_argument("--workers", type=int, default=None,
+                         help="worker processes of the local cluster (default: the number of "
+                              "CPUs, at most one per recording)")
+    cluster.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                         help="address of a running dask scheduler, e.g. tcp://host:8786 (the "
+                              "workers must see the recordings at the same paths)")
     p.add_argument("--output-dir", default=None,
                    help="write each result to DIR/<name> instead of updating the recordings")
     p.add_argument("--centroids-only", action="store_true",
                    help="process: only build tracks from the stored centroids")
-    p.add_argument("--mode", choices=["map", "ml"], default="map",
-                   help="fuse: MAP with the paper's prior, or maximum likelihood "
-                        "(default %(default)s)")
     p.add_argument("--json-out", default=None, metavar="PATH",
                    help="also write the per-recording summaries as JSON here")
     p.add_argument("--json", action="store_true",
                    help="print the per-recording summaries as JSON to stdout instead of the "
                         "table")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_fusion_arguments(p, solvers=("vectorized", "gtsam"))
     add_overwrite(p, "replace existing output files: --json-out, the copies in --output-dir "
                      "and each recording's calibration JSON (default: refuse them, before "
                      "anything runs)")
@@ -138,8 +139,6 @@ def _check_args(args: argparse.Namespace) -> tuple[tuple[str, ...], list[str]]:
     if args.workers is not None and not 1 <= args.workers <= max_workers():
         raise ValidationError(f"--workers must be between 1 and {max_workers()} (4 worker "
                               f"processes per CPU of this machine), got {args.workers}")
-    if args.workers is not None and args.scheduler is not None:
-        raise ValidationError("--workers sizes the local cluster; omit it with --scheduler")
     if args.json_out is not None and os.path.isdir(args.json_out):
         raise ValidationError(f"--json-out {args.json_out} is a directory")
     return steps, expand_patterns(args.patterns)
@@ -171,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     if "process" in steps and args.centroids_only:
         options["process"] = {"centroids_only": True}
     if "fuse" in steps:
-        options["fuse"] = {"mode": args.mode}
+        options["fuse"] = fusion_config(args)  # mmsnap fuse's, from the same flags
     progress = not args.no_progress and sys.stderr.isatty()
     t0 = time.perf_counter()
     with _client(args, len(paths)) as client:

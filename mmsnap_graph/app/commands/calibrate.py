@@ -141,37 +141,200 @@ def noise_lines(noise) -> list[str]:
              "the angle theta",
              "  estimators: network = residuals between nodes at the calibrated poses; "
              "temporal = differences along each node's own centroid sequence"]
-    tails_said = dof_said = False
+    tails_said = missing = False
     for name, e in noise.nodes.items():
-        method, _, tails = e.method.partition(", tails x")
-        factors = tails.split("/") if tails else []
-        lines.append(f"  {name} (estimator: {method}):")
+        lines.append(f"  {name} (estimator: {e.method}):")
         for i, (comp, unit) in enumerate(_NOISE_UNITS):
             value = f"{comp:<8}{e.noise.sigmas[i]:.4g} {unit}"
             if e.identified[i]:
                 text = f"    {value}: estimated from {e.n_residuals[i]} residuals"
-                if len(factors) == 3 and factors[i] != "1.00":
-                    text += f", x{factors[i]} for heavy tails"
+                if round(e.tail_factors[i], 2) != 1.0:
+                    text += f", x{e.tail_factors[i]:.2f} for heavy tails"
                     tails_said = True
             else:
                 text = (f"    {value}: NOT identified, the data cannot pin it down; this "
                         f"fallback value is used instead\n      why: {e.reasons[i]}")
-                dof_said = dof_said or "dof" in e.reasons[i]
+                missing = True
             lines.append(text)
     if tails_said:
         lines.append("  heavy tails: the residuals hold more large values (multipath, a limb "
                      "taken for the torso) than a Gaussian of the core spread; the sigma is "
                      "raised by this factor so that its variance matches them all")
-    if dof_said:
+    if missing:
         lines.append("  dof: degrees of freedom, the independent residuals left after the fit "
                      "(how much data the sigma rests on)")
     return lines
 
 
+def _frames_text(nodes, fractions, z) -> str:
+    return ", ".join(f"{n} {f:+.2f} frame (z {v:.1f})" for n, f, v in zip(nodes, fractions, z))
+
+
+def _sigmas_text(sigmas, identified=None) -> str:
+    parts = []
+    for i, (comp, unit) in enumerate(_NOISE_UNITS):
+        said = "" if identified is None else (" estimated" if identified[i]
+                                              else " NOT identified (fallback)")
+        parts.append(f"{comp} {sigmas[i]:.3g} {unit}{said}")
+    return ", ".join(parts)
+
+
+def _pose_graph_text(f) -> str:
+    how = " (between factors of the pairwise poses)"
+    if f.solve == "points":
+        tau = (f", covariance x{f.autocorrelation_factor:.3g} for residuals correlated in time"
+               if f.autocorrelation_factor > 1.05 else "")
+        how = f" (joint least squares on the matched points{tau})"
+    return f"pose graph: {f.n_nodes} node(s) calibrated from {f.n_edges} edge(s){how}"
+
+
+def _joint_noise_text(f) -> str:
+    if f.source == "temporal":
+        return ("sigmas for the joint graph, from each node's own centroid sequence: "
+                + _sigmas_text(f.sigmas, f.identified))
+    said = "from its residuals" if f.source == "residuals" else "as given"
+    return f"sigmas for the joint graph, {said}: " + _sigmas_text(f.sigmas)
+
+
+def _clock_text(f) -> str:
+    text = _frames_text(f.nodes, f.fractions, f.z)
+    return {
+        "no_start": "clock offsets: whole-frame lags (no successful joint solve to start from)",
+        "solve_failed": f"clock offsets: whole-frame lags (the timed solve failed: "
+                        f"{f.solve_status.message})",
+        "beyond_half_frame": f"clock offsets: whole-frame lags kept (a fraction beyond half a "
+                             f"frame contradicts the lag search: {text})",
+        "not_determined": f"clock offsets: whole-frame lags kept (no fraction determined by the "
+                          f"data, z < {f.evidence_z:g}: {text})",
+        "estimated": f"clock offsets beyond the lags: {text}",
+    }[f.outcome]
+
+
+def _joint_fit_text(f) -> tuple[str, ...]:
+    gn = f"{f.iterations} GTSAM Gauss-Newton/LM step(s)"
+    if f.presolve_steps:
+        steps = "+".join(str(n) for n in f.presolve_steps)
+        gn = (f"numpy pre-solve {steps} step(s) ("
+              + ("converged), then " + gn + " confirming its optimum" if f.presolve_converged
+                 else "NOT converged: GTSAM continued), then " + gn))
+    fit = (f"joint calibration of {f.n_nodes} nodes on {f.n_frames} frames, {f.n_outliers} "
+           f"outlier detection(s), {gn}")
+    return (fit,) + ((f"{f.turns} sharp turn(s) left out of the motion factors",)
+                     if f.turns else ())
+
+
+def _covariance_text(f) -> str:
+    if f.method == "schur":
+        text = f"covariance: a dense Schur complement ({f.failure})"
+    elif f.method == "marginals":
+        text = "covariance: the graph's marginals" + (f" ({f.failure})" if f.failure else "")
+    elif f.max_widening <= 1.0:
+        text = (f"covariance: the graph's marginals (the long-run covariance over "
+                f"{f.bandwidth_frames} frames is within their sampling noise)")
+    else:
+        text = (f"covariance: long-run over {f.bandwidth_frames} frames (errors correlated in "
+                f"time or model error), variances widened up to x{f.max_widening:.1f}")
+    if f.reflection_depth_rms_m > 0:
+        text += (f"; plus a reflection depth of {f.reflection_depth_rms_m:.3f} m rms that the "
+                 f"poses cannot tell from the geometry (not estimated: --range-offset does)")
+    return text
+
+
+def _lag_evidence_text(f) -> str:
+    head = f"{f.node_a}-{f.node_b}: lag {f.lag_frames} frames"
+    if f.outcome == "determined":
+        return f"{head} determined by the data (z = {f.z:.1f})"
+    if f.outcome == "untested":
+        return f"{head} NOT tested against lag 0 (too few frames at both lags): kept"
+    if f.outcome == "window_edge":
+        inner = f.lag_frames - int(np.sign(f.lag_frames))
+        what = (f"z = {f.z:.1f}, but at the edge of the +-{f.window_frames}-frame window it "
+                f"does not beat lag {inner} by z >= {f.evidence_z:g}: the fit may improve "
+                f"further out")
+    else:
+        what = ("too few frames to tell" if not np.isfinite(f.z)
+                else f"z = {f.z:.1f} < {f.evidence_z:g}")
+    return f"{head} not determined by the data ({what} against lag 0 on the same tracks): " \
+           f"lag 0 kept"
+
+
+def _lag_cover_text(f) -> str:
+    if not f.tested:
+        return (f"{f.node_a}-{f.node_b}: lag not determined (other lags fit about as well "
+                f"with other poses): the covariance covers their spread")
+    return (f"{f.node_a}-{f.node_b}: lag not determined by the track matching; the joint "
+            f"graph's clock offset ({f.clock_fraction:+.2f} +- {f.clock_sigma:.2f} frames) or "
+            f"its centroids reject the shifts {list(f.rejected_shifts)} frames (z >= "
+            f"{f.evidence_z:g}); the covariance covers the poses of "
+            f"{list(f.kept_shifts) if f.kept_shifts else 'none'}")
+
+
+def _disputed_text(f) -> str:
+    return ("the track matching's lags not determined by the data (the joint graph's clock "
+            "offsets contradict them: " + ", ".join(
+                f"{n} lag {lag} frames, {fr:+.2f} +- {sd:.2f} frames beyond it"
+                for n, lag, fr, sd in zip(f.nodes, f.lags, f.fractions, f.sigmas))
+            + "): lag 0 kept")
+
+
+def _not_observable_text(f) -> str:
+    dirs = ", ".join("(" + ", ".join(f"{c:+.2f}" for c in d) + ")" for d in f.directions)
+    return f"pose of {f.node} is not observable along {dirs} (dx_b, dy_b, dphi)"
+
+
+def _noise_fact_text(f) -> str:
+    unit = dict(_NOISE_UNITS)[f.component]
+    return (f"noise: {f.node} {f.component} not identified at the calibrated poses, "
+            f"{f.sigma:.4g} {unit} used" + (f" ({f.reason})" if f.reason else ""))
+
+
+#: fact kind -> its words (one line, or a tuple of lines).
+_FACT_TEXT = {
+    "pose_graph_fit": _pose_graph_text,
+    "targets_associated": lambda f: (f"several centroids per frame: {f.n_targets} target "
+                                     f"tracks, {f.n_states} (frame, target) states"),
+    "joint_noise": _joint_noise_text,
+    "clock_offsets_tried": _clock_text,
+    "joint_fit": _joint_fit_text,
+    "robust_pass_failed": lambda f: (f"Gaussian factors: the robust pass failed "
+                                     f"({f.status.message})"),
+    "pose_covariance": _covariance_text,
+    "range_offset_estimated": lambda f: (
+        f"range offset (reflection depth) {f.offset_m:.3f} +- "
+        f"{np.sqrt(f.variance_m2):.3f} m (prior {f.prior_mean_m:.2f} +- "
+        f"{f.prior_sigma_m:.2f} m)"),
+    "pose_not_observable": _not_observable_text,
+    "solve_broke_down": lambda f: f"the {f.step.replace('_', ' ')} solve broke down: {f.reason}",
+    "joint_skipped": lambda f: ("joint refinement skipped: no centroids of a common target "
+                                "could be associated across nodes"
+                                + (f" ({f.association_error})" if f.association_error else "")),
+    "joint_rejected": lambda f: (f"kept the pose-graph poses: the joint refinement ended with "
+                                 f"'{f.status.message}'"),
+    "lag_evidence": _lag_evidence_text,
+    "lag_not_determined": _lag_cover_text,
+    "lags_disputed": _disputed_text,
+    "noise_not_identified": _noise_fact_text,
+    "recorded_message": lambda f: f.text,
+}
+
+
+def fact_lines(fact) -> list[str]:
+    """One calibration fact (:mod:`mmsnap_graph.data.calibration_facts`) in
+    words, one line per clause."""
+    text = _FACT_TEXT[fact.kind](fact)
+    return list(text) if isinstance(text, tuple) else [text]
+
+
+def fact_text(fact) -> str:
+    """One calibration fact in words, on one line."""
+    return "; ".join(fact_lines(fact))
+
+
 def format_table(cal) -> str:
     """The calibration as text, one fact a line: the poses with their
     1-sigma uncertainties (angles in degrees), the clock offsets, the
-    pairwise fits, the noise (:func:`noise_lines`) and the outcome."""
+    pairwise fits, the noise (:func:`noise_lines`), the status and the
+    facts (:func:`fact_text`)."""
     lines = [f"reference {cal.reference} (at 0, 0, 0); method {cal.method}; source {cal.source}",
              "poses in the reference's frame: x, y in metres, heading phi (the array axis) in "
              "degrees; s*: 1-sigma; lag: whole frames; offset: clock offset to the reference",
@@ -188,24 +351,23 @@ def format_table(cal) -> str:
         lines.append(f"{n:<8}{x:9.3f}{y:9.3f}{np.degrees(phi):10.2f}{sd[0]:9.3f}{sd[1]:9.3f}"
                      f"{np.degrees(sd[2]):10.3f}{cal.lag_frames.get(n, 0):5d}{tau:11.1f}"
                      f"{s_tau:7.1f}")
-    depth = float(getattr(cal, "range_offset_m", float("nan")))
-    if np.isfinite(depth):
-        sd = float(np.sqrt(getattr(cal, "range_offset_variance", float("nan"))))
-        lines.append(f"range offset (reflection depth): {depth:.3f} +- {sd:.3f} m "
-                     f"(added to every range by `mmsnap fuse`)")
+    if np.isfinite(cal.range_offset_m):
+        lines.append(f"range offset (reflection depth): {cal.range_offset_m:.3f} +- "
+                     f"{np.sqrt(cal.range_offset_variance):.3f} m (added to every range by "
+                     f"`mmsnap fuse`)")
     if cal.edges:
         lines.append("pairwise closed form (track RMSE, paper eq. 14):")
         for e in cal.edges:
             lines.append(f"  {e.node_a}-{e.node_b}: RMSE {e.rmse_m:.3f} m over {e.n_frames} "
-                         f"frames, lag {e.lag_frames} frames"
-                         + (f" ({e.lag_note})" if getattr(e, "lag_note", "") else ""))
+                         f"frames, lag {e.lag_frames} frames")
     for k, v in cal.failures.items():
         lines.append(f"  {k}: {v}")
     if cal.noise is not None:
         lines.extend(noise_lines(cal.noise))
-    facts = [part.strip() for part in cal.message.split("; ") if part.strip()] or [""]
-    lines.append(("ok: " if cal.success else "INCOMPLETE: ") + facts[0])
-    lines.extend("  " + fact for fact in facts[1:])
+    lines.append(("ok: " if cal.success else "INCOMPLETE: ") + cal.status.message)
+    # With the noise estimate printed above, its unidentified components are said there.
+    said = ("noise_not_identified",) if cal.noise is not None else ()
+    lines.extend("  " + line for f in cal.facts if f.kind not in said for line in fact_lines(f))
     return "\n".join(lines)
 
 

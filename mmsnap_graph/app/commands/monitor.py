@@ -81,12 +81,12 @@ def format_result(result) -> str:
                      f"t={c.detection_time_s:.2f} s (frame {c.detection_frame}), statistic "
                      f"{c.statistic:.1f} over {c.window_frames} frames")
     for r in result.recalibrations:
-        if not r.success:
-            lines.append(f"  {r.node} re-calibration FAILED: {r.message}")
+        if not r.fit.success:
+            lines.append(f"  {r.node} re-calibration FAILED: {r.fit.message}")
             continue
         x, y, phi = r.old_pose
         lines.append(f"  {r.node} new pose from frames {r.first_frame}-{r.last_frame}: "
-                     f"{_pose_text(r.pose, r.covariance)}; was ({x:.3f} m, {y:.3f} m, "
+                     f"{_pose_text(r.fit.pose, r.fit.covariance)}; was ({x:.3f} m, {y:.3f} m, "
                      f"{np.degrees(phi):.2f} deg)")
     return "\n".join(lines)
 
@@ -101,10 +101,11 @@ def result_json(result) -> dict:
                      "detection_frame": c.detection_frame,
                      "detection_time_s": c.detection_time_s, "statistic": c.statistic,
                      "window_frames": c.window_frames} for c in result.changes],
-        "recalibrations": [{"node": r.node, "success": r.success, "message": r.message,
+        "recalibrations": [{"node": r.node, "success": r.fit.success, "message": r.fit.message,
                             "first_frame": r.first_frame, "last_frame": r.last_frame,
-                            "old_pose": r.old_pose.tolist(), "pose": r.pose.tolist(),
-                            "covariance": r.covariance.tolist()} for r in result.recalibrations],
+                            "old_pose": r.old_pose.tolist(), "pose": r.fit.pose.tolist(),
+                            "covariance": r.fit.covariance.tolist()}
+                           for r in result.recalibrations],
         "poses": {n: p.tolist() for n, p in result.poses.items()},
     }
 
@@ -141,4 +142,4 @@ def run(args: argparse.Namespace) -> int:
         with atomic_path(json_path) as tmp:
             tmp.write_text(json.dumps(result_json(result), indent=2) + "\n", encoding="utf-8")
         say(f"wrote {json_path}")
-    return 1 if any(not r.success for r in result.recalibrations) else 0
+    return 1 if any(not r.fit.success for r in result.recalibrations) else 0

@@ -8,9 +8,10 @@ calibration JSON) combined with each node's own centroid sequence; with no
 poses, the centroid sequences alone. Each component is printed as estimated,
 or as not identified with the value used instead and why. At the poses of a
 calibration JSON that are not the recording's own calibrated ones, the range
-offset (a body's reflection depth) that ``mmsnap fuse --calibration`` adds
-there is taken out of the ranges first, so that it is not counted twice (as
-an offset and as range noise).
+offset (a body's reflection depth) the cross-node residuals identify there is
+estimated, taken out of the ranges first, so that it is not counted twice (as
+an offset and as range noise), and stored with the noise and the poses: it is
+what ``mmsnap fuse --calibration`` adds at those poses (fuse only reads it).
 """
 
 from __future__ import annotations
@@ -56,10 +57,11 @@ def _lags(path) -> dict[str, int] | None:
     return dict(read_calibration(path).lag_frames) if has else None
 
 
-def _depth(args, rec, est) -> float:
+def _depth(args, rec, est) -> tuple[float, str]:
     """The range offset `mmsnap fuse --calibration` adds at the JSON's
     poses (said), so that the noise is estimated on the ranges it fuses:
-    a depth left in would be counted twice, as an offset and as noise."""
+    a depth left in would be counted twice, as an offset and as noise; and
+    what it is in words ("" at the recording's own calibrated poses)."""
     from mmsnap_graph.app.runs import range_offset_for_poses
     from mmsnap_graph.io.calibration import read_calibration_json
 
@@ -69,7 +71,7 @@ def _depth(args, rec, est) -> float:
                                          recording=rec)
     if said:
         print(said)
-    return depth
+    return depth, said
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.fusion.recording.timing import offset_ranges
     from mmsnap_graph.io import read_recording
     from mmsnap_graph.io.calibration import load_calibration_poses
-    from mmsnap_graph.io.noise import write_noise
+    from mmsnap_graph.io.noise import RangeOffsetAtPoses, write_noise
 
     from .calibrate import noise_lines
 
@@ -90,14 +92,17 @@ def run(args: argparse.Namespace) -> int:
         rec = read_recording(args.recording, load_cubes=False)
         lags = _lags(args.recording)
         est = estimate_noise(rec, poses=poses, lag_frames=lags, method=args.method)
+        offset = None
         if poses is not None:   # the range offset `mmsnap fuse` adds at these poses
-            depth = _depth(args, rec, est)
+            depth, said = _depth(args, rec, est)
+            if said:
+                offset = RangeOffsetAtPoses(offset_m=depth, poses=poses, message=said)
             if np.isfinite(depth):
                 est = estimate_noise(offset_ranges(rec, depth), poses=poses, lag_frames=lags,
                                      method=args.method)
         print("\n".join(noise_lines(est)))  # as `mmsnap calibrate` prints it
         print(est.message)
         if not args.no_write:
-            path = write_noise(args.recording, est, output=args.output)
+            path = write_noise(args.recording, est, output=args.output, range_offset=offset)
             print(f"wrote {path}:/noise")
     return 0 if est.any_identified else 1

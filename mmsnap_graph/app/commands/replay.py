@@ -23,7 +23,8 @@ import numpy as np
 from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import ValidationError
 
-from .arguments import solver_choice
+from .arguments import add_calibration_arguments, add_fusion_arguments, calibration_for, \
+    config_text, fusion_config
 
 
 #: Playback speeds --speed accepts (1000 times slower to 10^6 times faster).
@@ -40,24 +41,16 @@ def register(subparsers) -> None:
                     "one-shot fusion, central tracker), as a live network would send them; "
                     "print one line per frame and a latency summary.")
     p.add_argument("recording", help="HDF5 recording (docs/FORMAT.md)")
-    p.add_argument("--calibration", default=None,
-                   help="calibration JSON; default: the poses stored in the recording (either "
-                        "way with their covariances and clock offsets, and the /noise sigmas)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the frames at the recorded frame rate")
     p.add_argument("--speed", type=float, default=None,
                    help="with --realtime (implied), play X times faster than recorded")
-    p.add_argument("--mode", choices=["map", "ml"], default="map",
-                   help="MAP with the paper's prior, or maximum likelihood (default %(default)s)")
-    p.add_argument("--solver", type=solver_choice(("scalar", "gtsam", "vectorized")), default="scalar",
-                   metavar="{scalar,gtsam,vectorized}",
-                   help="the scalar solver (one frame in plain floats, GTSAM's steps, "
-                        "docs/STREAMING.md), one GTSAM graph per group, or the vectorized "
-                        "solver on the frame's groups (default %(default)s)")
-    p.add_argument("--source", choices=["centroids", "point_cloud"], default="centroids",
-                   help="detections to stream (default %(default)s)")
-    p.add_argument("--gate", type=float, default=0.999,
-                   help="association gate probability (default %(default)s)")
+    p.add_argument("--delay", type=int, default=0, metavar="FRAMES",
+                   help="decide each frame this many frames after it arrived (default 0: at "
+                        "once, the checks from past frames only; the checks' look-around, 9 "
+                        "frames, gives the rows of `mmsnap fuse`; docs/STREAMING.md)")
+    add_calibration_arguments(p)
+    add_fusion_arguments(p, solvers=("scalar", "gtsam", "vectorized"), default_solver="scalar")
     p.add_argument("--summary", action="store_true", help="print only the summary")
     p.add_argument("-o", "--output", default=None,
                    help="write one JSON line per frame (fused targets and tracks) to this file")
@@ -69,6 +62,8 @@ def _check_args(args) -> float | None:
     """The playback speed (None: as fast as possible); usage errors exit 2."""
     if args.output is not None and os.path.isdir(args.output):
         raise ValidationError(f"--output {args.output!r} is a directory; give a file name")
+    if args.delay < 0:
+        raise ValidationError(f"--delay must be >= 0 frames, got {args.delay}")
     if args.speed is None:
         return 1.0 if args.realtime else None
     if not (SPEED_RANGE[0] <= args.speed <= SPEED_RANGE[1]):
@@ -87,10 +82,11 @@ def _line(frame: int, u) -> str:
     return " | ".join(parts)
 
 
-def _record(frame: int, u) -> dict:
+def _record(frame: int, u, rows) -> dict:
     return {"frame": frame, "time_s": u.time_s, "ok": u.ok, "message": u.message,
             "state": u.state.tolist(), "covariance": u.covariance.tolist(),
-            "status": u.status.tolist(), "track_id": u.track_id.tolist(),
+            "status": u.status.tolist(), "detection_index": rows.tolist(),
+            "track_id": u.track_id.tolist(),
             "track_state": u.track_state.tolist(), "track_covariance": u.track_covariance.tolist(),
             "latency_s": u.latency_s}
 
@@ -106,34 +102,35 @@ def _summary(latencies, n_frames, n_bad, n_groups, n_ok, n_tracks_max) -> str:
 def run(args: argparse.Namespace) -> int:
     # Deferred as in the other commands: building the parser imports no numerics or h5py.
     from mmsnap_graph._atomic import atomic_path
-    from mmsnap_graph.app.runs import paper_noise, stored_calibration
-    from mmsnap_graph.data.noise import GaussianPrior
-    from mmsnap_graph.fusion.recording.sequence import recording_poses
+    from mmsnap_graph.fusion.recording.coverage import detection_reach_m
+    from mmsnap_graph.fusion.recording.sequence import calibrated_recording, recording_poses
     from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
-    from mmsnap_graph.fusion.recording.timing import align_recording
     from mmsnap_graph.io import read_recording
 
     speed = _check_args(args)
+    config = fusion_config(args)
     rec = read_recording(args.recording, load_cubes=False)
-    cal = stored_calibration(args.recording, rec.node_names, calibration_json=args.calibration)
-    cal = cal.with_default_noise(*paper_noise())
+    cal = calibration_for(args, args.recording, rec.node_names, config)
     print("\n".join(cal.text), file=sys.stderr)  # stdout: one line per frame
-    if cal.time_offset_s:
-        if args.source != "centroids":
-            raise ValidationError("the calibration's clock offsets align centroids: use "
-                                  "--source centroids")
-        rec = align_recording(rec, cal.time_offset_s)
-    poses = recording_poses(rec, cal.node_poses)
-    stream = FrameStream(rec.node_names, poses, solver=args.solver, gate_probability=args.gate,
-                         prior=GaussianPrior() if args.mode == "map" else None,
-                         noise=cal.noise, pose_covariances=cal.pose_covariances)
+    print(config_text(config), file=sys.stderr)
+    network = cal.network_calibration()
+    # The coverage check's reach as `mmsnap fuse` takes it: every detection of the file.
+    config = config.with_coverage_reach({n: detection_reach_m(rec.nodes[n])
+                                         for n in rec.node_names})
+    # The clock and range offsets as the recording drivers apply them (one place).
+    rec = calibrated_recording(rec, network, config.association.source)
+    poses = recording_poses(rec, network.node_poses)
+    stream = FrameStream(rec.node_names, poses, config=config, noise=cal.noise,
+                         pose_covariances=cal.pose_covariances, delay_frames=args.delay,
+                         tracker=_tracker(rec))
     fill = stream.tracker_config.max_misses
+    frames = recording_frames(rec, source=config.association.source, fill_frames=fill)
     out = atomic_path(args.output) if args.output else None
     with (out if out is not None else _Null()) as path:
         sink = open(path, "w", encoding="utf-8") if path is not None else None
         try:
-            stats = _play(stream, recording_frames(rec, source=args.source, fill_frames=fill),
-                          speed, args.summary, sink)
+            stats = _play(stream, frames, _file_rows(rec, config.association.source), speed,
+                          args.summary, sink)
         finally:
             if sink is not None:
                 sink.close()
@@ -142,6 +139,34 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.output}", file=sys.stdout)
     # As `mmsnap process`: failing (exit 1) is for nothing fused at all.
     return 0 if stats[3] > 0 else 1
+
+
+def _tracker(rec):
+    """The central tracker's settings at the recording's frame period."""
+    from mmsnap_graph.tracking.central import CentralConfig
+
+    return CentralConfig(frame_period_s=rec.frame_period_s)
+
+
+def _file_rows(rec, source):
+    """``rows(frame, members (G, N)) -> (G, N)``: each member's row in the
+    recording's detections (as ``/fused``'s ``detection_index``), from its row
+    in the frame's detections as :func:`recording_frames` gives them."""
+    per_node = []
+    for name in rec.node_names:
+        d = getattr(rec.nodes[name], source)
+        frames = np.zeros(0, np.int64) if d is None else np.asarray(d.frame)
+        order = np.argsort(frames, kind="stable")
+        per_node.append((frames[order], order))
+
+    def rows(frame, members):
+        out = np.asarray(members).copy()
+        for n, (frames, order) in enumerate(per_node):
+            lo = np.searchsorted(frames, frame)
+            has = out[:, n] >= 0
+            out[has, n] = order[lo + out[has, n]]
+        return out
+    return rows
 
 
 class _Null:
@@ -154,18 +179,15 @@ class _Null:
         return False
 
 
-def _play(stream, frames, speed, summary_only, sink):
+def _play(stream, frames, file_rows, speed, summary_only, sink):
     """Push every frame (paced when ``speed`` is set); return the summary's numbers."""
     latencies, n_groups, n_ok, n_tracks_max = [], 0, 0, 0
     t0_wall = t0_rec = None
-    for frame, time_s, detections in frames:
-        if speed is not None:
-            if t0_wall is None:
-                t0_wall, t0_rec = time.monotonic(), time_s
-            wait = t0_wall + (time_s - t0_rec) / speed - time.monotonic()
-            if wait > 0:  # a gap in the stamps waits at most MAX_PAUSE_S
-                time.sleep(min(wait, MAX_PAUSE_S))
-        u = stream.push(time_s, detections)
+    numbers = {}  # the frame number of each pushed frame, by its index
+
+    def show(u):
+        nonlocal n_groups, n_ok, n_tracks_max
+        frame = numbers.pop(u.index)
         latencies.append(u.latency_s)
         n_groups += len(u)
         n_ok += int(np.count_nonzero(u.success))
@@ -173,5 +195,18 @@ def _play(stream, frames, speed, summary_only, sink):
         if not summary_only:
             print(_line(frame, u), file=sys.stdout)
         if sink is not None:
-            sink.write(json.dumps(_record(frame, u)) + "\n")
+            sink.write(json.dumps(_record(frame, u, file_rows(frame, u.members))) + "\n")
+
+    for frame, time_s, detections in frames:
+        if speed is not None:
+            if t0_wall is None:
+                t0_wall, t0_rec = time.monotonic(), time_s
+            wait = t0_wall + (time_s - t0_rec) / speed - time.monotonic()
+            if wait > 0:  # a gap in the stamps waits at most MAX_PAUSE_S
+                time.sleep(min(wait, MAX_PAUSE_S))
+        numbers[stream.frames] = frame
+        for u in stream.feed(time_s, detections):
+            show(u)
+    for u in stream.flush():
+        show(u)
     return latencies, stream.frames, stream.bad_frames, n_groups, n_ok, n_tracks_max

@@ -16,6 +16,7 @@ from ...calibration import LocalTracks, MatchingOptions, joint_calibration, matc
 from ...data.noise import MeasurementNoise
 from ...data.recording import Detections, Recording, Tracks
 from ...errors import CalibrationError, ValidationError
+from ..commands.calibrate import fact_text
 from .chain import (
     DEMO_EKF_MEASUREMENT_STD,
     SingleTrack,
@@ -139,9 +140,9 @@ def _refine(recording: Recording, names, tracks, initial_pose: NDArray, lag: int
                                   noise=_DEMO_NOISE)
     except CalibrationError as exc:
         return initial_pose, None, False, f"refinement failed, closed form kept: {exc}"
+    said = "; ".join([joint.status.message, *map(fact_text, joint.facts)])
     return (np.asarray(joint.poses[names[1]], dtype=float),
-            np.asarray(joint.covariances[names[1]], dtype=float), bool(joint.success),
-            joint.message)
+            np.asarray(joint.covariances[names[1]], dtype=float), bool(joint.success), said)
 
 
 def _truth_errors(recording: Recording, name: str, cf_pose: NDArray, refined_pose: NDArray

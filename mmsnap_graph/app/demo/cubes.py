@@ -15,6 +15,7 @@ from factors.models import measurement_model, wrap_angle
 
 from ...data.recording import Detections, Recording
 from ...errors import ValidationError
+from ...fusion.config import PLAIN_CONFIG
 from ...fusion.options import NetworkCalibration
 from ...fusion.recording.sequence import fuse_recording
 from .fusion import one_row_per_frame
@@ -82,8 +83,9 @@ def _fused_errors(rec: Recording, node_poses, t_frames: NDArray, t_states: NDArr
                   ) -> StateErrors | None:
     """MAP one-shot fusion with the true poses against the truth (None when
     no frame has every node)."""
-    fused = fuse_recording(rec, calibration=NetworkCalibration(node_poses=dict(node_poses)),
-                           mode="map", progress=False)
+    fused = fuse_recording(rec, PLAIN_CONFIG,
+                           calibration=NetworkCalibration(node_poses=dict(node_poses)),
+                           progress=False)
     rows = one_row_per_frame(fused, len(rec.node_names))
     _, ia, ib = align_frames(fused.frame[rows], t_frames)
     return state_errors(fused.state[rows][ia], t_states[ib]) if ia.size else None

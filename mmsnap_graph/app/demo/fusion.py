@@ -5,6 +5,7 @@ tracker, all on the frames they have in common (:mod:`mmsnap_graph.app.demo`).""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -15,6 +16,7 @@ from ...data.recording import Recording
 from ...errors import ValidationError
 from ...fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD
 from ...data.results import FusedSequence
+from ...fusion.config import PLAIN_CONFIG
 from ...fusion.options import NetworkCalibration
 from ...fusion.recording.sequence import fuse_recording
 from ...tracking.central import CentralConfig, track_fused
@@ -36,8 +38,10 @@ __all__ = [
 def _fuse(recording: Recording, node_poses: Mapping[str, NDArray], mode: str) -> FusedSequence:
     """One-shot fusion of every frame of a run: ``mode`` "map" (the paper's
     prior) or "ml"."""
-    return fuse_recording(recording, calibration=NetworkCalibration(node_poses=dict(node_poses)),
-                          mode=mode, progress=False)
+    config = PLAIN_CONFIG if mode == "map" else dataclasses.replace(PLAIN_CONFIG, prior=None)
+    return fuse_recording(recording, config,
+                          calibration=NetworkCalibration(node_poses=dict(node_poses)),
+                          progress=False)
 
 
 def one_row_per_frame(fused: FusedSequence, n_nodes: int) -> NDArray:

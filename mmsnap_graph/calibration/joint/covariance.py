@@ -62,6 +62,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ...data.calibration_facts import PoseCovariance
 from ...errors import ValidationError
 from .presolve import PresolveProblem, pose_influences
 
@@ -191,19 +192,13 @@ class BlockCovariance:
         i = self.order.index(key)
         return float(self.covariance[i, i])
 
-    def describe(self) -> str:
-        """One clause for the calibration's message."""
-        depth = (f"; plus a reflection depth of {self.range_offset_rms:.3f} m rms that the poses "
-                 f"cannot tell from the geometry (not estimated: --range-offset does)"
-                 if self.range_offset_rms > 0 else "")
+    def fact(self) -> PoseCovariance:
+        """How the covariance was computed, as the calibration reports it."""
         if self.bandwidth == 0:
-            return "covariance: the graph's marginals"
-        top = float(np.max(self.factors))
-        if top <= 1.0:
-            return (f"covariance: the graph's marginals (the long-run covariance over "
-                    f"{self.bandwidth} frames is within their sampling noise)" + depth)
-        return (f"covariance: long-run over {self.bandwidth} frames (errors correlated in "
-                f"time or model error), variances widened up to x{top:.1f}" + depth)
+            return PoseCovariance(method="marginals")
+        return PoseCovariance(method="long_run", bandwidth_frames=self.bandwidth,
+                              max_widening=max(float(np.max(self.factors)), 1.0),
+                              reflection_depth_rms_m=self.range_offset_rms)
 
 
 def range_offset_response(problem: PresolveProblem, poses, states, offsets,

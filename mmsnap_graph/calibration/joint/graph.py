@@ -32,7 +32,7 @@ from .presolve import motion_norms, shifted_states
 
 __all__ = ["MotionSpec", "motion_spec", "JointGraph", "flag_outliers", "flag_turns",
            "exonerate_turns", "TURN_POSITION_SIGMA_M",
-           "assess", "schur_covariances", "run_message"]
+           "assess", "schur_covariances"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -294,14 +294,15 @@ def assess(graph, final_graph, result, state_covariances, max_pose_variance,
            max_pose_condition, linear=None):
     """Marginal covariances, offset variances (name -> s^2, NaN where not
     estimated, 0 for the reference), the state marginals, the unobservable
-    pose directions, notes and the joint pose covariance (None when the
-    elimination fails: then the marginals are the dense Schur complement's)."""
+    pose directions, why the elimination failed ("" when it did not: then
+    the marginals are the dense Schur complement's) and the joint pose
+    covariance (None when the elimination fails)."""
     ref, active = graph.ref, graph.active
     covs: dict[str, NDArray] = {ref: np.zeros((3, 3))}
     variances = {n: (0.0 if n == ref else float("nan")) for n in active}
     state_covs = np.full((graph.f, 4, 4), np.nan)
     unobservable: dict[str, NDArray] = {}
-    notes = []
+    failure = ""
     joint = None
     try:
         # The marginals from a Bayes tree in the graph's own order (linear in
@@ -321,10 +322,10 @@ def assess(graph, final_graph, result, state_covariances, max_pose_variance,
             if np.any(bad):
                 unobservable[n] = v[:, bad].T
     except RuntimeError as exc:
-        notes.append(f"marginals failed ({str(exc).splitlines()[0]})")
+        failure = f"the marginals failed ({(str(exc).splitlines() or [type(exc).__name__])[0]})"
         covs.update(schur_covariances(final_graph, result, graph, unobservable,
                                       max_pose_condition))
-    return covs, variances, state_covs, unobservable, notes, joint
+    return covs, variances, state_covs, unobservable, failure, joint
 
 
 def schur_covariances(final_graph, values, graph, unobservable, condition):
@@ -365,20 +366,3 @@ def schur_covariances(final_graph, values, graph, unobservable, condition):
             cov[touched, touched] = np.inf
         covs[n] = cov
     return covs
-
-
-def run_message(active, f, outliers, iterations, notes, unobservable, unreachable, ref):
-    """The one-line summary of a joint calibration."""
-    notes = list(notes)
-    for n, dirs in unobservable.items():
-        txt = ", ".join("(" + ", ".join(f"{c:+.2f}" for c in d) + ")" for d in dirs)
-        notes.append(f"pose of {n} is not observable along {txt} (dx_b, dy_b, dphi)")
-    if unreachable:
-        notes.append(f"no common frames linking {', '.join(unreachable)} to {ref}")
-    n_out = sum(int(o.sum()) for o in outliers.values())
-    solver = iterations if isinstance(iterations, str) else f"{iterations} LM iterations"
-    msg = (f"joint calibration of {len(active)} nodes on {f} frames, {n_out} outlier "
-           f"detection(s), {solver}")
-    if notes:
-        msg += "; " + "; ".join(notes)
-    return msg

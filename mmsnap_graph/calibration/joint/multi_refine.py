@@ -25,6 +25,8 @@ import numpy as np
 from factors.models import detection_to_local
 
 from ..._validation import check_count
+from ...data.calibration import RecordingCalibration
+from ...data.calibration_facts import ClockOffsetsTried, RobustPassFailed
 from ...data.noise import MeasurementNoise
 from ...data.recording import Recording
 from ...errors import CalibrationError, ValidationError
@@ -37,7 +39,6 @@ from .multi_target import (
     TargetMapping,
     joint_detections_multi,
 )
-from ..pairwise.pose_graph import PoseGraphCalibration
 from ..poses import pose_tangent_error
 from .residual_noise import residual_noise
 
@@ -145,9 +146,8 @@ def _one_round(recording, names, poses, covariances, lag_frames, noise,
         plain = joint_calibration(dets, dataclasses.replace(options, robust=None), noise=noise,
                                   **data)
         if plain.success:
-            joint = dataclasses.replace(plain, message=(
-                f"{plain.message} (Gaussian factors: the robust pass failed: "
-                f"{joint.message})"))
+            joint = dataclasses.replace(
+                plain, facts=(*plain.facts, RobustPassFailed(status=joint.status)))
     return MultiTargetRefinement(joint=joint, mapping=mapping, association=assoc, noise=noise,
                                  detections=dets)
 
@@ -190,7 +190,7 @@ def refine_associated(recording: Recording, names, poses, covariances, lag_frame
 
 def refine_multi(
     recording: Recording,
-    pose_graph: PoseGraphCalibration,
+    pose_graph: RecordingCalibration,
     options: JointOptions = MULTI_JOINT_OPTIONS,
     *,
     noise: MeasurementNoise | None = None,
@@ -200,10 +200,11 @@ def refine_multi(
     """The joint calibration graph on several people, from the pose graph
     (module doc).
 
-    pose_graph : a :class:`~mmsnap_graph.calibration.pairwise.pose_graph.PoseGraphCalibration`
-        (e.g. ``calibrate_recording(rec, method="pose_graph").pose_graph``):
-        its poses, covariances and lags drive the first association and
-        start the joint graph.
+    pose_graph : a pose graph's
+        :class:`~mmsnap_graph.data.calibration.RecordingCalibration` (e.g.
+        ``calibrate_recording(rec, method="pose_graph")``): its poses,
+        covariances and lags drive the first association and start the
+        joint graph.
     noise : centroid noise of the joint graph; None: the recording's
         ``centroid_*_std`` metadata, else learned from the residuals as
         :func:`calibrate_recording` does.
@@ -270,7 +271,7 @@ def unambiguous_detections(recording: Recording, refined: MultiTargetRefinement)
 
 
 def with_clock_offsets(refined: MultiTargetRefinement, recording: Recording,
-                       options: JointOptions) -> tuple[MultiTargetRefinement, str]:
+                       options: JointOptions) -> tuple[MultiTargetRefinement, ClockOffsetsTried]:
     """The clock offsets beyond the whole-frame lags on the associated
     centroids of ``refined`` (a whole-frame solve of :func:`refine_associated`):
     one joint solve with ``time_offsets`` on the same detections but those
@@ -281,10 +282,10 @@ def with_clock_offsets(refined: MultiTargetRefinement, recording: Recording,
     (the track matching's lag beat its neighbours; beyond that the
     first-order model ``F(tau) x`` does not hold) and at least one node's
     :data:`OFFSET_EVIDENCE_Z` of its sigmas from zero; else ``refined``
-    (offsets at the whole frames). Returns ``(refinement, note)``."""
+    (offsets at the whole frames). Returns ``(refinement, what was found)``."""
     joint = refined.joint
     if refined.detections is None or not joint.success:
-        return refined, "clock offsets: whole-frame lags (no successful joint solve to start from)"
+        return refined, ClockOffsetsTried(outcome="no_start")
     timed_options = dataclasses.replace(options, time_offsets=True, recentre_lags=False)
     data = dict(noise=refined.noise, reference=joint.reference,
                 initial_poses={n: joint.poses[n] for n in refined.detections if n in joint.poses},
@@ -295,19 +296,22 @@ def with_clock_offsets(refined: MultiTargetRefinement, recording: Recording,
     if not timed.success and timed_options.robust is not None:
         # As in the rounds: an indeterminate robust pass, Gaussian factors.
         timed = joint_calibration(dets, dataclasses.replace(timed_options, robust=None), **data)
-    evidence = _offset_evidence(timed, recording.frame_period_s) if timed.success else {}
-    text = ", ".join(f"{n} {f:+.2f} frame (z {z:.1f})" for n, (f, z) in evidence.items())
     if not timed.success:
-        return refined, f"clock offsets: whole-frame lags (the timed solve failed: {timed.message})"
+        return refined, ClockOffsetsTried(outcome="solve_failed", solve_status=timed.status)
+    evidence = _offset_evidence(timed, recording.frame_period_s)
+
+    def tried(outcome):
+        return ClockOffsetsTried(outcome=outcome, nodes=tuple(evidence),
+                                 fractions=tuple(f for f, _ in evidence.values()),
+                                 z=tuple(z for _, z in evidence.values()),
+                                 evidence_z=OFFSET_EVIDENCE_Z)
+
     period = recording.frame_period_s
     refined = dataclasses.replace(refined, clock_offsets={
         n: (f, float(np.sqrt(timed.time_offset_variances.get(n, np.nan))) / period)
         for n, (f, _) in evidence.items()})
     if any(abs(f) > 0.5 for f, _ in evidence.values()):
-        return refined, (f"clock offsets: whole-frame lags kept (a fraction beyond half a frame "
-                         f"contradicts the lag search: {text})")
+        return refined, tried("beyond_half_frame")
     if not any(z >= OFFSET_EVIDENCE_Z for _, z in evidence.values()):
-        return refined, (f"clock offsets: whole-frame lags kept (no fraction determined by the "
-                         f"data, z < {OFFSET_EVIDENCE_Z:g}: {text})")
-    return (dataclasses.replace(refined, joint=timed),
-            f"clock offsets beyond the lags: {text}")
+        return refined, tried("not_determined")
+    return dataclasses.replace(refined, joint=timed), tried("estimated")

@@ -348,7 +348,7 @@ def associate_targets(
 
     names : the nodes to associate (each with a pose in ``poses``).
     poses, lag_frames, covariances : the calibration in progress (e.g. a
-        :class:`~mmsnap_graph.calibration.pairwise.pose_graph.PoseGraphCalibration`'s
+        pose graph's :class:`~mmsnap_graph.data.calibration.RecordingCalibration`:
         ``poses``, ``lag_frames`` and ``covariances``; no covariances: the
         floor only).
     options : the gates (:class:`AssociationOptions`; None: its defaults).
@@ -428,15 +428,18 @@ def joint_detections_multi(
             or not np.any(assoc.target[first] >= 0)):
         return None, None, assoc
     mapping = _virtual_frames(assoc, int(max_motion_gap_frames) + 1)
-    base, width = int(mapping.frame.min()), int(np.ptp(mapping.frame)) + 1
-    key = mapping.target * width + (mapping.frame - base)   # sorted like the mapping
+    # (target, frame) keys by the frame's rank, not its number: frames at both
+    # ends of int64 have a span (np.ptp) that wraps and keys that overflow
+    known = np.unique(mapping.frame)
+    width = known.size
+    key = mapping.target * width + np.searchsorted(known, mapping.frame)  # sorted like mapping
     out = {}
     for n in assoc.target:
         used = assoc.target[n] >= 0
         if not used.any():
             continue
         tg, fr = assoc.target[n][used], assoc.frame[n][used]
-        idx = np.searchsorted(key, tg * width + (fr - base))
+        idx = np.searchsorted(key, tg * width + np.searchsorted(known, fr))
         det = recording.nodes[n].centroids.select(np.flatnonzero(used))
         out[n] = dataclasses.replace(det, frame=mapping.virtual_frame[idx], target_id=tg)
     return out, mapping, assoc

@@ -5,6 +5,7 @@ N > 2, and each frame's target state from the detections at those poses.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -13,8 +14,10 @@ from numpy.typing import NDArray
 from factors.models import detection_to_local, local_to_global, measurement_model, residual
 
 from ...errors import CalibrationError
-from ..pairwise.closed_form import PairwiseCalibration, closed_form_calibration, closed_form_pose
-from ..pairwise.pose_graph import PoseEdge, pose_graph_calibration
+from ...data.calibration import PairwiseCalibration
+from ...data.calibration_facts import SolveBrokeDown
+from ..pairwise.closed_form import closed_form_calibration, closed_form_pose
+from ..pairwise.pose_graph import pose_graph_calibration
 
 __all__ = ["trimmed_closed_form", "starting_poses", "starting_states"]
 
@@ -84,14 +87,16 @@ def starting_poses(measurements: Mapping[str, NDArray], names: Sequence[str], re
             except CalibrationError as exc:
                 failures[f"{a}-{b}"] = str(exc)
                 continue
-            edges.append(PoseEdge.from_pairwise(a, b, cal))
+            edges.append(dataclasses.replace(cal, node_a=a, node_b=b))
     if not edges:
         raise CalibrationError("no node pair gives a closed-form starting pose: "
                                + "; ".join(f"{k}: {v}" for k, v in failures.items()))
     pg = pose_graph_calibration([reference] + [n for n in names if n != reference], edges,
                                 failures=failures)
     if not pg.success:  # no poses at all: a typed error, not a missing key later
-        raise CalibrationError(f"the closed-form starting poses: {pg.message.strip()}")
+        why = (f"no path to {reference}: {', '.join(pg.unreachable)}" if pg.unreachable
+               else "; ".join(f.reason for f in pg.facts_of(SolveBrokeDown)))
+        raise CalibrationError(f"the closed-form starting poses: {pg.status.message} ({why})")
     return dict(pg.poses), pg.unreachable
 
 

@@ -23,7 +23,7 @@ exceeds the chi-square(3) ``gate_probability`` quantile are flagged as outliers 
 final Gaussian LM pass on the inliers gives the estimate and
 ``gtsam.Marginals`` the covariances (a robust kernel's weights would inflate
 them). When the marginals are singular or a pose variance exceeds
-``max_pose_variance``, the result has ``success=False`` and names the
+``max_pose_variance``, the result has status ``NOT_OBSERVABLE`` and names the
 unobservable direction (e.g. a standing target: a node may turn about it).
 """
 
@@ -40,6 +40,15 @@ from numpy.typing import ArrayLike, NDArray
 from factors.gtsam_factors import measurement_noise
 
 from ...errors import CalibrationError, MmsnapError, ValidationError
+from ...data.calibration_facts import (
+    CalibrationFact,
+    CalibrationStatus,
+    JointFit,
+    PoseCovariance,
+    PoseNotObservable,
+    RangeOffsetEstimated,
+    SolveBrokeDown,
+)
 from ...data.noise import MeasurementNoise
 from ...data.recording import Detections
 from ..._validation import as_float_array, check_finite, check_pose, check_positive, check_shape
@@ -50,7 +59,6 @@ from .graph import (
     flag_outliers,
     flag_turns,
     motion_spec,
-    run_message,
 )
 from .options import JointOptions
 from .covariance import BlockCovariance, bandwidth_frames, block_covariance
@@ -73,6 +81,17 @@ class JointCalibration:
         when the marginals failed).
     outliers : name -> (F,) bool, detections flagged as outliers (False where
         the node has no detection).
+    status : :class:`~mmsnap_graph.data.calibration_facts.CalibrationStatus`
+        (``OK``: :attr:`success`): ``NODES_UNREACHABLE`` when a node has no
+        common frames with the others, ``NOT_OBSERVABLE`` when a pose is not
+        determined along some direction, ``SOLVE_FAILED`` when the solve
+        broke down.
+    facts : what the solve found (:mod:`mmsnap_graph.data.calibration_facts`):
+        a ``JointFit`` (nodes, frames, outliers, steps), one
+        ``PoseCovariance`` (how the covariances were computed), a
+        ``RangeOffsetEstimated`` with a range-offset prior, a
+        ``PoseNotObservable`` per such node, a ``SolveBrokeDown`` when it
+        broke down.
     unobservable : name -> (m, 3) unit directions (body tangent) along which
         the node's pose is not determined; empty when all is observable.
     unreachable : nodes left out (no common frames with the others).
@@ -107,8 +126,8 @@ class JointCalibration:
     states: NDArray
     state_covariances: NDArray
     outliers: Mapping[str, NDArray]
-    success: bool
-    message: str
+    status: CalibrationStatus
+    facts: tuple[CalibrationFact, ...] = ()
     iterations: int = 0
     initial_error: float = float("nan")
     final_error: float = float("nan")
@@ -123,6 +142,15 @@ class JointCalibration:
     range_offset_m: float = float("nan")
     range_offset_variance: float = float("nan")
     model_covariances: Mapping[str, NDArray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "status", CalibrationStatus(self.status))
+        object.__setattr__(self, "facts", tuple(self.facts))
+
+    @property
+    def success(self) -> bool:
+        """``status is CalibrationStatus.OK``."""
+        return self.status is CalibrationStatus.OK
 
 
 def _detections_table(dets: Mapping[str, Detections]):
@@ -249,11 +277,11 @@ def _restrict(frames, meas_f, active, min_common_frames):
 
 
 class _Breakdown(Exception):
-    """The estimation broke down (joint_calibration returns success=False)."""
+    """The estimation broke down (joint_calibration returns SOLVE_FAILED)."""
 
 
 #: Numerical errors of GTSAM and numpy that mean the estimation broke down
-#: (not a bad argument: those are checked first): success=False, not a raise.
+#: (not a bad argument: those are checked first): SOLVE_FAILED, not a raise.
 _NUMERICAL_ERRORS = (_Breakdown, RuntimeError, ValueError, IndexError, ArithmeticError,
                      np.linalg.LinAlgError)
 
@@ -424,7 +452,7 @@ def joint_calibration(
         the clock offsets and ``lag_frames``.
     lag_frames : name -> the whole-frame lag already removed from the node's
         frames (its frame ``k + lag`` is the reference's ``k``, as in
-        :class:`~mmsnap_graph.calibration.PoseGraphCalibration`): the offset
+        :class:`~mmsnap_graph.data.calibration.RecordingCalibration`): the offset
         starts at ``-lag * frame_period_s``, part of ``time_offset_s``.
 
     Returns
@@ -517,31 +545,40 @@ def _estimate(graph, frames, init, x0, unreachable, sig,
     active, ref = graph.active, graph.ref
     final_graph, result, run = _solve(graph, {n: init[n] for n in active}, x0, sig, options)
     poses, states, offsets = graph.current(result)
-    covs, variances, state_covs, unobservable, notes, joint_cov = assess(
+    covs, variances, state_covs, unobservable, schur_failure, joint_cov = assess(
         graph, final_graph, result, options.state_covariances, options.max_pose_variance,
         options.max_pose_condition, run["linear"])
-    if run["turns"]:
-        notes = [f"{run['turns']} sharp turn(s) left out of the motion factors"] + notes
-    block = None
-    if not unobservable and joint_cov is not None:
+    block, covariance = None, PoseCovariance(method="marginals")
+    if schur_failure:
+        covariance = PoseCovariance(method="schur", failure=schur_failure)
+    elif not unobservable and joint_cov is not None:
         block = _block_covariance(graph, (poses, states, offsets), sig, options, run, frames)
         if isinstance(block, str):
-            notes.append(block)
-            block = None
+            covariance, block = PoseCovariance(method="marginals", failure=block), None
     if block is not None:
         covs, variances, joint_cov = _from_block(block, graph, covs, variances)
-        notes.append(block.describe())
+        covariance = block.fact()
+    steps = graph.presolve_steps
+    facts: list[CalibrationFact] = [JointFit(
+        n_nodes=len(active), n_frames=frames.size,
+        n_outliers=sum(int(o.sum()) for o in run["outliers"].values()),
+        iterations=run["iterations"], presolve_steps=tuple(n for n, _ in steps),
+        presolve_converged=all(c for _, c in steps), turns=run["turns"]), covariance]
     if options.range_offset_prior_m is not None:
-        sd = np.sqrt(block.variance(("range",))) if block is not None else float("nan")
-        notes.append("range offset (reflection depth) {:.3f} +- {:.3f} m (prior {:.2f} +- "
-                     "{:.2f} m)".format(graph.range_offset_m, sd, *options.range_offset_prior_m))
-    msg = run_message(active, frames.size, run["outliers"], _solver_note(graph, run), notes,
-                      unobservable, unreachable, ref)
+        facts.append(RangeOffsetEstimated(
+            offset_m=graph.range_offset_m,
+            variance_m2=block.variance(("range",)) if block is not None else float("nan"),
+            prior_mean_m=options.range_offset_prior_m[0],
+            prior_sigma_m=options.range_offset_prior_m[1]))
+    facts += [PoseNotObservable(node=n, directions=tuple(map(tuple, dirs)))
+              for n, dirs in unobservable.items()]
+    status = (CalibrationStatus.NODES_UNREACHABLE if unreachable else
+              CalibrationStatus.NOT_OBSERVABLE if unobservable else CalibrationStatus.OK)
     return JointCalibration(
         reference=ref, poses=poses, covariances=covs,
         initial_poses={n: np.asarray(init[n], dtype=float) for n in active}, frames=frames,
         states=states, state_covariances=state_covs, outliers=run["outliers"],
-        success=not (unobservable or unreachable), message=msg, iterations=run["iterations"],
+        status=status, facts=tuple(facts), iterations=run["iterations"],
         initial_error=run["initial_error"], final_error=run["final_error"],
         unobservable=unobservable, unreachable=tuple(unreachable),
         time_offset_s={n: graph.lag_offsets[n] + offsets[n] for n in active},
@@ -556,23 +593,10 @@ def _estimate(graph, frames, init, x0, unreachable, sig,
                            else dict(covs)))
 
 
-def _solver_note(graph, run) -> str:
-    """How the solve converged, in words: the numpy pre-solve does the
-    work; GTSAM's Gauss-Newton steps (one when the pre-solve converged)
-    confirm its optimum."""
-    steps = graph.presolve_steps
-    gn = f"{run['iterations']} GTSAM Gauss-Newton/LM step(s)"
-    if not steps:
-        return gn
-    done = all(c for _, c in steps)
-    return (f"numpy pre-solve {'+'.join(str(n) for n, _ in steps)} step(s) "
-            f"({'converged' if done else 'NOT converged: GTSAM continued'}), then {gn}"
-            + (" confirming its optimum" if done else ""))
-
-
 def _block_covariance(graph, point, sig, options: JointOptions, run, frames):
     """The pose block's covariance (:mod:`.covariance`) of the final
-    Gaussian pass, or a note saying why the graph's marginals are kept."""
+    Gaussian pass, None when the options ask for the graph's marginals, or
+    why the long-run covariance failed (the marginals are kept)."""
     long_run = options.covariance == "long_run" and graph.frame_period_s is not None
     if options.range_offset_prior_m is None and not long_run:
         return None
@@ -588,7 +612,7 @@ def _block_covariance(graph, point, sig, options: JointOptions, run, frames):
                                 bandwidth=bandwidth, timed=graph.timed,
                                 range_offset_rms=options.range_offset_rms_m)
     except (np.linalg.LinAlgError, ValueError) as exc:
-        return f"covariance: the graph's marginals (the long-run covariance failed: {exc})"
+        return f"the long-run covariance failed: {exc}"
 
 
 def _from_block(block: BlockCovariance, graph, covs, variances):
@@ -603,7 +627,7 @@ def _from_block(block: BlockCovariance, graph, covs, variances):
 
 def _broken_down(graph, frames, init, x0, unreachable, exc) -> JointCalibration:
     """The result when the estimation broke down: the starting poses and
-    states, NaN covariances, ``success=False`` and the reason."""
+    states, NaN covariances, ``SOLVE_FAILED`` and the reason."""
     active, ref = graph.active, graph.ref
     reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
     if not isinstance(exc, _Breakdown):
@@ -614,9 +638,9 @@ def _broken_down(graph, frames, init, x0, unreachable, exc) -> JointCalibration:
         covariances={n: (np.zeros((3, 3)) if n == ref else nan3.copy()) for n in active},
         initial_poses={n: np.asarray(init[n], dtype=float) for n in active}, frames=frames,
         states=np.asarray(x0, dtype=float), state_covariances=np.full((graph.f, 4, 4), np.nan),
-        outliers={n: np.zeros(graph.f, dtype=bool) for n in active}, success=False,
-        message=(f"joint calibration of {len(active)} nodes on {frames.size} frames failed: "
-                 f"{reason}"),
+        outliers={n: np.zeros(graph.f, dtype=bool) for n in active},
+        status=CalibrationStatus.SOLVE_FAILED,
+        facts=(SolveBrokeDown(step="joint", reason=reason),),
         iterations=0, initial_error=float("nan"), final_error=float("nan"), unobservable={},
         unreachable=tuple(unreachable), time_offset_s=dict(graph.lag_offsets),
         time_offset_variances={n: (0.0 if n == ref else float("nan")) for n in active})

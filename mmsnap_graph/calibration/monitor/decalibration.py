@@ -37,8 +37,10 @@ from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.recording import Recording
 from ...errors import MissingStepError, ValidationError
 from ...fusion.solvers.vectorized import fuse_batch
-from ..._validation import as_float_array, check_count, check_finite, check_pose, chi2_gate
+from ..._validation import (as_float_array, check_count, check_finite, check_pose, chi2_gate,
+                           positive_scalar, short_repr)
 from .stats import (
+    PoseFit,
     frame_contributions,
     recalibrate_pose,
     suffix_statistics,
@@ -89,19 +91,17 @@ class ChangePoint:
 class Recalibration:
     """``node``'s new pose from the frames ``first_frame..last_frame`` after ``change``.
 
-    pose : (3,) ``(x_m, y_m, phi_rad)``; covariance : (3, 3) body tangent;
-    old_pose : the pose before; success, message: as every estimation."""
+    old_pose : (3,) the pose before; fit : the re-estimated pose
+    (:class:`~mmsnap_graph.calibration.monitor.stats.PoseFit`: ``pose``,
+    ``covariance`` in the body tangent, ``success``, ``message``)."""
 
     node: str
     change: ChangePoint
     old_pose: NDArray
-    pose: NDArray
-    covariance: NDArray
+    fit: PoseFit
     first_frame: int
     last_frame: int
     n_frames: int
-    success: bool
-    message: str
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -177,6 +177,9 @@ def _check_poses(node_poses) -> dict[str, NDArray]:
 def _check_covariances(names, node_covariances) -> dict[str, NDArray]:
     default = np.diag(np.square(DEFAULT_POSE_SIGMAS))
     out = {n: default.copy() for n in names}
+    if node_covariances is not None and not isinstance(node_covariances, Mapping):
+        raise ValidationError(f"node_covariances must map node names to (3, 3) covariances, "
+                              f"got {short_repr(node_covariances)}")
     for name, cov in dict(node_covariances or {}).items():
         if name not in out:
             raise ValidationError(f"node_covariances[{name!r}]: no such node in node_poses")
@@ -227,13 +230,14 @@ class DecalibrationMonitor:
         self._poses = _check_poses(node_poses)
         if not isinstance(noise, MeasurementNoise):
             raise ValidationError(f"noise must be a MeasurementNoise, got {noise!r}")
-        for name, value in (("frame_period_s", frame_period_s), ("threshold", threshold),
-                            ("recalibration_s", recalibration_s)):
-            if not (np.isfinite(value) and value > 0):
-                raise ValidationError(f"{name} must be finite and > 0, got {value!r}")
-        w = np.asarray(windows_s, dtype=float)
+        frame_period_s = positive_scalar(frame_period_s, "frame_period_s")
+        threshold = positive_scalar(threshold, "threshold")
+        recalibration_s = positive_scalar(recalibration_s, "recalibration_s")
+        w = as_float_array(windows_s, "windows_s") if not isinstance(windows_s, str) \
+            else np.array(np.nan)
         if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w) & (w > 0)):
-            raise ValidationError(f"windows_s must be positive lengths, got {windows_s!r}")
+            raise ValidationError(f"windows_s must be positive lengths in seconds, got "
+                                  f"{short_repr(windows_s)}")
         check_count(min_frames, "min_frames")
         for name, value in (("windows_s", float(w.max())), ("recalibration_s", recalibration_s)):
             if value / frame_period_s > MAX_SPAN_FRAMES:
@@ -270,8 +274,13 @@ class DecalibrationMonitor:
             for name, row in measurements.items():
                 if name not in self._poses:
                     raise ValidationError(f"measurements[{name!r}]: no such node")
-                if row is not None:
-                    z[self.node_names.index(name)] = as_float_array(row, f"measurements[{name}]")
+                if row is None:
+                    continue
+                r = as_float_array(row, f"measurements[{name!r}]")
+                if r.shape != (3,):
+                    raise ValidationError(f"measurements[{name!r}] must be one row (range_m, "
+                                          f"omega_rad, doppler_mps), got {short_repr(row)}")
+                z[self.node_names.index(name)] = r
             return z[None]
         z = as_float_array(measurements, "measurements")
         return z
@@ -426,10 +435,9 @@ class DecalibrationMonitor:
         z = np.array([r[2] for r in st.rows])
         old = self._poses[name].copy()
         fit = recalibrate_pose(old, states, covs, z, self.noise, scale=st.scale)
-        rc = Recalibration(node=name, change=st.change, old_pose=old, pose=fit.pose,
-                           covariance=fit.covariance, first_frame=int(st.frames[0]),
-                           last_frame=int(st.frames[-1]), n_frames=len(st.frames),
-                           success=fit.success, message=fit.message)
+        rc = Recalibration(node=name, change=st.change, old_pose=old, fit=fit,
+                           first_frame=int(st.frames[0]), last_frame=int(st.frames[-1]),
+                           n_frames=len(st.frames))
         if fit.success:
             self._poses[name] = fit.pose.copy()
             st.reset(fit.covariance)

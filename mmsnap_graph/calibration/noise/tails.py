@@ -365,11 +365,10 @@ def _scaled(est: NodeNoiseEstimate, excess: NDArray) -> NodeNoiseEstimate:
     if np.all(v == 0.0):
         return est
     s = np.sqrt(est.noise.sigmas**2 + v)
-    how = est.method + ", tails x" + "/".join(f"{r:.2f}" for r in s / est.noise.sigmas)
     return NodeNoiseEstimate(
         noise=MeasurementNoise(range_m=s[0], omega_rad=s[1], doppler_mps=s[2]),
-        identified=est.identified, n_residuals=est.n_residuals, method=how,
-        reasons=est.reasons)
+        identified=est.identified, n_residuals=est.n_residuals, method=est.method,
+        reasons=est.reasons, tail_factors=tuple(np.maximum(s / est.noise.sigmas, 1.0)))
 
 
 def with_tails(estimate: NoiseEstimate, detections: Mapping[str, Detections],

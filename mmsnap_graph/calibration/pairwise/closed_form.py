@@ -48,17 +48,17 @@ figure.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ...data.calibration import PairwiseCalibration
 from ...errors import CalibrationError, ValidationError
 from ..._validation import as_float_array, check_finite, check_shape
 from .effective_samples import autocorrelation_factor
 
-__all__ = ["PairwiseCalibration", "closed_form_pose", "closed_form_calibration",
+__all__ = ["closed_form_pose", "closed_form_calibration",
            "alignment_jacobian", "DEFAULT_MIN_COMMON_FRAMES", "DEFAULT_MIN_SPREAD_M"]
 
 #: Fewest common frames a pairwise calibration accepts. Three points fix a
@@ -67,47 +67,6 @@ DEFAULT_MIN_COMMON_FRAMES = 5
 #: Smallest RMS spread of a track about its centroid (m) for which the
 #: rotation is considered observable; a standing target gives ~ the noise.
 DEFAULT_MIN_SPREAD_M = 0.2
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class PairwiseCalibration:
-    """Pose of node ``b`` in node ``a``'s frame from matched tracks.
-
-    pose : (3,) ``(x_m, y_m, phi_rad)`` of ``b`` in ``a``'s frame (``a_T_b``).
-    covariance : (3, 3) in GTSAM's Pose2 body-frame tangent of ``pose``.
-    cost_m2 : ``J_min`` (m^2). rmse_m : ``sqrt(J_min / K)`` (paper eq. 14).
-    n_frames : K, the number of matched frames used.
-    lag_frames : frame lag between the two nodes (``b``'s frame ``k + lag``
-        matches ``a``'s frame ``k``); 0 when not searched.
-    track_a, track_b : matched track ids (``-1`` when the input had one track).
-    frames : (K,) int, ``a``'s frame numbers used.
-    success, message : as scipy.optimize results.
-    points_a_m, points_b_m : (K, 2) the matched points the pose was fitted
-        on (a network solve reuses them: :func:`pose_graph_calibration`).
-    autocorrelation_factor : ``tau`` the covariance was multiplied by (1.0
-        when frames are treated as independent; module doc).
-    """
-
-    pose: NDArray
-    covariance: NDArray
-    cost_m2: float
-    rmse_m: float
-    n_frames: int
-    lag_frames: int = 0
-    track_a: int = -1
-    track_b: int = -1
-    frames: NDArray | None = None
-    success: bool = True
-    message: str = ""
-    points_a_m: NDArray | None = None
-    points_b_m: NDArray | None = None
-    autocorrelation_factor: float = 1.0
-
-    def pose2(self):
-        """The pose as a ``gtsam.Pose2`` (imports GTSAM)."""
-        import gtsam
-
-        return gtsam.Pose2(*map(float, self.pose))
 
 
 def _validate_tracks(z1: ArrayLike, z2: ArrayLike) -> tuple[NDArray, NDArray]:

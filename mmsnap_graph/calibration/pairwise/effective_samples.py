@@ -38,6 +38,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..._validation import frame_steps
+
 __all__ = ["autocorrelation_factor", "MAX_AR_COEFFICIENT", "MAX_GAP_FRAMES"]
 
 #: Largest AR(1) coefficient used (tau at most (1 + r) / (1 - r) ~ 65 from the
@@ -50,16 +52,16 @@ MAX_GAP_FRAMES = 64
 def _frame_sums(scores: NDArray, times: NDArray) -> tuple[NDArray, int]:
     """Scores summed per time, on a dense zero-filled time axis ``(T, p)``,
     and the number of distinct times."""
-    steps = np.diff(times)
+    steps = frame_steps(times)  # not np.diff: frames at both ends of int64
     if np.all(steps == 1):  # the usual case: one row per consecutive frame
         return scores, times.size
     if np.any(steps < 0):
         order = np.argsort(times, kind="stable")
         times, scores = times[order], scores[order]
-        steps = np.diff(times)
+        steps = frame_steps(times)
     starts = np.flatnonzero(np.concatenate([[True], steps > 0]))
     sums = np.add.reduceat(scores, starts, axis=0)
-    gaps = np.minimum(np.diff(times[starts]), MAX_GAP_FRAMES)
+    gaps = np.minimum(frame_steps(times[starts]), MAX_GAP_FRAMES)
     if np.all(gaps == 1):
         return sums, starts.size
     slot = np.concatenate([[0], np.cumsum(gaps)])

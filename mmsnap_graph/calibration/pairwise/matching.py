@@ -39,10 +39,12 @@ from numpy.typing import NDArray
 from factors.models import detection_to_local
 
 from ...errors import CalibrationError, MissingStepError, ValidationError
+from ...data.calibration import PairwiseCalibration
+from ...data.calibration_facts import LagEvidence
 from ...data.recording import NodeData
 from ..._validation import as_float_array, check_finite, check_shape, chi2_gate
 from ..poses import pose_tangent_error
-from .closed_form import PairwiseCalibration, closed_form_calibration, closed_form_pose
+from .closed_form import closed_form_calibration, closed_form_pose
 from .effective_samples import autocorrelation_factor
 from .matching_options import MatchingOptions
 
@@ -153,8 +155,8 @@ class TrackMatching:
     pairs : accepted ``(track_a, track_b)`` pairs.
     lag_frames : node b's frame ``k + lag`` matches node a's frame ``k``.
     candidates : every scored hypothesis.
-    lag_note : how the data decided a nonzero lag (kept: its evidence; not
-        determined: lag 0 kept), empty when lag 0 won outright.
+    lag_evidence : how the data decided a nonzero lag (kept: its evidence;
+        not determined: lag 0 kept), None when lag 0 won outright.
     lag_ambiguous : the walk has a symmetry that no model can break: every
         lag within 2 frames of the chosen one, on both sides, fits within
         :data:`SYMMETRY_RMSE_RATIO` of its RMSE (a walk along a circle: a time
@@ -171,7 +173,7 @@ class TrackMatching:
     candidates: tuple[TrackCandidate, ...]
     success: bool
     message: str
-    lag_note: str = ""
+    lag_evidence: LagEvidence | None = None
     lag_ambiguous: bool = False
 
 
@@ -277,7 +279,12 @@ class _Pool:
         if self.chi2_gate is None:
             inl = np.hypot(r[:, 0], r[:, 1]) < self.gate
         else:
-            inl = _gate_d2(pose, r, ca, cb) < self.chi2_gate
+            d2 = _gate_d2(pose, r, ca, cb)
+            # A row whose covariances are singular (exact tracks: zero) has
+            # no chi-square; the metric gate of tracks without covariances
+            # decides it, not an infinite distance.
+            inl = np.where(np.isinf(d2), np.hypot(r[:, 0], r[:, 1]) < self.gate,
+                           d2 < self.chi2_gate)
         return ia[inl], ib[inl]
 
 
@@ -557,7 +564,7 @@ def match_tracks(
         return _failed(f"no pose aligns 3 frames within {gate}; the "
                        f"best track RMSE is {best.rmse_m:.3g} m", cands)
     lag = _choose_lag(fits, o.lag_min_improvement)
-    lag, fits, note = _supported_lag(pool, fits, lag, max_lag_frames)
+    lag, fits, evidence = _supported_lag(pool, fits, lag, max_lag_frames)
     _, ia, ib, rmse = fits[lag]
     if rmse > max_rmse_m:
         return _failed(f"no pair of tracks matches: the best track RMSE {rmse:.3g} m "
@@ -571,16 +578,16 @@ def match_tracks(
                        o.autocorrelation)
     cal = _widened(matched.calibration, lag, fits, ambiguous)
     widened = cal is not matched.calibration and _symmetric(fits, lag)
-    if note:
-        cal = replace(cal, message=f"{cal.message}; {note}")
-    return replace(matched, calibration=cal, message=cal.message, lag_note=note,
+    return replace(matched, calibration=cal, message=cal.message, lag_evidence=evidence,
                    lag_ambiguous=widened)
 
 
 def _supported_lag(pool, fits, lag, max_lag_frames):
-    """``(lag, fits, note)``: a nonzero ``lag`` that the data do not
+    """``(lag, fits, evidence)``: a nonzero ``lag`` that the data do not
     determine becomes 0, refitted from the lag's own track pairs (a lag-0
-    fit of other tracks may sit in another basin), and the note says so.
+    fit of other tracks may sit in another basin), and the
+    :class:`~mmsnap_graph.data.calibration_facts.LagEvidence` says how it
+    was decided (None for lag 0).
     Not determined: below :data:`LAG_EVIDENCE_Z` of :func:`lag_evidence`, or
     at the edge of the search window (``max_lag_frames``), where the fit is
     not seen to get worse beyond it: a time shift that a turn of the pose
@@ -588,24 +595,21 @@ def _supported_lag(pool, fits, lag, max_lag_frames):
     synchronised radars at right angles: lag 6 of 6 at z = 3.2, every
     smaller lag at z 3.5-7.4, the heading 2.5 deg per frame off)."""
     if lag == 0:
-        return lag, fits, ""
+        return lag, fits, None
     z, pose0 = lag_evidence(pool, fits, lag)
     edge = abs(lag) >= max_lag_frames and lag - np.sign(lag) in pool.joins
     if edge:  # a lag at the edge must beat its inner neighbour too
         z_inner = lag_evidence(pool, fits, lag, base=int(lag - np.sign(lag)))[0]
         edge = not z_inner >= LAG_EVIDENCE_Z
+
+    def said(outcome):
+        return LagEvidence(lag_frames=int(lag), outcome=outcome, z=float(z),
+                           evidence_z=LAG_EVIDENCE_Z, window_frames=int(max_lag_frames))
+
     if z >= LAG_EVIDENCE_Z and not edge:
-        return lag, fits, f"lag {lag} frames determined by the data (z = {z:.1f})"
+        return lag, fits, said("determined")
     refit = None if pose0 is None else _refit(pool, pose0, 0)
     if refit is None:
-        return lag, fits, (f"lag {lag} frames NOT tested against lag 0 (too few frames at "
-                           f"both lags): kept")
-    if edge and z >= LAG_EVIDENCE_Z:
-        what = (f"z = {z:.1f}, but at the edge of the +-{max_lag_frames}-frame window it "
-                f"does not beat lag {int(lag - np.sign(lag))} by z >= {LAG_EVIDENCE_Z:g}: the fit "
-                f"may improve further out")
-    else:
-        what = ("too few frames to tell" if not np.isfinite(z)
-                else f"z = {z:.1f} < {LAG_EVIDENCE_Z:g}")
-    return 0, {**fits, 0: refit}, (f"lag {lag} frames not determined by the data ({what} "
-                                   f"against lag 0 on the same tracks): lag 0 kept")
+        return lag, fits, said("untested")
+    return 0, {**fits, 0: refit}, said("window_edge" if edge and z >= LAG_EVIDENCE_Z
+                                      else "not_determined")

@@ -25,23 +25,21 @@ from __future__ import annotations
 
 import dataclasses
 from collections import deque
-from dataclasses import dataclass, field
 from typing import Literal, Mapping, Sequence
 
 import gtsam
 import numpy as np
-from numpy.typing import NDArray
 
+from ...data.calibration import PairwiseCalibration, RecordingCalibration
+from ...data.calibration_facts import CalibrationStatus, PoseGraphFit, SolveBrokeDown
 from ...errors import ValidationError
-from ..._validation import as_float_array, check_finite, check_shape
 from .centroid_points import debias_centroid_tracks
-from .closed_form import PairwiseCalibration
 from .matching import LocalTracks, match_tracks
 from .matching_options import MatchingOptions
 from .point_graph import PointEdge, solve_point_graph
 from ..poses import pose_array, to_pose2
 
-__all__ = ["PoseEdge", "PoseGraphCalibration", "pose_graph_calibration", "pairwise_edges"]
+__all__ = ["pose_graph_calibration", "pairwise_edges"]
 
 #: Sigma of the prior that anchors the reference node (m and rad): small
 #: enough to be a constraint, large enough to keep the Cholesky well scaled.
@@ -58,116 +56,7 @@ EDGE_SIGMA_FLOOR = 1e-6
 MAX_JOINT_NODES = 16
 
 
-@dataclass(frozen=True, kw_only=True, slots=True)
-class PoseEdge:
-    """A relative pose measurement: ``pose`` of ``node_b`` in ``node_a``'s frame.
-
-    pose : (3,); covariance : (3, 3) in the body tangent of ``pose``;
-    rmse_m, n_frames, lag_frames : from the pairwise estimate (informative).
-    lag_note : how the data decided a nonzero lag (:class:`TrackMatching`).
-    lag_ambiguous : the lag is not determined and ``covariance`` covers the
-        poses of the competing lags (:class:`TrackMatching`).
-    frames, points_a_m, points_b_m : optional (K,) a's frame numbers and the
-        (K, 2) matched points in a's and b's frames (b's frame ``k + lag``);
-        with them the network is solved from the points (module doc).
-    """
-
-    node_a: str
-    node_b: str
-    pose: NDArray
-    covariance: NDArray
-    rmse_m: float = float("nan")
-    n_frames: int = 0
-    lag_frames: int = 0
-    frames: NDArray | None = None
-    points_a_m: NDArray | None = None
-    points_b_m: NDArray | None = None
-    lag_note: str = ""
-    lag_ambiguous: bool = False
-
-    def __post_init__(self) -> None:
-        if self.node_a == self.node_b:
-            raise ValidationError(f"an edge must join two nodes, got {self.node_a!r} twice")
-        name = f"edge {self.node_a}-{self.node_b}"
-        pose = check_finite(check_shape(as_float_array(self.pose, f"{name} pose"), (3,),
-                                        f"{name} pose"), f"{name} pose")
-        cov = check_finite(check_shape(as_float_array(self.covariance, f"{name} covariance"),
-                                       (3, 3), f"{name} covariance"), f"{name} covariance")
-        cov = 0.5 * (cov + cov.T)
-        try:
-            np.linalg.cholesky(cov)
-        except np.linalg.LinAlgError:
-            raise ValidationError(f"{name} covariance must be positive definite, got "
-                                  f"eigenvalues {np.linalg.eigvalsh(cov)}") from None
-        object.__setattr__(self, "pose", pose)
-        object.__setattr__(self, "covariance", cov)
-        self._check_points(name)
-
-    def _check_points(self, name: str) -> None:
-        if self.points_a_m is None and self.points_b_m is None:
-            return
-        if self.points_a_m is None or self.points_b_m is None:
-            raise ValidationError(f"{name}: points_a_m and points_b_m go together")
-        a = check_finite(check_shape(as_float_array(self.points_a_m, f"{name} points_a_m"),
-                                     (None, 2), f"{name} points_a_m"), f"{name} points_a_m")
-        b = check_finite(check_shape(as_float_array(self.points_b_m, f"{name} points_b_m"),
-                                     a.shape, f"{name} points_b_m"), f"{name} points_b_m")
-        object.__setattr__(self, "points_a_m", a)
-        object.__setattr__(self, "points_b_m", b)
-        if self.frames is not None:
-            fr = np.asarray(self.frames)
-            if fr.shape != (a.shape[0],) or not np.issubdtype(fr.dtype, np.integer):
-                raise ValidationError(f"{name} frames must be ({a.shape[0]},) integers, got "
-                                      f"{fr.dtype} {fr.shape}")
-            object.__setattr__(self, "frames", fr.astype(np.int64))
-
-    @property
-    def has_points(self) -> bool:
-        return self.points_a_m is not None
-
-    @classmethod
-    def from_pairwise(cls, node_a: str, node_b: str, cal: PairwiseCalibration) -> "PoseEdge":
-        return cls(node_a=node_a, node_b=node_b, pose=cal.pose, covariance=cal.covariance,
-                   rmse_m=cal.rmse_m, n_frames=cal.n_frames, lag_frames=cal.lag_frames,
-                   frames=cal.frames, points_a_m=cal.points_a_m, points_b_m=cal.points_b_m)
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class PoseGraphCalibration:
-    """Every reachable node's pose in the reference frame.
-
-    poses : name -> (3,) ``(x_m, y_m, phi_rad)``; covariances : name -> (3, 3)
-    marginal covariance (body tangent); lag_frames : name -> frame lag relative
-    to the reference (the node's frame ``k + lag`` is the reference's frame
-    ``k``), summed along the breadth-first path; unreachable : nodes without a
-    path to the reference; edges : the edges used; final_error : the graph's
-    error (0.5 * sum of squared whitened residuals) at the solution.
-    method : ``"points"`` (solved from the edges' matched points) or
-    ``"edges"`` (between factors). joint_covariance : (3M, 3M) covariance of
-    the M non-reference poses in ``joint_order`` (their cross-covariances
-    included; None when a solve failed, or for ``"edges"`` beyond
-    :data:`MAX_JOINT_NODES` poses). autocorrelation_factor : tau the
-    points solve multiplied its covariance by (1.0 for ``"edges"``).
-    """
-
-    reference: str
-    poses: Mapping[str, NDArray]
-    covariances: Mapping[str, NDArray]
-    lag_frames: Mapping[str, int]
-    unreachable: tuple[str, ...]
-    edges: tuple[PoseEdge, ...]
-    success: bool
-    message: str
-    iterations: int = 0
-    final_error: float = float("nan")
-    failures: Mapping[str, str] = field(default_factory=dict)
-    method: str = "edges"
-    joint_covariance: NDArray | None = None
-    joint_order: tuple[str, ...] = ()
-    autocorrelation_factor: float = 1.0
-
-
-def _bfs(reference: str, names: Sequence[str], edges: Sequence[PoseEdge]):
+def _bfs(reference: str, names: Sequence[str], edges: Sequence[PairwiseCalibration]):
     """Initial poses and lags by composing edges outward from the reference."""
     adj: dict[str, list[tuple[str, gtsam.Pose2, int]]] = {n: [] for n in names}
     for e in edges:
@@ -203,7 +92,7 @@ def _validate_graph(node_names, edges, reference, method) -> tuple[list[str], st
                                       f"not one of {names!r}")
     if method == "points" and not all(e.has_points for e in edges):
         raise ValidationError("method='points' needs every edge's matched points "
-                              "(PoseEdge.points_a_m, points_b_m)")
+                              "(PairwiseCalibration.points_a_m, points_b_m)")
     return names, ref
 
 
@@ -258,19 +147,20 @@ def _point_edges(used, lags) -> list[PointEdge]:
 
 def pose_graph_calibration(
     node_names: Sequence[str],
-    edges: Sequence[PoseEdge],
+    edges: Sequence[PairwiseCalibration],
     *,
     reference: str | None = None,
     max_iterations: int = 100,
     failures: Mapping[str, str] | None = None,
     method: Literal["auto", "points", "edges"] = "auto",
     autocorrelation: Literal["auto", "none"] = "auto",
-) -> PoseGraphCalibration:
+) -> RecordingCalibration:
     """Solve the pose graph of pairwise estimates (module doc).
 
     node_names : every node of the network, in order; the first is the
         reference unless ``reference`` names another.
-    edges : pairwise relative poses between those nodes.
+    edges : pairwise relative poses between those nodes (each a successful
+        :class:`~mmsnap_graph.data.calibration.PairwiseCalibration`).
     failures : pair -> reason, from :func:`pairwise_edges`, kept in the result.
     method : ``"points"`` solves every pose at once from the edges' matched
         points (:mod:`.point_graph`; ValidationError if an edge has none),
@@ -278,8 +168,15 @@ def pose_graph_calibration(
         ``"auto"`` the points when every edge has them.
     autocorrelation : ``"auto"`` corrects the points solve's covariance for
         frame-to-frame correlated residuals, ``"none"`` does not.
-    Returns a :class:`PoseGraphCalibration`; ``success`` is False when a node
-    is unreachable (the others are still solved) or a solve fails.
+    Returns a :class:`~mmsnap_graph.data.calibration.RecordingCalibration`
+    with ``method="pose_graph"``, ``lag_frames`` summed along the
+    breadth-first path from the reference, the joint covariance of the
+    non-reference poses (the between-factor graph's only up to
+    :data:`MAX_JOINT_NODES` of them) and a
+    :class:`~mmsnap_graph.data.calibration_facts.PoseGraphFit` fact (which
+    solve, iterations, final error); ``status`` is ``NODES_UNREACHABLE`` when
+    a node has no path to the reference (the others are still solved),
+    ``SOLVE_FAILED`` when a solve fails.
     """
     names, ref = _validate_graph(node_names, edges, reference, method)
     if autocorrelation not in ("auto", "none"):
@@ -291,7 +188,10 @@ def pose_graph_calibration(
     use_points = method == "points" or (method == "auto" and bool(used)
                                          and all(e.has_points for e in used))
     others = tuple(n for n in reachable if n != ref)
+    solve = "points" if use_points else "edges"
     tau = 1.0
+    common = dict(reference=ref, node_names=tuple(names), unreachable=unreachable,
+                  edges=tuple(used), method="pose_graph", failures=dict(failures or {}))
     try:
         poses, covs, joint, iterations, final_error = _solve_edges(ref, reachable, init, used,
                                                                    max_iterations)
@@ -304,22 +204,21 @@ def pose_graph_calibration(
             covs = {n: joint[3 * i:3 * i + 3, 3 * i:3 * i + 3].copy()
                     for i, n in enumerate(others)}
     except (RuntimeError, np.linalg.LinAlgError) as exc:  # cannot happen with PD edges
-        return PoseGraphCalibration(
-            reference=ref, poses={}, covariances={}, lag_frames={}, unreachable=unreachable,
-            edges=tuple(used), success=False, message=f"pose graph solve failed: {exc}",
-            failures=dict(failures or {}), method="points" if use_points else "edges")
+        return RecordingCalibration(
+            **common, poses={}, covariances={}, lag_frames={},
+            status=CalibrationStatus.SOLVE_FAILED,
+            facts=(SolveBrokeDown(step="pose_graph", reason=str(exc).strip() or
+                                  type(exc).__name__),))
     covs = {ref: np.zeros((3, 3)), **{n: 0.5 * (c + c.T) for n, c in covs.items()}}
-    msg = f"{len(reachable)} node(s) calibrated from {len(used)} edge(s)"
-    if use_points:
-        msg += " (joint least squares on the matched points)"
-    if unreachable:
-        msg += f"; no path to {ref}: {', '.join(unreachable)}"
-    return PoseGraphCalibration(
-        reference=ref, poses=poses, covariances={n: covs[n] for n in reachable},
-        lag_frames={n: lags[n] for n in reachable}, unreachable=unreachable, edges=tuple(used),
-        success=not unreachable, message=msg, iterations=iterations, final_error=final_error,
-        failures=dict(failures or {}), method="points" if use_points else "edges",
-        joint_covariance=joint, joint_order=others, autocorrelation_factor=tau)
+    fit = PoseGraphFit(solve=solve, n_nodes=len(reachable), n_edges=len(used),
+                       iterations=iterations, final_error=final_error,
+                       autocorrelation_factor=tau)
+    return RecordingCalibration(
+        **common, poses=poses, covariances={n: covs[n] for n in reachable},
+        lag_frames={n: lags[n] for n in reachable},
+        status=(CalibrationStatus.NODES_UNREACHABLE if unreachable else CalibrationStatus.OK),
+        facts=(fit,), joint_covariance=joint, joint_order=others if joint is not None else (),
+        model_covariances={n: covs[n] for n in reachable})
 
 
 def pairwise_edges(
@@ -329,9 +228,11 @@ def pairwise_edges(
     options: MatchingOptions | None = None,
     pairs: Sequence[tuple[str, str]] | None = None,
     debias_centroids: bool = True,
-) -> tuple[list[PoseEdge], dict[str, str]]:
+) -> tuple[list[PairwiseCalibration], dict[str, str]]:
     """Match every pair of nodes (or the given ``pairs``) and turn each
-    successful match into a :class:`PoseEdge`.
+    successful match into an edge (the match's
+    :class:`~mmsnap_graph.data.calibration.PairwiseCalibration` with the
+    nodes' names and the lag's evidence).
 
     tracks : node name -> its local tracks, in network order.
     debias_centroids : centroid tracks (``source="centroids"``, no
@@ -351,8 +252,10 @@ def pairwise_edges(
     for a, b in pairs:
         m = match_tracks(tracks[a], tracks[b], frame_period_s=frame_period_s, options=options)
         if m.success:
-            edges.append(dataclasses.replace(PoseEdge.from_pairwise(a, b, m.calibration),
-                                             lag_note=m.lag_note,
+            evidence = (None if m.lag_evidence is None else
+                        dataclasses.replace(m.lag_evidence, node_a=a, node_b=b))
+            edges.append(dataclasses.replace(m.calibration, node_a=a, node_b=b,
+                                             lag_evidence=evidence,
                                              lag_ambiguous=m.lag_ambiguous))
         else:
             failures[f"{a}-{b}"] = m.message

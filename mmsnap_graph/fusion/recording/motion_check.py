@@ -427,7 +427,8 @@ def _free_after(rows, taking, preds, pi, gate) -> NDArray:
 
 def apply_motion_check(rows: FusedRows, frame: NDArray, observed: NDArray, valid: NDArray, *,
                        frame_period_s: float, refit: Refit, node_names,
-                       residual_gate_probability: float) -> NDArray:
+                       residual_gate_probability: float,
+                       decide: NDArray | None = None) -> NDArray:
     """Check every fused row of a recording against the motion of its
     neighbouring frames (module docstring); ``rows`` (the rows of
     :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording`) is updated
@@ -436,7 +437,11 @@ def apply_motion_check(rows: FusedRows, frame: NDArray, observed: NDArray, valid
 
     frame : (K,) the rows' frames, sorted. observed, valid : (K, N) bool, the
     nodes of each row and those whose measurement may be fitted.
-    refit : fits hypotheses (:data:`Refit`). Returns the rows refitted.
+    refit : fits hypotheses (:data:`Refit`). decide : the frames whose rows
+    are refitted or flagged (None: every frame); the other rows are their
+    context (a stream deciding one frame from those around it): the rows of
+    a frame decided get what the check of every frame gives them. Returns the
+    rows refitted.
     """
     gate = chi2_gate(MOTION_GATE_PROBABILITY, 4)
     accel = MOTION_ACCEL_SIGMA_MPS2
@@ -454,10 +459,13 @@ def apply_motion_check(rows: FusedRows, frame: NDArray, observed: NDArray, valid
                               n_kept))] = True
     ok &= rows.status == Status.OK
     confirmed &= ok
-    preds = _predictions(rows, frame, confirmed, frame[~confirmed], frame_period_s, accel,
+    todo_frames = np.unique(frame[~confirmed])
+    if decide is not None:
+        todo_frames = np.intersect1d(todo_frames, decide)
+    preds = _predictions(rows, frame, confirmed, todo_frames, frame_period_s, accel,
                          gate, n_kept)
     jobs, lone = [], []
-    for f in np.unique(frame[~confirmed]):
+    for f in todo_frames:
         lo, hi = np.searchsorted(frame, [f, f + 1])
         rs = np.arange(lo, hi)
         rs = rs[~twice[rs]]  # flagged already
@@ -492,6 +500,8 @@ def apply_motion_check(rows: FusedRows, frame: NDArray, observed: NDArray, valid
         _flag(rows, r, observed, text)
     n_kept = (observed & ~rows.rejected).sum(axis=1)
     shared = _shared_frames(frame, rows.status == Status.OK, observed & ~rows.rejected)
+    if decide is not None:
+        shared = np.intersect1d(shared, decide)
     _twice(rows, frame, observed, shared, gate,
            _predictions(rows, frame, confirmed, shared, frame_period_s, accel, gate, n_kept,
                         False),

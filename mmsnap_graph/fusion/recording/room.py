@@ -49,7 +49,7 @@ from ...data.results import FusedSequence, Status
 from ...errors import ValidationError
 from .walls import beyond_learned_walls, learn_walls
 
-__all__ = ["RoomBounds", "RoomReport", "screen_room", "DEFAULT_BODY_M", "STILL_MPS"]
+__all__ = ["RoomBounds", "RoomReport", "screen_room", "learn_room_walls", "DEFAULT_BODY_M", "STILL_MPS"]
 
 #: A body's width (m): fused people closer than this in one frame are one
 #: (:data:`~mmsnap_graph.data.body.BODY_WIDTH_M` says why it is not a merge radius).
@@ -150,33 +150,54 @@ def _behind(fused: FusedSequence) -> tuple[NDArray, NDArray]:
     return back.any(axis=1), np.argmax(back, axis=1)
 
 
-def _learned_walls(fused: FusedSequence, success: NDArray, body_m: float):
-    """The learned-walls check (:mod:`.walls`): flags, wall index, walls."""
-    status = np.asarray(fused.status)
+def _seen(fused: FusedSequence, success: NDArray) -> NDArray:
+    """(K, N) the nodes that saw each row: a row the gate or the motion check
+    flagged is still what a node saw (an image, often), with every node it
+    was grouped with."""
     observed = np.asarray(fused.observed, dtype=bool)
     rejected = np.zeros_like(observed) if fused.rejected is None else np.asarray(
         fused.rejected, dtype=bool)
-    # A row the gate or the motion check flagged is still what a node saw
-    # (an image, often): it may teach a wall, with every node it was grouped with.
-    seen = np.where(success[:, None], observed & ~rejected, observed)
+    return np.where(success[:, None], observed & ~rejected, observed)
+
+
+def learn_room_walls(fused: FusedSequence, success: NDArray | None = None,
+                     body_m: float = DEFAULT_BODY_M) -> list:
+    """The walls (:class:`~.walls.LearnedWall`) the multipath images of the
+    rows of ``fused`` teach (:func:`~.walls.learn_walls`); ``success`` (K,)
+    the rows taken as people (default ``fused.success``)."""
+    success = np.asarray(fused.success if success is None else success, dtype=bool)
+    if len(fused) == 0:
+        return []
+    status = np.asarray(fused.status)
     state = np.asarray(fused.state, dtype=float)
+    # A row the gate or the motion check flagged may teach a wall.
     image_ok = np.all(np.isfinite(state), axis=1) & np.isin(
         status, (Status.OK, Status.RESIDUAL_TEST_FAILED, Status.MOTION_INCONSISTENT))
     poses = np.asarray(fused.node_poses, dtype=float)
-    walls = learn_walls(np.asarray(fused.frame), state, np.asarray(fused.covariance), success,
-                        seen, poses, body_m=body_m, image_ok=image_ok | success)
-    flag, which = beyond_learned_walls(state, success, seen, poses, walls)
+    return learn_walls(np.asarray(fused.frame), state, np.asarray(fused.covariance), success,
+                       _seen(fused, success), poses, body_m=body_m,
+                       image_ok=image_ok | success)
+
+
+def _learned_walls(fused: FusedSequence, success: NDArray, body_m: float, learned=None):
+    """The learned-walls check (:mod:`.walls`): flags, wall index, walls
+    (``learned``: the walls to apply; None: learned from ``fused``)."""
+    walls = learn_room_walls(fused, success, body_m) if learned is None else list(learned)
+    poses = np.asarray(fused.node_poses, dtype=float)
+    flag, which = beyond_learned_walls(np.asarray(fused.state, dtype=float), success,
+                                       _seen(fused, success), poses, walls)
     return flag, which, walls
 
 
 def screen_room(fused: FusedSequence, *, bounds: RoomBounds | None = None,
                 static_bounds: RoomBounds | None = None, in_front: bool = False,
-                walls: bool = True,
+                walls: bool = True, learned: list | None = None,
                 body_m: float | None = DEFAULT_BODY_M) -> tuple[FusedSequence, RoomReport]:
     """Flag the successful rows outside ``bounds`` (None: no bounds), the
     still rows outside ``static_bounds``, the rows behind a node
     (``in_front``), the rows beyond a wall learned from the multipath images
-    (``walls``) and the duplicates of one body (``body_m``; None: off).
+    (``walls``; ``learned``: those walls instead of the ones ``fused`` teaches)
+    and the duplicates of one body (``body_m``; None: off).
     Returns the rows with their ``success``, ``status`` and ``message``
     updated, and the counts."""
     if body_m is not None and not (np.isfinite(body_m) and body_m > 0):
@@ -209,9 +230,9 @@ def screen_room(fused: FusedSequence, *, bounds: RoomBounds | None = None,
                           f"({static_bounds.text()})")
         success &= ~still
         outside |= still
-    beyond, learned = np.zeros(len(fused), dtype=bool), []
+    beyond, given, learned = np.zeros(len(fused), dtype=bool), learned, []
     if walls and bounds is None:
-        beyond, which, learned = _learned_walls(fused, success, DEFAULT_BODY_M)
+        beyond, which, learned = _learned_walls(fused, success, DEFAULT_BODY_M, given)
         status[beyond] = Status.OUTSIDE_BOUNDS
         for k in np.flatnonzero(beyond):
             message[k] = ("beyond a wall learned from multipath images ("

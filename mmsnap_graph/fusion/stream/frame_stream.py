@@ -53,6 +53,7 @@ update fails. A group that cannot be fused is flagged by its status, as in
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -61,20 +62,29 @@ from typing import Iterator, Literal, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..solvers.vectorized import fuse_batch
+from collections import deque
+
+from ..config import DEFAULT_CONFIG, FusionConfig
+from ..options import FusionOptions, NetworkCalibration
+from ..recording.pipeline import FusionNetwork
+from ..recording.regroup import merge_body_detections
 from ..solvers.scalar import FrameSolver
 from .association import StreamAssociator
-from ..problem import check_node_noise, check_pose_covariances, check_prior
-from ..solvers.settings import check_solver
-from ...data.noise import GaussianPrior, MeasurementNoise
+from .checks import StreamPipeline
+from ..problem import check_node_noise, check_pose_covariances
+from ...data.noise import MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import Status
 from ...errors import MmsnapError, ValidationError
 from ...tracking.central import CentralConfig, CentralTracker
-from ..._validation import (as_float_array, check_count, check_finite, check_heading,
-                            check_probability)
+from ..._validation import as_float_array, check_count, check_finite, check_heading
 
-__all__ = ["StreamUpdate", "FrameStream", "recording_frames"]
+__all__ = ["StreamUpdate", "FrameStream", "recording_frames", "STREAM_CONFIG"]
+
+#: The stream's default configuration: :data:`~mmsnap_graph.fusion.config.DEFAULT_CONFIG`
+#: (every check) with the scalar solver (latency; without a robust fit: with
+#: one the vectorized solver's, which has it).
+STREAM_CONFIG = dataclasses.replace(DEFAULT_CONFIG, solve=FusionOptions(solver="scalar"))
 
 # Failures of one frame's association, fusion or tracker step (numerical ones,
 # e.g. a singular covariance of a degenerate detection) that flag the frame.
@@ -106,8 +116,10 @@ class StreamUpdate:
     state, covariance : (G, 4), (G, 4, 4) fused targets of the frame (NaN where a
         group failed); G = 0 for a bad frame.
     status : (G,) int8 :class:`~mmsnap_graph.data.results.Status` codes; success is ``Status.OK``.
-    members : (G, N) int, each node's detection row in each group, -1 where none.
+    members : (G, N) int, each node's detection row in each group (its row in
+        the frame's detections as given), -1 where none.
     degeneracy : (G,) velocity degeneracy of each group.
+    rejected : (G, N) bool, the nodes the robust fit or the checks left out.
     track_id, track_state, track_covariance : (T,), (T, 4), (T, 4, 4) the live
         tracks after this frame's update (unchanged by a bad frame).
     latency_s : wall-clock time spent in :meth:`FrameStream.push`.
@@ -127,6 +139,7 @@ class StreamUpdate:
     track_state: NDArray
     track_covariance: NDArray
     latency_s: float
+    rejected: NDArray
     dropped_detections: int = 0
 
     @property
@@ -151,23 +164,31 @@ class FrameStream:
         Measurement sigmas (default the paper's): one for every node, one per
         node in the order of ``node_names``, or ``{node name: MeasurementNoise}``
         holding every node (docs/CONVENTIONS.md, "Per-node noise").
-    prior : GaussianPrior or None
-        The one-shot prior (MAP, default the paper's); None for ML.
-    solver : ``"scalar"`` (the default: :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver`
-        per group, the same problem as ``fuse_frame`` solved in plain floats,
-        equal to it to the tolerance stated there and several times faster),
-        ``"gtsam"`` (:func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` per
-        group) or ``"vectorized"`` (:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`
-        on the frame's groups); :data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`.
-    gate_probability : association gate (see :mod:`mmsnap_graph.fusion.association`).
+    config : FusionConfig
+        The one pipeline's configuration (:class:`~mmsnap_graph.fusion.config.FusionConfig`,
+        default :data:`STREAM_CONFIG`: every check, the scalar solver): the
+        association, the solve (``"scalar"``: :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver`
+        per group, the problem of ``fuse_frame`` in plain floats; ``"gtsam"``:
+        ``fuse_frame``; ``"vectorized"``: ``fuse_batch`` on the frame's
+        groups), the prior (None: ML), the robust fit and the checks, run as
+        :mod:`~mmsnap_graph.fusion.stream.checks` says.
     tracker : CentralConfig or None
         The central tracker's settings (default ``CentralConfig()``); its
-        ``frame_period_s`` is used only for the first frame, afterwards the
-        time between frames comes from the time stamps.
+        ``frame_period_s`` numbers the frames for the checks (the frame
+        periods since the first stamp, rounded) and steps the tracker over
+        the first frame; afterwards the tracker's steps come from the stamps.
     pose_covariances : (N, 3, 3) or mapping name -> (3, 3), optional
         Calibration-aware fusion (docs/CONVENTIONS.md): each pose's covariance
         in the Pose2 body tangent (all NaN, all zero or a node left out of the
         mapping: an exact pose); the fused covariances include them.
+    range_offset_m : float, optional
+        The calibration's range offset (reflection depth, m), added to every
+        range first, as the recording drivers add it.
+    delay_frames : int
+        Frames a frame waits for those after it before it is decided (0: at
+        once, from past frames only; :meth:`feed` and :meth:`flush` when > 0).
+        With the configuration's ``context_frames`` the checks see what the
+        recording drivers see.
     max_detections_per_node : int
         Rows of one node kept per frame (default
         :data:`MAX_DETECTIONS_PER_NODE`, at most 4096); the rest are dropped
@@ -180,12 +201,12 @@ class FrameStream:
     """
 
     def __init__(self, node_names: Sequence[str], node_poses: ArrayLike, *,
+                 config: FusionConfig = STREAM_CONFIG,
                  noise: MeasurementNoise = MeasurementNoise(),
-                 prior: GaussianPrior | None = GaussianPrior(),
-                 solver: Literal["scalar", "gtsam", "vectorized"] = "scalar",
-                 gate_probability: float = 0.999,
                  tracker: CentralConfig | None = None,
                  pose_covariances: ArrayLike | Mapping[str, ArrayLike] | None = None,
+                 range_offset_m: float | None = None,
+                 delay_frames: int = 0,
                  max_detections_per_node: int = MAX_DETECTIONS_PER_NODE) -> None:
         names = tuple(node_names)
         if not names or not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
@@ -197,10 +218,17 @@ class FrameStream:
             check_heading(float(poses[i, 2]), f"node_poses[{i}]")
         self.max_detections_per_node = check_count(max_detections_per_node,
                                                    "max_detections_per_node", 1, 4096)
-        check_solver(solver)
+        if not isinstance(config, FusionConfig):
+            raise ValidationError(f"config must be a FusionConfig, got {type(config).__name__}")
+        if config.solve.covariance != "laplace":
+            raise ValidationError("config.solve.covariance must be 'laplace' for a stream (the "
+                                  "grid covariance is for recordings)")
+        if config.association.source != "centroids" and range_offset_m is not None:
+            raise ValidationError("range_offset_m moves centroids' ranges: use source='centroids'")
         if tracker is not None and not isinstance(tracker, CentralConfig):
             raise ValidationError(f"tracker must be a CentralConfig, got {type(tracker).__name__}")
-        p = check_probability(gate_probability, "gate_probability")
+        self.delay_frames = check_count(delay_frames, "delay_frames", 0)
+        self.range_offset_m = NetworkCalibration(range_offset_m=range_offset_m).range_offset_m
         self.node_names = names
         self.node_poses = poses
         poses.setflags(write=False)
@@ -208,18 +236,30 @@ class FrameStream:
         # The given noise, or the N per-node ones in node order (a tuple).
         self.noise = noises[0] if isinstance(noise, MeasurementNoise) else noises
         self.pose_covariances = check_pose_covariances(pose_covariances, len(names), names)
-        self.prior = check_prior(prior)
-        self.solver = solver
+        self.config = config
+        self.prior = config.prior
+        self.solver = config.solve.solver
+        self.gate_probability = config.association.gate_probability
+        tracker_cfg = CentralConfig() if tracker is None else tracker
+        self.frame_period_s = float(tracker_cfg.frame_period_s)
+        net = FusionNetwork(node_names=names, poses=poses, noise=noises,
+                            pose_covariances=self.pose_covariances,
+                            frame_period_s=self.frame_period_s)
         self._frame_solver = FrameSolver(poses, noises, self.prior, self.pose_covariances)
-        self._associator = StreamAssociator(poses, noises, p)
-        self.gate_probability = p
+        self._associator = StreamAssociator(poses, noises, self.gate_probability)
+        self._pipeline = StreamPipeline(net, config, self.delay_frames, self._frame_solver)
         self._index = {name: i for i, name in enumerate(names)}
+        prior = self.prior
         self._new_tracker = lambda: CentralTracker(
-            tracker, prior_mean=None if prior is None else prior.mean,
+            tracker_cfg, prior_mean=None if prior is None else prior.mean,
             prior_sigmas=None if prior is None else prior.sigmas)
         self._tracker = self._new_tracker()
         self._last_time_s: float | None = None
         self._rejected_times: list[float] = []
+        self._first_time_s: float | None = None
+        self._last_frame: int | None = None
+        self._waiting: deque = deque()
+        self._last_decided_s: float | None = None
         self.clock_restarts = 0
         self.frames = 0
         self.bad_frames = 0
@@ -237,14 +277,26 @@ class FrameStream:
 
     def push(self, time_s: float, detections: Mapping[str, ArrayLike] | Sequence[ArrayLike]
              ) -> StreamUpdate:
-        """One frame: validate, associate, fuse, track.
+        """One frame, decided at once (``delay_frames=0``): validate,
+        associate, fuse, check, track (:meth:`feed`).
 
-        time_s : the frame's time stamp in seconds, after the previous good frame's.
+        time_s : the frame's time stamp in seconds (e.g. the host's time of
+            arrival), after the previous good frame's.
         detections : ``{node_name: (K, 3) array}`` (a node left out has no
             detections) or a sequence of N arrays in node order; rows are
             ``(range_m, omega_rad, doppler_mps)``.
         Never raises for a bad frame: it returns ``ok=False`` with a message.
         """
+        if self.delay_frames:
+            raise ValidationError(f"push decides a frame at once; with delay_frames="
+                                  f"{self.delay_frames} use feed() and flush()")
+        return self.feed(time_s, detections)[0]
+
+    def feed(self, time_s: float, detections: Mapping[str, ArrayLike] | Sequence[ArrayLike]
+             ) -> list[StreamUpdate]:
+        """One frame (as :meth:`push`); returns the frames decided now, in
+        order: this one with ``delay_frames=0``, else those ``delay_frames``
+        frames old or more (a bad frame is returned at once; it is not fused)."""
         start = time.perf_counter()
         index = self.frames
         self.frames += 1
@@ -252,26 +304,91 @@ class FrameStream:
         note = ""
         if problem is not None and per_node is not None and self._clock_restarted(t):
             note, problem = f"{problem}; the source's clock restarted: the stream starts over", None
+            decided = self.flush()
+        else:
+            decided = []
         if problem is not None:
             self.bad_frames += 1
-            return self._update(index, t, False, problem, None, start)
+            return decided + [self._update(index, t, False, problem, None, start)]
         self._rejected_times.clear()
         per_node, dropped, cap_note = self._capped(per_node)
         note = "; ".join(x for x in (note, cap_note) if x)
-        dt = None if self._last_time_s is None else t - self._last_time_s
         self._last_time_s = t
+        frame = self._frame_number(t)
+        self._pipeline.see(per_node)
         try:
+            per_node, kept = self._calibrated(per_node)
             members = self._associator.members(per_node)
-            fused = (*self._fuse(per_node, members), members)
+            self._pipeline.solve(frame, members, _measurements(per_node, members))
+            members = _rows_of(members, kept)
+            problem = None
         except _FRAME_FAILURES as exc:
-            self._step_tracker(np.zeros((0, 4)), np.zeros((0, 4, 4)), dt)
-            return self._update(index, t, False, f"fusion failed: {type(exc).__name__}: {exc}",
-                                None, start, dropped)
-        ok = fused[2] == Status.OK
-        self.failed_groups += int(np.count_nonzero(~ok))
-        problem = self._step_tracker(fused[0][ok], fused[1][ok], dt)
-        message = "; ".join(x for x in (problem, note) if x)
-        return self._update(index, t, problem is None, message, fused, start, dropped)
+            members, problem = None, f"fusion failed: {type(exc).__name__}: {exc}"
+        self._waiting.append((index, t, frame, members, problem, note, dropped, start))
+        return decided + self._decide(frame - self.delay_frames)
+
+    def flush(self) -> list[StreamUpdate]:
+        """Decide every frame still waiting for its look-ahead (the end of a
+        recording or a source), with the frames there are."""
+        return self._decide(None)
+
+    def _frame_number(self, t: float) -> int:
+        """The frame of a stamp: the frame periods since the first frame's
+        (rounded; always after the previous frame's)."""
+        if self._first_time_s is None:
+            self._first_time_s = t
+        k = (t - self._first_time_s) / self.frame_period_s
+        if not (math.isfinite(k) and abs(k) < 2.0 ** 52):
+            # Stamps that far apart share no check: number anew from this one.
+            self._first_time_s, self._last_frame, k = t, None, 0.0
+        k = int(round(k))
+        if self._last_frame is not None and k <= self._last_frame:
+            k = self._last_frame + 1
+        self._last_frame = k
+        return k
+
+    def _calibrated(self, per_node):
+        """The range offset added and one body's centroids merged
+        (``config.association.merge_body_m``); the rows kept of each node."""
+        merge = self.config.association.merge_body_m
+        out, kept = [], []
+        for z in per_node:
+            if self.range_offset_m is not None and len(z):
+                z = z.copy()
+                z[:, 0] += self.range_offset_m
+            keep = None
+            if merge is not None and len(z) > 1:
+                keep, merged = merge_body_detections(np.zeros(len(z), np.int64), z, merge)
+                keep = np.flatnonzero(keep)
+                z = merged[keep]
+            out.append(z)
+            kept.append(keep)
+        return out, kept
+
+    def _decide(self, up_to: int | None) -> list[StreamUpdate]:
+        """The updates of the waiting frames up to frame ``up_to`` (None: all)."""
+        done = []
+        while self._waiting and (up_to is None or self._waiting[0][2] <= up_to):
+            index, t, frame, members, problem, note, dropped, start = self._waiting.popleft()
+            dt = None if self._last_decided_s is None else t - self._last_decided_s
+            self._last_decided_s = t
+            if problem is None:
+                try:
+                    seq = self._pipeline.decide(frame)
+                except _FRAME_FAILURES as exc:
+                    problem = f"fusion failed: {type(exc).__name__}: {exc}"
+            if problem is not None:
+                self._step_tracker(np.zeros((0, 4)), np.zeros((0, 4, 4)), dt)
+                done.append(self._update(index, t, False, problem, None, start, dropped))
+                continue
+            ok = np.asarray(seq.status == Status.OK, dtype=bool)
+            self.failed_groups += int(np.count_nonzero(~ok))
+            problem = self._step_tracker(seq.state[ok], seq.covariance[ok], dt)
+            message = "; ".join(x for x in (problem, note) if x)
+            fused = (seq.state, seq.covariance, np.asarray(seq.status, dtype=np.int8),
+                     seq.degeneracy, members, seq.rejected)
+            done.append(self._update(index, t, problem is None, message, fused, start, dropped))
+        return done
 
     def _clock_restarted(self, t: float) -> bool:
         """Whether the frame at ``t``, rejected for its stamp alone, is the
@@ -287,6 +404,7 @@ class FrameStream:
         self._rejected_times.clear()
         self._tracker = self._new_tracker()
         self._last_time_s = None
+        self._first_time_s = None
         self.clock_restarts += 1
         return True
 
@@ -358,60 +476,17 @@ class FrameStream:
             per_node[i] = z
         return t, [_EMPTY_ROWS if z is None else z for z in per_node], None
 
-    def _fuse(self, per_node, members):
-        """``(state, covariance, status, degeneracy)`` of the groups ``members (G, N)``."""
-        g, n_nodes = members.shape
-        if g == 0:
-            return np.zeros((0, 4)), np.zeros((0, 4, 4)), _EMPTY_I8, np.zeros(0)
-        obs = members >= 0
-        z = np.zeros((g, n_nodes, 3))
-        for i, row in enumerate(members.tolist()):
-            for n, k in enumerate(row):
-                if k >= 0:
-                    z[i, n] = per_node[n][k]
-        if self.solver == "vectorized":
-            res = fuse_batch(self.node_poses, z, observed=obs, noise=self.noise, prior=self.prior,
-                             pose_covariances=self.pose_covariances)
-            return res.state, res.covariance, np.asarray(res.status, dtype=np.int8), res.degeneracy
-        if self.solver == "scalar":
-            return self._fuse_scalar(z, obs)
-        return self._fuse_gtsam(z, obs)
-
-    def _fuse_scalar(self, z, obs):
-        g = z.shape[0]
-        state, cov = np.empty((g, 4)), np.empty((g, 4, 4))
-        status, degeneracy = np.empty(g, dtype=np.int8), np.empty(g)
-        for i in range(g):
-            sol = self._frame_solver.solve(z[i], obs[i])
-            state[i], cov[i], status[i], degeneracy[i] = (sol.state, sol.covariance, sol.status,
-                                                          sol.degeneracy)
-        return state, cov, status, degeneracy
-
-    def _fuse_gtsam(self, z, obs):
-        from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of this module's import path
-
-        g = z.shape[0]
-        state, cov = np.full((g, 4), np.nan), np.full((g, 4, 4), np.nan)
-        status, degeneracy = np.full(g, int(Status.NON_FINITE), dtype=np.int8), np.full(g, np.inf)
-        for i in range(g):
-            try:
-                r = fuse_frame(self.node_poses, z[i], observed=obs[i], noise=self.noise,
-                               prior=self.prior, pose_covariances=self.pose_covariances)
-            except MmsnapError:  # e.g. an initial position on a node; flagged as fuse_recording does
-                continue
-            state[i], cov[i], status[i], degeneracy[i] = r.state, r.covariance, r.status, r.degeneracy
-        return state, cov, status, degeneracy
-
     def _update(self, index, t, ok, message, fused, start, dropped=0) -> StreamUpdate:
         track_id, track_state, track_cov = self._tracker.track_arrays()
         n_nodes = len(self.node_names)
         if fused is None:
             fused = (np.zeros((0, 4)), np.zeros((0, 4, 4)), _EMPTY_I8, np.zeros(0),
-                     np.zeros((0, n_nodes), dtype=np.int64))
-        state, cov, status, degeneracy, members = fused
+                     np.zeros((0, n_nodes), dtype=np.int64), np.zeros((0, n_nodes), dtype=bool))
+        state, cov, status, degeneracy, members, rejected = fused
         return StreamUpdate(
             index=index, time_s=t, ok=ok, message=message,
             state=state, covariance=cov, status=status, members=members, degeneracy=degeneracy,
+            rejected=rejected,
             track_id=track_id, track_state=track_state, track_covariance=track_cov,
             latency_s=time.perf_counter() - start, dropped_detections=dropped,
         )
@@ -420,6 +495,27 @@ class FrameStream:
 _OMEGA_MAX = np.pi + 1e-9
 _EMPTY_ROWS = np.zeros((0, 3))
 _INF = math.inf
+
+
+def _measurements(per_node, members: NDArray) -> NDArray:
+    """(G, N, 3) the measurements of the groups ``members`` (G, N); zeros where none."""
+    g, n_nodes = members.shape
+    z = np.zeros((g, n_nodes, 3))
+    for i, row in enumerate(members.tolist()):
+        for n, k in enumerate(row):
+            if k >= 0:
+                z[i, n] = per_node[n][k]
+    return z
+
+
+def _rows_of(members: NDArray, kept) -> NDArray:
+    """``members`` with each node's merged rows taken back to its rows as given."""
+    out = members.copy()
+    for n, k in enumerate(kept):
+        if k is not None:
+            has = out[:, n] >= 0
+            out[has, n] = k[out[has, n]]
+    return out
 
 
 def _check_rows(rows, name):

@@ -342,4 +342,5 @@ def recording_from_dca1000(captures: Mapping[str, str | os.PathLike | Sequence],
     first = next(iter(nodes.values())).radar
     md = {"source": "dca1000"}
     md.update(dict(metadata or {}))
-    return Recording(frame_period_s=first.frame_period_s, nodes=nodes, metadata=md)
+    return Recording(frame_period_s=first.frame_period_s, nodes=nodes, metadata=md,
+                     targets="people")

@@ -490,4 +490,4 @@ def recording_from_point_clouds(clouds: Mapping[str, PointCloud3D], *, frame_per
         md[f"{name}_height_m"] = mount.height_m
         md[f"{name}_tilt_rad"] = mount.tilt_rad
     md.update(dict(metadata or {}))
-    return Recording(frame_period_s=fp, nodes=nodes, metadata=md)
+    return Recording(frame_period_s=fp, nodes=nodes, metadata=md, targets="people")

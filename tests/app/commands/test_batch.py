@@ -13,12 +13,20 @@ from mmsnap_graph.app.cli import main
     (["--steps", "fuse,process"], "--steps"),
     (["--steps", "fly"], "--steps"),
     (["--workers", "0"], "--workers must be between 1 and"),
-    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "omit it with --scheduler"),
 ])
 def test_cli_usage_errors_exit_2_with_one_line(recording_b_file, capsys, argv, match):
     assert main(["batch", str(recording_b_file.parent / "*.h5"), *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("mmsnap batch: error: ") and match in err[0]
+
+
+def test_workers_and_scheduler_exclude_each_other_in_argparse(recording_b_file, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["batch", str(recording_b_file.parent / "*.h5"), "--workers", "2",
+              "--scheduler", "tcp://127.0.0.1:1"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --scheduler: not allowed with argument --workers" in err
 
 
 def test_cli_no_match_and_bad_int(tmp_path, capsys):

@@ -59,8 +59,8 @@ def test_summary_has_units_one_fact_a_line_and_says_the_terms(calibrated, capsys
     assert max(len(line) for line in lines) < 200, max(lines, key=len)
     (ok,) = [k for k, line in enumerate(lines) if line.startswith("ok: ")]
     assert sum(line.startswith("  ") for line in lines[ok + 1:ok + 4]) == 3
-    assert "range 0.0" in out and re.search(r"sigmas estimated from residuals for the joint "
-                                            r"graph: range [0-9.]+ m ", out)
+    assert "range 0.0" in out and re.search(r"sigmas for the joint graph, from each node's own "
+                                            r"centroid sequence: range [0-9.]+ m estimated", out)
     assert f"wrote {js}" in out
 
 
@@ -69,7 +69,7 @@ def test_not_identified_sigma_says_why_and_what_is_used():
     est = NoiseEstimate(nodes={"S1": NodeNoiseEstimate(
         noise=MeasurementNoise(range_m=0.02, omega_rad=fallback.omega_rad, doppler_mps=0.09),
         identified=(True, False, True), n_residuals=(500, 0, 480),
-        method="network+temporal, pooled, tails x1.10/1.00/1.30",
+        method="network+temporal, pooled", tail_factors=(1.10, 1.00, 1.30),
         reasons=("", "12 usable differences of its own centroid sequence (4.0 dof); "
                      "20 dof needed", ""))})
     text = "\n".join(noise_lines(est))

@@ -14,6 +14,7 @@ import h5py
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.io import read_recording, write_fused, write_recording
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
+from _fusion import config
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +73,7 @@ def test_evaluate_on_a_fused_group_of_unequal_lengths_names_the_file(recording_b
                                                                     capsys):
     rec = read_recording(recording_b_file)
     path = tmp_path / "f.h5"
-    write_fused(recording_b_file, fuse_recording(rec, progress=False), output=path)
+    write_fused(recording_b_file, fuse_recording(rec, config(), progress=False), output=path)
     with h5py.File(path, "r+") as f:
         data = f["fused/x_m"][()]
         del f["fused/x_m"]
@@ -85,7 +86,7 @@ def test_evaluate_on_a_fused_group_of_unequal_lengths_names_the_file(recording_b
 def test_evaluate_command_on_surveyed_poses(surveyed_recording, tmp_path, capsys):
     path = tmp_path / "surveyed.h5"
     write_recording(path, surveyed_recording)
-    write_fused(path, fuse_recording(surveyed_recording, progress=False))
+    write_fused(path, fuse_recording(surveyed_recording, config(), progress=False))
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"reference": "S1", "nodes": {
         "S1": {"pose": [0, 0, 0]}, "S2": {"pose": [5.0, 5.1, float(np.pi / 2)]}}}))

@@ -21,6 +21,7 @@ from mmsnap_graph.fusion.recording.sequence import (
 from mmsnap_graph.io.calibration import load_calibration_poses
 from mmsnap_graph.io.fused import read_fused
 from _cli import noise_block, store_partial_noise, with_centroids
+from _fusion import config
 
 
 @pytest.fixture
@@ -38,7 +39,7 @@ def test_calibration_json_and_pose_sources(tmp_path, recordings):
     poses = load_calibration_poses(path)
     np.testing.assert_array_equal(recording_poses(rec, poses)[1], [0.1, 6.9, np.pi - 0.02])
     np.testing.assert_array_equal(recording_poses(rec), np.stack([rec.nodes[n].pose for n in rec.node_names]))
-    fused = fuse_recording(rec, calibration=NetworkCalibration(node_poses=poses))
+    fused = fuse_recording(rec, config(), calibration=NetworkCalibration(node_poses=poses))
     np.testing.assert_array_equal(fused.node_poses[1], [0.1, 6.9, np.pi - 0.02])
 
 
@@ -52,7 +53,7 @@ def test_missing_calibration_file_and_poses(tmp_path, recordings):
 
     bare = rec.with_node(dataclasses.replace(rec.nodes["S2"], pose=None))
     with pytest.raises(CalibrationError, match="node 'S2' has no pose in the recording"):
-        fuse_recording(bare)
+        fuse_recording(bare, config())
 
 
 def test_cli_fuse_writes_the_fused_group(tmp_path, recordings, capsys):
@@ -66,7 +67,7 @@ def test_cli_fuse_writes_the_fused_group(tmp_path, recordings, capsys):
     assert fused.mode == "ml" and fused.covariance_method == "laplace" and fused.solver == "vectorized"
     from mmsnap_graph.fusion.recording.room import DEFAULT_BODY_M, screen_room
     # The CLI's default: the robust gate, then one target per body.
-    ref = screen_room(fuse_recording(rec, mode="ml", robust="gate"), body_m=DEFAULT_BODY_M)[0]
+    ref = screen_room(fuse_recording(rec, config(mode="ml", robust="gate")), body_m=DEFAULT_BODY_M)[0]
     np.testing.assert_allclose(fused.state[fused.success], ref.state[ref.success], atol=1e-12)
     out = tmp_path / "copy.h5"
     assert main(["fuse", str(path), "-o", str(out), "--no-progress"]) == 0
@@ -81,7 +82,7 @@ def test_cli_fuse_takes_measurement_sigmas(tmp_path, recordings, capsys):
     assert main(["fuse", str(path), "--sigmas", "0.05", "0.08", "0.1", "--no-progress"]) == 0
     fused = read_fused(path)
     np.testing.assert_allclose(fused.noise_sigmas, [0.05, 0.08, 0.1])
-    ref = fuse_recording(rec, noise=MeasurementNoise(range_m=0.05, omega_rad=0.08,
+    ref = fuse_recording(rec, config(), noise=MeasurementNoise(range_m=0.05, omega_rad=0.08,
                                                              doppler_mps=0.1))
     np.testing.assert_allclose(fused.covariance[fused.success], ref.covariance[ref.success],
                                atol=1e-12)
@@ -196,17 +197,17 @@ def test_cli_fuse_merges_one_body_and_checks_coverage_unless_told(tmp_path):
     rec = ghost_centroids(ghost_centroids(rec, "split", 0.2, seed=3), "mirror", 0.2, seed=4)
     path = write_recording(tmp_path / "rec.h5", rec)
     sig = ["--sigmas", "0.05", "0.08", "0.1", "--no-progress"]
-    for flags, opts in (([], FusionOptions()),
+    for flags, opts in (([], {}),
                         (["--no-body-merge", "--no-coverage-check"],
-                         FusionOptions(body_merge=False, coverage_check=False))):
+                         dict(body_merge=False, coverage_check=False))):
         assert main(["fuse", str(path), *sig, *flags, "--overwrite"]) == 0
         fused = read_fused(path)
-        ref = screen_room(fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", options=opts,
-                                         progress=False), body_m=DEFAULT_BODY_M)[0]
+        ref = fuse_recording(rec, config(robust="gate", walls=True, body_m=DEFAULT_BODY_M, **opts),
+                             noise=CENTROID_NOISE, progress=False)
         np.testing.assert_array_equal(fused.frame, ref.frame)
         np.testing.assert_array_equal(fused.status, ref.status)
     # The split halves are rows of their own without the merge.
-    assert len(fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", progress=False)) < len(ref)
+    assert len(fuse_recording(rec, config(robust="gate"), noise=CENTROID_NOISE, progress=False)) < len(ref)
 
 
 # ``mmsnap fuse`` takes the calibration's pose covariances and clock offsets by

@@ -82,7 +82,7 @@ def test_one_target_per_body_is_the_default_and_switches_off(recording, tmp_path
 @pytest.mark.parametrize("extra, words", [
     (["--bounds", "1,2,3"], "XMIN,XMAX,YMIN,YMAX"),
     (["--bounds=2,1,0,1"], "x_min < x_max"),
-    (["--bounds=0,1,0,1", "--bounds-cfg", "x.cfg"], "not both"),
+    (["--bounds=0,1,0,1", "--bounds-cfg", "x.cfg"], "not allowed with argument --bounds"),
 ])
 def test_bad_bounds_are_usage_errors(recording, tmp_path, capsys, extra, words):
     try:

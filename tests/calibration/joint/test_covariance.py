@@ -43,7 +43,8 @@ from mmsnap_graph.calibration.joint.presolve import (
     pose_influences,
     presolve,
 )
-from mmsnap_graph.calibration.network import RECORDING_JOINT_OPTIONS
+from mmsnap_graph.calibration.network import POINT_JOINT_OPTIONS
+from mmsnap_graph.data.calibration_facts import JointFit, PoseCovariance
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.sim import simulate_recording
@@ -165,13 +166,13 @@ def test_range_offset_response_is_the_poses_move_when_every_range_lengthens():
     q = NODE_DEPTH_SHARE
     want = 0.01 * ((1 - q) * np.outer(j, j) + q * sum(np.outer(v, v) for v in own.values()))
     np.testing.assert_allclose(depth.covariance - plain.covariance, want, rtol=1e-9, atol=1e-15)
-    assert "reflection depth of 0.100 m rms" in depth.describe()
+    assert depth.fact().reflection_depth_rms_m == 0.1
     estimated = dataclasses.replace(problem, range_offset=(0.1, 0.05))
     p3, s3, o3 = presolve(estimated, poses, states, offsets={RANGE_OFFSET: 0.1}, tol=1e-14,
                           max_steps=200)
     kept = block_covariance(estimated, p3, s3, o3, frames, bandwidth=3, timed=(),
                             range_offset_rms=0.1)
-    assert kept.range_offset_rms == 0.0 and "reflection depth" not in kept.describe()
+    assert kept.range_offset_rms == 0.0 and kept.fact().reflection_depth_rms_m == 0.0
 
 
 def _sim(seed, physics):
@@ -179,23 +180,26 @@ def _sim(seed, physics):
                               levels=("centroids",), n_frames=300, seed=seed)
 
 
-def test_reported_marginals_and_message():
+def test_reported_marginals_and_facts():
     """``covariance="model"`` reports the graph's marginals, equal to the
     long-run result's ``model_covariances``; the long-run covariance is
-    never below them; the message says how the solve converged."""
+    never below them; the facts say how the solve converged and how the
+    covariance was computed."""
     phys = CORRELATED_ONLY
     rec = _sim(0, phys)
-    model = calibrate_recording(rec, joint=dataclasses.replace(RECORDING_JOINT_OPTIONS,
+    model = calibrate_recording(rec, joint=dataclasses.replace(POINT_JOINT_OPTIONS,
                                                                covariance="model"))
     long_run = calibrate_recording(rec)
     for n in ("S2", "S3"):
-        np.testing.assert_allclose(model.covariances[n], model.joint.model_covariances[n])
-        np.testing.assert_allclose(long_run.joint.model_covariances[n], model.covariances[n],
+        np.testing.assert_allclose(model.covariances[n], model.model_covariances[n])
+        np.testing.assert_allclose(long_run.model_covariances[n], model.covariances[n],
                                    rtol=1e-4, atol=1e-12)  # numpy Schur vs GTSAM
         assert np.all(np.linalg.eigvalsh(long_run.covariances[n] - model.covariances[n])
                       > -1e-12)
-    assert "numpy pre-solve" in long_run.message and "converged" in long_run.message
-    assert "GTSAM" in long_run.message and "covariance:" in long_run.message
+    fit = long_run.fact(JointFit)
+    assert fit.presolve_steps and fit.presolve_converged and fit.iterations >= 1
+    assert long_run.fact(PoseCovariance).method == "long_run"
+    assert model.fact(PoseCovariance).method == "marginals"
 
 
 @functools.lru_cache(maxsize=1)
@@ -206,11 +210,11 @@ def _correlated_nees() -> dict[str, float]:
     for seed in range(20):
         rec = _sim(seed, CORRELATED_ONLY)
         for kind in nees:
-            cal = calibrate_recording(rec, joint=dataclasses.replace(RECORDING_JOINT_OPTIONS,
+            cal = calibrate_recording(rec, joint=dataclasses.replace(POINT_JOINT_OPTIONS,
                                                                      covariance=kind))
             e = np.concatenate([pose_tangent_error(cal.poses[n], rec.truth.node_poses[n])
-                                for n in cal.joint.joint_order])
-            nees[kind].append(float(e @ np.linalg.solve(cal.joint.joint_covariance, e)))
+                                for n in cal.joint_order])
+            nees[kind].append(float(e @ np.linalg.solve(cal.joint_covariance, e)))
     return {k: float(np.mean(v)) for k, v in nees.items()}
 
 
@@ -249,7 +253,7 @@ def test_joint_options_check_the_new_fields():
         JointOptions(range_offset_rms_m=0.0)
     with pytest.raises(ValidationError, match="centimetres"):
         JointOptions(range_offset_rms_m=11.2)
-    assert RECORDING_JOINT_OPTIONS.range_offset_rms_m is None  # a point target: not considered
+    assert POINT_JOINT_OPTIONS.range_offset_rms_m is None  # a point target: not considered
     assert REFLECTION_DEPTH_RMS_M == pytest.approx(0.1118, abs=1e-4)
 
 
@@ -259,6 +263,6 @@ def test_joint_calibration_without_a_frame_period_keeps_the_marginals():
     dets = {n: (frames, m) for n, m in meas.items()}
     noise = MeasurementNoise(range_m=0.03, omega_rad=0.05, doppler_mps=0.1)
     res = joint_calibration(dets, noise=noise, initial_poses=poses)
-    assert res.success, res.message
+    assert res.success, res.facts
     for n in ("S2", "S3"):
         np.testing.assert_allclose(res.covariances[n], res.model_covariances[n])

@@ -16,7 +16,7 @@ from mmsnap_graph.errors import ValidationError
 
 def test_refine_multi_checks_its_rounds(point_cloud_recording_3):
     proc = process_recording(point_cloud_recording_3)[0]
-    pg = calibrate_recording(proc, method="pose_graph").pose_graph
+    pg = calibrate_recording(proc, method="pose_graph")
     with pytest.raises(ValidationError, match="n_rounds"):
         refine_multi(proc, pg, n_rounds=0)
 
@@ -27,7 +27,7 @@ def test_more_rounds_do_not_move_a_converged_calibration(point_cloud_recording_3
     meta = {k: v for k, v in point_cloud_recording_3.metadata.items()
             if not k.startswith("centroid_")}
     proc = dataclasses.replace(process_recording(point_cloud_recording_3)[0], metadata=meta)
-    pg = calibrate_recording(proc, method="pose_graph").pose_graph
+    pg = calibrate_recording(proc, method="pose_graph")
     one = refine_multi(proc, pg, n_rounds=1)
     three = refine_multi(proc, pg, n_rounds=3)
     assert one.joint.success and three.joint.success

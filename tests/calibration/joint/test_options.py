@@ -11,7 +11,7 @@ import pytest
 from mmsnap_graph import JointOptions as TopJointOptions
 from mmsnap_graph.calibration import (
     DEFAULT_ROBUST_K,
-    RECORDING_JOINT_OPTIONS,
+    POINT_JOINT_OPTIONS,
     AssociationOptions,
     JointOptions,
 )
@@ -27,8 +27,8 @@ def test_defaults_and_the_kernel_width():
     assert JointOptions(robust=None).kernel_k is None
     assert o.state_prior_sigmas == (1e3, 1e3, 3.5, 3.5)
     assert TopJointOptions is JointOptions
-    assert (RECORDING_JOINT_OPTIONS.motion, RECORDING_JOINT_OPTIONS.sigma_a_mps2,
-            RECORDING_JOINT_OPTIONS.time_offsets) == (True, 3.0, True)
+    assert (POINT_JOINT_OPTIONS.motion, POINT_JOINT_OPTIONS.sigma_a_mps2,
+            POINT_JOINT_OPTIONS.time_offsets) == (True, 3.0, True)
 
 
 def test_values_are_normalised_and_frozen():

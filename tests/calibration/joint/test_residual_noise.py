@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from mmsnap_graph.calibration import calibrate_recording, joint_calibration, residual_noise
+from mmsnap_graph.data.calibration_facts import JointNoise
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.errors import CalibrationError
@@ -22,7 +23,7 @@ from _shared import NETWORK_3
 def test_noise_is_estimated_without_metadata(recording_c_random):
     rec = dataclasses.replace(recording_c_random, metadata={})
     cal = calibrate_recording(rec)
-    assert "sigmas estimated from residuals" in cal.message
+    assert cal.fact(JointNoise).source == "temporal"
     meta = recording_c_random.metadata
     truth = np.array([meta["centroid_range_std_m"], meta["centroid_omega_std_rad"],
                       meta["centroid_doppler_std_mps"]])
@@ -62,7 +63,7 @@ def test_three_nodes_identify_every_sigma():
         for _ in range(3):
             res = joint_calibration(dets, noise=est,
                                     initial_poses={n: scene.poses[n] for n in ("S2", "S3")})
-            assert res.success, res.message
+            assert res.success, res.facts
             est = residual_noise(res, dets, noise=est)
         ratios.append(est.sigmas / TRUE_NOISE.sigmas)
     np.testing.assert_allclose(np.mean(ratios, axis=0), 1.0, atol=0.1)

@@ -29,6 +29,12 @@ from mmsnap_graph.calibration import (
 )
 from mmsnap_graph.calibration import JointOptions
 from mmsnap_graph.calibration.joint import solve as joint_module
+from mmsnap_graph.data.calibration_facts import (
+    CalibrationStatus,
+    PoseNotObservable,
+    RangeOffsetEstimated,
+    SolveBrokeDown,
+)
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.errors import CalibrationError, ValidationError
@@ -66,7 +72,7 @@ def test_small_noise_recovers_the_pose_and_agrees_with_plain_lm():
     rng = np.random.default_rng(0)
     scene = _scene("A", rng, n_frames=80, noise=SMALL_NOISE)
     res = joint_calibration(_detections(scene), noise=SMALL_NOISE)
-    assert res.success, res.message
+    assert res.success, res.facts
     err = pose_tangent_error(res.poses["S2"], scene.poses["S2"])
     sd = np.sqrt(np.diag(res.covariances["S2"]))
     assert np.all(np.abs(err) < 5 * sd)
@@ -96,7 +102,7 @@ def test_joint_beats_the_closed_form_under_paper_noise(config):
         cf = closed_form_calibration(scene.local_points_m["S1"], scene.local_points_m["S2"])
         jt = joint_calibration(_detections(scene), JointOptions(motion=True, sigma_a_mps2=0.5),
                                noise=PAPER_NOISE, frame_period_s=scene.frame_period_s)
-        assert jt.success, jt.message
+        assert jt.success, jt.facts
         cf_err.append(_registration_error(cf.pose, scene.poses["S2"], scene.truth[:, :2]))
         jt_err.append(_registration_error(jt.poses["S2"], scene.poses["S2"], scene.truth[:, :2]))
     rms_cf = np.sqrt(np.mean(np.square(cf_err)))
@@ -172,7 +178,7 @@ def test_three_nodes():
     scene = synthetic_scene(poses, center_m=np.array([1.5, 3.5]), n_frames=200, extent_m=1.0,
                             noise=MODERATE_NOISE, rng=rng)
     res = joint_calibration(_detections(scene), noise=MODERATE_NOISE)
-    assert res.success, res.message
+    assert res.success, res.facts
     for n in ("S2", "S3"):
         e = pose_tangent_error(res.poses[n], poses[n])
         assert e @ np.linalg.solve(res.covariances[n], e) < 16.3  # chi2(3) 0.999
@@ -190,7 +196,8 @@ def test_a_standing_target_is_reported_unobservable():
     res = joint_calibration(_detections(scene), noise=STANDING_NOISE,
                             initial_poses={"S2": scene.poses["S2"] + [0.05, -0.05, 0.02]})
     assert not res.success
-    assert "S2" in res.unobservable and "not observable" in res.message
+    assert "S2" in res.unobservable and res.status is CalibrationStatus.NOT_OBSERVABLE
+    assert [f.node for f in res.facts if isinstance(f, PoseNotObservable)] == ["S2"]
     d = res.unobservable["S2"][0]
     # turning about the target at distance ~3.5 m: mostly dx_b with dphi
     assert abs(d[0]) > 0.9 and abs(d[2]) > 0.1
@@ -240,7 +247,7 @@ def test_huber_kernel_also_flags_ghosts():
     scene = _scene("B", rng, n_frames=200, noise=MODERATE_NOISE, ghost_fraction=0.2)
     jt = joint_calibration(_detections(scene), JointOptions(robust="huber", motion=True,
                                                             sigma_a_mps2=0.5), noise=MODERATE_NOISE, frame_period_s=0.15)
-    assert jt.success, jt.message
+    assert jt.success, jt.facts
     is_ghost = np.concatenate([scene.ghost["S1"], scene.ghost["S2"]])
     got = np.concatenate([jt.outliers["S1"], jt.outliers["S2"]])
     assert np.mean(got[is_ghost]) > 0.9 and np.mean(got[~is_ghost]) < 0.02
@@ -322,13 +329,14 @@ def test_vanishing_sigmas_raise_a_validation_error_or_fail(detections_b, sigma):
 def test_every_detection_an_outlier_gives_success_false(detections_b):
     # a threshold below every residual flags every detection
     result = joint_calibration(detections_b, JointOptions(gate_probability=1e-12), noise=MODERATE_NOISE)
-    assert not result.success
-    assert "outlier" in result.message
+    assert result.status is CalibrationStatus.SOLVE_FAILED
+    (broke,) = [f for f in result.facts if isinstance(f, SolveBrokeDown)]
+    assert "outlier" in broke.reason
 
 
 from scipy.stats import chi2  # noqa: E402
 from mmsnap_graph.calibration import calibrate_recording  # noqa: E402
-from mmsnap_graph.calibration.network import RECORDING_JOINT_OPTIONS  # noqa: E402
+from mmsnap_graph.calibration.network import POINT_JOINT_OPTIONS  # noqa: E402
 from mmsnap_graph.sim import simulate_recording  # noqa: E402
 from mmsnap_graph.sim.options import SimulationOptions  # noqa: E402
 from mmsnap_graph.sim import RealPhysics  # noqa: E402
@@ -354,29 +362,30 @@ from mmsnap_graph.sim import RealPhysics  # noqa: E402
 RO_NET = {"S1": [0.0, 0.0, 0.0], "S2": [5.0, 5.0, np.pi / 2], "S3": [0.0, 7.0, np.pi]}
 DEPTH_ONLY = RealPhysics(static_centroids_per_frame=0, ghost_probability=0, split_probability=0,
                          slow_error_std_m=0.0)
-WITH_OFFSET = dataclasses.replace(RECORDING_JOINT_OPTIONS, range_offset_prior_m=(0.10, 0.05))
-WITHOUT = dataclasses.replace(RECORDING_JOINT_OPTIONS, covariance="model")
+WITH_OFFSET = dataclasses.replace(POINT_JOINT_OPTIONS, range_offset_prior_m=(0.10, 0.05))
+WITHOUT = dataclasses.replace(POINT_JOINT_OPTIONS, covariance="model")
 
 
 def _run(seed, joint):
     rec = simulate_recording(RO_NET, "random", SimulationOptions(physics=DEPTH_ONLY),
                              levels=("centroids",), n_frames=300, seed=seed)
     cal = calibrate_recording(rec, joint=joint)
-    assert cal.success and cal.method == "joint", cal.message
+    assert cal.success and cal.method == "joint", cal.facts
     e = np.concatenate([pose_tangent_error(cal.poses[n], rec.truth.node_poses[n])
-                        for n in cal.joint.joint_order])
-    return cal, e, float(e @ np.linalg.solve(cal.joint.joint_covariance, e))
+                        for n in cal.joint_order])
+    return cal, e, float(e @ np.linalg.solve(cal.joint_covariance, e))
 
 
 def test_range_offset_is_estimated_reported_and_widens_the_poses():
     cal, e, _ = _run(0, WITH_OFFSET)
-    j = cal.joint
-    assert 0.0 < j.range_offset_m < 0.12 and 0.005 < np.sqrt(j.range_offset_variance) < 0.06
-    assert "range offset" in cal.message
+    assert 0.0 < cal.range_offset_m < 0.12 and 0.005 < np.sqrt(cal.range_offset_variance) < 0.06
+    said = cal.fact(RangeOffsetEstimated)
+    assert (said.offset_m, said.variance_m2) == (cal.range_offset_m, cal.range_offset_variance)
+    assert (said.prior_mean_m, said.prior_sigma_m) == (0.10, 0.05)
     for n in ("S2", "S3"):  # the offset's uncertainty is in the poses'
-        assert np.all(np.linalg.eigvalsh(cal.covariances[n] - j.model_covariances[n]) > -1e-12)
+        assert np.all(np.linalg.eigvalsh(cal.covariances[n] - cal.model_covariances[n]) > -1e-12)
     plain, e0, _ = _run(0, WITHOUT)
-    assert np.isnan(plain.joint.range_offset_m)
+    assert np.isnan(plain.range_offset_m) and plain.fact(RangeOffsetEstimated) is None
     # S3 (facing S1): without the offset the baseline comes out short.
     assert e0[4] > 0.05 and abs(e[4]) < 0.04
 
@@ -423,7 +432,7 @@ def test_an_angle_bias_of_a_node_is_calibrated_as_its_heading():
                               omega_rad=z[:, 1] + (c if k == "S2" else 0.0), doppler_mps=z[:, 2])
                 for k, z in meas.items()}
         out = joint_calibration(dets, JointOptions(robust=None), noise=noise, initial_poses=poses)
-        assert out.success, out.message
+        assert out.success, out.facts
         return out
 
     base, biased = solve(0.0), solve(0.1)

@@ -91,12 +91,12 @@ def test_bump_detected_within_20_s_and_recalibrated_within_3_sigma(bump, seed):
     assert 0.0 <= delay <= 20.0
     assert abs(change.time_s - rec.metadata["bump_time_s"]) <= 5.0
     (recal,) = res.recalibrations
-    assert recal.success and recal.node == "S2"
-    err = _tangent_error(recal.pose, _bumped_truth(rec))
-    sd = np.sqrt(np.diag(recal.covariance))
+    assert recal.fit.success and recal.node == "S2"
+    err = _tangent_error(recal.fit.pose, _bumped_truth(rec))
+    sd = np.sqrt(np.diag(recal.fit.covariance))
     assert np.all(np.abs(err) <= 3.0 * sd), (err, sd)
     assert np.all(sd < [0.1, 0.1, np.deg2rad(2.0)])            # informative, not a shrug
-    np.testing.assert_allclose(res.poses["S2"], recal.pose)
+    np.testing.assert_allclose(res.poses["S2"], recal.fit.pose)
 
 
 @pytest.mark.slow
@@ -110,8 +110,8 @@ def test_three_nodes_name_the_node_that_moved(node, bump):
     assert [c.node for c in res.changes] == [node]
     assert res.changes[0].detection_time_s - rec.metadata["bump_time_s"] <= 20.0
     (recal,) = res.recalibrations
-    err = _tangent_error(recal.pose, _bumped_truth(rec))
-    assert np.all(np.abs(err) <= 3.0 * np.sqrt(np.diag(recal.covariance)))
+    err = _tangent_error(recal.fit.pose, _bumped_truth(rec))
+    assert np.all(np.abs(err) <= 3.0 * np.sqrt(np.diag(recal.fit.covariance)))
 
 
 @pytest.mark.slow
@@ -149,7 +149,7 @@ def test_frame_by_frame_updates_equal_the_batch_run():
     np.testing.assert_allclose([u.statistics["S2"] for u in ups],
                                [u.statistics["S2"] for u in ups_batch], rtol=1e-8)
     np.testing.assert_allclose(stream.poses["S2"], batch.poses["S2"], rtol=1e-8)
-    assert batch.recalibrations and batch.recalibrations[0].success
+    assert batch.recalibrations and batch.recalibrations[0].fit.success
 
 
 def test_monitor_validates_its_inputs():
@@ -233,3 +233,33 @@ def test_monitor_cli_names_a_huge_recalibration_span(tmp_path, capsys):
                  "-o", str(path), "--no-progress"]) == 0
     assert main(["monitor", str(path), "--recalibration-s", "1e308"]) == 2
     assert "recalibration_s=1e+308" in capsys.readouterr().err
+
+
+_POSES2 = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi]}
+
+
+@pytest.mark.parametrize("option", ["frame_period_s", "threshold", "recalibration_s",
+                                    "windows_s", "node_covariances"])
+@pytest.mark.parametrize("value", [[0.15], [1.0, 2.0], "0.15", None, True, {}, (0.5,), "x",
+                                   10 ** 400, np.array([0.1, 0.2])])
+def test_odd_option_values_are_validation_errors(option, value):
+    """Before: list- and string-valued options raised plain ValueError or
+    TypeError ("truth value of an array is ambiguous", "'>' not supported")."""
+    if option == "windows_s" and isinstance(value, (list, tuple, np.ndarray)) \
+            and not isinstance(value, str):
+        DecalibrationMonitor(_POSES2, windows_s=value)  # a list of lengths is right here
+        return
+    if option == "node_covariances" and (value is None or (isinstance(value, dict) and not value)):
+        DecalibrationMonitor(_POSES2, node_covariances=value)  # none given: the defaults
+        return
+    with pytest.raises(ValidationError, match=option) as info:
+        DecalibrationMonitor(_POSES2, **{option: value})
+    assert "np.float64" not in str(info.value) and "array(" not in str(info.value)
+
+
+@pytest.mark.parametrize("row", [[3.5, 0.1], [3.5, 0.1, 0.2, 4.0], [[3.5, 0.1, 0.2]], "abc", {}])
+def test_a_short_or_long_row_is_a_validation_error(row):
+    """Before: {'S1': [3.5, 0.1]} raised ValueError "could not broadcast"."""
+    monitor = DecalibrationMonitor(_POSES2)
+    with pytest.raises(ValidationError, match=r"measurements\['S1'\]"):
+        monitor.update({"S1": row, "S2": [4.0, 0.1, 0.2]})

@@ -10,6 +10,7 @@ import h5py
 import numpy as np
 import pytest
 
+from mmsnap_graph.data.calibration_facts import JointNoise, NoiseNotIdentified
 from mmsnap_graph.calibration import calibrate_recording
 from mmsnap_graph.calibration.noise.estimate import (
     estimate_noise,
@@ -246,7 +247,9 @@ def test_calibration_uses_the_data_not_the_metadata(rec2):
     for e in cal.noise.nodes.values():
         assert all(e.identified)
         np.testing.assert_allclose(e.noise.sigmas, TRUE.sigmas, rtol=0.15)
-    assert "NOT identified" not in cal.message
+    said = cal.fact(JointNoise)  # the joint graph's noise came from the data too
+    assert said.source == "temporal" and all(said.identified)
+    assert cal.fact(NoiseNotIdentified) is None
 
 
 def test_noise_for_fusion_per_node_pooled_or_the_papers(tmp_path, rec2):

@@ -86,3 +86,14 @@ def test_rows_of_one_frame_are_summed_and_gaps_tolerated():
     assert autocorrelation_factor(g, frames) < 1.5
     assert autocorrelation_factor(g[:5], np.arange(5)) == 1.0  # too short: no correction
     assert autocorrelation_factor(np.zeros((40, 3)), np.arange(40)) == 1.0
+
+
+def test_times_at_both_ends_of_int64_are_a_long_gap():
+    """Before: the dense time axis's size came from a wrapped np.diff (frames
+    at both ends of int64): ValueError out of `mmsnap calibrate`."""
+    rng = np.random.default_rng(2)
+    s = rng.standard_normal((40, 2))
+    near = np.concatenate([np.arange(20), np.arange(20) + 10 ** 6])
+    big = np.iinfo(np.int64)
+    far = np.concatenate([np.arange(20) + big.min, np.arange(20) + big.max - 19])
+    assert autocorrelation_factor(s, far) == autocorrelation_factor(s, near)

@@ -195,7 +195,7 @@ def test_a_lag_the_data_cannot_show_is_not_reported():
     raw = match_tracks(a, b, frame_period_s=T, options=_lag(1, lag_min_improvement=0.0))
     kept = match_tracks(a, b, frame_period_s=T, options=_lag(1))
     assert raw.lag_frames == 0 and kept.lag_frames == 0
-    assert "not determined by the data" in raw.lag_note and raw.lag_note in raw.message
+    assert raw.lag_evidence.outcome == "not_determined" and raw.lag_evidence.kept_lag_frames == 0
     rm = {c.lag_frames: c.rmse_m for c in kept.candidates}
     by_rmse = min(rm, key=rm.get)
     assert by_rmse != 0 and rm[by_rmse] > 0.95 * rm[0]  # the noise's pick, close to lag 0
@@ -339,7 +339,7 @@ def test_synchronised_radars_get_no_lag():
     a, b = _synchronised_walk(10)
     res = match_tracks(a, b, frame_period_s=0.05)
     assert res.lag_frames == 0
-    assert "lag 5 frames not determined by the data" in res.lag_note
+    assert (res.lag_evidence.lag_frames, res.lag_evidence.outcome) == (5, "not_determined")
 
 
 def test_lag_evidence_keeps_a_lag_the_data_show():
@@ -349,8 +349,7 @@ def test_lag_evidence_keeps_a_lag_the_data_show():
     a, b, _ = _two_target_tracks("C", 2, rng)
     res = match_tracks(a, b, frame_period_s=T, options=_lag(2))
     assert res.lag_frames == 2
-    z = float(res.lag_note.split("z = ")[1].rstrip(")"))
-    assert z > 6, res.lag_note
+    assert res.lag_evidence.outcome == "determined" and res.lag_evidence.z > 6, res.lag_evidence
 
 
 @st.composite
@@ -412,3 +411,28 @@ def test_a_huge_minimum_overlap_is_a_failed_result_not_an_overflow():
     a, b, _ = _two_target_tracks("B", 0, np.random.default_rng(24), n_frames=60)
     res = match_tracks(a, b, frame_period_s=T, options=MatchingOptions(min_common_s=1e308))
     assert not res.success and "shares >=" in res.message
+
+
+def test_exact_tracks_with_zero_covariances_give_the_exact_poses():
+    """Before: noise-free tracks whose covariances are zero had no chi-square
+    (a singular 2 x 2: an infinite distance), so no pose aligned them and the
+    calibration was refused ("no pose aligns 3 frames within the chi-square
+    gate; the best track RMSE is 0 m"). A singular row is gated by the metric
+    gate instead: the exact poses."""
+    from mmsnap_graph.calibration import LocalTracks, pairwise_edges, pose_graph_calibration
+
+    k = np.arange(100)
+    a = np.stack([0.5 + 0.03 * k, 3 + np.sin(k / 8)], axis=1)
+    truth = {"S2": np.array([0.0, 7.0, np.pi]), "S3": np.array([4.0, 1.0, 0.5])}
+    points = {"S1": a}
+    for name, (x, y, phi) in truth.items():
+        rot = np.array([[np.cos(phi), -np.sin(phi)], [np.sin(phi), np.cos(phi)]])
+        points[name] = (a - [x, y]) @ rot
+    tracks = {n: LocalTracks(frame=k, points_m=p, track_id=np.zeros(k.size, int),
+                             covariances=np.zeros((k.size, 2, 2))) for n, p in points.items()}
+    edges, failures = pairwise_edges(tracks, frame_period_s=0.1)
+    assert failures == {} and len(edges) == 3
+    cal = pose_graph_calibration(list(points), edges)
+    assert cal.success
+    for name, pose in truth.items():
+        np.testing.assert_allclose(pose_tangent_error(cal.poses[name], pose), 0, atol=1e-9)

@@ -10,13 +10,14 @@ import pytest
 from _scenes import small_room_image
 from _shared import POSES_BC
 from mmsnap_graph.data.results import Status
-from mmsnap_graph.fusion.options import FusionOptions
+from mmsnap_graph.fusion.config import CoverageCheck
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.recording.coverage import detection_reach_m, uncovered_rows
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.real.ghosts import ghost_centroids
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
+from _fusion import config
 
 POSES = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]])   # S1 faces +y, S2 faces -x
 #: The check needs a third node: S3 far away, facing away from the room (it
@@ -71,25 +72,25 @@ def test_mirror_images_that_another_radar_covers_are_flagged_in_a_recording():
                              levels=("centroids",), n_frames=300, seed=10)
     ghosts = ghost_centroids(rec, "mirror", 0.2, seed=110)
 
-    def far_rows(options):
-        fused = fuse_recording(ghosts, noise=CENTROID_NOISE, robust="gate", progress=False,
-                               options=options)
+    def far_rows(**settings):
+        fused = fuse_recording(ghosts, config(robust="gate", **settings), noise=CENTROID_NOISE, progress=False)
         err = np.hypot(*(fused.state[:, :2] - rec.truth.state[fused.frame, :2]).T)
         return fused, int(np.sum(fused.success & (err > 0.5)))
 
-    fused, far = far_rows(FusionOptions())
-    _, far_off = far_rows(FusionOptions(coverage_check=False))
+    fused, far = far_rows()
+    _, far_off = far_rows(coverage_check=False)
     assert far < far_off / 2, (far, far_off)
     msg = [m for m, s in zip(fused.message, fused.status) if "covers this place" in m]
     assert msg and all(s == Status.MOTION_INCONSISTENT for m, s in zip(fused.message, fused.status)
                        if "covers this place" in m)
 
 
-def _fused_small_room(recording, options=FusionOptions()):
+def _fused_small_room(recording, reach_m=None):
     from mmsnap_graph.data.noise import MeasurementNoise
 
-    return fuse_recording(recording, noise=MeasurementNoise(range_m=0.02, omega_rad=0.01, doppler_mps=0.05), robust="gate",
-                          options=options, progress=False)
+    return fuse_recording(recording, config(robust="gate", coverage_reach_m=reach_m),
+                          noise=MeasurementNoise(range_m=0.02, omega_rad=0.01, doppler_mps=0.05),
+                          progress=False)
 
 
 def test_a_node_covers_places_beyond_where_the_walkers_went():
@@ -105,7 +106,7 @@ def test_a_node_covers_places_beyond_where_the_walkers_went():
     assert all("node S1 covers this place" in m for m in fused.message[at_image])
     assert fused.success[at_walker].all()
     # Told that S1 looks no farther than 5 m, the check leaves the image.
-    near = _fused_small_room(rec, FusionOptions(coverage_reach_m={"S1": 5.0}))
+    near = _fused_small_room(rec, {"S1": 5.0})
     assert near.success[at_image].all()
 
 
@@ -118,8 +119,11 @@ def test_the_reach_is_the_farthest_detection_of_every_level():
 
 
 def test_the_reach_option_is_checked():
-    with pytest.raises(ValidationError, match=r"coverage_reach_m\['S1'\]=-1"):
-        FusionOptions(coverage_reach_m={"S1": -1})
-    with pytest.raises(ValidationError, match="coverage_reach_m must be a mapping"):
-        FusionOptions(coverage_reach_m=[5.0])
-    assert dict(FusionOptions(coverage_reach_m={"S1": 5}).coverage_reach_m) == {"S1": 5.0}
+    with pytest.raises(ValidationError, match=r"reach_m\['S1'\]=-1"):
+        CoverageCheck(reach_m={"S1": -1})
+    with pytest.raises(ValidationError, match="reach_m must be a mapping"):
+        CoverageCheck(reach_m=[5.0])
+    assert dict(CoverageCheck(reach_m={"S1": 5}).reach_m) == {"S1": 5.0}
+    # A reach given wins over the one a driver fills in.
+    filled = CoverageCheck(reach_m={"S1": 5}).with_reach({"S1": 9.0, "S2": 7.0})
+    assert dict(filled.reach_m) == {"S1": 5.0, "S2": 7.0}

@@ -32,6 +32,7 @@ from mmsnap_graph.io import read_fused, write_recording
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
 from mmsnap_graph.sim import SimulationOptions
+from _fusion import config
 
 NETWORK = {"S1": POSES_BC[0], "S2": POSES_BC[1], "S3": POSES_BC[2]}
 #: A fused row further than this from the truth is a ghost target (the clean
@@ -109,11 +110,7 @@ def run_monte_carlo(motion_check: bool | None = None) -> dict:
         rec = recording(seed)
         for p, tally in tallies.items():
             data = with_ghosts(rec, p, seed + 100) if p else rec
-            tally.add(fuse_recording(data,
-                                     noise=CENTROID_NOISE,
-                                     robust="gate",
-                                     progress=False,
-                                     options=FusionOptions(motion_check=motion_check)), rec)
+            tally.add(fuse_recording(data, config(robust="gate", motion_check=motion_check), noise=CENTROID_NOISE, progress=False), rec)
     return tallies
 
 
@@ -151,7 +148,7 @@ def test_clean_recording_is_not_made_worse(monte_carlo):
     tally = Tally()
     for seed in range(10, 16):
         rec = recording(seed)
-        tally.add(fuse_recording(rec, noise=CENTROID_NOISE, progress=False), rec)
+        tally.add(fuse_recording(rec, config(), noise=CENTROID_NOISE, progress=False), rec)
     clean = monte_carlo[0.0]
     assert clean.rmse <= 1.02 * tally.rmse, (clean.rmse, tally.rmse)
     nees, lo, hi = clean.nees_and_band()
@@ -163,7 +160,7 @@ def test_ghost_detections_are_rejected_or_flagged():
     """Every ghost centroid ends in a flagged row or is ``rejected`` in its
     row, but a few (1%: a ghost near the target); a flagged row says why."""
     rec = with_ghosts(recording(3, n_frames=300), 0.2, 7)
-    fused = fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", progress=False)
+    fused = fuse_recording(rec, config(robust="gate"), noise=CENTROID_NOISE, progress=False)
     assert fused.robust == "gate"
     ghosts = used = 0
     for n, name in enumerate(rec.node_names):
@@ -186,7 +183,7 @@ def test_a_frame_no_neighbour_explains_is_flagged_not_fused():
     """A lone frame of two ghosts that agree with each other, between clean
     frames elsewhere: never a confident target."""
     rec = recording(5, n_frames=60)
-    base = fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", progress=False)
+    base = fuse_recording(rec, config(robust="gate"), noise=CENTROID_NOISE, progress=False)
     # Frame 30: every node's centroid moved 3 m away (a consistent ghost
     # target for one frame).
     nodes = {}
@@ -194,17 +191,12 @@ def test_a_frame_no_neighbour_explains_is_flagged_not_fused():
         c = node.centroids
         r = np.where(c.frame == 30, c.range_m + 3.0, c.range_m)
         nodes[name] = dataclasses.replace(node, centroids=dataclasses.replace(c, range_m=r))
-    moved = fuse_recording(dataclasses.replace(rec, nodes=nodes), noise=CENTROID_NOISE,
-                           robust="gate", progress=False)
+    moved = fuse_recording(dataclasses.replace(rec, nodes=nodes), config(robust="gate"), noise=CENTROID_NOISE, progress=False)
     at = moved.frame == 30
     assert at.any() and not moved.success[at].any()
     assert "motion check" in moved.message[at][0]
     np.testing.assert_array_equal(moved.success[~at], base.success[base.frame != 30])
-    plain = fuse_recording(dataclasses.replace(rec, nodes=nodes),
-                           noise=CENTROID_NOISE,
-                           robust="gate",
-                           progress=False,
-                           options=FusionOptions(motion_check=False))
+    plain = fuse_recording(dataclasses.replace(rec, nodes=nodes), config(robust="gate", motion_check=False), noise=CENTROID_NOISE, progress=False)
     # One frame alone cannot tell: without the motion check the frame is at
     # best flagged as split by the association (fusion.recording.split_check).
     assert not any("motion check" in m for m in plain.message[plain.frame == 30])
@@ -212,16 +204,8 @@ def test_a_frame_no_neighbour_explains_is_flagged_not_fused():
 
 def test_batch_and_gtsam_agree_with_the_motion_check():
     rec = with_ghosts(recording(4, n_frames=80), 0.2, 9)
-    fb = fuse_recording(rec,
-                        noise=CENTROID_NOISE,
-                        robust="gate",
-                        progress=False,
-                        options=FusionOptions(solver="vectorized"))
-    fg = fuse_recording(rec,
-                        noise=CENTROID_NOISE,
-                        robust="gate",
-                        progress=False,
-                        options=FusionOptions(solver="gtsam"))
+    fb = fuse_recording(rec, config(robust="gate", solver="vectorized"), noise=CENTROID_NOISE, progress=False)
+    fg = fuse_recording(rec, config(robust="gate", solver="gtsam"), noise=CENTROID_NOISE, progress=False)
     np.testing.assert_array_equal(fb.status, fg.status)
     np.testing.assert_array_equal(fb.rejected, fg.rejected)
     ok = fb.success
@@ -236,10 +220,9 @@ def test_fuse_file_windows_give_fuse_recordings_rows(tmp_path, window):
     rows of the whole recording."""
     rec = with_ghosts(recording(6, n_frames=120), 0.2, 11)
     path = write_recording(tmp_path / "ghosts.h5", rec)
-    ref = fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", progress=False)
+    ref = fuse_recording(rec, config(robust="gate"), noise=CENTROID_NOISE, progress=False)
     out = tmp_path / "out.h5"
-    fuse_file(path, output=out, window_frames=window, progress=False, noise=CENTROID_NOISE,
-              robust="gate")
+    fuse_file(path, config(robust="gate", walls=True), output=out, window_frames=window, progress=False, noise=CENTROID_NOISE)
     got = read_fused(out)
     for k in ("frame", "target", "observed", "success", "status", "rejected"):
         np.testing.assert_array_equal(getattr(got, k), getattr(ref, k), err_msg=k)

@@ -14,6 +14,7 @@ from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.real.ghosts import ghost_centroids
 from mmsnap_graph.sim.simulator import CENTROID_NOISE
+from _fusion import config
 
 
 def _meas(xy, doppler):
@@ -44,10 +45,9 @@ def test_a_split_body_fuses_as_the_whole_one(fraction):
     rec = simulate_recording(net, "random", SimulationOptions(physics=None, known_poses=True),
                              levels=("centroids",), n_frames=150, seed=4)
     split = ghost_centroids(rec, "split", fraction, seed=5)
-    clean = fuse_recording(rec, noise=CENTROID_NOISE, robust="gate", progress=False)
-    merged = fuse_recording(split, noise=CENTROID_NOISE, robust="gate", progress=False)
-    raw = fuse_recording(split, noise=CENTROID_NOISE, robust="gate", progress=False,
-                         options=FusionOptions(body_merge=False))
+    clean = fuse_recording(rec, config(robust="gate"), noise=CENTROID_NOISE, progress=False)
+    merged = fuse_recording(split, config(robust="gate"), noise=CENTROID_NOISE, progress=False)
+    raw = fuse_recording(split, config(robust="gate", body_merge=False), noise=CENTROID_NOISE, progress=False)
     np.testing.assert_array_equal(merged.frame, clean.frame)
     np.testing.assert_allclose(merged.state[merged.success], clean.state[clean.success],
                                atol=1e-6)
@@ -56,16 +56,15 @@ def test_a_split_body_fuses_as_the_whole_one(fraction):
     assert np.sqrt(np.mean(np.sum(err ** 2, 1))) > 1.2 * np.sqrt(np.mean(np.sum(err0 ** 2, 1)))
 
 
-def test_merge_body_m_and_body_merge_are_validated():
+def test_merge_body_m_is_validated():
     from mmsnap_graph.errors import ValidationError
+    from mmsnap_graph.fusion.config import AssociationOptions
 
-    for bad in (0, -0.5, float("nan"), True, "0.5", None):
+    for bad in (0, -0.5, float("nan"), True, "0.5"):
         with pytest.raises(ValidationError, match="merge_body_m"):
-            FusionOptions(merge_body_m=bad)
-    for bad in (1, "yes"):
-        with pytest.raises(ValidationError, match="body_merge"):
-            FusionOptions(body_merge=bad)
-    assert dataclasses.replace(FusionOptions(), merge_body_m=0.4).merge_body_m == 0.4
+            AssociationOptions(merge_body_m=bad)
+    assert AssociationOptions(merge_body_m=0.4).merge_body_m == 0.4
+    assert AssociationOptions(merge_body_m=None).merge_body_m is None
 
 
 def test_plain_fusion_does_not_merge_unless_told():
@@ -74,8 +73,7 @@ def test_plain_fusion_does_not_merge_unless_told():
     rec = simulate_recording(net, "random", SimulationOptions(physics=None, known_poses=True),
                              levels=("centroids",), n_frames=60, seed=4)
     split = ghost_centroids(rec, "split", 0.3, seed=5)
-    plain = fuse_recording(split, noise=CENTROID_NOISE, progress=False)
-    told = fuse_recording(split, noise=CENTROID_NOISE, progress=False,
-                          options=FusionOptions(body_merge=True))
-    assert len(told) == len(fuse_recording(rec, noise=CENTROID_NOISE, progress=False))
+    plain = fuse_recording(split, config(), noise=CENTROID_NOISE, progress=False)
+    told = fuse_recording(split, config(body_merge=True), noise=CENTROID_NOISE, progress=False)
+    assert len(told) == len(fuse_recording(rec, config(), noise=CENTROID_NOISE, progress=False))
     assert len(plain) > len(told)

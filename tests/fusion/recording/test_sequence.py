@@ -20,6 +20,8 @@ from mmsnap_graph.sim import SimulationOptions, network_poses, simulate_recordin
 from mmsnap_graph.sim.clocks import scene_recording, timed_scene
 
 from _pose_aware import GTSAM_BATCH_TOLERANCE, POSE_COV
+from mmsnap_graph.fusion.config import AssociationOptions, FusionConfig
+from _fusion import config
 
 
 def _rmse(rec, fused):
@@ -35,26 +37,23 @@ def test_the_offsets_lower_the_fused_error_and_a_zero_offset_changes_nothing():
     scene = timed_scene(poses, time_offsets_s={"S1": 0.0, "S2": tau}, n_frames=300,
                         kind="walk", rng=np.random.default_rng(4))
     rec = scene_recording(scene)
-    plain = fuse_recording(rec, calibration=NetworkCalibration(node_poses=poses))
-    aligned = fuse_recording(rec, calibration=NetworkCalibration(
+    plain = fuse_recording(rec, config(), calibration=NetworkCalibration(node_poses=poses))
+    aligned = fuse_recording(rec, config(), calibration=NetworkCalibration(
         node_poses=poses, time_offset_s={"S2": tau}))
     assert _rmse(rec, aligned) < 0.8 * _rmse(rec, plain)
-    zero = fuse_recording(rec, calibration=NetworkCalibration(
+    zero = fuse_recording(rec, config(), calibration=NetworkCalibration(
         node_poses=poses, time_offset_s={"S2": 0.0}))
     np.testing.assert_array_equal(zero.state, plain.state)
     with pytest.raises(ValidationError, match="S9"):
-        fuse_recording(rec, calibration=NetworkCalibration(
+        fuse_recording(rec, config(), calibration=NetworkCalibration(
             node_poses=poses, time_offset_s={"S9": 0.1}))
 
 
 def test_fuse_recording_passes_pose_covariances_by_name(recording_bc_known_poses):
     by_name = {"S2": POSE_COV[1], "S3": POSE_COV[2]}  # S1 left out: exact
-    plain = fuse_recording(recording_bc_known_poses)
-    fb = fuse_recording(recording_bc_known_poses,
-                        calibration=NetworkCalibration(pose_covariances=by_name))
-    fg = fuse_recording(recording_bc_known_poses,
-                        calibration=NetworkCalibration(pose_covariances=by_name),
-                        options=FusionOptions(solver="gtsam"))
+    plain = fuse_recording(recording_bc_known_poses, config())
+    fb = fuse_recording(recording_bc_known_poses, config(), calibration=NetworkCalibration(pose_covariances=by_name))
+    fg = fuse_recording(recording_bc_known_poses, config(solver="gtsam"), calibration=NetworkCalibration(pose_covariances=by_name))
     ok = plain.success
     assert ok.mean() > 0.9
     np.testing.assert_array_equal(fb.state[ok], plain.state[ok])
@@ -65,8 +64,7 @@ def test_fuse_recording_passes_pose_covariances_by_name(recording_bc_known_poses
     assert gap.max() < GTSAM_BATCH_TOLERANCE
     with pytest.raises(ValidationError,
                        match=r"pose_covariances\['S2'\] must be positive definite"):
-        fuse_recording(recording_bc_known_poses,
-                       calibration=NetworkCalibration(pose_covariances={"S2": -np.eye(3)}))
+        fuse_recording(recording_bc_known_poses, config(), calibration=NetworkCalibration(pose_covariances={"S2": -np.eye(3)}))
     with pytest.raises(ValidationError, match="must be a mapping"):
         NetworkCalibration(pose_covariances=POSE_COV)
 
@@ -87,10 +85,8 @@ def test_information_is_jtwj_at_the_estimate(which, solver, recording_b_known_po
     fused = request.getfixturevalue(which)
     if solver == "gtsam":
         kw = {} if fused.mode == "map" else {"mode": "ml", "prior": None}
-        fused = fuse_recording(recording_b_known_poses,
-                               progress=False,
-                               **kw,
-                               options=FusionOptions(solver="gtsam"))
+        fused = fuse_recording(recording_b_known_poses, config(solver="gtsam", **kw),
+                               progress=False)
     rows = np.flatnonzero(fused.success)
     assert rows.size > 50
     for i in rows:
@@ -130,11 +126,11 @@ def test_fuse_recording_carries_the_recording_clock():
     rec = simulate_recording("B", options=SimulationOptions(physics=None, known_poses=True,
                                                             frame_period_s=0.05),
                              levels=("centroids",), n_frames=12)
-    fused = fuse_recording(rec)
+    fused = fuse_recording(rec, config())
     np.testing.assert_allclose(fused.time_s, fused.frame * 0.05)
     assert fused.frame_period_s == 0.05 and fused.time_origin_s is None
     stamped = dataclasses.replace(rec, metadata={**rec.metadata, "time_origin_s": 1.7e9})
-    assert fuse_recording(stamped).time_origin_s == 1.7e9
+    assert fuse_recording(stamped, config()).time_origin_s == 1.7e9
 
 
 @pytest.fixture
@@ -147,8 +143,8 @@ def recordings(two_target_recordings):
 @pytest.mark.parametrize("mode", ["map", "ml"])
 def test_batch_and_gtsam_agree_on_every_frame(recordings, net, mode):
     rec = recordings[net]
-    fb = fuse_recording(rec, mode=mode, options=FusionOptions(solver="vectorized"))
-    fg = fuse_recording(rec, mode=mode, options=FusionOptions(solver="gtsam"))
+    fb = fuse_recording(rec, config(mode=mode, solver="vectorized"))
+    fg = fuse_recording(rec, config(mode=mode, solver="gtsam"))
     np.testing.assert_array_equal(fb.frame, fg.frame)
     np.testing.assert_array_equal(fb.success, fg.success)
     # Both solvers report the same Status codes (carried by the results).
@@ -167,8 +163,8 @@ def test_configuration_c_batch_at_least_as_converged_as_gtsam(recordings):
     """Near the line through both radars GTSAM's LM stops in a flat valley a
     few 1e-6 short of the minimum; the batch solver's cost is never higher."""
     rec = recordings["C"]
-    fb = fuse_recording(rec, options=FusionOptions(solver="vectorized"))
-    fg = fuse_recording(rec, options=FusionOptions(solver="gtsam"))
+    fb = fuse_recording(rec, config(solver="vectorized"))
+    fg = fuse_recording(rec, config(solver="gtsam"))
     np.testing.assert_array_equal(fb.success, fg.success)
     ok = fb.success
     assert np.all(fb.final_cost[ok] <= fg.final_cost[ok] + 1e-12 * np.maximum(1, fg.final_cost[ok]))
@@ -179,7 +175,7 @@ def test_configuration_c_batch_at_least_as_converged_as_gtsam(recordings):
 
 def test_targets_are_recovered_with_their_labels(recordings):
     rec = recordings["B"]
-    fused = fuse_recording(rec)
+    fused = fuse_recording(rec, config())
     assert set(np.unique(fused.label)) <= {-1, 0, 1}
     assert (fused.label >= 0).mean() > 0.9
     for label in (0, 1):
@@ -193,7 +189,7 @@ def test_targets_are_recovered_with_their_labels(recordings):
 
 def test_grid_covariance_matches_fuse_frame(recordings):
     rec = recordings["B"]
-    fused = fuse_recording(rec, options=FusionOptions(covariance="grid", grid_points_per_axis=7))
+    fused = fuse_recording(rec, config(covariance="grid", grid_points_per_axis=7))
     rows = np.flatnonzero(fused.success)[:4]
     obs = fused.observed
     for i in rows:
@@ -210,26 +206,37 @@ def test_grid_covariance_matches_fuse_frame(recordings):
 
 
 @pytest.mark.parametrize(
-    "kwargs, match",
+    "build, match",
     [
-        (dict(mode="bayes"), "mode must be 'map' or 'ml'"),
-        (dict(options=dict(covariance="exact")), "covariance must be 'laplace', 'grid', 'both'"),
-        (dict(options=dict(covariance="both")), "options.covariance must be 'laplace' or 'grid'"),
-        (dict(options=dict(solver="scipy")), "solver must be 'gtsam' or 'vectorized' or 'scalar'"),
-        (dict(options=dict(solver="batch")), "'batch' is now called 'vectorized'"),
-        (dict(options=dict(solver="scalar")), "options.solver must be 'vectorized' or 'gtsam'"),
-        (dict(options=dict(source="cube")), "source must be 'centroids', 'point_cloud'"),
-        (dict(mode="ml", prior=GaussianPrior(mean=[0, 0, 0, 0])), "mode='ml' takes no prior"),
-        (dict(options=dict(block_rows=0)), "block_rows=0 must be an integer >= 1"),
-        (dict(options=dict(source="point_cloud")), "no node of the recording has point_cloud"),
-        (dict(options="laplace"), "options must be a FusionOptions, got str"),
+        (lambda: FusionOptions(covariance="exact"), "covariance must be 'laplace', 'grid', 'both'"),
+        (lambda: FusionConfig(solve=FusionOptions(covariance="both")),
+         "solve.covariance must be 'laplace' or 'grid'"),
+        (lambda: FusionOptions(solver="scipy"), "solver must be 'gtsam' or 'vectorized' or 'scalar'"),
+        (lambda: FusionOptions(solver="batch"), "'batch' is now called 'vectorized'"),
+        (lambda: AssociationOptions(source="cube"), "source must be 'centroids' or 'point_cloud'"),
+        (lambda: FusionOptions(block_rows=0), "block_rows=0 must be an integer >= 1"),
+        (lambda: FusionConfig(prior="paper"), "prior must be a GaussianPrior or None"),
+        (lambda: FusionConfig(solve="laplace"), "solve must be a FusionOptions, got str"),
     ],
 )
-def test_fuse_recording_invalid_arguments(recordings, kwargs, match):
+def test_fusion_config_invalid_arguments(build, match):
     with pytest.raises(ValidationError, match=match):
-        if isinstance(kwargs.get("options"), dict):
-            kwargs = dict(kwargs, options=FusionOptions(**kwargs["options"]))
-        fuse_recording(recordings["A"], **kwargs)
+        build()
+
+
+@pytest.mark.parametrize(
+    "config_, match",
+    [
+        (FusionConfig(solve=FusionOptions(solver="scalar")),
+         "config.solve.solver must be 'vectorized' or 'gtsam'"),
+        (FusionConfig(association=AssociationOptions(source="point_cloud")),
+         "no node of the recording has point_cloud"),
+        ("laplace", "config must be a FusionConfig, got str"),
+    ],
+)
+def test_fuse_recording_invalid_arguments(recordings, config_, match):
+    with pytest.raises(ValidationError, match=match):
+        fuse_recording(recordings["A"], config_)
 
 
 def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
@@ -270,9 +277,9 @@ def test_vectorized_grouping_equals_frame_by_frame_association(recordings):
 def test_fuse_recording_takes_the_calibration_as_one_object(recording_bc_known_poses):
     rec = recording_bc_known_poses
     with pytest.raises(ValidationError, match="calibration must be a NetworkCalibration, got dict"):
-        fuse_recording(rec, calibration={"node_poses": rec.truth.node_poses})
+        fuse_recording(rec, config(), calibration={"node_poses": rec.truth.node_poses})
     with pytest.raises(TypeError, match="node_poses"):
-        fuse_recording(rec, node_poses=rec.truth.node_poses)
+        fuse_recording(rec, config(node_poses=rec.truth.node_poses))
     moved = {n: np.asarray(p) + [0.2, 0.0, 0.0] for n, p in rec.truth.node_poses.items()}
-    fused = fuse_recording(rec, calibration=NetworkCalibration(node_poses=moved))
+    fused = fuse_recording(rec, config(), calibration=NetworkCalibration(node_poses=moved))
     np.testing.assert_array_equal(fused.node_poses, np.stack([moved[n] for n in rec.node_names]))

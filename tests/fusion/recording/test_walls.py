@@ -13,6 +13,7 @@ from mmsnap_graph.fusion.recording.walls import (WALL_MARGIN_M, WALL_MIN_FRAMES,
                                                   beyond_learned_walls, learn_walls)
 
 from _fused_rows import fused_rows
+from _fusion import config
 
 WALL_Y = 3.6            # the far wall, seen by S1 at the origin looking along +y
 N_FRAMES = 40
@@ -229,7 +230,7 @@ def _real_model_runs(n_targets: int):
                              levels=("centroids",), n_frames=600, seed=0)
     with np.errstate(invalid="ignore"):
         noise = estimate_noise(rec).per_node
-    fused = fuse_recording(rec, noise=noise, robust="gate", progress=False)
+    fused = fuse_recording(rec, config(robust="gate"), noise=noise, progress=False)
     return rec.truth, {w: screen_room(fused, walls=w)[0] for w in (False, True)}
 
 

@@ -21,6 +21,7 @@ from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.tracking.central import (CentralConfig, CentralTracker, measurement_information,
                                            spd_inverse_4x4)
 from mmsnap_graph.sim import SimulationOptions
+from _fusion import stream_config
 
 SQUARE = np.array([[0.0, 0.0, 0.0], [0.0, 7.0, np.pi], [-3.5, 3.5, -np.pi / 2], [3.5, 3.5, np.pi / 2]])
 NETWORK = {"S1": SQUARE[0], "S2": SQUARE[1], "S3": SQUARE[2], "S4": SQUARE[3]}
@@ -81,7 +82,7 @@ def recording():
 
 @pytest.mark.parametrize("prior", [GaussianPrior(), None], ids=["MAP", "ML"])
 def test_numpy_stream_equals_the_gtsam_stream(recording, prior):
-    streams = [FrameStream(recording.node_names, SQUARE, solver=s, prior=prior)
+    streams = [FrameStream(recording.node_names, SQUARE, config=stream_config(solver=s, prior=prior))
                for s in ("scalar", "gtsam")]
     n_ok = 0
     for _, t, d in recording_frames(recording):
@@ -151,7 +152,7 @@ def test_central_tracker_equals_the_numpy_information_filter():
     prior, cfg = GaussianPrior(), CentralConfig(gate_probability=1.0 - 1e-12)
     tracker = CentralTracker(cfg, prior_mean=prior.mean, prior_sigmas=prior.sigmas)
     ref = _ReferenceTracker(cfg, prior)
-    stream = FrameStream(list(NETWORK), SQUARE, solver="scalar")
+    stream = FrameStream(list(NETWORK), SQUARE, config=stream_config(solver="scalar"))
     truth = np.array([-1.5, 2.0, 0.4, 0.3])
     clipped = 0
     for k in range(50):

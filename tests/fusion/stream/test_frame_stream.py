@@ -27,6 +27,7 @@ from mmsnap_graph.tracking.central import track_fused
 from _fuzz import FUZZ_40, assert_pd
 from _pose_aware import POSE_COV, pose_frames
 from _shared import POSES_BC
+from _fusion import config, stream_config
 
 #: Four nodes around a 7 m square, each facing the centre.
 NETWORK = {"S1": [0.0, 0.0, 0.0], "S2": [0.0, 7.0, np.pi],
@@ -59,14 +60,16 @@ def _poses(rec):
 
 
 def _stream_all(rec, solver, **kwargs):
-    stream = FrameStream(rec.node_names, _poses(rec), solver=solver, **kwargs)
+    settings = {k: kwargs.pop(k) for k in ("prior", "gate_probability") if k in kwargs}
+    stream = FrameStream(rec.node_names, _poses(rec),
+                         config=stream_config(solver=solver, **settings), **kwargs)
     frames = recording_frames(rec, fill_frames=stream.tracker_config.max_misses)
     return stream, [(f, stream.push(t, d)) for f, t, d in frames]
 
 
 @pytest.mark.parametrize("solver", ["gtsam", "vectorized"])
 def test_stream_gives_the_fused_states_and_tracks_of_the_batch_path(recording, solver):
-    fused = fuse_recording(recording, progress=False, options=FusionOptions(solver=solver))
+    fused = fuse_recording(recording, config(solver=solver), progress=False)
     tracks = track_fused(fused)
     _, updates = _stream_all(recording, solver)
     assert all(u.ok for _, u in updates)
@@ -172,9 +175,9 @@ def test_stream_validates_its_settings():
     with pytest.raises(ValidationError, match="node_names"):
         FrameStream(["S1", "S1"], poses)
     with pytest.raises(ValidationError, match="solver"):
-        FrameStream(["S1", "S2"], poses, solver="scipy")
+        FrameStream(["S1", "S2"], poses, config=stream_config(solver="scipy"))
     with pytest.raises(ValidationError, match="gate_probability"):
-        FrameStream(["S1", "S2"], poses, gate_probability=1.5)
+        FrameStream(["S1", "S2"], poses, config=stream_config(gate_probability=1.5))
     with pytest.raises(ValidationError, match="noise"):
         FrameStream(["S1", "S2"], poses, noise="paper")
     with pytest.raises(ValidationError, match="tracker"):
@@ -185,7 +188,7 @@ def test_ml_stream_flags_single_node_groups_like_the_batch_path():
     rec = simulate_recording("C", "random",
                              SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.3),
                              levels=("centroids",), n_frames=60, seed=4)
-    fused = fuse_recording(rec, mode="ml", progress=False, options=FusionOptions(solver="gtsam"))
+    fused = fuse_recording(rec, config(mode="ml", solver="gtsam"), progress=False)
     _, updates = _stream_all(rec, "gtsam", prior=None)
     status = np.concatenate([u.status for _, u in updates])
     np.testing.assert_array_equal(status, fused.status)
@@ -199,7 +202,7 @@ def test_state_stays_bounded_over_10000_frames():
     rec = simulate_recording("C", "random", SimulationOptions(physics=None, known_poses=True),
                              levels=("centroids",), n_frames=300, seed=5)
     frames = [d for _, _, d in recording_frames(rec)]
-    stream = FrameStream(rec.node_names, _poses(rec))
+    stream = FrameStream(rec.node_names, _poses(rec), config=stream_config())
     n_tracks, ids = [], set()
     tracemalloc.start()
     try:
@@ -280,8 +283,7 @@ def test_replay_usage_errors(replay_cli, small_file, capsys):
 
 
 def test_frame_stream_passes_pose_covariances(recording_bc_known_poses):
-    stream = FrameStream(recording_bc_known_poses.node_names, POSES_BC, solver="vectorized",
-                         pose_covariances={"S2": POSE_COV[1], "S3": POSE_COV[2]})
+    stream = FrameStream(recording_bc_known_poses.node_names, POSES_BC, config=stream_config(solver="vectorized"), pose_covariances={"S2": POSE_COV[1], "S3": POSE_COV[2]})
     _, z = pose_frames(np.random.default_rng(10), 1)
     update = stream.push(0.1, [z[0, n][None] for n in range(3)])
     ref = fuse_batch(POSES_BC, z, pose_covariances=POSE_COV)
@@ -337,7 +339,8 @@ def test_frame_stream_never_raises_and_ok_groups_are_sound(run):
     noise = None if sigma is None else MeasurementNoise(range_m=sigma, omega_rad=sigma,
                                                         doppler_mps=sigma)
     try:
-        stream = FrameStream(NAMES[:n_nodes], POSES[:n_nodes], solver=solver,
+        stream = FrameStream(NAMES[:n_nodes], POSES[:n_nodes],
+                             config=stream_config(solver=solver),
                              **({} if noise is None else {"noise": noise}))
     except MmsnapError:
         return
@@ -368,7 +371,7 @@ def test_live_tracks_keep_a_positive_definite_covariance_after_a_long_gap(gap_s)
 
 @pytest.mark.parametrize("bad_time", ["1e308", "ms"])
 def test_a_far_future_stamp_rejects_its_frame_only(recording, bad_time):
-    stream = FrameStream(recording.node_names, _poses(recording), solver="vectorized")
+    stream = FrameStream(recording.node_names, _poses(recording), config=stream_config(solver="vectorized"))
     frames = list(recording_frames(recording))[:40]
     updates = []
     for i, (_, t, d) in enumerate(frames):
@@ -414,7 +417,7 @@ def test_a_clock_restart_does_not_lock_the_stream(recording, restart_at):
     # CLOCK_RESTART_FRAMES rejected frames whose stamps advance, the stream
     # starts over.
     from mmsnap_graph.fusion.stream.frame_stream import CLOCK_RESTART_FRAMES
-    stream = FrameStream(recording.node_names, _poses(recording), solver="vectorized")
+    stream = FrameStream(recording.node_names, _poses(recording), config=stream_config(solver="vectorized"))
     frames = list(recording_frames(recording))[:60]
     for _, t, d in frames[:30]:
         assert stream.push(t + 100.0, d).ok
@@ -429,7 +432,7 @@ def test_a_clock_restart_does_not_lock_the_stream(recording, restart_at):
 
 
 def test_scattered_bad_stamps_do_not_restart_the_clock(recording):
-    stream = FrameStream(recording.node_names, _poses(recording), solver="vectorized")
+    stream = FrameStream(recording.node_names, _poses(recording), config=stream_config(solver="vectorized"))
     frames = list(recording_frames(recording))[:40]
     for i, (_, t, d) in enumerate(frames):
         bad = i in (10, 20, 30)  # one stale stamp at a time, good frames between

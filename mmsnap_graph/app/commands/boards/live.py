@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..arguments import add_fusion_arguments, fusion_config
 from ..file_rules import add_overwrite
 from .board_args import (add_board_options, board_specs, mountings, pump, report_lines,
                          session_for)
@@ -33,9 +34,8 @@ def register(subparsers) -> None:
                    help="write the JSON lines to this file (default: standard output)")
     p.add_argument("--record", default=None, metavar="REC.h5",
                    help="also write the boards' frames and the centroids fused to a recording")
-    p.add_argument("--mode", choices=["map", "ml"], default="map",
-                   help="MAP with the paper's prior, or maximum likelihood (default %(default)s)")
     add_board_options(p)
+    add_fusion_arguments(p, solvers=("scalar", "gtsam", "vectorized"), default_solver="scalar")
     add_overwrite(p)
     p.set_defaults(func=run)
 
@@ -68,17 +68,16 @@ def run(args: argparse.Namespace) -> int:
 
     from mmsnap_graph.app.live.driver import LiveFusion
     from mmsnap_graph.app.live.sinks import CentroidLog, JsonLinesSink, LatencyLog
-    from mmsnap_graph.data.noise import GaussianPrior
     from mmsnap_graph.fusion.stream.frame_stream import FrameStream
     from mmsnap_graph.io import write_recording
     from mmsnap_graph.io.ti.serial.session import FrameCollector
+    config = fusion_config(args)
     specs = board_specs(args)
     names = [s.name for s in specs]
     poses, noise = _calibration(args.calibration, names)
     session = session_for(args, specs)
     mounts = mountings(args, specs, session.timing)
-    stream = FrameStream(names, poses, noise=noise,
-                         prior=GaussianPrior() if args.mode == "map" else None)
+    stream = FrameStream(names, poses, config=config, noise=noise)
     out = sys.stdout if args.output is None else open(args.output, "w", encoding="utf-8")
     json_sink, centroids, latency = JsonLinesSink(out), CentroidLog(), LatencyLog()
     collector = FrameCollector(names, session.frame_period_s)

@@ -1,0 +1,173 @@
+"""The pipeline's solve and checks one frame at a time, for
+:class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream`
+(:mod:`mmsnap_graph.fusion.recording.pipeline`, docs/STREAMING.md "One pipeline").
+
+:class:`StreamPipeline` solves each frame's groups once
+(:func:`~mmsnap_graph.fusion.recording.pipeline.solve_groups`) and keeps the
+solved rows of the last frames. A frame is decided ``delay_frames`` frames
+after it arrived: :func:`~mmsnap_graph.fusion.recording.pipeline.check_rows`
+runs on the rows held (the frame, the :attr:`~mmsnap_graph.fusion.config.FusionConfig.context_frames`
+before it and the ``delay_frames`` after it) and the frame's rows are taken,
+then :func:`~mmsnap_graph.fusion.recording.pipeline.screen_rows` with the walls
+learned from the decided rows of the last
+:attr:`~mmsnap_graph.fusion.config.LearnedWalls.look_back_frames` frames.
+
+With ``delay_frames >= context_frames`` a frame's rows are those of the
+in-memory driver (the checks see every frame they look at), except where the
+walls learned so far differ from those of the whole recording. With less
+delay (0: causal, every decision from past frames only) a check decides
+without the frames it would look at after the row.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ...data.results import FusedSequence
+from ..config import DuplicateCheck, FusionConfig, LearnedWalls, RoomCheck
+from ..recording.pipeline import (FusionNetwork, check_rows, fused_sequence, screen_rows,
+                                  solve_groups)
+from ..recording.room import learn_room_walls
+from ..recording.rows import FusedRows
+
+__all__ = ["StreamPipeline", "SolvedFrame"]
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class SolvedFrame:
+    """One frame's groups and their solve: ``frame`` (its number), ``members``
+    (G, N) each node's row in the frame (-1: none), ``z`` (G, N, 3), ``rows``."""
+
+    frame: int
+    members: NDArray
+    z: NDArray
+    rows: FusedRows
+
+
+def _concat_rows(parts: list[FusedRows], n_nodes: int) -> FusedRows:
+    out = FusedRows(sum(len(p) for p in parts), n_nodes)
+    for name in FusedRows.__slots__:
+        setattr(out, name, np.concatenate([getattr(p, name) for p in parts]))
+    return out
+
+
+#: The per-row fields of a FusedSequence.
+_ROW_FIELDS = ("frame", "target", "label", "detection_index", "observed", "state", "covariance",
+               "laplace_covariance", "success", "status", "message", "iterations", "final_cost",
+               "degeneracy", "rejected", "time_s", "information", "information_vector")
+
+
+def _concat_sequences(parts: list[FusedSequence]) -> FusedSequence:
+    return dataclasses.replace(parts[0], **{
+        k: np.concatenate([getattr(p, k) for p in parts]) for k in _ROW_FIELDS
+        if getattr(parts[0], k) is not None})
+
+
+class StreamPipeline:
+    """Solve each frame when it arrives and decide it ``delay_frames`` later
+    (module docstring). ``net``: the network; ``config``: the
+    :class:`FusionConfig` (its ``covariance`` must be ``"laplace"``)."""
+
+    def __init__(self, net: FusionNetwork, config: FusionConfig, delay_frames: int,
+                 frame_solver=None) -> None:
+        self.net, self.config, self.delay_frames = net, config, int(delay_frames)
+        self._frame_solver = frame_solver
+        self._held: deque[SolvedFrame] = deque()
+        walls = config.check(LearnedWalls)
+        self._walls_cfg = walls
+        # No check in the reference frame: a frame's rows need no FusedSequence.
+        self._screens = any(config.check(k) is not None
+                            for k in (RoomCheck, LearnedWalls, DuplicateCheck))
+        # The coverage check's reach of each node: its farthest detection so far.
+        self.reach_m = np.zeros(len(net.node_names))
+        self._history: deque[FusedSequence] = deque()
+        self._walls: list = []
+        self._since_learned = 0
+
+    def see(self, per_node) -> None:
+        """A frame's detections (N arrays (K_n, 3)), for each node's reach."""
+        for i, d in enumerate(per_node):
+            if len(d):
+                far = float(np.max(d[:, 0]))
+                if far > self.reach_m[i]:
+                    self.reach_m[i] = far
+
+    def solve(self, frame: int, members: NDArray, z: NDArray) -> SolvedFrame:
+        """Solve one frame's groups and hold them for the checks."""
+        solved = SolvedFrame(frame=int(frame), members=members, z=z,
+                             rows=solve_groups(z, members >= 0, self.net, self.config,
+                                               frame_solver=self._frame_solver))
+        if members.shape[0]:
+            self._held.append(solved)
+        return solved
+
+    def decide(self, frame: int) -> FusedSequence | FusedRows:
+        """The rows of ``frame`` after every check, from the frames held: a
+        :class:`FusedSequence`, or its :class:`FusedRows` alone when no check
+        in the reference frame runs (the same state, covariance, status,
+        degeneracy and rejected nodes)."""
+        ctx = self.config.context_frames
+        if ctx == 0 and not self._screens:
+            return self._decide_alone(frame)
+        while self._held and self._held[0].frame < frame - ctx:
+            self._held.popleft()
+        held = [h for h in self._held if h.frame <= frame + self.delay_frames]
+        mine = [i for i, h in enumerate(held) if h.frame == frame]
+        n_nodes = len(self.net.node_names)
+        if not mine:
+            return self._sequence(frame, np.zeros((0, n_nodes), np.int64),
+                                  FusedRows(0, n_nodes), np.zeros((0, n_nodes, 3)))
+        sizes = [h.members.shape[0] for h in held]
+        rows = _concat_rows([h.rows for h in held], n_nodes)
+        frames = np.repeat([h.frame for h in held], sizes)
+        members = np.concatenate([h.members for h in held])
+        z = np.concatenate([h.z for h in held])
+        check_rows(rows, frames, members, z, self.net, self.config, reach_m=self.reach_m,
+                   decide=np.array([frame]))
+        lo = int(np.sum(sizes[:mine[0]]))
+        sl = slice(lo, lo + sizes[mine[0]])
+        own = FusedRows(sizes[mine[0]], n_nodes)
+        for name in FusedRows.__slots__:
+            setattr(own, name, getattr(rows, name)[sl])
+        return self._sequence(frame, members[sl], own, z[sl])
+
+    def _decide_alone(self, frame: int) -> FusedRows:
+        """The rows of ``frame`` when every check is of the frame alone."""
+        while self._held and self._held[0].frame < frame:
+            self._held.popleft()
+        if not self._held or self._held[0].frame != frame:
+            return FusedRows(0, len(self.net.node_names))
+        h = self._held.popleft()
+        check_rows(h.rows, np.full(h.members.shape[0], frame, np.int64), h.members, h.z,
+                   self.net, self.config, reach_m=self.reach_m)
+        return h.rows
+
+    def _sequence(self, frame, members, rows: FusedRows, z) -> FusedSequence:
+        g = members.shape[0]
+        seq = fused_sequence(np.full(g, frame, np.int64), np.arange(g, dtype=np.int64),
+                             np.full(g, -1, np.int64), members, rows, rows.covariance.copy(),
+                             self.net, self.config)
+        self._learn(seq)
+        return screen_rows(seq, self.config, walls=self._walls)[0]
+
+    def _learn(self, seq: FusedSequence) -> None:
+        """Keep the decided rows of the walls' look-back; learn them again
+        every ``relearn_frames`` decided frames."""
+        cfg = self._walls_cfg
+        if cfg is None:
+            return
+        if len(seq):
+            self._history.append(seq)
+        last = int(seq.frame[0]) if len(seq) else None
+        while last is not None and self._history and \
+                int(self._history[0].frame[0]) <= last - cfg.look_back_frames:
+            self._history.popleft()
+        self._since_learned += 1
+        if self._since_learned >= cfg.relearn_frames and self._history:
+            self._since_learned = 0
+            self._walls = learn_room_walls(_concat_sequences(list(self._history)))
