@@ -6,6 +6,7 @@ offending value.
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 from typing import Any, Sequence
@@ -24,6 +25,7 @@ __all__ = [
     "check_shape",
     "chi2_gate",
     "frame_steps",
+    "outlying_frames",
     "frozen_vector",
     "int_array",
     "parse_json",
@@ -221,3 +223,64 @@ def frame_steps(frames: ArrayLike) -> NDArray:
     up = f[1:] >= f[:-1]
     size = np.minimum(np.where(up, b - a, a - b), _INT64_MAX).astype(np.int64)
     return np.where(up, size, -size)
+
+
+#: At most this share of a log's rows may be outlying frame numbers (more:
+#: the table is not in frame order, or the clock jumped; nothing is dropped).
+OUTLIER_SHARE = 0.01
+#: A gap this many frames wide (and 100 median steps) cuts off a first or
+#: last block of frames.
+OUTLIER_GAP_FRAMES = 1000
+
+
+def _in_order(frames: NDArray) -> NDArray:
+    """(n,) bool: the rows of a longest non-decreasing run of ``frames`` in
+    row order (patience sorting, O(n log n))."""
+    tails: list[int] = []          # frame value ending the best run of each length
+    ends: list[int] = []           # row index of that end
+    prev = np.full(frames.size, -1)
+    for i, f in enumerate(frames.tolist()):
+        k = bisect.bisect_right(tails, f)
+        if k == len(tails):
+            tails.append(f)
+            ends.append(i)
+        else:
+            tails[k], ends[k] = f, i
+        prev[i] = ends[k - 1] if k else -1
+    keep = np.zeros(frames.size, bool)
+    i = ends[-1] if ends else -1
+    while i >= 0:
+        keep[i] = True
+        i = prev[i]
+    return keep
+
+
+def outlying_frames(frames: ArrayLike) -> NDArray:
+    """(n,) bool: the rows of one log (in file order) whose frame numbers are
+    out of line with the others, so that they must not set its frame clock's
+    origin or span: a few rows (at most :data:`OUTLIER_SHARE`) that break the
+    frames' order (``..., 49, 50, -5, 51, ...``), and a first or last block
+    of a few rows cut off by a gap of more than :data:`OUTLIER_GAP_FRAMES`
+    frames and 100 median steps (``-2**40`` before frames 0-99). A table
+    that is not in frame order, or whose clock really jumps, has none."""
+    f = np.asarray(frames, dtype=np.int64).ravel()
+    out = np.zeros(f.size, bool)
+    few = max(1, int(OUTLIER_SHARE * f.size))
+    if f.size < 3:
+        return out
+    if np.any(f[1:] < f[:-1]):
+        off = ~_in_order(f)
+        if np.count_nonzero(off) > few:
+            return out                     # not a log in frame order
+        out |= off
+    distinct = np.unique(f[~out])
+    if distinct.size < 3:
+        return out
+    steps = frame_steps(distinct)
+    wide = np.flatnonzero(steps > max(OUTLIER_GAP_FRAMES, 100 * float(np.median(steps))))
+    if wide.size:
+        for block in (f <= distinct[wide[0]], f >= distinct[wide[-1] + 1]):
+            block &= ~out
+            if np.count_nonzero(block) <= few:
+                out |= block
+    return out

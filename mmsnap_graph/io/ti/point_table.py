@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.projection import spherical_to_cartesian
+from ..._validation import outlying_frames
 from ...errors import FileFormatError, MmsnapWarning, ValidationError
 from .csv_columns import plain_csv_columns
 from .headers import (PRESETS, QUANTITY, detect_preset, header_unit, preset_names,
@@ -415,6 +416,15 @@ def _frame_column(cols: dict, rows: NDArray, get, name: str, where: "_Rows") -> 
     return frame.astype(np.int64)
 
 
+def _name_of(value: Any) -> str:
+    """A node name from a cell: a number read from the text as written
+    (``1``, not the float ``1.0`` the CSV parser made of it, so that
+    ``--mount 1=...`` finds it)."""
+    if isinstance(value, float) and value.is_integer() and abs(value) < 2 ** 53:
+        return str(int(value))
+    return str(value).strip()
+
+
 def _node_names(column: NDArray, name: str, where: "_Rows") -> NDArray:
     """The node column as strings; an empty cell is an error naming its line."""
     values = np.asarray(column)
@@ -426,7 +436,7 @@ def _node_names(column: NDArray, name: str, where: "_Rows") -> NDArray:
         empty = [i for i, v in enumerate(values)
                  if v is None or (isinstance(v, float) and not np.isfinite(v))
                  or (isinstance(v, str) and not v.strip())]
-        text = np.array([str(_scalar(v)).strip() for v in values], dtype=str)
+        text = np.array([_name_of(_scalar(v)) for v in values], dtype=str)
     if empty:
         raise FileFormatError(f"{name}: column node is empty at {where(empty[0])}; every point "
                               "needs its node's name")
@@ -587,10 +597,34 @@ def read_point_tables(source: Any, *, coordinates: Literal["auto", "cartesian",
     opts = dict(name=name, scale=scale, snr_unit=snr, frame_period_s=frame_period_s,
                 where=_Rows(source))
     if "node" not in cols:
-        return {default_node: _cloud(cols, np.arange(n), kind, **opts)}
+        return {default_node: _cloud(cols, _in_line(cols, np.arange(n), default_node, opts),
+                                     kind, **opts)}
     nodes = _node_names(cols["node"], name, opts["where"])
-    return {str(node): _cloud(cols, np.flatnonzero(nodes == node), kind, **opts)
-            for node in dict.fromkeys(nodes.tolist())}
+    return {str(node): _cloud(cols, _in_line(cols, np.flatnonzero(nodes == node), node, opts),
+                              kind, **opts) for node in dict.fromkeys(nodes.tolist())}
+
+
+def _in_line(cols: dict, rows: NDArray, node: str, opts: dict) -> NDArray:
+    """``rows`` of one node without those whose frame numbers are out of line
+    (:func:`~mmsnap_graph._validation.outlying_frames`: a stray -5 among
+    frames 0-104 would become the node's origin), which are left out with a
+    warning naming them and their lines."""
+    if "frame" not in cols or rows.size < 3:
+        return rows
+    frame = np.asarray(cols["frame"])[rows]
+    if frame.dtype.kind not in "iuf" or not np.all(np.isfinite(frame)) \
+            or np.any(np.abs(frame) > MAX_FRAME) or np.any(frame != np.round(frame)):
+        return rows                                     # _cloud names the bad cell
+    out = outlying_frames(frame.astype(np.int64))
+    if not out.any():
+        return rows
+    bad = rows[out]
+    shown = ", ".join(f"{int(frame[out][i])} at {opts['where'](r)}" for i, r in
+                      enumerate(bad[:5])) + (", ..." if bad.size > 5 else "")
+    warnings.warn(f"{opts['name']}: node {node}: {bad.size} row(s) hold frame numbers out of "
+                  f"line with the node's other frames ({shown}); left out, not used as the "
+                  "origin of its frame clock", MmsnapWarning, stacklevel=3)
+    return rows[~out]
 
 
 def read_point_table(source: Any, **options) -> PointCloud3D:

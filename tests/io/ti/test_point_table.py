@@ -494,3 +494,63 @@ def test_missing_columns_list_those_found_and_suggest_columns(tmp_path):
                                               r"a preset of TI's tools: \['sdk-script', "
                                               r"'visualizer'\]"):
         read_point_table(path, columns="vis")
+
+
+def _two_node_table(tmp_path, stray=None, at=50):
+    """S1 and S2, frames 0-99 each (S2's rows after S1's), one point per frame;
+    ``stray`` replaces the frame number of S2's row ``at``."""
+    lines = ["node,frame,x,y,z,doppler"]
+    for node in ("S1", "S2"):
+        for k in range(100):
+            f = stray if node == "S2" and k == at and stray is not None else k
+            lines.append(f"{node},{f},0.5,{2 + 0.01 * k},0.0,0.1")
+    path = tmp_path / "two.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("stray, at", [(-5, 50), (-2 ** 40, 50), (-2 ** 40, 0), (2 ** 40, 99)])
+def test_an_outlying_frame_number_is_reported_with_its_line_not_the_origin(tmp_path, stray, at):
+    """Before: one stray frame number in S2's rows became its origin (-5 made
+    S2's frames 0, 5-104 against S1's 0-99) or its span (2^40 frames). Now the
+    row is left out with a warning naming the frame and its line."""
+    from mmsnap_graph.errors import MmsnapWarning
+
+    with pytest.warns(MmsnapWarning, match=rf"node S2: 1 row\(s\) hold frame numbers out of "
+                                           rf"line .*\({stray} at line {102 + at}\)"):
+        clouds = read_point_tables(_two_node_table(tmp_path, stray, at))
+    s2 = clouds["S2"]
+    assert len(s2) == 99 and stray not in s2.frame
+    assert s2.frame.min() >= 0 and s2.frame.max() <= 99
+    np.testing.assert_array_equal(clouds["S1"].frame, np.arange(100))
+
+
+def test_a_table_out_of_frame_order_or_with_a_real_jump_drops_nothing(tmp_path):
+    import warnings
+
+    path = _two_node_table(tmp_path)
+    lines = path.read_text().splitlines()
+    rng = np.random.default_rng(0)
+    shuffled = tmp_path / "shuffled.csv"
+    shuffled.write_text("\n".join([lines[0], *rng.permutation(lines[1:])]) + "\n")
+    jump = tmp_path / "jump.csv"
+    jump.write_text("\n".join([lines[0]] + [ln.replace(f",{k},", f",{k + 10 ** 6},", 1)
+                                             if k >= 50 else ln
+                                             for k, ln in zip(list(range(100)) * 2, lines[1:])])
+                    + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for p in (shuffled, jump):
+            assert all(len(c) == 100 for c in read_point_tables(p).values())
+
+
+def test_a_numeric_node_column_keeps_its_names_as_written(tmp_path):
+    """Before: nodes 1 and 2 became '1.0' and '2.0', after which
+    `--mount 1=...` was refused."""
+    path = tmp_path / "numeric.csv"
+    path.write_text("node,frame,x,y,z,doppler\n" + "".join(
+        f"{n},{k},0.5,2.0,0.0,0.1\n" for n in (1, 2) for k in range(5)))
+    assert list(read_point_tables(path)) == ["1", "2"]
+    frame = pd.DataFrame({"node": [1.0, 2.0, 12.5], "frame": [0, 0, 0], "x": [0.5] * 3,
+                          "y": [2.0] * 3, "z": [0.0] * 3, "doppler": [0.1] * 3})
+    assert list(read_point_tables(frame)) == ["1", "2", "12.5"]
