@@ -19,7 +19,7 @@ import numpy as np
 
 from ..io.guard import open_for_reading
 
-__all__ = ["LEVELS", "recording_info", "format_info"]
+__all__ = ["LEVELS", "recording_info", "format_info", "json_ready"]
 
 #: The per-node groups of the format, in pipeline order.
 LEVELS = ("cube", "point_cloud", "centroids", "tracks")
@@ -122,6 +122,7 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
     missing or not a readable HDF5 file."""
     path = Path(path)
     with open_for_reading(path) as f:
+        _check_recording(f, path)
         period = float(f.attrs["frame_period_s"]) if "frame_period_s" in f.attrs else float("nan")
         order = [_text(n) for n in f.attrs.get("node_order", [])] or list(f.get("nodes", {}))
         nodes = {name: _node_info(f["nodes"][name]) for name in order if name in f.get("nodes", {})}
@@ -144,6 +145,33 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
             info[key] = reader(f[key]) if key in f else None
         info["extensions"] = sorted(k for k in f if k not in ("nodes", "metadata", "truth"))
     return info
+
+
+def _check_recording(f, path: Path) -> None:
+    """An empty or foreign HDF5 file is not a recording: FileFormatError
+    (``mmsnap info`` exits 1), as every reader says (the format's check of
+    :func:`~mmsnap_graph.io.hdf5.open_recording_file`)."""
+    from ..errors import FileFormatError
+    from ..io.hdf5 import open_recording_file
+
+    try:
+        open_recording_file(path).close()
+    except FileFormatError as exc:
+        what = "an empty HDF5 file" if not len(f) and not len(f.attrs) else "an HDF5 file"
+        raise FileFormatError(f"{path} is {what} but not an mmsnap recording ({exc})") from None
+
+
+def json_ready(value: Any) -> Any:
+    """``value`` (the dict of :func:`recording_info`) with every non-finite
+    float as None, so that ``json.dumps(..., allow_nan=False)`` writes JSON
+    (``NaN`` is not JSON)."""
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
 
 
 def _pose_text(pose, sigma=None) -> str:

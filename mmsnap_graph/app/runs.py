@@ -45,6 +45,8 @@ __all__ = [
     "stored_calibration",
     "paper_noise",
     "calibration_json_path",
+    "calibration_poses_for",
+    "check_calibration_nodes",
     "calibrate_and_store",
     "fuse_stored",
     "range_offset_for_poses",
@@ -97,6 +99,31 @@ class StoredCalibration:
         return replace(self, noise=noise, text=(text,) + self.text[1:])
 
 
+def check_calibration_nodes(calibration_json: str | os.PathLike, poses: Mapping[str, Any],
+                            node_names: Sequence[str]) -> None:
+    """The one rule of a calibration JSON given to a command (fuse, replay,
+    monitor, noise, evaluate): it holds a pose for every node of the
+    recording; else :class:`~mmsnap_graph.errors.CalibrationError` naming
+    the nodes it lacks (never the recording's own pose used silently)."""
+    from ..errors import CalibrationError
+
+    missing = [n for n in node_names if n not in poses]
+    if missing:
+        raise CalibrationError(f"{calibration_json} has no pose for node(s) {missing} of the "
+                               f"recording (it has {sorted(poses)}); every node needs one")
+
+
+def calibration_poses_for(calibration_json: str | os.PathLike, node_names: Sequence[str]
+                          ) -> dict[str, np.ndarray]:
+    """The poses of a calibration JSON for a recording's nodes
+    (:func:`check_calibration_nodes`)."""
+    from ..io.calibration import load_calibration_poses
+
+    poses = load_calibration_poses(calibration_json)
+    check_calibration_nodes(calibration_json, poses, node_names)
+    return poses
+
+
 def _read_calibration(path, calibration_json):
     """``calibration_json`` when given, else the recording's ``/calibration``
     group, else None."""
@@ -147,6 +174,8 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     noise, noise_text = _noise(path, node_names, sigmas, per_node_noise)
     text = [noise_text]
     cal = _read_calibration(path, calibration_json)
+    if calibration_json:
+        check_calibration_nodes(calibration_json, cal.poses, node_names)
     if cal is None:
         text.append("no calibration: poses exact, clocks as recorded")
         return StoredCalibration(noise=noise, text=tuple(text))

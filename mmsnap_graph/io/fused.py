@@ -198,6 +198,7 @@ def read_fused(path: str | os.PathLike) -> FusedSequence:
         if fields["time_origin_s"] is None:
             fields["time_origin_s"] = origin
         _check_lengths(fields, p)
+        _check_succeeded_rows(fields, p)
         try:
             return FusedSequence(**fields)
         except MmsnapError as exc:
@@ -291,3 +292,30 @@ def _check_lengths(fields: dict, p: Path) -> None:
         if got != shape:
             raise FileFormatError(f"{p}: /{FUSED_GROUP} datasets disagree in length: {name} "
                                   f"has shape {got}, expected {shape} (frame has {k} rows)")
+
+
+def _check_succeeded_rows(fields: dict, p: Path) -> None:
+    """A row with ``success`` holds a finite state and a finite, symmetric,
+    positive-definite covariance (what every solver writes); else
+    :class:`FileFormatError` naming the rows (an edited or foreign group:
+    ``export`` would print sigma 0, Stone Soup receive a covariance that is
+    not positive definite, ``evaluate`` drop the rows quietly)."""
+    ok = np.flatnonzero(np.asarray(fields["success"], dtype=bool))
+    if not ok.size:
+        return
+    state = np.asarray(fields["state"], dtype=float)[ok]
+    cov = np.asarray(fields["covariance"], dtype=float)[ok]
+    finite = np.all(np.isfinite(state), axis=1) & np.all(np.isfinite(cov), axis=(1, 2))
+    cov = np.where(finite[:, None, None], cov, np.eye(4))
+    scale = np.max(np.abs(cov), axis=(1, 2))
+    symmetric = np.all(np.abs(cov - np.swapaxes(cov, 1, 2)) <= 1e-9 * scale[:, None, None],
+                       axis=(1, 2))
+    smallest = np.linalg.eigvalsh(0.5 * (cov + np.swapaxes(cov, 1, 2)))[:, 0]
+    bad = ok[~(finite & symmetric & (smallest > 0))]
+    if bad.size:
+        frames = np.asarray(fields["frame"])[bad[:5]].tolist()
+        raise FileFormatError(
+            f"{p}: /{FUSED_GROUP} rows {bad[:5].tolist()}{' ...' if bad.size > 5 else ''} "
+            f"(frames {frames}; {bad.size} in all) have success=True but a covariance that is "
+            "not finite, symmetric and positive definite (or a state that is not finite); "
+            "fuse the recording again (`mmsnap fuse`) or mark the rows failed")

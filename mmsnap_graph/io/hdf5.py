@@ -39,15 +39,13 @@ from ..data.radar_config import OPTIONAL_FIELD_DEFAULTS, RadarConfig
 from ..data.recording import Detections, NodeData, Recording, Tracks, Truth
 
 __all__ = [
-    "FORMAT_NAME",
-    "FORMAT_VERSION",
+    "FORMAT_NAME", "FORMAT_VERSION",
     "write_recording",
     "update_recording",
     "read_recording",
     "iter_cubes",
-    "read_cube_frames",
-    "read_guard",
-    "H5_ERRORS",
+    "read_cube_frames", "open_recording_file",
+    "read_guard", "H5_ERRORS",
 ]
 
 FORMAT_NAME = "mmsnap_graph.recording"
@@ -280,7 +278,7 @@ def update_recording(path: str | os.PathLike, recording: Recording, *,
         if not path.exists():
             raise FileFormatError(f"{path} does not exist; use write_recording for a new file")
         with read_guard(path):
-            _open_checked(path).close()
+            open_recording_file(path).close()
 
         def fill(f: h5py.File) -> None:
             _write_into(f, recording, compression, compression_opts, cube_storage)
@@ -302,7 +300,9 @@ def update_recording(path: str | os.PathLike, recording: Recording, *,
 # --------------------------------------------------------------------------
 # reading
 # --------------------------------------------------------------------------
-def _open_checked(path: Path) -> h5py.File:
+def open_recording_file(path: Path) -> h5py.File:
+    """The HDF5 file at ``path``, open for reading, when it is an mmsnap
+    recording (its format and major version); else FileFormatError."""
     path = existing_file(path)
     try:
         f = h5py.File(path, "r")
@@ -610,7 +610,7 @@ def read_recording(path: str | os.PathLike, *, load_cubes: bool = True) -> Recor
     attribute, or when the file is not a readable HDF5 file.
     """
     path = Path(path)
-    with read_guard(path), _open_checked(path) as f:
+    with read_guard(path), open_recording_file(path) as f:
         frame_period_s = _attr_float(f, "frame_period_s")
         order = _node_order(f)
         nodes_group = _group(f, "nodes")
@@ -631,7 +631,7 @@ def iter_cubes(path: str | os.PathLike, node_name: str, *, chunk_frames: int = 1
     chunks of a node's raw ADC cube, ``n <= chunk_frames``, without loading
     the whole cube."""
     check_count(chunk_frames, "chunk_frames", error=FileFormatError)
-    with read_guard(path), _open_checked(Path(path)) as f:
+    with read_guard(path), open_recording_file(Path(path)) as f:
         nodes = _group(f, "nodes")
         if node_name not in nodes:
             raise FileFormatError(f"/nodes/{node_name} is missing (nodes: {sorted(nodes.keys())})")
@@ -644,7 +644,7 @@ def iter_cubes(path: str | os.PathLike, node_name: str, *, chunk_frames: int = 1
 
 def read_cube_frames(path: str | os.PathLike, node_name: str) -> tuple[RadarConfig, NDArray, int]:
     """``(radar, frame (F,), F)`` of a node's cube without loading the ADC data."""
-    with read_guard(path), _open_checked(Path(path)) as f:
+    with read_guard(path), open_recording_file(Path(path)) as f:
         group = _group(_group(f, "nodes"), node_name)
         radar, adc, frames = _cube_meta(_group(group, "cube"))
         return radar, frames, int(adc.shape[0])

@@ -90,3 +90,29 @@ def test_person_ids_of_the_wrong_shape_are_a_format_error(recordings, tmp_path):
         f["fused/track_id"] = np.zeros(3, dtype=np.int64)
     with pytest.raises(FileFormatError, match=r"track_id has shape \(3,\)"):
         read_fused(path)
+
+
+@pytest.mark.parametrize("edit", ["zero", "negative", "nan", "asymmetric", "nan state"])
+def test_a_succeeded_row_without_a_proper_covariance_is_named_on_read(recordings, tmp_path, edit):
+    """Before: /fused rows with success=True and a zero or negative covariance
+    were read as they were: export printed sigma 0.0, Stone Soup received
+    covariances that are not positive definite, evaluate dropped the rows."""
+    path = write_recording(tmp_path / "rec.h5", recordings["B"])
+    fused = fuse_recording(recordings["B"], config())
+    write_fused(path, fused)
+    rows = np.flatnonzero(fused.success)[[3, 7]]
+    with h5py.File(path, "a") as f:
+        cov = f["fused/covariance"][()]
+        for r in rows:
+            cov[r] = {"zero": np.zeros((4, 4)), "negative": -np.eye(4), "nan": np.full((4, 4), np.nan),
+                      "asymmetric": cov[r] + np.triu(np.ones((4, 4)), 1),
+                      "nan state": cov[r]}[edit]
+            if edit == "nan state":
+                f["fused/x_m"][r] = np.nan
+        f["fused/covariance"][...] = cov
+    import re
+
+    with pytest.raises(FileFormatError, match=re.escape(
+            f"rows {rows.tolist()} (frames {fused.frame[rows].tolist()}; 2 in all) have "
+            "success=True but a covariance")):
+        read_fused(path)

@@ -207,9 +207,12 @@ def add_fusion_arguments(p: argparse.ArgumentParser, *, solvers: tuple[str, ...]
 def fusion_settings(args: argparse.Namespace) -> dict[str, object]:
     """Each fusion setting: the flag when given, else the ``--config`` file's
     ``[fuse]`` key, else :data:`FUSE_DEFAULTS` (the solver: the verb's)."""
-    from mmsnap_graph.app.config_file import read_fuse_table
+    table = {}
+    if args.fuse_config:
+        # Here: the config module brings the signal chain's (scikit-learn) with it.
+        from mmsnap_graph.app.config_file import read_fuse_table
 
-    table = read_fuse_table(args.fuse_config) if args.fuse_config else {}
+        table = read_fuse_table(args.fuse_config)
     out = dict(FUSE_DEFAULTS, solver=args.default_solver)
     for key in out:
         value = getattr(args, key, None)

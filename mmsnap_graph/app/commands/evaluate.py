@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.io import read_recording
     from mmsnap_graph.io.guard import read_guard
     from mmsnap_graph.io.fused import FUSED_GROUP, read_fused
-    from mmsnap_graph.io.calibration import load_calibration_poses
+    from mmsnap_graph.app.runs import calibration_poses_for
 
     rec = read_recording(args.recording, load_cubes=False)
     if args.surveyed:
@@ -124,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
     with read_guard(args.recording), h5py.File(args.recording, "r") as f:
         has_fused = FUSED_GROUP in f
     fused = read_fused(args.recording) if has_fused else None
-    poses = load_calibration_poses(args.calibration) if args.calibration else None
+    # a node the JSON lacks is an error, as in `mmsnap fuse` (not the recording's pose)
+    poses = calibration_poses_for(args.calibration, rec.node_names) if args.calibration else None
     metrics = evaluate_recording(rec, fused=fused, node_poses=poses)
     metrics["recording"] = str(args.recording)
     if args.json:

@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.calibration.noise.estimate import estimate_noise
     from mmsnap_graph.fusion.recording.timing import offset_ranges
     from mmsnap_graph.io import read_recording
+    from mmsnap_graph.app.runs import calibration_poses_for
     from mmsnap_graph.io.calibration import load_calibration_poses
     from mmsnap_graph.io.noise import RangeOffsetAtPoses, write_noise
 
@@ -87,9 +88,13 @@ def run(args: argparse.Namespace) -> int:
 
     if args.output is not None and not args.no_write:
         check_output_path(args.output)
-    poses = load_calibration_poses(args.calibration) if args.calibration else None
+    if args.calibration:
+        load_calibration_poses(args.calibration)  # a bad file: refused before the lock
     with recording_lock(args.recording):
         rec = read_recording(args.recording, load_cubes=False)
+        # a node the JSON lacks is an error, as in `mmsnap fuse`
+        poses = calibration_poses_for(args.calibration, rec.node_names) if args.calibration \
+            else None
         lags = _lags(args.recording)
         est = estimate_noise(rec, poses=poses, lag_frames=lags, method=args.method)
         offset = None

@@ -42,7 +42,7 @@ from ..solvers.vectorized import fuse_batch
 from .coverage import uncovered_rows
 from .motion_check import apply_motion_check
 from .room import DEFAULT_BODY_M, RoomReport, screen_room
-from .rows import FusedRows
+from .rows import FusedRows, status_messages
 from .split_check import SPLIT_MESSAGE, split_rows
 
 __all__ = ["FusionNetwork", "solve_groups", "check_rows", "screen_rows", "fuse_rows",
@@ -124,8 +124,13 @@ def solve_groups(z: NDArray, observed: NDArray, net: FusionNetwork, config: Fusi
     if solver == "gtsam":
         _solve_gtsam(out, net, z, observed, config, bar)
     elif solver == "scalar" and config.robust is None and frame_solver is not None:
+        # Field by field (the stream's hot path), the messages once.
         for i in range(z.shape[0]):
-            out.put(i, frame_solver.solve(z[i], observed[i]))
+            r = frame_solver.solve(z[i], observed[i])
+            out.state[i], out.covariance[i], out.status[i] = r.state, r.covariance, r.status
+            out.iterations[i], out.final_cost[i], out.degeneracy[i] = (r.iterations,
+                                                                       r.final_cost, r.degeneracy)
+        out.message[:] = status_messages(out.status)
     else:
         _solve_vectorized(out, net, z, observed, config, bar)
     return out

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from ...data.results import Status
 from ..solvers.settings import FrameSolve
 
-__all__ = ["FusedRows"]
+__all__ = ["FusedRows", "status_messages"]
 
 
 class FusedRows:
@@ -59,7 +59,7 @@ class FusedRows:
             rejected = getattr(solved, "rejected", False)
         self.rejected[rows] = rejected
         if message is None:
-            message = _MESSAGES[np.asarray(solved.status, dtype=np.int64)]
+            message = status_messages(solved.status)
         self.message[rows] = message
 
     def flag(self, rows: ArrayLike, status: Status, message: ArrayLike | str, *,
@@ -83,3 +83,9 @@ class FusedRows:
 
 #: Each status code's message, indexed by the code.
 _MESSAGES = np.array([Status(c).message for c in range(max(Status) + 1)], dtype=object)
+
+
+def status_messages(status: ArrayLike) -> NDArray:
+    """Each :class:`~mmsnap_graph.data.results.Status` code's message (the
+    one table), as an object array of the codes' shape."""
+    return _MESSAGES[np.asarray(status, dtype=np.int64)]

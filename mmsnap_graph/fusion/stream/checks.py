@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ...data.results import FusedSequence
-from ..config import DuplicateCheck, FusionConfig, LearnedWalls, RoomCheck
+from ..config import CoverageCheck, DuplicateCheck, FusionConfig, LearnedWalls, RoomCheck
 from ..recording.pipeline import (FusionNetwork, check_rows, fused_sequence, screen_rows,
                                   solve_groups)
 from ..recording.room import learn_room_walls
@@ -83,14 +83,19 @@ class StreamPipeline:
         # No check in the reference frame: a frame's rows need no FusedSequence.
         self._screens = any(config.check(k) is not None
                             for k in (RoomCheck, LearnedWalls, DuplicateCheck))
-        # The coverage check's reach of each node: its farthest detection so far.
+        # The coverage check's reach of each node: its farthest detection so far
+        # (kept only when the check has no reach of its own for every node).
         self.reach_m = np.zeros(len(net.node_names))
+        cov = config.check(CoverageCheck)
+        self._needs_reach = cov is not None and not set(net.node_names) <= set(cov.reach_m or {})
         self._history: deque[FusedSequence] = deque()
         self._walls: list = []
         self._since_learned = 0
 
     def see(self, per_node) -> None:
         """A frame's detections (N arrays (K_n, 3)), for each node's reach."""
+        if not self._needs_reach:
+            return
         for i, d in enumerate(per_node):
             if len(d):
                 far = float(np.max(d[:, 0]))
@@ -143,8 +148,9 @@ class StreamPipeline:
         if not self._held or self._held[0].frame != frame:
             return FusedRows(0, len(self.net.node_names))
         h = self._held.popleft()
-        check_rows(h.rows, np.full(h.members.shape[0], frame, np.int64), h.members, h.z,
-                   self.net, self.config, reach_m=self.reach_m)
+        if self.config.checks:
+            check_rows(h.rows, np.full(h.members.shape[0], frame, np.int64), h.members,
+                       h.z, self.net, self.config, reach_m=self.reach_m)
         return h.rows
 
     def _sequence(self, frame, members, rows: FusedRows, z) -> FusedSequence:

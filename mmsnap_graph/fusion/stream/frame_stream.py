@@ -351,6 +351,8 @@ class FrameStream:
         """The range offset added and one body's centroids merged
         (``config.association.merge_body_m``); the rows kept of each node."""
         merge = self.config.association.merge_body_m
+        if merge is None and self.range_offset_m is None:
+            return per_node, None
         out, kept = [], []
         for z in per_node:
             if self.range_offset_m is not None and len(z):
@@ -381,7 +383,7 @@ class FrameStream:
                 self._step_tracker(np.zeros((0, 4)), np.zeros((0, 4, 4)), dt)
                 done.append(self._update(index, t, False, problem, None, start, dropped))
                 continue
-            ok = np.asarray(seq.status == Status.OK, dtype=bool)
+            ok = seq.status == _OK
             self.failed_groups += int(np.count_nonzero(~ok))
             problem = self._step_tracker(seq.state[ok], seq.covariance[ok], dt)
             message = "; ".join(x for x in (problem, note) if x)
@@ -493,6 +495,7 @@ class FrameStream:
 
 
 _OMEGA_MAX = np.pi + 1e-9
+_OK = int(Status.OK)
 _EMPTY_ROWS = np.zeros((0, 3))
 _INF = math.inf
 
@@ -509,7 +512,10 @@ def _measurements(per_node, members: NDArray) -> NDArray:
 
 
 def _rows_of(members: NDArray, kept) -> NDArray:
-    """``members`` with each node's merged rows taken back to its rows as given."""
+    """``members`` with each node's merged rows taken back to its rows as given
+    (``kept`` None: none merged)."""
+    if kept is None or all(k is None for k in kept):
+        return members
     out = members.copy()
     for n, k in enumerate(kept):
         if k is not None:

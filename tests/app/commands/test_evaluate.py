@@ -97,3 +97,17 @@ def test_evaluate_command_on_surveyed_poses(surveyed_recording, tmp_path, capsys
     data = json.loads(capsys.readouterr().out)
     assert data["poses"]["S2"]["position_error_m"] == pytest.approx(0.1)
     assert data["poses"]["S2"]["path_error_m"] is None and data["fused"] is None
+
+
+def test_a_calibration_json_without_a_node_is_refused_as_fuse_refuses_it(recording_b_file,
+                                                                        tmp_path, capsys):
+    """Before: evaluate --calibration with a JSON lacking S2 scored S2 at the
+    recording's own pose, silently, while fuse refused the same file."""
+    poses = tmp_path / "s1_only.json"
+    poses.write_text(json.dumps({"nodes": {"S1": {"pose": [0.0, 0.0, 0.0]}}}))
+    for argv in (["evaluate", str(recording_b_file), "--calibration", str(poses)],
+                 ["fuse", str(recording_b_file), "-o", str(tmp_path / "f.h5"), "--no-progress",
+                  "--calibration", str(poses)]):
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert "s1_only.json has no pose for node(s) ['S2'] of the recording" in err, err

@@ -260,3 +260,22 @@ def test_fuse_prints_the_stored_noise_one_short_line_per_node(recording_b_file, 
     store_partial_noise(path)
     assert main(["fuse", str(path), "--no-progress"]) == 0
     noise_block(capsys.readouterr().out)
+
+
+def test_fuse_without_a_config_file_imports_no_signal_chain(recording_b_file, tmp_path):
+    """Before: the fusion flags read through the TOML module, which imports
+    the signal chain's configurations (scikit-learn, pandas): 60 MB more
+    peak memory for every `mmsnap fuse` (benchmarks/bench_fuse_memory.py
+    --paths cli: 184 -> 245 MB)."""
+    import subprocess
+    import sys
+
+    code = ("import io, sys, contextlib\n"
+            "from mmsnap_graph.app.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            f"    code = main(['fuse', {str(recording_b_file)!r}, '-o', "
+            f"{str(tmp_path / 'f.h5')!r}, '--no-progress', '--max-flagged', '1'])\n"
+            "print(code, 'sklearn' in sys.modules, 'mmsnap_graph.radar.chain' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == ["0", "False", "False"], out

@@ -167,3 +167,14 @@ def test_noise_at_fixed_poses_takes_the_range_offset_out_first(calibrated_c_file
     found = re.search(r"range offset at these poses ([+-][0-9.]+)", capsys.readouterr().out)
     assert found and abs(float(found.group(1)) - 0.08) < 0.015, found
     np.testing.assert_allclose(sig[short], sig[plain], rtol=0.1)
+
+
+def test_a_calibration_json_without_a_node_is_refused(tmp_path, capsys, small):
+    """Before: noise --calibration with a JSON lacking S2 fell back to the
+    temporal estimate of every node, silently (fuse refuses the file)."""
+    import json
+
+    poses = tmp_path / "s1_only.json"
+    poses.write_text(json.dumps({"nodes": {"S1": {"pose": [0.0, 0.0, 0.0]}}}))
+    assert main(["noise", str(small), "--no-write", "--calibration", str(poses)]) == 1
+    assert "has no pose for node(s) ['S2']" in capsys.readouterr().err

@@ -26,8 +26,9 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmsnap_graph.app.recording_info import format_info, recording_info
+    from mmsnap_graph.app.recording_info import format_info, json_ready, recording_info
 
-    info = recording_info(args.recording)
-    print(json.dumps(info, indent=2, allow_nan=True) if args.json else format_info(info))
+    info = recording_info(args.recording)  # a file that is not a recording: exit 1
+    print(json.dumps(json_ready(info), indent=2, allow_nan=False) if args.json
+          else format_info(info))
     return 0
