@@ -1,5 +1,5 @@
 """The whole per-node chain on in-memory nodes and recordings, and on files:
-cube -> point cloud -> torso centroids (:mod:`.chain`) -> local EKF tracks
+cube -> point cloud -> torso centroids (:mod:`mmsnap_graph.radar.chain`) -> local EKF tracks
 (:mod:`mmsnap_graph.tracking.ekf`).
 
 - :func:`process_node` / :func:`process_recording`: from each node's cube

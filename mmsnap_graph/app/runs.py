@@ -191,7 +191,7 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     else:
         used_covs = covs
         parts.append(f"pose covariances of {', '.join(sorted(covs))} included")
-    offsets = {n: float(t) for n, t in getattr(cal, "time_offset_s", {}).items() if float(t) != 0}
+    offsets = {n: float(t) for n, t in cal.time_offset_s.items() if float(t) != 0}
     if offsets and time_offsets:
         parts.append("clock offsets applied: " + ", ".join(
             f"{n} {1e3 * t:+.1f} ms" for n, t in sorted(offsets.items())))
@@ -200,7 +200,7 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
         parts.append("clocks as recorded")
     poses = ({n: np.asarray(p, dtype=float) for n, p in cal.poses.items()}
              if calibration_json else None)
-    depth = float(getattr(cal, "range_offset_m", float("nan")))
+    depth = float(cal.range_offset_m)
     if np.isfinite(depth):
         parts.append(f"range offset (reflection depth) {depth:.3f} m added to every range")
     elif poses is not None:
@@ -251,7 +251,7 @@ def range_offset_for_poses(path: str | os.PathLike, calibration, noise, *,
     from ..calibration.noise.depth import range_offset_at_poses
     from ..io import read_recording
 
-    depth = float(getattr(calibration, "range_offset_m", float("nan")))
+    depth = float(calibration.range_offset_m)
     if np.isfinite(depth):
         return depth, f"range offset (reflection depth) {depth:.3f} m added to every range"
     own = _read_calibration(path, None)
@@ -260,7 +260,7 @@ def range_offset_for_poses(path: str | os.PathLike, calibration, noise, *,
     rec = recording if recording is not None else read_recording(path, load_cubes=False)
     est = range_offset_at_poses(rec, calibration.poses,
                                 noise=paper_noise()[0] if noise is None else noise,
-                                lag_frames=getattr(calibration, "lag_frames", None))
+                                lag_frames=calibration.lag_frames)
     if not est.identified:
         return float("nan"), est.message + "; none added"
     return est.offset_m, (f"the calibration gives no range offset: {est.message}, added to "

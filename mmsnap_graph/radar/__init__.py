@@ -20,7 +20,6 @@ from ..data.radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarConfig
 _LAZY = {
     "ChainConfig": "chain",
     "ChainResult": "chain",
-    "FrameStatus": "chain",
     "detect_frame": "chain",
     "point_cloud_of_cube": "chain",
     "process_cubes": "chain",

@@ -80,7 +80,6 @@ from .spectrum import (
 
 __all__ = [
     "ChainConfig",
-    "FrameStatus",
     "ChainResult",
     "point_cloud_of_cube",
     "detect_frame",
@@ -206,17 +205,6 @@ class ChainConfig:
         if not 0 <= self.max_saturated_fraction <= 1:
             raise ConfigurationError(f"max_saturated_fraction={self.max_saturated_fraction!r} "
                                      f"must be in [0, 1]")
-
-
-class FrameStatus:
-    """The chain's codes under their old names (kept for callers of the old
-    layout): the values are :class:`~mmsnap_graph.data.results.Status` members,
-    the one status scheme of the package."""
-
-    OK = Status.OK
-    NON_FINITE = Status.NON_FINITE_SAMPLES
-    ALL_ZERO = Status.ALL_ZERO_CUBE
-    SATURATED = Status.SATURATED
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

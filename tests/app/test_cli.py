@@ -125,7 +125,7 @@ def test_a_bad_input_recording_exits_1_naming_the_file(files, capsys, verb, dama
     (["process", "{good}", "-o", "{dir}", "--no-progress"], "--output"),
     (["fuse", "{good}", "--gate", "1.5", "--no-progress"], "gate"),
     (["fuse", "{good}", "-o", "{dir}/no/such/folder.h5"], "does not exist"),
-    (["calibrate", "{good}", "--max-lag", "-1"], "--max-lag"),
+    (["calibrate", "{good}", "--max-lag-s", "-1"], "--max-lag-s"),
     (["calibrate", "{good}", "--json-out", "{dir}"], "--json-out"),
     (["simulate", "-n", "20", "--frame-period", "-1", "-o", "{dir}/s.h5"], "frame_period"),
     (["simulate", "-n", "20", "-o", "{good}"], "--overwrite"),

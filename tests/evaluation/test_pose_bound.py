@@ -2,7 +2,7 @@
 dense error"): the Cramer-Rao bound of the node poses from each case's
 centroids (evaluation.pose_bound), checked against a Monte Carlo of the
 least-squares estimator, and the bound ratio sparse / dense measured on
-the scene of tests/test_sparse_clouds.py."""
+the scene of tests/sim/real/test_sparse.py."""
 
 import dataclasses
 

@@ -206,7 +206,7 @@ def test_gate_never_reports_an_unrepaired_frame_as_success(p_ghost):
                    "ambiguity across the other two, and a ghost range can pick the mirror point "
                    "with consistent residuals (undetectable in one frame); measured: 10% ghosts "
                    "1.15 m vs 0.042 m clean. The issue's target is met on recordings by the "
-                   "motion check of fuse_recording (tests/test_ghost_recording.py: 1.13x / 1.27x)")
+                   "motion check of fuse_recording (tests/fusion/recording/test_motion_check.py: 1.13x / 1.27x)")
 @pytest.mark.parametrize("p_ghost, factor", [(0.1, 1.3), (0.2, 1.6)])
 def test_gate_with_ghosts_meets_the_issue_11_rmse_target(p_ghost, factor):
     truth, z, _ = scenario(2000, p_ghost, seed=14)

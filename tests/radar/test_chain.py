@@ -16,7 +16,6 @@ from mmsnap_graph.radar.cfar import (
 )
 from mmsnap_graph.radar.chain import (
     ChainConfig,
-    FrameStatus,
     detect_frame,
     point_cloud_of_cube,
     process_cubes,
@@ -35,6 +34,7 @@ from mmsnap_graph.radar.spectrum import (
     window,
 )
 from mmsnap_graph.data.recording import Detections
+from mmsnap_graph.data.results import Status
 from mmsnap_graph.sim.cube import scatterer_amplitude, synthesize_cube, synthesize_cubes
 from mmsnap_graph.tracking.ekf import EkfConfig, track_centroids
 
@@ -91,7 +91,7 @@ def test_tdm_correction_removes_the_angle_bias_of_fast_targets():
     vr = float(v[0] @ p[0] / r)
     truth = np.pi * p[0, 0] / r
     best = np.argmax(snr)
-    assert status == FrameStatus.OK
+    assert status == Status.OK
     assert abs(omega[best] - truth) < 0.05
     assert abs(dop[best] - vr) < 0.5 * config.doppler_resolution_mps
     # Without the correction (Doppler 0), the azimuth array straddles two
@@ -177,7 +177,7 @@ def test_detections_within_one_resolution_cell(config):
         amp = scatterer_amplitude(config, 0.5, r) * np.exp(2j * np.pi * rng.random(n))
         cube = synthesize_cube(config, p, v, amp, rng=rng, noise_std=1.0)
         (det_r, det_w, det_v, snr), status = point_cloud_of_cube(cube, config)
-        assert status == FrameStatus.OK
+        assert status == Status.OK
         assert np.all(np.isfinite(snr)) and np.all(snr > 0)
         vr = np.sum(v * p, axis=1) / r
         if np.any(np.abs(vr) < 1.5 * config.doppler_resolution_mps):
@@ -205,7 +205,7 @@ def test_cells_and_full_cfar_give_the_same_point_cloud():
     for x, y in zip(a, b):
         np.testing.assert_allclose(np.sort(x), np.sort(y))
     det, status = detect_frame(cube, config, frame=12)
-    assert status == FrameStatus.OK and len(det) == len(a[0])
+    assert status == Status.OK and len(det) == len(a[0])
     assert np.all(det.frame == 12)
     np.testing.assert_array_equal(det.range_m, a[0])
     np.testing.assert_array_equal(det.snr_db, a[3])
@@ -259,8 +259,8 @@ def test_degenerate_frames_give_no_detections_and_no_nan():
         "saturated_constant": np.full(shape, 32767 + 32767j, np.complex64),
         "nan": np.full(shape, np.nan, np.complex64),
     }
-    want = {"empty_noise": FrameStatus.OK, "all_zero": FrameStatus.ALL_ZERO,
-            "saturated_constant": FrameStatus.OK, "nan": FrameStatus.NON_FINITE}
+    want = {"empty_noise": Status.OK, "all_zero": Status.ALL_ZERO_CUBE,
+            "saturated_constant": Status.OK, "nan": Status.NON_FINITE_SAMPLES}
     for name, cube in cases.items():
         cols, status = point_cloud_of_cube(cube, config)
         assert status == want[name], name
@@ -269,14 +269,14 @@ def test_degenerate_frames_give_no_detections_and_no_nan():
     clipped = (np.sign(rng.standard_normal(shape)) * 32767
                + 1j * np.sign(rng.standard_normal(shape)) * 32767).astype(np.complex64)
     cols, status = point_cloud_of_cube(clipped, config, ChainConfig(adc_full_scale=32767))
-    assert status == FrameStatus.SATURATED and cols[0].size == 0
+    assert status == Status.SATURATED and cols[0].size == 0
     # A sequence with bad frames goes on and says so.
     cubes = np.stack([cases["all_zero"], cases["nan"], cases["empty_noise"]]).astype(np.complex64)
     res = process_cubes(cubes, config, frames=np.array([7, 8, 9]))
     assert not res.success
     assert "2 of 3 frames" in res.message and "frame 7" in res.message
-    np.testing.assert_array_equal(res.status, [FrameStatus.ALL_ZERO, FrameStatus.NON_FINITE,
-                                               FrameStatus.OK])
+    np.testing.assert_array_equal(res.status, [Status.ALL_ZERO_CUBE, Status.NON_FINITE_SAMPLES,
+                                               Status.OK])
     assert np.all(np.isfinite(res.point_cloud.measurements))
 
 

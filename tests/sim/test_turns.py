@@ -6,7 +6,7 @@ factors smooth the velocity across each turn and the joint calibration used
 to flag the detections there as outliers: 73-87 of 1200 at its default
 white acceleration (1 m/s^2), 9-14 at the recording calibration's (3 m/s^2),
 on the three seeds below (before the per-frame refit of
-``joint_graph.exonerate_turns``). The target: at most 0.5% flagged.
+``calibration.joint.graph.exonerate_turns``). The target: at most 0.5% flagged.
 """
 
 from __future__ import annotations

@@ -75,8 +75,6 @@ def register(subparsers) -> None:
         p.add_argument(*flags, dest=name, type=float, default=None, metavar=metavar,
                        help=f"{text}; overrides the file (default "
                             f"{getattr(MatchingOptions(), name):g})")
-    p.add_argument("--max-lag", type=int, default=None, metavar="FRAMES",
-                   help="the lag window in frames (deprecated: use --max-lag-s)")
     p.add_argument("--sigmas", type=float, nargs=3,
                    metavar=("RANGE_M", "OMEGA_RAD", "DOPPLER_MPS"),
                    default=None, help="OMEGA_RAD is the sigma of omega = pi sin(theta), a phase in "
@@ -403,8 +401,6 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.calibration import PEOPLE_JOINT_OPTIONS, joint_options_for
     from mmsnap_graph.data.noise import MeasurementNoise
 
-    if args.max_lag is not None and args.max_lag < 0:
-        raise ValidationError(f"--max-lag must be >= 0, got {args.max_lag}")
     noise = None
     if args.sigmas is not None:
         r, w, v = args.sigmas
@@ -435,10 +431,7 @@ def run(args: argparse.Namespace) -> int:
         check_output_path(args.output)
 
     def options(rec) -> dict:
-        lagged = matching
-        if args.max_lag is not None:  # the lag window in frames of this recording
-            lagged = dataclasses.replace(matching, max_lag_s=args.max_lag * rec.frame_period_s)
-        return dict(source=args.source, method=args.method, noise=noise, matching=lagged,
+        return dict(source=args.source, method=args.method, noise=noise, matching=matching,
                     joint=joint_options(joint_options_for(rec)))
 
     # With --json, stdout holds the calibration JSON alone; the words go to stderr.

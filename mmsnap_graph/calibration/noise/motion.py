@@ -50,7 +50,7 @@ differenced away, and the 2nd differences are less correlated (1.94 against
 same). Differences beyond :data:`MOTION_GATE_K` robust sigmas are trimmed
 (the truncation corrected).
 
-Measured (tests/test_motion_noise.py): white noise 0.08 / 0.12 m/s on the
+Measured (tests/calibration/noise/test_motion.py): white noise 0.08 / 0.12 m/s on the
 radial velocity of a velocity random walk (0.08 m/s per frame), two facing
 nodes, 600 frames, 100 seeds: mean +1.1 %, +0.7 % (the nodes' own 4th
 differences: +13 %, +7 %), seeds' variance of ``sigma^2`` 1.08 and 1.00 x

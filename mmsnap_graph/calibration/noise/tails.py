@@ -44,7 +44,7 @@ contaminated ones (root mean square 1.43) reach 1.15-1.28 on average (the
 fits hold fewer tails than the rows tested); on the real model the Doppler
 sigma becomes 0.30-0.43 m/s and the fused velocity NEES 1.5-1.9.
 
-Limits (measured, tests/test_tour_nees.py): the 4th differences mix five
+Limits (measured, tests/calibration/noise/test_tails.py): the 4th differences mix five
 centroids, which makes rare wide errors look more Gaussian, so the excess is
 an underestimate: on 97 % N(0, 1) + 3 % N(0, 36) noise (root mean square
 1.43) the sigmas reach 1.07-1.45 x the core, 1.24-1.30 on average; on the
@@ -95,7 +95,7 @@ TAIL_ORDER = 4
 _TRIM_K = 3.0
 _ROUNDS = 2
 #: Variance of the mean square of 4th differences of white noise relative to
-#: independent residuals (as :data:`noise_estimate.KAPPA_4`).
+#: independent residuals (as :data:`.estimate.KAPPA_4`).
 _KAPPA_4 = 1.0 + 2.0 * ((56 / 70) ** 2 + (28 / 70) ** 2 + (8 / 70) ** 2 + (1 / 70) ** 2)
 #: Standard deviation of ``mean(e^2) - s^2`` (``s`` the trimmed scale) on
 #: Gaussian 4th differences, in units of ``s^2 sqrt(2 KAPPA_4 / n)``

@@ -34,7 +34,7 @@ configuration B) against ``scipy.optimize.least_squares`` with the same model.
 Most of it is GTSAM calling the Python error function (~12 calls per frame);
 for thousands of frames at once see :mod:`mmsnap_graph.fusion.solvers.vectorized`.
 
-Two properties of the problem a user meets (tests/test_oneshot.py):
+Two properties of the problem a user meets (tests/fusion/solvers/test_gtsam_graph.py):
 
 - Mirror ambiguity: ranges are symmetric about the line through two nodes, so
   only the spatial frequencies (sigma pi/4) tell the target from its

@@ -10,7 +10,7 @@ chi-square gate, else starting its own) in plain Python floats, with each
 node's pose and sigmas prepared once. It returns only the groups' members,
 which is all the stream needs. Any other frame (several detections at a node,
 or a degenerate detection covariance) goes to ``associate_frame`` itself.
-``tests/test_stream_fast_path.py`` checks the members against
+``tests/fusion/stream/test_association.py`` checks the members against
 ``associate_frame`` on random frames.
 """
 

@@ -4,12 +4,12 @@
 
 Target: position RMSE at most 1.3x / 1.6x the clean run, a ghost target in
 at most 2% of the frames, the NEES of the rows kept inside the 95%
-chi-square band. The per-frame gate alone cannot (``test_robust_fusion``:
+chi-square band. The per-frame gate alone cannot (``tests/fusion/test_robust.py``:
 one frame's mirror ambiguity); the motion check
 (:mod:`mmsnap_graph.fusion.recording.motion_check`, on by default with ``robust``)
 uses the neighbouring frames.
 
-The ghost model is ``test_robust_fusion``'s: each centroid is replaced with
+The ghost model is ``tests/fusion/test_robust.py``'s: each centroid is replaced with
 probability ``p`` by one uniform in the field of view (range 0.5-10 m,
 azimuth +-60 degrees, Doppler +-3 m/s), independently per node and frame.
 """
@@ -262,7 +262,7 @@ def test_mmsnap_fuse_on_a_ghost_recording(tmp_path, capsys):
 
 def _print_figures(motion_check: bool) -> None:
     """The figures the tests assert, printed (``python
-    tests/test_ghost_recording.py``; ``--no-motion-check``: the gate alone)."""
+    tests/fusion/recording/test_motion_check.py``; ``--no-motion-check``: the gate alone)."""
     tallies = run_monte_carlo(motion_check)
     clean = tallies[0.0]
     for p, t in tallies.items():
