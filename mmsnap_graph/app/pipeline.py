@@ -10,8 +10,8 @@ cube -> point cloud -> torso centroids (:mod:`mmsnap_graph.radar.chain`) -> loca
   the scene filters have dropped the static scene, as
   TI's out-of-box demo gives: 2-3 points per person) is clustered with
   ``min_samples=1`` (:func:`sparse_cluster_config`): the torso DBSCAN's
-  three-point minimum would drop most of it (measured: 94 centroids in 600
-  frames, and a calibration 0.2-2 m off);
+  three-point minimum would drop most of it, and the calibration with it
+  (tests/sim/real/test_sparse.py);
 - :func:`track_node` / :func:`track_recording`: tracks from the centroids
   only;
 - :func:`process_file`: an HDF5 recording, cubes streamed frame by frame,

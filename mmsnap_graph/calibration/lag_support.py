@@ -5,9 +5,8 @@ The track matching marks a lag ambiguous when other lags fit the tracks
 about as well with other poses (a walk along a circle: a time shift is a
 turn about its centre). Its fits at those lags may sit on other track pairs
 (two people matched to each other) and its tracks are smoothed, so the
-spread of their poses can be far wider than what the centroids allow: two
-walkers at 50 ms frames, 10-38 deg of heading sigma where the errors are 1-2
-deg. Here each lag is tested on the centroids that the joint graph used
+spread of their poses can be far wider than what the centroids allow
+(docs/validation/calibration.md, "Figures behind the estimators' rules"). Here each lag is tested on the centroids that the joint graph used
 (one per node and frame, or the ones it associated across nodes, the same
 person paired with itself): node b's centroid of frame ``k + L`` paired with
 node a's of frame ``k`` against node b's of frame ``k``, both lags' closed

@@ -67,8 +67,8 @@ __all__ = ["POINT_JOINT_OPTIONS", "PEOPLE_JOINT_OPTIONS", "JOINT_OPTIONS_BY_TARG
 #: "points"``, the simulator's clean model): constant-velocity factors (they
 #: let a ghost stand out from the smooth track; without them a free per-frame
 #: state absorbs part of it) with a white-acceleration sigma that covers a
-#: walking person's accelerations (on the simulator's walks 0.5 m/s^2 biased
-#: the poses by up to 9 cm, 2-5 m/s^2 did not), and each node's clock offset.
+#: walking person's accelerations (a tighter sigma biased the poses:
+#: docs/CALIBRATION.md, "Limits"), and each node's clock offset.
 POINT_JOINT_OPTIONS = JointOptions(motion=True, sigma_a_mps2=3.0, time_offsets=True)
 #: The same for recordings of people (``Recording.targets = "people"``, real
 #: radars): their reflection depth, not estimated, considered in the pose
@@ -78,8 +78,7 @@ PEOPLE_JOINT_OPTIONS = dataclasses.replace(POINT_JOINT_OPTIONS,
 #: ``Recording.targets`` -> the joint graph's default options. Point targets
 #: leave the reflection depth's term out: every radar sees the whole target,
 #: so its centroids carry no depth and the term would only widen the
-#: covariance (the README's clean tour: fused NEES 3.09 against the band
-#: (3.77, 4.23) with it).
+#: covariance (the fused NEES fell below its band with it: docs/validation/calibration.md, "Figures behind the estimators' rules").
 JOINT_OPTIONS_BY_TARGETS = {"people": PEOPLE_JOINT_OPTIONS, "points": POINT_JOINT_OPTIONS}
 
 
@@ -158,10 +157,8 @@ def _refine_multi(recording, pg, reachable, method, noise, options, facts):
     (``options.time_offsets``) come from one more solve on the associated
     centroids, kept only when the data support them
     (:func:`~mmsnap_graph.calibration.joint.multi_refine.with_clock_offsets`):
-    estimated in the rounds, they found 7.5 +- 3.3 and 19.7 +- 4.0 ms on
-    two-person scenes with true offsets zero and moved the poses by 35-85
-    mm, and gave the synchronised real recordings fractions of -1.3 to -1.9
-    frames (docs/CALIBRATION.md, "Clock offsets")."""
+    estimated in the rounds, they came out several of their sigmas from a
+    true zero and moved the poses (docs/CALIBRATION.md, "Several people")."""
     try:
         out = refine_associated(recording, reachable, pg.poses, pg.covariances, pg.lag_frames,
                                 noise=noise,
@@ -397,8 +394,8 @@ def _disputed_lags(lags, clock) -> LagsDisputed | None:
     (fraction, sigma) in frames beyond the lag) more than half a frame and
     :data:`LAG_EVIDENCE_Z` sigmas from it. The tracks then prefer a lag
     that the centroids the joint graph associated do not (two walkers at
-    right angles, synchronised: lag -6 from the tracks, the joint graph
-    2.1 +- 0.3 frames nearer zero, the heading 16.8 deg off)."""
+    right angles, synchronised, the heading a turn of a frame's shift off:
+    docs/validation/calibration.md, "Figures behind the estimators' rules")."""
     lagged = {n: int(v) for n, v in lags.items() if int(v) != 0}
     if not lagged or clock is None:
         return None
@@ -426,9 +423,8 @@ def _cover_ambiguous_lags(edges, covs, facts, used, clock, matching, period) -> 
     not): a shift ``LAG_EVIDENCE_Z`` of its sigmas from the offset is
     rejected. Node b's covariance grows by the spread of the shifts that
     neither rejects: the track matching's own spread covers fits of other
-    track pairs and of
-    smoothed tracks (two walkers at 50 ms frames: 10-38 deg of heading
-    sigma where the errors were 1-2 deg). Without them (the pose graph's
+    track pairs and of smoothed tracks, many times the errors
+    (docs/validation/calibration.md, "Figures behind the estimators' rules"). Without them (the pose graph's
     result) the edge's widened covariance is a PSD lower bound of both
     nodes'."""
     out = dict(covs)

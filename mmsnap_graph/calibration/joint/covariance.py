@@ -24,13 +24,11 @@ long-run estimate exceeds it, over the whole block, by more than its own
 sampling noise; then it reports the long-run estimate (never below the
 model in any direction) times the small-sample factor of a covariance
 estimated with ``nu = 3 T / (2 L)`` degrees of freedom, ``nu / (nu - P -
-1)``. Measured (tests/calibration/joint/test_covariance.py): with the real
-physics' correlated centroid errors the per-direction rule it replaces
-(widen where the long-run exceeds the model by two standard errors) gave a
-NEES of 8.86 against the band 4.58-7.61, although at the mean reported
-covariance it was 6.62: each recording's covariance is estimated from its
-own frames, and the inverse of a noisy covariance is too large on the
-average.
+1)``. A rule per direction (widen where the long-run estimate exceeds the
+model by two standard errors) is too eager: each recording's covariance is
+estimated from its own frames, and the inverse of a noisy covariance is too
+large on the average (docs/CALIBRATION.md, "Covariance on real data
+(long-run)"; docs/validation/calibration.md, "Figures behind the estimators' rules").
 
 A bias that every frame shares is not in any of this: the influences of
 frames that all agree on a wrong pose sum to zero as well. A person's
@@ -47,11 +45,9 @@ mean squares ``(1 - q) s^2`` and ``q s^2`` (``q`` =
 mean square, ``q s^2`` its variance). ``block_covariance(...,
 range_offset_rms=s)`` adds ``s^2 ((1 - q) J J^T + q sum_n J_n J_n^T)`` to
 the reported covariance (*considered* parameters, the Schmidt "consider"
-covariance: the poses are not moved). Measured on the simulator's real
-model (docs/validation/calibration.md, "The calibrated pose on the simulator's real
-model"): S2's pose NEES 53.8-177.2 (mean 107.7, 3 dof, seeds 0-5) without,
-mean 4.99 over seeds 0-11 with one common depth of ``s = 0.112`` m, 3.04
-with the nodes' own parts.
+covariance: the poses are not moved). On the simulator's real model it
+brings the pose NEES into its band (docs/validation/calibration.md, "The
+calibrated pose on the simulator's real model").
 """
 
 from __future__ import annotations

@@ -141,7 +141,7 @@ def _one_round(recording, names, poses, covariances, lag_frames, noise,
     joint = joint_calibration(dets, options, noise=noise, **data)
     if not joint.success and options.robust is not None:
         # The robust pass can leave GTSAM an indeterminate system (a dense
-        # two-person scene, seed 2: every detection of a state down-weighted);
+        # two-person scene: every detection of a state down-weighted);
         # the association has gated the outliers already: Gaussian factors.
         plain = joint_calibration(dets, dataclasses.replace(options, robust=None), noise=noise,
                                   **data)

@@ -495,8 +495,8 @@ def _recentred_lags(result: JointCalibration, inputs: _Inputs,
     whichever has the lower final error. The offset enters the model to
     first order (``F(tau) x``): a lag one frame off (e.g. from EKF tracks,
     whose filter delays differ from node to node) is only partly recovered,
-    and the poses absorb the rest (measured: 0.34-0.45 of a frame recovered,
-    pose errors of 0.4 m on a 3-node network)."""
+    and the poses absorb the rest (docs/CALIBRATION.md, "What
+    ``calibrate_recording`` reports")."""
     period = inputs.frame_period_s
     lags = dict(inputs.lag_frames)
     moves = {}

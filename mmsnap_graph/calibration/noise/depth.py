@@ -6,11 +6,9 @@ Where the node poses are free (the calibration), ``d`` trades against them
 (a shorter baseline and a deeper body look alike) and the joint graph needs
 a prior for it. At poses fixed from outside the data (surveyed, or the
 truth of a simulation, passed to ``mmsnap fuse --calibration``), the
-cross-node residuals identify one common ``d`` well: on the simulator's real
-model (network B, random walk, 600 frames, seeds 0-2) at the true poses,
-0.069 / 0.079 / 0.081 m with a 0.006 m standard error, against 0.061-0.075 m
-measured from the centroids against the truth; at the calibrated poses
-0.000-0.002 m (the poses took it in).
+cross-node residuals identify one common ``d`` well (at the calibrated
+poses it is about zero: the poses took it in; docs/CALIBRATION.md,
+"Extended targets: a range offset").
 
 :func:`range_offset_at_poses` is the generalised least-squares estimate of
 ``d`` with every frame's state a free nuisance: the score and information of

@@ -22,10 +22,9 @@ noise with their expectation corrected to the noise variance:
   normalised 4th-order differences of each node's own sequence of centroids
   on runs of consecutive frames. They cancel any cubic trend in 5 frames
   (0.6 s at 150 ms), so what remains is the noise plus the trend's 4th
-  difference, negligible for a walking torso's range and angle (measured bias
-  +1 to +2 %). A target whose velocity is rough (the simulator's random walk
-  has an Ornstein-Uhlenbeck speed, ~0.08 m/s per frame) passes part of it for
-  Doppler noise: +5 to +12 % there, +0 to +3 % on the straight walks. The
+  difference, negligible for a walking torso's range and angle. A target
+  whose velocity is rough (the simulator's random walk has an
+  Ornstein-Uhlenbeck speed) passes part of it for Doppler noise. The
   differences of white noise are correlated (the variance of the estimate is
   ``KAPPA_4 = 2.63`` times that of independent residuals).
 
@@ -58,13 +57,8 @@ every identified node gets the dof-weighted pooled value: a network of one
 radar model then shares its sigma (about ``sqrt(N)`` times more precise);
 nodes that differ keep their own.
 
-Measured on the simulator's networks A, C and a 3-node network (600 frames,
-true sigmas 0.05 m, 0.08 rad, 0.1 m/s, 8 seeds each), per node: range and
-spatial frequency within +2.5 % (bias) with 1-4.5 % standard error; Doppler
-of the temporal estimate alone -3 to +3 % on straight walks, +4 to +12 % on
-random walks (see above), 4-7 % standard error; with the motion estimate
-(poses known or calibrated) -4 to +3 % on both (10 seeds, truth-state
-check: mean 0.98-1.03 per node) with 5-7 % standard error per node.
+The estimators' bias and precision on the simulator's networks:
+docs/CALIBRATION.md, "Noise from the data".
 """
 
 from __future__ import annotations

@@ -6,12 +6,9 @@ smooth walk the latter are negligible, but a walker whose speed and heading
 change from frame to frame (the simulator's random walk: an
 Ornstein-Uhlenbeck speed, ~0.08 m/s per frame, and turns of up to 3 rad/s)
 adds ~20 % to their variance, and nothing in one node's sequence separates
-the two. Measured on one node's 600 frames of the random walk: a REML fit
-of white noise plus random walks of orders 1-3 leaves the noise 0-10 dof
-(and under-estimates it, 0.05-0.07 for 0.1 m/s); a Whittle fit of white
-noise plus a random walk above a third of the sampling frequency, 1-4 dof:
-the walk's roughness looks like noise at every frequency the differences
-keep.
+the two: fitted on one node alone (REML, Whittle), the walk's roughness
+looks like noise at every frequency the differences keep and the noise is
+left with a few dof.
 
 Several nodes see the *same* motion: the normalised 2nd differences
 ``D_i = (z_i[t-1] - 2 z_i[t] + z_i[t+1]) / sqrt(6)`` of the Dopplers
@@ -46,17 +43,10 @@ noise and the motion unseparated, and the dof say so.
 2nd differences (3 consecutive frames) rather than the 4th of
 :func:`~.estimate.temporal_noise`: the motion is fitted, not
 differenced away, and the 2nd differences are less correlated (1.94 against
-2.63) and survive gaps and ghosts better (measured: +20 % dof, bias the
-same). Differences beyond :data:`MOTION_GATE_K` robust sigmas are trimmed
-(the truncation corrected).
-
-Measured (tests/calibration/noise/test_motion.py): white noise 0.08 / 0.12 m/s on the
-radial velocity of a velocity random walk (0.08 m/s per frame), two facing
-nodes, 600 frames, 100 seeds: mean +1.1 %, +0.7 % (the nodes' own 4th
-differences: +13 %, +7 %), seeds' variance of ``sigma^2`` 1.08 and 1.00 x
-the predicted. Simulator random walk, network C, true states, 10 seeds:
-mean 0.98 and 1.03 x the truth per node (own 4th differences 1.06-1.12),
-5.7-7.3 % standard deviation.
+2.63) and survive gaps and ghosts better. Differences beyond
+:data:`MOTION_GATE_K` robust sigmas are trimmed (the truncation corrected).
+Bias and precision (tests/calibration/noise/test_motion.py):
+docs/validation/calibration.md, "Figures behind the estimators' rules".
 """
 
 from __future__ import annotations

@@ -6,11 +6,10 @@ robust estimators of :mod:`mmsnap_graph.calibration.noise.estimate` give the
 scale of the *core* of the errors: they screen ghosts and trim beyond a few
 robust sigmas. On Gaussian centroids the two agree. Centroids made by the
 radar chain from point clouds (the torso cluster of a walking body, limbs
-leaking in) are heavy-tailed: on the README's tour (network C, random walk,
-600 frames) their errors against the truth have kurtosis 6-10, 2-7 % of them
-beyond 5 robust sigmas, and those carry 25-70 % of the second moment. The
-robust sigmas are then 15-45 % short (range, omega) and up to 2x short
-(Doppler) of the root mean square, and the fused NEES is 8-9 instead of 4.
+leaking in) are heavy-tailed: a few per cent of their errors, beyond 5
+robust sigmas, carry a large part of the second moment, the robust sigmas
+fall short of the root mean square and the fused NEES comes out about twice
+its dimension (the figures: docs/validation/calibration.md, "Figures behind the estimators' rules").
 
 The tails are not ghosts: they pass the association's gate, the fusion uses
 them, so the covariance must count them. :func:`tail_variances` measures, per
@@ -30,29 +29,22 @@ poses of two nodes or more; without them the estimate is returned unchanged.
 
 Sparse clouds (a node missing the person in one frame of five or six, as
 the simulator's real model and the TI recordings do) leave few runs of five
-consecutive frames: on the real model 13-18 differences of the ~400
-consistent rows, far below :data:`TAIL_MIN_DIFFERENCES`, so no tail was
-counted and the Doppler sigma stayed at the core's (0.22-0.32 m/s against a
-root mean square of 0.31-0.46 m/s; fused velocity NEES 2.2-3.4 of 2). There
-the excess comes from leave-one-out residuals instead
+consecutive frames, far fewer than :data:`TAIL_MIN_DIFFERENCES`, so the
+4th differences count no tail and the Doppler sigma stays at the core's.
+There the excess comes from leave-one-out residuals instead
 (:func:`_loo_residuals`: each row against a quadratic in time through its
 neighbours within :data:`TAIL_LOO_REACH` frames, gaps allowed), whose fits
 leave out gross rows, rows that cannot be tested and rows beyond
 :data:`TAIL_FIT_K` core scales; rows beyond :data:`TAIL_LOO_GROSS_K` are
-gross. Measured: Gaussian sparse centroids keep their sigmas; 97/3 %
-contaminated ones (root mean square 1.43) reach 1.15-1.28 on average (the
-fits hold fewer tails than the rows tested); on the real model the Doppler
-sigma becomes 0.30-0.43 m/s and the fused velocity NEES 1.5-1.9.
+gross. Gaussian sparse centroids keep their sigmas; contaminated ones move
+toward the root mean square (the fits hold fewer tails than the rows
+tested).
 
-Limits (measured, tests/calibration/noise/test_tails.py): the 4th differences mix five
+Limits (tests/calibration/noise/test_tails.py): the 4th differences mix five
 centroids, which makes rare wide errors look more Gaussian, so the excess is
-an underestimate: on 97 % N(0, 1) + 3 % N(0, 36) noise (root mean square
-1.43) the sigmas reach 1.07-1.45 x the core, 1.24-1.30 on average; on the
-tour, within -7 to +5 % of the centroids' error against the truth (range,
-omega, Doppler). Two facing nodes cannot check each other's Doppler, so a
+an underestimate. Two facing nodes cannot check each other's Doppler, so a
 ghost Doppler within :data:`TAIL_GROSS_K` passes for a tail (as the fusion
-fuses it): with 10 % of the simulator's uniform ghosts the Doppler sigma of
-such a pair grows up to 1.5x.
+fuses it). The figures: docs/validation/calibration.md, "Figures behind the estimators' rules".
 """
 
 from __future__ import annotations
@@ -74,20 +66,20 @@ __all__ = ["TAIL_GATE_PROBABILITY", "TAIL_Z", "TAIL_ORDER", "TAIL_GROSS_K",
            "tail_variances", "with_tails"]
 
 #: Gate of the frame consistency test: a gross-error gate, far beyond what
-#: genuine heavy-tailed centroids reach (tour, seeds 1-2: the frame
-#: chi-square of the chain's centroids at the robust sigmas peaks at 45-49,
-#: 2 dof; with 10 % ghosts their frames' 10 % quantile is 535), so that it
-#: keeps every tail the fusion keeps and no ghost.
+#: genuine heavy-tailed centroids reach and far below ghosts' frames, so
+#: that it keeps every tail the fusion keeps and no ghost. (This module's
+#: constants were set by simulation of Gaussian, contaminated and ghost
+#: centroids; tests/calibration/noise/test_tails.py checks the outcomes.)
 TAIL_GATE_PROBABILITY = 1.0 - 1e-12
 #: Null standard deviations by which the excess must exceed 0 to count
-#: (measured: Gaussian centroids of a random walk up to 3.3, the walk's own
-#: uneven 4th differences; the tour's chain centroids 4.1-45).
+#: (above what Gaussian centroids of a random walk reach through the walk's
+#: own uneven 4th differences).
 TAIL_Z = 4.0
 #: Difference windows beyond this many trimmed scales are gross (a ghost the
 #: frame gate let through); the chain's tails reach about 12.
 TAIL_GROSS_K = 20.0
-#: Fewest differences for a component's test (the null spread below was
-#: measured on 556; on ~100 a Gaussian node reached 4.3 null deviations).
+#: Fewest differences for a component's test (on far fewer than the null
+#: spread was measured on, Gaussian nodes exceed :data:`TAIL_Z`).
 TAIL_MIN_DIFFERENCES = 200
 #: Order of the differences (as the temporal estimator).
 TAIL_ORDER = 4
@@ -99,16 +91,14 @@ _ROUNDS = 2
 _KAPPA_4 = 1.0 + 2.0 * ((56 / 70) ** 2 + (28 / 70) ** 2 + (8 / 70) ** 2 + (1 / 70) ** 2)
 #: Standard deviation of ``mean(e^2) - s^2`` (``s`` the trimmed scale) on
 #: Gaussian 4th differences, in units of ``s^2 sqrt(2 KAPPA_4 / n)``
-#: (measured: 0.295 over 2000 draws of 556 differences).
+#: (measured by simulation).
 _NULL_SPREAD = 0.30
 #: Reach (frames on either side) of the leave-one-out fits of :func:`_loo_residuals`.
 TAIL_LOO_REACH = 3
 #: Gross residuals of the leave-one-out path, in trimmed scales: a ghost
 #: shows nearly whole in its own residual (not mixed with four neighbours as
-#: in a difference); the range ghosts of tests/calibration/noise/test_tails.py
-#: that pass the frame gate sit 14-20 scales out. The real model's centroid
-#: Doppler errors reach 8-12 core scales at their 99th percentile (1.2-1.6
-#: m/s at 0.13-0.18 m/s), so the rarest of them are cut as gross.
+#: in a difference), beyond this; the real model's rarest centroid Doppler
+#: errors reach it too and are cut as gross.
 TAIL_LOO_GROSS_K = 12.0
 _LOO_SCREEN_ROUNDS = 3
 #: Fewest fit rows of a leave-one-out residual (three fix the quadratic).
@@ -117,9 +107,8 @@ _LOO_MIN_FIT = 3
 #: the fits of their neighbours (they are still tested themselves).
 TAIL_FIT_K = 8.0
 #: Standard deviation of ``mean(r^2) - s^2`` on Gaussian leave-one-out
-#: residuals, in units of ``s^2 / sqrt(n)`` (measured: 0.61-0.66 over 400
-#: sequences of 600 frames with 30 % missed, white noise on smooth walks, ~310
-#: residuals; 0.25-0.5 % of them beyond :data:`TAIL_Z` of it).
+#: residuals, in units of ``s^2 / sqrt(n)`` (measured by simulation on
+#: sequences with 30 % of the frames missed).
 _LOO_NULL_SPREAD = 0.66
 
 

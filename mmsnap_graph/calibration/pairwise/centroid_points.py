@@ -11,10 +11,11 @@ average:
     E[\\sqrt{1 - s^2}] = c_0 - \\frac{\\sigma_s^2}{2 c_0^3} + O(\\sigma_s^4),
     \\quad c_0 = \\sqrt{1 - s_0^2}.
 
-At the simulator's centroid noise (0.08 rad) that is 2-6 mm at 4-6 m: small
-against one centroid's noise, but common to every frame of a recording, so a
-pose solved from 300 such points carries it whole (on a 3-node network, pose-graph NEES 6.82 over 200 seeds against the band (5.53, 6.49):
-6.10 of variance and 0.64 of this bias; the linearised noise gave 6.16).
+At the simulator's centroid noise it is millimetres: small against one
+centroid's noise, but common to every frame of a recording, so a pose solved
+from hundreds of such points carries it whole, enough to push the pose
+graph's NEES out of its band (docs/CALIBRATION.md, "Network: all poses from
+the matched points").
 :func:`debias_centroid_tracks` adds the second-order term back, ``v = R (c +
 sigma_s^2 / (2 c^3))``, with ``c`` floored at :data:`MIN_COS` and
 ``sigma_Omega`` estimated from each node's own centroid sequence

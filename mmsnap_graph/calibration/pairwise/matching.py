@@ -12,8 +12,7 @@ position covariances (EKF tracks), the gate is a chi-square test on each
 frame pair, ``r^T (C_a + R C_b R^T)^{-1} r < chi2_2(gate_probability)``,
 ``r = z_a - T(z_b)``: it widens with range and along the cross-range axis as
 the tracks' own uncertainty does (a fixed gate cuts the tails of far tracks'
-residuals and the covariance comes out too small: pose NEES 8 at longer
-ranges). Without covariances the gate is ``inlier_gate_m``.
+residuals and the covariance comes out too small at longer ranges). Without covariances the gate is ``inlier_gate_m``.
 
 Thresholds in time: the lag window ``max_lag_s`` and the minimum overlap
 ``min_common_s`` of the :class:`MatchingOptions` are seconds, turned into
@@ -237,8 +236,8 @@ def _misalignment(pose: NDArray, za: NDArray, zb: NDArray) -> NDArray:
 
 def _gate_d2(pose: NDArray, r: NDArray, ca: NDArray, cb: NDArray) -> NDArray:
     """``r^T (C_a + R C_b R^T)^{-1} r`` per row (2x2 entries written out:
-    a three-operand einsum cost 25 ms a call on 10^4 rows, most of the
-    matching's time with many short tracks)."""
+    a three-operand einsum took most of the matching's time with many short
+    tracks)."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
     bxx, bxy, byy = cb[:, 0, 0], 0.5 * (cb[:, 0, 1] + cb[:, 1, 0]), cb[:, 1, 1]
     a = ca[:, 0, 0] + c * c * bxx - 2 * c * s * bxy + s * s * byy
@@ -592,8 +591,7 @@ def _supported_lag(pool, fits, lag, max_lag_frames):
     at the edge of the search window (``max_lag_frames``), where the fit is
     not seen to get worse beyond it: a time shift that a turn of the pose
     absorbs improves the RMSE a little with every frame (two walkers seen by
-    synchronised radars at right angles: lag 6 of 6 at z = 3.2, every
-    smaller lag at z 3.5-7.4, the heading 2.5 deg per frame off)."""
+    synchronised radars at right angles: docs/validation/calibration.md, "Figures behind the estimators' rules")."""
     if lag == 0:
         return lag, fits, None
     z, pose0 = lag_evidence(pool, fits, lag)

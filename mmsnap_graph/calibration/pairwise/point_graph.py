@@ -3,7 +3,8 @@
 Pairwise closed forms that reuse one node's detections (S1-S2 and S1-S3 both
 use S1's track) are correlated; a pose graph that takes them as independent
 edges counts S1's track twice and reports covariances that are too small
-(pose NEES 6.8-8.5 on a clean 3-node network, 6 expected for two poses). Here the poses are solved jointly from the points themselves:
+(docs/CALIBRATION.md, "Network: all poses from the matched points"). Here the
+poses are solved jointly from the points themselves:
 
 .. math::
 

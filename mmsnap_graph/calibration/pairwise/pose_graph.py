@@ -13,8 +13,8 @@ reference are reported in ``unreachable`` and get no pose.
 Edges from matched tracks (:func:`pairwise_edges`) carry their matched
 points. Pairwise estimates that reuse one node's detections are correlated,
 and the between-factor graph, which takes them as independent, reports
-covariances that are too small (pose NEES 6.8-8.5 for two poses on a clean
-3-node network). When every edge has its points, ``method="auto"``
+covariances that are too small (docs/CALIBRATION.md, "Network: all poses
+from the matched points"). When every edge has its points, ``method="auto"``
 (default) solves all poses at once from the points instead
 (:mod:`.point_graph`: one least squares, a sandwich covariance with the
 residuals of one instant counted together and corrected for frame-to-frame
