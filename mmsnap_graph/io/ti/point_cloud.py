@@ -136,27 +136,125 @@ class Mounting:
 
 
 def _row_keys(cloud: PointCloud3D, rows: NDArray) -> NDArray:
-    """One hashable byte string per point (position and Doppler)."""
-    block = np.ascontiguousarray(np.column_stack([cloud.x_m[rows], cloud.y_m[rows],
-                                                  cloud.z_m[rows], cloud.doppler_mps[rows]]))
-    return block.view(np.dtype((np.void, block.dtype.itemsize * 4))).ravel()
+    """One hashable byte string per point (position, Doppler and SNR when known)."""
+    cols = [cloud.x_m[rows], cloud.y_m[rows], cloud.z_m[rows], cloud.doppler_mps[rows]]
+    if cloud.snr_db is not None:
+        cols.append(np.nan_to_num(cloud.snr_db[rows], nan=-np.inf))
+    block = np.ascontiguousarray(np.column_stack(cols))
+    return block.view(np.dtype((np.void, block.dtype.itemsize * len(cols)))).ravel()
 
 
-def destack_frames(cloud: PointCloud3D) -> PointCloud3D:
-    """Undo the stacking of recording tools that store, in each frame, the
-    points of the last N frames: a point equal (x, y, z, Doppler) to a point
-    of the previous frame is dropped, so each point stays in the frame where
-    it first appears."""
-    keep = np.ones(len(cloud), dtype=bool)
-    previous = np.zeros(0, dtype=np.dtype((np.void, 32)))
-    last_frame = None
-    for f in cloud.frames:
+def _overlap(older: NDArray, newer: NDArray) -> int:
+    """Length of the longest head of ``newer`` equal to a tail of ``older``
+    (key arrays of two stacks, oldest point first)."""
+    if not (older.size and newer.size):
+        return 0
+    starts = np.flatnonzero(older == newer[0])              # where the head could begin
+    for s in starts:                                        # earliest start = longest
+        m = older.size - int(s)
+        if m <= newer.size and np.array_equal(older[s:], newer[:m]):
+            return m
+    return 0
+
+
+#: The deepest stack :func:`destack_frames` looks for (frames per stack), and
+#: the frames it reads to find the depth.
+MAX_STACK_FRAMES = 64
+LAG_FRAMES = 2000
+
+
+def _stack_lag(heads: list, news: list) -> int:
+    """Frames per stack minus one: the lag ``L`` at which the frame a stack
+    drops (its oldest, ``heads[k + L]``) is the frame new ``L`` stacks
+    earlier (``news[k]``); 0 when no lag fits a non-empty frame."""
+    best, best_count = 0, 0
+    n = min(len(news), LAG_FRAMES)
+    for lag in range(1, min(MAX_STACK_FRAMES, len(heads))):
+        count = sum(1 for k in range(min(n, len(heads) - lag))
+                    if news[k].size and np.array_equal(heads[k + lag], news[k]))
+        if count > best_count:
+            best, best_count = lag, count
+    return best
+
+
+def _destack_order(cloud: PointCloud3D, frames: NDArray, reverse: bool):
+    """Per present frame (number, rows oldest point first, keys); the rows of
+    a stack written newest first are reversed."""
+    out = []
+    for f in frames:
         rows = np.flatnonzero(cloud.frame == f)
-        keys = _row_keys(cloud, rows)
-        if last_frame is not None and last_frame == f - 1 and previous.size:
-            keep[rows] = ~np.isin(keys, previous)
-        previous, last_frame = keys, f
-    return cloud.select(keep)
+        rows = rows[::-1] if reverse else rows
+        out.append((int(f), rows, _row_keys(cloud, rows)))
+    return out
+
+
+def destack_frames(cloud: PointCloud3D, *, frame_period_s: float | None = None) -> PointCloud3D:
+    """Undo the stacking of recording tools that store, in each frame, the
+    points of the last N frames.
+
+    A frame's stack starts with the tail of the previous frame's stack (the
+    frames they share, in order: oldest first, or newest first, whichever
+    the cloud's stacks show more of); the points after that overlap are the
+    frame's own. Points repeated only by chance (a static reflector giving
+    the same quantised point in several frames) are kept: only the shared
+    run of points is dropped, never a point because an equal one exists.
+    A frame whose number does not follow the previous one shares nothing.
+    The stack depth N is found from the frames the stacks drop (the oldest
+    frame of stack ``k`` is the frame new in stack ``k - N + 1``), and the
+    first stack's N - 1 older frames are given their frame numbers (and,
+    with time stamps, times ``frame_period_s`` earlier per frame; the
+    stamps' own step when it is None); a first stack that does not split so
+    stays whole.
+    """
+    frames = np.unique(cloud.frame)
+    if frames.size < 2:
+        return cloud
+    best = None
+    for reverse in (False, True):
+        stacks = _destack_order(cloud, frames, reverse)
+        overlaps = [_overlap(a[2], b[2]) if b[0] == a[0] + 1 else 0
+                    for a, b in zip(stacks[:-1], stacks[1:])]
+        if best is None or sum(overlaps) > sum(best[1]):
+            best = (stacks, overlaps)
+    stacks, overlaps = best
+    keep = np.ones(len(cloud), dtype=bool)
+    for (_, rows, _), m in zip(stacks[1:], overlaps):
+        keep[rows[:m]] = False
+    frame = cloud.frame.copy()
+    time = None if cloud.time_s is None else cloud.time_s.copy()
+    _recover_first_stack(stacks, overlaps, frame, time, frame_period_s)
+    pick = lambda a: None if a is None else a[keep]
+    return PointCloud3D(frame=frame[keep], x_m=cloud.x_m[keep], y_m=cloud.y_m[keep],
+                        z_m=cloud.z_m[keep], doppler_mps=cloud.doppler_mps[keep],
+                        snr_db=pick(cloud.snr_db), noise_db=pick(cloud.noise_db),
+                        time_s=pick(time), frames=np.union1d(cloud.frames, frame))
+
+
+def _recover_first_stack(stacks: list, overlaps: list, frame: NDArray, time: NDArray | None,
+                         frame_period_s: float | None) -> None:
+    """Renumber (in place) the first stack's older frames: those the next
+    stacks drop, when they are its head in order."""
+    heads = [a[2][:a[2].size - m] for a, m in zip(stacks[:-1], overlaps)]
+    news = [np.zeros(0, stacks[0][2].dtype)] + [b[2][m:] for b, m in zip(stacks[1:], overlaps)]
+    lag = _stack_lag(heads, news)
+    f0, rows0, keys0 = stacks[0]
+    if lag == 0 or len(heads) < lag:
+        return
+    older = heads[:lag]
+    n_older = sum(h.size for h in older)
+    if not np.array_equal(np.concatenate(older), keys0[:n_older]):
+        return
+    if time is not None and frame_period_s is None:
+        t = [float(np.median(time[r])) for _, r, _ in stacks]
+        f = [s[0] for s in stacks]
+        frame_period_s = float(np.median(np.diff(t) / np.diff(f)))
+    start = 0
+    for j, h in enumerate(older):
+        rows = rows0[start:start + h.size]
+        frame[rows] = f0 - lag + j
+        if time is not None:
+            time[rows] -= (lag - j) * frame_period_s
+        start += h.size
 
 
 def accumulate_frames(cloud: PointCloud3D, n_frames: int, *,

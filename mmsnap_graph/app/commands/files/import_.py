@@ -71,7 +71,7 @@ def _points_options(p: argparse.ArgumentParser) -> None:
                    help="skip .cfg commands this reader does not know (listed on stderr)")
     p.add_argument("--destack", action="store_true",
                    help="the log stores each frame as a stack of the last frames' points: "
-                        "drop points repeated from the previous frame")
+                        "drop the run of points each stack shares with the previous one")
     p.add_argument("--accumulate", type=int, default=1, metavar="K",
                    help="merge the points of the last K frames into each frame (sparse "
                         "clouds; default 1 = off)")
@@ -373,7 +373,8 @@ def _points_recording(args, clouds, ti, period, metadata):
                                              recording_from_point_clouds)
     _check_period(args, clouds, period)
     if args.destack:
-        clouds = {name: destack_frames(c) for name, c in clouds.items()}
+        clouds = {name: destack_frames(c, frame_period_s=period)
+                  for name, c in clouds.items()}
     if args.accumulate != 1:
         try:
             clouds = {name: accumulate_frames(c, args.accumulate, frame_period_s=period)
