@@ -57,7 +57,8 @@ except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
 __all__ = ["atomic_path", "check_output_path", "file_kind", "recording_lock",
-           "refuse_existing", "remove_stale_temporaries", "scratch_folder", "STALE_TMP_AGE_S", "LOCK_TIMEOUT_S"]
+           "refuse_existing", "remove_stale_temporaries", "scratch_folder", "temporary_prefix",
+           "STALE_TMP_AGE_S", "LOCK_TIMEOUT_S"]
 
 #: A temporary file of a writer on another host (or of unknown origin) older
 #: than this (s) is taken as left by a killed writer and removed.
@@ -70,6 +71,14 @@ _HOST = re.sub(r"[^A-Za-z0-9_-]", "_", socket.gethostname())[:40] or "host"
 _TMP_OWNER = re.compile(r"\.(\d+)@([A-Za-z0-9_-]+)\.[^.]+\.tmp$")
 _held: dict[str, list] = {}  # real path of a lock file -> [open file, depth]
 _held_guard = threading.Lock()
+
+
+def temporary_prefix(path: str | os.PathLike, pid: int | None = None) -> str:
+    """The start ``.<name>.<pid>@<host>.`` of the temporary files and scratch
+    folders a writer of ``path`` in process ``pid`` (default: this one)
+    names beside it (module docstring); what :func:`remove_stale_temporaries`
+    reads back to tell a dead writer's leftovers from a live one's."""
+    return f".{Path(path).name}.{os.getpid() if pid is None else int(pid)}@{_HOST}."
 
 
 def _umask() -> int:
@@ -178,7 +187,7 @@ def scratch_folder(path: str | os.PathLike) -> Iterator[Path]:
     path = Path(os.path.realpath(path))
     folder = path.parent
     remove_stale_temporaries(path)
-    scratch = tempfile.mkdtemp(prefix=f".{path.name}.{os.getpid()}@{_HOST}.", suffix=".tmp",
+    scratch = tempfile.mkdtemp(prefix=temporary_prefix(path), suffix=".tmp",
                                dir=folder)
     try:
         yield Path(scratch)
@@ -209,7 +218,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     path = check_output_path(os.path.realpath(path))
     folder = path.parent
     remove_stale_temporaries(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}@{_HOST}.", suffix=".tmp",
+    fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path), suffix=".tmp",
                                dir=folder)
     os.close(fd)
     try:

@@ -9,7 +9,8 @@ import time
 import pytest
 
 from mmsnap_graph import FileFormatError
-from mmsnap_graph._atomic import atomic_path, recording_lock, remove_stale_temporaries
+from mmsnap_graph._atomic import (atomic_path, recording_lock, remove_stale_temporaries,
+                                  temporary_prefix)
 
 
 def test_success_replaces_file_with_umask_permissions(tmp_path):
@@ -102,9 +103,8 @@ def test_stale_temporaries_of_killed_writers_are_removed(tmp_path):
     target = tmp_path / "out.json"
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    host = __import__("mmsnap_graph._atomic", fromlist=["x"])._HOST
-    mine = tmp_path / f".out.json.{os.getpid()}@{host}.live.tmp"
-    killed = tmp_path / f".out.json.{dead.pid}@{host}.dead.tmp"
+    mine = tmp_path / (temporary_prefix(target) + "live.tmp")
+    killed = tmp_path / (temporary_prefix(target, dead.pid) + "dead.tmp")
     old = tmp_path / ".out.json.abc123.tmp"  # the old naming, two days old
     other = tmp_path / ".other.json.99999999@x.y.tmp"
     for p in (mine, killed, old, other):
@@ -112,6 +112,7 @@ def test_stale_temporaries_of_killed_writers_are_removed(tmp_path):
     two_days = time.time() - 2 * 86400
     os.utime(old, (two_days, two_days))
     with atomic_path(target) as tmp:
+        assert tmp.name.startswith(temporary_prefix(target))  # the names the test plants
         tmp.write_text("{}")
     assert target.read_text() == "{}"
     assert mine.exists() and other.exists()
@@ -249,12 +250,12 @@ def test_scratch_folders_of_killed_writers_are_removed_by_the_next_write(tmp_pat
     """Before: a scratch folder a kill -9 left beside the output (mmsnap
     simulate's memory-mapped cubes: gigabytes) stayed for ever; only files
     were removed."""
-    from mmsnap_graph._atomic import _HOST, scratch_folder
+    from mmsnap_graph._atomic import scratch_folder
 
     target = tmp_path / "sim.h5"
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    left = tmp_path / f".sim.h5.{dead.pid}@{_HOST}.abc.tmp"
+    left = tmp_path / (temporary_prefix(target, dead.pid) + "abc.tmp")
     (left / "inner").mkdir(parents=True)
     (left / "inner" / "cube_S1.c64").write_bytes(b"\0" * 64)
     with scratch_folder(target) as scratch:

@@ -58,7 +58,7 @@ from ..errors import (
 #: Sub-command modules under mmsnap_graph.app.commands, in help order.
 COMMANDS: list[str] = ["process", "simulate", "calibrate", "fuse", "demo", "evaluate",
                        "files.import_", "batch", "replay", "monitor", "noise", "files.info",
-                       "files.export", "boards.record", "boards.live"]
+                       "files.export", "files.plot", "boards.record", "boards.live"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1

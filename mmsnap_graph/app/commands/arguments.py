@@ -14,7 +14,7 @@ from mmsnap_graph.errors import MmsnapWarning, ValidationError
 __all__ = ["named_values", "named_pose", "solver_choice", "check_sigmas", "SIGMA_LIMITS",
            "HEADING_HELP", "looks_like_radians", "FUSE_DEFAULTS", "add_fusion_arguments",
            "fusion_settings", "fusion_config", "config_text", "add_calibration_arguments",
-           "calibration_for"]
+           "calibration_for", "bounds_value"]
 
 
 #: The heading convention, stated by every option that takes a node pose.
@@ -135,6 +135,10 @@ def _bounds(text: str) -> tuple[float, float, float, float]:
         raise argparse.ArgumentTypeError(f"--bounds {text!r} must look like XMIN,XMAX,YMIN,YMAX "
                                          "in metres (e.g. -2,1.6,0,3.6)")
     return values
+
+
+#: The ``--bounds XMIN,XMAX,YMIN,YMAX`` parser, for every verb that takes a room box.
+bounds_value = _bounds
 
 
 def _off(group, flag: str, dest: str, text: str) -> None:

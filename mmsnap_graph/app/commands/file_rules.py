@@ -38,9 +38,10 @@ __all__ = ["OUTPUT_FILE_OPTIONS", "add_overwrite", "input_paths", "check_files",
 #: Per command, the options naming an output file.
 OUTPUT_FILE_OPTIONS: dict[str, tuple[str, ...]] = {
     "process": ("output",), "fuse": ("output",), "calibrate": ("json_out", "output"),
-    "simulate": ("output",), "replay": ("output",), "import": ("output",),
+    "simulate": ("output",), "replay": ("output", "view_log"), "import": ("output",),
     "noise": ("output",), "monitor": ("json_out",), "batch": ("json_out",),
-    "export": ("output",), "record": ("output",), "live": ("output", "record"),
+    "export": ("output",), "record": ("output",), "live": ("output", "record", "view_log"),
+    "plot": ("output",),
 }
 
 #: Options that are glob patterns of input files (``mmsnap batch``).

@@ -7,7 +7,9 @@ their covariances, the clock offsets, the ``/noise`` sigmas), said on stderr.
 Prints one line per frame (or only the summary with ``--summary``); with
 ``--realtime`` the frames are paced at the recorded frame rate (``--speed``
 times faster). Writes nothing unless ``--output`` is given (one JSON object
-per frame).
+per frame). ``--view`` / ``--view-log`` show the frames in Foxglove or
+Lichtblick (:mod:`mmsnap_graph.app.view`; ``--view`` plays at the recorded
+rate unless ``--speed`` says otherwise).
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ import numpy as np
 
 from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import ValidationError
+
+from ..view.arguments import add_view_options
 
 from .arguments import add_calibration_arguments, add_fusion_arguments, calibration_for, \
     config_text, fusion_config
@@ -54,6 +58,7 @@ def register(subparsers) -> None:
     p.add_argument("--summary", action="store_true", help="print only the summary")
     p.add_argument("-o", "--output", default=None,
                    help="write one JSON line per frame (fused targets and tracks) to this file")
+    add_view_options(p)
     add_overwrite(p)
     p.set_defaults(func=run)
 
@@ -64,8 +69,8 @@ def _check_args(args) -> float | None:
         raise ValidationError(f"--output {args.output!r} is a directory; give a file name")
     if args.delay < 0:
         raise ValidationError(f"--delay must be >= 0 frames, got {args.delay}")
-    if args.speed is None:
-        return 1.0 if args.realtime else None
+    if args.speed is None:  # a live view is watched at the recorded rate
+        return 1.0 if args.realtime or args.view else None
     if not (SPEED_RANGE[0] <= args.speed <= SPEED_RANGE[1]):
         raise ValidationError(f"--speed must be between {SPEED_RANGE[0]:g} and "
                               f"{SPEED_RANGE[1]:g} (times the recorded rate), got {args.speed!r}")
@@ -105,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.fusion.recording.coverage import detection_reach_m
     from mmsnap_graph.fusion.recording.sequence import calibrated_recording, recording_poses
     from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
+    from mmsnap_graph.app.view.arguments import view_sink
     from mmsnap_graph.io import read_recording
 
     speed = _check_args(args)
@@ -126,14 +132,20 @@ def run(args: argparse.Namespace) -> int:
     fill = stream.tracker_config.max_misses
     frames = recording_frames(rec, source=config.association.source, fill_frames=fill)
     out = atomic_path(args.output) if args.output else None
+    view = view_sink(args, rec.node_names, poses,
+                     time_origin_s=float(rec.metadata.get("time_origin_s", 0.0)))
     with (out if out is not None else _Null()) as path:
         sink = open(path, "w", encoding="utf-8") if path is not None else None
         try:
             stats = _play(stream, frames, _file_rows(rec, config.association.source), speed,
-                          args.summary, sink)
+                          args.summary, sink, view)
         finally:
             if sink is not None:
                 sink.close()
+            if view is not None:
+                view.close()
+    if args.view_log:
+        print(f"wrote {args.view_log} (open it in Foxglove or Lichtblick)", file=sys.stdout)
     print(_summary(*stats), file=sys.stdout)
     if args.output:
         print(f"wrote {args.output}", file=sys.stdout)
@@ -179,15 +191,19 @@ class _Null:
         return False
 
 
-def _play(stream, frames, file_rows, speed, summary_only, sink):
-    """Push every frame (paced when ``speed`` is set); return the summary's numbers."""
+def _play(stream, frames, file_rows, speed, summary_only, sink, view=None):
+    """Push every frame (paced when ``speed`` is set), each decided frame to
+    ``view`` too (a :class:`~mmsnap_graph.app.live.driver.FusedSink`); return
+    the summary's numbers."""
+    from mmsnap_graph.app.live.driver import replayed_frame
+
     latencies, n_groups, n_ok, n_tracks_max = [], 0, 0, 0
     t0_wall = t0_rec = None
-    numbers = {}  # the frame number of each pushed frame, by its index
+    numbers = {}  # (frame number, time, detections) of each pushed frame, by its index
 
     def show(u):
         nonlocal n_groups, n_ok, n_tracks_max
-        frame = numbers.pop(u.index)
+        frame, time_s, detections = numbers.pop(u.index)
         latencies.append(u.latency_s)
         n_groups += len(u)
         n_ok += int(np.count_nonzero(u.success))
@@ -196,6 +212,8 @@ def _play(stream, frames, file_rows, speed, summary_only, sink):
             print(_line(frame, u), file=sys.stdout)
         if sink is not None:
             sink.write(json.dumps(_record(frame, u, file_rows(frame, u.members))) + "\n")
+        if view is not None:
+            view.write(replayed_frame(frame, time_s, detections, u))
 
     for frame, time_s, detections in frames:
         if speed is not None:
@@ -204,7 +222,7 @@ def _play(stream, frames, file_rows, speed, summary_only, sink):
             wait = t0_wall + (time_s - t0_rec) / speed - time.monotonic()
             if wait > 0:  # a gap in the stamps waits at most MAX_PAUSE_S
                 time.sleep(min(wait, MAX_PAUSE_S))
-        numbers[stream.frames] = frame
+        numbers[stream.frames] = (frame, time_s, detections)
         for u in stream.feed(time_s, detections):
             show(u)
     for u in stream.flush():

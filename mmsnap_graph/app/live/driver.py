@@ -37,7 +37,8 @@ from ...radar.chain import ChainConfig
 from ...radar.cluster import torso_centroids
 from ..pipeline import SPARSE_POINTS_PER_FRAME
 
-__all__ = ["LiveFrame", "FusedSink", "LiveFusion", "WAIT_FRAMES", "INACTIVE_FRAMES"]
+__all__ = ["LiveFrame", "FusedSink", "LiveFusion", "WAIT_FRAMES", "INACTIVE_FRAMES",
+           "replayed_frame"]
 
 #: A slot is fused at the latest this many frame periods after its start.
 WAIT_FRAMES = 1.5
@@ -65,6 +66,18 @@ class LiveFrame:
     update: object
     last_byte_s: float
     done_s: float
+
+
+def replayed_frame(frame: int, time_s: float, detections: Mapping, update) -> LiveFrame:
+    """A :class:`LiveFrame` of a frame streamed from a recording (``mmsnap
+    replay``): ``detections`` node -> (K, 3) rows streamed, given as both
+    the points and the centroids; the host times are now."""
+    now = time.monotonic()
+    rows = {n: np.asarray(z, dtype=float).reshape(-1, 3) for n, z in detections.items()}
+    points = {n: Detections(frame=np.full(len(z), frame, dtype=np.int64), range_m=z[:, 0],
+                            omega_rad=z[:, 1], doppler_mps=z[:, 2]) for n, z in rows.items()}
+    return LiveFrame(frame=int(frame), time_s=float(time_s), boards=tuple(rows), points=points,
+                     centroids=rows, update=update, last_byte_s=now, done_s=now)
 
 
 class FusedSink(Protocol):

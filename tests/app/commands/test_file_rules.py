@@ -174,6 +174,8 @@ EVERY_WRITER = {
     "process -o": (["process", "{rec}", "-o", "{out}", "--no-progress"], "out"),
     "noise -o": (["noise", "{rec}", "-o", "{out}"], "out"),
     "replay -o": (["replay", "{rec}", "--summary", "-o", "{out}"], "out"),
+    "replay --view-log": (["replay", "{rec}", "--summary", "--view-log", "{out}"], "out"),
+    "plot -o": (["plot", "{fused}", "-o", "{out}"], "out.png"),
     "import table -o": (["import", "table", "--node", "S1={csv}", "--frame-period", "0.1",
                          "-o", "{out}"], "out"),
     "import rosbag -o": (["import", "rosbag", "{bag}", "--topic", "/radar=S1", "--frame-period",
@@ -194,6 +196,8 @@ EVERY_WRITER = {
                  "--duration", "1", "-o", "{out}"], "out"),
     "live --record": (["live", "--calibration", "{rec}", "--board", "S1=usb:NO_SUCH_BOARD",
                        "--duration", "1", "--record", "{out}"], "out"),
+    "live --view-log": (["live", "--calibration", "{rec}", "--board", "S1=usb:NO_SUCH_BOARD",
+                         "--duration", "1", "--view-log", "{out}"], "out"),
 }
 
 

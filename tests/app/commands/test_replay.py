@@ -44,3 +44,29 @@ def test_replay_prints_the_stored_noise_one_short_line_per_node(recording_b_file
     store_partial_noise(path)
     assert main(["replay", str(path), "--summary"]) == 0
     noise_block(capsys.readouterr().err)  # the frames go to stdout
+
+
+def test_view_log_holds_each_frames_people_as_the_replay_prints_them(recording_b_file,
+                                                                     tmp_path, capsys):
+    """``--view-log``: the MCAP's /persons rows are the tracks of the replay's
+    JSON lines, frame for frame (read back with the mcap reader)."""
+    import json
+
+    pytest.importorskip("foxglove")
+    from mcap.reader import make_reader
+
+    out, log = tmp_path / "replay.jsonl", tmp_path / "replay.mcap"
+    assert main(["replay", str(recording_b_file), "--summary", "-o", str(out),
+                 "--view-log", str(log)]) == 0
+    assert f"wrote {log} (open it in Foxglove or Lichtblick)" in capsys.readouterr().out
+    want = {}
+    for line in out.read_text().splitlines():
+        r = json.loads(line)
+        want[r["frame"]] = [(tid, x) for tid, x in zip(r["track_id"], r["track_state"])]
+    got = {}
+    with open(log, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(topics=["/persons"]):
+            m = json.loads(message.data)
+            got[m["frame"]] = [(p["id"], [p["x_m"], p["y_m"], p["vx_mps"], p["vy_mps"]])
+                               for p in m["people"]]
+    assert got == want and any(got.values())

@@ -8,7 +8,9 @@ grouped on the common clock, clustered, fused and tracked frame by frame
 calibrated, whose ``/noise`` sigmas are used too). One JSON line per person
 per frame goes to standard output or ``-o FILE``; ``--record REC.h5`` keeps
 the raw frames and the centroids fused, which ``mmsnap replay REC.h5``
-streams again to the same rows.
+streams again to the same rows. ``--view`` / ``--view-log`` show each
+board's points and the people in Foxglove or Lichtblick
+(:mod:`mmsnap_graph.app.view`).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import sys
 
 from ..arguments import add_fusion_arguments, fusion_config
 from ..file_rules import add_overwrite
+from ...view.arguments import add_view_options
 from .board_args import (add_board_options, board_specs, mountings, pump, report_lines,
                          session_for)
 
@@ -36,6 +39,7 @@ def register(subparsers) -> None:
                    help="also write the boards' frames and the centroids fused to a recording")
     add_board_options(p)
     add_fusion_arguments(p, solvers=("scalar", "gtsam", "vectorized"), default_solver="scalar")
+    add_view_options(p)
     add_overwrite(p)
     p.set_defaults(func=run)
 
@@ -68,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
 
     from mmsnap_graph.app.live.driver import LiveFusion
     from mmsnap_graph.app.live.sinks import CentroidLog, JsonLinesSink, LatencyLog
+    from mmsnap_graph.app.view.arguments import view_sink
     from mmsnap_graph.fusion.stream.frame_stream import FrameStream
     from mmsnap_graph.io import write_recording
     from mmsnap_graph.io.ti.serial.session import FrameCollector
@@ -81,9 +86,12 @@ def run(args: argparse.Namespace) -> int:
     out = sys.stdout if args.output is None else open(args.output, "w", encoding="utf-8")
     json_sink, centroids, latency = JsonLinesSink(out), CentroidLog(), LatencyLog()
     collector = FrameCollector(names, session.frame_period_s)
+    # The view after the latency log: what it costs is not the JSON line's latency.
+    view = view_sink(args, names, poses,
+                     time_origin_s=time.time() - time.monotonic() + session.t0_s)
+    sinks = [json_sink, centroids, latency] + ([view] if view is not None else [])
     live = LiveFusion(names, stream, mounting=mounts, frame_period_s=session.frame_period_s,
-                      t0_s=session.t0_s, sinks=[json_sink, centroids, latency],
-                      height_band_m=args.height_band)
+                      t0_s=session.t0_s, sinks=sinks, height_band_m=args.height_band)
 
     def on_frame(frame):
         collector.add(frame)
@@ -99,7 +107,11 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if out is not sys.stdout:
             out.close()
+        if view is not None:
+            view.close()
     print("\n".join(report_lines(session)), file=sys.stderr)
+    if args.view_log:
+        print(f"wrote {args.view_log} (open it in Foxglove or Lichtblick)", file=sys.stderr)
     print(f"stopped after {why}: {latency.summary()}; {json_sink.lines} person rows; "
           f"{live.late} board frame(s) too late for their slot", file=sys.stderr)
     if args.record:

@@ -29,9 +29,10 @@ def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_
     cal.write_text(json.dumps({"nodes": {n: {"pose": list(map(float, p))}
                                          for n, p in poses.items()}}))
     boards = {n: EmulatedBoard(board_packets(N, node=n, seed=1)) for n in ("S1", "S2")}
-    out, rec = tmp_path / "live.jsonl", tmp_path / "live.h5"
+    out, rec, view = tmp_path / "live.jsonl", tmp_path / "live.h5", tmp_path / "live.mcap"
     args = [sys.executable, "-m", "mmsnap_graph", "live", "--calibration", str(cal),
-            "-o", str(out), "--record", str(rec), "--mount", "S1=0.8,5", "--mount", "S2=1.2,15"]
+            "-o", str(out), "--record", str(rec), "--mount", "S1=0.8,5", "--mount", "S2=1.2,15",
+            "--view-log", str(view)]
     for n, b in boards.items():
         args += ["--board", f"{n}={b.cli_port},{b.data_port},{CFG}"]
     proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -66,3 +67,22 @@ def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_
     assert set(live) == {k for k in again if k[0] <= last}
     for key, x in live.items():
         np.testing.assert_allclose(x, again[key], rtol=0, atol=1e-9)
+    _view_log_has_the_people(view, rows, boards=("S1", "S2"))
+
+
+def _view_log_has_the_people(path, rows, boards):
+    """The ``--view-log`` MCAP (read back with the mcap reader): each board's
+    points, and per frame /persons holding the JSON lines' people."""
+    pytest.importorskip("foxglove")
+    from mcap.reader import make_reader
+
+    topics, persons = set(), {}
+    with open(path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages():
+            topics.add(channel.topic)
+            if channel.topic == "/persons":
+                m = json.loads(message.data)
+                persons[m["frame"]] = m["people"]
+    assert {f"/points/{b}" for b in boards} | {"/radars", "/people", "/tracks"} <= topics
+    got = [r for frame in sorted(persons) for r in persons[frame]]
+    assert got == rows
