@@ -47,7 +47,9 @@ FRAME_PERIOD_S = 0.15
 def network(n_nodes: int) -> dict[str, np.ndarray]:
     """N nodes on a 5 m circle, each facing the centre (boresight = local +y)."""
     ang = 2.0 * np.pi * np.arange(n_nodes) / n_nodes
-    return {f"S{i + 1}": np.array([5.0 * np.cos(a), 5.0 * np.sin(a), a + np.pi / 2])
+    # headings wrapped into (-pi, pi]: the data layer refuses headings beyond 2 pi
+    return {f"S{i + 1}": np.array([5.0 * np.cos(a), 5.0 * np.sin(a),
+                                   float(np.angle(np.exp(1j * (a + np.pi / 2))))])
             for i, a in enumerate(ang)}
 
 

@@ -157,6 +157,9 @@ class DetectionWindows:
     when the node has none); metadata : the file's ``/metadata`` attributes.
     first_frame, last_frame : the smallest and largest frame with a
     detection (``last_frame < first_frame`` when there is none).
+    targets : what the radars see (``Recording.targets``, the file's
+    ``targets`` attribute; ``"people"`` when it has none), given to every
+    window read.
     """
 
     path: Path
@@ -168,6 +171,7 @@ class DetectionWindows:
     last_frame: int
     _frames: dict = field(repr=False)   # name -> (K,) int64 frame column, or None
     _order: dict = field(repr=False)    # name -> argsort of the frames, None when sorted
+    targets: str = "people"
 
     @property
     def n_rows(self) -> dict[str, int]:
@@ -234,7 +238,8 @@ class DetectionWindows:
                     if self._frames[name] is not None:
                         kw[self.source] = self._detections(f, name, rows[name])
                     nodes[name] = NodeData(name=name, pose=self.node_poses[name], **kw)
-        return Recording(frame_period_s=self.frame_period_s, nodes=nodes), rows
+        return Recording(frame_period_s=self.frame_period_s, nodes=nodes,
+                         targets=self.targets), rows
 
     def reach_m(self) -> dict[str, float]:
         """Each node's farthest detection range (m) over its ``point_cloud``
@@ -289,6 +294,7 @@ def open_detection_windows(path: str | os.PathLike, *, source: str = "centroids"
         _check_format(f, path)
         period = _frame_period(f, path)
         names = _node_order(f, path)
+        targets = _text(f.attrs["targets"]) if "targets" in f.attrs else "people"
         poses, frames, orders = {}, {}, {}
         for name in names:
             group = _members(f["nodes"], path)[name]
@@ -307,7 +313,7 @@ def open_detection_windows(path: str | os.PathLike, *, source: str = "centroids"
     last = max((int(fr.max()) for fr in present), default=-1)
     return DetectionWindows(path=path, source=source, frame_period_s=period, node_names=names,
                             node_poses=poses, first_frame=first, last_frame=last,
-                            _frames=frames, _order=orders)
+                            _frames=frames, _order=orders, targets=targets)
 
 
 # ----------------------------------------------------------------------------
