@@ -279,29 +279,34 @@ def calibrate_recording(
 
 
 def calibrate_with_joint(recording: Recording, *, source="auto", method="auto", noise=None,
-                         matching=None, joint=None):
+                         matching=None, joint=None, noise_estimate: bool = True):
     """:func:`calibrate_recording` (same arguments) and the
     :class:`~mmsnap_graph.calibration.joint.solve.JointCalibration` its
     poses come from (None when they are the pose graph's): its
     ``pose_block`` is what a windowed calibration combines
-    (:mod:`mmsnap_graph.calibration.joint.windowed`)."""
+    (:mod:`mmsnap_graph.calibration.joint.windowed`). ``noise_estimate``
+    False: no noise estimate at the calibrated poses (``noise`` None; the
+    windows after the first skip it, half of a window's time at 10 nodes)."""
     matching = _checked_options(method, noise, matching, joint)
     names = _checked_nodes(recording)
     joint = joint_options_for(recording) if joint is None else joint
     kept: list = []
-    outcome = _calibrate(recording, names, source, method, noise, matching, joint, kept)
+    outcome = _calibrate(recording, names, source, method, noise, matching, joint, kept,
+                         noise_estimate)
     if not isinstance(outcome, LagsDisputed):
         return outcome, (kept[-1] if kept else None)
     # Once more with lag 0 only (the nodes' own sync): no lag is left to dispute.
     kept.clear()
     again = _calibrate(recording, names, source, method, noise,
-                       dataclasses.replace(matching, max_lag_s=0.0), joint, kept)
+                       dataclasses.replace(matching, max_lag_s=0.0), joint, kept,
+                       noise_estimate)
     return (dataclasses.replace(again, facts=(outcome, *again.facts)),
             kept[-1] if kept else None)
 
 
 def _calibrate(recording, names, source, method, noise, matching: MatchingOptions,
-               joint: JointOptions, kept: list) -> RecordingCalibration | LagsDisputed:
+               joint: JointOptions, kept: list,
+               noise_estimate: bool = True) -> RecordingCalibration | LagsDisputed:
     """One pass of :func:`calibrate_recording` with these lag rules: the
     calibration, or the joint graph's dispute of the track matching's lags
     (the pass then stops: the lags are searched again); the joint graph's
@@ -337,8 +342,8 @@ def _calibrate(recording, names, source, method, noise, matching: MatchingOption
     lags = dict(pg.lag_frames)
     if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
         lags.update({n: int(v) for n, v in refined.lag_frames.items() if n in lags})
-    noise_est = _noise_estimate(recording, poses, lags, associated)
-    facts += _unidentified(noise_est)
+    noise_est = _noise_estimate(recording, poses, lags, associated) if noise_estimate else None
+    facts += _unidentified(noise_est) if noise_est is not None else []
     offsets, variances = _clock_offsets(recording, names, pg, refined if result_method == "joint"
                                         else None)
     step = refined if result_method == "joint" else pg

@@ -116,11 +116,8 @@ class JointCalibration:
         ``lag_frames`` given, or one frame from it for a node whose clock
         offset came out more than :data:`LAG_RECENTRE_FRACTION` of a frame
         beyond it (then the detections' frames were shifted to match).
-    pose_block : the :class:`~.covariance.BlockCovariance` of the pose
-        block (poses, clock offsets, range offset) the covariances come
-        from, with the considered depth's columns apart (what a windowed
-        solve combines, :mod:`.windowed`); None when the covariances are
-        the graph's marginals alone.
+    pose_block : the :class:`~.covariance.BlockCovariance` the covariances
+        come from (:mod:`.windowed` combines them); None: the marginals.
     """
 
     reference: str

@@ -27,6 +27,10 @@ reflection depth (:class:`~.covariance.BlockCovariance`). The combination:
   by ``chi2 / dof`` (the windows disagree more than they say: an error
   that lasts longer than the bandwidth).
 
+The noise at the calibrated poses (``RecordingCalibration.noise``, what
+``mmsnap fuse`` weighs by) is the first combined window's: minutes of data
+identify it, and it is half of a window's time at 10 nodes.
+
 A window that cannot be calibrated (nobody walking, a failed solve, a
 status other than OK) is left out and named in the
 :class:`~mmsnap_graph.data.calibration_facts.WindowsCombined` fact.
@@ -40,7 +44,6 @@ sets it); the time is the windows' sum, so about linear in the recording.
 from __future__ import annotations
 
 import dataclasses
-import os
 from typing import Callable
 
 import gtsam
@@ -50,6 +53,7 @@ from numpy.typing import NDArray
 from ...data.calibration import RecordingCalibration
 from ...data.calibration_facts import CalibrationStatus, WindowsCombined
 from ...errors import CalibrationError, ValidationError
+from ..network import calibrate_with_joint, joint_options_for
 from ..poses import pose_array, to_pose2
 
 __all__ = ["WINDOW_S", "WINDOWED_ABOVE_S", "window_frames_for", "WindowPosterior",
@@ -70,13 +74,16 @@ def window_frames_for(span_frames: int, frame_period_s: float,
                       window_s: float | None = None) -> int | None:
     """The window (frames) to calibrate a recording of ``span_frames``
     frames by, or None for one batch solve: ``window_s`` given, its frames
-    (None when the recording fits in one window); else :data:`WINDOW_S`
-    when the recording spans more than :data:`WINDOWED_ABOVE_S`."""
+    (None when the recording fits in one window; ``inf``: never); else
+    :data:`WINDOW_S` when the recording spans more than
+    :data:`WINDOWED_ABOVE_S`."""
     period = float(frame_period_s)
     if window_s is None:
         if span_frames * period <= WINDOWED_ABOVE_S:
             return None
         window_s = WINDOW_S
+    if not isinstance(window_s, bool) and window_s == float("inf"):
+        return None
     if isinstance(window_s, bool) or not np.isfinite(window_s) or window_s <= 0:
         raise ValidationError(f"window_s={window_s!r} (--window-s) must be a number of seconds "
                               f"> 0")
@@ -239,7 +246,7 @@ def combine_windows(windows: list[WindowPosterior]) -> Combined:
             if ("pose", n, 0) in w.labels:
                 j = [w.labels.index(("pose", n, k)) for k in range(3)]
                 d[np.ix_(j, j)] = _sqrt_psd(dn)
-        lag_root += a @ d
+        lag_root[:, idx] += a @ d   # columns: the parameters the shift is of
     total = factor * cov + rms**2 * depth @ depth.T + lag_root @ lag_root.T
     return Combined(labels=labels, base={n: b for n, b in base.items()
                                          if ("pose", n, 0) in labels},
@@ -279,40 +286,40 @@ def _result(first: RecordingCalibration, comb: Combined, fact: WindowsCombined,
         range_offset_m=rng, range_offset_variance=rng_var, facts=(fact, *first.facts))
 
 
-def calibrate_windowed(path: str | os.PathLike, window_frames: int, *,
+def calibrate_windowed(windows, window_frames: int, *,
                        source: str = "auto", method: str = "auto", noise=None, matching=None,
                        joint=None, on_window: Callable | None = None) -> RecordingCalibration:
-    """Calibrate the recording file at ``path`` window by window, each of
+    """Calibrate a recording file window by window, each of
     ``window_frames`` frames (:func:`window_frames_for`), reading one
-    window's centroids at a time (module doc).
+    window's centroids (and tracks) at a time (module doc): ``windows`` is
+    the file's :class:`~mmsnap_graph.io.chunks.DetectionWindows` of its
+    centroids (:func:`~mmsnap_graph.io.chunks.open_detection_windows`).
 
     source, method, noise, matching, joint : as
     :func:`~mmsnap_graph.calibration.calibrate_recording`, for every window
-    (``source="auto"`` matches centroids: a window holds centroids only;
-    ``method="pose_graph"`` is refused: the windows combine the joint
+    (a window holds the centroids and, unless ``source="centroids"``, the
+    EKF tracks of its frames; ``method="pose_graph"`` is refused: the windows combine the joint
     graph's pose blocks). on_window : called with ``(start_frame,
     stop_frame, calibration or None, why)`` after each window.
     Returns the combined :class:`RecordingCalibration`, whose facts start
     with a :class:`~mmsnap_graph.data.calibration_facts.WindowsCombined`;
     :class:`CalibrationError` when no window could be calibrated.
     """
-    from ...io.chunks import open_detection_windows
-    from ..network import calibrate_with_joint, joint_options_for
-
     if method == "pose_graph":
         raise ValidationError("method='pose_graph' cannot be calibrated by windows: the "
                               "windows combine the joint graph's poses (use a single solve)")
-    if source == "tracks":
-        raise ValidationError("source='tracks': a windowed calibration reads centroids only")
-    index = open_detection_windows(path, source="centroids")
+    index = windows
+    if index.source != "centroids":
+        raise ValidationError(f"the windows must be of the centroids, got {index.source!r}")
     posts, first, skipped, n = [], None, [], 0
     for start, stop in index.windows(int(window_frames)):
         n += 1
-        rec, _ = index.read(start, stop)
+        rec, _ = index.read(start, stop, tracks=source != "centroids")
         try:
             cal, jc = calibrate_with_joint(
-                rec, source="centroids", method=method, noise=noise, matching=matching,
-                joint=joint_options_for(rec) if joint is None else joint)
+                rec, source=source, method=method, noise=noise, matching=matching,
+                joint=joint_options_for(rec) if joint is None else joint,
+                noise_estimate=first is None)
         except CalibrationError as exc:
             why = str(exc).splitlines()[0]
             cal, jc = None, None
@@ -331,7 +338,7 @@ def calibrate_windowed(path: str | os.PathLike, window_frames: int, *,
             on_window(start, stop, None if why else cal, why)
         del rec, cal, jc
     if not posts:
-        raise CalibrationError(f"no window of {window_frames} frames of {path} could be "
+        raise CalibrationError(f"no window of {window_frames} frames of {index.path} could be "
                                f"calibrated: " + "; ".join(skipped[:3]))
     comb = combine_windows(posts)
     fact = WindowsCombined(window_s=window_frames * index.frame_period_s, n_windows=n,
