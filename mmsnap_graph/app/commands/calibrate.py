@@ -398,7 +398,7 @@ def run(args: argparse.Namespace) -> int:
     if args.recording is None:
         raise ValidationError("mmsnap calibrate: a recording is required (unless --show-config)")
     # Here: `mmsnap --help` does not import GTSAM or h5py.
-    from mmsnap_graph.calibration import PEOPLE_JOINT_OPTIONS, joint_options_for
+    from mmsnap_graph.calibration import JOINT_OPTIONS_BY_TARGETS, joint_options_for
     from mmsnap_graph.data.noise import MeasurementNoise
 
     noise = None
@@ -424,7 +424,8 @@ def run(args: argparse.Namespace) -> int:
         except ValidationError as exc:
             raise ValidationError(f"--range-offset-rms: {exc}") from None
 
-    joint_options(PEOPLE_JOINT_OPTIONS)          # the flags checked before anything is read
+    for base in JOINT_OPTIONS_BY_TARGETS.values():  # the flags checked before anything is read
+        joint_options(base)
     json_path = check_output_path(args.json_out if args.json_out else
                                   calibration_json_path(args.recording))
     if args.output is not None and not args.no_write:
