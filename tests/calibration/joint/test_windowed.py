@@ -137,6 +137,15 @@ def test_windows_of_a_clean_recording_give_the_batch_poses(clean_file):
     assert win.joint_covariance.shape == (6, 6) and win.joint_order == ("S2", "S3")
 
 
+def test_a_short_last_window_joins_the_one_before(clean_file):
+    """300 frames by windows of 140: 140 + 160, not 140 + 140 + 20."""
+    said = []
+    win = calibrate_windowed(open_detection_windows(clean_file), 140,
+                             on_window=lambda *a: said.append(a))
+    assert [(a, b) for a, b, _, _ in said] == [(0, 140), (140, 300)]
+    assert win.facts[0].n_windows == 2
+
+
 def test_pose_graph_only_is_refused(clean_file):
     with pytest.raises(ValidationError, match="pose_graph"):
         calibrate_windowed(open_detection_windows(clean_file), 150, method="pose_graph")
