@@ -49,7 +49,6 @@ __all__ = [
     "LagNotDetermined",
     "LagsDisputed",
     "NoiseNotIdentified",
-    "RecordedMessage",
     "FACTS",
     "FACT_KINDS",
     "NOISE_COMPONENTS",
@@ -419,19 +418,10 @@ class NoiseNotIdentified(CalibrationFact):
     reason: str = ""
 
 
-@_fact
-class RecordedMessage(CalibrationFact):
-    """The message of a calibration file written before the facts, as it
-    stands (read, never written)."""
-
-    kind: ClassVar[str] = "recorded_message"
-    text: str
-
-
 #: Every fact class, in the order ``mmsnap calibrate`` lists them by default.
 FACTS = (PoseGraphFit, TargetsAssociated, JointNoise, ClockOffsetsTried, JointFit,
          RobustPassFailed, PoseCovariance, RangeOffsetEstimated, PoseNotObservable,
          SolveBrokeDown, JointSkipped, JointRejected, LagEvidence, LagNotDetermined,
-         LagsDisputed, NoiseNotIdentified, RecordedMessage)
+         LagsDisputed, NoiseNotIdentified)
 #: ``kind`` -> fact class (the JSON reader's table).
 FACT_KINDS = {cls.kind: cls for cls in FACTS}

@@ -316,7 +316,6 @@ _FACT_TEXT = {
     "lag_not_determined": _lag_cover_text,
     "lags_disputed": _disputed_text,
     "noise_not_identified": _noise_fact_text,
-    "recorded_message": lambda f: f.text,
 }
 
 
