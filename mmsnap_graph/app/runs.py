@@ -146,6 +146,8 @@ def _noise(path, node_names, sigmas, per_node):
     if sigmas is not None:
         r, w, v = sigmas
         return MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v), "sigmas from --sigmas"
+    if path is None:
+        return None, "no recording's /noise group"
     if read_noise(path) is None:
         return None, "no /noise group (run `mmsnap calibrate` or `mmsnap noise`)"
     from ..io.noise import noise_for_fusion
@@ -161,7 +163,10 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
                        per_node_noise: bool = True) -> StoredCalibration:
     """What ``mmsnap calibrate`` stored, as every command that fuses uses it.
 
-    path : the recording; node_names : its nodes (for the noise).
+    path : the recording; node_names : its nodes (for the noise). None with
+        ``calibration_json`` (``mmsnap live``: no recording yet): no
+        ``/noise`` sigmas (the paper's unless ``sigmas``), no stored range
+        offset.
     calibration_json : poses, covariances and clock offsets from this file
         instead of the recording's ``/calibration`` group.
     sigmas : ``(range_m, omega_rad, doppler_mps)`` for every node, instead
@@ -203,7 +208,7 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     depth = float(cal.range_offset_m)
     if np.isfinite(depth):
         parts.append(f"range offset (reflection depth) {depth:.3f} m added to every range")
-    elif poses is not None:
+    elif poses is not None and path is not None:
         depth, said, here = _stored_range_offset(path, cal)
         parts += [said] if said else []
         if said and not here and sigmas is None:
