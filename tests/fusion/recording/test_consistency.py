@@ -18,7 +18,7 @@ from ..._fused_rows import fused_rows
 PERIOD_S = 0.05
 
 
-def _walk(seed: int, k: int = 600, *, scale: float = 1.0):
+def _walk(seed: int, k: int = 400, *, scale: float = 1.0):
     """One walker at 20 fps whose rows' errors follow their covariance and
     whose cross-node costs follow their chi-square; covariances and costs
     reported as if the sigmas were ``scale`` times the true ones."""
@@ -42,7 +42,7 @@ def _walk(seed: int, k: int = 600, *, scale: float = 1.0):
                                track_id=np.zeros(k, np.int64))
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_consistent_rows_pass(seed):
     r = fused_consistency(_walk(seed))
     assert r.verdict == "consistent", r
@@ -50,17 +50,17 @@ def test_consistent_rows_pass(seed):
     assert r.consistent is True and not r.reasons
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", [0, 1])
 def test_sigmas_scaled_down_fire_over_confident(seed):
     r = fused_consistency(_walk(seed, scale=0.3))
     assert r.verdict == "over-confident" and r.consistent is False
-    assert len(r.reasons) == 2  # both statistics say so
+    assert r.residual_ratio > 5 and len(r.reasons) == 2  # both statistics say so
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", [0, 1])
 def test_sigmas_scaled_up_fire_under_confident(seed):
     r = fused_consistency(_walk(seed, scale=3.0))
-    assert r.verdict == "under-confident" and r.consistent is False
+    assert r.verdict == "under-confident" and r.consistent is False and r.residual_ratio < 0.2
 
 
 def test_rows_seen_by_one_radar_alone_are_judged_by_the_innovations():
@@ -72,12 +72,22 @@ def test_rows_seen_by_one_radar_alone_are_judged_by_the_innovations():
     assert r.n_residual_rows == 0 and r.verdict == "over-confident"
 
 
+def test_an_error_that_stays_from_frame_to_frame_is_seen_by_the_residuals():
+    """A bias the innovations cannot see (the same in every frame: a pose
+    off) makes the nodes disagree: the residuals fire alone."""
+    f = _walk(1)
+    biased = dataclasses.replace(f, final_cost=f.final_cost * 4.0)
+    r = fused_consistency(biased)
+    assert r.verdict == "over-confident" and len(r.reasons) == 1
+    assert "nodes disagree" in r.reasons[0]
+
+
 def test_windows_give_the_whole_sequences_report():
     f = _walk(3)
     whole = fused_consistency(f)
     m = ConsistencyMonitor()
-    for lo in range(0, len(f), 170):
-        keep = slice(lo, lo + 170)
+    for lo in range(0, len(f), 130):
+        keep = slice(lo, lo + 130)
         m.add(dataclasses.replace(f, **{k: getattr(f, k)[keep] for k in (
             "frame", "target", "label", "detection_index", "observed", "state", "covariance",
             "laplace_covariance", "success", "status", "message", "iterations", "final_cost",
