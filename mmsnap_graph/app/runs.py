@@ -300,10 +300,9 @@ def calibrate_and_store(path: str | os.PathLike,
     options : keyword arguments of
         :func:`~mmsnap_graph.calibration.calibrate_recording`, or a function
         of the recording read that returns them (an option that depends on
-        the recording, e.g. a lag window in frames); ``joint`` defaults to
-        :func:`~mmsnap_graph.calibration.joint_options_for` the recording
-        (a person's reflection depth considered in the pose covariance,
-        unless the recording declares point targets).
+        the recording, e.g. a lag window in frames, or the joint graph's
+        options over :func:`~mmsnap_graph.calibration.joint_options_for`
+        it); left out, each takes ``calibrate_recording``'s default.
     output : write a copy of the recording here (default: update ``path``).
     json_path : the calibration JSON (default :func:`calibration_json_path`
         of the recording written).
@@ -320,7 +319,7 @@ def calibrate_and_store(path: str | os.PathLike,
     ``(calibration, files written)``.
     """
     from .._atomic import recording_lock, refuse_existing
-    from ..calibration import calibrate_recording, joint_options_for
+    from ..calibration import calibrate_recording
     from ..io import read_recording
     from ..io.calibration import write_calibration, write_calibration_json
     from ..io.noise import write_noise
@@ -334,7 +333,6 @@ def calibrate_and_store(path: str | os.PathLike,
     with bar, recording_lock(path):
         rec = read_recording(path, load_cubes=False)
         kwargs = options(rec) if callable(options) else dict(options or {})
-        kwargs.setdefault("joint", joint_options_for(rec))
         bar.set_description("calibrate: matching, pose graph, joint graph, noise")
         bar.update()
         cal = calibrate_recording(rec, **kwargs)

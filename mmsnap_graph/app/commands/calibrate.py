@@ -91,17 +91,21 @@ def register(subparsers) -> None:
     p.add_argument("--no-time-offsets", action="store_true",
                    help="whole-frame lags only: do not estimate each node's clock offset "
                         "(a fraction of a frame) in the joint graph")
-    p.add_argument("--range-offset", default=None, metavar="MEAN_M,SIGMA_M",
-                   help="estimate a range offset common to every node, the body's reflection "
-                        "depth (each radar's centroid nearer to it than the body's centre), "
-                        "with this prior, e.g. 0.10,0.05; `mmsnap fuse` then adds it to every "
-                        "range (default: none)")
-    p.add_argument("--range-offset-rms", type=float, default=None, metavar="METRES",
-                   help="without --range-offset: the root mean square of the body's reflection "
-                        "depth that the poses may have taken in, added to their covariance "
-                        "along the direction it moves them (default 0.112 m: 0.10 +- 0.05 m; "
-                        "not added where the recording declares point targets, the "
-                        "simulator's clean model; 0: not added)")
+    # Either the range offset is estimated (--range-offset) or its rms is
+    # considered in the covariance (--range-offset-rms), never both.
+    depth = p.add_mutually_exclusive_group()
+    depth.add_argument("--range-offset", default=None, metavar="MEAN_M,SIGMA_M",
+                       help="estimate a range offset common to every node, the body's "
+                            "reflection depth (each radar's centroid nearer to it than the "
+                            "body's centre), with this prior, e.g. 0.10,0.05; `mmsnap fuse` "
+                            "then adds it to every range (default: none)")
+    depth.add_argument("--range-offset-rms", type=float, default=None, metavar="METRES",
+                       help="not with --range-offset (which estimates it): the root mean "
+                            "square of the body's reflection depth that the poses may have "
+                            "taken in, added to their covariance along the direction it moves "
+                            "them (default 0.112 m: 0.10 +- 0.05 m; not added where the "
+                            "recording declares point targets, the simulator's clean model; "
+                            "0: not added)")
     p.add_argument("--covariance", choices=["long_run", "model"], default="long_run",
                    help="pose covariance: long_run (default) widens the joint graph's "
                         "marginals where the frames' errors are correlated in time or the "
@@ -398,7 +402,7 @@ def run(args: argparse.Namespace) -> int:
     if args.recording is None:
         raise ValidationError("mmsnap calibrate: a recording is required (unless --show-config)")
     # Here: `mmsnap --help` does not import GTSAM or h5py.
-    from mmsnap_graph.calibration import PEOPLE_JOINT_OPTIONS, joint_options_for
+    from mmsnap_graph.calibration import JOINT_OPTIONS_BY_TARGETS, joint_options_for
     from mmsnap_graph.data.noise import MeasurementNoise
 
     noise = None
@@ -424,7 +428,8 @@ def run(args: argparse.Namespace) -> int:
         except ValidationError as exc:
             raise ValidationError(f"--range-offset-rms: {exc}") from None
 
-    joint_options(PEOPLE_JOINT_OPTIONS)          # the flags checked before anything is read
+    for base in JOINT_OPTIONS_BY_TARGETS.values():  # the flags checked before anything is read
+        joint_options(base)
     json_path = check_output_path(args.json_out if args.json_out else
                                   calibration_json_path(args.recording))
     if args.output is not None and not args.no_write:

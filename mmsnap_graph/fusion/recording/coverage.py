@@ -26,8 +26,8 @@ cloud, static scene and false alarms included, and its centroids). In a
 small room a walker stays within a few metres of every radar while his
 multipath images lie beyond him (a one-bounce image at or beyond the wall);
 a reach taken from the node's own centroids, which the signal chain's scene
-filters leave at the walkers, left the images' places uncovered (a simulated
-3-radar room at 20 fps: 10 images 3.5-4 m off kept with NEES 700-900).
+filters leave at the walkers, left the images' places uncovered
+(tests/fusion/recording/test_coverage.py::test_a_node_covers_places_beyond_where_the_walkers_went).
 """
 
 from __future__ import annotations
@@ -55,9 +55,8 @@ COVERAGE_MIN_RANGE_M = 0.5
 COVERAGE_MIN_FRAMES = 2
 #: Nodes a network needs for the check. With two, the other node is the only
 #: witness: on a sparse cloud it misses a walker for a few frames now and
-#: then (a simulated walker at 20 fps lost 18 % of his frames to the check
-#: against 7 % without it), so a two-node network relies on the room's
-#: bounds (``--bounds``, ``--in-front``) for mirror images instead.
+#: then (docs/ROBUST.md gives the figure), so a two-node network relies on
+#: the room's bounds (``--bounds``, ``--in-front``) for mirror images instead.
 COVERAGE_MIN_NODES = 3
 
 

@@ -372,3 +372,13 @@ def test_pose_nees_on_the_simulated_real_model_carries_the_reflection_depth(real
 def test_pose_nees_in_band_on_the_simulated_real_model(real_model_dir):
     _, check = _pose_nees(range(12), real_model_dir)
     assert check.passed, check
+
+
+def test_range_offset_rms_with_range_offset_is_refused(tmp_path, capsys):
+    """Before: --range-offset-rms was silently ignored when --range-offset
+    was given (the estimated offset leaves nothing to consider); now argparse
+    refuses the pair before anything is read (the recording need not exist)."""
+    code, _, err = run_cli(capsys, "calibrate", tmp_path / "none.h5", "--range-offset",
+                           "0.10,0.05", "--range-offset-rms", "0.02")
+    assert code == 2
+    assert "--range-offset-rms: not allowed with argument --range-offset" in error_line(err)

@@ -67,13 +67,11 @@ def _calibration(path: str, names):
 
 
 def run(args: argparse.Namespace) -> int:
-    import dataclasses
     import time
 
-    from mmsnap_graph.app.live.driver import LiveFusion
+    from mmsnap_graph.app.live.driver import LiveFusion, live_recording, live_stream
     from mmsnap_graph.app.live.sinks import CentroidLog, JsonLinesSink, LatencyLog
     from mmsnap_graph.app.view.arguments import view_sink
-    from mmsnap_graph.fusion.stream.frame_stream import FrameStream
     from mmsnap_graph.io import write_recording
     from mmsnap_graph.io.ti.serial.session import FrameCollector
     config = fusion_config(args)
@@ -82,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     poses, noise = _calibration(args.calibration, names)
     session = session_for(args, specs)
     mounts = mountings(args, specs, session.timing)
-    stream = FrameStream(names, poses, config=config, noise=noise)
+    stream = live_stream(names, poses, frame_period_s=session.frame_period_s, config=config,
+                         noise=noise)
     out = sys.stdout if args.output is None else open(args.output, "w", encoding="utf-8")
     json_sink, centroids, latency = JsonLinesSink(out), CentroidLog(), LatencyLog()
     collector = FrameCollector(names, session.frame_period_s)
@@ -115,11 +114,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"stopped after {why}: {latency.summary()}; {json_sink.lines} person rows; "
           f"{live.late} board frame(s) too late for their slot", file=sys.stderr)
     if args.record:
-        rec = collector.recording(mounting=mounts, height_band_m=args.height_band)
-        for i, name in enumerate(names):
-            node = dataclasses.replace(rec.nodes[name], pose=poses[i],
-                                       centroids=centroids.detections(name))
-            rec = rec.with_node(node)
+        rec = live_recording(collector, centroids, dict(zip(names, poses)), mounting=mounts,
+                             height_band_m=args.height_band)
         print(f"wrote {write_recording(args.record, rec, overwrite=args.overwrite)}",
               file=sys.stderr)
     return 0
