@@ -275,23 +275,43 @@ def calibrate_recording(
         only when the data support them (:func:`_refine_multi`).
     Raises :class:`CalibrationError` when no node pair can be matched.
     """
+    return calibrate_with_joint(recording, source=source, method=method, noise=noise,
+                                matching=matching, joint=joint)[0]
+
+
+def calibrate_with_joint(recording: Recording, *, source="auto", method="auto", noise=None,
+                         matching=None, joint=None, noise_estimate: bool = True):
+    """:func:`calibrate_recording` (same arguments) and the
+    :class:`~mmsnap_graph.calibration.joint.solve.JointCalibration` its
+    poses come from (None when they are the pose graph's): its
+    ``pose_block`` is what a windowed calibration combines
+    (:mod:`mmsnap_graph.calibration.joint.windowed`). ``noise_estimate``
+    False: no noise estimate at the calibrated poses (``noise`` None; the
+    windows after the first skip it, half of a window's time at 10 nodes)."""
     matching = _checked_options(method, noise, matching, joint)
     names = _checked_nodes(recording)
     joint = joint_options_for(recording) if joint is None else joint
-    outcome = _calibrate(recording, names, source, method, noise, matching, joint)
+    kept: list = []
+    outcome = _calibrate(recording, names, source, method, noise, matching, joint, kept,
+                         noise_estimate)
     if not isinstance(outcome, LagsDisputed):
-        return outcome
+        return outcome, (kept[-1] if kept else None)
     # Once more with lag 0 only (the nodes' own sync): no lag is left to dispute.
+    kept.clear()
     again = _calibrate(recording, names, source, method, noise,
-                       dataclasses.replace(matching, max_lag_s=0.0), joint)
-    return dataclasses.replace(again, facts=(outcome, *again.facts))
+                       dataclasses.replace(matching, max_lag_s=0.0), joint, kept,
+                       noise_estimate)
+    return (dataclasses.replace(again, facts=(outcome, *again.facts)),
+            kept[-1] if kept else None)
 
 
 def _calibrate(recording, names, source, method, noise, matching: MatchingOptions,
-               joint: JointOptions) -> RecordingCalibration | LagsDisputed:
+               joint: JointOptions, kept: list,
+               noise_estimate: bool = True) -> RecordingCalibration | LagsDisputed:
     """One pass of :func:`calibrate_recording` with these lag rules: the
     calibration, or the joint graph's dispute of the track matching's lags
-    (the pass then stops: the lags are searched again)."""
+    (the pass then stops: the lags are searched again); the joint graph's
+    result, when the poses are its, is appended to ``kept``."""
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     facts: list[CalibrationFact] = list(pg.facts)
     poses, covs = dict(pg.poses), dict(pg.covariances)
@@ -323,11 +343,13 @@ def _calibrate(recording, names, source, method, noise, matching: MatchingOption
     lags = dict(pg.lag_frames)
     if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
         lags.update({n: int(v) for n, v in refined.lag_frames.items() if n in lags})
-    noise_est = noise_at_poses(recording, poses, lags)
-    facts += _unidentified(noise_est)
+    noise_est = noise_at_poses(recording, poses, lags) if noise_estimate else None
+    facts += _unidentified(noise_est) if noise_est is not None else []
     offsets, variances = _clock_offsets(recording, names, pg, refined if result_method == "joint"
                                         else None)
     step = refined if result_method == "joint" else pg
+    if result_method == "joint":
+        kept.append(refined)
     return RecordingCalibration(
         reference=names[0], node_names=tuple(names), poses=poses, covariances=widened,
         lag_frames=lags, unreachable=pg.unreachable, edges=pg.edges,

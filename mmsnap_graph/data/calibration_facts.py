@@ -49,6 +49,7 @@ __all__ = [
     "LagNotDetermined",
     "LagsDisputed",
     "NoiseNotIdentified",
+    "WindowsCombined",
     "RecordedMessage",
     "FACTS",
     "FACT_KINDS",
@@ -426,6 +427,27 @@ class NoiseNotIdentified(CalibrationFact):
 
 
 @_fact
+class WindowsCombined(CalibrationFact):
+    """A long recording was calibrated window by window (bounded memory):
+    ``n_windows`` windows of ``window_s`` seconds, ``n_combined`` of them
+    combined in information form (the poses are static); ``skipped``: why
+    each other window was left out (``"frames a-b: reason"``). The
+    windows' spread about the combined poses, ``spread_chi2`` over
+    ``spread_dof`` degrees of freedom, widened the covariance by
+    ``spread_factor`` (1: consistent with their covariances). The facts
+    that follow are the first combined window's."""
+
+    kind: ClassVar[str] = "windows_combined"
+    window_s: float
+    n_windows: int
+    n_combined: int
+    skipped: tuple[str, ...] = ()
+    spread_chi2: float = math.nan
+    spread_dof: int = 0
+    spread_factor: float = 1.0
+
+
+@_fact
 class RecordedMessage(CalibrationFact):
     """The message of a calibration file written before the facts, as it
     stands (read, never written)."""
@@ -438,6 +460,6 @@ class RecordedMessage(CalibrationFact):
 FACTS = (PoseGraphFit, TargetsAssociated, JointNoise, ClockOffsetsTried, JointFit,
          RobustPassFailed, PoseCovariance, RangeOffsetEstimated, PoseNotObservable,
          SolveBrokeDown, JointSkipped, JointRejected, LagEvidence, LagNotDetermined,
-         LagsDisputed, NoiseNotIdentified, RecordedMessage)
+         LagsDisputed, NoiseNotIdentified, WindowsCombined, RecordedMessage)
 #: ``kind`` -> fact class (the JSON reader's table).
 FACT_KINDS = {cls.kind: cls for cls in FACTS}

@@ -256,7 +256,7 @@ def test_calibration_json_seeded_mutations_raise_only_calibration_errors():
             yield from paths(value, path + (key,))
 
     odd = [None, True, "x", 1e400, -1e400, float("nan"), 10 ** 30, [], {}, [1, 2], {"a": 1},
-           2.5, -7, ""]
+           2.5, -7, "", 10 ** 400, -10 ** 400, 2 ** 63]  # huge integers: issue 29
     rng = np.random.default_rng(3)
     all_paths = [p for p in paths(_GOOD_JSON) if p]
     read, refused = 0, 0

@@ -110,6 +110,11 @@ def register(subparsers) -> None:
                    help="pose covariance: long_run (default) widens the joint graph's "
                         "marginals where the frames' errors are correlated in time or the "
                         "model is not exact; model keeps the marginals")
+    p.add_argument("--window-s", type=float, default=None, metavar="SECONDS",
+                   help="calibrate window by window, windows of SECONDS read from the file in "
+                        "turn and their poses combined: memory bounded by one window, not by "
+                        "the recording (default: windows of 600 s for a recording longer than "
+                        "20 minutes, else one solve; inf: one solve always)")
     p.add_argument("--json-out", default=None, metavar="PATH",
                    help="write the calibration JSON here (default: "
                         "<recording>.calibration.json; angles in radians); an existing file, "
@@ -322,6 +327,14 @@ _FACT_TEXT = {
     "lag_not_determined": _lag_cover_text,
     "lags_disputed": _disputed_text,
     "noise_not_identified": _noise_fact_text,
+    "windows_combined": lambda f: (
+        (f"calibrated window by window: {f.n_combined} of {f.n_windows} windows of "
+         f"{f.window_s:g} s combined (the poses are static: information form; the reflection "
+         f"depth and lag covers not averaged down); the windows' spread chi2 "
+         f"{f.spread_chi2:.1f} over {f.spread_dof} dof"
+         + (f": covariance widened x{f.spread_factor:.2f}" if f.spread_factor > 1 else "")
+         + "; the facts below are the first combined window's",)
+        + tuple(f"  window left out: {w}" for w in f.skipped)),
     "recorded_message": lambda f: f.text,
 }
 
@@ -472,7 +485,7 @@ def run(args: argparse.Namespace) -> int:
                                        json_path=json_path, write=not args.no_write,
                                        on_result=lambda c: say(format_table(c)),
                                        progress=not args.no_progress and sys.stderr.isatty(),
-                                       overwrite=args.overwrite)
+                                       overwrite=args.overwrite, window_s=args.window_s)
     if args.json:
         sys.stdout.write(Path(written[0]).read_text(encoding="utf-8"))
     say(f"wrote {written[0]}")

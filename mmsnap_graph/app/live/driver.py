@@ -48,7 +48,7 @@ from ...radar.cluster import torso_centroids
 from ..pipeline import SPARSE_POINTS_PER_FRAME
 
 __all__ = ["LiveFrame", "FusedSink", "LiveFusion", "WAIT_FRAMES", "INACTIVE_FRAMES",
-           "replayed_frame", "live_stream", "live_recording"]
+           "replayed_frame", "live_calibration", "live_stream", "live_recording"]
 
 #: A slot is fused at the latest this many frame periods after its start.
 WAIT_FRAMES = 1.5
@@ -90,26 +90,51 @@ def replayed_frame(frame: int, time_s: float, detections: Mapping, update) -> Li
                      centroids=rows, update=update, last_byte_s=now, done_s=now)
 
 
+def live_calibration(path, names: Sequence[str]):
+    """``(poses (N, 3), stored calibration)`` of ``--calibration``, read as
+    ``mmsnap replay`` reads it (:func:`mmsnap_graph.app.runs.stored_calibration`:
+    the poses, their covariances, the range offset; the ``/noise`` sigmas of
+    a calibrated recording, the paper's for a JSON)."""
+    from ...errors import CalibrationError
+    from ...io import read_recording
+    from ..runs import paper_noise, stored_calibration
+    if str(path).lower().endswith(".json"):
+        cal = stored_calibration(None, names, calibration_json=path)
+        poses = dict(cal.node_poses or {})
+    else:
+        cal = stored_calibration(path, names)
+        stored = read_recording(path, load_cubes=False).node_poses()
+        poses = dict(cal.node_poses) if cal.node_poses else stored
+    missing = [n for n in names if poses.get(n) is None]
+    if missing:
+        raise CalibrationError(f"--calibration {path} has no pose for board(s) {missing}")
+    return np.array([poses[n] for n in names], dtype=float), cal.with_default_noise(*paper_noise())
+
+
 def live_stream(names: Sequence[str], poses, *, frame_period_s: float, config, noise,
-                pose_covariances=None):
+                pose_covariances=None, range_offset_m=None):
     """The :class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream` of
     ``mmsnap live``: the tracker at the boards' frame period, as ``mmsnap
     replay`` of the recording takes it (:func:`live_recording`)."""
     from ...fusion.stream.frame_stream import FrameStream
     from ...tracking.central import CentralConfig
     return FrameStream(names, poses, config=config, noise=noise,
-                       pose_covariances=pose_covariances,
+                       pose_covariances=pose_covariances, range_offset_m=range_offset_m,
                        tracker=CentralConfig(frame_period_s=float(frame_period_s)))
 
 
 def live_recording(collector, centroids, poses: Mapping, *, mounting: Mapping,
-                   height_band_m=None):
+                   height_band_m=None, reach_m: Mapping | None = None):
     """The recording of ``mmsnap live --record``: the boards' frames
     (``collector``, a :class:`~mmsnap_graph.io.ti.serial.session.FrameCollector`)
     with each board's ``poses[name]`` and the centroids live fused
     (``centroids``, a :class:`~.sinks.CentroidLog`), which ``mmsnap replay``
-    streams again."""
-    rec = collector.recording(mounting=mounting, height_band_m=height_band_m)
+    streams again; ``reach_m`` (board -> m) the coverage check's reach live
+    took, declared in the metadata
+    (:data:`~mmsnap_graph.fusion.recording.coverage.REACH_METADATA_KEY`)."""
+    from ...fusion.recording.coverage import REACH_METADATA_KEY
+    md = {REACH_METADATA_KEY.format(node=n): float(r) for n, r in (reach_m or {}).items()}
+    rec = collector.recording(mounting=mounting, height_band_m=height_band_m, metadata=md)
     for name in rec.node_names:
         node = dataclasses.replace(rec.nodes[name], pose=np.asarray(poses[name], dtype=float),
                                    centroids=centroids.detections(name))

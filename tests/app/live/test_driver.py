@@ -9,9 +9,9 @@ import json
 import numpy as np
 
 from mmsnap_graph.app.cli import main
-from mmsnap_graph.app.live.driver import LiveFusion, live_recording, live_stream
+from mmsnap_graph.app.live.driver import (LiveFusion, live_calibration, live_recording,
+                                          live_stream)
 from mmsnap_graph.app.live.sinks import CentroidLog, JsonLinesSink
-from mmsnap_graph.app.runs import paper_noise
 from mmsnap_graph.fusion.stream.frame_stream import STREAM_CONFIG
 from mmsnap_graph.io import write_recording
 from mmsnap_graph.io.ti.point_cloud import Mounting
@@ -51,12 +51,18 @@ def test_live_rows_equal_replay_of_its_recording_with_dropped_and_empty_slots(tm
     names = ("S1", "S2")
     poses = {n: rec.truth.node_poses[n] for n in names}
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps({"nodes": {n: {"pose": list(map(float, p))}
-                                         for n, p in poses.items()}}))
+    # S2's pose uncertain and a reflection depth: both in live's covariances
+    # and ranges as in replay's.
+    covariance = {"S1": None, "S2": np.diag([0.02, 0.02, 0.01]).tolist()}
+    cal.write_text(json.dumps({"range_offset_m": 0.04, "nodes": {
+        n: {"pose": list(map(float, p)), "covariance": covariance[n]}
+        for n, p in poses.items()}}))
     mounts = {n: Mounting(height_m=MOUNTS[n][0], tilt_rad=MOUNTS[n][1]) for n in names}
-    stream = live_stream(names, np.array([poses[n] for n in names]),
-                         frame_period_s=FRAME_PERIOD_S, config=STREAM_CONFIG,
-                         noise=paper_noise()[0])
+    live_poses, stored = live_calibration(cal, names)
+    assert stored.range_offset_m == 0.04 and set(stored.pose_covariances) == {"S2"}
+    stream = live_stream(names, live_poses, frame_period_s=FRAME_PERIOD_S, config=STREAM_CONFIG,
+                         noise=stored.noise, pose_covariances=stored.pose_covariances,
+                         range_offset_m=stored.range_offset_m)
     out = tmp_path / "live.jsonl"
     collector, centroids = FrameCollector(names, FRAME_PERIOD_S), CentroidLog()
     with open(out, "w", encoding="utf-8") as f:
@@ -73,12 +79,13 @@ def test_live_rows_equal_replay_of_its_recording_with_dropped_and_empty_slots(tm
     assert main(["replay", str(h5), "--calibration", str(cal), "-o", str(again),
                  "--summary"]) == 0
     capsys.readouterr()
-    rows = {(r["frame"], r["id"]): [r["x_m"], r["y_m"], r["vx_mps"], r["vy_mps"]]
+    rows = {(r["frame"], r["id"]): [r["x_m"], r["y_m"], r["vx_mps"], r["vy_mps"],
+                                    *np.ravel(r["covariance"])]
             for r in map(json.loads, out.read_text().splitlines())}
     replayed = {}
     for r in map(json.loads, again.read_text().splitlines()):
-        for tid, x in zip(r["track_id"], r["track_state"]):
-            replayed[(r["frame"], tid)] = x
+        for tid, x, p in zip(r["track_id"], r["track_state"], r["track_covariance"]):
+            replayed[(r["frame"], tid)] = [*x, *np.ravel(p)]
     assert {k[0] for k in rows} & DROPPED_BY_ALL          # people through the dropped slots
     assert set(rows) == set(replayed)
     diff = max(np.abs(np.subtract(x, replayed[k])).max() for k, x in rows.items())

@@ -168,7 +168,7 @@ def test_range_offset_response_is_the_poses_move_when_every_range_lengthens():
     np.testing.assert_allclose(depth.covariance - plain.covariance, want, rtol=1e-9, atol=1e-15)
     assert depth.fact().reflection_depth_rms_m == 0.1
     # the fact says each node's sigmas without the depth: the plain covariance's
-    np.testing.assert_allclose(depth.without_depth, plain.covariance, rtol=0, atol=0)
+    np.testing.assert_allclose(depth.random, plain.covariance, rtol=0, atol=0)
     fact = depth.fact()
     assert fact.without_depth_nodes == ("S2", "S3")
     np.testing.assert_allclose(np.reshape(fact.without_depth_sigmas, (2, 3)),
