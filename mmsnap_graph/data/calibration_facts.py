@@ -50,7 +50,6 @@ __all__ = [
     "LagsDisputed",
     "NoiseNotIdentified",
     "WindowsCombined",
-    "RecordedMessage",
     "FACTS",
     "FACT_KINDS",
     "NOISE_COMPONENTS",
@@ -447,19 +446,10 @@ class WindowsCombined(CalibrationFact):
     spread_factor: float = 1.0
 
 
-@_fact
-class RecordedMessage(CalibrationFact):
-    """The message of a calibration file written before the facts, as it
-    stands (read, never written)."""
-
-    kind: ClassVar[str] = "recorded_message"
-    text: str
-
-
 #: Every fact class, in the order ``mmsnap calibrate`` lists them by default.
 FACTS = (PoseGraphFit, TargetsAssociated, JointNoise, ClockOffsetsTried, JointFit,
          RobustPassFailed, PoseCovariance, RangeOffsetEstimated, PoseNotObservable,
          SolveBrokeDown, JointSkipped, JointRejected, LagEvidence, LagNotDetermined,
-         LagsDisputed, NoiseNotIdentified, WindowsCombined, RecordedMessage)
+         LagsDisputed, NoiseNotIdentified, WindowsCombined)
 #: ``kind`` -> fact class (the JSON reader's table).
 FACT_KINDS = {cls.kind: cls for cls in FACTS}

@@ -335,7 +335,6 @@ _FACT_TEXT = {
          + (f": covariance widened x{f.spread_factor:.2f}" if f.spread_factor > 1 else "")
          + "; the facts below are the first combined window's",)
         + tuple(f"  window left out: {w}" for w in f.skipped)),
-    "recorded_message": lambda f: f.text,
 }
 
 
