@@ -50,7 +50,6 @@ __all__ = [
     "LagsDisputed",
     "NoiseNotIdentified",
     "WindowsCombined",
-    "RecordedMessage",
     "FACTS",
     "FACT_KINDS",
     "NOISE_COMPONENTS",
@@ -228,8 +227,12 @@ class PoseCovariance(CalibrationFact):
     marginals'; 1.0: within the marginals' sampling noise, so they are
     kept) or ``"schur"`` (the elimination failed: a dense Schur complement).
     ``reflection_depth_rms_m`` : a reflection depth not estimated whose
-    effect on the poses is in the covariance (0: none). ``failure`` : why a
-    more careful method was not used ("" when none failed)."""
+    effect on the poses is in the covariance (0: none);
+    ``without_depth_nodes`` and ``without_depth_sigmas`` (three per node:
+    ``x_b`` m, ``y_b`` m, ``phi`` rad) : each node's 1-sigma without that
+    term, what sessions of one walker or a recording's halves scatter by
+    (the depth is common to them). ``failure`` : why a more careful method
+    was not used ("" when none failed)."""
 
     kind: ClassVar[str] = "pose_covariance"
     _choices: ClassVar[dict] = {"method": ("marginals", "long_run", "schur")}
@@ -238,6 +241,8 @@ class PoseCovariance(CalibrationFact):
     max_widening: float = 1.0
     reflection_depth_rms_m: float = 0.0
     failure: str = ""
+    without_depth_nodes: tuple[str, ...] = ()
+    without_depth_sigmas: tuple[float, ...] = ()
 
 
 @_fact
@@ -441,19 +446,10 @@ class WindowsCombined(CalibrationFact):
     spread_factor: float = 1.0
 
 
-@_fact
-class RecordedMessage(CalibrationFact):
-    """The message of a calibration file written before the facts, as it
-    stands (read, never written)."""
-
-    kind: ClassVar[str] = "recorded_message"
-    text: str
-
-
 #: Every fact class, in the order ``mmsnap calibrate`` lists them by default.
 FACTS = (PoseGraphFit, TargetsAssociated, JointNoise, ClockOffsetsTried, JointFit,
          RobustPassFailed, PoseCovariance, RangeOffsetEstimated, PoseNotObservable,
          SolveBrokeDown, JointSkipped, JointRejected, LagEvidence, LagNotDetermined,
-         LagsDisputed, NoiseNotIdentified, WindowsCombined, RecordedMessage)
+         LagsDisputed, NoiseNotIdentified, WindowsCombined)
 #: ``kind`` -> fact class (the JSON reader's table).
 FACT_KINDS = {cls.kind: cls for cls in FACTS}

@@ -211,7 +211,8 @@ def test_values_beyond_the_physical_ranges_name_the_key(table, key, value):
         process_config_from_mapping(data)
 
 
-_ODD = [1e308, -1, float("nan"), 0, 2 ** 62, 1e-300, "x", 10 ** 9, -1e308, True]
+_ODD = [1e308, -1, float("nan"), 0, 2 ** 62, 1e-300, "x", 10 ** 9, -1e308, True,
+        float("inf"), float("-inf")]  # non-finite bounds: issue 29
 
 
 def _toml(value) -> str:

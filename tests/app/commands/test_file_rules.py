@@ -350,6 +350,20 @@ def fused(good, tmp_path_factory) -> Path:
     return path
 
 
+def _writer_inputs(folder: Path, good: Path, fused: Path) -> dict:
+    """The inputs EVERY_WRITER's templates name: the recording, one with
+    /fused, a point table, a ROS 2 bag of one PointCloud2 topic, the TI samples."""
+    from _rosbags import write_bag
+
+    csv = folder / "points.csv"
+    csv.write_text("frame,x,y,z,doppler\n" + "".join(f"{k},0.5,{2 + 0.05 * k},0.0,0.1\n"
+                                                      for k in range(20)))
+    bag = write_bag(folder / "bag", {"/radar": [
+        (10**9 + k * 10**8, 10**9 + k * 10**8, [[0.5, 2 + 0.05 * k, 0.0]], [0.1], [20.0])
+        for k in range(20)]}, ros=2)
+    return dict(rec=good, fused=fused, csv=csv, bag=bag, **TI_INPUTS)
+
+
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs and device nodes")
 def test_no_writer_replaces_a_device_a_fifo_a_link_a_folder_or_a_file(
         good, fused, tmp_path, capsys):
@@ -362,14 +376,7 @@ def test_no_writer_replaces_a_device_a_fifo_a_link_a_folder_or_a_file(
     folder writer's: anything but a folder is refused). Before: each device
     or FIFO was renamed over (the error without --overwrite even advised
     it); batch --output-dir on a device failed with 'File exists'."""
-    csv = tmp_path / "points.csv"
-    csv.write_text("frame,x,y,z,doppler\n" + "".join(f"{k},0.5,{2 + 0.05 * k},0.0,0.1\n"
-                                                      for k in range(20)))
-    from _rosbags import write_bag
-    bag = write_bag(tmp_path / "bag", {"/radar": [
-        (10**9 + k * 10**8, 10**9 + k * 10**8, [[0.5, 2 + 0.05 * k, 0.0]], [0.1], [20.0])
-        for k in range(20)]}, ros=2)
-    inputs = dict(rec=good, fused=fused, csv=csv, bag=bag, **TI_INPUTS)
+    inputs = _writer_inputs(tmp_path, good, fused)
     refused, seen = 0, set()
     for verb, (template, name) in EVERY_WRITER.items():
         folder = tmp_path / verb.replace(" ", "_").replace("-", "")
@@ -420,14 +427,7 @@ def test_overwrite_through_a_link_replaces_the_file_it_names_and_keeps_the_link(
     folder keeps a temporary file."""
     import time
 
-    csv = tmp_path / "points.csv"
-    csv.write_text("frame,x,y,z,doppler\n" + "".join(f"{k},0.5,{2 + 0.05 * k},0.0,0.1\n"
-                                                      for k in range(20)))
-    from _rosbags import write_bag
-    bag = write_bag(tmp_path / "bag", {"/radar": [
-        (10**9 + k * 10**8, 10**9 + k * 10**8, [[0.5, 2 + 0.05 * k, 0.0]], [0.1], [20.0])
-        for k in range(20)]}, ros=2)
-    inputs = dict(rec=good, fused=fused, csv=csv, bag=bag, **TI_INPUTS)
+    inputs = _writer_inputs(tmp_path, good, fused)
     times = {}
     for verb, (template, name) in EVERY_WRITER.items():
         if verb in FOLDER_WRITERS or verb in _NOT_RUN_HERE:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from mmsnap_graph._atomic import open_regular
 from ..arguments import add_fusion_arguments, fusion_config
 from ..file_rules import add_overwrite
 from ...view.arguments import add_view_options
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     stream = live_stream(names, poses, frame_period_s=session.frame_period_s, config=config,
                          noise=cal.noise, pose_covariances=cal.pose_covariances,
                          range_offset_m=cal.range_offset_m)
-    out = sys.stdout if args.output is None else open(args.output, "w", encoding="utf-8")
+    out = sys.stdout if args.output is None else open_regular(args.output)
     json_sink, centroids, latency = JsonLinesSink(out), CentroidLog(), LatencyLog()
     collector = FrameCollector(names, session.frame_period_s, t0_s=session.t0_s)
     # The view after the latency log: what it costs is not the JSON line's latency.
@@ -101,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
     if args.view_log:
         print(f"wrote {args.view_log} (open it in Foxglove or Lichtblick)", file=sys.stderr)
     print(f"stopped after {why}: {latency.summary()}; {json_sink.lines} person rows; "
-          f"{live.late} board frame(s) too late for their slot", file=sys.stderr)
+          f"{live.late} board frame(s) too late for their slot; the queue held at most "
+          f"{session.max_queued} board frame(s) (bound {session.frames.maxsize})", file=sys.stderr)
     if args.record:
         rec = live_recording(collector, centroids, dict(zip(names, poses)), mounting=mounts,
                              height_band_m=args.height_band, reach_m=reach)
