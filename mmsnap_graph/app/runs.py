@@ -436,8 +436,9 @@ def nominal_texts(metadata: Mapping[str, Any], poses: Mapping[str, Any], *,
     from ..evaluation.nominal import coincident_nodes, nominal_poses, pose_departures
 
     nominal = nominal_poses(metadata, list(poses))
+    departures = pose_departures(poses, nominal, reference=reference)
     out = []
-    for d in pose_departures(poses, nominal, reference=reference):
+    for d in departures:
         x, y, phi = d.nominal
         heading = float(np.degrees(phi)) if np.degrees(phi) > -179.95 else 180.0
         option = "--room-pose" if d.source == "room_pose" else "--pose"
@@ -445,7 +446,7 @@ def nominal_texts(metadata: Mapping[str, Any], poses: Mapping[str, Any], *,
                    f"{np.degrees(d.heading_error_rad):+.1f} deg from its nominal pose ({option}: "
                    f"x {x:.2f} m, y {y:.2f} m, heading {heading:.1f} deg in "
                    f"{reference}'s frame): {_CAUSES[d.cause]}")
-    far = {d.node for d in pose_departures(poses, nominal, reference=reference)}
+    far = {d.node for d in departures}
     for c in coincident_nodes(poses):
         if {c.node_a, c.node_b} & far:
             continue                                    # said above

@@ -407,6 +407,10 @@ class FusedWriter:
         self.n_rows += k
         self.n_success += int(np.count_nonzero(fused.success))
 
+    def set_attribute(self, name: str, value) -> None:
+        """An attribute of the ``/fused`` group (after the rows: a summary of them)."""
+        self._group.attrs[name] = value
+
 
 @contextlib.contextmanager
 def fused_writer(path: str | os.PathLike, *, output: str | os.PathLike | None = None
