@@ -98,7 +98,7 @@ def main(argv=None) -> int:
     t_grid = []
     for zk in z[:5]:
         t0 = time.perf_counter()
-        fuse_frame(POSES_B, zk, noise=noise, prior=prior, options=FusionOptions(covariance="both"))
+        fuse_frame(POSES_B, zk, noise=noise, prior=prior, options=FusionOptions(covariance="grid"))
         t_grid.append(time.perf_counter() - t0)
 
     med_g = np.median(t_gtsam) * 1e3

@@ -108,9 +108,8 @@ class FusionOptions:
     ``fuse_frame`` (and ``fuse_recording``):
 
     covariance : ``"laplace"`` (the inverse Gauss-Newton information, what
-        ``gtsam.Marginals`` returns), ``"grid"`` (the paper's numerical
-        posterior covariance on a 4D grid; ``fuse_frame`` also returns the
-        Laplace one) or ``"both"`` (``fuse_frame`` only).
+        ``gtsam.Marginals`` returns) or ``"grid"`` (also the paper's numerical
+        posterior covariance on a 4D grid, every solver).
     grid_points_per_axis, grid_half_width_sigmas : the grid's layout
         (:func:`mmsnap_graph.fusion.grid.grid_posterior`).
 
@@ -131,7 +130,7 @@ class FusionOptions:
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS
-    covariance: Literal["laplace", "grid", "both"] = "laplace"
+    covariance: Literal["laplace", "grid"] = "laplace"
     grid_points_per_axis: int = 21
     grid_half_width_sigmas: float = 5.0
     step_tolerance: float = 1e-10
@@ -143,10 +142,9 @@ class FusionOptions:
     def __post_init__(self) -> None:
         if not isinstance(self.lm, LevenbergMarquardtSettings):
             raise ValidationError(f"lm must be a LevenbergMarquardtSettings, got {self.lm!r}")
-        for name, value, choices in (("covariance", self.covariance, ("laplace", "grid", "both")),):
-            if value not in choices:
-                raise ValidationError(
-                    f"{name} must be {', '.join(map(repr, choices))}, got {value!r}")
+        if self.covariance not in ("laplace", "grid"):
+            raise ValidationError(f"covariance must be 'laplace' or 'grid', got "
+                                  f"{self.covariance!r}")
         check_solver(self.solver, SOLVERS)
         for name in ("grid_points_per_axis", "newton_after", "chunk_size", "block_rows"):
             object.__setattr__(self, name, check_count(getattr(self, name), name))

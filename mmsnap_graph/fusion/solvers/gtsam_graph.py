@@ -63,6 +63,7 @@ from factors.gtsam_factors import frame_measurement_factor, measurement_noise, n
 from ...errors import MmsnapError, ValidationError
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.results import DEGENERACY_THRESHOLD, FusionResult, Status
+from ...data.solution import FusionSolution
 from ..grid import grid_posterior
 from .assess import NEWTON_DECREMENT_TOLERANCE, assess_fit, residuals_and_degeneracy
 from .gtsam_poses import pose_aware_covariance
@@ -78,6 +79,7 @@ from ..problem import (
     validate_frame,
     velocity_degeneracy,
 )
+from ..frame_problem import initial_states
 from ..robust import node_d2, residual_gate_threshold, residual_test_fails
 from .settings import LM_SETTINGS, LevenbergMarquardtSettings
 
@@ -544,3 +546,56 @@ def _failed(failure: _Failure, x0, *, n_nodes, n_observed, prior, covariance) ->
         n_observed=n_observed,
         used_prior=prior is not None,
     )
+
+
+# ---------------------------------------------------------------------------
+# The solve contract
+
+
+def solve_frames(problem, options: FusionOptions = DEFAULT_OPTIONS):
+    """Every frame of a :class:`~mmsnap_graph.fusion.frame_problem.FrameProblem`
+    solved by GTSAM (one graph per frame, Levenberg-Marquardt, ``Marginals``;
+    with uncertain poses the joint graph's marginal): a
+    :class:`~mmsnap_graph.data.solution.FusionSolution` with the Laplace
+    covariance (:func:`mmsnap_graph.fusion.solve.solve`)."""
+    n_frames, n_nodes = problem.n_frames, problem.n_nodes
+    state = np.full((n_frames, 4), np.nan)
+    cov = np.full((n_frames, 4, 4), np.nan)
+    status = np.zeros(n_frames, dtype=np.int8)
+    iterations = np.zeros(n_frames, dtype=np.int64)
+    cost = np.full(n_frames, np.nan)
+    whitened = np.full((n_frames, n_nodes, 3), np.nan)
+    degeneracy = np.full(n_frames, np.inf)
+    x0 = initial_states(problem)
+    noise, prior, kernel, lm = problem.noise, problem.prior, problem.kernel, options.lm
+    for f in range(n_frames):
+        poses = problem.poses if problem.poses.ndim == 2 else problem.poses[f]
+        z, seen = problem.measurements[f], problem.observed[f]
+        obs = None if seen.all() else seen
+        if prior is None and not seen.any():
+            status[f] = Status.NO_INFORMATION
+            continue
+        if not np.isfinite(x0[f]).all():  # the average detection on a node
+            status[f] = Status.NON_FINITE
+            continue
+        try:
+            fit = _fit(poses, z, obs, noise, prior, x0[f], lm, kernel)
+        except _Failure as failure:
+            status[f], iterations[f], cost[f] = failure.status, failure.iterations, failure.cost
+            if failure.state is not None:
+                state[f] = failure.state
+            continue
+        state[f], status[f], iterations[f], cost[f] = fit.state, fit.status, fit.iterations, fit.cost
+        whitened[f], degeneracy[f] = fit.whitened, fit.degeneracy
+        if fit.status != Status.OK:
+            continue
+        cov[f] = fit.cov
+        if problem.pose_covariances is not None:
+            try:
+                cov[f] = pose_aware_covariance(fit.state, poses, z, obs, noise, prior,
+                                               problem.pose_covariances, kernel)
+            except Exception:  # GTSAM: an indeterminate joint system
+                status[f], cov[f] = Status.SINGULAR, np.nan
+    return FusionSolution(state=state, covariance=cov, status=status, iterations=iterations,
+                          final_cost=cost, initial_state=x0, whitened_residuals=whitened,
+                          degeneracy=degeneracy)

@@ -59,13 +59,15 @@ from factors.models import measurement_model_scalar, wrap_angle_scalar
 
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.results import Status
+from ...data.solution import FusionSolution
+from ...errors import ValidationError
 from ..._floats4 import cholesky_4x4, cholesky_inverse_4x4, cholesky_solve_4x4, forward_4x4
 from ..degeneracy import condition_2x2
+from ..frame_problem import initial_states
 from .assess import NEWTON_DECREMENT_TOLERANCE
 from .settings import LM_SETTINGS, LevenbergMarquardtSettings
-from ..problem import frame_initial_state
 
-__all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "FrameSolution", "FrameSolver"]
+__all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "FrameSolver", "solve_frames"]
 
 #: Largest difference between this solver's state and ``fuse_frame``'s, in
 #: units of each component's standard deviation (measured: 3e-7 at most,
@@ -81,8 +83,9 @@ _MIN_EIGENVALUE_RATIO = 1e-13
 # Relative Cholesky pivot below which the information counts as singular
 # (as mmsnap_graph._linalg's batched Cholesky).
 _PIVOT_RTOL = 1e-12
-_OK, _MAX_ITER, _SINGULAR, _NON_FINITE = (int(Status.OK), int(Status.MAX_ITERATIONS),
-                                          int(Status.SINGULAR), int(Status.NON_FINITE))
+_OK, _MAX_ITER, _SINGULAR, _NON_FINITE, _NO_INFORMATION = (
+    int(Status.OK), int(Status.MAX_ITERATIONS), int(Status.SINGULAR), int(Status.NON_FINITE),
+    int(Status.NO_INFORMATION))
 
 
 def _positive_definite(cov: NDArray) -> bool:
@@ -112,20 +115,6 @@ def _nan44() -> NDArray:
     return np.full((4, 4), np.nan)
 
 
-class FrameSolution:
-    """One solved group (a :class:`~mmsnap_graph.fusion.solvers.settings.FrameSolve`):
-    ``state`` (4,) list of floats, ``covariance`` (4, 4) array (NaN unless
-    ``status`` is OK), ``status`` (int
-    :class:`~mmsnap_graph.data.results.Status` code), ``degeneracy``,
-    ``iterations`` and ``final_cost`` (NaN when the solver did not start)."""
-
-    __slots__ = ("state", "covariance", "status", "degeneracy", "iterations", "final_cost")
-
-    def __init__(self, state, covariance, status, degeneracy, iterations, final_cost=math.nan):
-        self.state, self.covariance, self.status = state, covariance, status
-        self.degeneracy, self.iterations, self.final_cost = degeneracy, iterations, final_cost
-
-
 def _cholesky(a: list[float]) -> tuple[float, ...] | None:
     """The Cholesky factor of ``a`` (16 floats) with this solver's pivot
     tolerance (``_PIVOT_RTOL``), or None."""
@@ -150,16 +139,14 @@ class FrameSolver:
 
     def __init__(self, node_poses: NDArray, noises: Sequence[MeasurementNoise],
                  prior: GaussianPrior | None, pose_covariances: NDArray | None = None,
-                 lm: LevenbergMarquardtSettings = LM_SETTINGS) -> None:
+                 lm: LevenbergMarquardtSettings = LM_SETTINGS,
+                 kernel: tuple[str, float] | None = None) -> None:
         poses = np.asarray(node_poses, dtype=float)
+        self.kernel = kernel
         self.poses = poses
         self.noises = tuple(noises)
         self.prior = prior
         self.lm = lm
-        # One noise for every node: the initial state's Doppler weights are all 1
-        # either way (problem.frame_initial_state), one noise skips them.
-        self._initial_noise = (self.noises[0] if all(m == self.noises[0] for m in self.noises)
-                               else self.noises)
         self._nodes = [(px, py, math.cos(phi), math.sin(phi)) for px, py, phi in poses.tolist()]
         self._inv_sigma = [(1.0 / m.range_m, 1.0 / m.omega_rad, 1.0 / m.doppler_mps)
                            for m in self.noises]
@@ -176,9 +163,11 @@ class FrameSolver:
 
     # ------------------------------------------------------------------
     def _normal(self, x, rows):
-        """``(cost, H (16 floats, row-major), g (4), (a11, a12, a22))`` at
-        ``x``: the Gauss-Newton information and gradient of the cost, and
-        the lines-of-sight sums of the degeneracy. ``rows``: (node, z)
+        """``(cost, H (16 floats, row-major), g (4), (a11, a12, a22),
+        residuals)`` at ``x``: the Gauss-Newton information and gradient of
+        the cost (each node weighted by the kernel's IRLS weight), the
+        lines-of-sight sums of the degeneracy and each observed node's plain
+        whitened residuals ``(n, e_r, e_w, e_v)``. ``rows``: (node, z)
         pairs of the observed nodes. Raises ZeroDivisionError for a state on
         a node."""
         x0, x1, x2, x3 = x
@@ -186,7 +175,8 @@ class FrameSolver:
         h00 = h01 = h11 = h02 = h03 = h12 = h13 = h22 = h23 = h33 = 0.0
         g0 = g1 = g2 = g3 = 0.0
         a11 = a12 = a22 = 0.0
-        nodes, inv_sigma = self._nodes, self._inv_sigma
+        nodes, inv_sigma, kernel = self._nodes, self._inv_sigma, self.kernel
+        residuals = []
         for n, (zr, zw, zv) in rows:
             px, py, c, s = nodes[n]
             r, w, v, j = measurement_model_scalar(x0, x1, x2, x3, px, py, c, s)
@@ -194,11 +184,20 @@ class FrameSolver:
             er = (r - zr) * sr
             ew = wrap_angle_scalar(w - zw) * sw
             ev = (v - zv) * sv
-            cost += er * er + ew * ew + ev * ev
+            residuals.append((n, er, ew, ev))
             ux, uy = j[0], j[1]
             a11 += ux * ux
             a12 += ux * uy
             a22 += uy * uy
+            s2 = er * er + ew * ew + ev * ev
+            if kernel is None:
+                cost += s2
+            else:  # GTSAM's robust model: the loss, and rows scaled by sqrt(weight)
+                wt, loss = _kernel(kernel, s2)
+                cost += 2.0 * loss
+                q = math.sqrt(wt)
+                sr, sw, sv = sr * q, sw * q, sv * q
+                er, ew, ev = er * q, ew * q, ev * q
             rx, ry = ux * sr, uy * sr                      # whitened range row (rx, ry, 0, 0)
             wx, wy = j[4] * sw, j[5] * sw                  # spatial frequency row (wx, wy, 0, 0)
             dx, dy, dvx, dvy = j[8] * sv, j[9] * sv, ux * sv, uy * sv   # Doppler row
@@ -230,7 +229,7 @@ class FrameSolver:
             g2 += p2 * d2
             g3 += p3 * d3
         info = [h00, h01, h02, h03, h01, h11, h12, h13, h02, h12, h22, h23, h03, h13, h23, h33]
-        return cost, info, (g0, g1, g2, g3), (a11, a12, a22)
+        return cost, info, (g0, g1, g2, g3), (a11, a12, a22), residuals
 
     def _lm(self, x, rows):
         """Levenberg-Marquardt from ``x``, step for step as GTSAM's
@@ -238,7 +237,7 @@ class FrameSolver:
         (so that both reach the same local minimum and stop alike): ``(x,
         cost, H, g, lines, iterations, converged)``."""
         lm = self.lm
-        cost, info, grad, lines = self._normal(x, rows)
+        cost, info, grad, lines, res = self._normal(x, rows)
         lam, factor = lm.lambda_initial, lm.lambda_factor
         it = 0
         while it < lm.max_iterations:
@@ -253,7 +252,7 @@ class FrameSolver:
                     lam = max(lm.lambda_min, lam * lm.damping_update(fidelity))
                     factor = 2.0
                     x = new_x
-                    cost, info, grad, lines = new
+                    cost, info, grad, lines, res = new
                     break
                 if step is not None and step[1] is None:
                     break  # the cost change is below rounding: stop searching lambda
@@ -264,8 +263,8 @@ class FrameSolver:
             decrease = previous - cost
             if (cost <= 0.0 or decrease <= lm.relative_tolerance * previous
                     or decrease <= lm.absolute_tolerance):
-                return x, cost, info, grad, lines, it, True
-        return x, cost, info, grad, lines, it, False
+                return x, cost, info, grad, lines, res, it, True
+        return x, cost, info, grad, lines, res, it, False
 
     def _try(self, x, cost, info, grad, lam, diag, rows):
         """One damped step (GTSAM's ``tryLambda``): None when the damped system
@@ -291,7 +290,7 @@ class FrameSolver:
         try:
             new = self._normal(x_new, rows)
         except ZeroDivisionError:
-            new = (math.inf, None, None, None)
+            new = (math.inf, None, None, None, None)
         change = cost - new[0]
         fidelity = 0.0
         if linearized > _EPSILON * cost:
@@ -304,44 +303,43 @@ class FrameSolver:
         return successful, fidelity, x_new, new
 
     # ------------------------------------------------------------------
-    def solve(self, z: NDArray, observed: NDArray) -> FrameSolution:
-        """Fuse one group: ``z (N, 3)`` each node's measurement (rows of the
-        unobserved nodes ignored), ``observed (N,)`` bool (at least one True,
-        or a prior)."""
-        obs = observed.tolist()
-        zl = z.tolist()
-        rows = [(n, zl[n]) for n in range(len(obs)) if obs[n]]
-        x0 = frame_initial_state(self.poses, z, observed, self.prior, self._initial_noise)
-        if not all(map(math.isfinite, x0)):  # the average detection on a node
-            return FrameSolution([math.nan] * 4, _nan44(), _NON_FINITE, math.inf, 0)
+    def solve(self, z: list, observed: list, x0: list[float]) -> tuple:
+        """Fuse one group from ``x0`` (4 floats, finite): ``z`` (N rows of 3
+        floats) each node's measurement (rows of the unobserved nodes
+        ignored), ``observed`` (N bools; at least one True, or a prior).
+        Returns ``(state, covariance (4, 4) or None, status, degeneracy,
+        iterations, cost, residuals)`` (``residuals``: ``(n, e_r, e_w,
+        e_v)`` of the observed nodes at ``state``, empty when unknown)."""
+        rows = [(n, z[n]) for n in range(len(observed)) if observed[n]]
         try:
-            x, cost, info, grad, lines, it, converged = self._lm(x0, rows)
+            x, cost, info, grad, lines, res, it, converged = self._lm(x0, rows)
         except ZeroDivisionError:  # the initial state on a node
-            return FrameSolution([math.nan] * 4, _nan44(), _NON_FINITE, math.inf, 0)
-        return self._assess(x, cost, info, grad, lines, it, converged, rows)
+            return [math.nan] * 4, None, _NON_FINITE, math.inf, 0, math.nan, ()
+        status, cov, degeneracy = self._assess(x, cost, info, grad, lines, converged, rows)
+        return x, cov, status, degeneracy, it, cost, res
 
-    def _assess(self, x, cost, info, grad, lines, it, converged, rows) -> FrameSolution:
-        """Status, covariance and degeneracy of a solution (as ``fuse_frame``)."""
+    def _assess(self, x, cost, info, grad, lines, converged, rows) -> tuple:
+        """``(status, covariance or None, degeneracy)`` of a solution (as GTSAM's)."""
         if not (math.isfinite(cost) and all(map(math.isfinite, x))):
-            return FrameSolution(x, _nan44(), _NON_FINITE, math.inf, it, cost)
+            return _NON_FINITE, None, math.inf
         if not converged:
-            return FrameSolution(x, _nan44(), _MAX_ITER, math.inf, it, cost)
+            return _MAX_ITER, None, math.inf
         lo = _cholesky(info)
         if lo is None:  # indeterminate system (gtsam.Marginals raises)
-            return FrameSolution(x, _nan44(), _SINGULAR, math.inf, it, cost)
+            return _SINGULAR, None, math.inf
         cov = _cholesky_inverse(lo)
         degeneracy = condition_2x2(*lines)
         if not _positive_definite(cov):
-            return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it, cost)
+            return _SINGULAR, None, degeneracy
         # The squared Newton decrement g^T H^-1 g = |L^-1 g|^2.
         y = forward_4x4(lo, grad)
         if not y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3] <= NEWTON_DECREMENT_TOLERANCE:
-            return FrameSolution(x, _nan44(), _NON_FINITE, degeneracy, it, cost)
+            return _NON_FINITE, None, degeneracy
         if self._pose_info is not None:
             cov = self._pose_aware(x, info, rows)
             if cov is None:
-                return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it, cost)
-        return FrameSolution(x, cov, _OK, degeneracy, it, cost)
+                return _SINGULAR, None, degeneracy
+        return _OK, cov, degeneracy
 
     def _pose_aware(self, x, info, rows) -> NDArray | None:
         """The state's marginal covariance in the joint graph with the uncertain
@@ -354,6 +352,10 @@ class FrameSolver:
             px, py, c, s = self._nodes[n]
             _, _, _, j_state, j_pose = measurement_model_scalar(*x, px, py, c, s, pose_jacobian=True)
             inv_sigma = np.array(self._inv_sigma[n])[:, None]
+            if self.kernel is not None:  # the node's IRLS weight at x
+                r, w, v, _ = measurement_model_scalar(*x, px, py, c, s)
+                e = np.array([r - zr, wrap_angle_scalar(w - zw), v - zv]) * inv_sigma[:, 0]
+                inv_sigma = inv_sigma * math.sqrt(_kernel(self.kernel, float(e @ e))[0])
             jx = np.array(j_state).reshape(3, 4) * inv_sigma
             jp = np.array(j_pose).reshape(3, 3) * inv_sigma
             h_xp = jx.T @ jp
@@ -366,3 +368,58 @@ class FrameSolver:
         if lo is None:
             return None
         return _cholesky_inverse(lo)
+
+
+def _kernel(kernel: tuple[str, float], s2: float) -> tuple[float, float]:
+    """``(IRLS weight, loss)`` of GTSAM's Huber or Cauchy kernel at squared
+    whitened norm ``s2`` (as :func:`~mmsnap_graph.fusion.robust.kernel_weight_and_loss`)."""
+    name, k = kernel
+    if name == "huber":
+        s = math.sqrt(s2)
+        return (1.0, 0.5 * s2) if s <= k else (k / s, k * s - 0.5 * k * k)
+    q = s2 / (k * k)
+    return 1.0 / (1.0 + q), 0.5 * k * k * math.log1p(q)
+
+
+def _solver_of(problem, lm: LevenbergMarquardtSettings) -> FrameSolver:
+    """The :class:`FrameSolver` of ``problem``'s network (made once per network)."""
+    return problem.cached(("scalar", lm, problem.kernel), lambda: FrameSolver(
+        problem.poses, problem.noise, problem.prior, problem.pose_covariances, lm, problem.kernel))
+
+
+def solve_frames(problem, options):
+    """Every frame of a :class:`~mmsnap_graph.fusion.frame_problem.FrameProblem`
+    solved one at a time in plain floats: a
+    :class:`~mmsnap_graph.data.solution.FusionSolution` with the Laplace
+    covariance (:func:`mmsnap_graph.fusion.solve.solve`)."""
+    if problem.poses.ndim == 3:
+        raise ValidationError("the scalar solver takes one network for every frame "
+                              "(poses (N, 3)); use solver='vectorized' or 'gtsam'")
+    solver = _solver_of(problem, options.lm)
+    n_frames, n_nodes = problem.n_frames, problem.n_nodes
+    state = np.full((n_frames, 4), np.nan)
+    cov = np.full((n_frames, 4, 4), np.nan)
+    status = np.zeros(n_frames, dtype=np.int8)
+    iterations = np.zeros(n_frames, dtype=np.int64)
+    cost = np.full(n_frames, np.nan)
+    whitened = np.full((n_frames, n_nodes, 3), np.nan)
+    degeneracy = np.full(n_frames, np.inf)
+    x0 = initial_states(problem)
+    z_all, obs_all, x0_all = problem.measurements.tolist(), problem.observed.tolist(), x0.tolist()
+    no_prior = problem.prior is None
+    for f in range(n_frames):
+        if no_prior and not any(obs_all[f]):
+            status[f] = _NO_INFORMATION
+            continue
+        if not all(map(math.isfinite, x0_all[f])):  # the average detection on a node
+            status[f] = _NON_FINITE
+            continue
+        x, c, st, dg, it, fc, res = solver.solve(z_all[f], obs_all[f], x0_all[f])
+        state[f], status[f], degeneracy[f], iterations[f], cost[f] = x, st, dg, it, fc
+        if c is not None:
+            cov[f] = c
+        for n, er, ew, ev in res:
+            whitened[f, n] = er, ew, ev
+    return FusionSolution(state=state, covariance=cov, status=status, iterations=iterations,
+                          final_cost=cost, initial_state=x0, whitened_residuals=whitened,
+                          degeneracy=degeneracy)

@@ -47,6 +47,7 @@ from ..._linalg import chol_soa, cholesky4, cholesky4_inverse, cholesky4_solve, 
 from ..._validation import as_float_array, check_finite
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.results import BatchResult, Status
+from ...data.solution import FusionSolution
 from .vectorized_poses import propagate_pose_covariance
 from ..problem import (
     check_node_noise,
@@ -59,6 +60,7 @@ from ..problem import (
 )
 from .vectorized_lm import SolverParams, evaluate, levenberg_marquardt
 from ..options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_options, robust_options
+from ..frame_problem import initial_states
 from ..robust import kernel_weight_and_loss, node_d2, residual_test_fails
 
 __all__ = [
@@ -380,3 +382,31 @@ def _gate(result, poses, z, obs, prior, noise, params, max_iterations, chunk_siz
 #: The per-frame fields a gate refit replaces.
 _GATED_FIELDS = ("state", "covariance", "status", "iterations", "final_cost", "initial_state",
                  "whitened_residuals", "degeneracy")
+
+
+# ---------------------------------------------------------------------------
+# The solve contract
+
+
+def solve_frames(problem, options: FusionOptions = DEFAULT_OPTIONS):
+    """Every frame of a :class:`~mmsnap_graph.fusion.frame_problem.FrameProblem`
+    solved together (Levenberg-Marquardt vectorized over the frames): a
+    :class:`~mmsnap_graph.data.solution.FusionSolution` with the Laplace
+    covariance (:func:`mmsnap_graph.fusion.solve.solve`)."""
+    prior = problem.prior
+    params = SolverParams(
+        inv_sigma=1.0 / problem.sigmas,
+        prior_mean=None if prior is None else np.asarray(prior.mean, dtype=float),
+        prior_inv_sigma=None if prior is None else 1.0 / np.asarray(prior.sigmas, dtype=float),
+        step_tolerance=options.step_tolerance, newton_after=options.newton_after,
+        kernel=problem.kernel, lm=options.lm)
+    x0 = initial_states(problem)
+    res = _solve(problem.poses, problem.measurements, problem.observed, x0, params,
+                 options.lm.max_steps, options.chunk_size)
+    if problem.pose_covariances is not None:
+        res = _with_pose_covariance(res, problem.poses, problem.observed, params,
+                                    problem.pose_covariances)
+    return FusionSolution(state=res.state, covariance=res.covariance, status=res.status,
+                          iterations=res.iterations, final_cost=res.final_cost,
+                          initial_state=x0, whitened_residuals=res.whitened_residuals,
+                          degeneracy=res.degeneracy)

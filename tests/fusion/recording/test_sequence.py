@@ -208,9 +208,8 @@ def test_grid_covariance_matches_fuse_frame(recordings):
 @pytest.mark.parametrize(
     "build, match",
     [
-        (lambda: FusionOptions(covariance="exact"), "covariance must be 'laplace', 'grid', 'both'"),
-        (lambda: FusionConfig(solve=FusionOptions(covariance="both")),
-         "solve.covariance must be 'laplace' or 'grid'"),
+        (lambda: FusionOptions(covariance="exact"), "covariance must be 'laplace' or 'grid'"),
+        (lambda: FusionOptions(covariance="both"), "covariance must be 'laplace' or 'grid'"),
         (lambda: FusionOptions(solver="scipy"), "solver must be 'gtsam' or 'vectorized' or 'scalar'"),
         (lambda: FusionOptions(solver="batch"), "'batch' is now called 'vectorized'"),
         (lambda: AssociationOptions(source="cube"), "source must be 'centroids' or 'point_cloud'"),

@@ -549,7 +549,7 @@ def test_grid_covariance_agrees_with_laplace_in_benign_geometry():
     metric: every entry of ``L^-1 (G - S) L^-T`` below 0.05."""
     z = simulate(POSES_B, TRUTH_B, 2, seed=31)
     for zk in z:
-        res = fuse_frame(POSES_B, zk, options=FusionOptions(covariance="both"))
+        res = fuse_frame(POSES_B, zk, options=FusionOptions(covariance="grid"))
         assert res.success and res.grid_covariance.shape == (4, 4)
         chol = np.linalg.cholesky(res.covariance)
         inv = np.linalg.inv(chol)
@@ -558,12 +558,12 @@ def test_grid_covariance_agrees_with_laplace_in_benign_geometry():
     only_grid = fuse_frame(POSES_B, z[0], options=FusionOptions(covariance="grid"))
     assert_allclose(only_grid.grid_covariance, fuse_frame(POSES_B,
                                                           z[0],
-                                                          options=FusionOptions(covariance="both")).grid_covariance)
+                                                          options=FusionOptions(covariance="grid")).grid_covariance)
 
 
 def test_grid_covariance_in_degenerate_geometry_reports_both():
     z = simulate(POSES_C, TRUTH_C, 1, seed=33)[0]
-    res = fuse_frame(POSES_C, z, options=FusionOptions(covariance="both"))
+    res = fuse_frame(POSES_C, z, options=FusionOptions(covariance="grid"))
     assert res.success
     for cov in (res.covariance, res.grid_covariance):
         assert np.isfinite(cov).all()
@@ -575,7 +575,7 @@ def test_grid_covariance_in_degenerate_geometry_reports_both():
 
 def test_grid_covariance_of_a_failed_frame_is_nan():
     z = exact(POSES_B, TRUTH_B)
-    res = fuse_frame(POSES_B[:1], z[:1], prior=None, options=FusionOptions(covariance="both"))
+    res = fuse_frame(POSES_B[:1], z[:1], prior=None, options=FusionOptions(covariance="grid"))
     assert not res.success
     assert res.grid_covariance.shape == (4, 4) and np.isnan(res.grid_covariance).all()
 
