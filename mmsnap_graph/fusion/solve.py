@@ -35,18 +35,24 @@ from .options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, check_option
 from .robust import node_d2, residual_test_fails
 from .solvers import scalar, vectorized
 
-__all__ = ["solve", "robust_solve"]
+__all__ = ["solve", "robust_solve", "with_grid_covariance", "check_grid_model"]
+
+
+def check_grid_model(problem: FrameProblem, options: FusionOptions) -> None:
+    """ValidationError when ``options.covariance="grid"`` meets a problem the
+    grid posterior cannot model (per-node noise, uncertain poses)."""
+    if options.covariance == "grid" and (problem.pose_covariances is not None
+                                         or not problem.one_noise):
+        raise ValidationError(
+            "covariance='grid' takes one noise for every node and exact poses (the grid "
+            "posterior's model); per-node noise and pose_covariances need covariance='laplace'")
 
 
 def _check(problem: object, options: object) -> tuple[FrameProblem, FusionOptions]:
     if not isinstance(problem, FrameProblem):
         raise ValidationError(f"problem must be a FrameProblem, got {type(problem).__name__}")
     options = check_options(options)
-    if options.covariance == "grid" and (problem.pose_covariances is not None
-                                         or not problem.one_noise):
-        raise ValidationError(
-            "covariance='grid' takes one noise for every node and exact poses (the grid "
-            "posterior's model); per-node noise and pose_covariances need covariance='laplace'")
+    check_grid_model(problem, options)
     return problem, options
 
 

@@ -23,7 +23,7 @@ import pytest
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_A, POSES_BC, POSES_C
 from factors.models import predict_measurements, wrap_angle
 from mmsnap_graph import MeasurementNoise
-from mmsnap_graph.data.results import Status
+from mmsnap_graph.data.results import DEGENERACY_THRESHOLD, Status
 from mmsnap_graph.data.solution import FusionSolution
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.frame_problem import FrameProblem, initial_states
@@ -103,6 +103,11 @@ def compare(case, got: FusionSolution, ref: FusionSolution, solver, state_tol=ST
     np.testing.assert_allclose(got.final_cost[ok], ref.final_cost[ok], rtol=1e-6, atol=1e-9)
     np.testing.assert_allclose(got.whitened_residuals[ok], ref.whitened_residuals[ok],
                                atol=10 * state_tol)
+    # The condition number of nearly parallel lines of sight is as sensitive
+    # as its size: equal to 1e-6 where it matters (below the flag's threshold).
+    benign = ok & (ref.degeneracy < DEGENERACY_THRESHOLD)
+    np.testing.assert_allclose(got.degeneracy[benign], ref.degeneracy[benign], rtol=1e-6)
+    assert (got.degeneracy[ok & ~benign] > 0.9 * DEGENERACY_THRESHOLD).all()
     return int(ok.sum())
 
 

@@ -1,17 +1,20 @@
-"""One-shot fusion of one target in one frame, in plain Python floats: the
-solver of the stream (:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`,
-``solver="scalar"``, docs/STREAMING.md).
+"""One-shot fusion one frame at a time, in plain Python floats:
+``solver="scalar"`` of :func:`mmsnap_graph.fusion.solve.solve` (:func:`solve_frames`),
+the solver of the stream (:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`,
+docs/STREAMING.md).
 
-The same problem as :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` (GTSAM):
+The same problem as GTSAM's (:mod:`mmsnap_graph.fusion.solvers.gtsam_graph`):
 the cost ``0.5 * sum of squared whitened residuals`` of every observed node's
 range, spatial frequency (wrapped) and Doppler, each node with its own
-sigmas, plus the Gaussian prior (MAP; none for ML), from the same initial
-state (:func:`~mmsnap_graph.fusion.problem.frame_initial_state`). It is
+sigmas (with a robust kernel, the kernel's loss and each node weighted by
+its IRLS weight, as GTSAM's robust noise model), plus the Gaussian prior
+(MAP; none for ML), from the same initial state
+(:func:`~mmsnap_graph.fusion.frame_problem.initial_states`). It is
 minimized by Levenberg-Marquardt (Marquardt's diagonal damping and Nielsen's
-update, as the GTSAM settings of ``fuse_frame``) and the covariance is the
-inverse of the Gauss-Newton information ``J^T W J + Lambda_prior`` at the
-solution (what ``gtsam.Marginals`` returns for that graph). With uncertain
-node poses the covariance is the marginal of the state in the joint graph of
+update, as the GTSAM settings) and the covariance is the inverse of the
+Gauss-Newton information ``J^T W J + Lambda_prior`` at the solution (what
+``gtsam.Marginals`` returns for that graph). With uncertain node poses the
+covariance is the marginal of the state in the joint graph of
 :mod:`mmsnap_graph.fusion.solvers.gtsam_poses` (each uncertain pose a variable
 under its prior, linearized at the estimate and the calibrated poses),
 computed here as a Schur complement: the same number as GTSAM's.
@@ -31,20 +34,19 @@ lambda, its update from the model fidelity, Marquardt's diagonal clamped as
 GTSAM clamps it, the relative and absolute error tolerances of 1e-14), so
 that both reach the same local minimum (two nodes can have a mirror
 minimum) and stop alike; they differ by rounding (GTSAM solves the normal
-equations by its own elimination). ``tests/test_frame_solver.py`` checks
-the two against each other on random frames of seven networks and modes
+equations by its own elimination). ``tests/fusion/test_solve.py`` checks
+the two against each other through :func:`~mmsnap_graph.fusion.solve.solve`
 (MAP, ML, missed nodes, per-node noise, uncertain poses, degenerate
-geometry): statuses equal, states to :data:`STATE_TOLERANCE` and
-covariances to :data:`COVARIANCE_TOLERANCE`, both relative to the
-standard deviations (measured on 2,100 frames: 3e-7 and 2.5e-6 at most,
-the largest where the cost is flattest).
+geometry, robust fits): statuses equal, states to :data:`STATE_TOLERANCE`
+and covariances to :data:`COVARIANCE_TOLERANCE`, both relative to the
+standard deviations.
 
-Status codes as ``fuse_frame``: ``NON_FINITE`` for an initial position on a
-node (``fuse_frame`` raises there; the stream flags the group) or a
-non-finite solution or a Newton decrement above
+Status codes as GTSAM's: ``NON_FINITE`` for an initial position on a node,
+a non-finite solution or a Newton decrement above
 :data:`~mmsnap_graph.fusion.solvers.assess.NEWTON_DECREMENT_TOLERANCE`;
 ``MAX_ITERATIONS``; ``SINGULAR`` when the information is not positive
-definite (an ML group seen by one node).
+definite (an ML frame seen by one node); ``NO_INFORMATION`` for no node and
+no prior.
 """
 
 from __future__ import annotations
@@ -63,13 +65,13 @@ from ...data.solution import FusionSolution
 from ...errors import ValidationError
 from ..._floats4 import cholesky_4x4, cholesky_inverse_4x4, cholesky_solve_4x4, forward_4x4
 from ..degeneracy import condition_2x2
-from ..frame_problem import initial_states
+from ..frame_problem import initial_states as start_states
 from .assess import NEWTON_DECREMENT_TOLERANCE
 from .settings import LM_SETTINGS, LevenbergMarquardtSettings
 
 __all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "FrameSolver", "solve_frames"]
 
-#: Largest difference between this solver's state and ``fuse_frame``'s, in
+#: Largest difference between this solver's state and GTSAM's, in
 #: units of each component's standard deviation (measured: 3e-7 at most,
 #: typically 1e-10).
 STATE_TOLERANCE = 1e-6
@@ -134,7 +136,8 @@ class FrameSolver:
     :class:`MeasurementNoise` (node order); prior : GaussianPrior or None;
     pose_covariances : (N, 3, 3) with NaN for an exact pose, or None
     (validated by :func:`~mmsnap_graph.fusion.problem.check_pose_covariances`);
-    lm : the Levenberg-Marquardt settings, as ``fuse_frame``'s.
+    lm : the Levenberg-Marquardt settings, as GTSAM's; kernel : ``(name, k)``
+    or None.
     """
 
     def __init__(self, node_poses: NDArray, noises: Sequence[MeasurementNoise],
@@ -233,9 +236,9 @@ class FrameSolver:
 
     def _lm(self, x, rows):
         """Levenberg-Marquardt from ``x``, step for step as GTSAM's
-        ``LevenbergMarquardtOptimizer`` with the settings of ``fuse_frame``
+        ``LevenbergMarquardtOptimizer`` with the GTSAM settings
         (so that both reach the same local minimum and stop alike): ``(x,
-        cost, H, g, lines, iterations, converged)``."""
+        cost, H, g, lines, residuals, iterations, converged)``."""
         lm = self.lm
         cost, info, grad, lines, res = self._normal(x, rows)
         lam, factor = lm.lambda_initial, lm.lambda_factor
@@ -404,7 +407,7 @@ def solve_frames(problem, options):
     cost = np.full(n_frames, np.nan)
     whitened = np.full((n_frames, n_nodes, 3), np.nan)
     degeneracy = np.full(n_frames, np.inf)
-    x0 = initial_states(problem)
+    x0 = start_states(problem)
     z_all, obs_all, x0_all = problem.measurements.tolist(), problem.observed.tolist(), x0.tolist()
     no_prior = problem.prior is None
     for f in range(n_frames):

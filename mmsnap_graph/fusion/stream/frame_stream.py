@@ -68,7 +68,6 @@ from ..config import DEFAULT_CONFIG, FusionConfig
 from ..options import FusionOptions, NetworkCalibration
 from ..recording.pipeline import FusionNetwork
 from ..recording.regroup import merge_body_detections
-from ..solvers.scalar import FrameSolver
 from .association import StreamAssociator
 from .checks import StreamPipeline
 from ..problem import check_node_noise, check_pose_covariances
@@ -242,12 +241,10 @@ class FrameStream:
         self.gate_probability = config.association.gate_probability
         tracker_cfg = CentralConfig() if tracker is None else tracker
         self.frame_period_s = float(tracker_cfg.frame_period_s)
-        net = FusionNetwork(node_names=names, poses=poses, noise=noises,
-                            pose_covariances=self.pose_covariances,
-                            frame_period_s=self.frame_period_s)
-        self._frame_solver = FrameSolver(poses, noises, self.prior, self.pose_covariances)
+        net = FusionNetwork.make(names, poses, noises, self.pose_covariances, self.prior,
+                                 self.frame_period_s)
         self._associator = StreamAssociator(poses, noises, self.gate_probability)
-        self._pipeline = StreamPipeline(net, config, self.delay_frames, self._frame_solver)
+        self._pipeline = StreamPipeline(net, config, self.delay_frames)
         self._index = {name: i for i, name in enumerate(names)}
         prior = self.prior
         self._new_tracker = lambda: CentralTracker(
