@@ -28,7 +28,7 @@ from .._validation import as_float_array
 from ..data.noise import GaussianPrior, MeasurementNoise
 from ..errors import GeometryError, ValidationError
 from .problem import (AT_NODE_M, check_node_noise, check_poses, check_pose_covariances,
-                      check_prior, node_sigmas, validate_frames)
+                      check_prior, node_sigmas, validate_frame, validate_frames)
 
 __all__ = ["FrameProblem", "initial_states", "whitened_residuals"]
 
@@ -92,15 +92,15 @@ class FrameProblem:
 
     def __post_init__(self) -> None:
         z = as_float_array(self.measurements, "measurements")
-        if z.ndim == 2:
-            z = z[None]
-            observed = None if self.observed is None else np.asarray(self.observed)[None]
+        if z.ndim == 2:  # one frame: its own messages (no frame index)
+            poses, z, obs = validate_frame(self.poses, z, self.observed)
+            obs = np.ones(z.shape[0], dtype=bool) if obs is None else obs
+            z, obs = np.where(obs[:, None], z, 0.0)[None], obs[None]
         else:
-            observed = self.observed
-        poses = as_float_array(self.poses, "node_poses")
-        if poses.ndim == 2:
-            poses = check_poses(poses)
-        poses, z, obs = validate_frames(poses, z, observed)
+            poses = as_float_array(self.poses, "node_poses")
+            if poses.ndim == 2:
+                poses = check_poses(poses)
+            poses, z, obs = validate_frames(poses, z, self.observed)
         n_nodes = z.shape[1]
         check_prior(self.prior)
         noise = check_node_noise(self.noise, n_nodes)

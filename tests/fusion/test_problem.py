@@ -15,15 +15,26 @@ from mmsnap_graph.evaluation import chi2_mean_interval, nees
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_BC
 from factors.models import measurement_model, predict_measurements, wrap_angle
 from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
-from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
+from mmsnap_graph import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.association import associate_frame
-from mmsnap_graph.fusion.problem import check_node_noise, initial_states
+from mmsnap_graph.fusion.frame_problem import FrameProblem, initial_states
+from mmsnap_graph.fusion.problem import check_node_noise
 from mmsnap_graph.fusion.recording.sequence import fuse_recording, group_detections
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions
-from _fusion import config, stream_config
+from _fusion import config, frame_of, solved, stream_config
+
+
+def fuse_batch(poses, z, **kwargs):
+    """The vectorized solver through the contract."""
+    return solved(poses, z, solver="vectorized", **kwargs)
+
+
+def fuse_frame(poses, z, **kwargs):
+    """GTSAM through the contract, one frame (its fields without the frame axis)."""
+    return frame_of(solved(poses, z, solver="gtsam", **kwargs))
 
 #: Three nodes with sigmas far apart (node 1 has a poor range, node 2 a poor Doppler).
 NOISES = (
@@ -143,7 +154,7 @@ def test_initial_velocity_weighs_each_nodes_doppler_by_its_sigma():
     """The vectorized and the per-frame initial values agree with per-node sigmas."""
     rng = np.random.default_rng(4)
     _, z, obs = _frames(rng, 30, p_miss=0.2)
-    x0 = initial_states(POSES_BC, z, obs, PAPER_PRIOR, noise=NOISES)
+    x0 = initial_states(FrameProblem(poses=POSES_BC, measurements=z, observed=obs, noise=NOISES))
     res = fuse_batch(POSES_BC,
                      z,
                      observed=obs,
@@ -153,8 +164,8 @@ def test_initial_velocity_weighs_each_nodes_doppler_by_its_sigma():
     for f in range(5):
         r = fuse_frame(POSES_BC, z[f], observed=obs[f], noise=NOISES)
         np.testing.assert_allclose(r.initial_state, x0[f], rtol=0, atol=1e-12)
-    assert np.abs(x0[:, 2:] - initial_states(POSES_BC, z, obs, PAPER_PRIOR,
-                                             noise=PAPER_NOISE)[:, 2:]).max() > 1e-3
+    shared = initial_states(FrameProblem(poses=POSES_BC, measurements=z, observed=obs))
+    assert np.abs(x0[:, 2:] - shared[:, 2:]).max() > 1e-3
 
 
 @pytest.mark.parametrize("robust", ["gate", "huber", "cauchy"])

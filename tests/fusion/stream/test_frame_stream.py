@@ -16,6 +16,7 @@ from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import MmsnapError, ValidationError
+from _fusion import solved
 from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
