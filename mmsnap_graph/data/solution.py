@@ -112,6 +112,27 @@ class FusionSolution:
             object.__setattr__(self, "grid_covariance", _frozen(
                 self.grid_covariance, float, (f, 4, 4), "grid_covariance"))
 
+    @classmethod
+    def of_solver(cls, *, state, covariance, status, iterations, final_cost, initial_state,
+                  whitened_residuals, degeneracy) -> "FusionSolution":
+        """The solution a solver assembled: arrays it owns, of the right
+        shapes and dtypes (float, ``status`` int8, ``iterations`` int64),
+        frozen here without the checks of the constructor (the per-frame
+        path of the stream); nothing rejected, no grid covariance."""
+        out = object.__new__(cls)
+        for name, value in (("state", state), ("covariance", covariance), ("status", status),
+                            ("iterations", iterations), ("final_cost", final_cost),
+                            ("initial_state", initial_state),
+                            ("whitened_residuals", whitened_residuals),
+                            ("degeneracy", degeneracy)):
+            value.setflags(write=False)
+            object.__setattr__(out, name, value)
+        rejected = np.zeros(whitened_residuals.shape[:2], dtype=bool)
+        rejected.setflags(write=False)
+        object.__setattr__(out, "rejected", rejected)
+        object.__setattr__(out, "grid_covariance", None)
+        return out
+
     def __len__(self) -> int:
         return int(self.status.shape[0])
 

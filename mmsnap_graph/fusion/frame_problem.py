@@ -30,11 +30,12 @@ from ..errors import GeometryError, ValidationError
 from .problem import (AT_NODE_M, check_node_noise, check_poses, check_pose_covariances,
                       check_prior, node_sigmas, validate_frame, validate_frames)
 
-__all__ = ["FrameProblem", "initial_states", "whitened_residuals"]
+__all__ = ["FrameProblem", "initial_states", "whitened_residuals", "SMALL_PROBLEM_ROWS"]
 
-#: A frame problem of at most this many measurement rows is validated and
-#: started in plain floats (numpy's per-call overhead dominates below it).
-_SMALL_ROWS = 48
+#: A frame problem of at most this many measurement rows (frames times
+#: nodes) is validated and started in plain floats (numpy's per-call overhead
+#: dominates below it); the tests hold both paths equal.
+SMALL_PROBLEM_ROWS = 48
 
 
 def _check_kernel(kernel: object) -> tuple[str, float] | None:
@@ -192,7 +193,7 @@ class FrameProblem:
             raise ValidationError("with_frames needs one network for every frame (poses (N, 3))")
         z = measurements if type(measurements) is np.ndarray else as_float_array(
             measurements, "measurements")
-        if z.ndim == 3 and observed is not None and z.size <= _SMALL_ROWS * 3 \
+        if z.ndim == 3 and observed is not None and z.size <= SMALL_PROBLEM_ROWS * 3 \
                 and z.shape[1] == self.n_nodes:
             obs = np.asarray(observed)
             if obs.dtype == bool and obs.shape == z.shape[:2] and _rows_valid(z, obs):
@@ -255,7 +256,7 @@ def initial_states(problem: FrameProblem) -> NDArray:
     """
     if problem.initial_state is not None:
         return np.array(problem.initial_state)
-    if problem.measurements.shape[0] * problem.n_nodes <= _SMALL_ROWS and problem.poses.ndim == 2:
+    if problem.measurements.shape[0] * problem.n_nodes <= SMALL_PROBLEM_ROWS and problem.poses.ndim == 2:
         return np.array([_start_floats(problem, f) for f in range(problem.n_frames)],
                         dtype=float).reshape(problem.n_frames, 4)
     out = np.empty((problem.n_frames, 4))

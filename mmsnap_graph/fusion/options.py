@@ -1,8 +1,8 @@
 """The options of one-shot fusion, validated once: :class:`RobustOptions`
 (the robust fit), :class:`FusionOptions` (how to solve and what to
 return) and :class:`NetworkCalibration` (the network's calibration: poses,
-their covariances, clock offsets, range offset), taken by :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`,
-:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
+their covariances, clock offsets, range offset), taken by
+:func:`~mmsnap_graph.fusion.solve.solve`, :func:`~mmsnap_graph.fusion.solve.robust_solve`,
 :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording` and
 :class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream`. GTSAM-free.
 """
@@ -96,16 +96,15 @@ def robust_options(robust: object) -> RobustOptions | None:
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class FusionOptions:
-    """How one-shot fusion solves and what it returns; each entry point reads
-    the fields that concern it.
+    """How one-shot fusion solves and what it returns
+    (:func:`~mmsnap_graph.fusion.solve.solve`); every combination is valid
+    for every solver and every driver.
 
-    Every solver:
-
+    solver : ``"gtsam"`` (the reference), ``"vectorized"`` (the default) or
+        ``"scalar"`` (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
     lm : :class:`~mmsnap_graph.fusion.solvers.settings.LevenbergMarquardtSettings`
         the damping and stopping rules (``lm.max_iterations``: reaching it
         is a failure).
-
-    ``fuse_frame`` (and ``fuse_recording``):
 
     covariance : ``"laplace"`` (the inverse Gauss-Newton information, what
         ``gtsam.Marginals`` returns) or ``"grid"`` (also the paper's numerical
@@ -113,7 +112,7 @@ class FusionOptions:
     grid_points_per_axis, grid_half_width_sigmas : the grid's layout
         (:func:`mmsnap_graph.fusion.grid.grid_posterior`).
 
-    The vectorized solver (``fuse_batch``):
+    The vectorized solver's:
 
     step_tolerance : a frame converges when a step is below this, relative
         to ``1 + |state|``.
@@ -121,12 +120,10 @@ class FusionOptions:
         term (Newton's quadratic convergence near a weakly observed minimum).
     chunk_size : frames solved together in the first stage.
 
-    A recording (``fuse_recording``; the rest of a recording's fusion is
+    A recording's (the rest of a recording's fusion is
     :class:`~mmsnap_graph.fusion.config.FusionConfig`'s):
 
-    solver : ``"vectorized"`` (the default) or ``"gtsam"``
-        (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
-    block_rows : rows fused per call of the vectorized solver.
+    block_rows : rows fused per solve.
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS

@@ -136,11 +136,12 @@ def robust_solve(problem: FrameProblem, options: FusionOptions = DEFAULT_OPTIONS
     problem, options = _check(problem, options)
     robust = robust_options(robust)
     laplace = replace(options, covariance="laplace") if options.covariance != "laplace" else options
-    plain = _solve_laplace(problem.with_kernel(None), laplace)
+    least_squares = problem if problem.kernel is None else problem.with_kernel(None)
+    plain = _solve_laplace(least_squares, laplace)
     if robust is None:
         solution = plain
     elif robust.kernel == "gate":
-        solution = _gate(plain, problem.with_kernel(None), laplace, robust.gate_probability)
+        solution = _gate(plain, least_squares, laplace, robust.gate_probability)
     else:
         solution = _kernel_fit(plain, problem, laplace, robust)
         problem = problem.with_kernel(robust.kernel_pair)

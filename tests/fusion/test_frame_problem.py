@@ -80,7 +80,7 @@ def test_the_one_initial_state_small_and_large_agree(monkeypatch):
             problem = FrameProblem(poses=POSES_BC, measurements=z, observed=obs, noise=noise,
                                    prior=prior)
             small = np.array([initial_states(problem[f])[0] for f in range(12)])
-            monkeypatch.setattr(fp, "_SMALL_ROWS", 0)
+            monkeypatch.setattr(fp, "SMALL_PROBLEM_ROWS", 0)
             large = initial_states(problem)
             monkeypatch.undo()
             np.testing.assert_allclose(small, large, rtol=1e-12, atol=1e-12)

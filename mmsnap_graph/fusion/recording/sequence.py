@@ -8,10 +8,10 @@ some nodes see a target is fused with the nodes that do; a frame that cannot
 be fused is flagged (``success`` False, a :class:`~mmsnap_graph.data.results.Status`
 and a message), never raised.
 
-Two solvers give the same answers (the tests compare them):
-``"vectorized"`` (:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`, vectorized over frames)
-and ``"gtsam"`` (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`, one factor graph per
-frame); with pose covariances (:class:`~mmsnap_graph.fusion.options.NetworkCalibration`)
+Each group is solved through the one contract,
+:func:`mmsnap_graph.fusion.solve.robust_solve`, with any of its solvers
+(``"vectorized"``, the default, over many frames; ``"gtsam"``, one factor
+graph per frame; ``"scalar"``), which give the same answers; with pose covariances (:class:`~mmsnap_graph.fusion.options.NetworkCalibration`)
 their covariances differ by a few percent
 (docs/CONVENTIONS.md, "Calibration-aware fusion").
 

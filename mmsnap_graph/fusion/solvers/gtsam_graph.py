@@ -290,6 +290,6 @@ def solve_frames(problem: FrameProblem, options: FusionOptions = DEFAULT_OPTIONS
                                                problem.pose_covariances, kernel)
             except Exception:  # GTSAM: an indeterminate joint system
                 status[f], cov[f] = Status.SINGULAR, np.nan
-    return FusionSolution(state=state, covariance=cov, status=status, iterations=iterations,
-                          final_cost=cost, initial_state=x0, whitened_residuals=whitened,
-                          degeneracy=degeneracy)
+    return FusionSolution.of_solver(state=state, covariance=cov, status=status,
+                                    iterations=iterations, final_cost=cost, initial_state=x0,
+                                    whitened_residuals=whitened, degeneracy=degeneracy)

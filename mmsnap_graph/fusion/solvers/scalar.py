@@ -69,7 +69,7 @@ from ..frame_problem import initial_states as start_states
 from .assess import NEWTON_DECREMENT_TOLERANCE
 from .settings import LM_SETTINGS, LevenbergMarquardtSettings
 
-__all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "FrameSolver", "solve_frames"]
+__all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "solve_frames"]
 
 #: Largest difference between this solver's state and GTSAM's, in
 #: units of each component's standard deviation (measured: 3e-7 at most,
@@ -128,7 +128,7 @@ def _cholesky_inverse(lo) -> NDArray:
     return np.array(cholesky_inverse_4x4(lo)).reshape(4, 4)
 
 
-class FrameSolver:
+class _FrameSolver:
     """The one-shot solver of one network: node poses, per-node sigmas, prior
     and pose covariances, precomputed once; :meth:`solve` fuses one group.
 
@@ -384,9 +384,9 @@ def _kernel(kernel: tuple[str, float], s2: float) -> tuple[float, float]:
     return 1.0 / (1.0 + q), 0.5 * k * k * math.log1p(q)
 
 
-def _solver_of(problem, lm: LevenbergMarquardtSettings) -> FrameSolver:
-    """The :class:`FrameSolver` of ``problem``'s network (made once per network)."""
-    return problem.cached(("scalar", lm, problem.kernel), lambda: FrameSolver(
+def _solver_of(problem, lm: LevenbergMarquardtSettings) -> _FrameSolver:
+    """The :class:`_FrameSolver` of ``problem``'s network (made once per network)."""
+    return problem.cached(("scalar", lm, problem.kernel), lambda: _FrameSolver(
         problem.poses, problem.noise, problem.prior, problem.pose_covariances, lm, problem.kernel))
 
 
@@ -423,6 +423,6 @@ def solve_frames(problem, options):
             cov[f] = c
         for n, er, ew, ev in res:
             whitened[f, n] = er, ew, ev
-    return FusionSolution(state=state, covariance=cov, status=status, iterations=iterations,
-                          final_cost=cost, initial_state=x0, whitened_residuals=whitened,
-                          degeneracy=degeneracy)
+    return FusionSolution.of_solver(state=state, covariance=cov, status=status,
+                                    iterations=iterations, final_cost=cost, initial_state=x0,
+                                    whitened_residuals=whitened, degeneracy=degeneracy)

@@ -129,7 +129,7 @@ def _solve(poses, z, obs, x0, params, max_iterations, chunk_size) -> FusionSolut
     finite = np.all(np.isfinite(state), axis=1) & np.isfinite(cost)
     status[(status == _CONVERGED) & ~finite] = _NONFINITE
     status[(status == _CONVERGED) & ~pd] = _SINGULAR
-    # As oneshot.fuse_frame: no covariance for a frame that failed.
+    # As GTSAM's solve: no covariance for a frame that failed.
     cov[status != _CONVERGED] = np.nan
     return FusionSolution(state=state, covariance=cov, status=status, iterations=iterations,
                           final_cost=cost, initial_state=x0, whitened_residuals=residuals,

@@ -15,11 +15,10 @@ It is built for latency (docs/validation/speed.md, "Latency"): the grouping is
 :class:`~mmsnap_graph.fusion.stream.association.StreamAssociator` (the
 decisions of ``associate_frame`` in plain floats for up to four detections
 per node, ``associate_frame`` itself otherwise); the default solver
-``"scalar"`` is :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver` (the
-problem of :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` solved as GTSAM
-solves it, in plain floats, equal to it to the tolerance stated there);
-``"gtsam"`` runs ``fuse_frame`` itself and ``"vectorized"``
-:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`. Each frame is validated once,
+``"scalar"`` is :mod:`mmsnap_graph.fusion.solvers.scalar` (the problem
+GTSAM solves, in plain floats, equal to it to the tolerance stated there),
+``"gtsam"`` the reference and ``"vectorized"`` numpy's, each through
+:func:`mmsnap_graph.fusion.solve.robust_solve`. Each frame is validated once,
 with checks on plain floats.
 
 State is bounded: the node poses and settings, the time of the last good
@@ -166,10 +165,9 @@ class FrameStream:
     config : FusionConfig
         The one pipeline's configuration (:class:`~mmsnap_graph.fusion.config.FusionConfig`,
         default :data:`STREAM_CONFIG`: every check, the scalar solver): the
-        association, the solve (``"scalar"``: :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver`
-        per group, the problem of ``fuse_frame`` in plain floats; ``"gtsam"``:
-        ``fuse_frame``; ``"vectorized"``: ``fuse_batch`` on the frame's
-        groups), the prior (None: ML), the robust fit and the checks, run as
+        association, the solve (``"scalar"``: the problem GTSAM solves, in
+        plain floats, per group; ``"gtsam"``: GTSAM; ``"vectorized"``: numpy
+        on the frame's groups; the robust fit around any of them), the prior (None: ML), the robust fit and the checks, run as
         :mod:`~mmsnap_graph.fusion.stream.checks` says.
     tracker : CentralConfig or None
         The central tracker's settings (default ``CentralConfig()``); its

@@ -352,7 +352,7 @@ def test_scalar_initializer_matches_vectorized(monkeypatch):
         # A frame alone takes the plain-float path, many frames numpy's.
         scal = np.array([initial_states(many[k])[0] for k in range(len(many))])
         scal_last = initial_states(last)
-        monkeypatch.setattr(frame_problem, "_SMALL_ROWS", 0)
+        monkeypatch.setattr(frame_problem, "SMALL_PROBLEM_ROWS", 0)
         assert_allclose(scal, initial_states(many), rtol=1e-9, atol=1e-12)
         assert_allclose(scal_last, initial_states(last), rtol=1e-9, atol=1e-12)
         monkeypatch.undo()

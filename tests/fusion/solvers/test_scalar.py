@@ -1,7 +1,7 @@
 """The stream's solver in plain floats (mmsnap_graph.fusion.solvers.scalar):
 what tests/fusion/test_solve.py does not cover (its equality with GTSAM
-through ``solve`` is there): a prior alone, the kernels' weights and losses
-in floats, a network per frame refused."""
+through ``solve`` is there, the robust kernels included): a prior alone, a
+network per frame refused."""
 
 from __future__ import annotations
 
@@ -13,9 +13,7 @@ from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.frame_problem import FrameProblem
 from mmsnap_graph.fusion.options import FusionOptions
-from mmsnap_graph.fusion.robust import kernel_weight_and_loss
 from mmsnap_graph.fusion.solve import solve
-from mmsnap_graph.fusion.solvers import scalar
 
 #: Four nodes around a 7 m square, each facing the centre (the stream benchmark's).
 SQUARE = np.array([[0.0, 0.0, 0.0], [0.0, 7.0, np.pi], [-3.5, 3.5, -np.pi / 2], [3.5, 3.5, np.pi / 2]])
@@ -29,15 +27,6 @@ def test_a_prior_alone_gives_the_prior():
     assert sol.status.tolist() == [Status.OK]
     np.testing.assert_allclose(sol.state[0], PAPER_PRIOR.mean, atol=1e-12)
     np.testing.assert_allclose(sol.covariance[0], np.diag(PAPER_PRIOR.sigmas**2), rtol=1e-12)
-
-
-@pytest.mark.parametrize("name, k", [("huber", 1.345), ("cauchy", 2.5)])
-def test_the_kernels_in_floats_are_the_vectorized_ones(name, k):
-    s2 = np.array([0.0, 0.25, 1.345**2, 4.0, 900.0])
-    weight, loss = kernel_weight_and_loss(name, k, s2)
-    got = np.array([scalar._kernel((name, k), float(v)) for v in s2])
-    np.testing.assert_allclose(got[:, 0], weight, rtol=1e-14)
-    np.testing.assert_allclose(got[:, 1], loss, rtol=1e-14)
 
 
 def test_a_network_per_frame_is_refused():
