@@ -32,9 +32,9 @@ from .problem import (AT_NODE_M, check_node_noise, check_poses, check_pose_covar
 
 __all__ = ["FrameProblem", "initial_states", "whitened_residuals", "SMALL_PROBLEM_ROWS"]
 
-#: A frame problem of at most this many measurement rows (frames times
-#: nodes) is validated and started in plain floats (numpy's per-call overhead
-#: dominates below it); the tests hold both paths equal.
+#: Frames made with :meth:`FrameProblem.with_frames` of at most this many
+#: measurement rows (frames times nodes) are validated in plain floats
+#: (numpy's per-call overhead dominates below it).
 SMALL_PROBLEM_ROWS = 48
 
 
@@ -239,9 +239,13 @@ def _check_start(initial_state, poses: NDArray, observed: NDArray) -> NDArray | 
 # The initial state
 
 
-def initial_states(problem: FrameProblem) -> NDArray:
+def initial_states(problem: FrameProblem, *, per_frame: bool = False) -> NDArray:
     """Where the solvers start, (F, 4) (docs/CONVENTIONS.md, "Initial values"):
-    ``problem.initial_state`` when given, else the initial values.
+    ``problem.initial_state`` when given, else the initial values, computed
+    in numpy over the frames or, with ``per_frame`` (the solvers that solve
+    one frame at a time), frame by frame in plain floats: the same numbers to
+    rounding (the tests hold them equal to 1e-12), each solver always the
+    same way, so that a frame starts from the same bits in a batch and alone.
 
     Position: the average of the observed nodes' own detections mapped to the
     global frame (the corrected eq. 19). Velocity: the least-squares solution
@@ -256,7 +260,7 @@ def initial_states(problem: FrameProblem) -> NDArray:
     """
     if problem.initial_state is not None:
         return np.array(problem.initial_state)
-    if problem.measurements.shape[0] * problem.n_nodes <= SMALL_PROBLEM_ROWS and problem.poses.ndim == 2:
+    if per_frame and problem.poses.ndim == 2:
         return np.array([_start_floats(problem, f) for f in range(problem.n_frames)],
                         dtype=float).reshape(problem.n_frames, 4)
     out = np.empty((problem.n_frames, 4))

@@ -37,6 +37,7 @@ __all__ = [
     "check_observed",
     "check_noise",
     "check_node_noise",
+    "NodeNoise",
     "node_sigmas",
     "check_pose_covariances",
     "check_prior",
@@ -66,11 +67,21 @@ def check_noise(noise: object) -> MeasurementNoise:
     return noise
 
 
+class NodeNoise(tuple):
+    """N :class:`MeasurementNoise`, one per node in node order, as
+    :func:`check_node_noise` validated them: handed on, they are not
+    checked again."""
+
+    __slots__ = ()
+
+
 def check_node_noise(
     noise: object, n_nodes: int, node_names: Sequence[str] | None = None
-) -> tuple[MeasurementNoise, ...]:
-    """The measurement noise of each of ``n_nodes`` nodes, as a tuple of N
-    :class:`MeasurementNoise` (docs/CONVENTIONS.md, "Per-node noise").
+) -> NodeNoise:
+    """The measurement noise of each of ``n_nodes`` nodes, as a
+    :class:`NodeNoise` (a tuple of N :class:`MeasurementNoise`,
+    docs/CONVENTIONS.md, "Per-node noise"); a :class:`NodeNoise` of N nodes
+    is returned as it is (validated once).
 
     ``noise`` is one :class:`MeasurementNoise` (every node), a sequence of N
     of them (one per node, in the order of the node poses) or, when
@@ -78,8 +89,10 @@ def check_node_noise(
     holding every node. Raises ValidationError naming the field (``noise``,
     ``noise[i]`` or ``noise['name']``) and the value otherwise.
     """
+    if type(noise) is NodeNoise and len(noise) == n_nodes:
+        return noise
     if isinstance(noise, MeasurementNoise):
-        return (check_noise(noise),) * n_nodes
+        return NodeNoise((check_noise(noise),) * n_nodes)
     if isinstance(noise, Mapping):
         if node_names is None:
             raise ValidationError(
@@ -109,7 +122,7 @@ def check_node_noise(
         if not all(SIGMA_MIN <= v <= SIGMA_MAX for v in values):
             _check_sigma_range(values, field_name)
         out.append(item)
-    return tuple(out)
+    return NodeNoise(out)
 
 
 def node_sigmas(noises: Sequence[MeasurementNoise]) -> NDArray:

@@ -73,17 +73,17 @@ def test_bad_problems_are_refused_when_made(kwargs, error, match):
         FrameProblem(**args)
 
 
-def test_the_one_initial_state_small_and_large_agree(monkeypatch):
+def test_the_one_initial_state_per_frame_and_vectorized_agree():
     z, obs = _z(12)
     for prior in (PAPER_PRIOR, None):
         for noise in (PAPER_NOISE, NOISES):
             problem = FrameProblem(poses=POSES_BC, measurements=z, observed=obs, noise=noise,
                                    prior=prior)
-            small = np.array([initial_states(problem[f])[0] for f in range(12)])
-            monkeypatch.setattr(fp, "SMALL_PROBLEM_ROWS", 0)
-            large = initial_states(problem)
-            monkeypatch.undo()
-            np.testing.assert_allclose(small, large, rtol=1e-12, atol=1e-12)
+            floats = initial_states(problem, per_frame=True)
+            np.testing.assert_allclose(floats, initial_states(problem), rtol=1e-12, atol=1e-12)
+            # A frame starts from the same bits alone and in its batch.
+            np.testing.assert_array_equal(initial_states(problem[4]), initial_states(problem)[[4]])
+            np.testing.assert_array_equal(initial_states(problem[4], per_frame=True), floats[[4]])
     # Unobserved frames: the prior mean, or NaN for ML.
     none = np.zeros_like(obs)
     map_ = FrameProblem(poses=POSES_BC, measurements=z, observed=none)

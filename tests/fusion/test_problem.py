@@ -19,6 +19,7 @@ from mmsnap_graph import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.association import associate_frame
 from mmsnap_graph.fusion.frame_problem import FrameProblem, initial_states
+from mmsnap_graph.fusion import problem
 from mmsnap_graph.fusion.problem import check_node_noise
 from mmsnap_graph.fusion.recording.sequence import fuse_recording, group_detections
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream
@@ -236,6 +237,30 @@ def recording_3():
     return simulate_recording(network, "random",
                               SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.1),
                               levels=("centroids",), n_frames=60, seed=7)
+
+
+def test_fuse_recording_validates_the_noise_once(recording_3, monkeypatch):
+    """The driver validates the noise once; the problem, the association and
+    the solvers take the validated NodeNoise as it is (was: 185 validations
+    of a 200-frame recording, one per frame the association groups alone)."""
+    import sys
+
+    real = problem.check_node_noise
+    validated = []
+
+    def counting(noise, *args, **kwargs):
+        if type(noise) is not problem.NodeNoise:
+            validated.append(noise)
+        return real(noise, *args, **kwargs)
+
+    for module in list(sys.modules.values()):
+        if getattr(module, "check_node_noise", None) is real:
+            monkeypatch.setattr(module, "check_node_noise", counting)
+    nn = real(NOISES, 3)
+    assert real(nn, 3) is nn
+    fuse_recording(recording_3, config(robust="gate"), noise=dict(zip(recording_3.node_names,
+                                                                         NOISES)))
+    assert len(validated) == 1
 
 
 def test_fuse_recording_takes_a_noise_mapping_with_both_solvers(recording_3):

@@ -146,7 +146,7 @@ def build_frame_graph(problem: FrameProblem, frame: int = 0, *, key: int = STATE
     (another target's, a motion model) before optimizing. GeometryError when
     that start is undefined (the detections average onto a node).
     """
-    x0 = initial_states(problem[frame])[0]
+    x0 = initial_states(problem[frame], per_frame=True)[0]
     if not np.isfinite(x0).all():
         raise GeometryError(f"frame {frame} has no initial state ({x0.tolist()}): no node "
                             "observes it without a prior, or its detections average onto a node")
@@ -261,7 +261,7 @@ def solve_frames(problem: FrameProblem, options: FusionOptions = DEFAULT_OPTIONS
     cost = np.full(n_frames, np.nan)
     whitened = np.full((n_frames, n_nodes, 3), np.nan)
     degeneracy = np.full(n_frames, np.inf)
-    x0 = initial_states(problem)
+    x0 = initial_states(problem, per_frame=True)
     noise, prior, kernel, lm = problem.noise, problem.prior, problem.kernel, options.lm
     for f in range(n_frames):
         poses = problem.poses if problem.poses.ndim == 2 else problem.poses[f]

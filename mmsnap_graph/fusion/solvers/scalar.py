@@ -407,7 +407,7 @@ def solve_frames(problem, options):
     cost = np.full(n_frames, np.nan)
     whitened = np.full((n_frames, n_nodes, 3), np.nan)
     degeneracy = np.full(n_frames, np.inf)
-    x0 = start_states(problem)
+    x0 = start_states(problem, per_frame=True)
     z_all, obs_all, x0_all = problem.measurements.tolist(), problem.observed.tolist(), x0.tolist()
     no_prior = problem.prior is None
     for f in range(n_frames):

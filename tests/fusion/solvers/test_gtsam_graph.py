@@ -25,7 +25,6 @@ from mmsnap_graph.errors import GeometryError, ValidationError
 from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
 from mmsnap_graph.fusion.bounds import bayesian_bound, cramer_rao_bound
 from mmsnap_graph.fusion.degeneracy import velocity_degeneracy
-from mmsnap_graph.fusion import frame_problem
 from mmsnap_graph.fusion.frame_problem import FrameProblem, initial_states
 from mmsnap_graph.fusion.solve import solve
 from mmsnap_graph.fusion.solvers.gtsam_graph import build_frame_graph
@@ -46,7 +45,7 @@ def fuse_frame(poses, z, **kwargs):
 def initial_state(poses, z, observed=None, prior=PAPER_PRIOR, **kwargs):
     """The initial state of one frame (4,)."""
     return initial_states(FrameProblem(poses=poses, measurements=z, observed=observed,
-                                       prior=prior, **kwargs))[0]
+                                       prior=prior, **kwargs), per_frame=True)[0]
 
 
 TRUTH_A = np.array([2.0, 5.0, 0.6, -0.4])
@@ -325,7 +324,7 @@ def test_initial_state_uses_only_observed_nodes():
     assert_allclose(x0, initial_state(POSES_B[1:], z[1:]), atol=1e-12)
 
 
-def test_scalar_initializer_matches_vectorized(monkeypatch):
+def test_scalar_initializer_matches_vectorized():
     """The per-frame fast path equals initial_states, including missing
     nodes, single nodes and parallel lines of sight."""
     rng = np.random.default_rng(11)
@@ -349,13 +348,10 @@ def test_scalar_initializer_matches_vectorized(monkeypatch):
                             observed=np.array(obs_all[:-1]), prior=prior)
         last = FrameProblem(poses=poses_last, measurements=zs[-1], observed=obs_all[-1],
                             prior=prior)
-        # A frame alone takes the plain-float path, many frames numpy's.
-        scal = np.array([initial_states(many[k])[0] for k in range(len(many))])
-        scal_last = initial_states(last)
-        monkeypatch.setattr(frame_problem, "SMALL_PROBLEM_ROWS", 0)
+        scal = initial_states(many, per_frame=True)
         assert_allclose(scal, initial_states(many), rtol=1e-9, atol=1e-12)
-        assert_allclose(scal_last, initial_states(last), rtol=1e-9, atol=1e-12)
-        monkeypatch.undo()
+        assert_allclose(initial_states(last, per_frame=True), initial_states(last), rtol=1e-9,
+                        atol=1e-12)
 
 
 # ---------------------------------------------------------------------------
