@@ -13,7 +13,8 @@ symlink, names) a device node, a FIFO, a socket or a folder is refused
 never renamed over nor written into; run as root, a rename over ``-o
 /dev/null`` would replace the machine's ``/dev/null``. Standard output is
 reached by each command's own form (``--json``, ``mmsnap export`` without
-``-o``), not by ``/dev/stdout``. A symlink to a regular file is followed: the
+``-o``), not by ``/dev/stdout``. A stream written as it goes (``mmsnap live -o``)
+is opened by :func:`open_regular`, which refuses the same. A symlink to a regular file is followed: the
 file it names is replaced, the link stays.
 
 Temporary files are named ``.<name>.<pid>@<host>.<random>.tmp``, and so are
@@ -56,7 +57,7 @@ try:  # POSIX only; without it the lock is a no-op (module docstring)
 except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
-__all__ = ["atomic_path", "check_output_path", "file_kind", "recording_lock",
+__all__ = ["atomic_path", "check_output_path", "file_kind", "open_regular", "recording_lock",
            "refuse_existing", "remove_stale_temporaries", "scratch_folder", "temporary_prefix",
            "STALE_TMP_AGE_S", "LOCK_TIMEOUT_S"]
 
@@ -230,6 +231,33 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def open_regular(path: str | os.PathLike, *, encoding: str = "utf-8"):
+    """``path`` open for writing text as a stream (``mmsnap live -o``: each
+    line shows as it is written, for ``tail -f``; not atomic), only when it
+    is new or a regular file (through a symlink: the file it names), emptied
+    first. A device node, FIFO, socket or folder is refused at the open
+    itself (opened without blocking, then checked): never written into, never
+    waited on, even when one took the file's place after the command's
+    checks. :class:`FileFormatError` naming it and what it is."""
+    path = Path(path)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags, 0o666)
+    except OSError as exc:
+        if exc.errno in (errno.ENXIO, errno.EISDIR, errno.ENODEV):  # a FIFO nobody reads, ...
+            _refuse_special(path, "write")
+        raise
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        raise FileFormatError(f"cannot write {path}: it is {file_kind(mode)}, not a regular "
+                              "file; mmsnap writes regular files only (it never replaces or "
+                              "writes into a device, FIFO or socket)")
+    os.set_blocking(fd, True)
+    os.ftruncate(fd, 0)
+    return os.fdopen(fd, "w", encoding=encoding)
 
 
 def _check_still_regular(path: Path) -> None:

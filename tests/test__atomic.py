@@ -1,6 +1,7 @@
 """Atomic writes keep the old file on failure and give umask permissions."""
 
 import os
+import re
 import stat
 import subprocess
 import sys
@@ -266,3 +267,42 @@ def test_scratch_folders_of_killed_writers_are_removed_by_the_next_write(tmp_pat
             tmp.write_bytes(b"h5")
         assert scratch.is_dir()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.h5"]
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs and device nodes")
+def test_a_stream_opens_regular_files_only_and_never_blocks(tmp_path):
+    """open_regular (mmsnap live -o, a stream written as it goes): a device
+    node, a FIFO with or without a reader, a link to each and a folder are
+    refused at the open, without blocking and without writing into them;
+    before, live opened its -o with open(path, "w"), which blocks on a FIFO
+    nobody reads and writes into a device, when one took the file's place
+    after the command's checks."""
+    from mmsnap_graph._atomic import open_regular
+
+    made = _special_files(tmp_path / "scratch")
+    before = {name: _identity(p) for name, p in made.items()}
+    reader = os.open(made["fifo"], os.O_RDONLY | os.O_NONBLOCK)  # a FIFO someone reads
+    try:
+        for name, path in made.items():
+            with pytest.raises(FileFormatError, match=re.escape(str(path))) as info:
+                open_regular(path)
+            assert ("directory" if name == "directory" else "not a regular file") \
+                in str(info.value), (name, info.value)
+        os.close(reader)
+        reader = None
+        with pytest.raises(FileFormatError, match="a FIFO"):  # nobody reads it
+            open_regular(made["fifo"])
+    finally:
+        if reader is not None:
+            os.close(reader)
+    assert {name: _identity(p) for name, p in made.items()} == before
+    target = tmp_path / "elsewhere.jsonl"
+    target.write_text("old old old\n")
+    link = tmp_path / "link.jsonl"
+    link.symlink_to(target)
+    with open_regular(link) as out:
+        out.write("new\n")
+    assert target.read_text() == "new\n" and link.is_symlink()
+    with open_regular(tmp_path / "new.jsonl") as out:
+        out.write("x\n")
+    assert (tmp_path / "new.jsonl").read_text() == "x\n"

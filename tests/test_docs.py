@@ -183,6 +183,35 @@ def test_outside_reference_pattern_catches_what_it_should():
         assert not _OUTSIDE.search(fine), fine
 
 
+# ------------------------------------- the docs speak to users: no project history
+
+#: Words of the project's own history, not of the software: issue numbers,
+#: waves and sessions of work, the agents that did it. (CHANGELOG.md is the
+#: place for what changed; "before"/"after" comparisons of a benchmark are
+#: not caught here.)
+_HISTORY = re.compile(r"\bissues? #?\d+\b|\b(?:first|second|third|last|next|this) wave\b|"
+                      r"\bwaves? of (?:changes|work)\b|\bagents?\b|"
+                      r"\b(?:this|earlier|last|previous|next) session\b|\bcoordinator\b",
+                      flags=re.I)
+
+
+@pytest.mark.parametrize("rel", ["README.md", *sorted(p.relative_to(ROOT).as_posix()
+                                                      for p in ROOT.glob("docs/**/*.md"))])
+def test_pages_tell_no_project_history(rel):
+    text = (ROOT / rel).read_text()
+    hits = [text[max(m.start() - 30, 0):m.end() + 30] for m in _HISTORY.finditer(text)]
+    assert not hits, hits
+
+
+def test_history_pattern_catches_what_it_should():
+    for bad in ("(issue 14: 2-3 points", "see issue #28", "after the second wave of changes",
+                "(eight agents)", "measured in the last session", "the coordinator runs"):
+        assert _HISTORY.search(bad), bad
+    for fine in ("mmWave radars", "a wave of people", "TI's issue tracker",
+                 "the user agreement", "reissue 3 frames"):
+        assert not _HISTORY.search(fine), fine
+
+
 # ------------------------------------------------------------ CHANGELOG.md
 
 

@@ -89,7 +89,7 @@ def test_a_clean_layered_tree_passes(tmp_path):
         "mmsnap_graph/fusion/oneshot.py": "from ..data.recording import measurement_model\n",
         "mmsnap_graph/tracking/ekf.py": "from ..fusion import oneshot\n",
         "mmsnap_graph/radar/chain.py": "import numpy\nfrom ..data import recording\n",
-        "mmsnap_graph/io/hdf5.py": "from ..fusion.oneshot import measurement_model\n",
+        "mmsnap_graph/io/hdf5.py": "from ..data.recording import measurement_model\n",
         "mmsnap_graph/app/cli.py": "from ..io import hdf5\n\ndef main():\n"
                                    "    from ..tracking import ekf  # lazy\n    return ekf\n",
     })
@@ -177,6 +177,39 @@ def test_metrics_sit_between_the_data_and_the_estimators(tmp_path, importer, sta
     assert report.ok == ok, cs.format_report(report)
     if not ok:
         assert report.broken_rules() == {"layer-order"}
+
+
+@pytest.mark.parametrize("statement, ok", [
+    ("from ..data.calibration import RecordingCalibration\n", True),
+    ("from .._atomic import atomic_write\n", True),
+    ("from ..errors import FileFormatError\n", True),
+    ("from factors.models import wrap_angle\n", True),
+    ("from ..calibration.network import calibrate_recording\n", False),
+    ("from mmsnap_graph.calibration import network\n", False),
+    ("def f():\n    from ..fusion.oneshot import solve\n", False),
+    ("from ..tracking import ekf\n", False),
+    ("from ..radar.chain import run\n", False),
+    ("from ..sim import cube\n", False),
+    ("from ..evaluation.metrics import nees\n", False),
+])
+def test_io_sits_below_the_estimators(tmp_path, statement, ok):
+    # io reads and writes the data layer's records: it imports no estimator
+    # (nor signal chain, simulator, metric), though the layer table puts it above them.
+    _tree(tmp_path, {
+        "factors/models.py": "", "mmsnap_graph/errors.py": "", "mmsnap_graph/_atomic.py": "",
+        "mmsnap_graph/data/calibration.py": "", "mmsnap_graph/evaluation/metrics.py": "",
+        "mmsnap_graph/calibration/network.py": "", "mmsnap_graph/fusion/oneshot.py": "",
+        "mmsnap_graph/tracking/ekf.py": "", "mmsnap_graph/radar/chain.py": "",
+        "mmsnap_graph/sim/cube.py": "", "mmsnap_graph/io/hdf5.py": "",
+        "mmsnap_graph/app/cli.py": "from ..io import hdf5\nfrom ..calibration import network\n",
+    })
+    assert cs.check(tmp_path).ok
+    _tree(tmp_path, {"mmsnap_graph/io/calibration.py": statement})
+    report = cs.check(tmp_path)
+    assert report.ok == ok, cs.format_report(report)
+    if not ok:
+        assert report.broken_rules() == {"layer-order"}
+        assert "imports only up to the data layer" in cs.format_report(report)
 
 
 def test_module_outside_every_layer_is_detected(tmp_path):

@@ -10,7 +10,14 @@ calls; the walk's steps: each such function once, at its first call; climbs:
 consecutive steps whose file sits in a higher layer than the one before (the layers of tools/check_structure.py: factors <
 data, errors, _*.py < evaluation < fusion, calibration, tracking, radar, sim
 < io < app). Usage: python tools/argument_walk.py REC.h5 OUT.h5 (run from the checkout
-whose code is walked, with it first on PYTHONPATH)."""
+whose code is walked, with it first on PYTHONPATH).
+
+With --calibrate (python tools/argument_walk.py --calibrate REC.h5): the walk
+of the recording through calibrate_recording instead: the recording read
+(io.read_recording, not walked), then calibrate_recording(rec) with the
+hook; a call is on the walk when one of its arguments is the recording or
+its data (a Recording, NodeData or Detections, or a tuple, list or dict
+holding one); their own methods are left out. Files and climbs as above."""
 import argparse, contextlib, io, sys
 from pathlib import Path
 
@@ -35,7 +42,14 @@ CLASSES = {"Namespace", "FusionOptions", "RobustOptions", "NetworkCalibration",
 def carries(v) -> bool:
     if type(v).__name__ in CLASSES:
         return True
+    if CALIBRATE:  # the recording's data, also in a container
+        held = list(v.values()) if isinstance(v, dict) else v if isinstance(v, (tuple, list)) \
+            else ()
+        return any(type(x).__name__ in CLASSES for x in held[:50])
     return isinstance(v, dict) and any(isinstance(k, str) and k in KEYS for k in v)
+
+
+CALIBRATE = sys.argv[1] == "--calibrate"
 
 
 def layer(path: str) -> int:
@@ -71,13 +85,27 @@ def hook(frame, event, arg):
         walk.append((f, code.co_name))
 
 
-from mmsnap_graph.app.cli import main
-sys.setprofile(hook)
-with contextlib.redirect_stdout(io.StringIO()):
-    code = main(["fuse", sys.argv[1], "--bounds=-2,1.6,0,3.6", "-o", sys.argv[2], "--overwrite",
-                 "--no-progress", "--max-flagged", "1"])
-sys.setprofile(None)
-assert code == 0, code
+if CALIBRATE:
+    import warnings
+    from mmsnap_graph.calibration import calibrate_recording
+    from mmsnap_graph.io import read_recording
+
+    recording = read_recording(sys.argv[2], load_cubes=False)
+    CLASSES, KEYS, LOOSE = {"Recording", "NodeData", "Detections"}, set(), set()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sys.setprofile(hook)
+        cal = calibrate_recording(recording)
+        sys.setprofile(None)
+    print(f"calibrate_recording: method {cal.method}, success {cal.success}")
+else:
+    from mmsnap_graph.app.cli import main
+    sys.setprofile(hook)
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = main(["fuse", sys.argv[1], "--bounds=-2,1.6,0,3.6", "-o", sys.argv[2],
+                     "--overwrite", "--no-progress", "--max-flagged", "1"])
+    sys.setprofile(None)
+    assert code == 0, code
 files = sorted({f.split("mmsnap_graph/")[-1] for f, _ in walk})
 # The walk's steps: each function once, at its first call (windows repeat the same steps).
 steps = list(dict.fromkeys(walk))

@@ -18,6 +18,9 @@ Hard rules (a violation makes the exit code 1):
   (factors <- data, errors and the private ``_*.py`` helpers <- evaluation
   <- {fusion, calibration, tracking, radar, sim} <- io <- app); ``radar`` imports
   neither GTSAM nor ``tracking``; ``factors`` never imports ``mmsnap_graph``;
+  a package of ``IMPORT_CEILING`` imports nothing above its ceiling (``io``
+  only the factors and the data layer: it reads and writes the data layer's
+  records and sits below the estimators, which do not import it either);
 - ``package-cycle``: no import cycle between packages (peers of the middle
   layer may import each other, but not both ways, directly or round about);
 - ``private-import``: no ``from module import _name`` of a private name
@@ -57,6 +60,7 @@ __all__ = [
     "test_file_of",
     "MODEL_NAME_PATTERN",
     "LAYERS",
+    "IMPORT_CEILING",
     "HARD_RULES",
     "Violation",
     "Import",
@@ -107,6 +111,13 @@ LAYERS = {
     "mmsnap_graph": 5,
 }
 LAYER_NAMES = {0: "factors", 1: "data", 1.5: "metrics", 2: "estimation/radar/sim", 3: "io", 4: "app", 5: "mmsnap_graph"}
+
+#: Package -> the highest layer it may import, lower than its place in
+#: ``LAYERS`` allows. The file formats read and write the data layer's
+#: records (a calibration's, a fused table's, a noise estimate's), so ``io``
+#: sits below the estimators as well as above them: it imports no estimator,
+#: signal chain, simulator or metric, and none of those imports it.
+IMPORT_CEILING = {"mmsnap_graph.io": 1}
 
 #: Extra bans: (importing package, imported name prefix, reason).
 FORBIDDEN = (
@@ -343,6 +354,12 @@ def _check_layers(m: _Module, edges: list[Import], external: list[tuple], report
                 "layer-order", f"{m.rel}:{e.line}",
                 f"{LAYER_NAMES[src_layer]} module {m.name} imports {e.target} "
                 f"({LAYER_NAMES[dst_layer]}, a higher layer)"))
+        elif dst_layer > IMPORT_CEILING.get(src_pkg, dst_layer):
+            report.violations.append(Violation(
+                "layer-order", f"{m.rel}:{e.line}",
+                f"{LAYER_NAMES[src_layer]} module {m.name} imports {e.target} "
+                f"({LAYER_NAMES[dst_layer]}): {src_pkg} imports only up to the "
+                f"{LAYER_NAMES[IMPORT_CEILING[src_pkg]]} layer"))
     targets = [(e.target, e.line) for e in edges] + external
     for pkg, banned, reason in FORBIDDEN:
         if src_pkg != pkg:

@@ -63,6 +63,16 @@ def draw(recording: Path, out: Path, *, every: int = 10, dpi: int = 120) -> tupl
         ax.annotate("", xy=(px - 0.6 * np.sin(phi), py + 0.6 * np.cos(phi)), xytext=(px, py),
                     arrowprops=dict(arrowstyle="->", color="k", lw=1.2), zorder=4)
         ax.annotate(name, (px, py), textcoords="offset points", xytext=(7, -12), fontsize=9)
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], marker="o", ls="none", color=cmap(0.5), ms=4,
+                      label="fused position (colour: time)"),
+               Ellipse((0, 0), 1, 1, fill=False, ec=cmap(0.5), label=f"2-sigma, every {every}th frame"),
+               Line2D([], [], marker="s", ls="none", color="k", ms=6,
+                      label="radar (calibrated pose)"),
+               Line2D([], [], color="k", lw=1.2, label="boresight"),
+               Rectangle((0, 0), 1, 1, fill=False, ls="--", ec="0.5", label="room (--bounds)")]
+    ax.legend(handles=handles, loc="lower left", fontsize=7, framealpha=0.9)
     fig.colorbar(dots, ax=ax, label="time (s)", shrink=0.8)
     ax.set_aspect("equal")
     ax.set_xlim(x0 - 0.4, x1 + 0.6)

@@ -47,14 +47,15 @@ def draw(paths: list[Path], labels: list[str], out: Path, *, dpi: int = 120) -> 
     """Draw the figure into ``out``; returns one line per recording."""
     fig, ax = plt.subplots(figsize=(6.0, 4.0), constrained_layout=True)
     grid = np.linspace(0.0, 20.0, 400)
-    ax.plot(grid, chi2.cdf(grid, 4), "k-", lw=2, label="chi-square, 4 dof (honest)")
+    ax.plot(grid, chi2.cdf(grid, 4), "k-", lw=2, label="chi-square, 4 dof (honest): mean 4")
     lines = []
     q99 = chi2.ppf(0.99, 4)
     for path, label in zip(paths, labels):
         values = np.sort(row_nees(path))
         lo, hi = chi2_mean_interval(4, values.size)
         ax.step(values, np.arange(1, values.size + 1) / values.size, where="post",
-                label=f"{label}: mean {values.mean():.2f}")
+                label=f"{label}: mean {values.mean():.2f} ({values.size} rows; "
+                      f"honest 95%: {lo:.2f}-{hi:.2f})")
         lines.append(f"{label}: mean NEES {values.mean():.2f} over {values.size} rows, "
                      f"95% band of the mean ({lo:.2f}, {hi:.2f}); median {np.median(values):.2f} "
                      f"(chi-square {chi2.median(4):.2f}); {100 * np.mean(values > q99):.1f}% "

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +31,7 @@ from ..errors import ValidationError
 from ..data.noise import MeasurementNoise
 from ..fusion.config import DEFAULT_CONFIG, CoverageCheck, FusionConfig
 from ..fusion.options import NetworkCalibration
+from ..fusion.recording.consistency import ConsistencyMonitor, ConsistencyReport
 from ..fusion.recording.pipeline import screen_rows
 from ..fusion.recording.room import RoomReport
 from ..fusion.recording.sequence import check_calibration, fuse_recording_rows
@@ -59,6 +61,10 @@ class ChunkedFuseSummary:
     solver: str
     #: Rows flagged by the room-frame checks (outside the bounds, duplicates).
     room: RoomReport = RoomReport()
+    #: The covariances' self-check from the data alone
+    #: (:mod:`~mmsnap_graph.fusion.recording.consistency`); stored as the
+    #: ``consistency`` attribute (JSON) of ``/fused``.
+    consistency: ConsistencyReport | None = None
 
 
 def _progress(total: int, progress: bool | None):
@@ -150,6 +156,7 @@ def fuse_file(path: str | os.PathLike, config: FusionConfig = DEFAULT_CONFIG, *,
     n_frames = n_windows = 0
     context = config.context_frames  # the checks' look-around
     person_ids = PersonIds()
+    monitor = ConsistencyMonitor()
     with fused_writer(path, output=output) as writer, \
             _progress(len(spans), progress) as bar:
         for start, stop in spans:
@@ -163,11 +170,16 @@ def fuse_file(path: str | os.PathLike, config: FusionConfig = DEFAULT_CONFIG, *,
             fused, report = screen_rows(fused, config)
             flagged = flagged + report
             fused = person_ids.assign(fused)  # one tracker over the windows, after the screens
+            monitor.add(fused)
             writer.append(_global_rows(fused, rows, rec.node_names))
             n_frames += int(np.unique(fused.frame).size)
             n_windows += 1
+        consistency = monitor.report()
+        if writer.n_rows:
+            writer.set_attribute("consistency", json.dumps(consistency.to_dict()))
     dst = Path(path) if output is None else Path(output)
     return ChunkedFuseSummary(path=dst, n_rows=writer.n_rows, n_success=writer.n_success,
                               n_frames=n_frames, n_windows=n_windows, mode=config.mode,
                               covariance_method=config.solve.covariance,
-                              solver=config.solve.solver, room=flagged)
+                              solver=config.solve.solver, room=flagged,
+                              consistency=consistency)

@@ -38,6 +38,7 @@ import argparse
 import importlib
 import logging
 import os
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -95,8 +96,30 @@ class _VersionAction(argparse.Action):
         parser.exit()
 
 
+#: A value that starts with a minus sign and is a number or a comma list of
+#: numbers (``-0.05``, ``-2,5,-1,3``, ``-1e-3,2``): a value, not an option.
+NEGATIVE_NUMBERS = re.compile(r"^-(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+                              r"(?:\s*,\s*[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)*$")
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser, taking a value that starts with a minus sign for a
+    value when it is a number or a comma list of numbers
+    (:data:`NEGATIVE_NUMBERS`): ``--bounds -2,5,-1,3``, ``--height-band
+    -0.1,2``, ``--range-offset -0.05,0.02`` (argparse alone accepts ``-0.05``
+    but takes ``-2,5,...`` for an unknown option and asks for ``=``). No
+    option of mmsnap looks like a negative number, so none is shadowed. Its
+    sub-command parsers are of this class too."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # argparse's own test of "a negative number" (a private attribute,
+        # the same in Python 3.11-3.13; tests/app/test_cli.py checks it is used)
+        self._negative_number_matcher = NEGATIVE_NUMBERS
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="mmsnap",
         description="Self-calibration and Bayesian one-shot fusion for mmWave radar networks.",
         epilog="Exit codes: 0 ok, 1 data or estimation failure (a bad input file included), "

@@ -216,7 +216,7 @@ def matching_config_from_mapping(data: Mapping[str, Any], *, where: str = "confi
 def _read_toml(path: str | os.PathLike) -> tuple[dict[str, Any], str]:
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")  # a byte-order mark (Windows editors) is read past
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigurationError(f"{p}: cannot read the configuration file: {exc}") from None
     try:

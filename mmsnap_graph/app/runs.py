@@ -146,6 +146,8 @@ def _noise(path, node_names, sigmas, per_node):
     if sigmas is not None:
         r, w, v = sigmas
         return MeasurementNoise(range_m=r, omega_rad=w, doppler_mps=v), "sigmas from --sigmas"
+    if path is None:
+        return None, "no recording's /noise group"
     if read_noise(path) is None:
         return None, "no /noise group (run `mmsnap calibrate` or `mmsnap noise`)"
     from ..io.noise import noise_for_fusion
@@ -161,7 +163,10 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
                        per_node_noise: bool = True) -> StoredCalibration:
     """What ``mmsnap calibrate`` stored, as every command that fuses uses it.
 
-    path : the recording; node_names : its nodes (for the noise).
+    path : the recording; node_names : its nodes (for the noise). None with
+        ``calibration_json`` (``mmsnap live``: no recording yet): no
+        ``/noise`` sigmas (the paper's unless ``sigmas``), no stored range
+        offset.
     calibration_json : poses, covariances and clock offsets from this file
         instead of the recording's ``/calibration`` group.
     sigmas : ``(range_m, omega_rad, doppler_mps)`` for every node, instead
@@ -203,7 +208,7 @@ def stored_calibration(path: str | os.PathLike, node_names: Sequence[str], *,
     depth = float(cal.range_offset_m)
     if np.isfinite(depth):
         parts.append(f"range offset (reflection depth) {depth:.3f} m added to every range")
-    elif poses is not None:
+    elif poses is not None and path is not None:
         depth, said, here = _stored_range_offset(path, cal)
         parts += [said] if said else []
         if said and not here and sigmas is None:
@@ -294,16 +299,15 @@ def calibrate_and_store(path: str | os.PathLike,
                         output: str | os.PathLike | None = None,
                         json_path: str | os.PathLike | None = None,
                         write: bool = True, on_result=None, progress: bool = False,
-                        overwrite: bool = False):
+                        overwrite: bool = False, window_s: float | None = None):
     """Calibrate the recording at ``path`` and store the result.
 
     options : keyword arguments of
         :func:`~mmsnap_graph.calibration.calibrate_recording`, or a function
         of the recording read that returns them (an option that depends on
-        the recording, e.g. a lag window in frames); ``joint`` defaults to
-        :func:`~mmsnap_graph.calibration.joint_options_for` the recording
-        (a person's reflection depth considered in the pose covariance,
-        unless the recording declares point targets).
+        the recording, e.g. a lag window in frames, or the joint graph's
+        options over :func:`~mmsnap_graph.calibration.joint_options_for`
+        it); left out, each takes ``calibrate_recording``'s default.
     output : write a copy of the recording here (default: update ``path``).
     json_path : the calibration JSON (default :func:`calibration_json_path`
         of the recording written).
@@ -316,12 +320,22 @@ def calibrate_and_store(path: str | os.PathLike,
         :class:`~mmsnap_graph.errors.FileFormatError` before anything is
         read; a hand-edited file is never lost silently). The recording
         itself is updated in place either way.
+    window_s : calibrate window by window, windows of this many seconds
+        read from the file, their poses combined
+        (:func:`~mmsnap_graph.calibration.joint.windowed.calibrate_windowed`:
+        memory bounded by a window, not the recording); None: by
+        :func:`~mmsnap_graph.calibration.joint.windowed.window_frames_for`,
+        windows of 600 s for a recording longer than 20 minutes, else one
+        solve (``inf``: one solve always). ``options`` as a function is
+        then given the first window's recording.
     The recording is locked from the read to the last write. Returns
     ``(calibration, files written)``.
     """
     from .._atomic import recording_lock, refuse_existing
-    from ..calibration import calibrate_recording, joint_options_for
+    from ..calibration import calibrate_recording
+    from ..calibration.joint.windowed import calibrate_windowed, window_frames_for
     from ..io import read_recording
+    from ..io.chunks import open_detection_windows
     from ..io.calibration import write_calibration, write_calibration_json
     from ..io.noise import write_noise
     from tqdm import tqdm
@@ -332,12 +346,22 @@ def calibrate_and_store(path: str | os.PathLike,
     bar = tqdm(total=3, desc="calibrate: reading", unit="step", disable=not progress,
                leave=False)
     with bar, recording_lock(path):
-        rec = read_recording(path, load_cubes=False)
-        kwargs = options(rec) if callable(options) else dict(options or {})
-        kwargs.setdefault("joint", joint_options_for(rec))
-        bar.set_description("calibrate: matching, pose graph, joint graph, noise")
-        bar.update()
-        cal = calibrate_recording(rec, **kwargs)
+        index = open_detection_windows(path)
+        frames = window_frames_for(max(index.last_frame - index.first_frame + 1, 0),
+                                   index.frame_period_s, window_s)
+        if frames is None:
+            rec = read_recording(path, load_cubes=False)
+            kwargs = options(rec) if callable(options) else dict(options or {})
+            bar.set_description("calibrate: matching, pose graph, joint graph, noise")
+            bar.update()
+            cal = calibrate_recording(rec, **kwargs)
+        else:
+            first, _ = index.read(*next(index.windows(frames)))
+            kwargs = options(first) if callable(options) else dict(options or {})
+            bar.set_description(f"calibrate: windows of {frames} frames")
+            bar.update()
+            cal = calibrate_windowed(index, frames, **kwargs)
+            rec = read_recording(path, load_cubes=False)   # what the writes keep
         bar.set_description("calibrate: writing")
         bar.update()
         bar.clear()
@@ -412,8 +436,9 @@ def nominal_texts(metadata: Mapping[str, Any], poses: Mapping[str, Any], *,
     from ..evaluation.nominal import coincident_nodes, nominal_poses, pose_departures
 
     nominal = nominal_poses(metadata, list(poses))
+    departures = pose_departures(poses, nominal, reference=reference)
     out = []
-    for d in pose_departures(poses, nominal, reference=reference):
+    for d in departures:
         x, y, phi = d.nominal
         heading = float(np.degrees(phi)) if np.degrees(phi) > -179.95 else 180.0
         option = "--room-pose" if d.source == "room_pose" else "--pose"
@@ -421,7 +446,7 @@ def nominal_texts(metadata: Mapping[str, Any], poses: Mapping[str, Any], *,
                    f"{np.degrees(d.heading_error_rad):+.1f} deg from its nominal pose ({option}: "
                    f"x {x:.2f} m, y {y:.2f} m, heading {heading:.1f} deg in "
                    f"{reference}'s frame): {_CAUSES[d.cause]}")
-    far = {d.node for d in pose_departures(poses, nominal, reference=reference)}
+    far = {d.node for d in departures}
     for c in coincident_nodes(poses):
         if {c.node_a, c.node_b} & far:
             continue                                    # said above

@@ -15,7 +15,9 @@
   read back by :mod:`mmsnap_graph.io.calibration`), with a status and typed
   facts (:mod:`mmsnap_graph.data.calibration_facts`);
 - :func:`estimate_noise`: each node's measurement noise from the data
-  (:mod:`.noise.estimate`);
+  (:mod:`.noise.estimate`); :func:`noise_at_poses`: the same at given node
+  poses, the centroids associated across nodes first when several share a
+  frame (``mmsnap calibrate`` and ``mmsnap noise``);
 - :func:`joint_detections_multi` / :func:`refine_multi`: several people,
   associated across nodes, in the joint graph (:mod:`.joint.multi_target`);
 - :class:`DecalibrationMonitor` / :func:`monitor_recording`: notice that a
@@ -66,6 +68,7 @@ _LAZY = {
     "JOINT_OPTIONS_BY_TARGETS": "network",
     "joint_options_for": "network",
     "calibrate_recording": "network",
+    "noise_at_poses": "network",
     "residual_noise": "joint.residual_noise",
     "pairwise_edges": "pairwise.pose_graph",
     "pose_graph_calibration": "pairwise.pose_graph",

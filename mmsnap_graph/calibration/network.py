@@ -55,13 +55,14 @@ from .joint.solve import joint_calibration
 from .pairwise.matching import LocalTracks, local_tracks
 from .pairwise.matching_options import MatchingOptions
 from .joint.multi_refine import refine_associated, with_clock_offsets
+from .joint.multi_target import joint_detections_multi
 from .noise.estimate import estimate_noise
 from .lag_support import unrejected_lag_spread
 from .pairwise.matching import LAG_EVIDENCE_Z
 from .pairwise.pose_graph import pairwise_edges, pose_graph_calibration
 
 __all__ = ["POINT_JOINT_OPTIONS", "PEOPLE_JOINT_OPTIONS", "JOINT_OPTIONS_BY_TARGETS",
-           "joint_options_for", "calibrate_recording"]
+           "joint_options_for", "calibrate_recording", "noise_at_poses"]
 
 #: The joint graph's options for point targets (``Recording.targets =
 #: "points"``, the simulator's clean model): constant-velocity factors (they
@@ -274,23 +275,43 @@ def calibrate_recording(
         only when the data support them (:func:`_refine_multi`).
     Raises :class:`CalibrationError` when no node pair can be matched.
     """
+    return calibrate_with_joint(recording, source=source, method=method, noise=noise,
+                                matching=matching, joint=joint)[0]
+
+
+def calibrate_with_joint(recording: Recording, *, source="auto", method="auto", noise=None,
+                         matching=None, joint=None, noise_estimate: bool = True):
+    """:func:`calibrate_recording` (same arguments) and the
+    :class:`~mmsnap_graph.calibration.joint.solve.JointCalibration` its
+    poses come from (None when they are the pose graph's): its
+    ``pose_block`` is what a windowed calibration combines
+    (:mod:`mmsnap_graph.calibration.joint.windowed`). ``noise_estimate``
+    False: no noise estimate at the calibrated poses (``noise`` None; the
+    windows after the first skip it, half of a window's time at 10 nodes)."""
     matching = _checked_options(method, noise, matching, joint)
     names = _checked_nodes(recording)
     joint = joint_options_for(recording) if joint is None else joint
-    outcome = _calibrate(recording, names, source, method, noise, matching, joint)
+    kept: list = []
+    outcome = _calibrate(recording, names, source, method, noise, matching, joint, kept,
+                         noise_estimate)
     if not isinstance(outcome, LagsDisputed):
-        return outcome
+        return outcome, (kept[-1] if kept else None)
     # Once more with lag 0 only (the nodes' own sync): no lag is left to dispute.
+    kept.clear()
     again = _calibrate(recording, names, source, method, noise,
-                       dataclasses.replace(matching, max_lag_s=0.0), joint)
-    return dataclasses.replace(again, facts=(outcome, *again.facts))
+                       dataclasses.replace(matching, max_lag_s=0.0), joint, kept,
+                       noise_estimate)
+    return (dataclasses.replace(again, facts=(outcome, *again.facts)),
+            kept[-1] if kept else None)
 
 
 def _calibrate(recording, names, source, method, noise, matching: MatchingOptions,
-               joint: JointOptions) -> RecordingCalibration | LagsDisputed:
+               joint: JointOptions, kept: list,
+               noise_estimate: bool = True) -> RecordingCalibration | LagsDisputed:
     """One pass of :func:`calibrate_recording` with these lag rules: the
     calibration, or the joint graph's dispute of the track matching's lags
-    (the pass then stops: the lags are searched again)."""
+    (the pass then stops: the lags are searched again); the joint graph's
+    result, when the poses are its, is appended to ``kept``."""
     pg, used_source, failures = _pose_graph_step(recording, names, source, matching)
     facts: list[CalibrationFact] = list(pg.facts)
     poses, covs = dict(pg.poses), dict(pg.covariances)
@@ -322,11 +343,13 @@ def _calibrate(recording, names, source, method, noise, matching: MatchingOption
     lags = dict(pg.lag_frames)
     if result_method == "joint":  # the joint graph may re-centre a whole-frame lag
         lags.update({n: int(v) for n, v in refined.lag_frames.items() if n in lags})
-    noise_est = _noise_estimate(recording, poses, lags, associated)
-    facts += _unidentified(noise_est)
+    noise_est = noise_at_poses(recording, poses, lags) if noise_estimate else None
+    facts += _unidentified(noise_est) if noise_est is not None else []
     offsets, variances = _clock_offsets(recording, names, pg, refined if result_method == "joint"
                                         else None)
     step = refined if result_method == "joint" else pg
+    if result_method == "joint":
+        kept.append(refined)
     return RecordingCalibration(
         reference=names[0], node_names=tuple(names), poses=poses, covariances=widened,
         lag_frames=lags, unreachable=pg.unreachable, edges=pg.edges,
@@ -457,21 +480,56 @@ def _cover_ambiguous_lags(edges, covs, facts, used, clock, matching, period) -> 
     return out
 
 
-def _noise_estimate(recording: Recording, poses, lags, associated) -> NoiseEstimate:
-    """Every node's noise at the calibrated poses, from its centroids where
-    each node has one per frame; with several per frame (two people,
-    clutter, split clusters) also from the centroids the joint graph
-    associated across nodes (``associated``: one per node and virtual
-    frame, on the reference clock), whose cross-node residuals are of one
-    target by construction: per node and component the associated
-    estimate when it is identified, else the recording's when that is
-    (:func:`_merged_noise`)."""
-    own = estimate_noise(recording, poses=poses, lag_frames=lags)
+def _several_per_frame(recording: Recording, names) -> bool:
+    """Whether a node of ``names`` has frames with several centroids (two
+    people, clutter, a split body)."""
+    for n in names:
+        det = recording.nodes[n].centroids
+        if det is not None and len(det) and np.unique(det.frame).size != det.frame.size:
+            return True
+    return False
+
+
+def noise_at_poses(recording: Recording, poses: Mapping[str, np.ndarray],
+                   lag_frames: Mapping[str, int] | None = None, *,
+                   method: Literal["auto", "network", "temporal"] = "auto") -> NoiseEstimate:
+    """Every node's noise at the node ``poses`` (frame ``lag_frames``): the
+    one estimate of ``mmsnap calibrate`` (at the poses it calibrated) and
+    ``mmsnap noise`` (at the stored poses or a calibration JSON's).
+
+    Where each node has one centroid per frame, from its centroids
+    (:func:`~mmsnap_graph.calibration.noise.estimate.estimate_noise`). With
+    several per frame (two people, clutter, split clusters) the single-centroid
+    frames of two nodes may be of two people (on the two-person recording
+    S2's range sigma came out 1.486 m from them, against 0.094 m from one
+    target): the centroids are then associated across nodes first, one per
+    node and virtual frame, their cross-node residuals of one target by
+    construction
+    (:func:`~mmsnap_graph.calibration.joint.multi_target.joint_detections_multi`
+    at ``poses`` with the gates' floor only: the poses are taken as known;
+    a calibration's widened covariances open the gates to the other person,
+    S2's range sigma 0.83 m). ``mmsnap calibrate`` associates once more at
+    the poses it found rather than reusing its last round's association
+    (made at the round's starting poses with its covariances): the two
+    verbs then give the same sigmas on the same poses (they differed by up
+    to 13 % on the fall-detection recording). Per node and component the associated estimate
+    when it is identified, else the recording's when that is
+    (:func:`_merged_noise`).
+    """
+    lags = {} if lag_frames is None else dict(lag_frames)
+    own = estimate_noise(recording, poses=poses, lag_frames=lags, method=method)
+    posed = [n for n in recording.node_names if n in poses]
+    associated = None
+    if len(posed) >= 2 and _several_per_frame(recording, posed):
+        try:
+            associated, _, _ = joint_detections_multi(recording, posed, poses, lags)
+        except CalibrationError:
+            associated = None
     if associated is None:
         return own
     nodes = {n: NodeData(name=n, centroids=associated.get(n)) for n in recording.node_names}
     assoc = estimate_noise(Recording(frame_period_s=recording.frame_period_s, nodes=nodes),
-                           poses=poses)
+                           poses=poses, method=method)
     return _merged_noise(assoc, own)
 
 

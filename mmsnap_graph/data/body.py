@@ -41,13 +41,8 @@ CENTROID_MERGE_RADIUS_M = 0.6
 #: are merged into their SNR-weighted mean, and a centroid's reach in the
 #: existence check is this plus the walking speed times the time apart.
 #: Fusion's merge (:data:`CENTROID_MERGE_RADIUS_M`) catches the splits it
-#: leaves. Measured at 0.6 m on the two real recordings of
-#: ``data/real/darksz`` (tests/app/test_real_recordings.py, multiple tracking
-#: / fall detection), nothing clearly gains: S2 0.045 m / 0.058 m from the
-#: tape against 0.046 m / 0.059 m; fused rows inside the room without a box
-#: 96.6% / 100.0% against 96.8% / 99.9%; at most two people in 98.4% / 100%
-#: of frames against 97.8% / 100%; the halves' difference unchanged (y
-#: +0.123 m / -0.186 m against +0.143 m / -0.184 m) while their reported
-#: sigmas widen (S2's x sigma of the whole multiple-tracking recording
-#: 0.30 m -> 0.45 m). So it stays at the width.
+#: leaves. Fusion's 0.6 m here gained nothing clear on the real recordings
+#: of ``data/real/darksz`` (the figures of tests/app/test_real_recordings.py:
+#: S2's pose, the fused rows inside the room, the frames with at most two
+#: people) while the reported sigmas widened, so it stays at the width.
 SCENE_MERGE_RADIUS_M = 0.5

@@ -49,7 +49,7 @@ __all__ = [
     "LagNotDetermined",
     "LagsDisputed",
     "NoiseNotIdentified",
-    "RecordedMessage",
+    "WindowsCombined",
     "FACTS",
     "FACT_KINDS",
     "NOISE_COMPONENTS",
@@ -227,8 +227,12 @@ class PoseCovariance(CalibrationFact):
     marginals'; 1.0: within the marginals' sampling noise, so they are
     kept) or ``"schur"`` (the elimination failed: a dense Schur complement).
     ``reflection_depth_rms_m`` : a reflection depth not estimated whose
-    effect on the poses is in the covariance (0: none). ``failure`` : why a
-    more careful method was not used ("" when none failed)."""
+    effect on the poses is in the covariance (0: none);
+    ``without_depth_nodes`` and ``without_depth_sigmas`` (three per node:
+    ``x_b`` m, ``y_b`` m, ``phi`` rad) : each node's 1-sigma without that
+    term, what sessions of one walker or a recording's halves scatter by
+    (the depth is common to them). ``failure`` : why a more careful method
+    was not used ("" when none failed)."""
 
     kind: ClassVar[str] = "pose_covariance"
     _choices: ClassVar[dict] = {"method": ("marginals", "long_run", "schur")}
@@ -237,6 +241,8 @@ class PoseCovariance(CalibrationFact):
     max_widening: float = 1.0
     reflection_depth_rms_m: float = 0.0
     failure: str = ""
+    without_depth_nodes: tuple[str, ...] = ()
+    without_depth_sigmas: tuple[float, ...] = ()
 
 
 @_fact
@@ -420,18 +426,30 @@ class NoiseNotIdentified(CalibrationFact):
 
 
 @_fact
-class RecordedMessage(CalibrationFact):
-    """The message of a calibration file written before the facts, as it
-    stands (read, never written)."""
+class WindowsCombined(CalibrationFact):
+    """A long recording was calibrated window by window (bounded memory):
+    ``n_windows`` windows of ``window_s`` seconds, ``n_combined`` of them
+    combined in information form (the poses are static); ``skipped``: why
+    each other window was left out (``"frames a-b: reason"``). The
+    windows' spread about the combined poses, ``spread_chi2`` over
+    ``spread_dof`` degrees of freedom, widened the covariance by
+    ``spread_factor`` (1: consistent with their covariances). The facts
+    that follow are the first combined window's."""
 
-    kind: ClassVar[str] = "recorded_message"
-    text: str
+    kind: ClassVar[str] = "windows_combined"
+    window_s: float
+    n_windows: int
+    n_combined: int
+    skipped: tuple[str, ...] = ()
+    spread_chi2: float = math.nan
+    spread_dof: int = 0
+    spread_factor: float = 1.0
 
 
 #: Every fact class, in the order ``mmsnap calibrate`` lists them by default.
 FACTS = (PoseGraphFit, TargetsAssociated, JointNoise, ClockOffsetsTried, JointFit,
          RobustPassFailed, PoseCovariance, RangeOffsetEstimated, PoseNotObservable,
          SolveBrokeDown, JointSkipped, JointRejected, LagEvidence, LagNotDetermined,
-         LagsDisputed, NoiseNotIdentified, RecordedMessage)
+         LagsDisputed, NoiseNotIdentified, WindowsCombined)
 #: ``kind`` -> fact class (the JSON reader's table).
 FACT_KINDS = {cls.kind: cls for cls in FACTS}

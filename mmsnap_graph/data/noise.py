@@ -19,10 +19,14 @@ from ..errors import ValidationError
 from .._validation import frozen_vector
 
 __all__ = ["MeasurementNoise", "NodeNoiseEstimate", "NoiseEstimate", "GaussianPrior",
-           "NOISE_COMPONENTS"]
+           "NOISE_COMPONENTS", "NOISE_METADATA_KEYS", "declared_noise"]
 
 #: Names of the three sigmas, in measurement order.
 NOISE_COMPONENTS = ("range_m", "omega_rad", "doppler_mps")
+#: The metadata keys of the centroid sigmas a recording declares (the
+#: simulator writes them), in measurement order.
+NOISE_METADATA_KEYS = ("centroid_range_std_m", "centroid_omega_std_rad",
+                       "centroid_doppler_std_mps")
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -54,6 +58,17 @@ class MeasurementNoise:
     def sigmas(self) -> NDArray:
         """(3,) float: ``(range_m, omega_rad, doppler_mps)``, measurement order."""
         return np.array([self.range_m, self.omega_rad, self.doppler_mps])
+
+
+def declared_noise(metadata: Mapping) -> "MeasurementNoise | None":
+    """The centroid noise a recording's ``metadata`` declare
+    (:data:`NOISE_METADATA_KEYS`), or None when a key is missing or a value
+    is not a finite number > 0."""
+    try:
+        return MeasurementNoise(**{name: float(metadata[key])
+                                   for name, key in zip(NOISE_COMPONENTS, NOISE_METADATA_KEYS)})
+    except (KeyError, TypeError, ValueError, ValidationError):
+        return None
 
 
 def _flags(value, name: str) -> tuple[bool, bool, bool]:

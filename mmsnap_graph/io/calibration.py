@@ -40,7 +40,6 @@ from .._atomic import atomic_path
 from .._validation import parse_json, short_repr
 from ..data.calibration import PairwiseCalibration, RecordingCalibration
 from ..data.calibration_facts import FACT_KINDS, CalibrationFact, CalibrationStatus, LagEvidence
-from ..data.calibration_facts import RecordedMessage
 from ..data.recording import Recording
 from ..errors import CalibrationError, FileFormatError, MmsnapError, ValidationError
 from .guard import H5_ERRORS, open_group
@@ -208,11 +207,11 @@ def _json_range_offset(data: Mapping, where: str) -> dict[str, float]:
 
 
 def _outcome(data: Mapping, unreachable, where: str) -> dict[str, Any]:
-    """``status`` and ``facts`` of a calibration JSON. A file written before
-    them holds only ``success`` and ``message``: the status is ``OK`` when it
-    succeeded, else ``NODES_UNREACHABLE`` when it names unreachable nodes,
-    else ``SOLVE_FAILED``; its message is kept as a
-    :class:`~mmsnap_graph.data.calibration_facts.RecordedMessage`."""
+    """``status`` and ``facts`` of a calibration JSON. Both are optional (a
+    file may hold only the poses): without ``status`` it is ``OK`` unless
+    ``success`` is false, then ``NODES_UNREACHABLE`` when the file names
+    unreachable nodes, else ``SOLVE_FAILED``; without ``facts``, none (a
+    ``message`` is the status's own and is not read)."""
     if not isinstance(data.get("success", True), bool):
         raise CalibrationError(f"{where}: success must be true or false, got {data['success']!r}")
     if "status" in data:
@@ -231,8 +230,7 @@ def _outcome(data: Mapping, unreachable, where: str) -> dict[str, Any]:
             raise CalibrationError(f"{where}: facts must be a list, got {facts!r}")
         facts = tuple(fact_from_json(f, f"{where}: facts[{i}]") for i, f in enumerate(facts))
     else:
-        message = str(data.get("message", ""))
-        facts = (RecordedMessage(text=message),) if message else ()
+        facts = ()
     return {"status": status, "facts": facts}
 
 
@@ -600,8 +598,8 @@ def load_time_offsets(source: str | os.PathLike | Mapping
     """Clock offsets ``name -> seconds`` (node time + offset = reference
     time) and their variances (s^2) from calibration JSON (a path or the
     parsed mapping) or from the ``/calibration`` group of an HDF5 recording
-    (a path ending in ``.h5``/``.hdf5``); 0 and NaN where a file predates
-    them."""
+    (a path ending in ``.h5``/``.hdf5``); 0 and NaN where a file holds
+    none."""
     if not isinstance(source, Mapping) and Path(source).suffix.lower() in (".h5", ".hdf5"):
         path = Path(source)
         with open_group(path, CALIBRATION_GROUP,

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from .._atomic import scratch_folder
 from ..data.recording import (MAX_FRAME_PERIOD_S, MIN_FRAME_PERIOD_S, Detections, NodeData,
-                              Recording)
+                              Recording, Tracks)
 from ..data.results import FusedSequence
 from ..errors import FileFormatError, MmsnapError
 from .fused import FUSED_GROUP, write_fused
@@ -157,6 +157,9 @@ class DetectionWindows:
     when the node has none); metadata : the file's ``/metadata`` attributes.
     first_frame, last_frame : the smallest and largest frame with a
     detection (``last_frame < first_frame`` when there is none).
+    targets : what the radars see (``Recording.targets``, the file's
+    ``targets`` attribute; ``"people"`` when it has none), given to every
+    window read.
     """
 
     path: Path
@@ -168,6 +171,8 @@ class DetectionWindows:
     last_frame: int
     _frames: dict = field(repr=False)   # name -> (K,) int64 frame column, or None
     _order: dict = field(repr=False)    # name -> argsort of the frames, None when sorted
+    targets: str = "people"
+    _track_frames: dict = field(default_factory=dict, repr=False)  # name -> tracks' frames
 
     @property
     def n_rows(self) -> dict[str, int]:
@@ -211,13 +216,19 @@ class DetectionWindows:
         lo, hi = np.searchsorted(frames[order], [start, stop])
         return np.sort(order[lo:hi])
 
-    def read(self, start: int, stop: int, shifts: Mapping[str, int] | None = None
-             ) -> tuple[Recording, dict[str, NDArray]]:
+    @property
+    def has_tracks(self) -> bool:
+        """Whether some node has EKF tracks (``mmsnap process``)."""
+        return any(f is not None for f in self._track_frames.values())
+
+    def read(self, start: int, stop: int, shifts: Mapping[str, int] | None = None, *,
+             tracks: bool = False) -> tuple[Recording, dict[str, NDArray]]:
         """The detections of the frames ``[start, stop)``: a Recording of the
         level only (nodes' poses kept, no truth), and per node the file row of
         each of its window rows. ``shifts``: name -> whole frames that node's
         clock is behind (its frame ``k`` is reference frame ``k + shift``):
-        its frames ``[start - shift, stop - shift)`` are read."""
+        its frames ``[start - shift, stop - shift)`` are read. ``tracks``:
+        the nodes' EKF tracks of those frames too (where they have them)."""
         shifts = {} if shifts is None else shifts
         rows = {name: self._rows(name, start - int(shifts.get(name, 0)),
                                  stop - int(shifts.get(name, 0)))
@@ -233,8 +244,27 @@ class DetectionWindows:
                     kw = {}
                     if self._frames[name] is not None:
                         kw[self.source] = self._detections(f, name, rows[name])
+                    if tracks and self._track_frames.get(name) is not None:
+                        kw["tracks"] = self._tracks(f, name, start - int(shifts.get(name, 0)),
+                                                    stop - int(shifts.get(name, 0)))
                     nodes[name] = NodeData(name=name, pose=self.node_poses[name], **kw)
-        return Recording(frame_period_s=self.frame_period_s, nodes=nodes), rows
+        return Recording(frame_period_s=self.frame_period_s, nodes=nodes,
+                         targets=self.targets), rows
+
+    def _tracks(self, f: h5py.File, name: str, start: int, stop: int) -> Tracks:
+        frames = self._track_frames[name]
+        rows = np.flatnonzero((frames >= _clip64(start)) & (frames < _clip64(stop)))
+        group = f["nodes"][name]["tracks"]
+        sl = slice(int(rows[0]), int(rows[-1]) + 1) if rows.size else slice(0, 0)
+        pick = rows - sl.start if rows.size else rows
+        cols = {k: group[k][sl][pick] for k in ("track_id", "x_m", "y_m", "vx_mps", "vy_mps")}
+        cov = group["covariance"][sl][pick]
+        state = np.stack([cols[k] for k in ("x_m", "y_m", "vx_mps", "vy_mps")], axis=-1)
+        try:
+            return Tracks(frame=frames[rows], track_id=cols["track_id"].astype(np.int64),
+                          state=state.astype(float), covariance=cov.astype(float))
+        except MmsnapError as exc:
+            raise FileFormatError(f"{self.path}: {group.name}: {exc}") from exc
 
     def reach_m(self) -> dict[str, float]:
         """Each node's farthest detection range (m) over its ``point_cloud``
@@ -289,7 +319,8 @@ def open_detection_windows(path: str | os.PathLike, *, source: str = "centroids"
         _check_format(f, path)
         period = _frame_period(f, path)
         names = _node_order(f, path)
-        poses, frames, orders = {}, {}, {}
+        targets = _text(f.attrs["targets"]) if "targets" in f.attrs else "people"
+        poses, frames, orders, track_frames = {}, {}, {}, {}
         for name in names:
             group = _members(f["nodes"], path)[name]
             if not isinstance(group, h5py.Group):
@@ -299,6 +330,9 @@ def open_detection_windows(path: str | os.PathLike, *, source: str = "centroids"
             if level is not None and not isinstance(level, h5py.Group):
                 raise FileFormatError(f"{path}: {level.name} must be a group")
             frames[name] = None if level is None else _frames(level, path)
+            tr = _members(group, path).get("tracks")
+            track_frames[name] = (tr["frame"][()].astype(np.int64) if isinstance(tr, h5py.Group)
+                                  and isinstance(tr.get("frame"), h5py.Dataset) else None)
     for name, fr in frames.items():
         orders[name] = None if fr is None or np.all(fr[1:] >= fr[:-1]) else \
             np.argsort(fr, kind="stable")
@@ -307,7 +341,8 @@ def open_detection_windows(path: str | os.PathLike, *, source: str = "centroids"
     last = max((int(fr.max()) for fr in present), default=-1)
     return DetectionWindows(path=path, source=source, frame_period_s=period, node_names=names,
                             node_poses=poses, first_frame=first, last_frame=last,
-                            _frames=frames, _order=orders)
+                            _frames=frames, _order=orders, targets=targets,
+                            _track_frames=track_frames)
 
 
 # ----------------------------------------------------------------------------
@@ -371,6 +406,10 @@ class FusedWriter:
                     out.resize(lo + k, axis=0)  # the fill value (False, 0, "")
         self.n_rows += k
         self.n_success += int(np.count_nonzero(fused.success))
+
+    def set_attribute(self, name: str, value) -> None:
+        """An attribute of the ``/fused`` group (after the rows: a summary of them)."""
+        self._group.attrs[name] = value
 
 
 @contextlib.contextmanager

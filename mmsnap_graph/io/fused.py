@@ -41,7 +41,9 @@ FUSED_LAYOUT = """\
                               gate_probability, status_messages (JSON: code -> text),
                               robust = "gate" | "huber" | "cauchy" (only when robust fusion ran),
                               frame_period_s, time_origin_s (Unix s of time_s = 0; only when
-                              the recording holds wall-clock time stamps)
+                              the recording holds wall-clock time stamps),
+                              consistency (JSON, written by `mmsnap fuse`: the covariances'
+                              self-check without truth, docs/ROBUST.md "The self-check")
     frame              (K,) int64     frame number
     time_s             (K,) float64   seconds since the recording's start (frame * frame_period_s)
     target             (K,) int64     index of the target within its frame (association order)

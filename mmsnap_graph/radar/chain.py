@@ -91,9 +91,9 @@ __all__ = [
 
 #: Default start of the processed range (m). Real boards leave a near-field
 #: residue of the transmitter-receiver leakage and the radome that survives
-#: static clutter removal (on an AWR1843 capture it made a false centroid at
-#: 0.72-0.78 m in 74 of 101 frames); nothing closer than this is processed
-#: (docs/TI.md, "Near-field leakage").
+#: static clutter removal (on an AWR1843, a false centroid below a metre in
+#: most frames); nothing closer than this is processed (docs/TI.md,
+#: "Near-field leakage").
 DEFAULT_MIN_RANGE_M = 0.9
 
 
@@ -126,9 +126,9 @@ class ChainConfig:
         ``max_doppler_mps``). Default 1: with 3 transmitters, the wraps that
         can be told apart.
     dealias_min_snr_db : detections weaker than this keep the measured
-        (wrapped) Doppler: at 5-8 dB the hypothesis test picked a wrong wrap
-        for about 2-10% of simulated points, at 12 dB and above for none
-        (docs/TI.md, "Doppler de-aliasing"). Default 12 dB.
+        (wrapped) Doppler: on weak points the hypothesis test picks a wrong
+        wrap now and then (docs/TI.md, "Doppler de-aliasing", gives the
+        figures). Default 12 dB.
     near_limit_fraction : detections whose speed is at least this fraction
         of :func:`unambiguous_speed_mps` are flagged
         (``ChainResult.doppler_near_limit``): they may be aliased.

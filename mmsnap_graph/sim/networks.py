@@ -36,6 +36,7 @@ __all__ = [
     "in_field_of_view",
     "in_common_field_of_view",
     "common_area",
+    "random_network",
 ]
 
 #: Half-angle of each node's field of view (angle of arrival from broadside).
@@ -205,3 +206,58 @@ def common_area(network: str | Mapping[str, ArrayLike], *,
     iy, ix = np.unravel_index(np.argmin(np.where(ok, far, np.inf)), far.shape)
     cx, cy = gx[ix], gy[iy]
     return Area(x_min_m=cx - half, x_max_m=cx + half, y_min_m=cy - half, y_max_m=cy + half)
+
+
+def random_network(n_nodes: int, rng: np.random.Generator | int | None = None, *,
+                   fov_rad: float = DEFAULT_FOV_RAD,
+                   distance_m: tuple[float, float] = (3.0, 7.0),
+                   aim_jitter_rad: float = np.deg2rad(15.0),
+                   min_separation_m: float = 1.5,
+                   min_area_m: float = 1.5,
+                   max_tries: int = 1000) -> dict[str, NDArray]:
+    """A random network of ``n_nodes`` radars whose fields of view overlap.
+
+    S1 is at the origin with ``phi = 0`` (broadside +y). A centre is drawn in
+    front of it (``distance_m`` away, within half its field of view of its
+    broadside); every other node stands ``distance_m`` from that centre, in a
+    uniformly drawn direction, looking at it with its broadside turned by up
+    to ``aim_jitter_rad``. A draw is kept when the nodes are at least
+    ``min_separation_m`` apart and their common field of view holds the square
+    of side ``min_area_m`` about the centre, 0.5 m from its edges (so that
+    :func:`common_area` finds a walking area at least that big); otherwise
+    drawn again (``max_tries`` times, then :class:`GeometryError`).
+    Returns ``{"S1": pose, "S2": pose, ...}``, poses ``(x_m, y_m, phi_rad)``.
+    """
+    if isinstance(n_nodes, (bool, np.bool_)) or not isinstance(n_nodes, (int, np.integer)) \
+            or n_nodes < 1:
+        raise ValidationError(f"n_nodes must be an integer >= 1, got {n_nodes!r}")
+    lo, hi = (float(v) for v in distance_m)
+    if not (0 < lo <= hi):
+        raise ValidationError(f"distance_m={distance_m!r} must be (low, high) with 0 < low <= high")
+    gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    limits = dict(fov_rad=fov_rad)
+    for _ in range(max_tries):
+        d0 = gen.uniform(lo, hi)
+        b0 = np.pi / 2 + gen.uniform(-0.5, 0.5) * fov_rad
+        centre = d0 * np.array([np.cos(b0), np.sin(b0)])
+        poses = {"S1": np.zeros(3)}
+        for i in range(2, n_nodes + 1):
+            bearing = gen.uniform(-np.pi, np.pi)
+            xy = centre + gen.uniform(lo, hi) * np.array([np.cos(bearing), np.sin(bearing)])
+            # Broadside (-sin phi, cos phi) toward the centre, turned by the jitter.
+            look = bearing + np.pi + gen.uniform(-aim_jitter_rad, aim_jitter_rad)
+            phi = float(np.angle(np.exp(1j * (look - np.pi / 2))))
+            poses[f"S{i}"] = np.array([xy[0], xy[1], phi])
+        xy = np.stack([p[:2] for p in poses.values()])
+        gaps = np.linalg.norm(xy[:, None] - xy[None], axis=-1)[np.triu_indices(n_nodes, 1)]
+        if gaps.size and gaps.min() < min_separation_m:
+            continue
+        # The walking square around the centre, with common_area's 0.5 m margin,
+        # in every field of view (common_area then finds one at least as big).
+        half = 0.5 * min_area_m + 0.5
+        g = np.linspace(-half, half, 9)
+        square = centre + np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+        if in_common_field_of_view(square, poses, **limits).all():
+            return poses
+    raise GeometryError(f"no network of {n_nodes} nodes with a common field of view in "
+                        f"{max_tries} draws (distance_m={distance_m!r})")

@@ -525,3 +525,34 @@ def test_every_pose_option_states_the_heading_convention():
     for path, option, text in found:
         assert "direction of the antenna array axis" in text, (path, option)
         assert "boresight, PHI + 90 deg" in text, (path, option)
+
+
+@pytest.mark.parametrize("argv, dest, value", [
+    (["plot", "r.h5", "-o", "f.png", "--bounds", "-2,5,-1,3"], "bounds", (-2.0, 5.0, -1.0, 3.0)),
+    (["fuse", "r.h5", "--bounds", "-2.5,5,-1e-1,3"], "bounds", (-2.5, 5.0, -0.1, 3.0)),
+    (["import", "table", "--node", "S1=t.csv", "--height-band", "-0.1,2", "-o", "o.h5"],
+     "height_band", (-0.1, 2.0)),
+    (["calibrate", "r.h5", "--range-offset", "-0.05,0.02"], "range_offset", "-0.05,0.02"),
+    (["calibrate", "r.h5", "--range-offset", "-.05, 0.02"], "range_offset", "-.05, 0.02"),
+    (["simulate", "-c", "B", "-o", "o.h5", "--frame-period", "-0.1"], "frame_period", -0.1),
+])
+def test_a_value_starting_with_a_minus_sign_needs_no_equals_sign(argv, dest, value):
+    """Before: `--bounds -2,...` and `--height-band -0.1,2` were taken for
+    unknown options ('expected one argument'): a number or a comma list of
+    numbers after an option is its value."""
+    from mmsnap_graph.app.cli import build_parser
+
+    args = build_parser().parse_args(argv)
+    got = getattr(args, dest)
+    assert (tuple(got) if isinstance(got, (tuple, list)) else got) == pytest.approx(value) \
+        if not isinstance(value, str) else got == value
+
+
+@pytest.mark.parametrize("value", ["-x", "-2,a", "--", "-inf,2"])
+def test_a_value_like_an_option_is_still_an_option(capsys, value):
+    from mmsnap_graph.app.cli import build_parser
+
+    with pytest.raises(SystemExit) as info:
+        build_parser().parse_args(["plot", "r.h5", "-o", "f.png", "--bounds", value])
+    assert info.value.code == 2
+    assert "--bounds" in capsys.readouterr().err

@@ -96,6 +96,18 @@ def test_a_syntax_error_names_the_file_and_line(tmp_path, capsys):
         read_process_config(tmp_path / "missing.toml")
 
 
+def test_a_file_with_a_byte_order_mark_reads_as_without(tmp_path):
+    """Before: a TOML file saved with a UTF-8 byte-order mark (Windows
+    editors) was 'not valid TOML: Invalid statement (at line 1, column 1)'."""
+    text = "[chain]\nmin_range_m = 0.5\n\n[matching]\nmax_lag_s = 0.2\n"
+    plain, bom = tmp_path / "plain.toml", tmp_path / "bom.toml"
+    plain.write_text(text, encoding="utf-8")
+    bom.write_bytes(b"\xef\xbb\xbf" + text.encode("utf-8"))
+    assert read_process_config(bom) == read_process_config(plain)
+    assert read_process_config(bom).chain.min_range_m == 0.5
+    assert read_matching_config(bom) == read_matching_config(plain)
+
+
 def test_process_runs_with_the_file(tmp_path):
     """The file reaches the EKF: a confirmation count no track can meet
     leaves every node without tracks; the defaults give tracks."""
@@ -199,7 +211,8 @@ def test_values_beyond_the_physical_ranges_name_the_key(table, key, value):
         process_config_from_mapping(data)
 
 
-_ODD = [1e308, -1, float("nan"), 0, 2 ** 62, 1e-300, "x", 10 ** 9, -1e308, True]
+_ODD = [1e308, -1, float("nan"), 0, 2 ** 62, 1e-300, "x", 10 ** 9, -1e308, True,
+        float("inf"), float("-inf")]  # non-finite bounds: issue 29
 
 
 def _toml(value) -> str:

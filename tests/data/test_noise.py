@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmsnap_graph.data.noise import (GaussianPrior, MeasurementNoise, NodeNoiseEstimate,
+from mmsnap_graph.data.noise import (NOISE_METADATA_KEYS, GaussianPrior, MeasurementNoise,
+                                     NodeNoiseEstimate, declared_noise,
                                      NoiseEstimate)
 from mmsnap_graph.errors import ValidationError
 
@@ -77,3 +78,22 @@ def test_estimate_records_are_checked():
     with pytest.raises(ValidationError, match="noise must be a MeasurementNoise"):
         NodeNoiseEstimate(noise=(0.1, 0.1, 0.1), identified=(True,) * 3, n_residuals=(1, 1, 1),
                           method="x")
+
+
+def test_declared_noise_reads_the_simulators_keys():
+    from mmsnap_graph.sim import simulate_recording
+
+    rec = simulate_recording("C", "straight", levels=("centroids",), n_frames=5, seed=0)
+    noise = declared_noise(rec.metadata)
+    assert noise is not None
+    assert noise.sigmas == pytest.approx([rec.metadata[k] for k in NOISE_METADATA_KEYS])
+    assert declared_noise({}) is None
+
+
+@pytest.mark.parametrize("value", [None, "x", float("nan"), 0.0, -1.0, float("inf")])
+def test_declared_noise_is_none_when_a_value_is_no_sigma(value):
+    metadata = dict(zip(NOISE_METADATA_KEYS, (0.05, 0.1, 0.2)))
+    assert declared_noise(metadata) == MeasurementNoise(range_m=0.05, omega_rad=0.1,
+                                                       doppler_mps=0.2)
+    metadata[NOISE_METADATA_KEYS[1]] = value
+    assert declared_noise(metadata) is None

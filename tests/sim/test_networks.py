@@ -66,3 +66,35 @@ def test_common_area_of_any_network():
         network_poses({"S1": [0, 0, 0], "S2": [1, 2]})
     with pytest.raises(ValidationError, match="x_max_m > x_min_m"):
         Area(x_min_m=1, x_max_m=0, y_min_m=0, y_max_m=1)
+
+
+@pytest.mark.parametrize("n_nodes", [2, 3, 4, 5])
+def test_random_networks_overlap_and_repeat_with_their_seed(n_nodes):
+    from mmsnap_graph.sim.networks import random_network
+
+    for seed in range(2):
+        poses = random_network(n_nodes, seed)
+        assert list(poses) == [f"S{i}" for i in range(1, n_nodes + 1)]
+        assert_allclose(poses["S1"], 0.0)
+        xy = np.stack([p[:2] for p in poses.values()])
+        gaps = np.linalg.norm(xy[:, None] - xy[None], axis=-1)[np.triu_indices(n_nodes, 1)]
+        assert np.all(gaps >= 1.5)
+        area = common_area(poses)
+        assert area.size_m.min() >= 1.5
+        gx, gy = np.meshgrid(np.linspace(area.x_min_m, area.x_max_m, 9),
+                             np.linspace(area.y_min_m, area.y_max_m, 9))
+        assert in_common_field_of_view(np.stack([gx, gy], axis=-1), poses).all()
+        again = random_network(n_nodes, seed)
+        for name in poses:
+            assert_allclose(again[name], poses[name])
+
+
+def test_random_network_refuses_bad_arguments():
+    from mmsnap_graph.sim.networks import random_network
+
+    with pytest.raises(ValidationError, match="n_nodes"):
+        random_network(0, 1)
+    with pytest.raises(ValidationError, match="distance_m"):
+        random_network(2, 1, distance_m=(5.0, 2.0))
+    with pytest.raises(GeometryError, match="no network"):
+        random_network(3, 1, distance_m=(14.9, 15.0), max_tries=3)

@@ -91,21 +91,30 @@ def register(subparsers) -> None:
     p.add_argument("--no-time-offsets", action="store_true",
                    help="whole-frame lags only: do not estimate each node's clock offset "
                         "(a fraction of a frame) in the joint graph")
-    p.add_argument("--range-offset", default=None, metavar="MEAN_M,SIGMA_M",
-                   help="estimate a range offset common to every node, the body's reflection "
-                        "depth (each radar's centroid nearer to it than the body's centre), "
-                        "with this prior, e.g. 0.10,0.05; `mmsnap fuse` then adds it to every "
-                        "range (default: none)")
-    p.add_argument("--range-offset-rms", type=float, default=None, metavar="METRES",
-                   help="without --range-offset: the root mean square of the body's reflection "
-                        "depth that the poses may have taken in, added to their covariance "
-                        "along the direction it moves them (default 0.112 m: 0.10 +- 0.05 m; "
-                        "not added where the recording declares point targets, the "
-                        "simulator's clean model; 0: not added)")
+    # Either the range offset is estimated (--range-offset) or its rms is
+    # considered in the covariance (--range-offset-rms), never both.
+    depth = p.add_mutually_exclusive_group()
+    depth.add_argument("--range-offset", default=None, metavar="MEAN_M,SIGMA_M",
+                       help="estimate a range offset common to every node, the body's "
+                            "reflection depth (each radar's centroid nearer to it than the "
+                            "body's centre), with this prior, e.g. 0.10,0.05; `mmsnap fuse` "
+                            "then adds it to every range (default: none)")
+    depth.add_argument("--range-offset-rms", type=float, default=None, metavar="METRES",
+                       help="not with --range-offset (which estimates it): the root mean "
+                            "square of the body's reflection depth that the poses may have "
+                            "taken in, added to their covariance along the direction it moves "
+                            "them (default 0.112 m: 0.10 +- 0.05 m; not added where the "
+                            "recording declares point targets, the simulator's clean model; "
+                            "0: not added)")
     p.add_argument("--covariance", choices=["long_run", "model"], default="long_run",
                    help="pose covariance: long_run (default) widens the joint graph's "
                         "marginals where the frames' errors are correlated in time or the "
                         "model is not exact; model keeps the marginals")
+    p.add_argument("--window-s", type=float, default=None, metavar="SECONDS",
+                   help="calibrate window by window, windows of SECONDS read from the file in "
+                        "turn and their poses combined: memory bounded by one window, not by "
+                        "the recording (default: windows of 600 s for a recording longer than "
+                        "20 minutes, else one solve; inf: one solve always)")
     p.add_argument("--json-out", default=None, metavar="PATH",
                    help="write the calibration JSON here (default: "
                         "<recording>.calibration.json; angles in radians); an existing file, "
@@ -221,7 +230,7 @@ def _joint_fit_text(f) -> tuple[str, ...]:
                      if f.turns else ())
 
 
-def _covariance_text(f) -> str:
+def _covariance_text(f) -> str | tuple[str, ...]:
     if f.method == "schur":
         text = f"covariance: a dense Schur complement ({f.failure})"
     elif f.method == "marginals":
@@ -235,6 +244,12 @@ def _covariance_text(f) -> str:
     if f.reflection_depth_rms_m > 0:
         text += (f"; plus a reflection depth of {f.reflection_depth_rms_m:.3f} m rms that the "
                  f"poses cannot tell from the geometry (not estimated: --range-offset does)")
+        s = np.reshape(f.without_depth_sigmas, (-1, 3))
+        if len(f.without_depth_nodes) and s.shape[0] == len(f.without_depth_nodes):
+            return (text, "1-sigma without the depth, what sessions of one walker and a "
+                          "recording's halves scatter by (the depth is common to them): "
+                    + ", ".join(f"{n} ({a:.3f} m, {b:.3f} m, {np.degrees(c):.2f} deg)"
+                                for n, (a, b, c) in zip(f.without_depth_nodes, s)))
     return text
 
 
@@ -312,7 +327,14 @@ _FACT_TEXT = {
     "lag_not_determined": _lag_cover_text,
     "lags_disputed": _disputed_text,
     "noise_not_identified": _noise_fact_text,
-    "recorded_message": lambda f: f.text,
+    "windows_combined": lambda f: (
+        (f"calibrated window by window: {f.n_combined} of {f.n_windows} windows of "
+         f"{f.window_s:g} s combined (the poses are static: information form; the reflection "
+         f"depth and lag covers not averaged down); the windows' spread chi2 "
+         f"{f.spread_chi2:.1f} over {f.spread_dof} dof"
+         + (f": covariance widened x{f.spread_factor:.2f}" if f.spread_factor > 1 else "")
+         + "; the facts below are the first combined window's",)
+        + tuple(f"  window left out: {w}" for w in f.skipped)),
 }
 
 
@@ -349,6 +371,7 @@ def format_table(cal) -> str:
         lines.append(f"{n:<8}{x:9.3f}{y:9.3f}{np.degrees(phi):10.2f}{sd[0]:9.3f}{sd[1]:9.3f}"
                      f"{np.degrees(sd[2]):10.3f}{cal.lag_frames.get(n, 0):5d}{tau:11.1f}"
                      f"{s_tau:7.1f}")
+    lines.extend(_mounting_lines(cal))
     if np.isfinite(cal.range_offset_m):
         lines.append(f"range offset (reflection depth): {cal.range_offset_m:.3f} +- "
                      f"{np.sqrt(cal.range_offset_variance):.3f} m (added to every range by "
@@ -367,6 +390,26 @@ def format_table(cal) -> str:
     said = ("noise_not_identified",) if cal.noise is not None else ()
     lines.extend("  " + line for f in cal.facts if f.kind not in said for line in fact_lines(f))
     return "\n".join(lines)
+
+
+def _mounting_lines(cal) -> list[str]:
+    """Each calibrated node's 1-sigma against a physical mounting (a tape):
+    the covariance with every radar's uncompensated angle bias considered
+    (:mod:`mmsnap_graph.calibration.angle_bias`)."""
+    from mmsnap_graph.calibration.angle_bias import ANGLE_BIAS_RMS_RAD, mounting_covariance
+
+    rows = []
+    for n in cal.node_names:
+        if n == cal.reference or n not in cal.poses or not np.any(cal.covariances[n]):
+            continue
+        sd = np.sqrt(np.clip(np.diag(mounting_covariance(cal.poses[n], cal.covariances[n])),
+                             0, None))
+        rows.append(f"  {n}: ({sd[0]:.3f} m, {sd[1]:.3f} m, {np.degrees(sd[2]):.2f} deg)")
+    if not rows:
+        return []
+    return [f"1-sigma against a physical mounting (a tape), with each radar's uncompensated "
+            f"angle bias ({np.degrees(ANGLE_BIAS_RMS_RAD):.0f} deg rms) that the calibration "
+            f"takes as its heading, as fusion needs it:"] + rows
 
 
 def effective_matching(args: argparse.Namespace) -> MatchingOptions:
@@ -398,7 +441,7 @@ def run(args: argparse.Namespace) -> int:
     if args.recording is None:
         raise ValidationError("mmsnap calibrate: a recording is required (unless --show-config)")
     # Here: `mmsnap --help` does not import GTSAM or h5py.
-    from mmsnap_graph.calibration import PEOPLE_JOINT_OPTIONS, joint_options_for
+    from mmsnap_graph.calibration import JOINT_OPTIONS_BY_TARGETS, joint_options_for
     from mmsnap_graph.data.noise import MeasurementNoise
 
     noise = None
@@ -424,7 +467,8 @@ def run(args: argparse.Namespace) -> int:
         except ValidationError as exc:
             raise ValidationError(f"--range-offset-rms: {exc}") from None
 
-    joint_options(PEOPLE_JOINT_OPTIONS)          # the flags checked before anything is read
+    for base in JOINT_OPTIONS_BY_TARGETS.values():  # the flags checked before anything is read
+        joint_options(base)
     json_path = check_output_path(args.json_out if args.json_out else
                                   calibration_json_path(args.recording))
     if args.output is not None and not args.no_write:
@@ -440,7 +484,7 @@ def run(args: argparse.Namespace) -> int:
                                        json_path=json_path, write=not args.no_write,
                                        on_result=lambda c: say(format_table(c)),
                                        progress=not args.no_progress and sys.stderr.isatty(),
-                                       overwrite=args.overwrite)
+                                       overwrite=args.overwrite, window_s=args.window_s)
     if args.json:
         sys.stdout.write(Path(written[0]).read_text(encoding="utf-8"))
     say(f"wrote {written[0]}")

@@ -82,23 +82,6 @@ def _check_samples(data_dir, config) -> None:
                 raise FileFormatError(f"sample recording {path} is not a file")
 
 
-def _check_out(out: Path) -> None:
-    """``--out`` is a folder, or nothing yet (it is made): checked before the
-    run, not after its minutes. The files inside are written atomically and
-    never over a device, FIFO or socket (:mod:`mmsnap_graph._atomic`)."""
-    import os
-
-    from mmsnap_graph._atomic import file_kind
-
-    try:
-        mode = os.stat(out).st_mode
-    except (FileNotFoundError, NotADirectoryError):
-        return  # made, with its parents
-    if not os.path.isdir(out):
-        raise ValidationError(f"--out {out}: it is {file_kind(mode)}, not a folder; give a "
-                              "folder for the figures and report")
-
-
 def run(args: argparse.Namespace) -> int:
     # Imported here: the demo's modules pull in GTSAM and matplotlib, which
     # `mmsnap --help` and the other commands do not need.
@@ -117,7 +100,6 @@ def run(args: argparse.Namespace) -> int:
     )
 
     t0 = time.perf_counter()
-    _check_out(Path(args.out))
     if args.frames < 20:
         raise ValidationError(f"--frames must be >= 20, got {args.frames}")
     config = DemoConfig(configurations=tuple(args.configurations),

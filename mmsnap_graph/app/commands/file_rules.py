@@ -12,6 +12,9 @@ command runs (so nothing is touched when it refuses):
 - an output that is (or, through a symlink, names) a device node, a FIFO
   or a socket is refused: writers replace regular files only
   (:mod:`mmsnap_graph._atomic`);
+- an output folder (``mmsnap demo --out``, ``mmsnap batch --output-dir``)
+  that exists and is not a folder (a file, a device, a FIFO, through a
+  symlink too) is refused: its files are written inside it;
 - an input file that exists but is not a regular file (a FIFO, a device, a
   socket) is refused: reading it would block for ever.
 
@@ -28,11 +31,11 @@ import os
 import stat
 from typing import Iterator
 
-from mmsnap_graph._atomic import check_output_path
+from mmsnap_graph._atomic import check_output_path, file_kind
 from mmsnap_graph.app.commands.arguments import check_sigmas
 from mmsnap_graph.errors import FileFormatError, ValidationError
 
-__all__ = ["OUTPUT_FILE_OPTIONS", "add_overwrite", "input_paths", "check_files", "same_file",
+__all__ = ["OUTPUT_FILE_OPTIONS", "OUTPUT_FOLDER_OPTIONS", "add_overwrite", "input_paths", "check_files", "same_file",
            "written_files"]
 
 #: Per command, the options naming an output file.
@@ -43,6 +46,9 @@ OUTPUT_FILE_OPTIONS: dict[str, tuple[str, ...]] = {
     "export": ("output",), "record": ("output",), "live": ("output", "record", "view_log"),
     "plot": ("output",),
 }
+
+#: Per command, the options naming a folder the command writes files into.
+OUTPUT_FOLDER_OPTIONS: dict[str, tuple[str, ...]] = {"demo": ("out",), "batch": ("output_dir",)}
 
 #: Options that are glob patterns of input files (``mmsnap batch``).
 _PATTERN_OPTIONS = ("patterns",)
@@ -123,6 +129,17 @@ def written_files(args: argparse.Namespace) -> Iterator[tuple[str, str]]:
         yield "the calibration JSON (--json-out)", os.fspath(calibration_json_path(recording))
 
 
+def _check_folder(option: str, path: str) -> None:
+    """An output folder is a folder or nothing yet (it is made)."""
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    if not stat.S_ISDIR(mode):
+        raise ValidationError(f"{option} {path}: it is {file_kind(mode)}, not a folder; give a "
+                              "folder (the files are written inside it)")
+
+
 def check_files(args: argparse.Namespace) -> None:
     """Apply the module's rule to the parsed command line ``args`` (its
     ``command`` names the verb). Raises :class:`ValidationError` naming the
@@ -133,6 +150,10 @@ def check_files(args: argparse.Namespace) -> None:
     inputs = input_paths(args)
     for path in inputs:
         _check_input(path)
+    for name in OUTPUT_FOLDER_OPTIONS.get(getattr(args, "command", None), ()):
+        value = getattr(args, name, None)
+        if isinstance(value, (str, os.PathLike)):
+            _check_folder("--" + name.replace("_", "-"), os.fspath(value))
     for option, value in written_files(args):
         try:
             check_output_path(value)

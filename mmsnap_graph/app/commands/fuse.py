@@ -64,6 +64,9 @@ def register(subparsers) -> None:
                    help="exit 1 when more than this fraction of the fused rows are flagged "
                         "(the rows are written either way; 1 never fails; default "
                         "%(default)s)")
+    p.add_argument("--json", action="store_true",
+                   help="print a JSON summary to stdout instead of the text (rows, successes, "
+                        "the covariance self-check); the words go to stderr")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(p)
     p.set_defaults(func=run)
@@ -98,9 +101,22 @@ def rows_text(path) -> str:
     return "\n".join(lines)
 
 
+def consistency_warning(report) -> str | None:
+    """The loud line of a failed self-check (None when it passed or could not judge)."""
+    if report is None or report.consistent is not False:
+        return None
+    return (f"mmsnap fuse: warning: the fused covariances are {report.verdict} for this "
+            f"recording's data: " + "; ".join(report.reasons) + ". Check the sigmas "
+            "(--sigmas, mmsnap noise) and the calibration; downstream trackers take these "
+            "covariances at face value")
+
+
 def run(args: argparse.Namespace) -> int:
+    import json
+
     from mmsnap_graph.io.chunks import open_detection_windows
 
+    out = sys.stderr if getattr(args, "json", False) else sys.stdout
     config = fusion_config(args)
     if args.output is not None:
         check_output_path(args.output)
@@ -113,23 +129,33 @@ def run(args: argparse.Namespace) -> int:
                                        source=config.association.source).node_names
         cal = calibration_for(args, args.recording, names, config)
         for line in cal.text:
-            print(line, file=sys.stdout)
-        print(config_text(config), file=sys.stdout)
+            print(line, file=out)
+        print(config_text(config), file=out)
         fused, _ = fuse_stored(args.recording, config, output=args.output, calibration=cal,
                                progress=False if args.no_progress else None)
     n_ok, path, frames = fused.n_success, fused.path, fused.n_frames
     robust = "none" if config.robust is None else config.robust.kernel
     print(f"fused {fused.n_rows} targets in {frames} frames ({config.mode}, "
           f"{config.solve.covariance}, {config.solve.solver}, robust {robust}): {n_ok} succeeded, "
-          f"{fused.n_rows - n_ok} flagged; wrote {path}:/fused", file=sys.stdout)
-    print(rows_text(path), file=sys.stdout)
+          f"{fused.n_rows - n_ok} flagged; wrote {path}:/fused", file=out)
+    print(rows_text(path), file=out)
     for wall in fused.room.walls:
-        print(f"  learned wall of {wall}", file=sys.stdout)
+        print(f"  learned wall of {wall}", file=out)
     if fused.room.outside or fused.room.duplicate:
         beyond = (f" ({fused.room.beyond_wall} beyond a learned wall)"
                   if fused.room.beyond_wall else "")
         print(f"room checks flagged {fused.room.outside} target(s) outside the bounds{beyond} "
-              f"and {fused.room.duplicate} duplicate(s) of a body", file=sys.stdout)
+              f"and {fused.room.duplicate} duplicate(s) of a body", file=out)
+    report = fused.consistency
+    if report is not None:
+        print(report.text(), file=out)
+        warning = consistency_warning(report)
+        if warning:
+            print(warning, file=sys.stderr)
+    if getattr(args, "json", False):
+        print(json.dumps({"path": str(path), "n_rows": fused.n_rows, "n_success": n_ok,
+                          "n_frames": frames,
+                          "consistency": None if report is None else report.to_dict()}))
     room = fused.room.outside + fused.room.duplicate
     return flagged_exit(fused.n_rows - room, n_ok, args.max_flagged)
 

@@ -107,7 +107,7 @@ def _summary(latencies, n_frames, n_bad, n_groups, n_ok, n_tracks_max) -> str:
 def run(args: argparse.Namespace) -> int:
     # Deferred as in the other commands: building the parser imports no numerics or h5py.
     from mmsnap_graph._atomic import atomic_path
-    from mmsnap_graph.fusion.recording.coverage import detection_reach_m
+    from mmsnap_graph.fusion.recording.coverage import coverage_reach_m
     from mmsnap_graph.fusion.recording.sequence import calibrated_recording, recording_poses
     from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
     from mmsnap_graph.app.view.arguments import view_sink
@@ -120,9 +120,9 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(cal.text), file=sys.stderr)  # stdout: one line per frame
     print(config_text(config), file=sys.stderr)
     network = cal.network_calibration()
-    # The coverage check's reach as `mmsnap fuse` takes it: every detection of the file.
-    config = config.with_coverage_reach({n: detection_reach_m(rec.nodes[n])
-                                         for n in rec.node_names})
+    # The coverage check's reach as `mmsnap fuse` takes it: the one the file
+    # declares (mmsnap live's), else every detection of the file.
+    config = config.with_coverage_reach(coverage_reach_m(rec))
     # The clock and range offsets as the recording drivers apply them (one place).
     rec = calibrated_recording(rec, network, config.association.source)
     poses = recording_poses(rec, network.node_poses)

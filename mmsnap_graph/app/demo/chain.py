@@ -31,13 +31,12 @@ __all__ = [
 #: measurement sigmas the simulator's torso-centroid errors (sim.CENTROID_NOISE:
 #: 5 cm, 0.08 rad, 0.1 m/s), not the radar's resolutions: with the paper's pi/4 rad for the spatial frequency
 #: the cross-range is hardly measured and, after each turn of the walker, a
-#: track slides along its range circle (track RMSE 1.7 m on
-#: data/config_C_straight.h5 against 0.04 m here). sigma_a = 1 m/s^2 instead
+#: track slides along its range circle. sigma_a = 1 m/s^2 instead
 #: of the paper's 0.2: the simulated walker turns around at 1.5 m/s^2, which a
 #: 0.2 m/s^2 model cannot follow (a new track after each turn).
 #: The joint calibration with the paper's sigmas (0.035 m, pi/4, 0.18 m/s)
 #: likewise nearly ignores the angles and lands farther from the true pose
-#: than the closed form (configuration A: 0.11 m against 0.03 m).
+#: than the closed form.
 #: The one-shot fusion keeps the paper's sigmas (the method under study).
 DEMO_EKF_MEASUREMENT_STD = (0.05, 0.08, 0.10)
 DEMO_EKF_SIGMA_A_MPS2 = 1.0

@@ -4,9 +4,11 @@
 records arrive and groups them by their slot on the common clock (frames of
 different boards within half a frame period of host time share a slot). A
 slot is fused as soon as every active board has given it (or a later slot),
-or when the host clock is :data:`WAIT_FRAMES` frames past it (a board that
-dropped the frame or stopped; a board silent for :data:`INACTIVE_FRAMES`
-frames is no longer waited for).
+or when a board's frame arrived :data:`WAIT_FRAMES` frames past its start
+(by the frames' own arrival times, so a backlog in the queue does not make
+slots overdue), or the host clock is that far past it with no frame coming
+(a board that dropped the frame or stopped; a board silent for
+:data:`INACTIVE_FRAMES` frames is no longer waited for).
 
 Each slot goes through the library's one place for each step: each board's
 points projected into its plane with its mounting
@@ -18,6 +20,15 @@ median of the frames seen so far), then the stream's association, one-shot
 fusion and central tracker (:class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream`,
 the driver ``mmsnap replay`` uses). Every fused slot goes to each sink
 (:class:`FusedSink`): a JSON-lines writer, a recorder, a view.
+
+The stream is given the frames ``mmsnap replay`` gives it from the
+recording ``mmsnap live --record`` writes, so that both print the same rows
+(docs/LIVE.md, "Live and replay"): a slot no board gave (every board dropped
+it) is an empty frame, and an empty frame (no board has a centroid) is pushed
+only within ``fill_frames`` slots of the last one with a centroid
+(:func:`~mmsnap_graph.fusion.stream.frame_stream.sends_empty_frame`, the
+rule of :func:`~mmsnap_graph.fusion.stream.frame_stream.recording_frames`);
+by then every track has ended, so the slots not pushed have no people.
 """
 
 from __future__ import annotations
@@ -32,13 +43,14 @@ import numpy as np
 
 from ...data.radar_config import TABLE_I
 from ...data.recording import Detections
+from ...fusion.stream.frame_stream import StreamUpdate, sends_empty_frame
 from ...io.ti.point_cloud import Mounting, PointCloud3D, cloud_to_detections
 from ...radar.chain import ChainConfig
 from ...radar.cluster import torso_centroids
 from ..pipeline import SPARSE_POINTS_PER_FRAME
 
 __all__ = ["LiveFrame", "FusedSink", "LiveFusion", "WAIT_FRAMES", "INACTIVE_FRAMES",
-           "replayed_frame"]
+           "replayed_frame", "live_calibration", "live_stream", "live_recording"]
 
 #: A slot is fused at the latest this many frame periods after its start.
 WAIT_FRAMES = 1.5
@@ -55,8 +67,8 @@ class LiveFrame:
     :class:`~mmsnap_graph.data.recording.Detections` in its plane),
     ``centroids`` (board -> (K, 3) rows), ``update`` (the
     :class:`~mmsnap_graph.fusion.stream.frame_stream.StreamUpdate`),
-    ``last_byte_s`` (host time of the last board frame's last byte) and
-    ``done_s`` (host time when fused)."""
+    ``last_byte_s`` (host time of the last board frame's last byte; None
+    for a slot no board gave) and ``done_s`` (host time when fused)."""
 
     frame: int
     time_s: float
@@ -64,7 +76,7 @@ class LiveFrame:
     points: Mapping
     centroids: Mapping
     update: object
-    last_byte_s: float
+    last_byte_s: float | None
     done_s: float
 
 
@@ -80,6 +92,58 @@ def replayed_frame(frame: int, time_s: float, detections: Mapping, update) -> Li
                      centroids=rows, update=update, last_byte_s=now, done_s=now)
 
 
+def live_calibration(path, names: Sequence[str]):
+    """``(poses (N, 3), stored calibration)`` of ``--calibration``, read as
+    ``mmsnap replay`` reads it (:func:`mmsnap_graph.app.runs.stored_calibration`:
+    the poses, their covariances, the range offset; the ``/noise`` sigmas of
+    a calibrated recording, the paper's for a JSON)."""
+    from ...errors import CalibrationError
+    from ...io import read_recording
+    from ..runs import paper_noise, stored_calibration
+    if str(path).lower().endswith(".json"):
+        cal = stored_calibration(None, names, calibration_json=path)
+        poses = dict(cal.node_poses or {})
+    else:
+        cal = stored_calibration(path, names)
+        stored = read_recording(path, load_cubes=False).node_poses()
+        poses = dict(cal.node_poses) if cal.node_poses else stored
+    missing = [n for n in names if poses.get(n) is None]
+    if missing:
+        raise CalibrationError(f"--calibration {path} has no pose for board(s) {missing}")
+    return np.array([poses[n] for n in names], dtype=float), cal.with_default_noise(*paper_noise())
+
+
+def live_stream(names: Sequence[str], poses, *, frame_period_s: float, config, noise,
+                pose_covariances=None, range_offset_m=None):
+    """The :class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream` of
+    ``mmsnap live``: the tracker at the boards' frame period, as ``mmsnap
+    replay`` of the recording takes it (:func:`live_recording`)."""
+    from ...fusion.stream.frame_stream import FrameStream
+    from ...tracking.central import CentralConfig
+    return FrameStream(names, poses, config=config, noise=noise,
+                       pose_covariances=pose_covariances, range_offset_m=range_offset_m,
+                       tracker=CentralConfig(frame_period_s=float(frame_period_s)))
+
+
+def live_recording(collector, centroids, poses: Mapping, *, mounting: Mapping,
+                   height_band_m=None, reach_m: Mapping | None = None):
+    """The recording of ``mmsnap live --record``: the boards' frames
+    (``collector``, a :class:`~mmsnap_graph.io.ti.serial.session.FrameCollector`)
+    with each board's ``poses[name]`` and the centroids live fused
+    (``centroids``, a :class:`~.sinks.CentroidLog`), which ``mmsnap replay``
+    streams again; ``reach_m`` (board -> m) the coverage check's reach live
+    took, declared in the metadata
+    (:data:`~mmsnap_graph.fusion.recording.coverage.REACH_METADATA_KEY`)."""
+    from ...fusion.recording.coverage import REACH_METADATA_KEY
+    md = {REACH_METADATA_KEY.format(node=n): float(r) for n, r in (reach_m or {}).items()}
+    rec = collector.recording(mounting=mounting, height_band_m=height_band_m, metadata=md)
+    for name in rec.node_names:
+        node = dataclasses.replace(rec.nodes[name], pose=np.asarray(poses[name], dtype=float),
+                                   centroids=centroids.detections(name))
+        rec = rec.with_node(node)
+    return rec
+
+
 class FusedSink(Protocol):
     """What a consumer of fused slots implements (JSON lines, a recorder, a view)."""
 
@@ -93,12 +157,15 @@ class LiveFusion:
     names : the boards in the stream's node order; stream : a
     :class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream` over them;
     mounting : board -> :class:`~mmsnap_graph.io.ti.point_cloud.Mounting`;
-    frame_period_s, t0_s : the common grid; sinks : the consumers.
+    frame_period_s, t0_s : the common grid; sinks : the consumers;
+    fill_frames : the empty frames pushed after one with a centroid (default
+    the tracker's ``max_misses``, as ``mmsnap replay`` fills).
     """
 
     def __init__(self, names: Sequence[str], stream, *, mounting: Mapping[str, Mounting],
                  frame_period_s: float, t0_s: float, sinks: Sequence[FusedSink] = (),
-                 height_band_m=None, chain: ChainConfig | None = None) -> None:
+                 height_band_m=None, chain: ChainConfig | None = None,
+                 fill_frames: int | None = None) -> None:
         self.names = tuple(names)
         self.stream = stream
         self.mounting = dict(mounting)
@@ -113,18 +180,28 @@ class LiveFusion:
         self.fused = 0
         self.late = 0                   # board frames for a slot already fused
         self._next = None               # the lowest slot not yet fused
+        self._first = None              # the session's first slot
+        self.fill_frames = (int(stream.tracker_config.max_misses) if fill_frames is None
+                            else int(fill_frames))
+        self._decided: int | None = None    # the last slot fused
+        self._busy: int | None = None       # the last slot with a centroid
+        self.pushed = 0                     # frames given to the stream
 
     # ------------------------------------------------------------------
     def add(self, frame) -> list[LiveFrame]:
         """A board's frame; returns the slots this completes, fused."""
+        # A late frame too says its board is active: the next slots wait for it.
+        last = self._last_slot[frame.board]
+        self._last_slot[frame.board] = frame.slot if last is None else max(last, frame.slot)
         if self._next is not None and frame.slot < self._next:
             self.late += 1
             return []
         self._pending.setdefault(frame.slot, {})[frame.board] = frame
-        self._last_slot[frame.board] = frame.slot
         if self._next is None:
-            self._next = frame.slot
-        return self.poll(time.monotonic())
+            self._next = self._first = frame.slot
+        # The frame's own arrival is the clock here: frames that waited in the
+        # queue (a busy moment) do not make their slot overdue.
+        return self.poll(frame.host_time_s)
 
     def poll(self, now_s: float) -> list[LiveFrame]:
         """Fuse the slots that are complete or whose wait is over."""
@@ -144,8 +221,12 @@ class LiveFusion:
         return [self._fuse(s, self._pending.pop(s)) for s in sorted(self._pending)]
 
     def _active(self, slot: int) -> list[str]:
+        """The boards slot ``slot`` waits for: those that sent a frame in the
+        last :data:`INACTIVE_FRAMES` slots (one not heard from yet counts
+        from the first slot of the session: all start together)."""
+        first = self._first
         return [n for n, last in self._last_slot.items()
-                if last is not None and last > slot - INACTIVE_FRAMES]
+                if (first if last is None else last) > slot - INACTIVE_FRAMES]
 
     # ------------------------------------------------------------------
     def _sparse(self) -> bool:
@@ -160,6 +241,9 @@ class LiveFusion:
         return c.measurements
 
     def _fuse(self, slot: int, frames: dict) -> LiveFrame:
+        if self._decided is not None:           # the slots no board gave
+            for gap in range(self._decided + 1, slot):
+                self._emit(gap, {}, {}, {})
         points, centroids = {}, {}
         for name, f in frames.items():
             p = f.points
@@ -171,13 +255,36 @@ class LiveFusion:
             self._counts.append(len(det))
             points[name] = det
             centroids[name] = self._centroids(det)
+        return self._emit(slot, frames, points, centroids)
+
+    def _emit(self, slot: int, frames: dict, points: dict, centroids: dict) -> LiveFrame:
+        """Push one slot (or not: module docstring) and give it to the sinks."""
         time_s = slot * self.period
-        update = self.stream.push(time_s, centroids)
+        if any(len(z) for z in centroids.values()):
+            self._busy = slot
+        since = None if self._busy is None else slot - self._busy
+        if since == 0 or sends_empty_frame(since, self.fill_frames):
+            update = self.stream.push(time_s, centroids)
+            self.pushed += 1
+        else:
+            update = self._idle(time_s)
+        self._decided = slot
         self.fused += 1
         live = LiveFrame(frame=slot, time_s=time_s, boards=tuple(sorted(frames)), points=points,
                          centroids=centroids, update=update,
-                         last_byte_s=max(f.host_time_s for f in frames.values()),
+                         last_byte_s=max((f.host_time_s for f in frames.values()), default=None),
                          done_s=time.monotonic())
         for sink in self.sinks:
             sink.write(live)
         return live
+
+    def _idle(self, time_s: float) -> StreamUpdate:
+        """The update of a slot not pushed: no target, no track (every track
+        ended within ``fill_frames`` empty frames)."""
+        n = len(self.names)
+        return StreamUpdate(index=-1, time_s=time_s, ok=True, message="", state=np.zeros((0, 4)),
+                            covariance=np.zeros((0, 4, 4)), status=np.zeros(0, np.int8),
+                            members=np.zeros((0, n), np.int64), degeneracy=np.zeros(0),
+                            track_id=np.zeros(0, np.int64), track_state=np.zeros((0, 4)),
+                            track_covariance=np.zeros((0, 4, 4)), latency_s=0.0,
+                            rejected=np.zeros((0, n), bool))

@@ -80,7 +80,8 @@ class LatencyLog:
         self.latency_s: list[float] = []
 
     def write(self, frame) -> None:
-        self.latency_s.append(time.monotonic() - frame.last_byte_s)   # after the sinks before it
+        if frame.last_byte_s is not None:      # None: a slot no board gave
+            self.latency_s.append(time.monotonic() - frame.last_byte_s)   # after the sinks before it
 
     def close(self) -> None:
         pass

@@ -241,9 +241,9 @@ class FoxgloveView:
         rec = np.zeros(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("doppler", "<f4"),
                                  ("snr", "<f4")])
         rec["x"], rec["y"] = xy[:, 0], xy[:, 1]
-        if n and hasattr(det, "doppler_mps"):
+        if n:  # a LiveFrame's points are Detections
             rec["doppler"] = det.doppler_mps
-            rec["snr"] = det.snr_db if getattr(det, "snr_db", None) is not None else np.nan
+            rec["snr"] = det.snr_db if det.snr_db is not None else np.nan
         f32 = m.PackedElementFieldNumericType.Float32
         fields = [m.PackedElementField(name=name, offset=4 * k, type=f32)
                   for k, name in enumerate(("x", "y", "z", "doppler_mps", "snr_db"))]

@@ -166,6 +166,16 @@ class BlockCovariance:
     bandwidth : Bartlett bandwidth in frames (0 for the model's).
     range_offset_rms : the considered reflection depth (m) whose ``s^2 J
         J^T`` is in :attr:`covariance` (0: none).
+    random : (P, P) :attr:`covariance` without the considered depth's term
+        (the part that averages down over independent stretches of data;
+        None: the same as :attr:`covariance`).
+    depth_response : (P, C) the considered depth's columns ``M``, so that
+        the term is ``s^2 M M^T``: ``sqrt(1 - q) J`` for the depth every
+        node shares, then ``sqrt(q) J_n`` for each node's own (``q`` =
+        :data:`NODE_DEPTH_SHARE`); the same depths in every window of a
+        recording, so a windowed solve combines the columns, not their
+        outer products (:mod:`.windowed`). ``depth_columns`` names them:
+        ``("common",)`` then ``("node", name)``. Empty without the term.
     """
 
     covariance: NDArray
@@ -174,6 +184,9 @@ class BlockCovariance:
     factors: NDArray
     bandwidth: int
     range_offset_rms: float = 0.0
+    random: NDArray | None = None
+    depth_response: NDArray | None = None
+    depth_columns: tuple = ()
 
     def node(self, name: str) -> NDArray:
         """(3, 3) the covariance of ``name``'s pose."""
@@ -189,12 +202,22 @@ class BlockCovariance:
         return float(self.covariance[i, i])
 
     def fact(self) -> PoseCovariance:
-        """How the covariance was computed, as the calibration reports it."""
+        """How the covariance was computed, as the calibration reports it
+        (with the considered depth: each node's sigmas without its term)."""
         if self.bandwidth == 0:
             return PoseCovariance(method="marginals")
+        names, sigmas = [], []
+        if self.range_offset_rms > 0 and self.random is not None:
+            for key in dict.fromkeys(k for k in self.order if k[0] == "pose"):
+                i = self.order.index(key)
+                block = self.random[i:i + 3, i:i + 3]
+                names.append(key[1])
+                sigmas.extend(np.sqrt(np.clip(np.diag(block), 0.0, None)).tolist())
         return PoseCovariance(method="long_run", bandwidth_frames=self.bandwidth,
                               max_widening=max(float(np.max(self.factors)), 1.0),
-                              reflection_depth_rms_m=self.range_offset_rms)
+                              reflection_depth_rms_m=self.range_offset_rms,
+                              without_depth_nodes=tuple(names),
+                              without_depth_sigmas=tuple(sigmas))
 
 
 def range_offset_response(problem: PresolveProblem, poses, states, offsets,
@@ -241,13 +264,15 @@ def block_covariance(problem: PresolveProblem, poses, states, offsets, frames, *
         return BlockCovariance(model, model, order, np.ones(model.shape[0]), 0)
     lr = long_run_covariance(infl, frames, bandwidth)
     cov, factors = robust_covariance(model, lr, n_frames=len(frames), bandwidth=bandwidth)
-    bw, rms = int(bandwidth), 0.0
+    bw, rms, random = int(bandwidth), 0.0, cov
     if range_offset_rms is not None and range_offset_rms > 0 and problem.range_offset is None:
         rms = float(range_offset_rms)
         q = NODE_DEPTH_SHARE
-        j = range_offset_response(problem, poses, states, offsets, infl)
-        cov = cov + (1.0 - q) * rms**2 * np.outer(j, j)
-        for n in problem.names:
-            jn = range_offset_response(problem, poses, states, offsets, infl, node=n)
-            cov = cov + q * rms**2 * np.outer(jn, jn)
-    return BlockCovariance(cov, model, order, factors, bw, rms)
+        cols = [np.sqrt(1.0 - q) * range_offset_response(problem, poses, states, offsets, infl)]
+        cols += [np.sqrt(q) * range_offset_response(problem, poses, states, offsets, infl, node=n)
+                 for n in problem.names]
+        m = np.column_stack(cols)
+        cov = cov + rms**2 * (m @ m.T)
+        return BlockCovariance(cov, model, order, factors, bw, rms, random, m,
+                               (("common",), *(("node", n) for n in problem.names)))
+    return BlockCovariance(cov, model, order, factors, bw, rms, random)

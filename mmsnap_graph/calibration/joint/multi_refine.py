@@ -27,7 +27,7 @@ from factors.models import detection_to_local
 from ..._validation import check_count
 from ...data.calibration import RecordingCalibration
 from ...data.calibration_facts import ClockOffsetsTried, RobustPassFailed
-from ...data.noise import MeasurementNoise
+from ...data.noise import MeasurementNoise, declared_noise
 from ...data.recording import Recording
 from ...errors import CalibrationError, ValidationError
 from .options import JointOptions
@@ -81,19 +81,6 @@ class MultiTargetRefinement:
     noise: MeasurementNoise
     detections: Mapping | None = None
     clock_offsets: Mapping | None = None
-
-
-def _recorded_noise(metadata) -> MeasurementNoise | None:
-    """The simulator's centroid-noise metadata, when complete and valid (as
-    :func:`calibrate_recording` reads it)."""
-    keys = ("centroid_range_std_m", "centroid_omega_std_rad", "centroid_doppler_std_mps")
-    try:
-        vals = [float(metadata[k]) for k in keys]
-    except (KeyError, TypeError, ValueError):
-        return None
-    if not all(np.isfinite(v) and v > 0 for v in vals):
-        return None
-    return MeasurementNoise(range_m=vals[0], omega_rad=vals[1], doppler_mps=vals[2])
 
 
 def _learned_noise(dets, options: JointOptions, data: Mapping) -> MeasurementNoise:
@@ -205,9 +192,11 @@ def refine_multi(
         ``calibrate_recording(rec, method="pose_graph")``): its poses,
         covariances and lags drive the first association and start the
         joint graph.
-    noise : centroid noise of the joint graph; None: the recording's
-        ``centroid_*_std`` metadata, else learned from the residuals as
-        :func:`calibrate_recording` does.
+    noise : centroid noise of the joint graph; None: the noise the
+        recording declares (:func:`~mmsnap_graph.data.noise.declared_noise`,
+        a simulator's), else learned from the residuals as
+        :func:`~mmsnap_graph.calibration.calibrate_recording` does (which
+        never reads the declared noise).
     options : the joint graph's (:class:`JointOptions`; default
         :data:`MULTI_JOINT_OPTIONS`); clock offsets are not estimated here.
     association : the gates of :func:`associate_targets`
@@ -223,7 +212,7 @@ def refine_multi(
         raise ValidationError(f"options must be a JointOptions, got {options!r}")
     options = dataclasses.replace(options, time_offsets=False)
     if noise is None:
-        noise = _recorded_noise(recording.metadata)
+        noise = declared_noise(recording.metadata)
     out = refine_associated(recording, names, pose_graph.poses, pose_graph.covariances,
                             pose_graph.lag_frames, noise=noise, options=options,
                             association=association, n_rounds=n_rounds)

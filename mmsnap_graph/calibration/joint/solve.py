@@ -116,6 +116,8 @@ class JointCalibration:
         ``lag_frames`` given, or one frame from it for a node whose clock
         offset came out more than :data:`LAG_RECENTRE_FRACTION` of a frame
         beyond it (then the detections' frames were shifted to match).
+    pose_block : the :class:`~.covariance.BlockCovariance` the covariances
+        come from (:mod:`.windowed` combines them); None: the marginals.
     """
 
     reference: str
@@ -142,6 +144,7 @@ class JointCalibration:
     range_offset_m: float = float("nan")
     range_offset_variance: float = float("nan")
     model_covariances: Mapping[str, NDArray] = field(default_factory=dict)
+    pose_block: BlockCovariance | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "status", CalibrationStatus(self.status))
@@ -590,7 +593,8 @@ def _estimate(graph, frames, init, x0, unreachable, sig,
                                else float("nan")),
         model_covariances=(_from_block(dataclasses.replace(block, covariance=block.model),
                                        graph, covs, variances)[0] if block is not None
-                           else dict(covs)))
+                           else dict(covs)),
+        pose_block=block)
 
 
 def _block_covariance(graph, point, sig, options: JointOptions, run, frames):

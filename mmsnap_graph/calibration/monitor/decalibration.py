@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
-from ...data.noise import GaussianPrior, MeasurementNoise
+from ...data.noise import GaussianPrior, MeasurementNoise, declared_noise
 from ...data.recording import Recording
 from ...errors import MissingStepError, ValidationError
 from ...fusion.frame_problem import FrameProblem
@@ -51,7 +51,7 @@ from .stats import (
 
 __all__ = ["DEFAULT_THRESHOLD", "DEFAULT_WINDOWS_S", "DEFAULT_POSE_SIGMAS", "ChangePoint",
            "Recalibration", "MonitorUpdate", "DecalibrationMonitor", "MonitorResult",
-           "recording_noise", "recording_measurements", "monitor_recording"]
+           "recording_measurements", "monitor_recording"]
 
 #: Per-test false-alarm probability 1e-7 (35.4): with 24,000 frames per hour
 #: (150 ms), four window lengths and ten nodes, a Bonferroni bound of 0.1 false
@@ -475,18 +475,6 @@ class MonitorResult:
     noise: MeasurementNoise
 
 
-def recording_noise(metadata: Mapping) -> MeasurementNoise | None:
-    """The centroid noise a simulated recording's metadata declares
-    (``centroid_range_std_m``, ``centroid_omega_std_rad``,
-    ``centroid_doppler_std_mps``), or None when absent or invalid."""
-    keys = ("centroid_range_std_m", "centroid_omega_std_rad", "centroid_doppler_std_mps")
-    try:
-        vals = [float(metadata[k]) for k in keys]
-        return MeasurementNoise(range_m=vals[0], omega_rad=vals[1], doppler_mps=vals[2])
-    except (KeyError, TypeError, ValueError):
-        return None
-
-
 def recording_measurements(recording: Recording) -> tuple[NDArray, NDArray]:
     """``(frame (F,), measurements (F, N, 3))`` from the nodes' centroids, frames
     ``0..last``; a node with no centroid, or several (several people), at a
@@ -519,8 +507,9 @@ def monitor_recording(recording: Recording, *, node_poses: Mapping[str, ArrayLik
     node_poses : default the recording's node poses (its calibration);
         :class:`~mmsnap_graph.errors.MissingStepError` (a
         CalibrationError) when a node has none.
-    noise : default the recording's centroid-noise metadata
-        (:func:`recording_noise`), else the paper's resolutions.
+    noise : default the centroid noise the recording declares
+        (:func:`~mmsnap_graph.data.noise.declared_noise`, a simulator's),
+        else the paper's resolutions.
     progress : a tqdm bar over the frames on stderr.
     options : the monitor's (``threshold``, ``windows_s``, ...);
         ``frame_period_s`` is the recording's.
@@ -535,7 +524,7 @@ def monitor_recording(recording: Recording, *, node_poses: Mapping[str, ArrayLik
                                    what=f"nodes {missing} have no pose")
         node_poses = recording.node_poses()
     if noise is None:
-        noise = recording_noise(recording.metadata) or MeasurementNoise()
+        noise = declared_noise(recording.metadata) or MeasurementNoise()
     mon = DecalibrationMonitor(node_poses, noise=noise, node_covariances=node_covariances,
                                frame_period_s=recording.frame_period_s, **options)
     frames, z = recording_measurements(recording)

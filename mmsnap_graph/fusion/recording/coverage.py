@@ -26,8 +26,8 @@ cloud, static scene and false alarms included, and its centroids). In a
 small room a walker stays within a few metres of every radar while his
 multipath images lie beyond him (a one-bounce image at or beyond the wall);
 a reach taken from the node's own centroids, which the signal chain's scene
-filters leave at the walkers, left the images' places uncovered (a simulated
-3-radar room at 20 fps: 10 images 3.5-4 m off kept with NEES 700-900).
+filters leave at the walkers, left the images' places uncovered
+(tests/fusion/recording/test_coverage.py::test_a_node_covers_places_beyond_where_the_walkers_went).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from ...data.recording import NodeData
 from .motion_check import MOTION_WINDOW_FRAMES
 
-__all__ = ["uncovered_rows", "detection_reach_m", "COVERAGE_FOV_RAD", "COVERAGE_MIN_RANGE_M",
+__all__ = ["uncovered_rows", "detection_reach_m", "coverage_reach_m", "REACH_METADATA_KEY", "COVERAGE_FOV_RAD", "COVERAGE_MIN_RANGE_M",
            "COVERAGE_MIN_FRAMES", "COVERAGE_MIN_NODES"]
 
 #: A node covers a place within this angle of its boresight (TI's antennas
@@ -55,9 +55,8 @@ COVERAGE_MIN_RANGE_M = 0.5
 COVERAGE_MIN_FRAMES = 2
 #: Nodes a network needs for the check. With two, the other node is the only
 #: witness: on a sparse cloud it misses a walker for a few frames now and
-#: then (a simulated walker at 20 fps lost 18 % of his frames to the check
-#: against 7 % without it), so a two-node network relies on the room's
-#: bounds (``--bounds``, ``--in-front``) for mirror images instead.
+#: then (docs/ROBUST.md gives the figure), so a two-node network relies on
+#: the room's bounds (``--bounds``, ``--in-front``) for mirror images instead.
 COVERAGE_MIN_NODES = 3
 
 
@@ -66,6 +65,25 @@ def detection_reach_m(node: NodeData) -> float:
     every level it holds (point cloud and centroids); 0 without any."""
     ranges = [d.range_m for d in (node.point_cloud, node.centroids) if d is not None and len(d)]
     return float(max((r.max() for r in ranges), default=0.0))
+
+
+#: A recording's metadata key ``{node}_coverage_reach_m``: the reach its
+#: maker declared for the node (``mmsnap live --record``: the board's
+#: ``.cfg`` maximum range, what live's coverage check took).
+REACH_METADATA_KEY = "{node}_coverage_reach_m"
+
+
+def coverage_reach_m(recording) -> dict:
+    """Each node's reach for the coverage check of ``recording``: the one its
+    metadata declares (:data:`REACH_METADATA_KEY`), else
+    :func:`detection_reach_m` of its detections."""
+    md = recording.metadata
+    out = {}
+    for name in recording.node_names:
+        declared = md.get(REACH_METADATA_KEY.format(node=name))
+        out[name] = (float(declared) if declared is not None
+                     else detection_reach_m(recording.nodes[name]))
+    return out
 
 
 def _covering(xy: NDArray, poses: NDArray, reach: NDArray) -> NDArray:

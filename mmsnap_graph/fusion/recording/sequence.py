@@ -40,7 +40,7 @@ from ..problem import check_node_noise, check_pose_covariances
 from ..options import NetworkCalibration
 from ..solve import check_grid_model
 from .pipeline import FusionNetwork, fuse_rows, screen_rows
-from .coverage import detection_reach_m
+from .coverage import coverage_reach_m
 from .regroup import merge_body_detections
 from .room import RoomReport
 from .timing import align_recording, offset_ranges
@@ -344,10 +344,9 @@ def fuse_recording_rows(
         raise ValidationError(f"progress must be True, False or None, got {progress!r}")
     cal = check_calibration(calibration)
     assoc = config.association
-    # How far each node looks, from its detections before the offsets move
-    # them (as a file's reader takes them).
-    config = config.with_coverage_reach({n: detection_reach_m(recording.nodes[n])
-                                         for n in recording.node_names})
+    # How far each node looks: declared by the file (mmsnap live's), else from
+    # its detections before the offsets move them (as a file's reader takes them).
+    config = config.with_coverage_reach(coverage_reach_m(recording))
     recording = calibrated_recording(recording, cal, assoc.source)
     net = recording_network(recording, cal, noise, config)
     groups = group_detections(recording, net.poses, net.noise,

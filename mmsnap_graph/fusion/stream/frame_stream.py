@@ -77,7 +77,7 @@ from ...errors import MmsnapError, ValidationError
 from ...tracking.central import CentralConfig, CentralTracker
 from ..._validation import as_float_array, check_count, check_finite, check_heading
 
-__all__ = ["StreamUpdate", "FrameStream", "recording_frames", "STREAM_CONFIG"]
+__all__ = ["StreamUpdate", "FrameStream", "recording_frames", "sends_empty_frame", "STREAM_CONFIG"]
 
 #: The stream's default configuration: :data:`~mmsnap_graph.fusion.config.DEFAULT_CONFIG`
 #: (every check) with the scalar solver (latency; without a robust fit: with
@@ -549,6 +549,15 @@ def _row_problem(z, name):
     return z, None
 
 
+def sends_empty_frame(frames_since_detection: int | None, fill_frames: int) -> bool:
+    """Whether a source streams a frame in which no node has a detection,
+    ``frames_since_detection`` frames after its last frame with one (None:
+    no such frame yet): only the first ``fill_frames`` of a gap, the rule of
+    :func:`recording_frames` (``mmsnap replay``) and of ``mmsnap live``'s
+    driver, so that both push the same frames."""
+    return frames_since_detection is not None and 0 < frames_since_detection <= fill_frames
+
+
 def recording_frames(recording: Recording, *, source: Literal["centroids", "point_cloud"] = "centroids",
                      fill_frames: int = 5) -> Iterator[tuple[int, float, dict[str, NDArray]]]:
     """A recording's frames as a live source would send them:
@@ -588,5 +597,7 @@ def recording_frames(recording: Recording, *, source: Literal["centroids", "poin
             out[name] = z[lo:hi]
         yield frame, frame * period, out
         stop = int(present[k + 1]) if k + 1 < present.size else frame + 1
-        for gap in range(frame + 1, min(stop, frame + int(fill_frames) + 1)):
+        gap = frame + 1
+        while gap < stop and sends_empty_frame(gap - frame, int(fill_frames)):
             yield gap, gap * period, {name: empty for name in names}
+            gap += 1

@@ -481,8 +481,8 @@ def _no_twins(clouds: Mapping[str, PointCloud3D]) -> None:
 #: A radar sees in front of it (TI's boards: about +-60 degrees of azimuth
 #: from the boresight): points beyond this azimuth in the sensor frame...
 BESIDE_AZIMUTH_RAD = float(np.deg2rad(75.0))
-#: ... are at most this fraction of a node's points (the real recordings:
-#: 0.6%; a room pose 90 degrees off puts 55-86% there, 180 degrees 100%).
+#: ... are at most this fraction of a node's points (a room pose a quarter
+#: or half turn off puts most of them there).
 MAX_BESIDE_FRACTION = 0.25
 #: Fewer points than this are not judged.
 _MIN_VIEW_POINTS = 50

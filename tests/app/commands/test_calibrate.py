@@ -163,6 +163,24 @@ def test_calibrate_command_writes_json_poses_and_group(recording_c_random, tmp_p
         assert f["calibration"].attrs["method"] == "pose_graph"
 
 
+def test_window_s_calibrates_window_by_window_and_stores_the_combination(recording_path,
+                                                                        tmp_path, capsys):
+    """--window-s 22.5: two windows of 150 frames read from the file, their
+    poses combined; printed, in the JSON and in the recording like a batch
+    calibration."""
+    out = tmp_path / "rec.h5"
+    code, text, _ = run_cli(capsys, "calibrate", recording_path, "--window-s", "22.5",
+                            "--json-out", tmp_path / "c.json", "-o", out)
+    assert code == 0, text
+    assert "calibrated window by window: 2 of 2 windows of 22.5 s combined" in text
+    facts = json.loads((tmp_path / "c.json").read_text())["facts"]
+    assert facts[0]["kind"] == "windows_combined" and facts[0]["n_combined"] == 2
+    batch = json.loads((tmp_path / "c.json").read_text())["nodes"]
+    stored = read_recording(out, load_cubes=False)
+    for n, node in batch.items():
+        assert np.allclose(stored.nodes[n].pose, node["pose"])
+
+
 @pytest.mark.parametrize("extra", [[], ["--no-write"]])
 def test_an_existing_calibration_json_is_replaced_only_with_overwrite(recording_c_random,
                                                                       tmp_path, capsys, extra):
@@ -293,6 +311,8 @@ def test_show_config_prints_the_matching_table_and_reads_back(tmp_path, capsys):
     (["--min-common-s", "soon"], "--min-common-s"),
     (["--range-offset-rms", "11.2"], "--range-offset-rms"),
     (["--range-offset-rms", "-0.1"], "--range-offset-rms"),
+    (["--window-s", "0"], "--window-s"),
+    (["--window-s", "0.5"], "--window-s"),
 ])
 def test_bad_options_exit_2_with_one_line_naming_the_option(recording_path, tmp_path, capsys, argv,
                                                             option):
@@ -372,3 +392,13 @@ def test_pose_nees_on_the_simulated_real_model_carries_the_reflection_depth(real
 def test_pose_nees_in_band_on_the_simulated_real_model(real_model_dir):
     _, check = _pose_nees(range(12), real_model_dir)
     assert check.passed, check
+
+
+def test_range_offset_rms_with_range_offset_is_refused(tmp_path, capsys):
+    """Before: --range-offset-rms was silently ignored when --range-offset
+    was given (the estimated offset leaves nothing to consider); now argparse
+    refuses the pair before anything is read (the recording need not exist)."""
+    code, _, err = run_cli(capsys, "calibrate", tmp_path / "none.h5", "--range-offset",
+                           "0.10,0.05", "--range-offset-rms", "0.02")
+    assert code == 2
+    assert "--range-offset-rms: not allowed with argument --range-offset" in error_line(err)

@@ -279,3 +279,30 @@ def test_fuse_without_a_config_file_imports_no_signal_chain(recording_b_file, tm
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split()
     assert out == ["0", "False", "False"], out
+
+
+def test_fuse_reports_the_covariance_self_check_and_warns_when_it_fails(calibrated, capsys):
+    """The self-check without truth (fusion.recording.consistency): in the
+    text, in --json, stored on /fused; loud on stderr when sigmas 0.3x the
+    data's make the covariances too small."""
+    import h5py
+
+    from mmsnap_graph.io.noise import read_noise
+
+    capsys.readouterr()
+    assert main(["fuse", str(calibrated), "--no-progress", "--json"]) == 0
+    cap = capsys.readouterr()
+    good = json.loads(cap.out)["consistency"]
+    assert good["verdict"] == "consistent", good
+    assert "covariance self-check (no truth): consistent" in cap.err
+    assert "warning" not in cap.err
+    with h5py.File(calibrated, "r") as f:
+        assert json.loads(f["fused"].attrs["consistency"]) == good
+    sig = np.mean([n.sigmas for n in read_noise(calibrated).per_node.values()], axis=0)
+    out = calibrated.with_name("low.h5")
+    assert main(["fuse", str(calibrated), "--no-progress", "--json", "-o", str(out),
+                 "--sigmas", *(f"{v:.6g}" for v in 0.3 * sig), "--max-flagged", "1"]) == 0
+    cap = capsys.readouterr()
+    bad = json.loads(cap.out)["consistency"]
+    assert bad["verdict"] == "over-confident" and bad["consistent"] is False
+    assert "mmsnap fuse: warning: the fused covariances are over-confident" in cap.err

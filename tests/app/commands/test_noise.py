@@ -178,3 +178,28 @@ def test_a_calibration_json_without_a_node_is_refused(tmp_path, capsys, small):
     poses.write_text(json.dumps({"nodes": {"S1": {"pose": [0.0, 0.0, 0.0]}}}))
     assert main(["noise", str(small), "--no-write", "--calibration", str(poses)]) == 1
     assert "has no pose for node(s) ['S2']" in capsys.readouterr().err
+
+
+def test_a_stored_noise_is_replaced_only_with_overwrite(tmp_path, capsys, small):
+    """Before: `mmsnap noise REC` replaced the /noise that `mmsnap calibrate`
+    stored (and `mmsnap fuse` uses) without a word, although the verb has
+    --overwrite. Now it refuses (exit 2, nothing written) unless told."""
+    rec = tmp_path / "n.h5"
+    rec.write_bytes(small.read_bytes())
+    assert main(["noise", str(rec)]) == 0                     # no /noise yet: written
+    with h5py.File(rec, "r+") as f:                           # mark the stored group
+        f["noise"].attrs["marker"] = "stored"
+    capsys.readouterr()
+    assert main(["noise", str(rec), "--method", "temporal"]) == 2
+    err = capsys.readouterr().err
+    assert "already holds a /noise group" in err and "--overwrite" in err
+    with h5py.File(rec, "r") as f:
+        assert f["noise"].attrs["marker"] == "stored"
+        assert f["noise"].attrs["method"] == "network+temporal"
+    assert main(["noise", str(rec), "--no-write"]) == 0        # printing only is fine
+    copy = tmp_path / "copy.h5"
+    assert main(["noise", str(rec), "-o", str(copy)]) == 0     # so is a copy
+    assert main(["noise", str(rec), "--method", "temporal", "--overwrite"]) == 0
+    with h5py.File(rec, "r") as f:
+        assert "marker" not in f["noise"].attrs
+    assert read_noise(rec).method == "temporal"

@@ -554,3 +554,48 @@ def test_a_numeric_node_column_keeps_its_names_as_written(tmp_path):
     frame = pd.DataFrame({"node": [1.0, 2.0, 12.5], "frame": [0, 0, 0], "x": [0.5] * 3,
                           "y": [2.0] * 3, "z": [0.0] * 3, "doppler": [0.1] * 3})
     assert list(read_point_tables(frame)) == ["1", "2", "12.5"]
+
+
+#: Frame numbers a corrupted or stray row may hold: near the others, far,
+#: and at both ends of int64.
+STRAY_FRAMES = st.one_of(st.integers(-10, 110), st.integers(-2**63, 2**63 - 1),
+                         st.sampled_from([-2**63, 2**63 - 1, -2**40, 2**40, -1, 10**6]))
+
+
+@settings(max_examples=40, deadline=None, derandomize=True, database=None)
+@given(st.lists(st.tuples(st.integers(0, 99), STRAY_FRAMES), min_size=1, max_size=3,
+                unique_by=lambda t: t[0]))
+def test_stray_frame_numbers_never_move_a_nodes_clock(tmp_path_factory, strays):
+    """Up to three of S2's 100 rows given any frame number (seeded): S1's
+    frames stay 0-99 and S2's other rows keep theirs as written (no node's
+    clock moves), each stray is kept as written or left out and reported,
+    and only project errors or warnings come out; before, one stray became
+    S2's origin or its span (issue 29)."""
+    import warnings
+
+    from mmsnap_graph.errors import MmsnapWarning
+
+    lines = ["node,frame,x,y,z,doppler"]
+    stray = dict(strays)
+    for node in ("S1", "S2"):
+        for k in range(100):
+            f = stray.get(k, k) if node == "S2" else k
+            lines.append(f"{node},{f},0.5,{2 + 0.01 * k},0.0,0.1")
+    path = tmp_path_factory.mktemp("stray") / "two.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MmsnapWarning)
+        try:
+            clouds = read_point_tables(path)
+        except MmsnapError:
+            return
+    from collections import Counter
+
+    np.testing.assert_array_equal(clouds["S1"].frame, np.arange(100))
+    s2 = Counter(clouds["S2"].frame.tolist())
+    good = Counter(k for k in range(100) if k not in stray)
+    assert not good - s2, (strays, sorted(good - s2))  # every other row kept as written
+    kept = s2 - good
+    assert not kept - Counter(stray.values()), (strays, kept)  # a stray kept as written
+    if sum(kept.values()) < len(strays):
+        assert any("out of line" in str(w.message) for w in caught), strays

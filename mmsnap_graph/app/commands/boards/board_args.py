@@ -130,10 +130,13 @@ def pump(session, on_frame, duration_s: float | None, on_idle=None) -> str:
                 name, exc = next(iter(failed.items()))
                 raise DeviceError(f"board {name}: reading its data port failed: {exc}")
             try:
-                on_frame(session.frames.get(timeout=0.1))
+                frame = session.frames.get(timeout=0.1)
             except queue.Empty:
                 if on_idle is not None:
                     on_idle()
+                continue
+            session.max_queued = max(session.max_queued, session.frames.qsize() + 1)
+            on_frame(frame)
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)

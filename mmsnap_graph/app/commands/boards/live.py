@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from mmsnap_graph._atomic import open_regular
 from ..arguments import add_fusion_arguments, fusion_config
 from ..file_rules import add_overwrite
 from ...view.arguments import add_view_options
@@ -44,48 +45,36 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _calibration(path: str, names):
-    """(poses (N, 3), noise) of ``--calibration``."""
-    import numpy as np
-
-    from mmsnap_graph.app.runs import paper_noise, stored_calibration
-    from mmsnap_graph.errors import CalibrationError
-    from mmsnap_graph.io import read_recording
-    from mmsnap_graph.io.calibration import load_calibration_poses
-    if str(path).lower().endswith(".json"):
-        poses = load_calibration_poses(path)
-        noise = paper_noise()[0]
-    else:
-        cal = stored_calibration(path, names).with_default_noise(*paper_noise())
-        stored = read_recording(path, load_cubes=False).node_poses()
-        poses = dict(cal.node_poses) if cal.node_poses else stored
-        noise = cal.noise
-    missing = [n for n in names if poses.get(n) is None]
-    if missing:
-        raise CalibrationError(f"--calibration {path} has no pose for board(s) {missing}")
-    return np.array([poses[n] for n in names], dtype=float), noise
-
-
 def run(args: argparse.Namespace) -> int:
-    import dataclasses
     import time
 
-    from mmsnap_graph.app.live.driver import LiveFusion
+    from mmsnap_graph.app.live.driver import (LiveFusion, live_calibration, live_recording,
+                                              live_stream)
     from mmsnap_graph.app.live.sinks import CentroidLog, JsonLinesSink, LatencyLog
     from mmsnap_graph.app.view.arguments import view_sink
-    from mmsnap_graph.fusion.stream.frame_stream import FrameStream
     from mmsnap_graph.io import write_recording
     from mmsnap_graph.io.ti.serial.session import FrameCollector
     config = fusion_config(args)
     specs = board_specs(args)
     names = [s.name for s in specs]
-    poses, noise = _calibration(args.calibration, names)
+    poses, cal = live_calibration(args.calibration, names)
+    print("\n".join(cal.text), file=sys.stderr)
+    if cal.time_offset_s:
+        print("the calibration's clock offsets are not applied: the boards share the host "
+              "clock (replay the recording with --no-time-offsets)", file=sys.stderr)
     session = session_for(args, specs)
     mounts = mountings(args, specs, session.timing)
-    stream = FrameStream(names, poses, config=config, noise=noise)
-    out = sys.stdout if args.output is None else open(args.output, "w", encoding="utf-8")
+    # The coverage check's reach: each board's .cfg maximum range (how far it
+    # looks), written with --record for replay and fuse; a board without a
+    # .cfg: its farthest centroid so far.
+    reach = {n: t.max_range_m for n, t in session.timing.items() if t.max_range_m is not None}
+    config = config.with_coverage_reach(reach)
+    stream = live_stream(names, poses, frame_period_s=session.frame_period_s, config=config,
+                         noise=cal.noise, pose_covariances=cal.pose_covariances,
+                         range_offset_m=cal.range_offset_m)
+    out = sys.stdout if args.output is None else open_regular(args.output)
     json_sink, centroids, latency = JsonLinesSink(out), CentroidLog(), LatencyLog()
-    collector = FrameCollector(names, session.frame_period_s)
+    collector = FrameCollector(names, session.frame_period_s, t0_s=session.t0_s)
     # The view after the latency log: what it costs is not the JSON line's latency.
     view = view_sink(args, names, poses,
                      time_origin_s=time.time() - time.monotonic() + session.t0_s)
@@ -113,13 +102,11 @@ def run(args: argparse.Namespace) -> int:
     if args.view_log:
         print(f"wrote {args.view_log} (open it in Foxglove or Lichtblick)", file=sys.stderr)
     print(f"stopped after {why}: {latency.summary()}; {json_sink.lines} person rows; "
-          f"{live.late} board frame(s) too late for their slot", file=sys.stderr)
+          f"{live.late} board frame(s) too late for their slot; the queue held at most "
+          f"{session.max_queued} board frame(s) (bound {session.frames.maxsize})", file=sys.stderr)
     if args.record:
-        rec = collector.recording(mounting=mounts, height_band_m=args.height_band)
-        for i, name in enumerate(names):
-            node = dataclasses.replace(rec.nodes[name], pose=poses[i],
-                                       centroids=centroids.detections(name))
-            rec = rec.with_node(node)
+        rec = live_recording(collector, centroids, dict(zip(names, poses)), mounting=mounts,
+                             height_band_m=args.height_band, reach_m=reach)
         print(f"wrote {write_recording(args.record, rec, overwrite=args.overwrite)}",
               file=sys.stderr)
     return 0

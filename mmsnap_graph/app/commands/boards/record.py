@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     specs = board_specs(args)
     session = session_for(args, specs)
     mounts = mountings(args, specs, session.timing)
-    collector = FrameCollector([s.name for s in specs], session.frame_period_s)
+    collector = FrameCollector([s.name for s in specs], session.frame_period_s, t0_s=session.t0_s)
     with session:
         print(f"recording {len(specs)} board(s) at {1 / session.frame_period_s:g} fps"
               + ("" if args.duration is None else f" for {args.duration:g} s")

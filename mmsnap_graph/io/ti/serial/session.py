@@ -42,11 +42,13 @@ QUEUE_FRAMES = 2400
 class BoardTiming:
     """What a board's ``.cfg`` says about its output: ``frame_period_s``,
     ``n_sub_frames`` (1 for a legacy frame), ``mount`` ((height_m, tilt_deg)
-    from ``sensorPosition``, or None)."""
+    from ``sensorPosition``, or None), ``max_range_m`` (the farthest range
+    its chirps measure, of the first sub-frame; None without a ``.cfg``)."""
 
     frame_period_s: float
     n_sub_frames: int = 1
     mount: tuple | None = None
+    max_range_m: float | None = None
 
 
 def board_timing(spec: BoardSpec, frame_period_s: float | None = None) -> BoardTiming:
@@ -63,7 +65,7 @@ def board_timing(spec: BoardSpec, frame_period_s: float | None = None) -> BoardT
         mount = (ti.sensor_height_m, float(np.rad2deg(ti.elevation_tilt_rad or 0.0)))
     period = ti.configs[0].frame_period_s if frame_period_s is None else float(frame_period_s)
     return BoardTiming(frame_period_s=period, n_sub_frames=ti.n_sub_frames if ti.advanced else 1,
-                       mount=mount)
+                       mount=mount, max_range_m=float(ti.configs[0].max_range_m))
 
 
 def open_port(port: str, baud: int, *, timeout_s: float, board: str, role: str):
@@ -104,6 +106,8 @@ class BoardSession:
         self.reply_timeout_s = reply_timeout_s
         self.log = log
         self.frames: queue.Queue[BoardFrame] = queue.Queue(maxsize=QUEUE_FRAMES)
+        #: The most frames the queue held when one was taken (its bound: QUEUE_FRAMES).
+        self.max_queued = 0
         self.readers: dict[str, BoardReader] = {}
         self._ports: list = []
         self._cli: dict[str, Any] = {}
@@ -172,10 +176,14 @@ class BoardSession:
 
 
 class FrameCollector:
-    """The frames of a session, kept per board, and the recording they make."""
+    """The frames of a session, kept per board, and the recording they make
+    (``t0_s``: the session's host time of slot 0, kept in the metadata as
+    ``host_t0_s``)."""
 
-    def __init__(self, names: Sequence[str], frame_period_s: float) -> None:
+    def __init__(self, names: Sequence[str], frame_period_s: float,
+                 t0_s: float | None = None) -> None:
         self.frame_period_s = float(frame_period_s)
+        self.t0_s = t0_s
         self.frames: dict[str, list[BoardFrame]] = {n: [] for n in names}
 
     def add(self, frame: BoardFrame) -> None:
@@ -202,6 +210,8 @@ class FrameCollector:
         """One :class:`~mmsnap_graph.data.recording.Recording`, the boards on the
         common clock; per board its counters in the metadata."""
         md: dict[str, Any] = {"source": "ti-live", "frame_clock": "host"}
+        if self.t0_s is not None:        # the host's monotonic clock at slot 0
+            md["host_t0_s"] = float(self.t0_s)
         for name, frames in self.frames.items():
             if frames:
                 md[f"{name}_board_frame_offset"] = int(frames[0].slot - frames[0].frame_number)

@@ -910,3 +910,18 @@ def test_destack_of_the_saved_stacks_gives_the_projects_tables(tmp_path):
         assert len(got.frame) == len(own.frame)
         for field in ("frame", "range_m", "omega_rad", "doppler_mps", "snr_db"):
             np.testing.assert_array_equal(getattr(got, field), getattr(own, field), err_msg=field)
+
+
+def test_a_numeric_node_column_takes_mount_options_by_its_names(tmp_path, capsys):
+    """Before: a node column of 1 and 2 named the nodes '1.0' and '2.0', and
+    `--mount 1=...` was refused as naming no node (issue 29)."""
+    table = tmp_path / "numeric.csv"
+    table.write_text("node,frame,x,y,z,doppler\n" + "".join(
+        f"{n},{k},{0.5 * n},{2 + 0.05 * k},0.0,0.1\n" for n in (1, 2) for k in range(20)))
+    out = tmp_path / "numeric.h5"
+    assert main(["import", "table", "--table", str(table), "--frame-period", "0.1", "--mount",
+                 "1=0.8,5", "--mount", "2=1.2,0", "-o", str(out)]) == 0, capsys.readouterr().err
+    rec = read_recording(out)
+    assert rec.node_names == ["1", "2"]
+    assert (rec.metadata["1_height_m"], rec.metadata["2_height_m"]) == (0.8, 1.2)
+    assert rec.metadata["2_tilt_rad"] == 0.0

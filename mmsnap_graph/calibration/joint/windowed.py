@@ -1,0 +1,348 @@
+"""Calibration of a long recording in bounded memory: window by window,
+the windows' pose posteriors combined in information form.
+
+The poses (and clock offsets, and an estimated range offset) are static,
+the target's states are not shared between windows of minutes: given the
+poses, the windows' data are independent, so each window is calibrated on
+its own (:func:`~mmsnap_graph.calibration.network.calibrate_with_joint`: track
+matching, pose graph, joint graph, the long-run covariance) from the frames
+read out of the file (:class:`~mmsnap_graph.io.chunks.DetectionWindows`),
+and only its pose block is kept: the estimate ``y_i`` (the poses as the
+body-tangent step from the first window's), the covariance ``R_i`` of its
+random part (the long-run covariance: errors correlated in time within its
+bandwidth, seconds, not minutes) and the columns ``M_i`` of the considered
+reflection depth (:class:`~.covariance.BlockCovariance`). The combination:
+
+- ``P = (sum R_i^-1)^-1``, ``y = P sum R_i^-1 y_i``, ``A_i = P R_i^-1``;
+- the reflection depth is the same person's in every window: it does not
+  average down. Its columns combine as ``M = sum A_i M_i`` and add
+  ``s^2 M M^T`` (not ``sum A_i M_i M_i^T A_i^T``, which would shrink it
+  like noise);
+- the lag cover of an ambiguous lag (``LagNotDetermined``) is a shift of
+  the whole recording as well: each window's widening ``D_i`` combines as
+  ``(sum A_i D_i^1/2)(...)^T``;
+- the windows' spread about ``y``, ``chi2 = sum (y_i - y)^T R_i^-1 (y_i -
+  y)``, has ``sum P_i - P`` degrees of freedom when the windows' covariances
+  hold; when it exceeds them beyond two standard errors, ``P`` is widened
+  by ``chi2 / dof`` (the windows disagree more than they say: an error
+  that lasts longer than the bandwidth).
+
+The noise at the calibrated poses (``RecordingCalibration.noise``, what
+``mmsnap fuse`` weighs by) is the first combined window's: minutes of data
+identify it, and it is half of a window's time at 10 nodes.
+
+A window that cannot be calibrated (nobody walking, a failed solve, a
+status other than OK) is left out and named in the
+:class:`~mmsnap_graph.data.calibration_facts.WindowsCombined` fact.
+Peak memory is one window's calibration (the window, not the recording,
+sets it); the time is the windows' sum, so about linear in the recording.
+
+:func:`window_frames_for` is the policy of when to calibrate by windows:
+``mmsnap calibrate`` and the library use it alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from ...data.calibration import RecordingCalibration
+from ...data.calibration_facts import CalibrationStatus, WindowsCombined
+from ...errors import CalibrationError, ValidationError
+from ..network import calibrate_with_joint, joint_options_for
+from ..poses import pose_array, to_pose2
+
+__all__ = ["WINDOW_S", "WINDOWED_ABOVE_S", "window_frames_for", "WindowPosterior",
+           "window_posterior", "combine_windows", "calibrate_windowed"]
+
+#: The window of a windowed calibration (s), unless given: long enough
+#: that a window's pose estimate is Gaussian (thousands of frames of a
+#: walker) and its long-run covariance has hundreds of degrees of freedom,
+#: short enough that one window's graph stays about 150 MB for 10 nodes.
+WINDOW_S = 600.0
+#: A recording spanning more than this (s) is calibrated by windows of
+#: :data:`WINDOW_S` unless a window is given (the batch's memory grows
+#: linearly: 710 MB for an hour of 10 nodes).
+WINDOWED_ABOVE_S = 1200.0
+
+
+def window_frames_for(span_frames: int, frame_period_s: float,
+                      window_s: float | None = None) -> int | None:
+    """The window (frames) to calibrate a recording of ``span_frames``
+    frames by, or None for one batch solve: ``window_s`` given, its frames
+    (None when the recording fits in one window; ``inf``: never); else
+    :data:`WINDOW_S` when the recording spans more than
+    :data:`WINDOWED_ABOVE_S`."""
+    period = float(frame_period_s)
+    if window_s is None:
+        if span_frames * period <= WINDOWED_ABOVE_S:
+            return None
+        window_s = WINDOW_S
+    if not isinstance(window_s, bool) and window_s == float("inf"):
+        return None
+    if isinstance(window_s, bool) or not np.isfinite(window_s) or window_s <= 0:
+        raise ValidationError(f"window_s={window_s!r} (--window-s) must be a number of seconds "
+                              f"> 0")
+    frames = max(int(round(float(window_s) / period)), 1)
+    if frames < 20:
+        raise ValidationError(f"window_s={window_s!r} (--window-s) is {frames} frames of "
+                              f"{period:g} s: a window needs at least 20 frames")
+    return None if span_frames <= frames else frames
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class WindowPosterior:
+    """One window's pose block, what :func:`combine_windows` needs.
+
+    labels : the block's parameters: ``("pose", name, 0..2)``, ``("offset",
+        name)``, ``("range",)``. poses : name -> (3,) the window's poses;
+    offsets : name -> clock offset (s); range_offset_m (NaN: not estimated).
+    random, model : (P, P) the covariance without the considered depth,
+        and the graph's marginal. depth : (P, C) the considered depth's
+        columns (C = 0 without), named by ``depth_columns``; rms its
+        root mean square (m). widening : name -> (3, 3) the lag cover
+        added to the node's pose covariance.
+    """
+
+    labels: tuple
+    poses: dict
+    offsets: dict
+    range_offset_m: float
+    random: NDArray
+    model: NDArray
+    depth: NDArray
+    depth_columns: tuple
+    rms: float
+    widening: dict
+
+
+def _psd(m: NDArray) -> NDArray:
+    w, v = np.linalg.eigh(0.5 * (m + m.T))
+    return (v * np.maximum(w, 0.0)) @ v.T
+
+
+def _sqrt_psd(m: NDArray) -> NDArray:
+    w, v = np.linalg.eigh(0.5 * (m + m.T))
+    return (v * np.sqrt(np.maximum(w, 0.0))) @ v.T
+
+
+def window_posterior(cal: RecordingCalibration, joint) -> WindowPosterior:
+    """The pose block of one window's calibration ``cal`` and the joint
+    graph's result ``joint`` it came from
+    (:func:`~mmsnap_graph.calibration.network.calibrate_with_joint`)."""
+    others = [n for n in cal.node_names if n in cal.poses and n != cal.reference]
+    block = joint.pose_block
+    if block is not None:
+        labels = []
+        for key in dict.fromkeys(block.order):  # a pose's 3 columns share a key
+            labels += ([(*key, j) for j in range(3)] if key[0] == "pose" else [key])
+        random = block.covariance if block.random is None else block.random
+        depth = (np.zeros((len(labels), 0)) if block.depth_response is None
+                 else np.asarray(block.depth_response))
+        cols, rms, model = block.depth_columns, block.range_offset_rms, block.model
+        base = {n: block.node(n) for n in others}
+    else:  # the graph's marginals: the poses' joint covariance, the offsets' variances
+        timed = [n for n in others if np.isfinite(joint.time_offset_variances.get(n, np.nan))]
+        labels = [("pose", n, j) for n in joint.joint_order for j in range(3)] + \
+                 [("offset", n) for n in timed]
+        random = np.zeros((len(labels), len(labels)))
+        p = 3 * len(joint.joint_order)
+        random[:p, :p] = joint.joint_covariance
+        for i, n in enumerate(timed):
+            random[p + i, p + i] = joint.time_offset_variances[n]
+        model, depth, cols, rms = random, np.zeros((len(labels), 0)), (), 0.0
+        base = {n: joint.covariances[n] for n in others}
+    widening = {n: _psd(np.asarray(cal.covariances[n]) - base[n]) for n in others}
+    return WindowPosterior(
+        labels=tuple(labels), poses={n: np.asarray(cal.poses[n], float) for n in cal.poses},
+        offsets={n: float(cal.time_offset_s[n]) for n in others if n in cal.time_offset_s},
+        range_offset_m=float(cal.range_offset_m), random=np.asarray(random, float),
+        model=np.asarray(model, float), depth=depth, depth_columns=tuple(cols),
+        rms=float(rms), widening=widening)
+
+
+def _vector(w: WindowPosterior, base: dict) -> NDArray:
+    """The window's estimate: poses as body-tangent steps from ``base``."""
+    steps = {n: gtsam.Pose2.Logmap(to_pose2(base[n]).between(to_pose2(p)))
+             for n, p in w.poses.items() if n in base}
+    out = []
+    for lab in w.labels:
+        if lab[0] == "pose":
+            out.append(steps[lab[1]][lab[2]])
+        elif lab[0] == "offset":
+            out.append(w.offsets[lab[1]])
+        else:
+            out.append(w.range_offset_m)
+    return np.asarray(out, float)
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Combined:
+    """:func:`combine_windows`' result: ``labels``, the combined estimate
+    (poses as steps from ``base``), its reported covariance and its
+    graph-marginal ``model``, and the spread test."""
+
+    labels: tuple
+    base: dict
+    estimate: NDArray
+    covariance: NDArray
+    model: NDArray
+    spread_chi2: float
+    spread_dof: int
+    spread_factor: float
+
+    def poses(self) -> dict:
+        out = {}
+        for n, b in self.base.items():
+            idx = [self.labels.index(("pose", n, j)) for j in range(3)]
+            out[n] = pose_array(to_pose2(b).compose(gtsam.Pose2.Expmap(self.estimate[idx])))
+        return out
+
+    def block(self, n: str, cov: NDArray | None = None) -> NDArray:
+        idx = [self.labels.index(("pose", n, j)) for j in range(3)]
+        c = self.covariance if cov is None else cov
+        return c[np.ix_(idx, idx)].copy()
+
+
+def combine_windows(windows: list[WindowPosterior]) -> Combined:
+    """The windows' pose posteriors combined (module doc)."""
+    if not windows:
+        raise CalibrationError("no window could be calibrated: nothing to combine")
+    base = dict(windows[0].poses)
+    labels = tuple(dict.fromkeys(lab for w in windows for lab in w.labels))
+    cols = tuple(dict.fromkeys(c for w in windows for c in w.depth_columns))
+    p = len(labels)
+    info, score, model_info = np.zeros((p, p)), np.zeros(p), np.zeros((p, p))
+    parts = []
+    for w in windows:
+        idx = np.array([labels.index(lab) for lab in w.labels])
+        y = _vector(w, base)
+        wi = np.linalg.inv(0.5 * (w.random + w.random.T))
+        info[np.ix_(idx, idx)] += wi
+        score[idx] += wi @ y
+        model_info[np.ix_(idx, idx)] += np.linalg.inv(0.5 * (w.model + w.model.T))
+        parts.append((idx, y, wi))
+    cov = np.linalg.inv(info)
+    est = cov @ score
+    chi2 = float(sum((y - est[idx]) @ wi @ (y - est[idx]) for idx, y, wi in parts))
+    dof = int(sum(len(idx) for idx, _, _ in parts) - p)
+    factor = 1.0
+    if dof > 0 and chi2 / dof > 1.0 + 2.0 * np.sqrt(2.0 / dof):
+        factor = chi2 / dof
+    depth = np.zeros((p, len(cols)))
+    lag_root = np.zeros((p, p))
+    rms = max((w.rms for w in windows), default=0.0)
+    for w, (idx, _, wi) in zip(windows, parts):
+        a = cov[:, idx] @ wi   # (P, P_i): the window's share of the estimate
+        if w.depth.size:
+            ci = [cols.index(c) for c in w.depth_columns]
+            depth[:, ci] += a @ w.depth
+        d = np.zeros((len(idx), len(idx)))
+        for n, dn in w.widening.items():
+            if ("pose", n, 0) in w.labels:
+                j = [w.labels.index(("pose", n, k)) for k in range(3)]
+                d[np.ix_(j, j)] = _sqrt_psd(dn)
+        lag_root[:, idx] += a @ d   # columns: the parameters the shift is of
+    total = factor * cov + rms**2 * depth @ depth.T + lag_root @ lag_root.T
+    return Combined(labels=labels, base={n: b for n, b in base.items()
+                                         if ("pose", n, 0) in labels},
+                    estimate=est, covariance=0.5 * (total + total.T),
+                    model=np.linalg.inv(model_info), spread_chi2=chi2, spread_dof=dof,
+                    spread_factor=factor)
+
+
+def _result(first: RecordingCalibration, comb: Combined, fact: WindowsCombined,
+            node_names) -> RecordingCalibration:
+    """The combined calibration as a RecordingCalibration: the first
+    combined window's edges, lags, noise and facts, the combined poses,
+    covariances and offsets."""
+    ref = first.reference
+    poses = {ref: np.zeros(3), **comb.poses()}
+    others = [n for n in node_names if n in poses and n != ref]
+    covs = {ref: np.zeros((3, 3)), **{n: comb.block(n) for n in others}}
+    model = {ref: np.zeros((3, 3)), **{n: comb.block(n, comb.model) for n in others}}
+    idx = [comb.labels.index(("pose", n, j)) for n in others for j in range(3)]
+    offsets, variances = {ref: 0.0}, {ref: 0.0}
+    for n in others:
+        if ("offset", n) in comb.labels:
+            i = comb.labels.index(("offset", n))
+            offsets[n], variances[n] = float(comb.estimate[i]), float(comb.covariance[i, i])
+        else:
+            offsets[n] = float(first.time_offset_s.get(n, np.nan))
+            variances[n] = float(first.time_offset_variances.get(n, np.nan))
+    rng, rng_var = float("nan"), float("nan")
+    if ("range",) in comb.labels:
+        i = comb.labels.index(("range",))
+        rng, rng_var = float(comb.estimate[i]), float(comb.covariance[i, i])
+    return dataclasses.replace(
+        first, poses=poses, covariances=covs, model_covariances=model,
+        unreachable=tuple(n for n in node_names if n not in poses),
+        joint_covariance=comb.covariance[np.ix_(idx, idx)].copy(), joint_order=tuple(others),
+        time_offset_s=offsets, time_offset_variances=variances,
+        range_offset_m=rng, range_offset_variance=rng_var, facts=(fact, *first.facts))
+
+
+def calibrate_windowed(windows, window_frames: int, *,
+                       source: str = "auto", method: str = "auto", noise=None, matching=None,
+                       joint=None, on_window: Callable | None = None) -> RecordingCalibration:
+    """Calibrate a recording file window by window, each of
+    ``window_frames`` frames (:func:`window_frames_for`), reading one
+    window's centroids (and tracks) at a time (module doc): ``windows`` is
+    the file's :class:`~mmsnap_graph.io.chunks.DetectionWindows` of its
+    centroids (:func:`~mmsnap_graph.io.chunks.open_detection_windows`).
+
+    source, method, noise, matching, joint : as
+    :func:`~mmsnap_graph.calibration.calibrate_recording`, for every window
+    (a window holds the centroids and, unless ``source="centroids"``, the
+    EKF tracks of its frames; ``method="pose_graph"`` is refused: the windows combine the joint
+    graph's pose blocks). on_window : called with ``(start_frame,
+    stop_frame, calibration or None, why)`` after each window.
+    Returns the combined :class:`RecordingCalibration`, whose facts start
+    with a :class:`~mmsnap_graph.data.calibration_facts.WindowsCombined`;
+    :class:`CalibrationError` when no window could be calibrated.
+    """
+    if method == "pose_graph":
+        raise ValidationError("method='pose_graph' cannot be calibrated by windows: the "
+                              "windows combine the joint graph's poses (use a single solve)")
+    index = windows
+    if index.source != "centroids":
+        raise ValidationError(f"the windows must be of the centroids, got {index.source!r}")
+    posts, first, skipped, n = [], None, [], 0
+    for start, stop in index.windows(int(window_frames)):
+        n += 1
+        rec, _ = index.read(start, stop, tracks=source != "centroids")
+        try:
+            cal, jc = calibrate_with_joint(
+                rec, source=source, method=method, noise=noise, matching=matching,
+                joint=joint_options_for(rec) if joint is None else joint,
+                noise_estimate=first is None)
+        except CalibrationError as exc:
+            why = str(exc).splitlines()[0]
+            cal, jc = None, None
+        else:
+            why = ("" if cal.success and jc is not None else
+                   cal.status.message if not cal.success else "the joint graph did not run")
+        if why:
+            skipped.append(f"frames {start}-{stop - 1}: {why}")
+        else:
+            if first is not None and cal.reference != first.reference:
+                raise CalibrationError(f"window {start}-{stop - 1} has reference "
+                                       f"{cal.reference}, the first {first.reference}")
+            first = cal if first is None else first
+            posts.append(window_posterior(cal, jc))
+        if on_window is not None:
+            on_window(start, stop, None if why else cal, why)
+        del rec, cal, jc
+    if not posts:
+        raise CalibrationError(f"no window of {window_frames} frames of {index.path} could be "
+                               f"calibrated: " + "; ".join(skipped[:3]))
+    comb = combine_windows(posts)
+    fact = WindowsCombined(window_s=window_frames * index.frame_period_s, n_windows=n,
+                           n_combined=len(posts), skipped=tuple(skipped),
+                           spread_chi2=comb.spread_chi2, spread_dof=comb.spread_dof,
+                           spread_factor=comb.spread_factor)
+    return _result(first, comb, fact, index.node_names)

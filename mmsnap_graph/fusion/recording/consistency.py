@@ -1,0 +1,225 @@
+"""The fused covariances checked against the data alone, without truth.
+
+A user with no ground truth cannot compute a NEES. Two statistics of the
+fused rows say the same from the data (:class:`ConsistencyMonitor`):
+
+- **the central tracker's normalised innovations**: the person ids of the
+  rows (the central tracker's, :class:`~mmsnap_graph.tracking.person_ids.PersonIds`,
+  which every driver runs last) link the rows of one person over time; a
+  constant-velocity Kalman filter over each person's rows (the prior of a
+  MAP row taken out, as the tracker does) predicts each row's position, and
+  ``nu^T (P_pred + R) nu`` (2 dof, ``R`` the row's position covariance)
+  averages to about 2 when the covariances are right. Rows seen by one radar
+  alone count like the others: this is the statistic that sees them.
+- **the cross-node residuals**: a row fused from ``n >= 2`` nodes' kept
+  measurements has ``3 n - 4`` degrees of freedom left, and twice its final
+  cost over them (pooled over the rows) would be about 1 if the measurement
+  errors were independent Gaussians. They are not (heavy tails, the body's
+  reflection depth, the poses' own errors): good runs of the real model gave
+  1.5 (five radars) to 2.8 (two). This statistic sees what the innovations
+  cannot: an error that stays from frame to frame (a pose off, a sigma too
+  small on a slow error). The checks before it leave out the rows that
+  disagree most, so both statistics are of the rows kept.
+
+The motion model (:data:`INNOVATION_SIGMA_A_MPS2`) and the errors'
+correlation in time (it makes the innovations smaller) keep the mean
+innovation below its ideal 2 on good runs. The bands are set from seeded
+Monte Carlo runs of the real model over random layouts, at 20 fps and 150 ms
+(``tools/random_layouts.py --scales 0.3,3``), where good runs (fused NEES
+within 1.5x of its 4 dof) and the same runs fused with every sigma scaled
+0.3x or 3x were told apart: over-confident when either statistic is above
+its band (:data:`INNOVATION_BAND`, :data:`RESIDUAL_MAX`), under-confident
+when the innovations are below theirs. A verdict needs
+:data:`MIN_INNOVATIONS` innovations (or residual rows).
+
+:func:`fused_consistency` checks a whole :class:`FusedSequence`; the monitor
+takes the rows window by window (``fuse_file``) in frame order.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factors.motion import cv_process_noise, cv_transition
+
+from ...data.results import FusedSequence
+from ...tracking.central import measurement_information
+
+__all__ = ["ConsistencyReport", "ConsistencyMonitor", "fused_consistency",
+           "INNOVATION_BAND", "RESIDUAL_MAX", "MIN_INNOVATIONS", "INNOVATION_SIGMA_A_MPS2"]
+
+#: The white acceleration (m/s^2 per axis) of the check's filter: a walker
+#: turning in a room (the per-node EKF's 3.0; the central tracker's 1.0 is
+#: for association and made good runs' innovations 1.7x their 2 dof).
+INNOVATION_SIGMA_A_MPS2 = 3.0
+#: Mean normalised innovation (2 dof) of consistent covariances: measured
+#: 1.1-2.1 on good runs; the same runs with 0.3x sigmas 3.1-4.0, with 3x 0.3-0.8.
+INNOVATION_BAND = (0.8, 2.6)
+#: Largest pooled cross-node residual chi-square per dof of consistent
+#: covariances: measured 1.5-2.8 on good runs, 3.5-4.9 with 0.3x sigmas.
+RESIDUAL_MAX = 3.3
+#: Innovations needed for a verdict (fewer: "not enough data").
+MIN_INNOVATIONS = 30
+#: A track's rows further apart than this (s) start its filter again.
+MAX_GAP_S = 1.0
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class ConsistencyReport:
+    """What :class:`ConsistencyMonitor` found.
+
+    verdict : ``"consistent"``, ``"over-confident"`` (covariances too small
+        for the data), ``"under-confident"`` (too large) or
+        ``"not enough data"``.
+    innovation_nis : mean normalised position innovation (2 dof), over
+        ``n_innovations``; innovation_tail : the share above the chi-square
+        99% point (9.21; 1% when consistent).
+    residual_ratio : pooled ``2 cost / (3 n - 4)`` over ``n_residual_rows``
+        rows of two or more nodes (NaN without any).
+    reasons : why the verdict is not "consistent" (empty when it is).
+    """
+
+    verdict: str
+    innovation_nis: float
+    innovation_tail: float
+    n_innovations: int
+    residual_ratio: float
+    n_residual_rows: int
+    reasons: tuple = ()
+
+    @property
+    def consistent(self) -> bool | None:
+        """True, False, or None without enough data."""
+        return None if self.verdict == "not enough data" else self.verdict == "consistent"
+
+    def to_dict(self) -> dict:
+        def num(v):
+            return None if not math.isfinite(v) else float(v)
+        return {"verdict": self.verdict, "consistent": self.consistent,
+                "innovation_nis": num(self.innovation_nis), "innovation_dof": 2,
+                "innovation_band": list(INNOVATION_BAND),
+                "innovation_tail": num(self.innovation_tail),
+                "residual_max": RESIDUAL_MAX,
+                "n_innovations": self.n_innovations,
+                "residual_ratio": num(self.residual_ratio),
+                "n_residual_rows": self.n_residual_rows, "reasons": list(self.reasons)}
+
+    def text(self) -> str:
+        """One line for a person."""
+        nis = "-" if not self.n_innovations else f"{self.innovation_nis:.2f}"
+        res = "-" if not self.n_residual_rows else f"{self.residual_ratio:.2f}"
+        return (f"covariance self-check (no truth): {self.verdict}; mean normalised "
+                f"innovation {nis} over {self.n_innovations} rows (2 dof; consistent "
+                f"{INNOVATION_BAND[0]:g}-{INNOVATION_BAND[1]:g}); cross-node residual "
+                f"chi-square {res} per dof over {self.n_residual_rows} rows (consistent <= "
+                f"{RESIDUAL_MAX:g})")
+
+
+@dataclass
+class _Filter:
+    x: np.ndarray
+    p: np.ndarray
+    frame: int
+
+
+@dataclass
+class ConsistencyMonitor:
+    """Accumulates the statistics of :class:`ConsistencyReport` over fused
+    rows given in frame order (:meth:`add`), then :meth:`report`."""
+
+    sigma_a_mps2: float = INNOVATION_SIGMA_A_MPS2
+    _filters: dict = field(default_factory=dict)
+    _nis: list = field(default_factory=list)
+    _res_chi2: float = 0.0
+    _res_dof: int = 0
+    _res_rows: int = 0
+
+    def add(self, fused: FusedSequence) -> None:
+        """The rows of ``fused`` (after the last rows added)."""
+        ok = np.asarray(fused.success, dtype=bool) & np.all(
+            np.isfinite(fused.covariance), axis=(1, 2))
+        kept = np.asarray(fused.observed, dtype=bool)
+        if fused.rejected is not None:
+            kept = kept & ~np.asarray(fused.rejected, dtype=bool)
+        n = kept.sum(axis=1)
+        cost = np.asarray(fused.final_cost, dtype=float)
+        res = ok & (n >= 2) & np.isfinite(cost)
+        self._res_chi2 += float(np.sum(2.0 * cost[res]))
+        self._res_dof += int(np.sum(3 * n[res] - 4))
+        self._res_rows += int(res.sum())
+        if fused.track_id is None:
+            return
+        period = float(fused.frame_period_s or 0.15)
+        tid = np.asarray(fused.track_id)
+        for i in np.argsort(fused.frame, kind="stable"):
+            if ok[i] and tid[i] >= 0:
+                self._step(int(tid[i]), int(fused.frame[i]), fused.state[i], fused.covariance[i],
+                           fused.prior_mean, fused.prior_sigmas, period)
+
+    def _step(self, track, frame, z, r, prior_mean, prior_sigmas, period) -> None:
+        lam, eta = measurement_information(z, r, prior_mean, prior_sigmas)
+        f = self._filters.get(track)
+        if f is not None and 0 < (frame - f.frame) * period <= MAX_GAP_S:
+            dt = (frame - f.frame) * period
+            tr = cv_transition(dt)
+            x = tr @ f.x
+            p = tr @ f.p @ tr.T + cv_process_noise(dt, self.sigma_a_mps2)
+            nu = z[:2] - x[:2]
+            s = p[:2, :2] + r[:2, :2]
+            try:
+                self._nis.append(float(nu @ np.linalg.solve(s, nu)))
+                info = np.linalg.inv(p)
+                p = np.linalg.inv(info + lam)
+                x = p @ (info @ x + eta)
+            except np.linalg.LinAlgError:
+                x, p = None, None
+            if x is not None and np.all(np.isfinite(p)):
+                self._filters[track] = _Filter(x, 0.5 * (p + p.T), frame)
+                return
+        p0 = np.array(r, dtype=float)
+        p0[2, 2], p0[3, 3] = max(p0[2, 2], 1.0), max(p0[3, 3], 1.0)
+        self._filters[track] = _Filter(np.array(z, dtype=float), p0, frame)
+
+    def report(self) -> ConsistencyReport:
+        nis = np.asarray(self._nis, dtype=float)
+        mean = float(nis.mean()) if nis.size else float("nan")
+        tail = float(np.mean(nis > 9.21)) if nis.size else float("nan")
+        ratio = self._res_chi2 / self._res_dof if self._res_dof > 0 else float("nan")
+        reasons = []
+        judged_nis = nis.size >= MIN_INNOVATIONS
+        judged_res = self._res_rows >= MIN_INNOVATIONS
+        if judged_nis and mean > INNOVATION_BAND[1]:
+            reasons.append(f"the positions move between frames {math.sqrt(mean / 2):.1f}x more "
+                           "than their covariances allow (mean normalised innovation "
+                           f"{mean:.2f} > {INNOVATION_BAND[1]:g}, {tail:.0%} beyond the 99% "
+                           "point)")
+        if judged_res and ratio > RESIDUAL_MAX:
+            reasons.append(f"the nodes disagree more than the measurement sigmas allow "
+                           f"(cross-node residual chi-square per dof {ratio:.2f} > "
+                           f"{RESIDUAL_MAX:g})")
+        if reasons:
+            verdict = "over-confident"
+        elif judged_nis and mean < INNOVATION_BAND[0]:
+            verdict = "under-confident"
+            reasons.append("the positions move between frames less than their covariances say "
+                           f"(mean normalised innovation {mean:.2f} < {INNOVATION_BAND[0]:g}): "
+                           "covariances too large")
+        elif judged_nis or judged_res:
+            verdict = "consistent"
+        else:
+            verdict = "not enough data"
+        return ConsistencyReport(verdict=verdict, innovation_nis=mean, innovation_tail=tail,
+                                 n_innovations=int(nis.size), residual_ratio=ratio,
+                                 n_residual_rows=self._res_rows, reasons=tuple(reasons))
+
+
+def fused_consistency(fused: FusedSequence, *,
+                      sigma_a_mps2: float = INNOVATION_SIGMA_A_MPS2) -> ConsistencyReport:
+    """:class:`ConsistencyReport` of a whole fused sequence (its rows need
+    their person ids, ``track_id``, for the innovations)."""
+    monitor = ConsistencyMonitor(sigma_a_mps2=sigma_a_mps2)
+    monitor.add(fused)
+    return monitor.report()
