@@ -304,8 +304,7 @@ def _start_arrays(poses, z, obs, problem: FrameProblem) -> NDArray:
         a = a + np.diag(reg)
         b = b + reg * prior.mean[2:]
     state = np.concatenate([pos, _min_norm_2x2_arrays(a, b)], axis=1)
-    if prior is not None:
-        state[n_obs == 0] = prior.mean
+    state[n_obs == 0] = np.nan if prior is None else prior.mean
     return state
 
 
