@@ -286,6 +286,19 @@ def _result(first: RecordingCalibration, comb: Combined, fact: WindowsCombined,
         range_offset_m=rng, range_offset_variance=rng_var, facts=(fact, *first.facts))
 
 
+def _unusable(post: WindowPosterior) -> str:
+    """Why a window's pose block cannot be combined ("" when it can): a
+    covariance that is not finite and positive definite."""
+    r = post.random
+    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(post.depth)):
+        return "its pose covariance is not finite"
+    try:
+        np.linalg.cholesky(0.5 * (r + r.T))
+    except np.linalg.LinAlgError:
+        return "its pose covariance is not positive definite"
+    return ""
+
+
 def _spans(index, window_frames: int) -> list[tuple[int, int]]:
     """The windows' frame ranges; a last one shorter than half a window
     joins the one before it (a few frames at the end are no calibration)."""
@@ -342,8 +355,13 @@ def calibrate_windowed(windows, window_frames: int, *,
             if first is not None and cal.reference != first.reference:
                 raise CalibrationError(f"window {start}-{stop - 1} has reference "
                                        f"{cal.reference}, the first {first.reference}")
-            first = cal if first is None else first
-            posts.append(window_posterior(cal, jc))
+            post = window_posterior(cal, jc)
+            why = _unusable(post)
+            if why:
+                skipped.append(f"frames {start}-{stop - 1}: {why}")
+            else:
+                first = cal if first is None else first
+                posts.append(post)
         if on_window is not None:
             on_window(start, stop, None if why else cal, why)
         del rec, cal, jc

@@ -146,6 +146,27 @@ def test_a_short_last_window_joins_the_one_before(clean_file):
     assert win.facts[0].n_windows == 2
 
 
+def test_a_window_without_a_usable_covariance_is_left_out_and_named(clean_file, monkeypatch):
+    """A window whose pose covariance is singular (a direction the window
+    cannot see) would make the combination raise: it is left out."""
+    import mmsnap_graph.calibration.joint.windowed as w
+
+    real = w.window_posterior
+    calls = []
+
+    def second_singular(cal, joint):
+        post = real(cal, joint)
+        calls.append(1)
+        return dataclasses.replace(post, random=np.zeros_like(post.random)) \
+            if len(calls) == 2 else post
+
+    monkeypatch.setattr(w, "window_posterior", second_singular)
+    win = w.calibrate_windowed(open_detection_windows(clean_file), 150)
+    fact = win.facts[0]
+    assert (fact.n_windows, fact.n_combined) == (2, 1)
+    assert fact.skipped == ("frames 150-299: its pose covariance is not positive definite",)
+
+
 def test_pose_graph_only_is_refused(clean_file):
     with pytest.raises(ValidationError, match="pose_graph"):
         calibrate_windowed(open_detection_windows(clean_file), 150, method="pose_graph")
