@@ -8,6 +8,7 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.app.live.driver import (LiveFusion, live_calibration, live_recording,
@@ -146,6 +147,7 @@ def _differing(a, b):
         a[k][1], b[k][1], rtol=0, atol=1e-9, equal_nan=True))
 
 
+@pytest.mark.slow
 def test_live_differs_from_fuse_only_where_the_stream_cannot_see_ahead(tmp_path, capsys):
     """``mmsnap fuse`` of live's recording decides each row with the frames
     after it too (the motion check's window); live, causal, from those before
