@@ -159,9 +159,10 @@ class UnplacedCheck:
     two or more nodes in the frames around
     (:mod:`~mmsnap_graph.fusion.recording.unplaced`: one radar cannot tell
     a person from a multipath image where no other radar looks). Runs after
-    the coverage check, on the rows the checks before it left."""
+    the coverage check, on the rows the checks before it left (so it looks
+    as far as its chains, and the motion check's look beyond them)."""
 
-    look_frames: ClassVar[int] = UNPLACED_LOOK_FRAMES
+    look_frames: ClassVar[int] = UNPLACED_LOOK_FRAMES + MOTION_CONTEXT_FRAMES
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -12,7 +12,8 @@ from mmsnap_graph.data.noise import GaussianPrior
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.config import (DEFAULT_CONFIG, PLAIN_CONFIG, AssociationOptions,
                                         CoverageCheck, DuplicateCheck, FusionConfig,
-                                        LearnedWalls, MotionCheck, RoomCheck, SplitCheck)
+                                        LearnedWalls, MotionCheck, RoomCheck, SplitCheck,
+                                        UnplacedCheck)
 from mmsnap_graph.fusion.options import FusionOptions, RobustOptions
 from mmsnap_graph.fusion.recording.motion_check import MOTION_CONTEXT_FRAMES
 from mmsnap_graph.fusion.recording.room import RoomBounds
@@ -60,7 +61,9 @@ def test_ml_is_no_prior_and_the_default_is_mmsnap_fuse():
     assert (DEFAULT_CONFIG.prior.sigmas == paper.sigmas).all()
     assert DEFAULT_CONFIG.robust == RobustOptions(kernel="gate")
     assert {type(c) for c in DEFAULT_CONFIG.checks} == {
-        MotionCheck, SplitCheck, CoverageCheck, LearnedWalls, DuplicateCheck}
+        MotionCheck, SplitCheck, CoverageCheck, UnplacedCheck, LearnedWalls, DuplicateCheck}
+    # The placement check looks the farthest: its chains, on rows the motion check settled.
+    assert DEFAULT_CONFIG.context_frames == UnplacedCheck.look_frames > MOTION_CONTEXT_FRAMES
     with pytest.raises(dataclasses.FrozenInstanceError):
         DEFAULT_CONFIG.prior = None
 

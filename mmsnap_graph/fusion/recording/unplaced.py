@@ -13,8 +13,8 @@ wall behind a radar, NEES over 500; ``tools/random_layouts.py``).
 
 A person seen by one radar alone got there by walking: :func:`unplaced_rows`
 keeps a one-node row when a chain of successful rows, each within
-``body_m + MAX_WALK_MPS * dt`` of the next and at most :data:`LINK_FRAMES`
-frames apart, leads from it to a row seen by two or more nodes within
+``body_m + MAX_WALK_MPS * dt`` of the next and at most :data:`LINK_GAP_S`
+apart, leads from it to a row seen by two or more nodes within
 :data:`UNPLACED_LOOK_FRAMES` frames on either side. The others (an image
 that walks beside the person, never with him) are flagged. A network of one
 node has nothing to tie its rows to: the check leaves it alone.
@@ -25,13 +25,15 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["unplaced_rows", "UNPLACED_LOOK_FRAMES", "LINK_FRAMES", "MAX_WALK_MPS",
+__all__ = ["unplaced_rows", "UNPLACED_LOOK_FRAMES", "LINK_GAP_S", "MAX_WALK_MPS",
            "UNPLACED_MESSAGE"]
 
-#: Frames on each side of a row where the chain to a row of two nodes may run.
-UNPLACED_LOOK_FRAMES = 40
-#: Largest gap (frames) between two linked rows (a missed detection or two).
-LINK_FRAMES = 3
+#: Frames on each side of a row where the chain to a row of two nodes may run
+#: (5 s at 20 fps).
+UNPLACED_LOOK_FRAMES = 100
+#: Largest gap (s) between two linked rows: a sparse cloud misses a walker
+#: for a few frames now and then.
+LINK_GAP_S = 0.5
 #: Fastest walk (m/s) between two linked rows.
 MAX_WALK_MPS = 2.5
 UNPLACED_MESSAGE = ("placement check: seen by node {node} alone and tied by no walk to a "
@@ -55,6 +57,7 @@ def unplaced_rows(frame: NDArray, xy: NDArray, ok: NDArray, kept: NDArray, *,
     anchor = ok & (n_kept >= 2)
     lone = np.flatnonzero(ok & (n_kept == 1))
     w = UNPLACED_LOOK_FRAMES
+    link_frames = max(1, int(round(LINK_GAP_S / frame_period_s)))
     for r in lone:
         # Each row on its own window (not the chains of others: a driver
         # that holds that window decides the row alike).
@@ -68,7 +71,7 @@ def unplaced_rows(frame: NDArray, xy: NDArray, ok: NDArray, kept: NDArray, *,
             src = np.flatnonzero(frontier)
             gap = np.abs(f[None, :] - f[src, None])
             dist = np.linalg.norm(p[None, :, :] - p[src, None, :], axis=-1)
-            link = (gap <= LINK_FRAMES) & (dist <= body_m + MAX_WALK_MPS * gap * frame_period_s)
+            link = (gap <= link_frames) & (dist <= body_m + MAX_WALK_MPS * gap * frame_period_s)
             new = link.any(axis=0) & ~reached
             reached |= new
             frontier = new
