@@ -205,13 +205,14 @@ def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDAr
     if coverage is not None:
         _check_coverage(out, frame, z, obs, net, coverage, reach_m)
     if config.check(UnplacedCheck) is not None:
-        _check_unplaced(out, frame, obs, net)
+        _check_unplaced(out, frame, obs, net, decide)
 
 
-def _check_unplaced(out: FusedRows, frame, obs, net: FusionNetwork) -> None:
+def _check_unplaced(out: FusedRows, frame, obs, net: FusionNetwork, decide) -> None:
     kept = obs & ~out.rejected
     flag = unplaced_rows(frame, out.state[:, :2], out.status == Status.OK, kept,
-                         frame_period_s=net.frame_period_s, body_m=DEFAULT_BODY_M)
+                         frame_period_s=net.frame_period_s, body_m=DEFAULT_BODY_M,
+                         decide=decide)
     for r in np.flatnonzero(flag):
         node = net.node_names[int(np.argmax(kept[r]))]
         out.flag(r, Status.MOTION_INCONSISTENT, UNPLACED_MESSAGE.format(node=node))

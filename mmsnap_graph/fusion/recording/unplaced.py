@@ -42,12 +42,15 @@ UNPLACED_MESSAGE = ("placement check: seen by node {node} alone and tied by no w
 
 
 def unplaced_rows(frame: NDArray, xy: NDArray, ok: NDArray, kept: NDArray, *,
-                  frame_period_s: float, body_m: float) -> NDArray:
+                  frame_period_s: float, body_m: float,
+                  decide: NDArray | None = None) -> NDArray:
     """(K,) bool: the successful one-node rows that no chain of successful
     rows ties to a row of two or more nodes (module docstring).
 
     frame : (K,) int, sorted; xy : (K, 2) positions; ok : (K,) the
-    successful rows; kept : (K, N) the nodes each row was fused from.
+    successful rows; kept : (K, N) the nodes each row was fused from;
+    decide : the frames whose rows are judged (None: all; the others are
+    context, as the stream holds them).
     """
     k, n = kept.shape
     flag = np.zeros(k, dtype=bool)
@@ -55,7 +58,10 @@ def unplaced_rows(frame: NDArray, xy: NDArray, ok: NDArray, kept: NDArray, *,
         return flag
     n_kept = kept.sum(axis=1)
     anchor = ok & (n_kept >= 2)
-    lone = np.flatnonzero(ok & (n_kept == 1))
+    judged = ok & (n_kept == 1)
+    if decide is not None:
+        judged &= np.isin(frame, np.asarray(decide))
+    lone = np.flatnonzero(judged)
     w = UNPLACED_LOOK_FRAMES
     link_frames = max(1, int(round(LINK_GAP_S / frame_period_s)))
     for r in lone:

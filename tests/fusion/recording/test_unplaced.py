@@ -59,3 +59,12 @@ def test_one_node_networks_and_empty_inputs_are_left_alone():
                              frame_period_s=PERIOD_S, body_m=0.5).any()
     assert unplaced_rows(frame[:0], xy[:0], np.ones(0, bool), np.ones((0, 2), bool),
                          frame_period_s=PERIOD_S, body_m=0.5).size == 0
+
+
+def test_a_stream_judges_the_frames_it_decides_alone():
+    frame, xy, kept, ghost = _rows(np.random.default_rng(2))
+    ok = np.ones(frame.size, bool)
+    whole = unplaced_rows(frame, xy, ok, kept, frame_period_s=PERIOD_S, body_m=0.5)
+    one = unplaced_rows(frame, xy, ok, kept, frame_period_s=PERIOD_S, body_m=0.5,
+                        decide=np.array([30]))
+    assert np.array_equal(one, whole & (frame == 30)) and one.any()
