@@ -45,7 +45,7 @@ from ..errors import ValidationError
 from .options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, robust_options
 from .recording.motion_check import MOTION_CONTEXT_FRAMES, MOTION_WINDOW_FRAMES
 from .recording.room import RoomBounds
-from .recording.unplaced import UNPLACED_LOOK_FRAMES
+from .recording.unplaced import UNPLACED_LOOK_AHEAD_FRAMES, UNPLACED_LOOK_BACK_FRAMES
 
 __all__ = ["AssociationOptions", "MotionCheck", "SplitCheck", "CoverageCheck", "RoomCheck",
            "UnplacedCheck", "LearnedWalls", "DuplicateCheck", "CHECKS", "DEFAULT_CHECKS", "FusionConfig",
@@ -159,10 +159,12 @@ class UnplacedCheck:
     two or more nodes in the frames around
     (:mod:`~mmsnap_graph.fusion.recording.unplaced`: one radar cannot tell
     a person from a multipath image where no other radar looks). Runs after
-    the coverage check, on the rows the checks before it left (so it looks
-    as far as its chains, and the motion check's look beyond them)."""
+    the coverage check, on the rows the checks before it left; its chains
+    run over :attr:`look_back_frames` frames before a row and
+    :attr:`look_frames` after it."""
 
-    look_frames: ClassVar[int] = UNPLACED_LOOK_FRAMES + MOTION_CONTEXT_FRAMES
+    look_frames: ClassVar[int] = UNPLACED_LOOK_AHEAD_FRAMES
+    look_back_frames: ClassVar[int] = UNPLACED_LOOK_BACK_FRAMES
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -320,6 +322,14 @@ class FusionConfig:
         checks = tuple(cov.with_reach(reach_m) if c is cov else c for c in self.checks)
         return FusionConfig(solve=self.solve, prior=self.prior, robust=self.robust,
                             association=self.association, checks=checks)
+
+    @property
+    def look_back_frames(self) -> int:
+        """Frames before a row that its checks look at: :attr:`context_frames`,
+        or more for a check that looks further back (:class:`UnplacedCheck`)."""
+        back = [getattr(c, "look_back_frames", 0) for c in self.checks
+                if not isinstance(c, LearnedWalls)]
+        return max([self.context_frames, *back])
 
     @property
     def context_frames(self) -> int:

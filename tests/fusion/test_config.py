@@ -62,8 +62,9 @@ def test_ml_is_no_prior_and_the_default_is_mmsnap_fuse():
     assert DEFAULT_CONFIG.robust == RobustOptions(kernel="gate")
     assert {type(c) for c in DEFAULT_CONFIG.checks} == {
         MotionCheck, SplitCheck, CoverageCheck, UnplacedCheck, LearnedWalls, DuplicateCheck}
-    # The placement check looks the farthest: its chains, on rows the motion check settled.
-    assert DEFAULT_CONFIG.context_frames == UnplacedCheck.look_frames > MOTION_CONTEXT_FRAMES
+    # The placement check looks 100 frames back, and no further ahead than the motion check.
+    assert DEFAULT_CONFIG.context_frames == MOTION_CONTEXT_FRAMES == UnplacedCheck.look_frames
+    assert DEFAULT_CONFIG.look_back_frames == UnplacedCheck.look_back_frames == 100
     with pytest.raises(dataclasses.FrozenInstanceError):
         DEFAULT_CONFIG.prior = None
 

@@ -194,6 +194,7 @@ def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDAr
     ranges); ``decide``: the frames whose rows the motion check decides (None:
     all; the others are context)."""
     obs = detection_index >= 0
+    solved = out.status == Status.OK            # before the checks (the placement check's links)
     motion = config.check(MotionCheck) is not None
     if motion:
         _check_motion(out, frame, z, obs, net, config, decide)
@@ -205,14 +206,14 @@ def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDAr
     if coverage is not None:
         _check_coverage(out, frame, z, obs, net, coverage, reach_m)
     if config.check(UnplacedCheck) is not None:
-        _check_unplaced(out, frame, obs, net, decide)
+        _check_unplaced(out, frame, obs, net, decide, solved)
 
 
-def _check_unplaced(out: FusedRows, frame, obs, net: FusionNetwork, decide) -> None:
+def _check_unplaced(out: FusedRows, frame, obs, net: FusionNetwork, decide, solved) -> None:
     kept = obs & ~out.rejected
     flag = unplaced_rows(frame, out.state[:, :2], out.status == Status.OK, kept,
                          frame_period_s=net.frame_period_s, body_m=DEFAULT_BODY_M,
-                         decide=decide)
+                         decide=decide, solved=solved, seen=obs)
     for r in np.flatnonzero(flag):
         node = net.node_names[int(np.argmax(kept[r]))]
         out.flag(r, Status.MOTION_INCONSISTENT, UNPLACED_MESSAGE.format(node=node))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mmsnap_graph.fusion.recording.unplaced import UNPLACED_LOOK_FRAMES, unplaced_rows
+from mmsnap_graph.fusion.recording.unplaced import UNPLACED_LOOK_BACK_FRAMES, unplaced_rows
 
 PERIOD_S = 0.05
 
@@ -35,12 +35,12 @@ def test_an_image_seen_by_one_radar_is_flagged_and_the_walker_kept():
     ok = np.ones(frame.size, bool)
     flag = unplaced_rows(frame, xy, ok, kept, frame_period_s=PERIOD_S, body_m=0.5)
     assert flag[ghost].all()
-    # The walker's one-node rows within the look window of his two-node rows
-    # are tied by his walk; beyond it (5 s later) nothing ties them.
+    # The walker's one-node rows up to 5 s after his last two-node row (frame
+    # 59) are tied by his walk; later nothing ties them.
     walker = ~ghost
-    tied = walker & (frame < 60 + UNPLACED_LOOK_FRAMES)
-    assert not flag[tied].any()
-    assert flag[walker & (frame > 60 + UNPLACED_LOOK_FRAMES)].all()
+    last = 59 + UNPLACED_LOOK_BACK_FRAMES
+    assert not flag[walker & (frame <= last)].any()
+    assert flag[walker & (frame > last)].all()
 
 
 def test_a_gap_in_the_walk_or_a_failed_row_breaks_the_tie():
