@@ -4,10 +4,10 @@ Two nodes (configuration B by default), MAP with the paper's prior and noise,
 noisy measurements drawn around the common area (seeded). Every method returns
 the state and its 4x4 Laplace covariance:
 
-- batch: :func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch` on all frames at once
+- batch: :func:`mmsnap_graph.fusion.solve.solve` with ``solver="vectorized"`` on all frames at once
   (the problem module's vectorized initial values, LM vectorized over frames, covariance
   by batched Cholesky); the whole public call, validation included;
-- GTSAM: :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`, one frame at a time;
+- GTSAM: ``solve`` with ``solver="gtsam"``, one frame at a time;
 - scipy: ``scipy.optimize.least_squares`` (method "lm", analytic Jacobian from
   :func:`factors.models.measurement_model`, the same initial values, tight
   tolerances) and ``(J^T J)^{-1}``, one frame at a time.
@@ -34,9 +34,24 @@ import time
 import numpy as np
 
 from frames import POSES, scipy_fuse, simulate
-from mmsnap_graph.fusion.solvers.vectorized import fuse_batch
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
-from mmsnap_graph.fusion.solvers.gtsam_graph import fuse_frame
+from mmsnap_graph.fusion.frame_problem import FrameProblem
+from mmsnap_graph.fusion.options import FusionOptions
+from mmsnap_graph.fusion.solve import solve
+
+
+def fuse_batch(poses, z, noise, prior):
+    """All frames at once: the problem (validated) and the vectorized solve."""
+    return solve(FrameProblem(poses=poses, measurements=z, noise=noise, prior=prior),
+                 FusionOptions(solver="vectorized"))
+
+
+def fuse_frame(poses, z, noise, prior):
+    """One frame: its problem (validated) and the GTSAM solve."""
+    return solve(FrameProblem(poses=poses, measurements=z, noise=noise, prior=prior), GTSAM)
+
+
+GTSAM = FusionOptions(solver="gtsam")
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -50,17 +65,17 @@ def main(argv=None) -> int:
     noise, prior = MeasurementNoise(), GaussianPrior()
     _, z = simulate(args.configuration, args.frames, args.seed)
 
-    fuse_batch(poses, z[:1000], noise=noise, prior=prior)  # warm-up
+    fuse_batch(poses, z[:1000], noise, prior)  # warm-up
     best_wall = best_cpu = np.inf
     for _ in range(args.repeat):
         w0, c0 = time.perf_counter(), time.process_time()
-        res = fuse_batch(poses, z, noise=noise, prior=prior)
+        res = fuse_batch(poses, z, noise, prior)
         best_wall = min(best_wall, time.perf_counter() - w0)
         best_cpu = min(best_cpu, time.process_time() - c0)
 
     sub = z[: args.per_frame]
     for zk in sub[:50]:  # warm-up
-        fuse_frame(poses, zk, noise=noise, prior=prior)
+        fuse_frame(poses, zk, noise, prior)
         scipy_fuse(poses, zk, noise, prior)
     t_g = t_s = 0.0
     c_g = c_s = 0.0
@@ -68,7 +83,7 @@ def main(argv=None) -> int:
     for start in range(0, len(sub), 100):
         part = sub[start:start + 100]
         w0, c0 = time.perf_counter(), time.process_time()
-        out = [fuse_frame(poses, zk, noise=noise, prior=prior) for zk in part]
+        out = [fuse_frame(poses, zk, noise, prior) for zk in part]
         t_g += time.perf_counter() - w0
         c_g += time.process_time() - c0
         ref.extend(out)
@@ -79,11 +94,11 @@ def main(argv=None) -> int:
         c_s += time.process_time() - c0
 
     n_sub = len(sub)
-    ok_ref = np.array([r.success for r in ref])
+    ok_ref = np.array([r.success[0] for r in ref])
     mismatch = int(np.count_nonzero(ok_ref != res.success[:n_sub]))
     both = ok_ref & res.success[:n_sub]
-    st = np.array([r.state for r in ref])[both]
-    cv = np.array([r.covariance for r in ref])[both]
+    st = np.array([r.state[0] for r in ref])[both]
+    cv = np.array([r.covariance[0] for r in ref])[both]
     d_state = float(np.max(np.abs(st - res.state[:n_sub][both]))) if both.any() else float("nan")
     d_cov = float(np.max(np.abs(cv - res.covariance[:n_sub][both]))) if both.any() else float("nan")
 
@@ -92,11 +107,11 @@ def main(argv=None) -> int:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"configuration {args.configuration}, two nodes, MAP, seed {args.seed}; "
           f"1-min load average {load:.2f} on {os.cpu_count()} CPUs (shared machine: figures under load)")
-    print(f"batch fuse_batch      : {args.frames} frames in {best_wall:.3f} s wall "
+    print(f"batch (vectorized)    : {args.frames} frames in {best_wall:.3f} s wall "
           f"({best_cpu:.3f} s CPU): {fps_b:,.0f} frames/s wall, {fps_bc:,.0f} frames/s CPU, "
           f"{1e6 / fps_b:.2f} us/frame; success {res.success.mean():.4f}, "
           f"iterations median {np.median(res.iterations):.0f} max {res.iterations.max()}")
-    print(f"GTSAM fuse_frame      : {n_sub} frames in {t_g:.3f} s wall ({c_g:.3f} s CPU): "
+    print(f"GTSAM, one frame      : {n_sub} frames in {t_g:.3f} s wall ({c_g:.3f} s CPU): "
           f"{fps_g:,.0f} frames/s, {1e6 / fps_g:.1f} us/frame")
     print(f"scipy least_squares   : {n_sub} frames in {t_s:.3f} s wall ({c_s:.3f} s CPU): "
           f"{fps_s:,.0f} frames/s, {1e6 / fps_s:.1f} us/frame")

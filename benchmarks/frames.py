@@ -10,7 +10,7 @@ from scipy.optimize import least_squares
 from factors.models import measurement_model, residual, wrap_angle
 from mmsnap_graph.sim.scenes import COMMON_AREA_CENTERS, PAPER_CONFIGURATIONS
 from mmsnap_graph.data.noise import MeasurementNoise
-from mmsnap_graph.fusion.problem import initial_state
+from mmsnap_graph.fusion.frame_problem import FrameProblem, initial_states
 
 #: (N, 3) node poses of each paper configuration.
 POSES = {name: np.stack([p["S1"], p["S2"]]) for name, p in PAPER_CONFIGURATIONS.items()}
@@ -48,6 +48,6 @@ def scipy_fuse(poses, z, noise, prior):
         _, j = measurement_model(x, poses)
         return np.vstack([(j / sig[:, None]).reshape(-1, 4), np.diag(inv_prior)])
 
-    x0 = initial_state(poses, z, prior=prior, noise=noise)
+    x0 = initial_states(FrameProblem(poses=poses, measurements=z, prior=prior, noise=noise))[0]
     sol = least_squares(fun, x0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     return sol.x, np.linalg.inv(sol.jac.T @ sol.jac)

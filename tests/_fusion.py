@@ -18,7 +18,7 @@ from mmsnap_graph.fusion.config import (AssociationOptions, CoverageCheck, Dupli
                                         SplitCheck)
 from mmsnap_graph.fusion.options import FusionOptions
 
-__all__ = ["config", "stream_config", "PAPER_PRIOR"]
+__all__ = ["config", "stream_config", "solved", "frame_of", "PAPER_PRIOR"]
 
 PAPER_PRIOR = GaussianPrior()
 _SOLVE = {"lm", "covariance", "grid_points_per_axis", "grid_half_width_sigmas",
@@ -63,3 +63,39 @@ def stream_config(*, prior=PAPER_PRIOR, solver="scalar", gate_probability=0.999,
     """A stream's FusionConfig: per-frame one-shot fusion, no check unless asked."""
     settings.setdefault("split_check", False)
     return config(prior=prior, solver=solver, gate_probability=gate_probability, **settings)
+
+
+def solved(poses, z, *, solver: str = "gtsam", robust=None, options=None, **problem):
+    """``z`` ((N, 3): one frame, or (F, N, 3)) of the nodes at ``poses``
+    solved through the contract (:func:`~mmsnap_graph.fusion.solve.robust_solve`
+    with ``solver``; ``options`` a FusionOptions whose solver is replaced);
+    ``problem``: the other fields of
+    :class:`~mmsnap_graph.fusion.frame_problem.FrameProblem` (a single
+    frame's ``initial_state`` may be (4,))."""
+    import dataclasses
+
+    import numpy as np
+
+    from mmsnap_graph.fusion.frame_problem import FrameProblem
+    from mmsnap_graph.fusion.solve import robust_solve
+
+    opts = FusionOptions(solver=solver) if options is None else dataclasses.replace(
+        options, solver=solver)
+    x0 = problem.get("initial_state")
+    if x0 is not None and np.ndim(x0) == 1:
+        problem["initial_state"] = np.asarray(x0, dtype=float)[None]
+    return robust_solve(FrameProblem(poses=poses, measurements=z, **problem), opts, robust)
+
+
+def frame_of(solution, f: int = 0):
+    """Frame ``f`` of a :class:`~mmsnap_graph.data.solution.FusionSolution`
+    with its frame axis dropped (a namespace of its fields), for tests of one
+    frame."""
+    from types import SimpleNamespace
+
+    names = ("state", "covariance", "status", "success", "message", "iterations",
+             "final_cost", "initial_state", "whitened_residuals", "degeneracy", "rejected")
+    out = {name: getattr(solution, name)[f] for name in names}
+    grid = solution.grid_covariance
+    out["grid_covariance"] = None if grid is None else grid[f]
+    return SimpleNamespace(**out)

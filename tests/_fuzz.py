@@ -2,7 +2,7 @@
 project's errors (:class:`mmsnap_graph.errors.MmsnapError`) may come out of a
 public entry point, and a CLI run on a bad input exits 1 with one line naming
 the file. Derandomized (the same examples on every run). The one-shot fusion fuzz
-tests (fuse_frame, fuse_batch, the option records) also check that
+tests (solve with every solver, the option records) also check that
 ``success=True`` implies a finite state and an SPD covariance."""
 
 from __future__ import annotations

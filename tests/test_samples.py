@@ -58,6 +58,9 @@ def test_make_samples_regenerates_the_committed_files(tmp_path):
     assert sorted(p.name for p in written) == [p.name for p in SAMPLES]
     for new in written:
         a, b = read_recording(DATA / new.name), read_recording(new)
+        # the simulator's clean model: point targets (no reflection depth;
+        # before, the files did not say so and were read as people)
+        assert a.targets == b.targets == "points"
         assert_array_equal(a.truth.state, b.truth.state)
         for name in a.node_names:
             for level in ("centroids", "point_cloud"):

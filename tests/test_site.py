@@ -125,7 +125,7 @@ def test_site_builds_in_strict_mode(tmp_path):
     for name, _ in _commands(build_parser()):
         assert name in cli, name
     fusion = (site / "reference" / "api" / "fusion" / "index.html").read_text()
-    assert "fuse_frame" in fusion and "FusionOptions" in fusion
+    assert "FrameProblem" in fusion and "FusionOptions" in fusion
     assert ":class:" not in fusion, "Sphinx roles left raw in the API reference"
     for page in ("index.html", "validation/index.html", "tutorials/real-recordings/index.html"):
         assert (site / page).is_file(), page

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from ..data.results import DEGENERACY_THRESHOLD
 from ..errors import ValidationError
 from ..evaluation.metrics import nees_check, pose_error, pose_mapping_error, state_errors, truth_reference
 from ..tracking.track_fusion import transform_tracks
@@ -39,15 +40,6 @@ def failed_checks(metrics: dict) -> list[str]:
         out.append(f"NEES check failed for the fused states: mean NEES {nz['mean']:.2f} over "
                    f"{nz['n']} rows is outside the 95% interval ({lo:.2f}, {hi:.2f}) ({side})")
     return out
-
-
-def _degeneracy_threshold() -> float:
-    # Imported here: GTSAM (fusion.solvers.gtsam_graph) stays off this module's path,
-    # pure functions on arrays. The threshold moves to a GTSAM-free module
-    # with the fusion redesign; then this import goes to the module level.
-    from ..fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD
-
-    return float(DEGENERACY_THRESHOLD)
 
 
 def evaluate_recording(recording, *, fused=None, node_poses=None) -> dict:
@@ -139,7 +131,7 @@ def _evaluate_fused(fused, truth, notes: list[str]) -> dict | None:
             **se.to_dict(),
             "observed_by_all_nodes": state_errors(fused.state[ok][every], ref[every]).to_dict(),
             "nees": _nees_summary(err, np.asarray(fused.covariance)[ok]),
-            "degenerate_fraction": float(np.mean(deg > _degeneracy_threshold()))
+            "degenerate_fraction": float(np.mean(deg > DEGENERACY_THRESHOLD))
             if deg.size else float("nan")}
 
 

@@ -31,10 +31,12 @@ from factors.models import detection_to_local, local_to_global
 from .._atomic import atomic_path
 from ..data.noise import GaussianPrior, MeasurementNoise
 # The degeneracy names move with the fusion redesign; imported here only.
-from ..fusion.solvers.vectorized import velocity_degeneracy
+from ..fusion.degeneracy import velocity_degeneracy
 from ..fusion.grid import neg_log_posterior
 from ..fusion.options import FusionOptions
-from ..fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD, fuse_frame
+from ..data.results import DEGENERACY_THRESHOLD
+from ..fusion.frame_problem import FrameProblem
+from ..fusion.solve import solve
 from ..sim.networks import in_common_field_of_view
 
 __all__ = [
@@ -333,8 +335,8 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
                        n_plot: int = 161, noise=None, prior=None) -> dict:
     """One frame's velocity posterior, for :func:`plot_velocity_posteriors`.
 
-    MAP with the grid covariance (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`,
-    ``covariance="both"``), ML with its Laplace covariance, and the
+    MAP with the grid covariance (:func:`mmsnap_graph.fusion.solve.solve`
+    with GTSAM, ``covariance="grid"``), ML with its Laplace covariance, and the
     negative log posterior and log likelihood on an ``n_plot`` x ``n_plot``
     grid of ``(vx, vy)`` at the MAP position (a conditional slice).
     Returns a dict of arrays (keys: ``map``, ``ml``, ``vx``, ``vy``,
@@ -344,12 +346,14 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
     prior = GaussianPrior() if prior is None else prior
     poses = np.asarray(node_poses, dtype=float)
     z = np.asarray(measurements, dtype=float)
-    grid = FusionOptions(covariance="both", grid_points_per_axis=int(grid_points_per_axis))
-    res_map = fuse_frame(poses, z, noise=noise, prior=prior, options=grid)
-    res_ml = fuse_frame(poses, z, noise=noise, prior=None)
-    c = res_map.state
-    cov = res_map.grid_covariance if res_map.grid_covariance is not None and \
-        np.all(np.isfinite(res_map.grid_covariance)) else res_map.covariance
+    grid = FusionOptions(solver="gtsam", covariance="grid",
+                         grid_points_per_axis=int(grid_points_per_axis))
+    res_map = solve(FrameProblem(poses=poses, measurements=z, noise=noise, prior=prior), grid)
+    res_ml = solve(FrameProblem(poses=poses, measurements=z, noise=noise, prior=None),
+                   FusionOptions(solver="gtsam"))
+    c = res_map.state[0]
+    cov = res_map.grid_covariance[0] if np.all(np.isfinite(res_map.grid_covariance)) \
+        else res_map.covariance[0]
     half = np.maximum(4.0 * np.sqrt(np.diag(cov)[2:]), 1.0)
     vx = np.linspace(c[2] - half[0], c[2] + half[0], int(n_plot))
     vy = np.linspace(c[3] - half[1], c[3] + half[1], int(n_plot))
@@ -362,7 +366,7 @@ def velocity_posterior(node_poses: ArrayLike, measurements: ArrayLike, *,
     nll = neg_log_posterior(states, prior_mean=None, prior_sigmas=None, **kw)
     return {"map": res_map, "ml": res_ml, "vx": vx, "vy": vy, "neg_log_posterior": nlp,
             "neg_log_likelihood": nll, "truth": None if truth is None else np.asarray(truth),
-            "degeneracy": float(res_map.degeneracy), "node_poses": poses}
+            "degeneracy": float(res_map.degeneracy[0]), "node_poses": poses}
 
 
 #: The likelihood's contour levels: 0.5 * chi2_2 quantiles of 1, 2, 3 sigma
@@ -410,13 +414,13 @@ def plot_velocity_posteriors(panels: Sequence[tuple[str, dict]]) -> Figure:
         ax.set_ylim(vy[0], vy[-1])
         m, ml = d["map"], d["ml"]
         if m.grid_covariance is not None and np.all(np.isfinite(m.grid_covariance)):
-            _cov_ellipse(ax, m.state[2:], m.grid_covariance[2:, 2:], color="tab:blue", lw=1.8,
-                         label="grid posterior (2 sigma)")
-        _cov_ellipse(ax, m.state[2:], m.covariance[2:, 2:], color="tab:cyan", lw=1.0, ls="--",
-                     label="Laplace (2 sigma)")
-        _mark_point(ax, m.state[2:], "Bayesian (MAP)", marker="o", color="tab:blue")
-        if ml.success and np.all(np.isfinite(ml.state)):
-            _mark_point(ax, ml.state[2:], "ML", marker="x", color="tab:red", ms=9, mew=2)
+            _cov_ellipse(ax, m.state[0, 2:], m.grid_covariance[0, 2:, 2:], color="tab:blue",
+                         lw=1.8, label="grid posterior (2 sigma)")
+        _cov_ellipse(ax, m.state[0, 2:], m.covariance[0, 2:, 2:], color="tab:cyan", lw=1.0,
+                     ls="--", label="Laplace (2 sigma)")
+        _mark_point(ax, m.state[0, 2:], "Bayesian (MAP)", marker="o", color="tab:blue")
+        if ml.success[0] and np.all(np.isfinite(ml.state)):
+            _mark_point(ax, ml.state[0, 2:], "ML", marker="x", color="tab:red", ms=9, mew=2)
         if d["truth"] is not None:
             _mark_point(ax, d["truth"][2:], "truth", marker="*", color="k", ms=11)
         ax.set_xlabel("vx [m/s]")
@@ -440,7 +444,7 @@ def degeneracy_grid(node_poses: Mapping[str, ArrayLike], *, step_m: float = 0.1,
                     extent_m: tuple[float, float, float, float] | None = None,
                     **fov_limits) -> tuple[NDArray, NDArray, NDArray]:
     """The velocity-degeneracy indicator (condition number of the lines of
-    sight's velocity information, :func:`mmsnap_graph.fusion.solvers.vectorized.velocity_degeneracy`)
+    sight's velocity information, :func:`mmsnap_graph.fusion.degeneracy.velocity_degeneracy`)
     on a grid over the nodes' common field of view.
 
     Returns ``x (nx,)``, ``y (ny,)`` and ``cond (ny, nx)`` (NaN outside the
@@ -471,7 +475,7 @@ def plot_degeneracy_map(networks: Mapping[str, Mapping[str, ArrayLike]], *,
     """log10 of the degeneracy indicator over each network's common field of
     view, with the nodes, the walking area and optionally a trajectory
     ``(K, >=2)`` per network; the contour marks ``threshold`` (default
-    :data:`mmsnap_graph.fusion.solvers.gtsam_graph.DEGENERACY_THRESHOLD`)."""
+    :data:`mmsnap_graph.data.results.DEGENERACY_THRESHOLD`)."""
     thr = DEGENERACY_THRESHOLD if threshold is None else float(threshold)
     fig = Figure(figsize=(4.6 * len(networks), 4.6), layout="constrained")
     axes = fig.subplots(1, len(networks), squeeze=False)[0]

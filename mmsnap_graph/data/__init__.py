@@ -5,8 +5,8 @@ radar configuration, and the result types of the estimators.
   :class:`Truth`, :class:`Recording` (the in-memory model of a recording);
 - :mod:`.radar_config`: :class:`RadarConfig` (the paper's Table I by default);
 - :mod:`.noise`: :class:`MeasurementNoise`, :class:`GaussianPrior`;
-- :mod:`.results`: :class:`Status` (the one status enum), :class:`FusionResult`,
-  :class:`BatchResult`, :class:`FusedSequence`;
+- :mod:`.results`: :class:`Status` (the one status enum), :class:`FusedSequence`;
+- :mod:`.solution`: :class:`FusionSolution`, the one record of a one-shot solve;
 - :mod:`.calibration`: :class:`PairwiseCalibration`, :class:`RecordingCalibration`
   (self-calibration's results), with :mod:`.calibration_facts`:
   :class:`CalibrationStatus` and the typed facts they report;
@@ -18,7 +18,8 @@ from .radar_config import SPEED_OF_LIGHT_MPS, TABLE_I, RadarConfig, TiProfile
 from .recording import Detections, NodeData, Recording, Tracks, Truth
 from .calibration import PairwiseCalibration, RecordingCalibration
 from .calibration_facts import CalibrationStatus
-from .results import DEGENERACY_THRESHOLD, BatchResult, FusedSequence, FusionResult, Status
+from .results import DEGENERACY_THRESHOLD, FusedSequence, Status
+from .solution import FusionSolution
 
 __all__ = [
     "SPEED_OF_LIGHT_MPS",
@@ -32,8 +33,7 @@ __all__ = [
     "Truth",
     "Status",
     "DEGENERACY_THRESHOLD",
-    "FusionResult",
-    "BatchResult",
+    "FusionSolution",
     "FusedSequence",
     "CalibrationStatus",
     "PairwiseCalibration",

@@ -227,8 +227,12 @@ class PoseCovariance(CalibrationFact):
     marginals'; 1.0: within the marginals' sampling noise, so they are
     kept) or ``"schur"`` (the elimination failed: a dense Schur complement).
     ``reflection_depth_rms_m`` : a reflection depth not estimated whose
-    effect on the poses is in the covariance (0: none). ``failure`` : why a
-    more careful method was not used ("" when none failed)."""
+    effect on the poses is in the covariance (0: none);
+    ``without_depth_nodes`` and ``without_depth_sigmas`` (three per node:
+    ``x_b`` m, ``y_b`` m, ``phi`` rad) : each node's 1-sigma without that
+    term, what sessions of one walker or a recording's halves scatter by
+    (the depth is common to them). ``failure`` : why a more careful method
+    was not used ("" when none failed)."""
 
     kind: ClassVar[str] = "pose_covariance"
     _choices: ClassVar[dict] = {"method": ("marginals", "long_run", "schur")}
@@ -237,6 +241,8 @@ class PoseCovariance(CalibrationFact):
     max_widening: float = 1.0
     reflection_depth_rms_m: float = 0.0
     failure: str = ""
+    without_depth_nodes: tuple[str, ...] = ()
+    without_depth_sigmas: tuple[float, ...] = ()
 
 
 @_fact

@@ -1,9 +1,10 @@
 """Result types of the estimators and the one status enum they share.
 
 - :class:`Status`: why a frame (of the fusion solvers, of a recording's
-  ``/fused`` group, or of the radar signal chain) has no usable result;
-- :class:`FusionResult`: one frame fused by :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`;
-- :class:`BatchResult`: many frames fused by :func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`;
+  ``/fused`` group, or of the radar signal chain) has no usable result, with
+  the one table of its messages;
+- (the one record of a one-shot solve is
+  :class:`~mmsnap_graph.data.solution.FusionSolution`);
 - :class:`FusedSequence`: every target of every frame of a recording
   (:func:`mmsnap_graph.fusion.recording.sequence.fuse_recording`; stored as ``/fused``
   by :mod:`mmsnap_graph.io.fused`).
@@ -19,8 +20,7 @@ from numpy.typing import NDArray
 
 from ..errors import ValidationError
 
-__all__ = ["Status", "DEGENERACY_THRESHOLD", "FusionResult", "BatchResult", "FusedSequence",
-           "measurement_information"]
+__all__ = ["Status", "DEGENERACY_THRESHOLD", "FusedSequence", "measurement_information"]
 
 #: ``degeneracy`` above this flags a degenerate geometry: for two nodes, lines
 #: of sight within about 11.4 degrees of parallel (the condition number of two
@@ -99,159 +99,6 @@ def _no_rejection(shape) -> NDArray:
     return out
 
 
-def _freeze(obj, names) -> None:
-    """Keep read-only float arrays owning their data (what the solvers hand
-    over); copy and freeze anything else."""
-    for name in names:
-        value = getattr(obj, name)
-        if value is None:
-            continue
-        if not (
-            type(value) is np.ndarray
-            and value.dtype == np.float64
-            and value.flags.owndata
-            and not value.flags.writeable
-        ):
-            value = np.array(value, dtype=float)
-            value.setflags(write=False)
-            object.__setattr__(obj, name, value)
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class FusionResult:
-    """The one-shot estimate of one frame.
-
-    Attributes
-    ----------
-    state : (4,) float
-        MAP (or ML) ``(x_m, y_m, vx_mps, vy_mps)`` in the global frame; the
-        last iterate when ``success`` is False.
-    covariance : (4, 4) float
-        Laplace covariance from ``gtsam.Marginals`` (the inverse Gauss-Newton
-        information at ``state``); NaN when it could not be computed.
-    success : bool
-        True when the optimizer converged and the covariance exists.
-    status : Status
-        ``Status.OK`` on success, else why it failed.
-    message : str
-        Why it failed, or notes (e.g. a degenerate geometry).
-    iterations : int
-        Levenberg-Marquardt iterations.
-    final_cost : float
-        GTSAM's graph error at ``state``: half the sum of squared whitened
-        residuals, prior included (half of the paper's ``L``).
-    whitened_residuals : (N, 3) float
-        ``(h(state) - z) / sigma`` per node (spatial frequency wrapped), in
-        measurement order; NaN rows for nodes that did not observe the target.
-    degeneracy : float
-        Condition number (>= 1) of the 2x2 velocity block of the measurement
-        information at ``state``, ``sum_i u_i u_i^T / sigma_V^2`` over observed
-        nodes (``u_i`` the line of sight; only Doppler informs velocity
-        directly). 1 for orthogonal lines of sight, ``inf`` when they are
-        parallel (a target on the line through two radars) or with a single
-        node: then only the prior bounds the cross-line velocity. It ignores
-        the prior on purpose, so it describes the geometry.
-        See :data:`DEGENERACY_THRESHOLD`.
-    grid_covariance : (4, 4) float or None
-        The paper's numerical posterior covariance over a 4D grid around
-        ``state`` (:func:`mmsnap_graph.fusion.grid.grid_posterior`), when
-        ``covariance`` was ``"grid"`` or ``"both"``; None otherwise.
-    initial_state : (4,) float
-        Where the optimizer started.
-    n_observed : int
-        Number of nodes that observed the target.
-    used_prior : bool
-        True for MAP (Bayesian), False for ML.
-    rejected : (N,) bool
-        Nodes whose measurement the robust fusion left out (``robust="gate"``)
-        or down-weighted as outlying (``"huber"``, ``"cauchy"``: the residual
-        fails the chi-square gate); all False without ``robust``. With
-        ``"gate"``, ``state`` and ``covariance`` are those of the measurements
-        kept; ``whitened_residuals`` still hold the rejected node's residual
-        at ``state``.
-    """
-
-    state: NDArray
-    covariance: NDArray
-    success: bool
-    status: Status
-    message: str
-    iterations: int
-    final_cost: float
-    whitened_residuals: NDArray
-    degeneracy: float
-    grid_covariance: NDArray | None = None
-    initial_state: NDArray
-    n_observed: int
-    used_prior: bool
-    rejected: NDArray | None = None
-
-    def __post_init__(self) -> None:
-        if self.rejected is None:
-            object.__setattr__(self, "rejected", _no_rejection(self.whitened_residuals.shape[:-1]))
-        _freeze(self, ("state", "covariance", "whitened_residuals", "grid_covariance", "initial_state"))
-        if type(self.status) is not Status:
-            object.__setattr__(self, "status", Status(self.status))
-
-    @property
-    def degenerate(self) -> bool:
-        """``degeneracy > DEGENERACY_THRESHOLD``."""
-        return bool(self.degeneracy > DEGENERACY_THRESHOLD)
-
-    @property
-    def position_sigma_m(self) -> NDArray:
-        """(2,) float: 1-sigma of ``(x, y)`` from the Laplace covariance."""
-        return np.sqrt(np.diag(self.covariance)[:2])
-
-    @property
-    def velocity_sigma_mps(self) -> NDArray:
-        """(2,) float: 1-sigma of ``(vx, vy)`` from the Laplace covariance."""
-        return np.sqrt(np.diag(self.covariance)[2:])
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class BatchResult:
-    """One-shot fusion of ``F`` frames.
-
-    state : (F, 4) ``(x_m, y_m, vx_mps, vy_mps)``, global frame.
-    covariance : (F, 4, 4) Laplace covariance (NaN where ``success`` is False).
-    success : (F,) bool; status : (F,) int8, :class:`Status` codes (0 to 4).
-    iterations : (F,) int, accepted plus rejected LM steps.
-    final_cost : (F,) ``0.5 * sum of squared whitened residuals`` (GTSAM's
-        graph error), prior included for MAP.
-    initial_state : (F, 4) the starting point.
-    whitened_residuals : (F, N, 3) ``(h - z) / sigma`` at the solution
-        (spatial frequency wrapped), NaN rows for unobserved nodes.
-    degeneracy : (F,) condition number of the lines of sight's velocity
-        information (``FusionResult.degeneracy``; inf for parallel lines of
-        sight or a single node).
-    rejected : (F, N) bool, the nodes the robust fusion left out or
-        down-weighted (``FusionResult.rejected``); all False without ``robust``.
-    """
-
-    state: NDArray
-    covariance: NDArray
-    success: NDArray
-    status: NDArray
-    iterations: NDArray
-    final_cost: NDArray
-    initial_state: NDArray
-    whitened_residuals: NDArray
-    degeneracy: NDArray
-    rejected: NDArray | None = None
-
-    def __post_init__(self) -> None:
-        if self.rejected is None:
-            object.__setattr__(self, "rejected", _no_rejection(self.whitened_residuals.shape[:-1]))
-
-    def __len__(self) -> int:
-        return int(self.state.shape[0])
-
-    def message(self, frame_index: int) -> str:
-        """The status message of one frame."""
-        return Status(int(self.status[frame_index])).message
-
-
 @dataclass(frozen=True, kw_only=True, slots=True)
 class FusedSequence:
     """One-shot estimates of every target in every frame of a recording.
@@ -260,7 +107,7 @@ class FusedSequence:
 
     node_names : (N,) names, in the recording's order; node_poses : (N, 3).
     mode : ``"map"`` or ``"ml"``; covariance_method : ``"laplace"`` or ``"grid"``;
-    solver : ``"vectorized"`` or ``"gtsam"`` (:data:`~mmsnap_graph.fusion.recording.sequence.RECORDING_SOLVERS`).
+    solver : ``"gtsam"``, ``"vectorized"`` or ``"scalar"`` (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
     frame, target, label : (K,) int (see :data:`mmsnap_graph.io.fused.FUSED_LAYOUT`).
     detection_index : (K, N) int; observed : (K, N) bool.
     state : (K, 4) ``(x_m, y_m, vx_mps, vy_mps)``; covariance : (K, 4, 4) the
@@ -271,7 +118,7 @@ class FusedSequence:
     noise_sigmas : (3,); prior_mean, prior_sigmas : (4,) or None (ML);
     gate_probability : float.
     rejected : (K, N) bool, the nodes the robust fusion left out or
-    down-weighted (``FusionResult.rejected``); all False without ``robust``.
+    down-weighted (``FusionSolution.rejected``); all False without ``robust``.
     robust : the robust option used (None, ``"gate"``, ``"huber"``, ``"cauchy"``).
     time_s : (K,) float or None, seconds since the recording's start
     (``frame * frame_period_s``); filled from ``frame_period_s`` when that is

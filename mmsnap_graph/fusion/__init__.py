@@ -7,8 +7,12 @@ The package is laid out by stage:
   :class:`NetworkCalibration` (poses, covariances, clock and range offsets), taken
   by every entry point; :mod:`.config`: :class:`FusionConfig`, how a recording
   or a stream is fused (the association, the solve, the checks as components);
-- the one-frame problem, shared by every solver (no GTSAM):
-  :mod:`.problem` (validation, initial states), :mod:`.degeneracy` (the
+- the one-shot problem and the one solve contract (no GTSAM):
+  :mod:`.frame_problem` (:class:`FrameProblem`, validated once, batched over
+  frames; its one initial state), :mod:`.solve` (:func:`solve` with any
+  solver, :func:`robust_solve` the robust fit around it; the record is
+  :class:`~mmsnap_graph.data.solution.FusionSolution`), :mod:`.problem` (the
+  validation checks), :mod:`.degeneracy` (the
   velocity degeneracy indicator), :mod:`.robust` (kernels and the residual
   gate), :mod:`.association` (which centroids of different nodes are one
   target);
@@ -19,11 +23,10 @@ The package is laid out by stage:
   covariance from ``Marginals``; :mod:`.solvers.gtsam_poses` for uncertain
   node poses), vectorized numpy over many frames (:mod:`.solvers.vectorized`,
   :mod:`.solvers.vectorized_lm`, :mod:`.solvers.vectorized_poses`) and plain
-  floats for one frame at a time (:mod:`.solvers.scalar`), with their
-  contract (:mod:`.solvers.settings`: one name per solver, the
-  Levenberg-Marquardt settings they all follow, what a solved frame
-  reports) and the shared assessment of a solved frame
-  (:mod:`.solvers.assess`);
+  floats for one frame at a time (:mod:`.solvers.scalar`), each called
+  through :func:`solve`, with their settings (:mod:`.solvers.settings`: one
+  name per solver, the Levenberg-Marquardt settings they all follow) and the
+  shared assessment of a solved frame (:mod:`.solvers.assess`);
 - :mod:`.recording`: a whole recording -- :mod:`.recording.sequence`
   (``fuse_recording``), :mod:`.recording.rows` (its rows while they are
   built), :mod:`.recording.timing` (clock alignment),
@@ -62,7 +65,11 @@ _LAZY = {
     "check_solver": "solvers.settings",
     "LevenbergMarquardtSettings": "solvers.settings",
     "LM_SETTINGS": "solvers.settings",
-    "FrameSolve": "solvers.settings",
+    "FrameProblem": "frame_problem",
+    "initial_states": "frame_problem",
+    "whitened_residuals": "frame_problem",
+    "solve": "solve",
+    "robust_solve": "solve",
     # the one-frame problem
     "check_poses": "problem",
     "check_observed": "problem",
@@ -71,14 +78,9 @@ _LAZY = {
     "node_sigmas": "problem",
     "check_pose_covariances": "problem",
     "check_prior": "problem",
-    "check_initial_state": "problem",
     "validate_frame": "problem",
     "validate_frames": "problem",
     "valid_rows": "problem",
-    "initial_state": "problem",
-    "initial_states": "problem",
-    "frame_initial_state": "problem",
-    "checked_initial_state": "problem",
     "condition_2x2": "degeneracy",
     "velocity_degeneracy": "degeneracy",
     "ROBUST_CHOICES": "robust",
@@ -106,7 +108,7 @@ _LAZY = {
     # the solvers
     "STATE_KEY": "solvers.gtsam_graph",
     "build_frame_graph": "solvers.gtsam_graph",
-    "fuse_frame": "solvers.gtsam_graph",
+    "lm_params": "solvers.gtsam_graph",
     "pose_key": "solvers.gtsam_poses",
     "build_pose_aware_graph": "solvers.gtsam_poses",
     "pose_aware_covariance": "solvers.gtsam_poses",
@@ -115,13 +117,10 @@ _LAZY = {
     "kernel_weight": "solvers.assess",
     "positive_definite": "solvers.assess",
     "assess_fit": "solvers.assess",
-    "fuse_batch": "solvers.vectorized",
     "pose_information_term": "solvers.vectorized_poses",
     "propagate_pose_covariance": "solvers.vectorized_poses",
     "STATE_TOLERANCE": "solvers.scalar",
     "COVARIANCE_TOLERANCE": "solvers.scalar",
-    "FrameSolution": "solvers.scalar",
-    "FrameSolver": "solvers.scalar",
     # a whole recording
     "fuse_recording": "recording.sequence",
     "recording_poses": "recording.sequence",
@@ -138,7 +137,6 @@ _LAZY = {
     "split_singles": "recording.split_check",
     "split_rows": "recording.split_check",
     "FusedRows": "recording.rows",
-    "RECORDING_SOLVERS": "recording.sequence",
     "SPLIT_MESSAGE": "recording.split_check",
     "split_offset": "recording.timing",
     "align_detections": "recording.timing",

@@ -292,9 +292,6 @@ class FusionConfig:
     def __post_init__(self) -> None:
         if not isinstance(self.solve, FusionOptions):
             raise ValidationError(f"solve must be a FusionOptions, got {type(self.solve).__name__}")
-        if self.solve.covariance not in ("laplace", "grid"):
-            raise ValidationError(f"solve.covariance must be 'laplace' or 'grid' for a "
-                                  f"recording, got {self.solve.covariance!r}")
         if self.prior is not None and not isinstance(self.prior, GaussianPrior):
             raise ValidationError(f"prior must be a GaussianPrior or None (maximum likelihood), "
                                   f"got {type(self.prior).__name__}")

@@ -1,6 +1,6 @@
 """The velocity degeneracy indicator of one-shot fusion (no GTSAM):
 :func:`velocity_degeneracy`, the condition number of the lines of sight
-(``FusionResult.degeneracy``), and :func:`condition_2x2`. Re-exported by
+(``FusionSolution.degeneracy``), and :func:`condition_2x2`. Re-exported by
 :mod:`mmsnap_graph.fusion.problem`.
 """
 
@@ -31,7 +31,7 @@ def velocity_degeneracy(
 ) -> NDArray | float:
     """Condition number of ``sum_i u_i u_i^T`` over the observed nodes' lines
     of sight at ``state`` (>= 1; ``inf`` when singular: parallel lines of sight,
-    a single node); see ``FusionResult.degeneracy``. No validation.
+    a single node); see ``FusionSolution.degeneracy``. No validation.
 
     state : (F, 4) or (4,); node_poses : (N, 3) or (F, N, 3);
     observed : (F, N) or (N,) bool, or None (all observed).

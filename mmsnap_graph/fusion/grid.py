@@ -151,7 +151,7 @@ def grid_posterior(
     state : (4,) float
         Grid centre (the MAP or ML estimate).
     node_poses, measurements : (N, 3) float
-        As in :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` (already validated).
+        As in a :class:`~mmsnap_graph.fusion.frame_problem.FrameProblem` (already validated).
     observed : (N,) bool or None
     noise : :class:`~mmsnap_graph.data.noise.MeasurementNoise` (default the paper's)
     prior : :class:`~mmsnap_graph.data.noise.GaussianPrior` (default the paper's) or None (ML)

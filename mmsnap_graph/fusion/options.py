@@ -1,8 +1,8 @@
 """The options of one-shot fusion, validated once: :class:`RobustOptions`
 (the robust fit), :class:`FusionOptions` (how to solve and what to
 return) and :class:`NetworkCalibration` (the network's calibration: poses,
-their covariances, clock offsets, range offset), taken by :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`,
-:func:`~mmsnap_graph.fusion.solvers.vectorized.fuse_batch`,
+their covariances, clock offsets, range offset), taken by
+:func:`~mmsnap_graph.fusion.solve.solve`, :func:`~mmsnap_graph.fusion.solve.robust_solve`,
 :func:`~mmsnap_graph.fusion.recording.sequence.fuse_recording` and
 :class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream`. GTSAM-free.
 """
@@ -96,25 +96,23 @@ def robust_options(robust: object) -> RobustOptions | None:
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class FusionOptions:
-    """How one-shot fusion solves and what it returns; each entry point reads
-    the fields that concern it.
+    """How one-shot fusion solves and what it returns
+    (:func:`~mmsnap_graph.fusion.solve.solve`); every combination is valid
+    for every solver and every driver.
 
-    Every solver:
-
+    solver : ``"gtsam"`` (the reference), ``"vectorized"`` (the default) or
+        ``"scalar"`` (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
     lm : :class:`~mmsnap_graph.fusion.solvers.settings.LevenbergMarquardtSettings`
         the damping and stopping rules (``lm.max_iterations``: reaching it
         is a failure).
 
-    ``fuse_frame`` (and ``fuse_recording``):
-
     covariance : ``"laplace"`` (the inverse Gauss-Newton information, what
-        ``gtsam.Marginals`` returns), ``"grid"`` (the paper's numerical
-        posterior covariance on a 4D grid; ``fuse_frame`` also returns the
-        Laplace one) or ``"both"`` (``fuse_frame`` only).
+        ``gtsam.Marginals`` returns) or ``"grid"`` (also the paper's numerical
+        posterior covariance on a 4D grid, every solver).
     grid_points_per_axis, grid_half_width_sigmas : the grid's layout
         (:func:`mmsnap_graph.fusion.grid.grid_posterior`).
 
-    The vectorized solver (``fuse_batch``):
+    The vectorized solver's:
 
     step_tolerance : a frame converges when a step is below this, relative
         to ``1 + |state|``.
@@ -122,16 +120,14 @@ class FusionOptions:
         term (Newton's quadratic convergence near a weakly observed minimum).
     chunk_size : frames solved together in the first stage.
 
-    A recording (``fuse_recording``; the rest of a recording's fusion is
+    A recording's (the rest of a recording's fusion is
     :class:`~mmsnap_graph.fusion.config.FusionConfig`'s):
 
-    solver : ``"vectorized"`` (the default) or ``"gtsam"``
-        (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
-    block_rows : rows fused per call of the vectorized solver.
+    block_rows : rows fused per solve.
     """
 
     lm: LevenbergMarquardtSettings = LM_SETTINGS
-    covariance: Literal["laplace", "grid", "both"] = "laplace"
+    covariance: Literal["laplace", "grid"] = "laplace"
     grid_points_per_axis: int = 21
     grid_half_width_sigmas: float = 5.0
     step_tolerance: float = 1e-10
@@ -143,10 +139,9 @@ class FusionOptions:
     def __post_init__(self) -> None:
         if not isinstance(self.lm, LevenbergMarquardtSettings):
             raise ValidationError(f"lm must be a LevenbergMarquardtSettings, got {self.lm!r}")
-        for name, value, choices in (("covariance", self.covariance, ("laplace", "grid", "both")),):
-            if value not in choices:
-                raise ValidationError(
-                    f"{name} must be {', '.join(map(repr, choices))}, got {value!r}")
+        if self.covariance not in ("laplace", "grid"):
+            raise ValidationError(f"covariance must be 'laplace' or 'grid', got "
+                                  f"{self.covariance!r}")
         check_solver(self.solver, SOLVERS)
         for name in ("grid_points_per_axis", "newton_after", "chunk_size", "block_rows"):
             object.__setattr__(self, name, check_count(getattr(self, name), name))

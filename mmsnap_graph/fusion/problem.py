@@ -7,13 +7,13 @@ Everything :mod:`mmsnap_graph.fusion.solvers.gtsam_graph` (GTSAM) and
   :func:`check_poses`, :func:`check_observed`), :func:`check_noise`,
   :func:`check_node_noise` (one noise or one per node, docs/CONVENTIONS.md,
   "Per-node noise"), :func:`check_pose_covariances` (docs/CONVENTIONS.md,
-  "Calibration-aware fusion"), :func:`check_prior`, :func:`check_initial_state`;
-- initial states (docs/CONVENTIONS.md, "Initial values"): :func:`initial_state`
-  (one frame, validated), :func:`initial_states` (``F`` frames, vectorized),
-  :func:`frame_initial_state` (one validated frame in plain floats, the
-  per-frame hot path) and :func:`checked_initial_state`;
+  "Calibration-aware fusion"), :func:`check_prior`;
+- (the initial state, docs/CONVENTIONS.md "Initial values", is
+  :func:`mmsnap_graph.fusion.frame_problem.initial_states`, of a
+  :class:`~mmsnap_graph.fusion.frame_problem.FrameProblem` made with these
+  checks);
 - the velocity degeneracy indicator :func:`velocity_degeneracy` (the geometry's
-  condition number, ``FusionResult.degeneracy``) and :func:`condition_2x2`
+  condition number, ``FusionSolution.degeneracy``) and :func:`condition_2x2`
   (their home is :mod:`mmsnap_graph.fusion.degeneracy`).
 """
 
@@ -25,10 +25,10 @@ from typing import Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.models import MEASUREMENT_NAMES, detection_to_global, detection_to_local_scalar
+from factors.models import MEASUREMENT_NAMES
 
 from ..errors import GeometryError, ValidationError
-from .._validation import as_float_array, check_finite, check_heading, frozen_vector
+from .._validation import as_float_array, check_finite, check_heading
 from ..data.noise import GaussianPrior, MeasurementNoise
 from .degeneracy import condition_2x2, velocity_degeneracy
 
@@ -37,17 +37,13 @@ __all__ = [
     "check_observed",
     "check_noise",
     "check_node_noise",
+    "NodeNoise",
     "node_sigmas",
     "check_pose_covariances",
     "check_prior",
-    "check_initial_state",
     "validate_frame",
     "validate_frames",
     "valid_rows",
-    "initial_state",
-    "initial_states",
-    "frame_initial_state",
-    "checked_initial_state",
     "condition_2x2",
     "velocity_degeneracy",
 ]
@@ -71,11 +67,21 @@ def check_noise(noise: object) -> MeasurementNoise:
     return noise
 
 
+class NodeNoise(tuple):
+    """N :class:`MeasurementNoise`, one per node in node order, as
+    :func:`check_node_noise` validated them: handed on, they are not
+    checked again."""
+
+    __slots__ = ()
+
+
 def check_node_noise(
     noise: object, n_nodes: int, node_names: Sequence[str] | None = None
-) -> tuple[MeasurementNoise, ...]:
-    """The measurement noise of each of ``n_nodes`` nodes, as a tuple of N
-    :class:`MeasurementNoise` (docs/CONVENTIONS.md, "Per-node noise").
+) -> NodeNoise:
+    """The measurement noise of each of ``n_nodes`` nodes, as a
+    :class:`NodeNoise` (a tuple of N :class:`MeasurementNoise`,
+    docs/CONVENTIONS.md, "Per-node noise"); a :class:`NodeNoise` of N nodes
+    is returned as it is (validated once).
 
     ``noise`` is one :class:`MeasurementNoise` (every node), a sequence of N
     of them (one per node, in the order of the node poses) or, when
@@ -83,8 +89,10 @@ def check_node_noise(
     holding every node. Raises ValidationError naming the field (``noise``,
     ``noise[i]`` or ``noise['name']``) and the value otherwise.
     """
+    if type(noise) is NodeNoise and len(noise) == n_nodes:
+        return noise
     if isinstance(noise, MeasurementNoise):
-        return (check_noise(noise),) * n_nodes
+        return NodeNoise((check_noise(noise),) * n_nodes)
     if isinstance(noise, Mapping):
         if node_names is None:
             raise ValidationError(
@@ -114,7 +122,7 @@ def check_node_noise(
         if not all(SIGMA_MIN <= v <= SIGMA_MAX for v in values):
             _check_sigma_range(values, field_name)
         out.append(item)
-    return tuple(out)
+    return NodeNoise(out)
 
 
 def node_sigmas(noises: Sequence[MeasurementNoise]) -> NDArray:
@@ -385,256 +393,3 @@ def _check_sigma_range(sigmas, what: str) -> None:
         raise ValidationError(
             f"{what} sigmas must be in [{SIGMA_MIN:g}, {SIGMA_MAX:g}], got {values}"
         )
-
-
-# ---------------------------------------------------------------------------
-# Initial values
-
-
-def initial_states(
-    node_poses: ArrayLike,
-    measurements: ArrayLike,
-    observed: ArrayLike | None = None,
-    prior: GaussianPrior | None = GaussianPrior(),
-    *,
-    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
-) -> NDArray:
-    """Initial values of docs/CONVENTIONS.md for ``F`` frames at once (no validation).
-
-    node_poses : (N, 3) or (F, N, 3) float.
-    measurements : (F, N, 3) float; rows of unobserved nodes may hold anything.
-    observed : (F, N) bool or None (all observed).
-    prior : the prior used as the velocity regularizer, or None.
-    noise : sets the Doppler sigma that weighs the Doppler equations against
-        the prior (default :class:`MeasurementNoise`); a sequence of N
-        (per-node noise) weighs each node's Doppler equation by its own sigma.
-    Returns (F, 4) float.
-
-    Position: the average of the observed nodes' own detections mapped to the
-    global frame (docs/CONVENTIONS.md, the corrected eq. 19). Velocity: the least-squares
-    solution of ``V_i = u_i^T v`` with ``u_i`` the line of sight from node i to
-    that position, regularized by the prior's velocity part; without a prior
-    and with parallel lines of sight (or one node) the minimum-norm solution,
-    i.e. the observable radial part only. A frame without observations starts
-    at the prior mean (NaN without a prior). A frame whose initial position
-    is within 1 nm of an observed node's gets a NaN velocity (its line of
-    sight is undefined).
-    """
-    poses = np.asarray(node_poses, dtype=float)
-    z = np.asarray(measurements, dtype=float)
-    n_frames, n_nodes = z.shape[:2]
-    if observed is None:
-        w = np.ones((n_frames, n_nodes))
-    else:
-        w = np.asarray(observed, dtype=bool).astype(float)
-    rng_m = np.where(w > 0, z[..., 0], 0.0)
-    omega = np.where(w > 0, z[..., 1], 0.0)
-    dop = np.where(w > 0, z[..., 2], 0.0)
-    n_obs = w.sum(axis=1)
-    det = detection_to_global(rng_m, omega, poses)  # (F, N, 2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        pos = np.sum(det * w[..., None], axis=1) / n_obs[:, None]
-    node_xy = poses[..., :2]
-    d = pos[:, None, :] - node_xy
-    dist = np.linalg.norm(d, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = np.where(dist < AT_NODE_M, np.nan, d / dist)
-    u = np.where(w[..., None] > 0, u, 0.0)
-    # Normal equations of the weighted linear problem (2x2 per frame).
-    # Weighted by sigma_V^2 so only the ratio to the prior's sigmas matters.
-    doppler_sigma, dw = _doppler_weights(noise)
-    wd = w if dw is None else w * np.asarray(dw)
-    a = np.einsum("fn,fni,fnj->fij", wd, u, u)
-    b = np.einsum("fn,fni,fn->fi", wd, u, dop)
-    if prior is not None:
-        reg = (doppler_sigma / prior.sigmas[2:]) ** 2
-        a = a + np.diag(reg)
-        b = b + reg * prior.mean[2:]
-    vel = _solve_2x2_min_norm(a, b)
-    state = np.concatenate([pos, vel], axis=1)
-    if prior is not None:
-        empty = n_obs == 0
-        state[empty] = prior.mean
-    return state
-
-
-def _doppler_weights(noise) -> tuple[float, list[float] | None]:
-    """``(reference Doppler sigma, per-node weights or None)``: the Doppler
-    equations of the initial velocity weighted by ``(ref / sigma_i)^2``, the
-    reference the first node's sigma (all weights exactly 1 for equal sigmas,
-    so one noise and N equal ones give the same numbers)."""
-    if isinstance(noise, MeasurementNoise):
-        return noise.doppler_mps, None
-    sd = [m.doppler_mps for m in noise]
-    ref = sd[0]
-    return ref, [(ref / s) ** 2 for s in sd]
-
-
-def _solve_2x2_min_norm(a: NDArray, b: NDArray) -> NDArray:
-    """Minimum-norm solutions of symmetric PSD 2x2 systems, (F, 2, 2) and (F, 2).
-
-    Closed-form eigenvalues, the same formula as :func:`frame_initial_state`
-    (``np.linalg.eigh`` on 2x2 blocks cost the batch solver ~0.85 us/frame).
-    """
-    a11, a12, a22 = a[:, 0, 0], a[:, 0, 1], a[:, 1, 1]
-    b1, b2 = b[:, 0], b[:, 1]
-    half_tr = 0.5 * (a11 + a22)
-    disc = np.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
-    hi = half_tr + disc
-    lo = half_tr - disc
-    tol = 1e-10 * np.maximum(hi, 1e-300)
-    det = a11 * a22 - a12 * a12
-    out = np.zeros_like(b)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        full = lo > tol
-        out[:, 0] = np.where(full, (a22 * b1 - a12 * b2) / det, 0.0)
-        out[:, 1] = np.where(full, (a11 * b2 - a12 * b1) / det, 0.0)
-        # Rank one: project onto the eigenvector of the large eigenvalue.
-        rank1 = ~full & (hi > tol)
-        if np.any(rank1):
-            first = np.abs(hi - a11) >= np.abs(hi - a22)
-            e1 = np.where(first, a12, hi - a22)
-            e2 = np.where(first, hi - a11, a12)
-            norm = np.hypot(e1, e2)
-            axis_x = a11 >= a22
-            e1 = np.where(norm == 0.0, axis_x.astype(float), e1 / norm)
-            e2 = np.where(norm == 0.0, (~axis_x).astype(float), e2 / norm)
-            k = (e1 * b1 + e2 * b2) / hi
-            out[:, 0] = np.where(rank1, k * e1, out[:, 0])
-            out[:, 1] = np.where(rank1, k * e2, out[:, 1])
-    bad = ~np.all(np.isfinite(a), axis=(1, 2)) | ~np.all(np.isfinite(b), axis=1)
-    out[bad] = np.nan
-    return out
-
-
-def frame_initial_state(
-    poses: NDArray, z: NDArray, obs: NDArray | None, prior: GaussianPrior | None,
-    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
-) -> list[float]:
-    """:func:`initial_states` for one validated frame, in plain floats (the
-    per-frame hot path; the tests check it against the vectorized form).
-
-    poses : (N, 3); z : (N, 3); obs : (N,) bool or None (all observed).
-    Returns ``[x_m, y_m, vx_mps, vy_mps]``; NaN velocity when the position is
-    on an observed node, all NaN without observations and without a prior.
-    """
-    pl = poses.tolist()
-    zl = z.tolist()
-    nodes = [i for i in range(len(pl)) if obs is None or obs[i]]
-    if not nodes:
-        return prior.mean.tolist() if prior is not None else [math.nan] * 4
-    sx = sy = 0.0
-    for i in nodes:
-        px, py, phi = pl[i]
-        rng_m, omega = zl[i][0], zl[i][1]
-        u, v = detection_to_local_scalar(rng_m, omega)
-        c, s = math.cos(phi), math.sin(phi)
-        sx += px + u * c - v * s
-        sy += py + u * s + v * c
-    x = sx / len(nodes)
-    y = sy / len(nodes)
-    a11 = a12 = a22 = b1 = b2 = 0.0
-    sd, dw = _doppler_weights(noise)
-    for i in nodes:
-        dx = x - pl[i][0]
-        dy = y - pl[i][1]
-        r = math.sqrt(dx * dx + dy * dy)
-        if r < AT_NODE_M:
-            return [x, y, math.nan, math.nan]
-        ux, uy = dx / r, dy / r
-        if dw is not None:
-            wi = dw[i]
-            ux, uy = ux * math.sqrt(wi), uy * math.sqrt(wi)
-            zd = zl[i][2] * math.sqrt(wi)
-        else:
-            zd = zl[i][2]
-        a11 += ux * ux
-        a12 += ux * uy
-        a22 += uy * uy
-        b1 += ux * zd
-        b2 += uy * zd
-    if prior is not None:
-        m = prior.mean.tolist()
-        ps = prior.sigmas.tolist()
-        r1 = (sd / ps[2]) ** 2
-        r2 = (sd / ps[3]) ** 2
-        a11 += r1
-        a22 += r2
-        b1 += r1 * m[2]
-        b2 += r2 * m[3]
-    # Minimum-norm solution of the symmetric 2x2 system (as _solve_2x2_min_norm).
-    half_tr = 0.5 * (a11 + a22)
-    disc = math.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
-    hi = half_tr + disc
-    lo = half_tr - disc
-    tol = 1e-10 * max(hi, 1e-300)
-    if lo > tol:
-        det = a11 * a22 - a12 * a12
-        return [x, y, (a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det]
-    if hi <= tol:
-        return [x, y, 0.0, 0.0]
-    # Rank one: project onto the eigenvector of the large eigenvalue.
-    e1, e2 = (a12, hi - a11) if abs(hi - a11) >= abs(hi - a22) else (hi - a22, a12)
-    norm = math.hypot(e1, e2)
-    if norm == 0.0:  # diagonal matrix: the eigenvector is an axis
-        e1, e2 = (1.0, 0.0) if a11 >= a22 else (0.0, 1.0)
-    else:
-        e1, e2 = e1 / norm, e2 / norm
-    k = (e1 * b1 + e2 * b2) / hi
-    return [x, y, k * e1, k * e2]
-
-
-def check_initial_state(initial_state: ArrayLike, poses: NDArray, obs: NDArray | None) -> NDArray:
-    """A user-given starting state, (4,) read-only; raises GeometryError when
-    its position is on an observed node."""
-    x0 = frozen_vector(initial_state, "initial_state", 4)
-    for i, (px, py, _) in enumerate(poses.tolist()):
-        if (obs is None or obs[i]) and math.hypot(x0[0] - px, x0[1] - py) < AT_NODE_M:
-            raise GeometryError(
-                f"initial_state position {x0[:2].tolist()} is at node {i}'s position, where the "
-                "measurement model is undefined"
-            )
-    return x0
-
-
-def checked_initial_state(
-    poses: NDArray, z: NDArray, obs: NDArray | None, prior: GaussianPrior | None,
-    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
-) -> NDArray:
-    """:func:`frame_initial_state` as a (4,) array; raises GeometryError when it
-    is not finite (the average detection on a node)."""
-    x0_list = frame_initial_state(poses, z, obs, prior, noise)
-    x0 = np.array(x0_list)
-    if not all(map(math.isfinite, x0_list)):
-        raise GeometryError(
-            f"initial position {x0[:2].tolist()} (the average of the nodes' detections) "
-            "coincides with a node's position, where the lines of sight are undefined"
-        )
-    return x0
-
-
-def initial_state(
-    node_poses: ArrayLike,
-    measurements: ArrayLike,
-    observed: ArrayLike | None = None,
-    prior: GaussianPrior | None = GaussianPrior(),
-    *,
-    noise: MeasurementNoise | Sequence[MeasurementNoise] = MeasurementNoise(),
-) -> NDArray:
-    """Initial state of one frame (docs/CONVENTIONS.md, "Initial values"); (4,) float.
-
-    node_poses : (N, 3) float, ``(x_m, y_m, phi_rad)``.
-    measurements : (N, 3) float, ``(range_m, omega_rad, doppler_mps)``.
-    observed : (N,) bool or None (all observed).
-    prior : :class:`GaussianPrior` regularizing the velocity, or None.
-    noise : :class:`MeasurementNoise` (its Doppler sigma weighs the prior), or
-        one per node (each Doppler equation weighted by its own sigma).
-
-    Raises :class:`~mmsnap_graph.errors.GeometryError` when the average
-    detection lands on a node's position (its line of sight is undefined).
-    See :func:`initial_states` for the formulas.
-    """
-    poses, z, obs = validate_frame(node_poses, measurements, observed)
-    if (obs is not None and not obs.any()) and prior is None:
-        raise ValidationError("observed has no True entry and there is no prior: nothing to start from")
-    return checked_initial_state(poses, z, obs, prior, noise)

@@ -1,9 +1,8 @@
 """Robust one-shot fusion: the residual gate and the robust kernels
 (docs/CONVENTIONS.md, "One-shot fusion").
 
-Shared by :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` (GTSAM),
-:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch` (numpy) and
-:func:`mmsnap_graph.fusion.recording.sequence.fuse_recording`, GTSAM-free:
+What :func:`mmsnap_graph.fusion.solve.robust_solve` (the robust fit around
+any solver) and the recording's checks share, GTSAM-free:
 
 - ``robust="gate"``: after the fit, each observed node's whitened residual
   3-vector ``e_i`` is tested, ``|e_i|^2 > chi2.ppf(p, 3)``

@@ -51,12 +51,12 @@ def test_velocity_posterior_closes_what_the_likelihood_leaves_open():
     d = velocity_posterior(poses, z, truth=truth, grid_points_per_axis=9, n_plot=41)
     assert d["degeneracy"] > 1e6
     # Along vx (across the line) the likelihood is flat, the posterior is not.
-    row = np.argmin(np.abs(d["vy"] - d["map"].state[3]))
+    row = np.argmin(np.abs(d["vy"] - d["map"].state[0, 3]))
     nll, nlp = d["neg_log_likelihood"][row], d["neg_log_posterior"][row]
     assert np.ptp(nll) < 1e-6 * max(1.0, np.ptp(nlp))
     assert np.ptp(nlp) > 0.5
     # The grid covariance exists and the prior bounds the cross-line velocity.
-    g = d["map"].grid_covariance
+    g = d["map"].grid_covariance[0]
     assert np.all(np.isfinite(g)) and np.sqrt(g[2, 2]) < 3.5
     assert np.sqrt(g[3, 3]) < 0.5
 
@@ -167,13 +167,13 @@ def test_velocity_posterior_has_a_colour_bar_and_a_legend_for_the_likelihood(pos
     for name in ("likelihood 1 sigma", "likelihood 2 sigma", "likelihood 3 sigma",
                  "grid posterior (2 sigma)", "Laplace (2 sigma)", "Bayesian (MAP)", "truth"):
         assert name in texts
-    _assert_legend_clear_of_nodes(fig, ax, [posterior_c["map"].state[2:]])
+    _assert_legend_clear_of_nodes(fig, ax, [posterior_c["map"].state[0, 2:]])
 
 
 def test_velocity_posterior_marks_an_estimate_outside_the_axes(posterior_c):
     d = dict(posterior_c)
-    d["ml"] = dataclasses.replace(d["ml"], state=np.array([0.0, 3.5, 40.0, -0.2]),
-                                  success=True)
+    d["ml"] = dataclasses.replace(d["ml"], state=np.array([[0.0, 3.5, 40.0, -0.2]]),
+                                  status=np.zeros(1, dtype=np.int8))
     fig = plot_velocity_posteriors([("C", d)])
     ax = fig.axes[0]
     (mark,) = [ln for ln in ax.lines if ln.get_marker() == ">"]

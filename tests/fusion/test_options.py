@@ -16,7 +16,8 @@ from _fuzz import assert_rejected
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"covariance": "exact"}, "covariance must be 'laplace', 'grid', 'both'"),
+    ({"covariance": "exact"}, "covariance must be 'laplace' or 'grid'"),
+    ({"covariance": "both"}, "covariance must be 'laplace' or 'grid'"),
     ({"solver": "batch"}, "'batch' is now called 'vectorized'"),
     ({"grid_points_per_axis": 0}, "grid_points_per_axis=0 must be an integer >= 1"),
     ({"chunk_size": 8.0}, "chunk_size=8.0 must be an integer, got float"),

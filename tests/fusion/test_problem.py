@@ -15,15 +15,27 @@ from mmsnap_graph.evaluation import chi2_mean_interval, nees
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_BC
 from factors.models import measurement_model, predict_measurements, wrap_angle
 from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
-from mmsnap_graph import MeasurementNoise, fuse_batch, fuse_frame
+from mmsnap_graph import MeasurementNoise
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.association import associate_frame
-from mmsnap_graph.fusion.problem import check_node_noise, initial_states
+from mmsnap_graph.fusion.frame_problem import FrameProblem, initial_states
+from mmsnap_graph.fusion import problem
+from mmsnap_graph.fusion.problem import check_node_noise
 from mmsnap_graph.fusion.recording.sequence import fuse_recording, group_detections
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream
 from mmsnap_graph.sim import simulate_recording
 from mmsnap_graph.sim import SimulationOptions
-from _fusion import config, stream_config
+from _fusion import config, frame_of, solved, stream_config
+
+
+def fuse_batch(poses, z, **kwargs):
+    """The vectorized solver through the contract."""
+    return solved(poses, z, solver="vectorized", **kwargs)
+
+
+def fuse_frame(poses, z, **kwargs):
+    """GTSAM through the contract, one frame (its fields without the frame axis)."""
+    return frame_of(solved(poses, z, solver="gtsam", **kwargs))
 
 #: Three nodes with sigmas far apart (node 1 has a poor range, node 2 a poor Doppler).
 NOISES = (
@@ -143,7 +155,7 @@ def test_initial_velocity_weighs_each_nodes_doppler_by_its_sigma():
     """The vectorized and the per-frame initial values agree with per-node sigmas."""
     rng = np.random.default_rng(4)
     _, z, obs = _frames(rng, 30, p_miss=0.2)
-    x0 = initial_states(POSES_BC, z, obs, PAPER_PRIOR, noise=NOISES)
+    x0 = initial_states(FrameProblem(poses=POSES_BC, measurements=z, observed=obs, noise=NOISES))
     res = fuse_batch(POSES_BC,
                      z,
                      observed=obs,
@@ -153,8 +165,8 @@ def test_initial_velocity_weighs_each_nodes_doppler_by_its_sigma():
     for f in range(5):
         r = fuse_frame(POSES_BC, z[f], observed=obs[f], noise=NOISES)
         np.testing.assert_allclose(r.initial_state, x0[f], rtol=0, atol=1e-12)
-    assert np.abs(x0[:, 2:] - initial_states(POSES_BC, z, obs, PAPER_PRIOR,
-                                             noise=PAPER_NOISE)[:, 2:]).max() > 1e-3
+    shared = initial_states(FrameProblem(poses=POSES_BC, measurements=z, observed=obs))
+    assert np.abs(x0[:, 2:] - shared[:, 2:]).max() > 1e-3
 
 
 @pytest.mark.parametrize("robust", ["gate", "huber", "cauchy"])
@@ -225,6 +237,30 @@ def recording_3():
     return simulate_recording(network, "random",
                               SimulationOptions(physics=None, known_poses=True, centroid_p_miss=0.1),
                               levels=("centroids",), n_frames=60, seed=7)
+
+
+def test_fuse_recording_validates_the_noise_once(recording_3, monkeypatch):
+    """The driver validates the noise once; the problem, the association and
+    the solvers take the validated NodeNoise as it is (was: 185 validations
+    of a 200-frame recording, one per frame the association groups alone)."""
+    import sys
+
+    real = problem.check_node_noise
+    validated = []
+
+    def counting(noise, *args, **kwargs):
+        if type(noise) is not problem.NodeNoise:
+            validated.append(noise)
+        return real(noise, *args, **kwargs)
+
+    for module in list(sys.modules.values()):
+        if getattr(module, "check_node_noise", None) is real:
+            monkeypatch.setattr(module, "check_node_noise", counting)
+    nn = real(NOISES, 3)
+    assert real(nn, 3) is nn
+    fuse_recording(recording_3, config(robust="gate"), noise=dict(zip(recording_3.node_names,
+                                                                         NOISES)))
+    assert len(validated) == 1
 
 
 def test_fuse_recording_takes_a_noise_mapping_with_both_solvers(recording_3):

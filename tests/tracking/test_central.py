@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model
-from mmsnap_graph.fusion.solvers import gtsam_graph as oneshot, vectorized as batch
+from _fusion import solved
+from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
 from mmsnap_graph.errors import ConfigurationError, ValidationError
 from mmsnap_graph.evaluation import chi2_mean_interval, nees
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
@@ -48,7 +49,7 @@ def _run(rng, poses, start, noise, prior, config, n_runs, n_frames, box_m=1.5):
         h, _ = measurement_model(x[:, None, :], poses)
         z = h + rng.standard_normal(h.shape) * noise.sigmas
         z[..., 1] = np.clip(z[..., 1], -np.pi, np.pi)
-        res = batch.fuse_batch(poses, z, noise=noise, prior=prior)
+        res = solved(poses, z, solver="vectorized", noise=noise, prior=prior)
         assert res.success.all()
         tracker = CentralTracker(config, prior_mean=None if prior is None else prior.mean,
                                  prior_sigmas=None if prior is None else prior.sigmas)
@@ -72,9 +73,9 @@ def test_central_tracker_nees_is_consistent(net, start):
     Laplace covariance of the curved posterior is optimistic (ANEES about 5.5
     over the frames of a crossing)."""
     rng = np.random.default_rng(20)
-    noise = oneshot.MeasurementNoise(omega_rad=0.1)
+    noise = MeasurementNoise(omega_rad=0.1)
     n_runs, n_frames = 30, 50
-    values = _run(rng, POSES[net], start, noise, oneshot.GaussianPrior(),
+    values = _run(rng, POSES[net], start, noise, GaussianPrior(),
                   CentralConfig(gate_probability=0.999999), n_runs, n_frames, box_m=0.8)
     anees = values[:, 5:].mean(axis=0)  # per frame, over runs, after the start-up
     lo, hi = chi2_mean_interval(4, n_runs, confidence=0.95)
@@ -88,8 +89,8 @@ def test_removing_the_prior_keeps_a_strong_prior_from_being_counted_every_frame(
     around zero: fed as they are, the MAP estimates (each shrunk toward zero
     by about 45 %) drag the track's velocity down frame after frame while its
     covariance shrinks; with the prior removed the track stays consistent."""
-    noise = oneshot.MeasurementNoise(omega_rad=0.1)
-    strong = oneshot.GaussianPrior(mean=np.zeros(4), sigmas=[3.0, 3.0, 0.2, 0.2])
+    noise = MeasurementNoise(omega_rad=0.1)
+    strong = GaussianPrior(mean=np.zeros(4), sigmas=[3.0, 3.0, 0.2, 0.2])
     start = [-0.5, 4.0, 0.5, 0.0]
     kw = dict(sigma_a_mps2=0.01, gate_probability=0.999999)
     kept = _run(np.random.default_rng(21), POSES["B"], start, noise, strong,
@@ -204,8 +205,8 @@ def test_fixed_lag_smoother_is_consistent_and_follows_the_kalman_filter():
     estimate up to the process-noise form (continuous white noise in the
     factor, discrete in the filter)."""
     rng = np.random.default_rng(23)
-    noise = oneshot.MeasurementNoise(omega_rad=0.1)
-    prior = oneshot.GaussianPrior()
+    noise = MeasurementNoise(omega_rad=0.1)
+    prior = GaussianPrior()
     # sigma_a pinned to the simulated targets' (SIGMA_A): the filter/smoother
     # gap from the two process-noise forms grows with it, and 5e-3 assumes it.
     cfg = CentralConfig(gate_probability=0.999999, sigma_a_mps2=SIGMA_A)
@@ -215,7 +216,7 @@ def test_fixed_lag_smoother_is_consistent_and_follows_the_kalman_filter():
         x = _cv_trajectory(rng, n_frames, [0.5, 4.0, 0.0, 0.0], 0.8)
         h, _ = measurement_model(x[:, None, :], POSES["B"])
         z = h + rng.standard_normal(h.shape) * noise.sigmas
-        res = batch.fuse_batch(POSES["B"], z, noise=noise, prior=prior)
+        res = solved(POSES["B"], z, solver="vectorized", noise=noise, prior=prior)
         kf = CentralTracker(cfg, prior_mean=prior.mean, prior_sigmas=prior.sigmas)
         fl = FixedLagTracker(cfg, lag_s=1.0, prior_mean=prior.mean, prior_sigmas=prior.sigmas)
         for k in range(n_frames):

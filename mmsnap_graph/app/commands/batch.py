@@ -65,7 +65,7 @@ def register(subparsers) -> None:
                    help="print the per-recording summaries as JSON to stdout instead of the "
                         "table")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_fusion_arguments(p, solvers=("vectorized", "gtsam"))
+    add_fusion_arguments(p, solvers=("vectorized", "gtsam", "scalar"))
     add_overwrite(p, "replace existing output files: --json-out, the copies in --output-dir "
                      "and each recording's calibration JSON (default: refuse them, before "
                      "anything runs)")

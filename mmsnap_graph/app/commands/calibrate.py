@@ -230,7 +230,7 @@ def _joint_fit_text(f) -> tuple[str, ...]:
                      if f.turns else ())
 
 
-def _covariance_text(f) -> str:
+def _covariance_text(f) -> str | tuple[str, ...]:
     if f.method == "schur":
         text = f"covariance: a dense Schur complement ({f.failure})"
     elif f.method == "marginals":
@@ -244,6 +244,12 @@ def _covariance_text(f) -> str:
     if f.reflection_depth_rms_m > 0:
         text += (f"; plus a reflection depth of {f.reflection_depth_rms_m:.3f} m rms that the "
                  f"poses cannot tell from the geometry (not estimated: --range-offset does)")
+        s = np.reshape(f.without_depth_sigmas, (-1, 3))
+        if len(f.without_depth_nodes) and s.shape[0] == len(f.without_depth_nodes):
+            return (text, "1-sigma without the depth, what sessions of one walker and a "
+                          "recording's halves scatter by (the depth is common to them): "
+                    + ", ".join(f"{n} ({a:.3f} m, {b:.3f} m, {np.degrees(c):.2f} deg)"
+                                for n, (a, b, c) in zip(f.without_depth_nodes, s)))
     return text
 
 
@@ -365,6 +371,7 @@ def format_table(cal) -> str:
         lines.append(f"{n:<8}{x:9.3f}{y:9.3f}{np.degrees(phi):10.2f}{sd[0]:9.3f}{sd[1]:9.3f}"
                      f"{np.degrees(sd[2]):10.3f}{cal.lag_frames.get(n, 0):5d}{tau:11.1f}"
                      f"{s_tau:7.1f}")
+    lines.extend(_mounting_lines(cal))
     if np.isfinite(cal.range_offset_m):
         lines.append(f"range offset (reflection depth): {cal.range_offset_m:.3f} +- "
                      f"{np.sqrt(cal.range_offset_variance):.3f} m (added to every range by "
@@ -383,6 +390,26 @@ def format_table(cal) -> str:
     said = ("noise_not_identified",) if cal.noise is not None else ()
     lines.extend("  " + line for f in cal.facts if f.kind not in said for line in fact_lines(f))
     return "\n".join(lines)
+
+
+def _mounting_lines(cal) -> list[str]:
+    """Each calibrated node's 1-sigma against a physical mounting (a tape):
+    the covariance with every radar's uncompensated angle bias considered
+    (:mod:`mmsnap_graph.calibration.angle_bias`)."""
+    from mmsnap_graph.calibration.angle_bias import ANGLE_BIAS_RMS_RAD, mounting_covariance
+
+    rows = []
+    for n in cal.node_names:
+        if n == cal.reference or n not in cal.poses or not np.any(cal.covariances[n]):
+            continue
+        sd = np.sqrt(np.clip(np.diag(mounting_covariance(cal.poses[n], cal.covariances[n])),
+                             0, None))
+        rows.append(f"  {n}: ({sd[0]:.3f} m, {sd[1]:.3f} m, {np.degrees(sd[2]):.2f} deg)")
+    if not rows:
+        return []
+    return [f"1-sigma against a physical mounting (a tape), with each radar's uncompensated "
+            f"angle bias ({np.degrees(ANGLE_BIAS_RMS_RAD):.0f} deg rms) that the calibration "
+            f"takes as its heading, as fusion needs it:"] + rows
 
 
 def effective_matching(args: argparse.Namespace) -> MatchingOptions:

@@ -56,7 +56,7 @@ def register(subparsers) -> None:
                     "(bounded memory).")
     p.add_argument("recording", help="HDF5 recording (docs/FORMAT.md)")
     add_calibration_arguments(p)
-    add_fusion_arguments(p, solvers=("vectorized", "gtsam"))
+    add_fusion_arguments(p, solvers=("vectorized", "gtsam", "scalar"))
     p.add_argument("-o", "--output", default=None,
                    help="write a copy of the recording with /fused here instead of updating it")
     p.add_argument("--max-flagged", type=_fraction, default=DEFAULT_MAX_FLAGGED,

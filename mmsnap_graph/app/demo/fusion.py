@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from ...data.recording import Recording
 from ...errors import ValidationError
-from ...fusion.solvers.gtsam_graph import DEGENERACY_THRESHOLD
+from ...data.results import DEGENERACY_THRESHOLD
 from ...data.results import FusedSequence
 from ...fusion.config import PLAIN_CONFIG
 from ...fusion.options import NetworkCalibration

@@ -4,9 +4,11 @@
 records arrive and groups them by their slot on the common clock (frames of
 different boards within half a frame period of host time share a slot). A
 slot is fused as soon as every active board has given it (or a later slot),
-or when the host clock is :data:`WAIT_FRAMES` frames past it (a board that
-dropped the frame or stopped; a board silent for :data:`INACTIVE_FRAMES`
-frames is no longer waited for).
+or when a board's frame arrived :data:`WAIT_FRAMES` frames past its start
+(by the frames' own arrival times, so a backlog in the queue does not make
+slots overdue), or the host clock is that far past it with no frame coming
+(a board that dropped the frame or stopped; a board silent for
+:data:`INACTIVE_FRAMES` frames is no longer waited for).
 
 Each slot goes through the library's one place for each step: each board's
 points projected into its plane with its mounting
@@ -197,7 +199,9 @@ class LiveFusion:
         self._pending.setdefault(frame.slot, {})[frame.board] = frame
         if self._next is None:
             self._next = self._first = frame.slot
-        return self.poll(time.monotonic())
+        # The frame's own arrival is the clock here: frames that waited in the
+        # queue (a busy moment) do not make their slot overdue.
+        return self.poll(frame.host_time_s)
 
     def poll(self, now_s: float) -> list[LiveFrame]:
         """Fuse the slots that are complete or whose wait is over."""

@@ -33,6 +33,8 @@ __all__ = ["PlotOptions", "plot_recording", "save_plot", "check_output", "FORMAT
 FORMATS = ("png", "svg")
 #: The smallest resolution of a PNG.
 MIN_DPI = 100
+#: A print's resolution: the 9 x 7.5 in figure is 5400 x 4500 pixels (97 MB).
+MAX_DPI = 600
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -42,7 +44,7 @@ class PlotOptions:
     source : ``"auto"`` (the point cloud when the recording has one, else
     the centroids), ``"point_cloud"`` or ``"centroids"``; ellipse_every_s :
     seconds between two ellipses of one person; fov_range_m : the fields of
-    view's range (None: the farthest point drawn); dpi : of a PNG (>= 100)."""
+    view's range (None: the farthest point drawn); dpi : of a PNG (100-600)."""
 
     bounds: tuple | None = None
     frames: tuple | None = None
@@ -67,8 +69,9 @@ class PlotOptions:
         if self.fov_range_m is not None and not (np.isfinite(self.fov_range_m)
                                                  and self.fov_range_m > 0):
             raise ValidationError(f"fov_range_m={self.fov_range_m!r} must be > 0 (m)")
-        if not (isinstance(self.dpi, int) and self.dpi >= MIN_DPI):
-            raise ValidationError(f"dpi={self.dpi!r} must be an integer >= {MIN_DPI}")
+        if not (isinstance(self.dpi, int) and MIN_DPI <= self.dpi <= MAX_DPI):
+            raise ValidationError(f"dpi={self.dpi!r} must be an integer within [{MIN_DPI}, "
+                                  f"{MAX_DPI}] (--dpi)")
 
 
 def _in_frames(frame, frames):

@@ -202,12 +202,22 @@ class BlockCovariance:
         return float(self.covariance[i, i])
 
     def fact(self) -> PoseCovariance:
-        """How the covariance was computed, as the calibration reports it."""
+        """How the covariance was computed, as the calibration reports it
+        (with the considered depth: each node's sigmas without its term)."""
         if self.bandwidth == 0:
             return PoseCovariance(method="marginals")
+        names, sigmas = [], []
+        if self.range_offset_rms > 0 and self.random is not None:
+            for key in dict.fromkeys(k for k in self.order if k[0] == "pose"):
+                i = self.order.index(key)
+                block = self.random[i:i + 3, i:i + 3]
+                names.append(key[1])
+                sigmas.extend(np.sqrt(np.clip(np.diag(block), 0.0, None)).tolist())
         return PoseCovariance(method="long_run", bandwidth_frames=self.bandwidth,
                               max_widening=max(float(np.max(self.factors)), 1.0),
-                              reflection_depth_rms_m=self.range_offset_rms)
+                              reflection_depth_rms_m=self.range_offset_rms,
+                              without_depth_nodes=tuple(names),
+                              without_depth_sigmas=tuple(sigmas))
 
 
 def range_offset_response(problem: PresolveProblem, poses, states, offsets,

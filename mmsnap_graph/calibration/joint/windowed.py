@@ -286,6 +286,29 @@ def _result(first: RecordingCalibration, comb: Combined, fact: WindowsCombined,
         range_offset_m=rng, range_offset_variance=rng_var, facts=(fact, *first.facts))
 
 
+def _unusable(post: WindowPosterior) -> str:
+    """Why a window's pose block cannot be combined ("" when it can): a
+    covariance that is not finite and positive definite."""
+    r = post.random
+    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(post.depth)):
+        return "its pose covariance is not finite"
+    try:
+        np.linalg.cholesky(0.5 * (r + r.T))
+    except np.linalg.LinAlgError:
+        return "its pose covariance is not positive definite"
+    return ""
+
+
+def _spans(index, window_frames: int) -> list[tuple[int, int]]:
+    """The windows' frame ranges; a last one shorter than half a window
+    joins the one before it (a few frames at the end are no calibration)."""
+    spans = list(index.windows(window_frames))
+    if len(spans) >= 2 and spans[-1][1] - spans[-1][0] < window_frames / 2 \
+            and spans[-1][0] == spans[-2][1]:
+        spans[-2:] = [(spans[-2][0], spans[-1][1])]
+    return spans
+
+
 def calibrate_windowed(windows, window_frames: int, *,
                        source: str = "auto", method: str = "auto", noise=None, matching=None,
                        joint=None, on_window: Callable | None = None) -> RecordingCalibration:
@@ -312,7 +335,7 @@ def calibrate_windowed(windows, window_frames: int, *,
     if index.source != "centroids":
         raise ValidationError(f"the windows must be of the centroids, got {index.source!r}")
     posts, first, skipped, n = [], None, [], 0
-    for start, stop in index.windows(int(window_frames)):
+    for start, stop in _spans(index, int(window_frames)):
         n += 1
         rec, _ = index.read(start, stop, tracks=source != "centroids")
         try:
@@ -332,8 +355,13 @@ def calibrate_windowed(windows, window_frames: int, *,
             if first is not None and cal.reference != first.reference:
                 raise CalibrationError(f"window {start}-{stop - 1} has reference "
                                        f"{cal.reference}, the first {first.reference}")
-            first = cal if first is None else first
-            posts.append(window_posterior(cal, jc))
+            post = window_posterior(cal, jc)
+            why = _unusable(post)
+            if why:
+                skipped.append(f"frames {start}-{stop - 1}: {why}")
+            else:
+                first = cal if first is None else first
+                posts.append(post)
         if on_window is not None:
             on_window(start, stop, None if why else cal, why)
         del rec, cal, jc

@@ -3,7 +3,7 @@
 
 Per frame, each monitored node's range and spatial frequency are compared with
 the target state fused from the other nodes (leave-one-node-out,
-:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`); the innovations give per-frame
+:func:`mmsnap_graph.fusion.solve.solve`); the innovations give per-frame
 information and score about the node's pose error (:mod:`.stats`).
 Windows of the last 3 to 20 s are tested against the reference (all earlier
 data since the last reset, with the calibration covariance as prior) by a
@@ -36,7 +36,9 @@ from tqdm import tqdm
 from ...data.noise import GaussianPrior, MeasurementNoise, declared_noise
 from ...data.recording import Recording
 from ...errors import MissingStepError, ValidationError
-from ...fusion.solvers.vectorized import fuse_batch
+from ...fusion.frame_problem import FrameProblem
+from ...fusion.options import FusionOptions
+from ...fusion.solve import solve
 from ..._validation import (as_float_array, check_count, check_finite, check_pose, chi2_gate,
                            positive_scalar, short_repr)
 from .stats import (
@@ -331,8 +333,10 @@ class DecalibrationMonitor:
             return states, covs, ok
         node = np.concatenate(where)
         zz = np.nan_to_num(z[frames], nan=1.0)
-        res = fuse_batch(np.stack([self._poses[m] for m in self.node_names]), zz,
-                         observed=np.concatenate(obs), noise=self.noise, prior=_LOO_PRIOR)
+        problem = FrameProblem(poses=np.stack([self._poses[m] for m in self.node_names]),
+                               measurements=zz, observed=np.concatenate(obs), noise=self.noise,
+                               prior=_LOO_PRIOR)
+        res = solve(problem, FusionOptions(solver="vectorized"))
         states[frames, node], covs[frames, node] = res.state, res.covariance
         ok[frames, node] = res.success
         return states, covs, ok

@@ -260,6 +260,10 @@ def motion_doppler_noise(detections: Mapping[str, Detections], poses: Mapping[st
     theta0 = np.concatenate([initial**2, [0.0, 0.0]])
     theta, cov = _gls(y, x, ok, pairs, theta0)
     var = np.diag(cov)[:n] * difference_kappa(order)
-    sig = np.where(counts > 0, np.sqrt(theta[:n]), np.nan)
+    # A negative variance estimate is not identified (NaN), without numpy's
+    # "invalid value in sqrt" warning reaching the user.
+    sig = np.full(n, np.nan)
+    usable = (counts > 0) & (theta[:n] >= 0)
+    sig[usable] = np.sqrt(theta[:n][usable])
     dof = np.where((counts > 0) & (var > 0), 2.0 * theta[:n] ** 2 / np.maximum(var, 1e-300), 0.0)
     return sig, dof, counts

@@ -59,6 +59,7 @@ from factors.motion import cv_process_noise, cv_transition
 
 from ..._validation import chi2_gate
 from ...data.results import Status
+from ...data.solution import FusionSolution
 from ..robust import residual_test_fails
 from .rows import FusedRows
 
@@ -96,10 +97,9 @@ MOTION_CONTEXT_FRAMES = 3 * MOTION_WINDOW_FRAMES
 #: prediction fail the chi-square test for every subset of its nodes.
 MOTION_FLAG_STATUS = Status.MOTION_INCONSISTENT
 
-#: ``refit(rows (H,), observed (H, N), initial_state (H, 4))`` -> an object
-#: with fuse_batch's per-row fields (``state``, ``covariance``, ``status``,
-#: ``whitened_residuals``, ``final_cost``, ``iterations``, ``degeneracy``).
-Refit = Callable[[NDArray, NDArray, NDArray], object]
+#: ``refit(rows (H,), observed (H, N), initial_state (H, 4))`` -> the
+#: :class:`~mmsnap_graph.data.solution.FusionSolution` of the H hypotheses.
+Refit = Callable[[NDArray, NDArray, NDArray], FusionSolution]
 
 
 @dataclass(frozen=True, slots=True)
@@ -343,22 +343,10 @@ def _select(rows, observed, hr, hp, hm, res, passes, score, node_names) -> NDArr
         used_row.add(r)
         used_pred.add(q)
         left = observed[r] & ~hm[h]
-        rows.put(r, _Hypothesis(res, h), rejected=left, message="converged" + (
+        rows.put([r], res[h], rejected=left[None], message="converged" + (
             f"; motion check: {_names(left, node_names)} left out" if left.any() else
             "; motion check: refitted from the predicted state"))
     return np.array(sorted(used_row), dtype=np.int64)
-
-
-class _Hypothesis:
-    """Hypothesis ``h`` of a refit, as one frame's solve (status OK: only
-    passing hypotheses are kept)."""
-
-    __slots__ = ("state", "covariance", "status", "iterations", "final_cost", "degeneracy")
-
-    def __init__(self, res, h: int) -> None:
-        self.state, self.covariance = res.state[h], res.covariance[h]
-        self.status, self.iterations = Status.OK, res.iterations[h]
-        self.final_cost, self.degeneracy = res.final_cost[h], res.degeneracy[h]
 
 
 def _flag(rows: FusedRows, r: int, observed: NDArray, text: str) -> None:

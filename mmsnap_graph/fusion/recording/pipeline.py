@@ -33,16 +33,18 @@ from numpy.typing import NDArray
 
 from ...data.results import FusedSequence, Status
 from ...errors import MmsnapError
+from ..frame_problem import FrameProblem
+from ..options import FusionOptions
+from ..solve import robust_solve, solve
 from ..config import (CoverageCheck, DuplicateCheck, FusionConfig, LearnedWalls, MotionCheck,
                       RoomCheck, SplitCheck, UnplacedCheck)
 from ..grid import grid_posterior
 from ..problem import node_sigmas, valid_rows
 from ..robust import RESIDUAL_GATE_PROBABILITY
-from ..solvers.vectorized import fuse_batch
 from .coverage import uncovered_rows
 from .motion_check import apply_motion_check
 from .room import DEFAULT_BODY_M, RoomReport, screen_room
-from .rows import FusedRows, status_messages
+from .rows import FusedRows
 from .split_check import SPLIT_MESSAGE, split_rows
 from .unplaced import UNPLACED_MESSAGE, unplaced_rows
 
@@ -52,18 +54,47 @@ __all__ = ["FusionNetwork", "solve_groups", "check_rows", "screen_rows", "fuse_r
 
 @dataclass(frozen=True, kw_only=True, slots=True)
 class FusionNetwork:
-    """What the pipeline knows of the network, validated by its driver.
+    """What the pipeline knows of the network, validated once by its driver.
 
-    node_names : N names; poses : (N, 3) ``(x_m, y_m, phi_rad)``;
-    noise : N :class:`MeasurementNoise` in node order; pose_covariances :
-    (N, 3, 3) or None (exact poses); frame_period_s : s.
+    node_names : N names; problem : the network's
+    :class:`~mmsnap_graph.fusion.frame_problem.FrameProblem` without frames
+    (the node poses (N, 3), their noise and covariances, the prior of the
+    configuration): each solve's problem is made from it with
+    :meth:`~mmsnap_graph.fusion.frame_problem.FrameProblem.with_frames`;
+    frame_period_s : s.
     """
 
     node_names: tuple
-    poses: NDArray
-    noise: tuple
-    pose_covariances: NDArray | None
+    problem: FrameProblem
     frame_period_s: float
+
+    @classmethod
+    def make(cls, node_names, poses, noise, pose_covariances, prior,
+             frame_period_s: float) -> "FusionNetwork":
+        """The network of N nodes (validated: poses (N, 3), ``noise`` one
+        :class:`MeasurementNoise` or N, ``pose_covariances`` (N, 3, 3) or None,
+        ``prior`` a GaussianPrior or None)."""
+        n = len(node_names)
+        problem = FrameProblem(poses=poses, measurements=np.zeros((0, n, 3)),
+                               observed=np.zeros((0, n), dtype=bool), noise=noise, prior=prior,
+                               pose_covariances=pose_covariances)
+        return cls(node_names=tuple(node_names), problem=problem,
+                   frame_period_s=float(frame_period_s))
+
+    @property
+    def poses(self) -> NDArray:
+        """(N, 3) the node poses."""
+        return self.problem.poses
+
+    @property
+    def noise(self) -> tuple:
+        """N :class:`MeasurementNoise`, node order."""
+        return self.problem.noise
+
+    @property
+    def pose_covariances(self) -> NDArray | None:
+        """(N, 3, 3) or None (exact poses)."""
+        return self.problem.pose_covariances
 
 
 def progress_bar(total: int, desc: str, progress: bool | None):
@@ -74,94 +105,49 @@ def progress_bar(total: int, desc: str, progress: bool | None):
     return tqdm(total=total, desc=desc, unit="frame", disable=disable)
 
 
-def _solve_vectorized(out: FusedRows, net, z, obs, config, bar) -> None:
-    k, block_rows = z.shape[0], config.solve.block_rows
-    # A row with an invalid observed measurement (range 0, say) is flagged,
-    # not fused: fuse_batch would refuse the whole block.
-    invalid = (obs & ~valid_rows(z)).any(axis=1)
-    options = replace(config.solve, covariance="laplace")
+def _laplace(config: FusionConfig) -> FusionOptions:
+    """The solve options of the rows (the grid covariance comes after the checks)."""
+    solve = config.solve
+    return solve if solve.covariance == "laplace" else replace(solve, covariance="laplace")
+
+
+def solve_groups(z: NDArray, observed: NDArray, net: FusionNetwork, config: FusionConfig, *,
+                 bar=None) -> FusedRows:
+    """The one-shot solve of K groups (:func:`~mmsnap_graph.fusion.solve.robust_solve`
+    with ``config.solve``'s solver and ``config.robust``): ``z`` (K, N, 3),
+    ``observed`` (K, N) bool; the Laplace covariance (the grid one comes after
+    the checks). A row with an invalid observed measurement (range 0, say) is
+    flagged, not fused; ``config.solve.block_rows`` rows are solved at a time."""
+    k = z.shape[0]
+    out = FusedRows(k, observed.shape[1])
+    options = _laplace(config)
+    invalid = (observed & ~valid_rows(z)).any(axis=1) if k else np.zeros(0, dtype=bool)
+    block_rows = config.solve.block_rows
     for start in range(0, k, block_rows):
         sl = np.arange(start, min(k, start + block_rows))
         sl = sl[~invalid[sl]]
         if sl.size:
-            res = fuse_batch(net.poses, z[sl], observed=obs[sl], noise=net.noise,
-                             prior=config.prior, pose_covariances=net.pose_covariances,
-                             robust=config.robust, options=options)
-            out.put(sl, res)
+            out.put(sl, robust_solve(net.problem.with_frames(z[sl], observed[sl]), options,
+                                     config.robust))
         if bar is not None:
             bar.update(min(k, start + block_rows) - start)
-    out.flag(invalid, Status.NON_FINITE,
-             "a measurement is out of range (range <= 0, |omega| > pi or not finite)")
-
-
-def _solve_gtsam(out: FusedRows, net, z, obs, config, bar) -> None:
-    from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of the vectorized path
-
-    options = replace(config.solve, covariance="laplace")
-    for i in range(z.shape[0]):
-        try:
-            r = fuse_frame(net.poses, z[i], observed=obs[i], noise=net.noise, prior=config.prior,
-                           pose_covariances=net.pose_covariances, robust=config.robust,
-                           options=options)
-        except MmsnapError as exc:  # e.g. an initial position on a node
-            out.flag(i, Status.NON_FINITE, f"{type(exc).__name__}: {exc}")
-        else:
-            out.put(i, r, message=r.message)
-        if bar is not None:
-            bar.update(1)
-
-
-def solve_groups(z: NDArray, observed: NDArray, net: FusionNetwork, config: FusionConfig, *,
-                 bar=None, frame_solver=None) -> FusedRows:
-    """The one-shot solve of K groups: ``z`` (K, N, 3), ``observed`` (K, N)
-    bool; the Laplace covariance (the grid one comes after the checks).
-
-    ``config.solve.solver``: ``"vectorized"``, ``"gtsam"`` or ``"scalar"``
-    (``frame_solver``, a :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver`
-    of the network, per group; with a robust fit the vectorized solver's,
-    which has it)."""
-    out = FusedRows(z.shape[0], observed.shape[1])
-    solver = config.solve.solver
-    if solver == "gtsam":
-        _solve_gtsam(out, net, z, observed, config, bar)
-    elif solver == "scalar" and config.robust is None and frame_solver is not None:
-        # Field by field (the stream's hot path), the messages once.
-        for i in range(z.shape[0]):
-            r = frame_solver.solve(z[i], observed[i])
-            out.state[i], out.covariance[i], out.status[i] = r.state, r.covariance, r.status
-            out.iterations[i], out.final_cost[i], out.degeneracy[i] = (r.iterations,
-                                                                       r.final_cost, r.degeneracy)
-        out.message[:] = status_messages(out.status)
-    else:
-        _solve_vectorized(out, net, z, observed, config, bar)
+    if invalid.any():
+        out.flag(invalid, Status.NON_FINITE,
+                 "a measurement is out of range (range <= 0, |omega| > pi or not finite)")
     return out
 
 
 def _check_motion(out: FusedRows, frame, z, obs, net, config, decide=None) -> None:
-    """The motion check (hypotheses fitted by ``fuse_batch``; with the GTSAM
-    solver the rows it refits are fitted again by ``fuse_frame`` from its
-    solution)."""
-    options = replace(config.solve, covariance="laplace")
+    """The motion check (its hypotheses fitted by ``config.solve``'s solver)."""
+    options = _laplace(config)
 
     def refit(rows, mask, x0):
-        return fuse_batch(net.poses, z[rows], observed=mask, noise=net.noise, prior=config.prior,
-                          initial_state=x0, pose_covariances=net.pose_covariances,
-                          options=options)
+        problem = net.problem.with_frames(z[rows], mask)
+        return solve(problem.with_initial_state(x0), options)
 
-    done = apply_motion_check(out, frame, obs, obs & valid_rows(z),
-                              frame_period_s=net.frame_period_s, refit=refit,
-                              node_names=net.node_names,
-                              residual_gate_probability=RESIDUAL_GATE_PROBABILITY,
-                              decide=decide)
-    if config.solve.solver == "gtsam" and done.size:
-        from ..solvers.gtsam_graph import fuse_frame  # deferred: keeps GTSAM out of the vectorized path
-
-        for i in done:
-            r = fuse_frame(net.poses, z[i], observed=obs[i] & ~out.rejected[i], noise=net.noise,
-                           prior=config.prior, initial_state=out.state[i],
-                           pose_covariances=net.pose_covariances, options=options)
-            out.put(i, r, rejected=out.rejected[i],
-                    message=out.message[i] if r.success else r.message)
+    apply_motion_check(out, frame, obs, obs & valid_rows(z), frame_period_s=net.frame_period_s,
+                       refit=refit, node_names=net.node_names,
+                       residual_gate_probability=RESIDUAL_GATE_PROBABILITY, decide=decide)
 
 
 def _check_coverage(out: FusedRows, frame, z, obs, net, check: CoverageCheck,

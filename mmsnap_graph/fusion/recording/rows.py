@@ -1,10 +1,10 @@
-"""The fused rows of a recording while :func:`~.sequence.fuse_recording`
-builds them: one solve per row (a target in a frame), whichever solver
-solved it, with the field names of every solve
-(:class:`~mmsnap_graph.fusion.solvers.settings.FrameSolve`). The solvers
-fill them with :meth:`FusedRows.put`; the recording's checks
-(:mod:`.motion_check`, :mod:`.split_check`) change them only through
-:meth:`FusedRows.put` and :meth:`FusedRows.flag`.
+"""The fused rows of a recording while the pipeline builds them: one solve
+per row (a target in a frame), stored from the one record of a solve
+(:class:`~mmsnap_graph.data.solution.FusionSolution`, its field names) with
+:meth:`FusedRows.put`, and each row's message (the checks say why they
+changed a row). The recording's checks (:mod:`.motion_check`,
+:mod:`.split_check`) change the rows only through :meth:`FusedRows.put` and
+:meth:`FusedRows.flag`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ...data.results import Status
-from ..solvers.settings import FrameSolve
+from ...data.solution import FusionSolution, status_messages
 
 __all__ = ["FusedRows", "status_messages"]
 
@@ -42,25 +42,18 @@ class FusedRows:
     def __len__(self) -> int:
         return int(self.status.size)
 
-    def put(self, rows: ArrayLike, solved: FrameSolve, *, rejected: ArrayLike | None = None,
+    def put(self, rows: ArrayLike, solved: FusionSolution, *, rejected: ArrayLike | None = None,
             message: ArrayLike | str | None = None) -> None:
-        """Store a solve at ``rows``: a :class:`FrameSolve` of one frame (one
-        row) or of ``len(rows)`` frames (a :class:`BatchResult`, or one
-        indexed by a mask). ``rejected`` defaults to the solve's own
-        (``solved.rejected``, else none); ``message`` to each status'
-        message."""
+        """Store the solve of ``len(rows)`` frames at ``rows``. ``rejected``
+        defaults to the solve's own; ``message`` to each status' message."""
         self.state[rows] = solved.state
         self.covariance[rows] = solved.covariance
         self.status[rows] = solved.status
         self.iterations[rows] = solved.iterations
         self.final_cost[rows] = solved.final_cost
         self.degeneracy[rows] = solved.degeneracy
-        if rejected is None:
-            rejected = getattr(solved, "rejected", False)
-        self.rejected[rows] = rejected
-        if message is None:
-            message = status_messages(solved.status)
-        self.message[rows] = message
+        self.rejected[rows] = solved.rejected if rejected is None else rejected
+        self.message[rows] = solved.message if message is None else message
 
     def flag(self, rows: ArrayLike, status: Status, message: ArrayLike | str, *,
              rejected: ArrayLike | None = None, keep_covariance: bool = False) -> None:
@@ -79,13 +72,3 @@ class FusedRows:
     def ok(self) -> NDArray:
         """(K,) bool: the rows with ``Status.OK``."""
         return self.status == Status.OK
-
-
-#: Each status code's message, indexed by the code.
-_MESSAGES = np.array([Status(c).message for c in range(max(Status) + 1)], dtype=object)
-
-
-def status_messages(status: ArrayLike) -> NDArray:
-    """Each :class:`~mmsnap_graph.data.results.Status` code's message (the
-    one table), as an object array of the codes' shape."""
-    return _MESSAGES[np.asarray(status, dtype=np.int64)]

@@ -8,10 +8,10 @@ some nodes see a target is fused with the nodes that do; a frame that cannot
 be fused is flagged (``success`` False, a :class:`~mmsnap_graph.data.results.Status`
 and a message), never raised.
 
-Two solvers give the same answers (the tests compare them):
-``"vectorized"`` (:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`, vectorized over frames)
-and ``"gtsam"`` (:func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame`, one factor graph per
-frame); with pose covariances (:class:`~mmsnap_graph.fusion.options.NetworkCalibration`)
+Each group is solved through the one contract,
+:func:`mmsnap_graph.fusion.solve.robust_solve`, with any of its solvers
+(``"vectorized"``, the default, over many frames; ``"gtsam"``, one factor
+graph per frame; ``"scalar"``), which give the same answers; with pose covariances (:class:`~mmsnap_graph.fusion.options.NetworkCalibration`)
 their covariances differ by a few percent
 (docs/CONVENTIONS.md, "Calibration-aware fusion").
 
@@ -38,7 +38,7 @@ from ..association import (
 from ..config import DEFAULT_CONFIG, FusionConfig
 from ..problem import check_node_noise, check_pose_covariances
 from ..options import NetworkCalibration
-from ..solvers.settings import check_solver
+from ..solve import check_grid_model
 from .pipeline import FusionNetwork, fuse_rows, screen_rows
 from .coverage import coverage_reach_m
 from .regroup import merge_body_detections
@@ -52,7 +52,6 @@ from ..._validation import check_pose
 from ...tracking.person_ids import assign_person_ids
 
 __all__ = [
-    "RECORDING_SOLVERS",
     "FusedSequence",
     "fuse_recording",
     "fuse_recording_report",
@@ -283,28 +282,21 @@ def group_detections(
 # ----------------------------------------------------------------------------
 
 
-#: The solvers of a recording (:data:`~mmsnap_graph.fusion.solvers.settings.SOLVERS`).
-RECORDING_SOLVERS = ("vectorized", "gtsam")
-
-
 def recording_network(recording: Recording, calibration: NetworkCalibration, noise,
                       config: FusionConfig) -> FusionNetwork:
     """The :class:`~.pipeline.FusionNetwork` of ``recording`` (in its node
-    order) with ``calibration``'s poses and pose covariances and ``noise`` (one
-    :class:`MeasurementNoise`, or a mapping holding every node); a node
-    missing from the pose covariances has an exact pose."""
+    order) with ``calibration``'s poses and pose covariances, ``noise`` (one
+    :class:`MeasurementNoise`, or a mapping holding every node) and the
+    configuration's prior, validated once; a node missing from the pose
+    covariances has an exact pose."""
     names = tuple(recording.node_names)
     noise = check_node_noise(noise, len(names), names)
     covs = calibration.pose_covariances
     pose_cov = check_pose_covariances(None if covs is None else dict(covs), len(names), names)
-    if config.solve.covariance == "grid" and (pose_cov is not None
-                                              or noise.count(noise[0]) != len(noise)):
-        raise ValidationError(
-            "covariance='grid' takes one noise for every node and exact poses; per-node noise "
-            "and pose_covariances need covariance='laplace'")
-    return FusionNetwork(node_names=names, poses=recording_poses(recording, calibration.node_poses),
-                         noise=noise, pose_covariances=pose_cov,
-                         frame_period_s=float(recording.frame_period_s))
+    net = FusionNetwork.make(names, recording_poses(recording, calibration.node_poses), noise,
+                             pose_cov, config.prior, recording.frame_period_s)
+    check_grid_model(net.problem, config.solve)
+    return net
 
 
 def calibrated_recording(recording: Recording, calibration: NetworkCalibration,
@@ -346,7 +338,6 @@ def fuse_recording_rows(
     learned walls, duplicates: :func:`~.pipeline.screen_rows`)."""
     if not isinstance(config, FusionConfig):
         raise ValidationError(f"config must be a FusionConfig, got {type(config).__name__}")
-    check_solver(config.solve.solver, RECORDING_SOLVERS, what="config.solve.solver")
     if not isinstance(recording, Recording):
         raise ValidationError(f"recording must be a Recording, got {type(recording).__name__}")
     if progress is not None and not isinstance(progress, (bool, np.bool_)):

@@ -1,6 +1,6 @@
 """Assessing a solved one-shot frame (no GTSAM): whitened residuals, the
 velocity degeneracy, the gradient of the cost and the checks that make a
-:class:`~mmsnap_graph.data.results.FusionResult` a success (a positive-definite
+:class:`~mmsnap_graph.data.solution.FusionSolution` frame a success (a positive-definite
 covariance, a vanishing Newton decrement); used by
 :mod:`mmsnap_graph.fusion.solvers.gtsam_graph`. Each node has its own sigmas (a sequence of
 N :class:`~mmsnap_graph.data.noise.MeasurementNoise`).

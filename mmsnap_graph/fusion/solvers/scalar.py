@@ -1,17 +1,20 @@
-"""One-shot fusion of one target in one frame, in plain Python floats: the
-solver of the stream (:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`,
-``solver="scalar"``, docs/STREAMING.md).
+"""One-shot fusion one frame at a time, in plain Python floats:
+``solver="scalar"`` of :func:`mmsnap_graph.fusion.solve.solve` (:func:`solve_frames`),
+the solver of the stream (:class:`mmsnap_graph.fusion.stream.frame_stream.FrameStream`,
+docs/STREAMING.md).
 
-The same problem as :func:`mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` (GTSAM):
+The same problem as GTSAM's (:mod:`mmsnap_graph.fusion.solvers.gtsam_graph`):
 the cost ``0.5 * sum of squared whitened residuals`` of every observed node's
 range, spatial frequency (wrapped) and Doppler, each node with its own
-sigmas, plus the Gaussian prior (MAP; none for ML), from the same initial
-state (:func:`~mmsnap_graph.fusion.problem.frame_initial_state`). It is
+sigmas (with a robust kernel, the kernel's loss and each node weighted by
+its IRLS weight, as GTSAM's robust noise model), plus the Gaussian prior
+(MAP; none for ML), from the same initial state
+(:func:`~mmsnap_graph.fusion.frame_problem.initial_states`). It is
 minimized by Levenberg-Marquardt (Marquardt's diagonal damping and Nielsen's
-update, as the GTSAM settings of ``fuse_frame``) and the covariance is the
-inverse of the Gauss-Newton information ``J^T W J + Lambda_prior`` at the
-solution (what ``gtsam.Marginals`` returns for that graph). With uncertain
-node poses the covariance is the marginal of the state in the joint graph of
+update, as the GTSAM settings) and the covariance is the inverse of the
+Gauss-Newton information ``J^T W J + Lambda_prior`` at the solution (what
+``gtsam.Marginals`` returns for that graph). With uncertain node poses the
+covariance is the marginal of the state in the joint graph of
 :mod:`mmsnap_graph.fusion.solvers.gtsam_poses` (each uncertain pose a variable
 under its prior, linearized at the estimate and the calibrated poses),
 computed here as a Schur complement: the same number as GTSAM's.
@@ -31,20 +34,19 @@ lambda, its update from the model fidelity, Marquardt's diagonal clamped as
 GTSAM clamps it, the relative and absolute error tolerances of 1e-14), so
 that both reach the same local minimum (two nodes can have a mirror
 minimum) and stop alike; they differ by rounding (GTSAM solves the normal
-equations by its own elimination). ``tests/test_frame_solver.py`` checks
-the two against each other on random frames of seven networks and modes
+equations by its own elimination). ``tests/fusion/test_solve.py`` checks
+the two against each other through :func:`~mmsnap_graph.fusion.solve.solve`
 (MAP, ML, missed nodes, per-node noise, uncertain poses, degenerate
-geometry): statuses equal, states to :data:`STATE_TOLERANCE` and
-covariances to :data:`COVARIANCE_TOLERANCE`, both relative to the
-standard deviations (measured on 2,100 frames: 3e-7 and 2.5e-6 at most,
-the largest where the cost is flattest).
+geometry, robust fits): statuses equal, states to :data:`STATE_TOLERANCE`
+and covariances to :data:`COVARIANCE_TOLERANCE`, both relative to the
+standard deviations.
 
-Status codes as ``fuse_frame``: ``NON_FINITE`` for an initial position on a
-node (``fuse_frame`` raises there; the stream flags the group) or a
-non-finite solution or a Newton decrement above
+Status codes as GTSAM's: ``NON_FINITE`` for an initial position on a node,
+a non-finite solution or a Newton decrement above
 :data:`~mmsnap_graph.fusion.solvers.assess.NEWTON_DECREMENT_TOLERANCE`;
 ``MAX_ITERATIONS``; ``SINGULAR`` when the information is not positive
-definite (an ML group seen by one node).
+definite (an ML frame seen by one node); ``NO_INFORMATION`` for no node and
+no prior.
 """
 
 from __future__ import annotations
@@ -59,15 +61,17 @@ from factors.models import measurement_model_scalar, wrap_angle_scalar
 
 from ...data.noise import GaussianPrior, MeasurementNoise
 from ...data.results import Status
+from ...data.solution import FusionSolution
+from ...errors import ValidationError
 from ..._floats4 import cholesky_4x4, cholesky_inverse_4x4, cholesky_solve_4x4, forward_4x4
 from ..degeneracy import condition_2x2
+from ..frame_problem import initial_states as start_states
 from .assess import NEWTON_DECREMENT_TOLERANCE
 from .settings import LM_SETTINGS, LevenbergMarquardtSettings
-from ..problem import frame_initial_state
 
-__all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "FrameSolution", "FrameSolver"]
+__all__ = ["STATE_TOLERANCE", "COVARIANCE_TOLERANCE", "solve_frames"]
 
-#: Largest difference between this solver's state and ``fuse_frame``'s, in
+#: Largest difference between this solver's state and GTSAM's, in
 #: units of each component's standard deviation (measured: 3e-7 at most,
 #: typically 1e-10).
 STATE_TOLERANCE = 1e-6
@@ -81,8 +85,9 @@ _MIN_EIGENVALUE_RATIO = 1e-13
 # Relative Cholesky pivot below which the information counts as singular
 # (as mmsnap_graph._linalg's batched Cholesky).
 _PIVOT_RTOL = 1e-12
-_OK, _MAX_ITER, _SINGULAR, _NON_FINITE = (int(Status.OK), int(Status.MAX_ITERATIONS),
-                                          int(Status.SINGULAR), int(Status.NON_FINITE))
+_OK, _MAX_ITER, _SINGULAR, _NON_FINITE, _NO_INFORMATION = (
+    int(Status.OK), int(Status.MAX_ITERATIONS), int(Status.SINGULAR), int(Status.NON_FINITE),
+    int(Status.NO_INFORMATION))
 
 
 def _positive_definite(cov: NDArray) -> bool:
@@ -112,20 +117,6 @@ def _nan44() -> NDArray:
     return np.full((4, 4), np.nan)
 
 
-class FrameSolution:
-    """One solved group (a :class:`~mmsnap_graph.fusion.solvers.settings.FrameSolve`):
-    ``state`` (4,) list of floats, ``covariance`` (4, 4) array (NaN unless
-    ``status`` is OK), ``status`` (int
-    :class:`~mmsnap_graph.data.results.Status` code), ``degeneracy``,
-    ``iterations`` and ``final_cost`` (NaN when the solver did not start)."""
-
-    __slots__ = ("state", "covariance", "status", "degeneracy", "iterations", "final_cost")
-
-    def __init__(self, state, covariance, status, degeneracy, iterations, final_cost=math.nan):
-        self.state, self.covariance, self.status = state, covariance, status
-        self.degeneracy, self.iterations, self.final_cost = degeneracy, iterations, final_cost
-
-
 def _cholesky(a: list[float]) -> tuple[float, ...] | None:
     """The Cholesky factor of ``a`` (16 floats) with this solver's pivot
     tolerance (``_PIVOT_RTOL``), or None."""
@@ -137,7 +128,7 @@ def _cholesky_inverse(lo) -> NDArray:
     return np.array(cholesky_inverse_4x4(lo)).reshape(4, 4)
 
 
-class FrameSolver:
+class _FrameSolver:
     """The one-shot solver of one network: node poses, per-node sigmas, prior
     and pose covariances, precomputed once; :meth:`solve` fuses one group.
 
@@ -145,21 +136,20 @@ class FrameSolver:
     :class:`MeasurementNoise` (node order); prior : GaussianPrior or None;
     pose_covariances : (N, 3, 3) with NaN for an exact pose, or None
     (validated by :func:`~mmsnap_graph.fusion.problem.check_pose_covariances`);
-    lm : the Levenberg-Marquardt settings, as ``fuse_frame``'s.
+    lm : the Levenberg-Marquardt settings, as GTSAM's; kernel : ``(name, k)``
+    or None.
     """
 
     def __init__(self, node_poses: NDArray, noises: Sequence[MeasurementNoise],
                  prior: GaussianPrior | None, pose_covariances: NDArray | None = None,
-                 lm: LevenbergMarquardtSettings = LM_SETTINGS) -> None:
+                 lm: LevenbergMarquardtSettings = LM_SETTINGS,
+                 kernel: tuple[str, float] | None = None) -> None:
         poses = np.asarray(node_poses, dtype=float)
+        self.kernel = kernel
         self.poses = poses
         self.noises = tuple(noises)
         self.prior = prior
         self.lm = lm
-        # One noise for every node: the initial state's Doppler weights are all 1
-        # either way (problem.frame_initial_state), one noise skips them.
-        self._initial_noise = (self.noises[0] if all(m == self.noises[0] for m in self.noises)
-                               else self.noises)
         self._nodes = [(px, py, math.cos(phi), math.sin(phi)) for px, py, phi in poses.tolist()]
         self._inv_sigma = [(1.0 / m.range_m, 1.0 / m.omega_rad, 1.0 / m.doppler_mps)
                            for m in self.noises]
@@ -176,9 +166,11 @@ class FrameSolver:
 
     # ------------------------------------------------------------------
     def _normal(self, x, rows):
-        """``(cost, H (16 floats, row-major), g (4), (a11, a12, a22))`` at
-        ``x``: the Gauss-Newton information and gradient of the cost, and
-        the lines-of-sight sums of the degeneracy. ``rows``: (node, z)
+        """``(cost, H (16 floats, row-major), g (4), (a11, a12, a22),
+        residuals)`` at ``x``: the Gauss-Newton information and gradient of
+        the cost (each node weighted by the kernel's IRLS weight), the
+        lines-of-sight sums of the degeneracy and each observed node's plain
+        whitened residuals ``(n, e_r, e_w, e_v)``. ``rows``: (node, z)
         pairs of the observed nodes. Raises ZeroDivisionError for a state on
         a node."""
         x0, x1, x2, x3 = x
@@ -186,7 +178,8 @@ class FrameSolver:
         h00 = h01 = h11 = h02 = h03 = h12 = h13 = h22 = h23 = h33 = 0.0
         g0 = g1 = g2 = g3 = 0.0
         a11 = a12 = a22 = 0.0
-        nodes, inv_sigma = self._nodes, self._inv_sigma
+        nodes, inv_sigma, kernel = self._nodes, self._inv_sigma, self.kernel
+        residuals = []
         for n, (zr, zw, zv) in rows:
             px, py, c, s = nodes[n]
             r, w, v, j = measurement_model_scalar(x0, x1, x2, x3, px, py, c, s)
@@ -194,11 +187,20 @@ class FrameSolver:
             er = (r - zr) * sr
             ew = wrap_angle_scalar(w - zw) * sw
             ev = (v - zv) * sv
-            cost += er * er + ew * ew + ev * ev
+            residuals.append((n, er, ew, ev))
             ux, uy = j[0], j[1]
             a11 += ux * ux
             a12 += ux * uy
             a22 += uy * uy
+            s2 = er * er + ew * ew + ev * ev
+            if kernel is None:
+                cost += s2
+            else:  # GTSAM's robust model: the loss, and rows scaled by sqrt(weight)
+                wt, loss = _kernel(kernel, s2)
+                cost += 2.0 * loss
+                q = math.sqrt(wt)
+                sr, sw, sv = sr * q, sw * q, sv * q
+                er, ew, ev = er * q, ew * q, ev * q
             rx, ry = ux * sr, uy * sr                      # whitened range row (rx, ry, 0, 0)
             wx, wy = j[4] * sw, j[5] * sw                  # spatial frequency row (wx, wy, 0, 0)
             dx, dy, dvx, dvy = j[8] * sv, j[9] * sv, ux * sv, uy * sv   # Doppler row
@@ -230,15 +232,15 @@ class FrameSolver:
             g2 += p2 * d2
             g3 += p3 * d3
         info = [h00, h01, h02, h03, h01, h11, h12, h13, h02, h12, h22, h23, h03, h13, h23, h33]
-        return cost, info, (g0, g1, g2, g3), (a11, a12, a22)
+        return cost, info, (g0, g1, g2, g3), (a11, a12, a22), residuals
 
     def _lm(self, x, rows):
         """Levenberg-Marquardt from ``x``, step for step as GTSAM's
-        ``LevenbergMarquardtOptimizer`` with the settings of ``fuse_frame``
+        ``LevenbergMarquardtOptimizer`` with the GTSAM settings
         (so that both reach the same local minimum and stop alike): ``(x,
-        cost, H, g, lines, iterations, converged)``."""
+        cost, H, g, lines, residuals, iterations, converged)``."""
         lm = self.lm
-        cost, info, grad, lines = self._normal(x, rows)
+        cost, info, grad, lines, res = self._normal(x, rows)
         lam, factor = lm.lambda_initial, lm.lambda_factor
         it = 0
         while it < lm.max_iterations:
@@ -253,7 +255,7 @@ class FrameSolver:
                     lam = max(lm.lambda_min, lam * lm.damping_update(fidelity))
                     factor = 2.0
                     x = new_x
-                    cost, info, grad, lines = new
+                    cost, info, grad, lines, res = new
                     break
                 if step is not None and step[1] is None:
                     break  # the cost change is below rounding: stop searching lambda
@@ -264,8 +266,8 @@ class FrameSolver:
             decrease = previous - cost
             if (cost <= 0.0 or decrease <= lm.relative_tolerance * previous
                     or decrease <= lm.absolute_tolerance):
-                return x, cost, info, grad, lines, it, True
-        return x, cost, info, grad, lines, it, False
+                return x, cost, info, grad, lines, res, it, True
+        return x, cost, info, grad, lines, res, it, False
 
     def _try(self, x, cost, info, grad, lam, diag, rows):
         """One damped step (GTSAM's ``tryLambda``): None when the damped system
@@ -291,7 +293,7 @@ class FrameSolver:
         try:
             new = self._normal(x_new, rows)
         except ZeroDivisionError:
-            new = (math.inf, None, None, None)
+            new = (math.inf, None, None, None, None)
         change = cost - new[0]
         fidelity = 0.0
         if linearized > _EPSILON * cost:
@@ -304,44 +306,43 @@ class FrameSolver:
         return successful, fidelity, x_new, new
 
     # ------------------------------------------------------------------
-    def solve(self, z: NDArray, observed: NDArray) -> FrameSolution:
-        """Fuse one group: ``z (N, 3)`` each node's measurement (rows of the
-        unobserved nodes ignored), ``observed (N,)`` bool (at least one True,
-        or a prior)."""
-        obs = observed.tolist()
-        zl = z.tolist()
-        rows = [(n, zl[n]) for n in range(len(obs)) if obs[n]]
-        x0 = frame_initial_state(self.poses, z, observed, self.prior, self._initial_noise)
-        if not all(map(math.isfinite, x0)):  # the average detection on a node
-            return FrameSolution([math.nan] * 4, _nan44(), _NON_FINITE, math.inf, 0)
+    def solve(self, z: list, observed: list, x0: list[float]) -> tuple:
+        """Fuse one group from ``x0`` (4 floats, finite): ``z`` (N rows of 3
+        floats) each node's measurement (rows of the unobserved nodes
+        ignored), ``observed`` (N bools; at least one True, or a prior).
+        Returns ``(state, covariance (4, 4) or None, status, degeneracy,
+        iterations, cost, residuals)`` (``residuals``: ``(n, e_r, e_w,
+        e_v)`` of the observed nodes at ``state``, empty when unknown)."""
+        rows = [(n, z[n]) for n in range(len(observed)) if observed[n]]
         try:
-            x, cost, info, grad, lines, it, converged = self._lm(x0, rows)
+            x, cost, info, grad, lines, res, it, converged = self._lm(x0, rows)
         except ZeroDivisionError:  # the initial state on a node
-            return FrameSolution([math.nan] * 4, _nan44(), _NON_FINITE, math.inf, 0)
-        return self._assess(x, cost, info, grad, lines, it, converged, rows)
+            return [math.nan] * 4, None, _NON_FINITE, math.inf, 0, math.nan, ()
+        status, cov, degeneracy = self._assess(x, cost, info, grad, lines, converged, rows)
+        return x, cov, status, degeneracy, it, cost, res
 
-    def _assess(self, x, cost, info, grad, lines, it, converged, rows) -> FrameSolution:
-        """Status, covariance and degeneracy of a solution (as ``fuse_frame``)."""
+    def _assess(self, x, cost, info, grad, lines, converged, rows) -> tuple:
+        """``(status, covariance or None, degeneracy)`` of a solution (as GTSAM's)."""
         if not (math.isfinite(cost) and all(map(math.isfinite, x))):
-            return FrameSolution(x, _nan44(), _NON_FINITE, math.inf, it, cost)
+            return _NON_FINITE, None, math.inf
         if not converged:
-            return FrameSolution(x, _nan44(), _MAX_ITER, math.inf, it, cost)
+            return _MAX_ITER, None, math.inf
         lo = _cholesky(info)
         if lo is None:  # indeterminate system (gtsam.Marginals raises)
-            return FrameSolution(x, _nan44(), _SINGULAR, math.inf, it, cost)
+            return _SINGULAR, None, math.inf
         cov = _cholesky_inverse(lo)
         degeneracy = condition_2x2(*lines)
         if not _positive_definite(cov):
-            return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it, cost)
+            return _SINGULAR, None, degeneracy
         # The squared Newton decrement g^T H^-1 g = |L^-1 g|^2.
         y = forward_4x4(lo, grad)
         if not y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3] <= NEWTON_DECREMENT_TOLERANCE:
-            return FrameSolution(x, _nan44(), _NON_FINITE, degeneracy, it, cost)
+            return _NON_FINITE, None, degeneracy
         if self._pose_info is not None:
             cov = self._pose_aware(x, info, rows)
             if cov is None:
-                return FrameSolution(x, _nan44(), _SINGULAR, degeneracy, it, cost)
-        return FrameSolution(x, cov, _OK, degeneracy, it, cost)
+                return _SINGULAR, None, degeneracy
+        return _OK, cov, degeneracy
 
     def _pose_aware(self, x, info, rows) -> NDArray | None:
         """The state's marginal covariance in the joint graph with the uncertain
@@ -354,6 +355,10 @@ class FrameSolver:
             px, py, c, s = self._nodes[n]
             _, _, _, j_state, j_pose = measurement_model_scalar(*x, px, py, c, s, pose_jacobian=True)
             inv_sigma = np.array(self._inv_sigma[n])[:, None]
+            if self.kernel is not None:  # the node's IRLS weight at x
+                r, w, v, _ = measurement_model_scalar(*x, px, py, c, s)
+                e = np.array([r - zr, wrap_angle_scalar(w - zw), v - zv]) * inv_sigma[:, 0]
+                inv_sigma = inv_sigma * math.sqrt(_kernel(self.kernel, float(e @ e))[0])
             jx = np.array(j_state).reshape(3, 4) * inv_sigma
             jp = np.array(j_pose).reshape(3, 3) * inv_sigma
             h_xp = jx.T @ jp
@@ -366,3 +371,58 @@ class FrameSolver:
         if lo is None:
             return None
         return _cholesky_inverse(lo)
+
+
+def _kernel(kernel: tuple[str, float], s2: float) -> tuple[float, float]:
+    """``(IRLS weight, loss)`` of GTSAM's Huber or Cauchy kernel at squared
+    whitened norm ``s2`` (as :func:`~mmsnap_graph.fusion.robust.kernel_weight_and_loss`)."""
+    name, k = kernel
+    if name == "huber":
+        s = math.sqrt(s2)
+        return (1.0, 0.5 * s2) if s <= k else (k / s, k * s - 0.5 * k * k)
+    q = s2 / (k * k)
+    return 1.0 / (1.0 + q), 0.5 * k * k * math.log1p(q)
+
+
+def _solver_of(problem, lm: LevenbergMarquardtSettings) -> _FrameSolver:
+    """The :class:`_FrameSolver` of ``problem``'s network (made once per network)."""
+    return problem.cached(("scalar", lm, problem.kernel), lambda: _FrameSolver(
+        problem.poses, problem.noise, problem.prior, problem.pose_covariances, lm, problem.kernel))
+
+
+def solve_frames(problem, options):
+    """Every frame of a :class:`~mmsnap_graph.fusion.frame_problem.FrameProblem`
+    solved one at a time in plain floats: a
+    :class:`~mmsnap_graph.data.solution.FusionSolution` with the Laplace
+    covariance (:func:`mmsnap_graph.fusion.solve.solve`)."""
+    if problem.poses.ndim == 3:
+        raise ValidationError("the scalar solver takes one network for every frame "
+                              "(poses (N, 3)); use solver='vectorized' or 'gtsam'")
+    solver = _solver_of(problem, options.lm)
+    n_frames, n_nodes = problem.n_frames, problem.n_nodes
+    state = np.full((n_frames, 4), np.nan)
+    cov = np.full((n_frames, 4, 4), np.nan)
+    status = np.zeros(n_frames, dtype=np.int8)
+    iterations = np.zeros(n_frames, dtype=np.int64)
+    cost = np.full(n_frames, np.nan)
+    whitened = np.full((n_frames, n_nodes, 3), np.nan)
+    degeneracy = np.full(n_frames, np.inf)
+    x0 = start_states(problem, per_frame=True)
+    z_all, obs_all, x0_all = problem.measurements.tolist(), problem.observed.tolist(), x0.tolist()
+    no_prior = problem.prior is None
+    for f in range(n_frames):
+        if no_prior and not any(obs_all[f]):
+            status[f] = _NO_INFORMATION
+            continue
+        if not all(map(math.isfinite, x0_all[f])):  # the average detection on a node
+            status[f] = _NON_FINITE
+            continue
+        x, c, st, dg, it, fc, res = solver.solve(z_all[f], obs_all[f], x0_all[f])
+        state[f], status[f], degeneracy[f], iterations[f], cost[f] = x, st, dg, it, fc
+        if c is not None:
+            cov[f] = c
+        for n, er, ew, ev in res:
+            whitened[f, n] = er, ew, ev
+    return FusionSolution.of_solver(state=state, covariance=cov, status=status,
+                                    iterations=iterations, final_cost=cost, initial_state=x0,
+                                    whitened_residuals=whitened, degeneracy=degeneracy)

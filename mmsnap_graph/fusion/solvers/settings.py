@@ -10,17 +10,15 @@
   :mod:`.vectorized_lm`, the calibration pre-solve) and mirrored into GTSAM's
   ``LevenbergMarquardtParams`` (:func:`.gtsam_graph.lm_params`), so that
   every solver damps, updates and gives up alike;
-- :class:`FrameSolve`: what a solved frame reports, whichever solver solved
-  it (:class:`~mmsnap_graph.data.results.FusionResult`, a row of
-  :class:`~mmsnap_graph.data.results.BatchResult`,
-  :class:`.scalar.FrameSolution`).
+- (what every solver returns is one record,
+  :class:`~mmsnap_graph.data.solution.FusionSolution`, through
+  :func:`mmsnap_graph.fusion.solve.solve`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
 
 from ...errors import ValidationError
 
@@ -29,7 +27,6 @@ __all__ = [
     "check_solver",
     "LevenbergMarquardtSettings",
     "LM_SETTINGS",
-    "FrameSolve",
 ]
 
 #: The solvers of the one-frame problem, by the one name each has everywhere.
@@ -132,21 +129,3 @@ class LevenbergMarquardtSettings:
 
 #: The settings every solver uses unless told otherwise.
 LM_SETTINGS = LevenbergMarquardtSettings()
-
-
-@runtime_checkable
-class FrameSolve(Protocol):
-    """What a solved frame (or, with a leading axis, many frames) reports,
-    whichever solver solved it: ``state`` (4,) ``(x_m, y_m, vx_mps,
-    vy_mps)``; ``covariance`` (4, 4), the Laplace covariance (NaN unless
-    ``status`` is OK); ``status`` a :class:`~mmsnap_graph.data.results.Status`
-    code; ``iterations``; ``final_cost``, GTSAM's graph error (half the sum of
-    squared whitened residuals, prior included); ``degeneracy``, the
-    condition number of the velocity information of the lines of sight."""
-
-    state: object
-    covariance: object
-    status: object
-    iterations: object
-    final_cost: object
-    degeneracy: object

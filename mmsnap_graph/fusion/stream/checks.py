@@ -73,10 +73,8 @@ class StreamPipeline:
     (module docstring). ``net``: the network; ``config``: the
     :class:`FusionConfig` (its ``covariance`` must be ``"laplace"``)."""
 
-    def __init__(self, net: FusionNetwork, config: FusionConfig, delay_frames: int,
-                 frame_solver=None) -> None:
+    def __init__(self, net: FusionNetwork, config: FusionConfig, delay_frames: int) -> None:
         self.net, self.config, self.delay_frames = net, config, int(delay_frames)
-        self._frame_solver = frame_solver
         self._held: deque[SolvedFrame] = deque()
         walls = config.check(LearnedWalls)
         self._walls_cfg = walls
@@ -105,8 +103,7 @@ class StreamPipeline:
     def solve(self, frame: int, members: NDArray, z: NDArray) -> SolvedFrame:
         """Solve one frame's groups and hold them for the checks."""
         solved = SolvedFrame(frame=int(frame), members=members, z=z,
-                             rows=solve_groups(z, members >= 0, self.net, self.config,
-                                               frame_solver=self._frame_solver))
+                             rows=solve_groups(z, members >= 0, self.net, self.config))
         if members.shape[0]:
             self._held.append(solved)
         return solved

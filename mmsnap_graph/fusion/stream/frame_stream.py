@@ -15,11 +15,10 @@ It is built for latency (docs/validation/speed.md, "Latency"): the grouping is
 :class:`~mmsnap_graph.fusion.stream.association.StreamAssociator` (the
 decisions of ``associate_frame`` in plain floats for up to four detections
 per node, ``associate_frame`` itself otherwise); the default solver
-``"scalar"`` is :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver` (the
-problem of :func:`~mmsnap_graph.fusion.solvers.gtsam_graph.fuse_frame` solved as GTSAM
-solves it, in plain floats, equal to it to the tolerance stated there);
-``"gtsam"`` runs ``fuse_frame`` itself and ``"vectorized"``
-:func:`mmsnap_graph.fusion.solvers.vectorized.fuse_batch`. Each frame is validated once,
+``"scalar"`` is :mod:`mmsnap_graph.fusion.solvers.scalar` (the problem
+GTSAM solves, in plain floats, equal to it to the tolerance stated there),
+``"gtsam"`` the reference and ``"vectorized"`` numpy's, each through
+:func:`mmsnap_graph.fusion.solve.robust_solve`. Each frame is validated once,
 with checks on plain floats.
 
 State is bounded: the node poses and settings, the time of the last good
@@ -68,7 +67,6 @@ from ..config import DEFAULT_CONFIG, FusionConfig
 from ..options import FusionOptions, NetworkCalibration
 from ..recording.pipeline import FusionNetwork
 from ..recording.regroup import merge_body_detections
-from ..solvers.scalar import FrameSolver
 from .association import StreamAssociator
 from .checks import StreamPipeline
 from ..problem import check_node_noise, check_pose_covariances
@@ -167,10 +165,9 @@ class FrameStream:
     config : FusionConfig
         The one pipeline's configuration (:class:`~mmsnap_graph.fusion.config.FusionConfig`,
         default :data:`STREAM_CONFIG`: every check, the scalar solver): the
-        association, the solve (``"scalar"``: :class:`~mmsnap_graph.fusion.solvers.scalar.FrameSolver`
-        per group, the problem of ``fuse_frame`` in plain floats; ``"gtsam"``:
-        ``fuse_frame``; ``"vectorized"``: ``fuse_batch`` on the frame's
-        groups), the prior (None: ML), the robust fit and the checks, run as
+        association, the solve (``"scalar"``: the problem GTSAM solves, in
+        plain floats, per group; ``"gtsam"``: GTSAM; ``"vectorized"``: numpy
+        on the frame's groups; the robust fit around any of them), the prior (None: ML), the robust fit and the checks, run as
         :mod:`~mmsnap_graph.fusion.stream.checks` says.
     tracker : CentralConfig or None
         The central tracker's settings (default ``CentralConfig()``); its
@@ -242,12 +239,10 @@ class FrameStream:
         self.gate_probability = config.association.gate_probability
         tracker_cfg = CentralConfig() if tracker is None else tracker
         self.frame_period_s = float(tracker_cfg.frame_period_s)
-        net = FusionNetwork(node_names=names, poses=poses, noise=noises,
-                            pose_covariances=self.pose_covariances,
-                            frame_period_s=self.frame_period_s)
-        self._frame_solver = FrameSolver(poses, noises, self.prior, self.pose_covariances)
+        net = FusionNetwork.make(names, poses, noises, self.pose_covariances, self.prior,
+                                 self.frame_period_s)
         self._associator = StreamAssociator(poses, noises, self.gate_probability)
-        self._pipeline = StreamPipeline(net, config, self.delay_frames, self._frame_solver)
+        self._pipeline = StreamPipeline(net, config, self.delay_frames)
         self._index = {name: i for i, name in enumerate(names)}
         prior = self.prior
         self._new_tracker = lambda: CentralTracker(

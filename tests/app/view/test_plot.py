@@ -70,7 +70,9 @@ def test_a_recording_not_fused_shows_points_and_radars(fused_b_file, tmp_path):
 @pytest.mark.parametrize("kwargs, match", [
     (dict(bounds=(1, 0, 0, 1)), "x_min < x_max"), (dict(frames=(5, 2)), "first <= last"),
     (dict(source="cube"), "source="), (dict(ellipse_every_s=0.0), "ellipse_every_s"),
-    (dict(fov_range_m=-1.0), "fov_range_m"), (dict(dpi=50), "dpi=50")])
+    (dict(fov_range_m=-1.0), "fov_range_m"), (dict(dpi=50), "dpi=50"),
+    # before: matplotlib's TypeError out of mmsnap plot --dpi 1000000000
+    (dict(dpi=10**9), r"dpi=1000000000 must be an integer within \[100, 600\] \(--dpi\)")])
 def test_plot_options_are_checked(kwargs, match):
     with pytest.raises(ValidationError, match=match):
         PlotOptions(**kwargs)

@@ -167,6 +167,13 @@ def test_range_offset_response_is_the_poses_move_when_every_range_lengthens():
     want = 0.01 * ((1 - q) * np.outer(j, j) + q * sum(np.outer(v, v) for v in own.values()))
     np.testing.assert_allclose(depth.covariance - plain.covariance, want, rtol=1e-9, atol=1e-15)
     assert depth.fact().reflection_depth_rms_m == 0.1
+    # the fact says each node's sigmas without the depth: the plain covariance's
+    np.testing.assert_allclose(depth.random, plain.covariance, rtol=0, atol=0)
+    fact = depth.fact()
+    assert fact.without_depth_nodes == ("S2", "S3")
+    np.testing.assert_allclose(np.reshape(fact.without_depth_sigmas, (2, 3)),
+                               [np.sqrt(np.diag(plain.node(n))) for n in ("S2", "S3")])
+    assert plain.fact().without_depth_nodes == ()
     estimated = dataclasses.replace(problem, range_offset=(0.1, 0.05))
     p3, s3, o3 = presolve(estimated, poses, states, offsets={RANGE_OFFSET: 0.1}, tol=1e-14,
                           max_steps=200)

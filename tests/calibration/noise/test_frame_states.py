@@ -1,6 +1,6 @@
 """Each frame's least-squares target state at known poses
 (mmsnap_graph.calibration.noise.frame_states) against a different solver:
-the vectorized one-shot fusion (``fuse_batch``) with the same weights and
+the vectorized one-shot fusion (``solve``, ``solver="vectorized"``) with the same weights and
 prior."""
 
 from __future__ import annotations
@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from factors.models import predict_measurements
-from mmsnap_graph import MeasurementNoise, fuse_batch
+from _fusion import solved
+from mmsnap_graph import MeasurementNoise
 from mmsnap_graph.calibration.noise.frame_states import solve_frame_states
 from mmsnap_graph.fusion import FusionOptions
 
@@ -26,18 +27,18 @@ def _frames(seed, n_frames=30):
     return states, z + rng.normal(size=z.shape) * NOISE.sigmas
 
 
-def test_states_are_the_prior_free_estimate_of_fuse_batch():
+def test_states_are_the_prior_free_estimate_of_the_vectorized_solve():
     """The Gauss-Newton steps use the prior's information but not its
     gradient, so the prior damps the steps and the fixed point is the
-    prior-free (ML) estimate: ``fuse_batch(prior=None)``'s state (1e-7 m);
+    prior-free (ML) estimate: the vectorized solve's state (``prior=None``) (1e-7 m);
     the covariance returned is ``(J^T W J + prior_w)^-1`` at that state
     (1e-6 of sigma_i sigma_j)."""
     _, z = _frames(0)
     w = np.broadcast_to(1.0 / NOISE.sigmas**2, z.shape)
     prior_w = 1.0 / PRIOR_SIGMAS**2
     x, e, jac, cov = solve_frame_states(z, POSES_BC, w, prior_w, iterations=12)
-    ref = fuse_batch(POSES_BC, z, noise=NOISE, prior=None,
-                     options=FusionOptions(step_tolerance=1e-14))
+    ref = solved(POSES_BC, z, solver="vectorized", noise=NOISE, prior=None,
+                 options=FusionOptions(step_tolerance=1e-14))
     assert ref.success.all()
     np.testing.assert_allclose(x, ref.state, atol=1e-7)
     expected = np.linalg.inv(np.linalg.inv(ref.covariance) + np.diag(prior_w))

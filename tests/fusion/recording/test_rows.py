@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mmsnap_graph import fuse_batch
+from _fusion import solved
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.fusion.recording.rows import FusedRows
 from factors.models import predict_measurements
@@ -14,7 +14,7 @@ from _shared import POSES_B
 def test_put_takes_any_solve_and_flag_keeps_the_estimate():
     z = np.stack([predict_measurements(np.array([0.5, 3.0 + 0.1 * k, 0.2, -0.1]), POSES_B)
                   for k in range(3)])
-    res = fuse_batch(POSES_B, z)
+    res = solved(POSES_B, z, solver="vectorized")
     rows = FusedRows(4, 2)
     assert len(rows) == 4 and np.isnan(rows.state).all() and not rows.rejected.any()
     rows.put(np.arange(3), res)

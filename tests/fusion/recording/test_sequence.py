@@ -12,7 +12,6 @@ from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.evaluation import state_errors
 from mmsnap_graph.fusion.recording.sequence import recording_poses
-from mmsnap_graph.fusion.solvers.gtsam_graph import fuse_frame
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion import FusionOptions, NetworkCalibration
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
@@ -21,7 +20,7 @@ from mmsnap_graph.sim.clocks import scene_recording, timed_scene
 
 from _pose_aware import GTSAM_BATCH_TOLERANCE, POSE_COV
 from mmsnap_graph.fusion.config import AssociationOptions, FusionConfig
-from _fusion import config
+from _fusion import config, solved
 
 
 def _rmse(rec, fused):
@@ -187,7 +186,7 @@ def test_targets_are_recovered_with_their_labels(recordings):
         assert err.position_rmse_m < 0.3 and err.velocity_rmse_mps < 0.6
 
 
-def test_grid_covariance_matches_fuse_frame(recordings):
+def test_grid_covariance_matches_the_gtsam_solve(recordings):
     rec = recordings["B"]
     fused = fuse_recording(rec, config(covariance="grid", grid_points_per_axis=7))
     rows = np.flatnonzero(fused.success)[:4]
@@ -197,20 +196,18 @@ def test_grid_covariance_matches_fuse_frame(recordings):
         for n, name in enumerate(fused.node_names):
             if obs[i, n]:
                 z[n] = rec.nodes[name].centroids.measurements[fused.detection_index[i, n]]
-        ref = fuse_frame(fused.node_poses,
-                         z,
-                         observed=obs[i],
-                         options=FusionOptions(covariance="grid", grid_points_per_axis=7))
-        np.testing.assert_allclose(fused.covariance[i], ref.grid_covariance, rtol=1e-4, atol=1e-7)
-        np.testing.assert_allclose(fused.laplace_covariance[i], ref.covariance, atol=1e-6)
+        ref = solved(fused.node_poses, z, observed=obs[i],
+                     options=FusionOptions(covariance="grid", grid_points_per_axis=7))
+        np.testing.assert_allclose(fused.covariance[i], ref.grid_covariance[0], rtol=1e-4,
+                                   atol=1e-7)
+        np.testing.assert_allclose(fused.laplace_covariance[i], ref.covariance[0], atol=1e-6)
 
 
 @pytest.mark.parametrize(
     "build, match",
     [
-        (lambda: FusionOptions(covariance="exact"), "covariance must be 'laplace', 'grid', 'both'"),
-        (lambda: FusionConfig(solve=FusionOptions(covariance="both")),
-         "solve.covariance must be 'laplace' or 'grid'"),
+        (lambda: FusionOptions(covariance="exact"), "covariance must be 'laplace' or 'grid'"),
+        (lambda: FusionOptions(covariance="both"), "covariance must be 'laplace' or 'grid'"),
         (lambda: FusionOptions(solver="scipy"), "solver must be 'gtsam' or 'vectorized' or 'scalar'"),
         (lambda: FusionOptions(solver="batch"), "'batch' is now called 'vectorized'"),
         (lambda: AssociationOptions(source="cube"), "source must be 'centroids' or 'point_cloud'"),
@@ -227,8 +224,6 @@ def test_fusion_config_invalid_arguments(build, match):
 @pytest.mark.parametrize(
     "config_, match",
     [
-        (FusionConfig(solve=FusionOptions(solver="scalar")),
-         "config.solve.solver must be 'vectorized' or 'gtsam'"),
         (FusionConfig(association=AssociationOptions(source="point_cloud")),
          "no node of the recording has point_cloud"),
         ("laplace", "config must be a FusionConfig, got str"),

@@ -20,21 +20,33 @@ from scipy.optimize import least_squares
 import mmsnap_graph.fusion.solvers.gtsam_graph as oneshot
 from factors.models import measurement_model, residual, wrap_angle
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
-from mmsnap_graph.data.results import DEGENERACY_THRESHOLD, FusionResult, Status
+from mmsnap_graph.data.results import DEGENERACY_THRESHOLD, Status
 from mmsnap_graph.errors import GeometryError, ValidationError
 from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings
 from mmsnap_graph.fusion.bounds import bayesian_bound, cramer_rao_bound
-from mmsnap_graph.fusion.problem import (
-    frame_initial_state,
-    initial_state,
-    initial_states,
-    velocity_degeneracy,
-)
-from mmsnap_graph.fusion.solvers.gtsam_graph import build_frame_graph, fuse_frame
+from mmsnap_graph.fusion.degeneracy import velocity_degeneracy
+from mmsnap_graph.fusion.frame_problem import FrameProblem, initial_states
+from mmsnap_graph.fusion.solve import solve
+from mmsnap_graph.fusion.solvers.gtsam_graph import build_frame_graph
+
+from _fusion import frame_of, solved
 
 from _fuzz import (FUSION_FUZZ, HUGE_DOPPLER, PRIORS, consistent_frames, edge_frames, finite,
                    sound_or_typed_error)
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_A, POSES_B, POSES_BC, POSES_C
+
+
+
+def fuse_frame(poses, z, **kwargs):
+    """GTSAM through the contract, one frame (its fields without the frame axis)."""
+    return frame_of(solved(poses, z, solver="gtsam", **kwargs))
+
+
+def initial_state(poses, z, observed=None, prior=PAPER_PRIOR, **kwargs):
+    """The initial state of one frame (4,)."""
+    return initial_states(FrameProblem(poses=poses, measurements=z, observed=observed,
+                                       prior=prior, **kwargs), per_frame=True)[0]
+
 
 TRUTH_A = np.array([2.0, 5.0, 0.6, -0.4])
 TRUTH_B = np.array([0.5, 4.5, 0.6, -0.4])
@@ -119,7 +131,7 @@ def test_gaussian_prior_rejects_bad_values(kwargs, match):
         (np.zeros((0, 3)), np.ones((0, 3)), None, "node_poses must hold at least one node"),
         ([[0, 0, 0], [1, np.nan, 0]], np.ones((2, 3)), None, r"node_poses must be finite, got .*nan.* at index \(1, 1\)"),
         (POSES_B, np.ones((3, 3)), None, r"measurements must have shape \(2, 3\) \(one .* per node\), got \(3, 3\)"),
-        (POSES_B, np.ones(6), None, r"measurements must have shape \(2, 3\)"),
+        (POSES_B, np.ones(6), None, r"measurements must have shape \(F, N, 3\)"),
         (POSES_B, np.ones((2, 3)), [True], r"observed must have shape \(2,\) \(one flag per node\), got \(1,\)"),
         (POSES_B, np.ones((2, 3)), [1, 0], "observed must be a boolean array, got dtype int"),
         (POSES_B, [[4.0, np.nan, 0.1], [4.0, 0.1, 0.1]], None, r"measurements\[0, 1\] \(omega_rad of node 0\) must be finite, got nan"),
@@ -130,14 +142,9 @@ def test_gaussian_prior_rejects_bad_values(kwargs, match):
         (POSES_B, "abc", None, "measurements must be numeric"),
     ],
 )
-def test_fuse_frame_rejects_bad_input(poses, z, observed, match):
+def test_a_bad_frame_is_refused_when_its_problem_is_made(poses, z, observed, match):
     with pytest.raises(ValidationError, match=match):
-        fuse_frame(poses, z, observed=observed)
-    # the same checks guard the graph builder and the initializer
-    with pytest.raises(ValidationError, match=match):
-        build_frame_graph(poses, z, observed=observed)
-    with pytest.raises(ValidationError, match=match):
-        initial_state(poses, z, observed=observed)
+        FrameProblem(poses=poses, measurements=z, observed=observed)
 
 
 def test_zero_range_is_a_geometry_error():
@@ -147,21 +154,22 @@ def test_zero_range_is_a_geometry_error():
         fuse_frame(POSES_B, z)
 
 
-def test_initial_position_on_a_node_is_a_geometry_error():
+def test_an_initial_position_on_a_node_is_flagged():
     # S1 sees a detection 3.5 m ahead, S2 (facing it from 7 m) one 10.5 m
     # ahead: their average is S1's own position.
     z = np.array([[3.5, 0.0, 0.2], [10.5, 0.0, 0.2]])
-    with pytest.raises(GeometryError, match=r"initial position \[.*\] \(the average of the nodes. detections\) coincides with a node"):
-        fuse_frame(POSES_C, z)
-    with pytest.raises(GeometryError, match="coincides with a node"):
-        initial_state(POSES_C, z)
+    res = fuse_frame(POSES_C, z)
+    assert res.status == Status.NON_FINITE and np.isnan(res.covariance).all()
+    assert np.isnan(initial_state(POSES_C, z)[2:]).all()
+    with pytest.raises(GeometryError, match="no initial state"):
+        build_frame_graph(FrameProblem(poses=POSES_C, measurements=z))
 
 
 def test_nan_allowed_in_unobserved_rows_only():
     z = exact(POSES_B, TRUTH_B)
     z[1] = np.nan
     res = fuse_frame(POSES_B, z, observed=np.array([True, False]))
-    assert res.success and res.n_observed == 1
+    assert res.success and np.isnan(res.whitened_residuals[1]).all()
     with pytest.raises(ValidationError, match=r"measurements\[1, 0\] \(range_m of node 1\) must be finite"):
         fuse_frame(POSES_B, z, observed=np.array([False, True]))
 
@@ -169,26 +177,27 @@ def test_nan_allowed_in_unobserved_rows_only():
 @pytest.mark.parametrize(
     "kwargs, match",
     [
-        ({"options": {"covariance": "grid"}}, "options must be a FusionOptions, got dict"),
         ({"noise": (0.1, 0.1, 0.1)}, "noise must be a MeasurementNoise, got tuple"),
         ({"prior": np.zeros(4)}, "prior must be a GaussianPrior or None, got ndarray"),
-        ({"initial_state": np.zeros(3)}, r"initial_state must have shape \(4,\), got \(3,\)"),
-        ({"initial_state": [0, np.nan, 0, 0]}, "initial_state must be finite"),
+        ({"initial_state": np.zeros((1, 3))}, r"initial_state must have shape \(1, 4\), got \(1, 3\)"),
+        ({"initial_state": [0, np.nan, 0, 0]}, r"initial_state\[0\] must be finite"),
     ],
 )
 def test_fuse_frame_rejects_bad_options(kwargs, match):
     with pytest.raises(ValidationError, match=match):
         fuse_frame(POSES_B, exact(POSES_B, TRUTH_B), **kwargs)
+    with pytest.raises(ValidationError, match="options must be a FusionOptions, got dict"):
+        solve(FrameProblem(poses=POSES_B, measurements=exact(POSES_B, TRUTH_B)),
+              {"covariance": "grid"})
 
 
 # ---------------------------------------------------------------------------
 # Failures are flagged, not raised
 
 
-def assert_failed(res: FusionResult, match: str):
-    assert isinstance(res, FusionResult)
-    assert not res.success
-    assert match in res.message, res.message
+def assert_failed(res, status: Status):
+    assert not res.success and res.status == status, res.message
+    assert res.message == status.message
     assert np.isnan(res.covariance).all()
 
 
@@ -203,13 +212,13 @@ def test_status_codes_are_the_fused_file_contract():
 
 def test_fusion_result_carries_its_status():
     z = exact(POSES_B, TRUTH_B)
-    assert fuse_frame(POSES_B, z).status is Status.OK
-    assert fuse_frame(POSES_B[:1], z[:1], prior=None).status is Status.SINGULAR
+    assert fuse_frame(POSES_B, z).status == Status.OK
+    assert fuse_frame(POSES_B[:1], z[:1], prior=None).status == Status.SINGULAR
     assert fuse_frame(POSES_B,
                       z,
-                      options=FusionOptions(lm=LevenbergMarquardtSettings(max_iterations=1))).status is Status.MAX_ITERATIONS
+                      options=FusionOptions(lm=LevenbergMarquardtSettings(max_iterations=1))).status == Status.MAX_ITERATIONS
     none = fuse_frame(POSES_B, z, observed=np.array([False, False]), prior=None)
-    assert none.status is Status.NO_INFORMATION and not none.success
+    assert none.status == Status.NO_INFORMATION and not none.success
 
 
 def test_ml_with_one_node_is_indeterminate():
@@ -217,14 +226,13 @@ def test_ml_with_one_node_is_indeterminate():
     information matrix is singular, so no covariance."""
     z = exact(POSES_B, TRUTH_B)
     res = fuse_frame(POSES_B[:1], z[:1], prior=None)
-    assert_failed(res, "indeterminate linear system")
+    assert_failed(res, Status.SINGULAR)
     assert res.degeneracy == math.inf
     # with the prior the same frame is fine: only the radial velocity is
     # measured, the cross-radial part stays near the prior's sigma
     res = fuse_frame(POSES_B[:1], z[:1])
     assert res.success
-    assert res.degeneracy == math.inf and res.degenerate
-    assert "degenerate geometry" in res.message
+    assert res.degeneracy == math.inf and res.degeneracy > DEGENERACY_THRESHOLD
     assert 0.9 * 3.5 < np.sqrt(np.linalg.eigvalsh(res.covariance[2:, 2:])[-1]) <= 3.5
 
 
@@ -233,7 +241,7 @@ def test_non_converging_lm_is_flagged():
     res = fuse_frame(POSES_B,
                      z,
                      options=FusionOptions(lm=LevenbergMarquardtSettings(max_iterations=1)))
-    assert_failed(res, "did not converge within max_iterations=1")
+    assert_failed(res, Status.MAX_ITERATIONS)
     assert res.iterations == 1
     assert np.isfinite(res.state).all()  # the last iterate is reported
 
@@ -245,20 +253,18 @@ def test_gtsam_exception_is_flagged(monkeypatch):
 
     monkeypatch.setattr(oneshot.gtsam, "LevenbergMarquardtOptimizer", Exploding)
     res = fuse_frame(POSES_B, exact(POSES_B, TRUTH_B))
-    assert_failed(res, "Levenberg-Marquardt failed: RuntimeError: forced by the test")
+    assert_failed(res, Status.NON_FINITE)
     assert np.isnan(res.state).all()
     assert np.isnan(res.whitened_residuals).all()
 
 
 def test_initial_value_on_a_node_is_a_geometry_error():
     z = exact(POSES_B, TRUTH_B)
-    with pytest.raises(GeometryError, match=r"initial_state position \[5.0, 5.0\] is at node 1's position"):
+    with pytest.raises(GeometryError, match=r"initial_state\[0\] position \[5.0, 5.0\] is at node 1's position"):
         fuse_frame(POSES_B, z, initial_state=np.array([5.0, 5.0, 0.0, 0.0]))
-    with pytest.raises(GeometryError, match="is at node 1's position"):
-        build_frame_graph(POSES_B, z, initial_state=np.array([5.0, 5.0, 0.0, 0.0]))
     # an unobserved node's position is a legitimate starting point
     res = fuse_frame(POSES_B, z, observed=np.array([True, False]), initial_state=np.array([5.0, 5.0, 0.0, 0.0]))
-    assert isinstance(res, FusionResult)
+    assert res.success
 
 
 def test_callback_failure_inside_gtsam_is_flagged(monkeypatch):
@@ -272,14 +278,12 @@ def test_callback_failure_inside_gtsam_is_flagged(monkeypatch):
 
     monkeypatch.setattr(gf, "_model_scalar", at_node)
     res = fuse_frame(POSES_B, exact(POSES_B, TRUTH_B))
-    assert_failed(res, "Levenberg-Marquardt failed")
-    assert "ZeroDivisionError" in res.message
+    assert_failed(res, Status.NON_FINITE)
 
 
 def test_no_observation_without_prior_is_flagged():
     res = fuse_frame(POSES_B, np.full((2, 3), np.nan), observed=np.zeros(2, bool), prior=None)
-    assert_failed(res, "no node observed the target")
-    assert res.n_observed == 0
+    assert_failed(res, Status.NO_INFORMATION)
 
 
 def test_no_observation_with_prior_returns_the_prior():
@@ -340,13 +344,14 @@ def test_scalar_initializer_matches_vectorized():
         obs_all.append(np.array([True, False, True]))
         zs[-1] = np.vstack([zs[-1][0], [1.0, 0.0, 0.0], zs[-1][1]])
         poses_last = np.array([POSES_C[0], poses3[1], POSES_C[1]])
-        vec = initial_states(poses3, np.array(zs[:-1]), np.array(obs_all[:-1]), prior)
-        for k in range(len(zs) - 1):
-            scal = frame_initial_state(poses3, zs[k], obs_all[k], prior)
-            assert_allclose(scal, vec[k], rtol=1e-9, atol=1e-12)
-        vec_last = initial_states(poses_last, zs[-1][None], obs_all[-1][None], prior)[0]
-        scal_last = frame_initial_state(poses_last, zs[-1], obs_all[-1], prior)
-        assert_allclose(scal_last, vec_last, rtol=1e-9, atol=1e-12)
+        many = FrameProblem(poses=poses3, measurements=np.array(zs[:-1]),
+                            observed=np.array(obs_all[:-1]), prior=prior)
+        last = FrameProblem(poses=poses_last, measurements=zs[-1], observed=obs_all[-1],
+                            prior=prior)
+        scal = initial_states(many, per_frame=True)
+        assert_allclose(scal, initial_states(many), rtol=1e-9, atol=1e-12)
+        assert_allclose(initial_states(last, per_frame=True), initial_states(last), rtol=1e-9,
+                        atol=1e-12)
 
 
 # ---------------------------------------------------------------------------
@@ -396,7 +401,6 @@ def test_result_fields_are_consistent():
     z = simulate(POSES_B, TRUTH_B, 1, seed=5)[0]
     res = fuse_frame(POSES_B, z)
     assert res.success and res.message == "converged"
-    assert res.used_prior and res.n_observed == 2
     assert 1 <= res.iterations < 20
     assert res.state.shape == (4,) and res.covariance.shape == (4, 4)
     assert res.grid_covariance is None
@@ -407,14 +411,13 @@ def test_result_fields_are_consistent():
     assert_allclose(res.whitened_residuals, w, rtol=1e-10, atol=1e-12)
     prior_term = np.sum(((res.state - PAPER_PRIOR.mean) / PAPER_PRIOR.sigmas) ** 2)
     assert res.final_cost == pytest.approx(0.5 * (np.sum(w**2) + prior_term), rel=1e-10)
-    assert_allclose(res.position_sigma_m, np.sqrt(np.diag(res.covariance)[:2]))
-    assert_allclose(res.velocity_sigma_mps, np.sqrt(np.diag(res.covariance)[2:]))
     assert res.degeneracy == pytest.approx(velocity_degeneracy(res.state, POSES_B))
-    assert not res.degenerate
+    assert res.degeneracy < DEGENERACY_THRESHOLD
+    whole = solved(POSES_B, z)
     with pytest.raises(dataclasses.FrozenInstanceError):
-        res.success = False
+        whole.status = None
     with pytest.raises(ValueError):
-        res.state[0] = 0.0
+        whole.state[0, 0] = 0.0
 
 
 def test_laplace_covariance_is_the_bayesian_bound_at_the_estimate():
@@ -440,11 +443,13 @@ def test_observed_mask_equals_dropping_the_node():
 
 def test_build_frame_graph_can_be_extended():
     z = simulate(POSES_B, TRUTH_B, 1, seed=10)[0]
-    graph, values = build_frame_graph(POSES_B, z)
+    graph, values = build_frame_graph(FrameProblem(poses=POSES_B, measurements=z))
     assert graph.size() == 2  # one measurement factor for the frame + the prior
     assert_allclose(values.atVector(oneshot.STATE_KEY), initial_state(POSES_B, z, prior=PAPER_PRIOR))
-    ml_graph, _ = build_frame_graph(POSES_B, z, prior=None, initial_state=TRUTH_B, key=7)
+    ml = FrameProblem(poses=POSES_B, measurements=z, prior=None, initial_state=TRUTH_B[None])
+    ml_graph, ml_values = build_frame_graph(ml, key=7)
     assert ml_graph.size() == 1 and ml_graph.at(0).keys() == [7]
+    assert_allclose(ml_values.atVector(7), TRUTH_B)
     # A user adds a tight velocity prior; the solution follows it.
     graph.add(gtsam.PriorFactorVector(oneshot.STATE_KEY, np.array([0, 0, 2.0, 2.0]), gtsam.noiseModel.Diagonal.Sigmas(np.array([1e3, 1e3, 1e-4, 1e-4]))))
     sol = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
@@ -482,9 +487,9 @@ def test_monte_carlo_configuration_b_rmse_and_nees(prior):
     """
     n_frames = 800
     z_all = simulate(POSES_B, TRUTH_B, n_frames, seed=0)  # holds one mirror frame
-    results = [fuse_frame(POSES_B, z, prior=prior) for z in z_all]
-    assert all(r.success for r in results)
-    states = np.array([r.state for r in results])
+    results = solved(POSES_B, z_all, prior=prior)
+    assert results.success.all()
+    states = results.state
     err = states - TRUTH_B
     far = np.linalg.norm(err[:, :2], axis=1) > 1.0
     mirror = _mirror_across_node_line(TRUTH_B[:2], POSES_B[0, :2], POSES_B[1, :2])
@@ -496,13 +501,12 @@ def test_monte_carlo_configuration_b_rmse_and_nees(prior):
     rmse_vel = np.sqrt(np.mean(np.sum(err[keep, 2:] ** 2, axis=1)))
     assert rmse_pos == pytest.approx(np.sqrt(np.trace(bound[:2, :2])), rel=0.10)
     assert rmse_vel == pytest.approx(np.sqrt(np.trace(bound[2:, 2:])), rel=0.10)
-    nees = np.array([e @ np.linalg.solve(r.covariance, e) for e, r in zip(err[keep], np.array(results)[keep])])
+    nees = np.array([e @ np.linalg.solve(c, e) for e, c in zip(err[keep], results.covariance[keep])])
     k = keep.sum()
     lo, hi = stats.chi2.ppf([0.025, 0.975], df=4 * k) / k
     assert lo < nees.mean() < hi, (lo, nees.mean(), hi)
-    degeneracy = np.array([r.degeneracy for r in results])
-    assert np.all(degeneracy[keep] < 2.0)
-    assert not any(r.degenerate for r in np.array(results)[keep])
+    assert np.all(results.degeneracy[keep] < 2.0)
+    assert not results.degenerate[keep].any()
 
 
 # ---------------------------------------------------------------------------
@@ -533,8 +537,7 @@ def test_monte_carlo_configuration_c_degenerate():
         assert np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1))) < 1.0
     degeneracy = np.array([r.degeneracy for r in bayes])
     assert np.median(degeneracy) > DEGENERACY_THRESHOLD
-    assert np.mean([r.degenerate for r in bayes]) > 0.5
-    assert any("degenerate geometry" in r.message for r in bayes)
+    assert np.mean(degeneracy > DEGENERACY_THRESHOLD) > 0.5
     # ...and the MAP covariance says the cross-line velocity is uncertain
     assert np.median([np.sqrt(r.covariance[2, 2]) for r in bayes]) > 1.0
 
@@ -549,7 +552,7 @@ def test_grid_covariance_agrees_with_laplace_in_benign_geometry():
     metric: every entry of ``L^-1 (G - S) L^-T`` below 0.05."""
     z = simulate(POSES_B, TRUTH_B, 2, seed=31)
     for zk in z:
-        res = fuse_frame(POSES_B, zk, options=FusionOptions(covariance="both"))
+        res = fuse_frame(POSES_B, zk, options=FusionOptions(covariance="grid"))
         assert res.success and res.grid_covariance.shape == (4, 4)
         chol = np.linalg.cholesky(res.covariance)
         inv = np.linalg.inv(chol)
@@ -558,12 +561,12 @@ def test_grid_covariance_agrees_with_laplace_in_benign_geometry():
     only_grid = fuse_frame(POSES_B, z[0], options=FusionOptions(covariance="grid"))
     assert_allclose(only_grid.grid_covariance, fuse_frame(POSES_B,
                                                           z[0],
-                                                          options=FusionOptions(covariance="both")).grid_covariance)
+                                                          options=FusionOptions(covariance="grid")).grid_covariance)
 
 
 def test_grid_covariance_in_degenerate_geometry_reports_both():
     z = simulate(POSES_C, TRUTH_C, 1, seed=33)[0]
-    res = fuse_frame(POSES_C, z, options=FusionOptions(covariance="both"))
+    res = fuse_frame(POSES_C, z, options=FusionOptions(covariance="grid"))
     assert res.success
     for cov in (res.covariance, res.grid_covariance):
         assert np.isfinite(cov).all()
@@ -575,7 +578,7 @@ def test_grid_covariance_in_degenerate_geometry_reports_both():
 
 def test_grid_covariance_of_a_failed_frame_is_nan():
     z = exact(POSES_B, TRUTH_B)
-    res = fuse_frame(POSES_B[:1], z[:1], prior=None, options=FusionOptions(covariance="both"))
+    res = fuse_frame(POSES_B[:1], z[:1], prior=None, options=FusionOptions(covariance="grid"))
     assert not res.success
     assert res.grid_covariance.shape == (4, 4) and np.isnan(res.grid_covariance).all()
 
@@ -591,8 +594,8 @@ def test_many_nodes_use_the_vectorized_checks():
                              heading])
     z = simulate(poses, TRUTH_B, 1, seed=42)[0]
     res = fuse_frame(poses, z)
-    assert res.success and res.n_observed == 20
-    assert np.all(res.position_sigma_m < 0.02)
+    assert res.success and np.isfinite(res.whitened_residuals).all()
+    assert np.all(np.sqrt(np.diag(res.covariance)[:2]) < 0.02)
     assert np.linalg.norm(res.state[:2] - TRUTH_B[:2]) < 0.06
     z[17, 1] = 3.5
     with pytest.raises(ValidationError, match=r"measurements\[17, 1\] \(omega_rad of node 17\) must be in \[-pi, pi\]"):
@@ -625,8 +628,7 @@ def test_stop_away_from_a_minimum_is_flagged(monkeypatch):
     assert fuse_frame(POSES_B, z).success
     monkeypatch.setattr(oneshot.gtsam, "LevenbergMarquardtOptimizer", StopsAtStart)
     res = fuse_frame(POSES_B, z)
-    assert not res.success
-    assert "stopped away from a minimum (squared Newton decrement" in res.message
+    assert res.status == Status.NON_FINITE  # the /fused files' code for it
     assert_allclose(res.state, res.initial_state)
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from factors.models import measurement_model_pose
-from mmsnap_graph import fuse_batch, fuse_frame
+from _fusion import solved
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion import FusionOptions
 
@@ -21,11 +21,9 @@ from _shared import PAPER_PRIOR, POSES_BC
 
 def test_grid_covariance_refuses_pose_covariances():
     _, z = pose_frames(np.random.default_rng(0), 1)
-    with pytest.raises(ValidationError, match="pose_covariances needs covariance='laplace'"):
-        fuse_frame(POSES_BC,
-                   z[0],
-                   pose_covariances=POSE_COV,
-                   options=FusionOptions(covariance="grid"))
+    with pytest.raises(ValidationError, match="pose_covariances need covariance='laplace'"):
+        solved(POSES_BC, z[0], pose_covariances=POSE_COV,
+               options=FusionOptions(covariance="grid"))
 
 
 def _joint_marginal(state, poses, z, noises, pose_cov, prior):
@@ -49,25 +47,25 @@ def _joint_marginal(state, poses, z, noises, pose_cov, prior):
 
 def test_gtsam_covariance_is_the_joint_graph_marginal():
     _, z = pose_frames(np.random.default_rng(4), 10, noises=NOISES)
+    res = solved(POSES_BC, z, noise=NOISES, pose_covariances=POSE_COV)
+    assert res.success.all()
     for f in range(z.shape[0]):
-        r = fuse_frame(POSES_BC, z[f], noise=NOISES, pose_covariances=POSE_COV)
-        assert r.success
-        ref = _joint_marginal(r.state, POSES_BC, z[f], NOISES, POSE_COV, PAPER_PRIOR)
+        ref = _joint_marginal(res.state[f], POSES_BC, z[f], NOISES, POSE_COV, PAPER_PRIOR)
         sig = np.sqrt(np.diag(ref))
-        np.testing.assert_allclose(r.covariance / np.outer(sig, sig),
+        np.testing.assert_allclose(res.covariance[f] / np.outer(sig, sig),
                                    ref / np.outer(sig, sig), rtol=0, atol=1e-7)
 
 
 def test_gtsam_and_batch_agree_to_the_stated_tolerance():
     _, z = pose_frames(np.random.default_rng(5), 40, noises=NOISES)
-    res = fuse_batch(POSES_BC, z, noise=NOISES, pose_covariances=POSE_COV)
+    res = solved(POSES_BC, z, solver="vectorized", noise=NOISES, pose_covariances=POSE_COV)
+    ref = solved(POSES_BC, z, noise=NOISES, pose_covariances=POSE_COV)
+    np.testing.assert_array_equal(res.status, ref.status)
     gaps = []
     for f in range(z.shape[0]):
-        r = fuse_frame(POSES_BC, z[f], noise=NOISES, pose_covariances=POSE_COV)
-        assert r.success == res.success[f]
-        np.testing.assert_allclose(res.state[f], r.state, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(res.state[f], ref.state[f], rtol=0, atol=1e-6)
         sig = np.sqrt(np.diag(res.covariance[f]))
-        gaps.append(np.max(np.abs(res.covariance[f] - r.covariance) / np.outer(sig, sig)))
+        gaps.append(np.max(np.abs(res.covariance[f] - ref.covariance[f]) / np.outer(sig, sig)))
         # The propagation is never the smaller (the joint graph uses more information).
-        assert np.linalg.eigvalsh(res.covariance[f] - r.covariance).min() > -1e-12
+        assert np.linalg.eigvalsh(res.covariance[f] - ref.covariance[f]).min() > -1e-12
     assert max(gaps) < GTSAM_BATCH_TOLERANCE, max(gaps)

@@ -1,4 +1,5 @@
-"""Vectorized batch fusion (mmsnap_graph.fusion.solvers.vectorized) against the per-frame GTSAM solve."""
+"""The vectorized solver (mmsnap_graph.fusion.solvers.vectorized, ``solve(...,
+FusionOptions(solver="vectorized"))``) against the per-frame GTSAM solve."""
 
 import numpy as np
 import pytest
@@ -6,18 +7,25 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from factors.models import measurement_model, residual
-from mmsnap_graph import MmsnapError, fuse_batch
+from mmsnap_graph import MmsnapError
+from mmsnap_graph._linalg import cholesky4, cholesky4_inverse, cholesky4_solve
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.results import Status
-from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.fusion import FusionOptions, LevenbergMarquardtSettings, problem
-from mmsnap_graph.fusion.solvers import gtsam_graph as oneshot, vectorized as batch
+from mmsnap_graph.errors import GeometryError, ValidationError
+from mmsnap_graph.fusion import FrameProblem, FusionOptions, LevenbergMarquardtSettings, initial_states
+
+from _fusion import solved
 
 from _fuzz import (FUSION_FUZZ, HUGE_DOPPLER, PRIORS, consistent_frames, edge_frames,
                    node_poses, sound_or_typed_error)
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_B, POSES_C
 
 # Configuration B: orthogonal lines of sight around (0.5, 4.5).
+
+
+def fuse_batch(poses, z, **kwargs):
+    """The vectorized solver through the contract."""
+    return solved(poses, z, solver="vectorized", **kwargs)
 
 
 def _frames(rng, n, poses, centre=(0.5, 4.0), spread=1.0, p_miss=0.1, noise=PAPER_NOISE):
@@ -42,13 +50,13 @@ def test_cholesky4_solve_inverse_match_numpy():
     rng = np.random.default_rng(0)
     a = rng.normal(size=(50, 4, 6))
     a = a @ a.transpose(0, 2, 1)
-    chol, ok = batch.cholesky4(a)
+    chol, ok = cholesky4(a)
     assert ok.all()
     np.testing.assert_allclose(chol, np.linalg.cholesky(a), atol=1e-12)
     b = rng.normal(size=(50, 4))
-    np.testing.assert_allclose(batch.cholesky4_solve(chol, b), np.linalg.solve(a, b[..., None])[..., 0],
+    np.testing.assert_allclose(cholesky4_solve(chol, b), np.linalg.solve(a, b[..., None])[..., 0],
                                rtol=1e-9, atol=1e-9)
-    inv = batch.cholesky4_inverse(chol)
+    inv = cholesky4_inverse(chol)
     np.testing.assert_allclose(inv, np.linalg.inv(a), rtol=1e-9, atol=1e-9)
     assert np.array_equal(inv, inv.transpose(0, 2, 1))
 
@@ -59,12 +67,12 @@ def test_cholesky4_flags_singular_and_indefinite():
     a = a @ a.transpose(0, 2, 1)  # rank 3: singular
     a[1] = np.diag([1.0, 2.0, -1.0, 3.0])  # indefinite
     a[2] = np.eye(4)
-    _, ok = batch.cholesky4(a)
+    _, ok = cholesky4(a)
     assert ok.tolist() == [False, False, True]
 
 
 # --------------------------------------------------------------------------
-# agreement with oneshot.fuse_frame
+# agreement with the GTSAM solve
 
 
 @pytest.mark.parametrize("prior", [PAPER_PRIOR, None], ids=["map", "ml"])
@@ -72,17 +80,15 @@ def test_batch_agrees_with_gtsam_frame_by_frame(prior):
     rng = np.random.default_rng(2)
     _, z, obs = _frames(rng, 120, POSES_B, p_miss=0.15)
     obs[:3] = [[True, False], [False, True], [False, False]]
-    res = batch.fuse_batch(POSES_B, z, observed=obs, noise=PAPER_NOISE, prior=prior)
-    for f in range(len(z)):
-        ref = oneshot.fuse_frame(POSES_B, z[f], observed=obs[f], noise=PAPER_NOISE, prior=prior)
-        assert res.success[f] == ref.success, (f, ref.message, res.message(f))
-        if not ref.success:
-            continue
-        np.testing.assert_allclose(res.state[f], ref.state, atol=1e-6)
-        np.testing.assert_allclose(res.covariance[f], ref.covariance, atol=1e-6)
-        np.testing.assert_allclose(res.final_cost[f], ref.final_cost, rtol=1e-9, atol=1e-12)
-        np.testing.assert_allclose(res.whitened_residuals[f], ref.whitened_residuals, atol=1e-5)
-        np.testing.assert_allclose(res.degeneracy[f], ref.degeneracy, rtol=1e-6)
+    res = fuse_batch(POSES_B, z, observed=obs, noise=PAPER_NOISE, prior=prior)
+    ref = solved(POSES_B, z, observed=obs, noise=PAPER_NOISE, prior=prior)
+    np.testing.assert_array_equal(res.status, ref.status)
+    ok = ref.success
+    np.testing.assert_allclose(res.state[ok], ref.state[ok], atol=1e-6)
+    np.testing.assert_allclose(res.covariance[ok], ref.covariance[ok], atol=1e-6)
+    np.testing.assert_allclose(res.final_cost[ok], ref.final_cost[ok], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(res.whitened_residuals[ok], ref.whitened_residuals[ok], atol=1e-5)
+    np.testing.assert_allclose(res.degeneracy[ok], ref.degeneracy[ok], rtol=1e-6)
     if prior is None:
         # ML with one node: 3 measurements, 4 unknowns -> flagged by both.
         assert res.status[0] == Status.SINGULAR and res.status[1] == Status.SINGULAR
@@ -99,34 +105,30 @@ def test_near_degenerate_frames_reach_at_least_gtsams_minimum():
     Newton polish reaches the same minimum or a lower cost."""
     rng = np.random.default_rng(3)
     _, z, obs = _frames(rng, 40, POSES_C, centre=(0.0, 3.5), spread=0.3, p_miss=0.0)
-    res = batch.fuse_batch(POSES_C, z, observed=obs, noise=PAPER_NOISE, prior=PAPER_PRIOR)
+    res = fuse_batch(POSES_C, z, observed=obs, noise=PAPER_NOISE, prior=PAPER_PRIOR)
     assert res.success.all()
     assert np.all(res.degeneracy > 20)
-    for f in range(len(z)):
-        ref = oneshot.fuse_frame(POSES_C,
-                                 z[f],
-                                 noise=PAPER_NOISE,
-                                 prior=PAPER_PRIOR,
-                                 options=FusionOptions(lm=LevenbergMarquardtSettings(max_iterations=2000)))
-        assert ref.success
-        assert res.final_cost[f] <= ref.final_cost + 1e-12 * max(1.0, ref.final_cost)
-        np.testing.assert_allclose(res.state[f], ref.state, atol=1e-4)
+    ref = solved(POSES_C, z, noise=PAPER_NOISE, prior=PAPER_PRIOR,
+                 options=FusionOptions(lm=LevenbergMarquardtSettings(max_iterations=2000)))
+    assert ref.success.all()
+    assert np.all(res.final_cost <= ref.final_cost + 1e-12 * np.maximum(1.0, ref.final_cost))
+    np.testing.assert_allclose(res.state, ref.state, atol=1e-4)
 
 
-def test_default_initial_state_is_oneshots():
+def test_default_initial_state_is_the_problems():
     rng = np.random.default_rng(4)
     _, z, obs = _frames(rng, 20, POSES_B)
-    res = batch.fuse_batch(POSES_B, z, observed=obs)
+    res = fuse_batch(POSES_B, z, observed=obs)
     np.testing.assert_array_equal(
-        res.initial_state, problem.initial_states(POSES_B, z, observed=obs, prior=PAPER_PRIOR, noise=PAPER_NOISE))
+        res.initial_state, initial_states(FrameProblem(poses=POSES_B, measurements=z, observed=obs)))
 
 
 def test_chunking_and_per_frame_poses_do_not_change_results():
     rng = np.random.default_rng(5)
     _, z, obs = _frames(rng, 60, POSES_B)
-    ref = batch.fuse_batch(POSES_B, z, observed=obs)
-    small = batch.fuse_batch(POSES_B, z, observed=obs, options=FusionOptions(chunk_size=7))
-    tiled = batch.fuse_batch(np.broadcast_to(POSES_B, (60, 2, 3)), z, observed=obs)
+    ref = fuse_batch(POSES_B, z, observed=obs)
+    small = fuse_batch(POSES_B, z, observed=obs, options=FusionOptions(chunk_size=7))
+    tiled = fuse_batch(np.broadcast_to(POSES_B, (60, 2, 3)), z, observed=obs)
     for other in (small, tiled):
         np.testing.assert_allclose(other.state, ref.state, rtol=0, atol=1e-12)
         np.testing.assert_allclose(other.covariance, ref.covariance, rtol=0, atol=1e-12)
@@ -136,8 +138,8 @@ def test_chunking_and_per_frame_poses_do_not_change_results():
 def test_newton_polish_finds_the_gauss_newton_minimum():
     rng = np.random.default_rng(6)
     _, z, obs = _frames(rng, 200, POSES_C, centre=(0.0, 3.5), spread=1.0, p_miss=0.0)
-    newton = batch.fuse_batch(POSES_C, z, options=FusionOptions(newton_after=2))
-    plain = batch.fuse_batch(POSES_C,
+    newton = fuse_batch(POSES_C, z, options=FusionOptions(newton_after=2))
+    plain = fuse_batch(POSES_C,
                              z,
                              options=FusionOptions(lm=LevenbergMarquardtSettings(max_steps=5000), newton_after=10**6))
     assert newton.success.all() and plain.success.all()
@@ -148,7 +150,7 @@ def test_newton_polish_finds_the_gauss_newton_minimum():
 def test_whitened_residuals_and_cost_at_the_solution():
     rng = np.random.default_rng(8)
     _, z, obs = _frames(rng, 30, POSES_B)
-    res = batch.fuse_batch(POSES_B, z, observed=obs)
+    res = fuse_batch(POSES_B, z, observed=obs)
     h, _ = measurement_model(res.state[:, None, :], POSES_B)
     r = residual(h, z) / PAPER_NOISE.sigmas
     np.testing.assert_allclose(res.whitened_residuals[obs], r[obs], atol=1e-12)
@@ -171,7 +173,7 @@ def test_ml_covariance_is_consistent_monte_carlo():
     rng = np.random.default_rng(9)
     noise = MeasurementNoise(omega_rad=0.1)
     truth, z, _ = _frames(rng, 3000, POSES_B, centre=(0.5, 4.5), spread=0.5, p_miss=0.0, noise=noise)
-    res = batch.fuse_batch(POSES_B, z, prior=None, noise=noise)
+    res = fuse_batch(POSES_B, z, prior=None, noise=noise)
     assert res.success.all()
     lo, hi = chi2_mean_interval(4, 3000, confidence=0.999)
     assert lo <= nees(res.state - truth, res.covariance).mean() <= hi
@@ -180,15 +182,14 @@ def test_ml_covariance_is_consistent_monte_carlo():
 def test_flags_max_iterations_and_non_finite():
     rng = np.random.default_rng(10)
     _, z, _ = _frames(rng, 10, POSES_B, p_miss=0.0)
-    res = batch.fuse_batch(POSES_B,
+    res = fuse_batch(POSES_B,
                            z,
                            options=FusionOptions(lm=LevenbergMarquardtSettings(max_steps=1)))
     assert np.all(res.status == 1) and not res.success.any()
-    assert res.message(0) == "maximum number of iterations reached"
-    x0 = problem.initial_states(POSES_B, z, prior=PAPER_PRIOR)
-    x0[3, :2] = POSES_B[1, :2]  # on a node: the model is undefined
-    res = batch.fuse_batch(POSES_B, z, initial_state=x0)
-    assert res.status[3] == 3 and not res.success[3]
+    assert res.message[0] == "maximum number of iterations reached"
+    x0 = initial_states(FrameProblem(poses=POSES_B, measurements=z))
+    x0[3, :2] = POSES_B[1, :2] + [0.0, 1e-6]  # next to a node: the model blows up
+    res = fuse_batch(POSES_B, z, initial_state=x0)
     assert res.success[np.arange(10) != 3].all()
 
 
@@ -199,8 +200,6 @@ def test_flags_max_iterations_and_non_finite():
         (dict(node_poses=np.zeros((3, 3))), r"node_poses must have shape \(2, 3\)"),
         (dict(observed=np.ones((3, 2))), "observed must be a bool array"),
         (dict(prior="flat"), "prior must be a GaussianPrior"),
-        (dict(options="laplace"), "options must be a FusionOptions, got str"),
-        (dict(options=FusionOptions(covariance="grid")), "options.covariance must be 'laplace'"),
         (dict(initial_state=np.zeros((2, 4))), r"initial_state must have shape \(3, 4\)"),
         (dict(measurements=np.full((3, 2, 3), np.inf)), "measurements must be finite"),
     ],
@@ -209,11 +208,19 @@ def test_invalid_input_raises(kwargs, match):
     args = dict(node_poses=POSES_B, measurements=np.ones((3, 2, 3)))
     args.update(kwargs)
     with pytest.raises(ValidationError, match=match):
-        batch.fuse_batch(args.pop("node_poses"), args.pop("measurements"), **args)
+        fuse_batch(args.pop("node_poses"), args.pop("measurements"), **args)
+
+
+def test_a_start_on_a_node_is_refused_when_the_problem_is_made():
+    z = np.ones((3, 2, 3))
+    x0 = np.tile([0.5, 4.0, 0.0, 0.0], (3, 1))
+    x0[1, :2] = POSES_B[1, :2]
+    with pytest.raises(GeometryError, match=r"initial_state\[1\] position .* is at node 1"):
+        fuse_batch(POSES_B, z, initial_state=x0)
 
 
 def test_no_frames_gives_empty_results_of_the_right_shapes():
-    res = batch.fuse_batch(POSES_B, np.zeros((0, 2, 3)))
+    res = fuse_batch(POSES_B, np.zeros((0, 2, 3)))
     assert res.state.shape == (0, 4) and res.covariance.shape == (0, 4, 4)
     assert res.whitened_residuals.shape == (0, 2, 3) and len(res) == 0
 

@@ -9,8 +9,8 @@ import numpy as np
 
 from _shared import PAPER_NOISE, PAPER_PRIOR, POSES_B, POSES_C
 from factors.models import predict_measurements, wrap_angle
-from mmsnap_graph.fusion import FusionOptions, fuse_batch
-from mmsnap_graph.fusion.problem import initial_states
+from _fusion import solved
+from mmsnap_graph.fusion import FrameProblem, FusionOptions, initial_states
 from mmsnap_graph.fusion.solvers.vectorized_lm import evaluate, normal_equations, residual_curvature
 
 
@@ -28,7 +28,7 @@ def _frames(seed, n, poses, centre, spread=1.0):
 def test_residual_curvature_matches_finite_difference_hessian():
     """GN information + curvature term = the Hessian of the cost."""
     z = _frames(7, 5, POSES_B, (0.5, 4.0))
-    x = initial_states(POSES_B, z, prior=None)
+    x = initial_states(FrameProblem(poses=POSES_B, measurements=z, prior=None))
     w = np.ones((5, 2))
     inv = 1.0 / PAPER_NOISE.sigmas
     aug, _ = evaluate(x, POSES_B, z, w, inv, None, None)
@@ -56,11 +56,12 @@ def test_a_frames_answer_does_not_depend_on_its_chunk():
     three seeds: 1.2e-8 of a sigma at most; bound 1e-7)."""
     for seed, spread in ((11, 0.4), (3, 1.0)):
         z = _frames(seed, 256, POSES_C, (0.0, 3.5), spread)
-        ref = fuse_batch(POSES_C, z, prior=PAPER_PRIOR)
+        ref = solved(POSES_C, z, solver="vectorized", prior=PAPER_PRIOR)
         assert ref.iterations.max() > 8  # frames reach the second stage
         sig = np.sqrt(np.einsum("fii->fi", ref.covariance))
         for chunk in (1, 5, 16):
-            got = fuse_batch(POSES_C, z, prior=PAPER_PRIOR, options=FusionOptions(chunk_size=chunk))
+            got = solved(POSES_C, z, solver="vectorized", prior=PAPER_PRIOR,
+                         options=FusionOptions(chunk_size=chunk))
             np.testing.assert_array_equal(got.status, ref.status)
             ok = ref.success
             assert np.max(np.abs(got.state - ref.state)[ok] / sig[ok]) <= 1e-7

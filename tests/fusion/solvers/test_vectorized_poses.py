@@ -2,7 +2,7 @@
 (mmsnap_graph.fusion.solvers.vectorized_poses): node poses with covariances
 (Pose2 body tangent) enlarge the fused covariance, never move the estimate.
 
-- ``fuse_batch``: ``P_x + A Sigma_p A^T``, checked against ``A`` from central
+- the vectorized solver: ``P_x + A Sigma_p A^T``, checked against ``A`` from central
   differences of the solver itself;
 - with the robust modes and the gate, a rejected node's pose drops out;
 - Monte Carlo: with poses drawn from their reported covariance the NEES is in
@@ -17,13 +17,23 @@ import pytest
 from scipy.stats import chi2
 
 from factors.models import predict_measurements
-from mmsnap_graph import fuse_batch, fuse_frame
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.evaluation import nees
 from mmsnap_graph.fusion import FusionOptions
 
+from _fusion import frame_of, solved
 from _pose_aware import GTSAM_BATCH_TOLERANCE, NOISES, POSE_COV, pose_frames, retract
 from _shared import PAPER_NOISE, POSES_BC
+
+
+def fuse_batch(poses, z, **kwargs):
+    """The vectorized solver through the contract."""
+    return solved(poses, z, solver="vectorized", **kwargs)
+
+
+def fuse_frame(poses, z, **kwargs):
+    """GTSAM through the contract, one frame (its fields without the frame axis)."""
+    return frame_of(solved(poses, z, solver="gtsam", **kwargs))
 
 
 @pytest.mark.parametrize(

@@ -11,12 +11,12 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mmsnap_graph import fuse_batch
 from mmsnap_graph.app import cli
 from mmsnap_graph.data.noise import MeasurementNoise
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import MmsnapError, ValidationError
+from _fusion import solved
 from mmsnap_graph.fusion import FusionOptions
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
@@ -286,7 +286,7 @@ def test_frame_stream_passes_pose_covariances(recording_bc_known_poses):
     stream = FrameStream(recording_bc_known_poses.node_names, POSES_BC, config=stream_config(solver="vectorized"), pose_covariances={"S2": POSE_COV[1], "S3": POSE_COV[2]})
     _, z = pose_frames(np.random.default_rng(10), 1)
     update = stream.push(0.1, [z[0, n][None] for n in range(3)])
-    ref = fuse_batch(POSES_BC, z, pose_covariances=POSE_COV)
+    ref = solved(POSES_BC, z, solver="vectorized", pose_covariances=POSE_COV)
     np.testing.assert_allclose(update.covariance[0], ref.covariance[0], rtol=1e-12)
 
 

@@ -130,10 +130,15 @@ def pump(session, on_frame, duration_s: float | None, on_idle=None) -> str:
                 name, exc = next(iter(failed.items()))
                 raise DeviceError(f"board {name}: reading its data port failed: {exc}")
             try:
-                on_frame(session.frames.get(timeout=0.1))
+                frame = session.frames.get(timeout=0.1)
             except queue.Empty:
                 if on_idle is not None:
                     on_idle()
+                continue
+            # Held with the one just taken (a reader may put one more meanwhile).
+            held = min(session.frames.qsize() + 1, session.frames.maxsize)
+            session.max_queued = max(session.max_queued, held)
+            on_frame(frame)
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)

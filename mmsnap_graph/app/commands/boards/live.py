@@ -102,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
     if args.view_log:
         print(f"wrote {args.view_log} (open it in Foxglove or Lichtblick)", file=sys.stderr)
     print(f"stopped after {why}: {latency.summary()}; {json_sink.lines} person rows; "
-          f"{live.late} board frame(s) too late for their slot", file=sys.stderr)
+          f"{live.late} board frame(s) too late for their slot; the queue held at most "
+          f"{session.max_queued} board frame(s) (bound {session.frames.maxsize})", file=sys.stderr)
     if args.record:
         rec = live_recording(collector, centroids, dict(zip(names, poses)), mounting=mounts,
                              height_band_m=args.height_band, reach_m=reach)

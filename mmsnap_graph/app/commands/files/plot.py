@@ -44,7 +44,7 @@ def register(subparsers) -> None:
     p.add_argument("--fov-range", type=float, default=None, metavar="METRES",
                    help="range the fields of view are drawn to (default: the farthest point)")
     p.add_argument("--dpi", type=int, default=150, help="resolution of a PNG (default "
-                                                         "%(default)s, at least 100)")
+                                                         "%(default)s, 100 to 600)")
     add_overwrite(p)
     p.set_defaults(func=run)
 

@@ -106,6 +106,8 @@ class BoardSession:
         self.reply_timeout_s = reply_timeout_s
         self.log = log
         self.frames: queue.Queue[BoardFrame] = queue.Queue(maxsize=QUEUE_FRAMES)
+        #: The most frames the queue held when one was taken (its bound: QUEUE_FRAMES).
+        self.max_queued = 0
         self.readers: dict[str, BoardReader] = {}
         self._ports: list = []
         self._cli: dict[str, Any] = {}

@@ -22,6 +22,6 @@ def test_the_command_writes_png_and_svg_and_refuses_other_formats(fused_b_file, 
     assert main(["plot", str(fused_b_file), "-o", str(tmp_path / "walk.pdf")]) == 2
     assert "written as png or svg" in capsys.readouterr().err
     assert main(["plot", str(fused_b_file), "-o", str(png), "--overwrite", "--dpi", "72"]) == 2
-    assert "dpi=72 must be an integer >= 100" in capsys.readouterr().err
+    assert "dpi=72 must be an integer within [100, 600] (--dpi)" in capsys.readouterr().err
     assert main(["plot", str(fused_b_file), "-o", str(png), "--overwrite",
                  "--frames", "9,3"]) == 2
