@@ -32,11 +32,13 @@ from ..data.noise import MeasurementNoise
 from ..fusion.config import DEFAULT_CONFIG, CoverageCheck, FusionConfig
 from ..fusion.options import NetworkCalibration
 from ..fusion.recording.consistency import ConsistencyMonitor, ConsistencyReport
+from ..fusion.recording.coverage import declared_reach_m
 from ..fusion.recording.pipeline import screen_rows
 from ..fusion.recording.room import RoomReport
 from ..fusion.recording.sequence import check_calibration, fuse_recording_rows
 from ..fusion.recording.timing import split_offset
 from ..io.chunks import open_detection_windows, fused_writer
+from ..io.hdf5 import open_recording_file, recording_metadata
 from ..tracking.person_ids import PersonIds
 
 __all__ = ["DEFAULT_WINDOW_FRAMES", "ChunkedFuseSummary", "fuse_file"]
@@ -137,9 +139,14 @@ def fuse_file(path: str | os.PathLike, config: FusionConfig = DEFAULT_CONFIG, *,
     calibration = check_calibration(calibration)
     windows = open_detection_windows(path, source=config.association.source)
     if config.check(CoverageCheck) is not None:
-        # How far each node looks, over the whole file (a window alone would
-        # judge it by its own frames and differ from the whole recording's).
-        config = config.with_coverage_reach(windows.reach_m())
+        # How far each node looks: declared by the file (mmsnap live's), else
+        # over the whole file (a window alone would judge it by its own frames
+        # and differ from the whole recording's); as coverage_reach_m.
+        with open_recording_file(Path(path)) as f:
+            declared = declared_reach_m(recording_metadata(f), windows.node_names)
+        reach = declared if set(declared) >= set(windows.node_names) else \
+            {**windows.reach_m(), **declared}
+        config = config.with_coverage_reach(reach)
     # Clock offsets move each node's frames by its own whole-frame shift
     # before fusion (fusion.recording.timing.align_recording): each node's window is
     # read shifted the same way, so that a window holds the same reference

@@ -44,7 +44,7 @@ __all__ = [
     "update_recording",
     "read_recording",
     "iter_cubes",
-    "read_cube_frames", "open_recording_file",
+    "read_cube_frames", "open_recording_file", "recording_metadata",
     "read_guard", "H5_ERRORS",
 ]
 
@@ -590,15 +590,11 @@ def _has(group: h5py.Group, key: str) -> bool:
                               f"file?): {exc}") from exc
 
 
-def _metadata(f: h5py.File) -> dict[str, Any]:
-    metadata: dict[str, Any] = {}
-    for key, value in _group(f, "metadata").attrs.items():
-        if isinstance(value, bytes):
-            value = value.decode("utf-8")
-        elif isinstance(value, np.generic):
-            value = value.item()
-        metadata[key] = value
-    return metadata
+def recording_metadata(f: h5py.File) -> dict[str, Any]:
+    """The ``/metadata`` attributes of an open recording (:func:`open_recording_file`)."""
+    return {key: value.decode("utf-8") if isinstance(value, bytes)
+            else value.item() if isinstance(value, np.generic) else value
+            for key, value in _group(f, "metadata").attrs.items()}
 
 
 def read_recording(path: str | os.PathLike, *, load_cubes: bool = True) -> Recording:
@@ -616,7 +612,7 @@ def read_recording(path: str | os.PathLike, *, load_cubes: bool = True) -> Recor
         nodes_group = _group(f, "nodes")
         nodes = {name: _node(_group(nodes_group, name), name, load_cubes) for name in order}
         truth = _truth(_group(f, "truth")) if _has(f, "truth") else None
-        metadata = _metadata(f) if _has(f, "metadata") else {}
+        metadata = recording_metadata(f) if _has(f, "metadata") else {}
         targets = _attr_str(f, "targets") if "targets" in f.attrs else "people"
     try:
         return Recording(frame_period_s=frame_period_s, nodes=nodes, truth=truth,

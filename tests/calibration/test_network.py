@@ -411,6 +411,23 @@ def test_real_physics_clock_offsets_of_three_nodes(taus):
             assert cal.time_offset_s[name] == 0.0
 
 
+@pytest.mark.slow
+def test_a_window_edge_lag_that_loses_to_its_neighbour_hands_over_to_it():
+    """The scene above on seed 4: the track matching's S1-S3 lag 2, at the
+    edge of the +-2-frame window, lost to lag 1 (z = -5.2 against it) and
+    lag 0 was kept; the joint graph's fractions (-1.14 and +0.54 frame,
+    z 22.6 and 9.7) were then refused as beyond half a frame, and S3's
+    clock came out 195 ms off (S2's 60 ms). Now lag 1 is tested against 0
+    (z = 14.8) and kept: errors +4.2 and +9.0 ms (sigmas 6.9, 6.6)."""
+    taus = {"S2": 0.4 * _T, "S3": -1.3 * _T}
+    cal = _real_clock_calibration(taus, 4, 1200)
+    assert cal.success and cal.lag_frames["S3"] == 1, cal.lag_frames
+    for name in ("S2", "S3"):
+        err = cal.time_offset_s[name] - taus[name]
+        assert abs(err) < 0.010, (name, err)
+        assert abs(err) < 3 * np.sqrt(cal.time_offset_variances[name]), name
+
+
 def test_a_circle_walk_reports_its_lag_as_not_determined_with_a_covering_covariance():
     # On a circle a time shift is a turn about its centre, which the pose
     # absorbs: lags -2..2 fit about as well with poses 0.25 m apart each. The

@@ -591,14 +591,23 @@ def _supported_lag(pool, fits, lag, max_lag_frames):
     at the edge of the search window (``max_lag_frames``), where the fit is
     not seen to get worse beyond it: a time shift that a turn of the pose
     absorbs improves the RMSE a little with every frame (two walkers seen by
-    synchronised radars at right angles: docs/validation/calibration.md, "Figures behind the estimators' rules")."""
+    synchronised radars at right angles: docs/validation/calibration.md, "Figures behind the estimators' rules").
+    An edge lag that its inner neighbour fits better (``z < 0`` against
+    it) hands over to the neighbour, tested the same way."""
     if lag == 0:
         return lag, fits, None
     z, pose0 = lag_evidence(pool, fits, lag)
     edge = abs(lag) >= max_lag_frames and lag - np.sign(lag) in pool.joins
+    inner, z_inner = int(lag - np.sign(lag)), float("nan")
     if edge:  # a lag at the edge must beat its inner neighbour too
-        z_inner = lag_evidence(pool, fits, lag, base=int(lag - np.sign(lag)))[0]
+        z_inner = lag_evidence(pool, fits, lag, base=inner)[0]
         edge = not z_inner >= LAG_EVIDENCE_Z
+    if edge and inner != 0 and fits.get(inner) is not None and z_inner < 0:
+        # The inner neighbour fits better than the edge: the fit's best lag
+        # lies inside the window, and the neighbour is tested against lag 0
+        # (three nodes, S3 1.3 frames early: the edge lag 2 lost to lag 1 at
+        # z = -5.2 and lag 0 was kept, S3's clock 195 ms off).
+        return _supported_lag(pool, fits, inner, max_lag_frames)
 
     def said(outcome):
         return LagEvidence(lag_frames=int(lag), outcome=outcome, z=float(z),

@@ -38,7 +38,8 @@ from numpy.typing import NDArray
 from ...data.recording import NodeData
 from .motion_check import MOTION_WINDOW_FRAMES
 
-__all__ = ["uncovered_rows", "detection_reach_m", "coverage_reach_m", "REACH_METADATA_KEY", "COVERAGE_FOV_RAD", "COVERAGE_MIN_RANGE_M",
+__all__ = ["uncovered_rows", "detection_reach_m", "coverage_reach_m", "declared_reach_m",
+           "REACH_METADATA_KEY", "COVERAGE_FOV_RAD", "COVERAGE_MIN_RANGE_M",
            "COVERAGE_MIN_FRAMES", "COVERAGE_MIN_NODES"]
 
 #: A node covers a place within this angle of its boresight (TI's antennas
@@ -73,17 +74,24 @@ def detection_reach_m(node: NodeData) -> float:
 REACH_METADATA_KEY = "{node}_coverage_reach_m"
 
 
+def declared_reach_m(metadata, node_names) -> dict:
+    """The reaches a recording's ``metadata`` declares (:data:`REACH_METADATA_KEY`),
+    node -> m, for the nodes that have one."""
+    out = {}
+    for name in node_names:
+        declared = metadata.get(REACH_METADATA_KEY.format(node=name))
+        if declared is not None:
+            out[name] = float(declared)
+    return out
+
+
 def coverage_reach_m(recording) -> dict:
     """Each node's reach for the coverage check of ``recording``: the one its
-    metadata declares (:data:`REACH_METADATA_KEY`), else
+    metadata declares (:func:`declared_reach_m`), else
     :func:`detection_reach_m` of its detections."""
-    md = recording.metadata
-    out = {}
-    for name in recording.node_names:
-        declared = md.get(REACH_METADATA_KEY.format(node=name))
-        out[name] = (float(declared) if declared is not None
-                     else detection_reach_m(recording.nodes[name]))
-    return out
+    declared = declared_reach_m(recording.metadata, recording.node_names)
+    return {name: declared[name] if name in declared
+            else detection_reach_m(recording.nodes[name]) for name in recording.node_names}
 
 
 def _covering(xy: NDArray, poses: NDArray, reach: NDArray) -> NDArray:

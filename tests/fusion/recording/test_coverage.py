@@ -12,7 +12,8 @@ from _shared import POSES_BC
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.fusion.config import CoverageCheck
 from mmsnap_graph.errors import ValidationError
-from mmsnap_graph.fusion.recording.coverage import detection_reach_m, uncovered_rows
+from mmsnap_graph.fusion.recording.coverage import (REACH_METADATA_KEY, coverage_reach_m,
+                                                    detection_reach_m, uncovered_rows)
 from mmsnap_graph.fusion.recording.sequence import fuse_recording
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 from mmsnap_graph.sim.real.ghosts import ghost_centroids
@@ -127,3 +128,32 @@ def test_the_reach_option_is_checked():
     # A reach given wins over the one a driver fills in.
     filled = CoverageCheck(reach_m={"S1": 5}).with_reach({"S1": 9.0, "S2": 7.0})
     assert dict(filled.reach_m) == {"S1": 5.0, "S2": 7.0}
+
+
+def test_a_reach_the_recording_declares_is_the_one_taken(tmp_path):
+    # mmsnap live --record declares each board's reach (its .cfg's maximum
+    # range): fuse_recording and the windowed driver of mmsnap fuse take it
+    # instead of the farthest detection (S1's static reflector at 9 m).
+    from mmsnap_graph.app.chunked_fuse import fuse_file
+    from mmsnap_graph.data.noise import MeasurementNoise
+    from mmsnap_graph.io import read_fused, write_recording
+    from mmsnap_graph.io.hdf5 import open_recording_file, recording_metadata
+
+    rec, _, image = small_room_image()
+    declared = dataclasses.replace(rec, metadata={**rec.metadata,
+                                                  REACH_METADATA_KEY.format(node="S1"): 5.0})
+    assert coverage_reach_m(declared)["S1"] == 5.0
+    assert coverage_reach_m(rec)["S1"] == 9.0
+    fused = _fused_small_room(declared)
+    at_image = np.hypot(*(fused.state[:, :2] - image[fused.frame, :2]).T) < 0.5
+    assert at_image.sum() == 40 and fused.success[at_image].all()
+    for recording, kept in ((rec, False), (declared, True)):
+        path = write_recording(tmp_path / f"{kept}.h5", recording)
+        with open_recording_file(path) as h5:
+            assert recording_metadata(h5).get("S1_coverage_reach_m") == (5.0 if kept else None)
+        fuse_file(path, config(robust="gate"), progress=False,
+                  noise=MeasurementNoise(range_m=0.02, omega_rad=0.01, doppler_mps=0.05))
+        f = read_fused(path)
+        here = np.hypot(*(f.state[:, :2] - image[f.frame, :2]).T) < 0.5
+        assert here.sum() == 40 and (f.success[here].all() if kept else not f.success[here].any())
+

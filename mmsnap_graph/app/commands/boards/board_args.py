@@ -135,7 +135,9 @@ def pump(session, on_frame, duration_s: float | None, on_idle=None) -> str:
                 if on_idle is not None:
                     on_idle()
                 continue
-            session.max_queued = max(session.max_queued, session.frames.qsize() + 1)
+            # Held with the one just taken (a reader may put one more meanwhile).
+            held = min(session.frames.qsize() + 1, session.frames.maxsize)
+            session.max_queued = max(session.max_queued, held)
             on_frame(frame)
     finally:
         if previous is not None:
