@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from ...data.results import FusedSequence, Status
 from ...errors import MmsnapError
-from ..frame_problem import FrameProblem
+from ..frame_problem import SMALL_PROBLEM_ROWS, FrameProblem
 from ..options import FusionOptions
 from ..solve import robust_solve, solve
 from ..config import (CoverageCheck, DuplicateCheck, FusionConfig, LearnedWalls, MotionCheck,
@@ -119,10 +119,18 @@ def solve_groups(z: NDArray, observed: NDArray, net: FusionNetwork, config: Fusi
     the checks). A row with an invalid observed measurement (range 0, say) is
     flagged, not fused; ``config.solve.block_rows`` rows are solved at a time."""
     k = z.shape[0]
-    out = FusedRows(k, observed.shape[1])
     options = _laplace(config)
-    invalid = (observed & ~valid_rows(z)).any(axis=1) if k else np.zeros(0, dtype=bool)
     block_rows = config.solve.block_rows
+    if 0 < k <= block_rows and k * observed.shape[1] <= SMALL_PROBLEM_ROWS:
+        # A frame's few groups (the stream): one solve, its rows as they are.
+        try:
+            problem = net.problem.with_frames(z, observed)
+        except MmsnapError:  # an invalid measurement: the rows one by one below
+            pass
+        else:
+            return FusedRows.of(robust_solve(problem, options, config.robust))
+    out = FusedRows(k, observed.shape[1])
+    invalid = (observed & ~valid_rows(z)).any(axis=1) if k else np.zeros(0, dtype=bool)
     for start in range(0, k, block_rows):
         sl = np.arange(start, min(k, start + block_rows))
         sl = sl[~invalid[sl]]
