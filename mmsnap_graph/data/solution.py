@@ -120,17 +120,14 @@ class FusionSolution:
         frozen here without the checks of the constructor (the per-frame
         path of the stream); nothing rejected, no grid covariance."""
         out = object.__new__(cls)
-        for name, value in (("state", state), ("covariance", covariance), ("status", status),
-                            ("iterations", iterations), ("final_cost", final_cost),
-                            ("initial_state", initial_state),
-                            ("whitened_residuals", whitened_residuals),
-                            ("degeneracy", degeneracy)):
-            value.setflags(write=False)
-            object.__setattr__(out, name, value)
+        set_ = object.__setattr__
         rejected = np.zeros(whitened_residuals.shape[:2], dtype=bool)
-        rejected.setflags(write=False)
-        object.__setattr__(out, "rejected", rejected)
-        object.__setattr__(out, "grid_covariance", None)
+        for name, value in zip(_SOLVER_FIELDS, (state, covariance, status, iterations, final_cost,
+                                                initial_state, whitened_residuals, degeneracy,
+                                                rejected)):
+            value.flags.writeable = False
+            set_(out, name, value)
+        set_(out, "grid_covariance", None)
         return out
 
     def __len__(self) -> int:
@@ -170,3 +167,7 @@ class FusionSolution:
             whitened_residuals=self.whitened_residuals[index],
             degeneracy=self.degeneracy[index], rejected=self.rejected[index],
             grid_covariance=grid)
+
+
+_SOLVER_FIELDS = ("state", "covariance", "status", "iterations", "final_cost", "initial_state",
+                  "whitened_residuals", "degeneracy", "rejected")

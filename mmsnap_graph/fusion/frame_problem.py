@@ -153,8 +153,9 @@ class FrameProblem:
     def _derived(self, **changes) -> "FrameProblem":
         """A problem sharing this one's validated parts (no validation)."""
         out = object.__new__(FrameProblem)
-        for name in self.__dataclass_fields__:
-            object.__setattr__(out, name, changes[name] if name in changes else getattr(self, name))
+        set_ = object.__setattr__
+        for name in _FIELDS:
+            set_(out, name, changes[name] if name in changes else getattr(self, name))
         return out
 
     def __getitem__(self, index) -> "FrameProblem":
@@ -203,6 +204,9 @@ class FrameProblem:
         _, z, obs = validate_frames(self.poses, z, observed)
         return self._derived(measurements=_frozen(np.array(z, dtype=float)),
                              observed=_frozen(np.array(obs, dtype=bool)), initial_state=None)
+
+
+_FIELDS = tuple(FrameProblem.__dataclass_fields__)
 
 
 def _rows_valid(z: NDArray, obs: NDArray) -> bool:

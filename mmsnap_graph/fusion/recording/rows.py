@@ -39,6 +39,18 @@ class FusedRows:
         self.degeneracy = np.full(k, np.inf)
         self.rejected = np.zeros((k, n_nodes), dtype=bool)
 
+    @classmethod
+    def of(cls, solved: FusionSolution) -> "FusedRows":
+        """The rows of a solve (each row a frame of it), their messages the
+        statuses'."""
+        out = cls.__new__(cls)
+        out.state, out.covariance = np.array(solved.state), np.array(solved.covariance)
+        out.status, out.iterations = np.array(solved.status), np.array(solved.iterations)
+        out.final_cost, out.degeneracy = np.array(solved.final_cost), np.array(solved.degeneracy)
+        out.rejected = np.array(solved.rejected)
+        out.message = solved.message
+        return out
+
     def __len__(self) -> int:
         return int(self.status.size)
 

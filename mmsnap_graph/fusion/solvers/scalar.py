@@ -117,6 +117,9 @@ def _nan44() -> NDArray:
     return np.full((4, 4), np.nan)
 
 
+_NAN44 = _nan44()
+
+
 def _cholesky(a: list[float]) -> tuple[float, ...] | None:
     """The Cholesky factor of ``a`` (16 floats) with this solver's pivot
     tolerance (``_PIVOT_RTOL``), or None."""
@@ -386,8 +389,14 @@ def _kernel(kernel: tuple[str, float], s2: float) -> tuple[float, float]:
 
 def _solver_of(problem, lm: LevenbergMarquardtSettings) -> _FrameSolver:
     """The :class:`_FrameSolver` of ``problem``'s network (made once per network)."""
-    return problem.cached(("scalar", lm, problem.kernel), lambda: _FrameSolver(
-        problem.poses, problem.noise, problem.prior, problem.pose_covariances, lm, problem.kernel))
+    # Keyed by the settings' identity (hashing the frozen settings costs more
+    # than the lookup); the settings object is kept with its solver.
+    held, solver = problem.cached(("scalar", id(lm), problem.kernel), lambda: (lm, _FrameSolver(
+        problem.poses, problem.noise, problem.prior, problem.pose_covariances, lm, problem.kernel)))
+    if held is not lm:  # an id reused by other settings
+        solver = _FrameSolver(problem.poses, problem.noise, problem.prior,
+                              problem.pose_covariances, lm, problem.kernel)
+    return solver
 
 
 def solve_frames(problem, options):
@@ -399,30 +408,38 @@ def solve_frames(problem, options):
         raise ValidationError("the scalar solver takes one network for every frame "
                               "(poses (N, 3)); use solver='vectorized' or 'gtsam'")
     solver = _solver_of(problem, options.lm)
-    n_frames, n_nodes = problem.n_frames, problem.n_nodes
-    state = np.full((n_frames, 4), np.nan)
-    cov = np.full((n_frames, 4, 4), np.nan)
-    status = np.zeros(n_frames, dtype=np.int8)
-    iterations = np.zeros(n_frames, dtype=np.int64)
-    cost = np.full(n_frames, np.nan)
-    whitened = np.full((n_frames, n_nodes, 3), np.nan)
-    degeneracy = np.full(n_frames, np.inf)
+    n_nodes = problem.n_nodes
     x0 = start_states(problem, per_frame=True)
     z_all, obs_all, x0_all = problem.measurements.tolist(), problem.observed.tolist(), x0.tolist()
     no_prior = problem.prior is None
-    for f in range(n_frames):
-        if no_prior and not any(obs_all[f]):
-            status[f] = _NO_INFORMATION
-            continue
-        if not all(map(math.isfinite, x0_all[f])):  # the average detection on a node
-            status[f] = _NON_FINITE
-            continue
-        x, c, st, dg, it, fc, res = solver.solve(z_all[f], obs_all[f], x0_all[f])
-        state[f], status[f], degeneracy[f], iterations[f], cost[f] = x, st, dg, it, fc
-        if c is not None:
-            cov[f] = c
+    # Plain lists, made arrays once (numpy's per-item writes cost more than the floats).
+    nan4, nan3 = [math.nan] * 4, (math.nan, math.nan, math.nan)
+    state, cov, status, iterations, cost, whitened, degeneracy = [], [], [], [], [], [], []
+    for z, obs, start in zip(z_all, obs_all, x0_all):
+        if no_prior and not any(obs):
+            x, c, st, dg, it, fc, res = nan4, None, _NO_INFORMATION, math.inf, 0, math.nan, ()
+        elif not all(map(math.isfinite, start)):  # the average detection on a node
+            x, c, st, dg, it, fc, res = nan4, None, _NON_FINITE, math.inf, 0, math.nan, ()
+        else:
+            x, c, st, dg, it, fc, res = solver.solve(z, obs, start)
+        w = [nan3] * n_nodes
         for n, er, ew, ev in res:
-            whitened[f, n] = er, ew, ev
+            w[n] = (er, ew, ev)
+        state.append(x)
+        cov.append(_NAN44 if c is None else c)
+        status.append(st)
+        iterations.append(it)
+        cost.append(fc)
+        whitened.append(w)
+        degeneracy.append(dg)
+    n_frames = len(state)
+    state = np.array(state, dtype=float).reshape(n_frames, 4)
+    cov = np.array(cov, dtype=float).reshape(n_frames, 4, 4)
+    status = np.array(status, dtype=np.int8)
+    iterations = np.array(iterations, dtype=np.int64)
+    cost = np.array(cost, dtype=float)
+    whitened = np.array(whitened, dtype=float).reshape(n_frames, n_nodes, 3)
+    degeneracy = np.array(degeneracy, dtype=float)
     return FusionSolution.of_solver(state=state, covariance=cov, status=status,
                                     iterations=iterations, final_cost=cost, initial_state=x0,
                                     whitened_residuals=whitened, degeneracy=degeneracy)
