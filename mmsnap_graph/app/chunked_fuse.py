@@ -162,12 +162,13 @@ def fuse_file(path: str | os.PathLike, config: FusionConfig = DEFAULT_CONFIG, *,
     flagged = RoomReport()
     n_frames = n_windows = 0
     context = config.context_frames  # the checks' look-around
+    back = config.look_back_frames   # and how far back they look (the placement check)
     person_ids = PersonIds()
     monitor = ConsistencyMonitor()
     with fused_writer(path, output=output) as writer, \
             _progress(len(spans), progress) as bar:
         for start, stop in spans:
-            rec, rows = windows.read(start - context, stop + context, shifts)
+            rec, rows = windows.read(start - back, stop + context, shifts)
             bar.update(1)
             if not any(r.size for r in rows.values()):
                 continue  # a gap: no node has a detection in these frames

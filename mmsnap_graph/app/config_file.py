@@ -79,7 +79,7 @@ FUSE_KEYS: dict[str, object] = {
     "mode": ("map", "ml"), "covariance": ("laplace", "grid"),
     "solver": ("vectorized", "gtsam", "scalar"), "source": ("centroids", "point_cloud"),
     "robust": ("gate", "huber", "cauchy", "none"), "gate": float, "grid_points": int,
-    "motion_check": bool, "coverage_check": bool, "body_merge": bool, "body_check": bool,
+    "motion_check": bool, "coverage_check": bool, "placement_check": bool, "body_merge": bool, "body_check": bool,
     "learned_walls": bool, "in_front": bool, "bounds": list, "bounds_cfg": str,
 }
 #: ``[chain.cluster] sparse`` (and ``mmsnap process --sparse``): the TOML or

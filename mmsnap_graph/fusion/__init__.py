@@ -55,6 +55,7 @@ _LAZY = {
     "MotionCheck": "config",
     "SplitCheck": "config",
     "CoverageCheck": "config",
+    "UnplacedCheck": "config",
     "RoomCheck": "config",
     "LearnedWalls": "config",
     "DuplicateCheck": "config",

@@ -14,7 +14,8 @@ on/off flags):
 - the checks, run in this order: :class:`MotionCheck` (each row against the
   motion of its neighbouring frames), :class:`SplitCheck` (one-node rows of a
   frame the association split), :class:`CoverageCheck` (rows a radar that
-  covers their place never sees), :class:`RoomCheck` (room bounds, in front of
+  covers their place never sees), :class:`UnplacedCheck` (one-node rows
+  no walk ties to a row of two nodes), :class:`RoomCheck` (room bounds, in front of
   the radars, static bounds), :class:`LearnedWalls` (beyond a wall learned from
   multipath images) and :class:`DuplicateCheck` (one body seen twice).
 
@@ -44,9 +45,10 @@ from ..errors import ValidationError
 from .options import DEFAULT_OPTIONS, FusionOptions, RobustOptions, robust_options
 from .recording.motion_check import MOTION_CONTEXT_FRAMES, MOTION_WINDOW_FRAMES
 from .recording.room import RoomBounds
+from .recording.unplaced import UNPLACED_LOOK_AHEAD_FRAMES, UNPLACED_LOOK_BACK_FRAMES
 
 __all__ = ["AssociationOptions", "MotionCheck", "SplitCheck", "CoverageCheck", "RoomCheck",
-           "LearnedWalls", "DuplicateCheck", "CHECKS", "DEFAULT_CHECKS", "FusionConfig",
+           "UnplacedCheck", "LearnedWalls", "DuplicateCheck", "CHECKS", "DEFAULT_CHECKS", "FusionConfig",
            "DEFAULT_CONFIG", "PLAIN_CONFIG", "WHOLE_RECORDING"]
 
 #: :attr:`look_frames` of a check that looks at the whole recording.
@@ -152,6 +154,20 @@ class CoverageCheck:
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
+class UnplacedCheck:
+    """Flag a row seen by one node alone that no walk ties to a row seen by
+    two or more nodes in the frames around
+    (:mod:`~mmsnap_graph.fusion.recording.unplaced`: one radar cannot tell
+    a person from a multipath image where no other radar looks). Runs after
+    the coverage check, on the rows the checks before it left; its chains
+    run over :attr:`look_back_frames` frames before a row and
+    :attr:`look_frames` after it."""
+
+    look_frames: ClassVar[int] = UNPLACED_LOOK_AHEAD_FRAMES
+    look_back_frames: ClassVar[int] = UNPLACED_LOOK_BACK_FRAMES
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
 class RoomCheck:
     """The room in the reference frame (:mod:`~mmsnap_graph.fusion.recording.room`).
 
@@ -218,9 +234,11 @@ class DuplicateCheck:
 
 
 #: The check components, in the order the pipeline runs them.
-CHECKS = (MotionCheck, SplitCheck, CoverageCheck, RoomCheck, LearnedWalls, DuplicateCheck)
+CHECKS = (MotionCheck, SplitCheck, CoverageCheck, UnplacedCheck, RoomCheck, LearnedWalls,
+          DuplicateCheck)
 #: The checks of :data:`DEFAULT_CONFIG`: every one but the room's (which needs its size).
-DEFAULT_CHECKS = (MotionCheck(), SplitCheck(), CoverageCheck(), LearnedWalls(), DuplicateCheck())
+DEFAULT_CHECKS = (MotionCheck(), SplitCheck(), CoverageCheck(), UnplacedCheck(), LearnedWalls(),
+                  DuplicateCheck())
 
 
 def _checks(checks: object) -> tuple:
@@ -301,6 +319,14 @@ class FusionConfig:
         checks = tuple(cov.with_reach(reach_m) if c is cov else c for c in self.checks)
         return FusionConfig(solve=self.solve, prior=self.prior, robust=self.robust,
                             association=self.association, checks=checks)
+
+    @property
+    def look_back_frames(self) -> int:
+        """Frames before a row that its checks look at: :attr:`context_frames`,
+        or more for a check that looks further back (:class:`UnplacedCheck`)."""
+        back = [getattr(c, "look_back_frames", 0) for c in self.checks
+                if not isinstance(c, LearnedWalls)]
+        return max([self.context_frames, *back])
 
     @property
     def context_frames(self) -> int:

@@ -12,7 +12,8 @@ from mmsnap_graph.data.noise import GaussianPrior
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.config import (DEFAULT_CONFIG, PLAIN_CONFIG, AssociationOptions,
                                         CoverageCheck, DuplicateCheck, FusionConfig,
-                                        LearnedWalls, MotionCheck, RoomCheck, SplitCheck)
+                                        LearnedWalls, MotionCheck, RoomCheck, SplitCheck,
+                                        UnplacedCheck)
 from mmsnap_graph.fusion.options import FusionOptions, RobustOptions
 from mmsnap_graph.fusion.recording.motion_check import MOTION_CONTEXT_FRAMES
 from mmsnap_graph.fusion.recording.room import RoomBounds
@@ -60,7 +61,10 @@ def test_ml_is_no_prior_and_the_default_is_mmsnap_fuse():
     assert (DEFAULT_CONFIG.prior.sigmas == paper.sigmas).all()
     assert DEFAULT_CONFIG.robust == RobustOptions(kernel="gate")
     assert {type(c) for c in DEFAULT_CONFIG.checks} == {
-        MotionCheck, SplitCheck, CoverageCheck, LearnedWalls, DuplicateCheck}
+        MotionCheck, SplitCheck, CoverageCheck, UnplacedCheck, LearnedWalls, DuplicateCheck}
+    # The placement check looks 100 frames back, and no further ahead than the motion check.
+    assert DEFAULT_CONFIG.context_frames == MOTION_CONTEXT_FRAMES == UnplacedCheck.look_frames
+    assert DEFAULT_CONFIG.look_back_frames == UnplacedCheck.look_back_frames == 100
     with pytest.raises(dataclasses.FrozenInstanceError):
         DEFAULT_CONFIG.prior = None
 

@@ -121,7 +121,7 @@ def check_sigmas(values) -> None:
 FUSE_DEFAULTS: dict[str, object] = {
     "mode": "map", "covariance": "laplace", "solver": "vectorized", "source": "centroids",
     "gate": 0.999, "grid_points": 21, "robust": "gate", "motion_check": True,
-    "coverage_check": True, "body_merge": True, "body_check": True, "learned_walls": True,
+    "coverage_check": True, "placement_check": True, "body_merge": True, "body_check": True, "learned_walls": True,
     "in_front": False, "bounds": None, "bounds_cfg": None,
 }
 
@@ -185,6 +185,10 @@ def add_fusion_arguments(p: argparse.ArgumentParser, *, solvers: tuple[str, ...]
     _off(g, "--no-coverage-check", "coverage_check",
          "with the motion check: keep a target that a radar whose field of view covers it "
          "does not see in the frames around (default: flagged, status 10: a multipath image)")
+    _off(g, "--no-placement-check", "placement_check",
+         "keep a target seen by one radar alone that no walk ties to a target seen by two "
+         "(default: flagged, status 10: one radar cannot tell a person from a multipath image "
+         "where no other radar looks)")
     _off(g, "--no-body-merge", "body_merge",
          "fuse each of a node's centroids of a frame closer than the merge radius "
          f"({CENTROID_MERGE_RADIUS_M:g} m) on its own (default: merged into one, as one body "
@@ -266,7 +270,8 @@ def fusion_config(args: argparse.Namespace):
     from mmsnap_graph.data.body import CENTROID_MERGE_RADIUS_M
     from mmsnap_graph.data.noise import GaussianPrior
     from mmsnap_graph.fusion.config import (AssociationOptions, CoverageCheck, DuplicateCheck,
-                                            FusionConfig, LearnedWalls, MotionCheck, SplitCheck)
+                                            FusionConfig, LearnedWalls, MotionCheck, SplitCheck,
+                                            UnplacedCheck)
     from mmsnap_graph.fusion.options import FusionOptions
 
     s = fusion_settings(args)
@@ -277,6 +282,8 @@ def fusion_config(args: argparse.Namespace):
         checks.append(MotionCheck())
         if s["coverage_check"]:
             checks.append(CoverageCheck())
+    if s["robust"] != "none" and s["placement_check"]:
+        checks.append(UnplacedCheck())
     if room is not None:
         checks.append(room)
     if s["learned_walls"] and (room is None or room.bounds is None):
@@ -301,12 +308,14 @@ def fusion_config(args: argparse.Namespace):
 def config_text(config) -> str:
     """What a :class:`~mmsnap_graph.fusion.config.FusionConfig` runs, in words (one line)."""
     from mmsnap_graph.fusion.config import (CoverageCheck, DuplicateCheck, LearnedWalls,
-                                            MotionCheck, RoomCheck)
+                                            MotionCheck, RoomCheck, UnplacedCheck)
 
     robust = "none" if config.robust is None else config.robust.kernel
     parts = [f"{config.mode}, {config.solve.covariance}, {config.solve.solver}, robust {robust}"]
     if config.check(MotionCheck):
         parts.append("motion check" + (" with coverage" if config.check(CoverageCheck) else ""))
+    if config.check(UnplacedCheck):
+        parts.append("one-radar targets tied to two")
     if config.association.merge_body_m is not None:
         parts.append(f"centroids within {config.association.merge_body_m:g} m merged")
     dup = config.check(DuplicateCheck)

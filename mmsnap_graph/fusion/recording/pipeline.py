@@ -37,7 +37,7 @@ from ..frame_problem import SMALL_PROBLEM_ROWS, FrameProblem
 from ..options import FusionOptions
 from ..solve import robust_solve, solve
 from ..config import (CoverageCheck, DuplicateCheck, FusionConfig, LearnedWalls, MotionCheck,
-                      RoomCheck, SplitCheck)
+                      RoomCheck, SplitCheck, UnplacedCheck)
 from ..grid import grid_posterior
 from ..problem import node_sigmas, valid_rows
 from ..robust import RESIDUAL_GATE_PROBABILITY
@@ -46,6 +46,7 @@ from .motion_check import apply_motion_check
 from .room import DEFAULT_BODY_M, RoomReport, screen_room
 from .rows import FusedRows
 from .split_check import SPLIT_MESSAGE, split_rows
+from .unplaced import UNPLACED_MESSAGE, unplaced_rows
 
 __all__ = ["FusionNetwork", "solve_groups", "check_rows", "screen_rows", "fuse_rows",
            "run_pipeline", "fused_sequence"]
@@ -181,12 +182,13 @@ def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDAr
     """The checks on the solved rows, in place: the motion check
     (docs/ROBUST.md), then the one-node rows of frames the association split
     (after the motion check, the only row of a frame it kept stays), then the
-    coverage check. ``frame`` (K,) sorted, ``detection_index`` (K, N), ``z``
+    coverage check, then the placement check (:class:`UnplacedCheck`). ``frame`` (K,) sorted, ``detection_index`` (K, N), ``z``
     (K, N, 3): the groups of the rows; ``reach_m`` (N,): each node's reach
     where the coverage check gives none (None: the farthest of the rows'
     ranges); ``decide``: the frames whose rows the motion check decides (None:
     all; the others are context)."""
     obs = detection_index >= 0
+    solved = out.status == Status.OK            # before the checks (the placement check's links)
     motion = config.check(MotionCheck) is not None
     if motion:
         _check_motion(out, frame, z, obs, net, config, decide)
@@ -197,6 +199,18 @@ def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDAr
     coverage = config.check(CoverageCheck)
     if coverage is not None:
         _check_coverage(out, frame, z, obs, net, coverage, reach_m)
+    if config.check(UnplacedCheck) is not None:
+        _check_unplaced(out, frame, obs, net, decide, solved)
+
+
+def _check_unplaced(out: FusedRows, frame, obs, net: FusionNetwork, decide, solved) -> None:
+    kept = obs & ~out.rejected
+    flag = unplaced_rows(frame, out.state[:, :2], out.status == Status.OK, kept,
+                         frame_period_s=net.frame_period_s, body_m=DEFAULT_BODY_M,
+                         decide=decide, solved=solved, seen=obs)
+    for r in np.flatnonzero(flag):
+        node = net.node_names[int(np.argmax(kept[r]))]
+        out.flag(r, Status.MOTION_INCONSISTENT, UNPLACED_MESSAGE.format(node=node))
 
 
 def grid_covariances(out: FusedRows, z, kept, net, config, progress) -> NDArray:

@@ -116,7 +116,8 @@ class StreamPipeline:
         ctx = self.config.context_frames
         if ctx == 0 and not self._screens:
             return self._decide_alone(frame)
-        while self._held and self._held[0].frame < frame - ctx:
+        back = self.config.look_back_frames
+        while self._held and self._held[0].frame < frame - back:
             self._held.popleft()
         held = [h for h in self._held if h.frame <= frame + self.delay_frames]
         mine = [i for i, h in enumerate(held) if h.frame == frame]
