@@ -105,7 +105,9 @@ def test_a_run_flagging_most_rows_exits_1_and_says_why(recording_b_real_file, tm
     assert code == 1, err
     assert "fused rows" in err and "more than --max-flagged 0.5" in err
     assert main(["fuse", str(rec), *tiny, "--max-flagged", "1"]) == 0
-    assert main(["fuse", str(rec), *tiny]) == 0  # the default allows up to 90 %
+    # The default allows up to 90 % (without the placement check: with it, the
+    # one-node rows the gate leaves of every row are flagged too, and it exits 1).
+    assert main(["fuse", str(rec), *tiny, "--no-placement-check"]) == 0
     assert main(["fuse", str(rec), "--no-progress"]) == 0  # a clean run flags fewer
 
 
