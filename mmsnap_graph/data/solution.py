@@ -125,7 +125,7 @@ class FusionSolution:
         for name, value in zip(_SOLVER_FIELDS, (state, covariance, status, iterations, final_cost,
                                                 initial_state, whitened_residuals, degeneracy,
                                                 rejected)):
-            value.flags.writeable = False
+            value.setflags(write=False)
             set_(out, name, value)
         set_(out, "grid_covariance", None)
         return out
