@@ -198,7 +198,8 @@ def test_cli_fuse_merges_one_body_and_checks_coverage_unless_told(tmp_path):
                              levels=("centroids",), n_frames=120, seed=2)
     rec = ghost_centroids(ghost_centroids(rec, "split", 0.2, seed=3), "mirror", 0.2, seed=4)
     path = write_recording(tmp_path / "rec.h5", rec)
-    sig = ["--sigmas", "0.05", "0.08", "0.1", "--no-progress"]
+    # The placement check (not in the library config of tests/_fusion.py) left out.
+    sig = ["--sigmas", "0.05", "0.08", "0.1", "--no-progress", "--no-placement-check"]
     for flags, opts in (([], {}),
                         (["--no-body-merge", "--no-coverage-check"],
                          dict(body_merge=False, coverage_check=False))):
