@@ -139,7 +139,13 @@ def test_the_stream_with_the_look_around_gives_fuses_rows_but_near_learned_walls
         print(f"{p.stem}: replay --delay 9 against fuse: {same} of {len(fused)} rows identical, "
               f"{len(differ)} differ (fuse status, stream status): {kinds}")
         wall = Status.OUTSIDE_BOUNDS
-        assert all(wall in pair for pair in differ), (p.stem, kinds)
+        # the learned walls (from the rows so far in the stream, from the whole recording
+        # in fuse) and, rarely, the motion check's refits near a placement decision
+        # (measured: 3 of the ghost recording's rows fuse flags MOTION_INCONSISTENT)
+        motion = [pair for pair in differ if wall not in pair]
+        assert all(pair == (Status.MOTION_INCONSISTENT, Status.OK) for pair in motion), \
+            (p.stem, kinds)
+        assert len(motion) <= 0.01 * len(fused), (p.stem, kinds)
         assert len(differ) <= 0.1 * len(fused), (p.stem, len(differ))
 
 
