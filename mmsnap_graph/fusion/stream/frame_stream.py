@@ -270,6 +270,27 @@ class FrameStream:
         """Live tracks of the central tracker."""
         return len(self._tracker.tracks)
 
+    def set_poses(self, node_poses: ArrayLike,
+                  pose_covariances: ArrayLike | Mapping[str, ArrayLike] | None = None) -> None:
+        """New node poses (N, 3) and their covariances (as the constructor
+        takes them) for the frames pushed from now on: a calibration refined
+        while the stream runs (``mmsnap live --refine``). The tracks, the
+        checks' history and the learned walls are kept; frames already
+        solved and held for a look-ahead keep the poses they were solved with."""
+        names = self.node_names
+        poses = check_finite(as_float_array(node_poses, "node_poses"), "node_poses").copy()
+        if poses.shape != (len(names), 3):
+            raise ValidationError(f"node_poses must have shape ({len(names)}, 3), got {poses.shape}")
+        for i in range(len(names)):
+            check_heading(float(poses[i, 2]), f"node_poses[{i}]")
+        covs = check_pose_covariances(pose_covariances, len(names), names)
+        noises = check_node_noise(self.noise, len(names), names)
+        net = FusionNetwork.make(names, poses, noises, covs, self.prior, self.frame_period_s)
+        poses.setflags(write=False)
+        self.node_poses, self.pose_covariances = poses, covs
+        self._associator = StreamAssociator(poses, noises, self.gate_probability)
+        self._pipeline.net = net
+
     def push(self, time_s: float, detections: Mapping[str, ArrayLike] | Sequence[ArrayLike]
              ) -> StreamUpdate:
         """One frame, decided at once (``delay_frames=0``): validate,

@@ -457,3 +457,29 @@ def test_no_sequence_of_stamps_locks_the_stream():
         start = float(rng.uniform(-1e4, 1e4))
         oks = [stream.push(start + 0.15 * k, det).ok for k in range(CLOCK_RESTART_FRAMES + 3)]
         assert all(oks[CLOCK_RESTART_FRAMES - 1:]), oks
+
+
+def test_set_poses_fuses_the_next_frames_with_the_new_poses_and_keeps_the_tracks(recording):
+    truth = _poses(recording)
+    wrong = truth.copy()
+    wrong[1] += [0.3, -0.2, 0.05]
+    frames = recording_frames(recording, fill_frames=5)
+    right = FrameStream(recording.node_names, truth, config=stream_config(solver="vectorized"))
+    moved = FrameStream(recording.node_names, wrong, config=stream_config(solver="vectorized"))
+    switch, differed = 40, 0
+    for k, (f, t, d) in enumerate(frames):
+        if k == switch:
+            ids = set(u.track_id.tolist())
+            assert ids and moved.n_tracks
+            moved.set_poses(truth)
+            np.testing.assert_array_equal(moved.node_poses, truth)
+        a, u = right.push(t, d), moved.push(t, d)
+        if k < switch and len(a.state) and len(u.state) == len(a.state):
+            differed += not np.allclose(u.state, a.state, atol=1e-3)
+        if k == switch:    # the tracks go on: no id starts over
+            assert ids & set(u.track_id.tolist())
+        if switch <= k < switch + 20:
+            np.testing.assert_allclose(u.state, a.state, rtol=0, atol=1e-9)
+    assert differed > 10
+    with pytest.raises(ValidationError, match="node_poses"):
+        moved.set_poses(truth[:2])
