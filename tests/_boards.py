@@ -40,17 +40,19 @@ class EmulatedBoard:
     start_delay_s : the data port starts this long after ``sensorStart``.
     stop_after : the board stops after this many packets (None: plays all).
     refuse : command names answered ``Error -1``; unknown : answered ``'...'
-    is not recognized as a CLI command``.
+    is not recognized as a CLI command``. go : an event the data port also
+    waits for (:func:`start_together`).
     """
 
     def __init__(self, packets, *, frame_period_s=FRAME_PERIOD_S, cli=True, garbled_first=True,
-                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=()):
+                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=(), go=None):
         self.packets = list(packets)
         self.frame_period_s = frame_period_s
         self.garbled_first = garbled_first
         self.start_delay_s = start_delay_s
         self.stop_after = stop_after
         self.refuse, self.unknown = set(refuse), set(unknown)
+        self.go = go
         self.commands: list[str] = []
         self.write_times: list[float] = []      # host time after each packet's last byte
         self.done = threading.Event()           # every packet it will send is sent
@@ -80,6 +82,8 @@ class EmulatedBoard:
     def close(self):
         self._stop.set()
         self._started.set()
+        if self.go is not None:
+            self.go.set()
         for t in self._threads:
             t.join(timeout=5)
         for fd in self._fds:
@@ -139,6 +143,8 @@ class EmulatedBoard:
     # ------------------------------------------------------------- data
     def _play(self):
         self._started.wait()
+        if self.go is not None:
+            self.go.wait()
         if self._stop.wait(self.start_delay_s):
             return
         n = len(self.packets) if self.stop_after is None else min(self.stop_after,
@@ -155,11 +161,29 @@ class EmulatedBoard:
         self.done.set()
 
 
+def start_together(make_boards):
+    """Boards whose data ports start together, once every one of them got
+    ``sensorStart`` (their packets of one frame number are then one instant,
+    as real boards' frames are): ``make_boards(go)`` makes them with
+    ``go=go``; returns them."""
+    go = threading.Event()
+    boards = make_boards(go)
+
+    def release():
+        while not all(b._started.is_set() for b in boards.values()):
+            time.sleep(0.01)
+        go.set()
+
+    threading.Thread(target=release, daemon=True).start()
+    return boards
+
+
 def board_packets(n_frames: int, *, node: str = "S1", demo: str = "oob", seed: int = 1,
-                  first_frame: int = 1) -> list[bytes]:
+                  first_frame: int = 1, trajectory: str = "straight") -> list[bytes]:
     """One packet per frame of a simulated node's point cloud (network C,
-    straight walk), lifted to 3D at the node's sample mounting."""
-    rec = simulated(n_frames, seed=seed)
+    a straight walk unless ``trajectory``), lifted to 3D at the node's
+    sample mounting."""
+    rec = simulated(n_frames, seed=seed, trajectory=trajectory)
     det = rec.nodes[node].point_cloud
     height, tilt = MOUNTS[node]
     xyz, dop = lift(det, height, tilt, seed)

@@ -36,9 +36,9 @@ FRAME_PERIOD_S = 0.05
 SAMPLE_FRAMES = 100
 
 
-def simulated(n_frames=SAMPLE_FRAMES, seed=1):
+def simulated(n_frames=SAMPLE_FRAMES, seed=1, trajectory="straight"):
     """A simulated recording (point clouds) at 20 fps."""
-    return simulate_recording("C", "straight",
+    return simulate_recording("C", trajectory,
                               SimulationOptions(physics=None, frame_period_s=FRAME_PERIOD_S),
                               levels=["point_cloud"], n_frames=n_frames, seed=seed)
 

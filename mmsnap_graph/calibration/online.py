@@ -9,16 +9,19 @@ and returns the :class:`PoseUpdate` records of what changed:
 - **windows** (reason ``"window"``): every ``window_s`` of frames, that
   window is calibrated on its own as a windowed calibration calibrates each
   of its windows (:func:`~mmsnap_graph.calibration.network.calibrate_with_joint`
-  on the centroids: track matching, pose graph, joint graph, the long-run
-  covariance) and its pose block kept
+  on the centroids and each node's EKF tracks of them: track matching, pose
+  graph, joint graph, the long-run covariance) and its pose block kept
   (:func:`~.joint.windowed.window_posterior`); the last ``max_windows``
   are combined in information form (:func:`~.joint.windowed.combine_windows`,
   the poses are static) into the poses, covariances and clock offsets
   published. A window nobody walked through (or whose solve failed) is
-  left out and counted (``skipped``). Memory is bounded: one window's
+  left out and counted (``skipped``), and so is one whose pose of a node is
+  further from the node's current pose than both covariances allow
+  (:data:`WINDOW_GATE`: a short or straight walk solved wrongly; a radar
+  that moved is the monitor's to notice). Memory is bounded: one window's
   frames and ``max_windows`` pose blocks.
 - **a moved radar** (reasons ``"change"``, then ``"recalibrated"``): the
-  frames with one target go to the
+  frames with one target (live: one fused target, its nodes' rows) go to the
   :class:`~.monitor.decalibration.DecalibrationMonitor` (in blocks of
   ``monitor_block`` frames); when it declares a change of node ``X`` and
   then re-calibrates it from the frames after the change, ``X``'s pose
@@ -42,6 +45,7 @@ import dataclasses
 from collections import deque
 from typing import Mapping
 
+import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -50,13 +54,14 @@ from ..data.calibration_facts import WindowsCombined
 from ..data.noise import MeasurementNoise
 from ..data.recording import Detections, NodeData, Recording
 from ..errors import CalibrationError, ValidationError
-from .._validation import check_count, positive_scalar
+from .._validation import check_count, chi2_gate, positive_scalar
 from .joint.windowed import WindowPosterior, combine_windows, window_posterior
-from .monitor.decalibration import DecalibrationMonitor
+from .monitor.decalibration import DEFAULT_POSE_SIGMAS, DecalibrationMonitor
 from .network import calibrate_with_joint
 from .poses import pose_array, to_pose2
+from ..tracking.ekf import EkfConfig, track_centroids
 
-__all__ = ["REFINE_WINDOW_S", "REFINE_MAX_WINDOWS", "PoseUpdate", "OnlineRefinement",
+__all__ = ["REFINE_WINDOW_S", "REFINE_MAX_WINDOWS", "WINDOW_GATE", "PoseUpdate", "OnlineRefinement",
            "without_node"]
 
 #: The live refinement's window (s): a minute of walking calibrates a room
@@ -64,6 +69,10 @@ __all__ = ["REFINE_WINDOW_S", "REFINE_MAX_WINDOWS", "PoseUpdate", "OnlineRefinem
 REFINE_WINDOW_S = 60.0
 #: Windows combined (the last hour at the default window).
 REFINE_MAX_WINDOWS = 60
+#: A window whose pose of a node is further than this squared Mahalanobis
+#: distance (chi-square 3, probability 1e-6 when both covariances hold) from
+#: the node's current pose is left out (:meth:`OnlineRefinement._disagrees`).
+WINDOW_GATE = chi2_gate(1.0 - 1e-6, 3)
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -153,6 +162,7 @@ class OnlineRefinement:
         self.max_windows = check_count(max_windows, "max_windows", 1)
         self.monitor_block = check_count(monitor_block, "monitor_block", 1)
         self.joint = joint
+        self._ekf = EkfConfig(frame_period_s=self.period)
         self.poses = {n: np.asarray(p, dtype=float).copy() for n, p in node_poses.items()}
         eye = np.full((3, 3), np.nan)
         self.covariances = {n: (eye if covariances is None or covariances.get(n) is None
@@ -176,9 +186,13 @@ class OnlineRefinement:
         self.frame = -1
 
     # ------------------------------------------------------------------
-    def add(self, frame: int, centroids: Mapping[str, ArrayLike]) -> list[PoseUpdate]:
+    def add(self, frame: int, centroids: Mapping[str, ArrayLike],
+            one_target: Mapping[str, ArrayLike] | None = None) -> list[PoseUpdate]:
         """One fused frame's centroids (frames in increasing order; a frame
-        left out had no centroid); the updates it completes."""
+        left out had no centroid); the updates it completes. ``one_target``:
+        name -> (3,) the rows of the frame's one fused target, what the
+        monitor is given ({}: no single target; None: each node's only
+        centroid, where it has one)."""
         frame = int(frame)
         self.frame = frame
         out = []
@@ -187,7 +201,9 @@ class OnlineRefinement:
         if rows:
             self._window.append((frame, rows))
         if self.monitor is not None:
-            self._block.append((frame * self.period, _one_target_rows(self.names, rows)))
+            single = rows if one_target is None else {n: np.reshape(z, (1, 3))
+                                                      for n, z in one_target.items()}
+            self._block.append((frame * self.period, _one_target_rows(self.names, single)))
             if len(self._block) >= self.monitor_block:
                 out += self._watch()
         if self._window and frame - self._window[0][0] + 1 >= self.window_frames:
@@ -245,7 +261,11 @@ class OnlineRefinement:
                                  doppler_mps=z[:, 2])
             else:
                 det = Detections.empty()
-            nodes[n] = NodeData(name=n, pose=None, centroids=det)
+            # Each node's EKF tracks (what mmsnap process gives offline): a
+            # sparse cloud clusters into several centroids a frame, which the
+            # track matching of centroids refuses.
+            nodes[n] = NodeData(name=n, pose=None, centroids=det,
+                                tracks=track_centroids(det, self._ekf) if len(det) else None)
         return Recording(frame_period_s=self.period, nodes=nodes)
 
     def _close_window(self) -> list[PoseUpdate]:
@@ -255,7 +275,7 @@ class OnlineRefinement:
         self.windows += 1
         why = ""
         try:
-            cal, jc = calibrate_with_joint(rec, source="centroids", joint=self.joint,
+            cal, jc = calibrate_with_joint(rec, source="auto", joint=self.joint,
                                            noise_estimate=False)
         except CalibrationError as exc:
             why = str(exc).splitlines()[0]
@@ -269,12 +289,41 @@ class OnlineRefinement:
             r = post.random
             if not (np.all(np.isfinite(r)) and np.all(np.linalg.eigvalsh(0.5 * (r + r.T)) > 0)):
                 why = "its pose covariance is not positive definite"
+            else:
+                why = self._disagrees(post, cal.reference)
         if why:
             self.skipped.append(f"frames {first}-{last}: {why}")
             return []
         self._reference = cal.reference
         self._posteriors.append(post)
         return [self._combine(last)]
+
+    def _disagrees(self, post: WindowPosterior, ref: str) -> str:
+        """Why a window's poses cannot be the current ones refined ("" when
+        they can): a node whose pose is further from its current one than
+        the window's covariance and the current one's allow (the chi-square
+        gate :data:`WINDOW_GATE`; a node without a covariance: the monitor's
+        :data:`~.monitor.decalibration.DEFAULT_POSE_SIGMAS`). A window that
+        solved a short or straight walk wrongly is left out; a radar that
+        moved is the monitor's to notice."""
+        anchor = to_pose2(self.poses[ref])
+        depth = post.rms**2 * post.depth @ post.depth.T if post.depth.size else 0.0
+        total = post.random + depth
+        for n in post.poses:
+            if ("pose", n, 0) not in post.labels or n == ref:
+                continue
+            idx = [post.labels.index(("pose", n, k)) for k in range(3)]
+            current = anchor.between(to_pose2(self.poses[n]))
+            e = gtsam.Pose2.Logmap(current.between(to_pose2(post.poses[n])))
+            c = self.covariances[n]
+            if not np.all(np.isfinite(c)):
+                c = np.diag(np.square(DEFAULT_POSE_SIGMAS))
+            d2 = float(e @ np.linalg.solve(total[np.ix_(idx, idx)] + c, e))
+            if d2 > WINDOW_GATE:
+                return (f"{n}'s pose is {np.hypot(e[0], e[1]):.3f} m, {np.rad2deg(e[2]):.2f} "
+                        f"deg from its current one (squared Mahalanobis distance {d2:.0f} > "
+                        f"{WINDOW_GATE:.1f})")
+        return ""
 
     def _combine(self, frame: int) -> PoseUpdate:
         comb = combine_windows(list(self._posteriors))

@@ -115,6 +115,18 @@ def test_a_node_marginalised_out_of_a_window_keeps_the_others_block():
     np.testing.assert_allclose(alone.block("S2"), whole.block("S2"), rtol=1e-9, atol=1e-15)
 
 
+def test_a_window_far_from_the_current_poses_is_left_out_not_combined():
+    rec = _bumped(0, bump=(0.0, 0.0, 0.0), n_frames=400, bump_time_s=10.0)
+    start = dict(NET)
+    start["S2"] = np.asarray(NET["S2"]) + [1.0, 0.0, 0.0]     # 10 sigmas: no refinement
+    ref = OnlineRefinement(start, frame_period_s=PERIOD, noise=declared_noise(rec.metadata),
+                           window_s=30.0, monitor=False)
+    ups = _run(rec, ref)
+    assert ups == [] and len(ref.skipped) == 2
+    assert all("S2's pose is 0.9" in why for why in ref.skipped), ref.skipped
+    assert np.array_equal(ref.poses["S2"], start["S2"])
+
+
 def test_bad_options_name_the_flag():
     with pytest.raises(ValidationError, match="--refine-window-s"):
         OnlineRefinement(dict(NET), frame_period_s=PERIOD, window_s=1.0)

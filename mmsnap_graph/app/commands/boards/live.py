@@ -38,11 +38,47 @@ def register(subparsers) -> None:
                    help="write the JSON lines to this file (default: standard output)")
     p.add_argument("--record", default=None, metavar="REC.h5",
                    help="also write the boards' frames and the centroids fused to a recording")
+    add_refine_options(p)
     add_board_options(p)
     add_fusion_arguments(p, solvers=("scalar", "gtsam", "vectorized"), default_solver="scalar")
     add_view_options(p)
     add_overwrite(p)
     p.set_defaults(func=run)
+
+
+def add_refine_options(p: argparse.ArgumentParser) -> None:
+    from mmsnap_graph.calibration.online import REFINE_WINDOW_S
+    g = p.add_argument_group("live refinement (docs/LIVE.md, \"Refining the calibration live\")")
+    g.add_argument("--refine", action=argparse.BooleanOptionalAction, default=False,
+                   help="refine the poses and clock offsets as people walk, in a process of "
+                        "its own, and re-calibrate a radar the decalibration monitor sees "
+                        "moved; each change is a JSON line on standard error (default: off, "
+                        "the poses of --calibration throughout)")
+    g.add_argument("--refine-window-s", type=float, default=REFINE_WINDOW_S, metavar="SECONDS",
+                   help=f"calibrate every this many seconds of frames (default "
+                        f"{REFINE_WINDOW_S:g})")
+    g.add_argument("--refined-calibration", default=None, metavar="FILE.json",
+                   help="with --refine, write the refined calibration JSON here after each "
+                        "change, atomically (an existing file needs --overwrite)")
+
+
+def refine_sink(args, stream, names, poses, cal, frame_period_s):
+    """The :class:`~mmsnap_graph.app.live.refine.RefineSink` of ``--refine``, or None."""
+    from mmsnap_graph._atomic import check_output_path, refuse_existing
+    from mmsnap_graph.errors import ValidationError
+    if not args.refine:
+        if args.refined_calibration is not None:
+            raise ValidationError("--refined-calibration is written by --refine: give both")
+        return None
+    from mmsnap_graph.app.live.refine import RefineSink
+    path = args.refined_calibration
+    if path is not None:
+        path = check_output_path(path)
+        refuse_existing(path, overwrite=args.overwrite)
+    return RefineSink(stream, names, poses, frame_period_s=frame_period_s,
+                      covariances=cal.pose_covariances, noise=cal.noise, json_path=path,
+                      window_s=args.refine_window_s,
+                      log=lambda line: print(line, file=sys.stderr, flush=True))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,7 +114,9 @@ def run(args: argparse.Namespace) -> int:
     # The view after the latency log: what it costs is not the JSON line's latency.
     view = view_sink(args, names, poses,
                      time_origin_s=time.time() - time.monotonic() + session.t0_s)
-    sinks = [json_sink, centroids, latency] + ([view] if view is not None else [])
+    # The refinement after the latency log too: it only hands the centroids on.
+    refine = refine_sink(args, stream, names, poses, cal, session.frame_period_s)
+    sinks = [json_sink, centroids, latency] + [s for s in (view, refine) if s is not None]
     live = LiveFusion(names, stream, mounting=mounts, frame_period_s=session.frame_period_s,
                       t0_s=session.t0_s, sinks=sinks, height_band_m=args.height_band)
 
@@ -98,12 +136,16 @@ def run(args: argparse.Namespace) -> int:
             out.close()
         if view is not None:
             view.close()
+        if refine is not None:
+            refine.close()
     print("\n".join(report_lines(session)), file=sys.stderr)
     if args.view_log:
         print(f"wrote {args.view_log} (open it in Foxglove or Lichtblick)", file=sys.stderr)
     print(f"stopped after {why}: {latency.summary()}; {json_sink.lines} person rows; "
           f"{live.late} board frame(s) too late for their slot; the queue held at most "
           f"{session.max_queued} board frame(s) (bound {session.frames.maxsize})", file=sys.stderr)
+    if refine is not None:
+        print(refine.report(), file=sys.stderr)
     if args.record:
         rec = live_recording(collector, centroids, dict(zip(names, poses)), mounting=mounts,
                              height_band_m=args.height_band, reach_m=reach)

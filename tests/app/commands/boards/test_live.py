@@ -14,7 +14,8 @@ import pytest
 
 from mmsnap_graph.app.cli import main
 
-from _boards import TIMEOUT_S, EmulatedBoard, board_packets, pending_bytes, wait_for
+from _boards import (TIMEOUT_S, EmulatedBoard, board_packets, pending_bytes, start_together,
+                     wait_for)
 from _shared import ROOT, TI_DATA
 from ti_samples import simulated
 
@@ -89,3 +90,54 @@ def _view_log_has_the_people(path, rows, boards):
     assert {f"/points/{b}" for b in boards} | {"/radars", "/people", "/tracks"} <= topics
     got = [r for frame in sorted(persons) for r in persons[frame]]
     assert got == rows
+
+
+@pytest.mark.slow
+def test_live_refine_prints_and_stores_the_refined_poses(tmp_path):
+    """``--refine`` on two emulated boards: the refinement process calibrates
+    each window of the walk, its updates are JSON lines on standard error and
+    the refined calibration JSON is written; the person rows still come."""
+    from mmsnap_graph.io.calibration import read_calibration_json
+    n = 400
+    truth = simulated(n, seed=1, trajectory="random").truth.node_poses
+    wrong = {k: np.asarray(p) + ([0.0, 0.0, 0.0] if k == "S1" else [0.05, -0.04, 0.02])
+             for k, p in truth.items()}
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"nodes": {k: {"pose": list(map(float, p))}
+                                         for k, p in wrong.items()}}))
+    # Started together: one frame number is one instant on both boards, as
+    # real boards' frames are (the refinement would see the CLI's delay as a lag).
+    boards = start_together(lambda go: {
+        k: EmulatedBoard(board_packets(n, node=k, seed=1, trajectory="random"), go=go)
+        for k in ("S1", "S2")})
+    out, refined = tmp_path / "live.jsonl", tmp_path / "refined.json"
+    args = [sys.executable, "-m", "mmsnap_graph", "live", "--calibration", str(cal),
+            "-o", str(out), "--mount", "S1=0.8,5", "--mount", "S2=1.2,15",
+            "--no-placement-check", "--refine", "--refine-window-s", "8",
+            "--refined-calibration", str(refined)]
+    for k, b in boards.items():
+        args += ["--board", f"{k}={b.cli_port},{b.data_port},{CFG}"]
+    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        for b in boards.values():
+            wait_for(lambda: b.done.is_set() or proc.poll() is not None, "the boards to play")
+            wait_for(lambda: pending_bytes(b) == 0 or proc.poll() is not None, "live to read them")
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for b in boards.values():
+            b.close()
+    assert proc.returncode == 0, stderr
+    assert out.read_text().splitlines()
+    updates = [json.loads(line) for line in stderr.splitlines() if line.startswith("{")]
+    assert updates and all(u["type"] == "calibration" for u in updates), stderr
+    windows = [u for u in updates if u["reason"] == "window"]
+    assert windows, stderr
+    stored = read_calibration_json(refined)
+    np.testing.assert_allclose(stored.poses["S2"], windows[-1]["poses"]["S2"], atol=1e-9)
+    err = lambda p: np.hypot(*(np.asarray(p[:2]) - truth["S2"][:2]))  # noqa: E731
+    assert err(windows[-1]["poses"]["S2"]) < 0.5 * err(wrong["S2"]), stderr
