@@ -11,6 +11,13 @@ opens the slave ends (``cli_port``, ``data_port``) with pyserial, as it would
 a USB serial device. :func:`board_packets` makes the packets from simulated
 point clouds (tests/ti_samples.py, tests/ti_encode.py).
 
+Boards that look at one walk share a :class:`Scene`: packet ``i`` of every
+board is the world at the scene's time ``i * frame_period_s``, and a board
+started later (a program configures its boards one after the other) streams
+the scene from then on, as real boards looking at one person do. Without a
+scene each board plays its walk from its own ``sensorStart``: two such boards
+show the person in two places at once.
+
 Synchronisation is by events and the board's own log of what it did
 (``commands``, ``write_times``), never by sleeping in the test.
 """
@@ -23,12 +30,30 @@ import threading
 import time
 import tty
 
+import math
+
 import numpy as np
 
 from ti_encode import encode_oob_frame, encode_tracking_frame
 from ti_samples import FRAME_PERIOD_S, MOUNTS, lift, simulated
 
 PROMPT = b"mmwDemo:/>"
+
+
+class Scene:
+    """The world several boards look at (module docstring): it starts at the
+    first ``sensorStart`` of a board that shares it."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.start: float | None = None     # host monotonic time of packet 0
+
+    def begin(self, now: float) -> float:
+        """The scene's start (``now`` for the first board that starts)."""
+        with self._lock:
+            if self.start is None:
+                self.start = now
+            return self.start
 
 
 class EmulatedBoard:
@@ -41,11 +66,15 @@ class EmulatedBoard:
     stop_after : the board stops after this many packets (None: plays all).
     refuse : command names answered ``Error -1``; unknown : answered ``'...'
     is not recognized as a CLI command``.
+    scene : the :class:`Scene` its packets are frames of (None: its own, from
+    its start); ``first_packet`` is the first one it sent.
     """
 
     def __init__(self, packets, *, frame_period_s=FRAME_PERIOD_S, cli=True, garbled_first=True,
-                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=()):
+                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=(), scene=None):
         self.packets = list(packets)
+        self.scene = scene
+        self.first_packet = 0
         self.frame_period_s = frame_period_s
         self.garbled_first = garbled_first
         self.start_delay_s = start_delay_s
@@ -143,8 +172,12 @@ class EmulatedBoard:
             return
         n = len(self.packets) if self.stop_after is None else min(self.stop_after,
                                                                    len(self.packets))
-        start = time.monotonic()
-        for i in range(n):
+        now = start = time.monotonic()
+        if self.scene is not None:
+            # The packets of the scene's past are lost (the board did not run then).
+            start = self.scene.begin(now)
+            self.first_packet = min(n, math.ceil((now - start) / self.frame_period_s))
+        for i in range(self.first_packet, n):
             wait = start + i * self.frame_period_s - time.monotonic()
             if wait > 0 and self._stop.wait(wait):
                 return
