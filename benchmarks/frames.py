@@ -48,6 +48,9 @@ def scipy_fuse(poses, z, noise, prior):
         _, j = measurement_model(x, poses)
         return np.vstack([(j / sig[:, None]).reshape(-1, 4), np.diag(inv_prior)])
 
-    x0 = initial_states(FrameProblem(poses=poses, measurements=z, prior=prior, noise=noise))[0]
+    # One frame, validated, its initial value in plain floats: what a per-frame
+    # caller (and the per-frame GTSAM solver) computes, not the numpy batch form.
+    x0 = initial_states(FrameProblem(poses=poses, measurements=z, prior=prior, noise=noise),
+                        per_frame=True)[0]
     sol = least_squares(fun, x0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     return sol.x, np.linalg.inv(sol.jac.T @ sol.jac)

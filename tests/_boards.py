@@ -11,6 +11,13 @@ opens the slave ends (``cli_port``, ``data_port``) with pyserial, as it would
 a USB serial device. :func:`board_packets` makes the packets from simulated
 point clouds (tests/ti_samples.py, tests/ti_encode.py).
 
+Boards that look at one walk share a :class:`Scene`: packet ``i`` of every
+board is the world at the scene's time ``i * frame_period_s``, and a board
+started later (a program configures its boards one after the other) streams
+the scene from then on, as real boards looking at one person do. Without a
+scene each board plays its walk from its own ``sensorStart``: two such boards
+show the person in two places at once.
+
 Synchronisation is by events and the board's own log of what it did
 (``commands``, ``write_times``), never by sleeping in the test.
 """
@@ -23,12 +30,30 @@ import threading
 import time
 import tty
 
+import math
+
 import numpy as np
 
 from ti_encode import encode_oob_frame, encode_tracking_frame
 from ti_samples import FRAME_PERIOD_S, MOUNTS, lift, simulated
 
 PROMPT = b"mmwDemo:/>"
+
+
+class Scene:
+    """The world several boards look at (module docstring): it starts at the
+    first ``sensorStart`` of a board that shares it."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.start: float | None = None     # host monotonic time of packet 0
+
+    def begin(self, now: float) -> float:
+        """The scene's start (``now`` for the first board that starts)."""
+        with self._lock:
+            if self.start is None:
+                self.start = now
+            return self.start
 
 
 class EmulatedBoard:
@@ -40,19 +65,21 @@ class EmulatedBoard:
     start_delay_s : the data port starts this long after ``sensorStart``.
     stop_after : the board stops after this many packets (None: plays all).
     refuse : command names answered ``Error -1``; unknown : answered ``'...'
-    is not recognized as a CLI command``. go : an event the data port also
-    waits for (:func:`start_together`).
+    is not recognized as a CLI command``.
+    scene : the :class:`Scene` its packets are frames of (None: its own, from
+    its start); ``first_packet`` is the first one it sent.
     """
 
     def __init__(self, packets, *, frame_period_s=FRAME_PERIOD_S, cli=True, garbled_first=True,
-                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=(), go=None):
+                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=(), scene=None):
         self.packets = list(packets)
+        self.scene = scene
+        self.first_packet = 0
         self.frame_period_s = frame_period_s
         self.garbled_first = garbled_first
         self.start_delay_s = start_delay_s
         self.stop_after = stop_after
         self.refuse, self.unknown = set(refuse), set(unknown)
-        self.go = go
         self.commands: list[str] = []
         self.write_times: list[float] = []      # host time after each packet's last byte
         self.done = threading.Event()           # every packet it will send is sent
@@ -82,8 +109,6 @@ class EmulatedBoard:
     def close(self):
         self._stop.set()
         self._started.set()
-        if self.go is not None:
-            self.go.set()
         for t in self._threads:
             t.join(timeout=5)
         for fd in self._fds:
@@ -143,14 +168,16 @@ class EmulatedBoard:
     # ------------------------------------------------------------- data
     def _play(self):
         self._started.wait()
-        if self.go is not None:
-            self.go.wait()
         if self._stop.wait(self.start_delay_s):
             return
         n = len(self.packets) if self.stop_after is None else min(self.stop_after,
                                                                    len(self.packets))
-        start = time.monotonic()
-        for i in range(n):
+        now = start = time.monotonic()
+        if self.scene is not None:
+            # The packets of the scene's past are lost (the board did not run then).
+            start = self.scene.begin(now)
+            self.first_packet = min(n, math.ceil((now - start) / self.frame_period_s))
+        for i in range(self.first_packet, n):
             wait = start + i * self.frame_period_s - time.monotonic()
             if wait > 0 and self._stop.wait(wait):
                 return
@@ -159,23 +186,6 @@ class EmulatedBoard:
             self._write(self._data, self.packets[i])
             self.write_times.append(time.monotonic())
         self.done.set()
-
-
-def start_together(make_boards):
-    """Boards whose data ports start together, once every one of them got
-    ``sensorStart`` (their packets of one frame number are then one instant,
-    as real boards' frames are): ``make_boards(go)`` makes them with
-    ``go=go``; returns them."""
-    go = threading.Event()
-    boards = make_boards(go)
-
-    def release():
-        while not all(b._started.is_set() for b in boards.values()):
-            time.sleep(0.01)
-        go.set()
-
-    threading.Thread(target=release, daemon=True).start()
-    return boards
 
 
 def board_packets(n_frames: int, *, node: str = "S1", demo: str = "oob", seed: int = 1,

@@ -14,8 +14,7 @@ import pytest
 
 from mmsnap_graph.app.cli import main
 
-from _boards import (TIMEOUT_S, EmulatedBoard, board_packets, pending_bytes, start_together,
-                     wait_for)
+from _boards import TIMEOUT_S, EmulatedBoard, Scene, board_packets, pending_bytes, wait_for
 from _shared import ROOT, TI_DATA
 from ti_samples import simulated
 
@@ -29,14 +28,15 @@ def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"nodes": {n: {"pose": list(map(float, p))}
                                          for n, p in poses.items()}}))
-    boards = {n: EmulatedBoard(board_packets(N, node=n, seed=1)) for n in ("S1", "S2")}
+    # One walk both boards look at: live configures S1, then S2 (about 1.5 s
+    # later); S2 streams the walk from then on, as a real board would.
+    scene = Scene()
+    boards = {n: EmulatedBoard(board_packets(N, node=n, seed=1), scene=scene)
+              for n in ("S1", "S2")}
     out, rec, view = tmp_path / "live.jsonl", tmp_path / "live.h5", tmp_path / "live.mcap"
     args = [sys.executable, "-m", "mmsnap_graph", "live", "--calibration", str(cal),
             "-o", str(out), "--record", str(rec), "--mount", "S1=0.8,5", "--mount", "S2=1.2,15",
-            "--view-log", str(view), "--no-placement-check"]
-    # KNOWN DEFECT (open): with the placement check on, live and replay of this two-board
-    # scene flag every row (no person printed); the check is off here so the test keeps
-    # checking live = replay, its subject.
+            "--view-log", str(view)]
     for n, b in boards.items():
         args += ["--board", f"{n}={b.cli_port},{b.data_port},{CFG}"]
     proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -60,7 +60,7 @@ def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_
     assert all(r["status"] in ("tracked", "predicted") for r in rows)
     replayed = tmp_path / "replay.jsonl"
     assert main(["replay", str(rec), "--calibration", str(cal), "-o", str(replayed),
-                 "--summary", "--no-placement-check"]) == 0
+                 "--summary"]) == 0
     last = max(r["frame"] for r in rows)
     again = {}
     for line in replayed.read_text().splitlines():
@@ -105,15 +105,15 @@ def test_live_refine_prints_and_stores_the_refined_poses(tmp_path):
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"nodes": {k: {"pose": list(map(float, p))}
                                          for k, p in wrong.items()}}))
-    # Started together: one frame number is one instant on both boards, as
-    # real boards' frames are (the refinement would see the CLI's delay as a lag).
-    boards = start_together(lambda go: {
-        k: EmulatedBoard(board_packets(n, node=k, seed=1, trajectory="random"), go=go)
-        for k in ("S1", "S2")})
+    # One scene: a frame number is one instant on both boards, as real boards'
+    # frames are (S2, configured later, streams the walk from then on).
+    scene = Scene()
+    boards = {k: EmulatedBoard(board_packets(n, node=k, seed=1, trajectory="random"),
+                               scene=scene) for k in ("S1", "S2")}
     out, refined = tmp_path / "live.jsonl", tmp_path / "refined.json"
     args = [sys.executable, "-m", "mmsnap_graph", "live", "--calibration", str(cal),
             "-o", str(out), "--mount", "S1=0.8,5", "--mount", "S2=1.2,15",
-            "--no-placement-check", "--refine", "--refine-window-s", "8",
+            "--refine", "--refine-window-s", "8",
             "--refined-calibration", str(refined)]
     for k, b in boards.items():
         args += ["--board", f"{k}={b.cli_port},{b.data_port},{CFG}"]
