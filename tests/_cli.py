@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import re
+import resource
+import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 from mmsnap_graph.app.cli import main
@@ -13,7 +18,8 @@ from mmsnap_graph.data.noise import MeasurementNoise, NodeNoiseEstimate, NoiseEs
 from mmsnap_graph.data.recording import Detections
 from mmsnap_graph.io.noise import write_noise
 
-__all__ = ["run_cli", "error_line", "with_centroids", "store_partial_noise", "noise_block"]
+__all__ = ["run_cli", "error_line", "with_centroids", "store_partial_noise", "noise_block",
+           "within_budget"]
 
 
 def run_cli(capsys, *argv):
@@ -96,3 +102,42 @@ def simulated(path: Path, n_frames: int) -> Path:
     assert main(["simulate", "--model", "clean", "-c", "B", "-t", "random", "-n", str(n_frames),
                  "-l", "centroids", "--seed", "2", "-o", str(path), "--no-progress"]) == 0
     return path
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process (all its threads) and of its reaped children."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
+class _Hung(Exception):
+    pass
+
+
+@contextlib.contextmanager
+def within_budget(what, cpu_s: float = 15.0, hang_s: float = 300.0):
+    """Fail (naming ``what``) if the block's work exceeds ``cpu_s`` seconds of
+    CPU time (this process's threads and the children it waited for), or if it
+    has not returned after ``hang_s`` seconds of wall time: a hang, a blocked
+    command that uses no CPU. CPU time, not wall time, bounds the work, so a
+    loaded machine does not fail it; the wall-time alarm (a SIGALRM timer, in
+    the main thread) stops a hang with a failure instead of stopping the suite,
+    generous enough that a slow machine is not one."""
+    armed = threading.current_thread() is threading.main_thread()
+    if armed:
+        def on_alarm(signum, frame):
+            raise _Hung
+        previous = signal.signal(signal.SIGALRM, on_alarm)
+        signal.setitimer(signal.ITIMER_REAL, hang_s)
+    start_cpu, start_wall = _cpu_s(), time.monotonic()
+    try:
+        yield
+    except _Hung:
+        raise AssertionError(f"{what}: no return after {hang_s:.0f} s (a hang)") from None
+    finally:
+        if armed:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+    used, wall = _cpu_s() - start_cpu, time.monotonic() - start_wall
+    assert wall < hang_s, f"{what}: {wall:.0f} s of wall time (a hang)"
+    assert used < cpu_s, f"{what}: {used:.1f} s of CPU time, more than {cpu_s:.0f} s"

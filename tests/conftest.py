@@ -19,6 +19,22 @@ from mmsnap_graph.sim import CLEAN, SimulationOptions
 from _shared import NETWORK_3_OPEN, POSES_BC
 from _fusion import config
 
+#: Session fixtures that take long to build (the demo's six runs, about a
+#: minute): under pytest-xdist every test that uses one goes to the same worker
+#: (``--dist loadgroup``, the README's test command), which builds it once.
+#: Files shared by the workers are built once per run with ``_once.built_once``.
+ONE_WORKER_FIXTURES = ("demo_on_samples",)
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
+def pytest_collection_modifyitems(config, items):
+    if not config.pluginmanager.hasplugin("xdist"):
+        return
+    for item in items:
+        used = [name for name in ONE_WORKER_FIXTURES if name in item.fixturenames]
+        if used:
+            item.add_marker(pytest.mark.xdist_group(used[0]))
+
 
 @pytest.fixture(scope="session")
 def two_target_recordings():

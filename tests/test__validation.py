@@ -72,3 +72,47 @@ def test_frame_steps_are_exact_across_the_ends_of_int64():
     assert frame_steps([big.min, big.max]).tolist() == [big.max]  # 2^64 - 1, saturated
     assert frame_steps([7]).size == 0
     np.testing.assert_array_equal(frame_steps(np.arange(5) * 3), np.diff(np.arange(5) * 3))
+
+
+def test_frame_steps_fast_path_matches_the_exact_steps():
+    """Frames less than 2^63 apart take np.diff; the result equals the
+    saturated exact steps, up to the span where a step could wrap."""
+    from mmsnap_graph._validation import frame_steps
+
+    big = np.iinfo(np.int64)
+    rng = np.random.default_rng(0)
+    f = rng.integers(-2**40, 2**40, size=200)
+    np.testing.assert_array_equal(frame_steps(f), np.diff(f))
+    assert frame_steps(f).dtype == np.int64
+    edge = np.array([-1, big.max], dtype=np.int64)  # 2^63 apart: the exact path
+    assert frame_steps(edge).tolist() == [big.max]
+    assert frame_steps(np.array([0, big.max])).tolist() == [big.max]  # the widest fast one
+    assert frame_steps(np.array([], dtype=np.int64)).size == 0
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_check_finite_names_the_first_non_finite_entry(bad):
+    from mmsnap_graph._validation import check_finite
+
+    arr = np.zeros((4, 2))
+    arr[2, 1] = bad
+    with pytest.raises(ValidationError, match=r"x must be finite, got .* at index \(2, 1\)"):
+        check_finite(arr, "x")
+    arr[0, 0] = np.inf if bad != np.inf else -np.inf  # sum nan: inf - inf
+    with pytest.raises(ValidationError, match=r"at index \(0, 0\)"):
+        check_finite(arr, "x")
+
+
+def test_check_finite_returns_its_input_and_warns_of_nothing():
+    import warnings
+
+    from mmsnap_graph._validation import check_finite
+
+    arr = np.full(4, np.finfo(float).max)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert check_finite(arr, "x") is arr
+        ints = np.array([2**62, 2**62, 2**62])
+        assert check_finite(ints, "x") is ints
+        with pytest.raises(ValidationError):
+            check_finite(np.array([np.inf, -np.inf]), "x")

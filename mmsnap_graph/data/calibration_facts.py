@@ -231,7 +231,9 @@ class PoseCovariance(CalibrationFact):
     ``without_depth_nodes`` and ``without_depth_sigmas`` (three per node:
     ``x_b`` m, ``y_b`` m, ``phi`` rad) : each node's 1-sigma without that
     term, what sessions of one walker or a recording's halves scatter by
-    (the depth is common to them). ``failure`` : why a more careful method
+    (the depth is common to them). ``depth_data_sigma_m`` : the depth's
+    sigma from the data alone, how far the geometry separates it from the
+    poses (0: not computed). ``failure`` : why a more careful method
     was not used ("" when none failed)."""
 
     kind: ClassVar[str] = "pose_covariance"
@@ -243,6 +245,7 @@ class PoseCovariance(CalibrationFact):
     failure: str = ""
     without_depth_nodes: tuple[str, ...] = ()
     without_depth_sigmas: tuple[float, ...] = ()
+    depth_data_sigma_m: float = 0.0
 
 
 @_fact

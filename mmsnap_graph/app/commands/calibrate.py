@@ -242,8 +242,11 @@ def _covariance_text(f) -> str | tuple[str, ...]:
         text = (f"covariance: long-run over {f.bandwidth_frames} frames (errors correlated in "
                 f"time or model error), variances widened up to x{f.max_widening:.1f}")
     if f.reflection_depth_rms_m > 0:
+        alone = (f"the data alone fix it to +- {f.depth_data_sigma_m:.3f} m; "
+                 if f.depth_data_sigma_m > 0 else "")
         text += (f"; plus a reflection depth of {f.reflection_depth_rms_m:.3f} m rms that the "
-                 f"poses cannot tell from the geometry (not estimated: --range-offset does)")
+                 f"poses cannot tell from the geometry ({alone}not estimated: --range-offset "
+                 f"does)")
         s = np.reshape(f.without_depth_sigmas, (-1, 3))
         if len(f.without_depth_nodes) and s.shape[0] == len(f.without_depth_nodes):
             return (text, "1-sigma without the depth, what sessions of one walker and a "

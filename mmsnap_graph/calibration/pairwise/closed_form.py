@@ -147,7 +147,7 @@ def _scale_of(a: NDArray, b: NDArray) -> float:
     """A length (m) the tracks are divided by before the arithmetic, so that
     coordinates of 1e-300 m or 1e300 m neither underflow nor overflow when
     squared. A power of two: the division is exact."""
-    biggest = float(max(np.max(np.abs(a)), np.max(np.abs(b))))
+    biggest = float(max(np.abs(a).max(), np.abs(b).max()))
     if biggest == 0.0:
         return 1.0
     return float(2.0 ** np.frexp(biggest)[1])
@@ -165,7 +165,7 @@ def _unit_covariance(covariance: str, s_k: NDArray | None, pose: NDArray, a: NDA
     h = np.empty((3, 3))
     h[:2, :2] = np.eye(2) * k
     h[:2, 2] = h[2, :2] = np.array([-sb[1], sb[0]])
-    h[2, 2] = float(np.sum(b * b))
+    h[2, 2] = float((b * b).sum())
     h_inv = np.linalg.inv(h)  # 3x3, well conditioned once the spread check passed
     if s_k is not None:
         jac = alignment_jacobian(pose, b)  # (K, 2, 3)
@@ -192,7 +192,7 @@ def _scores(pose: NDArray, a: NDArray, b: NDArray) -> NDArray:
 def _sound(pose: NDArray, cov: NDArray, j_min: float) -> str:
     """Why the result cannot be a success ('' if it can): success=True means
     finite numbers and a positive-definite covariance."""
-    if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(cov)) and np.isfinite(j_min)):
+    if not (np.isfinite(pose).all() and np.isfinite(cov).all() and np.isfinite(j_min)):
         return "the pose, its covariance or the cost is not finite at this scale"
     if np.linalg.eigvalsh(cov).min() <= 0.0:
         return "the pose covariance is not positive definite at this scale"
@@ -266,8 +266,8 @@ def closed_form_calibration(
                                f"{k} < min_common_frames={max(int(min_common_frames), 3)}")
     scale = _scale_of(a, b)
     ua, ub = a / scale, b / scale
-    spread_a = float(np.sqrt(np.mean(np.sum((ua - ua.mean(0)) ** 2, axis=1))))
-    spread_b = float(np.sqrt(np.mean(np.sum((ub - ub.mean(0)) ** 2, axis=1))))
+    spread_a = float(np.sqrt(((ua - ua.mean(0)) ** 2).sum(axis=1).mean()))
+    spread_b = float(np.sqrt(((ub - ub.mean(0)) ** 2).sum(axis=1).mean()))
     if min(spread_a, spread_b) * scale < min_spread_m or min(spread_a, spread_b) <= 1e-12:
         raise CalibrationError(
             f"the target hardly moves (track spread {spread_a * scale:.3g} m in a, "

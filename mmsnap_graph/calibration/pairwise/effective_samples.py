@@ -53,16 +53,16 @@ def _frame_sums(scores: NDArray, times: NDArray) -> tuple[NDArray, int]:
     """Scores summed per time, on a dense zero-filled time axis ``(T, p)``,
     and the number of distinct times."""
     steps = frame_steps(times)  # not np.diff: frames at both ends of int64
-    if np.all(steps == 1):  # the usual case: one row per consecutive frame
+    if (steps == 1).all():  # the usual case: one row per consecutive frame
         return scores, times.size
-    if np.any(steps < 0):
+    if (steps < 0).any():
         order = np.argsort(times, kind="stable")
         times, scores = times[order], scores[order]
         steps = frame_steps(times)
     starts = np.flatnonzero(np.concatenate([[True], steps > 0]))
     sums = np.add.reduceat(scores, starts, axis=0)
     gaps = np.minimum(frame_steps(times[starts]), MAX_GAP_FRAMES)
-    if np.all(gaps == 1):
+    if (gaps == 1).all():
         return sums, starts.size
     slot = np.concatenate([[0], np.cumsum(gaps)])
     dense = np.zeros((int(slot[-1]) + 1, scores.shape[1]))
@@ -82,7 +82,7 @@ def _whitener(g: NDArray) -> NDArray | None:
 
 def _lag_trace(x: NDArray, lag: int) -> float:
     """``trace(sum_t x_t x_{t+lag}^T)``."""
-    return float(np.sum(x[:-lag] * x[lag:])) if lag < x.shape[0] else 0.0
+    return float((x[:-lag] * x[lag:]).sum()) if lag < x.shape[0] else 0.0
 
 
 def autocorrelation_factor(scores: ArrayLike, times: ArrayLike) -> float:
@@ -109,10 +109,10 @@ def autocorrelation_factor(scores: ArrayLike, times: ArrayLike) -> float:
         return 1.0
     x = g @ whiten  # Gamma_0 of x is the identity on its p' components
     p = x.shape[1]
-    rho = float(np.clip(_lag_trace(x, 1) / p, 0.0, MAX_AR_COEFFICIENT))
+    rho = min(max(_lag_trace(x, 1) / p, 0.0), MAX_AR_COEFFICIENT)  # np.clip's, of a float
     u = x[1:] - rho * x[:-1]
     bandwidth = int(np.ceil(4.0 * (u.shape[0] / 100.0) ** (2.0 / 9.0)))
-    lrv_u = float(np.sum(u * u))
+    lrv_u = float((u * u).sum())
     for lag in range(1, bandwidth + 1):
         lrv_u += 2.0 * (1.0 - lag / (bandwidth + 1.0)) * _lag_trace(u, lag)
     tau = lrv_u / (1.0 - rho) ** 2 / p

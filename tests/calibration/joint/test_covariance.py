@@ -30,6 +30,7 @@ from mmsnap_graph.calibration import calibrate_recording, joint_calibration, pos
 from mmsnap_graph.calibration.joint.covariance import (
     bandwidth_frames,
     block_covariance,
+    depth_data_sigma,
     long_run_covariance,
     NODE_DEPTH_SHARE,
     range_offset_response,
@@ -180,6 +181,59 @@ def test_range_offset_response_is_the_poses_move_when_every_range_lengthens():
     kept = block_covariance(estimated, p3, s3, o3, frames, bandwidth=3, timed=(),
                             range_offset_rms=0.1)
     assert kept.range_offset_rms == 0.0 and kept.fact().reflection_depth_rms_m == 0.0
+
+
+def _facing_problem(seed=0, n=120):
+    """Two nodes 8 m apart facing each other, a target walking between them
+    (0.8 m either side of the line, 2-6 m from S1), ranges 0.07 m short."""
+    from factors.models import measurement_model
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.15
+    states = np.column_stack([0.8 * np.sin(0.7 * t), 4.0 + 2.0 * np.sin(0.25 * t),
+                              0.56 * np.cos(0.7 * t), 0.5 * np.cos(0.25 * t)])
+    poses = {"S1": np.zeros(3), "S2": np.array([0.0, 8.0, np.pi])}
+    meas = {}
+    for name, pose in poses.items():
+        h, _ = measurement_model(states, pose)
+        h[:, 0] -= 0.07
+        meas[name] = h + rng.normal(0.0, SIGMAS, (n, 3))
+    return poses, states, meas
+
+
+def _plain_problem(meas, names):
+    return PresolveProblem(measurements=meas, names=list(names), reference="S1", sigmas=SIGMAS,
+                           prior_sigmas=np.array([1e3, 1e3, 3.5, 3.5]),
+                           motion=(np.arange(len(meas["S1"]) - 1),
+                                   np.full(len(meas["S1"]) - 1, 0.15), 2.0))
+
+
+def test_depth_data_sigma_says_where_the_geometry_separates_the_depth_from_the_poses():
+    """The depth's sigma from the data alone is the range offset's sigma of
+    the graph that estimates it with a flat prior, at the same point (the
+    model's; the long-run one is never below it). Three nodes around the
+    walk fix it to about 2 cm (below half the considered rms);
+    two facing nodes with the walker between them to 4 times that
+    (a shorter baseline looks the same on the line between them), and
+    block_covariance's fact carries the figure."""
+    rows = {}
+    for name, (poses, states, meas) in (("around", _scene(n=120)), ("facing", _facing_problem())):
+        problem = _plain_problem(meas, poses)
+        p, s = presolve(problem, poses, states, tol=1e-14, max_steps=200)
+        frames = np.arange(len(meas["S1"]))
+        alone = depth_data_sigma(problem, p, s, None, frames, bandwidth=None)
+        flat = dataclasses.replace(problem, range_offset=(0.0, 1e3))
+        _, cov = pose_influences(flat, p, s, offsets={RANGE_OFFSET: 0.0})
+        assert alone == pytest.approx(np.sqrt(cov[-1, -1]), rel=1e-9)
+        assert depth_data_sigma(problem, p, s, None, frames, bandwidth=5) >= alone * (1 - 1e-9)
+        block = block_covariance(problem, p, s, None, frames, bandwidth=5, timed=(),
+                                 range_offset_rms=REFLECTION_DEPTH_RMS_M)
+        assert block.fact().depth_data_sigma_m == block.depth_data_sigma_m > 0
+        rows[name] = block.depth_data_sigma_m
+        with pytest.raises(ValidationError, match="already estimates"):
+            depth_data_sigma(flat, p, s, None, frames, bandwidth=None)
+    limit = 0.5 * REFLECTION_DEPTH_RMS_M
+    assert rows["around"] < 0.5 * limit < limit < rows["facing"], rows  # 0.018 m, 0.072 m
+    assert rows["facing"] > 3.0 * rows["around"]
 
 
 def _sim(seed, physics):
