@@ -94,7 +94,7 @@ def _cpu_s(pid):
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run_live(names, packets, tmp, core):
+def run_live(names, packets, tmp, core, live_args=()):
     poses = {n: NETWORK[n] for n in names}
     cal = tmp / "cal.json"
     cal.write_text(json.dumps({"nodes": {n: {"pose": p} for n, p in poses.items()}}))
@@ -102,14 +102,14 @@ def run_live(names, packets, tmp, core):
     boards = {n: EmulatedBoard(packets[n], frame_period_s=PERIOD_S, garbled_first=False)
               for n in names}
     args = [sys.executable, "-m", "mmsnap_graph", "live", "--calibration", str(cal),
-            "--record", str(rec_path)]
+            "--record", str(rec_path), *live_args]
     for n, b in boards.items():
         args += ["--board", f"{n}={b.cli_port},{b.data_port},{CFG}",
                  "--mount", f"{n}={MOUNT[0]},{MOUNT[1]}"]
     pin = (lambda: os.sched_setaffinity(0, {core})) if core is not None else None
     proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, preexec_fn=pin)
-    lines, cpu = [], {}
+    lines, cpu = [], {"load": []}
 
     def read():
         for line in proc.stdout:
@@ -118,6 +118,8 @@ def run_live(names, packets, tmp, core):
                 cpu["first"] = (now, _cpu_s(proc.pid))
             lines.append((now, line))
             cpu["last"] = (now, _cpu_s(proc.pid))
+            if not cpu["load"] or now - cpu["load"][-1][0] >= 10.0:
+                cpu["load"].append((now, os.getloadavg()[0], _cpu_s(proc.pid)))
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
@@ -143,11 +145,13 @@ def run_live(names, packets, tmp, core):
 
 
 def latency(boards, lines, rec):
+    """(slots,) ms from the last byte written to the first line read, and the
+    time each line was read."""
     md = rec.metadata
     first_line = {}
     for t, line in lines:
         first_line.setdefault(json.loads(line)["frame"], t)
-    lat = []
+    lat, when = [], []
     for slot, t in first_line.items():
         last = []
         for n, b in boards.items():
@@ -156,7 +160,29 @@ def latency(boards, lines, rec):
                 last.append(b.write_times[i])
         if last:
             lat.append(t - max(last))
-    return np.asarray(lat) * 1e3
+            when.append(t)
+    return np.asarray(lat) * 1e3, np.asarray(when)
+
+
+def over_time(lat, when, cpu, every_s):
+    """Lines: per ``every_s`` of the run, the latency percentiles, the live
+    process's CPU per slot and the load average (the soak's figures)."""
+    out, t0 = [], when.min() if when.size else 0.0
+    load = np.array(cpu["load"]) if cpu["load"] else np.zeros((0, 3))
+    for k in range(int(np.ceil((when.max() - t0) / every_s)) if when.size else 0):
+        m = (when >= t0 + k * every_s) & (when < t0 + (k + 1) * every_s)
+        inside = (load[:, 0] >= t0 + k * every_s) & (load[:, 0] < t0 + (k + 1) * every_s)
+        part = load[inside]
+        cpu_txt = ""
+        if len(part) > 1:
+            slots = max(1, round((part[-1, 0] - part[0, 0]) / PERIOD_S))
+            cpu_txt = f", live CPU {(part[-1, 2] - part[0, 2]) / slots * 1e3:.2f} ms/slot"
+        load_txt = f", load average {part[:, 1].mean():.1f}" if len(part) else ""
+        if m.any():
+            out.append(f"  {k * every_s:6.0f}-{(k + 1) * every_s:.0f} s: {m.sum()} slots, latency "
+                       f"median {np.median(lat[m]):.2f} ms, p99 {np.percentile(lat[m], 99):.2f} "
+                       f"ms, max {lat[m].max():.2f} ms{cpu_txt}{load_txt}")
+    return out
 
 
 def offline_cpu(rec_path, names):
@@ -202,19 +228,25 @@ def main() -> None:
     ap.add_argument("--people", type=int, default=2)
     ap.add_argument("--core", type=int, default=0, help="the core live runs on (-1: any)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-placement-check", action="store_true",
+                    help="run mmsnap live with --no-placement-check")
+    ap.add_argument("--every", type=float, default=60.0,
+                    help="print the latency, CPU and load average per this many seconds")
     args = ap.parse_args()
     names = list(NETWORK)[: args.boards]
     n_frames = int(round(args.seconds / PERIOD_S))
     packets, _ = _packets(names, n_frames, args.people, args.seed)
     print(f"{args.boards} boards at {1 / PERIOD_S:g} fps for {args.seconds:g} s "
           f"({n_frames} frames each), {args.people} walker(s), mmsnap live on core "
-          f"{args.core if args.core >= 0 else 'any'}")
+          f"{args.core if args.core >= 0 else 'any'}, placement check "
+          f"{'off' if args.no_placement_check else 'on'}; load average {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         boards, lines, cpu, stderr, rec_path, cal = run_live(
-            names, packets, tmp, None if args.core < 0 else args.core)
+            names, packets, tmp, None if args.core < 0 else args.core,
+            ("--no-placement-check",) if args.no_placement_check else ())
         rec = read_recording(rec_path, load_cubes=False)
-        lat = latency(boards, lines, rec)
+        lat, when = latency(boards, lines, rec)
         held = max(b.write_times[-1] - b.write_times[0] - (len(b.write_times) - 1) * PERIOD_S
                    for b in boards.values())
         if held > 10 * PERIOD_S:
@@ -226,6 +258,7 @@ def main() -> None:
             print(f"latency last byte written -> first fused line read, {lat.size} slots with "
                   f"people: median {np.median(lat):.2f} ms (target 5), p99 "
                   f"{np.percentile(lat, 99):.2f} ms (target 20), max {lat.max():.2f} ms")
+            print("\n".join(over_time(lat, when, cpu, args.every)))
         for line in stderr.splitlines():
             if line.startswith(tuple(f"{n}:" for n in names)) or "latency" in line:
                 print(f"  live: {line}")

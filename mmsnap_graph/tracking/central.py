@@ -64,6 +64,10 @@ from .ekf import config_integer, config_number
 
 __all__ = [
     "spd_inverse_4x4",
+    "spd_inverse_floats",
+    "cv_predict_floats",
+    "measurement_information_floats",
+    "check_estimates",
     "CentralConfig",
     "CentralTracker",
     "FixedLagTracker",
@@ -72,8 +76,8 @@ __all__ = [
 ]
 
 
-def _check_estimates(states: ArrayLike, covariances: ArrayLike) -> tuple[NDArray, NDArray]:
-    """One frame's one-shot estimates, validated: ``(M, 4)`` and ``(M, 4, 4)``."""
+def check_estimates(states: ArrayLike, covariances: ArrayLike) -> tuple[NDArray, NDArray]:
+    """One-shot estimates, validated (finite, shapes): ``(M, 4)`` and ``(M, 4, 4)``."""
     z = as_float_array(states, "states")
     r = as_float_array(covariances, "covariances")
     if not (np.isfinite(z).all() and np.isfinite(r).all()):  # cheap test, then the message
@@ -128,7 +132,7 @@ class CentralConfig:
         check_count(self.max_misses, "max_misses", error=ConfigurationError)
 
 
-def _inverse_floats(a: list[float]) -> list[float]:
+def spd_inverse_floats(a: list[float]) -> list[float]:
     """``a^-1`` of a symmetric positive-definite 4x4 (row-major 16 floats) as
     ``L^-T L^-1``, exactly symmetric; ``LinAlgError`` when not positive definite."""
     lo = cholesky_4x4(a)
@@ -155,7 +159,7 @@ def spd_inverse_4x4(p: ArrayLike) -> NDArray:
     floats (a tracker step inverts a few 4x4 matrices; numpy's per-call
     cost is larger than the arithmetic). Raises ``LinAlgError`` when ``p``
     is not positive definite."""
-    return np.array(_inverse_floats(np.asarray(p, dtype=float).ravel().tolist())).reshape(4, 4)
+    return np.array(spd_inverse_floats(np.asarray(p, dtype=float).ravel().tolist())).reshape(4, 4)
 
 
 def _gate_2dof(probability: float) -> float:
@@ -176,15 +180,15 @@ def measurement_information(
     x = np.asarray(state, dtype=float).tolist()
     lam_p = None if prior_mean is None else (1.0 / np.asarray(prior_sigmas, dtype=float) ** 2).tolist()
     mean = None if prior_mean is None else np.asarray(prior_mean, dtype=float).tolist()
-    info, eta = _measurement_information(
+    info, eta = measurement_information_floats(
         x, _symmetric(np.asarray(covariance, dtype=float).ravel().tolist()), mean, lam_p)
     return np.array(info).reshape(4, 4), np.array(eta)
 
 
-def _measurement_information(x, p, mean, lam_p):
+def measurement_information_floats(x, p, mean, lam_p):
     """:func:`measurement_information` in floats: ``x`` 4, ``p`` row-major 16
     (symmetric), the prior's mean and information diagonal (4 each) or None."""
-    info = _inverse_floats(p)
+    info = spd_inverse_floats(p)
     eta = _matvec(info, x)
     if mean is not None:
         for k in range(4):
@@ -208,9 +212,10 @@ class _Track:
     since_hit_s: float = 0.0
 
 
-def _predict(x: list[float], p: list[float], t: float, q: list[float]) -> tuple[list, list]:
+def cv_predict_floats(x: list[float], p: list[float], t: float, q: list[float]) -> tuple[list, list]:
     """The constant-velocity prediction ``(F x, F P F^T + Q)`` over ``t``, in
-    floats (``F = [[I, t I], [0, I]]``; :func:`factors.motion.cv_transition`)."""
+    floats (``F = [[I, t I], [0, I]]``; :func:`factors.motion.cv_transition`; ``q``
+    the process noise as 16 row-major floats), each 4x4 row-major."""
     x0, x1, x2, x3 = x
     # A = F P: rows 0 and 1 gain t times rows 2 and 3.
     a = [p[k] + t * p[k + 8] for k in range(8)] + p[8:]
@@ -265,6 +270,11 @@ class CentralTracker:
     def tracks(self) -> list[tuple[int, NDArray, NDArray]]:
         return [(t.track_id, np.array(t.x), np.array(t.p).reshape(4, 4)) for t in self._tracks]
 
+    @property
+    def n_tracks(self) -> int:
+        """The live tracks."""
+        return len(self._tracks)
+
     def track_arrays(self) -> tuple[NDArray, NDArray, NDArray]:
         """The live tracks as arrays: ``track_id (T,)`` int64, ``state (T, 4)``,
         ``covariance (T, 4, 4)`` (new arrays)."""
@@ -280,40 +290,51 @@ class CentralTracker:
         covariances : (M, 4, 4); frame_period_s : time since the last step
         (default ``config.frame_period_s``).
         """
-        cfg = self.config
         self.estimate_ids = np.zeros(0, dtype=np.int64)  # until this step succeeds
-        z, r = _check_estimates(states, covariances)
+        z, r = check_estimates(states, covariances)
+        self.step_ids(z.tolist(), r.reshape(-1, 16).tolist(), frame_period_s)
+        return self.tracks
+
+    def step_ids(self, states: list, covariances: list,
+                 frame_period_s: float | None = None) -> list[int]:
+        """:meth:`step` on estimates already checked (:func:`check_estimates`),
+        as plain floats: ``states`` M lists of 4, ``covariances`` M lists of 16
+        (row-major); returns each estimate's track id (as :attr:`estimate_ids`)
+        instead of the live tracks (the step of :class:`~.person_ids.PersonIds`)."""
+        cfg = self.config
         t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
         if self._motion is None or self._motion[0] != t:  # frames mostly share one period
             self._motion = (t, cv_process_noise(t, cfg.sigma_a_mps2).ravel().tolist())
         q = self._motion[1]
         coast_limit_s = (cfg.max_misses + 1) * cfg.frame_period_s
         for tr in self._tracks:
-            tr.x, tr.p = _predict(tr.x, tr.p, t, q)
+            tr.x, tr.p = cv_predict_floats(tr.x, tr.p, t, q)
             tr.since_hit_s += t
         # A gap between steps longer than the coast limit, or a prediction
         # that lost positive definiteness (rounding over a huge t), ends it.
-        self._tracks = [tr for tr in self._tracks
-                        if tr.since_hit_s <= coast_limit_s and cholesky_4x4(tr.p) is not None]
-        zl, rl = z.tolist(), r.reshape(-1, 16).tolist()
+        if self._tracks:
+            self._tracks = [tr for tr in self._tracks
+                            if tr.since_hit_s <= coast_limit_s and cholesky_4x4(tr.p) is not None]
+        zl, rl = states, covariances
         assigned = self._associate(zl, rl)
         hit = [False] * len(self._tracks)
         ids = [-1] * len(zl)
+        prior = self._prior if self._prior is not None else (None, None)
         for j, i in enumerate(assigned):
             if i < 0:
                 continue
             tr = self._tracks[i]
             ids[j] = tr.track_id
-            lam_z, eta_z = _measurement_information(zl[j], _symmetric(rl[j]), *(
-                self._prior if self._prior is not None else (None, None)))
-            info_pred = _inverse_floats(tr.p)
-            tr.p = _inverse_floats([u + v for u, v in zip(info_pred, lam_z)])
+            lam_z, eta_z = measurement_information_floats(zl[j], _symmetric(rl[j]), *prior)
+            info_pred = spd_inverse_floats(tr.p)
+            tr.p = spd_inverse_floats([u + v for u, v in zip(info_pred, lam_z)])
             tr.x = _matvec(tr.p, [u + v for u, v in zip(_matvec(info_pred, tr.x), eta_z)])
             hit[i] = True
             tr.since_hit_s = 0.0
-        for i, tr in enumerate(self._tracks):
-            tr.misses = 0 if hit[i] else tr.misses + 1
-        self._tracks = [tr for tr in self._tracks if tr.misses < cfg.max_misses]
+        if self._tracks:
+            for i, tr in enumerate(self._tracks):
+                tr.misses = 0 if hit[i] else tr.misses + 1
+            self._tracks = [tr for tr in self._tracks if tr.misses < cfg.max_misses]
         v_floor = cfg.init_velocity_sigma_mps**2
         for j, i in enumerate(assigned):
             if i >= 0:
@@ -324,7 +345,7 @@ class CentralTracker:
             ids[j] = self._next_id
             self._next_id += 1
         self.estimate_ids = np.array(ids, dtype=np.int64)
-        return self.tracks
+        return ids
 
     def _associate(self, zl, rl) -> list[int]:
         """The track of each estimate (-1: none): gated (chi-square, 2 dof, on
@@ -422,7 +443,7 @@ class FixedLagTracker:
 
         gtsam = self._gtsam
         cfg = self.config
-        z, r = _check_estimates(states, covariances)
+        z, r = check_estimates(states, covariances)
         t = cfg.frame_period_s if frame_period_s is None else float(frame_period_s)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()

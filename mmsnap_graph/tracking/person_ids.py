@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..data.results import FusedSequence
 from ..errors import ValidationError
-from .central import CentralConfig, CentralTracker
+from .central import CentralConfig, CentralTracker, check_estimates
 
 __all__ = ["PersonIds", "assign_person_ids", "NO_PERSON"]
 
@@ -75,21 +75,25 @@ class PersonIds:
         frames since the last one (prediction only, while a track lives)."""
         if self._tracker is None:
             raise ValidationError("PersonIds.frame_ids before start()")
-        frame = int(frame)
+        z, r = check_estimates(states, covariances)
+        return np.array(self._frame_ids(int(frame), z.tolist(), r.reshape(-1, 16).tolist()),
+                        dtype=np.int64)
+
+    def _frame_ids(self, frame: int, states: list, covariances: list) -> list[int]:
+        """:meth:`frame_ids` on checked estimates in plain floats (lists)."""
         last = self._last_frame
         if last is not None and frame <= last:
             raise ValidationError(f"frame {frame} is not after the last frame tracked, {last}: "
                                   "give the rows in frame order")
         tracker = self._tracker
         if last is not None:
-            empty_z, empty_p = np.zeros((0, 4)), np.zeros((0, 4, 4))
             for _ in range(last + 1, frame):
-                if not tracker.tracks:
+                if not tracker.n_tracks:
                     break  # nothing alive: the rest of the gap changes nothing
-                tracker.step(empty_z, empty_p)
-        tracker.step(states, covariances)
+                tracker.step_ids([], [])
+        ids = tracker.step_ids(states, covariances)
         self._last_frame = frame
-        return tracker.estimate_ids.copy()
+        return ids
 
     def assign(self, fused: FusedSequence) -> FusedSequence:
         """``fused`` with its ``track_id`` (the rows in frame order, after
@@ -103,13 +107,21 @@ class PersonIds:
         ids = np.full(frames.shape, NO_PERSON, dtype=np.int64)
         if frames.size:
             order = np.argsort(frames, kind="stable")
-            ok = np.asarray(fused.success, dtype=bool)
+            ok = np.asarray(fused.success, dtype=bool)[order]
+            good = order[ok]  # the successful rows, in frame order
+            z, r = check_estimates(np.asarray(fused.state)[good],
+                                   np.asarray(fused.covariance)[good])
+            zl, rl = z.tolist(), r.reshape(-1, 16).tolist()
             sorted_frames = frames[order]
-            cuts = np.flatnonzero(np.diff(sorted_frames)) + 1
-            for rows in np.split(order, cuts):
-                good = rows[ok[rows]]
-                ids[good] = self.frame_ids(int(frames[rows[0]]), fused.state[good],
-                                           fused.covariance[good])
+            # Each frame's successful rows: [lo, hi) of the successful rows.
+            starts = np.flatnonzero(np.r_[True, sorted_frames[1:] != sorted_frames[:-1]])
+            first_good = np.cumsum(np.r_[0, ok]).tolist()
+            bounds = [first_good[i] for i in starts.tolist()] + [len(zl)]
+            out = []
+            for k, frame in enumerate(sorted_frames[starts].tolist()):
+                lo, hi = bounds[k], bounds[k + 1]
+                out += self._frame_ids(frame, zl[lo:hi], rl[lo:hi])
+            ids[good] = out
         return dataclasses.replace(fused, track_id=ids)
 
 

@@ -109,8 +109,8 @@ def test_a_gap_with_no_live_track_is_skipped():
     ids = PersonIds(CentralConfig(max_misses=3))
     ids.start(frame_period_s=0.05)
     steps = []
-    real_step = ids.tracker.step
-    ids.tracker.step = lambda *a, **k: (steps.append(1), real_step(*a, **k))[1]
+    real_step = ids.tracker.step_ids
+    ids.tracker.step_ids = lambda *a, **k: (steps.append(1), real_step(*a, **k))[1]
     assert ids.frame_ids(0, [[0.0, 3.0, 0.0, 0.0]], [P]).tolist() == [0]
     assert ids.frame_ids(10**9, [[0.0, 3.0, 0.0, 0.0]], [P]).tolist() == [1]
     assert len(steps) == 1 + 3 + 1

@@ -43,10 +43,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from factors.motion import cv_process_noise, cv_transition
+from factors.motion import cv_process_noise
 
+from ..._floats4 import cholesky_4x4, cholesky_inverse_4x4
 from ...data.results import FusedSequence
-from ...tracking.central import measurement_information
+from ...tracking.central import cv_predict_floats, measurement_information_floats
 
 __all__ = ["ConsistencyReport", "ConsistencyMonitor", "fused_consistency",
            "INNOVATION_BAND", "RESIDUAL_MAX", "MIN_INNOVATIONS", "INNOVATION_SIGMA_A_MPS2"]
@@ -118,17 +119,25 @@ class ConsistencyReport:
                 f"{RESIDUAL_MAX:g})")
 
 
-@dataclass
+@dataclass(slots=True)
 class _Filter:
-    x: np.ndarray
-    p: np.ndarray
+    """A track's filter: state (4 floats), covariance (16, row-major), last frame."""
+
+    x: list
+    p: list
     frame: int
+
+
+def _symmetric(a: list) -> list:
+    return [0.5 * (a[4 * i + j] + a[4 * j + i]) for i in range(4) for j in range(4)]
 
 
 @dataclass
 class ConsistencyMonitor:
     """Accumulates the statistics of :class:`ConsistencyReport` over fused
-    rows given in frame order (:meth:`add`), then :meth:`report`."""
+    rows given in frame order (:meth:`add`), then :meth:`report`. The
+    filters' 4x4 algebra is done in plain floats (a row at a time: numpy's
+    per-call cost would be most of the work)."""
 
     sigma_a_mps2: float = INNOVATION_SIGMA_A_MPS2
     _filters: dict = field(default_factory=dict)
@@ -136,6 +145,7 @@ class ConsistencyMonitor:
     _res_chi2: float = 0.0
     _res_dof: int = 0
     _res_rows: int = 0
+    _q: dict = field(default_factory=dict)
 
     def add(self, fused: FusedSequence) -> None:
         """The rows of ``fused`` (after the last rows added)."""
@@ -154,34 +164,50 @@ class ConsistencyMonitor:
             return
         period = float(fused.frame_period_s or 0.15)
         tid = np.asarray(fused.track_id)
-        for i in np.argsort(fused.frame, kind="stable"):
-            if ok[i] and tid[i] >= 0:
-                self._step(int(tid[i]), int(fused.frame[i]), fused.state[i], fused.covariance[i],
-                           fused.prior_mean, fused.prior_sigmas, period)
+        order = np.argsort(fused.frame, kind="stable")
+        rows = order[(ok & (tid >= 0))[order]]
+        prior = (None, None) if fused.prior_mean is None else (
+            np.asarray(fused.prior_mean, dtype=float).tolist(),
+            (1.0 / np.asarray(fused.prior_sigmas, dtype=float) ** 2).tolist())
+        step = self._step
+        for track, frame, z, r in zip(tid[rows].tolist(), np.asarray(fused.frame)[rows].tolist(),
+                                      np.asarray(fused.state, dtype=float)[rows].tolist(),
+                                      np.asarray(fused.covariance, dtype=float)[rows]
+                                      .reshape(-1, 16).tolist()):
+            step(track, frame, z, r, prior, period)
 
-    def _step(self, track, frame, z, r, prior_mean, prior_sigmas, period) -> None:
-        lam, eta = measurement_information(z, r, prior_mean, prior_sigmas)
+    def _step(self, track, frame, z, r, prior, period) -> None:
+        """One row: the innovation of its track's prediction, then the update
+        in information form (the row's measurement information, its prior
+        taken out); a new track, a gap or a failed update starts again."""
+        lam, eta = measurement_information_floats(z, _symmetric(r), *prior)
         f = self._filters.get(track)
         if f is not None and 0 < (frame - f.frame) * period <= MAX_GAP_S:
             dt = (frame - f.frame) * period
-            tr = cv_transition(dt)
-            x = tr @ f.x
-            p = tr @ f.p @ tr.T + cv_process_noise(dt, self.sigma_a_mps2)
-            nu = z[:2] - x[:2]
-            s = p[:2, :2] + r[:2, :2]
-            try:
-                self._nis.append(float(nu @ np.linalg.solve(s, nu)))
-                info = np.linalg.inv(p)
-                p = np.linalg.inv(info + lam)
-                x = p @ (info @ x + eta)
-            except np.linalg.LinAlgError:
-                x, p = None, None
-            if x is not None and np.all(np.isfinite(p)):
-                self._filters[track] = _Filter(x, 0.5 * (p + p.T), frame)
-                return
-        p0 = np.array(r, dtype=float)
-        p0[2, 2], p0[3, 3] = max(p0[2, 2], 1.0), max(p0[3, 3], 1.0)
-        self._filters[track] = _Filter(np.array(z, dtype=float), p0, frame)
+            q = self._q.get(dt)
+            if q is None:
+                q = self._q[dt] = cv_process_noise(dt, self.sigma_a_mps2).ravel().tolist()
+            x, p = cv_predict_floats(f.x, f.p, dt, q)
+            dx, dy = z[0] - x[0], z[1] - x[1]
+            a, b, c, d = p[0] + r[0], p[1] + r[1], p[4] + r[4], p[5] + r[5]
+            det = a * d - b * c
+            if det != 0.0:  # nu^T S^-1 nu of the 2x2 position innovation
+                self._nis.append((d * dx * dx - (b + c) * dx * dy + a * dy * dy) / det)
+                lo = cholesky_4x4(p)
+                if lo is not None:
+                    info = cholesky_inverse_4x4(lo)
+                    lo = cholesky_4x4([u + v for u, v in zip(info, lam)])
+                if lo is not None:
+                    p = cholesky_inverse_4x4(lo)  # exactly symmetric
+                    h = [sum(info[4 * i + j] * x[j] for j in range(4)) + eta[i]
+                         for i in range(4)]
+                    x = [sum(p[4 * i + j] * h[j] for j in range(4)) for i in range(4)]
+                    if all(math.isfinite(v) for v in p):
+                        self._filters[track] = _Filter(x, p, frame)
+                        return
+        p0 = list(r)
+        p0[10], p0[15] = max(p0[10], 1.0), max(p0[15], 1.0)
+        self._filters[track] = _Filter(list(z), p0, frame)
 
     def report(self) -> ConsistencyReport:
         nis = np.asarray(self._nis, dtype=float)

@@ -48,8 +48,8 @@ from .rows import FusedRows
 from .split_check import SPLIT_MESSAGE, split_rows
 from .unplaced import UNPLACED_MESSAGE, unplaced_rows
 
-__all__ = ["FusionNetwork", "solve_groups", "check_rows", "screen_rows", "fuse_rows",
-           "run_pipeline", "fused_sequence"]
+__all__ = ["FusionNetwork", "solve_groups", "check_rows", "check_placement", "screen_rows",
+           "fuse_rows", "run_pipeline", "fused_sequence"]
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)
@@ -200,10 +200,13 @@ def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDAr
     if coverage is not None:
         _check_coverage(out, frame, z, obs, net, coverage, reach_m)
     if config.check(UnplacedCheck) is not None:
-        _check_unplaced(out, frame, obs, net, decide, solved)
+        check_placement(out, frame, obs, net, decide, solved)
 
 
-def _check_unplaced(out: FusedRows, frame, obs, net: FusionNetwork, decide, solved) -> None:
+def check_placement(out: FusedRows, frame, obs, net: FusionNetwork, decide, solved) -> None:
+    """The placement check of :func:`check_rows` alone (the stream runs it on
+    its look-back, the other checks on their context): ``obs`` (K, N) the
+    nodes grouped, ``solved`` (K,) the rows the solve fused (before the checks)."""
     kept = obs & ~out.rejected
     flag = unplaced_rows(frame, out.state[:, :2], out.status == Status.OK, kept,
                          frame_period_s=net.frame_period_s, body_m=DEFAULT_BODY_M,

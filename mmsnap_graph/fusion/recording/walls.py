@@ -145,40 +145,62 @@ def _speeds_agree(u_g, u_p, n, state, cov, gs, ps, one_bounce: bool) -> NDArray:
     return miss ** 2 <= WALL_DOPPLER_SIGMAS ** 2 * var
 
 
+def _pairs(frame: NDArray, ok: NDArray, image_ok: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """Every (image row, person row) of one frame: ``(g, p, frame group)``,
+    the frames in order, each frame's images in row order and, for each,
+    the frame's people in row order (the order a loop over the frames and a
+    meshgrid of each frame's images and people gives)."""
+    order = np.argsort(frame, kind="stable")
+    sorted_frame = frame[order]
+    group = np.cumsum(np.r_[False, sorted_frame[1:] != sorted_frame[:-1]])
+    images, image_group = order[image_ok[order]], group[image_ok[order]]
+    people, people_group = order[ok[order]], group[ok[order]]
+    n_groups = int(group[-1]) + 1 if group.size else 0
+    per_group = np.bincount(people_group, minlength=n_groups)
+    first = np.cumsum(per_group) - per_group  # each group's first person
+    reps = per_group[image_group]  # each image pairs with its frame's people
+    g = np.repeat(images, reps)
+    within = np.arange(g.size) - np.repeat(np.cumsum(reps) - reps, reps)
+    p = people[np.repeat(first[image_group], reps) + within]
+    return g, p, np.repeat(image_group, reps)
+
+
 def _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m):
-    """Wall proposals: (row of the image, node, normal angle, offset, along, frame)."""
+    """Wall proposals: (row of the image, node, normal angle, offset, along,
+    frame), in frame order, then node, then image kind, then pair; every
+    frame's pairs at once (the arithmetic of each pair is elementwise)."""
     xy = state[:, :2]
     n_seen = seen.sum(axis=1)
-    out = []
-    order = np.argsort(frame, kind="stable")
-    bounds = np.flatnonzero(np.diff(frame[order])) + 1
-    for rows in np.split(order, bounds):
-        people, images = rows[ok[rows]], rows[image_ok[rows]]
-        if people.size == 0 or images.size == 0:
+    g, p, pg = _pairs(frame, ok, image_ok)
+    keep = ((g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
+            & (np.hypot(*state[p, 2:].T) >= WALL_MOVING_MPS))
+    g, p, pg = g[keep], p[keep], pg[keep]
+    out, keys = [], []
+    for s in range(poses.shape[0]):
+        node = poses[s, :2]
+        sel = seen[g, s]
+        gs, ps, gk = g[sel], p[sel], pg[sel]
+        r_g, r_p = np.hypot(*(xy[gs] - node).T), np.hypot(*(xy[ps] - node).T)
+        far = r_p < r_g
+        gs, ps, gk, r_g, r_p = gs[far], ps[far], gk[far], r_g[far], r_p[far]
+        if gs.size == 0:
             continue
-        g, p = (a.ravel() for a in np.meshgrid(images, people, indexing="ij"))
-        keep = ((g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
-                & (np.hypot(*state[p, 2:].T) >= WALL_MOVING_MPS))
-        for s in range(poses.shape[0]):
-            node = poses[s, :2]
-            gs, ps = g[keep & seen[g, s]], p[keep & seen[g, s]]
-            r_g, r_p = np.hypot(*(xy[gs] - node).T), np.hypot(*(xy[ps] - node).T)
-            far = r_p < r_g
-            gs, ps, r_g, r_p = gs[far], ps[far], r_g[far], r_p[far]
-            if gs.size == 0:
-                continue
-            u_g, u_p = (xy[gs] - node) / r_g[:, None], (xy[ps] - node) / r_p[:, None]
-            for one_bounce in (False, True):
-                m = node + ((2 * r_g - r_p) / r_g)[:, None] * (xy[gs] - node) if one_bounce \
-                    else xy[gs]
-                ang, off = _line(xy[ps], m)
-                n = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-                k = ((n @ node < off) & (np.einsum("ij,ij->i", n, u_g) > 0)
-                     & _speeds_agree(u_g, u_p, n, state, cov, gs, ps, one_bounce))
-                along = _crossing(node, xy[gs], n, off)
-                out.append(np.stack([gs[k], np.full(k.sum(), s), ang[k], off[k], along[k],
-                                     frame[gs[k]]], axis=1))
-    return np.concatenate(out) if out else np.zeros((0, 6))
+        u_g, u_p = (xy[gs] - node) / r_g[:, None], (xy[ps] - node) / r_p[:, None]
+        for one_bounce in (False, True):
+            m = node + ((2 * r_g - r_p) / r_g)[:, None] * (xy[gs] - node) if one_bounce \
+                else xy[gs]
+            ang, off = _line(xy[ps], m)
+            n = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+            k = ((n @ node < off) & (np.einsum("ij,ij->i", n, u_g) > 0)
+                 & _speeds_agree(u_g, u_p, n, state, cov, gs, ps, one_bounce))
+            along = _crossing(node, xy[gs], n, off)
+            out.append(np.stack([gs[k], np.full(k.sum(), s), ang[k], off[k], along[k],
+                                 frame[gs[k]]], axis=1))
+            keys.append(np.stack([gk[k], np.full(k.sum(), 2 * s + one_bounce)], axis=1))
+    if not out:
+        return np.zeros((0, 6))
+    keys = np.concatenate(keys)
+    return np.concatenate(out)[np.lexsort((keys[:, 1], keys[:, 0]))]
 
 
 def _near(props: NDArray, ang: float, off: float, scale: float = 1.0) -> NDArray:

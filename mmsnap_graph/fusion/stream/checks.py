@@ -28,10 +28,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ...data.results import FusedSequence
-from ..config import CoverageCheck, DuplicateCheck, FusionConfig, LearnedWalls, RoomCheck
-from ..recording.pipeline import (FusionNetwork, check_rows, fused_sequence, screen_rows,
-                                  solve_groups)
+from ...data.results import FusedSequence, Status
+from ..config import (CoverageCheck, DuplicateCheck, FusionConfig, LearnedWalls, RoomCheck,
+                      UnplacedCheck)
+from ..recording.pipeline import (FusionNetwork, check_placement, check_rows, fused_sequence,
+                                  screen_rows, solve_groups)
 from ..recording.room import learn_room_walls
 from ..recording.rows import FusedRows
 
@@ -81,6 +82,11 @@ class StreamPipeline:
         # No check in the reference frame: a frame's rows need no FusedSequence.
         self._screens = any(config.check(k) is not None
                             for k in (RoomCheck, LearnedWalls, DuplicateCheck))
+        # The placement check looks further back than the others: it runs on
+        # its look-back, they on their context (:meth:`decide`).
+        self._placement = config.check(UnplacedCheck) is not None
+        self._context_config = dataclasses.replace(config, checks=tuple(
+            c for c in config.checks if not isinstance(c, UnplacedCheck)))
         # The coverage check's reach of each node: its farthest detection so far
         # (kept only when the check has no reach of its own for every node).
         self.reach_m = np.zeros(len(net.node_names))
@@ -120,24 +126,58 @@ class StreamPipeline:
         while self._held and self._held[0].frame < frame - back:
             self._held.popleft()
         held = [h for h in self._held if h.frame <= frame + self.delay_frames]
-        mine = [i for i, h in enumerate(held) if h.frame == frame]
         n_nodes = len(self.net.node_names)
-        if not mine:
+        if not any(h.frame == frame for h in held):
             return self._sequence(frame, np.zeros((0, n_nodes), np.int64),
                                   FusedRows(0, n_nodes), np.zeros((0, n_nodes, 3)))
+        # The checks but the placement on their context around the frame:
+        # they decide its rows as on the whole look-back (context_frames).
+        near = [h for h in held if h.frame >= frame - ctx]
+        own, members, z = self._checked(near, frame)
+        if self._placement:
+            self._place(held, frame, own)
+        return self._sequence(frame, members, own, z)
+
+    def _checked(self, held: list[SolvedFrame], frame: int):
+        """``(rows, members, z)`` of ``frame`` after every check but the
+        placement, run on the frames ``held``."""
+        n_nodes = len(self.net.node_names)
         sizes = [h.members.shape[0] for h in held]
         rows = _concat_rows([h.rows for h in held], n_nodes)
         frames = np.repeat([h.frame for h in held], sizes)
         members = np.concatenate([h.members for h in held])
         z = np.concatenate([h.z for h in held])
-        check_rows(rows, frames, members, z, self.net, self.config, reach_m=self.reach_m,
-                   decide=np.array([frame]))
-        lo = int(np.sum(sizes[:mine[0]]))
-        sl = slice(lo, lo + sizes[mine[0]])
-        own = FusedRows(sizes[mine[0]], n_nodes)
+        check_rows(rows, frames, members, z, self.net, self._context_config,
+                   reach_m=self.reach_m, decide=np.array([frame]))
+        mine = next(i for i, h in enumerate(held) if h.frame == frame)
+        lo = int(np.sum(sizes[:mine]))
+        sl = slice(lo, lo + sizes[mine])
+        own = FusedRows(sizes[mine], n_nodes)
         for name in FusedRows.__slots__:
             setattr(own, name, getattr(rows, name)[sl])
-        return self._sequence(frame, members[sl], own, z[sl])
+        return own, members[sl], z[sl]
+
+    def _place(self, held: list[SolvedFrame], frame: int, own: FusedRows) -> None:
+        """The placement check of ``frame``'s rows ``own`` (checked), in
+        place, on the look-back ``held``: its chains run over the rows as
+        solved (:func:`~mmsnap_graph.fusion.recording.pipeline.check_placement`)."""
+        sizes = [h.members.shape[0] for h in held]
+        mine = next(i for i, h in enumerate(held) if h.frame == frame)
+        lo = int(np.sum(sizes[:mine]))
+        sl = slice(lo, lo + sizes[mine])
+        k, n_nodes = sum(sizes), len(self.net.node_names)
+        rows = FusedRows(k, n_nodes)
+        rows.state = np.concatenate([h.rows.state for h in held])
+        rows.status = np.concatenate([h.rows.status for h in held])
+        rows.rejected = np.concatenate([h.rows.rejected for h in held])
+        solved = rows.status == Status.OK
+        for name in FusedRows.__slots__:
+            getattr(rows, name)[sl] = getattr(own, name)
+        members = np.concatenate([h.members for h in held])
+        check_placement(rows, np.repeat([h.frame for h in held], sizes), members >= 0, self.net,
+                        np.array([frame]), solved)
+        for name in FusedRows.__slots__:
+            setattr(own, name, getattr(rows, name)[sl])
 
     def _decide_alone(self, frame: int) -> FusedRows:
         """The rows of ``frame`` when every check is of the frame alone."""

@@ -314,3 +314,62 @@ def test_both_radars_images_teach_a_common_wall(tmp_path, seed):
           f"({100 * seen_off:.1f}%)")
     assert far_on <= 0.02 and far_off >= 0.03          # the images are there and flagged
     assert seen_on >= seen_off - 0.005                 # 3 frames of 600
+
+
+def _proposals_frame_by_frame(frame, state, cov, ok, image_ok, seen, poses, body_m):
+    """The wall proposals one frame at a time (a meshgrid of each frame's
+    images and people): the reference of the proposals of every frame at once."""
+    from mmsnap_graph.fusion.recording import walls as w
+
+    xy, n_seen, out = state[:, :2], seen.sum(axis=1), []
+    order = np.argsort(frame, kind="stable")
+    for rows in np.split(order, np.flatnonzero(np.diff(frame[order])) + 1):
+        people, images = rows[ok[rows]], rows[image_ok[rows]]
+        g, p = (a.ravel() for a in np.meshgrid(images, people, indexing="ij"))
+        keep = ((g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
+                & (np.hypot(*state[p, 2:].T) >= w.WALL_MOVING_MPS))
+        for s in range(poses.shape[0]):
+            node = poses[s, :2]
+            gs, ps = g[keep & seen[g, s]], p[keep & seen[g, s]]
+            far = np.hypot(*(xy[ps] - node).T) < np.hypot(*(xy[gs] - node).T)
+            gs, ps = gs[far], ps[far]
+            r_g, r_p = np.hypot(*(xy[gs] - node).T), np.hypot(*(xy[ps] - node).T)
+            u_g, u_p = (xy[gs] - node) / r_g[:, None], (xy[ps] - node) / r_p[:, None]
+            for bounce in (False, True):
+                m = node + ((2 * r_g - r_p) / r_g)[:, None] * (xy[gs] - node) if bounce else xy[gs]
+                ang, off = w._line(xy[ps], m)
+                n = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+                k = ((n @ node < off) & (np.einsum("ij,ij->i", n, u_g) > 0)
+                     & w._speeds_agree(u_g, u_p, n, state, cov, gs, ps, bounce))
+                out.append(np.stack([gs[k], np.full(k.sum(), s), ang[k], off[k],
+                                     w._crossing(node, xy[gs], n, off)[k], frame[gs[k]]], axis=1))
+    return np.concatenate(out) if out else np.zeros((0, 6))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_proposals_of_all_frames_at_once_are_those_frame_by_frame(seed):
+    """Mirror and one-bounce images, a second walker and clutter, rows out of
+    frame order: the same proposals, in the same order (frame, node, image
+    kind, pair), to rounding (the along-wall position: a matrix product)."""
+    from mmsnap_graph.fusion.recording.walls import _proposals
+
+    rng = np.random.default_rng(seed)
+    frame, xy, v = walker()
+    rows = [(f, *p, *u, 2) for f, p, u in zip(frame, xy, v)]
+    for image in (mirror, one_bounce):
+        g, vg = image(xy, v)
+        rows += [(f, *p, *u, 1) for f, p, u in zip(frame, g, vg)]
+    rows += [(f, *(xy[f] + [0.8, 0.3]), *-v[f], 2) for f in frame[::3]]
+    rows += [(int(rng.integers(N_FRAMES)), *rng.uniform(-3, 5, 2), *rng.normal(0, 1, 2), 1)
+             for _ in range(30)]
+    r = np.array(rows, dtype=float)[rng.permutation(len(rows))]
+    fr = fused_rows(r[:, 0].astype(int), r[:, 1:3], velocity=r[:, 3:5],
+                    nodes=r[:, 5].astype(int))
+    ok = np.asarray(fr.success)
+    image_ok = ok | (rng.random(len(ok)) < 0.1)
+    args = (np.asarray(fr.frame), np.asarray(fr.state), np.nan_to_num(np.asarray(fr.covariance)),
+            ok, image_ok, np.asarray(fr.observed), np.asarray(fr.node_poses), 0.5)
+    want, got = _proposals_frame_by_frame(*args), _proposals(*args)
+    assert len(want) > 50
+    np.testing.assert_array_equal(got[:, [0, 1, 5]], want[:, [0, 1, 5]])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

@@ -1,0 +1,65 @@
+"""The stream's checks frame by frame (mmsnap_graph.fusion.stream.checks)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mmsnap_graph.data.results import Status
+from mmsnap_graph.fusion.recording.pipeline import check_rows
+from mmsnap_graph.fusion.recording.rows import FusedRows
+from mmsnap_graph.fusion.stream.checks import StreamPipeline, _concat_rows
+from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
+from mmsnap_graph.sim import SimulationOptions, simulate_recording
+
+GHOSTS = {"S1": [0.0, 0.0, 0.0], "S2": [4.0, 0.0, np.pi / 3], "S3": [2.0, 6.0, np.pi]}
+
+
+class _WholeLookBack(StreamPipeline):
+    """Every check on the whole look-back held (the stream before it ran the
+    checks but the placement on their context alone)."""
+
+    def _checked(self, held, frame):
+        back = self.config.look_back_frames
+        held = [h for h in self._held if frame - back <= h.frame <= frame + self.delay_frames]
+        n_nodes = len(self.net.node_names)
+        sizes = [h.members.shape[0] for h in held]
+        rows = _concat_rows([h.rows for h in held], n_nodes)
+        members = np.concatenate([h.members for h in held])
+        z = np.concatenate([h.z for h in held])
+        check_rows(rows, np.repeat([h.frame for h in held], sizes), members, z, self.net,
+                   self.config, reach_m=self.reach_m, decide=np.array([frame]))
+        mine = next(i for i, h in enumerate(held) if h.frame == frame)
+        sl = slice(int(np.sum(sizes[:mine])), int(np.sum(sizes[:mine + 1])))
+        own = FusedRows(sizes[mine], n_nodes)
+        for name in FusedRows.__slots__:
+            setattr(own, name, getattr(rows, name)[sl])
+        return own, members[sl], z[sl]
+
+    def _place(self, held, frame, own):
+        pass
+
+
+def _rows(stream, rec):
+    out = []
+    for _, t, det in recording_frames(rec, fill_frames=stream.tracker_config.max_misses):
+        for u in stream.feed(t, det):
+            out.append((u.state, u.status, u.rejected, u.message))
+    return out
+
+
+def test_the_checks_on_their_context_decide_as_on_the_whole_look_back():
+    rec = simulate_recording(GHOSTS, "random", SimulationOptions(n_targets=2, frame_period_s=0.05,
+                                                                 known_poses=True),
+                             levels=("centroids",), n_frames=160, seed=3)
+    poses = np.array([GHOSTS[n] for n in rec.node_names])
+    fast = FrameStream(rec.node_names, poses)
+    whole = FrameStream(rec.node_names, poses)
+    whole._pipeline.__class__ = _WholeLookBack
+    got, want = _rows(fast, rec), _rows(whole, rec)
+    status = np.concatenate([s for _, s, _, _ in want])
+    # The scene exercises the checks: rows flagged by the motion and placement checks.
+    assert np.sum(status == Status.MOTION_INCONSISTENT) >= 5
+    assert len(got) == len(want)
+    for (xa, sa, ra, ma), (xb, sb, rb, mb) in zip(got, want):
+        np.testing.assert_allclose(xa, xb, rtol=0, atol=1e-9)
+        assert np.array_equal(sa, sb) and np.array_equal(ra, rb) and ma == mb
