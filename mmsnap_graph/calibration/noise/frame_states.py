@@ -18,10 +18,10 @@ __all__ = ["solve_frame_states", "frame_table", "without_unsolved"]
 #: A frame's information whose smallest eigenvalue is below this fraction of
 #: its largest is numerically singular (float64 keeps ~16 digits; a solve
 #: there returns noise or raises): the frame is not solved.
-_RCOND = 1e-13
+SINGULAR_RCOND = 1e-13
 
 
-def _solve(info: NDArray, rhs: NDArray, psd: bool = False) -> tuple[NDArray, NDArray]:
+def solve_information(info: NDArray, rhs: NDArray, psd: bool = False) -> tuple[NDArray, NDArray]:
     """``info^-1 rhs`` per frame and the frames solved ``(F,)``: NaN where
     the information is not finite or numerically singular (a coordinate
     whose weight dwarfs the others', e.g. ranges rounded to whole metres
@@ -29,7 +29,7 @@ def _solve(info: NDArray, rhs: NDArray, psd: bool = False) -> tuple[NDArray, NDA
 
     psd : the information is a sum of non-negatively weighted outer products
     (positive semi-definite): a frame whose determinant exceeds
-    ``10 _RCOND trace^4`` is then well conditioned for sure (its smallest
+    ``10 SINGULAR_RCOND trace^4`` is then well conditioned for sure (its smallest
     eigenvalue is at least ``det / trace^3``), and only the others need the
     eigenvalues (the decision is the same, for a seventh of the cost)."""
     finite = np.isfinite(info).all(axis=(1, 2))
@@ -39,11 +39,11 @@ def _solve(info: NDArray, rhs: NDArray, psd: bool = False) -> tuple[NDArray, NDA
         with np.errstate(over="ignore", under="ignore", invalid="ignore"):
             safe = np.where(finite[:, None, None], info, np.eye(info.shape[-1]))
             trace = np.trace(safe, axis1=1, axis2=2)
-            doubt = finite & ~(np.linalg.det(safe) > 10.0 * _RCOND * trace ** 4)
+            doubt = finite & ~(np.linalg.det(safe) > 10.0 * SINGULAR_RCOND * trace ** 4)
     if doubt.any():
         lam = np.linalg.eigvalsh(info[doubt])
         ok = finite.copy()
-        ok[doubt] = lam[:, 0] > _RCOND * np.abs(lam[:, -1])
+        ok[doubt] = lam[:, 0] > SINGULAR_RCOND * np.abs(lam[:, -1])
     if ok.all():
         return np.linalg.solve(info, rhs), ok
     out = np.full(rhs.shape, np.nan)
@@ -89,11 +89,11 @@ def solve_frame_states(z: NDArray, poses: NDArray, w: NDArray, prior_w: NDArray,
         e = np.where(seen[..., None], residual(h, zz), 0.0)
         info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + prior
         grad = np.einsum("fnri,fnr,fnr->fi", jac, w, e)
-        x = x - _solve(info, grad[..., None], psd)[0][..., 0]
+        x = x - solve_information(info, grad[..., None], psd)[0][..., 0]
     h, jac = measurement_model(x[:, None, :], poses[None])
     e = np.where(seen[..., None], residual(h, zz), np.nan)
     info = np.einsum("fnri,fnr,fnrj->fij", jac, w, jac) + prior
-    cov, ok = _solve(info, np.broadcast_to(np.eye(4), info.shape), psd)
+    cov, ok = solve_information(info, np.broadcast_to(np.eye(4), info.shape), psd)
     x[~ok] = np.nan
     e[~ok] = np.nan
     return x, e, jac, cov

@@ -106,14 +106,14 @@ class LearnedWall:
                 f"({self.frames} frames)")
 
 
-def _line(p: NDArray, m: NDArray) -> tuple[NDArray, NDArray]:
+def wall_line(p: NDArray, m: NDArray) -> tuple[NDArray, NDArray]:
     """Bisectors of P (K, 2) and M (K, 2): normal angle (from P to M), offset."""
     d = m - p
     n = d / np.linalg.norm(d, axis=1, keepdims=True)
     return np.arctan2(n[:, 1], n[:, 0]), np.einsum("ij,ij->i", n, (p + m) / 2)
 
 
-def _crossing(node: NDArray, xy: NDArray, n: NDArray, offset: NDArray) -> NDArray:
+def wall_crossing(node: NDArray, xy: NDArray, n: NDArray, offset: NDArray) -> NDArray:
     """(K,) where the line of sight from ``node`` to ``xy`` (K, 2) crosses the
     lines ``n . x = offset`` (n (K, 2) or (2,)), as a position along them
     (tangent = n turned +90 deg); inf where it does not reach them."""
@@ -126,7 +126,7 @@ def _crossing(node: NDArray, xy: NDArray, n: NDArray, offset: NDArray) -> NDArra
     return np.where(reach, -n[:, 1] * at[:, 0] + n[:, 0] * at[:, 1], np.inf)
 
 
-def _speeds_agree(u_g, u_p, n, state, cov, gs, ps, one_bounce: bool) -> NDArray:
+def speeds_agree(u_g, u_p, n, state, cov, gs, ps, one_bounce: bool) -> NDArray:
     """(K,) the image's radial speed (its Doppler, seen from the node: unit
     vectors ``u_g``, ``u_p`` to the image and the person) is the one its
     kind predicts from the person's velocity mirrored through the wall
@@ -165,7 +165,7 @@ def _pairs(frame: NDArray, ok: NDArray, image_ok: NDArray) -> tuple[NDArray, NDA
     return g, p, np.repeat(image_group, reps)
 
 
-def _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m):
+def wall_proposals(frame, state, cov, ok, image_ok, seen, poses, body_m):
     """Wall proposals: (row of the image, node, normal angle, offset, along,
     frame), in frame order, then node, then image kind, then pair; every
     frame's pairs at once (the arithmetic of each pair is elementwise)."""
@@ -189,11 +189,11 @@ def _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m):
         for one_bounce in (False, True):
             m = node + ((2 * r_g - r_p) / r_g)[:, None] * (xy[gs] - node) if one_bounce \
                 else xy[gs]
-            ang, off = _line(xy[ps], m)
+            ang, off = wall_line(xy[ps], m)
             n = np.stack([np.cos(ang), np.sin(ang)], axis=1)
             k = ((n @ node < off) & (np.einsum("ij,ij->i", n, u_g) > 0)
-                 & _speeds_agree(u_g, u_p, n, state, cov, gs, ps, one_bounce))
-            along = _crossing(node, xy[gs], n, off)
+                 & speeds_agree(u_g, u_p, n, state, cov, gs, ps, one_bounce))
+            along = wall_crossing(node, xy[gs], n, off)
             out.append(np.stack([gs[k], np.full(k.sum(), s), ang[k], off[k], along[k],
                                  frame[gs[k]]], axis=1))
             keys.append(np.stack([gk[k], np.full(k.sum(), 2 * s + one_bounce)], axis=1))
@@ -270,7 +270,7 @@ def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray
         raise ValidationError(f"body_m={body_m!r} must be finite and > 0 (m)")
     image_ok = ok if image_ok is None else np.asarray(image_ok, dtype=bool).reshape(ok.shape)
     xy = state[:, :2]
-    props = _proposals(frame, state, cov, ok, image_ok, seen, poses, body_m)
+    props = wall_proposals(frame, state, cov, ok, image_ok, seen, poses, body_m)
     confirmed = ok & (seen.sum(axis=1) >= 2)
     # The room's walls are common to its nodes: two radars facing each other
     # see a side wall's images in different frames, too few for either alone.
@@ -351,7 +351,7 @@ def beyond_learned_walls(state: NDArray, ok: NDArray, seen: NDArray, poses: NDAr
     for i, w in enumerate(walls):
         n, node = w.normal, poses[w.node, :2]
         depth = xy @ n - w.offset_m
-        cross = _crossing(node, xy, n, np.full(k, w.offset_m))
+        cross = wall_crossing(node, xy, n, np.full(k, w.offset_m))
         hit = ((depth > WALL_MARGIN_M) & (cross >= w.along_m[0] - WALL_EXTENT_M)
                & (cross <= w.along_m[1] + WALL_EXTENT_M))
         first[hit & ~behind[:, w.node], w.node] = i

@@ -50,7 +50,7 @@ class SolvedFrame:
     rows: FusedRows
 
 
-def _concat_rows(parts: list[FusedRows], n_nodes: int) -> FusedRows:
+def concat_rows(parts: list[FusedRows], n_nodes: int) -> FusedRows:
     out = FusedRows(sum(len(p) for p in parts), n_nodes)
     for name in FusedRows.__slots__:
         setattr(out, name, np.concatenate([getattr(p, name) for p in parts]))
@@ -143,7 +143,7 @@ class StreamPipeline:
         placement, run on the frames ``held``."""
         n_nodes = len(self.net.node_names)
         sizes = [h.members.shape[0] for h in held]
-        rows = _concat_rows([h.rows for h in held], n_nodes)
+        rows = concat_rows([h.rows for h in held], n_nodes)
         frames = np.repeat([h.frame for h in held], sizes)
         members = np.concatenate([h.members for h in held])
         z = np.concatenate([h.z for h in held])

@@ -87,27 +87,27 @@ def test_a_numerically_singular_frame_is_left_unsolved_not_raised():
 
 
 def test_the_determinant_screen_decides_as_the_eigenvalues_do():
-    """_solve(psd=True) skips the eigenvalues of frames whose determinant
+    """solve_information(psd=True) skips the eigenvalues of frames whose determinant
     proves them well conditioned; its frames solved and its solutions equal
     the eigenvalue test's on well-conditioned, singular, barely regular and
     not-finite information."""
-    from mmsnap_graph.calibration.noise.frame_states import _RCOND, _solve
+    from mmsnap_graph.calibration.noise.frame_states import SINGULAR_RCOND, solve_information
 
     rng = np.random.default_rng(3)
     a = rng.normal(size=(400, 6, 4))
     info = np.einsum("fki,fkj->fij", a, a)
     u = np.linalg.qr(rng.normal(size=(60, 4, 4)))[0]
-    ratio = np.geomspace(1e-16, 1e-10, 60)  # around _RCOND = 1e-13, both sides
+    ratio = np.geomspace(1e-16, 1e-10, 60)  # around SINGULAR_RCOND = 1e-13, both sides
     info[:60] = np.einsum("fij,fj,fkj->fik", u, np.c_[ratio, np.ones((60, 3))], u)
     info[60] = 0.0
     info[61, 0, 0] = np.nan
     info[62] *= 1e200  # trace^4 overflows: decided by the eigenvalues
     info[63] *= 1e-90  # det underflows: decided by the eigenvalues
     rhs = rng.normal(size=(400, 4, 1))
-    out_e, ok_e = _solve(info, rhs)
-    out_d, ok_d = _solve(info, rhs, psd=True)
+    out_e, ok_e = solve_information(info, rhs)
+    out_d, ok_d = solve_information(info, rhs, psd=True)
     np.testing.assert_array_equal(ok_d, ok_e)
     np.testing.assert_array_equal(out_d, out_e)
     assert 10 < np.count_nonzero(~ok_e[:60]) < 50 and not ok_e[60] and not ok_e[61]
     assert ok_e[62] and ok_e[63] and ok_e[64:].all()
-    assert _RCOND == 1e-13
+    assert SINGULAR_RCOND == 1e-13

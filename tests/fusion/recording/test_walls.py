@@ -337,12 +337,12 @@ def _proposals_frame_by_frame(frame, state, cov, ok, image_ok, seen, poses, body
             u_g, u_p = (xy[gs] - node) / r_g[:, None], (xy[ps] - node) / r_p[:, None]
             for bounce in (False, True):
                 m = node + ((2 * r_g - r_p) / r_g)[:, None] * (xy[gs] - node) if bounce else xy[gs]
-                ang, off = w._line(xy[ps], m)
+                ang, off = w.wall_line(xy[ps], m)
                 n = np.stack([np.cos(ang), np.sin(ang)], axis=1)
                 k = ((n @ node < off) & (np.einsum("ij,ij->i", n, u_g) > 0)
-                     & w._speeds_agree(u_g, u_p, n, state, cov, gs, ps, bounce))
+                     & w.speeds_agree(u_g, u_p, n, state, cov, gs, ps, bounce))
                 out.append(np.stack([gs[k], np.full(k.sum(), s), ang[k], off[k],
-                                     w._crossing(node, xy[gs], n, off)[k], frame[gs[k]]], axis=1))
+                                     w.wall_crossing(node, xy[gs], n, off)[k], frame[gs[k]]], axis=1))
     return np.concatenate(out) if out else np.zeros((0, 6))
 
 
@@ -351,7 +351,7 @@ def test_the_proposals_of_all_frames_at_once_are_those_frame_by_frame(seed):
     """Mirror and one-bounce images, a second walker and clutter, rows out of
     frame order: the same proposals, in the same order (frame, node, image
     kind, pair), to rounding (the along-wall position: a matrix product)."""
-    from mmsnap_graph.fusion.recording.walls import _proposals
+    from mmsnap_graph.fusion.recording.walls import wall_proposals
 
     rng = np.random.default_rng(seed)
     frame, xy, v = walker()
@@ -369,7 +369,7 @@ def test_the_proposals_of_all_frames_at_once_are_those_frame_by_frame(seed):
     image_ok = ok | (rng.random(len(ok)) < 0.1)
     args = (np.asarray(fr.frame), np.asarray(fr.state), np.nan_to_num(np.asarray(fr.covariance)),
             ok, image_ok, np.asarray(fr.observed), np.asarray(fr.node_poses), 0.5)
-    want, got = _proposals_frame_by_frame(*args), _proposals(*args)
+    want, got = _proposals_frame_by_frame(*args), wall_proposals(*args)
     assert len(want) > 50
     np.testing.assert_array_equal(got[:, [0, 1, 5]], want[:, [0, 1, 5]])
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

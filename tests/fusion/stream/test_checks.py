@@ -7,7 +7,7 @@ import numpy as np
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.fusion.recording.pipeline import check_rows
 from mmsnap_graph.fusion.recording.rows import FusedRows
-from mmsnap_graph.fusion.stream.checks import StreamPipeline, _concat_rows
+from mmsnap_graph.fusion.stream.checks import StreamPipeline, concat_rows
 from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
 from mmsnap_graph.sim import SimulationOptions, simulate_recording
 
@@ -23,7 +23,7 @@ class _WholeLookBack(StreamPipeline):
         held = [h for h in self._held if frame - back <= h.frame <= frame + self.delay_frames]
         n_nodes = len(self.net.node_names)
         sizes = [h.members.shape[0] for h in held]
-        rows = _concat_rows([h.rows for h in held], n_nodes)
+        rows = concat_rows([h.rows for h in held], n_nodes)
         members = np.concatenate([h.members for h in held])
         z = np.concatenate([h.z for h in held])
         check_rows(rows, np.repeat([h.frame for h in held], sizes), members, z, self.net,
