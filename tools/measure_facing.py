@@ -17,7 +17,7 @@ the fused frames with two or more people. Then, per component:
 - truth: the mean squared error over the reported variance (z^2).
 
 Run from the repository, e.g. ``python tools/measure_facing.py --seeds 0-7
---frames 600 --folder /tmp/facing`` (extra ``mmsnap calibrate`` arguments
+--frames 600 --folder facing-runs`` (extra ``mmsnap calibrate`` arguments
 after ``--``).
 """
 

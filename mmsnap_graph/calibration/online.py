@@ -58,17 +58,13 @@ from .._validation import check_count, chi2_gate, positive_scalar
 from .joint.windowed import WindowPosterior, combine_windows, window_posterior
 from .monitor.decalibration import DEFAULT_POSE_SIGMAS, DecalibrationMonitor
 from .network import calibrate_with_joint
+from .online_defaults import REFINE_MAX_WINDOWS, REFINE_WINDOW_S
 from .poses import pose_array, to_pose2
 from ..tracking.ekf import EkfConfig, track_centroids
 
 __all__ = ["REFINE_WINDOW_S", "REFINE_MAX_WINDOWS", "WINDOW_GATE", "PoseUpdate", "OnlineRefinement",
            "without_node"]
 
-#: The live refinement's window (s): a minute of walking calibrates a room
-#: (docs/LIVE.md), and one window of 4 boards is about a second of CPU.
-REFINE_WINDOW_S = 60.0
-#: Windows combined (the last hour at the default window).
-REFINE_MAX_WINDOWS = 60
 #: A window whose pose of a node is further than this squared Mahalanobis
 #: distance (chi-square 3, probability 1e-6 when both covariances hold) from
 #: the node's current pose is left out (:meth:`OnlineRefinement._disagrees`).

@@ -47,7 +47,7 @@ def register(subparsers) -> None:
 
 
 def add_refine_options(p: argparse.ArgumentParser) -> None:
-    from mmsnap_graph.calibration.online import REFINE_WINDOW_S
+    from mmsnap_graph.calibration.online_defaults import REFINE_WINDOW_S
     g = p.add_argument_group("live refinement (docs/LIVE.md, \"Refining the calibration live\")")
     g.add_argument("--refine", action=argparse.BooleanOptionalAction, default=False,
                    help="refine the poses and clock offsets as people walk, in a process of "
