@@ -4,6 +4,7 @@ node name and its numbers, e.g. a pose ``S2=0,7,180``)."""
 from __future__ import annotations
 
 import argparse
+import sys
 import warnings
 from typing import Callable
 
@@ -371,3 +372,23 @@ def calibration_for(args: argparse.Namespace, path, node_names, config):
                              sigmas=args.sigmas, pose_covariances=covs,
                              time_offsets=not args.no_time_offsets)
     return cal.with_default_noise(*paper_noise())
+
+
+def add_self_check_argument(p: argparse.ArgumentParser) -> None:
+    """``--no-self-check``: the covariance self-check without truth
+    (:mod:`mmsnap_graph.fusion.recording.consistency`) of ``fuse``,
+    ``calibrate`` and ``replay``, not run or not printed."""
+    p.add_argument("--no-self-check", action="store_true",
+                   help="do not run or print the covariance self-check without truth (is the "
+                        "fused covariances' size right for the data? docs/ROBUST.md)")
+
+
+def say_self_check(command: str, report, out) -> None:
+    """The self-check's line on ``out`` and, when it failed, the loud
+    sentence (:attr:`~mmsnap_graph.fusion.recording.consistency.ConsistencyReport.warning`)
+    on stderr after the command's name."""
+    if report is None:
+        return
+    print(report.text(), file=out)
+    if report.warning:
+        print(f"mmsnap {command}: {report.warning}", file=sys.stderr)

@@ -8,7 +8,12 @@ and a ``/calibration`` group in the recording (atomically). Every node's
 measurement noise is estimated from the data at the calibrated poses, printed
 component by component (estimated, or not identified and what is used
 instead) and stored as the ``/noise`` group (:mod:`mmsnap_graph.io.noise`),
-which ``mmsnap fuse`` uses by default.
+which ``mmsnap fuse`` uses by default. Then the covariance self-check without
+truth (docs/ROBUST.md): the recording fused as ``mmsnap fuse`` would fuse it
+with what was just stored (into a temporary copy: nothing else is written),
+its verdict printed, loud on stderr when the sigmas or poses make the
+covariances wrong (``--no-self-check``: skipped; with ``--no-write`` there is
+nothing stored to check).
 
 The track-matching thresholds (seconds and metres) come from their defaults,
 then the ``[matching]`` table of ``--config FILE`` (the TOML file of
@@ -30,6 +35,8 @@ from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.app.runs import calibrate_and_store, calibration_json_path
 from mmsnap_graph.calibration.pairwise.matching_options import MatchingOptions
 from mmsnap_graph.errors import ConfigurationError, ValidationError
+
+from .arguments import add_self_check_argument, say_self_check
 
 #: Matching options: MatchingOptions field -> (metavar, help).
 MATCHING_OPTIONS = {
@@ -129,6 +136,7 @@ def register(subparsers) -> None:
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (the bar, over the steps, is drawn on stderr when it is "
                         "a terminal)")
+    add_self_check_argument(p)
     add_overwrite(p)
     p.set_defaults(func=run)
 
@@ -493,7 +501,28 @@ def run(args: argparse.Namespace) -> int:
     say(f"wrote {written[0]}")
     if not args.no_write:
         say(f"wrote {written[1]}: node poses, /calibration and /noise")
+        if not args.no_self_check and cal.success:
+            say_self_check("calibrate", stored_self_check(written[1]),
+                           sys.stderr if args.json else sys.stdout)
     return 0 if cal.success else 1
+
+
+def stored_self_check(path):
+    """The covariance self-check of ``path`` fused with its stored
+    calibration and noise (``mmsnap fuse``'s defaults), into a temporary
+    copy; None when nothing could be fused."""
+    import tempfile
+
+    from mmsnap_graph.app.runs import fuse_stored
+    from mmsnap_graph.errors import MmsnapError
+
+    with tempfile.TemporaryDirectory(prefix="mmsnap-selfcheck-") as tmp:
+        try:
+            fused, _ = fuse_stored(path, output=Path(tmp) / "fused.h5", progress=False)
+        except MmsnapError as exc:
+            print(f"mmsnap calibrate: covariance self-check not run: {exc}", file=sys.stderr)
+            return None
+    return fused.consistency
 
 
 def _range_offset_prior(text: str | None):

@@ -24,8 +24,9 @@ from mmsnap_graph._atomic import check_output_path, recording_lock
 from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.app.runs import fuse_stored
 
-from .arguments import (add_calibration_arguments, add_fusion_arguments, calibration_for,
-                        config_text, fusion_config)
+from .arguments import (add_calibration_arguments, add_fusion_arguments,
+                        add_self_check_argument, calibration_for, config_text, fusion_config,
+                        say_self_check)
 
 
 #: Fraction of flagged rows above which ``mmsnap fuse`` exits 1: nearly
@@ -68,6 +69,7 @@ def register(subparsers) -> None:
                    help="print a JSON summary to stdout instead of the text (rows, successes, "
                         "the covariance self-check); the words go to stderr")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_self_check_argument(p)
     add_overwrite(p)
     p.set_defaults(func=run)
 
@@ -99,16 +101,6 @@ def rows_text(path) -> str:
         lines.append("  flagged by status: " + ", ".join(
             f"{n} {Status(int(c)).name.lower()} ({int(c)})" for c, n in zip(codes, counts)))
     return "\n".join(lines)
-
-
-def consistency_warning(report) -> str | None:
-    """The loud line of a failed self-check (None when it passed or could not judge)."""
-    if report is None or report.consistent is not False:
-        return None
-    return (f"mmsnap fuse: warning: the fused covariances are {report.verdict} for this "
-            f"recording's data: " + "; ".join(report.reasons) + ". Check the sigmas "
-            "(--sigmas, mmsnap noise) and the calibration; downstream trackers take these "
-            "covariances at face value")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -147,11 +139,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"room checks flagged {fused.room.outside} target(s) outside the bounds{beyond} "
               f"and {fused.room.duplicate} duplicate(s) of a body", file=out)
     report = fused.consistency
-    if report is not None:
-        print(report.text(), file=out)
-        warning = consistency_warning(report)
-        if warning:
-            print(warning, file=sys.stderr)
+    if not args.no_self_check:
+        say_self_check("fuse", report, out)
     if getattr(args, "json", False):
         print(json.dumps({"path": str(path), "n_rows": fused.n_rows, "n_success": n_ok,
                           "n_frames": frames,

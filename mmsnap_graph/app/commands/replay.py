@@ -7,7 +7,10 @@ their covariances, the clock offsets, the ``/noise`` sigmas), said on stderr.
 Prints one line per frame (or only the summary with ``--summary``); with
 ``--realtime`` the frames are paced at the recorded frame rate (``--speed``
 times faster). Writes nothing unless ``--output`` is given (one JSON object
-per frame). ``--view`` / ``--view-log`` show the frames in Foxglove or
+per frame). The covariance self-check without truth (docs/ROBUST.md) runs
+on the streamed rows: its verdict on stderr when it changes, as one JSON line
+``{"self_check": {...}, "frame": N}``, the loud sentence when it fails, and its
+final line after the summary (``--no-self-check``: none of it). ``--view`` / ``--view-log`` show the frames in Foxglove or
 Lichtblick (:mod:`mmsnap_graph.app.view`; ``--view`` plays at the recorded
 rate unless ``--speed`` says otherwise).
 """
@@ -27,8 +30,8 @@ from mmsnap_graph.errors import ValidationError
 
 from ..view.arguments import add_view_options
 
-from .arguments import add_calibration_arguments, add_fusion_arguments, calibration_for, \
-    config_text, fusion_config
+from .arguments import add_calibration_arguments, add_fusion_arguments, \
+    add_self_check_argument, calibration_for, config_text, fusion_config, say_self_check
 
 
 #: Playback speeds --speed accepts (1000 times slower to 10^6 times faster).
@@ -58,6 +61,7 @@ def register(subparsers) -> None:
     p.add_argument("--summary", action="store_true", help="print only the summary")
     p.add_argument("-o", "--output", default=None,
                    help="write one JSON line per frame (fused targets and tracks) to this file")
+    add_self_check_argument(p)
     add_view_options(p)
     add_overwrite(p)
     p.set_defaults(func=run)
@@ -134,11 +138,12 @@ def run(args: argparse.Namespace) -> int:
     out = atomic_path(args.output) if args.output else None
     view = view_sink(args, rec.node_names, poses,
                      time_origin_s=float(rec.metadata.get("time_origin_s", 0.0)))
+    check = None if args.no_self_check else _SelfCheck(rec.frame_period_s, config.prior)
     with (out if out is not None else _Null()) as path:
         sink = open(path, "w", encoding="utf-8") if path is not None else None
         try:
             stats = _play(stream, frames, _file_rows(rec, config.association.source), speed,
-                          args.summary, sink, view)
+                          args.summary, sink, view, check)
         finally:
             if sink is not None:
                 sink.close()
@@ -147,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
     if args.view_log:
         print(f"wrote {args.view_log} (open it in Foxglove or Lichtblick)", file=sys.stdout)
     print(_summary(*stats), file=sys.stdout)
+    if check is not None:
+        say_self_check("replay", check.monitor.report(), sys.stderr)
     if args.output:
         print(f"wrote {args.output}", file=sys.stdout)
     # As `mmsnap process`: failing (exit 1) is for nothing fused at all.
@@ -191,7 +198,27 @@ class _Null:
         return False
 
 
-def _play(stream, frames, file_rows, speed, summary_only, sink, view=None):
+class _SelfCheck:
+    """The covariance self-check over the streamed rows: a verdict on stderr
+    (one JSON line, and the loud sentence when it fails) each time it changes."""
+
+    def __init__(self, frame_period_s, prior):
+        from mmsnap_graph.fusion.recording.consistency import ConsistencyMonitor
+
+        self.monitor = ConsistencyMonitor()
+        self.period, self.prior = frame_period_s, prior
+
+    def add(self, frame, u):
+        self.monitor.add_update(u, frame, frame_period_s=self.period, prior=self.prior)
+        report = self.monitor.new_verdict()
+        if report is not None:
+            print(json.dumps({"frame": int(frame), "self_check": report.to_dict()}),
+                  file=sys.stderr)
+            if report.warning:
+                print(f"mmsnap replay: {report.warning}", file=sys.stderr)
+
+
+def _play(stream, frames, file_rows, speed, summary_only, sink, view=None, check=None):
     """Push every frame (paced when ``speed`` is set), each decided frame to
     ``view`` too (a :class:`~mmsnap_graph.app.live.driver.FusedSink`); return
     the summary's numbers."""
@@ -214,6 +241,8 @@ def _play(stream, frames, file_rows, speed, summary_only, sink, view=None):
             sink.write(json.dumps(_record(frame, u, file_rows(frame, u.members))) + "\n")
         if view is not None:
             view.write(replayed_frame(frame, time_s, detections, u))
+        if check is not None:
+            check.add(frame, u)
 
     for frame, time_s, detections in frames:
         if speed is not None:

@@ -33,7 +33,13 @@ when the innovations are below theirs. A verdict needs
 :data:`MIN_INNOVATIONS` innovations (or residual rows).
 
 :func:`fused_consistency` checks a whole :class:`FusedSequence`; the monitor
-takes the rows window by window (``fuse_file``) in frame order.
+takes the rows window by window (``fuse_file``, :meth:`ConsistencyMonitor.add`)
+or frame by frame (``mmsnap replay``, :meth:`ConsistencyMonitor.add_rows`) in
+frame order, in bounded memory: running sums of the statistics and one filter
+per live track (a track unseen for :data:`MAX_GAP_S` is dropped).
+:meth:`ConsistencyMonitor.new_verdict` gives a report only when the verdict
+changed, for the streaming commands' periodic lines; every command says a
+failed check with the same sentence, :attr:`ConsistencyReport.warning`.
 """
 
 from __future__ import annotations
@@ -92,6 +98,17 @@ class ConsistencyReport:
     reasons: tuple = ()
 
     @property
+    def warning(self) -> str | None:
+        """The loud sentence of a failed self-check (None when it passed or
+        could not judge); each command prints it after its name."""
+        if self.consistent is not False:
+            return None
+        return (f"warning: the fused covariances are {self.verdict} for this recording's "
+                f"data: " + "; ".join(self.reasons) + ". Check the sigmas (--sigmas, mmsnap "
+                "noise) and the calibration; downstream trackers take these covariances at "
+                "face value")
+
+    @property
     def consistent(self) -> bool | None:
         """True, False, or None without enough data."""
         return None if self.verdict == "not enough data" else self.verdict == "consistent"
@@ -141,7 +158,11 @@ class ConsistencyMonitor:
 
     sigma_a_mps2: float = INNOVATION_SIGMA_A_MPS2
     _filters: dict = field(default_factory=dict)
-    _nis: list = field(default_factory=list)
+    _nis_n: int = 0
+    _nis_sum: float = 0.0
+    _nis_tail: int = 0
+    _last_frame: int | None = None
+    _said: str | None = None
     _res_chi2: float = 0.0
     _res_dof: int = 0
     _res_rows: int = 0
@@ -149,32 +170,82 @@ class ConsistencyMonitor:
 
     def add(self, fused: FusedSequence) -> None:
         """The rows of ``fused`` (after the last rows added)."""
-        ok = np.asarray(fused.success, dtype=bool) & np.all(
-            np.isfinite(fused.covariance), axis=(1, 2))
         kept = np.asarray(fused.observed, dtype=bool)
         if fused.rejected is not None:
             kept = kept & ~np.asarray(fused.rejected, dtype=bool)
-        n = kept.sum(axis=1)
-        cost = np.asarray(fused.final_cost, dtype=float)
-        res = ok & (n >= 2) & np.isfinite(cost)
-        self._res_chi2 += float(np.sum(2.0 * cost[res]))
-        self._res_dof += int(np.sum(3 * n[res] - 4))
-        self._res_rows += int(res.sum())
-        if fused.track_id is None:
+        prior = None if fused.prior_mean is None else (fused.prior_mean, fused.prior_sigmas)
+        self.add_rows(fused.frame, fused.state, fused.covariance, success=fused.success,
+                      track_id=fused.track_id, n_kept=kept.sum(axis=1),
+                      final_cost=fused.final_cost, frame_period_s=fused.frame_period_s,
+                      prior=prior)
+
+    def add_rows(self, frame, state, covariance, *, success=None, track_id=None,
+                 n_kept=None, final_cost=None, frame_period_s: float | None = None,
+                 prior=None) -> None:
+        """Fused rows as arrays, after the last rows added: ``frame`` (R,),
+        ``state`` (R, 4), ``covariance`` (R, 4, 4); ``success`` (R,) bool
+        (default: every row); ``track_id`` (R,) the central tracker's person
+        of each row (-1: none; None: no innovations); ``n_kept`` (R,) the
+        nodes kept and ``final_cost`` (R,) (None: no cross-node residuals);
+        ``prior`` ``(mean (4,), sigmas (4,))`` of MAP rows (None: ML)."""
+        frame = np.asarray(frame, dtype=np.int64).reshape(-1)
+        cov = np.asarray(covariance, dtype=float).reshape(-1, 4, 4)
+        ok = np.all(np.isfinite(cov), axis=(1, 2))
+        if success is not None:
+            ok &= np.asarray(success, dtype=bool)
+        if n_kept is not None and final_cost is not None:
+            n = np.asarray(n_kept, dtype=np.int64)
+            cost = np.asarray(final_cost, dtype=float)
+            res = ok & (n >= 2) & np.isfinite(cost)
+            self._res_chi2 += float(np.sum(2.0 * cost[res]))
+            self._res_dof += int(np.sum(3 * n[res] - 4))
+            self._res_rows += int(res.sum())
+        if track_id is None or frame.size == 0:
             return
-        period = float(fused.frame_period_s or 0.15)
-        tid = np.asarray(fused.track_id)
-        order = np.argsort(fused.frame, kind="stable")
+        period = float(frame_period_s or 0.15)
+        tid = np.asarray(track_id)
+        order = np.argsort(frame, kind="stable")
         rows = order[(ok & (tid >= 0))[order]]
-        prior = (None, None) if fused.prior_mean is None else (
-            np.asarray(fused.prior_mean, dtype=float).tolist(),
-            (1.0 / np.asarray(fused.prior_sigmas, dtype=float) ** 2).tolist())
+        prior = (None, None) if prior is None else (
+            np.asarray(prior[0], dtype=float).tolist(),
+            (1.0 / np.asarray(prior[1], dtype=float) ** 2).tolist())
         step = self._step
-        for track, frame, z, r in zip(tid[rows].tolist(), np.asarray(fused.frame)[rows].tolist(),
-                                      np.asarray(fused.state, dtype=float)[rows].tolist(),
-                                      np.asarray(fused.covariance, dtype=float)[rows]
-                                      .reshape(-1, 16).tolist()):
-            step(track, frame, z, r, prior, period)
+        for track, f, z, r in zip(tid[rows].tolist(), frame[rows].tolist(),
+                                  np.asarray(state, dtype=float).reshape(-1, 4)[rows].tolist(),
+                                  cov[rows].reshape(-1, 16).tolist()):
+            step(track, f, z, r, prior, period)
+        last = int(frame.max())
+        if self._last_frame is None or last > self._last_frame:
+            self._last_frame = last
+            # Bounded memory: a track unseen for longer than MAX_GAP_S starts
+            # again anyway, so its filter goes.
+            horizon = last - MAX_GAP_S / period
+            for t in [t for t, flt in self._filters.items() if flt.frame < horizon]:
+                del self._filters[t]
+
+    def add_update(self, update, frame: int, *, frame_period_s: float, prior=None) -> None:
+        """The groups of one :class:`~mmsnap_graph.fusion.stream.frame_stream.StreamUpdate`
+        (``mmsnap replay``, ``mmsnap live``) at frame number ``frame``;
+        ``prior`` the stream's :class:`~mmsnap_graph.fusion.config.Prior` (None: ML)."""
+        if update.person_id is None or len(update) == 0:
+            return
+        members = np.asarray(update.members)
+        kept = (members >= 0) & ~np.asarray(update.rejected, dtype=bool)
+        self.add_rows(np.full(len(update), int(frame)), update.state, update.covariance,
+                      success=update.success, track_id=update.person_id,
+                      n_kept=kept.sum(axis=1), final_cost=update.final_cost,
+                      frame_period_s=frame_period_s,
+                      prior=None if prior is None else (prior.mean, prior.sigmas))
+
+    def new_verdict(self) -> ConsistencyReport | None:
+        """The report when its verdict differs from the one this method last
+        gave (the first verdict once there is enough data), else None: what
+        a streaming command prints now and then."""
+        report = self.report()
+        if report.verdict == "not enough data" or report.verdict == self._said:
+            return None
+        self._said = report.verdict
+        return report
 
     def _step(self, track, frame, z, r, prior, period) -> None:
         """One row: the innovation of its track's prediction, then the update
@@ -192,7 +263,10 @@ class ConsistencyMonitor:
             a, b, c, d = p[0] + r[0], p[1] + r[1], p[4] + r[4], p[5] + r[5]
             det = a * d - b * c
             if det != 0.0:  # nu^T S^-1 nu of the 2x2 position innovation
-                self._nis.append((d * dx * dx - (b + c) * dx * dy + a * dy * dy) / det)
+                nis = (d * dx * dx - (b + c) * dx * dy + a * dy * dy) / det
+                self._nis_n += 1
+                self._nis_sum += nis
+                self._nis_tail += nis > 9.21
                 lo = cholesky_4x4(p)
                 if lo is not None:
                     info = cholesky_inverse_4x4(lo)
@@ -210,12 +284,12 @@ class ConsistencyMonitor:
         self._filters[track] = _Filter(list(z), p0, frame)
 
     def report(self) -> ConsistencyReport:
-        nis = np.asarray(self._nis, dtype=float)
-        mean = float(nis.mean()) if nis.size else float("nan")
-        tail = float(np.mean(nis > 9.21)) if nis.size else float("nan")
+        n_nis = self._nis_n
+        mean = self._nis_sum / n_nis if n_nis else float("nan")
+        tail = self._nis_tail / n_nis if n_nis else float("nan")
         ratio = self._res_chi2 / self._res_dof if self._res_dof > 0 else float("nan")
         reasons = []
-        judged_nis = nis.size >= MIN_INNOVATIONS
+        judged_nis = n_nis >= MIN_INNOVATIONS
         judged_res = self._res_rows >= MIN_INNOVATIONS
         if judged_nis and mean > INNOVATION_BAND[1]:
             reasons.append(f"the positions move between frames {math.sqrt(mean / 2):.1f}x more "
@@ -238,7 +312,7 @@ class ConsistencyMonitor:
         else:
             verdict = "not enough data"
         return ConsistencyReport(verdict=verdict, innovation_nis=mean, innovation_tail=tail,
-                                 n_innovations=int(nis.size), residual_ratio=ratio,
+                                 n_innovations=n_nis, residual_ratio=ratio,
                                  n_residual_rows=self._res_rows, reasons=tuple(reasons))
 
 

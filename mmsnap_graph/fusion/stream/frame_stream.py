@@ -122,6 +122,10 @@ class StreamUpdate:
         tracks after this frame's update (unchanged by a bad frame).
     latency_s : wall-clock time spent in :meth:`FrameStream.push`.
     dropped_detections : rows left out by the cap ``max_detections_per_node``.
+    person_id : (G,) the track each group updated or started (-1: none), as
+        ``/fused``'s ``track_id``; final_cost : (G,) each group's final cost
+        (the covariance self-check's inputs,
+        :meth:`~mmsnap_graph.fusion.recording.consistency.ConsistencyMonitor.add_update`).
     """
 
     index: int
@@ -139,6 +143,8 @@ class StreamUpdate:
     latency_s: float
     rejected: NDArray
     dropped_detections: int = 0
+    person_id: NDArray | None = None
+    final_cost: NDArray | None = None
 
     @property
     def success(self) -> NDArray:
@@ -405,7 +411,12 @@ class FrameStream:
             message = "; ".join(x for x in (problem, note) if x)
             fused = (seq.state, seq.covariance, np.asarray(seq.status, dtype=np.int8),
                      seq.degeneracy, members, seq.rejected)
-            done.append(self._update(index, t, problem is None, message, fused, start, dropped))
+            person = None
+            if problem is None:
+                person = np.full(len(ok), -1, dtype=np.int64)
+                person[ok] = self._tracker.estimate_ids
+            done.append(self._update(index, t, problem is None, message, fused, start, dropped,
+                                     person_id=person, final_cost=seq.final_cost))
         return done
 
     def _clock_restarted(self, t: float) -> bool:
@@ -494,7 +505,8 @@ class FrameStream:
             per_node[i] = z
         return t, [_EMPTY_ROWS if z is None else z for z in per_node], None
 
-    def _update(self, index, t, ok, message, fused, start, dropped=0) -> StreamUpdate:
+    def _update(self, index, t, ok, message, fused, start, dropped=0, *, person_id=None,
+                final_cost=None) -> StreamUpdate:
         track_id, track_state, track_cov = self._tracker.track_arrays()
         n_nodes = len(self.node_names)
         if fused is None:
@@ -507,6 +519,7 @@ class FrameStream:
             rejected=rejected,
             track_id=track_id, track_state=track_state, track_covariance=track_cov,
             latency_s=time.perf_counter() - start, dropped_detections=dropped,
+            person_id=person_id, final_cost=final_cost,
         )
 
 
