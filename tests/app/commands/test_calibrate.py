@@ -402,3 +402,39 @@ def test_range_offset_rms_with_range_offset_is_refused(tmp_path, capsys):
                            "0.10,0.05", "--range-offset-rms", "0.02")
     assert code == 2
     assert "--range-offset-rms: not allowed with argument --range-offset" in error_line(err)
+
+
+def test_calibrate_checks_the_covariances_it_stored_and_warns_loudly(calibrated_c_file,
+                                                                     tmp_path, capsys,
+                                                                     monkeypatch):
+    """After storing, calibrate fuses as `mmsnap fuse` would (a temporary
+    copy) and prints the self-check: consistent with the sigmas it
+    estimated; loud on stderr when the stored sigmas are 0.3x those (the
+    noise write scaled here); nothing with --no-self-check."""
+    import shutil
+
+    import mmsnap_graph.io.noise as noise_io
+
+    rec = Path(shutil.copy(calibrated_c_file, tmp_path / "rec.h5"))
+    capsys.readouterr()
+    assert main(["calibrate", str(rec), "--overwrite"]) == 0
+    cap = capsys.readouterr()
+    assert "covariance self-check (no truth): consistent" in cap.out
+    assert "warning" not in cap.err
+    real = noise_io.write_noise
+
+    def scaled(path, estimate, **kw):
+        nodes = {n: dataclasses.replace(e, noise=MeasurementNoise(
+            **dict(zip(("range_m", "omega_rad", "doppler_mps"), 0.3 * e.noise.sigmas))))
+            for n, e in estimate.nodes.items()}
+        return real(path, dataclasses.replace(estimate, nodes=nodes), **kw)
+
+    monkeypatch.setattr(noise_io, "write_noise", scaled)
+    assert main(["calibrate", str(rec), "--overwrite", "--json"]) == 0
+    cap = capsys.readouterr()
+    json.loads(cap.out)  # stdout holds the JSON alone
+    assert "covariance self-check (no truth): over-confident" in cap.err
+    assert "mmsnap calibrate: warning: the fused covariances are over-confident" in cap.err
+    assert main(["calibrate", str(rec), "--overwrite", "--no-self-check"]) == 0
+    cap = capsys.readouterr()
+    assert "self-check" not in cap.out + cap.err

@@ -70,3 +70,37 @@ def test_view_log_holds_each_frames_people_as_the_replay_prints_them(recording_b
             got[m["frame"]] = [(p["id"], [p["x_m"], p["y_m"], p["vx_mps"], p["vy_mps"]])
                                for p in m["people"]]
     assert got == want and any(got.values())
+
+
+def _mean_sigmas(path):
+    import numpy as np
+
+    from mmsnap_graph.io.noise import read_noise
+
+    return np.mean([n.sigmas for n in read_noise(path).per_node.values()], axis=0)
+
+
+def test_replay_says_the_covariance_self_check_and_warns_loudly_when_it_fails(
+        calibrated_c_file, capsys):
+    """The self-check of `mmsnap fuse` over the streamed rows: a JSON line on
+    stderr when the verdict changes and the final line; the loud sentence
+    only when the sigmas (0.3x the data's) make the covariances wrong;
+    nothing of it with --no-self-check."""
+    import json
+
+    capsys.readouterr()
+    assert main(["replay", str(calibrated_c_file), "--summary"]) == 0
+    err = capsys.readouterr().err
+    verdicts = [json.loads(line)["self_check"]["verdict"] for line in err.splitlines()
+                if line.startswith('{"frame"')]
+    assert verdicts == ["consistent"], err
+    assert "covariance self-check (no truth): consistent" in err and "warning" not in err
+    low = [f"{v:.5g}" for v in 0.3 * _mean_sigmas(calibrated_c_file)]
+    assert main(["replay", str(calibrated_c_file), "--summary", "--sigmas", *low]) == 0
+    err = capsys.readouterr().err
+    assert "mmsnap replay: warning: the fused covariances are over-confident" in err
+    assert '"verdict": "over-confident"' in err
+    assert main(["replay", str(calibrated_c_file), "--summary", "--sigmas", *low,
+                 "--no-self-check"]) == 0
+    err = capsys.readouterr().err
+    assert "self-check" not in err and "self_check" not in err and "warning" not in err

@@ -11,7 +11,7 @@ import pytest
 
 from factors.motion import cv_process_noise, cv_transition
 from mmsnap_graph.fusion.recording.consistency import (ConsistencyMonitor, fused_consistency,
-                                                       INNOVATION_SIGMA_A_MPS2)
+                                                       INNOVATION_SIGMA_A_MPS2, MAX_GAP_S)
 
 from ..._fused_rows import fused_rows
 
@@ -103,3 +103,75 @@ def test_few_rows_say_not_enough_data():
     r = fused_consistency(f)
     assert r.verdict == "not enough data" and r.consistent is None
     assert r.to_dict()["consistent"] is None
+
+
+def test_rows_given_frame_by_frame_give_the_whole_sequences_report():
+    """add_rows, one frame at a time (the streaming commands), is add."""
+    f = _walk(4, k=200)
+    whole = fused_consistency(f)
+    m = ConsistencyMonitor()
+    kept = f.observed & ~f.rejected if f.rejected is not None else f.observed
+    for i in range(len(f)):
+        m.add_rows(f.frame[i:i + 1], f.state[i:i + 1], f.covariance[i:i + 1],
+                   success=f.success[i:i + 1], track_id=f.track_id[i:i + 1],
+                   n_kept=kept[i:i + 1].sum(axis=1), final_cost=f.final_cost[i:i + 1],
+                   frame_period_s=f.frame_period_s)
+    got = m.report()
+    assert got.n_innovations == whole.n_innovations and got.verdict == whole.verdict
+    assert got.innovation_nis == pytest.approx(whole.innovation_nis, rel=1e-12)
+    assert got.residual_ratio == pytest.approx(whole.residual_ratio, rel=1e-12)
+
+
+def test_memory_is_bounded_by_the_live_tracks():
+    """Running sums, and a filter only for each track seen within MAX_GAP_S:
+    10 000 rows of 2 000 short-lived people keep a handful of filters."""
+    rng = np.random.default_rng(0)
+    m = ConsistencyMonitor()
+    frames = np.arange(10_000)
+    m.add_rows(frames, rng.normal(size=(frames.size, 4)), np.tile(np.eye(4), (frames.size, 1, 1)),
+               track_id=frames // 5, frame_period_s=PERIOD_S)
+    assert len(m._filters) <= MAX_GAP_S / PERIOD_S + 2
+    assert m.report().n_innovations == 10_000 - 2_000
+    assert not any(isinstance(v, list) and len(v) > 100 for v in vars(m).values()
+                   if not isinstance(v, dict))
+
+
+def test_new_verdict_says_only_changes_and_the_warning_is_one_sentence():
+    good, low = _walk(5), _walk(5, scale=0.3)
+    m = ConsistencyMonitor()
+    said = []
+    for lo in range(0, len(good), 10):
+        m.add(_rows(good, slice(lo, lo + 10)))
+        r = m.new_verdict()
+        if r is not None:
+            said.append(r.verdict)
+    assert said == ["consistent"]          # once, when there was enough data
+    assert m.report().warning is None
+    m2 = ConsistencyMonitor()
+    m2.add(low)
+    r = m2.new_verdict()
+    assert r.verdict == "over-confident" and m2.new_verdict() is None
+    assert r.warning.startswith("warning: the fused covariances are over-confident for this "
+                                "recording's data: ")
+    assert r.warning.count("\n") == 0 and all(why in r.warning for why in r.reasons)
+    assert fused_consistency(_walk(5, k=10)).warning is None  # not enough data: silent
+
+
+def _rows(f, keep):
+    return dataclasses.replace(f, **{k: getattr(f, k)[keep] for k in (
+        "frame", "target", "label", "detection_index", "observed", "state", "covariance",
+        "laplace_covariance", "success", "status", "message", "iterations", "final_cost",
+        "degeneracy", "track_id", "rejected") if getattr(f, k) is not None})
+
+
+@pytest.mark.parametrize("scale,fires", [(1.0, None), (0.3, "over-confident"),
+                                         (3.0, "under-confident")])
+def test_firing_rate_over_seeds(scale, fires):
+    """Seeded Monte Carlo of the synthetic walker (50 seeds, 400 rows each):
+    right covariances fire on at most 2 of 50 (4%; measured 0), 0.3x or 3x
+    sigmas on at least 48 of 50 (measured 50), on the right side."""
+    verdicts = [fused_consistency(_walk(1000 + s, scale=scale)).verdict for s in range(50)]
+    if fires is None:
+        assert sum(v != "consistent" for v in verdicts) <= 2, verdicts
+    else:
+        assert sum(v == fires for v in verdicts) >= 48, verdicts
