@@ -74,7 +74,9 @@ class RecordingSummary:
     worker (wall clock); cpu_s : CPU seconds the worker spent on it.
     counts : what the steps produced (``n_nodes``, ``n_points``,
     ``n_centroids``, ``n_tracks``; ``n_calibrated``; ``n_fused``,
-    ``n_flagged``, ``n_frames``). outputs : every file written.
+    ``n_flagged``, ``n_frames``; the fuse step's covariance self-check:
+    ``self_check``, its verdict, and ``self_check_warning``, the loud sentence
+    when it failed). outputs : every file written.
     worker : ``host:pid`` of the process that ran it; peak_rss_mb : that
     process's peak resident memory so far (MiB).
     """
@@ -144,6 +146,10 @@ def _step_fuse(src: Path, dst: Path | None, config, overwrite: bool) -> StepOutc
     fused, _ = fuse_stored(src, config, output=dst, progress=False)
     counts = {"n_fused": fused.n_rows, "n_flagged": fused.n_rows - fused.n_success,
               "n_frames": fused.n_frames}
+    if fused.consistency is not None:  # the covariance self-check of `mmsnap fuse`
+        counts["self_check"] = fused.consistency.verdict
+        if fused.consistency.warning:
+            counts["self_check_warning"] = fused.consistency.warning
     return counts, [Path(fused.path)], None
 
 

@@ -22,7 +22,7 @@ from mmsnap_graph._atomic import atomic_path
 from mmsnap_graph.app.commands.file_rules import add_overwrite
 from mmsnap_graph.errors import MmsnapError, ValidationError
 
-from .arguments import add_fusion_arguments, fusion_config
+from .arguments import add_fusion_arguments, add_self_check_argument, fusion_config
 
 #: Seconds to wait for a ``--scheduler`` before giving up.
 CONNECT_TIMEOUT_S = 10
@@ -66,6 +66,7 @@ def register(subparsers) -> None:
                         "table")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_fusion_arguments(p, solvers=("vectorized", "gtsam", "scalar"))
+    add_self_check_argument(p)
     add_overwrite(p, "replace existing output files: --json-out, the copies in --output-dir "
                      "and each recording's calibration JSON (default: refuse them, before "
                      "anything runs)")
@@ -187,6 +188,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(format_summary(summaries))
     say(f"cluster started in {start_s:.1f} s ({ready}); recordings ran in {run_s:.1f} s")
+    if not args.no_self_check:  # the fuse step's covariance self-check, loud when it failed
+        for s in summaries:
+            if s.counts.get("self_check_warning"):
+                print(f"mmsnap batch: {s.path}: {s.counts['self_check_warning']}",
+                      file=sys.stderr)
     if args.json_out:
         try:
             with atomic_path(args.json_out) as tmp:

@@ -88,3 +88,42 @@ def test_scheduler_addresses_of_other_schemes_are_usage_errors(tmp_path, capsys,
     assert main(["batch", str(rec), "--scheduler", address, "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--scheduler" in err[0], err
+
+
+def test_batch_says_a_failed_covariance_self_check_loudly(calibrated_c_file, tmp_path, capsys,
+                                                          monkeypatch):
+    """The fuse step's self-check (as `mmsnap fuse`'s) is in each summary's
+    counts, and a failed one (sigmas 0.3x the data's) is a loud line on
+    stderr naming the recording; not with --no-self-check."""
+    import concurrent.futures
+    import contextlib
+    import json
+    import shutil
+
+    import h5py
+    import numpy as np
+
+    import mmsnap_graph.app.batch as batch_module
+    from mmsnap_graph.io.noise import read_noise
+
+    @contextlib.contextmanager
+    def threads(n_workers):  # no Dask cluster: any Executor runs the batch
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            yield pool
+
+    monkeypatch.setattr(batch_module, "local_client", threads)
+    rec = shutil.copy(calibrated_c_file, tmp_path / "rec.h5")
+    before = read_noise(rec).per_node
+    with h5py.File(rec, "r+") as f:  # the stored sigmas 0.3x the data's
+        f["noise"]["sigmas"][...] = 0.3 * f["noise"]["sigmas"][...]
+    n = next(iter(before))
+    np.testing.assert_allclose(read_noise(rec).per_node[n].sigmas, 0.3 * before[n].sigmas)
+    argv = ["batch", str(rec), "--steps", "fuse", "--no-progress", "--json", "--output-dir",
+            str(tmp_path / "out")]
+    assert main(argv) == 0
+    cap = capsys.readouterr()
+    (summary,) = json.loads(cap.out)
+    assert summary["counts"]["self_check"] == "over-confident"
+    assert f"mmsnap batch: {rec}: warning: the fused covariances are over-confident" in cap.err
+    assert main([*argv, "--overwrite", "--no-self-check"]) == 0
+    assert "warning" not in capsys.readouterr().err
