@@ -74,6 +74,7 @@ __all__ = [
     "MOTION_MAX_LEFT_OUT",
     "Refit",
     "apply_motion_check",
+    "rows_near",
 ]
 
 #: Frames on each side of a row whose rows may confirm or predict it.
@@ -230,7 +231,7 @@ def _confirmed(rows, frame, ok, frame_period_s, accel, gate, judged=None):
     return out, supported
 
 
-def _within(frame: NDArray, decide: NDArray, frames: int) -> NDArray:
+def rows_near(frame: NDArray, decide: NDArray, frames: int) -> NDArray:
     """(K,) bool: the rows whose frame is at most ``frames`` from one of ``decide``."""
     d = np.unique(decide)
     return np.searchsorted(d, frame + frames, "right") > np.searchsorted(d, frame - frames,
@@ -466,11 +467,11 @@ def apply_motion_check(rows: FusedRows, frame: NDArray, observed: NDArray, valid
     # the other rows are context. The rows of W frames around stay as the
     # whole check leaves them (the coverage check looks at them).
     confirmed, supported = _confirmed(rows, frame, ok, frame_period_s, accel, gate,
-                                      None if decide is None else _within(frame, decide, 2 * w))
+                                      None if decide is None else rows_near(frame, decide, 2 * w))
     # The one-node rows that count a target twice go first: they predict nothing.
     shared = _shared_frames(frame, ok, kept)
     if decide is not None:
-        shared = np.intersect1d(shared, frame[_within(frame, decide, w)])
+        shared = np.intersect1d(shared, frame[rows_near(frame, decide, w)])
     twice = np.zeros(frame.size, dtype=bool)
     twice[_twice(rows, frame, observed, shared, gate,
                  _predictions(rows, frame, confirmed, shared, frame_period_s, accel, gate,

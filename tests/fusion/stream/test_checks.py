@@ -78,7 +78,8 @@ def test_the_checks_of_one_frame_skip_only_work_it_does_not_need(monkeypatch):
     poses = np.array([GHOSTS[n] for n in rec.node_names])
     got = _rows(FrameStream(rec.node_names, poses), rec)
     every = coverage.uncovered_rows
-    monkeypatch.setattr(motion, "_within", lambda frame, decide, frames: np.ones(frame.size, bool))
+    monkeypatch.setattr(motion, "rows_near",
+                        lambda frame, decide, frames: np.ones(frame.size, bool))
     monkeypatch.setattr(pipeline, "uncovered_rows",
                         lambda *a, decide=None, **k: every(*a, **k))
     want = _rows(FrameStream(rec.node_names, poses), rec)
