@@ -182,6 +182,43 @@ def test_outside_reference_pattern_catches_what_it_should():
         assert not _OUTSIDE.search(fine), fine
 
 
+#: The README's test command: what CI runs (.ci/run), and what any page that
+#: tells how to run the tests gives, word for word.
+TEST_COMMAND = 'pip install -e ".[test]" && python -m pytest -q -n 2 --dist loadgroup'
+
+_FENCED = re.compile(r"^ *```\w*\n(.*?)^ *```", flags=re.M | re.S)
+
+
+def _suite_commands(text: str) -> list[str]:
+    """The commands of ``text`` that run the whole suite (or its fast part):
+    the pytest commands (a fenced block's line, an inline code span) that
+    name no test file (``tests/...``, ``FILE``, ``TEST``)."""
+    lines = [line for body in _FENCED.findall(text) for line in body.splitlines()]
+    spans = re.findall(r"`([^`]+)`", _FENCED.sub("", text))
+    found = [" ".join(c.split()) for c in lines + spans]
+    return [c for c in found if "python -m pytest" in c
+            and not re.search(r"tests/|\bFILE\b|\bTEST\b", c)]
+
+
+def test_suite_commands_are_found():
+    assert _suite_commands("run `python -m pytest -q` or\n```bash\npython -m pytest -x\n```\n"
+                           "and `python -m pytest -s tests/x.py`") == [
+        "python -m pytest -x", "python -m pytest -q"]
+
+
+@pytest.mark.parametrize("rel", ["README.md", *sorted(p.relative_to(ROOT).as_posix()
+                                                      for p in ROOT.glob("docs/**/*.md"))])
+def test_pages_give_the_readme_test_command(rel):
+    """A page that says how to run the tests gives the README's command, the
+    one CI runs (a narrower run of it, e.g. ``-m "not slow"``, adds to it)."""
+    assert TEST_COMMAND in (ROOT / "README.md").read_text()
+    assert TEST_COMMAND in (ROOT / ".ci" / "run").read_text()
+    for command in _suite_commands((ROOT / rel).read_text()):
+        assert TEST_COMMAND.split(" && ")[1] in command, (rel, command)
+        if "pip install" in command:
+            assert command.startswith(TEST_COMMAND), (rel, command)
+
+
 # ------------------------------------- the docs speak to users: no project history
 
 #: Words of the project's own history, not of the software: issue numbers,
