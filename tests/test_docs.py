@@ -114,6 +114,38 @@ def test_names_on_the_conventions_page_exist():
     """Every ``factors.x`` / ``mmsnap_graph.x.y`` the page names can be imported."""
     names = _dotted_names(CONVENTIONS_MD.read_text())
     assert len(names) >= 10
+    assert not _missing_names(names)
+
+
+def test_names_in_the_docs_and_docstrings_exist():
+    """Every ``mmsnap_graph.x.y`` a page or a docstring names (in code
+    quotes, or a Sphinx role's ``~mmsnap_graph.x.y``) can be imported: a
+    renamed module or class renames its mentions too."""
+    cited = {}
+    for path in [ROOT / "README.md", *ROOT.glob("docs/**/*.md"),
+                 *ROOT.glob("mmsnap_graph/**/*.py"), *ROOT.glob("factors/**/*.py")]:
+        text = path.read_text().replace("`~", "`")
+        for name in _dotted_names(text):
+            cited.setdefault(name, path.relative_to(ROOT).as_posix())
+    assert len(cited) >= 100
+    assert not [(cited[n], n) for n in _missing_names(cited)]
+
+
+def test_pages_the_code_cites_exist():
+    """``docs/PAGE.md`` in the code, the tests, the tools and the docs is a page."""
+    cited = set()
+    for path in [*ROOT.glob("mmsnap_graph/**/*.py"), *ROOT.glob("factors/**/*.py"),
+                 *ROOT.glob("tests/**/*.py"), *ROOT.glob("benchmarks/*.py"),
+                 *ROOT.glob("tools/*.py"), ROOT / "README.md", *ROOT.glob("docs/**/*.md")]:
+        for page in re.findall(r"(?<![\w/])docs/([\w/-]+\.md)", path.read_text()):
+            if page != "PAGE.md":
+                cited.add((path.relative_to(ROOT).as_posix(), page))
+    assert len(cited) >= 20
+    assert not sorted(c for c in cited if not (ROOT / "docs" / c[1]).is_file())
+
+
+def _missing_names(names) -> list[str]:
+    """Those of the dotted ``names`` that cannot be imported (module, then attributes)."""
     missing = []
     for name in sorted(names):
         parts = name.split(".")
@@ -130,7 +162,7 @@ def test_names_on_the_conventions_page_exist():
             break
         else:
             missing.append(name)
-    assert not missing, missing
+    return missing
 
 
 # ------------------------------------ no machine paths, nothing outside the repo

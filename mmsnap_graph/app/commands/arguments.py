@@ -159,7 +159,7 @@ def add_fusion_arguments(p: argparse.ArgumentParser, *, solvers: tuple[str, ...]
                              "table)")
     g.add_argument("--config", dest="fuse_config", metavar="FILE.toml", default=None,
                    help="a TOML file whose [fuse] table sets these options (a flag given "
-                        "wins; docs/CLI.md)")
+                        "wins; docs/how-to/fuse.md)")
     g.add_argument("--mode", choices=["map", "ml"], default=None,
                    help="MAP with the paper's prior, or maximum likelihood (default map)")
     g.add_argument("--covariance", choices=["laplace", "grid"], default=None,
