@@ -224,12 +224,12 @@ def fusion_settings(args: argparse.Namespace) -> dict[str, object]:
         table = read_fuse_table(args.fuse_config)
     out = dict(FUSE_DEFAULTS, solver=args.default_solver)
     for key in out:
-        value = getattr(args, key, None)
+        value = getattr(args, key)
         if value is not None:
             out[key] = value
         elif key in table:
             out[key] = table[key]
-    if getattr(args, "bounds", None) is not None or getattr(args, "bounds_cfg", None) is not None:
+    if args.bounds is not None or args.bounds_cfg is not None:
         # A box given on the command line replaces the file's, of either kind.
         out["bounds" if args.bounds_cfg is not None else "bounds_cfg"] = None
     if out["bounds"] is not None and out["bounds_cfg"] is not None:
