@@ -20,7 +20,7 @@ N = 60
 
 
 @pytest.mark.slow
-def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_path):
+def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_path, capsys):
     poses = simulated(N, seed=1).truth.node_poses
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"nodes": {n: {"pose": list(map(float, p))}
@@ -41,8 +41,14 @@ def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_
                                      "covariance", "status"}
     assert all(r["status"] in ("tracked", "predicted") for r in rows)
     replayed = tmp_path / "replay.jsonl"
+    capsys.readouterr()
     assert main(["replay", str(rec), "--calibration", str(cal), "-o", str(replayed),
                  "--summary"]) == 0
+    # The covariance self-check: live says the verdict replay says.
+    verdict = lambda err: [line.split(":", 1)[1].split(";")[0].strip()  # noqa: E731
+                           for line in err.splitlines()
+                           if line.startswith("covariance self-check (no truth):")]
+    assert verdict(stderr) and verdict(stderr) == verdict(capsys.readouterr().err), stderr
     last = max(r["frame"] for r in rows)
     again = {}
     for line in replayed.read_text().splitlines():
@@ -101,7 +107,9 @@ def test_live_refine_prints_and_stores_the_refined_poses(tmp_path):
     assert code == 0, stderr
     assert out.read_text().splitlines()
     updates = [json.loads(line) for line in stderr.splitlines() if line.startswith("{")]
-    assert updates and all(u["type"] == "calibration" for u in updates), stderr
+    assert {u["type"] for u in updates} <= {"calibration", "self_check"}, stderr
+    updates = [u for u in updates if u["type"] == "calibration"]
+    assert updates, stderr
     windows = [u for u in updates if u["reason"] == "window"]
     assert windows, stderr
     stored = read_calibration_json(refined)
