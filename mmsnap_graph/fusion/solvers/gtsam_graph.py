@@ -263,14 +263,18 @@ def solve_frames(problem: FrameProblem, options: FusionOptions = DEFAULT_OPTIONS
     degeneracy = np.full(n_frames, np.inf)
     x0 = initial_states(problem, per_frame=True)
     noise, prior, kernel, lm = problem.noise, problem.prior, problem.kernel, options.lm
+    one_network = problem.poses.ndim == 2
+    seen_all = problem.observed.all(axis=1).tolist()
+    seen_any = problem.observed.any(axis=1).tolist()
+    startable = np.isfinite(x0).all(axis=1).tolist()
     for f in range(n_frames):
-        poses = problem.poses if problem.poses.ndim == 2 else problem.poses[f]
-        z, seen = problem.measurements[f], problem.observed[f]
-        obs = None if seen.all() else seen
-        if prior is None and not seen.any():
+        poses = problem.poses if one_network else problem.poses[f]
+        z = problem.measurements[f]
+        obs = None if seen_all[f] else problem.observed[f]
+        if prior is None and not seen_any[f]:
             status[f] = Status.NO_INFORMATION
             continue
-        if not np.isfinite(x0[f]).all():  # the average detection on a node
+        if not startable[f]:  # the average detection on a node
             status[f] = Status.NON_FINITE
             continue
         try:
@@ -281,7 +285,7 @@ def solve_frames(problem: FrameProblem, options: FusionOptions = DEFAULT_OPTIONS
                 state[f] = failure.state
             continue
         state[f], c, iterations[f], cost[f], status[f], whitened[f], degeneracy[f] = fit
-        if status[f] != Status.OK:
+        if fit[4] != Status.OK:
             continue
         cov[f] = c
         if problem.pose_covariances is not None:
