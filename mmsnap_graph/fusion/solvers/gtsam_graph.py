@@ -59,7 +59,7 @@ from ...errors import GeometryError, ValidationError
 from ..frame_problem import FrameProblem, initial_states
 from ..options import DEFAULT_OPTIONS, FusionOptions
 from .assess import NEWTON_DECREMENT_TOLERANCE, assess_fit
-from .gtsam_poses import pose_aware_covariance
+from .gtsam_poses import build_pose_aware_graph, pose_aware_covariance
 from .settings import LM_SETTINGS, LevenbergMarquardtSettings
 
 __all__ = [
@@ -290,8 +290,8 @@ def solve_frames(problem: FrameProblem, options: FusionOptions = DEFAULT_OPTIONS
         cov[f] = c
         if problem.pose_covariances is not None:
             try:
-                cov[f] = pose_aware_covariance(state[f], poses, z, obs, noise, prior,
-                                               problem.pose_covariances, kernel)
+                cov[f] = pose_aware_covariance(*build_pose_aware_graph(
+                    state[f], poses, z, obs, noise, prior, problem.pose_covariances, kernel))
             except Exception:  # GTSAM: an indeterminate joint system
                 status[f], cov[f] = Status.SINGULAR, np.nan
     return FusionSolution.of_solver(state=state, covariance=cov, status=status,
