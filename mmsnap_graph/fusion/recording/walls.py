@@ -11,8 +11,10 @@ away. Two images are common (docs/TI.md, "Static scene and ghosts"):
   of M. From such an image G the mirror image is ``M = S + (2 |G - S| -
   |P - S|) u``, ``u`` the unit vector from S to G.
 
-A node's image G of a person is a fused row seen by fewer nodes than a row P
-of its frame (the person, walking: at least :data:`WALL_MOVING_MPS`),
+A node's image G of a person is a fused row seen by no more nodes than a
+row P of its frame (the person, walking: at least :data:`WALL_MOVING_MPS`;
+radars on the same side of a wall see its mirror image as one consistent
+target, fused from them all like the person),
 farther from the node than P, whose radial speed
 (its Doppler) is the one its kind predicts from P's velocity mirrored through
 the wall (within :data:`WALL_DOPPLER_SIGMAS` of both rows' velocity
@@ -172,7 +174,7 @@ def wall_proposals(frame, state, cov, ok, image_ok, seen, poses, body_m):
     xy = state[:, :2]
     n_seen = seen.sum(axis=1)
     g, p, pg = _pairs(frame, ok, image_ok)
-    keep = ((g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
+    keep = ((g != p) & (n_seen[g] <= n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
             & (np.hypot(*state[p, 2:].T) >= WALL_MOVING_MPS))
     g, p, pg = g[keep], p[keep], pg[keep]
     out, keys = [], []

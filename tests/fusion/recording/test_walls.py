@@ -43,14 +43,15 @@ def one_bounce(xy, v):
     return m * ((r_p + r_m) / 2 / r_m)[:, None], u_m * rate[:, None]
 
 
-def scene(image=mirror, every=1, extra=()):
-    """The walker (2 nodes) and S1's image of him (1 node) in every
-    ``every``-th frame, plus ``extra`` rows ``(frame, x, y, vx, vy, nodes)``."""
+def scene(image=mirror, every=1, extra=(), image_nodes=1):
+    """The walker (2 nodes) and S1's image of him (``image_nodes`` nodes) in
+    every ``every``-th frame, plus ``extra`` rows ``(frame, x, y, vx, vy,
+    nodes)``."""
     frame, xy, v = walker()
     img = np.arange(0, N_FRAMES, every)
     g, vg = image(xy[img], v[img])
     rows = [(f, *p, *u, 2) for f, p, u in zip(frame, xy, v)]
-    rows += [(f, *p, *u, 1) for f, p, u in zip(img, g, vg)] + list(extra)
+    rows += [(f, *p, *u, image_nodes) for f, p, u in zip(img, g, vg)] + list(extra)
     rows.sort(key=lambda r: r[0])
     r = np.array(rows, dtype=float)
     return fused_rows(r[:, 0].astype(int), r[:, 1:3], velocity=r[:, 3:5],
@@ -86,6 +87,37 @@ def test_mirror_images_are_flagged_and_the_walker_kept():
     assert screen_room(rows, walls=False, body_m=None)[1].beyond_wall == 0
     box = RoomBounds(x_min=-2.0, x_max=1.6, y_min=0.0, y_max=5.0)
     assert screen_room(rows, bounds=box, body_m=None)[1].beyond_wall == 0
+
+
+def test_a_mirror_image_both_radars_see_teaches_the_wall_and_is_flagged():
+    """Radars on the same side of a wall see a person's mirror image through
+    it as one consistent target (the image is a point for every radar):
+    fused from both nodes, like the person. It still teaches the wall, and
+    is flagged beyond it. (A random layout of two radars 2.2 m apart, both
+    looking one way, two walkers at 20 fps: the images fused from both
+    radars taught no wall, fused NEES 9.83, position RMSE 0.356 m.)"""
+    rows = scene(mirror, image_nodes=2)
+    walls = walls_of(rows)
+    assert walls and all(abs(w.offset_m - WALL_Y) < 0.05 for w in walls)
+    np.testing.assert_allclose([w.normal for w in walls], [[0.0, 1.0]] * len(walls), atol=0.02)
+    out, report = screen_room(rows, body_m=None)
+    image = rows.state[:, 1] > WALL_Y
+    np.testing.assert_array_equal(out.success, ~image)
+    assert report.beyond_wall == image.sum() == N_FRAMES
+
+
+def test_a_second_person_both_radars_see_in_the_room_is_kept():
+    """A second walker fused from both nodes, walking on his own in front of
+    the wall (his Doppler not the walker's mirrored), teaches no wall and is
+    kept."""
+    t = np.arange(N_FRAMES)
+    xy = np.c_[1.2 - 0.05 * t, 2.8 + 0.3 * np.cos(t / 3.0)]
+    v = np.gradient(xy, FRAME_S, axis=0)
+    other = [(f, *p, *u, 2) for f, p, u in zip(t, xy, v)]
+    rows = scene(mirror, every=2, extra=other, image_nodes=2)
+    out, _ = screen_room(rows, body_m=None)
+    person = rows.state[:, 1] < WALL_Y
+    assert person.sum() == 2 * N_FRAMES and out.success[person].all()
 
 
 def test_learn_walls_checks_its_arrays():
@@ -326,7 +358,7 @@ def _proposals_frame_by_frame(frame, state, cov, ok, image_ok, seen, poses, body
     for rows in np.split(order, np.flatnonzero(np.diff(frame[order])) + 1):
         people, images = rows[ok[rows]], rows[image_ok[rows]]
         g, p = (a.ravel() for a in np.meshgrid(images, people, indexing="ij"))
-        keep = ((g != p) & (n_seen[g] < n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
+        keep = ((g != p) & (n_seen[g] <= n_seen[p]) & (np.hypot(*(xy[g] - xy[p]).T) >= body_m)
                 & (np.hypot(*state[p, 2:].T) >= w.WALL_MOVING_MPS))
         for s in range(poses.shape[0]):
             node = poses[s, :2]
