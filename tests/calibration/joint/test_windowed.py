@@ -287,7 +287,7 @@ def _real_model_s2(seed: int, tmp: str) -> tuple:
 
 # Measured (seeds 0-7, 1200 frames, 3 windows of 400 each combined;
 # docs/validation/calibration.md, "Long recordings"): mean pose
-# NEES 2.27, band (1.55, 4.92); S2's position RMS windowed 0.142 m, batch
+# NEES 2.10, band (1.55, 4.92); S2's position RMS windowed 0.140 m, batch
 # 0.148 m. The errors are mostly the reflection depth (x_b -0.04..-0.20 m,
 # the same in every window): combined as independent, the depth's term
 # would shrink 3x (test_the_random_part_averages_down_the_reflection_depth_
