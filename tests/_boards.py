@@ -26,6 +26,9 @@ from __future__ import annotations
 
 import os
 import select
+import signal
+import subprocess
+import sys
 import threading
 import time
 import tty
@@ -249,3 +252,29 @@ def wait_for(condition, what: str, timeout_s: float = TIMEOUT_S) -> None:
     while not condition():
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
         time.sleep(0.02)
+
+
+def run_until_played(args: list[str], boards: dict, cfg: str, *, cwd) -> tuple[int, str, str]:
+    """Run ``python -m mmsnap_graph ARGS`` with one ``--board NAME=CLI,DATA,CFG``
+    a board until every board has played its packets and the program has read
+    every byte of them, then end it with Ctrl-C (SIGINT) as a user would: its
+    return code, standard output and standard error. The boards are closed
+    (and the program killed if it is still running) whatever happens."""
+    for name, b in boards.items():
+        args = [*args, "--board", f"{name}={b.cli_port},{b.data_port},{cfg}"]
+    proc = subprocess.Popen([sys.executable, "-m", "mmsnap_graph", *args], cwd=cwd,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for b in boards.values():
+            wait_for(lambda: b.done.is_set() or proc.poll() is not None, "the boards to play")
+            wait_for(lambda: pending_bytes(b) == 0 or proc.poll() is not None,
+                     "the program to read every byte")
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for b in boards.values():
+            b.close()
+    return proc.returncode, stdout, stderr

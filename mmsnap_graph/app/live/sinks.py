@@ -108,7 +108,7 @@ class SelfCheckSink:
     "self_check": {...}}`` and, when
     the covariances fail the check, the loud sentence after ``mmsnap
     COMMAND:``. :meth:`report` is the verdict over everything so far.
-    ``prior`` is the stream's :class:`~mmsnap_graph.fusion.config.Prior`
+    ``prior`` is the stream's :class:`~mmsnap_graph.data.noise.GaussianPrior`
     (None: ML)."""
 
     def __init__(self, *, frame_period_s: float, prior, log, command: str) -> None:

@@ -59,7 +59,7 @@ from ...errors import GeometryError, ValidationError
 from ..frame_problem import FrameProblem, initial_states
 from ..options import DEFAULT_OPTIONS, FusionOptions
 from .assess import NEWTON_DECREMENT_TOLERANCE, assess_fit
-from .gtsam_poses import pose_aware_covariance
+from .gtsam_poses import build_pose_aware_graph, pose_aware_covariance
 from .settings import LM_SETTINGS, LevenbergMarquardtSettings
 
 __all__ = [
@@ -288,8 +288,8 @@ def solve_frames(problem: FrameProblem, options: FusionOptions = DEFAULT_OPTIONS
                     c = nan44
                 elif problem.pose_covariances is not None:
                     try:
-                        c = pose_aware_covariance(x, poses, z, obs, noise, prior,
-                                                  problem.pose_covariances, kernel)
+                        c = pose_aware_covariance(*build_pose_aware_graph(
+                            x, poses, z, obs, noise, prior, problem.pose_covariances, kernel))
                     except Exception:  # GTSAM: an indeterminate joint system
                         st, c = Status.SINGULAR, nan44
                 row = x, c, st, it, fc, w, dg
