@@ -71,12 +71,17 @@ class EmulatedBoard:
     is not recognized as a CLI command``.
     scene : the :class:`Scene` its packets are frames of (None: its own, from
     its start); ``first_packet`` is the first one it sent.
+    phase_s : with a scene, the board writes packet ``i`` this long after the
+    scene's time of it (boards on their own clocks end their frames at
+    different moments of a period; 0: every board of the scene at once).
     """
 
     def __init__(self, packets, *, frame_period_s=FRAME_PERIOD_S, cli=True, garbled_first=True,
-                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=(), scene=None):
+                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=(), scene=None,
+                 phase_s=0.0):
         self.packets = list(packets)
         self.scene = scene
+        self.phase_s = float(phase_s)
         self.first_packet = 0
         self.frame_period_s = frame_period_s
         self.garbled_first = garbled_first
@@ -178,8 +183,8 @@ class EmulatedBoard:
         now = start = time.monotonic()
         if self.scene is not None:
             # The packets of the scene's past are lost (the board did not run then).
-            start = self.scene.begin(now)
-            self.first_packet = min(n, math.ceil((now - start) / self.frame_period_s))
+            start = self.scene.begin(now) + self.phase_s
+            self.first_packet = min(n, max(0, math.ceil((now - start) / self.frame_period_s)))
         for i in range(self.first_packet, n):
             wait = start + i * self.frame_period_s - time.monotonic()
             if wait > 0 and self._stop.wait(wait):
