@@ -40,6 +40,11 @@ METRICS = {
     # bench_oneshot.py: the CPU median of one GTSAM solve (ms), and scipy's.
     "gtsam_ms": r"CPU time of this process.*?: \S+(?: \(gtsam\))? median ([0-9.]+) ms",
     "scipy_ms": r"CPU time of this process.*scipy median ([0-9.]+) ms",
+    # bench_stream.py: the stream's CPU median per frame (ms) of each solver (last target count).
+    "stream_scalar_ms": r"solver scalar: stream per frame .*?CPU median ([0-9.]+) ms",
+    "stream_gtsam_ms": r"solver gtsam: stream per frame .*?CPU median ([0-9.]+) ms",
+    # bench_calibration_scale.py: the calibration's wall time (s) of the last size.
+    "calibrate_s": r"nodes x +(?:\d+) frames: +([0-9.]+) s",
     # bench_batch.py: CPU seconds of the batch, of the GTSAM and scipy subsets.
     "batch_cpu_s": r"^batch.*? \(([0-9.]+) s CPU\)",
     "gtsam_cpu_s": r"^GTSAM.*? \(([0-9.]+) s CPU\)",

@@ -7,6 +7,7 @@ offending value.
 from __future__ import annotations
 
 import bisect
+import functools
 import json
 import math
 from typing import Any, Sequence
@@ -204,10 +205,20 @@ def chi2_gate(gate_probability: float, dof: ArrayLike, *, name: str = "gate_prob
         raise ValidationError(f"dof must be > 0, got {dof!r}")
     if d.ndim == 0 and d == 2.0:
         return -2.0 * math.log1p(-p)  # closed form, and no scipy on a light path
+    if d.ndim == 0:
+        return _chi2_ppf(p, float(d))
     from scipy.stats import chi2  # deferred: scipy.stats is slow to import
 
-    out = chi2.ppf(p, d)
-    return float(out) if d.ndim == 0 else out
+    return chi2.ppf(p, d)
+
+
+@functools.lru_cache(maxsize=256)
+def _chi2_ppf(p: float, dof: float) -> float:
+    """``chi2.ppf(p, dof)`` of one gate, kept: the checks ask for the same few
+    gates every frame, and scipy takes a fraction of a millisecond each."""
+    from scipy.stats import chi2  # deferred: scipy.stats is slow to import
+
+    return float(chi2.ppf(p, dof))
 
 
 _INT64_MAX = np.uint64(2**63 - 1)

@@ -26,6 +26,9 @@ from __future__ import annotations
 
 import os
 import select
+import signal
+import subprocess
+import sys
 import threading
 import time
 import tty
@@ -68,12 +71,17 @@ class EmulatedBoard:
     is not recognized as a CLI command``.
     scene : the :class:`Scene` its packets are frames of (None: its own, from
     its start); ``first_packet`` is the first one it sent.
+    phase_s : with a scene, the board writes packet ``i`` this long after the
+    scene's time of it (boards on their own clocks end their frames at
+    different moments of a period; 0: every board of the scene at once).
     """
 
     def __init__(self, packets, *, frame_period_s=FRAME_PERIOD_S, cli=True, garbled_first=True,
-                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=(), scene=None):
+                 start_delay_s=0.0, stop_after=None, refuse=(), unknown=(), scene=None,
+                 phase_s=0.0):
         self.packets = list(packets)
         self.scene = scene
+        self.phase_s = float(phase_s)
         self.first_packet = 0
         self.frame_period_s = frame_period_s
         self.garbled_first = garbled_first
@@ -175,8 +183,8 @@ class EmulatedBoard:
         now = start = time.monotonic()
         if self.scene is not None:
             # The packets of the scene's past are lost (the board did not run then).
-            start = self.scene.begin(now)
-            self.first_packet = min(n, math.ceil((now - start) / self.frame_period_s))
+            start = self.scene.begin(now) + self.phase_s
+            self.first_packet = min(n, max(0, math.ceil((now - start) / self.frame_period_s)))
         for i in range(self.first_packet, n):
             wait = start + i * self.frame_period_s - time.monotonic()
             if wait > 0 and self._stop.wait(wait):
@@ -249,3 +257,29 @@ def wait_for(condition, what: str, timeout_s: float = TIMEOUT_S) -> None:
     while not condition():
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
         time.sleep(0.02)
+
+
+def run_until_played(args: list[str], boards: dict, cfg: str, *, cwd) -> tuple[int, str, str]:
+    """Run ``python -m mmsnap_graph ARGS`` with one ``--board NAME=CLI,DATA,CFG``
+    a board until every board has played its packets and the program has read
+    every byte of them, then end it with Ctrl-C (SIGINT) as a user would: its
+    return code, standard output and standard error. The boards are closed
+    (and the program killed if it is still running) whatever happens."""
+    for name, b in boards.items():
+        args = [*args, "--board", f"{name}={b.cli_port},{b.data_port},{cfg}"]
+    proc = subprocess.Popen([sys.executable, "-m", "mmsnap_graph", *args], cwd=cwd,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for b in boards.values():
+            wait_for(lambda: b.done.is_set() or proc.poll() is not None, "the boards to play")
+            wait_for(lambda: pending_bytes(b) == 0 or proc.poll() is not None,
+                     "the program to read every byte")
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for b in boards.values():
+            b.close()
+    return proc.returncode, stdout, stderr

@@ -40,3 +40,16 @@ def test_boards_without_a_scene_play_from_their_own_start():
     with EmulatedBoard(packets, cli=False, frame_period_s=PERIOD_S, start_delay_s=0.1) as b:
         wait_for(b.done.is_set, "the board to play", timeout_s=30)
         assert b.first_packet == 0 and len(b.write_times) == len(packets)
+
+
+def test_a_board_of_a_scene_with_a_phase_writes_that_much_later():
+    scene = Scene()
+    packets = [bytes([i]) * 8 for i in range(6)]
+    with EmulatedBoard(packets, cli=False, frame_period_s=PERIOD_S, scene=scene) as first, \
+            EmulatedBoard(packets, cli=False, frame_period_s=PERIOD_S, scene=scene,
+                          phase_s=0.6 * PERIOD_S) as later:
+        wait_for(lambda: first.done.is_set() and later.done.is_set(), "the boards to play",
+                 timeout_s=30)
+        assert later.first_packet == 0 and len(later.write_times) == len(packets)
+        for i, t in enumerate(later.write_times):
+            assert t >= scene.start + (i + 0.6) * PERIOD_S

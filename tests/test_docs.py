@@ -114,6 +114,38 @@ def test_names_on_the_conventions_page_exist():
     """Every ``factors.x`` / ``mmsnap_graph.x.y`` the page names can be imported."""
     names = _dotted_names(CONVENTIONS_MD.read_text())
     assert len(names) >= 10
+    assert not _missing_names(names)
+
+
+def test_names_in_the_docs_and_docstrings_exist():
+    """Every ``mmsnap_graph.x.y`` a page or a docstring names (in code
+    quotes, or a Sphinx role's ``~mmsnap_graph.x.y``) can be imported: a
+    renamed module or class renames its mentions too."""
+    cited = {}
+    for path in [ROOT / "README.md", *ROOT.glob("docs/**/*.md"),
+                 *ROOT.glob("mmsnap_graph/**/*.py"), *ROOT.glob("factors/**/*.py")]:
+        text = path.read_text().replace("`~", "`")
+        for name in _dotted_names(text):
+            cited.setdefault(name, path.relative_to(ROOT).as_posix())
+    assert len(cited) >= 100
+    assert not [(cited[n], n) for n in _missing_names(cited)]
+
+
+def test_pages_the_code_cites_exist():
+    """``docs/PAGE.md`` in the code, the tests, the tools and the docs is a page."""
+    cited = set()
+    for path in [*ROOT.glob("mmsnap_graph/**/*.py"), *ROOT.glob("factors/**/*.py"),
+                 *ROOT.glob("tests/**/*.py"), *ROOT.glob("benchmarks/*.py"),
+                 *ROOT.glob("tools/*.py"), ROOT / "README.md", *ROOT.glob("docs/**/*.md")]:
+        for page in re.findall(r"(?<![\w/])docs/([\w/-]+\.md)", path.read_text()):
+            if page != "PAGE.md":
+                cited.add((path.relative_to(ROOT).as_posix(), page))
+    assert len(cited) >= 20
+    assert not sorted(c for c in cited if not (ROOT / "docs" / c[1]).is_file())
+
+
+def _missing_names(names) -> list[str]:
+    """Those of the dotted ``names`` that cannot be imported (module, then attributes)."""
     missing = []
     for name in sorted(names):
         parts = name.split(".")
@@ -130,7 +162,7 @@ def test_names_on_the_conventions_page_exist():
             break
         else:
             missing.append(name)
-    assert not missing, missing
+    return missing
 
 
 # ------------------------------------ no machine paths, nothing outside the repo
@@ -180,6 +212,43 @@ def test_outside_reference_pattern_catches_what_it_should():
         assert _OUTSIDE.search(bad), bad
     for fine in ("docs/CONVENTIONS.md", "mmsnap_demo_out/report.md", "a/b/tmp/c", "x.tmp/y"):
         assert not _OUTSIDE.search(fine), fine
+
+
+#: The README's test command: what CI runs (.ci/run), and what any page that
+#: tells how to run the tests gives, word for word.
+TEST_COMMAND = 'pip install -e ".[test]" && python -m pytest -q -n 2 --dist loadgroup'
+
+_FENCED = re.compile(r"^ *```\w*\n(.*?)^ *```", flags=re.M | re.S)
+
+
+def _suite_commands(text: str) -> list[str]:
+    """The commands of ``text`` that run the whole suite (or its fast part):
+    the pytest commands (a fenced block's line, an inline code span) that
+    name no test file (``tests/...``, ``FILE``, ``TEST``)."""
+    lines = [line for body in _FENCED.findall(text) for line in body.splitlines()]
+    spans = re.findall(r"`([^`]+)`", _FENCED.sub("", text))
+    found = [" ".join(c.split()) for c in lines + spans]
+    return [c for c in found if "python -m pytest" in c
+            and not re.search(r"tests/|\bFILE\b|\bTEST\b", c)]
+
+
+def test_suite_commands_are_found():
+    assert _suite_commands("run `python -m pytest -q` or\n```bash\npython -m pytest -x\n```\n"
+                           "and `python -m pytest -s tests/x.py`") == [
+        "python -m pytest -x", "python -m pytest -q"]
+
+
+@pytest.mark.parametrize("rel", ["README.md", *sorted(p.relative_to(ROOT).as_posix()
+                                                      for p in ROOT.glob("docs/**/*.md"))])
+def test_pages_give_the_readme_test_command(rel):
+    """A page that says how to run the tests gives the README's command, the
+    one CI runs (a narrower run of it, e.g. ``-m "not slow"``, adds to it)."""
+    assert TEST_COMMAND in (ROOT / "README.md").read_text()
+    assert TEST_COMMAND in (ROOT / ".ci" / "run").read_text()
+    for command in _suite_commands((ROOT / rel).read_text()):
+        assert TEST_COMMAND.split(" && ")[1] in command, (rel, command)
+        if "pip install" in command:
+            assert command.startswith(TEST_COMMAND), (rel, command)
 
 
 # ------------------------------------- the docs speak to users: no project history

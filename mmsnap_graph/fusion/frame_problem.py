@@ -95,21 +95,29 @@ class FrameProblem:
         z = as_float_array(self.measurements, "measurements")
         if z.ndim == 2:  # one frame: its own messages (no frame index)
             poses, z, obs = validate_frame(self.poses, z, self.observed)
-            obs = np.ones(z.shape[0], dtype=bool) if obs is None else obs
-            z, obs = np.where(obs[:, None], z, 0.0)[None], obs[None]
+            n_nodes = z.shape[0]
+            # Copies of the frame's own (N, 3) and (1, N) arrays, unobserved
+            # rows zero (the per-frame path: one copy each).
+            if obs is None:
+                z, obs = z.reshape(1, n_nodes, 3).copy(), np.ones((1, n_nodes), dtype=bool)
+            else:
+                z, obs = np.where(obs[None, :, None], z[None], 0.0), obs.reshape(1, n_nodes).copy()
         else:
             poses = as_float_array(self.poses, "node_poses")
             if poses.ndim == 2:
                 poses = check_poses(poses)
             poses, z, obs = validate_frames(poses, z, self.observed)
-        n_nodes = z.shape[1]
+            n_nodes = z.shape[1]
+            z, obs = np.array(z, dtype=float), np.array(obs, dtype=bool)
         check_prior(self.prior)
         noise = check_node_noise(self.noise, n_nodes)
         pose_cov = check_pose_covariances(self.pose_covariances, n_nodes)
         set_ = object.__setattr__
+        z.setflags(write=False)
+        obs.setflags(write=False)
         set_(self, "poses", _frozen(np.array(poses, dtype=float)))
-        set_(self, "measurements", _frozen(np.array(z, dtype=float)))
-        set_(self, "observed", _frozen(np.array(obs, dtype=bool)))
+        set_(self, "measurements", z)
+        set_(self, "observed", obs)
         set_(self, "noise", noise)
         set_(self, "pose_covariances", pose_cov)
         set_(self, "kernel", _check_kernel(self.kernel))

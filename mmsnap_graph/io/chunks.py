@@ -43,7 +43,7 @@ from ..data.recording import (MAX_FRAME_PERIOD_S, MIN_FRAME_PERIOD_S, Detections
 from ..data.results import FusedSequence
 from ..errors import FileFormatError, MmsnapError
 from .fused import FUSED_GROUP, write_fused
-from .guard import H5_ERRORS, edited_copy, open_for_reading, read_guard, replace_group
+from .guard import edited_copy, open_for_reading, read_guard, replace_group
 from .hdf5 import FORMAT_NAME, FORMAT_VERSION
 
 __all__ = ["DetectionWindows", "open_detection_windows", "FusedWriter", "fused_writer"]
@@ -234,20 +234,15 @@ class DetectionWindows:
                                  stop - int(shifts.get(name, 0)))
                 for name in self.node_names}
         nodes = {}
-        with read_guard(self.path):
-            try:
-                f = h5py.File(self.path, "r")
-            except H5_ERRORS as exc:
-                raise FileFormatError(f"{self.path} is not a readable HDF5 file: {exc}") from exc
-            with f:
-                for name in self.node_names:
-                    kw = {}
-                    if self._frames[name] is not None:
-                        kw[self.source] = self._detections(f, name, rows[name])
-                    if tracks and self._track_frames.get(name) is not None:
-                        kw["tracks"] = self._tracks(f, name, start - int(shifts.get(name, 0)),
-                                                    stop - int(shifts.get(name, 0)))
-                    nodes[name] = NodeData(name=name, pose=self.node_poses[name], **kw)
+        with open_for_reading(self.path) as f:
+            for name in self.node_names:
+                kw = {}
+                if self._frames[name] is not None:
+                    kw[self.source] = self._detections(f, name, rows[name])
+                if tracks and self._track_frames.get(name) is not None:
+                    kw["tracks"] = self._tracks(f, name, start - int(shifts.get(name, 0)),
+                                                stop - int(shifts.get(name, 0)))
+                nodes[name] = NodeData(name=name, pose=self.node_poses[name], **kw)
         return Recording(frame_period_s=self.frame_period_s, nodes=nodes,
                          targets=self.targets), rows
 
@@ -270,22 +265,17 @@ class DetectionWindows:
         """Each node's farthest detection range (m) over its ``point_cloud``
         and ``centroids`` (0 for a node without any), read a slice at a time."""
         out = {}
-        with read_guard(self.path):
-            try:
-                f = h5py.File(self.path, "r")
-            except H5_ERRORS as exc:
-                raise FileFormatError(f"{self.path} is not a readable HDF5 file: {exc}") from exc
-            with f:
-                for name in self.node_names:
-                    group, far = f["nodes"][name], 0.0
-                    for level in ("point_cloud", "centroids"):
-                        ds = group[level]["range_m"] if level in group and isinstance(
-                            group[level], h5py.Group) and "range_m" in group[level] else None
-                        for start in range(0, 0 if ds is None else ds.shape[0], _REACH_READ_ROWS):
-                            block = ds[start:start + _REACH_READ_ROWS]
-                            block = block[np.isfinite(block)]
-                            far = max(far, float(block.max(initial=0.0)))
-                    out[name] = far
+        with open_for_reading(self.path) as f:
+            for name in self.node_names:
+                group, far = f["nodes"][name], 0.0
+                for level in ("point_cloud", "centroids"):
+                    ds = group[level]["range_m"] if level in group and isinstance(
+                        group[level], h5py.Group) and "range_m" in group[level] else None
+                    for start in range(0, 0 if ds is None else ds.shape[0], _REACH_READ_ROWS):
+                        block = ds[start:start + _REACH_READ_ROWS]
+                        block = block[np.isfinite(block)]
+                        far = max(far, float(block.max(initial=0.0)))
+                out[name] = far
         return out
 
     def _detections(self, f: h5py.File, name: str, rows: NDArray) -> Detections:

@@ -54,6 +54,30 @@ def test_one_frame_and_the_nan_convention():
     assert problem.n_frames == 1 and problem.observed.tolist() == [[True, False, True]]
 
 
+@pytest.mark.parametrize("observed", [None, "mask", "all"])
+def test_one_frame_is_the_batch_of_that_frame_in_its_own_read_only_copies(observed):
+    """The one-frame path (an (N, 3) frame) stores exactly what the batch path
+    stores for the same frame as (1, N, 3), in arrays of its own."""
+    z, _ = _z(1, seed=3)
+    frame = z[0].copy()
+    seen = np.array([True, observed == "all", True])
+    frame[~seen] = np.nan
+    mask = None if observed is None else seen.copy()
+    one = FrameProblem(poses=POSES_BC, measurements=frame, observed=mask)
+    batch = FrameProblem(poses=POSES_BC, measurements=frame[None],
+                         observed=None if mask is None else mask[None])
+    for name in ("poses", "measurements", "observed"):
+        a, b = getattr(one, name), getattr(batch, name)
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+        assert not a.flags.writeable
+    before = one.measurements.copy()
+    frame[:] = 7.0  # the caller's arrays are not the problem's
+    if mask is not None:
+        mask[:] = False
+    assert one.measurements.tobytes() == before.tobytes()
+    assert one.observed.tolist() == batch.observed.tolist()
+
+
 @pytest.mark.parametrize("kwargs, error, match", [
     (dict(measurements=np.zeros((2, 3, 3))), GeometryError, r"range_m of node 0\) is 0"),
     (dict(noise="paper"), ValidationError, "noise must be a MeasurementNoise"),

@@ -159,7 +159,7 @@ def add_fusion_arguments(p: argparse.ArgumentParser, *, solvers: tuple[str, ...]
                              "table)")
     g.add_argument("--config", dest="fuse_config", metavar="FILE.toml", default=None,
                    help="a TOML file whose [fuse] table sets these options (a flag given "
-                        "wins; docs/CLI.md)")
+                        "wins; docs/how-to/fuse.md)")
     g.add_argument("--mode", choices=["map", "ml"], default=None,
                    help="MAP with the paper's prior, or maximum likelihood (default map)")
     g.add_argument("--covariance", choices=["laplace", "grid"], default=None,
@@ -224,12 +224,12 @@ def fusion_settings(args: argparse.Namespace) -> dict[str, object]:
         table = read_fuse_table(args.fuse_config)
     out = dict(FUSE_DEFAULTS, solver=args.default_solver)
     for key in out:
-        value = getattr(args, key, None)
+        value = getattr(args, key)
         if value is not None:
             out[key] = value
         elif key in table:
             out[key] = table[key]
-    if getattr(args, "bounds", None) is not None or getattr(args, "bounds_cfg", None) is not None:
+    if args.bounds is not None or args.bounds_cfg is not None:
         # A box given on the command line replaces the file's, of either kind.
         out["bounds" if args.bounds_cfg is not None else "bounds_cfg"] = None
     if out["bounds"] is not None and out["bounds_cfg"] is not None:

@@ -74,7 +74,7 @@ def input_paths(args: argparse.Namespace) -> list[str]:
     """Every existing file the command line names outside its output
     options (the recording, ``--calibration``, ``--poses``, ``--config``,
     the tables and logs of ``import``, the recordings of ``batch``)."""
-    outputs = OUTPUT_FILE_OPTIONS.get(getattr(args, "command", None), ())
+    outputs = OUTPUT_FILE_OPTIONS.get(args.command, ())
     found = []
     for name, value in vars(args).items():
         if name in outputs or name in _NOT_INPUTS:
@@ -122,8 +122,8 @@ def written_files(args: argparse.Namespace) -> Iterator[tuple[str, str]]:
             continue
         yield "--" + name.replace("_", "-"), os.fspath(value)
     recording = getattr(args, "recording", None)
-    if args.command == "calibrate" and not getattr(args, "json_out", None) \
-            and isinstance(recording, (str, os.PathLike)) and not getattr(args, "show_config", 0):
+    if args.command == "calibrate" and not args.json_out \
+            and isinstance(recording, (str, os.PathLike)) and not args.show_config:
         from mmsnap_graph.app.runs import calibration_json_path
 
         yield "the calibration JSON (--json-out)", os.fspath(calibration_json_path(recording))
@@ -150,7 +150,7 @@ def check_files(args: argparse.Namespace) -> None:
     inputs = input_paths(args)
     for path in inputs:
         _check_input(path)
-    for name in OUTPUT_FOLDER_OPTIONS.get(getattr(args, "command", None), ()):
+    for name in OUTPUT_FOLDER_OPTIONS.get(args.command, ()):
         value = getattr(args, name, None)
         if isinstance(value, (str, os.PathLike)):
             _check_folder("--" + name.replace("_", "-"), os.fspath(value))

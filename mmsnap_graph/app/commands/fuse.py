@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
 
     from mmsnap_graph.io.chunks import open_detection_windows
 
-    out = sys.stderr if getattr(args, "json", False) else sys.stdout
+    out = sys.stderr if args.json else sys.stdout
     config = fusion_config(args)
     if args.output is not None:
         check_output_path(args.output)
@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     report = fused.consistency
     if not args.no_self_check:
         say_self_check("fuse", report, out)
-    if getattr(args, "json", False):
+    if args.json:
         print(json.dumps({"path": str(path), "n_rows": fused.n_rows, "n_success": n_ok,
                           "n_frames": frames,
                           "consistency": None if report is None else report.to_dict()}))

@@ -9,7 +9,7 @@ Prints one line per frame (or only the summary with ``--summary``); with
 times faster). Writes nothing unless ``--output`` is given (one JSON object
 per frame). The covariance self-check without truth (docs/ROBUST.md) runs
 on the streamed rows: its verdict on stderr when it changes, as one JSON line
-``{"self_check": {...}, "frame": N}``, the loud sentence when it fails, and its
+``{"type": "self_check", "frame": N, "self_check": {...}}``, the loud sentence when it fails, and its
 final line after the summary (``--no-self-check``: none of it). ``--view`` / ``--view-log`` show the frames in Foxglove or
 Lichtblick (:mod:`mmsnap_graph.app.view`; ``--view`` plays at the recorded
 rate unless ``--speed`` says otherwise).
@@ -114,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     from mmsnap_graph.fusion.recording.coverage import coverage_reach_m
     from mmsnap_graph.fusion.recording.sequence import calibrated_recording, recording_poses
     from mmsnap_graph.fusion.stream.frame_stream import FrameStream, recording_frames
+    from mmsnap_graph.app.live.sinks import SelfCheckSink
     from mmsnap_graph.app.view.arguments import view_sink
     from mmsnap_graph.io import read_recording
 
@@ -138,7 +139,9 @@ def run(args: argparse.Namespace) -> int:
     out = atomic_path(args.output) if args.output else None
     view = view_sink(args, rec.node_names, poses,
                      time_origin_s=float(rec.metadata.get("time_origin_s", 0.0)))
-    check = None if args.no_self_check else _SelfCheck(rec.frame_period_s, config.prior)
+    check = None if args.no_self_check else SelfCheckSink(
+        frame_period_s=rec.frame_period_s, prior=config.prior, command="replay",
+        log=lambda line: print(line, file=sys.stderr))
     with (out if out is not None else _Null()) as path:
         sink = open(path, "w", encoding="utf-8") if path is not None else None
         try:
@@ -153,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.view_log} (open it in Foxglove or Lichtblick)", file=sys.stdout)
     print(_summary(*stats), file=sys.stdout)
     if check is not None:
-        say_self_check("replay", check.monitor.report(), sys.stderr)
+        say_self_check("replay", check.report(), sys.stderr)
     if args.output:
         print(f"wrote {args.output}", file=sys.stdout)
     # As `mmsnap process`: failing (exit 1) is for nothing fused at all.
@@ -196,26 +199,6 @@ class _Null:
 
     def __exit__(self, *exc):
         return False
-
-
-class _SelfCheck:
-    """The covariance self-check over the streamed rows: a verdict on stderr
-    (one JSON line, and the loud sentence when it fails) each time it changes."""
-
-    def __init__(self, frame_period_s, prior):
-        from mmsnap_graph.fusion.recording.consistency import ConsistencyMonitor
-
-        self.monitor = ConsistencyMonitor()
-        self.period, self.prior = frame_period_s, prior
-
-    def add(self, frame, u):
-        self.monitor.add_update(u, frame, frame_period_s=self.period, prior=self.prior)
-        report = self.monitor.new_verdict()
-        if report is not None:
-            print(json.dumps({"frame": int(frame), "self_check": report.to_dict()}),
-                  file=sys.stderr)
-            if report.warning:
-                print(f"mmsnap replay: {report.warning}", file=sys.stderr)
 
 
 def _play(stream, frames, file_rows, speed, summary_only, sink, view=None, check=None):

@@ -175,6 +175,7 @@ class LiveFusion:
         self.height_band_m = height_band_m
         self.chain = ChainConfig() if chain is None else chain
         self._pending: dict[int, dict] = {}        # slot -> board -> BoardFrame
+        self._ready: dict[int, dict] = {}          # slot -> board -> (points, centroids, rule)
         self._last_slot = {n: None for n in self.names}
         self._counts: deque = deque(maxlen=_SPARSE_HISTORY)
         self.fused = 0
@@ -197,6 +198,9 @@ class LiveFusion:
             self.late += 1
             return []
         self._pending.setdefault(frame.slot, {})[frame.board] = frame
+        # Projected and clustered now, not when the slot is complete: the
+        # slot's last frame then waits for its own clustering alone.
+        self._ready.setdefault(frame.slot, {})[frame.board] = self._prepare(frame)
         if self._next is None:
             self._next = self._first = frame.slot
         # The frame's own arrival is the clock here: frames that waited in the
@@ -233,28 +237,41 @@ class LiveFusion:
         counts = [c for c in self._counts if c > 0]
         return bool(counts) and float(np.median(counts)) < SPARSE_POINTS_PER_FRAME
 
-    def _centroids(self, det: Detections) -> np.ndarray:
+    def _centroids(self, det: Detections, sparse: bool | None = None) -> np.ndarray:
         cluster = self.chain.cluster
-        if self._sparse() and cluster.min_samples != 1:
+        if (self._sparse() if sparse is None else sparse) and cluster.min_samples != 1:
             cluster = dataclasses.replace(cluster, min_samples=1)
         c = torso_centroids(det, cluster, doppler_resolution_mps=TABLE_I.doppler_resolution_mps)
         return c.measurements
+
+    def _points(self, frame) -> Detections:
+        p = frame.points
+        cloud = PointCloud3D(frame=np.full(len(p["x"]), frame.slot, dtype=np.int64), x_m=p["x"],
+                             y_m=p["y"], z_m=p["z"], doppler_mps=p["doppler"], snr_db=p["snr"],
+                             noise_db=p["noise"])
+        return cloud_to_detections(cloud, self.mounting[frame.board],
+                                   height_band_m=self.height_band_m)
+
+    def _prepare(self, frame) -> tuple:
+        """A frame's points in its plane and its centroids, clustered by the
+        sparse-cloud rule of the frames fused so far (``_fuse`` clusters it
+        again in the rare frame where the rule it decides on differs)."""
+        det = self._points(frame)
+        sparse = self._sparse()
+        return det, self._centroids(det, sparse), sparse
 
     def _fuse(self, slot: int, frames: dict) -> LiveFrame:
         if self._decided is not None:           # the slots no board gave
             for gap in range(self._decided + 1, slot):
                 self._emit(gap, {}, {}, {})
+        ready = self._ready.pop(slot, {})
         points, centroids = {}, {}
         for name, f in frames.items():
-            p = f.points
-            cloud = PointCloud3D(frame=np.full(len(p["x"]), slot, dtype=np.int64), x_m=p["x"],
-                                 y_m=p["y"], z_m=p["z"], doppler_mps=p["doppler"],
-                                 snr_db=p["snr"], noise_db=p["noise"])
-            det = cloud_to_detections(cloud, self.mounting[name],
-                                      height_band_m=self.height_band_m)
+            det, c, sparse = ready[name] if name in ready else (self._points(f), None, None)
             self._counts.append(len(det))
             points[name] = det
-            centroids[name] = self._centroids(det)
+            centroids[name] = c if sparse is not None and sparse == self._sparse() \
+                else self._centroids(det)
         return self._emit(slot, frames, points, centroids)
 
     def _emit(self, slot: int, frames: dict, points: dict, centroids: dict) -> LiveFrame:

@@ -7,7 +7,11 @@
 - :class:`CentroidLog`: the centroids each board gave each frame, for the
   recording of ``mmsnap live --record`` (so that ``mmsnap replay`` of it
   streams exactly what live fused);
-- :class:`LatencyLog`: host time from a frame's last byte to its fused output.
+- :class:`LatencyLog`: host time from a frame's last byte to its fused output;
+- :class:`SelfCheckSink`: the covariance self-check without truth
+  (:class:`~mmsnap_graph.fusion.recording.consistency.ConsistencyMonitor`)
+  over the fused frames, each change of its verdict a JSON line (``mmsnap
+  live`` and ``mmsnap replay``).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import numpy as np
 
 from ...data.recording import Detections
 
-__all__ = ["JsonLinesSink", "CentroidLog", "LatencyLog", "person_rows"]
+__all__ = ["JsonLinesSink", "CentroidLog", "LatencyLog", "SelfCheckSink", "person_rows"]
 
 
 def person_rows(frame) -> list[dict]:
@@ -92,3 +96,47 @@ class LatencyLog:
             return "no frame fused"
         return (f"{lat.size} frames fused; latency from the last byte to the fused output "
                 f"median {np.median(lat):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms")
+
+
+class SelfCheckSink:
+    """The covariance self-check over streamed frames, in bounded memory.
+
+    Each fused frame's groups go to a
+    :class:`~mmsnap_graph.fusion.recording.consistency.ConsistencyMonitor`;
+    each time its verdict changes (the first once there is enough data),
+    ``log`` gets one JSON line ``{"type": "self_check", "frame": N,
+    "self_check": {...}}`` and, when
+    the covariances fail the check, the loud sentence after ``mmsnap
+    COMMAND:``. :meth:`report` is the verdict over everything so far.
+    ``prior`` is the stream's :class:`~mmsnap_graph.data.noise.GaussianPrior`
+    (None: ML)."""
+
+    def __init__(self, *, frame_period_s: float, prior, log, command: str) -> None:
+        from ...fusion.recording.consistency import ConsistencyMonitor
+
+        self.monitor = ConsistencyMonitor()
+        self.frame_period_s, self.prior = float(frame_period_s), prior
+        self._log, self._command = log, command
+
+    def add(self, frame: int, update) -> None:
+        """One :class:`~mmsnap_graph.fusion.stream.frame_stream.StreamUpdate`
+        at frame number ``frame``."""
+        self.monitor.add_update(update, frame, frame_period_s=self.frame_period_s,
+                                prior=self.prior)
+        report = self.monitor.new_verdict()
+        if report is not None:
+            self._log(json.dumps({"type": "self_check", "frame": int(frame),
+                                   "self_check": report.to_dict()}))
+            if report.warning:
+                self._log(f"mmsnap {self._command}: {report.warning}")
+
+    def write(self, frame) -> None:
+        self.add(frame.frame, frame.update)
+
+    def close(self) -> None:
+        pass
+
+    def report(self):
+        """The :class:`~mmsnap_graph.fusion.recording.consistency.ConsistencyReport`
+        of every frame so far."""
+        return self.monitor.report()

@@ -13,7 +13,7 @@ from factors.models import detection_to_global, measurement_model, residual
 
 from ...data.recording import Detections
 
-__all__ = ["solve_frame_states", "frame_table", "without_unsolved"]
+__all__ = ["solve_frame_states", "frame_table", "without_unsolved", "det_4x4"]
 
 #: A frame's information whose smallest eigenvalue is below this fraction of
 #: its largest is numerically singular (float64 keeps ~16 digits; a solve
@@ -32,14 +32,29 @@ def solve_information(info: NDArray, rhs: NDArray, psd: bool = False) -> tuple[N
     ``10 SINGULAR_RCOND trace^4`` is then well conditioned for sure (its smallest
     eigenvalue is at least ``det / trace^3``), and only the others need the
     eigenvalues (the decision is the same, for a seventh of the cost)."""
-    finite = np.isfinite(info).all(axis=(1, 2))
-    ok = finite
-    doubt = finite
-    if psd and finite.any():
+    if psd and info.shape[-1] == 4:
+        # The determinant from the 2x2 minors of the rows: it is finite only
+        # when every entry is (NaN and inf never return to a finite number
+        # through +, - and *), so a frame it proves well conditioned needs
+        # no check of its entries; the others are checked as they are.
         with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-            safe = np.where(finite[:, None, None], info, np.eye(info.shape[-1]))
-            trace = np.trace(safe, axis1=1, axis2=2)
-            doubt = finite & ~(np.linalg.det(safe) > 10.0 * SINGULAR_RCOND * trace ** 4)
+            det = det_4x4(info)
+            trace = info[:, 0, 0] + info[:, 1, 1] + info[:, 2, 2] + info[:, 3, 3]
+            rest = ~(np.isfinite(det) & (det > 10.0 * SINGULAR_RCOND * trace ** 4))
+        finite = np.ones(info.shape[0], dtype=bool)
+        if rest.any():
+            finite[rest] = np.isfinite(info[rest]).all(axis=(1, 2))
+        ok = finite
+        doubt = rest & finite
+    else:
+        finite = np.isfinite(info).all(axis=(1, 2))
+        ok = finite
+        doubt = finite
+        if psd and finite.any():
+            with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+                safe = np.where(finite[:, None, None], info, np.eye(info.shape[-1]))
+                trace = np.trace(safe, axis1=1, axis2=2)
+                doubt = finite & ~(np.linalg.det(safe) > 10.0 * SINGULAR_RCOND * trace ** 4)
     if doubt.any():
         lam = np.linalg.eigvalsh(info[doubt])
         ok = finite.copy()
@@ -50,6 +65,21 @@ def solve_information(info: NDArray, rhs: NDArray, psd: bool = False) -> tuple[N
     if ok.any():
         out[ok] = np.linalg.solve(info[ok], rhs[ok])
     return out, ok
+
+
+def det_4x4(a: NDArray) -> NDArray:
+    """(F,) determinants of (F, 4, 4) matrices in closed form (Laplace's
+    expansion in the 2x2 minors of the first two rows and of the last two):
+    a few elementwise products, against an LU factorization per frame."""
+    a00, a01, a02, a03 = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2], a[:, 0, 3]
+    a10, a11, a12, a13 = a[:, 1, 0], a[:, 1, 1], a[:, 1, 2], a[:, 1, 3]
+    a20, a21, a22, a23 = a[:, 2, 0], a[:, 2, 1], a[:, 2, 2], a[:, 2, 3]
+    a30, a31, a32, a33 = a[:, 3, 0], a[:, 3, 1], a[:, 3, 2], a[:, 3, 3]
+    s0, s1, s2 = a00 * a11 - a10 * a01, a00 * a12 - a10 * a02, a00 * a13 - a10 * a03
+    s3, s4, s5 = a01 * a12 - a11 * a02, a01 * a13 - a11 * a03, a02 * a13 - a12 * a03
+    c5, c4, c3 = a22 * a33 - a32 * a23, a21 * a33 - a31 * a23, a21 * a32 - a31 * a22
+    c2, c1, c0 = a20 * a33 - a30 * a23, a20 * a32 - a30 * a22, a20 * a31 - a30 * a21
+    return s0 * c5 - s1 * c4 + s2 * c3 + s3 * c2 - s4 * c1 + s5 * c0
 
 
 def without_unsolved(w: NDArray, jac: NDArray, cov: NDArray) -> tuple[NDArray, NDArray, NDArray]:

@@ -226,7 +226,7 @@ class ConsistencyMonitor:
     def add_update(self, update, frame: int, *, frame_period_s: float, prior=None) -> None:
         """The groups of one :class:`~mmsnap_graph.fusion.stream.frame_stream.StreamUpdate`
         (``mmsnap replay``, ``mmsnap live``) at frame number ``frame``;
-        ``prior`` the stream's :class:`~mmsnap_graph.fusion.config.Prior` (None: ML)."""
+        ``prior`` the stream's :class:`~mmsnap_graph.data.noise.GaussianPrior` (None: ML)."""
         if update.person_id is None or len(update) == 0:
             return
         members = np.asarray(update.members)

@@ -108,7 +108,8 @@ def _covering(xy: NDArray, poses: NDArray, reach: NDArray) -> NDArray:
 def uncovered_rows(frame: NDArray, state: NDArray, ok: NDArray, observed: NDArray,
                    ranges: NDArray, poses: NDArray, *,
                    frame_period_s: float, body_m: float,
-                   reach_m: NDArray | None = None) -> tuple[NDArray, NDArray]:
+                   reach_m: NDArray | None = None,
+                   decide: NDArray | None = None) -> tuple[NDArray, NDArray]:
     """``(flag (K,), node (K,))``: the successful rows (``ok``) a covering
     node never sees (module doc), and the first such node (-1: none).
 
@@ -117,7 +118,10 @@ def uncovered_rows(frame: NDArray, state: NDArray, ok: NDArray, observed: NDArra
     gate: either way the node saw something there); ranges : (K, N) the
     rows' measured ranges (any value where not observed); poses : (N, 3);
     reach_m : (N,) each node's reach (:func:`detection_reach_m`); None: the
-    farthest of its ``ranges`` (a reach of where the targets went).
+    farthest of its ``ranges`` (a reach of where the targets went);
+    decide : the frames whose rows are judged (None: all; the others are
+    context, never flagged: a stream deciding one frame, each row's verdict
+    being of the rows around it alone).
     """
     k, n = observed.shape
     flag = np.zeros(k, dtype=bool)
@@ -127,7 +131,8 @@ def uncovered_rows(frame: NDArray, state: NDArray, ok: NDArray, observed: NDArra
     reach = np.array([ranges[observed[:, i], i].max() if observed[:, i].any() else 0.0
                       for i in range(n)]) if reach_m is None else np.asarray(reach_m, dtype=float)
     cover = _covering(state[:, :2], poses, reach)
-    cand = np.flatnonzero(ok & np.any(cover & ~observed, axis=1))
+    judged = ok if decide is None else ok & np.isin(frame, decide)
+    cand = np.flatnonzero(judged & np.any(cover & ~observed, axis=1))
     w = MOTION_WINDOW_FRAMES
     for r in cand:
         lo, hi = np.searchsorted(frame, [frame[r] - w, frame[r] + w + 1])

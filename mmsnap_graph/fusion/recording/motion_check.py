@@ -49,6 +49,7 @@ them as independent measurements).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import combinations
 from typing import Callable
 
@@ -73,6 +74,7 @@ __all__ = [
     "MOTION_MAX_LEFT_OUT",
     "Refit",
     "apply_motion_check",
+    "rows_near",
 ]
 
 #: Frames on each side of a row whose rows may confirm or predict it.
@@ -117,14 +119,23 @@ def _carry(state: NDArray, cov: NDArray, steps: NDArray, frame_period_s: float,
     way): ``(state (M, 4), covariance (M, 4, 4))``."""
     out_x = np.empty_like(state)
     out_p = np.empty((state.shape[0], 4, 4))
-    for s in np.unique(steps):
+    for s in np.unique(steps).tolist():
         m = steps == s
-        t = float(s) * frame_period_s
-        f = cv_transition(t)
-        q = cv_process_noise(abs(t), accel)
-        out_x[m] = state[m] @ f.T
-        out_p[m] = f @ cov[m] @ f.T + q
+        f, ft, q = _transition(float(s) * frame_period_s, accel)
+        out_x[m] = state[m] @ ft
+        out_p[m] = f @ cov[m] @ ft + q
     return out_x, out_p
+
+
+@lru_cache(maxsize=64)
+def _transition(t: float, accel: float) -> tuple[NDArray, NDArray, NDArray]:
+    """``(F, F^T, Q)`` of a carry over ``t`` seconds (the same few steps every
+    frame), read-only."""
+    f = cv_transition(t)
+    out = (f, f.T, cv_process_noise(abs(t), accel))
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def _m2(d: NDArray, s: NDArray) -> NDArray:
@@ -189,29 +200,42 @@ def _frames_per_row(j: NDArray, src_frame: NDArray, n: int) -> NDArray:
     """(n,) the distinct source frames of each destination ``j``."""
     if j.size == 0:
         return np.zeros(n, dtype=np.int64)
-    key = np.unique(np.column_stack([j, src_frame]), axis=0)
-    return np.bincount(key[:, 0], minlength=n)
+    # Each distinct (j, frame) once: one integer key per pair (a 1-D unique
+    # is several times faster than the rows' unique).
+    low = int(src_frame.min())
+    span = int(src_frame.max()) - low + 1
+    key = np.unique(j.astype(np.int64) * span + (src_frame.astype(np.int64) - low))
+    return np.bincount(key // span, minlength=n)
 
 
-def _confirmed(rows, frame, ok, frame_period_s, accel, gate):
+def _confirmed(rows, frame, ok, frame_period_s, accel, gate, judged=None):
     """``(confirmed (K,), supported (K,))``: the successful rows that the
     successful rows of at least :data:`MOTION_MIN_SUPPORT` other frames, and
     of at least half of the other frames around that have one, agree with
     (the half: a row a ghost's Doppler spoilt still agrees with the far
     frames' loose predictions, not with the near ones); and those one other
-    frame agrees with."""
+    frame agrees with. ``judged`` (K,) bool: the rows to judge (None: all;
+    the others are False in both, their neighbours still confirm)."""
     idx = np.flatnonzero(ok)
     out = np.zeros(frame.size, dtype=bool)
-    if idx.size == 0:
+    dst = idx if judged is None else idx[judged[idx]]
+    if dst.size == 0:
         return out, out.copy()
-    i, j, m2 = _pair_m2(rows, frame, idx, idx, frame_period_s, accel)
+    i, j, m2 = _pair_m2(rows, frame, idx, dst, frame_period_s, accel)
     agree = m2 <= gate
-    support = _frames_per_row(j[agree], frame[idx[i[agree]]], idx.size)
-    available = _frames_per_row(j, frame[idx[i]], idx.size)
-    out[idx[(support >= MOTION_MIN_SUPPORT) & (2 * support >= available)]] = True
+    support = _frames_per_row(j[agree], frame[idx[i[agree]]], dst.size)
+    available = _frames_per_row(j, frame[idx[i]], dst.size)
+    out[dst[(support >= MOTION_MIN_SUPPORT) & (2 * support >= available)]] = True
     supported = np.zeros(frame.size, dtype=bool)
-    supported[idx[support > 0]] = True
+    supported[dst[support > 0]] = True
     return out, supported
+
+
+def rows_near(frame: NDArray, decide: NDArray, frames: int) -> NDArray:
+    """(K,) bool: the rows whose frame is at most ``frames`` from one of ``decide``."""
+    d = np.unique(decide)
+    return np.searchsorted(d, frame + frames, "right") > np.searchsorted(d, frame - frames,
+                                                                           "left")
 
 
 def _predictions(rows, frame, confirmed, frames_needed, frame_period_s, accel, gate,
@@ -436,9 +460,18 @@ def apply_motion_check(rows: FusedRows, frame: NDArray, observed: NDArray, valid
     ok = (rows.status == Status.OK) & np.all(np.isfinite(rows.covariance), axis=(1, 2))
     kept = observed & ~rows.rejected
     n_kept = kept.sum(axis=1)
-    confirmed, supported = _confirmed(rows, frame, ok, frame_period_s, accel, gate)
+    w = MOTION_WINDOW_FRAMES
+    # Deciding some frames, the check needs: their rows' confirmation and the
+    # rows that predict them (W frames around), those rows' one-node twins
+    # (the first pass below), whose predictions come from W frames further;
+    # the other rows are context. The rows of W frames around stay as the
+    # whole check leaves them (the coverage check looks at them).
+    confirmed, supported = _confirmed(rows, frame, ok, frame_period_s, accel, gate,
+                                      None if decide is None else rows_near(frame, decide, 2 * w))
     # The one-node rows that count a target twice go first: they predict nothing.
     shared = _shared_frames(frame, ok, kept)
+    if decide is not None:
+        shared = np.intersect1d(shared, frame[rows_near(frame, decide, w)])
     twice = np.zeros(frame.size, dtype=bool)
     twice[_twice(rows, frame, observed, shared, gate,
                  _predictions(rows, frame, confirmed, shared, frame_period_s, accel, gate,

@@ -159,7 +159,7 @@ def _check_motion(out: FusedRows, frame, z, obs, net, config, decide=None) -> No
 
 
 def _check_coverage(out: FusedRows, frame, z, obs, net, check: CoverageCheck,
-                    reach_m) -> None:
+                    reach_m, decide=None) -> None:
     given = dict(check.reach_m or {})
     if reach_m is None and len(given) < len(net.node_names):
         reach = None  # the farthest of the rows' own ranges
@@ -168,7 +168,7 @@ def _check_coverage(out: FusedRows, frame, z, obs, net, check: CoverageCheck,
                           for i, n in enumerate(net.node_names)], dtype=float)
     flag, node = uncovered_rows(frame, out.state, out.status == Status.OK, obs, z[:, :, 0],
                                 net.poses, frame_period_s=net.frame_period_s,
-                                body_m=DEFAULT_BODY_M, reach_m=reach)
+                                body_m=DEFAULT_BODY_M, reach_m=reach, decide=decide)
     for r in np.flatnonzero(flag):
         out.flag(r, Status.MOTION_INCONSISTENT,
                  f"motion check: node {net.node_names[node[r]]} covers this place and "
@@ -185,8 +185,8 @@ def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDAr
     coverage check, then the placement check (:class:`UnplacedCheck`). ``frame`` (K,) sorted, ``detection_index`` (K, N), ``z``
     (K, N, 3): the groups of the rows; ``reach_m`` (N,): each node's reach
     where the coverage check gives none (None: the farthest of the rows'
-    ranges); ``decide``: the frames whose rows the motion check decides (None:
-    all; the others are context)."""
+    ranges); ``decide``: the frames whose rows the motion and coverage checks
+    decide (None: all; the others are context)."""
     obs = detection_index >= 0
     solved = out.status == Status.OK            # before the checks (the placement check's links)
     motion = config.check(MotionCheck) is not None
@@ -198,7 +198,7 @@ def check_rows(out: FusedRows, frame: NDArray, detection_index: NDArray, z: NDAr
         out.flag(split, Status.RESIDUAL_TEST_FAILED, SPLIT_MESSAGE, keep_covariance=True)
     coverage = config.check(CoverageCheck)
     if coverage is not None:
-        _check_coverage(out, frame, z, obs, net, coverage, reach_m)
+        _check_coverage(out, frame, z, obs, net, coverage, reach_m, decide)
     if config.check(UnplacedCheck) is not None:
         check_placement(out, frame, obs, net, decide, solved)
 

@@ -71,8 +71,9 @@ def recording_poses(
     recording: Recording, node_poses: Mapping[str, ArrayLike] | None = None
 ) -> NDArray:
     """(N, 3) poses of the recording's nodes, in its order: from ``node_poses``
-    (e.g. :func:`load_calibration_poses`) when given, else the poses stored in
-    the recording. A node without a pose raises :class:`CalibrationError`."""
+    (e.g. :func:`~mmsnap_graph.io.calibration.load_calibration_poses`) when
+    given, else the poses stored in the recording. A node without a pose
+    raises :class:`CalibrationError`."""
     out = []
     for name in recording.node_names:
         if node_poses is not None:
@@ -400,8 +401,9 @@ def fuse_recording(
     calibration : NetworkCalibration, optional
         The network's calibration (:class:`~mmsnap_graph.fusion.options.NetworkCalibration`;
         None: the poses stored in the recording, nothing else), its parts:
-        ``node_poses`` (e.g. :func:`load_calibration_poses`) replace the
-        recording's poses. ``pose_covariances``: calibration-aware fusion
+        ``node_poses`` (e.g.
+        :func:`~mmsnap_graph.io.calibration.load_calibration_poses`) replace
+        the recording's poses. ``pose_covariances``: calibration-aware fusion
         (docs/CONVENTIONS.md, "Calibration-aware fusion"): each node pose's
         covariance in the Pose2 body tangent (the calibration's marginals);
         a node left out (or all NaN / all zero) has an exact pose. The

@@ -86,20 +86,11 @@ def build_pose_aware_graph(
     return graph, values
 
 
-def pose_aware_covariance(
-    state: NDArray,
-    poses: NDArray,
-    z: NDArray,
-    obs: NDArray | None,
-    noise: Sequence[MeasurementNoise],
-    prior: GaussianPrior | None,
-    pose_cov: NDArray,
-    kernel: tuple[str, float] | None = None,
-) -> NDArray:
-    """(4, 4): ``gtsam.Marginals`` of the state in :func:`build_pose_aware_graph`.
+def pose_aware_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> NDArray:
+    """(4, 4): ``gtsam.Marginals`` of the state in a graph and values of
+    :func:`build_pose_aware_graph`.
 
     Raises GTSAM's exception for an indeterminate system (the caller flags the frame).
     """
-    graph, values = build_pose_aware_graph(state, poses, z, obs, noise, prior, pose_cov, kernel)
     cov = gtsam.Marginals(graph, values).marginalCovariance(STATE_KEY)
     return 0.5 * (cov + cov.T)

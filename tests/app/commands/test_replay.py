@@ -92,7 +92,7 @@ def test_replay_says_the_covariance_self_check_and_warns_loudly_when_it_fails(
     assert main(["replay", str(calibrated_c_file), "--summary"]) == 0
     err = capsys.readouterr().err
     verdicts = [json.loads(line)["self_check"]["verdict"] for line in err.splitlines()
-                if line.startswith('{"frame"')]
+                if line.startswith('{"type": "self_check"')]
     assert verdicts == ["consistent"], err
     assert "covariance self-check (no truth): consistent" in err and "warning" not in err
     low = [f"{v:.5g}" for v in 0.3 * _mean_sigmas(calibrated_c_file)]

@@ -103,11 +103,27 @@ def test_the_determinant_screen_decides_as_the_eigenvalues_do():
     info[61, 0, 0] = np.nan
     info[62] *= 1e200  # trace^4 overflows: decided by the eigenvalues
     info[63] *= 1e-90  # det underflows: decided by the eigenvalues
+    info[64, 1, 2] = info[64, 2, 1] = np.inf  # not finite off the diagonal
+    info[65, 3, 3] = -np.inf
+    info[66] = np.diag([1.0, 1.0, 0.0, 1.0])
+    info[66, 2, 2] = np.inf  # inf times a zero minor: NaN, not finite either
+    info[67, 0, 1] = np.nan
     rhs = rng.normal(size=(400, 4, 1))
     out_e, ok_e = solve_information(info, rhs)
     out_d, ok_d = solve_information(info, rhs, psd=True)
     np.testing.assert_array_equal(ok_d, ok_e)
     np.testing.assert_array_equal(out_d, out_e)
     assert 10 < np.count_nonzero(~ok_e[:60]) < 50 and not ok_e[60] and not ok_e[61]
-    assert ok_e[62] and ok_e[63] and ok_e[64:].all()
+    assert ok_e[62] and ok_e[63] and not ok_e[64:68].any() and ok_e[68:].all()
     assert SINGULAR_RCOND == 1e-13
+
+
+def test_the_closed_form_determinant_is_lapacks_to_rounding():
+    """det_4x4 (the screen's determinant, 2x2 minors) against np.linalg.det."""
+    from mmsnap_graph.calibration.noise.frame_states import det_4x4
+
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(500, 4, 4)) * rng.uniform(0.1, 10.0, size=(500, 1, 1))
+    ref = np.linalg.det(a)
+    np.testing.assert_allclose(det_4x4(a), ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    assert det_4x4(np.zeros((0, 4, 4))).shape == (0,)

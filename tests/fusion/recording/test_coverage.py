@@ -58,6 +58,19 @@ def test_a_target_a_covering_node_never_sees_is_flagged():
     assert not flag.any()
 
 
+def test_deciding_some_frames_judges_their_rows_alone():
+    frame, state, kept, ranges = _rows([(1.0, 3.0), (2.0, 4.5), (7.0, 3.0)],
+                                       [(0, 1), (1,), (0,)])
+    ok = np.ones(frame.size, bool)
+    full, node = uncovered_rows(frame, state, ok, kept, ranges, POSES3, frame_period_s=0.1,
+                                body_m=0.5)
+    part, part_node = uncovered_rows(frame, state, ok, kept, ranges, POSES3,
+                                     frame_period_s=0.1, body_m=0.5, decide=np.array([2, 5]))
+    judged = np.isin(frame, [2, 5])
+    assert full.any() and np.array_equal(part, full & judged)
+    assert np.array_equal(part_node, np.where(judged, node, -1))
+
+
 def test_two_nodes_are_not_checked():
     # With two nodes the other is the only witness, and a sparse cloud's
     # misses would flag a real walker: the check needs three.

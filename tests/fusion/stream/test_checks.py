@@ -63,3 +63,29 @@ def test_the_checks_on_their_context_decide_as_on_the_whole_look_back():
     for (xa, sa, ra, ma), (xb, sb, rb, mb) in zip(got, want):
         np.testing.assert_allclose(xa, xb, rtol=0, atol=1e-9)
         assert np.array_equal(sa, sb) and np.array_equal(ra, rb) and ma == mb
+
+
+def test_the_checks_of_one_frame_skip_only_work_it_does_not_need(monkeypatch):
+    # Deciding one frame, the motion check judges only the rows within two
+    # windows of it and the one-node twins within one, and the coverage check
+    # only the frame's rows: every update as when both judged the whole context.
+    import mmsnap_graph.fusion.recording.coverage as coverage
+    import mmsnap_graph.fusion.recording.motion_check as motion
+    import mmsnap_graph.fusion.recording.pipeline as pipeline
+    rec = simulate_recording(GHOSTS, "random", SimulationOptions(n_targets=3, frame_period_s=0.05,
+                                                                 known_poses=True),
+                             levels=("centroids",), n_frames=160, seed=5)
+    poses = np.array([GHOSTS[n] for n in rec.node_names])
+    got = _rows(FrameStream(rec.node_names, poses), rec)
+    every = coverage.uncovered_rows
+    monkeypatch.setattr(motion, "rows_near",
+                        lambda frame, decide, frames: np.ones(frame.size, bool))
+    monkeypatch.setattr(pipeline, "uncovered_rows",
+                        lambda *a, decide=None, **k: every(*a, **k))
+    want = _rows(FrameStream(rec.node_names, poses), rec)
+    status = np.concatenate([s for _, s, _, _ in want])
+    assert np.sum(status == Status.MOTION_INCONSISTENT) >= 5
+    assert len(got) == len(want)
+    for (xa, sa, ra, ma), (xb, sb, rb, mb) in zip(got, want):
+        assert np.array_equal(xa, xb) and np.array_equal(sa, sb) and np.array_equal(ra, rb)
+        assert ma == mb

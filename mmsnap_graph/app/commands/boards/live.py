@@ -10,7 +10,9 @@ per frame goes to standard output or ``-o FILE``; ``--record REC.h5`` keeps
 the raw frames and the centroids fused, which ``mmsnap replay REC.h5``
 streams again to the same rows. ``--view`` / ``--view-log`` show each
 board's points and the people in Foxglove or Lichtblick
-(:mod:`mmsnap_graph.app.view`).
+(:mod:`mmsnap_graph.app.view`). The covariance self-check without truth
+says on standard error whether the covariances are the right size for the
+data, each time its verdict changes (``--no-self-check``: not run).
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ import argparse
 import sys
 
 from mmsnap_graph._atomic import open_regular
-from ..arguments import add_fusion_arguments, fusion_config
+from ..arguments import (add_fusion_arguments, add_self_check_argument, fusion_config,
+                         say_self_check)
 from ..file_rules import add_overwrite
 from ...view.arguments import add_view_options
 from .board_args import (add_board_options, board_specs, mountings, pump, report_lines,
@@ -42,6 +45,7 @@ def register(subparsers) -> None:
     add_board_options(p)
     add_fusion_arguments(p, solvers=("scalar", "gtsam", "vectorized"), default_solver="scalar")
     add_view_options(p)
+    add_self_check_argument(p)
     add_overwrite(p)
     p.set_defaults(func=run)
 
@@ -86,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
 
     from mmsnap_graph.app.live.driver import (LiveFusion, live_calibration, live_recording,
                                               live_stream)
-    from mmsnap_graph.app.live.sinks import CentroidLog, JsonLinesSink, LatencyLog
+    from mmsnap_graph.app.live.sinks import CentroidLog, JsonLinesSink, LatencyLog, SelfCheckSink
     from mmsnap_graph.app.view.arguments import view_sink
     from mmsnap_graph.io import write_recording
     from mmsnap_graph.io.ti.serial.session import FrameCollector
@@ -116,7 +120,12 @@ def run(args: argparse.Namespace) -> int:
                      time_origin_s=time.time() - time.monotonic() + session.t0_s)
     # The refinement after the latency log too: it only hands the centroids on.
     refine = refine_sink(args, stream, names, poses, cal, session.frame_period_s)
-    sinks = [json_sink, centroids, latency] + [s for s in (view, refine) if s is not None]
+    # The covariance self-check after the latency log too: a verdict on
+    # standard error each time it changes, the whole run's at the end.
+    check = None if args.no_self_check else SelfCheckSink(
+        frame_period_s=session.frame_period_s, prior=config.prior, command="live",
+        log=lambda line: print(line, file=sys.stderr, flush=True))
+    sinks = [json_sink, centroids, latency] + [s for s in (view, refine, check) if s is not None]
     live = LiveFusion(names, stream, mounting=mounts, frame_period_s=session.frame_period_s,
                       t0_s=session.t0_s, sinks=sinks, height_band_m=args.height_band)
 
@@ -146,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
           f"{session.max_queued} board frame(s) (bound {session.frames.maxsize})", file=sys.stderr)
     if refine is not None:
         print(refine.report(), file=sys.stderr)
+    if check is not None:
+        say_self_check("live", check.report(), sys.stderr)
     if args.record:
         rec = live_recording(collector, centroids, dict(zip(names, poses)), mounting=mounts,
                              height_band_m=args.height_band, reach_m=reach)

@@ -31,7 +31,8 @@ from .boards import CLI_BAUD, DATA_BAUD, BoardSpec, resolve_port
 from .console import REPLY_TIMEOUT_S, send_cfg, send_command
 from .reader import READ_TIMEOUT_S, BoardFrame, BoardReader
 
-__all__ = ["BoardTiming", "board_timing", "BoardSession", "FrameCollector", "open_port"]
+__all__ = ["BoardTiming", "board_timing", "BoardSession", "FrameCollector", "open_port",
+           "board_frame_offsets"]
 
 #: Frames the session's queue holds before a reader waits (a stalled consumer;
 #: 30 s of 4 boards at 20 fps).
@@ -175,6 +176,17 @@ class BoardSession:
         return {n: r.error for n, r in self.readers.items() if r.error is not None}
 
 
+def board_frame_offsets(frames: Sequence[BoardFrame]) -> np.ndarray:
+    """(M, 2) int rows ``(slot, offset)``: from ``slot`` on, a frame's slot
+    minus the board's frame counter is ``offset``; a row where it changes
+    (the first frame, each re-anchor of the board's clock or restart of its
+    counter, :class:`~.timing.BoardClock`)."""
+    slot = np.array([f.slot for f in frames], dtype=np.int64)
+    offset = slot - np.array([f.frame_number for f in frames], dtype=np.int64)
+    rows = np.flatnonzero(np.diff(offset, prepend=offset[:1] - 1))
+    return np.column_stack([slot[rows], offset[rows]])
+
+
 class FrameCollector:
     """The frames of a session, kept per board, and the recording they make
     (``t0_s``: the session's host time of slot 0, kept in the metadata as
@@ -215,6 +227,7 @@ class FrameCollector:
         for name, frames in self.frames.items():
             if frames:
                 md[f"{name}_board_frame_offset"] = int(frames[0].slot - frames[0].frame_number)
+                md[f"{name}_board_frame_offsets"] = board_frame_offsets(frames)
                 md[f"{name}_demo"] = frames[0].demo
         md.update(metadata or {})
         return recording_from_point_clouds(self.clouds(), frame_period_s=self.frame_period_s,

@@ -5,16 +5,13 @@ recording ``--record`` wrote gives the same rows."""
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from mmsnap_graph.app.cli import main
 
-from _boards import TIMEOUT_S, EmulatedBoard, Scene, board_packets, pending_bytes, wait_for
+from _boards import EmulatedBoard, Scene, board_packets, run_until_played
 from _shared import ROOT, TI_DATA
 from ti_samples import simulated
 
@@ -23,7 +20,7 @@ N = 60
 
 
 @pytest.mark.slow
-def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_path):
+def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_path, capsys):
     poses = simulated(N, seed=1).truth.node_poses
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"nodes": {n: {"pose": list(map(float, p))}
@@ -34,33 +31,24 @@ def test_live_prints_people_and_replay_of_its_recording_gives_the_same_rows(tmp_
     boards = {n: EmulatedBoard(board_packets(N, node=n, seed=1), scene=scene)
               for n in ("S1", "S2")}
     out, rec, view = tmp_path / "live.jsonl", tmp_path / "live.h5", tmp_path / "live.mcap"
-    args = [sys.executable, "-m", "mmsnap_graph", "live", "--calibration", str(cal),
-            "-o", str(out), "--record", str(rec), "--mount", "S1=0.8,5", "--mount", "S2=1.2,15",
-            "--view-log", str(view)]
-    for n, b in boards.items():
-        args += ["--board", f"{n}={b.cli_port},{b.data_port},{CFG}"]
-    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        for b in boards.values():
-            wait_for(lambda: b.done.is_set() or proc.poll() is not None, "the boards to play")
-            wait_for(lambda: pending_bytes(b) == 0 or proc.poll() is not None, "live to read them")
-        assert proc.poll() is None, proc.communicate()
-        proc.send_signal(signal.SIGINT)
-        _, stderr = proc.communicate(timeout=TIMEOUT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        for b in boards.values():
-            b.close()
-    assert proc.returncode == 0, stderr
+    code, _, stderr = run_until_played(
+        ["live", "--calibration", str(cal), "-o", str(out), "--record", str(rec),
+         "--mount", "S1=0.8,5", "--mount", "S2=1.2,15", "--view-log", str(view)],
+        boards, CFG, cwd=ROOT)
+    assert code == 0, stderr
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     assert rows and set(rows[0]) == {"frame", "time_s", "id", "x_m", "y_m", "vx_mps", "vy_mps",
                                      "covariance", "status"}
     assert all(r["status"] in ("tracked", "predicted") for r in rows)
     replayed = tmp_path / "replay.jsonl"
+    capsys.readouterr()
     assert main(["replay", str(rec), "--calibration", str(cal), "-o", str(replayed),
                  "--summary"]) == 0
+    # The covariance self-check: live says the verdict replay says.
+    verdict = lambda err: [line.split(":", 1)[1].split(";")[0].strip()  # noqa: E731
+                           for line in err.splitlines()
+                           if line.startswith("covariance self-check (no truth):")]
+    assert verdict(stderr) and verdict(stderr) == verdict(capsys.readouterr().err), stderr
     last = max(r["frame"] for r in rows)
     again = {}
     for line in replayed.read_text().splitlines():
@@ -111,30 +99,17 @@ def test_live_refine_prints_and_stores_the_refined_poses(tmp_path):
     boards = {k: EmulatedBoard(board_packets(n, node=k, seed=1, trajectory="random"),
                                scene=scene) for k in ("S1", "S2")}
     out, refined = tmp_path / "live.jsonl", tmp_path / "refined.json"
-    args = [sys.executable, "-m", "mmsnap_graph", "live", "--calibration", str(cal),
-            "-o", str(out), "--mount", "S1=0.8,5", "--mount", "S2=1.2,15",
-            "--refine", "--refine-window-s", "8",
-            "--refined-calibration", str(refined)]
-    for k, b in boards.items():
-        args += ["--board", f"{k}={b.cli_port},{b.data_port},{CFG}"]
-    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        for b in boards.values():
-            wait_for(lambda: b.done.is_set() or proc.poll() is not None, "the boards to play")
-            wait_for(lambda: pending_bytes(b) == 0 or proc.poll() is not None, "live to read them")
-        assert proc.poll() is None, proc.communicate()
-        proc.send_signal(signal.SIGINT)
-        _, stderr = proc.communicate(timeout=TIMEOUT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        for b in boards.values():
-            b.close()
-    assert proc.returncode == 0, stderr
+    code, _, stderr = run_until_played(
+        ["live", "--calibration", str(cal), "-o", str(out), "--mount", "S1=0.8,5",
+         "--mount", "S2=1.2,15", "--refine", "--refine-window-s", "8",
+         "--refined-calibration", str(refined)],
+        boards, CFG, cwd=ROOT)
+    assert code == 0, stderr
     assert out.read_text().splitlines()
     updates = [json.loads(line) for line in stderr.splitlines() if line.startswith("{")]
-    assert updates and all(u["type"] == "calibration" for u in updates), stderr
+    assert {u["type"] for u in updates} <= {"calibration", "self_check"}, stderr
+    updates = [u for u in updates if u["type"] == "calibration"]
+    assert updates, stderr
     windows = [u for u in updates if u["reason"] == "window"]
     assert windows, stderr
     stored = read_calibration_json(refined)

@@ -5,17 +5,12 @@ Ctrl-C; the CLI errors a board can give; boards that only stream."""
 
 from __future__ import annotations
 
-import signal
-import subprocess
-import sys
-
-import numpy as np
 import pytest
 
 from mmsnap_graph.app.cli import main
 from mmsnap_graph.io import read_recording
 
-from _boards import TIMEOUT_S, EmulatedBoard, board_packets, damage, pending_bytes, wait_for
+from _boards import EmulatedBoard, board_packets, damage, run_until_played
 from _shared import ROOT, TI_DATA
 
 CFG = str(TI_DATA / "iwr1843_oob.cfg")
@@ -32,27 +27,11 @@ def test_four_boards_on_one_clock_until_ctrl_c(tmp_path):
               "S3": EmulatedBoard(tracking, start_delay_s=0.6),
               "S4": EmulatedBoard(stopping, stop_after=15, garbled_first=False)}
     out = tmp_path / "rec.h5"
-    args = [sys.executable, "-m", "mmsnap_graph", "record", "-o", str(out),
-            "--mount", "S1=0.8,5", "--mount", "S2=1.2,15", "--mount", "S3=0.8,5",
-            "--mount", "S4=1.2,15"]
-    for name, b in boards.items():
-        args += ["--board", f"{name}={b.cli_port},{b.data_port},{CFG}"]
-    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        for b in boards.values():
-            wait_for(lambda: b.done.is_set() or proc.poll() is not None, "the boards to play")
-        assert proc.poll() is None, proc.communicate()
-        for b in boards.values():
-            wait_for(lambda: pending_bytes(b) == 0, "the recorder to read every byte")
-        proc.send_signal(signal.SIGINT)
-        stdout, stderr = proc.communicate(timeout=TIMEOUT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        for b in boards.values():
-            b.close()
-    assert proc.returncode == 0, stderr
+    code, stdout, stderr = run_until_played(
+        ["record", "-o", str(out), "--mount", "S1=0.8,5", "--mount", "S2=1.2,15",
+         "--mount", "S3=0.8,5", "--mount", "S4=1.2,15"],
+        boards, CFG, cwd=ROOT)
+    assert code == 0, stderr
     assert "stopped after Ctrl-C" in stdout
     rec = read_recording(out)
     md = rec.metadata
