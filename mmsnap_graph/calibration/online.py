@@ -281,9 +281,10 @@ class OnlineRefinement:
             elif self._reference not in (None, cal.reference):
                 why = f"its reference is {cal.reference}, the windows' {self._reference}"
         if not why:
-            post = window_posterior(cal, jc)
-            r = post.random
-            if not (np.all(np.isfinite(r)) and np.all(np.linalg.eigvalsh(0.5 * (r + r.T)) > 0)):
+            post = window_posterior(cal, jc, range_prior=(None if self.joint is None else
+                                                             self.joint.range_offset_prior_m))
+            if not all(np.all(np.isfinite(r)) and np.all(np.linalg.eigvalsh(0.5 * (r + r.T)) > 0)
+                       for r in (post.random, post.model)):   # the combination inverts both
                 why = "its pose covariance is not positive definite"
             else:
                 why = self._disagrees(post, cal.reference)

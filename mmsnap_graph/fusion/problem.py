@@ -199,9 +199,16 @@ def check_poses(node_poses: ArrayLike) -> NDArray:
         raise ValidationError(f"node_poses must have shape (N, 3), got {poses.shape}")
     if poses.shape[0] == 0:
         raise ValidationError("node_poses must hold at least one node, got shape (0, 3)")
-    if not _all_finite(poses):
-        check_finite(poses, "node_poses")
-    if np.abs(poses[:, 2]).max() > 2.0 * np.pi + 1e-9:
+    if poses.size <= 64:  # one frame's few numbers: plain floats beat numpy's temporaries
+        values = poses.ravel().tolist()
+        if not all(map(math.isfinite, values)):
+            check_finite(poses, "node_poses")
+        beyond = max(map(abs, values[2::3])) > 2.0 * math.pi + 1e-9
+    else:
+        if not bool(np.isfinite(poses).all()):
+            check_finite(poses, "node_poses")
+        beyond = np.abs(poses[:, 2]).max() > 2.0 * np.pi + 1e-9
+    if beyond:
         i = int(np.argmax(np.abs(poses[:, 2])))
         check_heading(float(poses[i, 2]), f"node_poses[{i}]")
     return poses
@@ -218,13 +225,6 @@ def _by_name(pose_covariances: Mapping, node_names: Sequence[str]) -> NDArray:
                     f"pose_covariances[{name!r}] must have shape (3, 3), got {c.shape}")
             out[i] = c
     return out
-
-
-def _all_finite(arr: NDArray) -> bool:
-    # Plain floats beat numpy's temporaries for the few numbers of one frame.
-    if arr.size <= 64:
-        return all(map(math.isfinite, arr.ravel().tolist()))
-    return bool(np.isfinite(arr).all())
 
 
 def check_observed(observed: ArrayLike | None, n_nodes: int) -> NDArray | None:

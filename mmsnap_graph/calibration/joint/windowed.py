@@ -8,12 +8,31 @@ its own (:func:`~mmsnap_graph.calibration.network.calibrate_with_joint`: track
 matching, pose graph, joint graph, the long-run covariance) from the frames
 read out of the file (:class:`~mmsnap_graph.io.chunks.DetectionWindows`),
 and only its pose block is kept: the estimate ``y_i`` (the poses as the
-body-tangent step from the first window's), the covariance ``R_i`` of its
-random part (the long-run covariance: errors correlated in time within its
-bandwidth, seconds, not minutes) and the columns ``M_i`` of the considered
-reflection depth (:class:`~.covariance.BlockCovariance`). The combination:
+body-tangent step from the first window's), the graph's marginal ``S_i^-1`` (``model``: the
+inverse of the window's information on the block, the target states
+eliminated), the covariance ``R_i`` of its random part (the long-run
+covariance: errors correlated in time within its bandwidth, seconds, not
+minutes) and the columns ``M_i`` of the considered reflection depth
+(:class:`~.covariance.BlockCovariance`). The combination:
 
-- ``P = (sum R_i^-1)^-1``, ``y = P sum R_i^-1 y_i``, ``A_i = P R_i^-1``;
+- the estimate is the batch solve's: the windows share only the static
+  parameters, so at the batch optimum each window's gradient is ``S_i (x -
+  y_i)`` to first order and ``x = (sum S_i)^-1 sum S_i y_i``, ``A_i =
+  (sum S_i)^-1 S_i`` its share of window ``i``. Weighting by the long-run
+  ``R_i^-1`` instead is another estimator, not the batch's: a long-run
+  covariance is a noisy estimate (about ``3 T / (2 L)`` degrees of
+  freedom, 18 for 40 s of a walker) and its widening differs per window
+  and direction, so its weights turn the combination away from the batch
+  (the shared fall-detection recording in 2 windows of 42 s: S2 0.099 m,
+  +1.93 deg off the tape against the batch's 0.059 m, -0.16 deg; weighted
+  by ``S_i``: 0.054 m, -0.32 deg; docs/validation/calibration.md, "Long
+  recordings");
+- its random part is the windows' long-run covariances carried through
+  those shares, ``P = sum A_i R_i A_i^T`` (what the batch's long-run
+  covariance is over the windows' frames);
+- a prior that every window's graph holds (the range offset's, when it
+  is estimated) is the recording's once: ``n - 1`` copies of it are taken
+  off the information, the score and the middle of ``P``;
 - the reflection depth is the same person's in every window: it does not
   average down. Its columns combine as ``M = sum A_i M_i`` and add
   ``s^2 M M^T`` (not ``sum A_i M_i M_i^T A_i^T``, which would shrink it
@@ -21,21 +40,33 @@ reflection depth (:class:`~.covariance.BlockCovariance`). The combination:
 - the lag cover of an ambiguous lag (``LagNotDetermined``) is a shift of
   the whole recording as well: each window's widening ``D_i`` combines as
   ``(sum A_i D_i^1/2)(...)^T``;
-- the windows' spread about ``y``, ``chi2 = sum (y_i - y)^T R_i^-1 (y_i -
-  y)``, has ``sum P_i - P`` degrees of freedom when the windows' covariances
-  hold; when it exceeds them beyond two standard errors, ``P`` is widened
-  by ``chi2 / dof`` (the windows disagree more than they say: an error
-  that lasts longer than the bandwidth).
+- the windows' spread: the generalised least-squares residual of the
+  stacked window estimates under their joint covariance, the random parts
+  (independent between windows) *and* the shared depth and lag covers
+  (the same depth moves windows of different geometry differently: that
+  is in the reported ``s^2 M M^T`` already, not a disagreement),
+  ``chi2`` over ``sum P_i - P`` degrees of freedom. When it exceeds them
+  beyond two standard errors, ``P`` is widened by ``chi2 / dof`` (the
+  windows disagree more than they say: an error that lasts longer than
+  the bandwidth). Left out of the spread test, the depth widened the
+  fall-detection windows x5.6 on top of the depth's own term.
 
 The noise at the calibrated poses (``RecordingCalibration.noise``, what
 ``mmsnap fuse`` weighs by) is the first combined window's: minutes of data
 identify it, and it is half of a window's time at 10 nodes.
 
-A window that cannot be calibrated (nobody walking, a failed solve, a
-status other than OK) is left out and named in the
+A window that cannot be calibrated alone (nobody walking, no track pair
+matched, a failed solve, a status other than OK, a covariance not
+positive definite) joins its frames to the next window's, which is
+calibrated over both: a few seconds of two radars seeing a walker are not
+enough alone but count with the next window's (the fall-detection
+recording in windows of 21 s: S2 0.060 m off the tape, 0.096 m with the
+window left out). When the joined window fails too, or the last window
+fails, it is left out and named in the
 :class:`~mmsnap_graph.data.calibration_facts.WindowsCombined` fact.
-Peak memory is one window's calibration (the window, not the recording,
-sets it); the time is the windows' sum, so about linear in the recording.
+Peak memory is one window's calibration, two windows' where one joins the
+next (the window, not the recording, sets it); the time is the windows'
+sum, so about linear in the recording.
 
 :func:`window_frames_for` is the policy of when to calibrate by windows:
 ``mmsnap calibrate`` and the library use it alike.
@@ -105,7 +136,9 @@ class WindowPosterior:
         and the graph's marginal. depth : (P, C) the considered depth's
         columns (C = 0 without), named by ``depth_columns``; rms its
         root mean square (m). widening : name -> (3, 3) the lag cover
-        added to the node's pose covariance.
+        added to the node's pose covariance. range_prior : ``(mean,
+        sigma)`` (m) of the range offset's prior in the window's graph
+        (None: no prior, or the range offset not estimated).
     """
 
     labels: tuple
@@ -118,6 +151,7 @@ class WindowPosterior:
     depth_columns: tuple
     rms: float
     widening: dict
+    range_prior: tuple | None = None
 
 
 def _psd(m: NDArray) -> NDArray:
@@ -130,10 +164,14 @@ def _sqrt_psd(m: NDArray) -> NDArray:
     return (v * np.sqrt(np.maximum(w, 0.0))) @ v.T
 
 
-def window_posterior(cal: RecordingCalibration, joint) -> WindowPosterior:
+def window_posterior(cal: RecordingCalibration, joint, *,
+                     range_prior: tuple | None = None) -> WindowPosterior:
     """The pose block of one window's calibration ``cal`` and the joint
     graph's result ``joint`` it came from
-    (:func:`~mmsnap_graph.calibration.network.calibrate_with_joint`)."""
+    (:func:`~mmsnap_graph.calibration.network.calibrate_with_joint`);
+    ``range_prior``: the range offset's prior ``(mean, sigma)`` of the
+    options it was calibrated with (``JointOptions.range_offset_prior_m``),
+    kept only when the block estimates the range offset."""
     others = [n for n in cal.node_names if n in cal.poses and n != cal.reference]
     block = joint.pose_block
     if block is not None:
@@ -162,7 +200,9 @@ def window_posterior(cal: RecordingCalibration, joint) -> WindowPosterior:
         offsets={n: float(cal.time_offset_s[n]) for n in others if n in cal.time_offset_s},
         range_offset_m=float(cal.range_offset_m), random=np.asarray(random, float),
         model=np.asarray(model, float), depth=depth, depth_columns=tuple(cols),
-        rms=float(rms), widening=widening)
+        rms=float(rms), widening=widening,
+        range_prior=(None if range_prior is None or ("range",) not in labels
+                     else (float(range_prior[0]), float(range_prior[1]))))
 
 
 def _vector(w: WindowPosterior, base: dict) -> NDArray:
@@ -208,6 +248,44 @@ class Combined:
         return c[np.ix_(idx, idx)].copy()
 
 
+def _stack_columns(w: WindowPosterior, cols: tuple) -> tuple[NDArray, NDArray]:
+    """The window's depth columns on the union ``cols`` (P_i, C) and its
+    lag cover's root (P_i, P_i)."""
+    depth = np.zeros((len(w.labels), len(cols)))
+    if w.depth.size:
+        depth[:, [cols.index(c) for c in w.depth_columns]] = w.depth
+    lag = np.zeros((len(w.labels), len(w.labels)))
+    for n, dn in w.widening.items():
+        if ("pose", n, 0) in w.labels:
+            j = [w.labels.index(("pose", n, k)) for k in range(3)]
+            lag[np.ix_(j, j)] = _sqrt_psd(dn)
+    return depth, lag
+
+
+def _spread(parts, p: int, rms: float) -> tuple[float, int]:
+    """The windows' spread (module doc): the generalised least-squares
+    residual of the stacked estimates, ``chi2`` and its degrees of
+    freedom. ``parts``: per window ``(idx, y, random, depth, lag)``."""
+    n = sum(len(idx) for idx, *_ in parts)
+    lift, ys, cov = np.zeros((n, p)), np.zeros(n), np.zeros((n, n))
+    shared = np.zeros((n, parts[0][3].shape[1] + p))
+    o = 0
+    for idx, y, random, depth, lag in parts:
+        k = len(idx)
+        rows = slice(o, o + k)
+        lift[o + np.arange(k), idx] = 1.0
+        ys[rows] = y
+        cov[rows, rows] = random
+        shared[rows, :depth.shape[1]] = rms * depth
+        shared[rows, depth.shape[1] + idx] = lag   # a lag shift of parameter j: column j
+        o += k
+    cov += shared @ shared.T
+    white = np.linalg.solve(cov, np.column_stack([lift, ys]))
+    x = np.linalg.solve(lift.T @ white[:, :p], lift.T @ white[:, p])
+    r = ys - lift @ x
+    return float(r @ np.linalg.solve(cov, r)), int(n - p)
+
+
 def combine_windows(windows: list[WindowPosterior]) -> Combined:
     """The windows' pose posteriors combined (module doc)."""
     if not windows:
@@ -216,42 +294,44 @@ def combine_windows(windows: list[WindowPosterior]) -> Combined:
     labels = tuple(dict.fromkeys(lab for w in windows for lab in w.labels))
     cols = tuple(dict.fromkeys(c for w in windows for c in w.depth_columns))
     p = len(labels)
-    info, score, model_info = np.zeros((p, p)), np.zeros(p), np.zeros((p, p))
+    info, score, middle = np.zeros((p, p)), np.zeros(p), np.zeros((p, p))
     parts = []
     for w in windows:
         idx = np.array([labels.index(lab) for lab in w.labels])
         y = _vector(w, base)
-        wi = np.linalg.inv(0.5 * (w.random + w.random.T))
-        info[np.ix_(idx, idx)] += wi
-        score[idx] += wi @ y
-        model_info[np.ix_(idx, idx)] += np.linalg.inv(0.5 * (w.model + w.model.T))
-        parts.append((idx, y, wi))
-    cov = np.linalg.inv(info)
-    est = cov @ score
-    chi2 = float(sum((y - est[idx]) @ wi @ (y - est[idx]) for idx, y, wi in parts))
-    dof = int(sum(len(idx) for idx, _, _ in parts) - p)
+        random = 0.5 * (w.random + w.random.T)
+        h = np.linalg.inv(0.5 * (w.model + w.model.T))   # the window's information
+        info[np.ix_(idx, idx)] += h
+        score[idx] += h @ y
+        middle[np.ix_(idx, idx)] += h @ random @ h
+        parts.append((idx, y, random, *_stack_columns(w, cols)))
+    priors = [w.range_prior for w in windows if w.range_prior is not None]
+    if len(priors) > 1:   # the recording's prior once, not once per window
+        i = labels.index(("range",))
+        for mean, sigma in priors[1:]:
+            info[i, i] -= sigma**-2
+            score[i] -= mean / sigma**2
+            middle[i, i] -= sigma**-2
+    model = np.linalg.inv(info)
+    est = model @ score
+    cov = _psd(model @ _psd(middle) @ model)
+    rms = max((w.rms for w in windows), default=0.0)
+    chi2, dof = _spread(parts, p, rms)
     factor = 1.0
     if dof > 0 and chi2 / dof > 1.0 + 2.0 * np.sqrt(2.0 / dof):
         factor = chi2 / dof
     depth = np.zeros((p, len(cols)))
     lag_root = np.zeros((p, p))
-    rms = max((w.rms for w in windows), default=0.0)
-    for w, (idx, _, wi) in zip(windows, parts):
-        a = cov[:, idx] @ wi   # (P, P_i): the window's share of the estimate
-        if w.depth.size:
-            ci = [cols.index(c) for c in w.depth_columns]
-            depth[:, ci] += a @ w.depth
-        d = np.zeros((len(idx), len(idx)))
-        for n, dn in w.widening.items():
-            if ("pose", n, 0) in w.labels:
-                j = [w.labels.index(("pose", n, k)) for k in range(3)]
-                d[np.ix_(j, j)] = _sqrt_psd(dn)
-        lag_root[:, idx] += a @ d   # columns: the parameters the shift is of
+    for w, (idx, _, _, d_cols, d_lag) in zip(windows, parts):
+        h = np.linalg.inv(0.5 * (w.model + w.model.T))
+        a = model[:, idx] @ h   # (P, P_i): the window's share of the estimate
+        depth += a @ d_cols
+        lag_root[:, idx] += a @ d_lag   # columns: the parameters the shift is of
     total = factor * cov + rms**2 * depth @ depth.T + lag_root @ lag_root.T
     return Combined(labels=labels, base={n: b for n, b in base.items()
                                          if ("pose", n, 0) in labels},
                     estimate=est, covariance=0.5 * (total + total.T),
-                    model=np.linalg.inv(model_info), spread_chi2=chi2, spread_dof=dof,
+                    model=0.5 * (model + model.T), spread_chi2=chi2, spread_dof=dof,
                     spread_factor=factor)
 
 
@@ -289,13 +369,13 @@ def _result(first: RecordingCalibration, comb: Combined, fact: WindowsCombined,
 def _unusable(post: WindowPosterior) -> str:
     """Why a window's pose block cannot be combined ("" when it can): a
     covariance that is not finite and positive definite."""
-    r = post.random
-    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(post.depth)):
-        return "its pose covariance is not finite"
-    try:
-        np.linalg.cholesky(0.5 * (r + r.T))
-    except np.linalg.LinAlgError:
-        return "its pose covariance is not positive definite"
+    for r, what in ((post.random, "pose covariance"), (post.model, "graph marginal")):
+        if not np.all(np.isfinite(r)) or not np.all(np.isfinite(post.depth)):
+            return f"its {what} is not finite"
+        try:
+            np.linalg.cholesky(0.5 * (r + r.T))
+        except np.linalg.LinAlgError:
+            return f"its {what} is not positive definite"
     return ""
 
 
@@ -335,36 +415,43 @@ def calibrate_windowed(windows, window_frames: int, *,
     if index.source != "centroids":
         raise ValidationError(f"the windows must be of the centroids, got {index.source!r}")
     posts, first, skipped, n = [], None, [], 0
-    for start, stop in _spans(index, int(window_frames)):
+    spans = _spans(index, int(window_frames))
+    carry = None   # the start of a window that could not be calibrated alone
+    for k, (start, stop) in enumerate(spans):
         n += 1
-        rec, _ = index.read(start, stop, tracks=source != "centroids")
+        lo = start if carry is None else carry
+        rec, _ = index.read(lo, stop, tracks=source != "centroids")
+        options = joint_options_for(rec) if joint is None else joint
+        post = None
         try:
             cal, jc = calibrate_with_joint(
                 rec, source=source, method=method, noise=noise, matching=matching,
-                joint=joint_options_for(rec) if joint is None else joint,
-                noise_estimate=first is None)
+                joint=options, noise_estimate=first is None)
         except CalibrationError as exc:
             why = str(exc).splitlines()[0]
             cal, jc = None, None
         else:
             why = ("" if cal.success and jc is not None else
                    cal.status.message if not cal.success else "the joint graph did not run")
-        if why:
-            skipped.append(f"frames {start}-{stop - 1}: {why}")
-        else:
+        if not why:
             if first is not None and cal.reference != first.reference:
-                raise CalibrationError(f"window {start}-{stop - 1} has reference "
+                raise CalibrationError(f"window {lo}-{stop - 1} has reference "
                                        f"{cal.reference}, the first {first.reference}")
-            post = window_posterior(cal, jc)
+            post = window_posterior(cal, jc, range_prior=options.range_offset_prior_m)
             why = _unusable(post)
-            if why:
-                skipped.append(f"frames {start}-{stop - 1}: {why}")
-            else:
-                first = cal if first is None else first
-                posts.append(post)
+        if why and carry is None and k + 1 < len(spans):
+            carry = start   # its frames join the next window (at most two windows' frames)
+            why = f"{why} (its frames join the next window's)"
+        elif why:
+            skipped.append(f"frames {lo}-{stop - 1}: {why}")
+            carry = None
+        else:
+            first = cal if first is None else first
+            posts.append(post)
+            carry = None
         if on_window is not None:
-            on_window(start, stop, None if why else cal, why)
-        del rec, cal, jc
+            on_window(lo, stop, None if why else cal, why)
+        del rec, cal, jc, post
     if not posts:
         raise CalibrationError(f"no window of {window_frames} frames of {index.path} could be "
                                f"calibrated: " + "; ".join(skipped[:3]))
