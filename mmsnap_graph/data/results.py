@@ -46,7 +46,7 @@ class Status(enum.IntEnum):
     11 and 12 come from the room-frame checks
     (:mod:`mmsnap_graph.fusion.recording.room`): a row outside the room bounds,
     a row repeating a better-supported one of its frame within a body's width.
-    ``Status.OK`` (alias ``Status.CONVERGED``) is success for both.
+    ``Status.OK`` is success for both.
     """
 
     OK = 0
@@ -62,7 +62,6 @@ class Status(enum.IntEnum):
     MOTION_INCONSISTENT = 10
     OUTSIDE_BOUNDS = 11
     DUPLICATE = 12
-    CONVERGED = 0  # alias of OK, the estimators' word for it
 
     @property
     def message(self) -> str:

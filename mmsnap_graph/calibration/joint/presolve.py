@@ -4,9 +4,9 @@ solve eliminates the target states onto the poses: the state block is
 block-tridiagonal (the constant-velocity factors link consecutive frames
 only), so its banded Cholesky (7 sub-diagonals) is linear in frames, and the
 few pose unknowns come from their dense Schur complement (the clock
-offsets, when estimated, are one more unknown per node there; the earlier
-SuperLU solve of the whole sparse system grew faster than linearly and took
-86% of a 3-node x 600-frame calibration).
+offsets, when estimated, are one more unknown per node there; a general
+sparse solve grows faster than linearly: docs/validation/calibration.md,
+"Speed").
 
 It uses the same models as the GTSAM factors (``measurement_model_pose``,
 the body-frame pose tangent and ``Pose2.retract``, the state prior, the
