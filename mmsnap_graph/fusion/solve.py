@@ -76,14 +76,22 @@ def solve(problem: FrameProblem, options: FusionOptions = DEFAULT_OPTIONS) -> Fu
     return solution
 
 
-def _solve_laplace(problem: FrameProblem, options: FusionOptions) -> FusionSolution:
-    if options.solver == "gtsam":
-        from .solvers.gtsam_graph import solve_frames  # deferred: GTSAM only when asked for
+def _gtsam_solve_frames(problem: FrameProblem, options: FusionOptions) -> FusionSolution:
+    """The GTSAM solver, imported when first asked for (GTSAM only then); the
+    import resolved once, not on every frame of a per-frame caller."""
+    from .solvers.gtsam_graph import solve_frames
 
-        return solve_frames(problem, options)
-    if options.solver == "vectorized":
-        return vectorized.solve_frames(problem, options)
-    return scalar.solve_frames(problem, options)
+    _SOLVERS["gtsam"] = solve_frames
+    return solve_frames(problem, options)
+
+
+#: Each solver's ``solve_frames`` by the name ``FusionOptions.solver`` gives.
+_SOLVERS = {"gtsam": _gtsam_solve_frames, "vectorized": vectorized.solve_frames,
+            "scalar": scalar.solve_frames}
+
+
+def _solve_laplace(problem: FrameProblem, options: FusionOptions) -> FusionSolution:
+    return _SOLVERS[options.solver](problem, options)
 
 
 def with_grid_covariance(solution: FusionSolution, problem: FrameProblem,

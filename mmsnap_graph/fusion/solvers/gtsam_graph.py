@@ -254,46 +254,63 @@ def solve_frames(problem: FrameProblem, options: FusionOptions = DEFAULT_OPTIONS
     :class:`~mmsnap_graph.data.solution.FusionSolution` with the Laplace
     covariance (:func:`mmsnap_graph.fusion.solve.solve`)."""
     n_frames, n_nodes = problem.n_frames, problem.n_nodes
-    state = np.full((n_frames, 4), np.nan)
-    cov = np.full((n_frames, 4, 4), np.nan)
-    status = np.zeros(n_frames, dtype=np.int8)
-    iterations = np.zeros(n_frames, dtype=np.int64)
-    cost = np.full(n_frames, np.nan)
-    whitened = np.full((n_frames, n_nodes, 3), np.nan)
-    degeneracy = np.full(n_frames, np.inf)
     x0 = initial_states(problem, per_frame=True)
     noise, prior, kernel, lm = problem.noise, problem.prior, problem.kernel, options.lm
     one_network = problem.poses.ndim == 2
-    seen_all = problem.observed.all(axis=1).tolist()
-    seen_any = problem.observed.any(axis=1).tolist()
-    startable = np.isfinite(x0).all(axis=1).tolist()
+    if n_frames == 1:  # the per-frame caller: plain floats beat numpy's reductions
+        seen = problem.observed[0].tolist()
+        seen_all, seen_any = [all(seen)], [any(seen)]
+        startable = [all(map(math.isfinite, x0[0].tolist()))]
+    else:
+        seen_all = problem.observed.all(axis=1).tolist()
+        seen_any = problem.observed.any(axis=1).tolist()
+        startable = np.isfinite(x0).all(axis=1).tolist()
+    # Each frame's results in lists, made arrays once (per-frame writes into
+    # preallocated arrays cost more than the one frame of the stream's solves).
+    nan4, nan44, nan_w = _NAN4, _NAN44, np.full((n_nodes, 3), np.nan)
+    state, cov, status, iterations, cost, whitened, degeneracy = [], [], [], [], [], [], []
     for f in range(n_frames):
         poses = problem.poses if one_network else problem.poses[f]
         z = problem.measurements[f]
         obs = None if seen_all[f] else problem.observed[f]
         if prior is None and not seen_any[f]:
-            status[f] = Status.NO_INFORMATION
-            continue
-        if not startable[f]:  # the average detection on a node
-            status[f] = Status.NON_FINITE
-            continue
-        try:
-            fit = _fit(poses, z, obs, noise, prior, x0[f], lm, kernel)
-        except _Failure as failure:
-            status[f], iterations[f], cost[f] = failure.status, failure.iterations, failure.cost
-            if failure.state is not None:
-                state[f] = failure.state
-            continue
-        state[f], c, iterations[f], cost[f], status[f], whitened[f], degeneracy[f] = fit
-        if fit[4] != Status.OK:
-            continue
-        cov[f] = c
-        if problem.pose_covariances is not None:
+            row = nan4, nan44, Status.NO_INFORMATION, 0, math.nan, nan_w, math.inf
+        elif not startable[f]:  # the average detection on a node
+            row = nan4, nan44, Status.NON_FINITE, 0, math.nan, nan_w, math.inf
+        else:
             try:
-                cov[f] = pose_aware_covariance(*build_pose_aware_graph(
-                    state[f], poses, z, obs, noise, prior, problem.pose_covariances, kernel))
-            except Exception:  # GTSAM: an indeterminate joint system
-                status[f], cov[f] = Status.SINGULAR, np.nan
-    return FusionSolution.of_solver(state=state, covariance=cov, status=status,
-                                    iterations=iterations, final_cost=cost, initial_state=x0,
-                                    whitened_residuals=whitened, degeneracy=degeneracy)
+                x, c, it, fc, st, w, dg = _fit(poses, z, obs, noise, prior, x0[f], lm, kernel)
+            except _Failure as failure:
+                x = nan4 if failure.state is None else failure.state
+                row = x, nan44, failure.status, failure.iterations, failure.cost, nan_w, math.inf
+            else:
+                if st != Status.OK:
+                    c = nan44
+                elif problem.pose_covariances is not None:
+                    try:
+                        c = pose_aware_covariance(*build_pose_aware_graph(
+                            x, poses, z, obs, noise, prior, problem.pose_covariances, kernel))
+                    except Exception:  # GTSAM: an indeterminate joint system
+                        st, c = Status.SINGULAR, nan44
+                row = x, c, st, it, fc, w, dg
+        state.append(row[0])
+        cov.append(row[1])
+        status.append(row[2])
+        iterations.append(row[3])
+        cost.append(row[4])
+        whitened.append(row[5])
+        degeneracy.append(row[6])
+    return FusionSolution.of_solver(
+        state=np.array(state, dtype=float).reshape(n_frames, 4),
+        covariance=np.array(cov, dtype=float).reshape(n_frames, 4, 4),
+        status=np.array(status, dtype=np.int8), iterations=np.array(iterations, dtype=np.int64),
+        final_cost=np.array(cost, dtype=float), initial_state=x0,
+        whitened_residuals=np.array(whitened, dtype=float).reshape(n_frames, n_nodes, 3),
+        degeneracy=np.array(degeneracy, dtype=float))
+
+
+#: The state and covariance of a frame that has none.
+_NAN4 = np.full(4, np.nan)
+_NAN44 = np.full((4, 4), np.nan)
+_NAN4.setflags(write=False)
+_NAN44.setflags(write=False)

@@ -18,7 +18,7 @@ from scipy import stats
 from scipy.optimize import least_squares
 
 import mmsnap_graph.fusion.solvers.gtsam_graph as oneshot
-from factors.models import measurement_model, residual, wrap_angle
+from factors.models import measurement_model, predict_measurements, residual, wrap_angle
 from mmsnap_graph.data.noise import GaussianPrior, MeasurementNoise
 from mmsnap_graph.data.results import DEGENERACY_THRESHOLD, Status
 from mmsnap_graph.errors import GeometryError, ValidationError
@@ -660,3 +660,32 @@ def test_fuse_frame_with_a_huge_doppler_is_sound(frame, doppler, prior):
     poses, z, observed, noise = frame
     z[:, 2] = doppler
     sound_or_typed_error(lambda: fuse_frame(poses, z, noise=noise, prior=prior))
+
+
+@pytest.mark.parametrize("prior", [PAPER_PRIOR, None])
+def test_a_frame_solved_in_a_batch_has_the_bytes_it_has_solved_alone(prior):
+    """solve_frames' per-frame results (every field, the failures' statuses
+    too: no information, a state at a node, an indeterminate ML velocity) are
+    the same bytes whether the frame is solved alone (the per-frame path) or
+    among others."""
+    rng = np.random.default_rng(7)
+    truth = np.column_stack([rng.uniform(-1, 1, 12), rng.uniform(2, 4, 12),
+                             rng.normal(0, 0.7, (12, 2))])
+    z = np.stack([predict_measurements(t, POSES_BC) for t in truth])
+    z += rng.normal(size=z.shape) * PAPER_NOISE.sigmas
+    z[..., 1] = wrap_angle(z[..., 1])
+    obs = rng.random(z.shape[:2]) > 0.3
+    obs[0] = False  # no node: no information without a prior
+    obs[1] = [True, False, False]  # one node: the ML velocity is indeterminate
+    problem = FrameProblem(poses=POSES_BC, measurements=z, observed=obs, prior=prior)
+    options = FusionOptions(solver="gtsam")
+    batch = solve(problem, options)
+    fields = ("state", "covariance", "status", "iterations", "final_cost", "initial_state",
+              "whitened_residuals", "degeneracy", "rejected")
+    for f in range(len(problem)):
+        alone = solve(problem[f], options)
+        for name in fields:
+            assert getattr(alone, name).tobytes() == getattr(batch, name)[f:f + 1].tobytes(), \
+                (f, name)
+    if prior is None:
+        assert batch.status[0] == Status.NO_INFORMATION and batch.status[1] != Status.OK
