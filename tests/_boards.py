@@ -89,7 +89,7 @@ class EmulatedBoard:
         self.stop_after = stop_after
         self.refuse, self.unknown = set(refuse), set(unknown)
         self.commands: list[str] = []
-        self.write_times: list[float] = []      # host time after each packet's last byte
+        self.write_times: list[float] = []      # host time each packet's last byte went out
         self.done = threading.Event()           # every packet it will send is sent
         self._stop = threading.Event()
         self._started = threading.Event()
@@ -129,12 +129,18 @@ class EmulatedBoard:
         self.close()
 
     # ------------------------------------------------------------- CLI
-    def _write(self, fd, data: bytes):
+    def _write(self, fd, data: bytes) -> float | None:
+        """Write all of ``data``; returns the host time just before the write
+        that took its last byte (after it, this thread may wait for the GIL:
+        a stamp taken then would be late)."""
         view = memoryview(data)
+        when = None
         while view and not self._stop.is_set():
             _, ready, _ = select.select([], [fd], [], 0.1)
             if ready:
+                when = time.monotonic()
                 view = view[os.write(fd, view):]
+        return when
 
     def _serve(self):
         line = bytearray()
@@ -191,8 +197,10 @@ class EmulatedBoard:
                 return
             if self._stop.is_set():
                 return
-            self._write(self._data, self.packets[i])
-            self.write_times.append(time.monotonic())
+            when = self._write(self._data, self.packets[i])
+            if when is None:                       # stopped while writing
+                return
+            self.write_times.append(when)
         self.done.set()
 
 

@@ -69,6 +69,22 @@ def _concat_sequences(parts: list[FusedSequence]) -> FusedSequence:
         if getattr(parts[0], k) is not None})
 
 
+class _LookBack:
+    """The rows of the placement check's look-back that it reads (``state``,
+    ``status``, ``rejected``); a row it flags is the frame's own row ``r -
+    lo`` of ``own``, flagged there (the check decides that frame alone)."""
+
+    __slots__ = ("state", "status", "rejected", "own", "lo")
+
+    def __init__(self, own: FusedRows, lo: int) -> None:
+        self.own, self.lo = own, lo
+
+    def flag(self, r, *args, **kwargs) -> None:
+        i = int(r) - self.lo
+        if 0 <= i < len(self.own):
+            self.own.flag(i, *args, **kwargs)
+
+
 class StreamPipeline:
     """Solve each frame when it arrives and decide it ``delay_frames`` later
     (module docstring). ``net``: the network; ``config``: the
@@ -165,19 +181,15 @@ class StreamPipeline:
         mine = next(i for i, h in enumerate(held) if h.frame == frame)
         lo = int(np.sum(sizes[:mine]))
         sl = slice(lo, lo + sizes[mine])
-        k, n_nodes = sum(sizes), len(self.net.node_names)
-        rows = FusedRows(k, n_nodes)
+        rows = _LookBack(own, lo)
         rows.state = np.concatenate([h.rows.state for h in held])
         rows.status = np.concatenate([h.rows.status for h in held])
         rows.rejected = np.concatenate([h.rows.rejected for h in held])
         solved = rows.status == Status.OK
-        for name in FusedRows.__slots__:
-            getattr(rows, name)[sl] = getattr(own, name)
+        rows.state[sl], rows.status[sl], rows.rejected[sl] = own.state, own.status, own.rejected
         members = np.concatenate([h.members for h in held])
         check_placement(rows, np.repeat([h.frame for h in held], sizes), members >= 0, self.net,
                         np.array([frame]), solved)
-        for name in FusedRows.__slots__:
-            setattr(own, name, getattr(rows, name)[sl])
 
     def _decide_alone(self, frame: int) -> FusedRows:
         """The rows of ``frame`` when every check is of the frame alone."""

@@ -67,7 +67,10 @@ def _read_reply(port: Port, timeout_s: float) -> bytes:
     while PROMPT not in out:
         if time.monotonic() > deadline:
             break
-        chunk = port.read(256)           # returns early as bytes arrive (port timeout)
+        # What has arrived (at least one byte, or nothing by the port's
+        # timeout): a read of more bytes than the reply holds waits out the
+        # whole timeout on every command.
+        chunk = port.read(max(1, int(getattr(port, "in_waiting", 0) or 0)))
         out += chunk
     return bytes(out)
 

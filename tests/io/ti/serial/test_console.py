@@ -30,6 +30,18 @@ def test_the_cfg_is_sent_between_stop_and_start_and_the_garbled_first_reply_retr
         assert all(r.tries == 1 and r.reply == "Done" for r in replies[1:])
 
 
+def test_each_reply_is_read_as_it_arrives_not_at_the_ports_timeout():
+    # A read of 256 bytes waited out the port's timeout on each of the cfg's
+    # 29 commands (1.5 s a board at the 0.05 s of a session's CLI port, while
+    # the boards configured first streamed into the queue).
+    import time
+    with EmulatedBoard([], garbled_first=False) as board, \
+            serial.Serial(board.cli_port, 115200, timeout=1.0) as port:
+        start = time.monotonic()
+        replies = send_cfg(port, CFG, board="S1")
+        assert len(replies) == 29 and time.monotonic() - start < 10.0
+
+
 @pytest.mark.parametrize("kw, reply", [(dict(refuse={"cfarCfg"}), "Error -1"),
                                        (dict(unknown={"cfarCfg"}), "'cfarCfg' is not recognized")])
 def test_a_refused_line_names_the_board_the_line_and_the_reply(kw, reply):
