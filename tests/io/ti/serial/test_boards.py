@@ -18,13 +18,13 @@ def _port(device, serial, vid=0x0451):
     return p
 
 
-PORTS = [_port("/dev/ttyACM1", "R0091049"), _port("/dev/ttyACM0", "R0091049"),
-         _port("/dev/ttyACM2", "L1234"), _port("/dev/ttyS0", None, vid=None)]
+PORTS = [_port("scratch/dev/ttyACM1", "R0091049"), _port("scratch/dev/ttyACM0", "R0091049"),
+         _port("scratch/dev/ttyACM2", "L1234"), _port("scratch/dev/ttyS0", None, vid=None)]
 
 
 @pytest.mark.parametrize("text, spec", [
-    ("S1=/dev/ttyACM0,/dev/ttyACM1,a.cfg",
-     BoardSpec(name="S1", cli_port="/dev/ttyACM0", data_port="/dev/ttyACM1", cfg="a.cfg")),
+    ("S1=scratch/dev/ttyACM0,scratch/dev/ttyACM1,a.cfg",
+     BoardSpec(name="S1", cli_port="scratch/dev/ttyACM0", data_port="scratch/dev/ttyACM1", cfg="a.cfg")),
     ("S2=,COM4", BoardSpec(name="S2", cli_port=None, data_port="COM4")),
     ("S3=usb:R0091049,people.cfg",
      BoardSpec(name="S3", cli_port="usb:R0091049:0", data_port="usb:R0091049:1",
@@ -41,23 +41,23 @@ def test_bad_board_syntax(text):
 
 
 def test_ports_by_usb_serial_number():
-    assert resolve_port("usb:R0091049:0", PORTS) == "/dev/ttyACM0"
-    assert resolve_port("usb:R0091049", PORTS, default_index=1) == "/dev/ttyACM1"
-    assert resolve_port("/dev/ttyUSB9", PORTS) == "/dev/ttyUSB9"
+    assert resolve_port("usb:R0091049:0", PORTS) == "scratch/dev/ttyACM0"
+    assert resolve_port("usb:R0091049", PORTS, default_index=1) == "scratch/dev/ttyACM1"
+    assert resolve_port("scratch/dev/ttyUSB9", PORTS) == "scratch/dev/ttyUSB9"
     with pytest.raises(DeviceError, match=r"no USB serial device has serial number 'X'.*"
                                           r"'L1234', 'R0091049'"):
         resolve_port("usb:X", PORTS)
     with pytest.raises(DeviceError, match="has 1 port"):
         resolve_port("usb:L1234:1", PORTS)
-    assert list_boards(PORTS)[0].startswith("/dev/ttyACM0\tusb:R0091049\tXDS110")
+    assert list_boards(PORTS)[0].startswith("scratch/dev/ttyACM0\tusb:R0091049\tXDS110")
 
 
 def test_boards_from_a_toml_file(tmp_path):
     path = tmp_path / "boards.toml"
-    path.write_text('[boards.S1]\ncli = "/dev/ttyACM0"\ndata = "/dev/ttyACM1"\ncfg = "a.cfg"\n'
+    path.write_text('[boards.S1]\ncli = "scratch/dev/ttyACM0"\ndata = "scratch/dev/ttyACM1"\ncfg = "a.cfg"\n'
                     'mount = [1.2, 10]\n[boards.S2]\ndata = "usb:L1234:1"\n')
     s1, s2 = read_boards_toml(path)
-    assert s1 == BoardSpec(name="S1", cli_port="/dev/ttyACM0", data_port="/dev/ttyACM1",
+    assert s1 == BoardSpec(name="S1", cli_port="scratch/dev/ttyACM0", data_port="scratch/dev/ttyACM1",
                            cfg=str(tmp_path / "a.cfg"), mount=(1.2, 10.0))
     assert (s2.cli_port, s2.data_port) == (None, "usb:L1234:1")
     path.write_text('[boards.S1]\ncli = "x"\n')
