@@ -273,7 +273,9 @@ def initial_states(problem: FrameProblem, *, per_frame: bool = False) -> NDArray
     if problem.initial_state is not None:
         return np.array(problem.initial_state)
     if per_frame and problem.poses.ndim == 2:
-        return np.array([_start_floats(problem, f) for f in range(problem.n_frames)],
+        start = problem.cached("start_floats", lambda: _StartFloats(problem))
+        return np.array([start(zl, ol) for zl, ol in zip(problem.measurements.tolist(),
+                                                          problem.observed.tolist())],
                         dtype=float).reshape(problem.n_frames, 4)
     out = np.empty((problem.n_frames, 4))
     chunk = 8192
@@ -320,48 +322,62 @@ def _start_arrays(poses, z, obs, problem: FrameProblem) -> NDArray:
     return state
 
 
-def _start_floats(problem: FrameProblem, f: int) -> list[float]:
-    """The initial values of frame ``f`` in plain floats (the per-frame hot
-    path; the tests check it against :func:`_start_arrays`)."""
-    prior = problem.prior
-    pl = problem.poses.tolist()
-    zl = problem.measurements[f].tolist()
-    ol = problem.observed[f].tolist()
-    nodes = [i for i in range(len(pl)) if ol[i]]
-    if not nodes:
-        return prior.mean.tolist() if prior is not None else [math.nan] * 4
-    sx = sy = 0.0
-    for i in nodes:
-        px, py, phi = pl[i]
-        u, v = detection_to_local_scalar(zl[i][0], zl[i][1])
-        c, s = math.cos(phi), math.sin(phi)
-        sx += px + u * c - v * s
-        sy += py + u * s + v * c
-    x, y = sx / len(nodes), sy / len(nodes)
-    a11 = a12 = a22 = b1 = b2 = 0.0
-    sd, dw = _doppler_weights(problem.noise)
-    for i in nodes:
-        dx, dy = x - pl[i][0], y - pl[i][1]
-        r = math.sqrt(dx * dx + dy * dy)
-        if r < AT_NODE_M:
-            return [x, y, math.nan, math.nan]
-        ux, uy, zd = dx / r, dy / r, zl[i][2]
-        if dw is not None:
-            q = math.sqrt(dw[i])
-            ux, uy, zd = ux * q, uy * q, zd * q
-        a11 += ux * ux
-        a12 += ux * uy
-        a22 += uy * uy
-        b1 += ux * zd
-        b2 += uy * zd
-    if prior is not None:
-        m, ps = prior.mean.tolist(), prior.sigmas.tolist()
-        r1, r2 = (sd / ps[2]) ** 2, (sd / ps[3]) ** 2
-        a11 += r1
-        a22 += r2
-        b1 += r1 * m[2]
-        b2 += r2 * m[3]
-    return [x, y, *_min_norm_2x2(a11, a12, a22, b1, b2)]
+class _StartFloats:
+    """The initial values of one frame in plain floats (the per-frame hot
+    path; the tests check it against :func:`_start_arrays`), with the
+    network's floats (poses, their cosines and sines, the Doppler weights,
+    the prior's terms) taken once per network: ``start(z, observed)`` of a
+    frame's ``z`` (N lists of 3 floats) and ``observed`` (N bools)."""
+
+    __slots__ = ("poses", "trig", "sd", "dw", "prior")
+
+    def __init__(self, problem: FrameProblem) -> None:
+        self.poses = problem.poses.tolist()
+        self.trig = [(math.cos(phi), math.sin(phi)) for _, _, phi in self.poses]
+        self.sd, self.dw = _doppler_weights(problem.noise)
+        prior = problem.prior
+        if prior is None:
+            self.prior = None
+        else:
+            m, ps = prior.mean.tolist(), prior.sigmas.tolist()
+            self.prior = (m, (self.sd / ps[2]) ** 2, (self.sd / ps[3]) ** 2)
+
+    def __call__(self, zl: list, ol: list) -> list[float]:
+        pl, trig, prior = self.poses, self.trig, self.prior
+        nodes = [i for i in range(len(pl)) if ol[i]]
+        if not nodes:
+            return list(prior[0]) if prior is not None else [math.nan] * 4
+        sx = sy = 0.0
+        for i in nodes:
+            px, py, _ = pl[i]
+            u, v = detection_to_local_scalar(zl[i][0], zl[i][1])
+            c, s = trig[i]
+            sx += px + u * c - v * s
+            sy += py + u * s + v * c
+        x, y = sx / len(nodes), sy / len(nodes)
+        a11 = a12 = a22 = b1 = b2 = 0.0
+        dw = self.dw
+        for i in nodes:
+            dx, dy = x - pl[i][0], y - pl[i][1]
+            r = math.sqrt(dx * dx + dy * dy)
+            if r < AT_NODE_M:
+                return [x, y, math.nan, math.nan]
+            ux, uy, zd = dx / r, dy / r, zl[i][2]
+            if dw is not None:
+                q = math.sqrt(dw[i])
+                ux, uy, zd = ux * q, uy * q, zd * q
+            a11 += ux * ux
+            a12 += ux * uy
+            a22 += uy * uy
+            b1 += ux * zd
+            b2 += uy * zd
+        if prior is not None:
+            m, r1, r2 = prior
+            a11 += r1
+            a22 += r2
+            b1 += r1 * m[2]
+            b2 += r2 * m[3]
+        return [x, y, *_min_norm_2x2(a11, a12, a22, b1, b2)]
 
 
 def _min_norm_2x2_arrays(a: NDArray, b: NDArray) -> NDArray:

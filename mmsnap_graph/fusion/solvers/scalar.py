@@ -90,11 +90,11 @@ _OK, _MAX_ITER, _SINGULAR, _NON_FINITE, _NO_INFORMATION = (
     int(Status.NO_INFORMATION))
 
 
-def _positive_definite(cov: NDArray) -> bool:
+def _positive_definite(c: list[float]) -> bool:
     """:func:`~mmsnap_graph.fusion.solvers.assess.positive_definite` in
-    floats: every squared Cholesky pivot of ``cov`` above
-    ``_MIN_EIGENVALUE_RATIO`` times its largest diagonal entry, all finite."""
-    c = cov.ravel().tolist()
+    floats: every squared Cholesky pivot of the covariance ``c`` (16 floats,
+    row-major) above ``_MIN_EIGENVALUE_RATIO`` times its largest diagonal
+    entry, all finite."""
     floor = _MIN_EIGENVALUE_RATIO * max(c[0], c[5], c[10], c[15])
     if not (c[0] > 0.0 and c[0] > floor and math.isfinite(floor)):
         return False
@@ -113,22 +113,13 @@ def _positive_definite(cov: NDArray) -> bool:
     return d > floor and math.isfinite(d)
 
 
-def _nan44() -> NDArray:
-    return np.full((4, 4), np.nan)
-
-
-_NAN44 = _nan44()
+_NAN16 = [math.nan] * 16
 
 
 def _cholesky(a: list[float]) -> tuple[float, ...] | None:
     """The Cholesky factor of ``a`` (16 floats) with this solver's pivot
     tolerance (``_PIVOT_RTOL``), or None."""
     return cholesky_4x4(a, _PIVOT_RTOL)
-
-
-def _cholesky_inverse(lo) -> NDArray:
-    """``(L L^T)^-1`` as a (4, 4) array."""
-    return np.array(cholesky_inverse_4x4(lo)).reshape(4, 4)
 
 
 class _FrameSolver:
@@ -313,7 +304,7 @@ class _FrameSolver:
         """Fuse one group from ``x0`` (4 floats, finite): ``z`` (N rows of 3
         floats) each node's measurement (rows of the unobserved nodes
         ignored), ``observed`` (N bools; at least one True, or a prior).
-        Returns ``(state, covariance (4, 4) or None, status, degeneracy,
+        Returns ``(state, covariance (16 floats, row-major) or None, status, degeneracy,
         iterations, cost, residuals)`` (``residuals``: ``(n, e_r, e_w,
         e_v)`` of the observed nodes at ``state``, empty when unknown)."""
         rows = [(n, z[n]) for n in range(len(observed)) if observed[n]]
@@ -333,7 +324,7 @@ class _FrameSolver:
         lo = _cholesky(info)
         if lo is None:  # indeterminate system (gtsam.Marginals raises)
             return _SINGULAR, None, math.inf
-        cov = _cholesky_inverse(lo)
+        cov = cholesky_inverse_4x4(lo)
         degeneracy = condition_2x2(*lines)
         if not _positive_definite(cov):
             return _SINGULAR, None, degeneracy
@@ -347,9 +338,10 @@ class _FrameSolver:
                 return _SINGULAR, None, degeneracy
         return _OK, cov, degeneracy
 
-    def _pose_aware(self, x, info, rows) -> NDArray | None:
-        """The state's marginal covariance in the joint graph with the uncertain
-        poses (Schur complement of the pose blocks); None when singular."""
+    def _pose_aware(self, x, info, rows) -> list[float] | None:
+        """The state's marginal covariance (16 floats, row-major) in the
+        joint graph with the uncertain poses (Schur complement of the pose
+        blocks); None when singular."""
         h = np.array(info).reshape(4, 4)
         for n, (zr, zw, zv) in rows:
             pose_info = self._pose_info[n]
@@ -373,7 +365,7 @@ class _FrameSolver:
         lo = _cholesky((0.5 * (h + h.T)).ravel().tolist())
         if lo is None:
             return None
-        return _cholesky_inverse(lo)
+        return cholesky_inverse_4x4(lo)
 
 
 def _kernel(kernel: tuple[str, float], s2: float) -> tuple[float, float]:
@@ -412,9 +404,11 @@ def solve_frames(problem, options):
     x0 = start_states(problem, per_frame=True)
     z_all, obs_all, x0_all = problem.measurements.tolist(), problem.observed.tolist(), x0.tolist()
     no_prior = problem.prior is None
-    # Plain lists, made arrays once (numpy's per-item writes cost more than the floats).
-    nan4, nan3 = [math.nan] * 4, (math.nan, math.nan, math.nan)
-    state, cov, status, iterations, cost, whitened, degeneracy = [], [], [], [], [], [], []
+    # One flat list of floats per frame (state 4, covariance 16, cost,
+    # degeneracy, whitened residuals 3 N), made one array at the end: numpy's
+    # per-item writes and per-field arrays cost more than the floats.
+    nan4, nan3n = [math.nan] * 4, [math.nan] * (3 * n_nodes)
+    flat, status, iterations = [], [], []
     for z, obs, start in zip(z_all, obs_all, x0_all):
         if no_prior and not any(obs):
             x, c, st, dg, it, fc, res = nan4, None, _NO_INFORMATION, math.inf, 0, math.nan, ()
@@ -422,24 +416,24 @@ def solve_frames(problem, options):
             x, c, st, dg, it, fc, res = nan4, None, _NON_FINITE, math.inf, 0, math.nan, ()
         else:
             x, c, st, dg, it, fc, res = solver.solve(z, obs, start)
-        w = [nan3] * n_nodes
+        w = list(nan3n)
         for n, er, ew, ev in res:
-            w[n] = (er, ew, ev)
-        state.append(x)
-        cov.append(_NAN44 if c is None else c)
+            w[3 * n], w[3 * n + 1], w[3 * n + 2] = er, ew, ev
+        flat += x
+        flat += _NAN16 if c is None else c
+        flat.append(fc)
+        flat.append(dg)
+        flat += w
         status.append(st)
         iterations.append(it)
-        cost.append(fc)
-        whitened.append(w)
-        degeneracy.append(dg)
-    n_frames = len(state)
-    state = np.array(state, dtype=float).reshape(n_frames, 4)
-    cov = np.array(cov, dtype=float).reshape(n_frames, 4, 4)
+    n_frames = len(status)
+    table = np.array(flat, dtype=float).reshape(n_frames, 22 + 3 * n_nodes)
+    state = table[:, :4]
+    cov = table[:, 4:20].reshape(n_frames, 4, 4)
+    cost, degeneracy = table[:, 20], table[:, 21]
+    whitened = table[:, 22:].reshape(n_frames, n_nodes, 3)
     status = np.array(status, dtype=np.int8)
     iterations = np.array(iterations, dtype=np.int64)
-    cost = np.array(cost, dtype=float)
-    whitened = np.array(whitened, dtype=float).reshape(n_frames, n_nodes, 3)
-    degeneracy = np.array(degeneracy, dtype=float)
     return FusionSolution.of_solver(state=state, covariance=cov, status=status,
                                     iterations=iterations, final_cost=cost, initial_state=x0,
                                     whitened_residuals=whitened, degeneracy=degeneracy)
