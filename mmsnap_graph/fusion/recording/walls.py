@@ -278,11 +278,14 @@ def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray
     # see a side wall's images in different frames, too few for either alone.
     # A line that the images of two or more nodes propose together is a wall
     # of each of them, beside the lines each node's images propose alone.
-    pooled = [line for line in _lines(props, xy, confirmed, poses)
+    index = _LineIndex(props)
+    pooled = [line for line in _lines(props, xy, confirmed, poses,
+                                      index.counts(np.arange(len(props))))
               if np.unique(line.props[:, 1]).size >= 2]
     walls: list[LearnedWall] = []
     for s in range(poses.shape[0]):
-        mine = _lines(props[props[:, 1] == s], xy, confirmed, poses)
+        rows = np.flatnonzero(props[:, 1] == s)
+        mine = _lines(props[rows], xy, confirmed, poses, index.counts(rows))
         for line in _one_per_image(mine + [p for p in pooled if np.any(p.props[:, 1] == s)]):
             along = line.props[:, 4]
             walls.append(LearnedWall(node=s, normal_rad=line.ang, offset_m=line.off,
@@ -293,29 +296,122 @@ def learn_walls(frame: NDArray, state: NDArray, covariance: NDArray, ok: NDArray
     return walls
 
 
-def _lines(props: NDArray, xy: NDArray, confirmed: NDArray, poses: NDArray) -> list[_Line]:
+def _lines(props: NDArray, xy: NDArray, confirmed: NDArray, poses: NDArray,
+           counts: _LineCounts | None = None) -> list[_Line]:
     """The lines that ``props`` propose in at least :data:`WALL_MIN_FRAMES`
     distinct frames, best supported first, behind which at most
     :data:`WALL_MAX_CROSSING` of the ``confirmed`` rows stand (not counting
-    the images each explains)."""
+    the images each explains).
+
+    Each line is :func:`_best_line` of the proposals left; its counts
+    (``counts``: those of ``props``, default counted here) are updated as
+    proposals are taken instead of counted again (the same lines)."""
     found = []
-    while len(props):
-        count, mask = _best_line(props)
+    if counts is None:
+        counts = _LineIndex(props).counts(np.arange(len(props)))
+    alive = np.ones(len(props), dtype=bool)
+    while alive.any():
+        count, mask_all = counts.best()
         if count < WALL_MIN_FRAMES:
             break
-        ang = float(np.angle(np.mean(np.exp(1j * props[mask, 2]))))
-        off = float(np.median(props[mask, 3]))
-        near = _near(props, ang, off)
+        left = props[alive]
+        mask = mask_all[alive]
+        ang = float(np.angle(np.mean(np.exp(1j * left[mask, 2]))))
+        off = float(np.median(left[mask, 3]))
+        near = _near(left, ang, off)
         explained = np.zeros(len(xy), dtype=bool)
-        explained[props[near, 0].astype(np.int64)] = True
+        explained[left[near, 0].astype(np.int64)] = True
         n = np.array([np.cos(ang), np.sin(ang)])
         crossing = confirmed & ~explained & (xy @ n > off)
         if crossing.sum() <= WALL_MAX_CROSSING * confirmed.sum():
-            nodes = np.unique(props[near, 1]).astype(np.int64)
-            found.append(_Line(ang, off, props[near], count, explained,
+            nodes = np.unique(left[near, 1]).astype(np.int64)
+            found.append(_Line(ang, off, left[near], count, explained,
                                off - float(np.max(poses[nodes, :2] @ n))))
-        props = props[~(_near(props, ang, off, 2.0) | mask)]
+        taken = np.flatnonzero(alive)[_near(left, ang, off, 2.0) | mask]
+        alive[taken] = False
+        counts.take(taken)
     return found
+
+
+class _LineIndex:
+    """The bins of :func:`_best_line` of every proposal, for counting any
+    subset's lines (:meth:`counts`): each proposal's (angle, offset) bin and
+    (bin, frame) pair, and the 25 (bin, frame) keys each pair lends to the
+    bins of its neighbourhood (two bins each way). The offsets' bins are
+    counted from the lowest of all the proposals, so the bins' order (angle,
+    then offset) is that of :func:`_best_line`'s of any subset."""
+
+    def __init__(self, props: NDArray):
+        self.n_a = n_a = int(np.ceil(2 * np.pi / _BIN_RAD))
+        self.a = a = np.floor(props[:, 2] / _BIN_RAD).astype(np.int64) % n_a
+        o = np.floor(props[:, 3] / _BIN_M).astype(np.int64)
+        self.o = o = o - (o.min() - 2) if o.size else o
+        self.n_o = n_o = int(o.max()) + 3 if o.size else 1
+        frames, f = np.unique(props[:, 5], return_inverse=True)
+        n_f = max(frames.size, 1)
+        pair, pair_of = np.unique((a * n_o + o) * n_f + f.ravel(), return_inverse=True)
+        self.pair_of = pair_of.ravel()
+        self.n_pairs = pair.size
+        ba, rest = np.divmod(pair, n_o * n_f)
+        bo, bf = np.divmod(rest, n_f)
+        keys = np.stack([(((ba + da) % n_a) * n_o + bo + do) * n_f + bf
+                         for da in range(-2, 3) for do in range(-2, 3)], axis=1)
+        lent, key_of = np.unique(keys.ravel(), return_inverse=True)
+        self.key_of = key_of.reshape(keys.shape)
+        self.n_keys = lent.size
+        self.bins, bin_of = np.unique(lent // n_f, return_inverse=True)
+        self.bin_of = bin_of.ravel()
+
+    def counts(self, rows: NDArray) -> _LineCounts:
+        """The counts of the proposals ``rows`` (indices, in order)."""
+        return _LineCounts(self, rows)
+
+
+class _LineCounts:
+    """The counts of :func:`_best_line` for some proposals (``rows`` of a
+    :class:`_LineIndex`) not yet taken: each bin's distinct frames within two
+    bins each way, i.e. the (bin, frame) keys lent to it by at least one
+    proposal left. Taking proposals (:meth:`take`) lowers those numbers, so
+    :meth:`best` is :func:`_best_line` of the proposals left without counting
+    them all again."""
+
+    def __init__(self, index: _LineIndex, rows: NDArray):
+        self.index = index
+        self.a, self.o = index.a[rows], index.o[rows]
+        self.pair_of = index.pair_of[rows]
+        self.props_left = np.bincount(self.pair_of, minlength=index.n_pairs)
+        self.pairs_left = np.bincount(index.key_of[self.props_left > 0].ravel(),
+                                      minlength=index.n_keys)
+        self.count = np.bincount(index.bin_of[self.pairs_left > 0], minlength=index.bins.size)
+
+    def best(self) -> tuple[int, NDArray]:
+        """(distinct frames, mask of the proposals of ``rows``) of the best
+        line of those left (a bin without proposals left counts 0, and the
+        first of the best bins is taken, as in :func:`_best_line`)."""
+        index = self.index
+        best = int(np.argmax(self.count))
+        ca, co = divmod(int(index.bins[best]), index.n_o)
+        n_a = index.n_a
+        da = np.abs((self.a - ca + n_a // 2) % n_a - n_a // 2)
+        return int(self.count[best]), (da <= 2) & (np.abs(self.o - co) <= 2)
+
+    def take(self, taken: NDArray) -> None:
+        """The proposals ``taken`` (positions in ``rows``, each once) are no
+        longer counted."""
+        if not taken.size:
+            return
+        index = self.index
+        pairs = self.pair_of[taken]
+        np.subtract.at(self.props_left, pairs, 1)
+        gone = np.zeros(index.n_pairs, dtype=bool)
+        gone[pairs[self.props_left[pairs] == 0]] = True
+        if not gone.any():
+            return
+        keys = index.key_of[gone].ravel()
+        np.subtract.at(self.pairs_left, keys, 1)
+        empty = np.zeros(index.n_keys, dtype=bool)
+        empty[keys[self.pairs_left[keys] == 0]] = True
+        np.subtract.at(self.count, index.bin_of[empty], 1)
 
 
 @dataclass(frozen=True, slots=True)

@@ -57,16 +57,24 @@ def concat_rows(parts: list[FusedRows], n_nodes: int) -> FusedRows:
     return out
 
 
-#: The per-row fields of a FusedSequence.
-_ROW_FIELDS = ("frame", "target", "label", "detection_index", "observed", "state", "covariance",
-               "laplace_covariance", "success", "status", "message", "iterations", "final_cost",
-               "degeneracy", "rejected", "time_s", "information", "information_vector")
+#: The fields of a FusedSequence that the learned walls read
+#: (:func:`~mmsnap_graph.fusion.recording.room.learn_room_walls`).
+_WALL_FIELDS = ("frame", "state", "covariance", "success", "status", "observed", "rejected")
 
 
-def _concat_sequences(parts: list[FusedSequence]) -> FusedSequence:
-    return dataclasses.replace(parts[0], **{
-        k: np.concatenate([getattr(p, k) for p in parts]) for k in _ROW_FIELDS
-        if getattr(parts[0], k) is not None})
+class _WallRows:
+    """The decided rows of the walls' look-back as
+    :func:`~mmsnap_graph.fusion.recording.room.learn_room_walls` reads them:
+    the fields it reads (:data:`_WALL_FIELDS`) of the sequences ``parts``,
+    concatenated (without building a FusedSequence of the other fields)."""
+
+    def __init__(self, parts: list[FusedSequence]) -> None:
+        self.node_poses = parts[0].node_poses
+        for k in _WALL_FIELDS:
+            setattr(self, k, np.concatenate([getattr(p, k) for p in parts]))
+
+    def __len__(self) -> int:
+        return int(self.frame.shape[0])
 
 
 class _LookBack:
@@ -226,4 +234,4 @@ class StreamPipeline:
         self._since_learned += 1
         if self._since_learned >= cfg.relearn_frames and self._history:
             self._since_learned = 0
-            self._walls = learn_room_walls(_concat_sequences(list(self._history)))
+            self._walls = learn_room_walls(_WallRows(list(self._history)))

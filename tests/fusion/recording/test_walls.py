@@ -405,3 +405,93 @@ def test_the_proposals_of_all_frames_at_once_are_those_frame_by_frame(seed):
     assert len(want) > 50
     np.testing.assert_array_equal(got[:, [0, 1, 5]], want[:, [0, 1, 5]])
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def _lines_counted_again(props, xy, confirmed, poses):
+    """The lines of _lines, each line's counts counted again from the
+    proposals left (_best_line): the reference of its updated counts."""
+    from mmsnap_graph.fusion.recording.walls import (WALL_MAX_CROSSING, _best_line, _Line,
+                                                      _near)
+
+    found = []
+    while len(props):
+        count, mask = _best_line(props)
+        if count < WALL_MIN_FRAMES:
+            break
+        ang = float(np.angle(np.mean(np.exp(1j * props[mask, 2]))))
+        off = float(np.median(props[mask, 3]))
+        near = _near(props, ang, off)
+        explained = np.zeros(len(xy), dtype=bool)
+        explained[props[near, 0].astype(np.int64)] = True
+        n = np.array([np.cos(ang), np.sin(ang)])
+        crossing = confirmed & ~explained & (xy @ n > off)
+        if crossing.sum() <= WALL_MAX_CROSSING * confirmed.sum():
+            nodes = np.unique(props[near, 1]).astype(np.int64)
+            found.append(_Line(ang, off, props[near], count, explained,
+                               off - float(np.max(poses[nodes, :2] @ n))))
+        props = props[~(_near(props, ang, off, 2.0) | mask)]
+    return found
+
+
+def _random_proposals(rng, n_lines=12, n_noise=600, n_rows=400, n_frames=300):
+    """Proposals (row, node, angle, offset, along, frame) of ``n_lines``
+    lines (some near each other, some across the angle's wrap) and noise."""
+    out = []
+    for _ in range(n_lines):
+        ang, off = rng.uniform(-np.pi, np.pi), rng.uniform(0.5, 6.0)
+        k = int(rng.integers(5, 80))
+        out.append(np.c_[rng.integers(0, n_rows, k), rng.integers(0, 3, k),
+                         (ang + rng.normal(0, 0.05, k) + np.pi) % (2 * np.pi) - np.pi,
+                         off + rng.normal(0, 0.1, k), rng.uniform(-2, 2, k),
+                         rng.integers(0, n_frames, k)])
+    out.append(np.c_[rng.integers(0, n_rows, n_noise), rng.integers(0, 3, n_noise),
+                     rng.uniform(-np.pi, np.pi, n_noise), rng.uniform(0.2, 8.0, n_noise),
+                     rng.uniform(-2, 2, n_noise), rng.integers(0, n_frames, n_noise)])
+    props = np.concatenate(out).astype(float)
+    return props[np.lexsort((props[:, 1], props[:, 5]))]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_lines_with_updated_counts_are_those_counted_again(seed):
+    """The line search updates its bins' counts as it takes proposals: the
+    same lines, bit for bit (angle, offset, proposals, frames, images,
+    distance), as counting the proposals left again for each line; for all
+    the proposals and for each node's (counted from the index of all)."""
+    from mmsnap_graph.fusion.recording.walls import _LineIndex, _lines
+
+    rng = np.random.default_rng(seed)
+    props = _random_proposals(rng)
+    # The rows inside the lines but a few, behind some of them.
+    xy = rng.uniform(-0.4, 0.4, (400, 2))
+    xy[:4] = rng.uniform(-8, 8, (4, 2))
+    confirmed = rng.random(400) < (0.3 if seed % 2 else 0.6)
+    poses = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, np.pi], [0.0, 4.0, -np.pi / 2]])
+    index = _LineIndex(props)
+    cases = [(props, index.counts(np.arange(len(props))))]
+    for s in range(3):
+        rows = np.flatnonzero(props[:, 1] == s)
+        cases.append((props[rows], index.counts(rows)))
+    n_found = 0
+    for p, counts in cases:
+        want = _lines_counted_again(p, xy, confirmed, poses)
+        for got in (_lines(p, xy, confirmed, poses, counts), _lines(p, xy, confirmed, poses)):
+            assert len(got) == len(want)
+            for g, w in zip(got, want):
+                assert (g.ang, g.off, g.frames, g.dist) == (w.ang, w.off, w.frames, w.dist)
+                np.testing.assert_array_equal(g.props, w.props)
+                np.testing.assert_array_equal(g.images, w.images)
+        n_found += len(want)
+    assert n_found >= 3
+
+
+@pytest.mark.parametrize("image", [mirror, one_bounce])
+def test_learned_walls_are_those_of_the_lines_counted_again(image, monkeypatch):
+    """learn_walls with the updated counts: the walls of the reference line
+    search, exactly."""
+    import mmsnap_graph.fusion.recording.walls as w
+
+    rows = scene(image, extra=[(f, 0.5, 5.5, 0.0, 0.3, 1) for f in range(0, N_FRAMES, 2)])
+    got = walls_of(rows)
+    monkeypatch.setattr(w, "_lines", lambda props, xy, confirmed, poses, counts=None:
+                        _lines_counted_again(props, xy, confirmed, poses))
+    assert got and got == walls_of(rows)

@@ -89,3 +89,43 @@ def test_the_checks_of_one_frame_skip_only_work_it_does_not_need(monkeypatch):
     for (xa, sa, ra, ma), (xb, sb, rb, mb) in zip(got, want):
         assert np.array_equal(xa, xb) and np.array_equal(sa, sb) and np.array_equal(ra, rb)
         assert ma == mb
+
+
+def test_the_walls_learned_from_the_look_back_are_those_of_its_sequence(monkeypatch):
+    """The stream learns the walls from the fields of its look-back that they
+    read (concatenated, no FusedSequence built): every relearning's walls are
+    those of the look-back's decided rows as one FusedSequence. Network C,
+    one walker, walls learned."""
+    import dataclasses
+
+    import mmsnap_graph.fusion.stream.checks as checks
+    from mmsnap_graph.fusion.config import LearnedWalls
+    from mmsnap_graph.fusion.stream.frame_stream import STREAM_CONFIG
+
+    rec = simulate_recording("C", "random", SimulationOptions(known_poses=True, n_targets=1),
+                             levels=("centroids",), n_frames=400, seed=0)
+    cfg = dataclasses.replace(STREAM_CONFIG, checks=tuple(
+        LearnedWalls(look_back_frames=250, relearn_frames=50) if isinstance(c, LearnedWalls)
+        else c for c in STREAM_CONFIG.checks))
+    poses = [rec.node_poses()[n] for n in rec.node_names]
+    stream = FrameStream(rec.node_names, poses, config=cfg)
+    learn, learned = checks.learn_room_walls, []
+    ROW_FIELDS = ("frame", "target", "label", "detection_index", "observed", "state", "covariance",
+                  "laplace_covariance", "success", "status", "message", "iterations",
+                  "final_cost", "degeneracy", "rejected", "time_s", "information",
+                  "information_vector")
+
+    def spy(rows):
+        parts = list(stream._pipeline._history)
+        whole = dataclasses.replace(parts[0], **{
+            k: np.concatenate([getattr(p, k) for p in parts]) for k in ROW_FIELDS
+            if getattr(parts[0], k) is not None})
+        walls = learn(rows)
+        assert len(rows) == len(whole) and walls == learn(whole)
+        learned.append(len(walls))
+        return walls
+
+    monkeypatch.setattr(checks, "learn_room_walls", spy)
+    for _, t, det in recording_frames(rec, fill_frames=stream.tracker_config.max_misses):
+        stream.feed(t, det)
+    assert len(learned) >= 6 and max(learned) >= 3
