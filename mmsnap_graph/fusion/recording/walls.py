@@ -211,31 +211,6 @@ def _near(props: NDArray, ang: float, off: float, scale: float = 1.0) -> NDArray
                                                  <= scale * WALL_OFFSET_TOL_M)
 
 
-def _best_line(props: NDArray) -> tuple[int, NDArray]:
-    """(distinct frames, mask of the proposals) of the best-supported line:
-    proposals binned by angle and offset, each bin's neighbourhood
-    (+-tolerance, two bins each way) counted in distinct frames."""
-    n_a = int(np.ceil(2 * np.pi / _BIN_RAD))
-    a = np.floor(props[:, 2] / _BIN_RAD).astype(np.int64) % n_a
-    o = np.floor(props[:, 3] / _BIN_M).astype(np.int64)
-    o -= o.min() - 2
-    n_o = int(o.max()) + 3
-    frames, f = np.unique(props[:, 5], return_inverse=True)
-    n_f = frames.size
-    # Every (bin, frame) a proposal lends to each bin of its neighbourhood,
-    # counted once: the distinct frames of each bin's neighbourhood.
-    base = np.unique((a * n_o + o) * n_f + f.ravel())
-    ba, rest = np.divmod(base, n_o * n_f)
-    bo, bf = np.divmod(rest, n_f)
-    keys = np.concatenate([(((ba + da) % n_a) * n_o + bo + do) * n_f + bf
-                           for da in range(-2, 3) for do in range(-2, 3)])
-    bins, counts = np.unique(np.unique(keys) // n_f, return_counts=True)
-    best = int(np.argmax(counts))
-    ca, co = divmod(int(bins[best]), n_o)
-    da = np.abs((a - ca + n_a // 2) % n_a - n_a // 2)
-    return int(counts[best]), (da <= 2) & (np.abs(o - co) <= 2)
-
-
 def _checked(frame, state, covariance, ok, seen, poses):
     """The arrays of :func:`learn_walls`, their shapes checked."""
     frame = np.asarray(frame)
@@ -303,9 +278,12 @@ def _lines(props: NDArray, xy: NDArray, confirmed: NDArray, poses: NDArray,
     :data:`WALL_MAX_CROSSING` of the ``confirmed`` rows stand (not counting
     the images each explains).
 
-    Each line is :func:`_best_line` of the proposals left; its counts
-    (``counts``: those of ``props``, default counted here) are updated as
-    proposals are taken instead of counted again (the same lines)."""
+    Each line is the best supported of the proposals left: proposals
+    binned by angle and offset (half the tolerances), each bin's
+    neighbourhood (two bins each way) counted in distinct frames, the first
+    of the best bins taken. Its counts (``counts``: those of ``props``,
+    default counted here) are updated as proposals are taken instead of
+    counted again (the same lines)."""
     found = []
     if counts is None:
         counts = _LineIndex(props).counts(np.arange(len(props)))
@@ -334,12 +312,12 @@ def _lines(props: NDArray, xy: NDArray, confirmed: NDArray, poses: NDArray,
 
 
 class _LineIndex:
-    """The bins of :func:`_best_line` of every proposal, for counting any
+    """The bins of the line search (:func:`_lines`) of every proposal, for counting any
     subset's lines (:meth:`counts`): each proposal's (angle, offset) bin and
     (bin, frame) pair, and the 25 (bin, frame) keys each pair lends to the
     bins of its neighbourhood (two bins each way). The offsets' bins are
     counted from the lowest of all the proposals, so the bins' order (angle,
-    then offset) is that of :func:`_best_line`'s of any subset."""
+    then offset) is that of the bins counted from the subset alone."""
 
     def __init__(self, props: NDArray):
         self.n_a = n_a = int(np.ceil(2 * np.pi / _BIN_RAD))
@@ -368,11 +346,11 @@ class _LineIndex:
 
 
 class _LineCounts:
-    """The counts of :func:`_best_line` for some proposals (``rows`` of a
+    """The counts of the line search for some proposals (``rows`` of a
     :class:`_LineIndex`) not yet taken: each bin's distinct frames within two
     bins each way, i.e. the (bin, frame) keys lent to it by at least one
     proposal left. Taking proposals (:meth:`take`) lowers those numbers, so
-    :meth:`best` is :func:`_best_line` of the proposals left without counting
+    :meth:`best` is the best line of the proposals left without counting
     them all again."""
 
     def __init__(self, index: _LineIndex, rows: NDArray):
@@ -387,7 +365,7 @@ class _LineCounts:
     def best(self) -> tuple[int, NDArray]:
         """(distinct frames, mask of the proposals of ``rows``) of the best
         line of those left (a bin without proposals left counts 0, and the
-        first of the best bins is taken, as in :func:`_best_line`)."""
+        first of the best bins is taken)."""
         index = self.index
         best = int(np.argmax(self.count))
         ca, co = divmod(int(index.bins[best]), index.n_o)

@@ -3,14 +3,18 @@ and their check in screen_room."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from mmsnap_graph.data.results import Status
 from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.recording.room import RoomBounds, screen_room
-from mmsnap_graph.fusion.recording.walls import (WALL_MARGIN_M, WALL_MIN_FRAMES,
-                                                  beyond_learned_walls, learn_walls)
+from mmsnap_graph.fusion.recording.walls import (WALL_ANGLE_TOL_RAD, WALL_MARGIN_M,
+                                                  WALL_MAX_CROSSING, WALL_MIN_FRAMES,
+                                                  WALL_OFFSET_TOL_M, beyond_learned_walls,
+                                                  learn_walls)
 
 from _fused_rows import fused_rows
 from _fusion import config
@@ -407,29 +411,55 @@ def test_the_proposals_of_all_frames_at_once_are_those_frame_by_frame(seed):
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
 
 
-def _lines_counted_again(props, xy, confirmed, poses):
-    """The lines of _lines, each line's counts counted again from the
-    proposals left (_best_line): the reference of its updated counts."""
-    from mmsnap_graph.fusion.recording.walls import (WALL_MAX_CROSSING, _best_line, _Line,
-                                                      _near)
+def _near_ref(props, ang, off, scale=1.0):
+    """The proposals within ``scale`` times the tolerances of a line."""
+    da = np.abs((props[:, 2] - ang + np.pi) % (2 * np.pi) - np.pi)
+    return (da <= scale * WALL_ANGLE_TOL_RAD) & (np.abs(props[:, 3] - off)
+                                                 <= scale * WALL_OFFSET_TOL_M)
 
+
+def _best_line_counted(props):
+    """(distinct frames, mask of the proposals) of the best-supported line,
+    counted from these proposals alone: bins of half the tolerances, each
+    bin's neighbourhood (two bins each way) counted in distinct frames by a
+    plain loop over the bins, the first of the best bins (angle, then offset)
+    taken."""
+    bin_rad, bin_m = WALL_ANGLE_TOL_RAD / 2, WALL_OFFSET_TOL_M / 2
+    n_a = int(np.ceil(2 * np.pi / bin_rad))
+    a = np.floor(props[:, 2] / bin_rad).astype(np.int64) % n_a
+    o = np.floor(props[:, 3] / bin_m).astype(np.int64)
+    lent: dict[tuple[int, int], set] = {}
+    for ai, oi, frame in zip(a, o, props[:, 5]):
+        for da in range(-2, 3):
+            for do in range(-2, 3):
+                lent.setdefault(((ai + da) % n_a, oi + do), set()).add(frame)
+    ca, co = min(lent, key=lambda b: (-len(lent[b]), b))
+    da = np.abs((a - ca + n_a // 2) % n_a - n_a // 2)
+    return len(lent[(ca, co)]), (da <= 2) & (np.abs(o - co) <= 2)
+
+
+def _lines_counted_again(props, xy, confirmed, poses):
+    """The lines of the search, each line counted again from the proposals
+    left (_best_line_counted): the reference of the library's updated
+    counts, as (angle, offset, proposals, frames, images, distance)."""
     found = []
     while len(props):
-        count, mask = _best_line(props)
+        count, mask = _best_line_counted(props)
         if count < WALL_MIN_FRAMES:
             break
         ang = float(np.angle(np.mean(np.exp(1j * props[mask, 2]))))
         off = float(np.median(props[mask, 3]))
-        near = _near(props, ang, off)
+        near = _near_ref(props, ang, off)
         explained = np.zeros(len(xy), dtype=bool)
         explained[props[near, 0].astype(np.int64)] = True
         n = np.array([np.cos(ang), np.sin(ang)])
         crossing = confirmed & ~explained & (xy @ n > off)
         if crossing.sum() <= WALL_MAX_CROSSING * confirmed.sum():
             nodes = np.unique(props[near, 1]).astype(np.int64)
-            found.append(_Line(ang, off, props[near], count, explained,
-                               off - float(np.max(poses[nodes, :2] @ n))))
-        props = props[~(_near(props, ang, off, 2.0) | mask)]
+            found.append(SimpleNamespace(ang=ang, off=off, props=props[near], frames=count,
+                                         images=explained,
+                                         dist=off - float(np.max(poses[nodes, :2] @ n))))
+        props = props[~(_near_ref(props, ang, off, 2.0) | mask)]
     return found
 
 
