@@ -206,11 +206,18 @@ class LearnedWalls:
     The walls are learned from every row the driver holds: the whole
     recording in memory, each window (with its context) of a file, the last
     ``look_back_frames`` frames of a stream, learned again every
-    ``relearn_frames`` frames there (learning costs about 0.2 ms per row).
+    ``relearn_frames`` decided frames there. A stream applies the walls
+    learned at a decided frame from the ``apply_after_frames``-th decided
+    frame after it on (0: that frame itself), so that the learning (about
+    50 ms for a look-back of 2000 frames of two people) can run beside the
+    stream (``FrameStream(wall_executor=...)``, as ``mmsnap live`` does)
+    without changing a row: ``mmsnap replay`` learns them in line and applies
+    them at the same frames.
     """
 
     look_back_frames: int = 2000
     relearn_frames: int = 100
+    apply_after_frames: int = 20
     look_frames: ClassVar[int] = WHOLE_RECORDING
 
     def __post_init__(self) -> None:
@@ -218,6 +225,8 @@ class LearnedWalls:
                            check_count(self.look_back_frames, "look_back_frames"))
         object.__setattr__(self, "relearn_frames",
                            check_count(self.relearn_frames, "relearn_frames"))
+        object.__setattr__(self, "apply_after_frames",
+                           check_count(self.apply_after_frames, "apply_after_frames", 0))
 
 
 @dataclass(frozen=True, kw_only=True, slots=True)

@@ -30,6 +30,8 @@ BOX = RoomBounds(x_min=-2.0, x_max=1.6, y_min=0.0, y_max=3.6)
     (lambda: RoomCheck(in_front="yes"), "in_front must be True or False"),
     (lambda: DuplicateCheck(body_m=0.0), "body_m must be a positive"),
     (lambda: LearnedWalls(relearn_frames=0), "relearn_frames"),
+    (lambda: LearnedWalls(apply_after_frames=-1), "apply_after_frames"),
+    (lambda: LearnedWalls(apply_after_frames=1.5), "apply_after_frames"),
     (lambda: FusionConfig(solve=FusionOptions(covariance="both")), "'laplace' or 'grid'"),
     (lambda: FusionConfig(solve={"solver": "gtsam"}), "solve must be a FusionOptions"),
     (lambda: FusionConfig(prior="paper"), "prior must be a GaussianPrior or None"),

@@ -113,16 +113,49 @@ def live_calibration(path, names: Sequence[str]):
     return np.array([poses[n] for n in names], dtype=float), cal.with_default_noise(*paper_noise())
 
 
+def _low_priority() -> None:
+    """A worker's initializer: below the live process (``nice`` +10), so
+    that what it does never holds up a fused frame."""
+    import os
+    try:
+        os.nice(10)
+    except OSError:                      # pragma: no cover - not allowed here
+        pass
+
+
+def wall_executor():
+    """The executor the learned walls of ``mmsnap live`` are learned in: one
+    worker process at low priority (``nice`` +10), started now (its imports
+    off the frames' path). The stream applies its walls at the frames
+    ``mmsnap replay`` applies those it learns in line
+    (:class:`~mmsnap_graph.fusion.config.LearnedWalls`); the caller shuts it
+    down."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_low_priority)
+    pool.submit(_ready).result()
+    return pool
+
+
+def _ready() -> bool:
+    """The worker's first job: the walls' module imported before they are needed."""
+    from ...fusion.recording import room  # noqa: F401
+    return True
+
+
 def live_stream(names: Sequence[str], poses, *, frame_period_s: float, config, noise,
-                pose_covariances=None, range_offset_m=None):
+                pose_covariances=None, range_offset_m=None, wall_executor=None):
     """The :class:`~mmsnap_graph.fusion.stream.frame_stream.FrameStream` of
     ``mmsnap live``: the tracker at the boards' frame period, as ``mmsnap
-    replay`` of the recording takes it (:func:`live_recording`)."""
+    replay`` of the recording takes it (:func:`live_recording`); the walls
+    learned in ``wall_executor`` (:func:`wall_executor`; None: in line)."""
     from ...fusion.stream.frame_stream import FrameStream
     from ...tracking.central import CentralConfig
     return FrameStream(names, poses, config=config, noise=noise,
                        pose_covariances=pose_covariances, range_offset_m=range_offset_m,
-                       tracker=CentralConfig(frame_period_s=float(frame_period_s)))
+                       tracker=CentralConfig(frame_period_s=float(frame_period_s)),
+                       wall_executor=wall_executor)
 
 
 def live_recording(collector, centroids, poses: Mapping, *, mounting: Mapping,

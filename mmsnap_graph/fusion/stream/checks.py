@@ -10,7 +10,12 @@ runs on the rows held (the frame, the :attr:`~mmsnap_graph.fusion.config.FusionC
 before it and the ``delay_frames`` after it) and the frame's rows are taken,
 then :func:`~mmsnap_graph.fusion.recording.pipeline.screen_rows` with the walls
 learned from the decided rows of the last
-:attr:`~mmsnap_graph.fusion.config.LearnedWalls.look_back_frames` frames.
+:attr:`~mmsnap_graph.fusion.config.LearnedWalls.look_back_frames` frames
+(learned every :attr:`~mmsnap_graph.fusion.config.LearnedWalls.relearn_frames`
+decided frames and applied
+:attr:`~mmsnap_graph.fusion.config.LearnedWalls.apply_after_frames` decided
+frames later: in line, or in an executor beside the stream, the same walls
+at the same frames).
 
 With ``delay_frames >= context_frames`` a frame's rows are those of the
 in-memory driver (the checks see every frame they look at), except where the
@@ -23,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import deque
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass
 
 import numpy as np
@@ -96,10 +102,16 @@ class _LookBack:
 class StreamPipeline:
     """Solve each frame when it arrives and decide it ``delay_frames`` later
     (module docstring). ``net``: the network; ``config``: the
-    :class:`FusionConfig` (its ``covariance`` must be ``"laplace"``)."""
+    :class:`FusionConfig` (its ``covariance`` must be ``"laplace"``);
+    ``wall_executor``: where the learned walls are learned (an executor of
+    :mod:`concurrent.futures`; None: in line), when
+    :attr:`~mmsnap_graph.fusion.config.LearnedWalls.apply_after_frames` is
+    not 0."""
 
-    def __init__(self, net: FusionNetwork, config: FusionConfig, delay_frames: int) -> None:
+    def __init__(self, net: FusionNetwork, config: FusionConfig, delay_frames: int,
+                 wall_executor: Executor | None = None) -> None:
         self.net, self.config, self.delay_frames = net, config, int(delay_frames)
+        self.wall_executor = wall_executor
         self._held: deque[SolvedFrame] = deque()
         walls = config.check(LearnedWalls)
         self._walls_cfg = walls
@@ -119,6 +131,10 @@ class StreamPipeline:
         self._history: deque[FusedSequence] = deque()
         self._walls: list = []
         self._since_learned = 0
+        self._decided = 0
+        # Walls learned and not yet applied: (the decided frame they apply
+        # from, the rows they are learned from, their walls or their future).
+        self._pending: deque[tuple[int, _WallRows, list | Future]] = deque()
 
     def see(self, per_node) -> None:
         """A frame's detections (N arrays (K_n, 3)), for each node's reach."""
@@ -231,7 +247,36 @@ class StreamPipeline:
         while last is not None and self._history and \
                 int(self._history[0].frame[0]) <= last - cfg.look_back_frames:
             self._history.popleft()
+        self._decided += 1
+        while self._pending and self._pending[0][0] <= self._decided:
+            _, rows, job = self._pending.popleft()
+            self._walls = _walls_of(rows, job)
         self._since_learned += 1
         if self._since_learned >= cfg.relearn_frames and self._history:
             self._since_learned = 0
-            self._walls = learn_room_walls(_WallRows(list(self._history)))
+            rows = _WallRows(list(self._history))
+            if cfg.apply_after_frames == 0:
+                self._walls = learn_room_walls(rows)
+                return
+            job: list | Future
+            if self.wall_executor is None:
+                job = learn_room_walls(rows)
+            else:
+                try:
+                    job = self.wall_executor.submit(learn_room_walls, rows)
+                except RuntimeError:        # shut down, or its worker died: in line
+                    job = learn_room_walls(rows)
+            self._pending.append((self._decided + cfg.apply_after_frames, rows, job))
+
+
+def _walls_of(rows: _WallRows, job: list | Future) -> list:
+    """The walls of a relearning: learned in line, or the executor's (waited
+    for); learned in line from the same rows if the executor failed (a
+    worker that died), so that the walls never depend on where they were
+    learned."""
+    if not isinstance(job, Future):
+        return job
+    try:
+        return job.result()
+    except Exception:       # noqa: BLE001 - a broken pool, a pickling failure: learn in line
+        return learn_room_walls(rows)

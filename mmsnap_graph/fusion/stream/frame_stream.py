@@ -55,6 +55,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from typing import Iterator, Literal, Mapping, Sequence
 
@@ -196,6 +197,14 @@ class FrameStream:
         Rows of one node kept per frame (default
         :data:`MAX_DETECTIONS_PER_NODE`, at most 4096); the rest are dropped
         and counted (module docstring).
+    wall_executor : concurrent.futures.Executor, optional
+        Where the learned walls are learned again (default: in line). The
+        walls learned at a decided frame apply
+        :attr:`~mmsnap_graph.fusion.config.LearnedWalls.apply_after_frames`
+        decided frames later wherever they are learned (the stream waits
+        for them then), so an executor (one worker process at low priority,
+        as ``mmsnap live`` gives) takes the learning off the frames' path
+        without changing a row. The stream does not shut it down.
 
     Example
     -------
@@ -210,7 +219,8 @@ class FrameStream:
                  pose_covariances: ArrayLike | Mapping[str, ArrayLike] | None = None,
                  range_offset_m: float | None = None,
                  delay_frames: int = 0,
-                 max_detections_per_node: int = MAX_DETECTIONS_PER_NODE) -> None:
+                 max_detections_per_node: int = MAX_DETECTIONS_PER_NODE,
+                 wall_executor: Executor | None = None) -> None:
         names = tuple(node_names)
         if not names or not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
             raise ValidationError(f"node_names must be distinct strings, got {node_names!r}")
@@ -248,7 +258,10 @@ class FrameStream:
         net = FusionNetwork.make(names, poses, noises, self.pose_covariances, self.prior,
                                  self.frame_period_s)
         self._associator = StreamAssociator(poses, noises, self.gate_probability)
-        self._pipeline = StreamPipeline(net, config, self.delay_frames)
+        if wall_executor is not None and not isinstance(wall_executor, Executor):
+            raise ValidationError("wall_executor must be a concurrent.futures.Executor, got "
+                                  f"{type(wall_executor).__name__}")
+        self._pipeline = StreamPipeline(net, config, self.delay_frames, wall_executor)
         self._index = {name: i for i, name in enumerate(names)}
         prior = self.prior
         self._new_tracker = lambda: CentralTracker(

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import multiprocessing
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+
 import numpy as np
+import pytest
 
 from mmsnap_graph.data.results import Status
+from mmsnap_graph.errors import ValidationError
 from mmsnap_graph.fusion.recording.pipeline import check_rows
 from mmsnap_graph.fusion.recording.rows import FusedRows
 from mmsnap_graph.fusion.stream.checks import StreamPipeline, concat_rows
@@ -129,3 +134,85 @@ def test_the_walls_learned_from_the_look_back_are_those_of_its_sequence(monkeypa
     for _, t, det in recording_frames(rec, fill_frames=stream.tracker_config.max_misses):
         stream.feed(t, det)
     assert len(learned) >= 6 and max(learned) >= 3
+
+
+def _walls_scene(apply_after):
+    """Network C, one walker, the walls learned every 50 decided frames from
+    the last 250, applied ``apply_after`` decided frames later."""
+    import dataclasses
+
+    from mmsnap_graph.fusion.config import LearnedWalls
+    from mmsnap_graph.fusion.stream.frame_stream import STREAM_CONFIG
+
+    rec = simulate_recording("C", "random", SimulationOptions(known_poses=True, n_targets=1),
+                             levels=("centroids",), n_frames=400, seed=0)
+    cfg = dataclasses.replace(STREAM_CONFIG, checks=tuple(
+        LearnedWalls(look_back_frames=250, relearn_frames=50, apply_after_frames=apply_after)
+        if isinstance(c, LearnedWalls) else c for c in STREAM_CONFIG.checks))
+    return rec, cfg, [rec.node_poses()[n] for n in rec.node_names]
+
+
+def _updates(stream, rec):
+    return [u for _, t, det in recording_frames(rec, fill_frames=stream.tracker_config.max_misses)
+            for u in stream.feed(t, det)]
+
+
+def _same_updates(a, b):
+    assert len(a) == len(b)
+    for u, v in zip(a, b):
+        assert u.message == v.message
+        for k in ("state", "covariance", "status", "rejected", "track_id", "track_state"):
+            np.testing.assert_array_equal(getattr(u, k), getattr(v, k))
+
+
+def test_walls_apply_the_set_number_of_decided_frames_after_their_learning(monkeypatch):
+    """The walls learned at the decided frame c screen the rows from the
+    decided frame c + apply_after_frames on; before, those learned earlier
+    (none before the first learning). Reference: learn_room_walls of the
+    look-back's rows, taken when each learning happens."""
+    import mmsnap_graph.fusion.stream.checks as checks
+
+    rec, cfg, poses = _walls_scene(7)
+    stream = FrameStream(rec.node_names, poses, config=cfg)
+    learn, screen = checks.learn_room_walls, checks.screen_rows
+    learned, used = [], []
+
+    def spy_learn(rows):
+        learned.append((stream._pipeline._decided, learn(rows)))
+        return learned[-1][1]
+
+    def spy_screen(seq, config, walls):
+        used.append(list(walls))
+        return screen(seq, config, walls=walls)
+
+    monkeypatch.setattr(checks, "learn_room_walls", spy_learn)
+    monkeypatch.setattr(checks, "screen_rows", spy_screen)
+    _updates(stream, rec)
+    assert len(learned) >= 6 and any(w for _, w in learned)
+    want, walls, pending = [], [], list(learned)
+    for d in range(1, len(used) + 1):     # the decided frames, counted from 1
+        while pending and pending[0][0] + 7 <= d:
+            walls = pending.pop(0)[1]
+        want.append(walls)
+    assert used == want
+
+
+def test_walls_learned_in_an_executor_give_the_rows_learned_in_line():
+    """A thread pool, a worker process and a pool that fails each learning
+    (its walls then learned in line): every update as in line."""
+    class Failing(ThreadPoolExecutor):
+        def submit(self, fn, *args, **kwargs):
+            f = Future()
+            f.set_exception(OSError("worker died"))
+            return f
+
+    rec, cfg, poses = _walls_scene(20)
+    want = _updates(FrameStream(rec.node_names, poses, config=cfg), rec)
+    assert any(np.any(u.status == Status.OUTSIDE_BOUNDS) for u in want)
+    spawn = multiprocessing.get_context("spawn")
+    for pool in (ThreadPoolExecutor(1), ProcessPoolExecutor(1, mp_context=spawn), Failing(1)):
+        with pool:
+            _same_updates(_updates(FrameStream(rec.node_names, poses, config=cfg,
+                                               wall_executor=pool), rec), want)
+    with pytest.raises(ValidationError, match="wall_executor"):
+        FrameStream(rec.node_names, poses, config=cfg, wall_executor=object())

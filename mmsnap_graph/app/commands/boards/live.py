@@ -89,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from mmsnap_graph.app.live.driver import (LiveFusion, live_calibration, live_recording,
-                                              live_stream)
+                                              live_stream, wall_executor)
+    from mmsnap_graph.fusion.config import LearnedWalls
     from mmsnap_graph.app.live.sinks import CentroidLog, JsonLinesSink, LatencyLog, SelfCheckSink
     from mmsnap_graph.app.view.arguments import view_sink
     from mmsnap_graph.io import write_recording
@@ -109,9 +110,13 @@ def run(args: argparse.Namespace) -> int:
     # .cfg: its farthest centroid so far.
     reach = {n: t.max_range_m for n, t in session.timing.items() if t.max_range_m is not None}
     config = config.with_coverage_reach(reach)
+    # The learned walls in a worker process beside the stream (the same rows
+    # as learned in line: LearnedWalls.apply_after_frames).
+    walls = config.check(LearnedWalls)
+    learner = wall_executor() if walls is not None and walls.apply_after_frames else None
     stream = live_stream(names, poses, frame_period_s=session.frame_period_s, config=config,
                          noise=cal.noise, pose_covariances=cal.pose_covariances,
-                         range_offset_m=cal.range_offset_m)
+                         range_offset_m=cal.range_offset_m, wall_executor=learner)
     out = sys.stdout if args.output is None else open_regular(args.output)
     json_sink, centroids, latency = JsonLinesSink(out), CentroidLog(), LatencyLog()
     collector = FrameCollector(names, session.frame_period_s, t0_s=session.t0_s)
@@ -147,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
             view.close()
         if refine is not None:
             refine.close()
+        if learner is not None:
+            learner.shutdown(cancel_futures=True)
     print("\n".join(report_lines(session)), file=sys.stderr)
     if args.view_log:
         print(f"wrote {args.view_log} (open it in Foxglove or Lichtblick)", file=sys.stderr)
