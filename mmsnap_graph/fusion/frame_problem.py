@@ -30,7 +30,8 @@ from ..errors import GeometryError, ValidationError
 from .problem import (AT_NODE_M, check_node_noise, check_poses, check_pose_covariances,
                       check_prior, node_sigmas, validate_frame, validate_frames)
 
-__all__ = ["FrameProblem", "initial_states", "whitened_residuals", "SMALL_PROBLEM_ROWS"]
+__all__ = ["FrameProblem", "initial_states", "initial_state_floats", "whitened_residuals",
+           "SMALL_PROBLEM_ROWS"]
 
 #: Frames made with :meth:`FrameProblem.with_frames` of at most this many
 #: measurement rows (frames times nodes) are validated in plain floats
@@ -273,9 +274,8 @@ def initial_states(problem: FrameProblem, *, per_frame: bool = False) -> NDArray
     if problem.initial_state is not None:
         return np.array(problem.initial_state)
     if per_frame and problem.poses.ndim == 2:
-        start = problem.cached("start_floats", lambda: _StartFloats(problem))
-        return np.array([start(zl, ol) for zl, ol in zip(problem.measurements.tolist(),
-                                                          problem.observed.tolist())],
+        return np.array(initial_state_floats(problem, problem.measurements.tolist(),
+                                             problem.observed.tolist()),
                         dtype=float).reshape(problem.n_frames, 4)
     out = np.empty((problem.n_frames, 4))
     chunk = 8192
@@ -284,6 +284,16 @@ def initial_states(problem: FrameProblem, *, per_frame: bool = False) -> NDArray
         out[sl] = _start_arrays(problem.poses[sl] if problem.poses.ndim == 3 else problem.poses,
                                 problem.measurements[sl], problem.observed[sl], problem)
     return out
+
+
+def initial_state_floats(problem: FrameProblem, z_lists: list, observed_lists: list) -> list:
+    """The initial values of :func:`initial_states` (``per_frame``) as F lists
+    of 4 floats, of the frames ``z_lists`` (``problem.measurements.tolist()``)
+    and ``observed_lists`` (``problem.observed.tolist()``) of a problem of
+    one network without an ``initial_state``: for a solver that already holds
+    the frames as lists (the scalar solver), the same floats."""
+    start = problem.cached("start_floats", lambda: _StartFloats(problem))
+    return [start(zl, ol) for zl, ol in zip(z_lists, observed_lists)]
 
 
 def _doppler_weights(noise) -> tuple[float, list[float] | None]:

@@ -65,6 +65,7 @@ from ...data.solution import FusionSolution
 from ...errors import ValidationError
 from ..._floats4 import cholesky_4x4, cholesky_inverse_4x4, cholesky_solve_4x4, forward_4x4
 from ..degeneracy import condition_2x2
+from ..frame_problem import initial_state_floats
 from ..frame_problem import initial_states as start_states
 from .assess import NEWTON_DECREMENT_TOLERANCE
 from .settings import LM_SETTINGS, LevenbergMarquardtSettings
@@ -401,8 +402,14 @@ def solve_frames(problem, options):
                               "(poses (N, 3)); use solver='vectorized' or 'gtsam'")
     solver = _solver_of(problem, options.lm)
     n_nodes = problem.n_nodes
-    x0 = start_states(problem, per_frame=True)
-    z_all, obs_all, x0_all = problem.measurements.tolist(), problem.observed.tolist(), x0.tolist()
+    z_all, obs_all = problem.measurements.tolist(), problem.observed.tolist()
+    if problem.initial_state is None and problem.poses.ndim == 2:
+        # The floats of start_states(per_frame=True), from the lists held here.
+        x0_all = initial_state_floats(problem, z_all, obs_all)
+        x0 = np.array(x0_all, dtype=float).reshape(len(z_all), 4)
+    else:
+        x0 = start_states(problem, per_frame=True)
+        x0_all = x0.tolist()
     no_prior = problem.prior is None
     # One flat list of floats per frame (state 4, covariance 16, cost,
     # degeneracy, whitened residuals 3 N), made one array at the end: numpy's

@@ -36,3 +36,25 @@ def test_a_network_per_frame_is_refused():
     with pytest.raises(ValidationError, match="one network for every frame"):
         solve(problem, SCALAR)
     assert solve(problem, FusionOptions(solver="vectorized")).success.all()
+
+
+def test_each_frame_starts_where_the_vectorized_initial_values_put_it():
+    """The scalar solver's start of each frame (its solution's
+    initial_state, computed from the frames as lists) is the numpy initial
+    values of every frame at once (an independent computation) to 1e-12, and
+    the given start when there is one; frames without a node or with a
+    missing node included."""
+    from mmsnap_graph.fusion.frame_problem import initial_states
+
+    rng = np.random.default_rng(4)
+    z = np.stack([rng.uniform(1.0, 6.0, (30, 4)), rng.uniform(-2.5, 2.5, (30, 4)),
+                  rng.normal(0, 1, (30, 4))], axis=-1)
+    obs = rng.random((30, 4)) < 0.7
+    obs[0] = False
+    problem = FrameProblem(poses=SQUARE, measurements=z, observed=obs, noise=PAPER_NOISE,
+                           prior=PAPER_PRIOR)
+    got = solve(problem, SCALAR).initial_state
+    np.testing.assert_allclose(got, initial_states(problem), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got, initial_states(problem, per_frame=True))
+    start = rng.uniform(0.5, 3.0, (30, 4))
+    np.testing.assert_array_equal(solve(problem.with_initial_state(start), SCALAR).initial_state, start)
