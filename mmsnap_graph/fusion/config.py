@@ -209,8 +209,8 @@ class LearnedWalls:
     ``relearn_frames`` decided frames there. A stream applies the walls
     learned at a decided frame from the ``apply_after_frames``-th decided
     frame after it on (0: that frame itself), so that the learning (about
-    50 ms for a look-back of 2000 frames of two people) can run beside the
-    stream (``FrameStream(wall_executor=...)``, as ``mmsnap live`` does)
+    12 us of CPU per row held: 130 ms for the 10,500 rows of 2000 frames of
+    four radars and two walkers, simulated) can run beside the stream (``FrameStream(wall_executor=...)``, as ``mmsnap live`` does)
     without changing a row: ``mmsnap replay`` learns them in line and applies
     them at the same frames.
     """

@@ -113,16 +113,6 @@ def live_calibration(path, names: Sequence[str]):
     return np.array([poses[n] for n in names], dtype=float), cal.with_default_noise(*paper_noise())
 
 
-def _low_priority() -> None:
-    """A worker's initializer: below the live process (``nice`` +10), so
-    that what it does never holds up a fused frame."""
-    import os
-    try:
-        os.nice(10)
-    except OSError:                      # pragma: no cover - not allowed here
-        pass
-
-
 def wall_executor():
     """The executor the learned walls of ``mmsnap live`` are learned in: one
     worker process at low priority (``nice`` +10), started now (its imports
@@ -132,8 +122,10 @@ def wall_executor():
     down."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
+
+    from .refine import below_live
     pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_low_priority)
+                               initializer=below_live)
     pool.submit(_ready).result()
     return pool
 

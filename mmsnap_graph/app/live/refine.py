@@ -29,7 +29,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["BATCH_FRAMES", "RefineSink", "refinement_noise"]
+__all__ = ["BATCH_FRAMES", "RefineSink", "below_live", "refinement_noise"]
 
 #: Slots per message to the refinement process (a second at 20 fps).
 BATCH_FRAMES = 20
@@ -59,14 +59,21 @@ def _one_target(names, frame) -> dict:
             for n, m in zip(names, u.members[0]) if m >= 0 and n in frame.centroids}
 
 
-def _serve(conn, options: dict, json_path) -> None:
-    """The refinement process: batches of ``(slot, centroids)`` in, updates
-    out (``("update", PoseUpdate)``, then ``("done", summary)`` or
-    ``("error", text)``)."""
+def below_live() -> None:
+    """Lower this process below ``mmsnap live`` (``nice`` +10): a helper
+    process of live (the refinement, the learned walls' worker) never holds
+    up a fused frame."""
     try:
         os.nice(10)
     except OSError:                      # pragma: no cover - not allowed here
         pass
+
+
+def _serve(conn, options: dict, json_path) -> None:
+    """The refinement process: batches of ``(slot, centroids)`` in, updates
+    out (``("update", PoseUpdate)``, then ``("done", summary)`` or
+    ``("error", text)``)."""
+    below_live()
     inbox: queue.Queue = queue.Queue()
 
     def read():                          # drain the pipe: the sender never blocks

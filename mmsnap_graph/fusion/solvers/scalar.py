@@ -403,7 +403,7 @@ def solve_frames(problem, options):
     solver = _solver_of(problem, options.lm)
     n_nodes = problem.n_nodes
     z_all, obs_all = problem.measurements.tolist(), problem.observed.tolist()
-    if problem.initial_state is None and problem.poses.ndim == 2:
+    if problem.initial_state is None:
         # The floats of start_states(per_frame=True), from the lists held here.
         x0_all = initial_state_floats(problem, z_all, obs_all)
         x0 = np.array(x0_all, dtype=float).reshape(len(z_all), 4)

@@ -248,25 +248,25 @@ class StreamPipeline:
                 int(self._history[0].frame[0]) <= last - cfg.look_back_frames:
             self._history.popleft()
         self._decided += 1
-        while self._pending and self._pending[0][0] <= self._decided:
-            _, rows, job = self._pending.popleft()
-            self._walls = _walls_of(rows, job)
         self._since_learned += 1
         if self._since_learned >= cfg.relearn_frames and self._history:
             self._since_learned = 0
             rows = _WallRows(list(self._history))
-            if cfg.apply_after_frames == 0:
-                self._walls = learn_room_walls(rows)
-                return
-            job: list | Future
-            if self.wall_executor is None:
-                job = learn_room_walls(rows)
-            else:
-                try:
-                    job = self.wall_executor.submit(learn_room_walls, rows)
-                except RuntimeError:        # shut down, or its worker died: in line
-                    job = learn_room_walls(rows)
-            self._pending.append((self._decided + cfg.apply_after_frames, rows, job))
+            self._pending.append((self._decided + cfg.apply_after_frames, rows,
+                                  self._start_learning(rows, cfg.apply_after_frames)))
+        while self._pending and self._pending[0][0] <= self._decided:
+            _, rows, job = self._pending.popleft()
+            self._walls = _walls_of(rows, job)
+
+    def _start_learning(self, rows: _WallRows, apply_after: int) -> list | Future:
+        """The walls of ``rows``, learned in line (no executor, or needed at
+        once), or their future in the executor."""
+        if self.wall_executor is None or apply_after == 0:
+            return learn_room_walls(rows)
+        try:
+            return self.wall_executor.submit(learn_room_walls, rows)
+        except RuntimeError:                # shut down, or its worker died: in line
+            return learn_room_walls(rows)
 
 
 def _walls_of(rows: _WallRows, job: list | Future) -> list:

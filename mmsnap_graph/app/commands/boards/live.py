@@ -90,9 +90,9 @@ def run(args: argparse.Namespace) -> int:
 
     from mmsnap_graph.app.live.driver import (LiveFusion, live_calibration, live_recording,
                                               live_stream, wall_executor)
-    from mmsnap_graph.fusion.config import LearnedWalls
     from mmsnap_graph.app.live.sinks import CentroidLog, JsonLinesSink, LatencyLog, SelfCheckSink
     from mmsnap_graph.app.view.arguments import view_sink
+    from mmsnap_graph.fusion.config import LearnedWalls
     from mmsnap_graph.io import write_recording
     from mmsnap_graph.io.ti.serial.session import FrameCollector
     config = fusion_config(args)
