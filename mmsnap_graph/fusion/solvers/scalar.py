@@ -24,7 +24,8 @@ per-call overhead on arrays of that size costs more than the arithmetic, and
 a GTSAM graph costs a Python callback per evaluation plus the graph's own
 fixed cost. Here one Levenberg-Marquardt iteration of four nodes is a few
 microseconds of arithmetic: the model is
-:func:`factors.models.measurement_model_scalar` (the GTSAM factor's), the
+:func:`factors.models.measurement_model_scalar`'s (the GTSAM factor's, written
+out in the loop over the nodes), the
 information and gradient are accumulated entry by entry (a node's Jacobian
 is sparse: range and spatial frequency do not depend on the velocity) and
 the 4x4 Cholesky factorization is unrolled.
@@ -81,6 +82,8 @@ STATE_TOLERANCE = 1e-6
 COVARIANCE_TOLERANCE = 1e-5
 
 _EPSILON = 2.220446049250313e-16
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
 # oneshot_assess.positive_definite's smallest eigenvalue ratio of a covariance.
 _MIN_EIGENVALUE_RATIO = 1e-13
 # Relative Cholesky pivot below which the information counts as singular
@@ -115,12 +118,6 @@ def _positive_definite(c: list[float]) -> bool:
 
 
 _NAN16 = [math.nan] * 16
-
-
-def _cholesky(a: list[float]) -> tuple[float, ...] | None:
-    """The Cholesky factor of ``a`` (16 floats) with this solver's pivot
-    tolerance (``_PIVOT_RTOL``), or None."""
-    return cholesky_4x4(a, _PIVOT_RTOL)
 
 
 class _FrameSolver:
@@ -177,13 +174,19 @@ class _FrameSolver:
         residuals = []
         for n, (zr, zw, zv) in rows:
             px, py, c, s = nodes[n]
-            r, w, v, j = measurement_model_scalar(x0, x1, x2, x3, px, py, c, s)
+            # The model of factors.models.measurement_model_scalar written out
+            # (its call per node and evaluation was a tenth of a solve);
+            # tests/fusion/solvers/test_scalar.py holds the two equal.
+            ex, ey = x0 - px, x1 - py
+            r = math.sqrt(ex * ex + ey * ey)
+            ux, uy = ex / r, ey / r                        # the line of sight
+            sn = ux * c + uy * s                           # sin(theta): omega = pi sn
+            v = x2 * ux + x3 * uy                          # the radial velocity
             sr, sw, sv = inv_sigma[n]
             er = (r - zr) * sr
-            ew = wrap_angle_scalar(w - zw) * sw
+            ew = ((_PI * sn - zw + _PI) % _TWO_PI - _PI) * sw   # wrapped to [-pi, pi)
             ev = (v - zv) * sv
             residuals.append((n, er, ew, ev))
-            ux, uy = j[0], j[1]
             a11 += ux * ux
             a12 += ux * uy
             a22 += uy * uy
@@ -196,9 +199,12 @@ class _FrameSolver:
                 q = math.sqrt(wt)
                 sr, sw, sv = sr * q, sw * q, sv * q
                 er, ew, ev = er * q, ew * q, ev * q
-            rx, ry = ux * sr, uy * sr                      # whitened range row (rx, ry, 0, 0)
-            wx, wy = j[4] * sw, j[5] * sw                  # spatial frequency row (wx, wy, 0, 0)
-            dx, dy, dvx, dvy = j[8] * sv, j[9] * sv, ux * sv, uy * sv   # Doppler row
+            k = _PI / r
+            # The whitened Jacobian rows: range (rx, ry, 0, 0), spatial
+            # frequency (wx, wy, 0, 0), Doppler (dx, dy, dvx, dvy).
+            rx, ry = ux * sr, uy * sr
+            wx, wy = k * (c - sn * ux) * sw, k * (s - sn * uy) * sw
+            dx, dy, dvx, dvy = (x2 - v * ux) / r * sv, (x3 - v * uy) / r * sv, ux * sv, uy * sv
             h00 += rx * rx + wx * wx + dx * dx
             h01 += rx * ry + wx * wy + dx * dy
             h11 += ry * ry + wy * wy + dy * dy
@@ -237,12 +243,14 @@ class _FrameSolver:
         lm = self.lm
         cost, info, grad, lines, res = self._normal(x, rows)
         lam, factor = lm.lambda_initial, lm.lambda_factor
+        lo_diag, hi_diag = lm.min_diagonal, lm.max_diagonal
         it = 0
         while it < lm.max_iterations:
             it += 1
             previous = cost
             # Marquardt's damping: lambda times the clamped diagonal of H.
-            diag = [min(max(info[5 * k], lm.min_diagonal), lm.max_diagonal) for k in range(4)]
+            diag = (min(max(info[0], lo_diag), hi_diag), min(max(info[5], lo_diag), hi_diag),
+                    min(max(info[10], lo_diag), hi_diag), min(max(info[15], lo_diag), hi_diag))
             while True:
                 step = self._try(x, cost, info, grad, lam, diag, rows)
                 if step is not None and step[0]:
@@ -269,22 +277,24 @@ class _FrameSolver:
         is not positive definite or the linearized cost grows; else
         ``(successful, fidelity, x_new, normal equations at x_new)``, with
         fidelity None when the cost change is below rounding."""
-        damped = list(info)
-        for k in range(4):
-            damped[5 * k] += lam * diag[k]
-        lo = _cholesky(damped)
+        (h00, h01, h02, h03, _, h11, h12, h13, _, _, h22, h23, _, _, _, h33) = info
+        damped = [h00 + lam * diag[0], h01, h02, h03, h01, h11 + lam * diag[1], h12, h13,
+                  h02, h12, h22 + lam * diag[2], h23, h03, h13, h23, h33 + lam * diag[3]]
+        lo = cholesky_4x4(damped, _PIVOT_RTOL)
         if lo is None:
             return None
         s0, s1, s2, s3 = cholesky_solve_4x4(lo, grad)
-        d = (-s0, -s1, -s2, -s3)
-        # The undamped model's decrease: -(g.d + d^T H d / 2).
-        hd = [info[4 * i] * d[0] + info[4 * i + 1] * d[1] + info[4 * i + 2] * d[2]
-              + info[4 * i + 3] * d[3] for i in range(4)]
-        linearized = -(grad[0] * d[0] + grad[1] * d[1] + grad[2] * d[2] + grad[3] * d[3]
-                       + 0.5 * (d[0] * hd[0] + d[1] * hd[1] + d[2] * hd[2] + d[3] * hd[3]))
+        d0, d1, d2, d3 = -s0, -s1, -s2, -s3
+        # The undamped model's decrease: -(g.d + d^T H d / 2) (H symmetric).
+        hd0 = h00 * d0 + h01 * d1 + h02 * d2 + h03 * d3
+        hd1 = h01 * d0 + h11 * d1 + h12 * d2 + h13 * d3
+        hd2 = h02 * d0 + h12 * d1 + h22 * d2 + h23 * d3
+        hd3 = h03 * d0 + h13 * d1 + h23 * d2 + h33 * d3
+        linearized = -(grad[0] * d0 + grad[1] * d1 + grad[2] * d2 + grad[3] * d3
+                       + 0.5 * (d0 * hd0 + d1 * hd1 + d2 * hd2 + d3 * hd3))
         if not linearized >= 0.0:
             return None
-        x_new = [x[0] + d[0], x[1] + d[1], x[2] + d[2], x[3] + d[3]]
+        x_new = [x[0] + d0, x[1] + d1, x[2] + d2, x[3] + d3]
         try:
             new = self._normal(x_new, rows)
         except ZeroDivisionError:
@@ -322,7 +332,7 @@ class _FrameSolver:
             return _NON_FINITE, None, math.inf
         if not converged:
             return _MAX_ITER, None, math.inf
-        lo = _cholesky(info)
+        lo = cholesky_4x4(info, _PIVOT_RTOL)
         if lo is None:  # indeterminate system (gtsam.Marginals raises)
             return _SINGULAR, None, math.inf
         cov = cholesky_inverse_4x4(lo)
@@ -363,7 +373,7 @@ class _FrameSolver:
                 h = h - h_xp @ np.linalg.solve(h_pp, h_xp.T)
             except np.linalg.LinAlgError:
                 return None
-        lo = _cholesky((0.5 * (h + h.T)).ravel().tolist())
+        lo = cholesky_4x4((0.5 * (h + h.T)).ravel().tolist(), _PIVOT_RTOL)
         if lo is None:
             return None
         return cholesky_inverse_4x4(lo)
