@@ -142,15 +142,22 @@ def spd_inverse_floats(a: list[float]) -> list[float]:
 
 
 def _matvec(a: list[float], x: list[float]) -> list[float]:
-    """``a x`` of a row-major 4x4 and a 4-vector, in floats."""
+    """``a x`` of a row-major 4x4 and a 4-vector, in floats (written out: a
+    tracker step makes a few, where a comprehension's call is most of the cost)."""
     x0, x1, x2, x3 = x
-    return [a[4 * i] * x0 + a[4 * i + 1] * x1 + a[4 * i + 2] * x2 + a[4 * i + 3] * x3
-            for i in range(4)]
+    return [a[0] * x0 + a[1] * x1 + a[2] * x2 + a[3] * x3,
+            a[4] * x0 + a[5] * x1 + a[6] * x2 + a[7] * x3,
+            a[8] * x0 + a[9] * x1 + a[10] * x2 + a[11] * x3,
+            a[12] * x0 + a[13] * x1 + a[14] * x2 + a[15] * x3]
 
 
 def _symmetric(a: list[float]) -> list[float]:
     """``(a + a^T) / 2`` of a row-major 4x4."""
-    return [0.5 * (a[4 * i + j] + a[4 * j + i]) for i in range(4) for j in range(4)]
+    a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33 = a
+    s01, s02, s03 = 0.5 * (a01 + a10), 0.5 * (a02 + a20), 0.5 * (a03 + a30)
+    s12, s13, s23 = 0.5 * (a12 + a21), 0.5 * (a13 + a31), 0.5 * (a23 + a32)
+    return [0.5 * (a00 + a00), s01, s02, s03, s01, 0.5 * (a11 + a11), s12, s13,
+            s02, s12, 0.5 * (a22 + a22), s23, s03, s13, s23, 0.5 * (a33 + a33)]
 
 
 def spd_inverse_4x4(p: ArrayLike) -> NDArray:
@@ -191,9 +198,14 @@ def measurement_information_floats(x, p, mean, lam_p):
     info = spd_inverse_floats(p)
     eta = _matvec(info, x)
     if mean is not None:
-        for k in range(4):
-            info[5 * k] -= lam_p[k]
-            eta[k] -= lam_p[k] * mean[k]
+        info[0] -= lam_p[0]
+        info[5] -= lam_p[1]
+        info[10] -= lam_p[2]
+        info[15] -= lam_p[3]
+        eta[0] -= lam_p[0] * mean[0]
+        eta[1] -= lam_p[1] * mean[1]
+        eta[2] -= lam_p[2] * mean[2]
+        eta[3] -= lam_p[3] * mean[3]
         # Positive definite (the common case): no eigenvalue to clip.
         if cholesky_4x4(info) is None:
             w, v = np.linalg.eigh(np.array(info).reshape(4, 4))
@@ -217,16 +229,21 @@ def cv_predict_floats(x: list[float], p: list[float], t: float, q: list[float]) 
     floats (``F = [[I, t I], [0, I]]``; :func:`factors.motion.cv_transition`; ``q``
     the process noise as 16 row-major floats), each 4x4 row-major."""
     x0, x1, x2, x3 = x
+    p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = p
     # A = F P: rows 0 and 1 gain t times rows 2 and 3.
-    a = [p[k] + t * p[k + 8] for k in range(8)] + p[8:]
-    # F P F^T = A F^T: columns 0 and 1 gain t times columns 2 and 3.
-    out = []
-    for i in range(4):
-        r = a[4 * i:4 * i + 4]
-        out += [r[0] + t * r[2], r[1] + t * r[3], r[2], r[3]]
+    a00, a01, a02, a03 = p00 + t * p20, p01 + t * p21, p02 + t * p22, p03 + t * p23
+    a10, a11, a12, a13 = p10 + t * p30, p11 + t * p31, p12 + t * p32, p13 + t * p33
+    # F P F^T = A F^T: columns 0 and 1 gain t times columns 2 and 3 (then
+    # symmetrized and Q added).
+    o00, o01, o10, o11 = a00 + t * a02, a01 + t * a03, a10 + t * a12, a11 + t * a13
+    o20, o21, o30, o31 = p20 + t * p22, p21 + t * p23, p30 + t * p32, p31 + t * p33
+    c01, c02, c03 = 0.5 * (o01 + o10), 0.5 * (a02 + o20), 0.5 * (a03 + o30)
+    c12, c13, c23 = 0.5 * (a12 + o21), 0.5 * (a13 + o31), 0.5 * (p23 + p32)
     return ([x0 + t * x2, x1 + t * x3, x2, x3],
-            [0.5 * (out[4 * i + j] + out[4 * j + i]) + q[4 * i + j]
-             for i in range(4) for j in range(4)])
+            [0.5 * (o00 + o00) + q[0], c01 + q[1], c02 + q[2], c03 + q[3],
+             c01 + q[4], 0.5 * (o11 + o11) + q[5], c12 + q[6], c13 + q[7],
+             c02 + q[8], c12 + q[9], 0.5 * (p22 + p22) + q[10], c23 + q[11],
+             c03 + q[12], c13 + q[13], c23 + q[14], 0.5 * (p33 + p33) + q[15]])
 
 
 def _mahalanobis2_floats(dx: float, dy: float, a: float, b: float, c: float, d: float) -> float:

@@ -14,6 +14,7 @@ from mmsnap_graph.tracking.central import (
     CentralConfig,
     CentralTracker,
     FixedLagTracker,
+    cv_predict_floats,
     measurement_information,
     track_fused,
 )
@@ -241,3 +242,26 @@ def test_fixed_lag_smoother_waits_for_a_first_estimate_and_checks_input():
         FixedLagTracker(lag_s=0.0)
     with pytest.raises(ValidationError, match="prior_mean and prior_sigmas go together"):
         FixedLagTracker(prior_sigmas=np.ones(4))
+
+
+def test_the_float_prediction_is_the_constant_velocity_model_in_numpy():
+    """cv_predict_floats (written out entry by entry) against F x and
+    F P F^T + Q of factors.motion in numpy, for random covariances (not
+    symmetric to the bit: the result is symmetrized, exactly symmetric) and
+    periods, to 1e-12 relative."""
+    from factors.motion import cv_process_noise, cv_transition
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        t = float(rng.uniform(0.01, 2.0))
+        a = rng.normal(0, 1, (4, 4))
+        p = a @ a.T + 1e-3 * rng.normal(0, 1, (4, 4))   # slightly asymmetric
+        x = rng.normal(0, 3, 4)
+        q = cv_process_noise(t, float(rng.uniform(0.1, 3.0)))
+        got_x, got_p = cv_predict_floats(x.tolist(), p.ravel().tolist(), t, q.ravel().tolist())
+        f = cv_transition(t)
+        want = f @ (0.5 * (p + p.T)) @ f.T + q
+        np.testing.assert_allclose(got_x, f @ x, rtol=1e-12, atol=1e-12)
+        got_p = np.array(got_p).reshape(4, 4)
+        np.testing.assert_allclose(got_p, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+        np.testing.assert_array_equal(got_p, got_p.T)

@@ -75,7 +75,7 @@ from ...data.noise import MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import Status
 from ...errors import MmsnapError, ValidationError
-from ...tracking.central import CentralConfig, CentralTracker
+from ...tracking.central import CentralConfig, CentralTracker, check_estimates
 from ..._validation import as_float_array, check_count, check_finite, check_heading
 
 __all__ = ["StreamUpdate", "FrameStream", "recording_frames", "sends_empty_frame", "STREAM_CONFIG"]
@@ -466,7 +466,10 @@ class FrameStream:
     def _step_tracker(self, states, covariances, dt) -> str | None:
         """One tracker step; a numerical failure is returned as a message."""
         try:
-            self._tracker.step(states, covariances, dt)
+            # step() without the live tracks it returns (the update takes them
+            # as arrays, track_arrays).
+            z, r = check_estimates(states, covariances)
+            self._tracker.step_ids(z.tolist(), r.reshape(-1, 16).tolist(), dt)
         except _FRAME_FAILURES as exc:
             return f"tracker update failed: {type(exc).__name__}: {exc}"
         return None
