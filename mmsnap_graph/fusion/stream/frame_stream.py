@@ -55,14 +55,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections import deque
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from typing import Iterator, Literal, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
-from collections import deque
 
 from ..config import DEFAULT_CONFIG, FusionConfig
 from ..options import FusionOptions, NetworkCalibration
@@ -466,9 +465,7 @@ class FrameStream:
     def _step_tracker(self, states, covariances, dt) -> str | None:
         """One tracker step; a numerical failure is returned as a message."""
         try:
-            # step() without the live tracks it returns (the update takes them
-            # as arrays, track_arrays).
-            z, r = check_estimates(states, covariances)
+            z, r = check_estimates(states, covariances)  # step() less the tracks it returns
             self._tracker.step_ids(z.tolist(), r.reshape(-1, 16).tolist(), dt)
         except _FRAME_FAILURES as exc:
             return f"tracker update failed: {type(exc).__name__}: {exc}"
