@@ -358,6 +358,9 @@ PRIVATE_USES_ALLOWED: dict[tuple[str, str], str] = {
     ("fusion/recording/test_walls.py", "_lines"):
         "the line search's updated counts against a reference that counts each line again; "
         "learn_walls returns walls, not the lines, their proposals and images compared",
+    ("calibration/noise/test_tails.py", "_loo_residuals"):
+        "the leave-one-out fits, solved together, against each row's own least-squares fit; "
+        "tail_variances returns only the excess variances they lead to",
     ("fusion/recording/test_walls.py", "_LineIndex"):
         "the per-node counts taken from the index of all the proposals, as learn_walls does, "
         "against the reference counted from each node's proposals alone",

@@ -200,22 +200,28 @@ def _loo_residuals(det: Detections, test: NDArray, fit: NDArray,
     z = det.measurements[idx]
     z[:, 1] = np.unwrap(z[:, 1])
     use = fit[idx]
-    out, lev, at = [], [], []
-    for a in np.flatnonzero(test[idx]):
-        lo, hi = np.searchsorted(f, f[a] - reach), np.searchsorted(f, f[a] + reach, side="right")
-        nb = np.r_[lo:a, a + 1:hi]
-        nb = nb[use[nb]]
-        t = f[nb] - f[a]
-        if nb.size < _LOO_MIN_FIT or not (np.any(t < 0) and np.any(t > 0)):
-            continue
-        x = np.column_stack([np.ones_like(t), t, t * t])
-        g = np.linalg.pinv(x.T @ x)
-        out.append(z[a] - (g @ (x.T @ z[nb]))[0])
-        lev.append(g[0, 0])
-        at.append(idx[a])
-    if not out:
+    a = np.flatnonzero(test[idx])
+    if a.size == 0:
         return none
-    return np.array(out), np.array(lev), np.array(at, np.int64)
+    # Every tested row's window at once: (M, W) candidate neighbours, the
+    # rows within ``reach`` frames but the row itself, of the fit rows.
+    lo = np.searchsorted(f, f[a] - reach)
+    hi = np.searchsorted(f, f[a] + reach, side="right")
+    nb = lo[:, None] + np.arange(int(np.max(hi - lo)))
+    ok = (nb < hi[:, None]) & (nb != a[:, None])
+    nb = np.minimum(nb, idx.size - 1)
+    ok &= use[nb]
+    t = np.where(ok, f[nb] - f[a][:, None], 0.0)
+    keep = ((np.count_nonzero(ok, axis=1) >= _LOO_MIN_FIT)
+            & np.any(t < 0, axis=1) & np.any(t > 0, axis=1))
+    if not keep.any():
+        return none
+    a, nb, ok, t = a[keep], nb[keep], ok[keep], t[keep]
+    # The quadratic's design rows (1, t, t^2), zero for the rows not in a fit.
+    x = np.stack([ok, t, t * t], axis=-1).astype(float)
+    g = np.linalg.pinv(np.einsum("mwi,mwj->mij", x, x))
+    coef0 = np.einsum("mj,mwj,mwc->mc", g[:, 0, :], x, z[nb])  # the fit's value at t = 0
+    return z[a] - coef0, g[:, 0, 0], idx[a]
 
 
 def _loo_moments(det: Detections, rows: NDArray, gross_k: float

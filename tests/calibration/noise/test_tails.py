@@ -167,3 +167,52 @@ def test_gaussian_sparse_clouds_keep_their_sigmas(seed):
     out = with_tails(_estimate(dets), _sparse(dets, seed), poses)
     for n in dets:
         assert np.all(np.abs(out.nodes[n].noise.sigmas / SIGMA - 1.0) <= 0.05), out.nodes[n]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_leave_one_out_fits_are_each_rows_least_squares_quadratic(seed):
+    """The leave-one-out residuals (all the tested rows' fits solved at once)
+    against a reference that fits each row alone: the other fit rows within
+    the reach, at least three and one on either side, a quadratic in time by
+    numpy's least squares; its value at the row (omega unwrapped), the
+    variance factor [(X^T X)^+]_00 and the rows tested, to 1e-9. Sparse
+    frames (gaps, several rows of one frame: neighbours at two times only, the
+    minimum-norm fit; frames out of order) included."""
+    from mmsnap_graph.calibration.noise.tails import TAIL_LOO_REACH, _loo_residuals
+
+    rng = np.random.default_rng(seed)
+    frames = np.sort(rng.choice(400, 220, replace=False))
+    frames = np.concatenate([frames, rng.choice(frames, 15)])          # a few repeated
+    order = rng.permutation(frames.size)
+    frames = frames[order]
+    k = frames.size
+    omega = np.pi * np.sin(0.02 * frames) + rng.normal(0, 0.05, k)
+    omega = (omega + np.pi) % (2 * np.pi) - np.pi                      # wraps at +-pi
+    det = Detections(frame=frames, range_m=2.0 + 0.01 * frames + rng.normal(0, 0.03, k),
+                     omega_rad=omega, doppler_mps=rng.normal(0, 0.1, k))
+    test, fit = rng.random(k) < 0.6, rng.random(k) < 0.8
+    r, h, at = _loo_residuals(det, test, fit)
+
+    idx = np.flatnonzero(test | fit)
+    idx = idx[np.argsort(det.frame[idx], kind="stable")]
+    z = det.measurements[idx]
+    z[:, 1] = np.unwrap(z[:, 1])
+    f = det.frame[idx].astype(float)
+    want_r, want_h, want_at = [], [], []
+    for a in range(idx.size):
+        if not test[idx[a]]:
+            continue
+        nb = [b for b in range(idx.size)
+              if b != a and fit[idx[b]] and abs(f[b] - f[a]) <= TAIL_LOO_REACH]
+        t = f[nb] - f[a]
+        if len(nb) < 3 or not (np.any(t < 0) and np.any(t > 0)):
+            continue
+        x = np.column_stack([np.ones_like(t), t, t * t])
+        coef = np.linalg.lstsq(x, z[nb], rcond=None)[0]
+        want_r.append(z[a] - coef[0])
+        want_h.append(np.sum(np.linalg.pinv(x)[0] ** 2))     # [(X^T X)^+]_00 = |X^+ row 0|^2
+        want_at.append(idx[a])
+    assert len(want_at) > 50
+    np.testing.assert_array_equal(at, want_at)
+    np.testing.assert_allclose(r, want_r, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(h, want_h, rtol=1e-9)
