@@ -52,11 +52,8 @@ def forward_4x4(lo, b) -> tuple[float, float, float, float]:
 def cholesky_solve_4x4(lo, b) -> tuple[float, float, float, float]:
     """``x`` with ``L L^T x = b`` for the factor ``lo`` of :func:`cholesky_4x4`."""
     l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = lo
-    # forward_4x4 written out (a call per solve costs as much as its arithmetic).
-    y0 = b[0] / l00
-    y1 = (b[1] - l10 * y0) / l11
-    y2 = (b[2] - l20 * y0 - l21 * y1) / l22
-    x3 = (b[3] - l30 * y0 - l31 * y1 - l32 * y2) / l33 / l33
+    y0, y1, y2, y3 = forward_4x4(lo, b)
+    x3 = y3 / l33
     x2 = (y2 - l32 * x3) / l22
     x1 = (y1 - l21 * x2 - l31 * x3) / l11
     return (y0 - l10 * x1 - l20 * x2 - l30 * x3) / l00, x1, x2, x3

@@ -307,10 +307,17 @@ class CentralTracker:
         covariances : (M, 4, 4); frame_period_s : time since the last step
         (default ``config.frame_period_s``).
         """
+        self.update(states, covariances, frame_period_s)
+        return self.tracks
+
+    def update(self, states: ArrayLike, covariances: ArrayLike,
+               frame_period_s: float | None = None) -> list[int]:
+        """:meth:`step` returning each estimate's track id (as
+        :attr:`estimate_ids`) instead of the live tracks (the stream's step:
+        it takes the tracks as arrays, :meth:`track_arrays`)."""
         self.estimate_ids = np.zeros(0, dtype=np.int64)  # until this step succeeds
         z, r = check_estimates(states, covariances)
-        self.step_ids(z.tolist(), r.reshape(-1, 16).tolist(), frame_period_s)
-        return self.tracks
+        return self.step_ids(z.tolist(), r.reshape(-1, 16).tolist(), frame_period_s)
 
     def step_ids(self, states: list, covariances: list,
                  frame_period_s: float | None = None) -> list[int]:

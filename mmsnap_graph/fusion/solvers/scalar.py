@@ -24,8 +24,7 @@ per-call overhead on arrays of that size costs more than the arithmetic, and
 a GTSAM graph costs a Python callback per evaluation plus the graph's own
 fixed cost. Here one Levenberg-Marquardt iteration of four nodes is a few
 microseconds of arithmetic: the model is
-:func:`factors.models.measurement_model_scalar`'s (the GTSAM factor's, written
-out in the loop over the nodes), the
+:func:`factors.models.measurement_model_scalar` (the GTSAM factor's), the
 information and gradient are accumulated entry by entry (a node's Jacobian
 is sparse: range and spatial frequency do not depend on the velocity) and
 the 4x4 Cholesky factorization is unrolled.
@@ -82,8 +81,6 @@ STATE_TOLERANCE = 1e-6
 COVARIANCE_TOLERANCE = 1e-5
 
 _EPSILON = 2.220446049250313e-16
-_PI = math.pi
-_TWO_PI = 2.0 * math.pi
 # oneshot_assess.positive_definite's smallest eigenvalue ratio of a covariance.
 _MIN_EIGENVALUE_RATIO = 1e-13
 # Relative Cholesky pivot below which the information counts as singular
@@ -174,19 +171,13 @@ class _FrameSolver:
         residuals = []
         for n, (zr, zw, zv) in rows:
             px, py, c, s = nodes[n]
-            # The model of factors.models.measurement_model_scalar written out
-            # (its call per node and evaluation was a tenth of a solve);
-            # tests/fusion/solvers/test_scalar.py holds the two equal.
-            ex, ey = x0 - px, x1 - py
-            r = math.sqrt(ex * ex + ey * ey)
-            ux, uy = ex / r, ey / r                        # the line of sight
-            sn = ux * c + uy * s                           # sin(theta): omega = pi sn
-            v = x2 * ux + x3 * uy                          # the radial velocity
+            r, w, v, j = measurement_model_scalar(x0, x1, x2, x3, px, py, c, s)
             sr, sw, sv = inv_sigma[n]
             er = (r - zr) * sr
-            ew = ((_PI * sn - zw + _PI) % _TWO_PI - _PI) * sw   # wrapped to [-pi, pi)
+            ew = wrap_angle_scalar(w - zw) * sw
             ev = (v - zv) * sv
             residuals.append((n, er, ew, ev))
+            ux, uy = j[0], j[1]
             a11 += ux * ux
             a12 += ux * uy
             a22 += uy * uy
@@ -199,12 +190,9 @@ class _FrameSolver:
                 q = math.sqrt(wt)
                 sr, sw, sv = sr * q, sw * q, sv * q
                 er, ew, ev = er * q, ew * q, ev * q
-            k = _PI / r
-            # The whitened Jacobian rows: range (rx, ry, 0, 0), spatial
-            # frequency (wx, wy, 0, 0), Doppler (dx, dy, dvx, dvy).
-            rx, ry = ux * sr, uy * sr
-            wx, wy = k * (c - sn * ux) * sw, k * (s - sn * uy) * sw
-            dx, dy, dvx, dvy = (x2 - v * ux) / r * sv, (x3 - v * uy) / r * sv, ux * sv, uy * sv
+            rx, ry = ux * sr, uy * sr                      # whitened range row (rx, ry, 0, 0)
+            wx, wy = j[4] * sw, j[5] * sw                  # spatial frequency row (wx, wy, 0, 0)
+            dx, dy, dvx, dvy = j[8] * sv, j[9] * sv, ux * sv, uy * sv   # Doppler row
             h00 += rx * rx + wx * wx + dx * dx
             h01 += rx * ry + wx * wy + dx * dy
             h11 += ry * ry + wy * wy + dy * dy

@@ -74,7 +74,7 @@ from ...data.noise import MeasurementNoise
 from ...data.recording import Recording
 from ...data.results import Status
 from ...errors import MmsnapError, ValidationError
-from ...tracking.central import CentralConfig, CentralTracker, check_estimates
+from ...tracking.central import CentralConfig, CentralTracker
 from ..._validation import as_float_array, check_count, check_finite, check_heading
 
 __all__ = ["StreamUpdate", "FrameStream", "recording_frames", "sends_empty_frame", "STREAM_CONFIG"]
@@ -465,8 +465,7 @@ class FrameStream:
     def _step_tracker(self, states, covariances, dt) -> str | None:
         """One tracker step; a numerical failure is returned as a message."""
         try:
-            z, r = check_estimates(states, covariances)  # step() less the tracks it returns
-            self._tracker.step_ids(z.tolist(), r.reshape(-1, 16).tolist(), dt)
+            self._tracker.update(states, covariances, dt)
         except _FRAME_FAILURES as exc:
             return f"tracker update failed: {type(exc).__name__}: {exc}"
         return None

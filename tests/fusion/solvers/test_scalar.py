@@ -62,8 +62,8 @@ def test_each_frame_starts_where_the_vectorized_initial_values_put_it():
 
 @pytest.mark.parametrize("prior", [PAPER_PRIOR, None], ids=["map", "ml"])
 def test_residuals_cost_and_covariance_are_the_measurement_models(prior):
-    """The solver's own model (its loop over the nodes writes the model out)
-    against factors.models.measurement_model in numpy at the solver's state:
+    """The solver's normal equations (from the float model) against
+    factors.models.measurement_model in numpy at the solver's state:
     each observed node's whitened residuals (omega wrapped: frames near
     end-fire, |omega| close to pi), the final cost (with the prior's term)
     and the covariance, the inverse of J^T W J (+ the prior's information),
